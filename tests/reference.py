@@ -1,0 +1,304 @@
+"""A plain, per-query NumPy oracle for the PL saltation map (written from MATH.md alone).
+
+Nothing here imports bderiv. Every function handles one vector (or one order) with
+explicit Python loops, so that each line can be checked against MATH.md by eye:
+
+- ``ref_event_times`` / ``ref_apply``: section 3 (selection with re-read rates),
+- ``ref_inverse``: section 6,
+- ``ref_piece`` / ``ref_det``: section 4 (product of saltation matrices, its determinant),
+- ``ref_corner_points`` / ``ref_qp_apply``: section 5 (corner points, M_sigma = Q P^-1).
+
+It also builds test systems: ``random_system`` (transversal tables whose event order
+changes after events) and ``overtaking_system`` (the MATH.md section 3 example, where the
+order of the first-order impact times is not the true order).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import scipy.linalg
+
+
+def rates(Dh, F):
+    """Event-rate table G = F Dh^T, shape (2**n, n): G[mask, k] = rate of h_k in region mask."""
+    return np.asarray(F, dtype=float) @ np.asarray(Dh, dtype=float).T
+
+
+def chain(order):
+    """Masks B_0 = 0, B_1, ..., B_n = full of an event order."""
+    masks = [0]
+    for k in order:
+        masks.append(masks[-1] | (1 << int(k)))
+    return masks
+
+
+# --------------------------------------------------------------------------------------
+# Section 3: forward substitution with re-read rates
+# --------------------------------------------------------------------------------------
+def _forward(Dh, F, u):
+    Dh = np.asarray(Dh, dtype=float)
+    F = np.asarray(F, dtype=float)
+    G = rates(Dh, F)
+    n = Dh.shape[0]
+    x = np.array(u, dtype=float)
+    g = Dh @ x
+    B = 0
+    times = np.zeros(n)
+    order = []
+    for _ in range(n):
+        best_k, best_t = -1, np.inf
+        for k in range(n):
+            if B & (1 << k):
+                continue
+            tau = -g[k] / G[B, k]
+            if tau < best_t:  # strict: ties go to the smallest event index
+                best_k, best_t = k, tau
+        B_new = B | (1 << best_k)
+        x = x + best_t * (F[B] - F[B_new])
+        g = g + best_t * (G[B] - G[B_new])
+        times[best_k] = best_t
+        order.append(best_k)
+        B = B_new
+    return x, times, np.array(order, dtype=np.int64)
+
+
+def ref_apply(Dh, F, u):
+    """M(u) for one pre-event vector u of shape (d,), MATH.md section 3."""
+    return _forward(Dh, F, u)[0]
+
+
+def ref_event_times(Dh, F, u):
+    """(times, order): times[k] = time of event k, order[j] = the j-th event to happen."""
+    _, times, order = _forward(Dh, F, u)
+    return times, order
+
+
+def ref_first_order_order(Dh, F, u):
+    """The *wrong* shortcut of MATH.md section 3: sort the first-order times -(Dh u)_k/G[0, k]."""
+    G = rates(Dh, F)
+    return np.argsort(-(np.asarray(Dh, float) @ np.asarray(u, float)) / G[0], kind="stable")
+
+
+# --------------------------------------------------------------------------------------
+# Section 6: the inverse, time running backwards
+# --------------------------------------------------------------------------------------
+def ref_inverse(Dh, F, w):
+    """M^{-1}(w) for one post-event vector w, MATH.md section 6."""
+    Dh = np.asarray(Dh, dtype=float)
+    F = np.asarray(F, dtype=float)
+    G = rates(Dh, F)
+    n = Dh.shape[0]
+    x = np.array(w, dtype=float)
+    g = Dh @ x
+    B = (1 << n) - 1
+    for _ in range(n):
+        best_k, best_t = -1, -np.inf
+        for k in range(n):
+            if not B & (1 << k):
+                continue
+            tau = -g[k] / G[B, k]
+            if tau > best_t:  # the last event to have happened
+                best_k, best_t = k, tau
+        B_new = B & ~(1 << best_k)
+        x = x + best_t * (F[B] - F[B_new])
+        g = g + best_t * (G[B] - G[B_new])
+        B = B_new
+    return x
+
+
+# --------------------------------------------------------------------------------------
+# Section 4: the linear piece of an order
+# --------------------------------------------------------------------------------------
+def ref_piece(Dh, F, order):
+    """M_sigma = S_n ... S_1 with S_j = I + (F[B_j] - F[B_{j-1}]) Dh[k_j]^T / (Dh[k_j].F[B_{j-1}])."""
+    Dh = np.asarray(Dh, dtype=float)
+    F = np.asarray(F, dtype=float)
+    d = Dh.shape[1]
+    masks = chain(order)
+    M = np.eye(d)
+    for j, k in enumerate(order, start=1):
+        prev, cur = masks[j - 1], masks[j]
+        S = np.eye(d) + np.outer(F[cur] - F[prev], Dh[k]) / (Dh[k] @ F[prev])
+        M = S @ M
+    return M
+
+
+def ref_det(Dh, F, order):
+    """det M_sigma = prod_j G[B_j, k_j] / G[B_{j-1}, k_j]."""
+    G = rates(Dh, F)
+    masks = chain(order)
+    det = 1.0
+    for j, k in enumerate(order, start=1):
+        det *= G[masks[j], k] / G[masks[j - 1], k]
+    return det
+
+
+def all_orders(n):
+    return [np.array(p, dtype=np.int64) for p in itertools.permutations(range(n))]
+
+
+# --------------------------------------------------------------------------------------
+# Section 5: corner points and M_sigma = Q P^-1
+# --------------------------------------------------------------------------------------
+def ref_corner_points(Dh, F):
+    """(U, W), each (2**n, d): x_S = pinv(Dh) (1_S * G[S]), U = x_S - F[S] + F[0], W = x_S."""
+    Dh = np.asarray(Dh, dtype=float)
+    F = np.asarray(F, dtype=float)
+    G = rates(Dh, F)
+    n, d = Dh.shape
+    pinv = np.linalg.pinv(Dh)
+    U = np.zeros((2**n, d))
+    W = np.zeros((2**n, d))
+    for S in range(2**n):
+        in_S = np.array([(S >> k) & 1 for k in range(n)], dtype=float)
+        x = pinv @ (in_S * G[S])
+        U[S] = x - F[S] + F[0]
+        W[S] = x
+    return U, W
+
+
+def ref_qp_apply(Dh, F, u):
+    """M(u) = Q P^{-1} u for the piece containing u (sigma from section 3), full-rank Dh."""
+    Dh = np.asarray(Dh, dtype=float)
+    n, d = Dh.shape
+    U, W = ref_corner_points(Dh, F)
+    _, order = ref_event_times(Dh, F, u)
+    masks = chain(order)
+    K = scipy.linalg.null_space(Dh) if d > n else np.zeros((d, 0))
+    P = np.column_stack([U[B] for B in masks[1:]] + [K])
+    Q = np.column_stack([W[B] for B in masks[1:]] + [K])
+    return Q @ np.linalg.solve(P, np.asarray(u, dtype=float))
+
+
+# --------------------------------------------------------------------------------------
+# Evaluation of a triangulation (pre/post vertices, simplices, kernel basis) as cones
+# --------------------------------------------------------------------------------------
+def ref_tri_apply(pre, post, simplices, kernel, u, tol=1e-9):
+    """Evaluate a PL map given by simplices with vertex 0 at the origin, one vector.
+
+    Each simplex [0, i_1, ..., i_n] spans the cone of non-negative combinations of
+    pre[i_1..i_n] (plus ker Dh, where the map is the identity). Find the cone holding u
+    (weights >= -tol relative to their size) and map its weights to the post vertices.
+    """
+    u = np.asarray(u, dtype=float)
+    best = None
+    for s in simplices:
+        assert s[0] == 0, "every simplex of the fan has the origin (mask 0) as a vertex"
+        P = np.column_stack([pre[s[1:]].T, kernel])
+        Q = np.column_stack([post[s[1:]].T, kernel])
+        coef = np.linalg.lstsq(P, u, rcond=None)[0]
+        lam = coef[: len(s) - 1]
+        resid = np.linalg.norm(P @ coef - u)
+        worst = lam.min() / max(np.abs(lam).max(), 1e-300)
+        if resid <= 1e-9 * max(np.linalg.norm(u), 1e-300) and (best is None or worst > best[0]):
+            best = (worst, Q @ coef)
+    assert best is not None and best[0] >= -tol, "no simplex cone holds u"
+    return best[1]
+
+
+# --------------------------------------------------------------------------------------
+# Test systems
+# --------------------------------------------------------------------------------------
+def random_system(rng, n, d, *, dh_scale=1.0, f_scale=1.0, spread=0.9, speed_range=1.5,
+                  max_cond=1e3):
+    """A random transversal system (Dh, F) with G > 0 everywhere, by construction.
+
+    With a unit direction e and components orthogonal to it,
+    Dh[k] = dh_scale (e + a_k), |a_k| <= spread, and
+    F[m] = f_scale c_m (e + b_m), |b_m| <= spread, c_m = exp(U(-speed_range, speed_range)),
+    so G[m, k] = dh_scale f_scale c_m (1 + a_k . b_m) >= dh_scale f_scale c_m (1 - spread^2) > 0.
+    The speeds c_m differ by up to e^(2 speed_range) ~ 20x between regions and the
+    directions b_m differ per region, so rates change a lot after each event and later
+    events often overtake earlier ones. When n <= d, Dh is redrawn until
+    cond(Dh) <= max_cond (full row rank, well conditioned); when n > d it is rank deficient.
+    """
+    if not 0 <= spread < 1:
+        raise ValueError("spread must be in [0, 1) for transversality")
+    Q = np.linalg.qr(rng.standard_normal((d, d)))[0]  # random rotation, e = Q[:, 0]
+    e = Q[:, 0]
+    perp = Q[:, 1:]
+
+    def ball(count):
+        # points of the (d-1)-dimensional ball of radius spread, in the plane orthogonal to e
+        if d == 1:
+            return np.zeros((count, 1))
+        z = rng.standard_normal((count, d - 1))
+        z *= (rng.uniform(0, 1, (count, 1)) ** (1 / (d - 1))) / np.linalg.norm(
+            z, axis=1, keepdims=True
+        )
+        return spread * z @ perp.T
+
+    for _ in range(1000):
+        Dh = dh_scale * (e + ball(n))
+        if n > d or np.linalg.cond(Dh) <= max_cond:
+            break
+    else:  # pragma: no cover
+        raise RuntimeError("could not draw a well-conditioned Dh")
+    c = np.exp(rng.uniform(-speed_range, speed_range, 2**n))
+    F = f_scale * c[:, None] * (e + ball(2**n))
+    assert (rates(Dh, F) > 0).all()
+    return Dh, F
+
+
+def overtaking_system(n, d=None, slow=0.1):
+    """MATH.md section 3 example generalised to n >= 3 events and d >= n dimensions.
+
+    Dh = [I_n, 0], F = all ones except F[0b1] (after event 0 only), whose component 1 is
+    ``slow``: after event 0, event 1 slows down until event 2 happens.
+    With u = -(1, 2, ..., n) (zeros beyond n) the first-order times are 1, 2, ..., n,
+    i.e. the order (0, 1, 2, ...), but event 1 is overtaken by event 2:
+
+        t_0 = 1;  x_1 = -2 + (1 - slow) = -1 - slow;  event 2 at t = 3 (rate 1);
+        back at rate 1: x_1 = -1 - slow - 3 (1 - slow) = -4 + 2 slow  ->  t_1 = 4 - 2 slow,
+
+    which lies in (3, 4) for 0 < slow < 0.5, so the true order is (0, 2, 1, 3, ..., n-1)
+    and M(u) = u with component 1 replaced by -(4 - 2 slow) (= -3.8 for slow = 0.1).
+
+    Returns (Dh, F, u, true_order, expected_M_u, expected_times).
+    """
+    d = n if d is None else d
+    if n < 3 or d < n or not 0 < slow < 0.5:
+        raise ValueError("need n >= 3, d >= n, 0 < slow < 0.5")
+    Dh = np.zeros((n, d))
+    Dh[:, :n] = np.eye(n)
+    F = np.ones((2**n, d))
+    F[0b1, 1] = slow
+    u = np.zeros(d)
+    u[:n] = -np.arange(1, n + 1, dtype=float)
+    t1 = 4 - 2 * slow
+    order = np.array([0, 2, 1, *range(3, n)], dtype=np.int64)
+    w = u.copy()
+    w[1] = -t1
+    times = np.arange(1, n + 1, dtype=float)
+    times[1] = t1
+    return Dh, F, u, order, w, times
+
+
+def relabel(Dh, F, perm):
+    """Rename events: new event j is old event perm[j] (rows of Dh and bits of the masks)."""
+    perm = np.asarray(perm)
+    n = len(perm)
+    F2 = np.empty_like(F)
+    for new_mask in range(2**n):
+        old_mask = 0
+        for j in range(n):
+            if new_mask & (1 << j):
+                old_mask |= 1 << int(perm[j])
+        F2[new_mask] = F[old_mask]
+    return Dh[perm], F2
+
+
+def tie_point(U, order, j, rng):
+    """A vector on the boundary between the pieces of ``order`` and of ``order`` with
+    positions j-1 and j swapped (1 <= j <= n-1): the weight of U[B_j], t_{j+1} - t_j, is 0.
+    Returns the vector and the swapped order."""
+    n = len(order)
+    masks = chain(order)
+    lam = rng.uniform(0.2, 1.0, n - 1)
+    lam[j - 1] = 0.0
+    u = sum(lam[i - 1] * U[masks[i]] for i in range(1, n)) + rng.uniform(-1, 1) * U[-1]
+    swapped = np.array(order).copy()
+    swapped[[j - 1, j]] = swapped[[j, j - 1]]
+    return u, swapped
