@@ -1,0 +1,18 @@
+"""Ready-made event-selected systems with a simultaneous-event point.
+
+Each function returns an :class:`Example`: the :class:`~bderiv.hybrid.HybridSystem`, the
+event point ``rho`` where all its events happen at once, a start point ``x0`` that reaches
+``rho`` at time ``t_event`` (all events simultaneously) and a final time ``t_final`` after it.
+
+- :func:`chair`: planar rigid body, two legs touch compliant ground together (d = 6, n = 2);
+- :func:`network`: first-order network for any n (d = n or d = 2n) whose events change each
+  other's rates, so perturbations overtake (usable up to n = 20);
+- :func:`table`: 3-D rigid body landing flat on 4 legs (n = 4 > rank of Dh = 3).
+"""
+
+from ._common import Example
+from .chair import chair
+from .network import network
+from .table import table
+
+__all__ = ["Example", "chair", "network", "table"]

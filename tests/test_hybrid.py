@@ -1,0 +1,351 @@
+"""HybridSystem: sampling, simulation with event detection, bad input, derivatives."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from bderiv import BDerivative, examples
+from bderiv.hybrid import HybridSystem, Trajectory
+
+EPS = (1e-3, 1e-4, 1e-5)
+
+
+def constant_system(rates, n=2, events=None):
+    """Constant fields ``rates[mask]`` (2**n, d); events h_k = x_k - 1 unless given."""
+    rates = np.asarray(rates, dtype=float)
+    d = rates.shape[1]
+
+    def field(x, mask):
+        return rates[mask].copy()
+
+    def ev(x):
+        return x[:n] - 1.0
+
+    return HybridSystem(field, events or ev, n_events=n, dim=d)
+
+
+def fd_rel_errors(system, x0, T, fb, V):
+    D = fb(V)
+    out = []
+    for eps in EPS:
+        fd = system.flow_fd(x0, T, V, eps)
+        out.append(np.linalg.norm(fd - D, axis=-1) / np.linalg.norm(D, axis=-1))
+    return np.array(out).T
+
+
+def assert_shrinks(errs):
+    worst = errs.max(axis=0)
+    ratios = worst[1:] / worst[:-1]
+    assert np.all((ratios > 0.03) & (ratios < 0.2)), (worst, ratios)
+
+
+# ------------------------------------------------------------------------------------------
+# construction and checked evaluations
+# ------------------------------------------------------------------------------------------
+def test_constructor_validation():
+    f = lambda x, m: x  # noqa: E731
+    with pytest.raises(TypeError, match="field must be callable"):
+        HybridSystem(3, f, n_events=1, dim=1)
+    with pytest.raises(TypeError, match="corner_field must be callable"):
+        HybridSystem(f, f, n_events=1, dim=1, corner_field="no")
+    with pytest.raises(ValueError, match="n_events must be >= 1"):
+        HybridSystem(f, f, n_events=0, dim=1)
+    with pytest.raises(TypeError, match="dim must be an integer"):
+        HybridSystem(f, f, n_events=1, dim=2.0)
+    assert "n_events=1" in repr(HybridSystem(f, f, n_events=1, dim=1))
+
+
+@pytest.mark.parametrize(
+    ("field", "events", "match"),
+    [
+        (
+            lambda x, m: np.ones(3),
+            lambda x: x - 1,
+            r"field\(x, mask=0\) must return an array of shape \(2,\), got shape \(3,\)",
+        ),
+        (lambda x, m: np.ones((2, 1)), lambda x: x - 1, r"shape \(2,\), got shape \(2, 1\)"),
+        (
+            lambda x, m: np.ones(2),
+            lambda x: np.zeros(3) - 1,
+            r"events\(x\) must return an array of shape \(2,\), got shape \(3,\)",
+        ),
+        (
+            lambda x, m: np.array([1.0, np.nan]),
+            lambda x: x - 1,
+            r"field\(x, mask=0\) returned a non-finite value: entry \[1\] = nan",
+        ),
+        (
+            lambda x, m: np.ones(2),
+            lambda x: np.array([np.inf, -1.0]),
+            r"events\(x\) returned a non-finite value",
+        ),
+    ],
+)
+def test_bad_user_functions_in_simulate(field, events, match):
+    s = HybridSystem(field, events, n_events=2, dim=2)
+    with pytest.raises(ValueError, match=match):
+        s.simulate(np.zeros(2), 1.0)
+
+
+def test_user_function_returning_strings_is_a_type_error():
+    s = HybridSystem(lambda x, m: np.array(["a", "b"]), lambda x: x - 1, n_events=2, dim=2)
+    with pytest.raises(TypeError, match="field"):
+        s.eval_field(np.zeros(2), 0)
+
+
+def test_bad_jacobians_and_corner_field():
+    s = HybridSystem(
+        lambda x, m: np.ones(2),
+        lambda x: x,
+        n_events=2,
+        dim=2,
+        event_jacobian=lambda x: np.eye(3),
+        field_jacobian=lambda x, m: np.full((2, 2), np.nan),
+        corner_field=lambda x: np.ones((3, 2)),
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"event_jacobian\(x\) must return an array of shape \(2, 2\), got shape \(3, 3\)",
+    ):
+        s.eval_event_jacobian(np.zeros(2))
+    with pytest.raises(ValueError, match=r"field_jacobian\(x, mask=1\) returned a non-finite"):
+        s.eval_field_jacobian(np.zeros(2), 1)
+    with pytest.raises(
+        ValueError,
+        match=r"corner_field\(x\) must return an array of shape \(4, 2\), got shape \(3, 2\)",
+    ):
+        s.sample_corners(np.zeros(2))
+    with pytest.raises(ValueError, match=r"mask must be in \[0, 2\*\*2\)"):
+        s.eval_field_jacobian(np.zeros(2), 4)
+
+
+def test_bad_states():
+    s = constant_system(np.ones((4, 2)))
+    with pytest.raises(
+        ValueError, match=r"x0 must have shape \(2,\) \(a state of this system\), got shape \(3,\)"
+    ):
+        s.simulate(np.zeros(3), 1.0)
+    with pytest.raises(ValueError, match="x0 must be finite"):
+        s.simulate(np.array([0.0, np.nan]), 1.0)
+    with pytest.raises(TypeError, match="x0 must hold real numbers"):
+        s.simulate(np.array([1 + 1j, 0]), 1.0)
+    with pytest.raises(ValueError, match="t_final must be a finite positive time"):
+        s.simulate(np.zeros(2), -1.0)
+    with pytest.raises(ValueError, match=r"rho must have shape \(2,\)"):
+        s.bderivative(np.zeros(1))
+
+
+def test_start_on_surface_is_refused():
+    s = constant_system(np.ones((4, 2)))
+    with pytest.raises(
+        ValueError,
+        match=r"x0 lies on the surface of event\(s\) \[1\].*start slightly before or after",
+    ):
+        s.simulate(np.array([0.0, 1.0]), 1.0)
+    # just after the surface is fine: the start mask has bit 1 set
+    assert s.start_mask(np.array([0.0, 1.0 + 1e-12])) == 2
+
+
+# ------------------------------------------------------------------------------------------
+# bderivative at an event point
+# ------------------------------------------------------------------------------------------
+def test_bderivative_samples_the_model():
+    rates = np.array([[1.0, 2.0], [1.5, 2.0], [1.0, 0.5], [2.0, 1.0]])
+    s = constant_system(rates)
+    bd = s.bderivative(np.ones(2))
+    assert isinstance(bd, BDerivative)
+    np.testing.assert_array_equal(bd.F, rates)
+    np.testing.assert_allclose(bd.Dh, np.eye(2), atol=1e-9)
+
+
+def test_bderivative_refuses_non_event_point_naming_residuals():
+    s = constant_system(np.ones((4, 2)))
+    with pytest.raises(ValueError, match=r"residuals above tol=1e-09 for events \[1\]"):
+        s.bderivative(np.array([1.0, 0.9]))
+
+
+def test_bderivative_transversality_names_mask_and_event():
+    rates = np.ones((4, 2))
+    rates[1] = [1.0, -0.5]
+    s = constant_system(rates)
+    with pytest.raises(
+        ValueError, match=r"event 1 has rate -0.5 <= 0 in region mask 1 \(binary 01\)"
+    ):
+        s.bderivative(np.ones(2))
+
+
+# ------------------------------------------------------------------------------------------
+# simulation and event detection
+# ------------------------------------------------------------------------------------------
+def test_simulate_result():
+    s = constant_system(np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [3.0, 3.0]]))
+    traj = s.simulate(np.zeros(2), 2.0)
+    assert isinstance(traj, Trajectory)
+    assert traj.t[0] == 0 and traj.t[-1] == pytest.approx(2.0)
+    assert np.all(np.diff(traj.t) >= 0)
+    assert traj.x.shape == (traj.t.size, 2) and traj.masks.shape == traj.t.shape
+    np.testing.assert_array_equal(traj.x[-1], traj.x_final)
+    # both events at t = 1 together: one group with the default tolerance or two stops
+    assert {e.event for e in traj.events} == {0, 1}
+    assert traj.mask_final == 3
+    # exact: after t = 1 the field is (3, 3)
+    np.testing.assert_allclose(traj.x_final, [4.0, 4.0], rtol=1e-10)
+
+
+def test_two_surfaces_crossed_in_one_step_are_both_detected():
+    seen = []
+
+    def events(x):
+        seen.append(x.copy())
+        return np.array([x[0] - 1.0, x[1] - 1.0005])
+
+    s = HybridSystem(lambda x, m: np.array([1.0, 1.0 + 0.5 * (m & 1)]), events, n_events=2, dim=2)
+    traj = s.simulate(np.zeros(2), 3.0, simultaneity_tol=0.0)
+    seen = np.array(seen)
+    # the integrator evaluated the events beyond both surfaces before any point between them
+    beyond = np.flatnonzero((seen[:, 0] > 1.0) & (seen[:, 1] > 1.0005))
+    between = np.flatnonzero((seen[:, 0] > 1.0 + 1e-9) & (seen[:, 1] < 1.0005 - 1e-9))
+    assert beyond.size and (between.size == 0 or beyond[0] < between[0])
+    assert [e.event for e in traj.events] == [0, 1]
+    t0, t1 = traj.events[0].time, traj.events[1].time
+    assert t0 == pytest.approx(1.0, abs=1e-12)
+    assert t1 == pytest.approx(1.0 + 0.0005 / 1.5, abs=1e-12)
+    assert [g.events for g in traj.groups] == [(0,), (1,)]
+
+
+@pytest.mark.parametrize("tol", [0.0, 1e-12, 1e-9])
+def test_nearly_coincident_crossings_are_never_lost(tol):
+    # event 1 crosses 1e-13 before event 0, inside the same step
+    def events(x):
+        return np.array([x[0] - 1.0, x[0] - 1.0 + 1e-13, x[1] - 2.0])
+
+    s = HybridSystem(lambda x, m: np.array([1.0, 1.0]), events, n_events=3, dim=2)
+    traj = s.simulate(np.zeros(2), 3.0, simultaneity_tol=tol)
+    assert sorted(e.event for e in traj.events) == [0, 1, 2]
+    assert traj.mask_final == 7
+    if tol >= 1e-12:
+        assert traj.groups[0].events == (0, 1)
+
+
+def test_grouping_tolerance():
+    rates = np.array([[1.0, 1.0], [1.0, 1.0], [1.0, 1.0], [1.0, 1.0]])
+    s = constant_system(rates)
+    x0 = np.array([0.0, -1e-6])  # event 1 happens 1e-6 after event 0
+    assert [g.events for g in s.simulate(x0, 2.0, simultaneity_tol=1e-5).groups] == [(0, 1)]
+    assert [g.events for g in s.simulate(x0, 2.0, simultaneity_tol=1e-8).groups] == [
+        (0,),
+        (1,),
+    ]
+
+
+def test_downward_crossing_is_an_error():
+    # x' = 1 - 2 y after the event (y = t): x comes back down through the surface at t = 0.75
+    s = HybridSystem(
+        lambda x, m: np.array([1.0 if m == 0 else 1.0 - 2.0 * x[1], 1.0]),
+        lambda x: np.array([x[0] - 0.25]),
+        n_events=1,
+        dim=2,
+    )
+    with pytest.raises(ValueError, match=r"event 0 crossed its surface downward at t=0.75"):
+        s.simulate(np.zeros(2), 1.0)
+    assert s.simulate(np.zeros(2), 0.7).mask_final == 1
+
+
+def test_switch_into_a_region_that_pushes_back_is_an_error():
+    s = HybridSystem(
+        lambda x, m: np.array([1.0 if m == 0 else -1.0]),
+        lambda x: x - 0.5,
+        n_events=1,
+        dim=1,
+    )
+    with pytest.raises(ValueError, match=r"transversality broken at t=0.5: event 0 .* mask 1"):
+        s.simulate(np.zeros(1), 1.0)
+
+
+# ------------------------------------------------------------------------------------------
+# flow derivatives
+# ------------------------------------------------------------------------------------------
+def test_no_event_gives_the_classical_derivative():
+    A = np.array([[-0.3, 1.0, 0.0], [-1.0, -0.2, 0.5], [0.1, 0.0, -0.4]])
+    b = np.array([0.2, -0.1, 0.3])
+    s = HybridSystem(
+        lambda x, m: A @ x + b,
+        lambda x: np.array([x[0] - 100.0]),
+        n_events=1,
+        dim=3,
+        field_jacobian=lambda x, m: A,
+    )
+    x0 = np.array([0.5, -0.3, 0.2])
+    T = 1.7
+    fb = s.flow_bderivative(x0, T)
+    assert fb.is_linear and fb.n_groups == 0
+    np.testing.assert_allclose(fb.linear[0], scipy.linalg.expm(A * T), atol=1e-9)
+    V = np.random.default_rng(0).standard_normal((4, 3))
+    np.testing.assert_allclose(fb(V), V @ scipy.linalg.expm(A * T).T, atol=1e-9)
+    np.testing.assert_allclose(fb.final_field, A @ fb.x_final + b, atol=1e-12)
+    fd = s.flow_fd(x0, T, V, 1e-6)
+    np.testing.assert_allclose(fd, fb(V), atol=1e-6)
+    np.testing.assert_allclose(fb.piece(), scipy.linalg.expm(A * T), atol=1e-9)
+
+
+def test_numerical_jacobians_match_analytic_flow_bderivative():
+    ex = examples.network(2, seed=1)
+    s = ex.system
+    bare = HybridSystem(s._field, s._events, n_events=2, dim=2)
+    fa = s.flow_bderivative(ex.x0, ex.t_final)
+    fn = bare.flow_bderivative(ex.x0, ex.t_final)
+    V = np.random.default_rng(3).standard_normal((20, 2))
+    np.testing.assert_allclose(fn(V), fa(V), rtol=1e-7, atol=1e-8)
+
+
+def test_close_but_not_simultaneous_events_are_separate_groups():
+    ex = examples.network(2, seed=0)
+    s = ex.system
+    x0 = ex.x0.copy()
+    x0[1] -= 0.02  # event 1 now happens about 0.02 later
+    fb = s.flow_bderivative(x0, ex.t_final)
+    assert fb.n_groups == 2
+    assert fb.group_events == ((0,), (1,))
+    assert fb.group_times[1] - fb.group_times[0] > 0.01
+    # every group is a classical saltation: the whole map is linear
+    V = np.random.default_rng(1).standard_normal((8, 2))
+    np.testing.assert_allclose(fb(V), V @ fb.piece().T, rtol=1e-12, atol=1e-12)
+    errs = fd_rel_errors(s, x0, ex.t_final, fb, V)
+    assert_shrinks(errs)
+    assert errs[:, -1].max() < 1e-3
+
+
+def test_simultaneity_tol_merges_close_events():
+    ex = examples.network(2, seed=0)
+    x0 = ex.x0.copy()
+    x0[1] -= 1e-9
+    fb = ex.system.flow_bderivative(x0, ex.t_final, simultaneity_tol=1e-6)
+    assert fb.n_groups == 1 and fb.group_events == ((0, 1),)
+
+
+def test_flow_fd_validation():
+    ex = examples.network(2)
+    s = ex.system
+    with pytest.raises(ValueError, match="eps must be > 0"):
+        s.flow_fd(ex.x0, 1.5, np.ones(2), 0.0)
+    with pytest.raises(ValueError, match=r"V must have shape \(\.\.\., 2\), got shape \(3,\)"):
+        s.flow_fd(ex.x0, 1.5, np.ones(3), 1e-3)
+    out = s.flow_fd(ex.x0, 1.5, np.ones((2, 1, 2)), 1e-3)
+    assert out.shape == (2, 1, 2)
+
+
+def test_flow_fd_is_one_sided():
+    # at the event point the map is not linear: fd(v) and -fd(-v) differ, fd(v) -> D(v)
+    ex = examples.chair()
+    s = ex.system
+    fb = s.flow_bderivative(ex.x0, ex.t_final)
+    rng = np.random.default_rng(4)
+    v = rng.standard_normal(6)
+    while fb.orders(v)[0].tolist() == fb.orders(-v)[0].tolist():
+        v = rng.standard_normal(6)
+    fd_p = s.flow_fd(ex.x0, ex.t_final, v, 1e-5)
+    fd_m = s.flow_fd(ex.x0, ex.t_final, -v, 1e-5)
+    np.testing.assert_allclose(fd_p, fb(v), rtol=1e-3, atol=1e-4)
+    assert np.abs(fd_p + fd_m).max() > 1e-2
