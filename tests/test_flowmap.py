@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import pickle
 
+import hypothesis.extra.numpy as hnp
+import hypothesis.strategies as st
 import numpy as np
 import pytest
+from hypothesis import given
 
 from bderiv import BDerivative, examples
 from bderiv.flowmap import FlowBDerivative
@@ -164,3 +167,29 @@ def test_linear_map_without_groups():
     np.testing.assert_allclose(fb(V), V @ M.T)
     np.testing.assert_array_equal(fb.piece(), M)
     assert fb.orders(V) == []
+
+
+@given(
+    hnp.arrays(
+        np.float64,
+        (4,),
+        elements=st.floats(-10, 10, allow_nan=False, allow_infinity=False),
+    ),
+    st.floats(0.01, 100),
+)
+def test_invariants_hypothesis(v, scale):
+    fb = _COMPOSED
+    out = fb(v)
+    np.testing.assert_allclose(fb(scale * v), scale * out, rtol=1e-9, atol=1e-9)
+    P = fb.piece(fb.orders(v))
+    np.testing.assert_allclose(P @ v, out, rtol=1e-8, atol=1e-8 * (1 + np.abs(out).max()))
+
+
+def _make_composed():
+    rng = np.random.default_rng(0)
+    d = 4
+    linear = [np.eye(d) + 0.3 * rng.standard_normal((d, d)) for _ in range(3)]
+    return FlowBDerivative(linear, [random_bd(rng, 3, d), random_bd(rng, 2, d)])
+
+
+_COMPOSED = _make_composed()

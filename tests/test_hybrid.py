@@ -349,3 +349,33 @@ def test_flow_fd_is_one_sided():
     fd_m = s.flow_fd(ex.x0, ex.t_final, -v, 1e-5)
     np.testing.assert_allclose(fd_p, fb(v), rtol=1e-3, atol=1e-4)
     assert np.abs(fd_p + fd_m).max() > 1e-2
+
+
+def test_flow_bderivative_transversality_names_mask_and_event():
+    # the nominal trajectory jumps from mask 0 to 3; mask 1 (never visited) breaks it
+    rates = np.ones((4, 2))
+    rates[1] = [1.0, -0.5]
+    s = constant_system(rates)
+    with pytest.raises(
+        ValueError,
+        match=r"transversality fails at the event point at t=[0-9.]+: event 1 has rate -0.5 <= 0 "
+        r"in region mask 1 \(binary 01\)",
+    ):
+        s.flow_bderivative(np.zeros(2), 2.0)
+
+
+def test_negative_simultaneity_tol():
+    s = constant_system(np.ones((4, 2)))
+    with pytest.raises(ValueError, match="simultaneity_tol must be >= 0"):
+        s.simulate(np.zeros(2), 2.0, simultaneity_tol=-1.0)
+
+
+def test_constant_fields_flow_bderivative_is_the_bderivative():
+    # constant fields: D- = D+ = I, so the flow's B-derivative is M itself
+    rates = np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [1.5, 1.5]])
+    s = constant_system(rates)
+    fb = s.flow_bderivative(np.zeros(2), 2.0)
+    bd = s.bderivative(np.ones(2))
+    V = np.random.default_rng(0).standard_normal((50, 2))
+    np.testing.assert_allclose(fb(V), bd(V), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(fb.final_field, rates[3])

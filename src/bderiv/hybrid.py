@@ -92,6 +92,9 @@ class Trajectory:
         State at ``t_final``.
     mask_final : int
         Region mask at ``t_final``.
+    linear : tuple of ndarray, each (d, d)
+        Classical derivatives of the smooth stretches (variational equations); filled only
+        by :meth:`HybridSystem.flow_bderivative`, empty for :meth:`HybridSystem.simulate`.
     """
 
     t: np.ndarray
@@ -167,7 +170,28 @@ class HybridSystem:
     Notes
     -----
     Every output of the user functions is checked (shape and finiteness); errors say which
-    function, which mask, the expected and the received shape.
+    function, which mask, the expected and the received shape. Numerical Jacobians use
+    :func:`scipy.differentiate.jacobian` (order 8, initial step 0.05, tolerances
+    ``atol=1e-11, rtol=1e-10``) on a wrapper that loops over the points scipy asks for;
+    inside the variational equations that costs one adaptive Jacobian per right-hand side
+    evaluation, so pass ``field_jacobian`` for speed.
+
+    Examples
+    --------
+    Two events of a constant field that both happen at t = 1 from the origin:
+
+    >>> import numpy as np
+    >>> from bderiv.hybrid import HybridSystem
+    >>> F = np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [1.5, 1.5]])
+    >>> sys = HybridSystem(lambda x, mask: F[mask], lambda x: x - 1.0, n_events=2, dim=2)
+    >>> sys.bderivative(np.ones(2))(np.array([-1.0, -2.0]))
+    array([-1.75, -2.25])
+    >>> traj = sys.simulate(np.zeros(2), 2.0, simultaneity_tol=1e-9)
+    >>> [(round(g.time, 9), g.events) for g in traj.groups]
+    [(1.0, (0, 1))]
+    >>> D = sys.flow_bderivative(np.zeros(2), 2.0)
+    >>> D(np.array([-1.0, -2.0])).round(9)
+    array([-1.75, -2.25])
     """
 
     def __init__(
