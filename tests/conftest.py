@@ -1,0 +1,45 @@
+"""Shared test set-up: hypothesis settings and a session fixture that warms the JIT."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, settings
+
+# deadline=None: the first call of each njit kernel compiles (seconds); the warm-up fixture
+# below takes most of that out of the examples, but the cache can still be cold on CI.
+# max_examples keeps the whole suite within a few minutes on two cores.
+settings.register_profile(
+    "bderiv",
+    deadline=None,
+    max_examples=60,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.register_profile("thorough", parent=settings.get_profile("bderiv"), max_examples=500)
+settings.load_profile("bderiv")
+
+
+def pytest_configure(config):
+    # pyproject turns warnings into errors; hypothesis' pytest plugin imports
+    # mypy_extensions.TypedDict at report time on some installs, a DeprecationWarning that is
+    # not ours and would abort the run with an INTERNALERROR
+    config.addinivalue_line(
+        "filterwarnings", "ignore:mypy_extensions.TypedDict is deprecated:DeprecationWarning"
+    )
+
+
+@pytest.fixture(scope="session", autouse=True)
+def warm_jit():
+    """Compile every kernel once (serial and parallel paths) on a tiny system."""
+    from bderiv import BDerivative
+
+    Dh = np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]])
+    F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [2.0, 2.0, 0.0]])
+    bd = BDerivative(Dh, F)
+    rng = np.random.default_rng(0)
+    for m in (3, 5000):  # small batches run serially, large ones with prange
+        V = rng.standard_normal((m, 3))
+        bd.inverse(bd(V))
+        bd.event_times(V)
+    bd.triangulation()(V[:3])
+    list(bd.pieces())

@@ -1,0 +1,162 @@
+"""The triangulation (corner points, simplices, kernel) rebuilds the same PL map."""
+
+from __future__ import annotations
+
+import math
+import pickle
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from numpy.testing import assert_allclose, assert_array_equal
+from reference import (
+    all_orders,
+    assert_maps_close,
+    chain,
+    random_system,
+    ref_apply,
+    ref_corner_points,
+    ref_tri_apply,
+)
+
+from bderiv import BDerivative, Triangulation
+
+
+@st.composite
+def full_rank_systems(draw, n_max=4):
+    seed = draw(st.integers(0, 2**32 - 1))
+    n = draw(st.integers(1, n_max))
+    d = n + draw(st.integers(0, 2))
+    dh_scale = 10.0 ** draw(st.integers(-2, 2))
+    f_scale = 10.0 ** draw(st.integers(-2, 2))
+    rng = np.random.default_rng(seed)
+    Dh, F = random_system(rng, n, d, dh_scale=dh_scale, f_scale=f_scale)
+    return rng, Dh, F
+
+
+def expected_simplices(n):
+    """[0, B_1, ..., B_{n-1}, full] and [0, B_1, ..., B_{n-1}, 2**n] for every order."""
+    full = 2**n - 1
+    out = set()
+    for order in all_orders(n):
+        inner = chain(order)[1:n]
+        out.add((0, *inner, full))
+        out.add((0, *inner, full + 1))
+    return out
+
+
+@given(full_rank_systems())
+def test_corner_points(case):
+    rng, Dh, F = case
+    n, d = Dh.shape
+    bd = BDerivative(Dh, F)
+    U, W = bd.corner_points()
+    assert U.shape == W.shape == (2**n, d)
+    G = F @ Dh.T
+    scale = np.abs(F).max()
+    # MATH.md s.5 defining equations: Dh W[S] = 1_S * G[S], U[S] - W[S] = F[0] - F[S]
+    bits = (np.arange(2**n)[:, None] >> np.arange(n)) & 1
+    assert_allclose(W @ Dh.T, bits * G, atol=1e-10 * np.abs(G).max())
+    assert_allclose(U - W, F[0] - F, atol=1e-12 * scale)
+    assert_allclose(U[0], 0, atol=1e-12 * scale)
+    # U[full] = F[0], W[full] = F[full] up to ker Dh (x_full is any solution of
+    # Dh x = G[full] = Dh F[full]; MATH.md's equalities hold exactly when d = n)
+    Pr = np.eye(d) - np.linalg.pinv(Dh) @ Dh  # projector onto ker Dh
+    assert_allclose((np.eye(d) - Pr) @ (U[-1] - F[0]), 0, atol=1e-10 * scale)
+    assert_allclose((np.eye(d) - Pr) @ (W[-1] - F[-1]), 0, atol=1e-10 * scale)
+    # M(U[S]) = W[S], by the oracle (for d > n the kernel part of x_S is free; it cancels)
+    assert_maps_close(Dh, F, U, W, [ref_apply(Dh, F, u) for u in U])
+    if d == n:  # then x_S is unique: the oracle's pinv gives the same points
+        rU, rW = ref_corner_points(Dh, F)
+        assert_allclose(U, rU, atol=1e-10 * scale)
+        assert_allclose(W, rW, atol=1e-10 * scale)
+
+
+@given(full_rank_systems())
+def test_triangulation_structure(case):
+    _, Dh, F = case
+    n, d = Dh.shape
+    bd = BDerivative(Dh, F)
+    tri = bd.triangulation()
+    U, W = bd.corner_points()
+    assert tri.pre.shape == tri.post.shape == (2**n + 1, d)
+    assert_allclose(tri.pre[: 2**n], U, rtol=1e-15)
+    assert_allclose(tri.post[: 2**n], W, rtol=1e-15)
+    assert_allclose(tri.pre[2**n], -F[0], rtol=1e-15)
+    assert_allclose(tri.post[2**n], -F[-1], rtol=1e-15)
+    assert tri.simplices.dtype == np.int64
+    assert tri.simplices.shape == (2 * math.factorial(n), n + 1)
+    assert {tuple(int(i) for i in s) for s in tri.simplices} == expected_simplices(n)
+    assert tri.kernel.shape == (d, d - n)
+    assert_allclose(tri.kernel.T @ tri.kernel, np.eye(d - n), atol=1e-12)
+    assert_allclose(Dh @ tri.kernel, 0, atol=1e-12 * np.abs(Dh).max())
+
+
+@given(full_rank_systems(), st.integers(1, 10))
+def test_triangulation_rebuilds_the_map(case, m):
+    rng, Dh, F = case
+    d = Dh.shape[1]
+    bd = BDerivative(Dh, F)
+    tri = bd.triangulation()
+    V = rng.standard_normal((m, d)) * 10.0 ** rng.uniform(-2, 2, (m, 1))
+    # the cones of this fan can be thin (P ill-conditioned), so the barycentric solve
+    # loses a few more digits than the forward substitution: 1e-7 of the query scale
+    assert_maps_close(Dh, F, V, tri(V), bd(V), rtol=1e-7)
+    # an evaluation of the triangulation's data written independently of the package
+    independent = [ref_tri_apply(tri.pre, tri.post, tri.simplices, tri.kernel, v) for v in V]
+    assert_maps_close(Dh, F, V, independent, [ref_apply(Dh, F, v) for v in V], rtol=1e-7)
+
+
+def test_triangulation_hand_case():
+    # the 2-D case of test_bderivative.test_hand_computed_2d: M(-1, -2) = (-2, -4),
+    # M(-3, -1) = (-6, 0), M(F[00]) = F[11], M(-F[00]) = -F[11]
+    F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]])
+    tri = BDerivative(np.eye(2), F).triangulation()
+    V = np.array([[-1.0, -2.0], [-3.0, -1.0], [1.0, 1.0], [-1.0, -1.0]])
+    assert_allclose(tri(V), [[-2.0, -4.0], [-6.0, 0.0], [2.0, 2.0], [-2.0, -2.0]], atol=1e-14)
+    assert tri.kernel.shape == (2, 0)
+
+
+@pytest.mark.parametrize("lead", [(), (3,), (2, 2), (0,)])
+def test_triangulation_batch_shapes(lead):
+    rng = np.random.default_rng(4)
+    Dh, F = random_system(rng, 2, 3)
+    tri = BDerivative(Dh, F).triangulation()
+    V = rng.standard_normal(lead + (3,))
+    out = tri(V)
+    assert out.shape == lead + (3,) and out.dtype == np.float64
+
+
+def test_triangulation_rebuilt_from_its_data_and_pickled():
+    rng = np.random.default_rng(5)
+    Dh, F = random_system(rng, 3, 4)
+    tri = BDerivative(Dh, F).triangulation()
+    V = rng.standard_normal((25, 4))
+    again = Triangulation(tri.pre, tri.post, tri.simplices, tri.kernel)
+    assert_array_equal(again(V), tri(V))
+    unpickled = pickle.loads(pickle.dumps(tri))
+    assert_array_equal(unpickled(V), tri(V))
+    assert_array_equal(unpickled.simplices, tri.simplices)
+
+
+def test_triangulation_inputs_flavours():
+    rng = np.random.default_rng(6)
+    Dh, F = random_system(rng, 2, 2)
+    tri = BDerivative(Dh, F).triangulation()
+    V = rng.standard_normal((10, 2))
+    ro = V.copy()
+    ro.setflags(write=False)
+    wide = np.zeros((10, 4))
+    wide[:, ::2] = V
+    for Vx in (ro, wide[:, ::2], np.asfortranarray(V)):
+        assert_array_equal(tri(Vx), tri(V))
+    assert_array_equal(tri(V.astype(np.float32)), tri(V.astype(np.float32).astype(float)))
+
+
+def test_triangulation_bad_queries():
+    tri = BDerivative(np.eye(2), np.ones((4, 2))).triangulation()
+    with pytest.raises(ValueError, match=r"must have shape \(\.\.\., 2\)"):
+        tri(np.ones(3))
+    with pytest.raises(ValueError, match=r"must be finite"):
+        tri(np.array([1.0, np.nan]))

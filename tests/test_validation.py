@@ -1,0 +1,252 @@
+"""Bad input gives a clear ValueError/TypeError saying what was expected and what came."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from reference import random_system
+
+from bderiv import BDerivative
+
+DH2 = np.eye(2)
+F2 = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]])
+
+
+@pytest.fixture
+def bd3():
+    rng = np.random.default_rng(0)
+    return BDerivative(*random_system(rng, 2, 3))
+
+
+# --------------------------------------------------------------------------------------
+# Constructor: shapes
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("Dh", "F", "match"),
+    [
+        (np.ones(2), F2, r"Dh must be a 2-D array, got 1-D"),
+        (np.ones((1, 2, 2)), F2, r"Dh must be a 2-D array, got 3-D with shape \(1, 2, 2\)"),
+        (5.0, F2, r"Dh must be a 2-D array, got 0-D"),
+        (DH2, np.ones(8), r"F must be a 2-D array, got 1-D"),
+        (DH2, np.ones((4, 2, 1)), r"F must be a 2-D array, got 3-D"),
+        (DH2, np.ones((4, 3)), r"F must have shape \('any', 2\), got \(4, 3\).*expected 2, got 3"),
+        (DH2, np.ones((3, 2)), r"F must have 2\*\*n = 4 rows.*n=2.*got 3 rows"),
+        (DH2, np.ones((2, 2)), r"F must have 2\*\*n = 4 rows.*got 2 rows"),
+        (np.ones((3, 2)), np.ones((4, 2)), r"F must have 2\*\*n = 8 rows.*got 4 rows"),
+        (np.ones((0, 2)), np.ones((1, 2)), r"at least one event.*got \(0, 2\)"),
+        (np.ones((2, 0)), np.ones((4, 0)), r"at least one event and one dimension.*\(2, 0\)"),
+    ],
+)
+def test_bad_shapes(Dh, F, match):
+    with pytest.raises(ValueError, match=match):
+        BDerivative(Dh, F)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_tables(bad):
+    Dh = DH2.copy()
+    Dh[1, 0] = bad
+    with pytest.raises(ValueError, match=r"Dh must be finite, but Dh\[1, 0\] = "):
+        BDerivative(Dh, F2)
+    F = F2.copy()
+    F[2, 1] = bad
+    with pytest.raises(ValueError, match=r"F must be finite, but F\[2, 1\] = "):
+        BDerivative(DH2, F)
+
+
+@pytest.mark.parametrize(
+    ("dtype", "word"),
+    [(np.complex128, "complex"), (bool, "bool"), (object, "object"), (str, "string")],
+)
+def test_non_real_dtypes(dtype, word):
+    match = rf"must hold real numbers.*{word}"
+    with pytest.raises(TypeError, match=rf"Dh {match}"):
+        BDerivative(DH2.astype(dtype), F2)
+    with pytest.raises(TypeError, match=rf"F {match}"):
+        BDerivative(DH2, F2.astype(dtype))
+
+
+def test_non_real_query_dtypes(bd3):
+    V = np.ones((2, 3))
+    for dtype, word in [
+        (np.complex128, "complex"),
+        (bool, "bool"),
+        (object, "object"),
+        (str, "string"),
+    ]:
+        for method, name in [(bd3, "V"), (bd3.inverse, "W"), (bd3.event_times, "V")]:
+            with pytest.raises(TypeError, match=rf"{name} must hold real numbers.*{word}"):
+                method(V.astype(dtype))
+
+
+# --------------------------------------------------------------------------------------
+# Constructor: transversality
+# --------------------------------------------------------------------------------------
+def test_transversality_violation_names_mask_and_event():
+    F = F2.copy()
+    F[0b10] = [-1.0, 3.0]  # after event 1 only, h_0 decreases: G[0b10, 0] = -1
+    with pytest.raises(
+        ValueError, match=r"transversality violated at event 0 in region mask 0b10.*-1"
+    ):
+        BDerivative(DH2, F)
+
+
+def test_zero_rate_is_a_violation():
+    F = F2.copy()
+    F[0b01, 1] = 0.0  # after event 0, h_1 does not move
+    with pytest.raises(ValueError, match=r"transversality violated at event 1 .*mask 0b01"):
+        BDerivative(DH2, F)
+
+
+def test_violation_mask_bit_string_has_n_bits():
+    n = 4
+    Dh = np.eye(n)
+    F = np.ones((2**n, n))
+    F[0b0101, 3] = -2.0
+    with pytest.raises(ValueError, match=r"event 3 in region mask 0b0101\b"):
+        BDerivative(Dh, F)
+
+
+def test_grazing_rate():
+    F = F2.copy()
+    F[0b01, 1] = 1e-12  # positive but 1e-12 of |F[0b01]| |Dh[1]| ~ 2
+    with pytest.raises(ValueError, match=r"grazing rate at event 1 in region mask 0b01"):
+        BDerivative(DH2, F)
+    # the tolerance is relative to the table's scale: the same table scaled is refused too
+    with pytest.raises(ValueError, match=r"grazing"):
+        BDerivative(1e6 * DH2, 1e6 * F)
+    # and a caller can loosen it
+    BDerivative(DH2, F, transversality_tol=1e-13)
+
+
+def test_grazing_is_relative_not_absolute():
+    # tiny but well-proportioned tables are fine
+    bd = BDerivative(1e-150 * DH2, 1e-150 * F2)
+    assert bd.n_events == 2
+
+
+@pytest.mark.parametrize("tol", [-1.0, np.nan, "1e-9"])
+def test_bad_transversality_tol(tol):
+    with pytest.raises(ValueError, match=r"transversality_tol must be a number >= 0"):
+        BDerivative(DH2, F2, transversality_tol=tol)
+
+
+# --------------------------------------------------------------------------------------
+# Memory
+# --------------------------------------------------------------------------------------
+def test_table_too_large_for_memory_is_refused_before_allocating():
+    # n = 40 events: F would need 2**40 rows; only Dh is given, a small F is never read
+    Dh = np.eye(40)
+    with pytest.raises(ValueError, match=r"n=40 events.*2\*\*40 rows.*TiB.*memory limit"):
+        BDerivative(Dh, np.ones((2, 40)), memory_limit=16 << 30)
+
+
+def test_memory_limit_argument():
+    rng = np.random.default_rng(1)
+    Dh, F = random_system(rng, 10, 10)
+    need = 2**10 * (10 + 10) * 8  # F and G, float64
+    with pytest.raises(ValueError, match=r"2\*\*10 rows, 160\.0 KiB.*memory limit of 1000 B"):
+        BDerivative(Dh, F, memory_limit=1000)
+    BDerivative(Dh, F, memory_limit=need)
+
+
+# --------------------------------------------------------------------------------------
+# Queries
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("shape", [(4,), (2,), (5, 2), (5, 4), (2, 3, 1), ()])
+def test_query_wrong_dimension(bd3, shape):
+    V = np.ones(shape)
+    got = "a scalar" if shape == () else rf"shape \({shape[0]},"
+    for method, name in [(bd3, "V"), (bd3.apply, "V"), (bd3.inverse, "W"), (bd3.event_times, "V")]:
+        with pytest.raises(ValueError, match=rf"{name} must have shape \(\.\.\., 3\).*got {got}"):
+            method(V)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_query_names_first_bad_row(bd3, bad):
+    V = np.ones((6, 3))
+    V[4, 0] = bad
+    V[2, 1] = bad
+    for method, name in [(bd3, "V"), (bd3.inverse, "W"), (bd3.event_times, "V")]:
+        with pytest.raises(ValueError, match=rf"{name} must be finite.*{name}\[2\] = "):
+            method(V)
+    V3 = np.ones((2, 3, 3))
+    V3[1, 2, 0] = bad
+    with pytest.raises(ValueError, match=r"V must be finite.*V\[1, 2\] = "):
+        bd3(V3)
+
+
+def test_bad_out(bd3):
+    V = np.ones((4, 3))
+    with pytest.raises(ValueError, match=r"out must have shape \(4, 3\), got \(3, 4\)"):
+        bd3.apply(V, out=np.empty((3, 4)))
+    with pytest.raises(ValueError, match=r"out must be a writeable C-contiguous float64.*float32"):
+        bd3.apply(V, out=np.empty((4, 3), dtype=np.float32))
+    with pytest.raises(ValueError, match=r"contiguous=False"):
+        bd3.apply(V, out=np.empty((4, 6))[:, ::2])
+    with pytest.raises(TypeError, match=r"out must be a numpy array, got list"):
+        bd3.inverse(V, out=[[0.0] * 3] * 4)
+
+
+# --------------------------------------------------------------------------------------
+# Pieces and orders
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "order", [[0, 0, 1], [0, 1], [0, 1, 2, 3], [0, 1, 3], [-1, 0, 1], [[0, 1, 2]], []]
+)
+def test_piece_order_not_a_permutation(order):
+    bd = BDerivative(np.eye(3), np.ones((8, 3)))
+    with pytest.raises(ValueError, match=r"order must be a permutation of 0\.\.2.*got"):
+        bd.piece(order)
+
+
+@pytest.mark.parametrize("order", [[0.5, 1, 2], ["0", "1", "2"], [0j, 1, 2]])
+def test_piece_order_not_integers(order):
+    bd = BDerivative(np.eye(3), np.ones((8, 3)))
+    with pytest.raises(TypeError, match=r"order must be a sequence of integers"):
+        bd.piece(order)
+
+
+def test_pieces_bad_limit(bd3):
+    with pytest.raises(ValueError, match=r"max_pieces must be >= 1, got 0"):
+        bd3.pieces(max_pieces=0)
+    with pytest.raises(TypeError, match=r"max_pieces must be an integer, got float"):
+        bd3.pieces(max_pieces=2.0)
+
+
+def test_pieces_refusal_message():
+    bd = BDerivative(np.eye(5), np.ones((32, 5)))
+    with pytest.raises(ValueError, match=r"5! = 120 pieces, more than max_pieces=100"):
+        bd.pieces(max_pieces=100)
+
+
+# --------------------------------------------------------------------------------------
+# Corner points / triangulation need full row rank
+# --------------------------------------------------------------------------------------
+def test_rank_deficient_refuses_corner_points_and_triangulation():
+    rng = np.random.default_rng(2)
+    bd = BDerivative(*random_system(rng, 4, 2))
+    assert not bd.full_rank
+    with pytest.raises(ValueError, match=r"corner points need Dh of full row rank n=4.*rank"):
+        bd.corner_points()
+    with pytest.raises(ValueError, match=r"triangulation need Dh of full row rank n=4"):
+        bd.triangulation()
+    # everything else still works
+    V = rng.standard_normal((5, 2))
+    bd.inverse(bd(V))
+    bd.event_times(V)
+    bd.piece([3, 1, 0, 2])
+
+
+def test_parallel_rows_are_rank_deficient():
+    Dh = np.array([[1.0, 0.5], [2.0, 1.0]])  # h_1 = 2 h_0: one surface, two events
+    bd = BDerivative(Dh, np.ones((4, 2)))
+    assert not bd.full_rank
+    with pytest.raises(ValueError, match=r"full row rank"):
+        bd.corner_points()
+
+
+def test_triangulation_max_pieces():
+    bd = BDerivative(np.eye(4), np.ones((16, 4)))
+    with pytest.raises(ValueError, match=r"2 \* 4! = 48 simplices.*max_pieces=10"):
+        bd.triangulation(max_pieces=10)
