@@ -263,3 +263,44 @@ def test_example_flow_bderivative_pickles():
 def test_network_rejects_bad_n():
     with pytest.raises(ValueError, match="n must be in 1..24"):
         examples.network(0)
+
+
+def test_chair_corners_closed_form():
+    # at touchdown the springs are relaxed: only damping and friction act, by hand
+    ex = examples.chair(mode_damping=1.0, damping=4.0, friction=1.0, inertia=0.1)
+    F = ex.system.bderivative(ex.rho).F
+    _, z, th, vx, vz, om = ex.rho
+    legs = np.array([[-0.5, -0.4], [0.6, -0.4 + (-1.1) * np.tan(0.1)]])
+    rx = legs[:, 0] * np.cos(th) - legs[:, 1] * np.sin(th)
+    rz = legs[:, 0] * np.sin(th) + legs[:, 1] * np.cos(th)
+    vfx, vfz = vx - om * rz, vz + om * rx
+    np.testing.assert_allclose(F[0], [vx, vz, om, 0.0, -9.81, 0.0], rtol=1e-14)
+    for mask, c in ((1, 4.0), (2, 4.0), (3, 8.0)):
+        legs_on = [k for k in range(2) if mask >> k & 1]
+        fz = -c * vfz[legs_on]
+        fx = -1.0 * vfx[legs_on]
+        expect = [
+            vx,
+            vz,
+            om,
+            fx.sum(),
+            -9.81 + fz.sum(),
+            (rx[legs_on] @ fz - rz[legs_on] @ fx) / 0.1,
+        ]
+        np.testing.assert_allclose(F[mask], expect, rtol=1e-13, atol=1e-13)
+
+
+def test_table_jacobians_complex_step_vs_scipy():
+    ex = examples.table()
+    s = ex.system
+    bare = HybridSystem(s._field, s._events, n_events=4, dim=12)
+    np.testing.assert_allclose(
+        bare.eval_event_jacobian(ex.rho), s.eval_event_jacobian(ex.rho), atol=1e-9
+    )
+    for mask in (0, 15):
+        np.testing.assert_allclose(
+            bare.eval_field_jacobian(ex.rho, mask),
+            s.eval_field_jacobian(ex.rho, mask),
+            atol=1e-7,
+            rtol=1e-8,
+        )
