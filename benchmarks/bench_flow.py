@@ -34,6 +34,7 @@ CASES = {
     "network-n3-d6": lambda: examples.network(3, extended=True),
     "network-n8": lambda: examples.network(8),
     "network-n16": lambda: examples.network(16),
+    "network-n20": lambda: examples.network(20),
 }
 QUICK = ("chair", "table", "network-n3")
 
@@ -139,9 +140,10 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", help="write the numbers to this file")
     parser.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
+    parser.add_argument("--only", nargs="+", choices=tuple(CASES), help="these examples")
     parser.add_argument("--vectors", type=int, default=10, help="vectors for the FD errors")
     args = parser.parse_args(argv)
-    names = QUICK if args.quick else tuple(CASES)
+    names = args.only or (QUICK if args.quick else tuple(CASES))
     rows = []
     for name in names:
         rows.append(measure(name, n_vectors=args.vectors))

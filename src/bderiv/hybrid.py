@@ -71,7 +71,7 @@ class EventGroup(NamedTuple):
     state: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Trajectory:
     """Result of :meth:`HybridSystem.simulate`.
 

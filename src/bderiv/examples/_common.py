@@ -12,7 +12,7 @@ from ..hybrid import HybridSystem
 __all__ = ["Example", "complex_step_jacobian", "flow_back"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Example:
     """A ready example.
 
