@@ -3,12 +3,23 @@ where several events happen at once."""
 
 from importlib.metadata import PackageNotFoundError, version
 
+from . import examples
 from .bderivative import BDerivative
-from .triangulation import Triangulation
+from .flowmap import FlowBDerivative
+from .hybrid import HybridSystem
+from .triangulation import Triangulation, load_triangulation
 
 try:
     __version__ = version("bderiv")
 except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0+unknown"
 
-__all__ = ["BDerivative", "Triangulation", "__version__"]
+__all__ = [
+    "FlowBDerivative",
+    "HybridSystem",
+    "examples",
+    "BDerivative",
+    "Triangulation",
+    "__version__",
+    "load_triangulation",
+]

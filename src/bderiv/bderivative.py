@@ -131,6 +131,14 @@ class BDerivative:
     def __repr__(self) -> str:
         return f"BDerivative(n_events={self.n_events}, dim={self.dim})"
 
+    def __setstate__(self, state: dict) -> None:
+        # unpickled arrays come back writeable; keep the tables read-only as built
+        self.__dict__.update(state)
+        for name in ("Dh", "F", "rates"):
+            arr = state.get(name)
+            if isinstance(arr, np.ndarray):
+                arr.flags.writeable = False
+
     @cached_property
     def full_rank(self) -> bool:
         return bool(np.linalg.matrix_rank(self.Dh) == self.n_events)
@@ -170,6 +178,10 @@ class BDerivative:
         ndarray, shape (..., d)
             Post-event vectors ``M(V)``.
         """
+        if type(V).__module__.startswith("dask."):  # lazy, block-wise (see _dask.py)
+            from ._dask import map_blocks
+
+            return map_blocks(self.apply, V, self.dim, "V", out)
         return self._map(V, out, inverse=False, name="V")
 
     __call__ = apply
@@ -187,6 +199,10 @@ class BDerivative:
         ndarray, shape (..., d)
             ``V`` with ``self(V) == W`` up to rounding.
         """
+        if type(W).__module__.startswith("dask."):  # lazy, block-wise (see _dask.py)
+            from ._dask import map_blocks
+
+            return map_blocks(self.inverse, W, self.dim, "W", out)
         return self._map(W, out, inverse=True, name="W")
 
     def event_times(self, V) -> tuple[np.ndarray, np.ndarray]:

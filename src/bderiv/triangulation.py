@@ -7,13 +7,20 @@ everything needed to rebuild the map elsewhere, without the event machinery.
 
 from __future__ import annotations
 
+import json
 import math
+import os
 from itertools import permutations
 
 import numpy as np
 import scipy.linalg
 
 from ._validate import check_points, check_positive_int
+
+#: tag written into every saved file, checked on load
+FILE_FORMAT = "bderiv.triangulation"
+FILE_VERSION = 1
+_FIELDS = ("pre", "post", "simplices", "kernel")
 
 
 class Triangulation:
@@ -38,6 +45,20 @@ class Triangulation:
     sigma with chain ``B_0 = 0, ..., B_n = full`` owns two simplices,
     ``[0, B_1, ..., B_{n-1}, full]`` and ``[0, B_1, ..., B_{n-1}, 2**n]``, the halves of
     its cone before and after the flow direction.
+
+    Save it with :meth:`save` (``.npz`` or ``.json``) and read it back with :meth:`load`
+    (or :func:`bderiv.load_triangulation`): the file holds the whole map.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bderiv import BDerivative
+    >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+    >>> tri = BDerivative(np.eye(2), F).triangulation()
+    >>> tri
+    Triangulation(n_events=2, dim=2, vertices=5, simplices=4)
+    >>> tri([-1.0, -2.0])
+    array([-2., -2.])
     """
 
     def __init__(self, pre, post, simplices, kernel):
@@ -121,3 +142,151 @@ class Triangulation:
             best_weight[better] = min_weight[better]
             out[better] = (Q @ weights[:, better]).T
         return out.reshape(lead + (self.dim,))
+
+    # -- files ----------------------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        """Plain-Python description (lists of floats and ints), as written to JSON.
+
+        Returns
+        -------
+        dict
+            Keys ``format``, ``version``, ``n_events``, ``dim`` and the arrays ``pre``
+            (n_vertices, d), ``post`` (n_vertices, d), ``simplices`` (n_simplices, n + 1)
+            and ``kernel`` (d, d - n) as nested lists.
+        """
+        return {
+            "format": FILE_FORMAT,
+            "version": FILE_VERSION,
+            "n_events": self.n_events,
+            "dim": self.dim,
+            **{name: getattr(self, name).tolist() for name in _FIELDS},
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Triangulation:
+        """Rebuild from :meth:`to_dict` output; checks the format tag and the shapes."""
+        if not isinstance(data, dict) or data.get("format") != FILE_FORMAT:
+            raise ValueError(
+                f"not a bderiv triangulation: expected a mapping with format={FILE_FORMAT!r}"
+            )
+        version = data.get("version")
+        if version != FILE_VERSION:
+            raise ValueError(
+                f"triangulation file version {version!r} is not supported (this bderiv "
+                f"reads version {FILE_VERSION})"
+            )
+        missing = [name for name in _FIELDS if name not in data]
+        if missing:
+            raise ValueError(f"triangulation data lacks the field(s) {missing}")
+        n, d = int(data["n_events"]), int(data["dim"])
+        pre = np.asarray(data["pre"], dtype=np.float64).reshape(-1, d)
+        post = np.asarray(data["post"], dtype=np.float64).reshape(-1, d)
+        simplices = np.asarray(data["simplices"], dtype=np.int64).reshape(-1, n + 1)
+        kernel = np.asarray(data["kernel"], dtype=np.float64).reshape(d, d - n)
+        return cls(pre, post, simplices, kernel)
+
+    def save(self, path, format: str | None = None) -> str:
+        """Write the triangulation to ``path`` as ``.npz`` (binary) or ``.json`` (text).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Destination; its suffix picks the format unless ``format`` is given.
+        format : {"npz", "json"}, optional
+
+        Returns
+        -------
+        str
+            The path written.
+
+        Notes
+        -----
+        Both formats round-trip exactly (JSON writes floats with all their digits). The
+        ``.npz`` holds the arrays ``pre``, ``post``, ``simplices``, ``kernel`` and a JSON
+        header ``meta``; it loads with ``numpy.load(path)`` alone.
+        """
+        path = os.fspath(path)
+        fmt = _file_format(path, format)
+        if fmt == "json":
+            with open(path, "w", encoding="utf-8") as fh:
+                json.dump(self.to_dict(), fh)
+                fh.write("\n")
+        else:
+            meta = {k: v for k, v in self.to_dict().items() if k not in _FIELDS}
+            with open(path, "wb") as fh:  # a file object: numpy must not append ".npz"
+                np.savez_compressed(
+                    fh, meta=np.array(json.dumps(meta)), **{k: getattr(self, k) for k in _FIELDS}
+                )
+        return path
+
+    @classmethod
+    def load(cls, path, format: str | None = None) -> Triangulation:
+        """Read a triangulation written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A ``.npz`` or ``.json`` file; its suffix picks the format unless ``format``
+            is given.
+        format : {"npz", "json"}, optional
+
+        Returns
+        -------
+        Triangulation
+
+        Raises
+        ------
+        ValueError
+            If the file is not a bderiv triangulation or its version is unknown.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from bderiv import BDerivative, Triangulation
+        >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+        >>> tri = BDerivative(np.eye(2), F).triangulation()
+        >>> path = tri.save(os.path.join(tempfile.mkdtemp(), "tri.json"))
+        >>> Triangulation.load(path)([-1.0, -2.0])
+        array([-2., -2.])
+        """
+        path = os.fspath(path)
+        fmt = _file_format(path, format)
+        if fmt == "json":
+            with open(path, encoding="utf-8") as fh:
+                try:
+                    data = json.load(fh)
+                except json.JSONDecodeError as exc:
+                    raise ValueError(f"{path} is not valid JSON: {exc}") from None
+            return cls.from_dict(data)
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                if "meta" not in npz.files:
+                    raise ValueError(f"{path} is not a bderiv triangulation (no 'meta' entry)")
+                data = json.loads(str(npz["meta"]))
+                if isinstance(data, dict):
+                    data.update({k: npz[k] for k in _FIELDS if k in npz.files})
+        except (OSError, EOFError) as exc:
+            raise ValueError(f"cannot read {path} as .npz: {exc}") from None
+        return cls.from_dict(data)
+
+
+def _file_format(path: str, format: str | None) -> str:
+    if format is None:
+        format = os.path.splitext(path)[1].lstrip(".").lower()
+    if format not in ("npz", "json"):
+        raise ValueError(
+            f"unknown triangulation file format {format!r} for {path!r}: use a .npz or "
+            f".json file name, or format='npz' / 'json'"
+        )
+    return format
+
+
+def load_triangulation(path, format: str | None = None) -> Triangulation:
+    """Read a triangulation saved by :meth:`Triangulation.save` or ``bderiv export``.
+
+    Same as :meth:`Triangulation.load`; the result is callable, ``tri(V)`` with V of
+    shape ``(..., d)``.
+    """
+    return Triangulation.load(path, format)

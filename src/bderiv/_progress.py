@@ -1,0 +1,117 @@
+"""Progress reporting: turn ``progress=`` arguments into ``callback(done, total)``.
+
+The engine reports progress through a plain callable ``progress(done, total)`` (work units
+done so far, total units). This module turns the user-facing values into such a callable:
+``None``/``False`` (no reporting), ``True`` (a tqdm bar; tqdm is the optional extra
+``progress``) or any callable (used as it is). tqdm is imported only when a bar is asked for.
+"""
+
+from __future__ import annotations
+
+#: what ``progress=True`` needs, named in the error when it is missing.
+_TQDM_HINT = (
+    "progress=True needs the optional dependency tqdm: install it with "
+    "`pip install 'bderiv[progress]'` (or `pip install tqdm`), or pass progress=None, or "
+    "a callable progress(done, total)"
+)
+
+
+class TqdmCallback:
+    """A ``progress(done, total)`` callable drawing a tqdm bar.
+
+    Parameters
+    ----------
+    desc : str
+        Label of the bar.
+    unit : str
+        Name of one unit of work (``"vec"`` for vectors).
+    **kwargs
+        Passed to ``tqdm.tqdm`` (for example ``file=``, ``disable=``, ``leave=``).
+
+    Notes
+    -----
+    ``done`` is cumulative: the bar advances by the difference to the previous call. The
+    bar closes itself when ``done`` reaches ``total``; :meth:`close` closes it earlier.
+
+    Examples
+    --------
+    >>> import io
+    >>> bar = TqdmCallback("demo", file=io.StringIO())
+    >>> for done in (10, 60, 100):
+    ...     bar(done, 100)
+    >>> bar.done
+    100
+    """
+
+    def __init__(self, desc: str = "bderiv", unit: str = "vec", **kwargs):
+        try:
+            from tqdm.auto import tqdm
+        except ImportError as exc:  # pragma: no cover - exercised without tqdm only
+            raise ImportError(_TQDM_HINT) from exc
+        self._tqdm = tqdm
+        self._kwargs = dict(desc=desc, unit=unit, unit_scale=True, dynamic_ncols=True, **kwargs)
+        self._bar = None
+        self.done = 0
+
+    def __call__(self, done: int, total: int) -> None:
+        if self._bar is None:
+            self._bar = self._tqdm(total=int(total), **self._kwargs)
+        step = int(done) - self.done
+        if step > 0:
+            self._bar.update(step)
+            self.done = int(done)
+        if self.done >= int(total):
+            self.close()
+
+    def close(self) -> None:
+        """Close the bar (idempotent)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def resolve_progress(progress, desc: str = "bderiv", **kwargs):
+    """Return a ``callback(done, total)`` or ``None`` for a ``progress=`` argument.
+
+    Parameters
+    ----------
+    progress : None, bool or callable
+        ``None``/``False``: no reporting; ``True``: a tqdm bar (needs tqdm, the extra
+        ``progress``); a callable: used as it is.
+    desc : str
+        Label of the tqdm bar.
+    **kwargs
+        Passed to :class:`TqdmCallback`.
+
+    Raises
+    ------
+    ImportError
+        ``progress=True`` without tqdm installed (the message names the extra).
+    TypeError
+        Anything else.
+
+    Examples
+    --------
+    >>> resolve_progress(None) is None
+    True
+    >>> seen = []
+    >>> cb = resolve_progress(lambda done, total: seen.append((done, total)))
+    >>> cb(5, 10); seen
+    [(5, 10)]
+    """
+    if progress is None or progress is False:
+        return None
+    if progress is True:
+        return TqdmCallback(desc, **kwargs)
+    if callable(progress):
+        return progress
+    raise TypeError(
+        f"progress must be None, a bool or a callable progress(done, total), got "
+        f"{type(progress).__name__}"
+    )

@@ -1,0 +1,120 @@
+"""Dask: ``bd(x)`` with a dask array is lazy and block-wise; maps pickle; a real cluster.
+
+The in-process tests use dask's synchronous and threaded schedulers; one test runs a
+``distributed.LocalCluster`` with two worker processes.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from bderiv import BDerivative
+from bderiv._dask import is_dask_array
+
+da = pytest.importorskip("dask.array")
+dask = pytest.importorskip("dask")
+
+
+def three_events():
+    F = np.ones((8, 3))
+    F[0b001] = (1.0, 0.1, 1.0)
+    F[0b011] = (1.0, 0.5, 2.0)
+    F[0b111] = (1.5, 1.0, 2.0)
+    return BDerivative(np.eye(3), F)
+
+
+@pytest.fixture(scope="module")
+def bd():
+    return three_events()
+
+
+@pytest.fixture(scope="module")
+def X():
+    return np.random.default_rng(0).standard_normal((5000, 3))
+
+
+def test_detection_without_importing_dask(X):
+    assert not is_dask_array(X)
+    assert not is_dask_array([1.0, 2.0])
+    assert is_dask_array(da.from_array(X))
+
+
+def test_lazy_and_identical(bd, X):
+    D = da.from_array(X, chunks=(1500, 3))
+    W = bd(D)
+    assert is_dask_array(W)  # nothing computed yet
+    assert W.shape == X.shape and W.dtype == np.float64
+    assert W.chunks == D.chunks
+    with dask.config.set(scheduler="synchronous"):
+        assert_array_equal(W.compute(), bd(X))
+        assert_array_equal(bd.inverse(W).compute(), bd.inverse(bd(X)))
+    assert_array_equal(bd.apply(D).compute(scheduler="threads"), bd(X))
+
+
+def test_last_axis_split_and_leading_axes(bd, X):
+    V = X[:600].reshape(20, 30, 3)
+    D = da.from_array(V, chunks=(7, 11, 2))  # vectors split across blocks: rechunked
+    W = bd(D)
+    assert W.shape == (20, 30, 3)
+    assert_array_equal(W.compute(scheduler="synchronous"), bd(V))
+
+
+def test_integer_dask_input(bd):
+    V = np.array([[-1, -2, -3], [3, 1, 2]])
+    assert_array_equal(bd(da.from_array(V)).compute(), bd(V.astype(float)))
+
+
+def test_bad_dask_input(bd, X):
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 3\)"):
+        bd(da.from_array(X[:, :2]))
+    with pytest.raises(ValueError, match="out cannot be used"):
+        bd(da.from_array(X), out=np.empty_like(X))
+    with pytest.raises(TypeError, match="real numbers"):
+        bd(da.from_array(np.ones((4, 3), dtype=complex)))
+
+
+def test_bderivative_pickles(bd, X):
+    clone = pickle.loads(pickle.dumps(bd))
+    assert_array_equal(clone(X), bd(X))
+    assert_array_equal(clone.inverse(X), bd.inverse(X))
+    assert not clone.F.flags.writeable and not clone.Dh.flags.writeable
+    assert not clone.rates.flags.writeable
+
+
+def test_flow_map_pickles():
+    examples = pytest.importorskip("bderiv.examples")
+    ex = examples.network(3)
+    fb = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    V = np.random.default_rng(1).standard_normal((100, 3))
+    clone = pickle.loads(pickle.dumps(fb))
+    assert_array_equal(clone(V), fb(V))
+    for (t1, o1), (t2, o2) in zip(clone.event_times(V), fb.event_times(V), strict=True):
+        assert_array_equal(t1, t2)
+        assert_array_equal(o1, o2)
+
+
+def test_local_cluster(bd):
+    """Two worker processes: the map travels by pickle and the results are identical.
+
+    About 15 s on two busy cores (worker start-up and loading the cached kernels), so it
+    stays in CI, under the 20 s line above which it would be marked slow.
+    """
+    distributed = pytest.importorskip("distributed")
+    X = np.random.default_rng(2).standard_normal((200_000, 3))
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        D = da.from_array(X, chunks=(25_000, 3))
+        W = bd(D).compute()
+        back = bd.inverse(bd(D)).compute()
+        workers = client.run(lambda: __import__("os").getpid())
+    assert len(set(workers.values())) == 2
+    assert_array_equal(W, bd(X))
+    assert_array_equal(back, bd.inverse(bd(X)))
