@@ -29,7 +29,7 @@ def bd3():
         (5.0, F2, r"Dh must be a 2-D array, got 0-D"),
         (DH2, np.ones(8), r"F must be a 2-D array, got 1-D"),
         (DH2, np.ones((4, 2, 1)), r"F must be a 2-D array, got 3-D"),
-        (DH2, np.ones((4, 3)), r"F must have shape \('any', 2\), got \(4, 3\).*expected 2, got 3"),
+        (DH2, np.ones((4, 3)), r"F must have shape \(any, 2\), got \(4, 3\).*expected 2, got 3"),
         (DH2, np.ones((3, 2)), r"F must have 2\*\*n = 4 rows.*n=2.*got 3 rows"),
         (DH2, np.ones((2, 2)), r"F must have 2\*\*n = 4 rows.*got 2 rows"),
         (np.ones((3, 2)), np.ones((4, 2)), r"F must have 2\*\*n = 8 rows.*got 4 rows"),
@@ -174,6 +174,8 @@ def test_non_finite_query_names_first_bad_row(bd3, bad):
     V3[1, 2, 0] = bad
     with pytest.raises(ValueError, match=r"V must be finite.*V\[1, 2\] = "):
         bd3(V3)
+    with pytest.raises(ValueError, match=r"V must be finite, but V = \[1\. nan 1\.\] is not"):
+        bd3(np.array([1.0, np.nan, 1.0]))
 
 
 def test_bad_out(bd3):

@@ -59,9 +59,9 @@ def check_matrix(a, name: str, shape: tuple[int | None, int | None]) -> np.ndarr
         raise ValueError(f"{name} must be a 2-D array, got {arr.ndim}-D with shape {arr.shape}")
     for axis, (want, got) in enumerate(zip(shape, arr.shape, strict=True)):
         if want is not None and want != got:
-            expected = tuple("any" if s is None else s for s in shape)
+            expected = ", ".join("any" if s is None else str(s) for s in shape)
             raise ValueError(
-                f"{name} must have shape {expected}, got {arr.shape} (axis {axis}: expected "
+                f"{name} must have shape ({expected}), got {arr.shape} (axis {axis}: expected "
                 f"{want}, got {got})"
             )
     check_finite(arr, name)
@@ -89,11 +89,12 @@ def check_points(V, dim: int, name: str = "V") -> tuple[np.ndarray, tuple[int, .
     flat = np.ascontiguousarray(arr.reshape(-1, dim), dtype=np.float64)
     if not np.isfinite(flat).all():
         row = int(np.flatnonzero(~np.isfinite(flat).all(axis=1))[0])
-        where = np.unravel_index(row, lead) if lead else ()
-        raise ValueError(
-            f"{name} must be finite, but vector {name}[{', '.join(map(str, where))}] = "
-            f"{flat[row]} is not"
-        )
+        if lead:
+            where = ", ".join(str(int(i)) for i in np.unravel_index(row, lead))
+            what = f"vector {name}[{where}] = {flat[row]} is not"
+        else:
+            what = f"{name} = {flat[row]} is not"
+        raise ValueError(f"{name} must be finite, but {what}")
     return flat, lead
 
 
