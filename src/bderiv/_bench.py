@@ -139,7 +139,7 @@ def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repe
     --------
     >>> rows = sweep(ns=(2,), batch=1000, repeat=1)
     >>> sorted({r["method"] for r in rows})
-    ['blas', 'bderiv', 'numpy']
+    ['bderiv', 'blas', 'numpy']
     """
     rows = []
     ns = list(ns)

@@ -58,11 +58,11 @@ def map_blocks(fn, V, dim: int, name: str = "V", out=None):
     >>> from bderiv import BDerivative
     >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
     >>> bd = BDerivative(np.eye(2), F)
-    >>> V = da.from_array(np.array([[-1.0, -2.0], [0.5, 0.5]]), chunks=(1, 2))
+    >>> V = da.from_array(np.array([[-1.0, -2.0], [-3.0, -1.0]]), chunks=(1, 2))
     >>> W = bd(V)                # lazy dask array
     >>> W.compute()
-    array([[-2. , -2. ],
-           [ 0.5,  0.5]])
+    array([[-2., -2.],
+           [-6., -1.]])
     """
     if out is not None:
         raise ValueError(
