@@ -224,9 +224,11 @@ def run_demo(example="chair", n=None, extended=False, batch=1_000_000, check=8,
     res["n_pieces_visited"] = n_seen
     lines = [f"pieces: {n_total:,} in all (one event order per group), {n_seen:,} met by "
              f"{len(sample):,} random tangent vectors; the most visited:"]
-    for p in pieces:
-        label = " ".join(f"g{i}={_fmt_order(o)}" for i, o in enumerate(p["orders"])) or "-"
-        lines.append(f"  order {label:<24} share {100 * p['share']:5.1f} %   det = "
+    labels = [" ".join(f"g{i}={_fmt_order(o)}" for i, o in enumerate(p["orders"])) or "-"
+              for p in pieces]
+    width = max(map(len, labels), default=1)
+    for label, p in zip(labels, pieces, strict=True):
+        lines.append(f"  order {label:<{width}}  share {100 * p['share']:6.3g} %   det = "
                      f"{p['det']:<10.6g} |D|_2 = {p['norm']:.6g}")
     lines.append(
         f"batch: {batch:,} tangent vectors in {t_batch:.3f} s = "

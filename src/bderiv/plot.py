@@ -361,15 +361,16 @@ def pieces(bd, axes=None, *, max_pieces=24, n_samples=4000, seed=0):
     fig, axs = _figure(axes, ncols=2, figsize=(max(8.0, 0.35 * len(orders) + 4), 4.2))
     x = np.arange(len(orders))
     labels = [_order_label(o) for o in orders]
-    colors = [_PALETTE[i % len(_PALETTE)] for i in range(len(orders))]
+    many = n > 6  # labels and per-piece colours stop being readable
+    colors = ["#4477AA" if many else _PALETTE[i % len(_PALETTE)] for i in range(len(orders))]
     gain = "gain $\\|M_\\sigma\\|_2$"
     for ax, values, name in ((axs[0], dets, "determinant"), (axs[1], gains, gain)):
         ax.bar(x, values, color=colors, ec="k", lw=0.5)
         ax.axhline(1.0, color="0.4", lw=0.8, ls=":")
         ax.set_ylabel(name)
-        ax.set_xticks(x, labels if n <= 6 else [""] * len(x), rotation=90 if n > 3 else 0,
+        ax.set_xticks(x, [""] * len(x) if many else labels, rotation=90 if n > 3 else 0,
                       fontsize=8)
-        ax.set_xlabel("event order" if n <= 6 else "piece")
+        ax.set_xlabel("piece, most visited first" if many else "event order")
         if values.max() / max(values.min(), 1e-300) > 30:
             ax.set_yscale("log")
     axs[0].set_title("det $M_\\sigma$ (> 0: orientation kept)")
