@@ -92,6 +92,9 @@ def test_flow_map_pickles():
     V = np.random.default_rng(1).standard_normal((100, 3))
     clone = pickle.loads(pickle.dumps(fb))
     assert_array_equal(clone(V), fb(V))
+    lazy = fb(da.from_array(V, chunks=(30, 3)))  # the flow map is lazy on dask too
+    assert is_dask_array(lazy)
+    assert_array_equal(lazy.compute(scheduler="processes"), fb(V))
     for (t1, o1), (t2, o2) in zip(clone.event_times(V), fb.event_times(V), strict=True):
         assert_array_equal(t1, t2)
         assert_array_equal(o1, o2)

@@ -148,7 +148,12 @@ class FlowBDerivative:
         Returns
         -------
         ndarray, shape (..., d)
+            (A lazy dask array, computed block-wise, when V is a dask array and dt is None.)
         """
+        if dt is None and type(V).__module__.startswith("dask."):  # see _dask.py
+            from ._dask import map_blocks
+
+            return map_blocks(self.apply, V, self.dim, "V")
         flat, lead = check_points(V, self.dim)
         *_, out = self._stage_inputs(flat)
         if dt is not None:
