@@ -1,0 +1,392 @@
+"""Corner models (StructuredCorners, CornerFunction) against dense tables and the oracle."""
+
+from __future__ import annotations
+
+import pickle
+
+import numba
+import numpy as np
+import pytest
+from reference import (
+    assert_maps_close,
+    overtaking_system,
+    random_system,
+    ref_apply,
+    ref_event_times,
+    ref_inverse,
+    ref_piece,
+)
+
+from bderiv import BDerivative
+from bderiv.corners import CornerFunction, StructuredCorners
+
+
+def structured_system(rng, n, d=None, n_pairs=0, coupling=0.4, proved=True):
+    """A transversal structured model with mask-dependent rates (orders change).
+
+    Dh = [I + small, noise]; F0 has unit rates; the jumps A and B change every rate by at
+    most ``coupling`` in total, so all rates stay >= 1 - coupling - small > 0 (proved).
+    With ``proved=False`` one jump is made so negative that the lower bound fails while
+    every reachable region stays transversal (needs pairs to compensate).
+    """
+    d = n if d is None else d
+    Dh = np.zeros((n, d))
+    Dh[:, :n] = np.eye(n) + 0.1 / n * rng.uniform(-1, 1, (n, n))
+    if d > n:
+        Dh[:, n:] = rng.uniform(-0.5, 0.5, (n, d - n))
+    F0 = np.zeros(d)
+    F0[:n] = 1.0
+    F0 = np.linalg.lstsq(Dh, np.ones(n), rcond=None)[0] + 0.0 * F0  # Dh F0 = 1
+    A = coupling / n * rng.uniform(-1, 1, (n, d))
+    A += rng.uniform(-1, 1, (n, d)) @ (np.eye(d) - np.linalg.pinv(Dh) @ Dh)  # kernel part
+    if n_pairs:
+        i = rng.integers(0, n, n_pairs)
+        j = (i + rng.integers(1, n, n_pairs)) % n
+        pairs = np.stack([i, j], axis=1)
+        B = coupling / (2 * n_pairs) * rng.uniform(-1, 1, (n_pairs, d))
+        return Dh, StructuredCorners(F0, A, pairs, B)
+    return Dh, StructuredCorners(F0, A)
+
+
+# a corner function over a fixed random table, compiled once for the module
+_RNG = np.random.default_rng(1234)
+DH4, F4 = random_system(_RNG, 4, 5)
+_F4 = F4.copy()
+
+
+@numba.njit
+def table_corners(happened, out):
+    mask = 0
+    for k in range(happened.shape[0]):
+        if happened[k]:
+            mask |= 1 << k
+    for i in range(out.shape[0]):
+        out[i] = _F4[mask, i]
+
+
+TABLE_FUNC = CornerFunction(table_corners)
+
+
+# ----------------------------------------------------------------------------------------
+# structured corners
+# ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 7])
+@pytest.mark.parametrize("extra", [0, 2])
+@pytest.mark.parametrize("n_pairs", [0, 4])
+def test_structured_matches_dense_and_oracle(n, extra, n_pairs):
+    rng = np.random.default_rng(100 * n + 10 * extra + n_pairs)
+    n_pairs = n_pairs if n > 1 else 0
+    Dh, model = structured_system(rng, n, n + extra, n_pairs)
+    F = model.table()
+    bd = BDerivative(Dh, model)
+    dense = BDerivative(Dh, F, fast_paths=False)
+    assert bd.model is model and bd.F is None and bd.table_bytes == 0
+    V = rng.standard_normal((40, n + extra)) * rng.uniform(0.1, 10, (40, 1))
+    W = bd(V)
+    assert_maps_close(Dh, F, V, W, dense(V))
+    assert_maps_close(Dh, F, V[:15], W[:15], [ref_apply(Dh, F, u) for u in V[:15]])
+    assert_maps_close(Dh, F, V[:15], bd.inverse(V[:15]), [ref_inverse(Dh, F, u) for u in V[:15]])
+    assert_maps_close(Dh, F, V, bd.inverse(W), V)
+    times, order = bd.event_times(V)
+    t_ref, o_ref = dense.event_times(V)
+    np.testing.assert_allclose(times, t_ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(order, o_ref)
+    for u, o in zip(V[:5], order[:5], strict=True):
+        np.testing.assert_allclose(bd.piece(o), ref_piece(Dh, F, o), atol=1e-10)
+        assert_maps_close(Dh, F, u, bd.piece(o) @ u, ref_apply(Dh, F, u))
+
+
+def test_structured_orders_really_change():
+    """The test systems are not secretly first-order: some orders differ from the sort."""
+    rng = np.random.default_rng(5)
+    Dh, model = structured_system(rng, 6, 6, 6, coupling=0.9)
+    F = model.table()
+    V = rng.standard_normal((2000, 6))
+    _, order = BDerivative(Dh, model).event_times(V)
+    first = np.argsort(-(V @ Dh.T) / (Dh @ model.F0), axis=1, kind="stable")
+    assert (order != first).any(axis=1).sum() > 10
+    assert_maps_close(Dh, F, V[:20], BDerivative(Dh, model)(V[:20]),
+                      [ref_apply(Dh, F, u) for u in V[:20]])
+
+
+def test_structured_serial_and_parallel_bitwise_equal():
+    rng = np.random.default_rng(7)
+    Dh, model = structured_system(rng, 9, 11, 12)
+    bd = BDerivative(Dh, model)
+    V = rng.standard_normal((3000, 11))
+    big = bd(V)
+    small = np.vstack([bd(V[i : i + 500]) for i in range(0, 3000, 500)])
+    np.testing.assert_array_equal(big, small)
+    np.testing.assert_array_equal(bd.inverse(big), np.vstack(
+        [bd.inverse(big[i : i + 100]) for i in range(0, 3000, 100)]))
+
+
+@pytest.mark.parametrize("n_pairs", [0, 256])
+def test_structured_n128(n_pairs):
+    """n = d = 128 events: no 2**n anything; round trip, identities, times and pieces."""
+    rng = np.random.default_rng(128)
+    n = 128
+    Dh, model = structured_system(rng, n, n, n_pairs)
+    bd = BDerivative(Dh, model)
+    assert bd._engine.transversal_proved and bd.fast_path is None
+    V = rng.standard_normal((2000, n))
+    W = bd(V)
+    np.testing.assert_allclose(bd.inverse(W), V, atol=1e-10)
+    # M(F[0]) = F[full]; homogeneity
+    full = model.F0 + model.A.sum(0) + model.B.sum(0)
+    np.testing.assert_allclose(bd(model.F0), full, atol=1e-12)
+    np.testing.assert_allclose(bd(3.0 * V[:10]), 3.0 * W[:10], atol=1e-10)
+    times, order = bd.event_times(V[:50])
+    assert (np.sort(order, axis=1) == np.arange(n)).all()
+    sorted_t = np.take_along_axis(times, order, axis=1)
+    assert (np.diff(sorted_t, axis=1) >= 0).all()
+    # the piece of the query's own order reproduces it
+    np.testing.assert_allclose(bd.piece(order[0]) @ V[0], W[0], atol=1e-9)
+    with pytest.raises(ValueError, match="2\\*\\*128 rows"):
+        bd.corner_points()
+    with pytest.raises(ValueError, match="refused for n > 20"):
+        bd.triangulation()
+
+
+def test_structured_n128_fast_matches_general():
+    rng = np.random.default_rng(3)
+    n = 128
+    Dh = np.eye(n) + 0.2 / n * rng.uniform(-1, 1, (n, n))
+    A = rng.uniform(-0.4, 2.0, n)[:, None] * np.linalg.inv(Dh).T  # Dh[j] . A[k] = 0, j != k
+    model = StructuredCorners(Dh.T @ np.linalg.solve(Dh @ Dh.T, np.ones(n)), A)
+    fast, general = BDerivative(Dh, model), BDerivative(Dh, model, fast_paths=False)
+    assert fast.fast_path == "linear" and general.fast_path is None
+    V = rng.standard_normal((1500, n))
+    np.testing.assert_allclose(fast(V), general(V), atol=1e-10)
+    np.testing.assert_allclose(fast.inverse(V), general.inverse(V), atol=1e-10)
+    tf, of = fast.event_times(V)
+    tg, og = general.event_times(V)
+    np.testing.assert_allclose(tf, tg, atol=1e-10)
+    np.testing.assert_array_equal(of, og)
+
+
+def test_structured_pickles():
+    rng = np.random.default_rng(2)
+    Dh, model = structured_system(rng, 5, 6, 3)
+    bd = BDerivative(Dh, model)
+    V = rng.standard_normal((10, 6))
+    np.testing.assert_array_equal(pickle.loads(pickle.dumps(bd))(V), bd(V))
+
+
+def test_structured_small_triangulation_and_corner_points_via_table():
+    rng = np.random.default_rng(4)
+    Dh, model = structured_system(rng, 3, 3, 2)
+    bd = BDerivative(Dh, model)
+    dense = BDerivative(Dh, model.table())
+    for a, b in zip(bd.corner_points(), dense.corner_points(), strict=True):
+        np.testing.assert_array_equal(a, b)
+    V = rng.standard_normal((20, 3))
+    np.testing.assert_allclose(bd.triangulation()(V), bd(V), atol=1e-9)
+    assert bd.to_dense().model is None
+
+
+# ----------------------------------------------------------------------------------------
+# transversality of models
+# ----------------------------------------------------------------------------------------
+def test_structured_violation_refused_at_construction():
+    Dh = np.eye(3)
+    A = np.zeros((3, 3))
+    A[0, 2] = -0.7
+    A[1, 2] = -0.6  # rate of event 2 after events 0 and 1: 1 - 1.3 < 0
+    with pytest.raises(ValueError, match=r"transversality violated at event 2 in region mask "
+                                         r"0b011"):
+        BDerivative(Dh, StructuredCorners(np.ones(3), A))
+
+
+def test_structured_violation_found_by_the_query():
+    """With pairs the bound is only sufficient: a bad region is reported by the query
+    whose chain meets it, naming the query, the event and the region."""
+    Dh = np.eye(3)
+    A = np.zeros((3, 3))
+    A[0, 2] = -0.7
+    A[1, 2] = -0.6  # without the pair, event 2's rate in region 0b011 is 1 - 1.3 < 0
+    A[2, 2] = 1.0  # ... and 0.8 or more once event 2 has happened
+    # a strong pair repairs region 0b011 (rate 0.2): the bound fails, every region is fine
+    fine = BDerivative(Dh, StructuredCorners(np.ones(3), A, [[0, 1]], [[0.0, 0.0, 0.5]]))
+    assert not fine._engine.transversal_proved
+    V = np.random.default_rng(0).standard_normal((50, 3))
+    np.testing.assert_allclose(fine.inverse(fine(V)), V, atol=1e-12)
+    # a weak pair leaves region 0b011 with rate -0.2
+    bd = BDerivative(Dh, StructuredCorners(np.ones(3), A, [[0, 1]], [[0.0, 0.0, 0.1]]))
+    V = np.array([[-1.0, -2.0, -10.0], [-5.0, -1.0, -2.0]])  # V[0] visits 0b011
+    with pytest.raises(ValueError, match=r"V\[0\]: event 2 has rate -0.2 <= 0 in region mask "
+                                         r"0b011"):
+        bd(V)
+    with pytest.raises(ValueError, match=r"V\[0\]: event 2 has rate"):
+        bd.event_times(V)
+    with pytest.raises(ValueError, match=r"W\[0\] \(inverse map\): event 2 has rate -0.2"):
+        bd.inverse(V)
+    with pytest.raises(ValueError, match=r"in rows 0:1 of V: transversality violated"):
+        bd.apply(V, chunk_size=1)
+    with pytest.raises(ValueError, match=r"event 2 has rate -0.2"):
+        bd.piece([0, 1, 2])
+    bd(V[1])  # V[1] never visits 0b011 (event 2 happens before event 0)
+
+
+def test_structured_violation_in_region_0_or_full():
+    Dh = np.eye(2)
+    with pytest.raises(ValueError, match="event 1 in region full"):
+        BDerivative(Dh, StructuredCorners([1.0, 1.0], [[0, 0], [0, -3.0]], [[0, 1]],
+                                          [[0.0, 0.0]]))
+
+
+# ----------------------------------------------------------------------------------------
+# corner functions
+# ----------------------------------------------------------------------------------------
+def test_corner_function_matches_dense_and_oracle():
+    bd = BDerivative(DH4, TABLE_FUNC)
+    dense = BDerivative(DH4, F4, fast_paths=False)
+    rng = np.random.default_rng(11)
+    V = rng.standard_normal((300, 5))
+    W = bd(V)
+    assert_maps_close(DH4, F4, V, W, dense(V))
+    assert_maps_close(DH4, F4, V[:20], W[:20], [ref_apply(DH4, F4, u) for u in V[:20]])
+    assert_maps_close(DH4, F4, V, bd.inverse(W), V)
+    times, order = bd.event_times(V)
+    for u, t, o in zip(V[:20], times[:20], order[:20], strict=True):
+        t_ref, o_ref = ref_event_times(DH4, F4, u)
+        np.testing.assert_allclose(t, t_ref, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(o, o_ref)
+    np.testing.assert_allclose(bd.piece(order[0]), dense.piece(order[0]), atol=1e-12)
+    np.testing.assert_array_equal(TABLE_FUNC.table(4, 5), F4)
+    np.testing.assert_allclose(bd.corner_points()[0], dense.corner_points()[0])
+
+
+def test_corner_function_parallel_path():
+    bd = BDerivative(DH4, TABLE_FUNC)
+    V = np.random.default_rng(12).standard_normal((2500, 5))
+    W = bd(V)
+    np.testing.assert_array_equal(W[:100], bd(V[:100]))
+    np.testing.assert_allclose(W, BDerivative(DH4, F4)(V), atol=1e-12)
+
+
+def test_corner_function_overtaking():
+    """The MATH.md section 3 pitfall: the order is not the first-order sort."""
+    Dh, F, u, order, w, times = overtaking_system(4)
+    G = F.copy()
+
+    @numba.njit
+    def overtaking(happened, out):
+        mask = 0
+        for k in range(happened.shape[0]):
+            if happened[k]:
+                mask |= 1 << k
+        for i in range(out.shape[0]):
+            out[i] = G[mask, i]
+
+    bd = BDerivative(Dh, CornerFunction(overtaking))
+    np.testing.assert_allclose(bd(u), w, atol=1e-12)
+    t, o = bd.event_times(u)
+    np.testing.assert_array_equal(o, order)
+    np.testing.assert_allclose(t, times, atol=1e-12)
+
+
+def test_corner_function_beyond_62_events_matches_structured():
+    """happened is an array: n = 70 > 62 works; same map as the structured model."""
+    rng = np.random.default_rng(70)
+    n = 70
+    Dh, model = structured_system(rng, n, n, 0)
+    F0, A = model.F0.copy(), model.A.copy()
+
+    @numba.njit
+    def additive(happened, out):
+        out[:] = F0
+        for k in range(happened.shape[0]):
+            if happened[k]:
+                out += A[k]
+
+    bd = BDerivative(Dh, CornerFunction(additive))
+    ref = BDerivative(Dh, model)
+    V = rng.standard_normal((50, n))
+    np.testing.assert_allclose(bd(V), ref(V), atol=1e-10)
+    np.testing.assert_allclose(bd.inverse(V), ref.inverse(V), atol=1e-10)
+
+
+def test_corner_function_violation_and_errors():
+    @numba.njit
+    def bad(happened, out):
+        out[0] = 1.0
+        out[1] = 1.0 - 2.0 * happened[0] * (1 - happened[1])  # region 0b01: rate of 1 < 0
+
+    bd = BDerivative(np.eye(2), CornerFunction(bad))
+    bd([-2.0, -1.0])  # event 1 first: never visits 0b01
+    with pytest.raises(ValueError, match=r"V\[1\]: event 1 has rate -1 <= 0 in region mask "
+                                         r"0b01"):
+        bd([[-2.0, -1.0], [-1.0, -2.0]])
+    with pytest.raises(TypeError, match="must be a function"):
+        CornerFunction(3)
+    with pytest.raises(ValueError, match="finite values"):
+
+        @numba.njit
+        def nan(happened, out):
+            out[:] = np.nan
+
+        BDerivative(np.eye(2), CornerFunction(nan))
+    with pytest.raises(TypeError, match="could not be called"):
+
+        def wrong(happened):
+            return happened
+
+        BDerivative(np.eye(2), CornerFunction(wrong))
+    assert "CornerFunction(bad)" in repr(CornerFunction(bad))
+
+
+def test_python_function_is_compiled():
+    def plain(happened, out):
+        out[0] = 1.0 + happened[0]
+        out[1] = 1.0
+
+    bd = BDerivative(np.eye(2), CornerFunction(plain))
+    np.testing.assert_allclose(bd([-1.0, -2.0]), [-2.0, -2.0])
+
+
+# ----------------------------------------------------------------------------------------
+# validation
+# ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "kwargs, exc, match",
+    [
+        (dict(F0=np.ones((2, 2)), A=np.ones((2, 2))), ValueError, r"F0 must have shape \(d,\)"),
+        (dict(F0=[1j, 1], A=np.ones((2, 2))), TypeError, "F0 must hold real numbers"),
+        (dict(F0=[np.nan, 1], A=np.ones((2, 2))), ValueError, "F0 must be finite"),
+        (dict(F0=[1, 1], A=np.ones((2, 3))), ValueError, r"A must have shape \(any, 2\)"),
+        (dict(F0=[1, 1], A=np.ones((0, 2))), ValueError, "at least one row"),
+        (dict(F0=[1, 1], A=np.ones((2, 2)), pairs=[[0, 1]]), ValueError, "pass both or neither"),
+        (dict(F0=[1, 1], A=np.ones((2, 2)), pairs=[[0, 2]], B=np.ones((1, 2))), ValueError,
+         r"pairs must name events 0..1"),
+        (dict(F0=[1, 1], A=np.ones((2, 2)), pairs=[[1, 1]], B=np.ones((1, 2))), ValueError,
+         r"pairs\[0\] = \[1, 1\] joins an event with itself"),
+        (dict(F0=[1, 1], A=np.ones((2, 2)), pairs=[[0.5, 1]], B=np.ones((1, 2))), TypeError,
+         "pairs must hold integers"),
+        (dict(F0=[1, 1], A=np.ones((2, 2)), pairs=[0, 1], B=np.ones((1, 2))), ValueError,
+         r"pairs must have shape \(p, 2\)"),
+        (dict(F0=[1, 1], A=np.ones((2, 2)), pairs=[[0, 1]], B=np.ones((2, 2))), ValueError,
+         r"B must have shape \(1, 2\)"),
+    ],
+)
+def test_structured_validation(kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        StructuredCorners(**kwargs)
+
+
+def test_model_shape_mismatch():
+    model = StructuredCorners(np.ones(3), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"Dh has shape \(2, 4\).*n=2 events in dimension d=3"):
+        BDerivative(np.ones((2, 4)), model)
+    with pytest.raises(ValueError, match=r"shape \(3, 3\) \(n=3 events"):
+        BDerivative(np.eye(3), model)
+    assert repr(model) == "StructuredCorners(n_events=2, dim=3, pairs=0)"
+
+
+def test_table_refused_for_large_n():
+    model = StructuredCorners(np.ones(30), 0.01 * np.eye(30))
+    with pytest.raises(ValueError, match=r"2\*\*30 rows"):
+        model.table()
+    bd = BDerivative(np.eye(30), model)
+    with pytest.raises(ValueError, match="corner points of a corner model with n=30"):
+        bd.corner_points()
