@@ -331,14 +331,6 @@ def _run_table_demo(bd, res, batch, rng, emit, t_start):
     return res
 
 
-def demo(out=None, argv=None) -> int:
-    """Run ``bderiv demo`` (kept for callers of the first version); see :func:`main`."""
-    if out is not None and out is not sys.stdout:
-        res = run_demo(example="chair" if have_models() else "corners", emit=out.write)
-        return 0 if res else 1
-    return main(["demo", *(argv or [])])
-
-
 def _cmd_demo(args) -> int:
     example = args.example
     if example is None:
@@ -557,7 +549,14 @@ def _add_example_args(p, default_help):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``bderiv`` (one-line errors, exit status 2)."""
+    """The argument parser of ``bderiv`` (one-line errors, exit status 2).
+
+    Examples
+    --------
+    >>> args = build_parser().parse_args(["demo", "--example", "network", "--n", "4"])
+    >>> args.command, args.example, args.n, args.batch
+    ('demo', 'network', 4, 1000000)
+    """
     parser = _Parser(prog="bderiv", description=__doc__.split("\n\n")[0],
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     from . import __version__
@@ -616,7 +615,29 @@ _COMMANDS = {"demo": _cmd_demo, "bench": _cmd_bench, "plot": _cmd_plot, "export"
 
 
 def main(argv=None) -> int:
-    """Entry point of ``bderiv`` and ``python -m bderiv``; returns the exit status."""
+    """Entry point of ``bderiv`` and ``python -m bderiv``; returns the exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: ``sys.argv[1:]``); no command means ``demo``.
+
+    Returns
+    -------
+    int
+        0 on success, 2 on a bad argument (after a one-line message on stderr).
+
+    Examples
+    --------
+    >>> main(["export", "--example", "corners", "--out", "/nonexistent/dir/tri"])
+    2
+    >>> main(["demo", "--example", "corners", "--batch", "100"])  # doctest: +ELLIPSIS
+    bderiv demo: corner table (3 events in R^3), Dh = event Jacobian, F = corner table
+    vector u -> event order, event times, M(u):
+      u=[-1. -2. -3.]  order=[0, 2, 1]  times=[1.  3.  3.8]  M(u)=[-2.9 -3.8 -6.8]
+    ...
+    0
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:

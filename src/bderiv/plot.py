@@ -194,6 +194,15 @@ def triangulation(bd, axes=None, *, tri=None):
     Returns
     -------
     matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bderiv import BDerivative, plot
+    >>> F = np.array([[1.0, 1.0], [0.4, 1.6], [1.5, 0.5], [0.8, 0.9]])
+    >>> fig = plot.triangulation(BDerivative(np.eye(2), F))
+    >>> [ax.get_title() for ax in fig.axes]
+    ['pre-event fan (4 simplices)', 'post-event fan (4 simplices)']
     """
     if tri is None:
         _require_2d(bd, "triangulation")
@@ -271,6 +280,14 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     Returns
     -------
     matplotlib.figure.Figure
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bderiv import BDerivative, plot
+    >>> F = np.array([[1.0, 1.0], [0.4, 1.6], [1.5, 0.5], [0.8, 0.9]])
+    >>> fig = plot.tangent_circle(BDerivative(np.eye(2), F), n_vectors=90)
+    >>> fig.savefig(__import__("io").BytesIO(), format="png")
     """
     _require_2d(bd, "tangent_circle")
     fig, (ax,) = _figure(ax)
