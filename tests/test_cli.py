@@ -150,6 +150,7 @@ BAD = [
     (["demo", "--unknown-flag"], "unrecognized arguments"),
     (["demo", "--example", "corners", "--n", "3"], "--n applies to --example network"),
     (["bench", "--plot", "out.txt", "--n", "2"], "must end in .png"),
+    (["bench", "--plot", "/nonexistent/dir/s.png", "--n", "2"], "does not exist"),
     (["plot", "--example", "corners", "--figure", "field"], "need a 2-D system"),
     (["plot", "--figure", "scaling", "--bench-json", "/nonexistent/rows.json"],
      "cannot read benchmark rows"),

@@ -6,9 +6,9 @@ this module is the part an installed package can run on its own:
 - ``bderiv``: :meth:`BDerivative.__call__` on the batch (the compiled kernels);
 - ``numpy``: MATH.md section 3 in batched NumPy, vectorised over the queries and looping
   over the n events (:func:`numpy_apply`, the same algorithm as the suite's baseline);
-- ``blas``: a square matrix product with the flop count of the useful work,
-  ``m (n**2 + 2 n d)`` (at least 256 x 256, scaled to that flop count), as a yardstick of
-  the machine's peak.
+- ``blas``: the time a BLAS matrix product would take for the flop count of the useful
+  work, ``m (n**2 + 2 n d)``, at the rate of a 512 x 512 product measured once per sweep:
+  a yardstick of the machine's peak.
 
 Each time is the best of ``repeat`` runs after one warm-up run; construction (building the
 tables) is timed apart.
@@ -24,8 +24,8 @@ from .bderivative import BDerivative
 
 #: queries per chunk of the NumPy baseline (its temporaries stay in cache)
 NUMPY_CHUNK = 4096
-#: smallest side of the BLAS yardstick's square matrices
-BLAS_MIN_N = 256
+#: side of the BLAS yardstick's square matrices
+BLAS_SIZE = 512
 
 
 def useful_flops(n: int, d: int) -> int:
@@ -98,6 +98,19 @@ def numpy_apply(Dh, F, G, V, chunk: int = NUMPY_CHUNK):
     return out
 
 
+def measure_blas_rate(rng=None, size: int = BLAS_SIZE, repeat: int = 5) -> float:
+    """Flops per second of numpy's BLAS on a ``size`` x ``size`` product (best of repeat).
+
+    One square product large enough to reach the machine's peak, measured once per sweep:
+    the yardstick's time for a flop count F is then ``F / rate`` (a product sized to each
+    row's flop count would be tiny for small n and measure call overhead instead).
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    A, Bm = rng.standard_normal((size, size)), rng.standard_normal((size, size))
+    C = np.empty((size, size))
+    return 2 * size**3 / _best_time(lambda: np.matmul(A, Bm, out=C), repeat)
+
+
 def _best_time(fn, repeat: int) -> float:
     fn()  # warm-up (compilation, caches)
     best = np.inf
@@ -144,6 +157,7 @@ def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repe
     rows = []
     ns = list(ns)
     rng = np.random.default_rng(seed)
+    blas_rate = measure_blas_rate(rng)
     for i, n in enumerate(ns):
         d = d_factor * n
         Dh, F = random_system(n, d, seed)
@@ -167,13 +181,7 @@ def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repe
             t_np = _best_time(lambda args=args: numpy_apply(*args), max(1, repeat - 1))
             entry.append(row("numpy", t_np))
             entry[0]["speedup"] = t_np / t_bd
-        # the yardstick: a square product of the same flop count, at least BLAS_MIN_N wide
-        # (tiny products measure call overhead, not the machine's peak)
-        N = max(BLAS_MIN_N, round((flops / 2) ** (1 / 3)))
-        A, Bm = rng.standard_normal((N, N)), rng.standard_normal((N, N))
-        C = np.empty((N, N))
-        t_blas = _best_time(lambda A=A, Bm=Bm, C=C: np.matmul(A, Bm, out=C), repeat)
-        entry.append(row("blas", t_blas * flops / (2 * N**3)))
+        entry.append(row("blas", flops / blas_rate))
         rows.extend(entry)
         if progress is not None:
             progress(i + 1, len(ns))

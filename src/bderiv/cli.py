@@ -381,9 +381,13 @@ FIGURES = (*FIGURES_2D, "pieces", "scaling")
 
 
 def _check_figure_path(path):
+    """Refuse a figure path before any work is done (suffix, existing directory)."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".png", ".pdf", ".svg"):
         raise UsageError(f"figure file {path!r} must end in .png, .pdf or .svg")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise UsageError(f"directory {parent!r} of the figure file does not exist")
 
 
 def _cmd_plot(args) -> int:

@@ -30,6 +30,14 @@ _PALETTE = (
 )
 
 
+#: legend labels of the methods of ``bderiv bench``
+_METHOD_LABELS = {
+    "bderiv": "bderiv",
+    "numpy": "batched NumPy baseline",
+    "blas": "BLAS matrix product, same flops",
+}
+
+
 def _figure(ax, ncols=1, figsize=(5.5, 5.0)):
     """(figure, list of axes): the caller's axes, or a new pyplot-free figure."""
     try:
@@ -431,7 +439,8 @@ def scaling(rows, ax=None, *, batch=None):
         sel = sorted((r for r in rows if r["method"] == method), key=lambda r: r["n"])
         n = np.array([r["n"] for r in sel], dtype=float)
         t = np.array([r["seconds_per_query"] for r in sel], dtype=float)
-        ax.loglog(n, t * 1e9, marker=markers[i % len(markers)], label=method,
+        ax.loglog(n, t * 1e9, marker=markers[i % len(markers)],
+                  label=_METHOD_LABELS.get(method, method),
                   color=_PALETTE[i % len(_PALETTE)])
     ns = sorted({r["n"] for r in rows})
     ax.set_xticks(ns, [str(v) for v in ns])
