@@ -5,6 +5,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from . import examples
 from .bderivative import BDerivative
+from .corners import CornerFunction, StructuredCorners
 from .flowmap import FlowBDerivative
 from .hybrid import HybridSystem
 from .triangulation import Triangulation, load_triangulation
@@ -19,6 +20,8 @@ __all__ = [
     "HybridSystem",
     "examples",
     "BDerivative",
+    "CornerFunction",
+    "StructuredCorners",
     "Triangulation",
     "__version__",
     "load_triangulation",

@@ -58,11 +58,16 @@ def _pick(m: int, serial, parallel):
 # ----------------------------------------------------------------------------------------
 # fast-path detection for dense tables (NumPy, block by block, stops at the first misfit)
 # ----------------------------------------------------------------------------------------
+def _abs_max(F: np.ndarray) -> float:
+    """max |F| without a temporary of F's size."""
+    return float(max(F.max(), -F.min()))
+
+
 def own_rates(F: np.ndarray, G: np.ndarray, Dh: np.ndarray, rtol: float = FAST_RTOL):
     """``(G[0], G[-1])`` if ``G[mask, k]`` is ``G[0, k]`` or ``G[-1, k]`` by bit k, else None."""
     n = Dh.shape[0]
     g0, gf = G[0].copy(), G[-1].copy()
-    tol = rtol * np.abs(F).max() * np.linalg.norm(Dh, axis=1)
+    tol = rtol * _abs_max(F) * np.linalg.norm(Dh, axis=1)
     for rows in _tables.blocks(G.shape[0]):
         bits = _tables.mask_bits(np.arange(rows.start, rows.stop, dtype=np.int64), n)
         ref = g0 + bits * (gf - g0)
@@ -76,7 +81,7 @@ def additive(F: np.ndarray, rtol: float = FAST_RTOL):
     n = (F.shape[0] - 1).bit_length()
     F0 = F[0].copy()
     A = F[1 << np.arange(n)] - F0
-    tol = rtol * max(np.abs(F).max(), np.finfo(float).tiny)
+    tol = rtol * max(_abs_max(F), np.finfo(float).tiny)
     for rows in _tables.blocks(F.shape[0]):
         bits = _tables.mask_bits(np.arange(rows.start, rows.stop, dtype=np.int64), n)
         if (np.abs(F[rows] - (F0 + bits @ A)) > tol).any():
