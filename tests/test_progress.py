@@ -41,3 +41,20 @@ def test_missing_tqdm_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "tqdm.auto", None)  # import tqdm.auto -> ImportError
     with pytest.raises(ImportError, match=r"bderiv\[progress\]"):
         resolve_progress(True)
+
+
+def test_bderivative_progress_true_draws_a_bar(capsys):
+    """``BDerivative.apply(..., progress=True)`` plugs the tqdm bar into the chunked path."""
+    pytest.importorskip("tqdm")
+    import numpy as np
+
+    from bderiv import BDerivative
+
+    F = np.ones((4, 2))
+    F[1] = (2.0, 1.0)
+    bd = BDerivative(np.eye(2), F)
+    V = np.random.default_rng(0).standard_normal((5000, 2))
+    W = bd.apply(V, progress=True, chunk_size=1000)
+    np.testing.assert_array_equal(W, bd(V))
+    err = capsys.readouterr().err
+    assert "5.00k/5.00k" in err or "5000/5000" in err
