@@ -111,7 +111,7 @@ def _impacts_t(DhT, u, g):
 
 @njit(cache=True, error_model="numpy")
 def structured_chain(DhT, g0, gfull, a, bDh, ptr, other, pidx, u, inverse, check,
-                     g, r, tau, key, blk, hap, tev, order, s):
+                     g, r, tau, key, perm, posof, jump, hap, tev, order, s):
     """Event times of one query for structured corners (MATH.md section 3 / 6).
 
     ``DhT = Dh.T``; ``a[i, k] = Dh[k] . A[i]`` and ``bDh[p, k] = Dh[k] . B[p]`` are the
@@ -122,76 +122,91 @@ def structured_chain(DhT, g0, gfull, a, bDh, ptr, other, pidx, u, inverse, check
     first event whose rate is <= 0 in region ``hap`` (the chain stops there). Without
     ``check`` (transversality proved for all regions) returns -1.
 
-    Each step is a few loops over all n events that vectorise (hence
-    ``error_model="numpy"``: a division that may raise does not): the candidate times
-    ``tau = -g / r``; the selection as an integer min (max backward) over ``key``, the
-    bits of tau mapped to int64 in the same order, with events that cannot be next
-    blocked by ``blk``; the first index holding that key (ties to the smaller event); the
-    update of ``g`` and ``r`` by the jump of the selected event and its active pairs.
+    ``g`` and ``r`` are kept in *position* order: event ``perm[i]`` sits at position i and
+    the events that can be next (pending forward, happened backward) fill positions
+    ``0..np-1``; a selected event is swapped to position ``np - 1`` and dropped, so step j
+    works on n - j positions (half the work of scanning all n). Each step's loops
+    vectorise (hence ``error_model="numpy"``: a division that may raise does not): the
+    candidate times ``tau = -g / r``; an integer min (max backward) over ``key``, the bits
+    of tau mapped to int64 in the same order; the smallest event holding that key (ties to
+    the smaller event); the update of ``g`` and ``r`` by the jump of the selected event
+    and its active pairs, gathered into position order once (``jump``).
     """
     n = g.shape[0]
-    _impacts_t(DhT, u, g)
+    _impacts_t(DhT, u, jump)
     c_sign = 1.0 if inverse else -1.0
-    open_, shut = (INT_MAX, INT_MIN) if inverse else (INT_MIN, INT_MAX)
     for k in range(n):
+        g[k] = jump[k]
         r[k] = gfull[k] if inverse else g0[k]
         hap[k] = 1 if inverse else 0
-        blk[k] = open_
+        perm[k] = k
+        posof[k] = k
     tbits = tau.view(np.int64)
+    npos = n
     for j in range(n):
-        for i in range(n):
-            tau[i] = -g[i] / r[i]
         if check:
             bad = 0
             for i in range(n):
                 bad |= r[i] <= 0.0
             if bad:
+                worst = n
                 for i in range(n):
-                    if not r[i] > 0.0:
-                        return i
+                    worst = min(worst, perm[i] if not r[i] > 0.0 else n)
+                return worst
+        for i in range(npos):
+            tau[i] = -g[i] / r[i]
         # float order == int64 order of b ^ ((b >> 63) & 0x7ff...f) for finite doubles
         if inverse:
             best = INT_MIN
-            for i in range(n):
+            for i in range(npos):
                 b = tbits[i]
-                kk = min(b ^ ((b >> 63) & INT_MAX), blk[i])
+                kk = b ^ ((b >> 63) & INT_MAX)
                 key[i] = kk
                 best = max(best, kk)
         else:
             best = INT_MAX
-            for i in range(n):
+            for i in range(npos):
                 b = tbits[i]
-                kk = max(b ^ ((b >> 63) & INT_MAX), blk[i])
+                kk = b ^ ((b >> 63) & INT_MAX)
                 key[i] = kk
                 best = min(best, kk)
         kb = n
-        for i in range(n):
-            kb = min(kb, i if key[i] == best else n)
-        t = tau[kb]
+        for i in range(npos):
+            kb = min(kb, perm[i] if key[i] == best else n)
+        ib = posof[kb]
+        t = tau[ib]
         tev[kb] = t
-        blk[kb] = shut
         if inverse:
             order[n - 1 - j] = kb
             hap[kb] = 0
         else:
             order[j] = kb
             hap[kb] = 1
-        # rates jump by +-(a[kb] + active pair rows); virtual g moves by c * jump
-        c = c_sign * t
-        for i in range(n):
-            g[i] += c * a[kb, i]
-            r[i] -= c_sign * a[kb, i]
+        # drop kb: swap it to the last candidate position
+        npos -= 1
+        last = perm[npos]
+        perm[ib], perm[npos] = last, kb
+        posof[last], posof[kb] = ib, npos
+        g[ib], g[npos] = g[npos], g[ib]
+        r[ib], r[npos] = r[npos], r[ib]
+        # the jump of the rates: a[kb] plus the rows of the pairs kb switches on (off)
+        m = n if check else npos
+        for i in range(m):
+            jump[i] = a[kb, perm[i]]
         for e in range(ptr[kb], ptr[kb + 1]):
             if hap[other[e]] == 1:
                 p = pidx[e]
                 s[p] = t
-                for i in range(n):
-                    g[i] += c * bDh[p, i]
-                    r[i] -= c_sign * bDh[p, i]
+                for i in range(m):
+                    jump[i] += bDh[p, perm[i]]
+        c = c_sign * t
+        for i in range(m):
+            g[i] += c * jump[i]
+            r[i] -= c_sign * jump[i]
     if check:
         for i in range(n):
             if not r[i] > 0.0:
-                return i
+                return perm[i]
     return -1
 
 
@@ -220,14 +235,16 @@ def _structured_block(DhT, g0, gfull, a, bDh, ptr, other, pidx, A, Bm, V, out, s
     r = np.empty(n)
     tau = np.empty(n)
     key = np.empty(n, dtype=np.int64)
-    blk = np.empty(n, dtype=np.int64)
+    perm = np.empty(n, dtype=np.int64)
+    posof = np.empty(n, dtype=np.int64)
+    jump = np.empty(n)
     hap = np.empty(n, dtype=np.uint8)
     tev = np.empty(n)
     order = np.empty(n, dtype=np.int64)
     s = np.zeros(Bm.shape[0])
     for q in range(start, stop):
         bad = structured_chain(DhT, g0, gfull, a, bDh, ptr, other, pidx, V[q], inverse,
-                               check, g, r, tau, key, blk, hap, tev, order, s)
+                               check, g, r, tau, key, perm, posof, jump, hap, tev, order, s)
         status[q] = bad
         if bad < 0:
             structured_output(A, Bm, V[q], tev, s, inverse, out[q])
@@ -262,13 +279,15 @@ def structured_times(DhT, g0, gfull, a, bDh, ptr, other, pidx, npairs, V, times,
         r = np.empty(n)
         tau = np.empty(n)
         key = np.empty(n, dtype=np.int64)
-        blk = np.empty(n, dtype=np.int64)
+        perm = np.empty(n, dtype=np.int64)
+        posof = np.empty(n, dtype=np.int64)
+        jump = np.empty(n)
         hap = np.empty(n, dtype=np.uint8)
         s = np.zeros(npairs)
         for q in range(task * TASK_QUERIES, min((task + 1) * TASK_QUERIES, m)):
             status[q] = structured_chain(DhT, g0, gfull, a, bDh, ptr, other, pidx, V[q],
-                                         False, check, g, r, tau, key, blk, hap, times[q],
-                                         orders[q], s)
+                                         False, check, g, r, tau, key, perm, posof, jump,
+                                         hap, times[q], orders[q], s)
 
 
 @njit(cache=True)
@@ -279,12 +298,20 @@ def structured_diagnose(DhT, g0, gfull, a, bDh, ptr, other, pidx, npairs, u, inv
     g = np.empty(n)
     tau = np.empty(n)
     key = np.empty(n, dtype=np.int64)
-    blk = np.empty(n, dtype=np.int64)
+    perm = np.empty(n, dtype=np.int64)
+    posof = np.empty(n, dtype=np.int64)
+    jump = np.empty(n)
     tev = np.empty(n)
     order = np.empty(n, dtype=np.int64)
     s = np.zeros(npairs)
-    return structured_chain(DhT, g0, gfull, a, bDh, ptr, other, pidx, u, inverse, True,
-                            g, r, tau, key, blk, hap, tev, order, s)
+    bad = structured_chain(DhT, g0, gfull, a, bDh, ptr, other, pidx, u, inverse, True,
+                           g, r, tau, key, perm, posof, jump, hap, tev, order, s)
+    if bad >= 0:  # rates back in event order for the message
+        for i in range(n):
+            tau[perm[i]] = r[i]
+        for k in range(n):
+            r[k] = tau[k]
+    return bad
 
 
 # -- structured, rates independent of the other events -------------------------------------
