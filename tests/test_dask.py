@@ -121,3 +121,17 @@ def test_local_cluster(bd):
     assert len(set(workers.values())) == 2
     assert_array_equal(W, bd(X))
     assert_array_equal(back, bd.inverse(bd(X)))
+
+
+def test_corner_model_pickles_and_runs_lazily():
+    """A BDerivative built on a corner model (no 2**n table) travels to workers too."""
+    from bderiv import StructuredCorners
+
+    model = StructuredCorners(F0=[1.0, 1.0, 1.0], A=[[0.5, 0.0, 0.0], [0.0, 0.2, 0.0],
+                                                     [0.0, 0.0, 0.3]])
+    bd = BDerivative(np.eye(3), model)
+    V = np.random.default_rng(4).standard_normal((3000, 3))
+    clone = pickle.loads(pickle.dumps(bd))
+    assert_array_equal(clone(V), bd(V))
+    lazy = bd(da.from_array(V, chunks=(1000, 3)))
+    assert_array_equal(lazy.compute(scheduler="processes"), bd(V))
