@@ -46,9 +46,11 @@ class BDerivative:
     transversality_tol : float, optional
         Rates ``G[mask, k] = F[mask] . Dh[k]`` must exceed
         ``transversality_tol * |F[mask]| * |Dh[k]|``; smaller positive rates are refused
-        as grazing (event times would be ill-conditioned). Default 1e-9.
+        as grazing (event times would be ill-conditioned). Default 1e-9. Dense tables
+        only: a corner model's rates are checked to be > 0 (see :mod:`bderiv.corners`).
     memory_limit : int, optional
-        Bytes the dense tables may take; default: the memory currently available.
+        Bytes the dense tables may take; default: the memory currently available (dense
+        tables only).
     fast_paths : bool, optional
         Use the fast paths when the tables allow them (default True; see ``fast_path``).
 
