@@ -38,17 +38,6 @@ INT_MIN = np.iinfo(np.int64).min
 # shared helpers
 # ----------------------------------------------------------------------------------------
 @njit(cache=True)
-def _impacts(Dh, u, g):
-    """g = Dh @ u."""
-    n, d = Dh.shape
-    for k in range(n):
-        s = 0.0
-        for i in range(d):
-            s += Dh[k, i] * u[i]
-        g[k] = s
-
-
-@njit(cache=True)
 def stable_order(t, order):
     """order = stable argsort of t (ties keep the smaller event first)."""
     n = t.shape[0]
@@ -413,36 +402,31 @@ def dense_sorted_map_parallel(DhT, F, rate, V, out, inverse):
 # These take the user's njit function as an argument, so numba compiles them once per
 # corner function. They are not cached on disk: the cache index is keyed by the function
 # object, which is new in every process, so cache=True would only grow the index.
-@njit(cache=True)
-def _rates_of(Dh, f, r):
-    """r = Dh @ f; returns the first event with r <= 0, or -1."""
-    n, d = Dh.shape
-    bad = -1
-    for k in range(n):
-        s = 0.0
-        for i in range(d):
-            s += Dh[k, i] * f[i]
-        r[k] = s
-        if bad < 0 and not s > 0.0:
-            bad = k
-    return bad
+@njit(cache=True, error_model="numpy")
+def _rates_of(DhT, f, r):
+    """r = DhT @ f (from DhT = DhT.T); returns the first event with r <= 0, or -1."""
+    _impacts_t(DhT, f, r)
+    for k in range(r.shape[0]):
+        if not r[k] > 0.0:
+            return k
+    return -1
 
 
 @njit
-def function_chain(func, Dh, u, inverse, x, g, r, r2, f, f2, hap, tev, order):
+def function_chain(func, DhT, u, inverse, x, g, r, r2, f, f2, hap, tev, order):
     """One query with corners from ``func(hap, out)``; x = M(u) (or M^-1(u)).
 
     Evaluates the n + 1 regions of the chain; rates are recomputed as Dh @ F[region].
     Returns -1, or the event whose rate is <= 0 in region ``hap`` (the chain stops).
     """
-    n, d = Dh.shape
-    _impacts(Dh, u, g)
+    d, n = DhT.shape
+    _impacts_t(DhT, u, g)
     for k in range(n):
         hap[k] = 1 if inverse else 0
     for i in range(d):
         x[i] = u[i]
     func(hap, f)
-    bad = _rates_of(Dh, f, r)
+    bad = _rates_of(DhT, f, r)
     if bad >= 0:
         return bad
     want = 1 if inverse else 0
@@ -462,7 +446,7 @@ def function_chain(func, Dh, u, inverse, x, g, r, r2, f, f2, hap, tev, order):
         else:
             order[j] = kb
         func(hap, f2)
-        bad = _rates_of(Dh, f2, r2)
+        bad = _rates_of(DhT, f2, r2)
         if bad >= 0:
             return bad
         t = best
@@ -478,8 +462,8 @@ def function_chain(func, Dh, u, inverse, x, g, r, r2, f, f2, hap, tev, order):
 
 
 @njit
-def _function_block(func, Dh, V, out, times, orders, status, start, stop, inverse):
-    n, d = Dh.shape
+def _function_block(func, DhT, V, out, times, orders, status, start, stop, inverse):
+    d, n = DhT.shape
     g = np.empty(n)
     r = np.empty(n)
     r2 = np.empty(n)
@@ -490,7 +474,7 @@ def _function_block(func, Dh, V, out, times, orders, status, start, stop, invers
     order = np.empty(n, dtype=np.int64)
     x = np.empty(d)
     for q in range(start, stop):
-        status[q] = function_chain(func, Dh, V[q], inverse, x, g, r, r2, f, f2, hap, tev,
+        status[q] = function_chain(func, DhT, V[q], inverse, x, g, r, r2, f, f2, hap, tev,
                                    order)
         if out.shape[0] > 0:
             out[q, :] = x
@@ -500,25 +484,25 @@ def _function_block(func, Dh, V, out, times, orders, status, start, stop, invers
 
 
 @njit
-def function_map_serial(func, Dh, V, out, times, orders, status, inverse):
+def function_map_serial(func, DhT, V, out, times, orders, status, inverse):
     """``out`` and/or ``times``/``orders`` may have 0 rows to skip writing them."""
-    _function_block(func, Dh, V, out, times, orders, status, 0, V.shape[0], inverse)
+    _function_block(func, DhT, V, out, times, orders, status, 0, V.shape[0], inverse)
 
 
 @njit(parallel=True)
-def function_map_parallel(func, Dh, V, out, times, orders, status, inverse):
+def function_map_parallel(func, DhT, V, out, times, orders, status, inverse):
     m = V.shape[0]
     n_tasks = (m + TASK_QUERIES - 1) // TASK_QUERIES
     for task in prange(n_tasks):
         start = task * TASK_QUERIES
-        _function_block(func, Dh, V, out, times, orders, status, start,
+        _function_block(func, DhT, V, out, times, orders, status, start,
                         min(start + TASK_QUERIES, m), inverse)
 
 
 @njit
-def function_diagnose(func, Dh, u, inverse, hap, r):
+def function_diagnose(func, DhT, u, inverse, hap, r):
     """Re-run one query; returns the bad event (or -1), ``hap`` and ``r`` at that point."""
-    n, d = Dh.shape
+    d, n = DhT.shape
     x = np.empty(d)
     g = np.empty(n)
     r2 = np.empty(n)
@@ -526,10 +510,10 @@ def function_diagnose(func, Dh, u, inverse, hap, r):
     f2 = np.empty(d)
     tev = np.empty(n)
     order = np.empty(n, dtype=np.int64)
-    bad = function_chain(func, Dh, u, inverse, x, g, r, r2, f, f2, hap, tev, order)
+    bad = function_chain(func, DhT, u, inverse, x, g, r, r2, f, f2, hap, tev, order)
     if bad >= 0:  # rates of the region where the chain stopped
         func(hap, f)
-        _rates_of(Dh, f, r)
+        _rates_of(DhT, f, r)
     return bad
 
 

@@ -276,6 +276,7 @@ class FunctionEngine(_ModelEngine):
 
     def __init__(self, Dh, model, fast_paths: bool = True):
         self.Dh, self.model = Dh, model
+        self.DhT = np.ascontiguousarray(Dh.T)
         self.n, self.d = Dh.shape
         self.func = model.func
         self.fast_path = None
@@ -287,17 +288,17 @@ class FunctionEngine(_ModelEngine):
         m = V.shape[0]
         status = np.empty(m, dtype=np.int64)
         kernel = _pick(m, ck.function_map_serial, ck.function_map_parallel)
-        kernel(self.func, self.Dh, V, out, self._none_t, self._none_o, status, inverse)
+        kernel(self.func, self.DhT, V, out, self._none_t, self._none_o, status, inverse)
         self._check(status, V, inverse, name)
 
     def event_times(self, V, times, orders) -> None:
         status = np.empty(V.shape[0], dtype=np.int64)
         kernel = _pick(V.shape[0], ck.function_map_serial, ck.function_map_parallel)
-        kernel(self.func, self.Dh, V, self._none, times, orders, status, False)
+        kernel(self.func, self.DhT, V, self._none, times, orders, status, False)
         self._check(status, V, False, "V")
 
     def _diagnose(self, u, inverse, hap, r):
-        return ck.function_diagnose(self.func, self.Dh, u, inverse, hap, r)
+        return ck.function_diagnose(self.func, self.DhT, u, inverse, hap, r)
 
     def chain_corners(self, order) -> np.ndarray:
         return self.model.chain_corners(order, self.d)
