@@ -561,8 +561,12 @@ def build_parser() -> argparse.ArgumentParser:
     >>> args.command, args.example, args.n, args.batch
     ('demo', 'network', 4, 1000000)
     """
-    parser = _Parser(prog="bderiv", description=__doc__.split("\n\n")[0],
-                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(
+        prog="bderiv",
+        description="Exact, fast Bouligand derivatives of piecewise-differentiable flows at "
+        "points where several events happen at once. With no command: demo. Also "
+        "`python -m bderiv`.",
+    )
     from . import __version__
 
     parser.add_argument("--version", action="version", version=f"bderiv {__version__}")
