@@ -2,13 +2,13 @@
 
 Two ways to run it:
 
-- as a script, ``python benchmarks/bench_flow.py [--json out.json]``: for every example,
+- as a script, ``python benchmarks/test_bench_flow.py [--json out.json]``: for every example,
   the one-sided finite-difference error of simulation against the B-derivative at
   eps = 1e-3, 1e-4, 1e-5 (max relative error over random vectors), the time of one
   ``flow_bderivative`` construction, of the map per vector (batch of 1000 and one vector
   at a time) and of one ``flow_fd`` per vector, all in the same run; prints a markdown
   table (the numbers of the issue 3 closing note);
-- with pytest-benchmark (``pytest benchmarks/bench_flow.py --benchmark-enable``): the
+- with pytest-benchmark (``pytest benchmarks/test_bench_flow.py --benchmark-enable``): the
   same contenders, grouped per example so that the ratio can be read; with the default
   ``--benchmark-disable`` they run once as smoke tests.
 """
