@@ -39,6 +39,29 @@ class Example:
     name: str
     description: str
 
+    @classmethod
+    def from_model(cls, model, *, n_events, dim, rho, x0, t_event, t_after, name, description):
+        """Wrap a model object (``field``, ``events``, ``event_jacobian``,
+        ``field_jacobian`` and optionally ``corner_field`` methods) into an example."""
+        system = HybridSystem(
+            model.field,
+            model.events,
+            n_events=n_events,
+            dim=dim,
+            event_jacobian=model.event_jacobian,
+            field_jacobian=model.field_jacobian,
+            corner_field=getattr(model, "corner_field", None),
+        )
+        return cls(
+            system=system,
+            rho=np.asarray(rho, dtype=np.float64),
+            x0=np.asarray(x0, dtype=np.float64),
+            t_event=float(t_event),
+            t_final=float(t_event) + float(t_after),
+            name=name,
+            description=description,
+        )
+
 
 def complex_step_jacobian(fun, x, n_out):
     """Jacobian of a complex-safe ``fun`` at real ``x`` by the complex step, (n_out, d).

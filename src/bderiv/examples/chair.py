@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hybrid import HybridSystem
 from ._common import Example, complex_step_jacobian
 
 __all__ = ["chair"]
@@ -119,20 +118,14 @@ def chair(
     T = float(t_event)
     vz0 = vz + _G * T
     x0 = np.array([-vx * T, z - vz0 * T + 0.5 * _G * T**2, theta - om * T, vx, vz0, om])
-    system = HybridSystem(
-        model.field,
-        model.events,
+    return Example.from_model(
+        model,
         n_events=2,
         dim=6,
-        event_jacobian=model.event_jacobian,
-        field_jacobian=model.field_jacobian,
-    )
-    return Example(
-        system=system,
         rho=rho,
         x0=x0,
         t_event=T,
-        t_final=T + float(t_after),
+        t_after=t_after,
         name="chair",
         description=(
             "planar rigid body, two legs touch compliant ground at the same instant "

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hybrid import HybridSystem
 from ._common import Example, flow_back
 
 __all__ = ["network"]
@@ -137,23 +136,16 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
     if not 1 <= n <= 24:
         raise ValueError(f"n must be in 1..24, got {n}")
     net = _Network(n, bool(extended), seed, float(coupling))
-    system = HybridSystem(
-        net.field,
-        net.events,
-        n_events=n,
-        dim=net.d,
-        event_jacobian=net.event_jacobian,
-        field_jacobian=net.field_jacobian,
-        corner_field=net.corner_field,
-    )
     rho = np.zeros(net.d)
     x0 = flow_back(lambda x: net.field(x, 0), rho, t_event)
-    return Example(
-        system=system,
+    return Example.from_model(
+        net,
+        n_events=n,
+        dim=net.d,
         rho=rho,
         x0=x0,
-        t_event=float(t_event),
-        t_final=float(t_event + t_after),
+        t_event=t_event,
+        t_after=t_after,
         name=f"network(n={n}{', extended' if extended else ''})",
         description=(
             f"first-order network, n = {n} events, d = {net.d}; each event changes the "

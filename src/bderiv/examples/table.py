@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hybrid import HybridSystem
 from ._common import Example, complex_step_jacobian, flow_back
 
 __all__ = ["table"]
@@ -131,20 +130,14 @@ def table(
     rho = np.array([0.0, 0.0, leg, 0.0, 0.0, 0.3, 0.3, -0.2, -1.5, 0.2, -0.3, 0.5])
     T = float(t_event)
     x0 = flow_back(lambda x: model.field(x, 0), rho, T)
-    system = HybridSystem(
-        model.field,
-        model.events,
+    return Example.from_model(
+        model,
         n_events=4,
         dim=12,
-        event_jacobian=model.event_jacobian,
-        field_jacobian=model.field_jacobian,
-    )
-    return Example(
-        system=system,
         rho=rho,
         x0=x0,
         t_event=T,
-        t_final=T + float(t_after),
+        t_after=t_after,
         name="table",
         description=(
             "3-D rigid body landing flat on 4 legs (d = 12, n = 4 > rank Dh = 3, "
