@@ -3,9 +3,10 @@
 Groups (pytest-benchmark ``group``):
 
 - ``eval n=.. d=.. m=..``: ``bd(V)`` and ``bd.inverse(W)`` (the contenders), the batched
-  NumPy baseline, the per-query oracle of ``tests/reference.py`` (timed on a subset of the
-  queries: ``extra_info["queries"]`` says how many) and a BLAS matrix product of the same
-  flop count. Every entry records ``queries`` so that time per query can be read.
+  NumPy baseline (``bderiv._baselines``), the per-query oracle of ``tests/reference.py``
+  (``baselines.py``; timed on a subset of the queries: ``extra_info["queries"]`` says how
+  many) and a BLAS matrix product of the same flop count. Every entry records ``queries``
+  so that time per query can be read. The systems are ``bderiv._baselines.benchmark_system``.
 - ``build n=.. d=..``: the constructor (tables, checks), timed apart from evaluation.
 - ``threads n=.. d=.. m=..``: ``bd(V)`` on 1 and on 2 numba threads.
 
@@ -32,6 +33,14 @@ import numpy as np
 import pytest
 
 from bderiv import BDerivative
+from bderiv._baselines import (
+    benchmark_system,
+    blas_operands,
+    blas_setting,
+    blas_yardstick,
+    numpy_apply,
+    useful_flops,
+)
 
 NS = (2, 4, 8, 12, 16, 20)
 MS = (1, 10**3, 10**5, 10**6)
@@ -63,8 +72,7 @@ def _cases():
 @functools.lru_cache(maxsize=1)
 def system(n: int, d: int):
     """A random transversal system whose event order changes after events (general path)."""
-    rng = np.random.default_rng(1000 * n + d)
-    Dh, F = baselines.reference.random_system(rng, n, d)
+    Dh, F = benchmark_system(n, d)
     return Dh, F, BDerivative(Dh, F)
 
 
@@ -86,7 +94,7 @@ def _run(benchmark, fn, *, group, name, n, d, m, queries_timed, est_seconds):
     benchmark.name = name
     benchmark.extra_info.update(
         contender=name.split("[")[0], n=n, d=d, m=m, queries=queries_timed,
-        flops_per_query=baselines.useful_flops(n, d), threads=numba.get_num_threads(),
+        flops_per_query=useful_flops(n, d), threads=numba.get_num_threads(),
     )
     if est_seconds < 1e-3:
         return benchmark(fn)  # calibrated rounds and iterations
@@ -122,7 +130,7 @@ def test_eval(benchmark, contender, n, d, m):
              est_seconds=_est("bderiv", n, d, m), **kw)
         np.testing.assert_allclose(out[:50], V[:50], rtol=1e-6, atol=1e-8)
     elif contender == "numpy batched":
-        res = _run(benchmark, lambda: baselines.numpy_apply(Dh, F, G, V), name=contender,
+        res = _run(benchmark, lambda: numpy_apply(Dh, F, G, V), name=contender,
                    queries_timed=m, est_seconds=_est("numpy", n, d, m), **kw)
         np.testing.assert_allclose(res[:50], W[:50], rtol=1e-9, atol=1e-9)
     elif contender == "reference per-query":
@@ -132,12 +140,11 @@ def test_eval(benchmark, contender, n, d, m):
                    name=contender, queries_timed=mq, est_seconds=_est("ref", n, d, mq), **kw)
         np.testing.assert_allclose(res, W[:mq], rtol=1e-9, atol=1e-9)
     else:
-        A, B, flops = baselines.blas_operands(n, d, m)
+        A, B, flops = blas_operands(n, d, m)
         C = np.empty_like(A)
-        baselines.blas_yardstick(A, B, C)
-        benchmark.extra_info.update(blas_flops=flops, blas_size=A.shape[0],
-                                    blas=baselines.blas_setting())
-        _run(benchmark, lambda: baselines.blas_yardstick(A, B, C), name=contender,
+        blas_yardstick(A, B, C)
+        benchmark.extra_info.update(blas_flops=flops, blas_size=A.shape[0], blas=blas_setting())
+        _run(benchmark, lambda: blas_yardstick(A, B, C), name=contender,
              queries_timed=m, est_seconds=flops / 2e10, **kw)
 
 
@@ -217,9 +224,9 @@ def test_baselines_agree(n, d):
     Dh, F, bd = system(n, d)
     V = np.random.default_rng(3).standard_normal((300, d))
     W = bd(V)
-    np.testing.assert_allclose(baselines.numpy_apply(Dh, F, bd.rates, V, chunk=64), W,
+    np.testing.assert_allclose(numpy_apply(Dh, F, bd.rates, V, chunk=64), W,
                                rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(baselines.numpy_apply(Dh, F, bd.rates, W, inverse=True), V,
+    np.testing.assert_allclose(numpy_apply(Dh, F, bd.rates, W, inverse=True), V,
                                rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(baselines.reference_apply(Dh, F, bd.rates, V[:10]), W[:10],
                                rtol=1e-9, atol=1e-9)

@@ -23,6 +23,8 @@ import numpy as np
 import pytest
 
 from bderiv import examples
+from bderiv._baselines import best_time
+from bderiv.checks import fd_check
 
 EPS = (1e-3, 1e-4, 1e-5)
 
@@ -39,16 +41,7 @@ CASES = {
 QUICK = ("chair", "table", "network-n3")
 
 
-def _best(fun, repeat=5):
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fun()
-        best = min(best, time.perf_counter() - t)
-    return best
-
-
-def measure(name, n_vectors=10, n_fd_timed=5, seed=0):
+def measure(name, n_vectors=10, seed=0):
     """All numbers for one example (a dict)."""
     ex = CASES[name]()
     s = ex.system
@@ -57,22 +50,14 @@ def measure(name, n_vectors=10, n_fd_timed=5, seed=0):
     t_build = time.perf_counter() - t
     rng = np.random.default_rng(seed)
     V = rng.standard_normal((n_vectors, s.dim))
-    D = fb(V)
-    errors = []
-    for eps in EPS:
-        fd = s.flow_fd(ex.x0, ex.t_final, V, eps)
-        rel = np.linalg.norm(fd - D, axis=1) / np.linalg.norm(D, axis=1)
-        errors.append(float(rel.max()))
+    check = fd_check(s, ex.x0, ex.t_final, V, fb(V), EPS)
+    errors = [float(e) for e in check.errors.max(axis=0)]
     n_orders = len({tuple(o) for o in fb.orders(V)[0]}) if fb.n_groups else 0
     batch = rng.standard_normal((1000, s.dim))
     fb(batch)  # warm
-    t_batch = _best(lambda: fb(batch)) / len(batch)
-    t_single = _best(lambda: [fb(v) for v in batch[:50]]) / 50
-    # flow_fd per vector: one perturbed simulation (the base run amortised)
-    Vt = V[:n_fd_timed]
-    t = time.perf_counter()
-    s.flow_fd(ex.x0, ex.t_final, Vt, 1e-4)
-    t_fd = (time.perf_counter() - t) / len(Vt)
+    t_batch = best_time(lambda: fb(batch), 5, warmup=False).wall / len(batch)
+    t_single = best_time(lambda: [fb(v) for v in batch[:50]], 5, warmup=False).wall / 50
+    t_fd = check.seconds_per_vector  # one perturbed simulation (the base run amortised)
     return {
         "example": name,
         "n": s.n_events,

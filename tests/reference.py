@@ -1,16 +1,18 @@
 """A plain, per-query NumPy oracle for the PL saltation map (written from MATH.md alone).
 
-Nothing here imports bderiv. Every function handles one vector (or one order) with
-explicit Python loops, so that each line can be checked against MATH.md by eye:
+Nothing here uses bderiv's evaluation code (only its random system generator). Every
+function handles one vector (or one order) with explicit Python loops, so that each line
+can be checked against MATH.md by eye; ``F`` is a (2**n, d) table or, for corner models,
+a function of the 0/1 flags of a region (then any n works: masks are Python integers):
 
 - ``ref_event_times`` / ``ref_apply``: section 3 (selection with re-read rates),
 - ``ref_inverse``: section 6,
 - ``ref_piece`` / ``ref_det``: section 4 (product of saltation matrices, its determinant),
 - ``ref_corner_points`` / ``ref_qp_apply``: section 5 (corner points, M_sigma = Q P^-1).
 
-It also builds test systems: ``random_system`` (transversal tables whose event order
-changes after events) and ``overtaking_system`` (the MATH.md section 3 example, where the
-order of the first-order impact times is not the true order).
+It also gives test systems: ``random_system`` (from ``bderiv._baselines``: transversal
+tables whose event order changes after events) and ``overtaking_system`` (the MATH.md
+section 3 example, where the order of the first-order impact times is not the true order).
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ import itertools
 
 import numpy as np
 import scipy.linalg
+
+from bderiv._baselines import random_system  # noqa: F401  (the test systems' generator)
 
 
 def rates(Dh, F):
@@ -37,27 +41,36 @@ def chain(order):
 # --------------------------------------------------------------------------------------
 # Section 3: forward substitution with re-read rates
 # --------------------------------------------------------------------------------------
+def _corner_lookup(F, n):
+    """``corner(B)`` for an integer mask B (Python ints: any n): a row of the table F, or
+    ``F(flags)`` when F is a function of the 0/1 flags of the n events (a corner model)."""
+    if callable(F):
+        return lambda B: np.asarray(F(np.array([(B >> k) & 1 for k in range(n)])), float)
+    table = np.asarray(F, dtype=float)
+    return lambda B: table[B]
+
+
 def _forward(Dh, F, u):
     Dh = np.asarray(Dh, dtype=float)
-    F = np.asarray(F, dtype=float)
-    G = rates(Dh, F)
     n = Dh.shape[0]
+    corner = _corner_lookup(F, n)
     x = np.array(u, dtype=float)
     g = Dh @ x
     B = 0
     times = np.zeros(n)
     order = []
     for _ in range(n):
+        rate = Dh @ corner(B)
         best_k, best_t = -1, np.inf
         for k in range(n):
             if B & (1 << k):
                 continue
-            tau = -g[k] / G[B, k]
+            tau = -g[k] / rate[k]
             if tau < best_t:  # strict: ties go to the smallest event index
                 best_k, best_t = k, tau
         B_new = B | (1 << best_k)
-        x = x + best_t * (F[B] - F[B_new])
-        g = g + best_t * (G[B] - G[B_new])
+        x = x + best_t * (corner(B) - corner(B_new))
+        g = g + best_t * (rate - Dh @ corner(B_new))
         times[best_k] = best_t
         order.append(best_k)
         B = B_new
@@ -87,23 +100,23 @@ def ref_first_order_order(Dh, F, u):
 def ref_inverse(Dh, F, w):
     """M^{-1}(w) for one post-event vector w, MATH.md section 6."""
     Dh = np.asarray(Dh, dtype=float)
-    F = np.asarray(F, dtype=float)
-    G = rates(Dh, F)
     n = Dh.shape[0]
+    corner = _corner_lookup(F, n)
     x = np.array(w, dtype=float)
     g = Dh @ x
     B = (1 << n) - 1
     for _ in range(n):
+        rate = Dh @ corner(B)
         best_k, best_t = -1, -np.inf
         for k in range(n):
             if not B & (1 << k):
                 continue
-            tau = -g[k] / G[B, k]
+            tau = -g[k] / rate[k]
             if tau > best_t:  # the last event to have happened
                 best_k, best_t = k, tau
         B_new = B & ~(1 << best_k)
-        x = x + best_t * (F[B] - F[B_new])
-        g = g + best_t * (G[B] - G[B_new])
+        x = x + best_t * (corner(B) - corner(B_new))
+        g = g + best_t * (rate - Dh @ corner(B_new))
         B = B_new
     return x
 
@@ -234,48 +247,6 @@ def ref_tri_apply(pre, post, simplices, kernel, u, tol=1e-9):
 # --------------------------------------------------------------------------------------
 # Test systems
 # --------------------------------------------------------------------------------------
-def random_system(
-    rng, n, d, *, dh_scale=1.0, f_scale=1.0, spread=0.9, speed_range=1.5, max_cond=1e3
-):
-    """A random transversal system (Dh, F) with G > 0 everywhere, by construction.
-
-    With a unit direction e and components orthogonal to it,
-    Dh[k] = dh_scale (e + a_k), |a_k| <= spread, and
-    F[m] = f_scale c_m (e + b_m), |b_m| <= spread, c_m = exp(U(-speed_range, speed_range)),
-    so G[m, k] = dh_scale f_scale c_m (1 + a_k . b_m) >= dh_scale f_scale c_m (1 - spread^2) > 0.
-    The speeds c_m differ by up to e^(2 speed_range) ~ 20x between regions and the
-    directions b_m differ per region, so rates change a lot after each event and later
-    events often overtake earlier ones. When n <= d, Dh is redrawn until
-    cond(Dh) <= max_cond (full row rank, well conditioned); when n > d it is rank deficient.
-    """
-    if not 0 <= spread < 1:
-        raise ValueError("spread must be in [0, 1) for transversality")
-    Q = np.linalg.qr(rng.standard_normal((d, d)))[0]  # random rotation, e = Q[:, 0]
-    e = Q[:, 0]
-    perp = Q[:, 1:]
-
-    def ball(count):
-        # points of the (d-1)-dimensional ball of radius spread, in the plane orthogonal to e
-        if d == 1:
-            return np.zeros((count, 1))
-        z = rng.standard_normal((count, d - 1))
-        z *= (rng.uniform(0, 1, (count, 1)) ** (1 / (d - 1))) / np.linalg.norm(
-            z, axis=1, keepdims=True
-        )
-        return spread * z @ perp.T
-
-    for _ in range(1000):
-        Dh = dh_scale * (e + ball(n))
-        if n > d or np.linalg.cond(Dh) <= max_cond:
-            break
-    else:  # pragma: no cover
-        raise RuntimeError("could not draw a well-conditioned Dh")
-    c = np.exp(rng.uniform(-speed_range, speed_range, 2**n))
-    F = f_scale * c[:, None] * (e + ball(2**n))
-    assert (rates(Dh, F) > 0).all()
-    return Dh, F
-
-
 def overtaking_system(n, d=None, slow=0.1):
     """MATH.md section 3 example generalised to n >= 3 events and d >= n dimensions.
 

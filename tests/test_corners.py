@@ -128,10 +128,19 @@ def test_structured_n128(n_pairs):
     n = 128
     Dh, model = structured_system(rng, n, n, n_pairs)
     bd = BDerivative(Dh, model)
-    assert bd._engine.transversal_proved and bd.fast_path is None
+    assert bd.transversality == "proved" and bd.fast_path is None
     V = rng.standard_normal((2000, n))
     W = bd(V)
     np.testing.assert_allclose(bd.inverse(W), V, atol=1e-10)
+    # the per-query oracle, on the model's own corners (masks as Python integers)
+    for u, w in zip(V[:3], W[:3], strict=True):
+        np.testing.assert_allclose(w, ref_apply(Dh, model.corners, u), rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(bd.inverse(w), ref_inverse(Dh, model.corners, w),
+                                   rtol=1e-9, atol=1e-9)
+        t, o = bd.event_times(u)
+        t_ref, o_ref = ref_event_times(Dh, model.corners, u)
+        np.testing.assert_array_equal(o, o_ref)
+        np.testing.assert_allclose(t, t_ref, rtol=1e-9, atol=1e-12)
     # M(F[0]) = F[full]; homogeneity
     full = model.F0 + model.A.sum(0) + model.B.sum(0)
     np.testing.assert_allclose(bd(model.F0), full, atol=1e-12)
@@ -208,7 +217,7 @@ def test_structured_violation_found_by_the_query():
     A[2, 2] = 1.0  # ... and 0.8 or more once event 2 has happened
     # a strong pair repairs region 0b011 (rate 0.2): the bound fails, every region is fine
     fine = BDerivative(Dh, StructuredCorners(np.ones(3), A, [[0, 1]], [[0.0, 0.0, 0.5]]))
-    assert not fine._engine.transversal_proved
+    assert fine.transversality == "per-query"
     V = np.random.default_rng(0).standard_normal((50, 3))
     np.testing.assert_allclose(fine.inverse(fine(V)), V, atol=1e-12)
     # a weak pair leaves region 0b011 with rate -0.2
@@ -221,7 +230,7 @@ def test_structured_violation_found_by_the_query():
         bd.event_times(V)
     with pytest.raises(ValueError, match=r"W\[0\] \(inverse map\): event 2 has rate -0.2"):
         bd.inverse(V)
-    with pytest.raises(ValueError, match=r"in rows 0:1 of V: transversality violated"):
+    with pytest.raises(ValueError, match=r"transversality violated on the chain of V\[0\]"):
         bd.apply(V, chunk_size=1)
     with pytest.raises(ValueError, match=r"event 2 has rate -0.2"):
         bd.piece([0, 1, 2])
@@ -253,7 +262,7 @@ def test_corner_function_matches_dense_and_oracle():
         np.testing.assert_allclose(t, t_ref, rtol=1e-12, atol=1e-12)
         np.testing.assert_array_equal(o, o_ref)
     np.testing.assert_allclose(bd.piece(order[0]), dense.piece(order[0]), atol=1e-12)
-    np.testing.assert_array_equal(TABLE_FUNC.table(4, 5), F4)
+    np.testing.assert_array_equal(CornerFunction(table_corners, n_events=4, dim=5).table(), F4)
     np.testing.assert_allclose(bd.corner_points()[0], dense.corner_points()[0])
 
 
@@ -305,6 +314,10 @@ def test_corner_function_beyond_62_events_matches_structured():
     V = rng.standard_normal((50, n))
     np.testing.assert_allclose(bd(V), ref(V), atol=1e-10)
     np.testing.assert_allclose(bd.inverse(V), ref.inverse(V), atol=1e-10)
+    for u in V[:3]:  # and the per-query oracle on the model's corners
+        np.testing.assert_allclose(bd(u), ref_apply(Dh, model.corners, u), atol=1e-10)
+        np.testing.assert_allclose(bd.inverse(u), ref_inverse(Dh, model.corners, u),
+                                   atol=1e-10)
 
 
 def test_corner_function_violation_and_errors():
@@ -390,3 +403,67 @@ def test_table_refused_for_large_n():
     bd = BDerivative(np.eye(30), model)
     with pytest.raises(ValueError, match="corner points of a corner model with n=30"):
         bd.corner_points()
+
+
+# ----------------------------------------------------------------------------------------
+# the corner-model protocol: a representation written by a user
+# ----------------------------------------------------------------------------------------
+class CountCorners:
+    """Identical contacts: the field depends only on how many events have happened,
+    ``F[mask] = F0 + C[popcount(mask)]`` (C[0] = 0). Implements the protocol only."""
+
+    def __init__(self, F0, C):
+        self.F0, self.C = np.asarray(F0, float), np.asarray(C, float)
+        self.n_events, self.dim = self.C.shape[0] - 1, self.F0.shape[0]
+
+    def corners(self, happened):
+        count = np.asarray(happened).astype(np.int64).sum(axis=-1)
+        return self.F0 + self.C[count]
+
+    def corner_function(self):
+        F0, C = self.F0, self.C
+
+        @numba.njit
+        def func(happened, out):
+            count = 0
+            for k in range(happened.shape[0]):
+                count += happened[k]
+            for i in range(out.shape[0]):
+                out[i] = F0[i] + C[count, i]
+
+        return func
+
+
+def test_user_corner_model_follows_the_protocol():
+    from bderiv.corners import CornerModel
+
+    rng = np.random.default_rng(21)
+    n, d = 5, 6
+    Dh = np.hstack([np.eye(n), 0.1 * rng.standard_normal((n, d - n))])
+    C = np.vstack([np.zeros(d), 0.3 * rng.uniform(-1, 1, (n, d))])
+    model = CountCorners(np.ones(d), C)
+    assert isinstance(model, CornerModel)
+    bd = BDerivative(Dh, model)
+    assert bd.model is model and bd.transversality == "per-query"
+    V = rng.standard_normal((400, d))
+    W = bd(V)
+    for u, w in zip(V[:30], W[:30], strict=True):
+        np.testing.assert_allclose(w, ref_apply(Dh, model.corners, u), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(bd.inverse(W), V, atol=1e-10)
+    # the same map as the dense table the protocol's corners() spells out
+    F = model.corners((np.arange(1 << n)[:, None] >> np.arange(n)) & 1)
+    np.testing.assert_allclose(W, BDerivative(Dh, F)(V), atol=1e-12)
+    _, order = bd.event_times(V[:1])
+    np.testing.assert_allclose(bd.piece(order[0]), ref_piece(Dh, F, order[0]), atol=1e-12)
+    np.testing.assert_allclose(bd.to_dense().F, F)
+
+
+def test_incomplete_corner_model_is_refused():
+    class OnlyCorners:
+        n_events, dim = 2, 2
+
+        def corners(self, happened):
+            return np.ones(np.shape(happened)[:-1] + (2,))
+
+    with pytest.raises(TypeError, match=r"lacks part of the protocol.*corner_function\(\)"):
+        BDerivative(np.eye(2), OnlyCorners())

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
+import bderiv._dask
 from bderiv import BDerivative
-from bderiv._dask import is_dask_array
+from bderiv._batch import is_dask_array
 
 da = pytest.importorskip("dask.array")
 dask = pytest.importorskip("dask")
@@ -41,6 +42,7 @@ def test_detection_without_importing_dask(X):
     assert not is_dask_array(X)
     assert not is_dask_array([1.0, 2.0])
     assert is_dask_array(da.from_array(X))
+    assert not hasattr(bderiv._dask, "is_dask_array")  # one check, in _batch
 
 
 def test_lazy_and_identical(bd, X):
@@ -75,6 +77,12 @@ def test_bad_dask_input(bd, X):
         bd(da.from_array(X), out=np.empty_like(X))
     with pytest.raises(TypeError, match="real numbers"):
         bd(da.from_array(np.ones((4, 3), dtype=complex)))
+    for bad in (X[:, :2], np.ones((4, 3), dtype=complex), np.ones((4, 3), dtype=bool)):
+        with pytest.raises((ValueError, TypeError)) as lazy:
+            bd(da.from_array(bad))
+        with pytest.raises(type(lazy.value)) as eager:
+            bd(bad)
+        assert str(lazy.value) == str(eager.value)  # the messages of a NumPy query
 
 
 def test_bderivative_pickles(bd, X):
@@ -135,3 +143,19 @@ def test_corner_model_pickles_and_runs_lazily():
     assert_array_equal(clone(V), bd(V))
     lazy = bd(da.from_array(V, chunks=(1000, 3)))
     assert_array_equal(lazy.compute(scheduler="processes"), bd(V))
+
+
+def test_triangulation_lazy_in_processes(bd, X):
+    """A Triangulation (and its inverse) on dask: lazy, pickled to worker processes."""
+    tri = bd.triangulation()
+    V = X[:3000]
+    D = da.from_array(V, chunks=(1000, 3))
+    W = tri(D)
+    assert is_dask_array(W) and W.chunks == D.chunks
+    back = tri.inverse(W)
+    assert is_dask_array(back)
+    w, v = dask.compute(W, back, scheduler="processes")
+    assert_array_equal(w, tri(V))
+    assert_array_equal(v, tri.inverse(tri(V)))
+    with pytest.raises(ValueError, match="out cannot be used"):
+        tri(D, out=np.empty_like(V))

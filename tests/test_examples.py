@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from bderiv import examples
+from bderiv.checks import fd_check
 from bderiv.flowmap import FlowBDerivative
 from bderiv.hybrid import HybridSystem
 
@@ -48,13 +49,7 @@ def boundary_vectors(fb, rng, count, delta=1e-6, tries=200):
 
 def fd_errors(ex, fb, V, eps_values=EPS):
     """Relative errors (m, len(eps)) of flow_fd against fb(V)."""
-    D = fb(V)
-    scale = np.linalg.norm(D, axis=-1)
-    errs = []
-    for eps in eps_values:
-        fd = ex.system.flow_fd(ex.x0, ex.t_final, V, eps)
-        errs.append(np.linalg.norm(fd - D, axis=-1) / scale)
-    return np.array(errs).T
+    return fd_check(ex.system, ex.x0, ex.t_final, V, fb(V), eps_values).errors
 
 
 def assert_first_order(errs):
@@ -170,7 +165,7 @@ def test_chair_mode_damping_gives_two_pieces():
 def test_chair_event_jacobian_analytic_vs_numerical():
     ex = examples.chair()
     s = ex.system
-    bare = HybridSystem(s._field, s._events, n_events=2, dim=6)
+    bare = HybridSystem(s.eval_field, s.eval_events, n_events=2, dim=6)
     np.testing.assert_allclose(
         bare.eval_event_jacobian(ex.rho), s.eval_event_jacobian(ex.rho), atol=1e-9
     )
@@ -223,7 +218,7 @@ def test_network_corner_field_matches_field():
 def test_network_analytic_jacobians(extended):
     ex = examples.network(4, extended=extended, seed=2)
     s = ex.system
-    bare = HybridSystem(s._field, s._events, n_events=4, dim=s.dim)
+    bare = HybridSystem(s.eval_field, s.eval_events, n_events=4, dim=s.dim)
     x = ex.x0 * 0.5
     np.testing.assert_allclose(bare.eval_event_jacobian(x), s.eval_event_jacobian(x), atol=1e-9)
     for mask in (0, 5, 15):
@@ -250,6 +245,25 @@ def test_network_n20_bderivative():
     assert bd.F.shape == (1 << 20, 20)
     V = np.random.default_rng(0).standard_normal((100, 20))
     assert np.isfinite(bd(V)).all()
+
+
+@pytest.mark.parametrize(
+    "make",
+    [examples.chair, examples.table, lambda: examples.network(3),
+     lambda: examples.network(4, extended=True)],
+    ids=["chair", "table", "network3", "network4-extended"],
+)
+def test_flow_map_inverse_round_trips(make):
+    ex = make()
+    fb = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    rng = np.random.default_rng(6)
+    V = rng.standard_normal((200, fb.dim))
+    assert len({tuple(o) for o in fb.orders(V)[0]}) >= 2  # several pieces crossed
+    W = fb(V)
+    tol = 1e-10 * np.abs(V).max()
+    np.testing.assert_allclose(fb.inverse(W), V, rtol=0, atol=tol)
+    W = rng.standard_normal((200, fb.dim))
+    np.testing.assert_allclose(fb(fb.inverse(W)), W, rtol=0, atol=1e-10 * np.abs(W).max())
 
 
 def test_example_flow_bderivative_pickles():
@@ -293,7 +307,7 @@ def test_chair_corners_closed_form():
 def test_table_jacobians_complex_step_vs_scipy():
     ex = examples.table()
     s = ex.system
-    bare = HybridSystem(s._field, s._events, n_events=4, dim=12)
+    bare = HybridSystem(s.eval_field, s.eval_events, n_events=4, dim=12)
     np.testing.assert_allclose(
         bare.eval_event_jacobian(ex.rho), s.eval_event_jacobian(ex.rho), atol=1e-9
     )

@@ -230,7 +230,7 @@ def test_progress_default_chunk_and_validation(system):
         bd.apply(np.ones((3, 4)), chunk_size=2)
     bad = V.copy()
     bad[7, 1] = np.nan
-    with pytest.raises(ValueError, match=r"in rows 6:9 of V: V must be finite"):
+    with pytest.raises(ValueError, match=r"V must be finite, but vector V\[7\] = "):
         bd.apply(bad, chunk_size=3)
     with pytest.raises(ValueError, match=r"out must have shape \(10, 5\)"):
         bd.apply(V, out=np.empty((10, 4)), chunk_size=3)

@@ -1,4 +1,9 @@
-"""FlowBDerivative: composition, pieces, final time, batches, pickling, validation."""
+"""FlowBDerivative: composition, inverse, pieces, final time, batches, pickling, validation.
+
+Expected values come from the stages themselves, composed by hand: ``manual`` applies the
+linear stages and the jumps' own maps one after the other, ``manual_piece`` multiplies the
+linear stages with the jumps' ``piece`` matrices.
+"""
 
 from __future__ import annotations
 
@@ -41,6 +46,13 @@ def manual(fb, v):
     return w
 
 
+def manual_piece(fb, orders):
+    P = fb.linear[0]
+    for i, (bd, order) in enumerate(zip(fb.jumps, orders, strict=True)):
+        P = fb.linear[i + 1] @ bd.piece(order) @ P
+    return P
+
+
 def test_composition_matches_manual(composed):
     V = np.random.default_rng(1).standard_normal((7, 4))
     out = composed(V)
@@ -54,9 +66,12 @@ def test_batch_shapes(composed):
     V = np.random.default_rng(2).standard_normal((3, 5, 4))
     out = composed(V)
     assert out.shape == (3, 5, 4)
-    np.testing.assert_allclose(out[1, 2], composed(V[1, 2]), rtol=1e-14)
+    np.testing.assert_allclose(out[1, 2], manual(composed, V[1, 2]), rtol=1e-13, atol=1e-13)
     assert composed(V[0, 0]).shape == (4,)
-    np.testing.assert_allclose(composed(V.astype(np.float32)), composed(V.astype(np.float32)))
+    v32 = V[2, 3].astype(np.float32)
+    np.testing.assert_allclose(
+        composed(v32), manual(composed, v32.astype(np.float64)), rtol=1e-13, atol=1e-13
+    )
     Vt = np.asfortranarray(V[0].T).T  # non-contiguous
     np.testing.assert_allclose(composed(Vt), out[0], rtol=1e-14)
     ro = V.copy()
@@ -70,12 +85,26 @@ def test_piece_of_each_vector_orders(composed):
     assert [o.shape for o in orders] == [(30, 3), (30, 2)]
     seen = set()
     for i, v in enumerate(V):
-        P = composed.piece([orders[0][i], orders[1][i]])
-        np.testing.assert_allclose(P @ v, composed(v), rtol=1e-10, atol=1e-12)
+        P = manual_piece(composed, [orders[0][i], orders[1][i]])
+        np.testing.assert_allclose(P @ v, manual(composed, v), rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(composed.piece([orders[0][i], orders[1][i]]), P, rtol=1e-13)
         seen.add((tuple(orders[0][i]), tuple(orders[1][i])))
     assert len(seen) > 3
-    times = composed.event_times(V)
-    assert times[0][0].shape == (30, 3)
+
+
+def test_event_times_are_the_jumps_event_times(composed):
+    V = np.random.default_rng(3).standard_normal((6, 5, 4))
+    pairs = composed.event_times(V)
+    assert len(pairs) == composed.n_groups
+    W = V @ composed.linear[0].T  # the vectors entering the first group
+    times, order = composed.jumps[0].event_times(W)
+    np.testing.assert_array_equal(pairs[0][0], times)
+    np.testing.assert_array_equal(pairs[0][1], order)
+    W = composed.jumps[0](W) @ composed.linear[1].T
+    times, order = composed.jumps[1].event_times(W)
+    np.testing.assert_allclose(pairs[1][0], times, rtol=1e-12, atol=1e-12)
+    assert pairs[1][1].shape == (6, 5, 2) and pairs[1][1].dtype == np.int64
+    np.testing.assert_array_equal(composed.orders(V)[1], pairs[1][1])
 
 
 def test_positive_homogeneity_and_continuity(composed):
@@ -89,14 +118,103 @@ def test_positive_homogeneity_and_continuity(composed):
 def test_final_time(composed):
     V = np.random.default_rng(5).standard_normal((6, 4))
     dt = np.linspace(-1, 1, 6)
+    ff = composed.final_field
+    expected = np.array([manual(composed, v) for v in V]) + dt[:, None] * ff
+    np.testing.assert_allclose(composed(V, dt=dt), expected, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(
-        composed(V, dt=dt), composed(V) + dt[:, None] * composed.final_field
+        composed(V, dt=0.5), expected - dt[:, None] * ff + 0.5 * ff, rtol=1e-12, atol=1e-12
     )
-    np.testing.assert_allclose(composed(V, dt=0.5), composed(V) + 0.5 * composed.final_field)
+    chunked = composed(V, dt=dt, chunk_size=4)  # dt follows the rows of each chunk
+    np.testing.assert_allclose(chunked, expected, rtol=1e-12, atol=1e-12)
+    grid = composed(V.reshape(2, 3, 4), dt=dt[:3])  # broadcast over the leading shape
+    np.testing.assert_allclose(
+        grid, np.array([manual(composed, v) for v in V]).reshape(2, 3, 4)
+        + np.tile(dt[:3], 2).reshape(2, 3, 1) * ff, rtol=1e-12, atol=1e-12
+    )
     orders = composed.orders(V[0])
     P = composed.piece(orders, with_time=True)
     assert P.shape == (4, 5)
-    np.testing.assert_allclose(P @ np.append(V[0], 0.3), composed(V[0], dt=0.3), rtol=1e-10)
+    np.testing.assert_allclose(P[:, 4], ff)
+    np.testing.assert_allclose(P @ np.append(V[0], 0.3), expected[0] - dt[0] * ff + 0.3 * ff,
+                               rtol=1e-10)
+
+
+@pytest.mark.parametrize(
+    ("dt", "error", "match"),
+    [
+        (np.ones(5), ValueError,
+         r"dt must be a scalar or have a shape that broadcasts to the leading shape \(6,\) "
+         r"of V, got shape \(5,\)"),
+        ("0.1", TypeError, "dt must hold real numbers"),
+        (np.array([0.1, np.inf, 0, 0, 0, 0]), ValueError, "dt must be finite, got inf"),
+    ],
+)
+def test_bad_dt(composed, dt, error, match):
+    with pytest.raises(error, match=match):
+        composed(np.ones((6, 4)), dt=dt)
+
+
+def test_inverse(composed):
+    rng = np.random.default_rng(9)
+    V = rng.standard_normal((40, 4))
+    np.testing.assert_allclose(composed.inverse(composed(V)), V, rtol=1e-12, atol=1e-12)
+    W = rng.standard_normal((2, 20, 4))
+    np.testing.assert_allclose(composed(composed.inverse(W)), W, rtol=1e-12, atol=1e-12)
+    # against the stages' inverses applied by hand, in reverse order
+    w = W[1, 3]
+    v = np.linalg.solve(composed.linear[2], w)
+    v = np.linalg.solve(composed.linear[1], composed.jumps[1].inverse(v))
+    v = np.linalg.solve(composed.linear[0], composed.jumps[0].inverse(v))
+    np.testing.assert_allclose(composed.inverse(w), v, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match=r"W must have shape \(\.\.\., 4\)"):
+        composed.inverse(np.ones(3))
+    with pytest.raises(ValueError, match="W must be finite"):
+        composed.inverse(np.array([1.0, np.nan, 0.0, 0.0]))
+
+
+def test_inverse_of_a_singular_stage_is_refused():
+    rng = np.random.default_rng(7)  # random_bd(rng, 2, 3) terminates for this seed
+    singular = np.array([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0], [0.0, 0.0, 1.0]])
+    fb = FlowBDerivative([np.eye(3), singular], [random_bd(rng, 2, 3)])
+    V = rng.standard_normal((3, 3))
+    fb(V)  # the forward map is fine
+    with pytest.raises(
+        ValueError,
+        match=r"not invertible: its linear stage linear\[1\] is singular to working precision",
+    ):
+        fb.inverse(V)
+
+
+def test_out_chunks_and_progress(composed):
+    V = np.random.default_rng(11).standard_normal((10, 4))
+    expected = np.array([manual(composed, v) for v in V])
+    out = np.empty((10, 4))
+    assert composed(V, out=out) is out
+    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12)
+    seen = []
+    res = composed(V, chunk_size=4, progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(4, 10), (8, 10), (10, 10)]
+    np.testing.assert_allclose(res, expected, rtol=1e-12, atol=1e-12)
+    alias = V.copy()
+    composed(alias, out=alias)  # out may be V itself
+    np.testing.assert_allclose(alias, expected, rtol=1e-12, atol=1e-12)
+    back = composed.inverse(expected, chunk_size=3)
+    np.testing.assert_allclose(back, V, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match=r"out must have shape \(10, 4\)"):
+        composed(V, out=np.empty((10, 3)))
+
+
+def test_dask(composed):
+    da = pytest.importorskip("dask.array")
+    V = np.random.default_rng(12).standard_normal((50, 4))
+    lazy = composed(da.from_array(V, chunks=(20, 4)), dt=0.25)
+    expected = np.array([manual(composed, v) for v in V]) + 0.25 * composed.final_field
+    np.testing.assert_allclose(lazy.compute(), expected, rtol=1e-12, atol=1e-12)
+    images = expected - 0.25 * composed.final_field
+    back = composed.inverse(da.from_array(images, chunks=(20, 4)))
+    np.testing.assert_allclose(back.compute(), V, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="dt must be a scalar when V is a dask array"):
+        composed(da.from_array(V, chunks=(20, 4)), dt=np.ones(50))
 
 
 def test_final_time_matches_simulation():
@@ -110,11 +228,14 @@ def test_final_time_matches_simulation():
 
 
 def test_pickle(composed):
-    clone = pickle.loads(pickle.dumps(composed))
     V = np.random.default_rng(6).standard_normal((5, 4))
+    composed.inverse(V)  # the stage inverses travel too
+    clone = pickle.loads(pickle.dumps(composed))
     np.testing.assert_array_equal(clone(V), composed(V))
+    np.testing.assert_array_equal(clone.inverse(V), composed.inverse(V))
     np.testing.assert_array_equal(clone.final_field, composed.final_field)
     assert clone.group_events == composed.group_events
+    assert not clone.linear[0].flags.writeable and not clone.final_field.flags.writeable
 
 
 def test_stages_read_only(composed):
@@ -166,7 +287,12 @@ def test_linear_map_without_groups():
     V = np.random.default_rng(8).standard_normal((4, 3))
     np.testing.assert_allclose(fb(V), V @ M.T)
     np.testing.assert_array_equal(fb.piece(), M)
-    assert fb.orders(V) == []
+    assert fb.orders(V) == [] and fb.event_times(V) == []
+    with pytest.raises(ValueError, match=r"linear\[0\] is singular"):
+        fb.inverse(V)
+    M = M + np.eye(3)
+    np.testing.assert_allclose(FlowBDerivative([M], []).inverse(V), np.linalg.solve(M, V.T).T,
+                               rtol=1e-12, atol=1e-12)
 
 
 @given(

@@ -1,4 +1,7 @@
-"""HybridSystem: sampling, simulation with event detection, bad input, derivatives."""
+"""HybridSystem: checked calls, sampling, the B-derivative at a point, flow derivatives.
+
+(Simulation and event detection: tests/test_simulate.py.)
+"""
 
 from __future__ import annotations
 
@@ -7,7 +10,8 @@ import pytest
 import scipy.linalg
 
 from bderiv import BDerivative, examples
-from bderiv.hybrid import HybridSystem, Trajectory
+from bderiv.checks import fd_check
+from bderiv.hybrid import HybridSystem
 
 EPS = (1e-3, 1e-4, 1e-5)
 
@@ -27,12 +31,7 @@ def constant_system(rates, n=2, events=None):
 
 
 def fd_rel_errors(system, x0, T, fb, V):
-    D = fb(V)
-    out = []
-    for eps in EPS:
-        fd = system.flow_fd(x0, T, V, eps)
-        out.append(np.linalg.norm(fd - D, axis=-1) / np.linalg.norm(D, axis=-1))
-    return np.array(out).T
+    return fd_check(system, x0, T, V, fb(V), EPS).errors
 
 
 def assert_shrinks(errs):
@@ -131,7 +130,7 @@ def test_bad_states():
         s.simulate(np.array([0.0, np.nan]), 1.0)
     with pytest.raises(TypeError, match="x0 must hold real numbers"):
         s.simulate(np.array([1 + 1j, 0]), 1.0)
-    with pytest.raises(ValueError, match="t_final must be a finite positive time"):
+    with pytest.raises(ValueError, match="t_final must be a finite number > 0, got -1.0"):
         s.simulate(np.zeros(2), -1.0)
     with pytest.raises(ValueError, match=r"rho must have shape \(2,\)"):
         s.bderivative(np.zeros(1))
@@ -166,102 +165,32 @@ def test_bderivative_refuses_non_event_point_naming_residuals():
         s.bderivative(np.array([1.0, 0.9]))
 
 
+@pytest.mark.parametrize(
+    ("tol", "error", "match"),
+    [
+        (np.nan, ValueError, "tol must be a finite number >= 0, got nan"),
+        (np.inf, ValueError, "tol must be a finite number >= 0, got inf"),
+        (-1e-9, ValueError, "tol must be a finite number >= 0, got -1e-09"),
+        ("1e-9", TypeError, "tol must be a real number, got str '1e-9'"),
+        (None, TypeError, "tol must be a real number, got NoneType"),
+    ],
+)
+def test_bderivative_tol_is_checked(tol, error, match):
+    # tol=nan used to accept any point (every comparison with nan is False)
+    s = constant_system(np.ones((4, 2)))
+    with pytest.raises(error, match=match):
+        s.bderivative(np.array([1.0, 0.5]), tol=tol)
+
+
 def test_bderivative_transversality_names_mask_and_event():
     rates = np.ones((4, 2))
     rates[1] = [1.0, -0.5]
     s = constant_system(rates)
     with pytest.raises(
-        ValueError, match=r"event 1 has rate -0.5 <= 0 in region mask 1 \(binary 01\)"
+        ValueError,
+        match=r"transversality violated at rho: event 1 has rate -0.5 <= 0 in region mask 0b01 ",
     ):
         s.bderivative(np.ones(2))
-
-
-# ------------------------------------------------------------------------------------------
-# simulation and event detection
-# ------------------------------------------------------------------------------------------
-def test_simulate_result():
-    s = constant_system(np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [3.0, 3.0]]))
-    traj = s.simulate(np.zeros(2), 2.0)
-    assert isinstance(traj, Trajectory)
-    assert traj.t[0] == 0 and traj.t[-1] == pytest.approx(2.0)
-    assert np.all(np.diff(traj.t) >= 0)
-    assert traj.x.shape == (traj.t.size, 2) and traj.masks.shape == traj.t.shape
-    np.testing.assert_array_equal(traj.x[-1], traj.x_final)
-    # both events at t = 1 together: one group with the default tolerance or two stops
-    assert {e.event for e in traj.events} == {0, 1}
-    assert traj.mask_final == 3
-    # exact: after t = 1 the field is (3, 3)
-    np.testing.assert_allclose(traj.x_final, [4.0, 4.0], rtol=1e-10)
-
-
-def test_two_surfaces_crossed_in_one_step_are_both_detected():
-    seen = []
-
-    def events(x):
-        seen.append(x.copy())
-        return np.array([x[0] - 1.0, x[1] - 1.0005])
-
-    s = HybridSystem(lambda x, m: np.array([1.0, 1.0 + 0.5 * (m & 1)]), events, n_events=2, dim=2)
-    traj = s.simulate(np.zeros(2), 3.0, simultaneity_tol=0.0)
-    seen = np.array(seen)
-    # the integrator evaluated the events beyond both surfaces before any point between them
-    beyond = np.flatnonzero((seen[:, 0] > 1.0) & (seen[:, 1] > 1.0005))
-    between = np.flatnonzero((seen[:, 0] > 1.0 + 1e-9) & (seen[:, 1] < 1.0005 - 1e-9))
-    assert beyond.size and (between.size == 0 or beyond[0] < between[0])
-    assert [e.event for e in traj.events] == [0, 1]
-    t0, t1 = traj.events[0].time, traj.events[1].time
-    assert t0 == pytest.approx(1.0, abs=1e-12)
-    assert t1 == pytest.approx(1.0 + 0.0005 / 1.5, abs=1e-12)
-    assert [g.events for g in traj.groups] == [(0,), (1,)]
-
-
-@pytest.mark.parametrize("tol", [0.0, 1e-12, 1e-9])
-def test_nearly_coincident_crossings_are_never_lost(tol):
-    # event 1 crosses 1e-13 before event 0, inside the same step
-    def events(x):
-        return np.array([x[0] - 1.0, x[0] - 1.0 + 1e-13, x[1] - 2.0])
-
-    s = HybridSystem(lambda x, m: np.array([1.0, 1.0]), events, n_events=3, dim=2)
-    traj = s.simulate(np.zeros(2), 3.0, simultaneity_tol=tol)
-    assert sorted(e.event for e in traj.events) == [0, 1, 2]
-    assert traj.mask_final == 7
-    if tol >= 1e-12:
-        assert traj.groups[0].events == (0, 1)
-
-
-def test_grouping_tolerance():
-    rates = np.array([[1.0, 1.0], [1.0, 1.0], [1.0, 1.0], [1.0, 1.0]])
-    s = constant_system(rates)
-    x0 = np.array([0.0, -1e-6])  # event 1 happens 1e-6 after event 0
-    assert [g.events for g in s.simulate(x0, 2.0, simultaneity_tol=1e-5).groups] == [(0, 1)]
-    assert [g.events for g in s.simulate(x0, 2.0, simultaneity_tol=1e-8).groups] == [
-        (0,),
-        (1,),
-    ]
-
-
-def test_downward_crossing_is_an_error():
-    # x' = 1 - 2 y after the event (y = t): x comes back down through the surface at t = 0.75
-    s = HybridSystem(
-        lambda x, m: np.array([1.0 if m == 0 else 1.0 - 2.0 * x[1], 1.0]),
-        lambda x: np.array([x[0] - 0.25]),
-        n_events=1,
-        dim=2,
-    )
-    with pytest.raises(ValueError, match=r"event 0 crossed its surface downward at t=0.75"):
-        s.simulate(np.zeros(2), 1.0)
-    assert s.simulate(np.zeros(2), 0.7).mask_final == 1
-
-
-def test_switch_into_a_region_that_pushes_back_is_an_error():
-    s = HybridSystem(
-        lambda x, m: np.array([1.0 if m == 0 else -1.0]),
-        lambda x: x - 0.5,
-        n_events=1,
-        dim=1,
-    )
-    with pytest.raises(ValueError, match=r"transversality broken at t=0.5: event 0 .* mask 1"):
-        s.simulate(np.zeros(1), 1.0)
 
 
 # ------------------------------------------------------------------------------------------
@@ -293,7 +222,7 @@ def test_no_event_gives_the_classical_derivative():
 def test_numerical_jacobians_match_analytic_flow_bderivative():
     ex = examples.network(2, seed=1)
     s = ex.system
-    bare = HybridSystem(s._field, s._events, n_events=2, dim=2)
+    bare = HybridSystem(s.eval_field, s.eval_events, n_events=2, dim=2)
     fa = s.flow_bderivative(ex.x0, ex.t_final)
     fn = bare.flow_bderivative(ex.x0, ex.t_final)
     V = np.random.default_rng(3).standard_normal((20, 2))
@@ -320,18 +249,30 @@ def test_close_but_not_simultaneous_events_are_separate_groups():
 def test_simultaneity_tol_merges_close_events():
     ex = examples.network(2, seed=0)
     x0 = ex.x0.copy()
-    x0[1] -= 1e-9
+    x0[1] -= 1e-11  # event 1 about 1e-11 later: within the integration accuracy
     fb = ex.system.flow_bderivative(x0, ex.t_final, simultaneity_tol=1e-6)
     assert fb.n_groups == 1 and fb.group_events == ((0, 1),)
+    apart = ex.system.flow_bderivative(x0, ex.t_final, simultaneity_tol=1e-13)
+    assert apart.group_events == ((0,), (1,))
+    x0[1] -= 1e-6  # now beyond it: the window may not hide the gap
+    with pytest.raises(ValueError, match=r"events \[0, 1\] were grouped .* event 1 is not at"):
+        ex.system.flow_bderivative(x0, ex.t_final, simultaneity_tol=1e-5)
 
 
 def test_flow_fd_validation():
     ex = examples.network(2)
     s = ex.system
-    with pytest.raises(ValueError, match="eps must be > 0"):
+    with pytest.raises(ValueError, match="eps must be a finite number > 0, got 0.0"):
         s.flow_fd(ex.x0, 1.5, np.ones(2), 0.0)
-    with pytest.raises(ValueError, match=r"V must have shape \(\.\.\., 2\), got shape \(3,\)"):
+    with pytest.raises(ValueError, match=r"V must have shape \(\.\.\., 2\).*got shape \(3,\)"):
         s.flow_fd(ex.x0, 1.5, np.ones(3), 1e-3)
+    with pytest.raises(ValueError, match="eps must be a finite number > 0, got nan"):
+        s.flow_fd(ex.x0, 1.5, np.ones(2), np.nan)
+    with pytest.raises(TypeError, match="eps must be a real number, got str"):
+        s.flow_fd(ex.x0, 1.5, np.ones(2), "1e-3")
+    # a NaN in V is V's fault (it used to be reported as a non-finite x0)
+    with pytest.raises(ValueError, match=r"V must be finite, but vector V\[1\] = \[nan  1.\]"):
+        s.flow_fd(ex.x0, 1.5, np.array([[1.0, 1.0], [np.nan, 1.0]]), 1e-3)
     out = s.flow_fd(ex.x0, 1.5, np.ones((2, 1, 2)), 1e-3)
     assert out.shape == (2, 1, 2)
 
@@ -358,16 +299,10 @@ def test_flow_bderivative_transversality_names_mask_and_event():
     s = constant_system(rates)
     with pytest.raises(
         ValueError,
-        match=r"transversality fails at the event point at t=[0-9.]+: event 1 has rate -0.5 <= 0 "
-        r"in region mask 1 \(binary 01\)",
+        match=r"transversality violated at the event point at t=[0-9.]+: event 1 has rate -0.5 "
+        r"<= 0 in region mask 0b01 ",
     ):
         s.flow_bderivative(np.zeros(2), 2.0)
-
-
-def test_negative_simultaneity_tol():
-    s = constant_system(np.ones((4, 2)))
-    with pytest.raises(ValueError, match="simultaneity_tol must be >= 0"):
-        s.simulate(np.zeros(2), 2.0, simultaneity_tol=-1.0)
 
 
 def test_constant_fields_flow_bderivative_is_the_bderivative():

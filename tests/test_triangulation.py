@@ -17,6 +17,7 @@ from reference import (
     random_system,
     ref_apply,
     ref_corner_points,
+    ref_inverse,
     ref_tri_apply,
 )
 
@@ -51,7 +52,7 @@ def test_corner_points(case):
     rng, Dh, F = case
     n, d = Dh.shape
     bd = BDerivative(Dh, F)
-    U, W = bd.corner_points()
+    U, W = bd.corner_points()  # pre, post
     assert U.shape == W.shape == (2**n, d)
     G = F @ Dh.T
     scale = np.abs(F).max()
@@ -79,7 +80,7 @@ def test_triangulation_structure(case):
     n, d = Dh.shape
     bd = BDerivative(Dh, F)
     tri = bd.triangulation()
-    U, W = bd.corner_points()
+    U, W = bd.corner_points()  # pre, post
     assert tri.pre.shape == tri.post.shape == (2**n + 1, d)
     assert_allclose(tri.pre[: 2**n], U, rtol=1e-15)
     assert_allclose(tri.post[: 2**n], W, rtol=1e-15)
@@ -154,9 +155,107 @@ def test_triangulation_inputs_flavours():
     assert_array_equal(tri(V.astype(np.float32)), tri(V.astype(np.float32).astype(float)))
 
 
+@given(full_rank_systems(), st.integers(1, 10))
+def test_triangulation_inverse(case, m):
+    rng, Dh, F = case
+    d = Dh.shape[1]
+    tri = BDerivative(Dh, F).triangulation()
+    V = rng.standard_normal((m, d)) * 10.0 ** rng.uniform(-2, 2, (m, 1))
+    W = np.array([ref_apply(Dh, F, v) for v in V])
+    # MATH.md s.6: the post cones are a fan; the oracle inverts by running time backwards
+    assert_maps_close(Dh, F, V, tri.inverse(W), [ref_inverse(Dh, F, w) for w in W], rtol=1e-7)
+    assert_maps_close(Dh, F, V, tri.inverse(tri(V)), V, rtol=1e-7)
+
+
+def test_triangulation_inverse_hand_case():
+    # test_triangulation_hand_case read backwards
+    F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]])
+    tri = BDerivative(np.eye(2), F).triangulation()
+    W = np.array([[-2.0, -4.0], [-6.0, 0.0], [2.0, 2.0], [-2.0, -2.0]])
+    assert_allclose(tri.inverse(W), [[-1.0, -2.0], [-3.0, -1.0], [1.0, 1.0], [-1.0, -1.0]],
+                    atol=1e-14)
+
+
+@pytest.fixture(scope="module")
+def tri_n3():
+    rng = np.random.default_rng(7)
+    Dh, F = random_system(rng, 3, 4)
+    return BDerivative(Dh, F), rng.standard_normal((40, 4))
+
+
+@pytest.mark.parametrize("method", ["apply", "inverse"])
+def test_out_chunks_and_progress(tri_n3, method):
+    bd, V = tri_n3
+    fn = getattr(bd.triangulation(), method)
+    want = fn(V)
+    out = np.empty_like(V)
+    assert fn(V, out=out) is out
+    assert_array_equal(out, want)
+    calls = []
+    chunked = fn(V.reshape(8, 5, 4), chunk_size=7, progress=lambda *a: calls.append(a))
+    assert_array_equal(chunked.reshape(V.shape), want)  # bit for bit, as BDerivative
+    for size in (1, 3, 39):
+        assert_array_equal(fn(V, chunk_size=size), want)
+    assert calls == [(k, 40) for k in (7, 14, 21, 28, 35, 40)]
+    alias = V.copy()
+    assert fn(alias, out=alias) is alias  # out may be the input itself
+    assert_array_equal(alias, want)
+
+
 def test_triangulation_bad_queries():
-    tri = BDerivative(np.eye(2), np.ones((4, 2))).triangulation()
+    bd = BDerivative(np.eye(2), np.ones((4, 2)))
+    tri = bd.triangulation()
     with pytest.raises(ValueError, match=r"must have shape \(\.\.\., 2\)"):
         tri(np.ones(3))
     with pytest.raises(ValueError, match=r"must be finite"):
         tri(np.array([1.0, np.nan]))
+    # the messages are BDerivative's, word for word (one validation path, _batch.evaluate)
+    for bad, kwargs in [
+        (np.ones(3), {}),
+        (np.array([[1.0, 2.0], [1.0, np.inf]]), {}),
+        (np.ones((2, 2), dtype=complex), {}),
+        ("abc", {}),
+        (np.ones((3, 2)), {"out": np.empty((2, 2))}),
+        (np.ones((3, 2)), {"out": np.empty((3, 2), dtype=np.float32)}),
+        (np.ones((3, 2)), {"chunk_size": 0}),
+    ]:
+        for mine, theirs in ((tri.apply, bd.apply), (tri.inverse, bd.inverse)):
+            with pytest.raises((ValueError, TypeError)) as got:
+                mine(bad, **kwargs)
+            with pytest.raises(type(got.value)) as want:
+                theirs(bad, **kwargs)
+            assert str(got.value) == str(want.value)
+    V = np.ones((3, 4, 2))
+    V[2, 1, 0] = np.nan  # row 9 of 12: chunk 4 of size 2; named by its index in V
+    with pytest.raises(ValueError, match=r"must be finite, but vector V\[2, 1\] = \[nan  1\.\]"):
+        tri(V, chunk_size=2)
+    with pytest.raises(ValueError, match=r"the map of row 1 of W .* is not finite: the "
+                                         r"computation overflowed"):
+        tri.inverse([[1.0, 1.0], [1e308, -1e308]])  # finite, but the weights overflow
+
+
+def test_triangulation_pickles_read_only(tri_n3):
+    bd, V = tri_n3
+    tri = bd.triangulation()
+    clone = pickle.loads(pickle.dumps(tri))
+    assert_array_equal(clone.inverse(V), tri.inverse(V))
+    for a in (tri, clone):
+        for name in ("pre", "post", "simplices", "kernel"):
+            assert not getattr(a, name).flags.writeable
+
+
+def test_direct_construction_is_checked():
+    """Triangulation(pre, post, simplices, kernel) runs the checks of a loaded file."""
+    tri = BDerivative(np.eye(2), np.array([[1.0, 1], [2, 1], [1, 3], [2, 2]])).triangulation()
+    good = dict(pre=tri.pre, post=tri.post, simplices=tri.simplices, kernel=tri.kernel)
+    with pytest.raises(TypeError, match=r"Triangulation: field 'simplices' must hold integers"):
+        Triangulation(**good | {"simplices": tri.simplices.astype(float)})
+    with pytest.raises(TypeError, match=r"field 'pre' must hold real numbers, got dtype compl"):
+        Triangulation(**good | {"pre": tri.pre.astype(complex)})
+    flat = tri.pre.copy()
+    flat[3] = 2 * flat[1]  # U[0b11] on the ray of U[0b01]: the cones of both orders collapse
+    with pytest.raises(ValueError, match=r"simplex 0 \[0, 1, 3\] spans less than R\^2 with "
+                                         r"the pre vertices"):
+        Triangulation(**good | {"pre": flat})
+    with pytest.raises(ValueError, match=r"field 'post' must have shape \(5, 2\)"):
+        Triangulation(**good | {"post": tri.post[:4]})

@@ -125,10 +125,23 @@ def test_grazing_is_relative_not_absolute():
     assert bd.n_events == 2
 
 
-@pytest.mark.parametrize("tol", [-1.0, np.nan, "1e-9"])
+@pytest.mark.parametrize("tol", [-1.0, np.nan, np.inf])
 def test_bad_transversality_tol(tol):
-    with pytest.raises(ValueError, match=r"transversality_tol must be a number >= 0"):
+    with pytest.raises(ValueError, match=r"transversality_tol must be a finite number >= 0"):
         BDerivative(DH2, F2, transversality_tol=tol)
+
+
+@pytest.mark.parametrize("tol", ["1e-9", None, True])
+def test_transversality_tol_of_the_wrong_type(tol):
+    with pytest.raises(TypeError, match=r"transversality_tol must be a real number, got"):
+        BDerivative(DH2, F2, transversality_tol=tol)
+
+
+@pytest.mark.parametrize("limit, exc", [("1e9", TypeError), (-5, ValueError),
+                                        (1.5, ValueError), (np.nan, ValueError)])
+def test_bad_memory_limit(limit, exc):
+    with pytest.raises(exc, match="memory_limit must be"):
+        BDerivative(DH2, F2, memory_limit=limit)
 
 
 # --------------------------------------------------------------------------------------
@@ -252,3 +265,52 @@ def test_triangulation_max_pieces():
     bd = BDerivative(np.eye(4), np.ones((16, 4)))
     with pytest.raises(ValueError, match=r"2 \* 4! = 48 simplices.*max_pieces=10"):
         bd.triangulation(max_pieces=10)
+
+
+# --------------------------------------------------------------------------------------
+# Rates at the ends of the float64 range; sizes of corner models
+# --------------------------------------------------------------------------------------
+def test_overflowing_rates_are_named_as_overflow():
+    with pytest.raises(ValueError, match=r"G\[0, 0\] = F\[0\] . Dh\[0\] = inf overflows"):
+        BDerivative(np.eye(2) * 1e200, F2 * 1e200)
+
+
+def test_underflowing_rates_are_named_as_underflow():
+    with pytest.raises(ValueError, match=r"underflows float64: \|F\[0\]\| \|Dh\[0\]\| = 1e-"):
+        BDerivative(DH2 * 1e-200, F2 * 1e-200)
+    BDerivative(DH2 * 1e-150, F2 * 1e-150)  # small but representable: accepted
+
+
+def test_overflowing_results_are_refused_not_returned():
+    bd = BDerivative(np.array([[1.0, 0.0]]), np.array([[1.0, 0.0], [3.0, 0.0]]))
+    with pytest.raises(ValueError, match=r"result for V\[1\] overflowed .*positively homogeneous"):
+        bd([[1.0, 1.0], [-1.7e308, 1e308]])
+    with pytest.raises(ValueError, match=r"result for V\[2\] overflowed"):
+        bd([[1.0, 1.0], [2.0, 1.0], [-1.7e308, 1e308]], chunk_size=2)
+    np.testing.assert_allclose(bd([-1.7e300, 1e300]), [-5.1e300, 1e300])
+
+
+def test_corner_model_tables_are_checked_against_memory_first():
+    """n = 20, d = 4000: the dense table would take 31 GiB; refused before allocating."""
+    from bderiv import StructuredCorners
+
+    n, d = 20, 4000
+    model = StructuredCorners(np.ones(d), np.hstack([0.01 * np.eye(n), np.zeros((n, d - n))]))
+    bd = BDerivative(np.hstack([np.eye(n), np.zeros((n, d - n))]), model)
+    with pytest.raises(ValueError, match=r"dense table\) take 31.\d GiB, more than the memory"):
+        bd.to_dense()
+    with pytest.raises(ValueError, match=r"corner points .* more than the memory limit"):
+        bd.corner_points()
+    with pytest.raises(ValueError, match=r"triangulation .* more than the memory limit"):
+        bd.triangulation(max_pieces=10**30)
+    with pytest.raises(ValueError, match=r"take 128 B, more than the memory limit of 64 B"):
+        BDerivative(np.eye(2), StructuredCorners(np.ones(2), np.eye(2))).to_dense(
+            memory_limit=64)
+
+
+def test_model_triangulation_counts_pieces_before_building_a_table():
+    from bderiv import StructuredCorners
+
+    bd = BDerivative(np.eye(12), StructuredCorners(np.ones(12), 0.01 * np.eye(12)))
+    with pytest.raises(ValueError, match=r"12! = 479001600 pieces, more than max_pieces"):
+        bd.triangulation()

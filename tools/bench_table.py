@@ -10,8 +10,8 @@ bderiv over each baseline (batched NumPy, per-query reference) and its useful wo
 group; then construction times, the 1 -> 2 thread speed-up and the targets of issues 2
 and 4 with the measured value. Ratios are always between entries of one run.
 
-``--plot`` writes a log-log figure of time per query against n (d = n, largest batch)
-with matplotlib (optional extra ``plot``), imported only then.
+``--plot`` writes the log-log figure of time per query against n (d = n, largest batch)
+of ``bderiv.plot.scaling``, the one of ``bderiv bench --plot`` (needs matplotlib).
 """
 
 from __future__ import annotations
@@ -21,7 +21,9 @@ import json
 import sys
 from collections import defaultdict
 
-APPLY, INVERSE, NUMPY, REF, BLAS = (
+from bderiv._baselines import useful_flops
+
+CONTENDERS = APPLY, INVERSE, NUMPY, REF, BLAS = (
     "bderiv apply", "bderiv inverse", "numpy batched", "reference per-query", "BLAS matmul")
 
 
@@ -71,10 +73,6 @@ def fmt_time(seconds: float | None) -> str:
 
 def fmt_ratio(a: float | None, b: float | None) -> str:
     return "-" if a is None or b is None else f"{b / a:.3g}x"
-
-
-def useful_flops(n: int, d: int) -> int:
-    return n * n + 2 * n * d
 
 
 def blas_percent(row: dict, n: int, d: int) -> float | None:
@@ -185,36 +183,15 @@ def markdown(evals, builds, threads, info, stat: str) -> str:
 
 
 def plot(evals, path: str) -> None:
-    import matplotlib
+    """Write ``bderiv.plot.scaling`` of the d = n entries (largest batch per point)."""
+    from bderiv.plot import scaling
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ms = sorted({m for (_, _, m) in evals})
-    styles = {APPLY: "o-", INVERSE: "s--", NUMPY: "^-", REF: "v-", BLAS: "x:"}
-    for contender, style in styles.items():
-        pts = []
-        for n in sorted({n for (n, _, _) in evals}):
-            # largest batch measured at d = n for this contender
-            for m in reversed(ms):
-                t = evals.get((n, n, m), {}).get(contender)
-                if t is not None:
-                    pts.append((n, t, m))
-                    break
-        if pts:
-            label = contender + ("" if contender != BLAS else " (same flops, per query)")
-            ax.loglog([p[0] for p in pts], [p[1] for p in pts], style, label=label)
-    ax.set_xlabel("n (events), d = n")
-    ax.set_ylabel("time per query [s]")
-    ax.set_title("Dense B-derivative, largest batch measured (1e6; ref on 200 queries)")
-    ax.set_xticks(sorted({n for (n, _, _) in evals}))
-    ax.get_xaxis().set_major_formatter(matplotlib.ticker.ScalarFormatter())
-    ax.get_xaxis().set_minor_formatter(matplotlib.ticker.NullFormatter())
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    rows = [
+        dict(n=n, d=d, m=m, method=contender, seconds_per_query=row[contender])
+        for (n, d, m), row in sorted(evals.items()) if d == n
+        for contender in CONTENDERS if contender in row
+    ]
+    scaling(rows).savefig(path, dpi=110)
 
 
 def main(argv=None) -> int:

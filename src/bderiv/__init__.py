@@ -5,9 +5,10 @@ from importlib.metadata import PackageNotFoundError, version
 
 from . import examples
 from .bderivative import BDerivative
-from .corners import CornerFunction, StructuredCorners
+from .corners import CornerFunction, CornerModel, StructuredCorners
 from .flowmap import FlowBDerivative
 from .hybrid import HybridSystem
+from .simulate import SolverOptions
 from .triangulation import Triangulation, load_triangulation
 
 try:
@@ -18,9 +19,11 @@ except PackageNotFoundError:  # running from a source tree that is not installed
 __all__ = [
     "FlowBDerivative",
     "HybridSystem",
+    "SolverOptions",
     "examples",
     "BDerivative",
     "CornerFunction",
+    "CornerModel",
     "StructuredCorners",
     "Triangulation",
     "__version__",

@@ -1,17 +1,18 @@
 """A small dimension sweep for ``bderiv bench``: bderiv against its baselines, one process.
 
 The full benchmark suite lives in the repository's ``benchmarks/`` (pytest-benchmark);
-this module is the part an installed package can run on its own:
+this module is the part an installed package can run on its own, with the same baselines
+and test systems (:mod:`bderiv._baselines`):
 
 - ``bderiv``: :meth:`BDerivative.__call__` on the batch (the compiled kernels);
-- ``numpy``: MATH.md section 3 in batched NumPy, vectorised over the queries and looping
-  over the n events (:func:`numpy_apply`, the same algorithm as the suite's baseline);
+- ``numpy``: MATH.md section 3 in batched NumPy (:func:`~bderiv._baselines.numpy_apply`);
 - ``blas``: the time a BLAS matrix product would take for the flop count of the useful
   work, ``m (n**2 + 2 n d)``, at the rate of a 512 x 512 product measured once per sweep:
   a yardstick of the machine's peak.
 
-Each time is the best of ``repeat`` runs after one warm-up run; construction (building the
-tables) is timed apart.
+The systems are :func:`~bderiv._baselines.benchmark_system` (rates change after every
+event, so no fast path applies). Each time is the best of ``repeat`` runs after one
+warm-up run; construction (building the tables) is timed apart.
 """
 
 from __future__ import annotations
@@ -20,105 +21,8 @@ import time
 
 import numpy as np
 
+from ._baselines import benchmark_system, best_time, measure_blas_rate, numpy_apply, useful_flops
 from .bderivative import BDerivative
-
-#: queries per chunk of the NumPy baseline (its temporaries stay in cache)
-NUMPY_CHUNK = 4096
-#: side of the BLAS yardstick's square matrices
-BLAS_SIZE = 512
-
-
-def useful_flops(n: int, d: int) -> int:
-    """Flops of one query counted as useful work: n**2 (event times) + 2 n d (g and x)."""
-    return n * n + 2 * n * d
-
-
-def random_system(n: int, d: int, seed: int = 0):
-    """A transversal random system: Dh (n, d), F (2**n, d) with every rate positive.
-
-    ``Dh = [I | 0] + 0.02 |N(0, 1)|`` and ``F`` uniform in [0.5, 1.5], so that
-    ``G = F Dh^T > 0`` everywhere.
-    """
-    rng = np.random.default_rng(seed)
-    Dh = np.zeros((n, d))
-    Dh[:, :n] = np.eye(n)
-    Dh += 0.02 * np.abs(rng.standard_normal((n, d)))
-    F = rng.uniform(0.5, 1.5, size=(1 << n, d))
-    return Dh, F
-
-
-def numpy_apply(Dh, F, G, V, chunk: int = NUMPY_CHUNK):
-    """M(V) for a batch V (m, d) in batched NumPy (MATH.md section 3); ties to the lowest k.
-
-    Parameters
-    ----------
-    Dh : ndarray, shape (n, d)
-    F : ndarray, shape (2**n, d)
-    G : ndarray, shape (2**n, n)
-        The event rates ``F @ Dh.T``.
-    V : ndarray, shape (m, d)
-    chunk : int
-        Queries processed together.
-
-    Returns
-    -------
-    ndarray, shape (m, d)
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from bderiv import BDerivative
-    >>> Dh, F = random_system(3, 3)
-    >>> V = np.random.default_rng(1).standard_normal((10, 3))
-    >>> bool(np.allclose(numpy_apply(Dh, F, F @ Dh.T, V), BDerivative(Dh, F)(V)))
-    True
-    """
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    m, d = V.shape
-    n = Dh.shape[0]
-    out = np.empty_like(V)
-    DhT = np.ascontiguousarray(Dh.T)
-    for start in range(0, m, chunk):
-        x = out[start : start + chunk]
-        x[...] = V[start : start + chunk]
-        rows = np.arange(x.shape[0])
-        g = x @ DhT
-        B = np.zeros(x.shape[0], dtype=np.int64)
-        done = np.zeros((x.shape[0], n), dtype=bool)
-        for _ in range(n):
-            tau = -g / G[B]
-            tau[done] = np.inf
-            k = tau.argmin(axis=1)
-            t = tau[rows, k][:, None]
-            B2 = B | (1 << k)
-            done[rows, k] = True
-            g += t * (G[B] - G[B2])
-            x += t * (F[B] - F[B2])
-            B = B2
-    return out
-
-
-def measure_blas_rate(rng=None, size: int = BLAS_SIZE, repeat: int = 5) -> float:
-    """Flops per second of numpy's BLAS on a ``size`` x ``size`` product (best of repeat).
-
-    One square product large enough to reach the machine's peak, measured once per sweep:
-    the yardstick's time for a flop count F is then ``F / rate`` (a product sized to each
-    row's flop count would be tiny for small n and measure call overhead instead).
-    """
-    rng = np.random.default_rng(0) if rng is None else rng
-    A, Bm = rng.standard_normal((size, size)), rng.standard_normal((size, size))
-    C = np.empty((size, size))
-    return 2 * size**3 / _best_time(lambda: np.matmul(A, Bm, out=C), repeat)
-
-
-def _best_time(fn, repeat: int) -> float:
-    fn()  # warm-up (compilation, caches)
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repeat: int = 3,
@@ -138,6 +42,7 @@ def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repe
     numpy_max_n : int
         Skip the NumPy baseline above this n.
     seed : int
+        Seeds the systems (:func:`~bderiv._baselines.benchmark_system`) and the queries.
     progress : callable, optional
         ``progress(done, total)`` after each n.
 
@@ -160,7 +65,7 @@ def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repe
     blas_rate = measure_blas_rate(rng)
     for i, n in enumerate(ns):
         d = d_factor * n
-        Dh, F = random_system(n, d, seed)
+        Dh, F = benchmark_system(n, d, seed)
         t0 = time.perf_counter()
         bd = BDerivative(Dh, F)
         build = time.perf_counter() - t0
@@ -174,11 +79,11 @@ def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repe
                         seconds_per_query=seconds / batch, gflops=flops / seconds / 1e9,
                         **extra)
 
-        t_bd = _best_time(lambda bd=bd, V=V, out=out: bd(V, out=out), repeat)
+        t_bd = best_time(lambda bd=bd, V=V, out=out: bd(V, out=out), repeat).wall
         entry = [row("bderiv", t_bd, build_seconds=build)]
         if n <= numpy_max_n:
             args = (bd.Dh, bd.F, np.asarray(bd.rates), V)
-            t_np = _best_time(lambda args=args: numpy_apply(*args), max(1, repeat - 1))
+            t_np = best_time(lambda args=args: numpy_apply(*args), max(1, repeat - 1)).wall
             entry.append(row("numpy", t_np))
             entry[0]["speedup"] = t_np / t_bd
         entry.append(row("blas", flops / blas_rate))

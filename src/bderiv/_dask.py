@@ -1,10 +1,11 @@
 """Lazy, block-wise evaluation of a map on dask arrays.
 
-Imported only when a query is a dask array (:func:`is_dask_array` decides that from the
-type's module, without importing dask). Each block of the dask array is evaluated by the
-ordinary NumPy path of the map, in whatever process or machine the scheduler runs it; the
-map is shipped to the workers by pickling, so it must pickle (``BDerivative`` and
-``FlowBDerivative`` do: they hold only NumPy arrays and plain values).
+Imported by :func:`bderiv._batch.evaluate` only when a query is a dask array
+(``_batch.is_dask_array`` decides that from the type's module, without importing dask).
+Each block of the dask array is evaluated by the ordinary NumPy path of the map, in
+whatever process or machine the scheduler runs it; the map is shipped to the workers by
+pickling, so it must pickle (``BDerivative``, ``FlowBDerivative`` and ``Triangulation``
+do: they hold only NumPy arrays and plain values).
 
 Point it at a cluster with ``dask.distributed.Client("tcp://scheduler:8786")`` before
 calling ``.compute()``; nothing here depends on the scheduler.
@@ -14,18 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def is_dask_array(x) -> bool:
-    """True when ``x`` is a ``dask.array.Array`` (checked without importing dask).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> is_dask_array(np.zeros(3))
-    False
-    """
-    t = type(x)
-    return t.__name__ == "Array" and t.__module__.split(".")[0] == "dask"
+from ._validate import check_real_array
 
 
 def map_blocks(fn, V, dim: int, name: str = "V", out=None):
@@ -75,10 +65,7 @@ def map_blocks(fn, V, dim: int, name: str = "V", out=None):
             f"{name} must have shape (..., {dim}) (vectors of dimension {dim}, the dimension "
             f"of this map), got {got}"
         )
-    if np.dtype(V.dtype).kind not in "fiu":
-        raise TypeError(
-            f"{name} must hold real numbers (float or integer dtype), got dtype {V.dtype}"
-        )
+    check_real_array(np.empty(0, V.dtype), name)  # the message of a NumPy query
     if len(V.chunks[-1]) != 1:
         V = V.rechunk({V.ndim - 1: dim})
     return V.map_blocks(_BlockApply(fn), dtype=np.float64, meta=np.empty((0,) * V.ndim))

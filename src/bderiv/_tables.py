@@ -22,14 +22,22 @@ def blocks(n_rows: int, block: int = BLOCK_ROWS):
         yield slice(start, min(start + block, n_rows))
 
 
-def mask_bits(masks: np.ndarray, n: int) -> np.ndarray:
-    """Bits of ``masks`` as a float64 (len(masks), n) 0/1 matrix, column k = bit k."""
-    return ((masks[:, None] >> np.arange(n)) & 1).astype(np.float64)
+def mask_bits(masks, n: int, dtype=np.float64) -> np.ndarray:
+    """Bits of ``masks`` as a (len(masks), n) 0/1 matrix, column k = bit k."""
+    return ((np.asarray(masks, dtype=np.int64)[:, None] >> np.arange(n)) & 1).astype(dtype)
 
 
-def format_mask(mask: int, n: int) -> str:
-    """``0b...`` string of ``n`` bits; the rightmost bit is event 0."""
-    return "0b" + format(int(mask), f"0{n}b")
+def happened_rows(masks, n: int) -> np.ndarray:
+    """uint8 (len(masks), n) flags of integer masks (the regions of a corner model)."""
+    return mask_bits(masks, n, np.uint8)
+
+
+def chain_regions(order, n: int) -> np.ndarray:
+    """uint8 (n + 1, n) flags of the regions along an order: row j = events order[:j]."""
+    hap = np.zeros((n + 1, n), dtype=np.uint8)
+    for j, k in enumerate(order):
+        hap[j + 1 :, k] = 1
+    return hap
 
 
 def available_memory() -> int:
@@ -77,29 +85,51 @@ def event_rates(F: np.ndarray, Dh: np.ndarray) -> np.ndarray:
     """G = F @ Dh.T, shape (2**n, n): G[mask, k] is how fast h_k grows in region mask."""
     G = np.empty((F.shape[0], Dh.shape[0]))
     DhT = Dh.T
-    for rows in blocks(F.shape[0], RATE_BLOCK_ROWS):
-        np.matmul(F[rows], DhT, out=G[rows])
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported by the caller
+        for rows in blocks(F.shape[0], RATE_BLOCK_ROWS):
+            np.matmul(F[rows], DhT, out=G[rows])
     return G
+
+
+def row_norms(A: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of A, without overflow or underflow for entries near the
+    ends of the float64 range (rows divided by their largest entry first; einsum: no
+    temporary of A's size, 6x faster than np.linalg.norm)."""
+    big = np.maximum(np.abs(A).max(axis=1), np.finfo(float).tiny)
+    unit = A / big[:, None]
+    return big * np.sqrt(np.einsum("ij,ij->i", unit, unit))
+
+
+#: a rate whose factors multiply below 10**UNDERFLOW_LOG10 is lost to underflow
+UNDERFLOW_LOG10 = -290
 
 
 def find_transversality_violation(G, F, Dh, tol):
     """First (mask, k, kind, scale) with G[mask, k] <= tol * |F[mask]| |Dh[k]|, or None.
 
-    ``kind`` is ``"violated"`` for a rate <= 0 and ``"grazing"`` for a positive rate that is
-    tiny relative to the scale of the two vectors (the surfaces are then nearly tangent to
-    the flow and the event times are ill-conditioned).
+    ``kind`` is ``"overflow"`` for a rate beyond float64, ``"underflow"`` for one below it
+    (``scale`` is then log10 |F[mask]| |Dh[k]|), ``"violated"`` for a rate <= 0 and
+    ``"grazing"`` for a positive rate that is tiny relative to the scale of the two vectors
+    (the surfaces are then nearly tangent to the flow and the event times ill-conditioned).
     """
-    dh_norm = np.linalg.norm(Dh, axis=1)
+    dh_norm = row_norms(Dh)
     for rows in blocks(G.shape[0]):
-        # row norms by einsum: no (rows, d) temporary, 6x faster than np.linalg.norm
-        f_norm = np.sqrt(np.einsum("ij,ij->i", F[rows], F[rows]))
-        scale = f_norm[:, None] * dh_norm
-        bad = G[rows] <= tol * scale
+        f_norm = row_norms(F[rows])
+        with np.errstate(over="ignore"):
+            scale = f_norm[:, None] * dh_norm
+        bad = (G[rows] <= tol * scale) | ~np.isfinite(G[rows])
         if bad.any():
+            if not np.isfinite(G[rows]).all():
+                i, k = np.argwhere(~np.isfinite(G[rows]))[0]
+                return rows.start + int(i), int(k), "overflow", float(scale[i, k])
             # report a sign violation before a grazing rate anywhere in the block
             neg = G[rows] <= 0
             i, k = np.argwhere(neg if neg.any() else bad)[0]
             kind = "violated" if neg.any() else "grazing"
+            # |F| |Dh| below ~1e-290: the rate is lost to underflow, not known to be <= 0
+            log_scale = np.log10(max(f_norm[i], 1e-320)) + np.log10(max(dh_norm[k], 1e-320))
+            if abs(G[rows.start + i, k]) < np.finfo(float).tiny and log_scale < UNDERFLOW_LOG10:
+                return rows.start + int(i), int(k), "underflow", float(log_scale)
             return rows.start + int(i), int(k), kind, float(scale[i, k])
     return None
 

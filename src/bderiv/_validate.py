@@ -7,7 +7,12 @@ knows about the mathematics beyond shapes and finiteness.
 
 from __future__ import annotations
 
+import math
+import numbers
+
 import numpy as np
+
+from ._tables import available_memory, human_bytes
 
 _KIND_NAMES = {
     "b": "bool",
@@ -40,6 +45,20 @@ def check_real_array(a, name: str) -> np.ndarray:
     return arr
 
 
+def all_finite(arr: np.ndarray) -> bool:
+    """Whether every entry of a float array is finite; one pass (a sum) for large arrays.
+
+    A sum is finite only if every term is; a finite array whose sum overflows is caught
+    by the element-wise test that follows. Small arrays take the element-wise test alone
+    (cheaper than setting up the error state).
+    """
+    if arr.size < 4096:
+        return bool(np.isfinite(arr).all())
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = arr.sum()
+    return math.isfinite(total) or bool(np.isfinite(arr).all())
+
+
 def check_finite(arr: np.ndarray, name: str) -> None:
     """Raise ``ValueError`` naming the first non-finite entry of ``arr``."""
     if arr.dtype.kind == "f":
@@ -68,8 +87,13 @@ def check_matrix(a, name: str, shape: tuple[int | None, int | None]) -> np.ndarr
     return np.array(arr, dtype=np.float64, order="C", copy=True)
 
 
-def check_points(V, dim: int, name: str = "V") -> tuple[np.ndarray, tuple[int, ...]]:
+def check_points(V, dim: int, name: str = "V", *, index_shape=None,
+                 offset: int = 0) -> tuple[np.ndarray, tuple[int, ...]]:
     """Validate query vectors of shape ``(..., dim)``.
+
+    ``index_shape`` and ``offset`` say where the rows sit in a larger batch (a chunk of
+    rows ``offset:`` of a batch of leading shape ``index_shape``), so that a non-finite
+    vector is named by its index in the whole batch.
 
     Returns
     -------
@@ -87,10 +111,11 @@ def check_points(V, dim: int, name: str = "V") -> tuple[np.ndarray, tuple[int, .
         )
     lead = arr.shape[:-1]
     flat = np.ascontiguousarray(arr.reshape(-1, dim), dtype=np.float64)
-    if not np.isfinite(flat).all():
+    if not all_finite(flat):
         row = int(np.flatnonzero(~np.isfinite(flat).all(axis=1))[0])
-        if lead:
-            where = ", ".join(str(int(i)) for i in np.unravel_index(row, lead))
+        shape = lead if index_shape is None else tuple(index_shape)
+        if shape:
+            where = ", ".join(str(int(i)) for i in np.unravel_index(row + offset, shape))
             what = f"vector {name}[{where}] = {flat[row]} is not"
         else:
             what = f"{name} = {flat[row]} is not"
@@ -135,3 +160,70 @@ def check_positive_int(value, name: str) -> int:
     if value < 1:
         raise ValueError(f"{name} must be >= 1, got {value}")
     return int(value)
+
+
+def check_finite_result(res, name: str, offset: int, what: str = "result") -> None:
+    """Refuse a result that overflowed (finite inputs near the float64 range)."""
+    if not all_finite(res):
+        q = int(np.flatnonzero(~np.isfinite(res).all(axis=1))[0])
+        raise ValueError(
+            f"the {what} for {name}[{q + offset}] overflowed (not finite) although the input "
+            f"is finite: its entries are too large for float64. The map is positively "
+            f"homogeneous, M(s v) = s M(v) for s > 0: scale the vectors down and the result up"
+        )
+
+
+def check_memory(need: int, memory_limit, what: str) -> None:
+    """Refuse ``need`` bytes above ``memory_limit`` (default: the memory available)."""
+    limit = available_memory() if memory_limit is None else memory_limit_bytes(memory_limit)
+    if need > limit:
+        raise ValueError(
+            f"{what} take {human_bytes(need)}, more than the memory limit of "
+            f"{human_bytes(limit)}"
+        )
+
+
+def memory_limit_bytes(value) -> int:
+    """A ``memory_limit`` argument as bytes: a positive integer (or integral float)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(
+            f"memory_limit must be a number of bytes (an integer), got {type(value).__name__} "
+            f"{value!r}"
+        )
+    if not (math.isfinite(value) and value > 0 and value == int(value)):
+        raise ValueError(f"memory_limit must be a positive whole number of bytes, got {value!r}")
+    return int(value)
+
+
+def check_pieces(n: int, max_pieces) -> None:
+    """Refuse n! pieces above ``max_pieces``."""
+    check_positive_int(max_pieces, "max_pieces")
+    count = math.factorial(n)
+    if count > max_pieces:
+        raise ValueError(
+            f"{n} events have {n}! = {count} pieces, more than max_pieces={max_pieces}; pass "
+            f"a larger max_pieces, or use piece(order) for the orders you need"
+        )
+
+
+def check_number(value, name: str, *, low: float = 0.0, strict: bool = True,
+                 allow_inf: bool = False) -> float:
+    """Validate a real scalar parameter: ``> low`` (``>= low`` if not ``strict``), finite.
+
+    Raises
+    ------
+    TypeError
+        If ``value`` is not a real number (bool, str, complex, array ... are refused).
+    ValueError
+        If it is NaN, infinite (unless ``allow_inf``) or out of range; the message names
+        ``name``, the expected range and the value received.
+    """
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__} {value!r}")
+    value = float(value)
+    bound = f"> {low:g}" if strict else f">= {low:g}"
+    kind = "a number" if allow_inf else "a finite number"
+    ok = value > low if strict else value >= low
+    if not ok or np.isnan(value) or (np.isinf(value) and not allow_inf):
+        raise ValueError(f"{name} must be {kind} {bound}, got {value!r}")
+    return value

@@ -2,27 +2,35 @@
 
 from __future__ import annotations
 
-import math
-import numbers
 from collections.abc import Iterator
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
-from . import _engines, _tables
-from ._validate import check_matrix, check_order, check_out, check_points, check_positive_int
-from .corners import CORNER_MODELS
-
-#: batches smaller than this run on one thread (thread start-up costs more than it saves).
-PARALLEL_MIN_QUERIES = _engines.PARALLEL_MIN_QUERIES
-
-#: rows per chunk of ``apply``/``inverse`` when chunking is implied (a ``progress``
-#: callback or a memmap input) and no ``chunk_size`` is given: 2**16 rows of d = 128 are
-#: 64 MiB, and a chunk is long enough to keep two threads busy.
-DEFAULT_CHUNK_ROWS = 1 << 16
+from . import _tables
+from ._batch import evaluate
+from ._engines import DenseEngine, FunctionEngine, StructuredEngine
+from ._format import MASK_MEANING, format_mask
+from ._validate import (
+    check_finite_result,
+    check_matrix,
+    check_memory,
+    check_order,
+    check_pieces,
+    check_points,
+)
+from .corners import MAX_TABLE_EVENTS, CornerModel, StructuredCorners
 
 #: default cap on the number of pieces ``pieces()`` and ``triangulation()`` will build.
 MAX_PIECES = 40320  # 8!
+
+
+class CornerPoints(NamedTuple):
+    """The 2**n corner points: ``post[mask] = M(pre[mask])`` (MATH.md section 5)."""
+
+    pre: np.ndarray
+    post: np.ndarray
 
 
 class BDerivative:
@@ -77,6 +85,10 @@ class BDerivative:
         matrix product per query. None: the general selection with re-read rates.
     full_rank : bool
         Whether Dh has row rank n (needed for corner points and the triangulation).
+    transversality : {"table", "proved", "per-query"}
+        How transversality was established: every region of the dense table checked at
+        construction; proved for all regions of a structured model by its rate bound; or
+        checked on every region a query visits (the kernels then test each rate).
 
     Raises
     ------
@@ -109,68 +121,43 @@ class BDerivative:
         n, d = Dh.shape
         if n == 0 or d == 0:
             raise ValueError(f"Dh must have at least one event and one dimension, got {Dh.shape}")
-        if isinstance(F, CORNER_MODELS):
+        if isinstance(F, CornerModel):
             self._init_model(Dh, F, fast_paths)
             return
-        limit = _tables.available_memory() if memory_limit is None else int(memory_limit)
-        need = _tables.dense_table_bytes(n, d)
-        if n > 40 or need > limit:
-            raise ValueError(
-                f"dense corner tables for n={n} events in dimension d={d} need 2**{n} rows, "
-                f"{_tables.human_bytes(need)}, more than the memory limit of "
-                f"{_tables.human_bytes(limit)}; use fewer simultaneous events or a corner "
-                f"model that does not store 2**n rows"
+        if hasattr(F, "corners") or hasattr(F, "corner_function"):
+            raise TypeError(
+                f"F = {F!r} looks like a corner model but lacks part of the protocol: it needs "
+                f"n_events, dim, corners(happened) and corner_function() (see "
+                f"bderiv.corners.CornerModel)"
             )
-        F = check_matrix(F, "F", (None, d))
-        if F.shape[0] != 1 << n:
-            raise ValueError(
-                f"F must have 2**n = {1 << n} rows (one per mask of n={n} events, n from "
-                f"Dh's {n} rows), got {F.shape[0]} rows"
-            )
-        if not (isinstance(transversality_tol, numbers.Real) and transversality_tol >= 0):
-            raise ValueError(
-                f"transversality_tol must be a number >= 0, got {transversality_tol!r}"
-            )
-
-        G = _tables.event_rates(F, Dh)
-        bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol)
-        if bad is not None:
-            mask, k, kind, scale = bad
-            where = (
-                f"event {k} in region mask {_tables.format_mask(mask, n)} (bit k set = event "
-                f"k happened): rate G[{mask}, {k}] = F[{mask}] . Dh[{k}] = {G[mask, k]:.3g}"
-            )
-            if kind == "violated":
-                raise ValueError(
-                    f"transversality violated at {where}, expected > 0: the flow must cross "
-                    f"every event surface from h_k < 0 to h_k > 0 in every region"
-                )
-            raise ValueError(
-                f"grazing rate at {where}, tiny relative to |F[{mask}]| |Dh[{k}]| = "
-                f"{scale:.3g} (transversality_tol={transversality_tol:g}); the surface is "
-                f"nearly tangent to the flow"
-            )
+        engine = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths)
+        F, G = engine.F, engine.G
         for a in (Dh, F, G):
             a.flags.writeable = False
         self.Dh, self.F, self.rates = Dh, F, G
         self.n_events, self.dim = n, d
         self.model = None
-        self._engine = _engines.DenseEngine(Dh, F, G, fast_paths=fast_paths)
+        self._engine = engine
         self.fast_path = self._engine.fast_path
+        self.transversality = "table"
 
     def _init_model(self, Dh, model, fast_paths: bool) -> None:
         n, d = Dh.shape
-        want = (getattr(model, "n_events", n), getattr(model, "dim", d))
+        want = (model.n_events or n, model.dim or d)
         if want != (n, d):
             raise ValueError(
                 f"Dh has shape {Dh.shape} (n={n} events, dimension d={d}) but the corner "
                 f"model {model!r} has n={want[0]} events in dimension d={want[1]}"
             )
-        self._engine = model._engine(Dh, fast_paths)
+        if isinstance(model, StructuredCorners):
+            self._engine = StructuredEngine(Dh, model, fast_paths)
+        else:
+            self._engine = FunctionEngine.from_model(Dh, model)
         Dh.flags.writeable = False
         self.Dh, self.F, self.rates, self.model = Dh, None, None, model
         self.n_events, self.dim = n, d
         self.fast_path = self._engine.fast_path
+        self.transversality = "proved" if self._engine.transversal_proved else "per-query"
 
     def __repr__(self) -> str:
         return f"BDerivative(n_events={self.n_events}, dim={self.dim})"
@@ -196,46 +183,15 @@ class BDerivative:
 
     # -- evaluation -------------------------------------------------------------------------
 
-    def _map(self, V, out, inverse: bool, name: str, chunk_size=None, progress=None):
-        if chunk_size is None and progress is None and not isinstance(V, np.memmap):
-            flat, lead = check_points(V, self.dim, name)
-            shape = lead + (self.dim,)
-            result = np.empty(shape) if out is None else check_out(out, shape)
-            self._engine.map(flat, result.reshape(-1, self.dim), inverse, name)
-            return result
-        return self._map_chunked(V, out, inverse, name, chunk_size, progress)
+    def _map(self, V, out, inverse: bool, chunk_size, progress, method):
+        name = "W" if inverse else "V"
 
-    def _map_chunked(self, V, out, inverse, name, chunk_size, progress):
-        """Evaluate chunk by chunk: only one chunk of V is converted or held at a time."""
-        if chunk_size is None:
-            chunk_size = DEFAULT_CHUNK_ROWS
-        chunk_size = check_positive_int(chunk_size, "chunk_size")
-        if progress is not None and not callable(progress):
-            from ._progress import resolve_progress
+        def kernel(rows, res, offset):
+            self._engine.map(rows, res, inverse, name, offset)
+            check_finite_result(res, name, offset)
 
-            progress = resolve_progress(progress, desc="BDerivative")
-        if not isinstance(V, np.ndarray):
-            V = np.asarray(V)
-        if V.ndim == 0 or V.shape[-1] != self.dim:
-            check_points(V, self.dim, name)  # raises the usual message
-        lead = V.shape[:-1]
-        rows = V.reshape(-1, self.dim)  # a view for contiguous (memmap) input
-        shape = lead + (self.dim,)
-        result = np.empty(shape) if out is None else check_out(out, shape)
-        res = result.reshape(-1, self.dim)
-        total = rows.shape[0]
-        for start in range(0, total, chunk_size):
-            stop = min(start + chunk_size, total)
-            try:
-                flat, _ = check_points(rows[start:stop], self.dim, name)
-                self._engine.map(flat, res[start:stop], inverse, name)
-            except ValueError as exc:
-                raise ValueError(f"in rows {start}:{stop} of {name}: {exc}") from exc
-            if progress is not None:
-                progress(stop, total)
-        if progress is not None and total == 0:
-            progress(0, 0)
-        return result
+        return evaluate(kernel, V, self.dim, name=name, out=out, chunk_size=chunk_size,
+                        progress=progress, desc="BDerivative", method=method)
 
     def apply(self, V, out=None, *, chunk_size=None, progress=None) -> np.ndarray:
         """Evaluate the B-derivative on pre-event tangent vectors.
@@ -269,11 +225,7 @@ class BDerivative:
         ndarray, shape (..., d)
             Post-event vectors ``M(V)``.
         """
-        if type(V).__module__.startswith("dask."):  # lazy, block-wise (see _dask.py)
-            from ._dask import map_blocks
-
-            return map_blocks(self.apply, V, self.dim, "V", out)
-        return self._map(V, out, False, "V", chunk_size, progress)
+        return self._map(V, out, False, chunk_size, progress, self.apply)
 
     __call__ = apply
 
@@ -292,11 +244,7 @@ class BDerivative:
         ndarray, shape (..., d)
             ``V`` with ``self(V) == W`` up to rounding.
         """
-        if type(W).__module__.startswith("dask."):  # lazy, block-wise (see _dask.py)
-            from ._dask import map_blocks
-
-            return map_blocks(self.inverse, W, self.dim, "W", out)
-        return self._map(W, out, True, "W", chunk_size, progress)
+        return self._map(W, out, True, chunk_size, progress, self.inverse)
 
     def event_times(self, V) -> tuple[np.ndarray, np.ndarray]:
         """Event times and event order of the sampled trajectory of each vector.
@@ -318,6 +266,7 @@ class BDerivative:
         times = np.empty((flat.shape[0], n))
         order = np.empty((flat.shape[0], n), dtype=np.int64)
         self._engine.event_times(flat, times, order)
+        check_finite_result(times, "V", 0, "event times")
         return times.reshape(lead + (n,)), order.reshape(lead + (n,))
 
     # -- pieces -----------------------------------------------------------------------------
@@ -346,14 +295,7 @@ class BDerivative:
         ValueError
             If n! exceeds ``max_pieces`` (raise the limit to go on anyway).
         """
-        check_positive_int(max_pieces, "max_pieces")
-        count = math.factorial(self.n_events)
-        if count > max_pieces:
-            raise ValueError(
-                f"{self.n_events} events have {self.n_events}! = {count} pieces, more than "
-                f"max_pieces={max_pieces}; pass a larger max_pieces, or use piece(order) for "
-                f"the orders you need"
-            )
+        check_pieces(self.n_events, max_pieces)
         return self._iter_pieces()
 
     def _iter_pieces(self):
@@ -374,61 +316,81 @@ class BDerivative:
                 f"piece still work"
             )
 
-    def corner_points(self, memory_limit=None) -> tuple[np.ndarray, np.ndarray]:
+    def corner_points(self, memory_limit=None) -> CornerPoints:
         """The 2**n pre- and post-event corner points (MATH.md section 5).
 
         Returns
         -------
-        U, W : ndarray, shape (2**n, d) each
-            ``M(U[mask]) == W[mask]``; ``U[0] = W[0] = 0``, ``U[-1] = F[0]``,
-            ``W[-1] = F[-1]`` (for d > n up to a vector of ker Dh, on which M is the
-            identity).
+        CornerPoints
+            ``(pre, post)``, each of shape (2**n, d), with ``M(pre[mask]) == post[mask]``;
+            ``pre[0] = post[0] = 0``, ``pre[-1] = F[0]``, ``post[-1] = F[-1]`` (for d > n up
+            to a vector of ker Dh, on which M is the identity). Unpacks as
+            ``pre, post = bd.corner_points()``.
 
         Raises
         ------
         ValueError
-            If Dh is not of full row rank, or U and W would exceed ``memory_limit``.
+            If Dh is not of full row rank, or the points would exceed ``memory_limit``
+            (default: the memory available).
         """
         self._require_full_rank("corner points")
         if self.model is not None:
-            return self.to_dense("corner points").corner_points(memory_limit)
+            return self.to_dense("corner points", memory_limit).corner_points(memory_limit)
         need = _tables.corner_point_bytes(self.n_events, self.dim)
-        limit = _tables.available_memory() if memory_limit is None else int(memory_limit)
-        if need > limit:
-            raise ValueError(
-                f"corner points for n={self.n_events} take {_tables.human_bytes(need)}, more "
-                f"than the memory limit of {_tables.human_bytes(limit)}"
-            )
-        return _tables.corner_points(self.F, self.Dh, self.rates)
+        check_memory(need, memory_limit, f"corner points for n={self.n_events}")
+        return CornerPoints(*_tables.corner_points(self.F, self.Dh, self.rates))
 
     def triangulation(self, max_pieces: int = MAX_PIECES):
-        """The PL homeomorphism as vertices and simplices (see :class:`Triangulation`)."""
-        from .triangulation import Triangulation
-
-        self._require_full_rank("the triangulation")
-        if self.model is not None:
-            return self.to_dense("the triangulation").triangulation(max_pieces)
-        return Triangulation.from_bderivative(self, max_pieces=max_pieces)
-
-    def to_dense(self, what: str = "the dense table") -> BDerivative:
-        """This map with its corners as a dense (2**n, d) table.
-
-        For a corner model the table is built (n <= ``corners.MAX_TABLE_EVENTS``, checked
-        whole for transversality); a dense map returns itself.
+        """The PL homeomorphism as vertices and simplices (see :class:`Triangulation`).
 
         Raises
         ------
         ValueError
-            For a corner model with too many events for a table of 2**n rows.
+            If Dh is not of full row rank, or n! exceeds ``max_pieces`` (checked before
+            anything is built).
+        """
+        from .triangulation import Triangulation
+
+        self._require_full_rank("the triangulation")
+        if self.model is not None:  # the pieces are counted before a table is built
+            self._check_table_events("the triangulation")
+            check_pieces(self.n_events, max_pieces)
+            return self.to_dense("the triangulation").triangulation(max_pieces)
+        return Triangulation.from_bderivative(self, max_pieces=max_pieces)
+
+    def _check_table_events(self, what: str) -> None:
+        n = self.n_events
+        if n > MAX_TABLE_EVENTS:
+            raise ValueError(
+                f"{what} of a corner model with n={n} events needs its dense table of "
+                f"2**{n} rows; this is refused for n > {MAX_TABLE_EVENTS}. apply, inverse, "
+                f"event_times and piece work without it"
+            )
+
+    def to_dense(self, what: str = "the dense table", memory_limit=None) -> BDerivative:
+        """This map with its corners as a dense (2**n, d) table.
+
+        For a corner model the table is built (n <= ``corners.MAX_TABLE_EVENTS`` and within
+        ``memory_limit``, default the memory available) and checked whole for
+        transversality; a dense map returns itself.
+
+        Raises
+        ------
+        ValueError
+            For a corner model with too many events, or a table too large for memory.
         """
         if self.model is None:
             return self
-        from .corners import MAX_TABLE_EVENTS
-
-        if self.n_events > MAX_TABLE_EVENTS:
+        n, d = self.n_events, self.dim
+        self._check_table_events(what)
+        check_memory(_tables.dense_table_bytes(n, d), memory_limit,
+                      f"{what} of a corner model with n={n} events in dimension d={d} "
+                      f"(its dense table)")
+        F = self._engine.dense_table()
+        if not np.isfinite(F).all():
+            mask = int(np.flatnonzero(~np.isfinite(F).all(axis=1))[0])
             raise ValueError(
-                f"{what} of a corner model with n={self.n_events} events need its dense "
-                f"table of 2**{self.n_events} rows; this is refused for n > "
-                f"{MAX_TABLE_EVENTS}. apply, inverse, event_times and piece work without it"
+                f"the corner model {self.model!r} gave a non-finite corner for region mask "
+                f"{format_mask(mask, n)} ({MASK_MEANING}): {F[mask]}"
             )
-        return BDerivative(self.Dh, self._engine.dense_table())
+        return BDerivative(self.Dh, F)

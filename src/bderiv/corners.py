@@ -7,6 +7,14 @@ uint8 array of n flags, ``happened[k] = 1`` iff event k has happened (the bits o
 table's mask, without the 64-bit limit). Error messages print it as ``0b...`` with event 0
 rightmost, like masks of dense tables.
 
+**The corner-model protocol** (:class:`CornerModel`) is what ``BDerivative`` asks of a
+model, and all it asks: ``n_events`` and ``dim`` (or None: taken from ``Dh``),
+``corners(happened)`` (NumPy, any batch of regions) and ``corner_function()`` (a numba
+function ``func(happened, out)`` that the compiled kernels call on each region of each
+chain). :class:`StructuredCorners` also has an engine of its own that updates the rates
+incrementally; :class:`CornerFunction` wraps a function; any other class with these
+members is a corner model too (the tutorial shows one).
+
 Transversality cannot be checked on all 2**n regions of a model. What is checked:
 
 - :class:`StructuredCorners` at construction of the ``BDerivative``: the lower bound
@@ -14,28 +22,59 @@ Transversality cannot be checked on all 2**n regions of a model. What is checked
   Without pairs the bound is attained, so the check is exact: a violation is refused up
   front, naming the region. With pairs a failed bound is inconclusive and the check falls
   to the queries (next point).
-- every model, at every query: each rate of each region on the query's chain must be > 0,
-  else the call raises ``ValueError`` naming the query, the event and the region. A wrong
-  answer or NaN is never returned (``out`` may be partly written when the call raises).
+- every model, at every query: each rate of each region on the query's chain must be > 0
+  and each corner finite, else the call raises ``ValueError`` naming the query, the event
+  and the region. A wrong answer or NaN is never returned (``out`` may be partly written
+  when the call raises).
 """
 
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import numpy as np
 
-from . import _corner_kernels, _tables
+from . import _tables
 from ._validate import check_finite, check_matrix, check_real_array
+
+__all__ = ["CornerFunction", "CornerModel", "StructuredCorners"]
 
 #: the largest n for which a model's dense table (2**n rows) is built on request
 #: (``corner_points``, ``triangulation``, ``table``).
 MAX_TABLE_EVENTS = 20
 
-#: transversality of structured corners counts as proved when the lower bound on every rate
-#: exceeds this fraction of the sum of the magnitudes it adds up.
-PROOF_MARGIN = 1e-9
+
+@runtime_checkable
+class CornerModel(Protocol):
+    """What :class:`~bderiv.BDerivative` needs of a corner model.
+
+    Attributes
+    ----------
+    n_events : int or None
+        n; None when the model fits any n (then taken from ``Dh``).
+    dim : int or None
+        d; None when the model fits any d.
+
+    Methods
+    -------
+    corners(happened) -> ndarray, shape (..., d)
+        The corners of a batch of regions given as 0/1 flags of shape (..., n).
+    corner_function() -> numba function ``func(happened, out)``
+        Writes the corner of one region (``happened``: uint8 array of n flags) into
+        ``out`` (float64, shape (d,)); called from several threads at once, so it must be
+        pure.
+    """
+
+    n_events: int | None
+    dim: int | None
+
+    def corners(self, happened) -> np.ndarray: ...
+
+    def corner_function(self): ...
 
 
-def _check_table_size(n: int, d: int) -> None:
+def check_table_size(n: int, d: int) -> None:
+    """Refuse a dense table of a model above ``MAX_TABLE_EVENTS`` events."""
     if n > MAX_TABLE_EVENTS:
         raise ValueError(
             f"the dense table of a corner model with n={n} events has 2**{n} rows "
@@ -45,12 +84,36 @@ def _check_table_size(n: int, d: int) -> None:
         )
 
 
-def happened_rows(masks: np.ndarray, n: int) -> np.ndarray:
-    """uint8 (len(masks), n) flags of integer masks: row i, column k = bit k of masks[i]."""
-    return ((masks[:, None] >> np.arange(n)) & 1).astype(np.uint8)
+class _Tabulated:
+    """``chain_corners`` and ``table`` of a model with sizes, from its ``corners``."""
+
+    n_events: int | None
+    dim: int | None
+
+    def _sizes(self, what: str) -> tuple[int, int]:
+        if self.n_events is None or self.dim is None:
+            raise ValueError(
+                f"{what} of {self!r} needs its size: pass n_events= and dim= when you "
+                f"create it (inside a BDerivative the size comes from Dh)"
+            )
+        return self.n_events, self.dim
+
+    def chain_corners(self, order) -> np.ndarray:
+        """``F[B_j]`` on the n + 1 regions of an event order, shape (n + 1, d)."""
+        n, _ = self._sizes("chain_corners")
+        return self.corners(_tables.chain_regions(order, n))
+
+    def table(self) -> np.ndarray:
+        """The dense (2**n, d) table (n <= ``MAX_TABLE_EVENTS``), e.g. for comparisons."""
+        n, d = self._sizes("the dense table")
+        check_table_size(n, d)
+        F = np.empty((1 << n, d))
+        for rows in _tables.blocks(F.shape[0]):
+            F[rows] = self.corners(_tables.happened_rows(np.arange(rows.start, rows.stop), n))
+        return F
 
 
-class StructuredCorners:
+class StructuredCorners(_Tabulated):
     """Contact-like corners: ``F[mask] = F0 + sum_{k in mask} A[k] + sum_{p: pairs[p] in
     mask} B[p]``.
 
@@ -153,62 +216,14 @@ class StructuredCorners:
         both = h[..., self.pairs[:, 0]] * h[..., self.pairs[:, 1]]
         return self.F0 + h @ self.A + both @ self.B
 
-    def chain_corners(self, order) -> np.ndarray:
-        """``F[B_j]`` on the n + 1 regions of an event order, shape (n + 1, d)."""
-        h = np.zeros((self.n_events + 1, self.n_events))
-        for j, k in enumerate(order):
-            h[j + 1 :, k] = 1.0
-        return self.corners(h)
+    def corner_function(self):
+        """``func(happened, out)`` computing :meth:`corners` of one region (compiled)."""
+        from ._kernels.structured import corner_function
 
-    def table(self) -> np.ndarray:
-        """The dense (2**n, d) table (n <= ``MAX_TABLE_EVENTS``), e.g. for comparisons."""
-        _check_table_size(self.n_events, self.dim)
-        n = self.n_events
-        F = np.empty((1 << n, self.dim))
-        for rows in _tables.blocks(F.shape[0]):
-            masks = np.arange(rows.start, rows.stop, dtype=np.int64)
-            F[rows] = self.corners(happened_rows(masks, n))
-        return F
-
-    def _check_transversal(self, Dh, engine) -> bool:
-        """Refuse a provable violation; return True when transversality is proved."""
-        g0, a, bDh = engine.g0, engine.a, engine.bDh
-        lower = g0 + np.minimum(a, 0).sum(axis=0) + np.minimum(bDh, 0).sum(axis=0)
-        # margin: rates are updated along the chain by n + p additions, whose rounding is
-        # ~ (n + p) eps (|g0| + sum |jumps|), far below this
-        size = np.abs(g0) + np.abs(a).sum(axis=0) + np.abs(bDh).sum(axis=0)
-        if (lower > PROOF_MARGIN * size).all():
-            return True
-        if self.pairs.shape[0] == 0 and not (lower > 0).all():  # bound attained: violated
-            k = int(np.flatnonzero(~(lower > 0))[0])
-            hap = (a[:, k] < 0).astype(np.uint8)
-            from ._engines import format_happened
-
-            raise ValueError(
-                f"transversality violated at event {k} in region mask "
-                f"{format_happened(hap)} (bit k set = event k happened): rate "
-                f"Dh[{k}] . (F0 + sum of A over the region) = {lower[k]:.3g}, expected > 0; "
-                f"the flow must cross every event surface from h_k < 0 to h_k > 0 in "
-                f"every region"
-            )
-        for name, rates in (("0 (no event yet)", g0), ("full (all events)", engine.gfull)):
-            if not (rates > 0).all():
-                k = int(np.flatnonzero(~(rates > 0))[0])
-                raise ValueError(
-                    f"transversality violated at event {k} in region {name}: rate "
-                    f"{rates[k]:.3g}, expected > 0"
-                )
-        return False
-
-    def _engine(self, Dh, fast_paths: bool):
-        from ._engines import StructuredEngine
-
-        engine = StructuredEngine(Dh, self, fast_paths)
-        engine.transversal_proved = self._check_transversal(Dh, engine)
-        return engine
+        return corner_function(self.F0, self.A, self.pairs, self.B)
 
 
-class CornerFunction:
+class CornerFunction(_Tabulated):
     """Corners computed by a numba-compiled function on each region a query visits.
 
     Parameters
@@ -219,12 +234,17 @@ class CornerFunction:
         (d,). It is called n + 1 times per query, from several threads at once: it must be
         pure (no shared state). A plain Python function is compiled with ``numba.njit``.
         Masks are arrays, not integers, so n is not limited to 62 events.
+    n_events, dim : int, optional
+        The size, when ``func`` is written for one; needed only to use :meth:`corners` or
+        :meth:`table` on their own (inside a ``BDerivative`` the size comes from ``Dh``).
 
     Notes
     -----
-    Each query costs n + 1 calls of ``func`` plus O(n^2 d) for its rates ``Dh @ F``. The
-    kernels are compiled once per function and per process (first call takes seconds).
-    Transversality is checked on every region a query visits (see the module notes).
+    Each query costs n + 1 calls of ``func`` plus O(n d) for the rates ``Dh @ F`` of each
+    region. The kernels are compiled once per function and per process (the first call
+    takes seconds). Every region a query visits is checked: rates > 0, and every entry of
+    ``out`` written and finite (``out`` is NaN-filled before each call). No fast path is
+    looked for (that would need all 2**n corners).
 
     Examples
     --------
@@ -237,10 +257,17 @@ class CornerFunction:
     >>> bd = BDerivative(np.eye(2), CornerFunction(field))
     >>> bd([-1.0, -2.0])
     array([-2., -2.])
+    >>> CornerFunction(field, n_events=2, dim=2).table()
+    array([[1., 1.],
+           [2., 1.],
+           [1., 1.],
+           [2., 1.]])
     """
 
-    def __init__(self, func):
+    def __init__(self, func, *, n_events=None, dim=None):
         from numba.core.registry import CPUDispatcher
+
+        from ._validate import check_positive_int
 
         if not callable(func):
             raise TypeError(f"func must be a function func(happened, out), got {func!r}")
@@ -249,60 +276,25 @@ class CornerFunction:
 
             func = numba.njit(func)
         self.func = func
+        self.n_events = None if n_events is None else check_positive_int(n_events, "n_events")
+        self.dim = None if dim is None else check_positive_int(dim, "dim")
 
     def __repr__(self) -> str:
         name = getattr(self.func, "__name__", repr(self.func))
         return f"CornerFunction({name})"
 
-    def corners(self, happened, dim: int) -> np.ndarray:
-        """``F`` on the regions ``happened`` (shape (m, n), 0/1), shape (m, dim)."""
-        h = np.ascontiguousarray(np.asarray(happened), dtype=np.uint8)
-        if h.ndim != 2:
-            raise ValueError(f"happened must have shape (m, n), got {h.shape}")
-        out = np.full((h.shape[0], dim), np.nan)
-        try:
-            _corner_kernels.function_corners(self.func, h, out)
-        except Exception as exc:  # numba typing errors come in many classes
-            if isinstance(exc, ValueError | TypeError) and "func" in str(exc):
-                raise
-            raise TypeError(
-                f"the corner function {self!r} could not be called as func(happened, out) "
-                f"with happened a uint8 array of {h.shape[1]} flags and out a float64 array "
-                f"of shape ({dim},): {type(exc).__name__}: {exc}"
-            ) from exc
-        return out
+    def corner_function(self):
+        return self.func
 
-    def chain_corners(self, order, dim: int) -> np.ndarray:
-        n = len(order)
-        h = np.zeros((n + 1, n), dtype=np.uint8)
-        for j, k in enumerate(order):
-            h[j + 1 :, k] = 1
-        return self.corners(h, dim)
+    def corners(self, happened) -> np.ndarray:
+        """``F`` on the regions ``happened`` (shape (..., n), 0/1), shape (..., d)."""
+        from ._kernels.function import corners
 
-    def table(self, n: int, dim: int) -> np.ndarray:
-        """The dense (2**n, dim) table (n <= ``MAX_TABLE_EVENTS``)."""
-        _check_table_size(n, dim)
-        F = np.empty((1 << n, dim))
-        for rows in _tables.blocks(F.shape[0]):
-            masks = np.arange(rows.start, rows.stop, dtype=np.int64)
-            F[rows] = self.corners(happened_rows(masks, n), dim)
-        return F
-
-    def _engine(self, Dh, fast_paths: bool):
-        from ._engines import FunctionEngine
-
-        n, d = Dh.shape
-        # the first and the last region: checks that func runs and writes finite values
-        ends = self.corners(np.array([np.zeros(n), np.ones(n)], dtype=np.uint8), d)
-        if not np.isfinite(ends).all():
-            raise ValueError(
-                f"the corner function {self!r} must write all {d} entries of out with finite "
-                f"values; on the region with no event it gave {ends[0]}, with all events "
-                f"{ends[1]}"
-            )
-        engine = FunctionEngine(Dh, self, fast_paths)
-        engine.transversal_proved = False
-        return engine
-
-
-CORNER_MODELS = (StructuredCorners, CornerFunction)
+        n, d = self._sizes("corners")
+        h = np.asarray(happened)
+        if h.ndim == 0 or h.shape[-1] != n:
+            raise ValueError(f"happened must have shape (..., {n}), got {h.shape}")
+        flat = np.ascontiguousarray(h.reshape(-1, n), dtype=np.uint8)
+        out = np.full((flat.shape[0], d), np.nan)
+        corners(self.func, flat, out)
+        return out.reshape(h.shape[:-1] + (d,))

@@ -8,14 +8,19 @@ Along a trajectory that meets event groups at times t_1 < ... < t_m the B-deriva
 where ``L_i`` (d, d) is the classical derivative of the smooth stretch between groups i and
 i + 1 (from the variational equations) and ``M_i`` the :class:`BDerivative` of group i at its
 event point. Evaluating a batch is m + 1 matrix products and m kernel calls; no ODE is
-solved per vector.
+solved per vector. Every stage is invertible (the linear ones are fundamental matrices of
+the variational equations, the jumps PL homeomorphisms), and so is D:
+``D^-1 = L_0^-1 . M_1^-1 . ... . M_m^-1 . L_m^-1``.
 """
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-from ._validate import check_matrix, check_points
+from ._batch import evaluate, is_dask_array
+from ._validate import check_matrix, check_points, check_real_array
 from .bderivative import BDerivative
 
 __all__ = ["FlowBDerivative"]
@@ -126,6 +131,13 @@ class FlowBDerivative:
         sizes = [bd.n_events for bd in self._jumps]
         return f"FlowBDerivative(dim={self.dim}, groups={sizes}, t_final={self.t_final})"
 
+    def __setstate__(self, state):
+        # unpickled arrays come back writeable; keep the stages read-only as built
+        self.__dict__.update(state)
+        for arr in (*self._linear, self.final_field):
+            if arr is not None:
+                arr.setflags(write=False)
+
     # ------------------------------------------------------------------------------
     def _stage_inputs(self, flat):
         """Yield the vectors entering each jump, then the final result (for orders/times)."""
@@ -135,37 +147,121 @@ class FlowBDerivative:
             W = bd(W) @ self._linear[i + 1].T
         yield W
 
-    def __call__(self, V, dt=None):
+    def apply(self, V, out=None, *, dt=None, chunk_size=None, progress=None):
         """Apply the B-derivative to tangent vectors.
 
         Parameters
         ----------
-        V : array_like, shape (..., d)
+        V : array_like, shape (..., d), or a dask array
             Perturbations of the start point.
+        out : ndarray, shape (..., d), optional
+            Writeable C-contiguous float64 array for the result (may be ``V`` itself).
         dt : array_like, shape (...) or scalar, optional
-            Perturbations of the final time; adds ``dt * final_field``.
+            Perturbations of the final time, finite; adds ``dt * final_field``. A scalar
+            when ``V`` is a dask array.
+        chunk_size : int, optional
+            Vectors per chunk (results do not depend on it); default: all at once, or
+            chunks when ``V`` is a memmap or ``progress`` is given.
+        progress : callable ``progress(done, total)``, or True, optional
+            Called after each chunk; ``True`` draws a tqdm bar.
 
         Returns
         -------
         ndarray, shape (..., d)
-            (A lazy dask array, computed block-wise, when V is a dask array and dt is None.)
+            (A lazy dask array, computed block-wise, when V is a dask array.)
         """
-        if dt is None and type(V).__module__.startswith("dask."):  # see _dask.py
-            from ._dask import map_blocks
+        if dt is None:
+            return evaluate(self._forward, V, self.dim, out=out, chunk_size=chunk_size,
+                            progress=progress, desc="FlowBDerivative", method=self.apply)
+        if self.final_field is None:
+            raise ValueError("this map has no final_field, so dt cannot be used")
+        if is_dask_array(V):
+            if np.ndim(dt) != 0:
+                raise ValueError(f"dt must be a scalar when V is a dask array, got shape "
+                                 f"{np.shape(dt)}")
+            method = functools.partial(self.apply, dt=self._check_dt(dt, ()).item())
+            return evaluate(None, V, self.dim, out=out, method=method)
+        dt = self._check_dt(dt, np.shape(V)[:-1])
+        return evaluate(functools.partial(self._forward, dt=dt), V, self.dim, out=out,
+                        chunk_size=chunk_size, progress=progress, desc="FlowBDerivative")
 
-            return map_blocks(self.apply, V, self.dim, "V")
-        flat, lead = check_points(V, self.dim)
-        *_, out = self._stage_inputs(flat)
+    __call__ = apply
+
+    @staticmethod
+    def _check_dt(dt, lead):
+        """``dt`` as a flat float64 array of the batch's rows (broadcast to ``lead``)."""
+        arr = check_real_array(dt, "dt")
+        try:
+            arr = np.broadcast_to(arr, lead)
+        except ValueError:
+            raise ValueError(
+                f"dt must be a scalar or have a shape that broadcasts to the leading shape "
+                f"{lead} of V, got shape {arr.shape}"
+            ) from None
+        arr = arr.astype(np.float64).reshape(-1)
+        if not np.isfinite(arr).all():
+            raise ValueError(f"dt must be finite, got {arr[~np.isfinite(arr)][0]}")
+        return arr
+
+    def _forward(self, rows, res, offset, dt=None):
+        """The kernel of :meth:`apply`: ``res = D(rows) (+ dt * final_field)``."""
+        *_, W = self._stage_inputs(rows)
         if dt is not None:
-            if self.final_field is None:
-                raise ValueError("this map has no final_field, so dt cannot be used")
-            dt = np.broadcast_to(np.asarray(dt, dtype=np.float64), lead).reshape(-1)
-            if not np.isfinite(dt).all():
-                raise ValueError("dt must be finite")
-            out = out + dt[:, None] * self.final_field
-        return out.reshape(*lead, self.dim)
+            W += dt[offset : offset + len(rows), None] * self.final_field
+        res[...] = W
 
-    apply = __call__
+    def inverse(self, W, out=None, *, chunk_size=None, progress=None):
+        """The inverse map: final-point perturbations to start-point perturbations.
+
+        Parameters
+        ----------
+        W : array_like, shape (..., d), or a dask array
+        out, chunk_size, progress : optional
+            As for :meth:`apply`.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            ``V`` with ``self(V) == W`` up to rounding.
+
+        Raises
+        ------
+        ValueError
+            If a linear stage is singular to working precision (naming it).
+        """
+        return evaluate(self._backward, W, self.dim, name="W", out=out, chunk_size=chunk_size,
+                        progress=progress, desc="FlowBDerivative.inverse",
+                        method=self.inverse)
+
+    def _backward(self, rows, res, offset):
+        """The kernel of :meth:`inverse`: the stages' inverses in reverse order."""
+        inverses = self._stage_inverses
+        V = rows @ inverses[-1].T
+        for bd, inv in zip(reversed(self._jumps), reversed(inverses[:-1]), strict=True):
+            V = bd.inverse(V) @ inv.T
+        res[...] = V
+
+    @functools.cached_property
+    def _stage_inverses(self):
+        """Inverses of the linear stages, (d, d) each, computed once (on the first inverse).
+
+        Explicit inverses (NumPy's LU-based ``inv``) applied as thin products like the
+        forward stages, rather than ``scipy.linalg.lu_solve`` per batch: SciPy's LAPACK
+        calls corrupted memory when threads (dask's default scheduler) shared the factors.
+        """
+        inverses = []
+        for i, L in enumerate(self._linear):
+            cond = np.linalg.cond(L)
+            if not cond * np.finfo(np.float64).eps < 1.0:
+                raise ValueError(
+                    f"the flow map is not invertible: its linear stage linear[{i}] is "
+                    f"singular to working precision (condition number {cond:.3g}); inverse "
+                    f"needs every linear stage invertible"
+                )
+            inv = np.linalg.inv(L)
+            inv.setflags(write=False)
+            inverses.append(inv)
+        return tuple(inverses)
 
     def event_times(self, V):
         """Event times and orders of every group for tangent vectors V.
@@ -177,8 +273,10 @@ class FlowBDerivative:
         Returns
         -------
         list of (times, order)
-            One pair per group: ``times`` (..., n_g) first-order time shifts of the group's
-            events (local index), ``order`` (..., n_g) int64 the local event order.
+            One pair per group, each as returned by :meth:`BDerivative.event_times` for
+            the vectors entering that group: ``times`` (..., n_g) the first-order time
+            shifts of the group's events (local index), ``order`` (..., n_g) int64 the
+            local event order. An empty list when there is no group.
         """
         flat, lead = check_points(V, self.dim)
         res = []
@@ -189,7 +287,10 @@ class FlowBDerivative:
         return res
 
     def orders(self, V):
-        """Local event order of each group for tangent vectors V: list of (..., n_g) int64."""
+        """Local event order of each group for tangent vectors V: list of (..., n_g) int64.
+
+        The ``order`` halves of :meth:`event_times`.
+        """
         return [order for _, order in self.event_times(V)]
 
     def piece(self, orders=None, *, with_time=False):

@@ -1,8 +1,10 @@
 """``Triangulation``: the B-derivative as a PL homeomorphism given by vertices and simplices.
 
-This is the representation of the source note (MATH.md section 5): pre-event vertices,
-their post-event images, and the simplicial cones of the fan around F[0]. It holds
-everything needed to rebuild the map elsewhere, without the event machinery.
+This is the representation of the source note (MATH.md section 5): pre-event vertices
+``pre``, their post-event images ``post``, and the simplicial cones of the fan around
+F[0]. It holds everything needed to rebuild the map (and its inverse) elsewhere, without
+the event machinery. Files and direct construction alike are checked completely by
+``_triangulation_io`` before anything is trusted.
 """
 
 from __future__ import annotations
@@ -15,12 +17,18 @@ from itertools import permutations
 import numpy as np
 import scipy.linalg
 
-from ._validate import check_points, check_positive_int
-
-#: tag written into every saved file, checked on load
-FILE_FORMAT = "bderiv.triangulation"
-FILE_VERSION = 1
-_FIELDS = ("pre", "post", "simplices", "kernel")
+from ._batch import evaluate
+from ._triangulation_io import (
+    FIELDS,
+    FILE_FORMAT,
+    FILE_VERSION,
+    check_data,
+    check_fields,
+    file_format,
+    read_json,
+    read_npz,
+)
+from ._validate import check_positive_int
 
 
 class Triangulation:
@@ -31,23 +39,38 @@ class Triangulation:
     pre : array_like, shape (n_vertices, d)
         Pre-event vertices. Vertex 0 is the origin (the apex of every cone).
     post : array_like, shape (n_vertices, d)
-        Their images under the map.
+        Their images under the map (``post[0]`` is the origin too).
     simplices : array_like of int, shape (n_simplices, n + 1)
-        Vertex indices; column 0 is the apex. The cone of a simplex is spanned by its other
-        n vertices (non-negative weights) plus the kernel basis (any weights).
+        Vertex indices, 1 <= n <= d; column 0 is the apex 0. The cone of a simplex is
+        spanned by its other n vertices (non-negative weights) plus the kernel basis (any
+        weights). Every vertex is used.
     kernel : array_like, shape (d, d - n)
-        Orthonormal basis of ker Dh, on which the map is the identity (empty when d = n).
+        Basis of the subspace (ker Dh) on which the map is the identity (empty when d = n;
+        orthonormal when built by :meth:`from_bderivative`).
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, a non-finite entry, an index out of range, an unused vertex or a
+        degenerate simplex (its cone, before or after the map, does not span R^d).
+    TypeError
+        On a non-real dtype, or simplices that are not integers.
 
     Notes
     -----
     Built by :meth:`BDerivative.triangulation`: vertices ``0 .. 2**n - 1`` are the corner
-    points ``U[mask] -> W[mask]`` and vertex ``2**n`` is ``-F[0] -> -F[full]``. The order
-    sigma with chain ``B_0 = 0, ..., B_n = full`` owns two simplices,
-    ``[0, B_1, ..., B_{n-1}, full]`` and ``[0, B_1, ..., B_{n-1}, 2**n]``, the halves of
-    its cone before and after the flow direction.
+    points ``pre[mask] -> post[mask]`` of :meth:`BDerivative.corner_points` and vertex
+    ``2**n`` is ``-F[0] -> -F[full]``. The order sigma with chain ``B_0 = 0, ..., B_n =
+    full`` owns two simplices, ``[0, B_1, ..., B_{n-1}, full]`` and ``[0, B_1, ...,
+    B_{n-1}, 2**n]``, the halves of its cone before and after the flow direction.
+
+    The map is a homeomorphism: the ``post`` cones are a fan too, so :meth:`inverse` is the
+    same evaluation with ``pre`` and ``post`` swapped (MATH.md section 6). Evaluation is
+    brute force over all simplices: meant for checking, and for small n.
 
     Save it with :meth:`save` (``.npz`` or ``.json``) and read it back with :meth:`load`
-    (or :func:`bderiv.load_triangulation`): the file holds the whole map.
+    (or :func:`bderiv.load_triangulation`): the file holds the whole map. The arrays are
+    read-only.
 
     Examples
     --------
@@ -59,29 +82,26 @@ class Triangulation:
     Triangulation(n_events=2, dim=2, vertices=5, simplices=4)
     >>> tri([-1.0, -2.0])
     array([-2., -2.])
+    >>> tri.inverse([-2.0, -2.0])
+    array([-1., -2.])
     """
 
     def __init__(self, pre, post, simplices, kernel):
-        self.pre = np.ascontiguousarray(pre, dtype=np.float64)
-        self.post = np.ascontiguousarray(post, dtype=np.float64)
-        self.simplices = np.ascontiguousarray(simplices, dtype=np.int64)
-        self.kernel = np.ascontiguousarray(kernel, dtype=np.float64)
-        if self.pre.shape != self.post.shape or self.pre.ndim != 2:
-            raise ValueError(
-                f"pre and post must be (n_vertices, d) arrays of one shape, got "
-                f"{self.pre.shape} and {self.post.shape}"
-            )
-        d = self.pre.shape[1]
-        n = self.simplices.shape[1] - 1
-        if self.kernel.shape != (d, d - n):
-            raise ValueError(f"kernel must have shape ({d}, {d - n}), got {self.kernel.shape}")
-        if self.simplices.min() < 0 or self.simplices.max() >= self.pre.shape[0]:
-            raise ValueError(
-                f"simplices must index vertices 0..{self.pre.shape[0] - 1}, got indices "
-                f"{self.simplices.min()}..{self.simplices.max()}"
-            )
-        self.dim = d
-        self.n_events = n
+        fields = dict(pre=pre, post=post, simplices=simplices, kernel=kernel)
+        self._set(check_fields(fields, "Triangulation"))
+
+    def _set(self, fields: dict) -> None:
+        for name in FIELDS:
+            fields[name].flags.writeable = False
+            setattr(self, name, fields[name])
+        self.dim = self.pre.shape[1]
+        self.n_events = self.simplices.shape[1] - 1
+
+    def __setstate__(self, state: dict) -> None:
+        # unpickled arrays come back writeable; keep them read-only as validated
+        self.__dict__.update(state)
+        for name in FIELDS:
+            getattr(self, name).flags.writeable = False
 
     @classmethod
     def from_bderivative(cls, bd, max_pieces: int) -> Triangulation:
@@ -93,10 +113,10 @@ class Triangulation:
                 f"the triangulation of {n} events has 2 * {n}! = {2 * math.factorial(n)} "
                 f"simplices, more than 2 * max_pieces={max_pieces}; pass a larger max_pieces"
             )
-        U, W = bd.corner_points()
+        pre, post = bd.corner_points()
         full = (1 << n) - 1
-        pre = np.vstack([U, -bd.F[0]])
-        post = np.vstack([W, -bd.F[full]])
+        pre = np.vstack([pre, -bd.F[0]])
+        post = np.vstack([post, -bd.F[full]])
         orders = np.array(list(permutations(range(n))), dtype=np.int64).reshape(-1, n)
         # chain[:, j] = mask after j events; cumulative OR of the order's bits
         chain = np.cumsum(1 << orders, axis=1)
@@ -114,34 +134,61 @@ class Triangulation:
             f"vertices={self.pre.shape[0]}, simplices={self.simplices.shape[0]})"
         )
 
-    def __call__(self, V) -> np.ndarray:
+    def apply(self, V, out=None, *, chunk_size=None, progress=None) -> np.ndarray:
         """Evaluate the map by locating each vector in its cone (barycentric weights).
-
-        Brute force over all simplices: meant for checking and for small n.
 
         Parameters
         ----------
-        V : array_like, shape (..., d)
+        V : array_like, shape (..., d), or a dask array
+            Pre-event vectors (a dask array gives a lazy dask array).
+        out : ndarray, shape (..., d), optional
+            C-contiguous float64 array to write the result into (may be ``V`` itself).
+        chunk_size : int, optional
+            Evaluate ``chunk_size`` vectors at a time (results do not depend on it).
+        progress : callable ``progress(done, total)``, or True, optional
+            Called after each chunk; ``True`` draws a tqdm bar.
 
         Returns
         -------
         ndarray, shape (..., d)
+            Post-event vectors.
+
+        Raises
+        ------
+        ValueError, TypeError
+            On a wrong shape, dtype or non-finite vector (the messages of
+            :meth:`BDerivative.apply`).
         """
-        flat, lead = check_points(V, self.dim)
-        n = self.n_events
-        best_weight = np.full(flat.shape[0], -np.inf)
-        out = np.empty_like(flat)
-        for simplex in self.simplices:
-            P = np.hstack([self.pre[simplex[1:]].T, self.kernel])
-            Q = np.hstack([self.post[simplex[1:]].T, self.kernel])
-            weights = np.linalg.solve(P, flat.T)  # (d, m)
-            # the cone needs non-negative weights on its n vertices; keep the simplex
-            # whose smallest weight is largest (robust on shared faces)
-            min_weight = weights[:n].min(axis=0) / (np.abs(weights[:n]).max(axis=0) + 1e-300)
-            better = min_weight > best_weight
-            best_weight[better] = min_weight[better]
-            out[better] = (Q @ weights[:, better]).T
-        return out.reshape(lead + (self.dim,))
+        return evaluate(self._forward, V, self.dim, name="V", out=out, chunk_size=chunk_size,
+                        progress=progress, desc="Triangulation", method=self.apply)
+
+    __call__ = apply
+
+    def inverse(self, W, out=None, *, chunk_size=None, progress=None) -> np.ndarray:
+        """Evaluate the exact inverse map: locate each vector in a ``post`` cone.
+
+        Parameters
+        ----------
+        W : array_like, shape (..., d), or a dask array
+            Post-event vectors.
+        out, chunk_size, progress : optional
+            As for :meth:`apply`.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            ``V`` with ``self(V) == W`` up to rounding.
+        """
+        return evaluate(self._backward, W, self.dim, name="W", out=out, chunk_size=chunk_size,
+                        progress=progress, desc="Triangulation.inverse", method=self.inverse)
+
+    def _forward(self, rows, res, offset) -> None:
+        _fan_map(self.pre, self.post, self.simplices, self.kernel, rows, res)
+        _check_result(res, "V", offset)
+
+    def _backward(self, rows, res, offset) -> None:
+        _fan_map(self.post, self.pre, self.simplices, self.kernel, rows, res)
+        _check_result(res, "W", offset)
 
     # -- files ----------------------------------------------------------------------------
 
@@ -160,31 +207,31 @@ class Triangulation:
             "version": FILE_VERSION,
             "n_events": self.n_events,
             "dim": self.dim,
-            **{name: getattr(self, name).tolist() for name in _FIELDS},
+            **{name: getattr(self, name).tolist() for name in FIELDS},
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> Triangulation:
-        """Rebuild from :meth:`to_dict` output; checks the format tag and the shapes."""
-        if not isinstance(data, dict) or data.get("format") != FILE_FORMAT:
-            raise ValueError(
-                f"not a bderiv triangulation: expected a mapping with format={FILE_FORMAT!r}"
-            )
-        version = data.get("version")
-        if version != FILE_VERSION:
-            raise ValueError(
-                f"triangulation file version {version!r} is not supported (this bderiv "
-                f"reads version {FILE_VERSION})"
-            )
-        missing = [name for name in _FIELDS if name not in data]
-        if missing:
-            raise ValueError(f"triangulation data lacks the field(s) {missing}")
-        n, d = int(data["n_events"]), int(data["dim"])
-        pre = np.asarray(data["pre"], dtype=np.float64).reshape(-1, d)
-        post = np.asarray(data["post"], dtype=np.float64).reshape(-1, d)
-        simplices = np.asarray(data["simplices"], dtype=np.int64).reshape(-1, n + 1)
-        kernel = np.asarray(data["kernel"], dtype=np.float64).reshape(d, d - n)
-        return cls(pre, post, simplices, kernel)
+    def from_dict(cls, data: dict, source: str = "triangulation data") -> Triangulation:
+        """Rebuild from :meth:`to_dict` output, checked completely.
+
+        Parameters
+        ----------
+        data : dict
+            As written by :meth:`to_dict` (the arrays as nested lists or ndarrays).
+        source : str
+            What ``data`` came from, named in error messages (a file, when loading).
+
+        Raises
+        ------
+        ValueError
+            On a wrong format tag or version, a missing field, a value of the wrong type,
+            shape or range, or a degenerate simplex; the message names ``source`` and the
+            field.
+        """
+        fields = check_data(data, source)
+        tri = cls.__new__(cls)
+        tri._set(fields)
+        return tri
 
     def save(self, path, format: str | None = None) -> str:
         """Write the triangulation to ``path`` as ``.npz`` (binary) or ``.json`` (text).
@@ -207,22 +254,22 @@ class Triangulation:
         header ``meta``; it loads with ``numpy.load(path)`` alone.
         """
         path = os.fspath(path)
-        fmt = _file_format(path, format)
+        fmt = file_format(path, format)
         if fmt == "json":
             with open(path, "w", encoding="utf-8") as fh:
                 json.dump(self.to_dict(), fh)
                 fh.write("\n")
         else:
-            meta = {k: v for k, v in self.to_dict().items() if k not in _FIELDS}
+            meta = {k: v for k, v in self.to_dict().items() if k not in FIELDS}
             with open(path, "wb") as fh:  # a file object: numpy must not append ".npz"
                 np.savez_compressed(
-                    fh, meta=np.array(json.dumps(meta)), **{k: getattr(self, k) for k in _FIELDS}
+                    fh, meta=np.array(json.dumps(meta)), **{k: getattr(self, k) for k in FIELDS}
                 )
         return path
 
     @classmethod
     def load(cls, path, format: str | None = None) -> Triangulation:
-        """Read a triangulation written by :meth:`save`.
+        """Read a triangulation written by :meth:`save`, checking it completely.
 
         Parameters
         ----------
@@ -238,7 +285,11 @@ class Triangulation:
         Raises
         ------
         ValueError
-            If the file is not a bderiv triangulation or its version is unknown.
+            If the file cannot be parsed, is not a bderiv triangulation, has an unknown
+            version, or any field fails the checks of :class:`Triangulation` (the message
+            names the file and the field). Nothing in the file is ever unpickled.
+        OSError
+            If the file cannot be opened.
 
         Examples
         --------
@@ -252,41 +303,54 @@ class Triangulation:
         array([-2., -2.])
         """
         path = os.fspath(path)
-        fmt = _file_format(path, format)
-        if fmt == "json":
-            with open(path, encoding="utf-8") as fh:
-                try:
-                    data = json.load(fh)
-                except json.JSONDecodeError as exc:
-                    raise ValueError(f"{path} is not valid JSON: {exc}") from None
-            return cls.from_dict(data)
-        try:
-            with np.load(path, allow_pickle=False) as npz:
-                if "meta" not in npz.files:
-                    raise ValueError(f"{path} is not a bderiv triangulation (no 'meta' entry)")
-                data = json.loads(str(npz["meta"]))
-                if isinstance(data, dict):
-                    data.update({k: npz[k] for k in _FIELDS if k in npz.files})
-        except (OSError, EOFError) as exc:
-            raise ValueError(f"cannot read {path} as .npz: {exc}") from None
-        return cls.from_dict(data)
-
-
-def _file_format(path: str, format: str | None) -> str:
-    if format is None:
-        format = os.path.splitext(path)[1].lstrip(".").lower()
-    if format not in ("npz", "json"):
-        raise ValueError(
-            f"unknown triangulation file format {format!r} for {path!r}: use a .npz or "
-            f".json file name, or format='npz' / 'json'"
-        )
-    return format
+        source = f"triangulation file {path!r}"
+        read = read_json if file_format(path, format) == "json" else read_npz
+        return cls.from_dict(read(path, source), source)
 
 
 def load_triangulation(path, format: str | None = None) -> Triangulation:
     """Read a triangulation saved by :meth:`Triangulation.save` or ``bderiv export``.
 
-    Same as :meth:`Triangulation.load`; the result is callable, ``tri(V)`` with V of
-    shape ``(..., d)``.
+    Same as :meth:`Triangulation.load` (the file is checked completely); the result is
+    callable, ``tri(V)`` with V of shape ``(..., d)``, and has ``tri.inverse(W)``.
     """
     return Triangulation.load(path, format)
+
+
+# -- evaluation -------------------------------------------------------------------------------
+
+
+def _fan_map(src, dst, simplices, kernel, rows, res) -> None:
+    """Write into ``res`` (m, d) the PL map of ``rows`` (m, d) from ``src`` to ``dst`` cones.
+
+    Each row is located in the cone of ``src`` whose barycentric weights are least negative
+    (relative to their size: robust on shared faces) and rebuilt from ``dst`` with the same
+    weights. ``src, dst = pre, post`` is the map, ``post, pre`` its inverse. Row by row the
+    arithmetic does not depend on the other rows (an explicit inverse and einsum, where a
+    multi-right-hand-side solve would not be), so results are independent of chunking.
+    """
+    n = simplices.shape[1] - 1
+    best_weight = np.full(rows.shape[0], -np.inf)
+    res.fill(np.nan)  # a row no cone takes (weights overflowing) stays NaN, never garbage
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow: see _check_result
+        for simplex in simplices:
+            P = np.hstack([src[simplex[1:]].T, kernel])
+            Q = np.hstack([dst[simplex[1:]].T, kernel])
+            weights = np.einsum("ij,mj->mi", np.linalg.inv(P), rows)  # (m, d)
+            lam = weights[:, :n]
+            min_weight = lam.min(axis=1) / (np.abs(lam).max(axis=1) + 1e-300)
+            better = min_weight > best_weight
+            best_weight[better] = min_weight[better]
+            res[better] = np.einsum("ij,mj->mi", Q, weights[better])
+
+
+def _check_result(res, name: str, offset: int) -> None:
+    """Refuse a non-finite result (finite queries near 1e308 can overflow)."""
+    finite = np.isfinite(res).all(axis=1)
+    if not finite.all():
+        row = offset + int(np.flatnonzero(~finite)[0])
+        raise ValueError(
+            f"the map of row {row} of {name} (counting rows of {name}.reshape(-1, d)) is not "
+            f"finite: the computation overflowed; scale the vectors down (the map is "
+            f"positively homogeneous)"
+        )

@@ -8,11 +8,15 @@ event point ``rho`` where all its events happen at once, a start point ``x0`` th
 - :func:`network`: first-order network for any n (d = n or d = 2n) whose events change each
   other's rates, so perturbations overtake (usable up to n = 20);
 - :func:`table`: 3-D rigid body landing flat on 4 legs (n = 4 > rank of Dh = 3).
+
+Two corner tables without a model, ``(Dh, F)`` pairs: :func:`three_event_table` (n = d = 3,
+event orders that overtake) and :func:`planar_table` (n = d = 2, for the 2-D figures).
 """
 
 from ._common import Example
 from .chair import chair
 from .network import network
 from .table import table
+from .tables import planar_table, three_event_table
 
-__all__ = ["Example", "chair", "network", "table"]
+__all__ = ["Example", "chair", "network", "planar_table", "table", "three_event_table"]

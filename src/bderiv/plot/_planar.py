@@ -1,73 +1,24 @@
-"""Figures of a B-derivative (matplotlib, the optional extra ``plot``).
+"""The figures of a 2-D system: the corner-limit field, the triangulation, the tangent circle.
 
-matplotlib is imported inside each function, so ``import bderiv.plot`` works without it.
-Every function returns a ``matplotlib.figure.Figure`` built without pyplot (no global
-state, no window); save it with ``fig.savefig("name.png")``. Pass ``ax=`` (or ``axes=``)
-to draw into an existing figure instead.
-
-- :func:`corner_field`: 2-D systems, the corner-limit field with the event lines and a
-  few sampled trajectories;
-- :func:`triangulation`: 2-D systems, the pre-event and post-event fans of simplices;
-- :func:`tangent_circle`: 2-D systems, a circle of tangent vectors and its image;
-- :func:`pieces`: any n, determinant and gain of the linear pieces;
-- :func:`scaling`: time per query against n from a benchmark sweep.
+Each draws the plane around the event point (the origin) and refuses a map of another
+dimension; :func:`bderiv.plot.pieces` serves any dimension.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-_PLOT_HINT = (
-    "bderiv's figures need matplotlib: install it with `pip install 'bderiv[plot]'` "
-    "(or `pip install matplotlib`)"
-)
-
-#: a qualitative palette indexed by piece (event order) number
-_PALETTE = (
-    "#4477AA", "#EE6677", "#228833", "#CCBB44", "#66CCEE", "#AA3377", "#BBBBBB", "#000000",
-)
-
-
-#: legend labels of the methods of ``bderiv bench``
-_METHOD_LABELS = {
-    "bderiv": "bderiv",
-    "numpy": "batched NumPy baseline",
-    "blas": "BLAS matrix product, same flops",
-}
-
-
-def _figure(ax, ncols=1, figsize=(5.5, 5.0)):
-    """(figure, list of axes): the caller's axes, or a new pyplot-free figure."""
-    try:
-        from matplotlib.figure import Figure
-    except ImportError as exc:  # pragma: no cover - exercised without matplotlib only
-        raise ImportError(_PLOT_HINT) from exc
-    if ax is not None:
-        axes = list(np.atleast_1d(ax))
-        if len(axes) != ncols:
-            raise ValueError(f"this figure needs {ncols} axes, got {len(axes)}")
-        return axes[0].figure, axes
-    fig = Figure(figsize=figsize, layout="constrained")
-    axes = fig.subplots(1, ncols, squeeze=False)[0]
-    return fig, list(axes)
+from .._format import format_mask, format_order
+from ._axes import PALETTE, figure_axes
 
 
 def _require_2d(bd, what):
+    """Refuse a map ``bd`` whose dimension is not 2 (``what``: the figure's name)."""
     if bd.dim != 2:
         raise ValueError(
             f"{what} draws 2-D systems only, but this map has dimension d={bd.dim}; use "
             f"pieces() for any dimension"
         )
-
-
-def _order_label(order) -> str:
-    return "(" + ",".join(str(int(k)) for k in order) + ")"
-
-
-def _mask_label(mask: int, n: int) -> str:
-    return format(int(mask), f"0{n}b")
 
 
 def _event_lines(ax, Dh, radius, colors=("k",)):
@@ -104,7 +55,8 @@ def corner_field(bd, ax=None, *, radius=1.0, density=13, n_trajectories=7):
     Parameters
     ----------
     bd : BDerivative
-        A map with ``dim == 2``.
+        A map with ``dim == 2``: a dense table, or a corner model whose dense table
+        (``bd.to_dense()``) is built for the figure.
     ax : matplotlib Axes, optional
     radius : float
         Half-width of the square shown, around the event point (the origin).
@@ -125,24 +77,24 @@ def corner_field(bd, ax=None, *, radius=1.0, density=13, n_trajectories=7):
     >>> F = np.array([[1.0, 1.0], [0.4, 1.6], [1.5, 0.5], [0.8, 0.9]])
     >>> fig = plot.corner_field(BDerivative(np.eye(2), F))
     >>> fig.axes[0].get_title()
-    'corner-limit field (n=2 events)'
+    'corner-limit field at the event point (n=2 events)'
     """
     _require_2d(bd, "corner_field")
-    fig, (ax,) = _figure(ax)
-    n, Dh, F = bd.n_events, bd.Dh, bd.F
+    F = bd.to_dense("the corner-field figure").F
+    fig, (ax,) = figure_axes(ax)
+    n, Dh = bd.n_events, bd.Dh
     # shaded regions
     s = np.linspace(-radius, radius, 301)
     X, Y = np.meshgrid(s, s)
     P = np.stack([X.ravel(), Y.ravel()], axis=1)
-    masks = (((P @ Dh.T) > 0) << np.arange(n)).sum(axis=1).reshape(X.shape)
+    masks = _region_masks(P, Dh).reshape(X.shape)
     ax.pcolormesh(X, Y, masks, cmap="Pastel1", vmin=0, vmax=8, shading="auto", alpha=0.7,
                   rasterized=True)
     # arrows of F[mask] on a coarse grid
     g = np.linspace(-radius, radius, density + 2)[1:-1]
     GX, GY = np.meshgrid(g, g)
     Q = np.stack([GX.ravel(), GY.ravel()], axis=1)
-    qm = (((Q @ Dh.T) > 0) << np.arange(n)).sum(axis=1)
-    vec = F[qm]
+    vec = F[_region_masks(Q, Dh)]
     ax.quiver(Q[:, 0], Q[:, 1], vec[:, 0], vec[:, 1], color="0.35", angles="xy",
               scale_units="xy", scale=np.abs(F).max() * density / radius * 0.9, width=0.004)
     # region labels at the centre of mass of each region
@@ -150,37 +102,57 @@ def corner_field(bd, ax=None, *, radius=1.0, density=13, n_trajectories=7):
         sel = masks == mask
         if sel.any():
             cx, cy = X[sel].mean(), Y[sel].mean()
-            ax.text(cx, cy, f"mask {_mask_label(mask, n)}", fontsize=8, ha="center",
+            ax.text(cx, cy, f"mask {format_mask(mask, n)}", fontsize=8, ha="center",
                     va="center", bbox=dict(boxstyle="round", fc="white", alpha=0.8, lw=0))
     _event_lines(ax, Dh, radius * 1.05)
-    # sampled trajectories: virtual start points spread across F[0], all crossing both
-    # surfaces inside the box (MATH.md section 3: piecewise straight, bending at events)
-    f0 = F[0] / np.linalg.norm(F[0])
-    normal = np.array([-f0[1], f0[0]])
-    span = (np.linspace(-0.6, 0.6, n_trajectories) * radius)[:, None] * normal
-    times, order = bd.event_times(span)
-    for u, t, o in zip(span, times, order, strict=True):
-        pts, x, B = [], u.copy(), 0
-        t_lo = -2.0 * radius / np.linalg.norm(F[0])
-        pts.append(x + t_lo * F[B])
-        for k in o:
-            tk = t[k]
-            pts.append(x + tk * F[B])
-            B2 = B | (1 << int(k))
-            x = x + tk * (F[B] - F[B2])
-            B = B2
-        t_hi = max(t.max(), 0.0) + 2.0 * radius / np.linalg.norm(F[B])
-        pts.append(x + t_hi * F[B])
-        pts = np.array(pts)
-        ax.plot(pts[:, 0], pts[:, 1], color="#AA3377", lw=1.0, alpha=0.85)
+    _draw_trajectories(ax, bd, F, radius, n_trajectories)
     ax.plot([0], [0], "ko", ms=4)
     ax.set_xlim(-radius, radius)
     ax.set_ylim(-radius, radius)
     ax.set_aspect("equal")
     ax.set_xlabel("$x_0$ (from the event point)")
     ax.set_ylabel("$x_1$")
-    ax.set_title(f"corner-limit field (n={n} events)")
+    ax.set_title(f"corner-limit field at the event point (n={n} events)")
     return fig
+
+
+def _region_masks(points, Dh):
+    """The region mask (m,) of each of the points (m, 2): bit k set where Dh[k] . x > 0."""
+    return (((points @ Dh.T) > 0) << np.arange(Dh.shape[0])).sum(axis=1)
+
+
+def _draw_trajectories(ax, bd, F, radius, n_trajectories):
+    """Draw sampled trajectories of ``bd`` (dense corners ``F``) across the box.
+
+    Their virtual start points are spread across F[0], so all cross both surfaces inside
+    the box (MATH.md section 3: piecewise straight, bending at events).
+    """
+    f0 = F[0] / np.linalg.norm(F[0])
+    normal = np.array([-f0[1], f0[0]])
+    span = (np.linspace(-0.6, 0.6, n_trajectories) * radius)[:, None] * normal
+    times, order = bd.event_times(span)
+    for u, t, o in zip(span, times, order, strict=True):
+        pts = _sampled_trajectory(F, u, t, o, 2.0 * radius)
+        ax.plot(pts[:, 0], pts[:, 1], color="#AA3377", lw=1.0, alpha=0.85)
+
+
+def _sampled_trajectory(F, u, times, order, length):
+    """Corners (j, 2) of the trajectory of ``x' = F[mask(x)]`` through the virtual start u.
+
+    Straight in each region, bending at each event time (MATH.md section 3); it starts
+    ``length`` (in distance) before the first region's end and runs on as far after the
+    last event.
+    """
+    x, B = np.array(u, dtype=float), 0
+    pts = [x - length / np.linalg.norm(F[0]) * F[0]]
+    for k in order:
+        pts.append(x + times[k] * F[B])
+        B2 = B | (1 << int(k))
+        x = x + times[k] * (F[B] - F[B2])
+        B = B2
+    t_end = max(times.max(), 0.0) + length / np.linalg.norm(F[B])
+    pts.append(x + t_end * F[B])
+    return np.array(pts)
 
 
 def triangulation(bd, axes=None, *, tri=None):
@@ -217,24 +189,24 @@ def triangulation(bd, axes=None, *, tri=None):
         tri = bd.triangulation()
     elif tri.dim != 2:
         raise ValueError(f"triangulation draws 2-D systems only, got dimension {tri.dim}")
+    fig, axs = figure_axes(axes, ncols=2, figsize=(10.0, 4.8))  # first: the install hint
     from matplotlib.patches import Polygon
 
-    fig, axs = _figure(axes, ncols=2, figsize=(10.0, 4.8))
     n = tri.n_events
     n_vertex = tri.pre.shape[0]
     n_order = tri.simplices.shape[0] // 2
     for ax, verts, name in ((axs[0], tri.pre, "pre-event"), (axs[1], tri.post, "post-event")):
         for i, simplex in enumerate(tri.simplices):
-            color = _PALETTE[(i // 2) % len(_PALETTE)]
+            color = PALETTE[(i // 2) % len(PALETTE)]
             hatch = None if i % 2 == 0 else "///"
             ax.add_patch(Polygon(verts[simplex], closed=True, fc=color, ec="k", lw=0.8,
                                  alpha=0.45, hatch=hatch))
         ax.plot(verts[:, 0], verts[:, 1], "ko", ms=3)
         letter, flow = ("U", "$F_0$") if name == "pre-event" else ("W", "$F_{full}$")
         for v in range(n_vertex):
-            label = f"$-${flow}" if v == n_vertex - 1 else f"{letter}[{_mask_label(v, n)}]"
+            label = f"$-${flow}" if v == n_vertex - 1 else f"{letter}[{format_mask(v, n)}]"
             if v == 0:
-                label = f"{letter}[{_mask_label(0, n)}] = 0"
+                label = f"{letter}[{format_mask(0, n)}] = 0"
             ax.annotate(label, verts[v], textcoords="offset points", xytext=(5, -12 if v == 0
                         else 4), fontsize=8)
         _arrow(ax, verts[n_vertex - 1], verts[n_vertex - 2], f"flow direction {flow}")
@@ -247,6 +219,8 @@ def triangulation(bd, axes=None, *, tri=None):
     axs[0].set_ylabel("$x_1$")
     handles = _order_handles(tri, n)
     axs[1].legend(handles=handles, title="event order", fontsize=8, loc="lower right")
+    fig.suptitle(f"triangulation of the B-derivative at the event point (n={n}, d=2)",
+                 fontsize=10)
     return fig
 
 
@@ -265,8 +239,8 @@ def _order_handles(tri, n):
     for j in range(tri.simplices.shape[0] // 2):
         chain = [0, *tri.simplices[2 * j, 1:n], (1 << n) - 1]
         order = [int(np.log2(b ^ a)) for a, b in zip(chain[:-1], chain[1:], strict=True)]
-        handles.append(Patch(fc=_PALETTE[j % len(_PALETTE)], alpha=0.45, ec="k",
-                             label=_order_label(order)))
+        handles.append(Patch(fc=PALETTE[j % len(PALETTE)], alpha=0.45, ec="k",
+                             label=format_order(order)))
     return handles
 
 
@@ -280,7 +254,8 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     Parameters
     ----------
     bd : BDerivative
-        A map with ``dim == 2``.
+        A map with ``dim == 2``: a dense table, or a corner model whose dense table
+        (``bd.to_dense()``) is built for the two arrows.
     ax : matplotlib Axes, optional
     n_vectors : int
         Vectors on the circle.
@@ -295,10 +270,13 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     >>> from bderiv import BDerivative, plot
     >>> F = np.array([[1.0, 1.0], [0.4, 1.6], [1.5, 0.5], [0.8, 0.9]])
     >>> fig = plot.tangent_circle(BDerivative(np.eye(2), F), n_vectors=90)
-    >>> fig.savefig(__import__("io").BytesIO(), format="png")
+    >>> print(fig.axes[0].get_title())
+    B-derivative at the event point:
+    unit tangent vectors u and their images M(u)
     """
     _require_2d(bd, "tangent_circle")
-    fig, (ax,) = _figure(ax)
+    F = bd.to_dense("the tangent-circle figure").F
+    fig, (ax,) = figure_axes(ax)
     _, U = _unit_circle(n_vectors)
     W = bd(U)
     _, order = bd.event_times(U)
@@ -309,15 +287,15 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
             label="image $M(u)$", zorder=1)
     for p, o in enumerate(uniq):
         sel = ids == p
-        color = _PALETTE[p % len(_PALETTE)]
+        color = PALETTE[p % len(PALETTE)]
         ax.scatter(U[sel, 0], U[sel, 1], s=4, color=color, zorder=2)
-        ax.scatter(W[sel, 0], W[sel, 1], s=7, color=color, label=f"order {_order_label(o)}",
+        ax.scatter(W[sel, 0], W[sel, 1], s=7, color=color, label=f"order {format_order(o)}",
                    zorder=3)
     # a few correspondences u -> M(u)
     for i in range(0, n_vectors, max(1, n_vectors // 12)):
         ax.annotate("", W[i], U[i], arrowprops=dict(arrowstyle="->", color="0.5", lw=0.6))
     # the flow directions: F[0] -> F[full] (M(F_0) = F_full, MATH.md section 2)
-    f0, ff = bd.F[0], bd.F[-1]
+    f0, ff = F[0], F[-1]
     for vec, color, label in ((f0, "#117733", "$F_0$ (flow before)"),
                               (ff, "#882255", "$M(F_0) = F_{full}$ (flow after)")):
         tip = vec / np.linalg.norm(f0)
@@ -328,126 +306,6 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     ax.set_ylim(-lim, lim)
     ax.set_aspect("equal")
     ax.legend(fontsize=8, loc="upper left", markerscale=2)
-    ax.set_title("tangent vectors and their images")
-    return fig
-
-
-def pieces(bd, axes=None, *, max_pieces=24, n_samples=4000, seed=0):
-    """Determinant and gain (largest singular value) of the linear pieces, any n.
-
-    With ``n! <= max_pieces`` every piece is shown; otherwise the distinct pieces met by
-    ``n_samples`` random unit vectors (at most ``max_pieces`` of the most frequent ones).
-    The determinant follows MATH.md section 4 (always > 0); the gain is the largest
-    stretch of a tangent vector in that cone's linear map.
-
-    Parameters
-    ----------
-    bd : BDerivative
-    axes : sequence of 2 matplotlib Axes, optional
-    max_pieces : int
-        Most pieces shown.
-    n_samples : int
-        Random vectors used to find the pieces when there are too many to show all.
-    seed : int
-        Seed of those vectors.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from bderiv import BDerivative, plot
-    >>> F = np.ones((8, 3)); F[0b001] = (1.0, 0.1, 1.0)
-    >>> fig = plot.pieces(BDerivative(np.eye(3), F))
-    >>> len(fig.axes[0].patches)         # 3! pieces
-    6
-    """
-    n = bd.n_events
-    total = math.factorial(n)
-    if total <= max_pieces:
-        orders = [o for o, _ in bd.pieces(max_pieces=max_pieces)]
-        subtitle = f"all {total} pieces"
-    else:
-        rng = np.random.default_rng(seed)
-        V = rng.standard_normal((n_samples, bd.dim))
-        _, order = bd.event_times(V)
-        uniq, counts = np.unique(order, axis=0, return_counts=True)
-        keep = np.argsort(-counts, kind="stable")[:max_pieces]
-        orders = list(uniq[keep])
-        subtitle = (
-            f"{len(orders)} most visited of {len(uniq)} pieces met by {n_samples} random "
-            f"vectors ({n}! = {total:,} in all)"
-        )
-    mats = [bd.piece(o) for o in orders]
-    dets = np.array([np.linalg.det(M) for M in mats])
-    gains = np.array([np.linalg.norm(M, 2) for M in mats])
-    fig, axs = _figure(axes, ncols=2, figsize=(max(8.0, 0.35 * len(orders) + 4), 4.2))
-    x = np.arange(len(orders))
-    labels = [_order_label(o) for o in orders]
-    many = n > 6  # labels and per-piece colours stop being readable
-    colors = ["#4477AA" if many else _PALETTE[i % len(_PALETTE)] for i in range(len(orders))]
-    gain = "gain $\\|M_\\sigma\\|_2$"
-    for ax, values, name in ((axs[0], dets, "determinant"), (axs[1], gains, gain)):
-        ax.bar(x, values, color=colors, ec="k", lw=0.5)
-        ax.axhline(1.0, color="0.4", lw=0.8, ls=":")
-        ax.set_ylabel(name)
-        ax.set_xticks(x, [""] * len(x) if many else labels, rotation=90 if n > 3 else 0,
-                      fontsize=8)
-        ax.set_xlabel("piece, most visited first" if many else "event order")
-        if values.max() / max(values.min(), 1e-300) > 30:
-            ax.set_yscale("log")
-    axs[0].set_title("det $M_\\sigma$ (> 0: orientation kept)")
-    axs[1].set_title("largest singular value")
-    fig.suptitle(f"linear pieces of the B-derivative (n={n}, d={bd.dim}): {subtitle}",
-                 fontsize=10)
-    return fig
-
-
-def scaling(rows, ax=None, *, batch=None):
-    """Time per query against the number of events n, log-log (a benchmark sweep).
-
-    Parameters
-    ----------
-    rows : sequence of dict
-        Each with keys ``n``, ``method`` and ``seconds_per_query`` (optionally ``d``
-        and ``m``, the batch size), as produced by ``bderiv bench --json``.
-    ax : matplotlib Axes, optional
-    batch : int, optional
-        Keep only rows with this batch size ``m``.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-
-    Examples
-    --------
-    >>> from bderiv import plot
-    >>> rows = [{"n": n, "method": "bderiv", "seconds_per_query": 1e-8 * n * n}
-    ...         for n in (2, 4, 8)]
-    >>> plot.scaling(rows).axes[0].get_xscale()
-    'log'
-    """
-    rows = [r for r in rows if batch is None or r.get("m") == batch]
-    if not rows:
-        raise ValueError("no benchmark rows to plot")
-    fig, (ax,) = _figure(ax, figsize=(6.0, 4.5))
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    markers = "osD^v<>"
-    for i, method in enumerate(methods):
-        sel = sorted((r for r in rows if r["method"] == method), key=lambda r: r["n"])
-        n = np.array([r["n"] for r in sel], dtype=float)
-        t = np.array([r["seconds_per_query"] for r in sel], dtype=float)
-        ax.loglog(n, t * 1e9, marker=markers[i % len(markers)],
-                  label=_METHOD_LABELS.get(method, method),
-                  color=_PALETTE[i % len(_PALETTE)])
-    ns = sorted({r["n"] for r in rows})
-    ax.set_xticks(ns, [str(v) for v in ns])
-    ax.minorticks_off()
-    ax.set_xlabel("number of simultaneous events n")
-    ax.set_ylabel("time per query (ns)")
-    ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize=9)
-    ax.set_title("evaluation time per tangent vector")
+    ax.set_title("B-derivative at the event point:\nunit tangent vectors u and their images "
+                 "M(u)")
     return fig

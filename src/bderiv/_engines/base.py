@@ -1,0 +1,93 @@
+"""What every engine shares: the fast-path dispatch, status checks, pieces."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from .._format import format_happened, format_order, transversality_message
+from .._kernels import _core
+from .._tables import blocks, chain_regions, happened_rows
+
+
+class Engine:
+    """One corner representation's tables and kernels, behind the interface that
+    ``BDerivative`` uses. Subclasses set ``Dh``, ``n``, ``d``, ``fast`` (a
+    :class:`~bderiv._engines.fastpath.FastPath` or None) and implement ``_apply``,
+    ``_apply_own_rates``, ``_event_times`` and ``corners``; model engines also
+    ``_diagnose``.
+
+    Every method takes clean C-contiguous float64 arrays; ``offset`` is the index of the
+    first row of ``V`` in the caller's batch (for messages).
+    """
+
+    fast = None
+
+    @functools.cached_property
+    def launch(self) -> int:
+        """Queries per kernel launch (see ``_kernels._core.launch_queries``)."""
+        return _core.launch_queries(self.n, self.d)
+
+    @property
+    def fast_path(self):
+        return None if self.fast is None else self.fast.kind
+
+    def map(self, V, out, inverse: bool, name: str = "V", offset: int = 0) -> None:
+        """out = M(V), or M^-1(V) when ``inverse``."""
+        if self.fast is None:
+            self._apply(V, out, inverse, name, offset)
+        elif self.fast.kind == "linear":
+            self.fast.apply_linear(V, out, inverse, self.launch)
+        else:
+            self._apply_own_rates(V, out, inverse)
+
+    def event_times(self, V, times, orders, offset: int = 0) -> None:
+        """times[q, k]: time of event k; orders[q, j]: the j-th event."""
+        if self.fast is None:
+            self._event_times(V, times, orders, offset)
+        else:
+            self.fast.event_times(V, times, orders, self.launch)
+
+    def chain_corners(self, order) -> np.ndarray:
+        """F on the n + 1 regions of an order, shape (n + 1, d)."""
+        return self.corners(chain_regions(order, self.n))
+
+    def piece(self, order) -> np.ndarray:
+        """The (d, d) piece of one order; refuses a rate <= 0 on its chain."""
+        Fc = np.ascontiguousarray(self.chain_corners(order))
+        rates = np.einsum("jd,jd->j", Fc[:-1], self.Dh[order])
+        bad = np.flatnonzero(~(rates > 0))
+        if bad.size:
+            j = int(bad[0])
+            hap = chain_regions(order, self.n)[j]
+            where = f"on the chain of order {format_order(order)}"
+            raise ValueError(transversality_message(int(order[j]), format_happened(hap),
+                                                    float(rates[j]), where))
+        out = np.empty((self.d, self.d))
+        _core.piece_from_corners(self.Dh, Fc, np.asarray(order, dtype=np.int64), out)
+        return out
+
+    def dense_table(self) -> np.ndarray:
+        """The (2**n, d) table (callers check the size first)."""
+        F = np.empty((1 << self.n, self.d))
+        for rows in blocks(F.shape[0]):
+            F[rows] = self.corners(happened_rows(np.arange(rows.start, rows.stop), self.n))
+        return F
+
+    def _check(self, status, V, inverse, name, offset) -> None:
+        """Raise for the first query whose chain stopped (status != -1)."""
+        bad = np.flatnonzero(status != -1)
+        if not bad.size:
+            return
+        q = int(bad[0])
+        hap = np.empty(self.n, dtype=np.uint8)
+        r = np.empty(self.n)
+        k = int(self._diagnose(V[q], inverse, hap, r))
+        where = f"on the chain of {name}[{q + offset}]{' (inverse map)' if inverse else ''}"
+        if k < 0:
+            raise ValueError(
+                f"the corner model gave a non-finite value (or left an entry of out unwritten) "
+                f"for region mask {format_happened(hap)} {where}; corners must be finite"
+            )
+        raise ValueError(transversality_message(k, format_happened(hap), float(r[k]), where))

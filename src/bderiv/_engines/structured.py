@@ -1,0 +1,96 @@
+"""The engine of :class:`~bderiv.StructuredCorners`: rates updated along each chain."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._format import format_happened
+from .._kernels import structured as kernels
+from . import fastpath
+from .base import Engine
+
+#: transversality counts as proved when the lower bound on every rate exceeds this fraction
+#: of the sum of the magnitudes it adds up (the rates are updated along a chain by n + p
+#: additions, whose rounding is ~ (n + p) eps of that sum, far below this).
+PROOF_MARGIN = 1e-9
+
+
+class StructuredEngine(Engine):
+    """Rate jumps ``a = A @ Dh.T``, ``bDh = B @ Dh.T`` and the pairs of each event (CSR).
+
+    At construction the lower bound ``Dh[k].F0 + sum_i min(0, a[i, k]) + sum_p min(0,
+    bDh[p, k])`` of every rate is checked: above a margin, transversality is proved and
+    the kernels skip their per-region checks; without pairs the bound is attained, so a
+    bound <= 0 is a violation, refused here naming the region.
+    """
+
+    def __init__(self, Dh, model, fast_paths: bool = True):
+        self.Dh, self.model = Dh, model
+        self.n, self.d = Dh.shape
+        DhT = np.ascontiguousarray(Dh.T)
+        F0, A, pairs, B = model.F0, model.A, model.pairs, model.B
+        g0 = Dh @ F0
+        a = np.ascontiguousarray(A @ Dh.T)  # a[i, k] = Dh[k] . A[i]
+        bDh = np.ascontiguousarray(B @ Dh.T)  # (p, n)
+        gfull = g0 + a.sum(axis=0) + bDh.sum(axis=0)
+        self.transversal_proved = self._check_transversal(g0, gfull, a, bDh, pairs.shape[0])
+        # pairs touching each event, as CSR: pidx[ptr[i]:ptr[i+1]] with partner other[...]
+        p = pairs.shape[0]
+        ev = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        partner = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        pid = np.concatenate([np.arange(p), np.arange(p)])
+        srt = np.argsort(ev, kind="stable")
+        ptr = np.zeros(self.n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(ev, minlength=self.n), out=ptr[1:])
+        self._tables = (DhT, g0, gfull, a, bDh, ptr,
+                        np.ascontiguousarray(partner[srt], dtype=np.int64),
+                        np.ascontiguousarray(pid[srt], dtype=np.int64), A, B,
+                        not self.transversal_proved)
+        self.fast = fastpath.structured(Dh, g0, a, bDh, A, B) if fast_paths else None
+
+    def _check_transversal(self, g0, gfull, a, bDh, n_pairs) -> bool:
+        """Refuse a provable violation; return True when transversality is proved."""
+        lower = g0 + np.minimum(a, 0).sum(axis=0) + np.minimum(bDh, 0).sum(axis=0)
+        size = np.abs(g0) + np.abs(a).sum(axis=0) + np.abs(bDh).sum(axis=0)
+        if (lower > PROOF_MARGIN * size).all():
+            return True
+        if n_pairs == 0 and not (lower > 0).all():  # bound attained: violated
+            k = int(np.flatnonzero(~(lower > 0))[0])
+            hap = (a[:, k] < 0).astype(np.uint8)
+            raise ValueError(
+                f"transversality violated at event {k} in region mask "
+                f"{format_happened(hap)} (bit k set = event k happened): rate "
+                f"Dh[{k}] . (F0 + sum of A over the region) = {lower[k]:.3g}, expected > 0; "
+                f"the flow must cross every event surface from h_k < 0 to h_k > 0 in "
+                f"every region"
+            )
+        for name, rates in (("0 (no event yet)", g0), ("full (all events)", gfull)):
+            if not (rates > 0).all():
+                k = int(np.flatnonzero(~(rates > 0))[0])
+                raise ValueError(
+                    f"transversality violated at event {k} in region {name}: rate "
+                    f"{rates[k]:.3g}, expected > 0"
+                )
+        return False
+
+    def _apply(self, V, out, inverse, name, offset) -> None:
+        status = np.empty(V.shape[0], dtype=np.int64)
+        kernels.apply(self._tables, V, (out, status), inverse, launch=self.launch)
+        self._check(status, V, inverse, name, offset)
+
+    def _apply_own_rates(self, V, out, inverse) -> None:
+        t = self._tables
+        rate = self.fast.ratef if inverse else self.fast.rate0
+        kernels.apply_own_rates((t[0], rate, self.model.pairs, t[8], t[9]), V, (out,),
+                                inverse, launch=self.launch)
+
+    def _event_times(self, V, times, orders, offset) -> None:
+        status = np.empty(V.shape[0], dtype=np.int64)
+        kernels.event_times(self._tables, V, (times, orders, status), launch=self.launch)
+        self._check(status, V, False, "V", offset)
+
+    def _diagnose(self, u, inverse, hap, r):
+        return kernels.diagnose(self._tables, u, inverse, hap, r)
+
+    def corners(self, happened) -> np.ndarray:
+        return self.model.corners(happened)

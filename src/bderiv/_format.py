@@ -1,0 +1,62 @@
+"""How regions, event orders and transversality failures are written in every message.
+
+One style everywhere (errors, the CLI, figures): a region is ``0b0101``, its bits read
+right to left (bit k set = event k happened, event 0 rightmost); an event order is
+``(2,0,1)``, the events in the order they happen.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: the reminder that follows a region in messages.
+MASK_MEANING = "bit k set = event k happened"
+
+
+def format_mask(mask: int, n: int) -> str:
+    """``0b...`` string of ``n`` bits of an integer mask; the rightmost bit is event 0.
+
+    Examples
+    --------
+    >>> format_mask(5, 4)
+    '0b0101'
+    """
+    return "0b" + format(int(mask), f"0{n}b")
+
+
+def format_happened(happened) -> str:
+    """``0b...`` string of a 0/1 flag array (``happened[k]`` = event k); event 0 rightmost.
+
+    Examples
+    --------
+    >>> format_happened([1, 0, 1, 0])
+    '0b0101'
+    """
+    return "0b" + "".join("1" if h else "0" for h in np.asarray(happened)[::-1])
+
+
+def format_order(order) -> str:
+    """``(k_1,k_2,...)``: the events of an order in the order they happen.
+
+    Examples
+    --------
+    >>> format_order([2, 0, 1])
+    '(2,0,1)'
+    """
+    return "(" + ",".join(str(int(k)) for k in order) + ")"
+
+
+def transversality_message(event: int, region: str, rate: float, where: str = "") -> str:
+    """The one wording of a rate <= 0: ``region`` is a formatted mask, ``where`` a prefix.
+
+    Examples
+    --------
+    >>> transversality_message(1, "0b01", -0.5, "on the chain of V[3]")[:80]
+    'transversality violated on the chain of V[3]: event 1 has rate -0.5 <= 0 in regi'
+    """
+    at = f" {where}" if where else ""
+    return (
+        f"transversality violated{at}: event {event} has rate {rate:.3g} <= 0 in region mask "
+        f"{region} ({MASK_MEANING}); the flow must cross every event surface from h_k < 0 "
+        f"to h_k > 0 in every region"
+    )

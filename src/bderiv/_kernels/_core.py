@@ -1,0 +1,237 @@
+"""What every kernel shares: jit options, the one task driver, and the common steps.
+
+A *block* is an njit function ``block(tables, V, outs, start, stop, inverse)`` that
+computes queries ``V[start:stop]`` of one corner representation (``tables``: a tuple of
+its arrays) and writes the rows ``start:stop`` of the arrays in the tuple ``outs``.
+:func:`batch` turns a block into a :class:`Batch`: a serial and a parallel driver around
+it. Every query is computed by the same serial code whatever the driver, the thread count
+or the split into tasks and launches, so results are bitwise independent of all three.
+
+No validation here: callers pass C-contiguous arrays of consistent shapes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import threading
+
+import numba
+import numpy as np
+from numba import njit, parallel_chunksize, prange
+
+# error_model="numpy": a division by zero gives inf instead of a Python exception path, so
+# LLVM vectorises the loops that divide (rates are positive where it matters: checked
+# when tables are built, or per region by the model kernels).
+JIT = {"cache": True, "error_model": "numpy"}
+
+#: queries per parallel task. Threads take tasks one at a time (dynamic schedule), so a
+#: thread that the OS delays does not hold the other back; at n = 8, 256 queries take
+#: about 90 us on one thread, far above the start-up of the second.
+TASK_QUERIES = 256
+
+#: batches smaller than this run on one thread (thread start-up costs more than it saves).
+PARALLEL_MIN_QUERIES = 1024
+
+#: work per kernel launch, in units of n (n + d) (about a nanosecond each). Ctrl-C is seen
+#: between launches only, so a long batch is cut into launches of about 0.05 to 0.3 s;
+#: a launch wakes the threads, which costs more on a busy machine, so not shorter.
+LAUNCH_WORK = 1 << 25
+
+
+def launch_queries(n: int, d: int) -> int:
+    """Queries per launch for n events in dimension d (between 2**14 and 2**20)."""
+    return min(max(LAUNCH_WORK // (n * (n + d)), 1 << 14), 1 << 20)
+
+
+#: insertion sort up to this many events, merge sort above (fast-path orders).
+INSERTION_SORT_MAX = 24
+
+
+def _pin_cache_key(block) -> None:
+    """Give ``block`` a dispatcher id derived from its source file.
+
+    Numba keys the on-disk cache of a closure by the pickle of its free variables; a
+    dispatcher pickles with a random per-process id, so drivers closing over a block would
+    miss the cache in every process. A fixed id makes the key stable, and hashing the
+    block's source file into it makes an edit of that file invalidate the drivers built
+    on it (numba itself only watches the driver's own file). ``_set_uuid`` is numba's
+    internal setter; without it the drivers still work, they just compile per process.
+    """
+    path = inspect.getsourcefile(block.py_func)
+    with open(path, "rb") as fh:
+        digest = hashlib.sha256(fh.read()).hexdigest()[:16]
+    try:
+        block._set_uuid(f"bderiv:{block.py_func.__module__}.{block.__name__}:{digest}")
+        states = block._reduce_states
+    except (AttributeError, AssertionError):  # another numba, or already pickled
+        return
+    # the pickle also lists the signatures compiled so far, which differ between the
+    # cache look-up and the save: leave them out (unpickling finds the dispatcher by its id)
+    block._reduce_states = lambda: {**states(), "sigs": []}
+
+
+#: numba's ``workqueue`` threading layer (its fallback without OpenMP or TBB) aborts the
+#: process when two Python threads launch parallel kernels at once; launches are
+#: serialised while the layer in use is not known to be thread-safe.
+_LAUNCH_LOCK = threading.Lock()
+_SAFE_LAYER = [False]
+
+
+def _note_layer() -> None:
+    try:
+        _SAFE_LAYER[0] = numba.threading_layer() in ("tbb", "omp")
+    except ValueError:  # no parallel kernel has run yet
+        pass
+
+
+class Batch:
+    """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``."""
+
+    def __init__(self, block, cache: bool = True):
+        if cache:
+            _pin_cache_key(block)
+        jit = dict(JIT, cache=cache)
+
+        @njit(**jit)
+        def serial(tables, V, outs, inverse):
+            block(tables, V, outs, 0, V.shape[0], inverse)
+
+        @njit(parallel=True, **jit)
+        def tasks(tables, V, outs, inverse):
+            m = V.shape[0]
+            for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
+                start = task * TASK_QUERIES
+                block(tables, V, outs, start, min(start + TASK_QUERIES, m), inverse)
+
+        self.block, self.serial, self.tasks = block, serial, tasks
+
+    def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> None:
+        """Run the block on every row of ``V``; ``launch``: queries per kernel launch."""
+        m = V.shape[0]
+        if m < PARALLEL_MIN_QUERIES:
+            self.serial(tables, V, outs, inverse)
+            return
+        for start in range(0, m, launch):
+            stop = min(start + launch, m)
+            part = tuple(o[start:stop] for o in outs)
+            self._launch(tables, V[start:stop], part, inverse)
+
+    def _launch(self, tables, V, outs, inverse) -> None:
+        # dynamic schedule, one task at a time (set outside the jit: inside it, numba could
+        # not cache the function)
+        if _SAFE_LAYER[0]:
+            with parallel_chunksize(1):
+                self.tasks(tables, V, outs, inverse)
+            return
+        with _LAUNCH_LOCK, parallel_chunksize(1):
+            self.tasks(tables, V, outs, inverse)
+            _note_layer()
+
+
+def batch(block, cache: bool = True) -> Batch:
+    """The :class:`Batch` of an njit ``block`` (``cache=False`` for blocks that call a
+    user's function: their compiled code cannot be keyed across processes)."""
+    return Batch(block, cache)
+
+
+# ----------------------------------------------------------------------------------------
+# steps shared by the representations
+# ----------------------------------------------------------------------------------------
+@njit(**JIT)
+def impacts(DhT, u, g):
+    """g = Dh @ u from DhT = Dh.T (d, n), as axpys over the rows of DhT (vectorises)."""
+    d, n = DhT.shape
+    for k in range(n):
+        g[k] = 0.0
+    for i in range(d):
+        ui = u[i]
+        for k in range(n):
+            g[k] += DhT[i, k] * ui
+
+
+@njit(**JIT)
+def own_rate_times(DhT, rate, u, tev):
+    """tev[k] = -(Dh u)_k / rate[k]: the event times when no pending rate ever changes."""
+    impacts(DhT, u, tev)
+    for k in range(tev.shape[0]):
+        tev[k] = -tev[k] / rate[k]
+
+
+@njit(**JIT)
+def stable_order(t, order):
+    """order = stable argsort of t (ties keep the smaller event first)."""
+    n = t.shape[0]
+    if n <= INSERTION_SORT_MAX:
+        for k in range(n):
+            order[k] = k
+        for j in range(1, n):
+            k = order[j]
+            v = t[k]
+            i = j - 1
+            while i >= 0 and t[order[i]] > v:
+                order[i + 1] = order[i]
+                i -= 1
+            order[i + 1] = k
+    else:
+        order[:] = np.argsort(t, kind="mergesort")
+
+
+@njit(**JIT)
+def _own_times_block(tables, V, outs, start, stop, inverse):
+    """Event times and orders from own rates (any representation's own-rates fast path)."""
+    DhT, rate = tables
+    times, orders = outs
+    for q in range(start, stop):
+        own_rate_times(DhT, rate, V[q], times[q])
+        stable_order(times[q], orders[q])
+
+
+@njit(**JIT)
+def _linear_block(tables, V, outs, start, stop, inverse):
+    """out[q] = M @ V[q] from tables = (M.T, M^-1.T), as axpys (vectorises)."""
+    MT = tables[1] if inverse else tables[0]
+    out = outs[0]
+    d = MT.shape[0]
+    for q in range(start, stop):
+        for r in range(d):
+            out[q, r] = 0.0
+        for c in range(d):
+            vc = V[q, c]
+            for r in range(d):
+                out[q, r] += MT[c, r] * vc
+
+
+#: times and orders of an own-rates fast path: tables (DhT, rate), outs (times, orders).
+own_times = batch(_own_times_block)
+#: the linear fast path: tables (M.T, M^-1.T), outs (out,).
+linear = batch(_linear_block)
+
+
+@njit(**JIT)
+def piece_from_corners(Dh, Fc, order, out):
+    """Linear piece S_n ... S_1 of one order (MATH.md section 4) into ``out`` (d, d).
+
+    ``Fc[j]`` is the corner of the region before the (j+1)-th event (``Fc[n]`` after the
+    last). S_j = I + (Fc[j] - Fc[j-1]) Dh[k_j]^T / rate, rate = Dh[k_j] . Fc[j-1]; applied
+    to the running product as M += outer(jump, Dh[k_j] @ M / rate).
+    """
+    n, d = Dh.shape
+    out[:, :] = 0.0
+    for i in range(d):
+        out[i, i] = 1.0
+    row = np.empty(d)
+    for j in range(n):
+        k = order[j]
+        rate = 0.0
+        for i in range(d):
+            rate += Dh[k, i] * Fc[j, i]
+        for c in range(d):
+            s = 0.0
+            for i in range(d):
+                s += Dh[k, i] * out[i, c]
+            row[c] = s / rate
+        for r in range(d):
+            jump = Fc[j + 1, r] - Fc[j, r]
+            for c in range(d):
+                out[r, c] += jump * row[c]

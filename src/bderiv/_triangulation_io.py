@@ -1,0 +1,241 @@
+"""Triangulation files and data: parse them, and check every field before it is trusted.
+
+A triangulation file (``.json`` or ``.npz``, written by :meth:`Triangulation.save`) may be
+damaged or hostile. :func:`read_json` and :func:`read_npz` turn any parse failure into a
+``ValueError`` naming the file (an ``.npz`` is never unpickled); :func:`check_data` checks
+the header (format tag, version, sizes) and :func:`check_fields` the arrays (dtypes,
+shapes, finiteness, index ranges, every vertex used, non-degenerate cones). The same
+:func:`check_fields` guards ``Triangulation(pre, post, simplices, kernel)``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+import zlib
+
+import numpy as np
+
+#: tag written into every saved file, checked on load
+FILE_FORMAT = "bderiv.triangulation"
+FILE_VERSION = 1
+FIELDS = ("pre", "post", "simplices", "kernel")
+#: what reading a damaged or hostile .npz can raise (BadZipFile for a truncated archive,
+#: zlib.error for a corrupt member, ValueError for object arrays with allow_pickle=False)
+_NPZ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error)
+
+
+def check_data(data, source: str) -> dict:
+    """Check a whole triangulation description (:meth:`Triangulation.to_dict` layout).
+
+    Parameters
+    ----------
+    data : dict
+        ``format``, ``version``, ``n_events``, ``dim`` and the arrays of :data:`FIELDS`.
+    source : str
+        What ``data`` came from, named in every message.
+
+    Returns
+    -------
+    dict
+        The checked arrays (see :func:`check_fields`).
+
+    Raises
+    ------
+    ValueError
+        Naming ``source`` and the field, what was expected and what came.
+    """
+    if not isinstance(data, dict) or data.get("format") != FILE_FORMAT:
+        got = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise ValueError(
+            f"{source} is not a bderiv triangulation: expected a mapping with "
+            f"format={FILE_FORMAT!r}, got {got!r}"
+        )
+    version = data.get("version")
+    if isinstance(version, bool) or version != FILE_VERSION:
+        raise ValueError(
+            f"{source}: triangulation file version {version!r} is not supported (this "
+            f"bderiv reads version {FILE_VERSION})"
+        )
+    missing = [name for name in (*FIELDS, "n_events", "dim") if name not in data]
+    if missing:
+        raise ValueError(f"{source}: triangulation data lacks the field(s) {missing}")
+    fields = check_fields({name: data[name] for name in FIELDS}, source, ValueError)
+    d, n = fields["pre"].shape[1], fields["simplices"].shape[1] - 1
+    for name, want, why in (("n_events", n, "columns of simplices - 1"),
+                            ("dim", d, "columns of pre")):
+        got = data[name]
+        if isinstance(got, bool) or not isinstance(got, int | np.integer) or got != want:
+            raise ValueError(
+                f"{source}: field {name!r} must be the integer {want} (the {why}), got {got!r}"
+            )
+    return fields
+
+
+def read_json(path: str, source: str):
+    """The parsed JSON of ``path``; any parse failure is a ``ValueError`` naming ``source``."""
+    with open(path, encoding="utf-8") as fh:
+        try:
+            return json.load(fh)
+        except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError
+            what = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
+            raise ValueError(f"{source} is not valid JSON: {what}") from None
+
+
+def read_npz(path: str, source: str):
+    """The ``meta`` header of an ``.npz`` (a dict, if valid) with its arrays added.
+
+    Never unpickles; a damaged archive or member (truncated, corrupt, pickled objects, a
+    header claiming an impossible size) is a ``ValueError`` naming ``source`` and the field.
+    """
+    with open(path, "rb") as fh:
+        try:
+            npz = np.load(fh, allow_pickle=False)
+        except _NPZ_ERRORS as exc:
+            raise ValueError(f"{source} cannot be read as .npz: {exc}") from None
+        if not isinstance(npz, np.lib.npyio.NpzFile):
+            raise ValueError(f"{source} is not an .npz archive (it holds one bare array)")
+        with npz:
+            if "meta" not in npz.files:
+                raise ValueError(f"{source} is not a bderiv triangulation (no 'meta' entry)")
+            name = "meta"
+            try:
+                meta = npz["meta"]
+                if meta.dtype.kind != "U" or meta.ndim != 0:
+                    raise ValueError(f"expected a JSON text, got a {meta.dtype} array of "
+                                     f"shape {meta.shape}")
+                data = json.loads(str(meta))
+                if isinstance(data, dict):
+                    for name in (k for k in FIELDS if k in npz.files):
+                        data[name] = npz[name]
+            except (*_NPZ_ERRORS, RecursionError, MemoryError) as exc:
+                what = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
+                raise ValueError(f"{source}: field {name!r} cannot be read: {what}") from None
+    return data
+
+
+def file_format(path: str, format: str | None) -> str:
+    """``format``, or the suffix of ``path``: ``"npz"`` or ``"json"`` (else ``ValueError``)."""
+    if format is None:
+        format = os.path.splitext(path)[1].lstrip(".").lower()
+    if format not in ("npz", "json"):
+        raise ValueError(
+            f"unknown triangulation file format {format!r} for {path!r}: use a .npz or "
+            f".json file name, or format='npz' / 'json'"
+        )
+    return format
+
+
+def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dict:
+    """Validate the four arrays of a triangulation completely.
+
+    Parameters
+    ----------
+    fields : dict
+        ``pre``, ``post`` (n_vertices, d), ``simplices`` (n_simplices, n + 1), ``kernel``
+        (d, d - n), as array_likes.
+    source : str
+        What they came from (``"Triangulation"`` or a file), named in every message.
+    type_error : type
+        Raised for a wrong dtype (``TypeError``; ``ValueError`` for file contents).
+
+    Returns
+    -------
+    dict
+        The same keys as fresh C-contiguous arrays: float64, and int64 simplices.
+    """
+    out = {name: _matrix(fields[name], name, source, type_error) for name in FIELDS}
+    pre, post, simplices, kernel = (out[name] for name in FIELDS)
+    (n_vertices, d), n = pre.shape, simplices.shape[1] - 1
+
+    def require(ok, name, want, got):
+        if not ok:
+            raise ValueError(f"{source}: field {name!r} must have {want}, got {got}")
+
+    require(n_vertices >= 2 and d >= 1, "pre", "shape (n_vertices >= 2, d >= 1)", pre.shape)
+    require(post.shape == pre.shape, "post", f"shape {pre.shape} (that of pre)", post.shape)
+    require(simplices.shape[0] >= 1 and 1 <= n <= d, "simplices",
+            f"shape (n_simplices >= 1, n + 1) with 1 <= n <= d = {d}", simplices.shape)
+    require(kernel.shape == (d, d - n), "kernel", f"shape (d, d - n) = ({d}, {d - n})",
+            kernel.shape)
+    lo, hi = simplices.min(), simplices.max()
+    require(lo >= 0 and hi < n_vertices, "simplices", f"vertex indices 0..{n_vertices - 1}",
+            f"indices {lo}..{hi}")
+    out["simplices"] = simplices = np.array(simplices, dtype=np.int64)
+    require(not simplices[:, 0].any(), "simplices", "column 0 (the apex) all 0",
+            f"{np.unique(simplices[:, 0]).tolist()}")
+    require(not pre[0].any(), "pre", "vertex 0 (the apex) at the origin", pre[0])
+    require(not post[0].any(), "post", "vertex 0 (the apex) at the origin", post[0])
+    unused = np.setdiff1d(np.arange(n_vertices), simplices)
+    if unused.size:
+        raise ValueError(
+            f"{source}: field 'simplices' must use every vertex of pre/post, but vertices "
+            f"{unused[:10].tolist()} are in no simplex"
+        )
+    for name, points in (("pre", pre), ("post", post)):
+        bad = _first_degenerate(points, simplices, kernel)
+        if bad >= 0:
+            raise ValueError(
+                f"{source}: field 'simplices' must give non-degenerate cones, but simplex "
+                f"{bad} {simplices[bad].tolist()} spans less than R^{d} with the {name} "
+                f"vertices (and the kernel basis)"
+            )
+    return out
+
+
+def _matrix(value, name: str, source: str, type_error: type) -> np.ndarray:
+    """One field as a 2-D finite array: float64, or int64 for ``simplices``."""
+    try:
+        arr = np.asarray(value)
+    except (ValueError, TypeError, OverflowError, RecursionError) as exc:
+        raise ValueError(f"{source}: field {name!r} is not a rectangular array: {exc}") from None
+    kinds, want = ("iu", "integers (vertex indices)") if name == "simplices" else (
+        "fiu", "real numbers")
+    if arr.dtype.kind not in kinds:
+        raise type_error(f"{source}: field {name!r} must hold {want}, got dtype {arr.dtype}")
+    if arr.ndim != 2:
+        raise ValueError(
+            f"{source}: field {name!r} must be a 2-D array, got {arr.ndim}-D with shape "
+            f"{arr.shape}"
+        )
+    if name == "simplices":
+        return arr  # converted to int64 by check_fields after its range check
+    arr = np.array(arr, dtype=np.float64)
+    if not np.isfinite(arr).all():
+        i, j = np.argwhere(~np.isfinite(arr))[0]
+        raise ValueError(f"{source}: field {name!r} must be finite, got {name}[{i}, {j}] = "
+                         f"{arr[i, j]}")
+    return arr
+
+
+def _first_degenerate(points, simplices, kernel) -> int:
+    """Index of the first simplex whose cone does not span R^d (-1 when none).
+
+    The cone's d generators (its n vertices, the kernel basis) are scaled to unit length,
+    since a cone does not depend on their lengths, and the smallest singular value is
+    compared with numpy's rank tolerance.
+    """
+    d = points.shape[1]
+    unit, kunit = _unit(points, axis=1), _unit(kernel, axis=0)
+    block = max(1, (1 << 22) // (d * d))  # 32 MiB of matrices at a time
+    for start in range(0, simplices.shape[0], block):
+        cols = unit[simplices[start:start + block, 1:]].transpose(0, 2, 1)  # (b, d, n)
+        P = np.concatenate([cols, np.broadcast_to(kunit, (cols.shape[0],) + kunit.shape)],
+                           axis=2)
+        s = np.linalg.svd(P, compute_uv=False)  # (b, d), descending
+        bad = np.flatnonzero(s[:, -1] <= s[:, 0] * d * np.finfo(np.float64).eps)
+        if bad.size:
+            return start + int(bad[0])
+    return -1
+
+
+def _unit(a: np.ndarray, axis: int) -> np.ndarray:
+    """``a`` with its vectors along ``axis`` scaled to length 1 (zero vectors stay 0).
+
+    Divided by the largest entry first, so that no square overflows near 1e300.
+    """
+    big = np.abs(a).max(axis=axis, keepdims=True, initial=0.0)
+    a = np.divide(a, big, out=np.zeros_like(a), where=big > 0)
+    norms = np.linalg.norm(a, axis=axis, keepdims=True)
+    return np.divide(a, norms, out=np.zeros_like(a), where=norms > 0)

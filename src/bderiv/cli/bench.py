@@ -1,0 +1,56 @@
+"""``bderiv bench``: the dimension sweep of :func:`bderiv._bench.sweep`, sized first."""
+
+from __future__ import annotations
+
+from .. import _bench
+from .._tables import dense_table_bytes
+from .figures import save_figure
+from .usage import check_figure_path, require_memory, require_module
+
+
+def sweep_bytes(n: int, d: int, batch: int) -> int:
+    """Peak bytes of one row of the sweep: the random corner table, the tables
+    :class:`~bderiv.BDerivative` keeps, and the batch with its image.
+
+    Examples
+    --------
+    >>> round(sweep_bytes(26, 26, 100_000) / 2**30, 1)  # GiB
+    39.0
+    """
+    return (1 << n) * d * 8 + dense_table_bytes(n, d) + 2 * batch * d * 8
+
+
+def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=None) -> list:
+    """Run the sweep (and save its log-log plot to ``plot``); return its rows.
+
+    Parameters
+    ----------
+    ns : sequence of int
+        Numbers of events; the dimension is ``d = d_factor * n``.
+    d_factor : int
+    batch : int
+        Queries per batch.
+    repeat : int
+        Timed runs, best kept.
+    plot : str, optional
+        A ``.png``, ``.pdf`` or ``.svg`` file for :func:`bderiv.plot.scaling`.
+    progress : callable ``progress(done, total)``, optional
+
+    Returns
+    -------
+    list of dict
+        The rows of :func:`bderiv._bench.sweep`.
+    """
+    if plot:
+        require_module("matplotlib", "--plot")
+        check_figure_path(plot, "--plot")
+    for n in ns:
+        d = d_factor * n
+        require_memory(sweep_bytes(n, d, batch), f"--n {n} (d = {d}) with --batch {batch}")
+    rows = _bench.sweep(tuple(ns), d_factor=d_factor, batch=batch, repeat=repeat,
+                        progress=progress)
+    if plot:
+        from .. import plot as figures
+
+        save_figure(figures.scaling(rows), plot, dpi=120)
+    return rows

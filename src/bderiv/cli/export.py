@@ -1,0 +1,101 @@
+"""``bderiv export``: the triangulation of an example's B-derivative, saved and re-read."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from .._tables import corner_point_bytes
+from ..triangulation import load_triangulation
+from .systems import load_example
+from .usage import UsageError, require_memory
+
+#: random vectors on which every file read back is compared with the B-derivative
+CHECK_VECTORS = 200
+
+
+def triangulation_bytes(n: int, d: int) -> int:
+    """Peak bytes of building and saving a triangulation of n events in R^d.
+
+    The corner points and the vertex tables (four arrays (2**n, d)), the orders, chains and
+    simplices (about (6n + 4) n! int64) and, for JSON, the simplices as Python lists (about
+    40 bytes an entry).
+
+    Examples
+    --------
+    >>> round(triangulation_bytes(12, 12) / 2**30, 1)  # GiB
+    735.2
+    """
+    f = math.factorial(n)
+    return 2 * corner_point_bytes(n, d) + (6 * n + 4) * f * 8 + 2 * f * (n + 1) * 40
+
+
+def run_export(example=None, n=None, extended=False, out="triangulation", fmt="both",
+               max_pieces=40320) -> dict:
+    """Save the triangulation of ``example`` (default chair) and check the files read back.
+
+    Parameters
+    ----------
+    example, n, extended
+        The system, as for :func:`bderiv.cli.systems.load_example`.
+    out : str
+        Path without suffix (a ``.npz`` or ``.json`` suffix is dropped).
+    fmt : {"npz", "json", "both"}
+    max_pieces : int
+        Refuse more than this many event orders.
+
+    Returns
+    -------
+    dict
+        ``example``, ``n_events``, ``dim``, ``vertices``, ``simplices``, ``files`` (each
+        ``path``, ``format``, ``bytes``, ``max_error_reloaded``), ``check_vectors``.
+    """
+    base = _output_base(out)
+    example = example or "chair"
+    _, bd = load_example(example, n, extended)
+    n, d = bd.n_events, bd.dim
+    if not bd.full_rank:
+        raise UsageError(
+            f"{example} has {n} events on surfaces of rank {np.linalg.matrix_rank(bd.Dh)} "
+            f"< n: its B-derivative has no triangulation (it is still evaluated exactly by "
+            f"BDerivative)"
+        )
+    if math.factorial(n) > max_pieces:
+        raise UsageError(
+            f"{n} events give 2 * {n}! simplices, more than 2 * --max-pieces={max_pieces}"
+        )
+    require_memory(triangulation_bytes(n, d), f"the triangulation of {n} events in R^{d}")
+    tri = bd.triangulation(max_pieces=max_pieces)
+    V = np.random.default_rng(0).standard_normal((CHECK_VECTORS, d))
+    expected = bd(V)
+    files = []
+    for f in ("npz", "json") if fmt == "both" else (fmt,):
+        path = f"{base}.{f}"
+        try:
+            tri.save(path)
+        except OSError as exc:
+            raise UsageError(f"--out: cannot write {path!r}: {exc}") from None
+        err = float(np.abs(load_triangulation(path)(V) - expected).max())
+        files.append({"path": path, "format": f, "bytes": os.path.getsize(path),
+                      "max_error_reloaded": err})
+    return {"example": example, "n_events": n, "dim": d, "vertices": tri.pre.shape[0],
+            "simplices": tri.simplices.shape[0], "files": files, "check_vectors": CHECK_VECTORS}
+
+
+def _output_base(out: str) -> str:
+    """``--out`` without a ``.npz`` / ``.json`` suffix, checked to name a file to write."""
+    base = out
+    for ext in (".npz", ".json"):
+        if base.endswith(ext):
+            base = base[: -len(ext)]
+    if os.path.basename(base) in ("", ".", ".."):
+        raise UsageError(
+            f"--out must be a file path such as results/tri (the suffixes .npz and .json "
+            f"are added), got {out!r}"
+        )
+    parent = os.path.dirname(os.path.abspath(base))
+    if not os.path.isdir(parent):
+        raise UsageError(f"--out: output directory {parent!r} does not exist")
+    return base

@@ -1,0 +1,209 @@
+"""The argument parser of ``bderiv`` and the dispatch of each command.
+
+Each command runs its computation (:mod:`.demo`, :mod:`.bench`, :mod:`.figures`,
+:mod:`.export`), which returns data, and prints the data's rendering (:mod:`.render`) as
+text or JSON. Bad arguments, found by argparse or by the computations
+(:class:`~bderiv.cli.usage.UsageError`), give one line on stderr and exit status 2; any
+other exception is a bug or a failure of the machine and propagates with its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from . import render
+from .bench import run_bench
+from .demo import run_demo
+from .export import run_export
+from .figures import FIGURES, run_figures
+from .systems import MODEL_EXAMPLES, NETWORK_MAX_N, TABLE_EXAMPLES
+from .usage import UsageError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``bderiv: error: ...`` and exit status 2."""
+
+    def error(self, message):  # noqa: D401 - argparse API
+        self.exit(2, f"{self.prog.split()[0]}: error: {message} (see {self.prog} --help)\n")
+
+
+def _argument_type(convert, accept, expected: str):
+    """An argparse ``type``: ``convert(text)``, refused unless ``accept(value)``."""
+
+    def parse(text):
+        try:
+            value = convert(text)  # int and float accept 1_000_000
+        except ValueError:
+            value = None
+        if value is None or not accept(value):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    return parse
+
+
+_positive_int = _argument_type(int, lambda v: v >= 1, "a positive integer")
+_nonneg_int = _argument_type(int, lambda v: v >= 0, "an integer >= 0")
+_positive_float = _argument_type(float, lambda v: math.isfinite(v) and v > 0,
+                                 "a positive number")
+
+
+def _add_example_args(p, default_help):
+    p.add_argument("--example", choices=MODEL_EXAMPLES + TABLE_EXAMPLES,
+                   help=f"the system (default: {default_help})")
+    p.add_argument("--n", type=_positive_int, default=None,
+                   help=f"number of events of --example network (1..{NETWORK_MAX_N}, "
+                   f"default 3)")
+    p.add_argument("--extended", action="store_true",
+                   help="network variant with d = 2n instead of d = n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``bderiv`` (one-line errors, exit status 2).
+
+    Function of ~70 lines: one block of ``add_argument`` calls per command, read as the
+    command line's reference.
+
+    Examples
+    --------
+    >>> args = build_parser().parse_args(["demo", "--example", "network", "--n", "4"])
+    >>> args.command, args.example, args.n, args.batch
+    ('demo', 'network', 4, 1000000)
+    """
+    from .. import __version__
+
+    parser = _Parser(
+        prog="bderiv",
+        description="Exact, fast Bouligand derivatives of piecewise-differentiable flows at "
+        "points where several events happen at once. With no command: demo. Also "
+        "`python -m bderiv`.",
+    )
+    parser.add_argument("--version", action="version", version=f"bderiv {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="{demo,bench,plot,export}")
+
+    p = sub.add_parser("demo", help="the B-derivative of a built-in model, checked against "
+                       "simulation (default command)")
+    _add_example_args(p, "chair")
+    p.add_argument("--batch", type=_positive_int, default=1_000_000,
+                   help="tangent vectors in the timed batch (default 1000000)")
+    p.add_argument("--check", type=_nonneg_int, default=8,
+                   help="vectors checked against finite differences (default 8, 0 = none)")
+    p.add_argument("--eps", type=_positive_float, nargs="+", default=[1e-4, 1e-5, 1e-6],
+                   help="finite-difference steps (default 1e-4 1e-5 1e-6)")
+    p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+    p = sub.add_parser("bench", help="dimension sweep against the baselines")
+    p.add_argument("--n", type=_positive_int, nargs="+", default=[2, 4, 8, 12, 16],
+                   help="numbers of events (default 2 4 8 12 16)")
+    p.add_argument("--d-factor", type=int, choices=(1, 2), default=1,
+                   help="dimension d = d_factor * n (default 1)")
+    p.add_argument("--batch", type=_positive_int, default=100_000,
+                   help="queries per batch (default 100000)")
+    p.add_argument("--repeat", type=_positive_int, default=3, help="timed runs, best kept")
+    p.add_argument("--plot", metavar="FILE", help="also save the log-log plot (.png/.pdf)")
+    p.add_argument("--json", action="store_true", help="print the rows as JSON")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("plot", help="figures to PNG/PDF files")
+    _add_example_args(p, "network --n 2")
+    p.add_argument("--figure", nargs="+", choices=(*FIGURES, "all"),
+                   help="which figures (default all that apply)")
+    p.add_argument("--out", default="bderiv-figures", help="output directory")
+    p.add_argument("--format", choices=("png", "pdf", "svg"), default="png")
+    p.add_argument("--dpi", type=_positive_int, default=120)
+    p.add_argument("--bench-json", metavar="FILE",
+                   help="rows of `bderiv bench --json` for the scaling figure")
+    p.add_argument("--json", action="store_true", help="print the files written as JSON")
+
+    p = sub.add_parser("export", help="the triangulation to .npz and .json")
+    _add_example_args(p, "chair")
+    p.add_argument("--out", default="triangulation",
+                   help="output path without suffix (default ./triangulation)")
+    p.add_argument("--format", choices=("npz", "json", "both"), default="both")
+    p.add_argument("--max-pieces", type=_positive_int, default=40320,
+                   help="refuse more than this many event orders (default 8! = 40320)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    return parser
+
+
+def _demo(args) -> str | None:
+    example = args.example
+    if example is None:
+        example = "network" if args.n is not None or args.extended else "chair"
+
+    def show(section, res):  # the text streams while the demo runs
+        print(render.demo_section(section, res), end="", flush=True)
+
+    progress = None if args.no_progress else render.progress_bar("finite differences")
+    res = run_demo(example, args.n, args.extended, args.batch, args.check, tuple(args.eps),
+                   args.seed, progress=progress, report=show if not args.json else None)
+    return render.to_json(res, indent=1) if args.json else None
+
+
+def _bench(args) -> str:
+    progress = None if args.no_progress else render.progress_bar("bench")
+    rows = run_bench(args.n, d_factor=args.d_factor, batch=args.batch, repeat=args.repeat,
+                     plot=args.plot, progress=progress)
+    if args.json:
+        return render.to_json(rows, indent=1)
+    return render.bench_text(rows, d_factor=args.d_factor, batch=args.batch,
+                             repeat=args.repeat, plot=args.plot)
+
+
+def _plot(args) -> str:
+    summary = run_figures(args.example, args.n, args.extended, args.figure, args.out,
+                          args.format, args.dpi, args.bench_json)
+    return render.to_json(summary) if args.json else render.figures_text(summary)
+
+
+def _export(args) -> str:
+    summary = run_export(args.example, args.n, args.extended, args.out, args.format,
+                         args.max_pieces)
+    return render.to_json(summary) if args.json else render.export_text(summary)
+
+
+#: each command: ``args -> text to print`` (None when the text was streamed already)
+_COMMANDS = {"demo": _demo, "bench": _bench, "plot": _plot, "export": _export}
+
+
+def main(argv=None) -> int:
+    """Entry point of ``bderiv`` and ``python -m bderiv``; returns the exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: ``sys.argv[1:]``); no command means ``demo``.
+
+    Returns
+    -------
+    int
+        0 on success, 2 on a bad argument (after a one-line message on stderr). Any other
+        error propagates (a traceback, exit status 1).
+
+    Examples
+    --------
+    >>> main(["export", "--example", "corners", "--out", "/nonexistent/dir/tri"])
+    2
+    >>> main(["demo", "--example", "corners", "--batch", "100"])  # doctest: +ELLIPSIS
+    bderiv demo: corner table (3 events in R^3), Dh = event Jacobian, F = corner table
+    vector u -> event order, event times, M(u):
+      u=[-1. -2. -3.]  order=(0,2,1)  times=[1.  3.  3.8]  M(u)=[-2.9 -3.8 -6.8]
+    ...
+    0
+    """
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        args = parser.parse_args(["demo"])
+    try:
+        text = _COMMANDS[args.command](args)
+    except UsageError as exc:
+        print(f"bderiv {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    if text is not None:
+        print(text, end="" if text.endswith("\n") else "\n")
+    return 0

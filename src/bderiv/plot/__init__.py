@@ -1,0 +1,23 @@
+"""Figures of a B-derivative (matplotlib, the optional extra ``plot``).
+
+matplotlib is imported inside each function, so ``import bderiv.plot`` works without it.
+Every function returns a ``matplotlib.figure.Figure`` built without pyplot (no global
+state, no window); save it with ``fig.savefig("name.png")``. Pass ``ax=`` (or ``axes=``)
+to draw into an existing figure instead.
+
+- :func:`corner_field`: 2-D systems, the corner-limit field with the event lines and a
+  few sampled trajectories;
+- :func:`triangulation`: 2-D systems, the pre-event and post-event fans of simplices;
+- :func:`tangent_circle`: 2-D systems, a circle of tangent vectors and its image;
+- :func:`pieces`: any n, determinant and gain of the linear pieces;
+- :func:`scaling`: time per query against n from a benchmark sweep.
+
+The figures live in private modules by subject (``_planar``, ``_pieces``, ``_scaling``,
+all on the figure set-up of ``_axes``); this package is their one public name.
+"""
+
+from ._pieces import pieces
+from ._planar import corner_field, tangent_circle, triangulation
+from ._scaling import scaling
+
+__all__ = ["corner_field", "pieces", "scaling", "tangent_circle", "triangulation"]

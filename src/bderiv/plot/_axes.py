@@ -1,0 +1,48 @@
+"""What every figure shares: the pyplot-free figure set-up and the palette."""
+
+from __future__ import annotations
+
+import numpy as np
+
+PLOT_HINT = (
+    "bderiv's figures need matplotlib: install it with `pip install 'bderiv[plot]'` "
+    "(or `pip install matplotlib`)"
+)
+
+#: a qualitative palette indexed by piece (event order) number
+PALETTE = (
+    "#4477AA", "#EE6677", "#228833", "#CCBB44", "#66CCEE", "#AA3377", "#BBBBBB", "#000000",
+)
+
+
+def figure_axes(ax, ncols=1, figsize=(5.5, 5.0)):
+    """The figure to draw into and its ``ncols`` axes.
+
+    The one place a figure imports matplotlib first, so a missing matplotlib is reported
+    with the install hint.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes or sequence of ``ncols`` Axes, or None
+        The caller's axes; None for a new figure built without pyplot (no global state).
+    ncols : int
+        Axes the figure needs, side by side.
+    figsize : (float, float)
+        Size in inches of a new figure.
+
+    Returns
+    -------
+    (matplotlib.figure.Figure, list of ``ncols`` matplotlib Axes)
+    """
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as exc:  # pragma: no cover - exercised without matplotlib only
+        raise ImportError(PLOT_HINT) from exc
+    if ax is not None:
+        axes = list(np.atleast_1d(ax))
+        if len(axes) != ncols:
+            raise ValueError(f"this figure needs {ncols} axes, got {len(axes)}")
+        return axes[0].figure, axes
+    fig = Figure(figsize=figsize, layout="constrained")
+    axes = fig.subplots(1, ncols, squeeze=False)[0]
+    return fig, list(axes)

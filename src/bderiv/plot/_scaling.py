@@ -1,0 +1,111 @@
+"""The figure of a benchmark sweep: time per query against the number of events."""
+
+from __future__ import annotations
+
+from ._axes import PALETTE, figure_axes
+
+#: legend label, line style and colour of the methods of ``bderiv bench`` and of the
+#: contenders of ``benchmarks/test_bench_dense.py`` in :func:`scaling`
+_METHODS = {
+    "bderiv": ("bderiv", "-", PALETTE[0]),
+    "bderiv apply": ("bderiv apply", "-", PALETTE[0]),
+    "bderiv inverse": ("bderiv inverse", "--", PALETTE[1]),
+    "numpy": ("batched NumPy baseline", "-", PALETTE[2]),
+    "numpy batched": ("batched NumPy baseline", "-", PALETTE[2]),
+    "reference per-query": ("per-query NumPy oracle\n(Python loop, on a subset)", "-",
+                            PALETTE[3]),
+    "blas": ("BLAS matrix product, same flops", ":", PALETTE[4]),
+    "BLAS matmul": ("BLAS matrix product, same flops", ":", PALETTE[4]),
+}
+
+
+def scaling(rows, ax=None, *, batch=None):
+    """Time per query against the number of events n, log-log (a benchmark sweep).
+
+    One line per method; at each n the row of the largest batch measured (or of
+    ``batch``). Used for the rows of ``bderiv bench --json`` and, through
+    ``tools/bench_table.py --plot``, for the pytest-benchmark suite.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        Each with keys ``n``, ``method`` and ``seconds_per_query``, optionally ``d`` and
+        ``m`` (the batch size), as produced by ``bderiv bench --json``. One dimension d per
+        n: the figure states the relation of d to n.
+    ax : matplotlib Axes, optional
+    batch : int, optional
+        Keep only rows with this batch size ``m``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Raises
+    ------
+    ValueError
+        If no row is left, or rows of one n have different dimensions d.
+
+    Examples
+    --------
+    >>> from bderiv import plot
+    >>> rows = [{"n": n, "d": n, "m": 1000, "method": "bderiv",
+    ...          "seconds_per_query": 1e-8 * n * n} for n in (2, 4, 8)]
+    >>> print(plot.scaling(rows).axes[0].get_title())
+    B-derivative at the event point: time per tangent vector
+    d = n, batch m = 1,000
+    """
+    kept = [r for r in rows if batch is None or r.get("m") == batch]
+    if not kept:
+        where = "" if batch is None else f" with batch m = {batch}"
+        raise ValueError(f"no benchmark rows to plot{where}")
+    _check_one_dim(kept)
+    points = {}  # (method, n) -> the row of the largest batch
+    for r in kept:
+        key = (r["method"], r["n"])
+        if key not in points or r.get("m", 0) > points[key].get("m", 0):
+            points[key] = r
+    fig, (ax,) = figure_axes(ax, figsize=(8.0, 4.8))
+    for i, method in enumerate(dict.fromkeys(r["method"] for r in kept)):
+        sel = sorted((r for (meth, _), r in points.items() if meth == method),
+                     key=lambda r: r["n"])
+        label, style, color = _METHODS.get(method, (method, "-", PALETTE[i % len(PALETTE)]))
+        ax.loglog([r["n"] for r in sel], [r["seconds_per_query"] * 1e9 for r in sel],
+                  marker="osD^v<>"[i % 7], ls=style, label=label, color=color)
+    ns = sorted({n for _, n in points})
+    ax.set_xticks(ns, [str(v) for v in ns])
+    ax.minorticks_off()
+    ax.set_xlabel("number of simultaneous events n")
+    ax.set_ylabel("time per query (ns)")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # beside the lines
+    ax.set_title("B-derivative at the event point: time per tangent vector\n"
+                 + _sweep_caption(list(points.values())), fontsize=10)
+    return fig
+
+
+def _check_one_dim(rows) -> None:
+    by_n = {}
+    for r in rows:
+        by_n.setdefault(r["n"], set()).add(r.get("d"))
+    mixed = {n: ds for n, ds in by_n.items() if len(ds) > 1}
+    if mixed:
+        n, ds = min(mixed.items())
+        raise ValueError(
+            f"rows must have one dimension d per n, got d in {sorted(ds, key=str)} at n = "
+            f"{n}; keep the rows of one d per n"
+        )
+
+
+def _sweep_caption(rows) -> str:
+    """``d = 2 n, batch m = 1,000``: the dimension and batch of the rows drawn."""
+    ratios = {r["d"] / r["n"] for r in rows if r.get("d") is not None}
+    parts = []
+    if len(ratios) == 1:
+        k = ratios.pop()
+        parts.append("d = n" if k == 1 else f"d = {k:g} n")
+    ms = {r["m"] for r in rows if r.get("m") is not None}
+    if len(ms) == 1:
+        parts.append(f"batch m = {ms.pop():,}")
+    elif ms:
+        parts.append(f"largest batch measured, m up to {max(ms):,}")
+    return ", ".join(parts)

@@ -1,0 +1,86 @@
+"""docs/design.md is true to the code: its modules exist and imports point down its layers."""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PKG = ROOT / "src" / "bderiv"
+
+#: the layers of docs/design.md, top to bottom; a module may import its own layer and the
+#: layers below, never one above.
+LAYERS = [
+    {"cli", "__main__"},
+    {"plot", "examples", "_bench"},
+    {"hybrid", "_usercalls"},
+    {"checks"},
+    {"simulate", "flowmap"},
+    {"bderivative", "triangulation", "_triangulation_io"},
+    {"corners", "_engines"},
+    {"_kernels"},
+]
+#: helpers any layer may use; they import only each other.
+HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines"}
+
+
+def _top(path: pathlib.Path) -> str:
+    """The top-level unit of a module file: ``cli/render.py`` -> ``cli``."""
+    rel = path.relative_to(PKG).with_suffix("")
+    return rel.parts[0]
+
+
+def _imported_units(path: pathlib.Path):
+    """Top-level package units imported by a module (relative imports resolved)."""
+    depth = len(path.relative_to(PKG).parts) - 1  # 0 for a module at the package root
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                if node.module and node.module.split(".")[0] == "bderiv":
+                    parts = node.module.split(".")[1:]
+                    yield from ([parts[0]] if parts else [a.name for a in node.names])
+                continue
+            up = node.level - 1  # levels above the module's own package
+            if up > depth:
+                continue
+            base = list(path.relative_to(PKG).parts[: depth - up])
+            parts = base + (node.module.split(".") if node.module else [])
+            if parts:
+                yield parts[0]
+            else:  # from . import x (at the package root)
+                yield from (a.name for a in node.names)
+
+
+def _layer(unit: str):
+    if unit in HELPERS:
+        return None
+    for i, layer in enumerate(LAYERS):
+        if unit in layer:
+            return i
+    raise AssertionError(f"module {unit!r} is in no layer of docs/design.md")
+
+
+MODULES = sorted(p for p in PKG.rglob("*.py") if p != PKG / "__init__.py")  # the public face
+
+
+def test_every_module_is_placed_and_named_in_the_design():
+    design = (ROOT / "docs" / "design.md").read_text()
+    for unit in {_top(p) for p in MODULES}:
+        _layer(unit)
+        assert unit.removesuffix(".py") in design or unit == "__main__", unit
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PKG)))
+def test_imports_point_down(path):
+    unit = _top(path)
+    mine = _layer(unit)
+    for other in _imported_units(path):
+        if other in ("__init__", unit) or other == "__version__":
+            continue
+        theirs = _layer(other)
+        if mine is None:
+            assert theirs is None, f"helper {unit} imports {other} (layer {theirs})"
+        elif theirs is not None:
+            assert theirs >= mine, f"{path.relative_to(PKG)} imports {other}, a layer above"
