@@ -9,7 +9,7 @@ import numba
 import numpy as np
 import pytest
 import scipy.linalg
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose, assert_array_equal
 from reference import (
@@ -326,8 +326,7 @@ def test_positive_homogeneity(case, s):
 def test_continuity_across_piece_boundaries(case, data):
     rng, Dh, F, _ = case
     n = Dh.shape[0]
-    if n < 2:
-        return
+    assume(n >= 2)
     bd = BDerivative(Dh, F)
     U, _ = ref_corner_points(Dh, F)
     order = rng.permutation(n)

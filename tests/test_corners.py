@@ -172,6 +172,11 @@ def test_structured_n128_fast_matches_general():
     tg, og = general.event_times(V)
     np.testing.assert_allclose(tf, tg, atol=1e-10)
     np.testing.assert_array_equal(of, og)
+    # and the oracle: the selection on the model's own corners, query by query
+    for u in V[:3]:
+        np.testing.assert_allclose(fast(u), ref_apply(Dh, model.corners, u), atol=1e-10)
+        t_ref, o_ref = ref_event_times(Dh, model.corners, u)
+        np.testing.assert_allclose(fast.event_times(u)[0], t_ref, atol=1e-10)
 
 
 def test_structured_pickles():

@@ -14,7 +14,7 @@ PKG = ROOT / "src" / "bderiv"
 #: layers below, never one above.
 LAYERS = [
     {"cli", "__main__"},
-    {"plot", "examples", "_bench"},
+    {"plot", "examples", "_bench"},  # _bench: the sweep of `bderiv bench`
     {"hybrid", "_usercalls"},
     {"checks"},
     {"simulate", "flowmap"},
@@ -36,7 +36,12 @@ def _imported_units(path: pathlib.Path):
     """Top-level package units imported by a module (relative imports resolved)."""
     depth = len(path.relative_to(PKG).parts) - 1  # 0 for a module at the package root
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                parts = alias.name.split(".")
+                if parts[0] == "bderiv" and len(parts) > 1:
+                    yield parts[1]
+        elif isinstance(node, ast.ImportFrom):
             if node.level == 0:
                 if node.module and node.module.split(".")[0] == "bderiv":
                     parts = node.module.split(".")[1:]
@@ -84,3 +89,9 @@ def test_imports_point_down(path):
             assert theirs is None, f"helper {unit} imports {other} (layer {theirs})"
         elif theirs is not None:
             assert theirs >= mine, f"{path.relative_to(PKG)} imports {other}, a layer above"
+
+
+def test_kernels_import_nothing_of_the_package():
+    for path in (PKG / "_kernels").glob("*.py"):
+        others = set(_imported_units(path)) - {"_kernels", "__init__"}
+        assert not others, f"{path.name} imports {others}"

@@ -121,6 +121,7 @@ class BDerivative:
         n, d = Dh.shape
         if n == 0 or d == 0:
             raise ValueError(f"Dh must have at least one event and one dimension, got {Dh.shape}")
+        self._fast_paths = bool(fast_paths)
         if isinstance(F, CornerModel):
             self._init_model(Dh, F, fast_paths)
             return
@@ -143,7 +144,8 @@ class BDerivative:
 
     def _init_model(self, Dh, model, fast_paths: bool) -> None:
         n, d = Dh.shape
-        want = (model.n_events or n, model.dim or d)
+        want = (n if model.n_events is None else model.n_events,
+                d if model.dim is None else model.dim)
         if want != (n, d):
             raise ValueError(
                 f"Dh has shape {Dh.shape} (n={n} events, dimension d={d}) but the corner "
@@ -187,8 +189,8 @@ class BDerivative:
         name = "W" if inverse else "V"
 
         def kernel(rows, res, offset):
-            self._engine.map(rows, res, inverse, name, offset)
-            check_finite_result(res, name, offset)
+            if self._engine.map(rows, res, inverse, name, offset):
+                check_finite_result(res, name, offset)
 
         return evaluate(kernel, V, self.dim, name=name, out=out, chunk_size=chunk_size,
                         progress=progress, desc="BDerivative", method=method)
@@ -265,8 +267,8 @@ class BDerivative:
         n = self.n_events
         times = np.empty((flat.shape[0], n))
         order = np.empty((flat.shape[0], n), dtype=np.int64)
-        self._engine.event_times(flat, times, order)
-        check_finite_result(times, "V", 0, "event times")
+        if self._engine.event_times(flat, times, order):
+            check_finite_result(times, "V", 0, "event times")
         return times.reshape(lead + (n,)), order.reshape(lead + (n,))
 
     # -- pieces -----------------------------------------------------------------------------
@@ -393,4 +395,4 @@ class BDerivative:
                 f"the corner model {self.model!r} gave a non-finite corner for region mask "
                 f"{format_mask(mask, n)} ({MASK_MEANING}): {F[mask]}"
             )
-        return BDerivative(self.Dh, F)
+        return BDerivative(self.Dh, F, fast_paths=self._fast_paths)

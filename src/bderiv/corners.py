@@ -212,7 +212,12 @@ class StructuredCorners(_Tabulated):
         -------
         ndarray, shape (..., d)
         """
-        h = np.asarray(happened).astype(np.float64)
+        h = np.asarray(happened)
+        if h.ndim == 0 or h.shape[-1] != self.n_events:
+            raise ValueError(f"happened must have shape (..., {self.n_events}), got {h.shape}")
+        if h.dtype.kind not in "biu" or ((h != 0) & (h != 1)).any():
+            raise ValueError("happened must hold 0/1 flags (bool or integers)")
+        h = h.astype(np.float64)
         both = h[..., self.pairs[:, 0]] * h[..., self.pairs[:, 1]]
         return self.F0 + h @ self.A + both @ self.B
 

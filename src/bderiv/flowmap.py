@@ -16,11 +16,18 @@ the variational equations, the jumps PL homeomorphisms), and so is D:
 from __future__ import annotations
 
 import functools
+import re
 
 import numpy as np
 
 from ._batch import evaluate, is_dask_array
-from ._validate import check_matrix, check_points, check_real_array
+from ._validate import (
+    all_finite,
+    check_finite_result,
+    check_matrix,
+    check_points,
+    check_real_array,
+)
 from .bderivative import BDerivative
 
 __all__ = ["FlowBDerivative"]
@@ -139,13 +146,31 @@ class FlowBDerivative:
                 arr.setflags(write=False)
 
     # ------------------------------------------------------------------------------
-    def _stage_inputs(self, flat):
-        """Yield the vectors entering each jump, then the final result (for orders/times)."""
-        W = flat @ self._linear[0].T
-        for i, bd in enumerate(self._jumps):
-            yield W
-            W = bd(W) @ self._linear[i + 1].T
-        yield W
+    def _stage_inputs(self, flat, name="V", offset=0):
+        """The vectors entering each jump, then the final result: a list of (m, d) arrays.
+
+        Errors name the row of the caller's batch (``offset`` is the first row's index) and
+        the group; a stage whose result overflows is refused, not passed on.
+        """
+        out = []
+        W = flat
+        for i, L in enumerate(self._linear):
+            with np.errstate(over="ignore", invalid="ignore"):
+                W = W @ L.T
+            if not all_finite(W):
+                q = int(np.flatnonzero(~np.isfinite(W).all(axis=1))[0])
+                raise ValueError(
+                    f"the flow map overflowed for {name}[{q + offset}] in its linear stage "
+                    f"linear[{i}] (not finite, although the input is finite); the map is "
+                    f"positively homogeneous: scale the vectors down and the result up"
+                )
+            out.append(W)
+            if i < len(self._jumps):
+                try:
+                    W = self._jumps[i](W)
+                except ValueError as exc:
+                    raise ValueError(_in_group(str(exc), i, name, offset)) from None
+        return out
 
     def apply(self, V, out=None, *, dt=None, chunk_size=None, progress=None):
         """Apply the B-derivative to tangent vectors.
@@ -205,10 +230,13 @@ class FlowBDerivative:
 
     def _forward(self, rows, res, offset, dt=None):
         """The kernel of :meth:`apply`: ``res = D(rows) (+ dt * final_field)``."""
-        *_, W = self._stage_inputs(rows)
+        *_, W = self._stage_inputs(rows, "V", offset)
         if dt is not None:
-            W += dt[offset : offset + len(rows), None] * self.final_field
+            with np.errstate(over="ignore", invalid="ignore"):
+                W += dt[offset : offset + len(rows), None] * self.final_field
         res[...] = W
+        if not all_finite(res):
+            check_finite_result(res, "V", offset)
 
     def inverse(self, W, out=None, *, chunk_size=None, progress=None):
         """The inverse map: final-point perturbations to start-point perturbations.
@@ -236,10 +264,18 @@ class FlowBDerivative:
     def _backward(self, rows, res, offset):
         """The kernel of :meth:`inverse`: the stages' inverses in reverse order."""
         inverses = self._stage_inverses
-        V = rows @ inverses[-1].T
-        for bd, inv in zip(reversed(self._jumps), reversed(inverses[:-1]), strict=True):
-            V = bd.inverse(V) @ inv.T
+        with np.errstate(over="ignore", invalid="ignore"):
+            V = rows @ inverses[-1].T
+        for i in reversed(range(len(self._jumps))):
+            try:
+                V = self._jumps[i].inverse(V)
+            except ValueError as exc:
+                raise ValueError(_in_group(str(exc), i, "W", offset)) from None
+            with np.errstate(over="ignore", invalid="ignore"):
+                V = V @ inverses[i].T
         res[...] = V
+        if not all_finite(res):
+            check_finite_result(res, "W", offset)
 
     @functools.cached_property
     def _stage_inverses(self):
@@ -329,3 +365,10 @@ class FlowBDerivative:
                 raise ValueError("this map has no final_field, so with_time cannot be used")
             M = np.column_stack((M, self.final_field))
         return np.array(M)
+
+
+def _in_group(message: str, group: int, name: str, offset: int) -> str:
+    """An error of event group ``group``'s map, with its rows renamed to the caller's."""
+    message = re.sub(r"\b[VW]\[(\d+)\]", lambda m: f"{name}[{int(m.group(1)) + offset}]",
+                     message)
+    return f"in event group {group} of the flow map, for the vectors entering it: {message}"

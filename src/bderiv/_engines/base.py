@@ -33,21 +33,21 @@ class Engine:
     def fast_path(self):
         return None if self.fast is None else self.fast.kind
 
-    def map(self, V, out, inverse: bool, name: str = "V", offset: int = 0) -> None:
-        """out = M(V), or M^-1(V) when ``inverse``."""
+    def map(self, V, out, inverse: bool, name: str = "V", offset: int = 0) -> int:
+        """out = M(V), or M^-1(V) when ``inverse``; returns the number of non-finite rows
+        of ``out`` (overflow: the caller reports them)."""
         if self.fast is None:
-            self._apply(V, out, inverse, name, offset)
-        elif self.fast.kind == "linear":
-            self.fast.apply_linear(V, out, inverse, self.launch)
-        else:
-            self._apply_own_rates(V, out, inverse)
+            return self._apply(V, out, inverse, name, offset)
+        if self.fast.kind == "linear":
+            return self.fast.apply_linear(V, out, inverse, self.launch)
+        return self._apply_own_rates(V, out, inverse)
 
-    def event_times(self, V, times, orders, offset: int = 0) -> None:
-        """times[q, k]: time of event k; orders[q, j]: the j-th event."""
+    def event_times(self, V, times, orders, offset: int = 0) -> int:
+        """times[q, k]: time of event k; orders[q, j]: the j-th event. Returns the number
+        of rows of ``times`` that are not finite."""
         if self.fast is None:
-            self._event_times(V, times, orders, offset)
-        else:
-            self.fast.event_times(V, times, orders, self.launch)
+            return self._event_times(V, times, orders, offset)
+        return self.fast.event_times(V, times, orders, self.launch)
 
     def chain_corners(self, order) -> np.ndarray:
         """F on the n + 1 regions of an order, shape (n + 1, d)."""
@@ -56,13 +56,19 @@ class Engine:
     def piece(self, order) -> np.ndarray:
         """The (d, d) piece of one order; refuses a rate <= 0 on its chain."""
         Fc = np.ascontiguousarray(self.chain_corners(order))
+        regions = chain_regions(order, self.n)
+        where = f"on the chain of order {format_order(order)}"
+        if not np.isfinite(Fc).all():
+            j = int(np.flatnonzero(~np.isfinite(Fc).all(axis=1))[0])
+            raise ValueError(
+                f"the corner model gave a non-finite value for region mask "
+                f"{format_happened(regions[j])} {where}; corners must be finite"
+            )
         rates = np.einsum("jd,jd->j", Fc[:-1], self.Dh[order])
         bad = np.flatnonzero(~(rates > 0))
         if bad.size:
             j = int(bad[0])
-            hap = chain_regions(order, self.n)[j]
-            where = f"on the chain of order {format_order(order)}"
-            raise ValueError(transversality_message(int(order[j]), format_happened(hap),
+            raise ValueError(transversality_message(int(order[j]), format_happened(regions[j]),
                                                     float(rates[j]), where))
         out = np.empty((self.d, self.d))
         _core.piece_from_corners(self.Dh, Fc, np.asarray(order, dtype=np.int64), out)

@@ -74,16 +74,16 @@ class DenseEngine(Engine):
             )
         return cls(Dh, F, G, fast_paths)
 
-    def _apply(self, V, out, inverse, name, offset) -> None:
-        kernels.apply(self._tables, V, (out,), inverse, launch=self.launch)
+    def _apply(self, V, out, inverse, name, offset) -> int:
+        return kernels.apply(self._tables, V, (out,), inverse, launch=self.launch)
 
-    def _apply_own_rates(self, V, out, inverse) -> None:
+    def _apply_own_rates(self, V, out, inverse) -> int:
         rate = self.fast.ratef if inverse else self.fast.rate0
-        kernels.apply_sorted((self._tables[0], self.F, rate), V, (out,), inverse,
+        return kernels.apply_sorted((self._tables[0], self.F, rate), V, (out,), inverse,
                              launch=self.launch)
 
-    def _event_times(self, V, times, orders, offset) -> None:
-        kernels.event_times(self._tables, V, (times, orders), launch=self.launch)
+    def _event_times(self, V, times, orders, offset) -> int:
+        return kernels.event_times(self._tables, V, (times, orders), launch=self.launch)
 
     def corners(self, happened) -> np.ndarray:
         bits = np.asarray(happened, dtype=np.int64)

@@ -42,11 +42,11 @@ class FastPath:
             self.Minv = eye - A.T @ (Dh / ratef[:, None])
             self._MT = (np.ascontiguousarray(self.M.T), np.ascontiguousarray(self.Minv.T))
 
-    def apply_linear(self, V, out, inverse: bool, launch: int) -> None:
-        _core.linear(self._MT, V, (out,), inverse, launch)
+    def apply_linear(self, V, out, inverse: bool, launch: int) -> int:
+        return _core.linear(self._MT, V, (out,), inverse, launch)
 
-    def event_times(self, V, times, orders, launch: int) -> None:
-        _core.own_times((self.DhT, self.rate0), V, (times, orders), False, launch)
+    def event_times(self, V, times, orders, launch: int) -> int:
+        return _core.own_times((self.DhT, self.rate0), V, (times, orders), False, launch)
 
 
 def dense(F, G, Dh, rtol: float = FAST_RTOL):

@@ -25,15 +25,17 @@ class FunctionEngine(Engine):
         """The engine of a corner model's ``corner_function()``, checked on two regions."""
         return cls(Dh, checked_function(model, *Dh.shape))
 
-    def _apply(self, V, out, inverse, name, offset) -> None:
+    def _apply(self, V, out, inverse, name, offset) -> int:
         status = np.empty(V.shape[0], dtype=np.int64)
-        self._apply_batch(self._tables, V, (out, status), inverse, launch=self.launch)
+        bad = self._apply_batch(self._tables, V, (out, status), inverse, launch=self.launch)
         self._check(status, V, inverse, name, offset)
+        return bad
 
-    def _event_times(self, V, times, orders, offset) -> None:
+    def _event_times(self, V, times, orders, offset) -> int:
         status = np.empty(V.shape[0], dtype=np.int64)
-        self._times_batch(self._tables, V, (times, orders, status), launch=self.launch)
+        bad = self._times_batch(self._tables, V, (times, orders, status), launch=self.launch)
         self._check(status, V, False, "V", offset)
+        return bad
 
     def _diagnose(self, u, inverse, hap, r):
         return kernels.diagnose(self.func, self._tables[0], u, inverse, hap, r)

@@ -73,21 +73,23 @@ class StructuredEngine(Engine):
                 )
         return False
 
-    def _apply(self, V, out, inverse, name, offset) -> None:
+    def _apply(self, V, out, inverse, name, offset) -> int:
         status = np.empty(V.shape[0], dtype=np.int64)
-        kernels.apply(self._tables, V, (out, status), inverse, launch=self.launch)
+        bad = kernels.apply(self._tables, V, (out, status), inverse, launch=self.launch)
         self._check(status, V, inverse, name, offset)
+        return bad
 
-    def _apply_own_rates(self, V, out, inverse) -> None:
+    def _apply_own_rates(self, V, out, inverse) -> int:
         t = self._tables
         rate = self.fast.ratef if inverse else self.fast.rate0
-        kernels.apply_own_rates((t[0], rate, self.model.pairs, t[8], t[9]), V, (out,),
+        return kernels.apply_own_rates((t[0], rate, self.model.pairs, t[8], t[9]), V, (out,),
                                 inverse, launch=self.launch)
 
-    def _event_times(self, V, times, orders, offset) -> None:
+    def _event_times(self, V, times, orders, offset) -> int:
         status = np.empty(V.shape[0], dtype=np.int64)
-        kernels.event_times(self._tables, V, (times, orders, status), launch=self.launch)
+        bad = kernels.event_times(self._tables, V, (times, orders, status), launch=self.launch)
         self._check(status, V, False, "V", offset)
+        return bad
 
     def _diagnose(self, u, inverse, hap, r):
         return kernels.diagnose(self._tables, u, inverse, hap, r)

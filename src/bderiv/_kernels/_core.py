@@ -13,12 +13,13 @@ No validation here: callers pass C-contiguous arrays of consistent shapes.
 from __future__ import annotations
 
 import hashlib
-import inspect
+import pathlib
 import threading
 
 import numba
 import numpy as np
 from numba import njit, parallel_chunksize, prange
+from numba.core.caching import FunctionCache
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
@@ -48,27 +49,45 @@ def launch_queries(n: int, d: int) -> int:
 INSERTION_SORT_MAX = 24
 
 
-def _pin_cache_key(block) -> None:
-    """Give ``block`` a dispatcher id derived from its source file.
+class _DriverCache(FunctionCache):
+    """The on-disk cache of a driver, keyed by the sources of the kernel package.
 
-    Numba keys the on-disk cache of a closure by the pickle of its free variables; a
-    dispatcher pickles with a random per-process id, so drivers closing over a block would
-    miss the cache in every process. A fixed id makes the key stable, and hashing the
-    block's source file into it makes an edit of that file invalidate the drivers built
-    on it (numba itself only watches the driver's own file). ``_set_uuid`` is numba's
-    internal setter; without it the drivers still work, they just compile per process.
+    Numba keys the cache of a closure by the pickle of what it closes over; a dispatcher
+    pickles with per-process ids (its own and those of every jitted function it calls), so
+    a driver closing over a block would miss the cache in every process and grow its
+    index. This key is the signature and a digest of every source file of ``_kernels``:
+    found again by every process, and invalidated by any edit of a block or of anything
+    it calls (numba itself watches only the driver's own file). ``FunctionCache`` is numba
+    internals; :func:`_cached` falls back to compiling per process without it.
     """
-    path = inspect.getsourcefile(block.py_func)
-    with open(path, "rb") as fh:
-        digest = hashlib.sha256(fh.read()).hexdigest()[:16]
+
+    def __init__(self, py_func, key: str):
+        super().__init__(py_func)
+        self._key = key
+
+    def _index_key(self, sig, codegen):
+        return (sig, codegen.magic_tuple(), (self._key,))
+
+
+def _sources_digest() -> str:
+    """sha256 of the source files of this package (``_kernels``)."""
+    h = hashlib.sha256()
+    for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
+        h.update(path.name.encode() + path.read_bytes())
+    return h.hexdigest()
+
+
+_SOURCES = _sources_digest()
+
+
+def _cached(dispatcher, block):
+    """Turn on the :class:`_DriverCache` of a driver of ``block``."""
+    key = f"{block.py_func.__module__}.{block.py_func.__qualname__}:{_SOURCES}"
     try:
-        block._set_uuid(f"bderiv:{block.py_func.__module__}.{block.__name__}:{digest}")
-        states = block._reduce_states
-    except (AttributeError, AssertionError):  # another numba, or already pickled
-        return
-    # the pickle also lists the signatures compiled so far, which differ between the
-    # cache look-up and the save: leave them out (unpickling finds the dispatcher by its id)
-    block._reduce_states = lambda: {**states(), "sigs": []}
+        dispatcher._cache = _DriverCache(dispatcher.py_func, key)
+    except Exception:  # another numba: leave the driver uncached  # noqa: BLE001
+        pass
+    return dispatcher
 
 
 #: numba's ``workqueue`` threading layer (its fallback without OpenMP or TBB) aborts the
@@ -89,44 +108,54 @@ class Batch:
     """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``."""
 
     def __init__(self, block, cache: bool = True):
-        if cache:
-            _pin_cache_key(block)
-        jit = dict(JIT, cache=cache)
+        jit = dict(JIT, cache=False)  # see _DriverCache
 
         @njit(**jit)
         def serial(tables, V, outs, inverse):
             block(tables, V, outs, 0, V.shape[0], inverse)
+            return nonfinite_rows(outs[0], 0, V.shape[0])
 
         @njit(parallel=True, **jit)
         def tasks(tables, V, outs, inverse):
             m = V.shape[0]
+            bad = 0
             for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
                 start = task * TASK_QUERIES
-                block(tables, V, outs, start, min(start + TASK_QUERIES, m), inverse)
+                stop = min(start + TASK_QUERIES, m)
+                block(tables, V, outs, start, stop, inverse)
+                bad += nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
+            return bad
 
+        if cache:
+            serial, tasks = _cached(serial, block), _cached(tasks, block)
         self.block, self.serial, self.tasks = block, serial, tasks
 
-    def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> None:
-        """Run the block on every row of ``V``; ``launch``: queries per kernel launch."""
+    def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> int:
+        """Run the block on every row of ``V``; ``launch``: queries per kernel launch.
+
+        Returns the number of rows of ``outs[0]`` with a non-finite entry (an overflow, or a
+        query that a model's kernel stopped and left unwritten).
+        """
         m = V.shape[0]
         if m < PARALLEL_MIN_QUERIES:
-            self.serial(tables, V, outs, inverse)
-            return
+            return self.serial(tables, V, outs, inverse)
+        bad = 0
         for start in range(0, m, launch):
             stop = min(start + launch, m)
             part = tuple(o[start:stop] for o in outs)
-            self._launch(tables, V[start:stop], part, inverse)
+            bad += self._launch(tables, V[start:stop], part, inverse)
+        return bad
 
-    def _launch(self, tables, V, outs, inverse) -> None:
+    def _launch(self, tables, V, outs, inverse) -> int:
         # dynamic schedule, one task at a time (set outside the jit: inside it, numba could
         # not cache the function)
         if _SAFE_LAYER[0]:
             with parallel_chunksize(1):
-                self.tasks(tables, V, outs, inverse)
-            return
+                return self.tasks(tables, V, outs, inverse)
         with _LAUNCH_LOCK, parallel_chunksize(1):
-            self.tasks(tables, V, outs, inverse)
+            bad = self.tasks(tables, V, outs, inverse)
             _note_layer()
+        return bad
 
 
 def batch(block, cache: bool = True) -> Batch:
@@ -138,6 +167,18 @@ def batch(block, cache: bool = True) -> Batch:
 # ----------------------------------------------------------------------------------------
 # steps shared by the representations
 # ----------------------------------------------------------------------------------------
+@njit(**JIT)
+def nonfinite_rows(a, start, stop):
+    """How many of the rows ``a[start:stop]`` hold a NaN or an infinity."""
+    bad = 0
+    for q in range(start, stop):
+        s = 0.0
+        for i in range(a.shape[1]):
+            s += a[q, i] * 0.0  # 0 for a finite entry, NaN for inf or NaN
+        bad += s != s
+    return bad
+
+
 @njit(**JIT)
 def impacts(DhT, u, g):
     """g = Dh @ u from DhT = Dh.T (d, n), as axpys over the rows of DhT (vectorises)."""

@@ -44,6 +44,10 @@ def chain(DhT, g0, gfull, a, bDh, ptr, other, pidx, u, inverse, check,
     of tau mapped to int64 in the same order; the smallest event holding that key (ties to
     the smaller event); the update of ``g`` and ``r`` by the jump of the selected event
     and its active pairs, gathered into position order once (``jump``).
+
+    One function of about 75 lines on purpose: the per-query hot loop, whose steps share
+    the position bookkeeping (``perm``, ``posof``, ``npos``) that a split would have to
+    pass around; each step is marked by a comment.
     """
     n = g.shape[0]
     impacts(DhT, u, jump)

@@ -1,0 +1,57 @@
+"""The kernel core: its on-disk cache is found again by a new process, and long batches are
+cut into launches without changing a bit of the result."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+from reference import random_system
+
+from bderiv import BDerivative
+from bderiv._kernels import _core
+
+_PROBE = """
+import json, numpy as np
+from bderiv import BDerivative
+from bderiv._kernels import dense
+F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [2.0, 2.0, 0.0]])
+bd = BDerivative(np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]]), F, fast_paths=False)
+V = np.random.default_rng(0).standard_normal((5000, 3))
+bd(V[:3]); bd(V)
+stats = [dense.apply.serial.stats, dense.apply.tasks.stats]
+print(json.dumps([[sum(s.cache_hits.values()), sum(s.cache_misses.values())] for s in stats]))
+"""
+
+
+def test_drivers_load_from_the_disk_cache_in_a_new_process():
+    runs = []
+    for _ in range(2):  # the first run may compile; the second must load what it saved
+        out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr
+        runs.append(json.loads(out.stdout))
+    assert runs[1] == [[1, 0], [1, 0]], runs  # (hits, misses) of the serial and parallel drivers
+
+
+def test_launches_do_not_change_the_result(monkeypatch):
+    rng = np.random.default_rng(5)
+    Dh, F = random_system(rng, 5, 6)
+    bd = BDerivative(Dh, F)
+    V = rng.standard_normal((5000, 6))
+    whole = bd(V)
+    assert bd.inverse(whole).shape == V.shape
+    monkeypatch.setattr(_core, "launch_queries", lambda n, d: 1024)  # 5 launches, one short
+    cut = BDerivative(Dh, F)
+    np.testing.assert_array_equal(cut(V), whole)
+    times, order = bd.event_times(V)
+    t2, o2 = cut.event_times(V)
+    np.testing.assert_array_equal(t2, times)
+    np.testing.assert_array_equal(o2, order)
+
+
+def test_launch_sizes():
+    assert _core.launch_queries(8, 8) == 1 << 18
+    assert _core.launch_queries(128, 128) == 1 << 14  # floor
+    assert _core.launch_queries(1, 1) == 1 << 20  # ceiling
