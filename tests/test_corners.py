@@ -237,6 +237,12 @@ def test_structured_violation_found_by_the_query():
         bd.inverse(V)
     with pytest.raises(ValueError, match=r"transversality violated on the chain of V\[0\]"):
         bd.apply(V, chunk_size=1)
+    # in a batch of several leading axes the vector is named by its full index
+    batch = np.tile(V[1], (2, 3, 1))
+    batch[1, 2] = V[0]
+    for kwargs in ({}, {"chunk_size": 4}):
+        with pytest.raises(ValueError, match=r"on the chain of V\[1, 2\]: event 2 has rate"):
+            bd(batch, **kwargs)
     with pytest.raises(ValueError, match=r"event 2 has rate -0.2"):
         bd.piece([0, 1, 2])
     bd(V[1])  # V[1] never visits 0b011 (event 2 happens before event 0)

@@ -229,8 +229,7 @@ def test_triangulation_bad_queries():
     V[2, 1, 0] = np.nan  # row 9 of 12: chunk 4 of size 2; named by its index in V
     with pytest.raises(ValueError, match=r"must be finite, but vector V\[2, 1\] = \[nan  1\.\]"):
         tri(V, chunk_size=2)
-    with pytest.raises(ValueError, match=r"the map of row 1 of W .* is not finite: the "
-                                         r"computation overflowed"):
+    with pytest.raises(ValueError, match=r"the result for W\[1\] overflowed \(not finite\)"):
         tri.inverse([[1.0, 1.0], [1e308, -1e308]])  # finite, but the weights overflow
 
 

@@ -8,6 +8,8 @@ asked, chunk by chunk with progress reports; or, for a dask array, lazily block 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from ._validate import check_out, check_points, check_positive_int
@@ -72,7 +74,7 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
         res = result.reshape(-1, dim)
         if out is not None and np.may_share_memory(flat, res):
             flat = flat.copy()
-        kernel(flat, res, 0)
+        _run(kernel, flat, res, 0, name, lead)
         return result
     return _chunked(kernel, V, dim, name, out, chunk_size, progress, desc)
 
@@ -103,12 +105,28 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
         flat, _ = check_points(rows[start:stop], dim, name, index_shape=lead, offset=start)
         if out is not None and np.may_share_memory(flat, res):
             flat = flat.copy()
-        kernel(flat, res[start:stop], start)
+        _run(kernel, flat, res[start:stop], start, name, lead)
         if progress is not None:
             progress(stop, total)
     if progress is not None and total == 0:
         progress(0, 0)
     return result
+
+
+def _run(kernel, rows, res, offset, name, lead) -> None:
+    """``kernel(rows, res, offset)``; its errors name rows by their flat index, ``V[5]``,
+    which for a batch with several leading axes becomes the full index, ``V[1, 2]``."""
+    if len(lead) < 2:
+        kernel(rows, res, offset)
+        return
+    try:
+        kernel(rows, res, offset)
+    except ValueError as exc:
+        def full(m):
+            index = np.unravel_index(int(m.group(1)), lead)
+            return f"{name}[{', '.join(str(int(i)) for i in index)}]"
+
+        raise ValueError(re.sub(rf"\b{name}\[(\d+)\]", full, str(exc))) from None
 
 
 def _same_rows(a: np.ndarray, b: np.ndarray) -> bool:

@@ -102,6 +102,8 @@ def row_norms(A: np.ndarray) -> np.ndarray:
 
 #: a rate whose factors multiply below 10**UNDERFLOW_LOG10 is lost to underflow
 UNDERFLOW_LOG10 = -290
+#: the smallest normal float64: rates below it are subnormal (fewer than 53 bits)
+TINY = np.finfo(np.float64).tiny
 
 
 def find_transversality_violation(G, F, Dh, tol):
@@ -117,7 +119,8 @@ def find_transversality_violation(G, F, Dh, tol):
         f_norm = row_norms(F[rows])
         with np.errstate(over="ignore"):
             scale = f_norm[:, None] * dh_norm
-        bad = (G[rows] <= tol * scale) | ~np.isfinite(G[rows])
+        # a subnormal rate (below finfo.tiny) has lost digits: never accepted
+        bad = (G[rows] <= tol * scale) | (G[rows] < TINY) | ~np.isfinite(G[rows])
         if bad.any():
             if not np.isfinite(G[rows]).all():
                 i, k = np.argwhere(~np.isfinite(G[rows]))[0]
@@ -128,7 +131,7 @@ def find_transversality_violation(G, F, Dh, tol):
             kind = "violated" if neg.any() else "grazing"
             # |F| |Dh| below ~1e-290: the rate is lost to underflow, not known to be <= 0
             log_scale = np.log10(max(f_norm[i], 1e-320)) + np.log10(max(dh_norm[k], 1e-320))
-            if abs(G[rows.start + i, k]) < np.finfo(float).tiny and log_scale < UNDERFLOW_LOG10:
+            if abs(G[rows.start + i, k]) < TINY and log_scale < UNDERFLOW_LOG10:
                 return rows.start + int(i), int(k), "underflow", float(log_scale)
             return rows.start + int(i), int(k), kind, float(scale[i, k])
     return None

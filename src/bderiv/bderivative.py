@@ -271,6 +271,10 @@ class BDerivative:
             check_finite_result(times, "V", 0, "event times")
         return times.reshape(lead + (n,)), order.reshape(lead + (n,))
 
+    def orders(self, V) -> np.ndarray:
+        """The event order (piece) of each vector: ``event_times(V)[1]``, shape (..., n)."""
+        return self.event_times(V)[1]
+
     # -- pieces -----------------------------------------------------------------------------
 
     def piece(self, order) -> np.ndarray:

@@ -109,8 +109,8 @@ class FlowBDerivative:
                 f"group_events has {len(self.group_events)} groups but there are "
                 f"{len(jumps)} jumps"
             )
-        self.x0 = None if x0 is None else np.array(x0, dtype=np.float64)
-        self.x_final = None if x_final is None else np.array(x_final, dtype=np.float64)
+        self.x0 = None if x0 is None else _read_only(x0)
+        self.x_final = None if x_final is None else _read_only(x_final)
         self.t_final = None if t_final is None else float(t_final)
 
     # ------------------------------------------------------------------------------
@@ -141,7 +141,7 @@ class FlowBDerivative:
     def __setstate__(self, state):
         # unpickled arrays come back writeable; keep the stages read-only as built
         self.__dict__.update(state)
-        for arr in (*self._linear, self.final_field):
+        for arr in (*self._linear, self.final_field, self.x0, self.x_final):
             if arr is not None:
                 arr.setflags(write=False)
 
@@ -158,12 +158,7 @@ class FlowBDerivative:
             with np.errstate(over="ignore", invalid="ignore"):
                 W = W @ L.T
             if not all_finite(W):
-                q = int(np.flatnonzero(~np.isfinite(W).all(axis=1))[0])
-                raise ValueError(
-                    f"the flow map overflowed for {name}[{q + offset}] in its linear stage "
-                    f"linear[{i}] (not finite, although the input is finite); the map is "
-                    f"positively homogeneous: scale the vectors down and the result up"
-                )
+                check_finite_result(W, name, offset, f"result of linear stage linear[{i}]")
             out.append(W)
             if i < len(self._jumps):
                 try:
@@ -372,3 +367,10 @@ def _in_group(message: str, group: int, name: str, offset: int) -> str:
     message = re.sub(r"\b[VW]\[(\d+)\]", lambda m: f"{name}[{int(m.group(1)) + offset}]",
                      message)
     return f"in event group {group} of the flow map, for the vectors entering it: {message}"
+
+
+def _read_only(a) -> np.ndarray:
+    """A read-only float64 copy."""
+    arr = np.array(a, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr

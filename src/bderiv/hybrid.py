@@ -34,6 +34,7 @@ from .simulate import EventGroup, EventRecord, SolverOptions, Trajectory, run
 # EventGroup, EventRecord, Trajectory live in bderiv.simulate; re-exported for old imports
 __all__ = ["EventGroup", "EventRecord", "HybridSystem", "SolverOptions", "Trajectory"]
 
+
 def _spread_masks(events, mask_before):
     """Global masks of all 2**g local masks of a group (bit j of local = event events[j])."""
     g = len(events)
@@ -303,8 +304,7 @@ class HybridSystem:
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
-        return run(self, x0, t_final, simultaneity_tol=simultaneity_tol,
-                            options=options)
+        return run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options)
 
     def flow_bderivative(self, x0, t_final, *, simultaneity_tol=1e-7, options=None,
                          rtol=None, atol=None, method=None, max_step=None):
@@ -337,8 +337,8 @@ class HybridSystem:
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
-        traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol,
-                            options=options, variational=True)
+        traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
+                   variational=True)
         jumps = [
             self._bderivative_at(g.state, g.events, g.mask_before,
                                  where=f"at the event point at t={g.time:.10g}")

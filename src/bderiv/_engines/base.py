@@ -81,6 +81,13 @@ class Engine:
             F[rows] = self.corners(happened_rows(np.arange(rows.start, rows.stop), self.n))
         return F
 
+    def _run_checked(self, batch, V, outs, inverse, name, offset) -> int:
+        """Run a model kernel that reports a status per query, then :meth:`_check` it."""
+        status = np.empty(V.shape[0], dtype=np.int64)
+        bad = batch(self._tables, V, (*outs, status), inverse, launch=self.launch)
+        self._check(status, V, inverse, name, offset)
+        return bad
+
     def _check(self, status, V, inverse, name, offset) -> None:
         """Raise for the first query whose chain stopped (status != -1)."""
         bad = np.flatnonzero(status != -1)

@@ -26,16 +26,10 @@ class FunctionEngine(Engine):
         return cls(Dh, checked_function(model, *Dh.shape))
 
     def _apply(self, V, out, inverse, name, offset) -> int:
-        status = np.empty(V.shape[0], dtype=np.int64)
-        bad = self._apply_batch(self._tables, V, (out, status), inverse, launch=self.launch)
-        self._check(status, V, inverse, name, offset)
-        return bad
+        return self._run_checked(self._apply_batch, V, (out,), inverse, name, offset)
 
     def _event_times(self, V, times, orders, offset) -> int:
-        status = np.empty(V.shape[0], dtype=np.int64)
-        bad = self._times_batch(self._tables, V, (times, orders, status), launch=self.launch)
-        self._check(status, V, False, "V", offset)
-        return bad
+        return self._run_checked(self._times_batch, V, (times, orders), False, "V", offset)
 
     def _diagnose(self, u, inverse, hap, r):
         return kernels.diagnose(self.func, self._tables[0], u, inverse, hap, r)

@@ -74,22 +74,16 @@ class StructuredEngine(Engine):
         return False
 
     def _apply(self, V, out, inverse, name, offset) -> int:
-        status = np.empty(V.shape[0], dtype=np.int64)
-        bad = kernels.apply(self._tables, V, (out, status), inverse, launch=self.launch)
-        self._check(status, V, inverse, name, offset)
-        return bad
+        return self._run_checked(kernels.apply, V, (out,), inverse, name, offset)
 
     def _apply_own_rates(self, V, out, inverse) -> int:
         t = self._tables
         rate = self.fast.ratef if inverse else self.fast.rate0
         return kernels.apply_own_rates((t[0], rate, self.model.pairs, t[8], t[9]), V, (out,),
-                                inverse, launch=self.launch)
+                                       inverse, launch=self.launch)
 
     def _event_times(self, V, times, orders, offset) -> int:
-        status = np.empty(V.shape[0], dtype=np.int64)
-        bad = kernels.event_times(self._tables, V, (times, orders, status), launch=self.launch)
-        self._check(status, V, False, "V", offset)
-        return bad
+        return self._run_checked(kernels.event_times, V, (times, orders), False, "V", offset)
 
     def _diagnose(self, u, inverse, hap, r):
         return kernels.diagnose(self._tables, u, inverse, hap, r)
