@@ -47,7 +47,7 @@ def test_triangulation(planar, tmp_path):
     left, right = fig.axes[:2]
     assert len(left.patches) == len(right.patches) == 4  # 2 * 2! simplices
     assert "pre-event" in left.get_title() and "post-event" in right.get_title()
-    assert "B-derivative at the event point" in fig._suptitle.get_text()
+    assert "B-derivative at the event point" in fig.get_suptitle()
     assert "U[0b01]" in [t.get_text() for t in left.texts]
     png_bytes(fig)
     tri = planar.triangulation()
@@ -74,7 +74,7 @@ def test_pieces_all_and_sampled():
     F = rng.uniform(0.5, 1.5, (32, 5))  # n = 5: 120 pieces, too many to show all
     fig = plot.pieces(BDerivative(np.eye(5), F), max_pieces=10, n_samples=500)
     assert len(fig.axes[0].patches) == 10
-    assert "most visited" in fig._suptitle.get_text()
+    assert "most visited" in fig.get_suptitle()
     png_bytes(fig)
 
 
