@@ -32,6 +32,14 @@ def happened_rows(masks, n: int) -> np.ndarray:
     return mask_bits(masks, n, np.uint8)
 
 
+def tabulate(corners, n: int, d: int) -> np.ndarray:
+    """The (2**n, d) table of a model's ``corners(happened)``, built block by block."""
+    F = np.empty((1 << n, d))
+    for rows in blocks(F.shape[0]):
+        F[rows] = corners(happened_rows(np.arange(rows.start, rows.stop), n))
+    return F
+
+
 def chain_regions(order, n: int) -> np.ndarray:
     """uint8 (n + 1, n) flags of the regions along an order: row j = events order[:j]."""
     hap = np.zeros((n + 1, n), dtype=np.uint8)

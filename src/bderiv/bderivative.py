@@ -20,7 +20,7 @@ from ._validate import (
     check_pieces,
     check_points,
 )
-from .corners import MAX_TABLE_EVENTS, CornerModel, StructuredCorners
+from .corners import CornerModel, StructuredCorners, check_table_size
 
 #: default cap on the number of pieces ``pieces()`` and ``triangulation()`` will build.
 MAX_PIECES = 40320  # 8!
@@ -359,19 +359,10 @@ class BDerivative:
 
         self._require_full_rank("the triangulation")
         if self.model is not None:  # the pieces are counted before a table is built
-            self._check_table_events("the triangulation")
+            check_table_size(self.n_events, self.dim, "the triangulation")
             check_pieces(self.n_events, max_pieces)
             return self.to_dense("the triangulation").triangulation(max_pieces)
         return Triangulation.from_bderivative(self, max_pieces=max_pieces)
-
-    def _check_table_events(self, what: str) -> None:
-        n = self.n_events
-        if n > MAX_TABLE_EVENTS:
-            raise ValueError(
-                f"{what} of a corner model with n={n} events needs its dense table of "
-                f"2**{n} rows; this is refused for n > {MAX_TABLE_EVENTS}. apply, inverse, "
-                f"event_times and piece work without it"
-            )
 
     def to_dense(self, what: str = "the dense table", memory_limit=None) -> BDerivative:
         """This map with its corners as a dense (2**n, d) table.
@@ -388,7 +379,7 @@ class BDerivative:
         if self.model is None:
             return self
         n, d = self.n_events, self.dim
-        self._check_table_events(what)
+        check_table_size(n, d, what)
         check_memory(_tables.dense_table_bytes(n, d), memory_limit,
                       f"{what} of a corner model with n={n} events in dimension d={d} "
                       f"(its dense table)")

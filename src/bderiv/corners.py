@@ -73,14 +73,15 @@ class CornerModel(Protocol):
     def corner_function(self): ...
 
 
-def check_table_size(n: int, d: int) -> None:
-    """Refuse a dense table of a model above ``MAX_TABLE_EVENTS`` events."""
+def check_table_size(n: int, d: int, what: str = "the dense table") -> None:
+    """Refuse ``what`` (something that needs a model's dense table) above
+    ``MAX_TABLE_EVENTS`` events."""
     if n > MAX_TABLE_EVENTS:
         raise ValueError(
-            f"the dense table of a corner model with n={n} events has 2**{n} rows "
-            f"({_tables.human_bytes(_tables.dense_table_bytes(n, d))}); it is built only "
-            f"for n <= {MAX_TABLE_EVENTS}. apply, inverse, event_times and piece work "
-            f"for any n without it"
+            f"{what} of a corner model with n={n} events needs its dense table of 2**{n} "
+            f"rows ({_tables.human_bytes(_tables.dense_table_bytes(n, d))}); this is refused "
+            f"for n > {MAX_TABLE_EVENTS}. apply, inverse, event_times and piece work for any "
+            f"n without it"
         )
 
 
@@ -107,10 +108,7 @@ class _Tabulated:
         """The dense (2**n, d) table (n <= ``MAX_TABLE_EVENTS``), e.g. for comparisons."""
         n, d = self._sizes("the dense table")
         check_table_size(n, d)
-        F = np.empty((1 << n, d))
-        for rows in _tables.blocks(F.shape[0]):
-            F[rows] = self.corners(_tables.happened_rows(np.arange(rows.start, rows.stop), n))
-        return F
+        return _tables.tabulate(self.corners, n, d)
 
 
 class StructuredCorners(_Tabulated):

@@ -8,7 +8,7 @@ import numpy as np
 
 from .._format import format_happened, format_order, transversality_message
 from .._kernels import _core
-from .._tables import blocks, chain_regions, happened_rows
+from .._tables import chain_regions, tabulate
 
 
 class Engine:
@@ -76,10 +76,7 @@ class Engine:
 
     def dense_table(self) -> np.ndarray:
         """The (2**n, d) table (callers check the size first)."""
-        F = np.empty((1 << self.n, self.d))
-        for rows in blocks(F.shape[0]):
-            F[rows] = self.corners(happened_rows(np.arange(rows.start, rows.stop), self.n))
-        return F
+        return tabulate(self.corners, self.n, self.d)
 
     def _run_checked(self, batch, V, outs, inverse, name, offset) -> int:
         """Run a model kernel that reports a status per query, then :meth:`_check` it."""
