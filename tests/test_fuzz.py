@@ -37,7 +37,7 @@ from reference import (
 from bderiv import BDerivative
 
 #: the refusals a fuzz outcome may be: each names its cause.
-REFUSALS = ("transversality violated", "grazing", "overflow", "non-finite")
+REFUSALS = ("transversality violated", "grazing", "ill-conditioned", "overflow", "non-finite")
 
 
 @dataclass

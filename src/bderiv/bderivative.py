@@ -52,10 +52,18 @@ class BDerivative:
         that gives the corners without storing 2**n rows (any n; transversality is then
         checked as described in :mod:`bderiv.corners`).
     transversality_tol : float, optional
-        Rates ``G[mask, k] = F[mask] . Dh[k]`` must exceed
-        ``transversality_tol * |F[mask]| * |Dh[k]|``; smaller positive rates are refused
-        as grazing (event times would be ill-conditioned). Default 1e-9. Dense tables
-        only: a corner model's rates are checked to be > 0 (see :mod:`bderiv.corners`).
+        Default 1e-9; 0 turns both tests off. Dense tables are refused when a rate
+        ``G[mask, k] = F[mask] . Dh[k]`` is at most ``transversality_tol * |F[mask]| *
+        |Dh[k]|`` (grazing: the surface nearly tangent to the flow), or when one event's
+        rates over the regions where it is pending differ by more than a factor
+        ``1 / transversality_tol`` (ill-conditioned: a time gap left in rounding by a
+        fast region is stretched by that factor in a slow one). What this guarantees:
+        the time of each event, computed from u and the earlier events, carries the
+        rounding of what it is computed from magnified at most ``rate_spread`` times, and
+        M(u) is then accurate to about ``n * eps * rate_spread`` of its scale, ties
+        included; an order that passes several such slow-downs of *different* events can
+        compound them (see docs/mathematics.md). Corner models: their rates are checked to
+        be > 0 only (see :mod:`bderiv.corners`).
     memory_limit : int, optional
         Bytes the dense tables may take; default: the memory currently available (dense
         tables only).
@@ -83,6 +91,10 @@ class BDerivative:
         the corners are additive (``F[mask] = F[0] + sum_{k in mask} A[k]``); then all
         n! pieces coincide and ``M(u) = u - A^T t = (I + A^T diag(1/G[0]) Dh) u``, one
         matrix product per query. None: the general selection with re-read rates.
+    rate_spread : float or None
+        Dense tables: the largest ratio ``max G[:, k] / min G[:, k]`` of one event's rates
+        over the regions where it is pending (the factor by which rounding in event times
+        can be magnified; see ``transversality_tol``). None for a corner model.
     full_rank : bool
         Whether Dh has row rank n (needed for corner points and the triangulation).
     transversality : {"table", "proved", "per-query"}
@@ -95,8 +107,9 @@ class BDerivative:
     TypeError
         If Dh or F is not real-valued (bool, complex, object or string dtypes).
     ValueError
-        On wrong shapes, non-finite entries, a transversality violation or grazing rate
-        (naming the mask and the event), or tables larger than ``memory_limit``.
+        On wrong shapes, non-finite entries, a transversality violation, a grazing rate
+        or ill-conditioned event times (naming the masks and the event), or tables larger
+        than ``memory_limit``.
 
     Examples
     --------
@@ -140,6 +153,7 @@ class BDerivative:
         self.model = None
         self._engine = engine
         self.fast_path = self._engine.fast_path
+        self.rate_spread = engine.rate_spread
         self.transversality = "table"
 
     def _init_model(self, Dh, model, fast_paths: bool) -> None:
@@ -159,6 +173,7 @@ class BDerivative:
         self.Dh, self.F, self.rates, self.model = Dh, None, None, model
         self.n_events, self.dim = n, d
         self.fast_path = self._engine.fast_path
+        self.rate_spread = None
         self.transversality = "proved" if self._engine.transversal_proved else "per-query"
 
     def __repr__(self) -> str:

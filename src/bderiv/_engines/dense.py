@@ -13,10 +13,12 @@ from .base import Engine
 
 
 class DenseEngine(Engine):
-    """``F`` (2**n, d) and ``G = F @ Dh.T`` (2**n, n), both checked by the caller."""
+    """``F`` (2**n, d) and ``G = F @ Dh.T`` (2**n, n), both checked by the caller;
+    ``rate_spread``: the largest ratio of one event's rates (``_check_spread``)."""
 
-    def __init__(self, Dh, F, G, fast_paths: bool = True):
+    def __init__(self, Dh, F, G, fast_paths: bool = True, rate_spread: float = 1.0):
         self.Dh, self.F, self.G = Dh, F, G
+        self.rate_spread = rate_spread
         self.n, self.d = Dh.shape
         self._tables = (np.ascontiguousarray(Dh.T), F, G)
         self.fast = fastpath.dense(F, G, Dh) if fast_paths else None
@@ -72,7 +74,26 @@ class DenseEngine(Engine):
                 f"{scale:.3g} (transversality_tol={transversality_tol:g}); the surface is "
                 f"nearly tangent to the flow"
             )
-        return cls(Dh, F, G, fast_paths)
+        spread = cls._check_spread(G, n, transversality_tol)
+        return cls(Dh, F, G, fast_paths, spread)
+
+    @staticmethod
+    def _check_spread(G, n, tol) -> float:
+        """Refuse an event whose rate varies by more than ``1 / tol`` over the regions
+        where it is pending; returns the largest such ratio (the documented bound)."""
+        ratio, k, slow, fast = kernels.widest_rate_spread(G)
+        if tol > 0 and not ratio * tol <= 1.0:
+            raise ValueError(
+                f"ill-conditioned event times: the rate of event {k} is "
+                f"G[{fast}, {k}] = {G[fast, k]:.3g} in region mask {format_mask(fast, n)} but "
+                f"G[{slow}, {k}] = {G[slow, k]:.3g} in region mask {format_mask(slow, n)} "
+                f"({MASK_MEANING}), {ratio:.3g} times slower, more than "
+                f"1 / transversality_tol = {1.0 / tol:.3g}: a time gap that the fast "
+                f"region leaves in rounding is stretched that much in the slow one, so "
+                f"results near ties would be rounding noise; rescale the regions' fields "
+                f"or pass a smaller transversality_tol to accept it"
+            )
+        return ratio
 
     def _apply(self, V, out, inverse, name, offset) -> int:
         return kernels.apply(self._tables, V, (out,), inverse, launch=self.launch)

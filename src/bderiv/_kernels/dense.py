@@ -163,3 +163,29 @@ apply = batch(_apply_block)
 event_times = batch(_times_block)
 #: the own-rates fast path: tables (DhT, F, rate), outs (out,).
 apply_sorted = batch(_sorted_block)
+
+
+@njit(**JIT)
+def widest_rate_spread(G):
+    """(ratio, k, slow_mask, fast_mask): the event k whose rate varies most over the
+    regions where it is pending, ``G[fast_mask, k] / G[slow_mask, k]`` (rates positive,
+    checked before). One pass over the table."""
+    N, n = G.shape
+    lo = np.full(n, np.inf)
+    hi = np.zeros(n)
+    lo_at = np.zeros(n, dtype=np.int64)
+    hi_at = np.zeros(n, dtype=np.int64)
+    for B in range(N):
+        for k in range(n):
+            if (B >> k) & 1:
+                continue
+            g = G[B, k]
+            if g < lo[k]:
+                lo[k], lo_at[k] = g, B
+            if g > hi[k]:
+                hi[k], hi_at[k] = g, B
+    worst, kw = 0.0, 0
+    for k in range(n):
+        if hi[k] / lo[k] > worst:
+            worst, kw = hi[k] / lo[k], k
+    return worst, kw, lo_at[kw], hi_at[kw]
