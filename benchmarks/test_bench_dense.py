@@ -190,6 +190,28 @@ def test_threads(benchmark, threads, n, d, m):
         numba.set_num_threads(before)
 
 
+def _tangent_cases():
+    for n in (8, 16):
+        for m in (10**4, 10**6):
+            for c in ("bderiv apply", "bderiv jvp", "bderiv vjp"):
+                marks = [SLOW] if m >= 10**6 or n >= 16 else []
+                yield pytest.param(c, n, m, marks=marks, id=f"n{n}-d{n}-m{m}-{c}")
+
+
+@pytest.mark.parametrize(("contender", "n", "m"), list(_tangent_cases()))
+def test_tangents(benchmark, contender, n, m):
+    """``jvp(V, T)`` and ``vjp(V, W)`` beside ``bd(V)`` (target: vjp within 3x of apply)."""
+    _, _, bd = system(n, n)
+    V, W = queries(n, n, m)
+    out = np.empty_like(V)
+    fn = {"bderiv apply": lambda: bd(V, out=out),
+          "bderiv jvp": lambda: bd.jvp(V, W, out=out),
+          "bderiv vjp": lambda: bd.vjp(V, W, out=out)}[contender]
+    fn()
+    _run(benchmark, fn, name=contender, group=f"tangents n={n} d={n} m={m}", n=n, d=n, m=m,
+         queries_timed=m, est_seconds=2 * _est("bderiv", n, n, m))
+
+
 # ---------------------------------------------------------------------------------------
 # plain tests: construction targets, agreement of contenders and baselines
 # ---------------------------------------------------------------------------------------

@@ -23,7 +23,8 @@ LAYERS = [
     {"_kernels"},
 ]
 #: helpers any layer may use; they import only each other.
-HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines"}
+HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
+           "_linearise"}
 
 
 def _top(path: pathlib.Path) -> str:

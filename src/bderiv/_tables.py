@@ -41,11 +41,16 @@ def tabulate(corners, n: int, d: int) -> np.ndarray:
 
 
 def chain_regions(order, n: int) -> np.ndarray:
-    """uint8 (n + 1, n) flags of the regions along an order: row j = events order[:j]."""
-    hap = np.zeros((n + 1, n), dtype=np.uint8)
-    for j, k in enumerate(order):
-        hap[j + 1 :, k] = 1
-    return hap
+    """uint8 flags of the regions along orders: for ``order`` of shape (..., n), flags of
+    shape (..., n + 1, n) whose row j marks the events ``order[..., :j]``."""
+    order = np.asarray(order, dtype=np.int64)
+    flat = order.reshape(-1, n)
+    hap = np.zeros((flat.shape[0], n + 1, n), dtype=np.uint8)
+    rows = np.arange(flat.shape[0])
+    for j in range(n):
+        hap[:, j + 1] = hap[:, j]
+        hap[rows, j + 1, flat[:, j]] = 1
+    return hap.reshape(order.shape[:-1] + (n + 1, n))
 
 
 def available_memory() -> int:

@@ -12,6 +12,7 @@ from . import _tables
 from ._batch import evaluate
 from ._engines import DenseEngine, FunctionEngine, StructuredEngine
 from ._format import MASK_MEANING, format_mask
+from ._linearise import Linearisation
 from ._validate import (
     check_finite_result,
     check_matrix,
@@ -33,7 +34,7 @@ class CornerPoints(NamedTuple):
     post: np.ndarray
 
 
-class BDerivative:
+class BDerivative(Linearisation):
     """B-derivative of an event-selected piecewise-smooth flow at an n-event point.
 
     The map ``M`` sends a pre-event tangent vector to the post-event tangent vector of the
@@ -52,18 +53,12 @@ class BDerivative:
         that gives the corners without storing 2**n rows (any n; transversality is then
         checked as described in :mod:`bderiv.corners`).
     transversality_tol : float, optional
-        Default 1e-9; 0 turns both tests off. Dense tables are refused when a rate
-        ``G[mask, k] = F[mask] . Dh[k]`` is at most ``transversality_tol * |F[mask]| *
-        |Dh[k]|`` (grazing: the surface nearly tangent to the flow), or when one event's
-        rates over the regions where it is pending differ by more than a factor
-        ``1 / transversality_tol`` (ill-conditioned: a time gap left in rounding by a
-        fast region is stretched by that factor in a slow one). What this guarantees:
-        the time of each event, computed from u and the earlier events, carries the
-        rounding of what it is computed from magnified at most ``rate_spread`` times, and
-        M(u) is then accurate to about ``n * eps * rate_spread`` of its scale, ties
-        included; an order that passes several such slow-downs of *different* events can
-        compound them (see docs/mathematics.md). Corner models: their rates are checked to
-        be > 0 only (see :mod:`bderiv.corners`).
+        Default 1e-9 (0: no test). A dense table is refused when a rate
+        ``G[mask, k] = F[mask] . Dh[k]`` is at most ``tol * |F[mask]| |Dh[k]|`` (grazing),
+        or when one event's rates over the regions where it is pending differ by more than
+        ``1 / tol`` (ill-conditioned). Accepted tables give M(u) to about
+        ``n * eps * rate_spread`` of its scale, ties included (docs/mathematics.md,
+        "Conditioning"). Corner models: rates > 0 only (see :mod:`bderiv.corners`).
     memory_limit : int, optional
         Bytes the dense tables may take; default: the memory currently available (dense
         tables only).
@@ -92,9 +87,8 @@ class BDerivative:
         n! pieces coincide and ``M(u) = u - A^T t = (I + A^T diag(1/G[0]) Dh) u``, one
         matrix product per query. None: the general selection with re-read rates.
     rate_spread : float or None
-        Dense tables: the largest ratio ``max G[:, k] / min G[:, k]`` of one event's rates
-        over the regions where it is pending (the factor by which rounding in event times
-        can be magnified; see ``transversality_tol``). None for a corner model.
+        Dense tables: the largest ratio of one event's rates over the regions where it is
+        pending, the factor by which rounding in event times can grow. None for a model.
     full_rank : bool
         Whether Dh has row rank n (needed for corner points and the triangulation).
     transversality : {"table", "proved", "per-query"}
@@ -289,6 +283,11 @@ class BDerivative:
     def orders(self, V) -> np.ndarray:
         """The event order (piece) of each vector: ``event_times(V)[1]``, shape (..., n)."""
         return self.event_times(V)[1]
+
+    def _tangent_rows(self, VT, res, transpose: bool, offset: int) -> None:
+        """The kernel of ``jvp``/``vjp`` (:class:`~bderiv._linearise.Linearisation`)."""
+        if self._engine.tangents(VT, res, transpose, offset):
+            check_finite_result(res, "V", offset)
 
     # -- pieces -----------------------------------------------------------------------------
 

@@ -21,6 +21,7 @@ import re
 import numpy as np
 
 from ._batch import evaluate, is_dask_array
+from ._linearise import Linearisation
 from ._validate import (
     all_finite,
     check_finite_result,
@@ -33,7 +34,7 @@ from .bderivative import BDerivative
 __all__ = ["FlowBDerivative"]
 
 
-class FlowBDerivative:
+class FlowBDerivative(Linearisation):
     """The composed piecewise-linear B-derivative of a flow map.
 
     Parameters
@@ -316,6 +317,28 @@ class FlowBDerivative:
             n_g = bd.n_events
             res.append((times.reshape(*lead, n_g), order.reshape(*lead, n_g)))
         return res
+
+    def _tangent_rows(self, VT, res, transpose: bool, offset: int) -> None:
+        """The kernel of ``jvp``/``vjp``: group i's piece is the one that the vector
+        entering it (row v of ``VT`` through the earlier stages) selects. Forwards
+        ``L_m J_m ... J_1 L_0 t``; the transpose ``L_0^T J_1^T ... J_m^T L_m^T w``."""
+        d, m = self.dim, len(self._jumps)
+        inputs = self._stage_inputs(np.ascontiguousarray(VT[:, :d]), "V", offset)
+        Y = VT[:, d:]
+        with np.errstate(over="ignore", invalid="ignore"):
+            Y = Y @ self._linear[m] if transpose else Y @ self._linear[0].T
+        for i in reversed(range(m)) if transpose else range(m):
+            Z = np.empty_like(Y)
+            try:
+                self._jumps[i]._tangent_rows(np.concatenate((inputs[i], Y), axis=1), Z,
+                                             transpose, 0)
+            except ValueError as exc:
+                raise ValueError(_in_group(str(exc), i, "V", offset)) from None
+            with np.errstate(over="ignore", invalid="ignore"):
+                Y = Z @ self._linear[i] if transpose else Z @ self._linear[i + 1].T
+        res[...] = Y
+        if not all_finite(res):
+            check_finite_result(res, "V", offset)
 
     def orders(self, V):
         """Local event order of each group for tangent vectors V: list of (..., n_g) int64.

@@ -106,6 +106,10 @@ class DenseEngine(Engine):
     def _event_times(self, V, times, orders, offset) -> int:
         return kernels.event_times(self._tables, V, (times, orders), launch=self.launch)
 
+    def tangents(self, VT, out, transpose: bool, offset: int = 0) -> int:
+        return kernels.tangents(self._tables + (self.Dh,), VT, (out,), transpose,
+                                launch=self.launch)
+
     def corners(self, happened) -> np.ndarray:
         bits = np.asarray(happened, dtype=np.int64)
         return self.F[bits @ (1 << np.arange(self.n, dtype=np.int64))]

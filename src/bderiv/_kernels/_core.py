@@ -276,3 +276,58 @@ def piece_from_corners(Dh, Fc, order, out):
             jump = Fc[j + 1, r] - Fc[j, r]
             for c in range(d):
                 out[r, c] += jump * row[c]
+
+
+# ----------------------------------------------------------------------------------------
+# tangent maps: one saltation factor at a time, along a query's chain
+# ----------------------------------------------------------------------------------------
+@njit(**JIT)
+def saltation_step(y, Dh, k, Fc, before, after, rate, transpose):
+    """y <- S y, or S^T y when ``transpose``, in place (MATH.md section 4).
+
+    S = I + (Fc[after] - Fc[before]) Dh[k]^T / rate, the factor of event k leaving the
+    region whose corner is ``Fc[before]`` (``rate`` = Dh[k] . Fc[before] > 0). O(d).
+    """
+    d = y.shape[0]
+    c = 0.0
+    if transpose:  # S^T y = y + Dh[k] (jump . y) / rate
+        for i in range(d):
+            c += (Fc[after, i] - Fc[before, i]) * y[i]
+        c /= rate
+        for i in range(d):
+            y[i] += c * Dh[k, i]
+    else:  # S y = y + jump (Dh[k] . y) / rate
+        for i in range(d):
+            c += Dh[k, i] * y[i]
+        c /= rate
+        for i in range(d):
+            y[i] += c * (Fc[after, i] - Fc[before, i])
+
+
+@njit(**JIT)
+def _saltations_block(tables, VT, outs, start, stop, transpose):
+    """out[q] = M_sigma T[q] (or M_sigma^T T[q]) from the corners along each chain.
+
+    ``tables = (Dh, C, orders)``: ``C[q]`` (n + 1, d) the corners of the regions along the
+    order ``orders[q]`` (n,) of query q, found beforehand; ``VT[q] = [v | t]`` (2d,). The
+    transpose runs the factors backwards: M^T = S_1^T ... S_n^T.
+    """
+    Dh, C, orders = tables
+    out = outs[0]
+    n, d = Dh.shape
+    for q in range(start, stop):
+        y = out[q]
+        for i in range(d):
+            y[i] = VT[q, d + i]
+        Cq = C[q]
+        for s in range(n):
+            j = n - 1 - s if transpose else s
+            k = orders[q, j]
+            rate = 0.0
+            for i in range(d):
+                rate += Dh[k, i] * Cq[j, i]
+            saltation_step(y, Dh, k, Cq, j, j + 1, rate, transpose)
+
+
+#: tangents from chain corners: tables (Dh, C, orders), input [V | T], outs (out,).
+saltations = batch(_saltations_block)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._core import JIT, batch, own_rate_times, stable_order
+from ._core import JIT, batch, own_rate_times, saltation_step, stable_order
 
 #: queries evaluated in lockstep by one thread. Each query is a chain of n dependent steps
 #: (rates of the region reached -> event times -> next event -> next region), so one query
@@ -157,12 +157,37 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
             B = B2
 
 
+
+@njit(**JIT)
+def _tangent_block(tables, VT, outs, start, stop, transpose):
+    """out[q] = M_sigma T[q], or M_sigma^T T[q] when ``transpose``, with sigma the order
+    that v = VT[q, :d] selects (the chain of :func:`_chains`) and T[q] = VT[q, d:]."""
+    DhT, F, G, Dh = tables
+    out = outs[0]
+    d, n = DhT.shape
+    g, tau, times, order, chain = _scratch(n)
+    for q0 in range(start, stop, GROUP):
+        pn = min(GROUP, stop - q0)
+        _chains(DhT, G, VT, q0, pn, False, g, tau, times, order, chain)
+        for p in range(pn):
+            y = out[q0 + p]
+            for i in range(d):
+                y[i] = VT[q0 + p, d + i]
+            for s in range(n):
+                j = n - 1 - s if transpose else s
+                k = order[p, j]
+                saltation_step(y, Dh, k, F, chain[p, j], chain[p, j + 1],
+                               G[chain[p, j], k], transpose)
+
+
 #: M(V) or M^-1(V): outs (out,).
 apply = batch(_apply_block)
 #: event times and orders: outs (times, orders).
 event_times = batch(_times_block)
 #: the own-rates fast path: tables (DhT, F, rate), outs (out,).
 apply_sorted = batch(_sorted_block)
+#: M_sigma(V) T or its transpose: tables (DhT, F, G, Dh), input [V | T], outs (out,).
+tangents = batch(_tangent_block)
 
 
 @njit(**JIT)

@@ -1,0 +1,135 @@
+"""Per-direction linearisation of a piecewise-linear map: ``jvp``, ``vjp``, ``piece_matrices``.
+
+A continuous piecewise-linear map M (a :class:`~bderiv.BDerivative` or a
+:class:`~bderiv.FlowBDerivative`) is linear on each piece; a direction ``v`` selects one,
+``M_sigma(v)``, the piece of the event order(s) that ``v`` itself goes through. For a batch
+of directions this mix-in gives that piece applied to a second vector (``jvp``), its
+transpose applied to a co-vector (``vjp``: adjoints, gradients, covariance updates), or the
+``(d, d)`` matrices themselves. No d x d matrix is built per row for ``jvp`` and ``vjp``:
+the kernels run the saltation factors along each row's chain (backwards for ``vjp``).
+
+On a boundary between pieces (a tie between event times) both neighbouring pieces are
+linearisations of M; the one returned is the piece of the order the selection finds for
+``v``, ties going to the smaller event index (``orders(v)`` names it).
+
+A class using it provides ``dim`` and ``_tangent_rows(VT, res, transpose, offset)``, which
+writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows ``[v | t]`` of ``VT``
+(C-contiguous float64, (m, 2d)) into ``res`` (m, d).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._batch import evaluate, is_dask_array
+from ._tables import human_bytes
+from ._validate import check_memory, check_points
+
+#: rows per chunk of :meth:`Linearisation.piece_matrices` (each row is d queries).
+PIECE_ROWS = 1 << 12
+
+
+class Linearisation:
+    """``jvp``, ``vjp`` and ``piece_matrices`` of a piecewise-linear map (mix-in)."""
+
+    def jvp(self, V, T, out=None, *, chunk_size=None, progress=None) -> np.ndarray:
+        """The piece that each direction selects, applied to a tangent vector.
+
+        Parameters
+        ----------
+        V : array_like, shape (..., d)
+            Directions; row q selects the piece ``M_sigma(q)`` (its event order(s)).
+        T : array_like, shape (..., d)
+            Vectors to push through that piece (same leading shape as V).
+        out : ndarray, shape (..., d), optional
+            C-contiguous float64 array for the result (may be V or T).
+        chunk_size, progress : optional
+            As for ``apply``; results do not depend on the chunking.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            ``M_sigma(q) @ T[q]`` for every row q. ``jvp(V, V) == self(V)`` (positive
+            homogeneity) up to rounding.
+        """
+        return self._pair(V, T, "T", out, False, chunk_size, progress)
+
+    def vjp(self, V, W, out=None, *, chunk_size=None, progress=None) -> np.ndarray:
+        """The transpose of the piece that each direction selects, applied to a co-vector.
+
+        Parameters
+        ----------
+        V : array_like, shape (..., d)
+            Directions; row q selects the piece ``M_sigma(q)``.
+        W : array_like, shape (..., d)
+            Co-vectors (gradients at the output; same leading shape as V).
+        out, chunk_size, progress : optional
+            As for :meth:`jvp`.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            ``M_sigma(q).T @ W[q]`` for every row q: ``<W, jvp(V, T)> == <vjp(V, W), T>``
+            row by row, to rounding.
+        """
+        return self._pair(V, W, "W", out, True, chunk_size, progress)
+
+    def piece_matrices(self, V, *, memory_limit=None) -> np.ndarray:
+        """The (d, d) matrix of the piece each direction selects.
+
+        Parameters
+        ----------
+        V : array_like, shape (..., d)
+        memory_limit : int, optional
+            Bytes the result may take; default: the memory currently available.
+
+        Returns
+        -------
+        ndarray, shape (..., d, d)
+            ``P[q] @ t == jvp(V[q], t)`` for every t. Built from d ``jvp`` columns per row.
+
+        Raises
+        ------
+        ValueError
+            If the result would not fit in ``memory_limit`` (naming its size).
+        """
+        d = self.dim
+        flat, lead = check_points(V, d)
+        m = flat.shape[0]
+        check_memory(m * d * d * 8, memory_limit,
+                     f"the piece matrices of {m} vectors in dimension {d} "
+                     f"({human_bytes(m * d * d * 8)})")
+        P = np.empty((m, d, d))
+        eye = np.eye(d)
+        for s in range(0, m, PIECE_ROWS):
+            e = min(s + PIECE_ROWS, m)
+            VT = np.empty(((e - s) * d, 2 * d))
+            VT[:, :d] = np.repeat(flat[s:e], d, axis=0)
+            VT[:, d:] = np.tile(eye, (e - s, 1))
+            cols = np.empty(((e - s) * d, d))
+            self._tangent_rows(VT, cols, False, s)
+            P[s:e] = cols.reshape(e - s, d, d).transpose(0, 2, 1)  # [q, i, :] = M e_i
+        return P.reshape(lead + (d, d))
+
+    def _pair(self, V, T, t_name, out, transpose, chunk_size, progress):
+        """Validate V and T, stack them as rows [v | t] and evaluate ``_tangent_rows``."""
+        d = self.dim
+        if is_dask_array(V) or is_dask_array(T):
+            raise TypeError(
+                f"jvp/vjp take NumPy arrays, got a dask array; apply them block by block "
+                f"with dask.array.map_blocks (V and {t_name} chunked alike)"
+            )
+        flat_v, lead_v = check_points(V, d, "V")
+        flat_t, lead_t = check_points(T, d, t_name)
+        if lead_v != lead_t:
+            raise ValueError(
+                f"V and {t_name} must have the same shape, got {lead_v + (d,)} and "
+                f"{lead_t + (d,)}"
+            )
+        VT = np.concatenate((flat_v, flat_t), axis=1).reshape(lead_v + (2 * d,))
+
+        def kernel(rows, res, offset):
+            self._tangent_rows(rows, res, transpose, offset)
+
+        return evaluate(kernel, VT, 2 * d, name="V", out=out, chunk_size=chunk_size,
+                        progress=progress, desc=type(self).__name__, out_dim=d)
