@@ -16,12 +16,13 @@ from bderiv._kernels import _core
 _PROBE = """
 import json, numpy as np
 from bderiv import BDerivative
-from bderiv._kernels import dense
+from bderiv._kernels import _core, dense
 F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [2.0, 2.0, 0.0]])
 bd = BDerivative(np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]]), F, fast_paths=False)
 V = np.random.default_rng(0).standard_normal((5000, 3))
 bd(V[:3]); bd(V)
-stats = [dense.apply.serial.stats, dense.apply.tasks.stats]
+drivers = dense.apply if _core.PLAIN else dense.lane_apply
+stats = [drivers.serial.stats, drivers.tasks.stats]
 print(json.dumps([[sum(s.cache_hits.values()), sum(s.cache_misses.values())] for s in stats]))
 """
 
@@ -55,3 +56,21 @@ def test_launch_sizes():
     assert _core.launch_queries(8, 8) == 1 << 18
     assert _core.launch_queries(128, 128) == 1 << 14  # floor
     assert _core.launch_queries(1, 1) == 1 << 20  # ceiling
+
+
+def test_the_plain_kernels_pass_the_same_tests():
+    """``BDERIV_KERNELS=plain`` (the scalar kernels any numba target compiles) runs the dense
+    tests against the oracle in a subprocess, so both paths are tested on every run."""
+    import os
+
+    tests = os.path.dirname(os.path.abspath(__file__))
+    env = dict(os.environ, BDERIV_KERNELS="plain")
+    out = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider",
+         os.path.join(tests, "test_bderivative.py"), os.path.join(tests, "test_adjoints.py"),
+         os.path.join(tests, "test_fuzz.py")],
+        capture_output=True, text=True, env=env, cwd=os.path.dirname(tests))
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    probe = subprocess.run([sys.executable, "-c", "from bderiv._kernels import _core; "
+                            "print(_core.PLAIN)"], capture_output=True, text=True, env=env)
+    assert probe.stdout.strip() == "True"

@@ -157,10 +157,13 @@ def test_table_too_large_for_memory_is_refused_before_allocating():
 def test_memory_limit_argument():
     rng = np.random.default_rng(1)
     Dh, F = random_system(rng, 10, 10)
-    need = 2**10 * (10 + 10) * 8  # F and G, float64
-    with pytest.raises(ValueError, match=r"2\*\*10 rows, 160\.0 KiB.*memory limit of 1000 B"):
+    # one record per region: -1/G, G and F, n and d each padded to 16, float64
+    need = 2**10 * (16 + 16 + 16) * 8
+    with pytest.raises(ValueError, match=r"2\*\*10 rows, 384\.0 KiB.*memory limit of 1000 B"):
         BDerivative(Dh, F, memory_limit=1000)
-    BDerivative(Dh, F, memory_limit=need)
+    with pytest.raises(ValueError, match=r"384\.0 KiB"):
+        BDerivative(Dh, F, memory_limit=need - 1)
+    assert BDerivative(Dh, F, memory_limit=need).table_bytes == need
 
 
 # --------------------------------------------------------------------------------------
@@ -303,7 +306,8 @@ def test_corner_model_tables_are_checked_against_memory_first():
         bd.corner_points()
     with pytest.raises(ValueError, match=r"triangulation .* more than the memory limit"):
         bd.triangulation(max_pieces=10**30)
-    with pytest.raises(ValueError, match=r"take 128 B, more than the memory limit of 64 B"):
+    # 4 region records of 8 (-1/G) + 8 (G) + 8 (F) float64
+    with pytest.raises(ValueError, match=r"take 768 B, more than the memory limit of 64 B"):
         BDerivative(np.eye(2), StructuredCorners(np.ones(2), np.eye(2))).to_dense(
             memory_limit=64)
 

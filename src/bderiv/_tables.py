@@ -68,9 +68,47 @@ def available_memory() -> int:
         return 8 << 30
 
 
+def record_layout(n: int, d: int) -> tuple[int, int, int]:
+    """(nc, dc, stride) of the region records: n and d padded to ``nc``, ``dc`` blocks of 8
+    float64, a record of ``stride = 8 (2 nc + dc)`` float64 (see :func:`region_records`)."""
+    nc, dc = -(-n // 8), -(-d // 8)
+    return nc, dc, 8 * (2 * nc + dc)
+
+
 def dense_table_bytes(n: int, d: int) -> int:
-    """Bytes of the tables a dense ``BDerivative`` keeps: F (2**n, d) and G (2**n, n)."""
-    return (1 << n) * (d + n) * 8
+    """Bytes of the region records a dense ``BDerivative`` keeps (F and G live in them)."""
+    return (1 << n) * record_layout(n, d)[2] * 8
+
+
+def region_records(F, Dh: np.ndarray) -> np.ndarray:
+    """The table of one record per region, 64-byte aligned, shape (2**n, stride).
+
+    Row ``mask`` holds ``[-1 / G[mask] | G[mask] | F[mask]]``, each part padded with
+    (-1 | 0 | 0) to a multiple of 8 entries, so that a kernel reads a region's reciprocal
+    rates, rates and corner as whole 8-wide vectors from one aligned record. ``F`` (2**n, d)
+    is the caller's checked table (any real dtype and layout: copied block by block, so no
+    second table is held); the rates ``G = F @ Dh.T`` are computed into the records
+    (overflow gives inf, reported by the caller's checks).
+    """
+    n, d = Dh.shape
+    nc, dc, stride = record_layout(n, d)
+    rows_total = F.shape[0]
+    buf = np.empty(rows_total * stride + 8)
+    start = (-buf.ctypes.data // 8) % 8  # float64 entries up to the next 64-byte boundary
+    R = buf[start : start + rows_total * stride].reshape(rows_total, stride)
+    og, of = 8 * nc, 16 * nc
+    DhT = Dh.T
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for rows in blocks(rows_total, RATE_BLOCK_ROWS):
+            block = R[rows]
+            block[:, of : of + d] = F[rows]
+            block[:, of + d :] = 0.0
+            G = block[:, of : of + d] @ DhT
+            block[:, og : og + n] = G
+            block[:, og + n : of] = 0.0
+            block[:, :n] = -1.0 / G
+            block[:, n:og] = -1.0
+    return R
 
 
 def corner_point_bytes(n: int, d: int) -> int:
@@ -87,21 +125,11 @@ def human_bytes(nbytes: float) -> str:
     raise AssertionError("unreachable")
 
 
-#: rows per BLAS call when the rate table is built. Products this small run on one BLAS
-#: thread; one big call spreads over BLAS threads, which on a shared 2-core machine was
-#: measured 5x to 50x slower (n = d = 20: 0.09 s in blocks of 512 rows, 0.5 s to 5 s in
-#: one call or in blocks of 2**11..2**15 rows, depending on the other load).
+#: rows per BLAS call when the rates of the region records are built. Products this small
+#: run on one BLAS thread; one big call spreads over BLAS threads, which on a shared 2-core
+#: machine was measured 5x to 50x slower (n = d = 20: 0.09 s in blocks of 512 rows, 0.5 s
+#: to 5 s in one call or in blocks of 2**11..2**15 rows, depending on the other load).
 RATE_BLOCK_ROWS = 512
-
-
-def event_rates(F: np.ndarray, Dh: np.ndarray) -> np.ndarray:
-    """G = F @ Dh.T, shape (2**n, n): G[mask, k] is how fast h_k grows in region mask."""
-    G = np.empty((F.shape[0], Dh.shape[0]))
-    DhT = Dh.T
-    with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported by the caller
-        for rows in blocks(F.shape[0], RATE_BLOCK_ROWS):
-            np.matmul(F[rows], DhT, out=G[rows])
-    return G
 
 
 def row_norms(A: np.ndarray) -> np.ndarray:

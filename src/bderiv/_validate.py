@@ -68,10 +68,12 @@ def check_finite(arr: np.ndarray, name: str) -> None:
             raise ValueError(f"{name} must be finite, but {name}{list(idx)} = {arr[idx]}")
 
 
-def check_matrix(a, name: str, shape: tuple[int | None, int | None]) -> np.ndarray:
+def check_matrix(a, name: str, shape: tuple[int | None, int | None], *,
+                 copy: bool = True) -> np.ndarray:
     """Validate a 2-D real finite matrix; ``None`` in ``shape`` means any size.
 
-    Returns a C-contiguous float64 copy that the caller owns.
+    Returns a C-contiguous float64 copy that the caller owns (``copy=False``: the checked
+    array itself, any real dtype and layout, for a caller that copies it anyway).
     """
     arr = check_real_array(a, name)
     if arr.ndim != 2:
@@ -84,7 +86,7 @@ def check_matrix(a, name: str, shape: tuple[int | None, int | None]) -> np.ndarr
                 f"{want}, got {got})"
             )
     check_finite(arr, name)
-    return np.array(arr, dtype=np.float64, order="C", copy=True)
+    return np.array(arr, dtype=np.float64, order="C", copy=True) if copy else arr
 
 
 def check_points(V, dim: int, name: str = "V", *, index_shape=None,

@@ -140,7 +140,7 @@ class BDerivative(Linearisation):
             )
         engine = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths)
         F, G = engine.F, engine.G
-        for a in (Dh, F, G):
+        for a in (Dh, engine.R, F, G):
             a.flags.writeable = False
         self.Dh, self.F, self.rates = Dh, F, G
         self.n_events, self.dim = n, d
@@ -173,11 +173,19 @@ class BDerivative(Linearisation):
     def __repr__(self) -> str:
         return f"BDerivative(n_events={self.n_events}, dim={self.dim})"
 
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        if self.model is None:  # views of the engine's records: linked again on unpickling
+            state.pop("F"), state.pop("rates")
+        return state
+
     def __setstate__(self, state: dict) -> None:
         # unpickled arrays come back writeable; keep the tables read-only as built
         self.__dict__.update(state)
-        for name in ("Dh", "F", "rates"):
-            arr = state.get(name)
+        if self.model is None:
+            self.F, self.rates = self._engine.F, self._engine.G
+            self._engine.R.flags.writeable = False
+        for arr in (self.Dh, self.F, self.rates):
             if isinstance(arr, np.ndarray):
                 arr.flags.writeable = False
 
@@ -187,10 +195,10 @@ class BDerivative(Linearisation):
 
     @property
     def table_bytes(self) -> int:
-        """Bytes held by the tables F and G (0 for a corner model)."""
+        """Bytes held by the region records, which hold F and G (0 for a corner model)."""
         if self.F is None:
             return 0
-        return self.F.nbytes + self.rates.nbytes
+        return self._engine.R.nbytes
 
     # -- evaluation -------------------------------------------------------------------------
 

@@ -7,21 +7,52 @@ import numpy as np
 from .. import _tables
 from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
+from .._kernels._core import PLAIN
 from .._validate import check_matrix, check_number, memory_limit_bytes
 from . import fastpath
 from .base import Engine
 
+#: records larger than this are prefetched one step ahead by the lane kernels (about the
+#: size of the last-level cache share of a core; below it the hint costs more than it saves)
+FAR_BYTES = 4 << 20
+
 
 class DenseEngine(Engine):
-    """``F`` (2**n, d) and ``G = F @ Dh.T`` (2**n, n), both checked by the caller;
-    ``rate_spread``: the largest ratio of one event's rates (``_check_spread``)."""
+    """The region records ``R`` of ``_tables.region_records`` (checked by the caller), with
+    ``F`` (2**n, d) and ``G = F @ Dh.T`` (2**n, n) as views into them; ``rate_spread``:
+    the largest ratio of one event's rates (``_check_spread``). Runs the lane kernels, or
+    the plain ones when ``_core.PLAIN``."""
 
-    def __init__(self, Dh, F, G, fast_paths: bool = True, rate_spread: float = 1.0):
-        self.Dh, self.F, self.G = Dh, F, G
-        self.rate_spread = rate_spread
+    def __init__(self, Dh, R, fast_paths: bool = True, rate_spread: float = 1.0):
+        self.Dh, self.R = Dh, R
         self.n, self.d = Dh.shape
-        self._tables = (np.ascontiguousarray(Dh.T), F, G)
-        self.fast = fastpath.dense(F, G, Dh) if fast_paths else None
+        self.rate_spread = rate_spread
+        self._views()
+        self.fast = fastpath.dense(self.F, self.G, Dh) if fast_paths else None
+
+    def _views(self) -> None:
+        """F, G and the kernels' tables, from Dh and R."""
+        n, d = self.n, self.d
+        nc, dc, _ = _tables.record_layout(n, d)
+        self.G = self.R[:, 8 * nc : 8 * nc + n]
+        self.F = self.R[:, 16 * nc : 16 * nc + d]
+        DhTp = np.zeros((d, 8 * nc))
+        DhTp[:, :n] = self.Dh.T
+        Hinit = np.zeros((2, 8 * nc))
+        Hinit[0, n:], Hinit[1, n:] = -np.inf, np.inf
+        far = int(self.R.nbytes > FAR_BYTES)
+        self._lanes = (self.R, DhTp, Hinit, np.array([n, d, nc, dc, far], dtype=np.int64))
+        self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        for name in ("F", "G", "_lanes", "_plain"):  # views of R: rebuilt, not copied
+            state.pop(name, None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._views()
 
     @classmethod
     def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True):
@@ -38,7 +69,7 @@ class DenseEngine(Engine):
                 f"{_tables.human_bytes(limit)}; use fewer simultaneous events or a corner "
                 f"model that does not store 2**n rows"
             )
-        F = check_matrix(F, "F", (None, d))
+        F = check_matrix(F, "F", (None, d), copy=False)
         if F.shape[0] != 1 << n:
             raise ValueError(
                 f"F must have 2**n = {1 << n} rows (one per mask of n={n} events, n from "
@@ -46,7 +77,9 @@ class DenseEngine(Engine):
             )
         check_number(transversality_tol, "transversality_tol", strict=False)
 
-        G = _tables.event_rates(F, Dh)
+        R = _tables.region_records(F, Dh)
+        nc = _tables.record_layout(n, d)[0]
+        G, F = R[:, 8 * nc : 8 * nc + n], R[:, 16 * nc : 16 * nc + d]
         bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol)
         if bad is not None:
             mask, k, kind, scale = bad
@@ -75,7 +108,7 @@ class DenseEngine(Engine):
                 f"nearly tangent to the flow"
             )
         spread = cls._check_spread(G, n, transversality_tol)
-        return cls(Dh, F, G, fast_paths, spread)
+        return cls(Dh, R, fast_paths, spread)
 
     @staticmethod
     def _check_spread(G, n, tol) -> float:
@@ -96,19 +129,26 @@ class DenseEngine(Engine):
         return ratio
 
     def _apply(self, V, out, inverse, name, offset) -> int:
-        return kernels.apply(self._tables, V, (out,), inverse, launch=self.launch)
+        if PLAIN:
+            return kernels.apply(self._plain, V, (out,), inverse, launch=self.launch)
+        return kernels.lane_apply(self._lanes, V, (out,), inverse, launch=self.launch)
 
     def _apply_own_rates(self, V, out, inverse) -> int:
         rate = self.fast.ratef if inverse else self.fast.rate0
-        return kernels.apply_sorted((self._tables[0], self.F, rate), V, (out,), inverse,
-                             launch=self.launch)
+        return kernels.apply_sorted((self._plain[0], self.F, rate), V, (out,), inverse,
+                                    launch=self.launch)
 
     def _event_times(self, V, times, orders, offset) -> int:
-        return kernels.event_times(self._tables, V, (times, orders), launch=self.launch)
+        if PLAIN:
+            return kernels.event_times(self._plain, V, (times, orders), launch=self.launch)
+        return kernels.lane_event_times(self._lanes, V, (times, orders), launch=self.launch)
 
     def tangents(self, VT, out, transpose: bool, offset: int = 0) -> int:
-        return kernels.tangents(self._tables + (self.Dh,), VT, (out,), transpose,
-                                launch=self.launch)
+        if PLAIN:
+            return kernels.tangents(self._plain + (self.Dh,), VT, (out,), transpose,
+                                    launch=self.launch)
+        return kernels.lane_tangents(self._lanes + (self.Dh, self.F), VT, (out,), transpose,
+                                     launch=self.launch)
 
     def corners(self, happened) -> np.ndarray:
         bits = np.asarray(happened, dtype=np.int64)

@@ -13,6 +13,7 @@ No validation here: callers pass C-contiguous arrays of consistent shapes.
 from __future__ import annotations
 
 import hashlib
+import os
 import pathlib
 import threading
 
@@ -25,6 +26,10 @@ from numba.core.caching import FunctionCache
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
 # when tables are built, or per region by the model kernels).
 JIT = {"cache": True, "error_model": "numpy"}
+
+#: ``BDERIV_KERNELS=plain`` (read at import) runs the scalar dense kernels instead of the
+#: explicit-vector ones (``_simd``): a path any numba target compiles, tested in CI.
+PLAIN = os.environ.get("BDERIV_KERNELS", "").strip().lower() == "plain"
 
 #: queries per parallel task. Threads take tasks one at a time (dynamic schedule), so a
 #: thread that the OS delays does not hold the other back; at n = 8, 256 queries take
