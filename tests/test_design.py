@@ -15,9 +15,9 @@ PKG = ROOT / "src" / "bderiv"
 LAYERS = [
     {"cli", "__main__"},
     {"plot", "examples", "_bench"},  # _bench: the sweep of `bderiv bench`
-    {"hybrid", "_usercalls"},
+    {"hybrid", "_usercalls", "orbit"},  # orbit: periodic orbits (issue 12)
     {"checks"},
-    {"simulate", "flowmap"},
+    {"simulate", "crossings", "flowmap", "returnmap", "stability"},
     {"bderivative", "triangulation", "_triangulation_io"},
     {"corners", "_engines"},
     {"_kernels"},

@@ -85,15 +85,21 @@ def test_grouping_tolerance():
         s.simulate(x0, 2.0, simultaneity_tol=1e-5)
 
 
-def test_downward_crossing_is_an_error():
-    # x' = 1 - 2 y after the event (y = t): x comes back down through the surface at t = 0.75
+def test_downward_crossing_into_a_region_that_pushes_back_is_an_error():
+    # x' = 1 - 2 y after the event (y = t): x comes back down through the surface at
+    # t = 0.75, a downward crossing (allowed), but region 0 pushes x up again at once
     s = HybridSystem(
         lambda x, m: np.array([1.0 if m == 0 else 1.0 - 2.0 * x[1], 1.0]),
         lambda x: np.array([x[0] - 0.25]),
         n_events=1,
         dim=2,
     )
-    with pytest.raises(ValueError, match=r"event 0 crossed its surface downward at t=0.75"):
+    with pytest.raises(
+        ValueError,
+        match=r"transversality violated at t=0.75 after switching events \[0\]: event 0 has "
+        r"rate -1 <= 0 in region mask 0b0 .*would cross back\); event 0 crossed downward "
+        r"\(the rate is that of -h_0",
+    ):
         s.simulate(np.zeros(2), 1.0)
     assert s.simulate(np.zeros(2), 0.7).mask_final == 1
 

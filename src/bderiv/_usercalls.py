@@ -1,11 +1,16 @@
-"""Checked calls of a user's model functions: outputs validated, numerical Jacobians."""
+"""Checked calls of a user's model functions: outputs validated, numerical Jacobians.
+
+:class:`ModelCalls` holds a model's functions and evaluates them checked (the base of
+:class:`~bderiv.hybrid.HybridSystem`); :class:`Section` does the same for a Poincare
+section.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.differentiate import jacobian as _scipy_jacobian
 
-from ._validate import check_real_array
+from ._validate import check_positive_int, check_real_array
 
 #: Tolerances of :func:`scipy.differentiate.jacobian` for missing Jacobians.
 _JAC_TOLERANCES = {"atol": 1e-11, "rtol": 1e-10}
@@ -54,3 +59,155 @@ def numerical_jacobian(fun, x, n_out: int, what: str) -> np.ndarray:
     if not np.isfinite(jac).all():
         raise ValueError(f"the numerical Jacobian of {what} at x = {x} is not finite")
     return jac
+
+
+class ModelCalls:
+    """A model's user functions, evaluated with every output checked.
+
+    The parameters are those of :class:`~bderiv.hybrid.HybridSystem`, which documents
+    them. Every output is checked (shape and finiteness); errors say which function,
+    which mask, the expected and the received shape.
+    """
+
+    def __init__(self, field, events, *, n_events, dim, event_jacobian=None,
+                 field_jacobian=None, corner_field=None):
+        for f, name in ((field, "field"), (events, "events"),
+                        (event_jacobian, "event_jacobian"),
+                        (field_jacobian, "field_jacobian"), (corner_field, "corner_field")):
+            check_callable(f, name)
+        if field is None or events is None:
+            raise TypeError("field and events are required callables")
+        self.n_events = check_positive_int(n_events, "n_events")
+        self.dim = check_positive_int(dim, "dim")
+        self._field = field
+        self._events = events
+        self._event_jac = event_jacobian
+        self._field_jac = field_jacobian
+        self._corner_field = corner_field
+
+    def _check_state(self, x, name="x"):
+        arr = check_real_array(x, name)
+        if arr.shape != (self.dim,):
+            raise ValueError(
+                f"{name} must have shape ({self.dim},) (a state of this system), got shape "
+                f"{arr.shape}"
+            )
+        arr = np.array(arr, dtype=np.float64)
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{name} must be finite, got {arr}")
+        return arr
+
+    def _check_mask(self, mask):
+        if isinstance(mask, bool) or not isinstance(mask, int | np.integer):
+            raise TypeError(f"mask must be an integer, got {type(mask).__name__}")
+        if not 0 <= mask < (1 << self.n_events):
+            raise ValueError(f"mask must be in [0, 2**{self.n_events}), got {mask}")
+        return int(mask)
+
+    def eval_field(self, x, mask):
+        """The checked vector field of region ``mask`` at ``x``: shape (d,)."""
+        return check_output(self._field(x, mask), (self.dim,), f"field(x, mask={mask})")
+
+    def eval_events(self, x):
+        """The checked event values at ``x``: shape (n,)."""
+        return check_output(self._events(x), (self.n_events,), "events(x)")
+
+    def eval_event_jacobian(self, x):
+        """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""
+        x = self._check_state(x)
+        n, d = self.n_events, self.dim
+        if self._event_jac is not None:
+            return check_output(self._event_jac(x), (n, d), "event_jacobian(x)")
+        return numerical_jacobian(self.eval_events, x, n, "events")
+
+    def eval_field_jacobian(self, x, mask):
+        """Jacobian of ``field(., mask)`` at ``x``, shape (d, d)."""
+        x = self._check_state(x)
+        mask = self._check_mask(mask)
+        d = self.dim
+        if self._field_jac is not None:
+            return check_output(
+                self._field_jac(x, mask), (d, d), f"field_jacobian(x, mask={mask})"
+            )
+        return numerical_jacobian(lambda y: self.eval_field(y, mask), x, d, "field")
+
+    def sample_corners(self, x, masks=None):
+        """Region fields at ``x`` for the given masks (default all 2**n).
+
+        Parameters
+        ----------
+        x : array_like, shape (d,)
+        masks : array_like of int, shape (m,), optional
+
+        Returns
+        -------
+        F : ndarray, shape (m, d) (``(2**n, d)`` by default)
+            ``F[i] = field(x, masks[i])``; taken from ``corner_field`` when given.
+        """
+        x = self._check_state(x)
+        n, d = self.n_events, self.dim
+        masks = (
+            np.arange(1 << n, dtype=np.int64)
+            if masks is None
+            else np.asarray(masks, dtype=np.int64).reshape(-1)
+        )
+        if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
+            table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
+            return np.ascontiguousarray(table[masks])
+        out = np.empty((masks.size, d))
+        for i, m in enumerate(masks.tolist()):
+            out[i] = self.eval_field(x, m)
+        return out
+
+
+    def start_mask(self, x0):
+        """Region mask of a start point from the signs of its event values.
+
+        Raises ``ValueError`` when ``x0`` lies exactly on an event surface.
+        """
+        x0 = self._check_state(x0, "x0")
+        h = self.eval_events(x0)
+        on = np.flatnonzero(h == 0)
+        if on.size:
+            raise ValueError(
+                f"x0 lies on the surface of event(s) {on.tolist()} (events(x0) = {h}); the "
+                f"region is ambiguous there: start slightly before or after the event"
+            )
+        return int(np.sum((h > 0).astype(np.int64) << np.arange(self.n_events)))
+
+
+class Section:
+    """A checked Poincare section ``section(x) = 0``, crossed upward (from < 0 to > 0).
+
+    Parameters
+    ----------
+    func : callable
+        ``func(x) -> float``: the section's function, for a state x of shape (d,).
+    dim : int
+        State dimension d.
+    gradient : callable, optional
+        ``gradient(x) -> (d,)``. Default: :func:`numerical_jacobian`.
+    """
+
+    def __init__(self, func, dim: int, gradient=None):
+        if isinstance(func, Section):
+            func, gradient = func.func, gradient or func.grad
+        if func is None:
+            raise TypeError("section must be a callable section(x) -> float, got None")
+        check_callable(func, "section")
+        check_callable(gradient, "section_gradient")
+        self.func, self.grad, self.dim = func, gradient, dim
+
+    def __call__(self, x) -> float:
+        """The checked value ``section(x)``."""
+        value = self.func(x)
+        if np.ndim(value) != 0 and np.size(value) != 1:
+            raise ValueError(f"section(x) must return one real number, got shape "
+                             f"{np.shape(value)}")
+        return float(check_output(np.reshape(value, 1), (1,), "section(x)")[0])
+
+    def gradient(self, x) -> np.ndarray:
+        """The gradient of the section at ``x``: shape (d,)."""
+        if self.grad is not None:
+            return check_output(self.grad(x), (self.dim,), "section_gradient(x)")
+        return numerical_jacobian(lambda y: np.array([self(y)]), x, 1, "section")[0]

@@ -4,7 +4,9 @@ One routine for the CLI, the tests and the benchmarks: :func:`forward_difference
 :meth:`HybridSystem.flow_fd <bderiv.hybrid.HybridSystem.flow_fd>`) and :func:`fd_check`,
 which runs it for several steps and measures the errors. The differences are one-sided on
 purpose: the flow is only piecewise differentiable, so a central quotient converges to
-``(D(v) - D(-v)) / 2``, not to ``D(v)``.
+``(D(v) - D(-v)) / 2``, not to ``D(v)``. With a Poincare section they difference the
+return map instead. :func:`decay_check` follows perturbations of a periodic orbit through
+many strides, the simulated counterpart of a predicted growth rate.
 """
 
 from __future__ import annotations
@@ -15,10 +17,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._progress import resolve_progress
-from ._validate import check_matrix, check_number, check_points
+from ._validate import check_matrix, check_number, check_points, check_positive_int
 from .simulate import SolverOptions
 
-__all__ = ["FD_OPTIONS", "FD_SIMULTANEITY_TOL", "FDCheck", "fd_check", "forward_differences"]
+__all__ = [
+    "FD_OPTIONS",
+    "FD_SIMULTANEITY_TOL",
+    "DecayCheck",
+    "FDCheck",
+    "decay_check",
+    "fd_check",
+    "forward_differences",
+]
 
 #: Integrator settings of the finite differences. Tighter than ``SolverOptions()``: the
 #: integration error is divided by eps. With the defaults (rtol = 1e-10) the relative
@@ -31,11 +41,15 @@ FD_SIMULTANEITY_TOL = 1e-13
 
 
 def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
-                        options=None, rtol=None, atol=None, method=None, max_step=None):
+                        options=None, rtol=None, atol=None, method=None, max_step=None,
+                        section=None):
     """``(Phi(t_final, x0 + eps v) - Phi(t_final, x0)) / eps`` for every vector v.
 
     The error is O(eps) (the flow's B-derivative is its first-order term) plus the
-    integration error divided by eps.
+    integration error divided by eps. With ``section`` the differences are those of the
+    Poincare map: ``(P(x0 + eps v) - P(x0)) / eps`` (the state at the next upward
+    crossing of the section; ``t_final`` is the longest wait), the oracle of
+    :meth:`HybridSystem.return_map <bderiv.hybrid.HybridSystem.return_map>`.
 
     Parameters
     ----------
@@ -52,6 +66,8 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
         Integrator settings, default :data:`FD_OPTIONS`.
     rtol, atol, method, max_step : optional
         Override the settings of ``options``.
+    section : callable ``section(x) -> float``, optional
+        Difference the Poincare map of this section instead of the flow.
 
     Returns
     -------
@@ -62,15 +78,15 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
     eps = check_number(eps, "eps")
     flat, lead = check_points(V, system.dim, "V")
 
-    def final_state(start):
+    def simulate(start):
         return system.simulate(start, t_final, simultaneity_tol=simultaneity_tol,
-                               options=options).x_final
+                               options=options, section=section)
 
-    base = system.simulate(x0, t_final, simultaneity_tol=simultaneity_tol, options=options)
+    base = simulate(x0)
     start = base.x[0]  # x0, checked
     out = np.empty_like(flat)
     for i, v in enumerate(flat):
-        out[i] = (final_state(start + eps * v) - base.x_final) / eps
+        out[i] = (simulate(start + eps * v).x_final - base.x_final) / eps
     return out.reshape(*lead, system.dim)
 
 
@@ -125,7 +141,8 @@ def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=No
         Called after each step size; ``True`` draws a tqdm bar.
     **simulate_options
         Passed to :func:`forward_differences` (``simultaneity_tol``, ``options``,
-        ``rtol``, ``atol``, ``method``, ``max_step``).
+        ``rtol``, ``atol``, ``method``, ``max_step``, ``section``: with a section,
+        ``t_final`` is the longest wait and ``D_V`` the return map's B-derivative).
 
     Returns
     -------
@@ -153,3 +170,91 @@ def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=No
     ratios = tuple(b / a if a else float("nan") for a, b in zip(worst, worst[1:], strict=False))
     per_vector = seconds / (len(eps) * (V.shape[0] + 1))
     return FDCheck(eps, np.array(errors).T, tuple(worst), ratios, per_vector)
+
+
+@dataclass(frozen=True)
+class DecayCheck:
+    """Perturbations of a periodic orbit followed by simulation, stride by stride.
+
+    Attributes
+    ----------
+    deviations : ndarray, shape (m, strides + 1)
+        ``|P^k(x0 + eps v) - x0|`` (Euclidean) for every vector v and stride k = 0..strides.
+    rates : ndarray, shape (m,)
+        Per-stride decay factor of each vector: ``exp`` of the least-squares slope of
+        ``log deviations`` over the strides in ``window`` where it is above ``floor``.
+    rate : float
+        The largest of ``rates``: the simulated counterpart of a predicted growth rate.
+    window : tuple of int
+        First and last stride fitted (the first strides are a transient).
+    """
+
+    deviations: np.ndarray
+    rates: np.ndarray
+    rate: float
+    window: tuple
+
+
+def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, t_max=10.0,
+                **simulate_options) -> DecayCheck:
+    """Measure how perturbations of a periodic orbit decay in long simulations.
+
+    An independent check of a predicted growth rate
+    (:meth:`PeriodicOrbit.stability <bderiv.orbit.PeriodicOrbit.stability>`): the
+    nonlinear system is simulated from ``x0 + eps v`` through ``strides`` returns to the
+    section, and the per-stride factor by which the deviation from ``x0`` shrinks is
+    fitted.
+
+    Parameters
+    ----------
+    system : HybridSystem
+    x0 : array_like, shape (d,)
+        The fixed point on the section.
+    section : callable
+        ``section(x) -> float``.
+    V : array_like, shape (m, d)
+        Perturbation directions (unit size is sensible).
+    eps : float
+        Size of the perturbations.
+    strides : int
+        Returns simulated per vector (>= 4).
+    floor : float
+        Deviations below this (the integration error) are not fitted.
+    t_max : float
+        Longest wait for each return.
+    **simulate_options
+        ``simultaneity_tol``, ``options``, ``rtol``, ... for ``system.simulate``
+        (default the tight :data:`FD_OPTIONS` and :data:`FD_SIMULTANEITY_TOL`).
+
+    Returns
+    -------
+    DecayCheck
+    """
+    V = check_matrix(V, "V", (None, system.dim))
+    eps = check_number(eps, "eps")
+    strides = check_positive_int(strides, "strides")
+    if strides < 4:
+        raise ValueError(f"strides must be >= 4, got {strides}")
+    simulate_options.setdefault("simultaneity_tol", FD_SIMULTANEITY_TOL)
+    if not any(k in simulate_options for k in ("options", "rtol", "atol")):
+        simulate_options["options"] = FD_OPTIONS
+    x0 = np.asarray(x0, dtype=np.float64)
+    dev = np.empty((V.shape[0], strides + 1))
+    for i, v in enumerate(V):
+        x = x0 + eps * v
+        dev[i, 0] = np.linalg.norm(x - x0)
+        for k in range(1, strides + 1):
+            x = system.simulate(x, t_max, section=section, **simulate_options).x_final
+            dev[i, k] = np.linalg.norm(x - x0)
+    first = strides // 4
+    rates = np.empty(V.shape[0])
+    last = first
+    for i, row in enumerate(dev):
+        k = np.arange(first, strides + 1)
+        keep = row[first:] > floor
+        if keep.sum() < 2:
+            raise ValueError(f"the deviation of vector {i} falls below floor={floor:g} "
+                             f"before stride {first + 2}: pass a larger eps or fewer strides")
+        last = max(last, int(k[keep][-1]))
+        rates[i] = np.exp(np.polyfit(k[keep], np.log(row[first:][keep]), 1)[0])
+    return DecayCheck(dev, rates, float(rates.max()), (first, last))

@@ -1,8 +1,10 @@
 """HybridSystem: a nonlinear event-selected model and the B-derivative at its event points.
 
 A model is a family of smooth vector fields ``field(x, mask)`` (one per region, bit k of
-``mask`` set iff event k has happened, MATH.md section 1) and the event functions
-``events(x)`` (event k happens when its value crosses 0 upward). :class:`HybridSystem`
+``mask`` set iff ``h_k(x) > 0``, MATH.md section 1) and the event functions
+``events(x)``. Along a trajectory a surface may be crossed upward (the bit is set) or
+downward (cleared), any number of times; a group crossed downward is handled in its local
+orientation (:mod:`bderiv.crossings`). :class:`HybridSystem`
 checks every call of the user functions, gives their Jacobians (analytic when given, else
 numerical), samples the corner table and builds the
 :class:`~bderiv.bderivative.BDerivative` at an event point. Its other methods are thin:
@@ -13,8 +15,12 @@ numerical), samples the corner table and builds the
   group (here rather than in :mod:`bderiv.flowmap`, which only composes given stages: the
   assembly needs the model, and the map should not import the model side);
 - :meth:`HybridSystem.flow_fd`: forward differences of the simulated flow
-  (:mod:`bderiv.checks`).
+  (:mod:`bderiv.checks`);
+- :meth:`HybridSystem.return_map`: the B-derivative of a Poincare map
+  (:mod:`bderiv.returnmap`), and :meth:`HybridSystem.periodic_orbit`: a gait found by
+  Newton's method with it, with its stability (:mod:`bderiv.orbit`).
 
+The checked evaluations of the user functions live in :class:`bderiv._usercalls.ModelCalls`.
 Missing Jacobians are computed with :func:`scipy.differentiate.jacobian` (adaptive step,
 error estimate); the user functions need not be vectorised, they are wrapped.
 """
@@ -25,27 +31,30 @@ import numpy as np
 
 from . import checks
 from ._format import format_mask, transversality_message
-from ._usercalls import check_callable, check_output, numerical_jacobian
-from ._validate import check_number, check_positive_int, check_real_array
+from ._usercalls import ModelCalls, Section
+from ._validate import check_number
 from .bderivative import BDerivative
 from .flowmap import FlowBDerivative
-from .simulate import EventGroup, EventRecord, SolverOptions, Trajectory, run
+from .orbit import ORBIT_OPTIONS, periodic_orbit
+from .returnmap import return_map
+from .simulate import MAX_GROUPS, EventGroup, EventRecord, SolverOptions, Trajectory, run
 
 # EventGroup, EventRecord, Trajectory live in bderiv.simulate; re-exported for old imports
 __all__ = ["EventGroup", "EventRecord", "HybridSystem", "SolverOptions", "Trajectory"]
 
 
 def _spread_masks(events, mask_before):
-    """Global masks of all 2**g local masks of a group (bit j of local = event events[j])."""
+    """Global masks of all 2**g local masks of a group (bit j of local: event events[j]
+    crossed, i.e. its bit of ``mask_before`` flipped, whichever the direction)."""
     g = len(events)
     local = np.arange(1 << g, dtype=np.int64)
     glob = np.full(1 << g, int(mask_before), dtype=np.int64)
     for j, k in enumerate(events):
-        glob |= ((local >> j) & 1) << int(k)
+        glob ^= ((local >> j) & 1) << int(k)
     return glob
 
 
-class HybridSystem:
+class HybridSystem(ModelCalls):
     """A nonlinear event-selected system: region vector fields and event functions.
 
     Parameters
@@ -55,8 +64,8 @@ class HybridSystem:
         (shape ``(d,)``), defined on a neighbourhood of the surfaces, across them. Bit k of
         ``mask`` is set iff event k has happened.
     events : callable
-        ``events(x) -> (n,)``: the event values; event k happens when value k crosses 0
-        upward.
+        ``events(x) -> (n,)``: the event values h(x); the region's bit k is set iff
+        ``h_k(x) > 0``, and a crossing of ``h_k = 0`` in either direction is an event.
     n_events : int
         Number of events n.
     dim : int
@@ -98,109 +107,22 @@ class HybridSystem:
     array([-1.75, -2.25])
     """
 
-    def __init__(self, field, events, *, n_events, dim, event_jacobian=None,
-                 field_jacobian=None, corner_field=None):
-        for f, name in ((field, "field"), (events, "events"),
-                        (event_jacobian, "event_jacobian"),
-                        (field_jacobian, "field_jacobian"), (corner_field, "corner_field")):
-            check_callable(f, name)
-        if field is None or events is None:
-            raise TypeError("field and events are required callables")
-        self.n_events = check_positive_int(n_events, "n_events")
-        self.dim = check_positive_int(dim, "dim")
-        self._field = field
-        self._events = events
-        self._event_jac = event_jacobian
-        self._field_jac = field_jacobian
-        self._corner_field = corner_field
-
     def __repr__(self):
         return f"HybridSystem(n_events={self.n_events}, dim={self.dim})"
-
-    # ------------------------------------------------------------------------------
-    # checked evaluations
-    # ------------------------------------------------------------------------------
-    def _check_state(self, x, name="x"):
-        arr = check_real_array(x, name)
-        if arr.shape != (self.dim,):
-            raise ValueError(
-                f"{name} must have shape ({self.dim},) (a state of this system), got shape "
-                f"{arr.shape}"
-            )
-        arr = np.array(arr, dtype=np.float64)
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{name} must be finite, got {arr}")
-        return arr
-
-    def _check_mask(self, mask):
-        if isinstance(mask, bool) or not isinstance(mask, int | np.integer):
-            raise TypeError(f"mask must be an integer, got {type(mask).__name__}")
-        if not 0 <= mask < (1 << self.n_events):
-            raise ValueError(f"mask must be in [0, 2**{self.n_events}), got {mask}")
-        return int(mask)
-
-    def eval_field(self, x, mask):
-        """The checked vector field of region ``mask`` at ``x``: shape (d,)."""
-        return check_output(self._field(x, mask), (self.dim,), f"field(x, mask={mask})")
-
-    def eval_events(self, x):
-        """The checked event values at ``x``: shape (n,)."""
-        return check_output(self._events(x), (self.n_events,), "events(x)")
-
-    def eval_event_jacobian(self, x):
-        """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""
-        x = self._check_state(x)
-        n, d = self.n_events, self.dim
-        if self._event_jac is not None:
-            return check_output(self._event_jac(x), (n, d), "event_jacobian(x)")
-        return numerical_jacobian(self.eval_events, x, n, "events")
-
-    def eval_field_jacobian(self, x, mask):
-        """Jacobian of ``field(., mask)`` at ``x``, shape (d, d)."""
-        x = self._check_state(x)
-        mask = self._check_mask(mask)
-        d = self.dim
-        if self._field_jac is not None:
-            return check_output(
-                self._field_jac(x, mask), (d, d), f"field_jacobian(x, mask={mask})"
-            )
-        return numerical_jacobian(lambda y: self.eval_field(y, mask), x, d, "field")
-
-    def sample_corners(self, x, masks=None):
-        """Region fields at ``x`` for the given masks (default all 2**n).
-
-        Parameters
-        ----------
-        x : array_like, shape (d,)
-        masks : array_like of int, shape (m,), optional
-
-        Returns
-        -------
-        F : ndarray, shape (m, d) (``(2**n, d)`` by default)
-            ``F[i] = field(x, masks[i])``; taken from ``corner_field`` when given.
-        """
-        x = self._check_state(x)
-        n, d = self.n_events, self.dim
-        masks = (
-            np.arange(1 << n, dtype=np.int64)
-            if masks is None
-            else np.asarray(masks, dtype=np.int64).reshape(-1)
-        )
-        if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
-            table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
-            return np.ascontiguousarray(table[masks])
-        out = np.empty((masks.size, d))
-        for i, m in enumerate(masks.tolist()):
-            out[i] = self.eval_field(x, m)
-        return out
 
     # ------------------------------------------------------------------------------
     # B-derivative at an event point
     # ------------------------------------------------------------------------------
     def _bderivative_at(self, x, events, mask_before, *, where="at rho"):
-        """BDerivative of the group ``events`` at ``x`` entered from region ``mask_before``."""
+        """BDerivative of the group ``events`` at ``x`` entered from region ``mask_before``.
+
+        Built in the group's local orientation: the rows of ``Dh`` of the events crossed
+        downward (bit set in ``mask_before``) are negated, and local mask bit j means
+        "event ``events[j]`` crossed" (its global bit flipped).
+        """
         events = tuple(int(k) for k in events)
-        Dh = self.eval_event_jacobian(x)[list(events)]
+        sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
+        Dh = sign[:, None] * self.eval_event_jacobian(x)[list(events)]
         glob = _spread_masks(events, mask_before)
         F = self.sample_corners(x, glob)
         G = F @ Dh.T
@@ -208,6 +130,8 @@ class HybridSystem:
         if bad.size:
             i, j = (int(v) for v in bad[0])
             region = format_mask(int(glob[i]), self.n_events)
+            if sign[j] < 0:
+                where += f" (event {events[j]} crossed downward: the rate is that of -h)"
             raise ValueError(transversality_message(events[j], region, G[i, j], where))
         return BDerivative(Dh, F)
 
@@ -250,23 +174,9 @@ class HybridSystem:
     # ------------------------------------------------------------------------------
     # the flow: simulation, its B-derivative, its finite differences
     # ------------------------------------------------------------------------------
-    def start_mask(self, x0):
-        """Region mask of a start point from the signs of its event values.
-
-        Raises ``ValueError`` when ``x0`` lies exactly on an event surface.
-        """
-        x0 = self._check_state(x0, "x0")
-        h = self.eval_events(x0)
-        on = np.flatnonzero(h == 0)
-        if on.size:
-            raise ValueError(
-                f"x0 lies on the surface of event(s) {on.tolist()} (events(x0) = {h}); the "
-                f"region is ambiguous there: start slightly before or after the event"
-            )
-        return int(np.sum((h > 0).astype(np.int64) << np.arange(self.n_events)))
-
     def simulate(self, x0, t_final, *, simultaneity_tol=1e-12, options=None, rtol=None,
-                 atol=None, method=None, max_step=None):
+                 atol=None, method=None, max_step=None, max_groups=MAX_GROUPS,
+                 section=None):
         """Integrate from ``x0`` at time 0 to ``t_final`` with event detection.
 
         Parameters
@@ -287,24 +197,36 @@ class HybridSystem:
             1e-12, no step limit).
         rtol, atol, method, max_step : optional
             Override the settings of ``options`` (see :class:`SolverOptions`).
+        max_groups : int
+            Largest number of event groups (default 10,000): a Zeno or chattering
+            trajectory is refused with a RuntimeError.
+        section : callable ``section(x) -> float``, optional
+            Stop at the first upward crossing of ``section(x) = 0`` after time 0 (the
+            Poincare map: ``x_final`` is ``P(x0)``, ``t[-1]`` the return time);
+            ``t_final`` is then the longest time to wait (ValueError if it passes).
 
         Returns
         -------
         Trajectory
+            Its event log records every crossing, upward (bit set) or downward (bit
+            cleared), with its direction (``EventRecord.direction``,
+            ``EventGroup.directions``).
 
         Raises
         ------
         TypeError, ValueError
-            On a bad argument (named). ValueError also if ``x0`` lies on a surface, if an
-            event that happened crosses back downward, if a switched event does not cross
-            upward in its new region (transversality broken), or if an event grouped by
-            ``simultaneity_tol`` is not at the stop (a smaller tolerance is suggested),
-            naming the event, the mask and the time.
+            On a bad argument (named). ValueError also if ``x0`` lies on a surface, if a
+            crossing is grazing (not transversal in the region before or after it: the
+            time, event and direction are named), or if an event grouped by
+            ``simultaneity_tol`` is not at the stop (a smaller tolerance is suggested).
         """
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
-        return run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options)
+        if section is not None:
+            section = Section(section, self.dim)
+        return run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
+                   max_groups=max_groups, section=section)
 
     def flow_bderivative(self, x0, t_final, *, simultaneity_tol=1e-7, options=None,
                          rtol=None, atol=None, method=None, max_step=None):
@@ -313,8 +235,9 @@ class HybridSystem:
         The nominal trajectory and its variational equations are integrated once. Events
         switched within ``simultaneity_tol`` (time) of each other form one group; each
         group gives a :class:`BDerivative` built at the group's state from the model
-        (event Jacobian rows of the group, region fields around the entering mask), and
-        the stage is ``D+ . M . D-`` (MATH.md section 2).
+        (event Jacobian rows of the group, region fields around the entering mask, in the
+        group's local orientation: rows negated for events crossed downward), and the
+        stage is ``D+ . M . D-`` (MATH.md section 2).
 
         Parameters
         ----------
@@ -339,6 +262,11 @@ class HybridSystem:
         x0 = self._check_state(x0, "x0")
         traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
                    variational=True)
+        return self.flow_map_along(traj)
+
+    def flow_map_along(self, traj):
+        """The :class:`FlowBDerivative` along a trajectory integrated with its variational
+        equations (``run(..., variational=True)``): one BDerivative per event group."""
         jumps = [
             self._bderivative_at(g.state, g.events, g.mask_before,
                                  where=f"at the event point at t={g.time:.10g}")
@@ -348,8 +276,84 @@ class HybridSystem:
             traj.linear, jumps, final_field=self.eval_field(traj.x_final, traj.mask_final),
             group_times=[g.time for g in traj.groups],
             group_events=[g.events for g in traj.groups],
-            x0=traj.x[0], x_final=traj.x_final, t_final=float(t_final),
+            x0=traj.x[0], x_final=traj.x_final, t_final=float(traj.t[-1]),
         )
+
+    # ------------------------------------------------------------------------------
+    # gaits: return maps and periodic orbits
+    # ------------------------------------------------------------------------------
+    def return_map(self, x0, section, *, section_gradient=None, t_max=100.0, tol=1e-9,
+                   simultaneity_tol=1e-7, options=None, rtol=None, atol=None, method=None,
+                   max_step=None):
+        """The B-derivative of the Poincare map of ``section(x) = 0`` at x0 on it.
+
+        Parameters
+        ----------
+        x0 : array_like, shape (d,)
+            A point of the section: ``|section(x0)| <= tol``.
+        section : callable
+            ``section(x) -> float``; the flow must cross ``section = 0`` upward (from < 0
+            to > 0), transversally, at x0 and at the return.
+        section_gradient : callable, optional
+            ``section_gradient(x) -> (d,)``; numerical by default.
+        t_max : float
+            Longest time to wait for the return.
+        tol : float
+            Largest accepted ``|section(x0)|``.
+        simultaneity_tol, options, rtol, atol, method, max_step
+            As for :meth:`flow_bderivative`.
+
+        Returns
+        -------
+        ReturnMap
+            A :class:`FlowBDerivative` (``__call__``, ``event_times``, ``orders``,
+            ``piece``) mapping tangent vectors ``(..., d)`` at x0 to tangent vectors at
+            ``P(x0)``, with the correction for the change in return time
+            (:mod:`bderiv.returnmap`); ``period`` is the return time.
+        """
+        options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
+                                        max_step=max_step)
+        x0 = self._check_state(x0, "x0")
+        return return_map(self, x0, Section(section, self.dim, section_gradient),
+                          t_max=check_number(t_max, "t_max"),
+                          tol=check_number(tol, "tol", strict=False),
+                          simultaneity_tol=simultaneity_tol, options=options)[0]
+
+    def periodic_orbit(self, x_guess, section, period_guess=None, *, section_gradient=None,
+                       tol=1e-10, max_iter=30, simultaneity_tol=1e-7, options=None):
+        """A periodic orbit through the section ``section(x) = 0``: ``P(x) = x``.
+
+        Newton's method with the return map's B-derivative, the piecewise-linear Newton
+        equation solved exactly (:mod:`bderiv.orbit` says how and why).
+
+        Parameters
+        ----------
+        x_guess : array_like, shape (d,)
+            A guess near the section (it is moved onto it first).
+        section, section_gradient
+            As for :meth:`return_map`.
+        period_guess : float, optional
+            Expected period: the return is awaited for 3 times it (default 100).
+        tol : float
+            Stop when ``max |P(x) - x| <= tol * max(1, max |x|)``.
+        max_iter : int
+            Largest number of Newton iterations.
+        simultaneity_tol : float
+            For the orbit's return map, as for :meth:`flow_bderivative`.
+        options : SolverOptions, optional
+            Default ``SolverOptions(rtol=1e-12, atol=1e-13)``.
+
+        Returns
+        -------
+        PeriodicOrbit
+            With ``x0``, ``period``, ``trajectory``, ``return_map``, ``residual``,
+            ``history`` and ``stability()``.
+        """
+        x_guess = self._check_state(x_guess, "x_guess")
+        options = SolverOptions.resolve(options, ORBIT_OPTIONS)
+        return periodic_orbit(self, x_guess, Section(section, self.dim, section_gradient),
+                              period_guess=period_guess, tol=tol, max_iter=max_iter,
+                              simultaneity_tol=simultaneity_tol, options=options)
 
     def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=checks.FD_SIMULTANEITY_TOL,
                 options=None, rtol=None, atol=None, method=None, max_step=None):

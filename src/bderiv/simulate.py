@@ -4,27 +4,27 @@
 :class:`~bderiv.hybrid.HybridSystem`: ``eval_field``, ``eval_events``,
 ``eval_event_jacobian``, ``eval_field_jacobian``, ``start_mask``, ``n_events``, ``dim``)
 from region to region with :func:`scipy.integrate.solve_ivp`. Each stretch stops at the
-first event crossing; the events that crossed, and those within ``simultaneity_tol`` (in
-time) of crossing, switch together as one :class:`EventGroup`. A group is checked against
-the model: every event of it must be at the stop to within the integration accuracy
-(:func:`group_tolerance`), so a large ``simultaneity_tol`` cannot silently switch an
-event early and return a wrong state. :class:`SolverOptions` holds the integrator settings
-with their one set of defaults.
+first event crossing, upward or downward (a surface may be crossed any number of times);
+the events that crossed, and those within ``simultaneity_tol`` (in time) of crossing,
+switch together as one :class:`~bderiv.crossings.EventGroup` (:func:`bderiv.crossings.switch`
+checks each crossing and that every event of a group is at the stop). With ``section``
+the run ends at the first upward crossing of a Poincare section after the start.
+:class:`SolverOptions` holds the integrator settings with their one set of defaults.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from dataclasses import field as dc_field
-from typing import NamedTuple
 
 import numpy as np
 from scipy.integrate import OdeSolver, solve_ivp
 
-from ._format import format_mask, transversality_message
-from ._validate import check_number
+from ._validate import check_number, check_positive_int
+from .crossings import GLOBAL_ERROR_FACTOR, EventGroup, EventRecord, group_tolerance, switch
 
 __all__ = [
+    "GLOBAL_ERROR_FACTOR",
     "EventGroup",
     "EventRecord",
     "SolverOptions",
@@ -37,13 +37,9 @@ __all__ = [
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 #: smallest rtol solve_ivp honours (it raises smaller ones to this, with a warning).
 MIN_RTOL = 100 * np.finfo(np.float64).eps
-#: refuse trajectories with more event groups than this times (n + 1) (chattering).
-MAX_GROUPS_FACTOR = 50
-#: global over local error of the integrator in :func:`group_tolerance`: an adaptive
-#: Runge-Kutta method keeps each step's error below atol + rtol |x|; the error of the
-#: state at a stop, a sum of such step errors, is a modest multiple of it.
-GLOBAL_ERROR_FACTOR = 10.0
-
+#: default largest number of event groups of one run (a Zeno or chattering trajectory
+#: would otherwise never end): enough for hundreds of strides of a many-legged gait.
+MAX_GROUPS = 10_000
 
 @dataclass(frozen=True)
 class SolverOptions:
@@ -118,36 +114,6 @@ class SolverOptions:
                 "max_step": self.max_step}
 
 
-class EventRecord(NamedTuple):
-    """One line of the event log: ``event`` switched at ``time``; ``mask`` is the mask after."""
-
-    time: float
-    event: int
-    mask: int
-
-
-class EventGroup(NamedTuple):
-    """Events switched together at one stop of the integrator.
-
-    Attributes
-    ----------
-    time : float
-        Time of the first event of the group (the integrator's stop).
-    events : tuple of int
-        Global indices of the events switched, ascending.
-    mask_before, mask_after : int
-        Region masks before and after the group.
-    state : ndarray, shape (d,)
-        State at ``time``.
-    """
-
-    time: float
-    events: tuple
-    mask_before: int
-    mask_after: int
-    state: np.ndarray
-
-
 @dataclass(frozen=True, eq=False)
 class Trajectory:
     """Result of :meth:`HybridSystem.simulate <bderiv.hybrid.HybridSystem.simulate>`.
@@ -184,24 +150,12 @@ class Trajectory:
     linear: tuple = dc_field(default=(), repr=False)
 
 
-def group_tolerance(Dh: np.ndarray, options: SolverOptions, scale: float) -> np.ndarray:
-    """Largest ``|h_k(x)|`` at which event k counts as being at the stop ``x``: shape (n,).
-
-    The integrator keeps each component's step error below ``atol + rtol * |x_i|``; with
-    ``scale`` the largest ``|x_i|`` met so far, a state error ``e`` with
-    ``|e_i| <= GLOBAL_ERROR_FACTOR * (atol + rtol * scale)`` moves ``h_k`` by at most
-    ``|Dh[k]|_1`` times that. Events closer than this to their surface cannot be told
-    from simultaneous at the solver's accuracy; events further away are not at the stop.
-    """
-    step = options.atol + options.rtol * scale
-    return GLOBAL_ERROR_FACTOR * step * np.abs(Dh).sum(axis=1)
-
-
 class _EventValues:
     """``events(x)`` cached on the last state (solve_ivp calls every event function)."""
 
-    def __init__(self, system):
+    def __init__(self, system, section=None):
         self.system, self.key, self.value = system, None, None
+        self.section = section
 
     def __call__(self, y):
         x = y[: self.system.dim]
@@ -210,7 +164,8 @@ class _EventValues:
         return self.value
 
     def terminal_events(self, mask):
-        """One terminal solve_ivp event per event; pending ones cross upward."""
+        """One terminal solve_ivp event per event, each looking for the crossing that
+        flips its bit; then the section (upward) if any."""
         funcs = []
         for k in range(self.system.n_events):
 
@@ -220,11 +175,23 @@ class _EventValues:
             ev.terminal = True
             ev.direction = -1 if mask >> k & 1 else 1
             funcs.append(ev)
+        if self.section is not None:
+            section, d = self.section, self.system.dim
+
+            def sec(t, y):
+                # the run starts on the section: read it as positive there, so that only
+                # a return from below counts (solve_ivp counts 0 -> positive as a crossing)
+                return 1.0 if t == 0.0 else section(y[:d])
+
+            sec.terminal = True
+            sec.direction = 1
+            funcs.append(sec)
         return funcs
 
 
 def _integrate_stretch(system, x, t, t_final, mask, options, events, variational):
-    """Integrate region ``mask`` from ``(t, x)`` until ``t_final`` or an event."""
+    """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
+    section."""
     d = system.dim
     if variational:  # the state and the (d, d) derivative of the flow, row-major
 
@@ -247,62 +214,6 @@ def _integrate_stretch(system, x, t, t_final, mask, options, events, variational
     return sol
 
 
-def _switch(system, sol, mask, x, simultaneity_tol, options, scale):
-    """The events switched at the stop ``x`` of ``sol`` and the mask after them.
-
-    An event grouped by ``simultaneity_tol`` must be at ``x`` to within
-    :func:`group_tolerance` (``scale``: the largest ``|x_i|`` so far). Raises
-    ``ValueError`` on a downward crossing, on a grouped event not at ``x`` and on a
-    switched event that would cross back in its new region.
-    """
-    n, t = system.n_events, float(sol.t[-1])
-    fired = [k for k in range(n) if sol.t_events[k].size]
-    for k in fired:
-        if mask >> k & 1:
-            raise ValueError(
-                f"event {k} crossed its surface downward at t={t:.10g} in region mask "
-                f"{format_mask(mask, n)}: transversality is broken (an event that happened "
-                f"must stay happened)"
-            )
-    h = system.eval_events(x)
-    Dh = system.eval_event_jacobian(x)
-    rate_before = Dh @ system.eval_field(x, mask)
-    group, near = [], []
-    for k in (k for k in range(n) if not mask >> k & 1):
-        if k in fired or h[k] >= 0:  # crossed: always switched, none is ever lost
-            group.append(k)
-        elif rate_before[k] > 0 and -h[k] / rate_before[k] <= simultaneity_tol:
-            group.append(k)
-            near.append(k)
-    _check_near(near, h, rate_before, group_tolerance(Dh, options, scale), group, t,
-                simultaneity_tol)
-    new = mask | sum(1 << k for k in group)
-    rate_after = Dh @ system.eval_field(x, new)
-    for k in group:
-        if not rate_after[k] > 0:
-            raise ValueError(
-                transversality_message(k, format_mask(new, n), rate_after[k],
-                                       f"at t={t:.10g} after switching events {group}")
-                + " (the event would cross back)"
-            )
-    return group, new
-
-
-def _check_near(near, h, rate, tol, group, t, simultaneity_tol):
-    """Refuse events grouped by ``simultaneity_tol`` that are not at the stop."""
-    far = [k for k in near if abs(h[k]) > tol[k]]
-    if not far:
-        return
-    k = far[0]
-    gap = -h[k] / rate[k]
-    raise ValueError(
-        f"events {group} were grouped at t={t:.10g} by simultaneity_tol={simultaneity_tol:g}, "
-        f"but event {k} is not at that point: h_{k} = {h[k]:.3g}, beyond the integration "
-        f"accuracy {tol[k]:.3g}; it happens about {gap:.3g} later. Switching it early would "
-        f"give a wrong state: pass a simultaneity_tol below {gap:.3g} to switch it on its own"
-    )
-
-
 @dataclass
 class _Log:
     """What :func:`run` accumulates, stretch by stretch."""
@@ -322,7 +233,8 @@ class _Log:
             self.linear.append(np.array(sol.y[d:, -1].reshape(d, d)))
 
 
-def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=False):
+def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=False,
+        section=None, max_groups=MAX_GROUPS):
     """Integrate ``system`` from ``x0`` at time 0 to ``t_final`` with event detection.
 
     Parameters
@@ -332,45 +244,77 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     x0 : ndarray, shape (d,)
         Checked start point, not on an event surface.
     t_final : float
-        Final time, > 0.
+        Final time, > 0 (with ``section``: the longest time to wait for the return).
     simultaneity_tol : float
         Events within this time (first order) of crossing at a stop switch with it.
     options : SolverOptions, optional
     variational : bool
         Also integrate the variational equations (fills ``Trajectory.linear``).
+    section : callable ``section(x) -> float``, optional
+        Stop at the first upward crossing of ``section(x) = 0`` after time 0 (x0 is on
+        the section, or below it); the trajectory ends there.
+    max_groups : int
+        Largest number of event groups (a Zeno or chattering trajectory is refused).
 
     Returns
     -------
     Trajectory
+
+    Raises
+    ------
+    ValueError
+        From :func:`bderiv.crossings.switch`; with ``section``, when the trajectory does
+        not return to it before ``t_final`` or an event crosses at the return.
+    RuntimeError
+        When the integrator fails or the run has more than ``max_groups`` event groups.
     """
     t_final = check_number(t_final, "t_final")
     simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
+    max_groups = check_positive_int(max_groups, "max_groups")
     options = SolverOptions() if options is None else options
     d, n = system.dim, system.n_events
     mask = system.start_mask(x0)
-    events, log = _EventValues(system), _Log()
+    events, log = _EventValues(system, section), _Log()
     t, x, scale = 0.0, x0, float(np.abs(x0).max())
     while True:
         sol = _integrate_stretch(system, x, t, t_final, mask, options, events, variational)
         log.add_stretch(sol, mask, d, variational)
         t, x = float(sol.t[-1]), np.array(sol.y[:d, -1])
         scale = max(scale, float(np.abs(sol.y[:d]).max()))
+        fired = [k for k in range(n) if sol.t_events[k].size]
+        if section is not None and sol.t_events[n].size:
+            _refuse_event_at_return(fired, t)
+            break
         if sol.status == 0:
             break
-        group, new = _switch(system, sol, mask, x, simultaneity_tol, options, scale)
+        group, new = switch(system, fired, mask, x, t, simultaneity_tol, options, scale)
         log.records.extend(EventRecord(t, k, new) for k in group)
         log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy()))
         mask = new
-        if len(log.groups) > MAX_GROUPS_FACTOR * (n + 1):
+        if len(log.groups) > max_groups:
             raise RuntimeError(
-                f"more than {MAX_GROUPS_FACTOR * (n + 1)} event groups before t_final="
-                f"{t_final}: the trajectory chatters or the events are not event-selected"
+                f"more than max_groups={max_groups} event groups before t={t:.10g}: the "
+                f"trajectory chatters (Zeno), or pass a larger max_groups for a long run"
             )
         if t >= t_final:
             break
+    if section is not None and not sol.t_events[n].size:
+        raise ValueError(
+            f"the trajectory did not return to the section (upward) before t={t_final:g}; "
+            f"pass a longer time to wait"
+        )
     if variational and len(log.linear) == len(log.groups):  # an event stopped it at t_final
         log.linear.append(np.eye(d))
     return Trajectory(t=np.concatenate(log.t), x=np.concatenate(log.x),
                       masks=np.concatenate(log.masks), events=tuple(log.records),
                       groups=tuple(log.groups), x_final=x, mask_final=mask,
                       linear=tuple(log.linear))
+
+
+def _refuse_event_at_return(fired, t):
+    """Refuse a return to the section at which events cross too."""
+    if fired:
+        raise ValueError(
+            f"event(s) {fired} cross at the return to the section (t={t:.10g}): the return "
+            f"map is not piecewise differentiable there; choose a section away from events"
+        )

@@ -1,0 +1,180 @@
+"""Event crossings at a stop of the integrator: the event log and the switching rule.
+
+A region is named by the signs of the event functions (bit k of the mask set iff
+``h_k(x) > 0``). A surface may be crossed upward (``h_k`` from negative to positive: the
+bit is set) or downward (the bit is cleared), any number of times. At each stop of the
+integrator :func:`switch` decides which events cross together (one :class:`EventGroup`),
+checks every crossing is transversal on both sides, in the direction it is crossed, and
+returns the mask after them (the mask before with the group's bits flipped).
+
+In a group's **local orientation** an event crossed downward has its function negated
+(``-h_k``), so that every event of the group is crossed upward: the group's B-derivative
+is then the one of MATH.md (rows of ``Dh`` negated, mask bits flipped for those events).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ._format import format_mask, transversality_message
+
+__all__ = ["EventGroup", "EventRecord", "group_tolerance", "switch"]
+
+#: global over local error of the integrator in :func:`group_tolerance`: an adaptive
+#: Runge-Kutta method keeps each step's error below atol + rtol |x|; the error of the
+#: state at a stop, a sum of such step errors, is a modest multiple of it.
+GLOBAL_ERROR_FACTOR = 10.0
+#: a crossing whose rate ``|Dh_k . F|`` is at most this times ``|Dh_k| |F|`` is grazing
+#: (the default ``transversality_tol`` of :class:`~bderiv.bderivative.BDerivative`).
+GRAZING_RTOL = 1e-9
+
+
+def direction_name(direction: int) -> str:
+    """``"upward"`` for +1, ``"downward"`` for -1."""
+    return "upward" if direction > 0 else "downward"
+
+
+class EventRecord(NamedTuple):
+    """One line of the event log: ``event`` crossed at ``time``; ``mask`` is the mask after.
+
+    ``direction`` is +1 for an upward crossing (bit set after it), -1 for a downward one.
+    """
+
+    time: float
+    event: int
+    mask: int
+
+    @property
+    def direction(self) -> int:
+        return 1 if self.mask >> self.event & 1 else -1
+
+
+class EventGroup(NamedTuple):
+    """Events that crossed together at one stop of the integrator.
+
+    Attributes
+    ----------
+    time : float
+        Time of the first event of the group (the integrator's stop).
+    events : tuple of int
+        Global indices of the events that crossed, ascending.
+    mask_before, mask_after : int
+        Region masks before and after the group (``mask_after = mask_before ^ bits``).
+    state : ndarray, shape (d,)
+        State at ``time``.
+    directions : tuple of int (property)
+        +1 (upward) or -1 (downward) for each event of ``events``.
+    """
+
+    time: float
+    events: tuple
+    mask_before: int
+    mask_after: int
+    state: np.ndarray
+
+    @property
+    def directions(self) -> tuple:
+        return tuple(-1 if self.mask_before >> k & 1 else 1 for k in self.events)
+
+
+def group_tolerance(Dh: np.ndarray, options, scale: float) -> np.ndarray:
+    """Largest ``|h_k(x)|`` at which event k counts as being at the stop ``x``: shape (n,).
+
+    The integrator keeps each component's step error below ``atol + rtol * |x_i|``; with
+    ``scale`` the largest ``|x_i|`` met so far, a state error ``e`` with
+    ``|e_i| <= GLOBAL_ERROR_FACTOR * (atol + rtol * scale)`` moves ``h_k`` by at most
+    ``|Dh[k]|_1`` times that. Events closer than this to their surface cannot be told
+    from simultaneous at the solver's accuracy; events further away are not at the stop.
+    """
+    step = options.atol + options.rtol * scale
+    return GLOBAL_ERROR_FACTOR * step * np.abs(Dh).sum(axis=1)
+
+
+def switch(system, fired, mask, x, t, simultaneity_tol, options, scale):
+    """The events that cross at the stop ``(t, x)`` and the mask after them.
+
+    Parameters
+    ----------
+    system : HybridSystem
+    fired : list of int
+        Events the integrator located at this stop.
+    mask : int
+        Region mask before the stop.
+    x : ndarray, shape (d,)
+    t : float
+    simultaneity_tol : float
+        Events within this time (first order) of crossing are switched too; they must be
+        at ``x`` to within :func:`group_tolerance` (``scale``: the largest ``|x_i|`` so far).
+    options : SolverOptions
+
+    Returns
+    -------
+    group : list of int
+        The events that cross, ascending.
+    new : int
+        The mask after them.
+
+    Raises
+    ------
+    ValueError
+        On a grazing crossing (a rate that is not clearly of the crossing's sign before or
+        after it: the time, event and direction are named) and on a grouped event that is
+        not at ``x``.
+    """
+    n = system.n_events
+    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])  # local orientation
+    h = sign * system.eval_events(x)
+    Dh = sign[:, None] * system.eval_event_jacobian(x)
+    F = system.eval_field(x, mask)
+    rate = Dh @ F
+    tol = group_tolerance(Dh, options, scale)
+    group, near = [], []
+    for k in range(n):
+        # crossed, located or not (two surfaces crossed in one step): always switched, so
+        # none is ever lost; an event within tol of its surface is at it, and crosses
+        # only if the flow carries it across (an event just switched back sits there)
+        if k in fired or h[k] > tol[k]:
+            group.append(k)
+        elif rate[k] > 0 and -h[k] / rate[k] <= simultaneity_tol:
+            group.append(k)
+            near.append(k)
+    _check_near(near, h, rate, tol, group, t, simultaneity_tol)
+    new = mask ^ sum(1 << k for k in group)
+    F_new = system.eval_field(x, new)
+    for k in group:
+        _check_crossing(k, Dh[k], F, mask, f"before switching events {group}", t, sign[k], n)
+        _check_crossing(k, Dh[k], F_new, new, f"after switching events {group}", t, sign[k],
+                        n)
+    return group, new
+
+
+def _check_crossing(k, dh, F, mask, when, t, sign, n):
+    """Refuse a crossing of event k (``dh``: its gradient in local orientation) whose rate
+    ``dh . F`` in region ``mask`` is not clearly positive: grazing, or pushed back."""
+    rate = float(dh @ F)
+    if rate > GRAZING_RTOL * np.linalg.norm(dh) * np.linalg.norm(F):
+        return
+    message = transversality_message(k, format_mask(mask, n), rate, f"at t={t:.10g} {when}")
+    if when.startswith("after"):
+        message += " (the event would cross back)"
+    else:
+        message += " (a grazing crossing)"
+    downward = f" (the rate is that of -h_{k}, which crosses upward)" if sign < 0 else ""
+    raise ValueError(f"{message}; event {k} crossed {direction_name(sign)}{downward}")
+
+
+def _check_near(near, h, rate, tol, group, t, simultaneity_tol):
+    """Refuse events grouped by ``simultaneity_tol`` that are not at the stop."""
+    far = [k for k in near if abs(h[k]) > tol[k]]
+    if not far:
+        return
+    k = far[0]
+    gap = -h[k] / rate[k]
+    raise ValueError(
+        f"events {group} were grouped at t={t:.10g} by simultaneity_tol={simultaneity_tol:g}, "
+        f"but event {k} is not at that point: h_{k} = {h[k]:.3g}, beyond the integration "
+        f"accuracy {tol[k]:.3g}; it happens about {gap:.3g} later. Switching it early would "
+        f"give a wrong state: pass a simultaneity_tol below {gap:.3g} to switch it on its own"
+    )

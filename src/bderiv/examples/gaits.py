@@ -1,0 +1,259 @@
+"""Gaits: a planar body pronking on two compliant legs that land and lift off together.
+
+State ``(z, theta, vz, omega)`` (d = 4): height and pitch of the body and their rates;
+unit mass, pitch inertia ``inertia``. Leg k ends at the body-frame point
+``(a_k, -leg)`` with ``a = (-half_base, +half_base)``: its foot height is
+``z + a_k sin(theta) - leg cos(theta)``, and event k is ``h_k = -height_k`` (upward
+crossing: touchdown; downward crossing: lift-off; both recur every stride).
+
+In contact the ground pushes the foot up with ``f_k = -stiffness * height_k - damping *
+v_k + thrust_k``, ``v_k`` the foot's vertical velocity, and an energy-regulating thrust
+``thrust_k = gain(B) * (1 - vz^2 / v_ref^2) * vz`` (a Van der Pol term on the body's
+vertical velocity: it pumps energy in slow stance and dissipates in fast stance, so the
+hopping height settles); ``gain(B) = gain * (1 + coupling)`` while both legs touch, so
+the corner table is not additive and the event orders give different pieces. Gravity
+acts always; the forces are smooth in each region and jump at touchdown (damping and
+thrust do not vanish there), so both touchdown and lift-off are event-selected.
+
+The body is symmetric: on the pronking orbit (``theta = omega = 0``) both feet touch down
+at the same instant and lift off at the same instant, so every stride crosses two
+simultaneous groups, upward then downward. The Poincare section is the apex,
+``section(x) = -vz = 0`` (crossed upward when the body starts falling). The stored apex
+height ``APEX`` is only a start for Newton's method (:func:`pronking_orbit`); on the symmetric
+subspace the events coincide for any height, so :func:`pronking`'s ``rho`` is an exact
+simultaneous-event point.
+
+:func:`pronking_orbit` finds the orbit, :func:`pronking_summary` goes from the model to the
+stability verdict with its checks against simulation (``summary_text`` prints it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._common import Example, complex_step_jacobian
+
+__all__ = [
+    "APEX",
+    "apex_section",
+    "apex_section_gradient",
+    "pronking",
+    "pronking_orbit",
+    "pronking_summary",
+    "summary_text",
+]
+
+_G = 9.81
+#: apex height of the pronking orbit with the default parameters (a guess for Newton).
+APEX = 0.6629663141
+
+
+class _Pronking:
+    def __init__(self, stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia):
+        self.K, self.C, self.gain, self.v_ref = stiffness, damping, gain, v_ref
+        self.coupling, self.leg, self.inertia = coupling, leg, inertia
+        self.a = np.array([-half_base, half_base])
+
+    def _feet(self, x):
+        c, s = np.cos(x[1]), np.sin(x[1])
+        rx = self.a * c + self.leg * s  # horizontal lever arm of each foot
+        height = x[0] + self.a * s - self.leg * c
+        return rx, height, x[2] + x[3] * rx
+
+    def field(self, x, mask):
+        rx, height, v = self._feet(x)
+        mask = int(mask)
+        gain = self.gain * (1.0 + self.coupling) if mask & 3 == 3 else self.gain
+        thrust = gain * (1.0 - x[2] ** 2 / self.v_ref**2) * x[2]
+        az, alpha = -_G + 0.0 * x[0], 0.0 * x[0]
+        for k in range(2):
+            if mask >> k & 1:
+                f = -self.K * height[k] - self.C * v[k] + thrust
+                az = az + f
+                alpha = alpha + rx[k] * f / self.inertia
+        return np.array([x[2], x[3], az, alpha])
+
+    def field_jacobian(self, x, mask):
+        return complex_step_jacobian(lambda y: self.field(y, mask), x, 4)
+
+    def events(self, x):
+        return -self._feet(x)[1]
+
+    def event_jacobian(self, x):
+        D = np.zeros((2, 4))
+        D[:, 0] = -1.0
+        D[:, 1] = -self._feet(x)[0]
+        return D
+
+
+def apex_section(x):
+    """The apex section ``-vz``: crossed upward when the body starts to fall."""
+    return -x[2]
+
+
+def apex_section_gradient(x):
+    """Gradient of :func:`apex_section`: ``(0, 0, -1, 0)``."""
+    return np.array([0.0, 0.0, -1.0, 0.0])
+
+
+def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
+             half_base=0.4, leg=0.5, inertia=0.16, apex=APEX, t_after=0.05):
+    """The pronking body at the apex of its gait, about to land on both legs at once.
+
+    Parameters
+    ----------
+    stiffness, damping : float
+        Ground spring and damper of each leg (per unit mass).
+    gain, v_ref : float
+        Thrust gain and the vertical speed at which the thrust changes sign.
+    coupling : float
+        Extra relative thrust gain while both legs touch (0: additive contact forces).
+    half_base, leg : float
+        Half the distance between the feet, and the legs' length.
+    inertia : float
+        Pitch inertia per unit mass (0.16 makes the pitch motion stable).
+    apex : float
+        Apex height of the start point ``x0 = (apex, 0, 0, 0)`` (> ``leg``).
+    t_after : float
+        ``t_final = t_event + t_after`` (the legs still touch then).
+
+    Returns
+    -------
+    Example
+        ``x0`` the apex state, ``rho`` the touchdown state (both feet on the ground, in
+        closed form: free fall from the apex), ``t_event`` the fall time. Use
+        :func:`apex_section` and :func:`pronking_orbit` for the gait.
+    """
+    model = _Pronking(stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia)
+    fall = float(np.sqrt(2.0 * (apex - leg) / _G))
+    rho = np.array([leg, 0.0, -_G * fall, 0.0])
+    return Example.from_model(
+        model, n_events=2, dim=4, rho=rho, x0=np.array([apex, 0.0, 0.0, 0.0]),
+        t_event=fall, t_after=t_after, name="pronking",
+        description=("planar body pronking on two compliant legs: both land and lift off "
+                     "together every stride (d = 4, n = 2, coupling = "
+                     f"{coupling})"),
+    )
+
+
+def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwargs):
+    """The pronking orbit, found by Newton's method from a perturbed apex state.
+
+    Parameters
+    ----------
+    example : Example, optional
+        Default :func:`pronking`.
+    perturbation : array_like, shape (4,)
+        Added to ``example.x0`` for the guess (it breaks the symmetry on purpose).
+    **kwargs
+        Passed to :meth:`HybridSystem.periodic_orbit
+        <bderiv.hybrid.HybridSystem.periodic_orbit>`.
+
+    Returns
+    -------
+    PeriodicOrbit
+    """
+    ex = pronking() if example is None else example
+    guess = ex.x0 + np.asarray(perturbation, dtype=np.float64)
+    kwargs.setdefault("section_gradient", apex_section_gradient)
+    kwargs.setdefault("period_guess", 0.5)
+    return ex.system.periodic_orbit(guess, apex_section, **kwargs)
+
+
+def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0):
+    """The gait from model to stability verdict, with its checks against simulation.
+
+    Finds the orbit (:func:`orbit`), its event groups, the return map's pieces met by a
+    batch with their Floquet multipliers, the growth rate, and two checks against
+    simulation: finite differences of the simulated Poincare map against the return map
+    (one direction in each piece, several steps), and the decay of perturbations over
+    ``strides`` simulated strides against the predicted growth rate.
+
+    Parameters
+    ----------
+    n_check : int
+        Directions of the decay check.
+    eps : sequence of float
+        Steps of the finite differences.
+    strides : int
+        Strides of the decay check.
+    seed : int
+
+    Returns
+    -------
+    dict
+        JSON-friendly: ``orbit`` (x0, period, residual, Newton residuals), ``groups``
+        (time, events, directions), ``stability`` (growth rate, spread, stable, pieces
+        with visits and |multipliers|), ``fd`` (eps, max errors, ratios), ``decay``
+        (simulated rate per direction, the largest, the window).
+    """
+    from ..checks import decay_check, fd_check  # the checks simulate: only here
+
+    ex = pronking()
+    orb = pronking_orbit(ex)
+    st = orb.stability(seed=seed)
+    R, rng = orb.return_map, np.random.default_rng(seed)
+    W = rng.standard_normal((100_000, 4)) @ R.tangent_basis @ R.tangent_basis.T
+    V = _one_per_piece(R, W)
+    fd = fd_check(ex.system, orb.x0, 3.0, V, R(V), eps=eps, section=apex_section)
+    D = rng.standard_normal((n_check, 3)) @ R.tangent_basis.T
+    decay = decay_check(ex.system, orb.x0, apex_section,
+                        D / np.linalg.norm(D, axis=1)[:, None], eps=1e-2, strides=strides)
+    return {
+        "name": ex.name, "description": ex.description,
+        "orbit": {"x0": orb.x0.tolist(), "period": orb.period, "residual": orb.residual,
+                  "newton_residuals": [h.residual for h in orb.history]},
+        "groups": [{"time": g.time, "events": list(g.events), "directions": list(g.directions)}
+                   for g in orb.trajectory.groups],
+        "stability": {
+            "growth_rate": st.growth_rate, "spread": st.spread, "stable": st.stable,
+            "pieces": [{"orders": [list(o) for o in p], "visits": st.visits[p],
+                        "abs_multipliers": np.abs(m).tolist()}
+                       for p, m in st.multipliers.items()],
+        },
+        "fd": {"eps": list(fd.eps), "max_errors": list(fd.max_errors),
+               "ratios": list(fd.ratios), "vectors": len(V)},
+        "decay": {"rates": decay.rates.tolist(), "rate": decay.rate,
+                  "window": list(decay.window), "eps": 1e-2},
+    }
+
+
+def _one_per_piece(R, W):
+    """One unit direction of W in each piece of R that W meets."""
+    stacked = np.concatenate(R.orders(W), axis=1)
+    _, first = np.unique(stacked, axis=0, return_index=True)
+    V = W[np.sort(first)]
+    return V / np.linalg.norm(V, axis=1)[:, None]
+
+
+def summary_text(res):
+    """The lines of :func:`pronking_summary` for a terminal."""
+    o, st = res["orbit"], res["stability"]
+    arrow = {1: "up", -1: "down"}
+    lines = [f"bderiv demo: {res['name']}", f"  {res['description']}",
+             f"periodic orbit (apex section -vz = 0): x0 = {np.round(o['x0'], 10).tolist()}",
+             f"  period {o['period']:.10g}; Newton residuals "
+             + ", ".join(f"{r:.2e}" for r in o["newton_residuals"])
+             + f"; fixed-point residual |P(x0) - x0| = {o['residual']:.2e}"]
+    for g in res["groups"]:
+        dirs = ",".join(arrow[d] for d in g["directions"])
+        lines.append(f"  event group at t = {g['time']:.6f}: events {tuple(g['events'])} "
+                     f"crossed {dirs}")
+    verdict = "stable" if st["stable"] else "unstable"
+    lines.append(f"return map: growth rate {st['growth_rate']:.6f} -> {verdict} (spread of "
+                 f"the estimate {st['spread']:.1e})")
+    for p in sorted(st["pieces"], key=lambda p: -p["visits"]):
+        orders = " ".join("(" + ",".join(map(str, q)) + ")" for q in p["orders"])
+        mult = ", ".join(f"{m:.6f}" for m in p["abs_multipliers"])
+        lines.append(f"  piece {orders}: {p['visits']} visits, |multipliers| {mult}")
+    fd = res["fd"]
+    lines.append(f"check: finite differences of the simulated Poincare map ({fd['vectors']} "
+                 f"directions, one per piece), max |FD - DP v| / max |DP v|:")
+    lines += [f"  eps = {e:.0e}: {err:.3e}" for e, err in zip(fd["eps"], fd["max_errors"],
+                                                              strict=True)]
+    dec = res["decay"]
+    lines.append(f"check: decay of perturbations (eps = {dec['eps']:g}) in simulations, "
+                 f"strides {dec['window'][0]}-{dec['window'][1]}: rate {dec['rate']:.4f} "
+                 f"(per direction {', '.join(f'{r:.4f}' for r in dec['rates'])}); predicted "
+                 f"{st['growth_rate']:.4f}")
+    return "\n".join(lines)

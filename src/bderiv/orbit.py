@@ -1,0 +1,268 @@
+"""Periodic orbits of a hybrid system: Newton's method with the B-derivative, and the orbit.
+
+:func:`periodic_orbit` solves ``P(x) = x`` on a Poincare section (``P`` the return map of
+:mod:`bderiv.returnmap`). At an iterate x the return map's B-derivative ``A = DP(x)`` is
+piecewise linear, and the Newton step solves the **piecewise-linear Newton equation
+exactly** (the B-derivative Newton method of Pang, 1990):
+
+    find delta with   (P(x) - x) + A(delta) - delta = 0,   grad s(x) . delta = -s(x),
+
+by solving the linear system of every piece (one event order per group; few: a gait has
+a handful of simultaneous groups of a few events) and keeping the solution that lies in
+its own piece (``A(delta) = A_piece delta``). Why exactly and not "the piece at x": near
+an orbit through a simultaneous-event point the iterates move between pieces, and the
+solution of the true PL equation is the step that makes the first-order model of P vanish,
+whichever piece it lands in; with the piece of x the step can point the wrong way and
+cycle. When the events at an iterate are not simultaneous, A is a single linear piece
+(the classical Jacobian of the side the iterate is on), and Newton's method converges
+quadratically there as well: each smooth piece of P passes through the fixed point
+(Kojima & Shindo, 1986). A step that does not reduce ``|P(x) - x|`` is halved.
+
+The iterates use ``simultaneity_tol = 0`` (events are grouped only when the integrator
+cannot tell them apart), so an iterate whose events are close but not simultaneous is
+never refused; the orbit's return map is then built with the caller's tolerance.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import check_number, check_positive_int
+from .returnmap import return_map
+from .simulate import SolverOptions, run
+from .stability import Stability, growth_rate, piece_multipliers
+
+__all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
+
+#: integrator settings of the orbit search: the residual is only as good as the
+#: integration, and Newton's method converges to within it.
+ORBIT_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13)
+#: longest wait for the return without a period guess, and in multiples of the guess.
+DEFAULT_T_MAX = 100.0
+T_MAX_PER_PERIOD = 3.0
+#: halvings of a Newton step that does not reduce the residual before giving up.
+MAX_HALVINGS = 10
+#: a piece's solution lies in its piece when ``|A(delta) - A_piece delta|`` is below
+#: this times ``|A_piece| |delta|`` (ties between pieces give equal values).
+PIECE_RTOL = 1e-8
+
+
+@dataclass(frozen=True)
+class NewtonIterate:
+    """One Newton iteration: the iterate, ``max |P(x) - x|`` there, the step taken, and
+    the piece (one event order per group) whose linear system gave it."""
+
+    x: np.ndarray
+    residual: float
+    step: float
+    piece: tuple
+
+
+class PeriodicOrbit:
+    """A periodic orbit found by :func:`periodic_orbit`.
+
+    Attributes
+    ----------
+    system : HybridSystem
+    section : callable
+        The checked section (``section(x)`` and ``section.gradient(x)``).
+    x0 : ndarray, shape (d,)
+        The fixed point of the return map on the section.
+    period : float
+        Return time.
+    trajectory : Trajectory
+        One period from ``x0`` (its event groups with their directions).
+    return_map : ReturnMap
+        The B-derivative of the return map at ``x0``.
+    residual : float
+        ``max |P(x0) - x0|`` (simulated).
+    history : tuple of NewtonIterate
+        The Newton iterations.
+    """
+
+    def __init__(self, system, section, x0, trajectory, return_map, residual, history):
+        self.system, self.section = system, section
+        self.x0 = x0
+        self.trajectory = trajectory
+        self.return_map = return_map
+        self.period = return_map.period
+        self.residual = float(residual)
+        self.history = tuple(history)
+
+    def __repr__(self):
+        groups = [(round(g.time, 6), g.events, g.directions) for g in self.trajectory.groups]
+        return (f"PeriodicOrbit(period={self.period:.10g}, residual={self.residual:.3g}, "
+                f"groups={groups})")
+
+    def sample(self, n_points=400):
+        """One period simulated again with at most ``period / n_points`` per step (for
+        figures: the solver's own steps can be few): a Trajectory."""
+        n_points = check_positive_int(n_points, "n_points")
+        return self.system.simulate(self.x0, T_MAX_PER_PERIOD * self.period,
+                                    section=self.section, max_step=self.period / n_points,
+                                    simultaneity_tol=1e-7, options=ORBIT_OPTIONS)
+
+    def stability(self, n_directions=1000, iterations=1000, burn_in=None, seed=0) -> Stability:
+        """The stability of the orbit, from the piecewise-linear return map.
+
+        Iterates the return map's B-derivative on ``n_directions`` random directions
+        tangent to the section (:func:`bderiv.stability.growth_rate`) and reports the
+        Floquet multipliers of every piece met. See :mod:`bderiv.stability` for the
+        method and its limits.
+
+        Parameters
+        ----------
+        n_directions : int
+            Directions in the batch.
+        iterations : int
+            Iterations of the map (>= 2).
+        burn_in : int, optional
+            Iterations not averaged (default ``iterations // 4``).
+        seed : int
+            Seed of the random directions.
+
+        Returns
+        -------
+        Stability
+        """
+        n_directions = check_positive_int(n_directions, "n_directions")
+        R = self.return_map
+        basis = R.tangent_basis
+        V0 = np.random.default_rng(seed).standard_normal((n_directions, basis.shape[1]))
+        rates, spread, visits = growth_rate(R, V0 @ basis.T, iterations, burn_in,
+                                            orders=R.orders)
+        multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in visits}
+        i = int(np.argmax(rates))
+        burn_in = iterations // 4 if burn_in is None else int(burn_in)
+        return Stability(float(rates[i]), bool(rates[i] < 1.0), rates, float(spread[i]),
+                         multipliers, visits, int(iterations), burn_in)
+
+
+def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, max_iter=30,
+                   simultaneity_tol=1e-7, options=None):
+    """Solve ``P(x) = x`` on the section by Newton's method with the B-derivative.
+
+    Parameters
+    ----------
+    system : HybridSystem
+    x_guess : ndarray, shape (d,)
+        Checked start; it is first moved onto the section along the section's gradient.
+    section : bderiv._usercalls.Section
+    period_guess : float, optional
+        Expected period; the return is awaited for ``3 * period_guess`` (default 100).
+    tol : float
+        Stop when ``max |P(x) - x| <= tol * max(1, max |x|)``.
+    max_iter : int
+        Largest number of Newton iterations.
+    simultaneity_tol : float
+        For the orbit's return map (the iterates use 0).
+    options : SolverOptions, optional
+        Default :data:`ORBIT_OPTIONS`.
+
+    Returns
+    -------
+    PeriodicOrbit
+
+    Raises
+    ------
+    RuntimeError
+        When Newton's method does not converge in ``max_iter`` iterations, or a step
+        cannot reduce the residual (the last iterate and residual are named).
+    ValueError
+        From the orbit's return map (:func:`bderiv.returnmap.return_map`), for example
+        when two events of the orbit are closer than ``simultaneity_tol`` in time but
+        not at one point to within the integration accuracy (the message suggests a
+        smaller ``simultaneity_tol``).
+    """
+    tol = check_number(tol, "tol")
+    max_iter = check_positive_int(max_iter, "max_iter")
+    t_max = (DEFAULT_T_MAX if period_guess is None
+             else T_MAX_PER_PERIOD * check_number(period_guess, "period_guess"))
+    options = ORBIT_OPTIONS if options is None else options
+    x = _onto_section(section, x_guess)
+    history = []
+    for iteration in range(max_iter + 1):
+        R, _traj = return_map(system, x, section, t_max=t_max, tol=1e-9, simultaneity_tol=0.0,
+                              options=options)
+        r = R.x_final - x
+        res = float(np.abs(r).max())
+        if res <= tol * max(1.0, float(np.abs(x).max())):
+            break
+        if iteration == max_iter:
+            raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
+                               f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
+        delta, piece = newton_step(R, r, section.gradient(x), section(x))
+        x_new = _damped(system, section, x, delta, res, t_max, options)
+        history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece))
+        x = x_new
+    history.append(NewtonIterate(x.copy(), res, 0.0, ()))
+    R, traj = return_map(system, x, section, t_max=t_max, tol=1e-9,
+                         simultaneity_tol=simultaneity_tol, options=options)
+    return PeriodicOrbit(system, section, x, traj, R, float(np.abs(R.x_final - x).max()),
+                         history)
+
+
+def newton_step(R, r, normal, value):
+    """Solve the PL Newton equation ``r + R(delta) - delta = 0``, ``normal . delta =
+    -value`` exactly: the solution of a piece's linear system that lies in its piece.
+
+    Returns ``(delta, piece)``. When no piece's solution lies in its own piece (the PL
+    equation has no solution: the B-derivative is not invertible there), the solution
+    with the smallest PL residual ``|r + R(delta) - delta|`` is taken.
+    """
+    d = R.dim
+    rhs = np.concatenate((-r, [-value]))
+    best = None
+    for piece in all_pieces(R):
+        A = R.piece(list(piece))
+        delta = np.linalg.lstsq(np.vstack((A - np.eye(d), normal)), rhs, rcond=None)[0]
+        image = R(delta)
+        off = np.abs(image - A @ delta).max()
+        if off <= PIECE_RTOL * np.abs(A).max() * np.abs(delta).max():
+            return delta, piece
+        miss = np.abs(r + image - delta).max()
+        if best is None or miss < best[0]:
+            best = (miss, delta, piece)
+    return best[1], best[2]
+
+
+def all_pieces(fmap):
+    """Every combination of one event order (local indices) per group of a flow map."""
+    per_group = [itertools.permutations(range(bd.n_events)) for bd in fmap.jumps]
+    return list(itertools.product(*per_group))
+
+
+def _onto_section(section, x, steps=20):
+    """Move x onto ``section = 0`` along the gradient (Newton's method on s)."""
+    x = np.array(x, dtype=np.float64)
+    for _ in range(steps):
+        value = section(x)
+        if abs(value) <= 1e-13 * max(1.0, float(np.abs(x).max())):
+            break
+        g = section.gradient(x)
+        x = x - value * g / (g @ g)
+    return x
+
+
+def _damped(system, section, x, delta, res, t_max, options):
+    """``x + delta`` (on the section), halved until ``max |P - x|`` falls below ``res``."""
+    failure = ""
+    for _ in range(MAX_HALVINGS + 1):
+        trial = _onto_section(section, x + delta)
+        try:
+            traj = run(system, trial, t_max, simultaneity_tol=0.0, options=options,
+                       section=section)
+        except ValueError as exc:  # no return, an event at the section ...: a shorter step
+            failure = f"; the last trial point failed: {exc}"
+            delta = delta / 2
+            continue
+        if float(np.abs(traj.x_final - trial).max()) < res:
+            return trial
+        delta = delta / 2
+    raise RuntimeError(f"a Newton step from x = {x} could not reduce max |P(x) - x| = "
+                       f"{res:.3g} in {MAX_HALVINGS} halvings: the guess is too far from "
+                       f"a periodic orbit, or the orbit is degenerate (a multiplier 1)"
+                       f"{failure}")

@@ -1,0 +1,194 @@
+"""Stability of a piecewise-linear map: multipliers of its pieces and its growth rate.
+
+A piecewise-linear (PL), positively homogeneous map ``A`` (the B-derivative of a return
+map at a fixed point) is stable when ``|A^k v|`` decays for every direction v. The
+eigenvalues of its pieces do not decide this: a direction may visit several pieces in
+turn, and the product of pieces that it meets can grow while every piece is a
+contraction, or decay while a piece it visits has an eigenvalue above 1 in modulus. What
+decides is the **growth rate**
+
+    lambda = sup_v  lim_k |A^k v|^(1/k),
+
+which :func:`growth_rate` estimates by iterating A on a batch of directions at once
+(one batched evaluation per iteration), renormalising every step and fitting the slope of
+``log |A^k v|`` after a burn-in; the largest rate over the batch is the estimate.
+``lambda < 1``: perturbations decay geometrically at that rate; ``lambda > 1``: some
+grow.
+
+Limits: a finite batch samples directions, so growth confined to a thin set of
+directions that repels all others can be missed (it then concerns a set of measure zero,
+but a perturbation placed exactly there would grow); a finite number of iterations
+gives lambda to about ``exp(+-c / iterations)`` (the spread between the two halves of the
+window is reported), and a rate within that of 1 is undecided. The verdict is about the
+linearisation: it predicts the decay of small perturbations of the nonlinear system
+(checked against long simulations in tests/test_gaits.py), not the basin of attraction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import check_matrix, check_positive_int
+
+__all__ = ["Stability", "growth_rate", "log_growth", "piece_multipliers"]
+
+
+@dataclass(frozen=True, eq=False)
+class Stability:
+    """The stability verdict of a PL map, with its evidence.
+
+    Attributes
+    ----------
+    growth_rate : float
+        Estimated asymptotic growth rate of the map (the largest over the batch).
+    stable : bool
+        ``growth_rate < 1``.
+    rates : ndarray, shape (m,)
+        Growth rate of each direction of the batch.
+    spread : float
+        ``|log(rate, first half) - log(rate, second half)|`` of the window, for the
+        direction of the largest rate: how well the window has converged.
+    multipliers : dict
+        ``{orders: eigenvalues}`` for every piece met during the iteration; ``orders`` a
+        tuple of one event order (tuple) per group, ``eigenvalues`` the (d - 1,) complex
+        Floquet multipliers of the piece on the section, by decreasing modulus.
+    visits : dict
+        ``{orders: count}``: how often a direction of the batch was in each piece.
+    iterations, burn_in : int
+        Iterations of the map, of which the first ``burn_in`` are not averaged.
+    """
+
+    growth_rate: float
+    stable: bool
+    rates: np.ndarray
+    spread: float
+    multipliers: dict
+    visits: dict
+    iterations: int
+    burn_in: int
+
+    def summary(self) -> str:
+        """A few lines: the verdict, the rate, and the pieces with their multipliers."""
+        verdict = "stable" if self.stable else "unstable"
+        lines = [f"growth rate {self.growth_rate:.6g} ({verdict}; spread of the estimate "
+                 f"{self.spread:.2g}, {self.rates.size} directions, {self.iterations} "
+                 f"iterations)"]
+        for orders, mult in sorted(self.multipliers.items(), key=lambda kv: -self.visits[kv[0]]):
+            radius = np.abs(mult).max() if mult.size else 0.0
+            lines.append(f"  piece {orders}: {self.visits[orders]} visits, |multipliers| "
+                         f"{np.round(np.abs(mult), 6).tolist()} (radius {radius:.6g})")
+        return "\n".join(lines)
+
+
+def growth_rate(fmap, V0, iterations=200, burn_in=None, orders=None):
+    """Iterate a PL map on a batch of directions and estimate its growth rate.
+
+    Parameters
+    ----------
+    fmap : callable
+        ``fmap(V) -> (m, d)`` for ``V`` of shape (m, d): the map, positively homogeneous.
+    V0 : array_like, shape (m, d)
+        Start directions, no row zero.
+    iterations : int
+        Number of iterations, >= 2.
+    burn_in : int, optional
+        Iterations not averaged (default ``iterations // 4``).
+    orders : callable, optional
+        ``orders(V) -> list of (m, n_g) arrays`` (``FlowBDerivative.orders``): record the
+        pieces visited after the burn-in.
+
+    Returns
+    -------
+    rates : ndarray, shape (m,)
+        Per direction, ``exp`` of the least-squares slope of ``log |A^k v|`` against k
+        over the window (after the burn-in).
+    spread : ndarray, shape (m,)
+        Absolute difference of the log-rates fitted on the two halves of the window.
+    visits : dict
+        ``{orders: count}`` (empty without ``orders``).
+    """
+    iterations = check_positive_int(iterations, "iterations")
+    if iterations < 2:
+        raise ValueError(f"iterations must be >= 2, got {iterations}")
+    burn_in = iterations // 4 if burn_in is None else int(burn_in)
+    if not 0 <= burn_in <= iterations - 2:
+        raise ValueError(f"burn_in must be in [0, iterations - 2 = {iterations - 2}], got "
+                         f"{burn_in}")
+    logs, visits = log_growth(fmap, V0, iterations, orders=orders, record_from=burn_in)
+    window = logs[burn_in:]
+    half = window.shape[0] // 2
+    with np.errstate(invalid="ignore"):  # directions mapped to 0 (-inf) get rate 0
+        slope = np.nan_to_num(_slope(window), nan=-np.inf)
+        spread = np.nan_to_num(np.abs(_slope(window[:half]) - _slope(window[half:])), nan=0.0)
+    return np.exp(slope), spread, visits
+
+
+def _slope(logs):
+    """Least-squares slope of the cumulative log-growth, per direction: (m,).
+
+    Steadier than the mean of the logs when the growth oscillates (complex
+    multipliers): an oscillation of the cumulative sum moves it by O(1/k^2) per step of
+    the window instead of O(1/k) at its ends.
+    """
+    k = np.arange(logs.shape[0], dtype=np.float64)
+    if k.size == 1:
+        return logs[0]
+    k -= k.mean()
+    cum = np.cumsum(logs, axis=0)
+    return (k @ (cum - cum.mean(axis=0))) / (k @ k)
+
+
+def log_growth(fmap, V0, iterations, *, orders=None, record_from=0):
+    """``log(|A v_k| / |v_k|)`` of every step: shape (iterations, m), and the visits.
+
+    The directions are renormalised after every step (no overflow or underflow, however
+    long); a direction mapped to 0 gets ``-inf`` and keeps its last direction. The
+    cumulative sum over the steps is ``log |A^k v_0| - log |v_0|``. ``orders`` and
+    ``record_from``: count the pieces visited from that step on (see
+    :func:`growth_rate`).
+    """
+    V = check_matrix(V0, "V0", (None, None))
+    norms = np.linalg.norm(V, axis=1)
+    if not np.all(norms > 0):
+        raise ValueError(f"V0 must have no zero row, but row {int(np.argmin(norms))} is zero")
+    V = V / norms[:, None]
+    logs = np.empty((iterations, V.shape[0]))
+    visits = {}
+    for k in range(iterations):
+        if orders is not None and k >= record_from:
+            _count_pieces(orders(V), visits)
+        W = fmap(V)
+        norms = np.linalg.norm(W, axis=1)
+        zero = norms == 0
+        safe = np.where(zero, 1.0, norms)
+        logs[k] = np.where(zero, -np.inf, np.log(safe))
+        V = np.where(zero[:, None], V, W / safe[:, None])
+    return logs, visits
+
+
+def _count_pieces(orders_list, visits):
+    """Add the pieces (one order per group) of a batch to ``visits``."""
+    if not orders_list:
+        visits[()] = visits.get((), 0) + 1
+        return
+    stacked = np.concatenate(orders_list, axis=-1)
+    sizes = [o.shape[-1] for o in orders_list]
+    rows, counts = np.unique(stacked, axis=0, return_counts=True)
+    for row, count in zip(rows, counts, strict=True):
+        parts = np.split(row, np.cumsum(sizes)[:-1])
+        key = tuple(tuple(int(k) for k in p) for p in parts)
+        visits[key] = visits.get(key, 0) + int(count)
+
+
+def piece_multipliers(piece, basis):
+    """Eigenvalues of a piece restricted to the section: shape (d - 1,), complex.
+
+    ``basis`` (d, d - 1) is an orthonormal basis of the section's tangent space; at a
+    fixed point the piece maps it into itself, so ``basis.T @ piece @ basis`` is the
+    piece on the section (the flow direction, mapped to 0, is left out).
+    """
+    restricted = basis.T @ piece @ basis
+    eig = np.linalg.eigvals(restricted)
+    return eig[np.argsort(-np.abs(eig), kind="stable")]

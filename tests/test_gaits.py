@@ -1,0 +1,327 @@
+"""Gaits (issue 12): return maps, periodic orbits, stability of a piecewise-linear map.
+
+Oracles: closed forms (the square spiral's return map, a rotating PL map's growth rate),
+finite differences of the Poincare map computed by event-detecting simulation, and
+independent long simulations of the nonlinear system.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from test_recurring import square_spiral
+
+from bderiv.checks import decay_check, fd_check
+from bderiv.examples import gaits
+from bderiv.flowmap import FlowBDerivative
+from bderiv.orbit import PeriodicOrbit, all_pieces
+from bderiv.returnmap import ReturnMap
+from bderiv.stability import Stability, growth_rate, piece_multipliers
+
+
+def diagonal(x):
+    """The section x_1 - x_0 = 0, crossed upward in the quadrant x > 0 of the spiral."""
+    return x[1] - x[0]
+
+
+def spiral_period(a, c):
+    """Return time of the square spiral from (c, c) back to the diagonal (closed form)."""
+    y = c * (1 + a)  # where it crosses x_0 = 0 downward, after time c
+    return c + y * (1 + a + a**2) + a**3 * y / (1 + a)
+
+
+# ------------------------------------------------------------------------------------------
+# return maps
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("a", [1.0, 0.9, 1.2])
+def test_spiral_return_map_closed_form(a):
+    # constant fields and surfaces through the origin: P(x) = a^4 x on the diagonal, and a
+    # shift along the flow F = (-1, a) does not move P: DP = a^4 (I - F n^T / (n . F))
+    s, c = square_spiral(a), 0.7
+    x0 = np.array([c, c])
+    traj = s.simulate(x0, 50.0, section=diagonal)
+    np.testing.assert_allclose(traj.x_final, a**4 * x0, rtol=1e-9)
+    assert traj.t[-1] == pytest.approx(spiral_period(a, c), rel=1e-9)
+    assert [g.directions for g in traj.groups] == [(-1,), (-1,), (1,), (1,)]
+    R = s.return_map(x0, diagonal)
+    assert isinstance(R, ReturnMap) and isinstance(R, FlowBDerivative)
+    assert R.period == pytest.approx(spiral_period(a, c), rel=1e-9) and R.n_groups == 4
+    F, n = np.array([-1.0, a]), np.array([-1.0, 1.0])
+    expected = a**4 * (np.eye(2) - np.outer(F, n) / (n @ F))
+    V = np.random.default_rng(0).standard_normal((5, 2))
+    np.testing.assert_allclose(R(V), V @ expected.T, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(R.piece(), expected, rtol=1e-9, atol=1e-9)
+    # the inverse on the section: tangent vectors (1, 1) t come back
+    T = np.outer(np.linspace(-1, 1, 5), [1.0, 1.0])
+    np.testing.assert_allclose(R.inverse(R(T)), T, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(R.tangent_basis[:, 0] ** 2, [0.5, 0.5])
+
+
+def test_spiral_return_map_matches_finite_differences_of_the_poincare_map():
+    s, x0 = square_spiral(1.1), np.array([0.7, 0.7])
+    R = s.return_map(x0, diagonal)
+    V = np.array([[1.0, 1.0], [-1.0, -1.0], [1.0, 0.0], [0.3, -0.5]])
+    check = fd_check(s, x0, 50.0, V, R(V), eps=(1e-4, 1e-5), section=diagonal)
+    assert max(check.max_errors) < 1e-6  # exactly piecewise linear: no O(eps) term
+
+
+def test_return_map_refuses_bad_sections():
+    s = square_spiral(1.0)
+    with pytest.raises(ValueError, match=r"x0 is not on the section: section\(x0\) = 0.1"):
+        s.return_map(np.array([0.6, 0.7]), diagonal)
+    with pytest.raises(ValueError, match=r"cross the section upward and transversally, but "
+                       r"at x0 \(t=0\) the rate of section\(x\) is -2"):
+        s.return_map(np.array([0.7, 0.7]), lambda x: x[0] - x[1])
+    with pytest.raises(ValueError, match=r"did not return to the section \(upward\) before "
+                       r"t=1"):
+        s.return_map(np.array([0.7, 0.7]), diagonal, t_max=1.0)
+    with pytest.raises(ValueError, match=r"section\(x\) must return one real number, got "
+                       r"shape \(2,\)"):
+        s.return_map(np.array([0.7, 0.7]), lambda x: x)
+    with pytest.raises(TypeError, match="section must be callable"):
+        s.return_map(np.array([0.7, 0.7]), "x0")
+    with pytest.raises(ValueError, match="t_max must be a finite number > 0"):
+        s.return_map(np.array([0.7, 0.7]), diagonal, t_max=-1.0)
+    with pytest.raises(ValueError, match=r"section_gradient\(x\) must return an array of "
+                       r"shape \(2,\)"):
+        s.return_map(np.array([0.7, 0.7]), diagonal, section_gradient=lambda x: np.ones(3))
+
+
+def test_event_group_at_the_section_is_refused():
+    # start on the section x_1 = 2 just 1e-8 (in time) before crossing x_0 = 0 downward
+    s = square_spiral(1.0)
+    with pytest.raises(ValueError, match=r"event group \(0,\) at t=1e-08 is within "
+                       r"simultaneity_tol=1e-07 of the section"):
+        s.return_map(np.array([1e-8, 2.0]), lambda x: x[1] - 2.0)
+
+
+# ------------------------------------------------------------------------------------------
+# the growth rate of a piecewise-linear map
+# ------------------------------------------------------------------------------------------
+def rotating_pl_map(a, b, c, d):
+    """The PL map sending e_x -> a e_y -> -ab e_x ... quadrant to quadrant (linear on each).
+
+    Its fourth power is ``abcd * I`` (worked by hand), so its growth rate is
+    ``(abcd)^(1/4)``; the piece on the first quadrant, ``[[0, -b], [a, 0]]``, has
+    spectral radius ``sqrt(ab)``.
+    """
+    pieces = {  # (x >= 0, y >= 0) -> matrix
+        (True, True): np.array([[0.0, -b], [a, 0.0]]),
+        (False, True): np.array([[0.0, -b], [c, 0.0]]),
+        (False, False): np.array([[0.0, -d], [c, 0.0]]),
+        (True, False): np.array([[0.0, -d], [a, 0.0]]),
+    }
+
+    def fmap(V):
+        out = np.empty_like(V)
+        for i, v in enumerate(V):
+            out[i] = pieces[(bool(v[0] >= 0), bool(v[1] >= 0))] @ v
+        return out
+
+    return fmap, pieces
+
+
+def test_growth_rate_closed_form_and_pieces_do_not_decide():
+    fmap, pieces = rotating_pl_map(2.0, 2.0, 0.25, 0.25)
+    V0 = np.random.default_rng(0).standard_normal((50, 2))
+    rates, spread, visits = growth_rate(fmap, V0, iterations=802, burn_in=2)
+    # the log-growth oscillates with period 4 about the slope: the fit's error is
+    # O(1 / window) = O(1e-3 / 800) here
+    np.testing.assert_allclose(rates, 0.25**0.25, rtol=1e-4)
+    assert visits == {}
+    # one piece has spectral radius 2, yet the map is stable
+    radii = [np.abs(piece_multipliers(M, np.eye(2))).max() for M in pieces.values()]
+    assert max(radii) == pytest.approx(2.0) and rates.max() < 1
+    # an unstable one: abcd = 4
+    rates, _, _ = growth_rate(rotating_pl_map(2.0, 2.0, 1.0, 1.0)[0], V0, 802, 2)
+    np.testing.assert_allclose(rates, 2.0**0.5, rtol=1e-4)
+
+
+def test_growth_rate_validation():
+    fmap = rotating_pl_map(1.0, 1.0, 1.0, 1.0)[0]
+    V0 = np.ones((3, 2))
+    with pytest.raises(ValueError, match="iterations must be >= 2, got 1"):
+        growth_rate(fmap, V0, iterations=1)
+    with pytest.raises(ValueError, match=r"burn_in must be in \[0, iterations - 2 = 8\], got 9"):
+        growth_rate(fmap, V0, iterations=10, burn_in=9)
+    with pytest.raises(ValueError, match="V0 must have no zero row, but row 1 is zero"):
+        growth_rate(fmap, np.array([[1.0, 0.0], [0.0, 0.0]]))
+    with pytest.raises(ValueError, match=r"V0 must have 2 dimensions|V0 must be"):
+        growth_rate(fmap, np.ones(2))
+    # a direction mapped to 0 has rate 0, the others go on
+    rates, spread, _ = growth_rate(lambda V: V * [0.5, 0.0], np.array([[1.0, 0.0], [0.0, 1.0]]),
+                                   iterations=8)
+    np.testing.assert_allclose(rates, [0.5, 0.0])
+    assert np.isfinite(spread).all()
+
+
+# ------------------------------------------------------------------------------------------
+# the pronking gait: orbit, return map, stability, against simulation
+# ------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def gait():
+    ex = gaits.pronking()
+    return ex, gaits.pronking_orbit(ex, perturbation=(0.02, 0.01, 0.03, -0.05))
+
+
+def vertical_hop_apex(ex_params, z_apex):
+    """The next apex height of the symmetric hop, computed apart from the package: free
+    fall to touchdown and rise from lift-off in closed form, the stance (both legs,
+    theta = 0) by scipy's solve_ivp of the 1-D equation. Also returns the period."""
+    K, C, gain, v_ref, kappa, leg = ex_params
+    g = 9.81
+    t_fall = np.sqrt(2 * (z_apex - leg) / g)
+
+    def stance(t, y):
+        z, v = y
+        f = -K * (z - leg) - C * v + gain * (1 + kappa) * (1 - v**2 / v_ref**2) * v
+        return [v, -g + 2 * f]
+
+    def lift_off(t, y):
+        return y[0] - leg
+
+    lift_off.terminal, lift_off.direction = True, 1
+    sol = solve_ivp(stance, (0, 5), [leg - 1e-14, -g * t_fall], events=lift_off,
+                    rtol=1e-12, atol=1e-14, method="DOP853")
+    v_up = sol.y_events[0][0][1]
+    return leg + v_up**2 / (2 * g), t_fall + sol.t_events[0][0] + v_up / g
+
+
+def test_orbit_converges_and_is_confirmed_by_an_independent_simulation(gait):
+    ex, orb = gait
+    assert isinstance(orb, PeriodicOrbit)
+    res = [h.residual for h in orb.history]
+    assert res[-1] < 1e-10 and orb.residual < 1e-10
+    assert all(b < 10 * a**2 for a, b in zip(res, res[1:], strict=False))  # quadratic
+    # the symmetric pronking orbit: level, not pitching, at the apex
+    np.testing.assert_allclose(orb.x0[1:], 0.0, atol=1e-10)
+    z_next, period = vertical_hop_apex((400.0, 2.0, 4.0, 2.0, 0.5, 0.5), orb.x0[0])
+    assert z_next == pytest.approx(orb.x0[0], abs=1e-9)
+    assert orb.period == pytest.approx(period, rel=1e-9)
+    # both legs touch down together, then lift off together
+    groups = orb.trajectory.groups
+    assert [(g.events, g.directions) for g in groups] == [((0, 1), (1, 1)),
+                                                          ((0, 1), (-1, -1))]
+    assert [bd.n_events for bd in orb.return_map.jumps] == [2, 2]
+    # a different integrator agrees on P(x0) = x0
+    radau = ex.system.simulate(orb.x0, 3.0, section=gaits.apex_section, method="Radau",
+                               rtol=1e-11, atol=1e-13)
+    np.testing.assert_allclose(radau.x_final, orb.x0, atol=1e-8)
+
+
+def test_newton_solves_the_piecewise_linear_equation_on_the_symmetric_subspace():
+    # an exactly symmetric guess: the events of every iterate are simultaneous, and the
+    # Newton steps come from the PL equation of groups of two events
+    orb = gaits.pronking_orbit(perturbation=(0.05, 0.0, 0.0, 0.0))
+    assert any(len(h.piece) == 2 and len(h.piece[0]) == 2 for h in orb.history)
+    assert orb.residual < 1e-10
+
+
+def test_return_map_matches_finite_differences_through_every_piece(gait):
+    ex, orb = gait
+    R = orb.return_map
+    W = np.random.default_rng(1).standard_normal((20000, 4)) @ R.tangent_basis @ \
+        R.tangent_basis.T
+    td, lo = R.orders(W)
+    V = [W[np.flatnonzero((td[:, 0] == i) & (lo[:, 0] == j))[0]] for i in (0, 1)
+         for j in (0, 1)]  # one direction in each of the four pieces
+    V = np.array(V) / np.linalg.norm(V, axis=1)[:, None]
+    check = fd_check(ex.system, orb.x0, 3.0, V, R(V), eps=(1e-4, 1e-5, 1e-6),
+                     section=gaits.apex_section)
+    assert check.max_errors[-1] < 1e-4
+    assert check.first_order(), check.ratios
+
+
+def test_predicted_growth_rate_matches_long_simulations(gait):
+    ex, orb = gait
+    st = orb.stability(n_directions=500, iterations=1000)
+    assert isinstance(st, Stability) and st.stable and st.spread < 1e-3
+    assert set(st.visits) <= set(all_pieces(orb.return_map)) and len(st.visits) >= 2
+    assert all(m.shape == (3,) for m in st.multipliers.values())
+    V = np.random.default_rng(0).standard_normal((2, 3)) @ orb.return_map.tangent_basis.T
+    decay = decay_check(ex.system, orb.x0, gaits.apex_section,
+                        V / np.linalg.norm(V, axis=1)[:, None], eps=1e-2, strides=60)
+    assert decay.rate == pytest.approx(st.growth_rate, abs=0.03)
+    assert "stable" in st.summary() and "piece ((0, 1), (0, 1))" in st.summary()
+
+
+# ------------------------------------------------------------------------------------------
+# figures
+# ------------------------------------------------------------------------------------------
+def test_gait_figures(gait, tmp_path):
+    pytest.importorskip("matplotlib")
+    from bderiv.plot._gait import gait_growth, gait_orbit
+
+    ex, orb = gait
+    fig = gait_orbit(orb, labels=["z", "theta", "vz", "omega"])
+    ax_t, ax_p = fig.axes
+    legend = [t.get_text() for t in ax_p.get_legend().get_texts()]
+    assert legend == ["events (0, 1) up at t = 0.1823", "events (0, 1) down at t = 0.3075",
+                      "fixed point on the section"]
+    assert ax_p.get_xlabel() == "z" and ax_p.get_ylabel() == "vz"
+    fig.savefig(tmp_path / "orbit.png")
+    with pytest.raises(ValueError, match=r"components must be two state indices in \[0, 4\)"):
+        gait_orbit(orb, components=(0, 4))
+    with pytest.raises(ValueError, match="labels must name the 4 state components, got 2"):
+        gait_orbit(orb, labels=["z", "vz"])
+    st = orb.stability(n_directions=50, iterations=100)
+    fig = gait_growth(orb, n_directions=30, iterations=25, stability=st)
+    (ax,) = fig.axes
+    lines = ax.get_lines()
+    growth = [ln for ln in lines if len(ln.get_xdata()) == 26]
+    assert len(growth) >= 31  # 30 directions and the predicted rate
+    dashed = [ln for ln in lines if ln.get_linestyle() == "--"][0]
+    np.testing.assert_allclose(dashed.get_ydata(), st.growth_rate ** np.arange(26.0))
+    fig.savefig(tmp_path / "growth.png")
+
+
+# ------------------------------------------------------------------------------------------
+# bad input and failures, named
+# ------------------------------------------------------------------------------------------
+def test_periodic_orbit_validation_and_failure(gait):
+    ex, orb = gait
+    s, guess = ex.system, ex.x0
+    with pytest.raises(ValueError, match="tol must be a finite number > 0, got 0.0"):
+        s.periodic_orbit(guess, gaits.apex_section, tol=0.0)
+    with pytest.raises(ValueError, match="max_iter must be >= 1"):
+        s.periodic_orbit(guess, gaits.apex_section, max_iter=0)
+    with pytest.raises(ValueError, match="period_guess must be a finite number > 0"):
+        s.periodic_orbit(guess, gaits.apex_section, period_guess=-1.0)
+    with pytest.raises(ValueError, match=r"x_guess must have shape \(4,\)"):
+        s.periodic_orbit(np.ones(3), gaits.apex_section)
+    with pytest.raises(RuntimeError, match=r"did not converge in max_iter=1 iterations: max "
+                       r"\|P\(x\) - x\| = "):
+        gaits.pronking_orbit(ex, max_iter=1)
+    with pytest.raises(ValueError, match="n_directions must be >= 1"):
+        orb.stability(n_directions=0)
+    assert "PeriodicOrbit(period=0.48976329" in repr(orb)
+    assert "ReturnMap(dim=4, groups=[2, 2], period=0.48976329" in repr(orb.return_map)
+
+
+def test_decay_check_validation(gait):
+    ex, orb = gait
+    V = np.array([[1.0, 0.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="strides must be >= 4, got 3"):
+        decay_check(ex.system, orb.x0, gaits.apex_section, V, strides=3)
+    with pytest.raises(ValueError, match=r"deviation of vector 0 falls below floor=1 before "
+                       r"stride 3"):
+        decay_check(ex.system, orb.x0, gaits.apex_section, V, strides=4, floor=1.0)
+
+
+def test_return_map_pickles_and_is_read_only(gait):
+    _, orb = gait
+    R = orb.return_map
+    R2 = pickle.loads(pickle.dumps(R))
+    V = np.random.default_rng(4).standard_normal((7, 4))
+    np.testing.assert_array_equal(R2(V), R(V))
+    np.testing.assert_array_equal(R2.inverse(R(V)), R.inverse(R(V)))
+    for arr in (R2.projection, R2.start_projection, R2.tangent_basis, R.projection):
+        assert not arr.flags.writeable
+    # the inverse on the section: tangent vectors at x0 come back
+    T = V @ R.tangent_basis @ R.tangent_basis.T
+    np.testing.assert_allclose(R.inverse(R(T)), T, atol=1e-10)
+    out = np.empty_like(T)
+    assert R.inverse(R(T), out=out) is out
