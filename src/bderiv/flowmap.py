@@ -21,6 +21,7 @@ import re
 import numpy as np
 
 from ._batch import evaluate, is_dask_array
+from ._kernels import _core
 from ._linearise import Linearisation
 from ._validate import (
     all_finite,
@@ -156,8 +157,7 @@ class FlowBDerivative(Linearisation):
         out = []
         W = flat
         for i, L in enumerate(self._linear):
-            with np.errstate(over="ignore", invalid="ignore"):
-                W = W @ L.T
+            W = _stage(L, W)
             if not all_finite(W):
                 check_finite_result(W, name, offset, f"result of linear stage linear[{i}]")
             out.append(W)
@@ -260,15 +260,13 @@ class FlowBDerivative(Linearisation):
     def _backward(self, rows, res, offset):
         """The kernel of :meth:`inverse`: the stages' inverses in reverse order."""
         inverses = self._stage_inverses
-        with np.errstate(over="ignore", invalid="ignore"):
-            V = rows @ inverses[-1].T
+        V = _stage(inverses[-1], rows)
         for i in reversed(range(len(self._jumps))):
             try:
                 V = self._jumps[i].inverse(V)
             except ValueError as exc:
                 raise ValueError(_in_group(str(exc), i, "W", offset)) from None
-            with np.errstate(over="ignore", invalid="ignore"):
-                V = V @ inverses[i].T
+            V = _stage(inverses[i], V)
         res[...] = V
         if not all_finite(res):
             check_finite_result(res, "W", offset)
@@ -324,9 +322,8 @@ class FlowBDerivative(Linearisation):
         ``L_m J_m ... J_1 L_0 t``; the transpose ``L_0^T J_1^T ... J_m^T L_m^T w``."""
         d, m = self.dim, len(self._jumps)
         inputs = self._stage_inputs(np.ascontiguousarray(VT[:, :d]), "V", offset)
-        Y = VT[:, d:]
-        with np.errstate(over="ignore", invalid="ignore"):
-            Y = Y @ self._linear[m] if transpose else Y @ self._linear[0].T
+        Y = np.ascontiguousarray(VT[:, d:])
+        Y = _stage(self._linear[m], Y, transpose) if transpose else _stage(self._linear[0], Y)
         for i in reversed(range(m)) if transpose else range(m):
             Z = np.empty_like(Y)
             try:
@@ -334,8 +331,7 @@ class FlowBDerivative(Linearisation):
                                              transpose, 0)
             except ValueError as exc:
                 raise ValueError(_in_group(str(exc), i, "V", offset)) from None
-            with np.errstate(over="ignore", invalid="ignore"):
-                Y = Z @ self._linear[i] if transpose else Z @ self._linear[i + 1].T
+            Y = _stage(self._linear[i], Z, True) if transpose else _stage(self._linear[i + 1], Z)
         res[...] = Y
         if not all_finite(res):
             check_finite_result(res, "V", offset)
@@ -383,6 +379,20 @@ class FlowBDerivative(Linearisation):
                 raise ValueError("this map has no final_field, so with_time cannot be used")
             M = np.column_stack((M, self.final_field))
         return np.array(M)
+
+
+def _stage(L, X, transpose: bool = False) -> np.ndarray:
+    """Rows of X through a linear stage: ``X @ L.T`` (``X @ L`` when ``transpose``).
+
+    A numba kernel of the package (parallel over rows, in tasks) rather than BLAS: these
+    products are thin, (m, d) x (d, d), and BLAS's own threads, on a machine whose cores
+    are busy, made their time swing 5x and more (README, issue 10); overflow gives inf.
+    """
+    M = np.ascontiguousarray(L if transpose else L.T)  # the kernel combines rows of M
+    out = np.empty((X.shape[0], M.shape[1]))
+    _core.linear((M, M), np.ascontiguousarray(X), (out,), False,
+                 launch=_core.launch_queries(1, X.shape[1]))
+    return out
 
 
 def _in_group(message: str, group: int, name: str, offset: int) -> str:

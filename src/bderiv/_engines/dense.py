@@ -38,10 +38,8 @@ class DenseEngine(Engine):
         self.F = self.R[:, 16 * nc : 16 * nc + d]
         DhTp = np.zeros((d, 8 * nc))
         DhTp[:, :n] = self.Dh.T
-        Hinit = np.zeros((2, 8 * nc))
-        Hinit[0, n:], Hinit[1, n:] = -np.inf, np.inf
         far = int(self.R.nbytes > FAR_BYTES)
-        self._lanes = (self.R, DhTp, Hinit, np.array([n, d, nc, dc, far], dtype=np.int64))
+        self._lanes = (self.R, DhTp, np.array([n, d, nc, dc, far], dtype=np.int64))
         self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
 
     def __getstate__(self):

@@ -2,10 +2,9 @@
 
 Two implementations of the same selection (MATH.md sections 3 and 6):
 
-- the *lane* blocks (default): ``tables = (R, DhTp, Hinit, dims)`` with ``R`` the region
+- the *lane* blocks (default): ``tables = (R, DhTp, dims)`` with ``R`` the region
   records ``[-1/G | G | F]`` of ``_tables.region_records`` (each part padded to a multiple
-  of 8), ``DhTp`` (d, 8 nc) ``Dh.T`` padded with zeros, ``Hinit`` (2, 8 nc) the starting
-  event values (0, and +-inf in the padding, forwards / backwards) and ``dims`` int64
+  of 8), ``DhTp`` (d, 8 nc) ``Dh.T`` padded with zeros and ``dims`` int64
   ``[n, d, nc, dc, far]`` (``far``: the records exceed the caches, prefetch them). Eight
   queries run in lockstep (``LANES``), each step of each query in explicit 8-wide vectors
   (``_simd``);
@@ -205,7 +204,7 @@ LANES = 8
 def _lane_scratch(tables):
     """H (event values), DT (their times), X (positions), B (regions), T (times so far),
     order and times of the steps, for LANES queries."""
-    dims = tables[3]
+    dims = tables[2]
     n, nc, dc = dims[0], dims[2], dims[3]
     return (np.empty((LANES, 8 * nc)), np.empty((LANES, 8 * nc)), np.empty((LANES, 8 * dc)),
             np.empty(LANES, dtype=np.int64), np.empty(LANES), np.empty((LANES, n), dtype=np.int64),
@@ -220,56 +219,64 @@ def _lanes(tables, V, q0, pn, inverse, position, scratch):
     reached so far (not the virtual position of the plain blocks). Forwards, a pending
     event k is due after ``dt_k = h_k * (-1 / G[B, k])``; the smallest wins (ties to the
     smaller k: the lowest set bit of the equality mask), time advances by it, h by
-    ``dt G[B]`` and the position by ``dt F[B]``; an event that happened gets h = -inf, so
-    that its dt is +inf. Backwards (``inverse``) the same with the signs of time and of
-    the excluded values flipped, from the full region down. The first step may go back in
+    ``dt G[B]`` and the position by ``dt F[B]``. Backwards (``inverse``) time runs the
+    other way from the full region down; with ``H = -h`` there the same two formulas
+    hold. Events that are no longer candidates (and the padding) get dt = +inf from the
+    region's bits, so no entry of H is ever overwritten. The first step may go back in
     time (events before t = 0). Writes ``order[p, j]`` (the j-th event), ``times[p, j]``
-    (its time) and, when ``position``, ``X[p]`` the position at the last event.
+    (its time) and, when ``position``, ``X[p]`` the move from u to the position at the
+    last event.
     """
-    R, DhTp, Hinit, dims = tables[0], tables[1], tables[2], tables[3]
+    R, DhTp, dims = tables[0], tables[1], tables[2]
     H, DT, X, B, T, order, times = scratch
     n, d, nc, dc, far = dims[0], dims[1], dims[2], dims[3], dims[4]
     og, of = 8 * nc, 16 * nc
     s = -1.0 if inverse else 1.0
-    gone = -s * np.inf
+    pad = -1 << n  # the bits of the padding lanes
     for p in range(pn):
         q = q0 + p
         for c in range(nc):
-            h = vec.load(Hinit, 1 if inverse else 0, 8 * c)
+            h = vec.splat(0.0)
             for i in range(d):
-                h = vec.fma(vec.splat(V[q, i]), vec.load(DhTp, i, 8 * c), h)
+                h = vec.fma(vec.splat(s * V[q, i]), vec.load(DhTp, i, 8 * c), h)
             vec.store(H, p, 8 * c, h)
-        if position:
-            for i in range(d):
-                X[p, i] = V[q, i]
+        if position:  # X collects sum_j dt_j F[B_j]: vector stores only (a vector load of
+            for c in range(dc):  # scalar stores would stall on store forwarding)
+                vec.store(X, p, 8 * c, vec.splat(0.0))
         B[p] = (1 << n) - 1 if inverse else 0
         T[p] = 0.0
-    sign = vec.splat(s)
     for step in range(n):
         for p in range(pn):
             b = B[p]
+            out = ~b if inverse else b | pad  # not candidates: dt = +inf
+            # a candidate equal to the smallest time; if none (a time overflowed to inf or
+            # NaN: the row is then refused as non-finite) the first candidate, so that k
+            # is always a pending event
+            k = vec.trailing_zeros(~out)
             if nc == 1:
-                dt = vec.mul(vec.mul(vec.load(H, p, 0), vec.load(R, b, 0)), sign)
+                dt = vec.where_bits(vec.mul(vec.load(H, p, 0), vec.load(R, b, 0)), out, np.inf)
                 best = vec.smallest(dt)
-                k = vec.trailing_zeros(vec.equal_mask(dt, best))
+                hit = vec.equal_mask(dt, best) & ~out
+                if hit != 0:
+                    k = vec.trailing_zeros(hit)
             else:
                 best = np.inf
                 for c in range(nc):
-                    dt = vec.mul(vec.mul(vec.load(H, p, 8 * c), vec.load(R, b, 8 * c)), sign)
+                    dt = vec.where_bits(vec.mul(vec.load(H, p, 8 * c), vec.load(R, b, 8 * c)),
+                                        out >> (8 * c), np.inf)
                     vec.store(DT, p, 8 * c, dt)
                     best = min(best, vec.smallest(dt))
-                k = 0
                 for c in range(nc):
-                    hit = vec.equal_mask(vec.load(DT, p, 8 * c), best)
+                    hit = vec.equal_mask(vec.load(DT, p, 8 * c), best) & (~out >> (8 * c))
                     if hit != 0:
                         k = 8 * c + vec.trailing_zeros(hit)
                         break
-            move = vec.splat(s * best)
+            step_h = vec.splat(best)
             for c in range(nc):
-                vec.store(H, p, 8 * c, vec.fma(move, vec.load(R, b, og + 8 * c),
+                vec.store(H, p, 8 * c, vec.fma(step_h, vec.load(R, b, og + 8 * c),
                                                vec.load(H, p, 8 * c)))
-            H[p, k] = gone
             if position:
+                move = vec.splat(s * best)
                 for c in range(dc):
                     vec.store(X, p, 8 * c, vec.fma(move, vec.load(R, b, of + 8 * c),
                                                    vec.load(X, p, 8 * c)))
@@ -287,7 +294,7 @@ def _lanes(tables, V, q0, pn, inverse, position, scratch):
 def _lane_apply_block(tables, V, outs, start, stop, inverse):
     """out = M(V) (M^-1 when ``inverse``): the position at the last event, moved back to
     time 0 along the final region's field, ``x - T F[end]``."""
-    R, dims = tables[0], tables[3]
+    R, dims = tables[0], tables[2]
     out = outs[0]
     n, d, of = dims[0], dims[1], 16 * dims[2]
     scratch = _lane_scratch(tables)
@@ -300,13 +307,13 @@ def _lane_apply_block(tables, V, outs, start, stop, inverse):
         for p in range(pn):
             t = s * T[p]
             for i in range(d):
-                out[q0 + p, i] = X[p, i] - t * R[end, of + i]
+                out[q0 + p, i] = V[q0 + p, i] + X[p, i] - t * R[end, of + i]
 
 
 @njit(**JIT)
 def _lane_times_block(tables, V, outs, start, stop, inverse):
     times_out, order_out = outs
-    n = tables[3][0]
+    n = tables[2][0]
     scratch = _lane_scratch(tables)
     order, times = scratch[5], scratch[6]
     for q0 in range(start, stop, LANES):
@@ -321,8 +328,8 @@ def _lane_times_block(tables, V, outs, start, stop, inverse):
 @njit(**JIT)
 def _lane_tangent_block(tables, VT, outs, start, stop, transpose):
     """out[q] = M_sigma T[q] (or its transpose), sigma the order v = VT[q, :d] selects.
-    ``tables = (R, DhTp, Hinit, dims, Dh, F)`` with ``F`` the corner part of ``R``."""
-    R, dims, Dh, F = tables[0], tables[3], tables[4], tables[5]
+    ``tables = (R, DhTp, dims, Dh, F)`` with ``F`` the corner part of ``R``."""
+    R, dims, Dh, F = tables[0], tables[2], tables[3], tables[4]
     out = outs[0]
     n, d, og = dims[0], dims[1], 8 * dims[2]
     scratch = _lane_scratch(tables)
