@@ -5,7 +5,8 @@ Groups (pytest-benchmark ``group``):
 - ``eval n=.. d=.. m=..``: ``bd(V)`` and ``bd.inverse(W)`` (the contenders), the batched
   NumPy baseline (``bderiv._baselines``), the per-query oracle of ``tests/reference.py``
   (``baselines.py``; timed on a subset of the queries: ``extra_info["queries"]`` says how
-  many) and a BLAS matrix product of the same flop count. Every entry records ``queries``
+  many), a BLAS matrix product of the same flop count and a parallel copy of V into W
+  (``_baselines.copy_yardstick``: the streaming limit). Every entry records ``queries``
   so that time per query can be read. The systems are ``bderiv._baselines.benchmark_system``.
 - ``build n=.. d=..``: the constructor (tables, checks), timed apart from evaluation.
 - ``threads n=.. d=.. m=..``: ``bd(V)`` on 1 and on 2 numba threads.
@@ -38,6 +39,7 @@ from bderiv._baselines import (
     blas_operands,
     blas_setting,
     blas_yardstick,
+    copy_yardstick,
     numpy_apply,
     useful_flops,
 )
@@ -56,7 +58,7 @@ def _is_slow(n: int, m: int) -> bool:
 
 
 CONTENDERS = ("bderiv apply", "bderiv inverse", "numpy batched", "reference per-query",
-              "BLAS matmul")
+              "BLAS matmul", "parallel copy")
 
 
 def _cases():
@@ -139,6 +141,12 @@ def test_eval(benchmark, contender, n, d, m):
         res = _run(benchmark, lambda: baselines.reference_apply(Dh, F, G, sub),
                    name=contender, queries_timed=mq, est_seconds=_est("ref", n, d, mq), **kw)
         np.testing.assert_allclose(res, W[:mq], rtol=1e-9, atol=1e-9)
+    elif contender == "parallel copy":
+        out = np.empty_like(V)
+        copy_yardstick(V, out)
+        _run(benchmark, lambda: copy_yardstick(V, out), name=contender, queries_timed=m,
+             est_seconds=1e-9 * m * d, **kw)
+        np.testing.assert_array_equal(out, V)
     else:
         A, B, flops = blas_operands(n, d, m)
         C = np.empty_like(A)

@@ -25,6 +25,7 @@ from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit, prange
 
 #: queries per chunk of the NumPy baseline; its temporaries are a few (chunk, n) and
 #: (chunk, d) arrays, which then stay in L2. Measured best of 1024..65536 on 2 cores.
@@ -277,6 +278,15 @@ def measure_blas_rate(rng=None, size: int = BLAS_SIZE, repeat: int = 5) -> float
     A, B = _square_operands(size, rng)
     C = np.empty((size, size))
     return 2 * size**3 / best_time(lambda: blas_yardstick(A, B, C), repeat).wall
+
+
+@njit(parallel=True, cache=True)
+def copy_yardstick(V, W):
+    """W[:] = V on all numba threads: the streaming limit of any map that reads V and
+    writes W (the lane kernels' target is a small multiple of it)."""
+    for q in prange(V.shape[0]):
+        for i in range(V.shape[1]):
+            W[q, i] = V[q, i]
 
 
 def blas_setting() -> str:
