@@ -34,15 +34,15 @@ def is_dask_array(x) -> bool:
 
 
 def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
-             progress=None, desc: str = "bderiv", method=None, out_dim=None):
+             progress=None, desc: str = "bderiv", method=None):
     """Evaluate a batch map with the common conventions of every public ``__call__``.
 
     Parameters
     ----------
     kernel : callable ``kernel(rows, res, offset)``
         Writes the map of ``rows`` (C-contiguous float64, shape (m, dim)) into ``res``
-        (C-contiguous float64, (m, out_dim), never overlapping ``rows``); ``offset`` is
-        the index of ``rows[0]`` in the whole batch (for error messages).
+        (same shape, C-contiguous float64, never overlapping ``rows``); ``offset`` is the
+        index of ``rows[0]`` in the whole batch (for error messages).
     V : array_like, shape (..., dim), or a dask array
     dim : int
     name : str
@@ -58,31 +58,28 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
     method : callable, optional
         The public method itself (picklable, ``method(block) -> block``), applied block by
         block when ``V`` is a dask array.
-    out_dim : int, optional
-        The result's last dimension, when it differs from ``dim`` (not for dask input).
 
     Returns
     -------
-    ndarray, shape (..., out_dim) (a lazy dask array for a dask input)
+    ndarray, shape (..., dim) (a lazy dask array for a dask input)
     """
-    out_dim = dim if out_dim is None else out_dim
     if is_dask_array(V):
         from ._dask import map_blocks
 
         return map_blocks(method, V, dim, name, out)
     if chunk_size is None and progress in (None, False) and not isinstance(V, np.memmap):
         flat, lead = check_points(V, dim, name)
-        shape = lead + (out_dim,)
+        shape = lead + (dim,)
         result = np.empty(shape) if out is None else check_out(out, shape)
-        res = result.reshape(-1, out_dim)
+        res = result.reshape(-1, dim)
         if out is not None and np.may_share_memory(flat, res):
             flat = flat.copy()
         _run(kernel, flat, res, 0, name, lead)
         return result
-    return _chunked(kernel, V, dim, name, out, chunk_size, progress, desc, out_dim)
+    return _chunked(kernel, V, dim, name, out, chunk_size, progress, desc)
 
 
-def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc, out_dim):
+def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
     """Chunk by chunk: only one chunk of ``V`` is converted or held at a time."""
     chunk_size = check_positive_int(
         DEFAULT_CHUNK_ROWS if chunk_size is None else chunk_size, "chunk_size"
@@ -97,9 +94,9 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc, out_dim):
         check_points(V, dim, name)  # raises the usual message
     lead = V.shape[:-1]
     rows = V.reshape(-1, dim)  # a view for contiguous (memmap) input
-    shape = lead + (out_dim,)
+    shape = lead + (dim,)
     result = np.empty(shape) if out is None else check_out(out, shape)
-    res = result.reshape(-1, out_dim)
+    res = result.reshape(-1, dim)
     if out is not None and np.may_share_memory(rows, res) and not _same_rows(rows, res):
         rows = rows.copy()  # a shifted overlap: later chunks would read what earlier wrote
     total = rows.shape[0]

@@ -12,9 +12,9 @@ On a boundary between pieces (a tie between event times) both neighbouring piece
 linearisations of M; the one returned is the piece of the order the selection finds for
 ``v``, ties going to the smaller event index (``orders(v)`` names it).
 
-A class using it provides ``dim`` and ``_tangent_rows(VT, res, transpose, offset)``, which
-writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows ``[v | t]`` of ``VT``
-(C-contiguous float64, (m, 2d)) into ``res`` (m, d).
+A class using it provides ``dim`` and ``_tangent_rows(V, T, res, transpose, offset)``,
+which writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows v of ``V`` and t of
+``T`` (C-contiguous float64, (m, d) each) into ``res`` (m, d).
 """
 
 from __future__ import annotations
@@ -103,33 +103,34 @@ class Linearisation:
         eye = np.eye(d)
         for s in range(0, m, PIECE_ROWS):
             e = min(s + PIECE_ROWS, m)
-            VT = np.empty(((e - s) * d, 2 * d))
-            VT[:, :d] = np.repeat(flat[s:e], d, axis=0)
-            VT[:, d:] = np.tile(eye, (e - s, 1))
             cols = np.empty(((e - s) * d, d))
-            self._tangent_rows(VT, cols, False, s)
+            self._tangent_rows(np.repeat(flat[s:e], d, axis=0), np.tile(eye, (e - s, 1)),
+                               cols, False, s)
             P[s:e] = cols.reshape(e - s, d, d).transpose(0, 2, 1)  # [q, i, :] = M e_i
         return P.reshape(lead + (d, d))
 
     def _pair(self, V, T, t_name, out, transpose, chunk_size, progress):
-        """Validate V and T, stack them as rows [v | t] and evaluate ``_tangent_rows``."""
+        """Validate V and T and evaluate ``_tangent_rows`` on V's rows (chunks of V carry
+        their offset; the rows of T are taken at the same offset)."""
         d = self.dim
         if is_dask_array(V) or is_dask_array(T):
             raise TypeError(
                 f"jvp/vjp take NumPy arrays, got a dask array; apply them block by block "
                 f"with dask.array.map_blocks (V and {t_name} chunked alike)"
             )
-        flat_v, lead_v = check_points(V, d, "V")
         flat_t, lead_t = check_points(T, d, t_name)
+        lead_v = np.shape(V)[:-1]
         if lead_v != lead_t:
             raise ValueError(
-                f"V and {t_name} must have the same shape, got {lead_v + (d,)} and "
+                f"V and {t_name} must have the same shape, got {np.shape(V)} and "
                 f"{lead_t + (d,)}"
             )
-        VT = np.concatenate((flat_v, flat_t), axis=1).reshape(lead_v + (2 * d,))
+        if out is not None and np.may_share_memory(out, flat_t):
+            flat_t = flat_t.copy()  # out may be T itself (V is copied by evaluate)
 
         def kernel(rows, res, offset):
-            self._tangent_rows(rows, res, transpose, offset)
+            self._tangent_rows(rows, flat_t[offset : offset + rows.shape[0]], res, transpose,
+                               offset)
 
-        return evaluate(kernel, VT, 2 * d, name="V", out=out, chunk_size=chunk_size,
-                        progress=progress, desc=type(self).__name__, out_dim=d)
+        return evaluate(kernel, V, d, name="V", out=out, chunk_size=chunk_size,
+                        progress=progress, desc=type(self).__name__)

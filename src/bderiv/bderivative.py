@@ -292,9 +292,9 @@ class BDerivative(Linearisation):
         """The event order (piece) of each vector: ``event_times(V)[1]``, shape (..., n)."""
         return self.event_times(V)[1]
 
-    def _tangent_rows(self, VT, res, transpose: bool, offset: int) -> None:
+    def _tangent_rows(self, V, T, res, transpose: bool, offset: int) -> None:
         """The kernel of ``jvp``/``vjp`` (:class:`~bderiv._linearise.Linearisation`)."""
-        if self._engine.tangents(VT, res, transpose, offset):
+        if self._engine.tangents(V, T, res, transpose, offset):
             check_finite_result(res, "V", offset)
 
     # -- pieces -----------------------------------------------------------------------------

@@ -316,19 +316,18 @@ class FlowBDerivative(Linearisation):
             res.append((times.reshape(*lead, n_g), order.reshape(*lead, n_g)))
         return res
 
-    def _tangent_rows(self, VT, res, transpose: bool, offset: int) -> None:
+    def _tangent_rows(self, V, T, res, transpose: bool, offset: int) -> None:
         """The kernel of ``jvp``/``vjp``: group i's piece is the one that the vector
-        entering it (row v of ``VT`` through the earlier stages) selects. Forwards
+        entering it (row v of ``V`` through the earlier stages) selects. Forwards
         ``L_m J_m ... J_1 L_0 t``; the transpose ``L_0^T J_1^T ... J_m^T L_m^T w``."""
-        d, m = self.dim, len(self._jumps)
-        inputs = self._stage_inputs(np.ascontiguousarray(VT[:, :d]), "V", offset)
-        Y = np.ascontiguousarray(VT[:, d:])
+        m = len(self._jumps)
+        inputs = self._stage_inputs(V, "V", offset)
+        Y = T
         Y = _stage(self._linear[m], Y, transpose) if transpose else _stage(self._linear[0], Y)
         for i in reversed(range(m)) if transpose else range(m):
             Z = np.empty_like(Y)
             try:
-                self._jumps[i]._tangent_rows(np.concatenate((inputs[i], Y), axis=1), Z,
-                                             transpose, 0)
+                self._jumps[i]._tangent_rows(inputs[i], Y, Z, transpose, 0)
             except ValueError as exc:
                 raise ValueError(_in_group(str(exc), i, "V", offset)) from None
             Y = _stage(self._linear[i], Z, True) if transpose else _stage(self._linear[i + 1], Z)

@@ -52,25 +52,24 @@ class Engine:
             return self._event_times(V, times, orders, offset)
         return self.fast.event_times(V, times, orders, self.launch)
 
-    def tangents(self, VT, out, transpose: bool, offset: int = 0) -> int:
+    def tangents(self, V, T, out, transpose: bool, offset: int = 0) -> int:
         """out[q] = M_sigma(q) T[q] (``M_sigma(q)^T T[q]`` when ``transpose``) for
-        ``VT = [V | T]`` (m, 2d), sigma(q) the order that V[q] selects; returns the number
+        V, T (m, d), sigma(q) the order that V[q] selects; returns the number
         of non-finite rows of ``out``. Generic: the orders by :meth:`event_times`, the
         corners along them by :meth:`corners` (chunks of about ``CHAIN_BYTES``), then one
         saltation factor per event (``_core.saltations``)."""
         n, d = self.n, self.d
         rows = int(min(max(CHAIN_BYTES // ((n + 1) * d * 8), 64), 1 << 16))
         bad = 0
-        for s in range(0, VT.shape[0], rows):
-            e = min(s + rows, VT.shape[0])
-            V = np.ascontiguousarray(VT[s:e, :d])
+        for s in range(0, V.shape[0], rows):
+            e = min(s + rows, V.shape[0])
             orders = np.empty((e - s, n), dtype=np.int64)
-            self.event_times(V, np.empty((e - s, n)), orders, offset + s)
+            self.event_times(V[s:e], np.empty((e - s, n)), orders, offset + s)
             C = np.ascontiguousarray(
                 self.corners(chain_regions(orders, n).reshape(-1, n)), dtype=np.float64
             ).reshape(e - s, n + 1, d)
-            bad += _core.saltations((self.Dh, C, orders), VT[s:e], (out[s:e],), transpose,
-                                    launch=e - s)
+            bad += _core.saltations((self.Dh, C, orders), V[s:e], (out[s:e], T[s:e]),
+                                    transpose, launch=e - s)
         return bad
 
     def chain_corners(self, order) -> np.ndarray:

@@ -40,11 +40,14 @@ class DenseEngine(Engine):
         DhTp[:, :n] = self.Dh.T
         far = int(self.R.nbytes > FAR_BYTES)
         self._lanes = (self.R, DhTp, np.array([n, d, nc, dc, far], dtype=np.int64))
+        Dhp = np.zeros((n, 8 * dc))
+        Dhp[:, :d] = self.Dh
+        self._lane_tangents = self._lanes + (Dhp,)
         self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        for name in ("F", "G", "_lanes", "_plain"):  # views of R: rebuilt, not copied
+        for name in ("F", "G", "_lanes", "_lane_tangents", "_plain"):  # rebuilt from R
             state.pop(name, None)
         return state
 
@@ -141,11 +144,11 @@ class DenseEngine(Engine):
             return kernels.event_times(self._plain, V, (times, orders), launch=self.launch)
         return kernels.lane_event_times(self._lanes, V, (times, orders), launch=self.launch)
 
-    def tangents(self, VT, out, transpose: bool, offset: int = 0) -> int:
+    def tangents(self, V, T, out, transpose: bool, offset: int = 0) -> int:
         if PLAIN:
-            return kernels.tangents(self._plain + (self.Dh,), VT, (out,), transpose,
+            return kernels.tangents(self._plain + (self.Dh,), V, (out, T), transpose,
                                     launch=self.launch)
-        return kernels.lane_tangents(self._lanes + (self.Dh, self.F), VT, (out,), transpose,
+        return kernels.lane_tangents(self._lane_tangents, V, (out, T), transpose,
                                      launch=self.launch)
 
     def corners(self, happened) -> np.ndarray:

@@ -310,20 +310,20 @@ def saltation_step(y, Dh, k, Fc, before, after, rate, transpose):
 
 
 @njit(**JIT)
-def _saltations_block(tables, VT, outs, start, stop, transpose):
+def _saltations_block(tables, V, outs, start, stop, transpose):
     """out[q] = M_sigma T[q] (or M_sigma^T T[q]) from the corners along each chain.
 
     ``tables = (Dh, C, orders)``: ``C[q]`` (n + 1, d) the corners of the regions along the
-    order ``orders[q]`` (n,) of query q, found beforehand; ``VT[q] = [v | t]`` (2d,). The
+    order ``orders[q]`` (n,) of query q, found beforehand; ``outs = (out, T)``. The
     transpose runs the factors backwards: M^T = S_1^T ... S_n^T.
     """
     Dh, C, orders = tables
-    out = outs[0]
+    out, T = outs
     n, d = Dh.shape
     for q in range(start, stop):
         y = out[q]
         for i in range(d):
-            y[i] = VT[q, d + i]
+            y[i] = T[q, i]
         Cq = C[q]
         for s in range(n):
             j = n - 1 - s if transpose else s
@@ -334,5 +334,5 @@ def _saltations_block(tables, VT, outs, start, stop, transpose):
             saltation_step(y, Dh, k, Cq, j, j + 1, rate, transpose)
 
 
-#: tangents from chain corners: tables (Dh, C, orders), input [V | T], outs (out,).
+#: tangents from chain corners: tables (Dh, C, orders), outs (out, T).
 saltations = batch(_saltations_block)

@@ -91,6 +91,28 @@ def mul(typingctx, a, b):
 
 
 @intrinsic
+def sub(typingctx, a, b):
+    """a - b, lane by lane."""
+    def codegen(context, builder, sig, args):
+        return builder.fsub(*args)
+    return f64x8(a, b), codegen
+
+
+@intrinsic
+def total(typingctx, a):
+    """The sum of the lanes (a tree of three lane-wise sums)."""
+    def codegen(context, builder, sig, args):
+        v = args[0]
+        undef = ir.Constant(_VEC, ir.Undefined)
+        for half in (4, 2, 1):
+            swap = ir.Constant(ir.VectorType(_I32, WIDTH), [(i + half) % WIDTH
+                                                            for i in range(WIDTH)])
+            v = builder.fadd(v, builder.shuffle_vector(v, undef, swap))
+        return builder.extract_element(v, ir.Constant(_I32, 0))
+    return types.float64(a), codegen
+
+
+@intrinsic
 def fma(typingctx, a, b, c):
     """a * b + c, lane by lane, fused (one rounding)."""
     def codegen(context, builder, sig, args):

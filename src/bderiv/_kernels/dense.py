@@ -170,20 +170,20 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
 
 
 @njit(**JIT)
-def _tangent_block(tables, VT, outs, start, stop, transpose):
+def _tangent_block(tables, V, outs, start, stop, transpose):
     """out[q] = M_sigma T[q], or M_sigma^T T[q] when ``transpose``, with sigma the order
-    that v = VT[q, :d] selects (the chain of :func:`_chains`) and T[q] = VT[q, d:]."""
+    that v = V[q] selects (the chain of :func:`_chains`); ``outs = (out, T)``."""
     DhT, F, G, Dh = tables
-    out = outs[0]
+    out, T = outs
     d, n = DhT.shape
     g, tau, times, order, chain = _scratch(n)
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _chains(DhT, G, VT, q0, pn, False, g, tau, times, order, chain)
+        _chains(DhT, G, V, q0, pn, False, g, tau, times, order, chain)
         for p in range(pn):
             y = out[q0 + p]
             for i in range(d):
-                y[i] = VT[q0 + p, d + i]
+                y[i] = T[q0 + p, i]
             for s in range(n):
                 j = n - 1 - s if transpose else s
                 k = order[p, j]
@@ -326,29 +326,45 @@ def _lane_times_block(tables, V, outs, start, stop, inverse):
 
 
 @njit(**JIT)
-def _lane_tangent_block(tables, VT, outs, start, stop, transpose):
-    """out[q] = M_sigma T[q] (or its transpose), sigma the order v = VT[q, :d] selects.
-    ``tables = (R, DhTp, dims, Dh, F)`` with ``F`` the corner part of ``R``."""
-    R, dims, Dh, F = tables[0], tables[2], tables[3], tables[4]
-    out = outs[0]
-    n, d, og = dims[0], dims[1], 8 * dims[2]
+def _lane_tangent_block(tables, V, outs, start, stop, transpose):
+    """out[q] = M_sigma T[q] (or its transpose), sigma the order v = V[q] selects:
+    the saltation factors of MATH.md section 4 along the chain, in 8-wide vectors,
+    ``S y = y + (F[after] - F[before]) (Dh[k] . y) / G[before, k]`` and
+    ``S^T y = y + Dh[k] ((F[after] - F[before]) . y) / G[before, k]`` (backwards).
+    ``tables = (R, DhTp, dims, Dhp)`` with ``Dhp`` (n, 8 dc) the rows of Dh padded;
+    ``outs = (out, T)`` (T is read)."""
+    R, dims, Dhp = tables[0], tables[2], tables[3]
+    out, T = outs
+    n, d, og, of, dc = dims[0], dims[1], 8 * dims[2], 16 * dims[2], dims[3]
     scratch = _lane_scratch(tables)
     order = scratch[5]
+    Y = np.zeros((LANES, 8 * dc))  # the padding lanes stay 0 (so do F's and Dhp's)
     for q0 in range(start, stop, LANES):
         pn = min(LANES, stop - q0)
-        _lanes(tables, VT, q0, pn, False, False, scratch)
+        _lanes(tables, V, q0, pn, False, False, scratch)
         for p in range(pn):
-            y = out[q0 + p]
             for i in range(d):
-                y[i] = VT[q0 + p, d + i]
+                Y[p, i] = T[q0 + p, i]
             region = (1 << n) - 1 if transpose else 0  # walk the chain either way
             for st in range(n):
                 k = order[p, n - 1 - st] if transpose else order[p, st]
                 other = region ^ (1 << k)
                 before, after = (other, region) if transpose else (region, other)
-                saltation_step(y, Dh, k, F, before, after, R[before, og + k], transpose)
+                dot = 0.0
+                for c in range(dc):
+                    along = (vec.sub(vec.load(R, after, of + 8 * c),
+                                     vec.load(R, before, of + 8 * c)) if transpose
+                             else vec.load(Dhp, k, 8 * c))
+                    dot += vec.total(vec.mul(along, vec.load(Y, p, 8 * c)))
+                m = vec.splat(dot / R[before, og + k])
+                for c in range(dc):
+                    along = (vec.load(Dhp, k, 8 * c) if transpose
+                             else vec.sub(vec.load(R, after, of + 8 * c),
+                                          vec.load(R, before, of + 8 * c)))
+                    vec.store(Y, p, 8 * c, vec.fma(m, along, vec.load(Y, p, 8 * c)))
                 region = other
-
+            for i in range(d):
+                out[q0 + p, i] = Y[p, i]
 
 #: M(V) or M^-1(V): outs (out,).
 apply = batch(_apply_block)
@@ -358,7 +374,8 @@ event_times = batch(_times_block)
 lane_event_times = batch(_lane_times_block)
 #: the own-rates fast path: tables (DhT, F, rate), outs (out,).
 apply_sorted = batch(_sorted_block)
-#: M_sigma(V) T or its transpose: tables (DhT, F, G, Dh), input [V | T], outs (out,).
+#: M_sigma(V) T or its transpose: tables (DhT, F, G, Dh) (plain) or (R, DhTp, dims, Dhp)
+#: (lanes), outs (out, T).
 tangents = batch(_tangent_block)
 lane_tangents = batch(_lane_tangent_block)
 
