@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -29,26 +30,93 @@ def test_demo_text(capsys):
     code, out, err = run(["demo", *SMALL, "--check", "2"], capsys)
     assert code == 0, err
     assert out.startswith("bderiv demo: chair")
-    for text in ("event group", "simultaneous", "pieces:", "det =", "|D|_2 =",
-                 "ns per vector", "eps = 1e-04", "eps = 1e-06", "O(eps) expected",
-                 "mask 0b00 -> 0b11", "g0=(0,1)", "g0=(1,0)"):
+    for text in ("event group", "simultaneous", "pieces of D (the flow map):", "det D =",
+                 "|D|_2 =", "det M =", "ns per vector", "best of 3 runs", "eps = 1e-04",
+                 "eps = 1e-06", "O(eps) expected", "mask 0b00 -> 0b11", "g0=(0,1)",
+                 "g0=(1,0)", "B-derivative at the event point", "B-derivative of the flow",
+                 "measured on", "numba threads", "OPENBLAS_NUM_THREADS", "over [0, 0.15]"):
         assert text in out, text
 
 
 def test_demo_json_and_fd_convergence(capsys):
     code, out, _ = run(["demo", *SMALL, "--check", "2", "--json"], capsys)
     assert code == 0
+    assert '"t_final": 0.15,' in out  # 0.1 + 0.05 as asked for, not 0.15000000000000002
     res = json.loads(out)
+    assert set(res) == {"example", "description", "dim", "n_events", "x0", "t_final",
+                        "build_seconds", "groups", "pieces", "batch", "check",
+                        "total_seconds"}
     assert res["example"] == "chair" and (res["dim"], res["n_events"]) == (6, 2)
     assert res["groups"][0]["events"] == [0, 1]
-    assert res["n_pieces"] == 2 and all(p["det"] > 0 for p in res["pieces"])
-    assert res["batch"]["size"] == 2000 and res["batch"]["ns_per_vector"] > 0
+    pieces = res["pieces"]
+    assert (pieces["count"], pieces["sample"], pieces["distinct"]) == (2, 2000, 2)
+    assert len(pieces["most_visited"]) == 2
+    assert sum(e["share"] for e in pieces["most_visited"]) == pytest.approx(1.0)
+    assert all(e["det"] > 0 and e["event_dets"][0] > 0 for e in pieces["most_visited"])
+    b = res["batch"]
+    assert b["size"] == 2000 and b["ns_per_vector"] > 0 and len(b["runs_seconds"]) == 3
+    assert b["ns_per_vector"] == pytest.approx(min(b["runs_seconds"]) / 2000 * 1e9)
+    assert b["max_abs_output"] > 0 and b["machine"]["numba_threads"] >= 1
+    assert "OPENBLAS_NUM_THREADS" in b["machine"]["thread_variables"]
     err = res["check"]["max_rel_error"]
     assert len(err) == 3 and err[-1] < 1e-3
     assert all(r > 5 for r in res["check"]["error_ratios"])  # O(eps): 10x per decade
-    # keys added with the CLI package (the text report reads them)
-    assert res["build_seconds"] > 0 and res["pieces_sample"] == 2000
-    assert res["batch"]["max_abs_output"] > 0
+    assert res["build_seconds"] > 0
+
+
+def test_demo_full_matrices(capsys):
+    """--full: each group's tables, the linear stages and the pieces' matrices."""
+    from bderiv import examples
+
+    code, out, _ = run(["demo", *SMALL, "--check", "0", "--full", "--json"], capsys)
+    assert code == 0
+    res = json.loads(out)
+    ex = examples.chair()
+    fb = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    group = res["groups"][0]
+    # closed forms at rho (examples/chair.py): h_k = -(z + a_k sin th + b_k cos th), so
+    # row k of Dh is (0, -1, -(a_k cos th - b_k sin th), 0, 0, 0); before the touchdown
+    # the field is free flight
+    th, a, b0 = 0.1, np.array([-0.5, 0.6]), -0.4
+    b = np.array([b0, b0 + (a[0] - a[1]) * np.tan(th)])
+    Dh = np.zeros((2, 6))
+    Dh[:, 1], Dh[:, 2] = -1.0, -(a * np.cos(th) - b * np.sin(th))
+    np.testing.assert_allclose(group["Dh"], Dh, atol=1e-6)
+    np.testing.assert_allclose(group["F"][0], [0.5, -2.0, 0.3, 0.0, -9.81, 0.0], atol=1e-6)
+    assert np.array(group["F"]).shape == (4, 6) and len(res["linear"]) == 2
+    rng = np.random.default_rng(3)
+    for entry in res["pieces"]["most_visited"]:
+        D, (M,) = np.array(entry["matrix"]), entry["event_matrices"]
+        assert np.linalg.det(M) == pytest.approx(entry["event_dets"][0])
+        assert np.linalg.det(D) == pytest.approx(entry["det"])
+        # a vector of this piece: D's piece applied to it is the flow map's value
+        V = rng.standard_normal((400, 6))
+        inside = V[(fb.orders(V)[0] == entry["orders"][0]).all(axis=1)]
+        np.testing.assert_allclose(inside @ D.T, fb(inside), rtol=1e-9, atol=1e-9)
+    code, out, _ = run(["demo", *SMALL, "--check", "0", "--full"], capsys)
+    for text in ("Dh of group 0", "F of group 0", "L_0 (linear stage 0)", "D's piece",
+                 "M's piece, group 0"):
+        assert text in out, text
+
+
+def test_demo_many_events_shows_ranges(capsys):
+    """n = 12: every vector meets its own piece; the ranges and the spread are shown."""
+    argv = ["demo", "--example", "network", "--n", "12", "--batch", "3000", "--check", "0",
+            "--no-progress"]
+    code, out, _ = run(argv, capsys)
+    assert code == 0
+    assert "no piece holds 1 % of the vectors" in out and "share" not in out
+    assert "spread of the event times" in out and "met by the first 1,000 vectors: det D" in out
+    code, out, _ = run([*argv, "--json"], capsys)
+    p = json.loads(out)["pieces"]
+    assert p["count"] == 479001600 and p["most_visited"] == []
+    assert p["distinct"] > 2900 and p["ranges"]["vectors"] == 1000
+    assert 900 < p["ranges"]["pieces"] <= 1000
+    lo, hi = p["ranges"]["det"]
+    assert 0 < lo < hi
+    (spread,) = p["time_spread"]
+    assert spread["quantiles"] == [5, 50, 95]
+    assert 0 < spread["values"][0] < spread["values"][1] < spread["values"][2]
 
 
 @pytest.mark.parametrize(
@@ -65,14 +133,27 @@ def test_demo_network(capsys, argv, n, d):
 
 
 def test_demo_corner_table(capsys):
+    from bderiv.examples import three_event_table
+
     code, out, _ = run(["demo", "--example", "corners", *SMALL], capsys)
     assert code == 0
-    assert "order=(0,2,1)" in out and "pieces: 6" in out
-    code, out, _ = run(["demo", "--example", "corners", *SMALL, "--json"], capsys)
+    for text in ("order (0,2,1)", "pieces of M: 6", "Dh (event Jacobian",
+                 "0b001  [1, 0.1, 1]", "M(u) = [-2.9, -3.8, -6.8]", "times [1, 3, 3.8]"):
+        assert text in out, text
+    code, out, _ = run(["demo", "--example", "planar", *SMALL], capsys)
+    assert "M(u) = [-0.926007, -1.57564]" in out  # 6 significant digits, as for corners
+    code, out, _ = run(["demo", "--example", "corners", *SMALL, "--json", "--full"], capsys)
     res = json.loads(out)
+    Dh, F = three_event_table()
+    np.testing.assert_array_equal(res["Dh"], Dh)
+    np.testing.assert_array_equal(res["F"], F)
     assert res["vectors"][0]["Mu"] == pytest.approx([-2.9, -3.8, -6.8])
     assert res["check"]["inverse_round_trip"] < 1e-12
     assert res["batch"]["max_abs_output"] > 0
+    bd = BDerivative(Dh, F)
+    for p in res["pieces"]:
+        np.testing.assert_allclose(p["matrix"], bd.piece(p["order"]))
+    assert len(res["pieces"]) == 6
 
 
 def test_bench(capsys, tmp_path):
@@ -81,27 +162,34 @@ def test_bench(capsys, tmp_path):
                         "--no-progress", "--plot", str(png)], capsys)
     assert code == 0
     assert "speed-up" in out and png.stat().st_size > 1000
-    code, out, _ = run(["bench", "--n", "2", "--batch", "300", "--repeat", "1",
-                        "--no-progress", "--json"], capsys)
-    rows = json.loads(out)
+    assert out.startswith("bderiv bench: d = n, batch m = 500") and "measured on" in out
+    code, out, _ = run(["bench", "--n", "2", "--batch", "300", "--repeat", "1", "--d-factor",
+                        "2", "--no-progress", "--json"], capsys)
+    result = json.loads(out)
+    assert (result["d_factor"], result["batch"], result["repeat"]) == (2, 300, 1)
+    rows = result["rows"]
     assert {r["method"] for r in rows} == {"bderiv", "numpy", "blas"}
-    assert all(r["seconds_per_query"] > 0 for r in rows)
-    # the rows feed the scaling figure of `bderiv plot`
+    assert all(r["seconds_per_query"] > 0 and r["d"] == 4 for r in rows)
+    assert result["machine"]["cpus"] >= 1
+    # the output feeds the scaling figure of `bderiv plot`
     path = tmp_path / "rows.json"
     path.write_text(out)
     code, out, _ = run(["plot", "--figure", "scaling", "--bench-json", str(path), "--out",
                         str(tmp_path / "figs"), "--json"], capsys)
     assert code == 0 and json.loads(out)["files"][0].endswith("scaling.png")
+    code, out, err = run(["bench", "--n", "2", "--batch", "300", "--repeat", "1",
+                          "--d-factor", "2", "--no-progress"], capsys)
+    assert out.startswith("bderiv bench: d = 2n,")
 
 
-@pytest.mark.parametrize("fmt", ["png", "pdf"])
+@pytest.mark.parametrize("fmt", ["png", "pdf", "svg"])
 def test_plot_2d(capsys, tmp_path, fmt):
     code, out, _ = run(["plot", "--example", "planar", "--out", str(tmp_path), "--format",
                         fmt, "--dpi", "40"], capsys)
     assert code == 0
-    for name in ("field", "triangulation", "circle", "pieces"):
+    for name in ("field", "triangulation", "circle", "note", "pieces"):
         assert (tmp_path / f"{name}.{fmt}").stat().st_size > 1000
-    assert "wrote" in out
+    assert "wrote" in out and "not drawn: scaling, which needs --bench-json" in out
 
 
 def test_plot_default_and_chair(capsys, tmp_path):
@@ -109,11 +197,23 @@ def test_plot_default_and_chair(capsys, tmp_path):
                        capsys)
     assert code == 0
     summary = json.loads(out)
-    assert (summary["dim"], summary["n_events"]) == (2, 2) and len(summary["files"]) == 4
+    assert summary["example"] == "planar"  # the default, as --help says
+    assert (summary["dim"], summary["n_events"]) == (2, 2) and len(summary["files"]) == 5
     code, out, _ = run(["plot", "--example", "chair", "--out", str(tmp_path / "b"),
                         "--dpi", "30"], capsys)
-    assert code == 0 and "need a 2-D system" in out
+    assert code == 0 and "not drawn: field, which draws the plane (needs d = 2)" in out
     assert [p.name for p in (tmp_path / "b").iterdir()] == ["pieces.png"]
+    code, out, _ = run(["plot", "--n", "2", "--figure", "note", "--out", str(tmp_path / "c"),
+                        "--dpi", "30", "--json"], capsys)
+    assert json.loads(out)["example"] == "network"  # --n alone means the network family
+
+
+def test_plot_help_states_the_defaults(capsys):
+    code, out, _ = run(["plot", "--help"], capsys)
+    assert code == 0
+    text = " ".join(out.split())
+    assert "(default: planar)" in text and "default 3" in text  # --example, and --n's own
+    assert "svg" in text and "planar" in text
 
 
 @pytest.mark.parametrize("example", ["corners", "chair"])
@@ -122,6 +222,7 @@ def test_export(capsys, tmp_path, example):
     code, out, _ = run(["export", "--example", example, "--out", str(base), "--json"], capsys)
     assert code == 0
     summary = json.loads(out)
+    assert summary["map"] == "event"
     assert [f["format"] for f in summary["files"]] == ["npz", "json"]
     assert all(f["max_error_reloaded"] < 1e-9 for f in summary["files"])
     assert summary["check_vectors"] == 200
@@ -132,6 +233,38 @@ def test_export(capsys, tmp_path, example):
     code, out, _ = run(["export", "--example", example, "--out", f"{base}2.json",
                         "--format", "json"], capsys)
     assert code == 0 and "wrote" in out and (tmp_path / "tri2.json").exists()
+    assert "the B-derivative at the event point" in out
+
+
+def test_export_flow_map(capsys, tmp_path):
+    """--map flow: the file is the flow map D from x0 over [0, t_final], not M."""
+    from bderiv import examples
+
+    base = tmp_path / "flow"
+    code, out, _ = run(["export", "--map", "flow", "--out", str(base)], capsys)
+    assert code == 0
+    assert "the B-derivative of the flow from x0 over [0, 0.15]" in out
+    assert "max |tri(V) - D(V)|" in out
+    ex = examples.chair()
+    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    M = ex.system.bderivative(ex.rho)
+    V = np.random.default_rng(7).standard_normal((300, 6))
+    for path in (f"{base}.npz", f"{base}.json"):
+        tri = load_triangulation(path)
+        np.testing.assert_allclose(tri(V), D(V), atol=1e-10 * np.abs(D(V)).max())
+        assert np.abs(tri(V) - M(V)).max() > 1.0  # not the map at the event point
+
+
+def test_flow_triangulation_needs_one_group():
+    from bderiv import FlowBDerivative
+    from bderiv.cli.export import flow_triangulation
+
+    bd = BDerivative(np.eye(2), np.array([[1.0, 1], [2, 1], [1, 3], [2, 2]]))
+    two = FlowBDerivative([np.eye(2)] * 3, [bd, bd])
+    with pytest.raises(usage.UsageError, match="meets 2 event groups.*exactly one group"):
+        flow_triangulation(two, 100)
+    with pytest.raises(usage.UsageError, match="meets 0 event groups"):
+        flow_triangulation(FlowBDerivative([np.eye(2)], []), 100)
 
 
 BAD = [
@@ -145,7 +278,12 @@ BAD = [
     (["demo", "--example", "corners", "--n", "3"], "--n applies to --example network"),
     (["bench", "--plot", "out.txt", "--n", "2"], "must end in .png"),
     (["bench", "--plot", "/nonexistent/dir/s.png", "--n", "2"], "does not exist"),
-    (["plot", "--example", "corners", "--figure", "field"], "need a 2-D system"),
+    (["plot", "--example", "corners", "--figure", "field"], "figure field draws the plane"),
+    (["plot", "--example", "network", "--n", "3", "--extended", "--figure", "note"],
+     "needs d = 2"),
+    (["plot", "--figure", "scaling"], "pass --bench-json rows.json"),
+    (["export", "--example", "corners", "--map", "flow"], "--map flow needs a model"),
+    (["export", "--map", "both"], "invalid choice"),
     (["plot", "--figure", "scaling", "--bench-json", "/nonexistent/rows.json"],
      "cannot read benchmark rows"),
     (["export", "--example", "corners", "--out", "/nonexistent/dir/tri"], "does not exist"),
@@ -171,7 +309,9 @@ def test_bad_arguments_one_line_exit_2(capsys, argv, message):
     assert out == ""
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
-    assert lines[0].startswith("bderiv") and "error:" in lines[0]
+    # one prefix for argparse's errors and the later ones: the command's name
+    prefix = "bderiv: error:" if argv[0] == "frobnicate" else f"bderiv {argv[0]}: error:"
+    assert lines[0].startswith(prefix), lines[0]
     assert message in lines[0]
     assert "Traceback" not in err
 
@@ -187,7 +327,7 @@ def test_python_m_bderiv_subprocess():
     assert ok.returncode == 0 and ok.stdout.startswith("bderiv ")
     demo = subprocess.run([sys.executable, "-m", "bderiv", "demo", "--example", "corners",
                            "--batch", "100"], capture_output=True, text=True)
-    assert demo.returncode == 0 and "pieces: 6" in demo.stdout
+    assert demo.returncode == 0 and "pieces of M: 6" in demo.stdout
 
 
 def test_bench_n26_refused_before_allocating(capsys, monkeypatch):
@@ -205,7 +345,30 @@ def test_unwritable_output_is_a_usage_error(capsys, tmp_path):
     code, out, err = run(["plot", "--example", "planar", "--out", str(blocker / "figs")],
                          capsys)
     assert (code, out) == (2, "") and err.count("\n") == 1
-    assert "--out: cannot make the directory" in err
+    assert "--out: cannot make the directory" in err and "not writable" in err
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs Linux's /proc")
+@pytest.mark.parametrize("argv", [
+    ["export", "--example", "corners", "--out", "/proc/tri"],
+    ["plot", "--example", "planar", "--figure", "pieces", "--out", "/proc"],
+    ["bench", "--n", "2", "--no-progress", "--plot", "/proc/scaling.png"],
+])
+def test_directory_that_refuses_files_is_not_writable(capsys, argv):
+    """A directory that exists but takes no file (/proc) is named as not writable, before
+    any work, and never as 'No such file or directory' alone."""
+    code, out, err = run(argv, capsys)
+    assert (code, out) == (2, "") and err.count("\n") == 1
+    assert "'/proc' is not writable" in err, err
+
+
+def test_broken_pipe_stops_quietly():
+    """`bderiv demo | head -1`: the reader leaves; no traceback."""
+    proc = subprocess.run(
+        f"{sys.executable} -m bderiv demo --example corners --batch 100 | head -1",
+        shell=True, capture_output=True, text=True)
+    assert proc.stdout.startswith("bderiv demo: corners") and proc.stdout.count("\n") == 1
+    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr
 
 
 @pytest.mark.parametrize("error", [ValueError, TypeError, OSError])

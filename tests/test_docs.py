@@ -68,3 +68,86 @@ def test_modules_import_without_extras():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert int(out.stdout) >= 10
+
+
+#: a command line in the docs: ``bderiv <command> ...`` or ``python -m bderiv <command> ...``
+COMMAND_LINE = re.compile(r"(?:python -m )?bderiv (demo|bench|plot|export)\b([^`\n]*)")
+#: the files whose command lines are checked
+CLI_DOCS = [ROOT / "README.md", ROOT / "docs" / "tutorial.md"]
+
+
+def command_lines(path):
+    """(command, list of (option, value or None)) of every command line of a markdown file,
+    read from code spans, table cells and bash blocks."""
+    found = []
+    for match in COMMAND_LINE.finditer(path.read_text(encoding="utf-8")):
+        tokens = match.group(2).replace("\\|", "|").replace("[", " ").replace("]", " ").split()
+        pairs = []
+        for i, tok in enumerate(tokens):
+            if tok.startswith("--"):
+                value = tokens[i + 1] if i + 1 < len(tokens) else None
+                pairs.append((tok, None if value is None or value.startswith("--") else value))
+        found.append((match.group(1), pairs))
+    return found
+
+
+@pytest.mark.parametrize("path", CLI_DOCS, ids=lambda p: p.name)
+def test_every_command_and_option_in_the_docs_exists(path):
+    """README and the tutorial name only commands, options and choices that the parser has
+    (and the parser reads the command lines of the bash blocks without error)."""
+    from bderiv.cli.parser import build_parser
+
+    parser = build_parser()
+    lines = command_lines(path)
+    assert lines, "no command line found"
+    named = set()
+    for command, pairs in lines:
+        sub = parser.commands[command]
+        for option, value in pairs:
+            action = sub._option_string_actions.get(option)
+            assert action is not None, f"{path.name}: bderiv {command} has no option {option}"
+            named.add((command, option))
+            if action.choices is not None and value is not None and "|" in value:
+                for choice in value.split("|"):  # a table's list of choices: a|b|c
+                    typed = action.type(choice) if action.type else choice
+                    assert typed in action.choices, f"{command} {option} {choice}"
+    if path.name == "README.md":  # the README's table names every option of every command
+        for command, sub in parser.commands.items():
+            options = {o for a in sub._actions for o in a.option_strings if o.startswith("--")}
+            missing = options - {"--help"} - {o for c, o in named if c == command}
+            assert not missing, f"README does not name {sorted(missing)} of bderiv {command}"
+
+
+def test_bash_blocks_parse():
+    """Every ``bderiv ...`` line of a bash block in the docs parses as it is written."""
+    from bderiv.cli.parser import build_parser
+
+    parser = build_parser()
+    for path in CLI_DOCS:
+        text = path.read_text(encoding="utf-8")
+        for block in re.findall(r"^```bash\n(.*?)^```", text, re.S | re.M):
+            for line in block.splitlines():
+                line = line.split("#")[0].split("&&")[-1].strip()
+                if line.startswith(("bderiv ", "python -m bderiv ")):
+                    argv = line.split()[2 if line.startswith("bderiv") else 4:]
+                    args, extra = parser.parse_known_args([line.split()[
+                        1 if line.startswith("bderiv") else 3], *argv])
+                    assert not extra, (path.name, line)
+
+
+def test_images_in_the_docs_exist():
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for image in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", path.read_text(encoding="utf-8")):
+            assert (path.parent / image).is_file(), (path.name, image)
+
+
+def test_public_namespace():
+    """``import bderiv`` exposes its API and submodules, no helper it imported."""
+    import types
+
+    import bderiv
+
+    leaked = [name for name in dir(bderiv) if not name.startswith("_")
+              and name not in bderiv.__all__
+              and not isinstance(getattr(bderiv, name), types.ModuleType)]
+    assert leaked == []

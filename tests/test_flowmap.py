@@ -320,3 +320,16 @@ def _make_composed():
 
 
 _COMPOSED = _make_composed()
+
+
+def test_triangulation_of_a_flow_map_with_one_group(composed):
+    """The fan of the group's map carried by the stages rebuilds D (the chair: d > n)."""
+    ex = examples.chair()
+    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    tri = D.triangulation()
+    V = np.random.default_rng(9).standard_normal((200, D.dim))
+    W = D(V)
+    np.testing.assert_allclose(tri.apply(V), W, rtol=0, atol=1e-10 * np.abs(W).max())
+    np.testing.assert_allclose(tri.inverse(W), V, rtol=0, atol=1e-9 * np.abs(V).max())
+    with pytest.raises(ValueError, match=r"meets 2 event groups; a triangulation"):
+        composed.triangulation()

@@ -239,8 +239,15 @@ def test_triangulation_pickles_read_only(tri_n3):
     clone = pickle.loads(pickle.dumps(tri))
     assert_array_equal(clone.inverse(V), tri.inverse(V))
     for a in (tri, clone):
-        for name in ("pre", "post", "simplices", "kernel"):
+        for name in ("pre", "post", "simplices", "kernel", "kernel_post"):
             assert not getattr(a, name).flags.writeable
+    # a pickle made before kernel_post existed: the map is the identity on the kernel
+    state = {k: v for k, v in tri.__dict__.items() if k != "kernel_post"}
+    old = Triangulation.__new__(Triangulation)
+    old.__setstate__(pickle.loads(pickle.dumps(state)))
+    assert_array_equal(old.kernel_post, tri.kernel)
+    assert not old.kernel_post.flags.writeable
+    assert_array_equal(old(V), tri(V))
 
 
 def test_direct_construction_is_checked():
@@ -258,3 +265,48 @@ def test_direct_construction_is_checked():
         Triangulation(**good | {"pre": flat})
     with pytest.raises(ValueError, match=r"field 'post' must have shape \(5, 2\)"):
         Triangulation(**good | {"post": tri.post[:4]})
+
+
+@pytest.mark.parametrize("n, d", [(2, 2), (3, 3), (2, 4), (3, 5)])
+def test_composed_is_the_composition(n, d):
+    """tri.composed(A, B)(v) = B bd(A v), and its inverse, on vectors of every cone."""
+    rng = np.random.default_rng(10 * n + d)
+    bd = BDerivative(*random_system(rng, n, d))
+    A = np.eye(d) + 0.4 * rng.standard_normal((d, d))
+    B = np.eye(d) + 0.4 * rng.standard_normal((d, d))
+    tri = bd.triangulation().composed(A, B)
+    V = rng.standard_normal((400, d))
+    want = bd(V @ A.T) @ B.T
+    # relative to the batch's scale: the fan solves with its cones' (d, d) matrices
+    assert_allclose(tri(V), want, atol=1e-9 * np.abs(want).max())
+    assert_allclose(tri.inverse(want), V, atol=1e-9 * np.abs(V).max())
+    # the vertices: pre-event points pulled back by A, post-event points pushed by B
+    assert_allclose(tri.pre @ A.T, bd.triangulation().pre, atol=1e-12)
+    assert_allclose(tri.post, bd.triangulation().post @ B.T, atol=1e-12)
+    assert (tri.n_events, tri.dim) == (n, d)
+
+
+def test_composed_of_a_flow_map_by_hand():
+    """One event group: the fan carried by the flow's linear stages is the flow map D."""
+    from bderiv import examples
+
+    ex = examples.chair()
+    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    (L0, L1), (M,) = D.linear, D.jumps
+    tri = M.triangulation().composed(L0, L1)
+    V = np.random.default_rng(0).standard_normal((300, 6))
+    W = D(V)
+    assert_allclose(tri(V), W, atol=1e-10 * np.abs(W).max())
+    assert_allclose(tri.inverse(W), V, atol=1e-10 * np.abs(V).max())
+
+
+def test_composed_refuses_bad_matrices():
+    tri = BDerivative(np.eye(2), np.array([[1.0, 1], [2, 1], [1, 3], [2, 2]])).triangulation()
+    with pytest.raises(ValueError, match=r"before must have shape \(2, 2\), got \(3, 3\)"):
+        tri.composed(np.eye(3), np.eye(2))
+    with pytest.raises(ValueError, match="after must be invertible.*condition number"):
+        tri.composed(np.eye(2), [[1.0, 2.0], [2.0, 4.0]])
+    with pytest.raises(ValueError, match="before must be finite"):
+        tri.composed([[np.nan, 0.0], [0.0, 1.0]], np.eye(2))
+    with pytest.raises(TypeError, match="after"):
+        tri.composed(np.eye(2), [["a", "b"], ["c", "d"]])

@@ -55,6 +55,50 @@ def test_explicit_format_and_plain_readers(tmp_path, tri_bd):
     assert_array_equal(bderiv.load_triangulation(q, "npz").post, tri.post)
 
 
+@pytest.fixture
+def moved_kernel():
+    """A triangulation whose map is not the identity on the kernel (n = 2, d = 4)."""
+    rng = np.random.default_rng(5)
+    Dh, F = random_system(rng, 2, 4)
+    bd = BDerivative(Dh, F)
+    before = np.eye(4) + 0.3 * rng.standard_normal((4, 4))
+    after = np.eye(4) + 0.3 * rng.standard_normal((4, 4))
+    return bd.triangulation().composed(before, after)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json"])
+def test_version_2_round_trip(tmp_path, moved_kernel, suffix):
+    """A map that moves the kernel is written as version 2 with ``kernel_post``."""
+    tri = moved_kernel
+    assert not np.allclose(tri.kernel, tri.kernel_post)
+    assert tri.to_dict()["version"] == 2 and "kernel_post" in tri.to_dict()
+    back = load_triangulation(tri.save(tmp_path / f"tri{suffix}"))
+    for name in (*FIELDS, "kernel_post"):
+        assert_array_equal(getattr(back, name), getattr(tri, name))
+    V = np.random.default_rng(1).standard_normal((40, 4))
+    assert_array_equal(back(V), tri(V))
+    assert_array_equal(back.inverse(V), tri.inverse(V))
+
+
+def test_version_1_files_have_no_kernel_post(tmp_path, tri_bd):
+    """The event-point map stays a version 1 file (readable by older bderiv)."""
+    tri, _ = tri_bd
+    assert_array_equal(tri.kernel_post, tri.kernel)
+    assert "kernel_post" not in tri.to_dict()
+    with np.load(tri.save(tmp_path / "tri.npz")) as npz:
+        assert "kernel_post" not in npz.files
+
+
+def test_version_2_kernel_post_checked(tmp_path, moved_kernel):
+    data = moved_kernel.to_dict()
+    refused(write_json(tmp_path / "s.json", data | {"kernel_post": [[1.0]] * 4}),
+            r"field 'kernel_post' must have shape \(d, d - n\) = \(4, 2\)")
+    flat = np.array(data["kernel_post"])
+    flat[:, 1] = flat[:, 0]  # the two kernel images collapse: no post cone spans R^4
+    refused(write_json(tmp_path / "f.json", data | {"kernel_post": flat.tolist()}),
+            "spans less than R\\^4 with the post vertices", "kernel_post")
+
+
 def test_public_name():
     assert "load_triangulation" in bderiv.__all__
 
@@ -236,9 +280,12 @@ def test_ragged_and_junk_json(tmp_path, tri):
 
 
 def test_wrong_version_and_format(tmp_path, tri):
-    for version in (2, "1", True, None, 1.5):
+    for version in (3, "1", True, None, 1.5, 1.0):
         data = tri.to_dict() | {"version": version}
         refused(write_json(tmp_path / "v.json", data), f"version {version!r} is not supported")
+    # version 2 must carry the kernel images
+    data = tri.to_dict() | {"version": 2}
+    refused(write_json(tmp_path / "v2.json", data), r"lacks the field\(s\) \['kernel_post'\]")
     refused(write_json(tmp_path / "l.json", [1, 2]), "not a bderiv triangulation", "'list'")
     refused(write_npz(tmp_path / "v.npz", tri, meta={"format": FIELDS[0]}),
             "not a bderiv triangulation")

@@ -1,7 +1,7 @@
 """bderiv: exact, fast Bouligand derivatives of piecewise-differentiable flows at points
 where several events happen at once."""
 
-from importlib.metadata import PackageNotFoundError, version
+from importlib import metadata as _metadata
 
 from . import examples
 from .bderivative import BDerivative
@@ -12,8 +12,8 @@ from .simulate import SolverOptions
 from .triangulation import Triangulation, load_triangulation
 
 try:
-    __version__ = version("bderiv")
-except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = _metadata.version("bderiv")
+except _metadata.PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0+unknown"
 
 __all__ = [

@@ -5,7 +5,12 @@ damaged or hostile. :func:`read_json` and :func:`read_npz` turn any parse failur
 ``ValueError`` naming the file (an ``.npz`` is never unpickled); :func:`check_data` checks
 the header (format tag, version, sizes) and :func:`check_fields` the arrays (dtypes,
 shapes, finiteness, index ranges, every vertex used, non-degenerate cones). The same
-:func:`check_fields` guards ``Triangulation(pre, post, simplices, kernel)``.
+:func:`check_fields` guards ``Triangulation(pre, post, simplices, kernel, kernel_post)``.
+
+Version 1 files hold maps that are the identity on the kernel (the B-derivative at an event
+point); version 2 adds ``kernel_post``, the images of the kernel basis (a flow map's
+triangulation, whose linear stages move the kernel). A map that version 1 can hold is
+written as version 1, so older readers still read it.
 """
 
 from __future__ import annotations
@@ -19,8 +24,11 @@ import numpy as np
 
 #: tag written into every saved file, checked on load
 FILE_FORMAT = "bderiv.triangulation"
-FILE_VERSION = 1
-FIELDS = ("pre", "post", "simplices", "kernel")
+FILE_VERSION = 2
+#: the arrays of a triangulation; version 1 files lack ``kernel_post`` (it is ``kernel``)
+FIELDS = ("pre", "post", "simplices", "kernel", "kernel_post")
+#: the arrays each file version holds
+VERSION_FIELDS = {1: FIELDS[:4], 2: FIELDS}
 #: what reading a damaged or hostile .npz can raise (BadZipFile for a truncated archive,
 #: zlib.error for a corrupt member, ValueError for object arrays with allow_pickle=False)
 _NPZ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error)
@@ -46,22 +54,13 @@ def check_data(data, source: str) -> dict:
     ValueError
         Naming ``source`` and the field, what was expected and what came.
     """
-    if not isinstance(data, dict) or data.get("format") != FILE_FORMAT:
-        got = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise ValueError(
-            f"{source} is not a bderiv triangulation: expected a mapping with "
-            f"format={FILE_FORMAT!r}, got {got!r}"
-        )
-    version = data.get("version")
-    if isinstance(version, bool) or version != FILE_VERSION:
-        raise ValueError(
-            f"{source}: triangulation file version {version!r} is not supported (this "
-            f"bderiv reads version {FILE_VERSION})"
-        )
-    missing = [name for name in (*FIELDS, "n_events", "dim") if name not in data]
+    version = _check_header(data, source)
+    missing = [name for name in (*VERSION_FIELDS[version], "n_events", "dim")
+               if name not in data]
     if missing:
         raise ValueError(f"{source}: triangulation data lacks the field(s) {missing}")
-    fields = check_fields({name: data[name] for name in FIELDS}, source, ValueError)
+    fields = check_fields({name: data[name] for name in VERSION_FIELDS[version]}, source,
+                          ValueError)
     d, n = fields["pre"].shape[1], fields["simplices"].shape[1] - 1
     for name, want, why in (("n_events", n, "columns of simplices - 1"),
                             ("dim", d, "columns of pre")):
@@ -71,6 +70,23 @@ def check_data(data, source: str) -> dict:
                 f"{source}: field {name!r} must be the integer {want} (the {why}), got {got!r}"
             )
     return fields
+
+
+def _check_header(data, source: str) -> int:
+    """The file version of ``data`` after checking its format tag."""
+    if not isinstance(data, dict) or data.get("format") != FILE_FORMAT:
+        got = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise ValueError(
+            f"{source} is not a bderiv triangulation: expected a mapping with "
+            f"format={FILE_FORMAT!r}, got {got!r}"
+        )
+    version = data.get("version")
+    if isinstance(version, bool) or not isinstance(version, int) or version not in VERSION_FIELDS:
+        raise ValueError(
+            f"{source}: triangulation file version {version!r} is not supported (this "
+            f"bderiv reads versions {', '.join(map(str, VERSION_FIELDS))})"
+        )
+    return version
 
 
 def read_json(path: str, source: str):
@@ -134,7 +150,8 @@ def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dic
     ----------
     fields : dict
         ``pre``, ``post`` (n_vertices, d), ``simplices`` (n_simplices, n + 1), ``kernel``
-        (d, d - n), as array_likes.
+        (d, d - n) and optionally ``kernel_post`` (d, d - n; absent or None: ``kernel``),
+        as array_likes.
     source : str
         What they came from (``"Triangulation"`` or a file), named in every message.
     type_error : type
@@ -143,10 +160,13 @@ def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dic
     Returns
     -------
     dict
-        The same keys as fresh C-contiguous arrays: float64, and int64 simplices.
+        The five arrays of :data:`FIELDS` as fresh C-contiguous arrays: float64, and int64
+        simplices.
     """
+    if fields.get("kernel_post") is None:
+        fields = {**fields, "kernel_post": fields["kernel"]}
     out = {name: _matrix(fields[name], name, source, type_error) for name in FIELDS}
-    pre, post, simplices, kernel = (out[name] for name in FIELDS)
+    pre, post, simplices, kernel, kernel_post = (out[name] for name in FIELDS)
     (n_vertices, d), n = pre.shape, simplices.shape[1] - 1
 
     def require(ok, name, want, got):
@@ -157,8 +177,9 @@ def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dic
     require(post.shape == pre.shape, "post", f"shape {pre.shape} (that of pre)", post.shape)
     require(simplices.shape[0] >= 1 and 1 <= n <= d, "simplices",
             f"shape (n_simplices >= 1, n + 1) with 1 <= n <= d = {d}", simplices.shape)
-    require(kernel.shape == (d, d - n), "kernel", f"shape (d, d - n) = ({d}, {d - n})",
-            kernel.shape)
+    for name, basis in (("kernel", kernel), ("kernel_post", kernel_post)):
+        require(basis.shape == (d, d - n), name, f"shape (d, d - n) = ({d}, {d - n})",
+                basis.shape)
     lo, hi = simplices.min(), simplices.max()
     require(lo >= 0 and hi < n_vertices, "simplices", f"vertex indices 0..{n_vertices - 1}",
             f"indices {lo}..{hi}")
@@ -173,13 +194,13 @@ def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dic
             f"{source}: field 'simplices' must use every vertex of pre/post, but vertices "
             f"{unused[:10].tolist()} are in no simplex"
         )
-    for name, points in (("pre", pre), ("post", post)):
-        bad = _first_degenerate(points, simplices, kernel)
+    for name, points, basis in (("pre", pre, kernel), ("post", post, kernel_post)):
+        bad = _first_degenerate(points, simplices, basis)
         if bad >= 0:
             raise ValueError(
                 f"{source}: field 'simplices' must give non-degenerate cones, but simplex "
                 f"{bad} {simplices[bad].tolist()} spans less than R^{d} with the {name} "
-                f"vertices (and the kernel basis)"
+                f"vertices (and the kernel basis {'kernel' if name == 'pre' else 'kernel_post'})"
             )
     return out
 

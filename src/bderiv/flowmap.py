@@ -30,7 +30,7 @@ from ._validate import (
     check_points,
     check_real_array,
 )
-from .bderivative import BDerivative
+from .bderivative import MAX_PIECES, BDerivative
 
 __all__ = ["FlowBDerivative"]
 
@@ -315,6 +315,26 @@ class FlowBDerivative(Linearisation):
             n_g = bd.n_events
             res.append((times.reshape(*lead, n_g), order.reshape(*lead, n_g)))
         return res
+
+    def triangulation(self, max_pieces: int = MAX_PIECES):
+        """The map as vertices and simplices: the fan of its one event group's map carried
+        by the linear stages (:meth:`Triangulation.composed`), pre-event vertices pulled
+        back to x0 (by ``linear[0]``), post-event vertices pushed to t_final (``linear[1]``).
+
+        Raises
+        ------
+        ValueError
+            Unless the trajectory meets exactly one event group (several groups' pieces
+            are not one fan; with none the map is linear, ``linear[0]``); as for
+            :meth:`BDerivative.triangulation`; or for a singular stage.
+        """
+        if self.n_groups != 1:
+            raise ValueError(
+                f"the flow map meets {self.n_groups} event groups; a triangulation (one fan "
+                f"of simplices) exists for exactly one group"
+            )
+        (L0, L1), (M,) = self._linear, self._jumps
+        return M.triangulation(max_pieces).composed(L0, L1)
 
     def _tangent_rows(self, V, T, res, transpose: bool, offset: int) -> None:
         """The kernel of ``jvp``/``vjp``: group i's piece is the one that the vector

@@ -21,14 +21,14 @@ from ._batch import evaluate
 from ._triangulation_io import (
     FIELDS,
     FILE_FORMAT,
-    FILE_VERSION,
+    VERSION_FIELDS,
     check_data,
     check_fields,
     file_format,
     read_json,
     read_npz,
 )
-from ._validate import all_finite, check_finite_result, check_positive_int
+from ._validate import all_finite, check_finite_result, check_matrix, check_positive_int
 
 
 class Triangulation:
@@ -45,8 +45,11 @@ class Triangulation:
         spanned by its other n vertices (non-negative weights) plus the kernel basis (any
         weights). Every vertex is used.
     kernel : array_like, shape (d, d - n)
-        Basis of the subspace (ker Dh) on which the map is the identity (empty when d = n;
-        orthonormal when built by :meth:`from_bderivative`).
+        Basis of the subspace (ker Dh) that no event sees (empty when d = n; orthonormal
+        when built by :meth:`from_bderivative`).
+    kernel_post : array_like, shape (d, d - n), optional
+        Images of the ``kernel`` columns under the map; default ``kernel`` (the map at an
+        event point is the identity there). The cones of ``post`` are spanned with it.
 
     Raises
     ------
@@ -65,8 +68,10 @@ class Triangulation:
     B_{n-1}, 2**n]``, the halves of its cone before and after the flow direction.
 
     The map is a homeomorphism: the ``post`` cones are a fan too, so :meth:`inverse` is the
-    same evaluation with ``pre`` and ``post`` swapped (MATH.md section 6). Evaluation is
-    brute force over all simplices: meant for checking, and for small n.
+    same evaluation with ``pre``, ``kernel`` and ``post``, ``kernel_post`` swapped (MATH.md
+    section 6). :meth:`composed` carries the fan through linear maps before and after (the
+    triangulation of a flow map with one event group). Evaluation is brute force over all
+    simplices: meant for checking, and for small n.
 
     Save it with :meth:`save` (``.npz`` or ``.json``) and read it back with :meth:`load`
     (or :func:`bderiv.load_triangulation`): the file holds the whole map. The arrays are
@@ -86,8 +91,9 @@ class Triangulation:
     array([-1., -2.])
     """
 
-    def __init__(self, pre, post, simplices, kernel):
-        fields = dict(pre=pre, post=post, simplices=simplices, kernel=kernel)
+    def __init__(self, pre, post, simplices, kernel, kernel_post=None):
+        fields = dict(pre=pre, post=post, simplices=simplices, kernel=kernel,
+                      kernel_post=kernel_post)
         self._set(check_fields(fields, "Triangulation"))
 
     def _set(self, fields: dict) -> None:
@@ -100,6 +106,8 @@ class Triangulation:
     def __setstate__(self, state: dict) -> None:
         # unpickled arrays come back writeable; keep them read-only as validated
         self.__dict__.update(state)
+        if "kernel_post" not in state:  # pickled before kernel_post existed: the identity
+            self.kernel_post = self.kernel.copy()
         for name in FIELDS:
             getattr(self, name).flags.writeable = False
 
@@ -127,6 +135,57 @@ class Triangulation:
         simplices = np.stack([plus, minus], axis=1).reshape(-1, n + 1)
         kernel = scipy.linalg.null_space(bd.Dh).reshape(bd.dim, bd.dim - n)
         return cls(pre, post, simplices, kernel)
+
+    def composed(self, before, after) -> Triangulation:
+        """The triangulation of ``v -> after @ self(before @ v)``, same simplices.
+
+        The pre-event vertices and the kernel basis are pulled back by ``before``, the
+        post-event vertices and the kernel images pushed forward by ``after``: for a flow
+        map ``L_1 . M . L_0`` with one event group of map ``M``, ``before = L_0`` carries the
+        fan's pre-event points back to the start point and ``after = L_1`` its post-event
+        points to the final time.
+
+        Parameters
+        ----------
+        before, after : array_like, shape (d, d)
+            Invertible real matrices.
+
+        Returns
+        -------
+        Triangulation
+
+        Raises
+        ------
+        ValueError
+            On a wrong shape, a non-finite entry, or a matrix singular to working
+            precision (naming it).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from bderiv import BDerivative
+        >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+        >>> tri = BDerivative(np.eye(2), F).triangulation()
+        >>> A, B = np.diag([2.0, 1.0]), np.diag([1.0, 3.0])
+        >>> tri.composed(A, B)([-0.5, -2.0])     # B @ tri(A @ v) = B @ [-2, -2]
+        array([-2., -6.])
+        """
+        d = self.dim
+        mats = {}
+        for name, value in (("before", before), ("after", after)):
+            mat = check_matrix(value, name, (d, d))
+            cond = np.linalg.cond(mat)
+            if not cond * np.finfo(np.float64).eps < 1.0:
+                raise ValueError(
+                    f"{name} must be invertible, but it is singular to working precision "
+                    f"(condition number {cond:.3g})"
+                )
+            mats[name] = mat
+        pulled = np.linalg.solve(mats["before"], np.hstack([self.pre.T, self.kernel]))
+        n_vertices = self.pre.shape[0]
+        return Triangulation(pulled[:, :n_vertices].T, self.post @ mats["after"].T,
+                             self.simplices, pulled[:, n_vertices:],
+                             mats["after"] @ self.kernel_post)
 
     def __repr__(self) -> str:
         return (
@@ -183,12 +242,14 @@ class Triangulation:
                         progress=progress, desc="Triangulation.inverse", method=self.inverse)
 
     def _forward(self, rows, res, offset) -> None:
-        _fan_map(self.pre, self.post, self.simplices, self.kernel, rows, res)
+        _fan_map(self.pre, self.post, self.simplices, self.kernel, self.kernel_post, rows,
+                 res)
         if not all_finite(res):
             check_finite_result(res, "V", offset)
 
     def _backward(self, rows, res, offset) -> None:
-        _fan_map(self.post, self.pre, self.simplices, self.kernel, rows, res)
+        _fan_map(self.post, self.pre, self.simplices, self.kernel_post, self.kernel, rows,
+                 res)
         if not all_finite(res):
             check_finite_result(res, "W", offset)
 
@@ -202,15 +263,23 @@ class Triangulation:
         dict
             Keys ``format``, ``version``, ``n_events``, ``dim`` and the arrays ``pre``
             (n_vertices, d), ``post`` (n_vertices, d), ``simplices`` (n_simplices, n + 1)
-            and ``kernel`` (d, d - n) as nested lists.
+            and ``kernel`` (d, d - n) as nested lists; version 2 (a map that is not the
+            identity on the kernel) also ``kernel_post`` (d, d - n).
         """
         return {
             "format": FILE_FORMAT,
-            "version": FILE_VERSION,
+            "version": self._file_version(),
             "n_events": self.n_events,
             "dim": self.dim,
-            **{name: getattr(self, name).tolist() for name in FIELDS},
+            **{name: getattr(self, name).tolist() for name in self._file_fields()},
         }
+
+    def _file_version(self) -> int:
+        """1 when the map is the identity on the kernel (readable by older bderiv), else 2."""
+        return 1 if np.array_equal(self.kernel, self.kernel_post) else 2
+
+    def _file_fields(self) -> tuple:
+        return VERSION_FIELDS[self._file_version()]
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "triangulation data") -> Triangulation:
@@ -263,10 +332,9 @@ class Triangulation:
                 fh.write("\n")
         else:
             meta = {k: v for k, v in self.to_dict().items() if k not in FIELDS}
+            arrays = {k: getattr(self, k) for k in self._file_fields()}
             with open(path, "wb") as fh:  # a file object: numpy must not append ".npz"
-                np.savez_compressed(
-                    fh, meta=np.array(json.dumps(meta)), **{k: getattr(self, k) for k in FIELDS}
-                )
+                np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
         return path
 
     @classmethod
@@ -322,22 +390,24 @@ def load_triangulation(path, format: str | None = None) -> Triangulation:
 # -- evaluation -------------------------------------------------------------------------------
 
 
-def _fan_map(src, dst, simplices, kernel, rows, res) -> None:
+def _fan_map(src, dst, simplices, ksrc, kdst, rows, res) -> None:
     """Write into ``res`` (m, d) the PL map of ``rows`` (m, d) from ``src`` to ``dst`` cones.
 
-    Each row is located in the cone of ``src`` whose barycentric weights are least negative
-    (relative to their size: robust on shared faces) and rebuilt from ``dst`` with the same
-    weights. ``src, dst = pre, post`` is the map, ``post, pre`` its inverse. Row by row the
-    arithmetic does not depend on the other rows (an explicit inverse and einsum, where a
-    multi-right-hand-side solve would not be), so results are independent of chunking.
+    Each row is located in the cone of ``src`` (with the kernel basis ``ksrc``) whose
+    barycentric weights are least negative (relative to their size: robust on shared
+    faces) and rebuilt from ``dst`` (with ``kdst``) with the same weights. ``pre, post,
+    kernel, kernel_post`` is the map, ``post, pre, kernel_post, kernel`` its inverse. Row
+    by row the arithmetic does not depend on the other rows (an explicit inverse and
+    einsum, where a multi-right-hand-side solve would not be), so results are independent
+    of chunking.
     """
     n = simplices.shape[1] - 1
     best_weight = np.full(rows.shape[0], -np.inf)
     res.fill(np.nan)  # a row no cone takes (weights overflowing) stays NaN, never garbage
     with np.errstate(over="ignore", invalid="ignore"):  # overflow: refused by the caller
         for simplex in simplices:
-            P = np.hstack([src[simplex[1:]].T, kernel])
-            Q = np.hstack([dst[simplex[1:]].T, kernel])
+            P = np.hstack([src[simplex[1:]].T, ksrc])
+            Q = np.hstack([dst[simplex[1:]].T, kdst])
             weights = np.einsum("ij,mj->mi", np.linalg.inv(P), rows)  # (m, d)
             lam = weights[:, :n]
             min_weight = lam.min(axis=1) / (np.abs(lam).max(axis=1) + 1e-300)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from .. import _bench
 from .._tables import dense_table_bytes
 from .figures import save_figure
+from .machine import describe, machine_info
 from .usage import check_figure_path, require_memory, require_module
 
 
@@ -14,14 +15,14 @@ def sweep_bytes(n: int, d: int, batch: int) -> int:
 
     Examples
     --------
-    >>> round(sweep_bytes(26, 26, 100_000) / 2**30, 1)  # GiB
-    39.0
+    >>> round(sweep_bytes(26, 26, 100_000) / 2**30, 1)  # GiB: 13 of F, 48 of the records
+    61.0
     """
     return (1 << n) * d * 8 + dense_table_bytes(n, d) + 2 * batch * d * 8
 
 
-def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=None) -> list:
-    """Run the sweep (and save its log-log plot to ``plot``); return its rows.
+def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=None) -> dict:
+    """Run the sweep (and save its log-log plot to ``plot``); return its rows and setting.
 
     Parameters
     ----------
@@ -38,8 +39,10 @@ def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=No
 
     Returns
     -------
-    list of dict
-        The rows of :func:`bderiv._bench.sweep`.
+    dict
+        ``d_factor``, ``batch``, ``repeat``, ``machine`` (:func:`~bderiv.cli.machine.
+        machine_info`) and ``rows`` (those of :func:`bderiv._bench.sweep`): the JSON of
+        ``bderiv bench --json``, which ``bderiv plot --bench-json`` reads.
     """
     if plot:
         require_module("matplotlib", "--plot")
@@ -49,8 +52,11 @@ def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=No
         require_memory(sweep_bytes(n, d, batch), f"--n {n} (d = {d}) with --batch {batch}")
     rows = _bench.sweep(tuple(ns), d_factor=d_factor, batch=batch, repeat=repeat,
                         progress=progress)
+    result = {"d_factor": d_factor, "batch": batch, "repeat": repeat,
+              "machine": machine_info(), "rows": rows}
     if plot:
         from .. import plot as figures
 
-        save_figure(figures.scaling(rows), plot, dpi=120)
-    return rows
+        fig = figures.scaling(rows, machine=describe(result["machine"]))
+        save_figure(fig, plot, 120, "--plot")
+    return result

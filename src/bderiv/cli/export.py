@@ -1,4 +1,9 @@
-"""``bderiv export``: the triangulation of an example's B-derivative, saved and re-read."""
+"""``bderiv export``: the triangulation of an example's B-derivative, saved and re-read.
+
+``--map event`` (the default) saves the map at the event point, ``--map flow`` the flow map
+from ``x0`` over ``[0, t_final]``: the same fan with its vertices carried by the flow's
+linear stages.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +15,7 @@ import numpy as np
 from .._tables import corner_point_bytes
 from ..triangulation import load_triangulation
 from .systems import load_example
-from .usage import UsageError, require_memory
+from .usage import UsageError, check_writable_directory, not_writable, require_memory
 
 #: random vectors on which every file read back is compared with the B-derivative
 CHECK_VECTORS = 200
@@ -33,7 +38,7 @@ def triangulation_bytes(n: int, d: int) -> int:
 
 
 def run_export(example=None, n=None, extended=False, out="triangulation", fmt="both",
-               max_pieces=40320) -> dict:
+               max_pieces=40320, which="event") -> dict:
     """Save the triangulation of ``example`` (default chair) and check the files read back.
 
     Parameters
@@ -45,16 +50,21 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
     fmt : {"npz", "json", "both"}
     max_pieces : int
         Refuse more than this many event orders.
+    which : {"event", "flow"}
+        The map: the B-derivative at the event point, or that of the flow from ``x0`` over
+        ``[0, t_final]`` (a model whose trajectory meets one event group).
 
     Returns
     -------
     dict
-        ``example``, ``n_events``, ``dim``, ``vertices``, ``simplices``, ``files`` (each
-        ``path``, ``format``, ``bytes``, ``max_error_reloaded``), ``check_vectors``.
+        ``example``, ``map`` (``which``), ``map_description``, ``n_events``, ``dim``,
+        ``vertices``, ``simplices``, ``files`` (each ``path``, ``format``, ``bytes``,
+        ``max_error_reloaded``), ``check_vectors``.
     """
     base = _output_base(out)
-    example = example or "chair"
-    _, bd = load_example(example, n, extended)
+    if example is None:
+        example = "network" if n is not None or extended else "chair"
+    ex, bd = load_example(example, n, extended)
     n, d = bd.n_events, bd.dim
     if not bd.full_rank:
         raise UsageError(
@@ -67,21 +77,50 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
             f"{n} events give 2 * {n}! simplices, more than 2 * --max-pieces={max_pieces}"
         )
     require_memory(triangulation_bytes(n, d), f"the triangulation of {n} events in R^{d}")
-    tri = bd.triangulation(max_pieces=max_pieces)
+    if which == "event":
+        fmap, described = bd, "the B-derivative at the event point"
+        tri = bd.triangulation(max_pieces=max_pieces)
+    else:
+        if ex is None:
+            raise UsageError(f"--map flow needs a model, but {example} is a corner table "
+                             f"without one (it has only the map at the event point)")
+        fmap = ex.system.flow_bderivative(ex.x0, ex.t_final)
+        described = (f"the B-derivative of the flow from x0 over [0, {ex.t_final:g}] "
+                     f"(its pre-event vertices pulled back to x0, post-event vertices "
+                     f"pushed to t_final)")
+        tri = flow_triangulation(fmap, max_pieces)
     V = np.random.default_rng(0).standard_normal((CHECK_VECTORS, d))
-    expected = bd(V)
+    expected = fmap(V)
     files = []
     for f in ("npz", "json") if fmt == "both" else (fmt,):
         path = f"{base}.{f}"
         try:
             tri.save(path)
         except OSError as exc:
-            raise UsageError(f"--out: cannot write {path!r}: {exc}") from None
+            raise UsageError(not_writable("--out", path, exc)) from None
         err = float(np.abs(load_triangulation(path)(V) - expected).max())
         files.append({"path": path, "format": f, "bytes": os.path.getsize(path),
                       "max_error_reloaded": err})
-    return {"example": example, "n_events": n, "dim": d, "vertices": tri.pre.shape[0],
-            "simplices": tri.simplices.shape[0], "files": files, "check_vectors": CHECK_VECTORS}
+    return {"example": example, "map": which, "map_description": described, "n_events": n,
+            "dim": d, "vertices": tri.pre.shape[0], "simplices": tri.simplices.shape[0],
+            "files": files, "check_vectors": CHECK_VECTORS}
+
+
+def flow_triangulation(fb, max_pieces):
+    """The triangulation of a flow map with one event group: ``L_1 . M . L_0``.
+
+    The fan of the group's map ``M`` carried by the linear stages
+    (:meth:`Triangulation.composed`); several groups do not make one fan, and none make a
+    linear map: both are usage errors.
+    """
+    if fb.n_groups != 1:
+        raise UsageError(
+            f"--map flow: the flow map meets {fb.n_groups} event groups; a triangulation "
+            f"(one fan of simplices) exists for exactly one group (with several, the pieces "
+            f"are intersections of the groups' cones, not one fan; with none, the map is "
+            f"linear)"
+        )
+    return fb.triangulation(max_pieces)
 
 
 def _output_base(out: str) -> str:
@@ -95,7 +134,5 @@ def _output_base(out: str) -> str:
             f"--out must be a file path such as results/tri (the suffixes .npz and .json "
             f"are added), got {out!r}"
         )
-    parent = os.path.dirname(os.path.abspath(base))
-    if not os.path.isdir(parent):
-        raise UsageError(f"--out: output directory {parent!r} does not exist")
+    check_writable_directory(os.path.dirname(os.path.abspath(base)), "--out")
     return base

@@ -8,93 +8,137 @@ from __future__ import annotations
 import json
 import os
 
-from .. import _bench
+from .machine import describe
 from .systems import load_example
-from .usage import UsageError, require_memory, require_module
+from .usage import (
+    UsageError,
+    check_writable_directory,
+    not_writable,
+    require_memory,
+    require_module,
+)
 
-#: figures that draw the plane (need d = 2)
-FIGURES_2D = ("field", "triangulation", "circle")
+#: figures that draw the plane (need d = 2); ``note`` also needs n = 2
+FIGURES_2D = ("field", "triangulation", "circle", "note")
 #: every figure, by its file name
 FIGURES = (*FIGURES_2D, "pieces", "scaling")
 #: Agg's bound on the pixels of a side of a raster image
 MAX_SIDE_PIXELS = 1 << 16
-#: the small sweep drawn by the scaling figure when no ``--bench-json`` is given
-DEFAULT_SWEEP = dict(ns=(2, 4, 8), batch=20_000, repeat=1)
 
 
 def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-figures",
                 fmt="png", dpi=120, bench_json=None) -> dict:
-    """Write the figures asked for; return ``{"example", "dim", "n_events", "files"}``.
+    """Write the figures asked for; return what was drawn and the files written.
 
     Parameters
     ----------
     example, n, extended
-        The system (default ``network`` with n = 2), as for
+        The system (default ``planar``; ``--n`` alone means ``network``), as for
         :func:`bderiv.cli.systems.load_example`.
     figures : list of str, optional
-        Names from :data:`FIGURES` or ``"all"`` (default: all that apply to the system).
+        Names from :data:`FIGURES` or ``"all"`` (default: all that apply to the system;
+        ``scaling`` only with ``bench_json``).
     out : str
         Directory of the files (created if missing).
     fmt : {"png", "pdf", "svg"}
     dpi : int
     bench_json : str, optional
-        Rows of ``bderiv bench --json`` for the scaling figure.
+        The output of ``bderiv bench --json``, for the scaling figure.
+
+    Returns
+    -------
+    dict
+        ``example``, ``dim``, ``n_events``, ``files`` (the paths written) and ``skipped``
+        (figures of "all" that do not apply, with the reason).
     """
     require_module("matplotlib", "bderiv plot")
     from .. import plot
 
     if example is None:
-        example, n = "network", (2 if n is None else n)
+        example = "network" if n is not None or extended else "planar"
     wanted = list(dict.fromkeys(figures or ["all"]))
-    if "all" in wanted:
-        wanted = [f for f in FIGURES if f != "scaling" or bench_json]
     _, bd = load_example(example, n, extended)
-    if bd.dim != 2:
-        asked_2d = [f for f in wanted if f in FIGURES_2D]
-        if figures and "all" not in figures and asked_2d:
-            raise UsageError(
-                f"figures {asked_2d} need a 2-D system but {example} has d = {bd.dim}; use "
-                f"--example planar or --example network --n 2"
-            )
-        wanted = [f for f in wanted if f not in FIGURES_2D]
-    rows = None
-    if "scaling" in wanted:
-        rows = read_bench_rows(bench_json) if bench_json else _bench.sweep(**DEFAULT_SWEEP)
+    if "scaling" in wanted and not bench_json:
+        raise UsageError(
+            "--figure scaling plots a benchmark run: run `bderiv bench --json > rows.json` "
+            "(or `bderiv bench --plot scaling.png`) and pass --bench-json rows.json"
+        )
+    bench = read_bench(bench_json) if bench_json else None
+    skipped = {}
+    if "all" in wanted:
+        wanted = [f for f in FIGURES if f != "scaling" or bench]
+        skipped = _not_applicable(wanted, bd)
+        wanted = [f for f in wanted if f not in skipped]
+        if not bench:
+            skipped["scaling"] = "needs --bench-json"
+    else:
+        refused = _not_applicable(wanted, bd)
+        if refused:
+            name, why = next(iter(refused.items()))
+            raise UsageError(f"figure {name} {why}, but {example} has n = {bd.n_events}, "
+                             f"d = {bd.dim}; use --example planar")
     draw = {"field": plot.corner_field, "triangulation": plot.triangulation,
-            "circle": plot.tangent_circle, "pieces": plot.pieces}
-    figs = {name: plot.scaling(rows) if name == "scaling" else draw[name](bd)
-            for name in wanted}
+            "circle": plot.tangent_circle, "note": plot.carried_fan, "pieces": plot.pieces}
+    figs = {name: plot.scaling(bench["rows"], machine=bench["machine"]) if name == "scaling"
+            else draw[name](bd) for name in wanted}
     for name, fig in figs.items():  # refuse a --dpi before writing anything
         check_raster(fig, dpi, name)
     _make_directory(out)
     written = []
     for name, fig in figs.items():
         written.append(os.path.join(out, f"{name}.{fmt}"))
-        save_figure(fig, written[-1], dpi)
-    return {"example": example, "dim": bd.dim, "n_events": bd.n_events, "files": written}
+        save_figure(fig, written[-1], dpi, "--out")
+    return {"example": example, "dim": bd.dim, "n_events": bd.n_events, "files": written,
+            "skipped": skipped}
 
 
-def read_bench_rows(path: str) -> list:
-    """The rows of ``bderiv bench --json`` saved in ``path`` (``--bench-json``)."""
+def _not_applicable(names, bd) -> dict:
+    """The figures of ``names`` that cannot draw ``bd``, each with the reason."""
+    why = {}
+    for name in names:
+        if name in FIGURES_2D and bd.dim != 2:
+            why[name] = "draws the plane (needs d = 2)"
+        elif name == "note" and bd.n_events != 2:
+            why[name] = "draws 2 events in the plane (needs n = d = 2)"
+    return why
+
+
+def read_bench(path: str) -> dict:
+    """The output of ``bderiv bench --json`` saved in ``path`` (``--bench-json``).
+
+    Returns
+    -------
+    dict
+        ``rows`` (the sweep's rows) and ``machine`` (one line describing where they were
+        measured).
+    """
     try:
         with open(path, encoding="utf-8") as fh:
-            rows = json.load(fh)
+            data = json.load(fh)
     except (OSError, json.JSONDecodeError) as exc:
         raise UsageError(
             f"--bench-json: cannot read benchmark rows from {path!r}: {exc}"
         ) from None
-    if not isinstance(rows, list) or not all(
+    rows = data.get("rows") if isinstance(data, dict) else None
+    if not isinstance(rows, list) or not rows or not all(
         isinstance(r, dict) and {"n", "method", "seconds_per_query"} <= r.keys() for r in rows
     ):
         raise UsageError(f"--bench-json: {path!r} is not the output of `bderiv bench --json`")
-    return rows
+    try:
+        machine = describe(data["machine"])
+    except (KeyError, TypeError, AttributeError):
+        raise UsageError(f"--bench-json: {path!r} lacks the machine record of `bderiv bench "
+                         f"--json`") from None
+    return {"rows": rows, "machine": machine}
 
 
 def _make_directory(path: str) -> None:
     try:
         os.makedirs(path, exist_ok=True)
     except OSError as exc:
-        raise UsageError(f"--out: cannot make the directory {path!r}: {exc}") from None
+        raise UsageError(f"--out: cannot make the directory {path!r}: the location is not "
+                         f"writable ({exc.strerror or exc})") from None
+    check_writable_directory(path, "--out")
 
 
 def check_raster(fig, dpi: int, name: str) -> None:
@@ -108,10 +152,11 @@ def check_raster(fig, dpi: int, name: str) -> None:
     require_memory(int(width * height) * 4, f"--dpi {dpi} ({width:.0f} x {height:.0f} pixels)")
 
 
-def save_figure(fig, path: str, dpi: int) -> None:
-    """Save ``fig`` to ``path``; a path that cannot be written is a usage error."""
+def save_figure(fig, path: str, dpi: int, option: str) -> None:
+    """Save ``fig`` to ``path``; a path that cannot be written is a usage error of
+    ``option``."""
     check_raster(fig, dpi, os.path.basename(path))
     try:
         fig.savefig(path, dpi=dpi)
     except OSError as exc:
-        raise UsageError(f"cannot write the figure {path!r}: {exc}") from None
+        raise UsageError(not_writable(option, path, exc)) from None

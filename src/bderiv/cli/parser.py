@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 
 from . import render
@@ -23,10 +24,11 @@ from .usage import UsageError
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors: ``bderiv: error: ...`` and exit status 2."""
+    """argparse with one-line errors, ``bderiv demo: error: ...`` (the command's name, as
+    for the errors found after parsing), and exit status 2."""
 
     def error(self, message):  # noqa: D401 - argparse API
-        self.exit(2, f"{self.prog.split()[0]}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _argument_type(convert, accept, expected: str):
@@ -52,10 +54,13 @@ _positive_float = _argument_type(float, lambda v: math.isfinite(v) and v > 0,
 
 def _add_example_args(p, default_help):
     p.add_argument("--example", choices=MODEL_EXAMPLES + TABLE_EXAMPLES,
-                   help=f"the system (default: {default_help})")
+                   help=f"the system (default: {default_help}): the models "
+                   f"{', '.join(MODEL_EXAMPLES)} or the corner tables "
+                   f"{' and '.join(TABLE_EXAMPLES)} (no model, so no flow map; planar: 2 "
+                   f"events in the plane)")
     p.add_argument("--n", type=_positive_int, default=None,
                    help=f"number of events of --example network (1..{NETWORK_MAX_N}, "
-                   f"default 3)")
+                   f"default 3); --n alone means --example network")
     p.add_argument("--extended", action="store_true",
                    help="network variant with d = 2n instead of d = n")
 
@@ -93,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eps", type=_positive_float, nargs="+", default=[1e-4, 1e-5, 1e-6],
                    help="finite-difference steps (default 1e-4 1e-5 1e-6)")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
+    p.add_argument("--full", action="store_true",
+                   help="also print the matrices: the pieces listed, each group's Dh and "
+                   "corner table F, the flow map's linear stages")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
@@ -104,29 +112,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=_positive_int, default=100_000,
                    help="queries per batch (default 100000)")
     p.add_argument("--repeat", type=_positive_int, default=3, help="timed runs, best kept")
-    p.add_argument("--plot", metavar="FILE", help="also save the log-log plot (.png/.pdf)")
+    p.add_argument("--plot", metavar="FILE",
+                   help="also save the log-log plot (.png, .pdf or .svg)")
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    p = sub.add_parser("plot", help="figures to PNG/PDF files")
-    _add_example_args(p, "network --n 2")
-    p.add_argument("--figure", nargs="+", choices=(*FIGURES, "all"),
-                   help="which figures (default all that apply)")
-    p.add_argument("--out", default="bderiv-figures", help="output directory")
-    p.add_argument("--format", choices=("png", "pdf", "svg"), default="png")
-    p.add_argument("--dpi", type=_positive_int, default=120)
+    p = sub.add_parser("plot", help="figures to PNG, PDF or SVG files")
+    _add_example_args(p, "planar")
+    p.add_argument("--figure", nargs="+", choices=(*FIGURES, "all"), metavar="NAME",
+                   help=f"which figures, among {', '.join(FIGURES)}, all (default: all that "
+                   "apply to the system; scaling only with --bench-json). note: the "
+                   "triangulation carried through the corner-limit flow, in state and "
+                   "impact-time coordinates")
+    p.add_argument("--out", default="bderiv-figures",
+                   help="output directory (default ./bderiv-figures, created if missing)")
+    p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
+                   help="file format (default png)")
+    p.add_argument("--dpi", type=_positive_int, default=120,
+                   help="resolution of png files (default 120)")
     p.add_argument("--bench-json", metavar="FILE",
-                   help="rows of `bderiv bench --json` for the scaling figure")
+                   help="rows of `bderiv bench --json` (a file) for the scaling figure")
     p.add_argument("--json", action="store_true", help="print the files written as JSON")
 
     p = sub.add_parser("export", help="the triangulation to .npz and .json")
     _add_example_args(p, "chair")
+    p.add_argument("--map", choices=("event", "flow"), default="event",
+                   help="event (default): the B-derivative at the event point; flow: the "
+                   "B-derivative of the flow from x0 over [0, t_final] (models with one "
+                   "event group)")
     p.add_argument("--out", default="triangulation",
                    help="output path without suffix (default ./triangulation)")
-    p.add_argument("--format", choices=("npz", "json", "both"), default="both")
+    p.add_argument("--format", choices=("npz", "json", "both"), default="both",
+                   help="file format (default both)")
     p.add_argument("--max-pieces", type=_positive_int, default=40320,
                    help="refuse more than this many event orders (default 8! = 40320)")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
+    parser.commands = sub.choices  # each command's parser, for its own error messages
     return parser
 
 
@@ -140,18 +161,18 @@ def _demo(args) -> str | None:
 
     progress = None if args.no_progress else render.progress_bar("finite differences")
     res = run_demo(example, args.n, args.extended, args.batch, args.check, tuple(args.eps),
-                   args.seed, progress=progress, report=show if not args.json else None)
+                   args.seed, args.full, progress=progress,
+                   report=show if not args.json else None)
     return render.to_json(res, indent=1) if args.json else None
 
 
 def _bench(args) -> str:
     progress = None if args.no_progress else render.progress_bar("bench")
-    rows = run_bench(args.n, d_factor=args.d_factor, batch=args.batch, repeat=args.repeat,
-                     plot=args.plot, progress=progress)
+    result = run_bench(args.n, d_factor=args.d_factor, batch=args.batch, repeat=args.repeat,
+                       plot=args.plot, progress=progress)
     if args.json:
-        return render.to_json(rows, indent=1)
-    return render.bench_text(rows, d_factor=args.d_factor, batch=args.batch,
-                             repeat=args.repeat, plot=args.plot)
+        return render.to_json(result, indent=1)
+    return render.bench_text(result, plot=args.plot)
 
 
 def _plot(args) -> str:
@@ -162,7 +183,7 @@ def _plot(args) -> str:
 
 def _export(args) -> str:
     summary = run_export(args.example, args.n, args.extended, args.out, args.format,
-                         args.max_pieces)
+                         args.max_pieces, args.map)
     return render.to_json(summary) if args.json else render.export_text(summary)
 
 
@@ -189,21 +210,27 @@ def main(argv=None) -> int:
     >>> main(["export", "--example", "corners", "--out", "/nonexistent/dir/tri"])
     2
     >>> main(["demo", "--example", "corners", "--batch", "100"])  # doctest: +ELLIPSIS
-    bderiv demo: corner table (3 events in R^3), Dh = event Jacobian, F = corner table
-    vector u -> event order, event times, M(u):
-      u=[-1. -2. -3.]  order=(0,2,1)  times=[1.  3.  3.8]  M(u)=[-2.9 -3.8 -6.8]
+    bderiv demo: corners, corner table without a model, 3 events in R^3
+    ...
+    vector u -> event order, event times (in that order), M(u):
+      u = [-1, -2, -3]  order (0,2,1)  times [1, 3, 3.8]  M(u) = [-2.9, -3.8, -6.8]
     ...
     0
     """
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
     if args.command is None:
-        args = parser.parse_args(["demo"])
+        args, extra = parser.parse_known_args(["demo", *extra])
+    if extra:  # reported by the command's parser, with the command's name
+        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         text = _COMMANDS[args.command](args)
+        if text is not None:
+            print(text, end="" if text.endswith("\n") else "\n", flush=True)
     except UsageError as exc:
         print(f"bderiv {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    if text is not None:
-        print(text, end="" if text.endswith("\n") else "\n")
+    except BrokenPipeError:  # the reader went away (`bderiv demo | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     return 0

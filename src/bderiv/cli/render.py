@@ -14,6 +14,7 @@ import numpy as np
 
 from .._bench import format_table
 from .._format import format_mask, format_order
+from .machine import describe
 
 
 def to_json(data, indent=None) -> str:
@@ -44,82 +45,142 @@ def demo_section(section: str, res: dict) -> str:
     return _DEMO_SECTIONS[section](res)
 
 
+def numbers(values, digits: int = 6) -> str:
+    """``[a, b, ...]`` with ``digits`` significant digits, one format for every vector.
+
+    Examples
+    --------
+    >>> numbers([-2.9, 1 / 3, 0.0])
+    '[-2.9, 0.333333, 0]'
+    """
+    return "[" + ", ".join(f"{float(v):.{digits}g}" for v in values) + "]"
+
+
+def _matrix(name, rows, indent="    ") -> list:
+    """``name`` then one line per row of a matrix."""
+    return [f"{indent[:-2]}{name}:", *(indent + numbers(r) for r in rows)]
+
+
 def _model(res):
-    return f"bderiv demo: {res['name']}\n  {res['description']}\n"
+    return f"bderiv demo: {res['example']}\n  {res['description']}\n"
 
 
 def _trajectory(res):
-    groups, n = res["groups"], res["n_events"]
-    lines = [f"trajectory from x0 to t_final = {res['t_final']:g}: {len(groups)} event group(s)"]
+    groups, n, tf = res["groups"], res["n_events"], res["t_final"]
+    lines = [f"trajectory from x0 over [0, {tf:g}]: {len(groups)} event group(s)"]
     for i, g in enumerate(groups):
         kind = "simultaneous" if len(g["events"]) > 1 else "single"
         lines.append(
             f"  group {i}: t = {g['time']:.6f}, events {tuple(g['events'])} {kind}, mask "
             f"{format_mask(g['mask_before'], n)} -> {format_mask(g['mask_after'], n)}"
         )
-    lines.append(
-        f"B-derivative of x -> Phi({res['t_final']:g}, x) at x0: D = L_m M_m ... L_1 M_1 L_0 "
-        f"(L: variational equations of the smooth stretches, M: one BDerivative per "
-        f"group), built in {res['build_seconds']:.2f} s"
-    )
+        if "Dh" in g:
+            lines += _matrix(f"Dh of group {i} (event Jacobian, one row per event)", g["Dh"])
+            if g["F"] is None:
+                lines.append(f"    (corner table of group {i}: too large to print)")
+            else:
+                lines += _matrix(f"F of group {i} (corner table, row = mask)", g["F"])
+    lines += [
+        "two maps: M = the B-derivative at the event point of a group (a BDerivative)",
+        f"          D = the B-derivative of the flow x -> Phi({tf:g}, x) at x0 (a "
+        f"FlowBDerivative, built in {res['build_seconds']:.2f} s)",
+        "            = L_m M_m ... L_1 M_1 L_0, L: variational equations of the smooth "
+        "stretches",
+    ]
+    for i, L in enumerate(res.get("linear", ())):
+        lines += _matrix(f"L_{i} (linear stage {i})", L)
     return "\n".join(lines) + "\n"
 
 
 def _pieces(res):
-    b = res["batch"]
-    lines = [f"pieces: {res['n_pieces']:,} in all (one event order per group), "
-             f"{res['n_pieces_visited']:,} met by {res['pieces_sample']:,} random tangent "
-             f"vectors; the most visited:"]
-    labels = [" ".join(f"g{i}={format_order(o)}" for i, o in enumerate(p["orders"])) or "-"
-              for p in res["pieces"]]
+    p = res["pieces"]
+    lines = [f"pieces of D (the flow map): {p['count']:,} in all (one event order per group); "
+             f"{p['sample']:,} random tangent vectors met {p['distinct']:,} of them"]
+    shown = p["most_visited"]
+    labels = [" ".join(f"g{i}={format_order(o)}" for i, o in enumerate(e["orders"])) or "-"
+              for e in shown]
     width = max(map(len, labels), default=1)
-    for label, p in zip(labels, res["pieces"], strict=True):
-        lines.append(f"  order {label:<{width}}  share {100 * p['share']:6.3g} %   det = "
-                     f"{p['det']:<10.6g} |D|_2 = {p['norm']:.6g}")
-    lines.append(
-        f"batch: {b['size']:,} tangent vectors in {b['seconds']:.3f} s = "
-        f"{b['ns_per_vector']:.0f} ns per vector (first call, compiling or loading the cached "
-        f"kernels: {b['first_call_seconds']:.2f} s); |D V| max = {b['max_abs_output']:.4g}"
-    )
+    if shown:
+        lines.append("  the most visited (det M: the group's piece at its event point):")
+    for label, e in zip(labels, shown, strict=True):
+        event = ", ".join(f"{d:.6g}" for d in e["event_dets"]) or "-"
+        lines.append(f"  order {label:<{width}}  share {100 * e['share']:6.3g} %   det D = "
+                     f"{e['det']:<10.6g} |D|_2 = {e['norm']:<9.6g} det M = {event}")
+        if "matrix" in e:
+            lines += _matrix("D's piece", e["matrix"], "      ")
+            for i, M in enumerate(e["event_matrices"]):
+                lines += _matrix(f"M's piece, group {i}", M, "      ")
+    if not shown:
+        lines.append("  (no piece holds 1 % of the vectors: each is met about once, so the "
+                     "ranges say more)")
+    r = p["ranges"]
+    if p["distinct"] > len(shown):
+        lines.append(
+            f"  over the {r['pieces']:,} pieces met by the first {r['vectors']:,} vectors: "
+            f"det D {r['det'][0]:.4g} .. {r['det'][1]:.4g}, |D|_2 {r['norm'][0]:.4g} .. "
+            f"{r['norm'][1]:.4g}, det M {r['event_det'][0]:.4g} .. {r['event_det'][1]:.4g}"
+        )
+    for spread in p["time_spread"]:
+        q = spread["values"]
+        lines.append(
+            f"  group {spread['group']}: spread of the event times t_last - t_first per "
+            f"vector: {q[0]:.3g} (5 %), {q[1]:.3g} (median), {q[2]:.3g} (95 %)"
+        )
     return "\n".join(lines) + "\n"
+
+
+def _batch(res, what="D"):
+    b = res["batch"]
+    runs = b["runs_seconds"]
+    return (
+        f"batch: {what} applied to {b['size']:,} tangent vectors: {b['ns_per_vector']:.0f} ns "
+        f"per vector (best of {len(runs)} runs of {min(runs):.3f} .. {max(runs):.3f} s; first "
+        f"call, compiling or loading the cached kernels: {b['first_call_seconds']:.2f} s); "
+        f"|{what} V| max = {b['max_abs_output']:.4g}\n"
+        f"  measured on {describe(b['machine'])}\n"
+    )
 
 
 def _check(res):
     c = res["check"]
-    lines = [f"check against finite differences of the simulation ({c['vectors']} unit "
-             f"vectors, {c['pieces_covered']} distinct pieces): max |FD - D V| / max |D V|"]
+    k, pieces = c["vectors"], c["pieces_covered"]
+    lines = [f"check of D against finite differences of the simulation ({k} unit "
+             f"vector{'s' * (k != 1)}, {pieces} distinct piece{'s' * (pieces != 1)}): "
+             f"max |FD - D V| / max |D V|"]
     for e, err in zip(c["eps"], c["max_rel_error"], strict=True):
         lines.append(f"  eps = {e:.0e}: {err:.3e}")
     if c["error_ratios"]:
         lines.append("  error shrinks with eps by "
                      + ", ".join(f"{r:.1f}x" for r in c["error_ratios"])
                      + " per step (O(eps) expected)")
-    per_batch = c["bd_seconds_per_vector_batch"]
     lines.append(f"  one simulation per vector: {c['fd_seconds_per_vector'] * 1e3:.1f} ms; "
-                 f"B-derivative: {per_batch * 1e9:.0f} ns per vector in the batch "
-                 f"({c['speedup']:,.0f}x faster; {c['bd_seconds_per_vector'] * 1e6:.1f} us per "
+                 f"D: {res['batch']['ns_per_vector']:.0f} ns per vector in the batch "
+                 f"({c['speedup']:,.0f}x faster; {c['map_seconds_per_vector'] * 1e6:.1f} us per "
                  f"vector in a call of {c['vectors']})")
     return "\n".join(lines) + "\n"
 
 
 def _corner_table(res):
-    lines = [f"bderiv demo: {res['name']}, Dh = event Jacobian, F = corner table",
-             "vector u -> event order, event times, M(u):"]
+    n = res["n_events"]
+    lines = [f"bderiv demo: {res['example']}, {res['description']}",
+             "  M = the B-derivative at the event point, BDerivative(Dh, F)",
+             *_matrix("Dh (event Jacobian, one row per event)", res["Dh"]),
+             "  F (corner table; row mask = the field once the events of the mask happened):",
+             *(f"    {format_mask(m, n)}  {numbers(row)}" for m, row in enumerate(res["F"])),
+             "vector u -> event order, event times (in that order), M(u):"]
     for row in res["vectors"]:
-        u, times, w = (np.array(row[key]) for key in ("u", "times", "Mu"))
-        lines.append(f"  u={u}  order={format_order(row['order'])}  "
-                     f"times={np.round(times[row['order']], 4)}  M(u)={w}")
-    lines.append(f"pieces: {res['n_pieces']}")
+        times = np.array(row["times"])[row["order"]]
+        lines.append(f"  u = {numbers(row['u'])}  order {format_order(row['order'])}  "
+                     f"times {numbers(times)}  M(u) = {numbers(row['Mu'])}")
+    lines.append(f"pieces of M: {len(res['pieces'])}")
     for p in res["pieces"]:
-        lines.append(f"  order {format_order(p['orders'][0]):<10} det = {p['det']:<8.4g} "
-                     f"|M|_2 = {p['norm']:.4g}")
+        lines.append(f"  order {format_order(p['order']):<10} det M = {p['det']:<8.6g} "
+                     f"|M|_2 = {p['norm']:.6g}")
+        if "matrix" in p:
+            lines += _matrix("M's piece", p["matrix"], "      ")
     lines.append(f"inverse round trip max |M^-1(M(u)) - u| = "
                  f"{res['check']['inverse_round_trip']:.2e}")
-    b = res["batch"]
-    lines.append(f"batch: {b['size']:,} vectors in {b['seconds']:.3f} s = "
-                 f"{b['ns_per_vector']:.0f} ns per vector (first call: "
-                 f"{b['first_call_seconds']:.2f} s)")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" + _batch(res, "M")
 
 
 def _total(res):
@@ -127,44 +188,50 @@ def _total(res):
 
 
 _DEMO_SECTIONS = {"model": _model, "trajectory": _trajectory, "pieces": _pieces,
-                  "check": _check, "corner_table": _corner_table, "total": _total}
+                  "batch": _batch, "check": _check, "corner_table": _corner_table,
+                  "total": _total}
 
 
 # -- bench, plot, export ----------------------------------------------------------------------
 
 
-def bench_text(rows, *, d_factor: int, batch: int, repeat: int, plot=None) -> str:
-    """The text of ``bderiv bench``: a header, the sweep table, what its columns mean."""
-    lines = [f"bderiv bench: d = {d_factor} n, batch m = {batch:,}, best of {repeat}; ns/q = "
-             f"nanoseconds per query (tangent vector)",
-             format_table(rows),
+def bench_text(result: dict, plot=None) -> str:
+    """The text of ``bderiv bench``: a header, the sweep table, what its columns mean, and
+    the machine it ran on."""
+    k = result["d_factor"]
+    dim = "d = n" if k == 1 else f"d = {k}n"
+    lines = [f"bderiv bench: {dim}, batch m = {result['batch']:,}, best of "
+             f"{result['repeat']}; ns/q = nanoseconds per query (tangent vector)",
+             format_table(result["rows"]),
              "speed-up = numpy / bderiv; % of BLAS = useful work rate (n^2 + 2 n d flops per "
-             "query) over a matrix product of the same flop count"]
+             "query) over a matrix product of the same flop count",
+             f"measured on {describe(result['machine'])}"]
     if plot:
         lines.append(f"plot written to {plot}")
     return "\n".join(lines) + "\n"
 
 
 def figures_text(summary: dict) -> str:
-    """The text of ``bderiv plot``: the files written (and why 2-D figures are missing)."""
+    """The text of ``bderiv plot``: the files written, and the figures left out and why."""
     lines = [f"bderiv plot: {summary['example']} (n = {summary['n_events']}, d = "
              f"{summary['dim']})"]
     lines += [f"  wrote {path}" for path in summary["files"]]
-    if summary["dim"] != 2:
-        lines.append("  (field, triangulation and circle need a 2-D system: --example planar "
-                     "or --example network --n 2)")
+    for name, why in summary["skipped"].items():
+        hint = "" if name == "scaling" else " (try --example planar)"
+        lines.append(f"  not drawn: {name}, which {why}{hint}")
     return "\n".join(lines) + "\n"
 
 
 def export_text(summary: dict) -> str:
-    """The text of ``bderiv export``: the triangulation, its layout and each file written."""
-    lines = [f"bderiv export: {summary['example']}: triangulation of {summary['n_events']} "
-             f"events in R^{summary['dim']}, {summary['vertices']} vertices, "
-             f"{summary['simplices']} simplices",
+    """The text of ``bderiv export``: the map, its triangulation, each file written."""
+    lines = [f"bderiv export: {summary['example']}: {summary['map_description']}",
+             f"  triangulation of {summary['n_events']} events in R^{summary['dim']}: "
+             f"{summary['vertices']} vertices, {summary['simplices']} simplices",
              "  pre-event vertices (n_vertices, d), post-event images, simplices "
-             "(n_simplices, n + 1; column 0 the apex), kernel basis of Dh"]
+             "(n_simplices, n + 1; column 0 the apex), kernel basis and its images"]
+    what = "D" if summary["map"] == "flow" else "M"
     for f in summary["files"]:
         lines.append(f"  wrote {f['path']} ({f['bytes']:,} bytes); reloaded with "
-                     f"bderiv.load_triangulation: max |tri(V) - bd(V)| = "
+                     f"bderiv.load_triangulation: max |tri(V) - {what}(V)| = "
                      f"{f['max_error_reloaded']:.2e} on {summary['check_vectors']} vectors")
     return "\n".join(lines) + "\n"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import tempfile
 
 from .._tables import available_memory, human_bytes
 
@@ -54,10 +55,32 @@ def require_module(module: str, for_what: str) -> None:
 
 
 def check_figure_path(path: str, option: str) -> None:
-    """Refuse a figure path before any work is done (suffix, existing directory)."""
+    """Refuse a figure path before any work is done (suffix, writable directory)."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".png", ".pdf", ".svg"):
         raise UsageError(f"{option}: figure file {path!r} must end in .png, .pdf or .svg")
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise UsageError(f"{option}: directory {parent!r} of the figure file does not exist")
+    check_writable_directory(os.path.dirname(os.path.abspath(path)), option)
+
+
+def check_writable_directory(directory: str, option: str) -> None:
+    """Refuse an output directory that does not exist or where no file can be created.
+
+    Tried by creating (and removing) a temporary file, so that read-only mounts and
+    pseudo file systems such as ``/proc`` are refused before any work is done.
+    """
+    if not os.path.isdir(directory):
+        raise UsageError(f"{option}: output directory {directory!r} does not exist")
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as exc:
+        raise UsageError(
+            f"{option}: output directory {directory!r} is not writable (creating a file "
+            f"there failed: {exc.strerror or exc})"
+        ) from None
+
+
+def not_writable(option: str, path: str, exc: OSError) -> str:
+    """The message of a file that could not be written: its directory is not writable."""
+    return (f"{option}: cannot write {path!r}: the location is not writable (the system "
+            f"answered: {exc.strerror or exc})")

@@ -57,7 +57,8 @@ class Example:
             rho=np.asarray(rho, dtype=np.float64),
             x0=np.asarray(x0, dtype=np.float64),
             t_event=float(t_event),
-            t_final=float(t_event) + float(t_after),
+            # to float64's 15 significant digits: 0.1 + 0.05 reads 0.15, as asked for
+            t_final=float(f"{float(t_event) + float(t_after):.15g}"),
             name=name,
             description=description,
         )

@@ -8,16 +8,20 @@ to draw into an existing figure instead.
 - :func:`corner_field`: 2-D systems, the corner-limit field with the event lines and a
   few sampled trajectories;
 - :func:`triangulation`: 2-D systems, the pre-event and post-event fans of simplices;
+- :func:`carried_fan`: 2 events in the plane, the source note's picture: the simplices
+  carried through the corner-limit flow, in state and in impact-time coordinates;
 - :func:`tangent_circle`: 2-D systems, a circle of tangent vectors and its image;
 - :func:`pieces`: any n, determinant and gain of the linear pieces;
 - :func:`scaling`: time per query against n from a benchmark sweep.
 
-The figures live in private modules by subject (``_planar``, ``_pieces``, ``_scaling``,
-all on the figure set-up of ``_axes``); this package is their one public name.
+The figures live in private modules by subject (``_planar``, ``_carried_fan``,
+``_pieces``, ``_scaling``, all on the figure set-up of ``_axes``); this package is their
+one public name.
 """
 
+from ._carried_fan import carried_fan
 from ._pieces import pieces
 from ._planar import corner_field, tangent_circle, triangulation
 from ._scaling import scaling
 
-__all__ = ["corner_field", "pieces", "scaling", "tangent_circle", "triangulation"]
+__all__ = ["carried_fan", "corner_field", "pieces", "scaling", "tangent_circle", "triangulation"]

@@ -81,7 +81,7 @@ def corner_field(bd, ax=None, *, radius=1.0, density=13, n_trajectories=7):
     """
     _require_2d(bd, "corner_field")
     F = bd.to_dense("the corner-field figure").F
-    fig, (ax,) = figure_axes(ax)
+    fig, (ax,) = figure_axes(ax, figsize=(5.5, 6.0))
     n, Dh = bd.n_events, bd.Dh
     # shaded regions
     s = np.linspace(-radius, radius, 301)
@@ -107,6 +107,7 @@ def corner_field(bd, ax=None, *, radius=1.0, density=13, n_trajectories=7):
     _event_lines(ax, Dh, radius * 1.05)
     _draw_trajectories(ax, bd, F, radius, n_trajectories)
     ax.plot([0], [0], "ko", ms=4)
+    fig.legend(handles=_field_handles(), fontsize=8, loc="outside lower center", ncols=2)
     ax.set_xlim(-radius, radius)
     ax.set_ylim(-radius, radius)
     ax.set_aspect("equal")
@@ -114,6 +115,16 @@ def corner_field(bd, ax=None, *, radius=1.0, density=13, n_trajectories=7):
     ax.set_ylabel("$x_1$")
     ax.set_title(f"corner-limit field at the event point (n={n} events)")
     return fig
+
+
+def _field_handles():
+    """Legend entries of :func:`corner_field`: what its lines and arrows are."""
+    from matplotlib.lines import Line2D
+
+    return [Line2D([], [], color="k", ls="--", lw=1.2, label="event surface $h_k = 0$"),
+            Line2D([], [], color="#AA3377", lw=1.0, label="trajectories of $x' = F[mask(x)]$"),
+            Line2D([], [], color="0.35", marker="$\\rightarrow$", ls="", ms=10,
+                   label="field $F[mask]$ of the region")]
 
 
 def _region_masks(points, Dh):
@@ -189,7 +200,7 @@ def triangulation(bd, axes=None, *, tri=None):
         tri = bd.triangulation()
     elif tri.dim != 2:
         raise ValueError(f"triangulation draws 2-D systems only, got dimension {tri.dim}")
-    fig, axs = figure_axes(axes, ncols=2, figsize=(10.0, 4.8))  # first: the install hint
+    fig, axs = figure_axes(axes, ncols=2, figsize=(10.0, 5.4))  # first: the install hint
     from matplotlib.patches import Polygon
 
     n = tri.n_events
@@ -204,22 +215,31 @@ def triangulation(bd, axes=None, *, tri=None):
         ax.plot(verts[:, 0], verts[:, 1], "ko", ms=3)
         letter, flow = ("U", "$F_0$") if name == "pre-event" else ("W", "$F_{full}$")
         for v in range(n_vertex):
-            label = f"$-${flow}" if v == n_vertex - 1 else f"{letter}[{format_mask(v, n)}]"
+            label = f"{letter}[{format_mask(v, n)}]"
             if v == 0:
-                label = f"{letter}[{format_mask(0, n)}] = 0"
-            ax.annotate(label, verts[v], textcoords="offset points", xytext=(5, -12 if v == 0
-                        else 4), fontsize=8)
+                label += " = 0"
+            elif v == n_vertex - 1:
+                label = f"$-${flow}"  # the vertex opposite the flow direction
+            # -F (the last vertex) labelled on its far side from the fan, the others above
+            far = v == n_vertex - 1
+            ax.annotate(label, verts[v], textcoords="offset points",
+                        xytext=(-6, -6) if far else (6, -12 if v == 0 else 6),
+                        ha="right" if far else "left", va="top" if far else "baseline",
+                        fontsize=8,
+                        bbox=dict(boxstyle="round", fc="white", alpha=0.85, lw=0, pad=0.15))
         _arrow(ax, verts[n_vertex - 1], verts[n_vertex - 2], f"flow direction {flow}")
-        lim = np.abs(verts).max() * 1.25
-        ax.set_xlim(-lim, lim)
-        ax.set_ylim(-lim, lim)
         ax.set_aspect("equal")
         ax.set_title(f"{name} fan ({2 * n_order} simplices)")
         ax.set_xlabel("$x_0$")
-    axs[0].set_ylabel("$x_1$")
-    handles = _order_handles(tri, n)
-    axs[1].legend(handles=handles, title="event order", fontsize=8, loc="lower right")
-    fig.suptitle(f"triangulation of the B-derivative at the event point (n={n}, d=2)",
+        ax.set_ylabel("$x_1$")
+    lim = max(np.abs(tri.pre).max(), np.abs(tri.post).max()) * 1.25  # one scale for both
+    for ax in axs:
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+    fig.legend(handles=_order_handles(tri, n), title="event order of the simplex",
+               fontsize=8, loc="outside lower center", ncols=len(PALETTE))
+    fig.suptitle(f"triangulation of the B-derivative M at the event point (n={n}, d=2)\n"
+                 f"a simplex keeps its colour from its pre-event vertices U to W = M(U)",
                  fontsize=10)
     return fig
 
@@ -276,7 +296,7 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     """
     _require_2d(bd, "tangent_circle")
     F = bd.to_dense("the tangent-circle figure").F
-    fig, (ax,) = figure_axes(ax)
+    fig, (ax,) = figure_axes(ax, figsize=(7.8, 5.0))
     _, U = _unit_circle(n_vectors)
     W = bd(U)
     _, order = bd.event_times(U)
@@ -305,7 +325,10 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     ax.set_xlim(-lim, lim)
     ax.set_ylim(-lim, lim)
     ax.set_aspect("equal")
-    ax.legend(fontsize=8, loc="upper left", markerscale=2)
+    ax.set_xlabel("$x_0$")
+    ax.set_ylabel("$x_1$")
+    # beside the axes: the curves fill the square
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), markerscale=2)
     ax.set_title("B-derivative at the event point:\nunit tangent vectors u and their images "
                  "M(u)")
     return fig

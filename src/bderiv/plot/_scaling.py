@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import textwrap
+
 from ._axes import PALETTE, figure_axes
 
 #: legend label, line style and colour of the methods of ``bderiv bench`` and of the
@@ -19,7 +21,7 @@ _METHODS = {
 }
 
 
-def scaling(rows, ax=None, *, batch=None):
+def scaling(rows, ax=None, *, batch=None, machine=None):
     """Time per query against the number of events n, log-log (a benchmark sweep).
 
     One line per method; at each n the row of the largest batch measured (or of
@@ -35,6 +37,8 @@ def scaling(rows, ax=None, *, batch=None):
     ax : matplotlib Axes, optional
     batch : int, optional
         Keep only rows with this batch size ``m``.
+    machine : str, optional
+        Where the rows were measured (CPU, threads, BLAS), shown under the title.
 
     Returns
     -------
@@ -78,8 +82,11 @@ def scaling(rows, ax=None, *, batch=None):
     ax.set_ylabel("time per query (ns)")
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # beside the lines
-    ax.set_title("B-derivative at the event point: time per tangent vector\n"
-                 + _sweep_caption(list(points.values())), fontsize=10)
+    caption = _sweep_caption(list(points.values()))
+    if machine:
+        caption += "\n" + textwrap.fill(f"measured on {machine}", 80)
+    ax.set_title("B-derivative at the event point: time per tangent vector\n" + caption,
+                 fontsize=9 if machine else 10)
     return fig
 
 
