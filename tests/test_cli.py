@@ -403,3 +403,16 @@ def test_dpi_refused_before_writing(capsys, tmp_path):
                           str(out_dir)], capsys)
     assert (code, out) == (2, "") and "--dpi 100000 makes the figure field" in err
     assert not out_dir.exists()
+
+
+def test_demo_gait(capsys):
+    """``demo --example pronking``: the gait's orbit, groups crossed up then down, the
+    verdict and its checks (their numbers are tested in tests/test_gaits.py)."""
+    assert main(["demo", "--example", "pronking", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["orbit"]["residual"] < 1e-10
+    dirs = [g["directions"] for g in res["groups"]]
+    assert dirs == [[1, 1], [-1, -1]], dirs
+    assert res["stability"]["stable"] is True
+    assert main(["demo", "--example", "pronking", "--n", "3"]) == 2
+    assert "options of --example network" in capsys.readouterr().err

@@ -109,7 +109,7 @@ def _groups(fb, mask, full):
     groups = []
     tables = group_tables(fb, full)
     for t, events, table in zip(fb.group_times, fb.group_events, tables, strict=True):
-        after = mask | sum(1 << k for k in events)
+        after = mask ^ sum(1 << k for k in events)  # a group may cross downward
         groups.append({"time": t, "events": list(events), "mask_before": mask,
                        "mask_after": after, **table})
         mask = after

@@ -19,7 +19,7 @@ from .bench import run_bench
 from .demo import run_demo
 from .export import run_export
 from .figures import FIGURES, run_figures
-from .systems import MODEL_EXAMPLES, NETWORK_MAX_N, TABLE_EXAMPLES
+from .systems import GAIT_EXAMPLES, MODEL_EXAMPLES, NETWORK_MAX_N, TABLE_EXAMPLES
 from .usage import UsageError
 
 
@@ -52,12 +52,13 @@ _positive_float = _argument_type(float, lambda v: math.isfinite(v) and v > 0,
                                  "a positive number")
 
 
-def _add_example_args(p, default_help):
-    p.add_argument("--example", choices=MODEL_EXAMPLES + TABLE_EXAMPLES,
+def _add_example_args(p, default_help, gaits=()):
+    p.add_argument("--example", choices=MODEL_EXAMPLES + TABLE_EXAMPLES + gaits,
                    help=f"the system (default: {default_help}): the models "
                    f"{', '.join(MODEL_EXAMPLES)} or the corner tables "
                    f"{' and '.join(TABLE_EXAMPLES)} (no model, so no flow map; planar: 2 "
-                   f"events in the plane)")
+                   f"events in the plane)" + (f"; the gait {', '.join(gaits)} (a periodic "
+                                               f"orbit and its stability)" if gaits else ""))
     p.add_argument("--n", type=_positive_int, default=None,
                    help=f"number of events of --example network (1..{NETWORK_MAX_N}, "
                    f"default 3); --n alone means --example network")
@@ -90,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="the B-derivative of a built-in model, checked against "
                        "simulation (default command)")
-    _add_example_args(p, "chair")
+    _add_example_args(p, "chair", GAIT_EXAMPLES)
     p.add_argument("--batch", type=_positive_int, default=1_000_000,
                    help="tangent vectors in the timed batch (default 1000000)")
     p.add_argument("--check", type=_nonneg_int, default=8,
@@ -156,6 +157,9 @@ def _demo(args) -> str | None:
     if example is None:
         example = "network" if args.n is not None or args.extended else "chair"
 
+    if example in GAIT_EXAMPLES:
+        return _gait_demo(args)
+
     def show(section, res):  # the text streams while the demo runs
         print(render.demo_section(section, res), end="", flush=True)
 
@@ -164,6 +168,18 @@ def _demo(args) -> str | None:
                    args.seed, args.full, progress=progress,
                    report=show if not args.json else None)
     return render.to_json(res, indent=1) if args.json else None
+
+
+def _gait_demo(args) -> str:
+    """``demo --example pronking``: from the model to a stability verdict, checked against
+    simulation (:func:`bderiv.examples.gaits.pronking_summary`)."""
+    if args.n is not None or args.extended:
+        raise UsageError(f"--n and --extended are options of --example network, not "
+                         f"{args.example}")
+    from ..examples import gaits
+
+    res = gaits.pronking_summary(seed=args.seed)
+    return render.to_json(res, indent=1) if args.json else gaits.summary_text(res)
 
 
 def _bench(args) -> str:

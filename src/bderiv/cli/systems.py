@@ -10,6 +10,8 @@ from .usage import UsageError
 TABLE_EXAMPLES = ("corners", "planar")
 #: examples from :mod:`bderiv.examples` (nonlinear models)
 MODEL_EXAMPLES = ("chair", "network", "table")
+#: gaits (periodic orbits through simultaneous events): ``demo`` only, a stability verdict
+GAIT_EXAMPLES = ("pronking",)
 #: largest n of the scalable network family the CLI accepts
 NETWORK_MAX_N = 20
 

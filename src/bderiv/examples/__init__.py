@@ -7,16 +7,22 @@ event point ``rho`` where all its events happen at once, a start point ``x0`` th
 - :func:`chair`: planar rigid body, two legs touch compliant ground together (d = 6, n = 2);
 - :func:`network`: first-order network for any n (d = n or d = 2n) whose events change each
   other's rates, so perturbations overtake (usable up to n = 20);
-- :func:`table`: 3-D rigid body landing flat on 4 legs (n = 4 > rank of Dh = 3).
+- :func:`table`: 3-D rigid body landing flat on 4 legs (n = 4 > rank of Dh = 3);
+- :func:`pronking`: a planar body pronking on two compliant legs (d = 4, n = 2), a gait
+  whose two legs land and lift off together (module :mod:`~bderiv.examples.gaits`: its
+  section, periodic orbit and summary).
 
 Two corner tables without a model, ``(Dh, F)`` pairs: :func:`three_event_table` (n = d = 3,
 event orders that overtake) and :func:`planar_table` (n = d = 2, for the 2-D figures).
 """
 
+from . import gaits
 from ._common import Example
 from .chair import chair
+from .gaits import pronking
 from .network import network
 from .table import table
 from .tables import planar_table, three_event_table
 
-__all__ = ["Example", "chair", "network", "planar_table", "table", "three_event_table"]
+__all__ = ["Example", "chair", "gaits", "network", "planar_table", "pronking", "table",
+           "three_event_table"]

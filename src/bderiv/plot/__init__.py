@@ -12,16 +12,20 @@ to draw into an existing figure instead.
   carried through the corner-limit flow, in state and in impact-time coordinates;
 - :func:`tangent_circle`: 2-D systems, a circle of tangent vectors and its image;
 - :func:`pieces`: any n, determinant and gain of the linear pieces;
-- :func:`scaling`: time per query against n from a benchmark sweep.
+- :func:`scaling`: time per query against n from a benchmark sweep;
+- :func:`gait_orbit`, :func:`gait_growth`: a periodic orbit with its event groups, and the
+  growth of a batch of directions through its piecewise-linear return map.
 
 The figures live in private modules by subject (``_planar``, ``_carried_fan``,
-``_pieces``, ``_scaling``, all on the figure set-up of ``_axes``); this package is their
+``_pieces``, ``_scaling``, ``_gait``, all on the figure set-up of ``_axes``); this package is their
 one public name.
 """
 
 from ._carried_fan import carried_fan
+from ._gait import gait_growth, gait_orbit
 from ._pieces import pieces
 from ._planar import corner_field, tangent_circle, triangulation
 from ._scaling import scaling
 
-__all__ = ["carried_fan", "corner_field", "pieces", "scaling", "tangent_circle", "triangulation"]
+__all__ = ["carried_fan", "corner_field", "gait_growth", "gait_orbit", "pieces", "scaling",
+           "tangent_circle", "triangulation"]
