@@ -102,8 +102,9 @@ def test_piece_matrices_shapes_and_consistency():
     for idx in np.ndindex(2, 5):
         np.testing.assert_allclose(P[idx], bd.piece(orders[idx]), rtol=1e-12, atol=1e-12)
     assert bd.piece_matrices(V[0, 0]).shape == (4, 4)
+    # the result (12.2 MiB) and the temporaries of building it (3x that)
     with pytest.raises(ValueError, match=r"piece matrices of 100000 vectors in dimension 4 "
-                                         r"\(12\.2 MiB\)"):
+                                         r"take 48\.8 MiB, more than the memory limit"):
         bd.piece_matrices(np.ones((100000, 4)), memory_limit=1 << 20)
 
 
@@ -192,3 +193,50 @@ def test_gradient_of_a_terminal_cost_against_simulation(make):
     base = np.sin(x_final).sum() + 0.5 * (x_final**2).sum()
     np.testing.assert_allclose((cost - base) / eps, predicted, rtol=1e-3,
                                atol=1e-3 * np.abs(predicted).max())
+
+
+# ----------------------------------------------------------------------------------------
+# found by review: extreme scales, fast-path ties, several vector blocks
+# ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("scale", [1e300, 1e-300, 2.0**-1060])
+def test_the_piece_does_not_depend_on_the_directions_scale(scale):
+    """Dh v near the ends of float64 overflowed (underflowed) the event times, and the
+    selection picked a wrong piece, silently; the piece depends on the direction only."""
+    Dh = np.diag([1e10, 1e-10])
+    F = 1e10 * np.array([[1, 1], [2, 0.5], [0.5, 3], [1.5, 2]])
+    bd = BDerivative(Dh, F)
+    v, t = np.array([-1.0, -2.0]), np.array([0.3, -0.7])
+    P = ref_piece(Dh, F, [0, 1])
+    np.testing.assert_allclose(bd.jvp(scale * v, t), P @ t, rtol=1e-14)
+    np.testing.assert_allclose(bd.vjp(scale * v, t), P.T @ t, rtol=1e-14)
+    np.testing.assert_allclose(bd.piece_matrices(scale * v), P, rtol=1e-14)
+
+
+def test_own_rates_tie_uses_the_piece_orders_names():
+    """Own rates (a fast path) and a three-way exact tie: jvp/vjp/piece_matrices take the
+    piece of ``orders(v)`` (the fast path's sort), not a chain recomputed differently."""
+    F = np.array([[1, 3, 1, 3, -3], [3, 3, 1, -2, -3], [1, 3, 1, 2, 2], [3, 3, 1, 3, 1],
+                  [1, 3, 2, -1, -1], [3, 3, 2, 3, 2], [1, 3, 2, -2, -1], [3, 3, 2, -2, -1]],
+                 float)
+    bd = BDerivative(np.eye(3, 5), F, transversality_tol=0)
+    assert bd.fast_path == "own-rates"
+    v = np.array([-2, -6, -2, -4, -6]) / 3.0
+    P = bd.piece(bd.orders(v))
+    np.testing.assert_allclose(bd.piece_matrices(v), P, rtol=1e-14, atol=1e-14)
+    t = np.arange(5.0)
+    np.testing.assert_allclose(bd.vjp(v, t), P.T @ t, rtol=1e-13)
+
+
+@pytest.mark.parametrize("n, d", [(9, 17), (17, 9)])
+def test_several_vector_blocks(n, d):
+    """n or d beyond one 8-wide block: the lane kernels' loops over blocks."""
+    rng = np.random.default_rng(n * d)
+    Dh, F = random_system(rng, n, d)
+    bd = BDerivative(Dh, F)
+    V, T = rng.standard_normal((40, d)), rng.standard_normal((40, d))
+    J, Jt = bd.jvp(V, T), bd.vjp(V, T)
+    for q in range(0, 40, 7):
+        P = ref_piece(Dh, F, ref_event_times(Dh, F, V[q])[1])
+        scale = np.abs(P).max() * np.abs(T[q]).max()
+        np.testing.assert_allclose(J[q], P @ T[q], rtol=0, atol=1e-11 * scale)
+        np.testing.assert_allclose(Jt[q], P.T @ T[q], rtol=0, atol=1e-11 * scale)

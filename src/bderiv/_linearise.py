@@ -9,8 +9,10 @@ transpose applied to a co-vector (``vjp``: adjoints, gradients, covariance updat
 the kernels run the saltation factors along each row's chain (backwards for ``vjp``).
 
 On a boundary between pieces (a tie between event times) both neighbouring pieces are
-linearisations of M; the one returned is the piece of the order the selection finds for
-``v``, ties going to the smaller event index (``orders(v)`` names it).
+linearisations of M; the one returned is the piece of the order ``orders(v)`` names: the
+selection's, which takes the smaller event index when two computed times are equal. Near
+a tie (and at a tie reached after events whose times are rounded) rounding decides which
+neighbour that is; both agree on ``v`` itself, M being continuous.
 
 A class using it provides ``dim`` and ``_tangent_rows(V, T, res, transpose, offset)``,
 which writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows v of ``V`` and t of
@@ -19,14 +21,28 @@ which writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows v of ``V`` an
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from ._batch import evaluate, is_dask_array
-from ._tables import human_bytes
 from ._validate import check_memory, check_points
 
-#: rows per chunk of :meth:`Linearisation.piece_matrices` (each row is d queries).
-PIECE_ROWS = 1 << 12
+#: bytes of the temporaries of one chunk of :meth:`Linearisation.piece_matrices` (each row
+#: is d queries: the repeated rows, the unit vectors and the columns, d * d floats each).
+PIECE_CHUNK_BYTES = 64 << 20
+
+
+def unit_scale(rows: np.ndarray) -> np.ndarray:
+    """The rows scaled by exact powers of two to largest entries in [0.5, 1).
+
+    The piece a direction selects depends on the direction only (M is positively
+    homogeneous), but its event times scale with it: a row near the ends of the float64
+    range would overflow (or underflow) them and select a wrong order. Scaling by powers
+    of two is exact, so rows that are fine select what they selected before.
+    """
+    exponent = np.frexp(np.abs(rows).max(axis=1, initial=0.0))[1]
+    return np.ldexp(rows, -exponent[:, None])
 
 
 class Linearisation:
@@ -96,16 +112,25 @@ class Linearisation:
         d = self.dim
         flat, lead = check_points(V, d)
         m = flat.shape[0]
-        check_memory(m * d * d * 8, memory_limit,
-                     f"the piece matrices of {m} vectors in dimension {d} "
-                     f"({human_bytes(m * d * d * 8)})")
+        # the result and one chunk's temporaries (three arrays of d * d floats per row)
+        check_memory(m * d * d * 8 + min(PIECE_CHUNK_BYTES, 3 * m * d * d * 8), memory_limit,
+                     f"the piece matrices of {m} vectors in dimension {d}")
         P = np.empty((m, d, d))
         eye = np.eye(d)
-        for s in range(0, m, PIECE_ROWS):
-            e = min(s + PIECE_ROWS, m)
+        step = max(1, PIECE_CHUNK_BYTES // (3 * d * d * 8))
+        flat = unit_scale(flat)
+        for s in range(0, m, step):
+            e = min(s + step, m)
             cols = np.empty(((e - s) * d, d))
-            self._tangent_rows(np.repeat(flat[s:e], d, axis=0), np.tile(eye, (e - s, 1)),
-                               cols, False, s)
+            try:
+                self._tangent_rows(np.repeat(flat[s:e], d, axis=0), np.tile(eye, (e - s, 1)),
+                                   cols, False, 0)
+            except ValueError as exc:  # rows repeated d times: name the caller's row
+                def row(match, s=s):
+                    q = s + int(match.group(1)) // d
+                    index = np.unravel_index(q, lead) if lead else (q,)
+                    return f"V[{', '.join(str(int(i)) for i in index)}]"
+                raise ValueError(re.sub(r"\bV\[(\d+)\]", row, str(exc))) from None
             P[s:e] = cols.reshape(e - s, d, d).transpose(0, 2, 1)  # [q, i, :] = M e_i
         return P.reshape(lead + (d, d))
 
@@ -129,8 +154,8 @@ class Linearisation:
             flat_t = flat_t.copy()  # out may be T itself (V is copied by evaluate)
 
         def kernel(rows, res, offset):
-            self._tangent_rows(rows, flat_t[offset : offset + rows.shape[0]], res, transpose,
-                               offset)
+            self._tangent_rows(unit_scale(rows), flat_t[offset : offset + rows.shape[0]], res,
+                               transpose, offset)
 
         return evaluate(kernel, V, d, name="V", out=out, chunk_size=chunk_size,
                         progress=progress, desc=type(self).__name__)

@@ -80,6 +80,16 @@ def dense_table_bytes(n: int, d: int) -> int:
     return (1 << n) * record_layout(n, d)[2] * 8
 
 
+def aligned_empty(shape: tuple[int, int]) -> np.ndarray:
+    """An uninitialised C-contiguous float64 array whose data starts on a 64-byte boundary
+    (a cache line: with rows of a multiple of 8 entries, every 8-wide vector load of a
+    kernel reads one line)."""
+    size = shape[0] * shape[1]
+    buf = np.empty(size + 8)
+    start = (-buf.ctypes.data // 8) % 8  # float64 entries up to the next 64-byte boundary
+    return buf[start : start + size].reshape(shape)
+
+
 def region_records(F, Dh: np.ndarray) -> np.ndarray:
     """The table of one record per region, 64-byte aligned, shape (2**n, stride).
 
@@ -93,9 +103,7 @@ def region_records(F, Dh: np.ndarray) -> np.ndarray:
     n, d = Dh.shape
     nc, dc, stride = record_layout(n, d)
     rows_total = F.shape[0]
-    buf = np.empty(rows_total * stride + 8)
-    start = (-buf.ctypes.data // 8) % 8  # float64 entries up to the next 64-byte boundary
-    R = buf[start : start + rows_total * stride].reshape(rows_total, stride)
+    R = aligned_empty((rows_total, stride))
     og, of = 8 * nc, 16 * nc
     DhT = Dh.T
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):

@@ -59,7 +59,8 @@ class Engine:
         corners along them by :meth:`corners` (chunks of about ``CHAIN_BYTES``), then one
         saltation factor per event (``_core.saltations``)."""
         n, d = self.n, self.d
-        rows = int(min(max(CHAIN_BYTES // ((n + 1) * d * 8), 64), 1 << 16))
+        # per row: the corners C, the region flags and the model's float copy of them
+        rows = int(min(max(CHAIN_BYTES // ((n + 1) * (8 * d + 9 * n)), 64), 1 << 16))
         bad = 0
         for s in range(0, V.shape[0], rows):
             e = min(s + rows, V.shape[0])

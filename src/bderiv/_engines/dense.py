@@ -53,6 +53,10 @@ class DenseEngine(Engine):
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+        if self.R.ctypes.data % 64:  # unpickled anywhere in memory: back on cache lines
+            R = _tables.aligned_empty(self.R.shape)
+            R[...] = self.R
+            self.R = R
         self._views()
 
     @classmethod
@@ -145,6 +149,8 @@ class DenseEngine(Engine):
         return kernels.lane_event_times(self._lanes, V, (times, orders), launch=self.launch)
 
     def tangents(self, V, T, out, transpose: bool, offset: int = 0) -> int:
+        if self.fast is not None:  # the fast path's orders, as orders() gives them
+            return super().tangents(V, T, out, transpose, offset)
         if PLAIN:
             return kernels.tangents(self._plain + (self.Dh,), V, (out, T), transpose,
                                     launch=self.launch)

@@ -16,6 +16,7 @@ import hashlib
 import os
 import pathlib
 import threading
+import warnings
 
 import numba
 import numpy as np
@@ -29,7 +30,11 @@ JIT = {"cache": True, "error_model": "numpy"}
 
 #: ``BDERIV_KERNELS=plain`` (read at import) runs the scalar dense kernels instead of the
 #: explicit-vector ones (``_simd``): a path any numba target compiles, tested in CI.
-PLAIN = os.environ.get("BDERIV_KERNELS", "").strip().lower() == "plain"
+_KERNELS = os.environ.get("BDERIV_KERNELS", "").strip().lower()
+PLAIN = _KERNELS == "plain"
+if _KERNELS not in ("", "plain", "simd"):
+    warnings.warn(f"BDERIV_KERNELS={_KERNELS!r} is not 'plain' or 'simd'; using the "
+                  f"default (simd) kernels", RuntimeWarning, stacklevel=1)
 
 #: queries per parallel task. Threads take tasks one at a time (dynamic schedule), so a
 #: thread that the OS delays does not hold the other back; at n = 8, 256 queries take

@@ -100,15 +100,9 @@ def sub(typingctx, a, b):
 
 @intrinsic
 def total(typingctx, a):
-    """The sum of the lanes (a tree of three lane-wise sums)."""
+    """The sum of the lanes (a tree of lane-wise sums)."""
     def codegen(context, builder, sig, args):
-        v = args[0]
-        undef = ir.Constant(_VEC, ir.Undefined)
-        for half in (4, 2, 1):
-            swap = ir.Constant(ir.VectorType(_I32, WIDTH), [(i + half) % WIDTH
-                                                            for i in range(WIDTH)])
-            v = builder.fadd(v, builder.shuffle_vector(v, undef, swap))
-        return builder.extract_element(v, ir.Constant(_I32, 0))
+        return _tree(builder, args[0], builder.fadd)
     return types.float64(a), codegen
 
 
@@ -120,20 +114,24 @@ def fma(typingctx, a, b, c):
     return f64x8(a, b, c), codegen
 
 
+def _tree(builder, v, combine):
+    """Lane 0 of three rounds of ``v = combine(v, v with its lanes rotated by 4, 2, 1)``."""
+    undef = ir.Constant(_VEC, ir.Undefined)
+    for half in (4, 2, 1):
+        swap = ir.Constant(ir.VectorType(_I32, WIDTH), [(i + half) % WIDTH
+                                                        for i in range(WIDTH)])
+        v = combine(v, builder.shuffle_vector(v, undef, swap))
+    return builder.extract_element(v, ir.Constant(_I32, 0))
+
+
 @intrinsic
 def smallest(typingctx, a):
-    """The smallest lane (the lanes hold no NaN): a tree of three lane-wise minimums of
-    the vector and its halves swapped (``llvm.vector.reduce.fmin`` without fast-math
-    flags lowers to a chain of scalar minimums with NaN checks, 3x slower here)."""
+    """The smallest lane (a NaN lane may or may not win: callers check what they select)
+    as a tree of lane-wise minimums (``llvm.vector.reduce.fmin`` without fast-math flags
+    lowers to a chain of scalar minimums with NaN checks)."""
     def codegen(context, builder, sig, args):
-        v = args[0]
-        undef = ir.Constant(_VEC, ir.Undefined)
-        for half in (4, 2, 1):
-            swap = ir.Constant(ir.VectorType(_I32, WIDTH), [(i + half) % WIDTH
-                                                            for i in range(WIDTH)])
-            w = builder.shuffle_vector(v, undef, swap)
-            v = builder.select(builder.fcmp_ordered("<", v, w), v, w)
-        return builder.extract_element(v, ir.Constant(_I32, 0))
+        return _tree(builder, args[0],
+                     lambda v, w: builder.select(builder.fcmp_ordered("<", v, w), v, w))
     return types.float64(a), codegen
 
 

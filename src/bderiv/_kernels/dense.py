@@ -343,6 +343,7 @@ def _lane_tangent_block(tables, V, outs, start, stop, transpose):
         pn = min(LANES, stop - q0)
         _lanes(tables, V, q0, pn, False, False, scratch)
         for p in range(pn):
+            vec.store(Y, p, 8 * (dc - 1), vec.splat(0.0))  # padding: 0 whatever came before
             for i in range(d):
                 Y[p, i] = T[q0 + p, i]
             region = (1 << n) - 1 if transpose else 0  # walk the chain either way
