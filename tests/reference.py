@@ -345,3 +345,101 @@ def tie_point(U, order, j, rng):
     swapped = np.array(order).copy()
     swapped[[j - 1, j]] = swapped[[j, j - 1]]
     return u, swapped
+
+
+# --------------------------------------------------------------------------------------
+# Section 8: resets at the events (R[mask, k]: the Jacobian of crossing k from region mask)
+# --------------------------------------------------------------------------------------
+def ref_reset_flow(Dh, F, R, u):
+    """M(u) with resets by following the sampled trajectory in physical time.
+
+    The trajectory is x(t) = u + t F[0] long before the events; it moves with F[B] in
+    region B, and when it reaches a pending surface (Dh_k x = 0) it jumps to R[B, k] x.
+    After the last event x(t) = w + t F[full]; returns w. Nothing here uses virtual
+    positions (the kernel's update); returns (w, times, order).
+    """
+    Dh, F, R = (np.asarray(a, dtype=float) for a in (Dh, F, R))
+    n = Dh.shape[0]
+    G = rates(Dh, F)
+    t = min(-(Dh @ u) / G[0]) - 1.0  # before every event
+    x = np.asarray(u, dtype=float) + t * F[0]
+    B, times, order = 0, np.zeros(n), []
+    for _ in range(n):
+        pending = [k for k in range(n) if not B >> k & 1]
+        wait = {k: -(Dh[k] @ x) / G[B, k] for k in pending}
+        k = min(pending, key=lambda k: (wait[k], k))
+        x = x + wait[k] * F[B]
+        t += wait[k]
+        x = R[B, k] @ x
+        B |= 1 << k
+        times[k] = t
+        order.append(k)
+    return x - t * F[B], times, np.array(order, dtype=np.int64)
+
+
+def ref_reset_piece(Dh, F, R, order):
+    """S_n ... S_1 with S_j = R_j + (F[B_j] - R_j F[B_{j-1}]) Dh[k_j]^T / G[B_{j-1}, k_j],
+    R_j = R[B_{j-1}, k_j] (MATH.md section 8)."""
+    Dh, F, R = (np.asarray(a, dtype=float) for a in (Dh, F, R))
+    masks = chain(order)
+    M = np.eye(Dh.shape[1])
+    for j, k in enumerate(order, start=1):
+        prev, cur = masks[j - 1], masks[j]
+        Rj = R[prev, k]
+        M = (Rj + np.outer(F[cur] - Rj @ F[prev], Dh[k]) / (Dh[k] @ F[prev])) @ M
+    return M
+
+
+def ref_reset_apply_by_pieces(Dh, F, R, u):
+    """M(u) as the piece of the one order whose event times, computed along that order,
+    do not decrease (all n! orders tried; the first that fits, with a tolerance)."""
+    Dh, F, R = (np.asarray(a, dtype=float) for a in (Dh, F, R))
+    G = rates(Dh, F)
+    for order in all_orders(Dh.shape[0]):
+        x, B, last, fits = np.asarray(u, float), 0, -np.inf, True
+        for k in order:
+            t = -(Dh[k] @ x) / G[B, k]
+            if t < last - 1e-9 * (1 + abs(last)):
+                fits = False
+                break
+            x = R[B, k] @ (x + t * F[B]) - t * F[B | 1 << k]
+            B, last = B | 1 << k, t
+        if fits:
+            return ref_reset_piece(Dh, F, R, order) @ u, order
+    raise AssertionError("no order fits u")
+
+
+def random_reset_system(rng, n, d, *, compatible=True, moving=False):
+    """(Dh, F, R) with transversal rates and resets R of shape (2**n, n, d, d).
+
+    In coordinates z = C x whose first n rows are Dh (C invertible), the reset of event j
+    from region b keeps h_l for l != j, scales h_j by a_j(b) > 0, and maps the rest r
+    (d - n coordinates) to D_j r + c_j(b) h_j. With D_j diagonal (``compatible``) the
+    resets commute on every common tangent space h_j = h_k = 0 and move no other surface
+    (MATH.md section 8); dense random D_j do not commute (``compatible=False``), and
+    ``moving=True`` adds h_l += r_0 for l != j, so that a reset moves the other surfaces.
+    """
+    from bderiv._baselines import random_system as _random_system
+
+    Dh, F = _random_system(rng, n, d)
+    extra = rng.standard_normal((d - n, d))
+    C = np.vstack([Dh, extra])
+    while np.linalg.cond(C) > 1e3:
+        extra = rng.standard_normal((d - n, d))
+        C = np.vstack([Dh, extra])
+    Ci = np.linalg.inv(C)
+    D = [np.diag(rng.uniform(0.2, 1.5, d - n)) if compatible
+         else np.eye(d - n) + 0.5 * rng.standard_normal((d - n, d - n)) for _ in range(n)]
+    R = np.zeros((2**n, n, d, d))
+    for b in range(2**n):
+        for j in range(n):
+            if b >> j & 1:
+                continue
+            A = np.eye(d)
+            A[j, j] = rng.uniform(0.5, 2.0)
+            A[n:, n:] = D[j]
+            A[n:, j] = rng.standard_normal(d - n)
+            if moving and d > n:
+                A[[i for i in range(n) if i != j], n] = 1.0
+            R[b, j] = Ci @ A @ C
+    return Dh, F, R

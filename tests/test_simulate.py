@@ -35,6 +35,16 @@ def test_simulate_result():
     np.testing.assert_allclose(traj.x_final, [4.0, 4.0], rtol=1e-10)
 
 
+def test_without_resets_the_state_does_not_jump_at_a_group():
+    s = constant_system(np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [3.0, 3.0]]))
+    assert not s.has_resets
+    traj = s.simulate(np.zeros(2), 2.0, simultaneity_tol=1e-9)
+    (group,) = traj.groups
+    assert np.array_equal(group.state_after, group.state)
+    i = int(np.flatnonzero(traj.t == group.time)[-1])  # the next stretch starts at the stop
+    assert np.array_equal(traj.x[i], group.state) and np.array_equal(traj.x[i - 1], group.state)
+
+
 def test_two_surfaces_crossed_in_one_step_are_both_detected():
     seen = []
 

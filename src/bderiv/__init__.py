@@ -4,7 +4,7 @@ where several events happen at once."""
 from importlib import metadata as _metadata
 
 from . import examples
-from .bderivative import BDerivative
+from .bderivative import BDerivative, LowRankResets
 from .corners import CornerFunction, CornerModel, StructuredCorners
 from .flowmap import FlowBDerivative
 from .hybrid import HybridSystem
@@ -24,6 +24,7 @@ __all__ = [
     "BDerivative",
     "CornerFunction",
     "CornerModel",
+    "LowRankResets",
     "StructuredCorners",
     "Triangulation",
     "__version__",

@@ -10,8 +10,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.differentiate import jacobian as _scipy_jacobian
 
+from ._format import format_mask
 from ._validate import check_positive_int, check_real_array
 
+#: relative tolerance of the checks of a model's resets with analytic Jacobians (event
+#: and reset), and with numerical ones (their error estimates are about 1e-10 relative).
+RESET_TOL = 1e-9
+RESET_TOL_NUMERICAL = 1e-6
 #: Tolerances of :func:`scipy.differentiate.jacobian` for missing Jacobians.
 _JAC_TOLERANCES = {"atol": 1e-11, "rtol": 1e-10}
 _JAC_INITIAL_STEP = 0.05
@@ -70,13 +75,17 @@ class ModelCalls:
     """
 
     def __init__(self, field, events, *, n_events, dim, event_jacobian=None,
-                 field_jacobian=None, corner_field=None):
+                 field_jacobian=None, corner_field=None, reset=None, reset_jacobian=None):
         for f, name in ((field, "field"), (events, "events"),
                         (event_jacobian, "event_jacobian"),
-                        (field_jacobian, "field_jacobian"), (corner_field, "corner_field")):
+                        (field_jacobian, "field_jacobian"), (corner_field, "corner_field"),
+                        (reset, "reset"), (reset_jacobian, "reset_jacobian")):
             check_callable(f, name)
         if field is None or events is None:
             raise TypeError("field and events are required callables")
+        if reset is None and reset_jacobian is not None:
+            raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
+        self._reset, self._reset_jac = reset, reset_jacobian
         self.n_events = check_positive_int(n_events, "n_events")
         self.dim = check_positive_int(dim, "dim")
         self._field = field
@@ -130,6 +139,71 @@ class ModelCalls:
                 self._field_jac(x, mask), (d, d), f"field_jacobian(x, mask={mask})"
             )
         return numerical_jacobian(lambda y: self.eval_field(y, mask), x, d, "field")
+
+    @property
+    def has_resets(self) -> bool:
+        """Whether the state jumps at the events (a ``reset`` was given)."""
+        return self._reset is not None
+
+    def eval_reset(self, x, mask, k):
+        """The checked state after crossing event k from region ``mask`` at ``x``: (d,)
+        (``x`` itself for a model without resets)."""
+        if self._reset is None:
+            return x
+        return check_output(self._reset(x, mask, k), (self.dim,),
+                            f"reset(x, mask={mask}, k={k})")
+
+    def eval_reset_jacobian(self, x, mask, k):
+        """Jacobian of ``reset(., mask, k)`` at ``x``, shape (d, d) (analytic if given)."""
+        x = self._check_state(x)
+        d = self.dim
+        if self._reset_jac is not None:
+            return check_output(self._reset_jac(x, mask, k), (d, d),
+                                f"reset_jacobian(x, mask={mask}, k={k})")
+        return numerical_jacobian(lambda y: self.eval_reset(y, mask, k), x, d, "reset")
+
+    @property
+    def reset_tol(self) -> float:
+        """Relative tolerance of the reset checks: looser with numerical Jacobians."""
+        exact = self._reset_jac is not None and self._event_jac is not None
+        return RESET_TOL if exact else RESET_TOL_NUMERICAL
+
+    def sample_resets(self, x, events, glob, Dh, sign, where):
+        """Base points and reset Jacobians of a group (MATH.md section 8).
+
+        ``base[B]`` (2**g, d) is ``x`` moved by the resets of the events of local mask B
+        (ascending; each called with the global mask before its crossing), ``R[B, j]``
+        (2**g, g, d, d) the Jacobian of the reset of ``events[j]`` at ``base[B]``. Refuses
+        resets that move a pending surface or change its gradient (beyond ``reset_tol``
+        relative to ``|Dh_k|``): the events would not stay simultaneous.
+        """
+        g, d = len(events), self.dim
+        base = np.empty((1 << g, d))
+        base[0] = x
+        R = np.zeros((1 << g, g, d, d))
+        h0, tol = self.eval_events(x)[list(events)], self.reset_tol
+        scale = np.abs(Dh).sum(axis=1) * max(1.0, float(np.abs(x).max()))
+        for B in range(1 << g):
+            if B:
+                top = B.bit_length() - 1
+                rest = B & ~(1 << top)
+                base[B] = self.eval_reset(base[rest], int(glob[rest]), events[top])
+            pending = [j for j in range(g) if not B >> j & 1]
+            h = self.eval_events(base[B])[list(events)]
+            Dh_B = sign[:, None] * self.eval_event_jacobian(base[B])[list(events)]
+            for j in pending:
+                moved = max(abs(h[j] - h0[j]) / scale[j],
+                            float(np.abs(Dh_B[j] - Dh[j]).max() / np.abs(Dh[j]).max()))
+                if not moved <= tol:
+                    raise ValueError(
+                        f"{where}: the resets of the events of region "
+                        f"{format_mask(int(glob[B]), self.n_events)} move the surface of "
+                        f"event {events[j]}, still pending (value or gradient, by {moved:.3g} "
+                        f"relative, tolerance {tol:g}): the events would not stay "
+                        f"simultaneous and the flow has no B-derivative there"
+                    )
+                R[B, j] = self.eval_reset_jacobian(base[B], int(glob[B]), events[j])
+        return base, R
 
     def sample_corners(self, x, masks=None):
         """Region fields at ``x`` for the given masks (default all 2**n).

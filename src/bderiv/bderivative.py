@@ -11,6 +11,7 @@ import numpy as np
 from . import _tables
 from ._batch import evaluate
 from ._engines import DenseEngine, FunctionEngine, StructuredEngine
+from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
 from ._format import MASK_MEANING, format_mask
 from ._linearise import Linearisation
 from ._validate import (
@@ -64,6 +65,14 @@ class BDerivative(Linearisation):
         tables only).
     fast_paths : bool, optional
         Use the fast paths when the tables allow them (default True; see ``fast_path``).
+    resets : array_like of shape (2**n, n, d, d), or LowRankResets, optional
+        Reset Jacobians at the events (impacts; dense tables only; MATH.md section 8):
+        ``resets[mask, k]`` for event k crossed from region ``mask``, or ``I + U V^T``
+        (:class:`~bderiv._engines.resets.LowRankResets`). Refused (ValueError naming the
+        region and the events) when the flow has no B-derivative with them.
+    reset_tol : float, optional
+        Relative tolerance of that check, and ``1 / reset_tol`` the largest condition
+        number of a reset that ``inverse`` accepts (default 1e-9).
 
     Attributes
     ----------
@@ -89,6 +98,8 @@ class BDerivative(Linearisation):
     rate_spread : float or None
         Dense tables: the largest ratio of one event's rates over the regions where it is
         pending, the factor by which rounding in event times can grow. None for a model.
+    resets : ndarray or LowRankResets or None
+        The checked read-only reset Jacobians (unused entries zeroed), None without resets.
     full_rank : bool
         Whether Dh has row rank n (needed for corner points and the triangulation).
     transversality : {"table", "proved", "per-query"}
@@ -123,12 +134,15 @@ class BDerivative(Linearisation):
     """
 
     def __init__(self, Dh, F, *, transversality_tol: float = 1e-9, memory_limit=None,
-                 fast_paths: bool = True):
+                 fast_paths: bool = True, resets=None, reset_tol: float = 1e-9):
         Dh = check_matrix(Dh, "Dh", (None, None))
         n, d = Dh.shape
         if n == 0 or d == 0:
             raise ValueError(f"Dh must have at least one event and one dimension, got {Dh.shape}")
         self._fast_paths = bool(fast_paths)
+        self.resets = None
+        if resets is not None and hasattr(F, "corner_function"):
+            raise TypeError(f"resets need a dense table F (2**n, d), got the model {F!r}")
         if isinstance(F, CornerModel):
             self._init_model(Dh, F, fast_paths)
             return
@@ -138,7 +152,12 @@ class BDerivative(Linearisation):
                 f"n_events, dim, corners(happened) and corner_function() (see "
                 f"bderiv.corners.CornerModel)"
             )
-        engine = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths)
+        if resets is None:
+            engine = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths)
+        else:
+            engine = ResetEngine.build(Dh, F, resets, transversality_tol, reset_tol,
+                                       memory_limit)
+            self.resets = engine.resets
         F, G = engine.F, engine.G
         for a in (Dh, engine.R, F, G):
             a.flags.writeable = False
@@ -175,13 +194,14 @@ class BDerivative(Linearisation):
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        if self.model is None:  # views of the engine's records: linked again on unpickling
-            state.pop("F"), state.pop("rates")
+        if self.model is None:  # views of the engine's arrays: linked again on unpickling
+            state.pop("F"), state.pop("rates"), state.pop("resets", None)
         return state
 
     def __setstate__(self, state: dict) -> None:
         # unpickled arrays come back writeable; keep the tables read-only as built
         self.__dict__.update(state)
+        self.resets = getattr(self._engine, "resets", None)
         if self.model is None:
             self.F, self.rates = self._engine.F, self._engine.G
             self._engine.R.flags.writeable = False
@@ -198,7 +218,7 @@ class BDerivative(Linearisation):
         """Bytes held by the region records, which hold F and G (0 for a corner model)."""
         if self.F is None:
             return 0
-        return self._engine.R.nbytes
+        return self._engine.R.nbytes if self.resets is None else self._engine.table_bytes
 
     # -- evaluation -------------------------------------------------------------------------
 
@@ -352,8 +372,9 @@ class BDerivative(Linearisation):
         CornerPoints
             ``(pre, post)``, each of shape (2**n, d), with ``M(pre[mask]) == post[mask]``;
             ``pre[0] = post[0] = 0``, ``pre[-1] = F[0]``, ``post[-1] = F[-1]`` (for d > n up
-            to a vector of ker Dh, on which M is the identity). Unpacks as
-            ``pre, post = bd.corner_points()``.
+            to a vector of ker Dh, on which M is the identity, or with resets their
+            product; their derivation: ``_engines.resets.ResetEngine.corner_points``).
+            Unpacks as ``pre, post = bd.corner_points()``.
 
         Raises
         ------
@@ -366,6 +387,8 @@ class BDerivative(Linearisation):
             return self.to_dense("corner points", memory_limit).corner_points(memory_limit)
         need = _tables.corner_point_bytes(self.n_events, self.dim)
         check_memory(need, memory_limit, f"corner points for n={self.n_events}")
+        if self.resets is not None:
+            return CornerPoints(*self._engine.corner_points())
         return CornerPoints(*_tables.corner_points(self.F, self.Dh, self.rates))
 
     def triangulation(self, max_pieces: int = MAX_PIECES):
@@ -374,12 +397,14 @@ class BDerivative(Linearisation):
         Raises
         ------
         ValueError
-            If Dh is not of full row rank, or n! exceeds ``max_pieces`` (checked before
-            anything is built).
+            If Dh is not of full row rank, n! exceeds ``max_pieces`` (checked before
+            anything is built), or a reset is singular (no homeomorphism).
         """
         from .triangulation import Triangulation
 
         self._require_full_rank("the triangulation")
+        if self.resets is not None:  # a PL homeomorphism: refuses singular resets
+            self._engine.inverse_resets("triangulation")
         if self.model is not None:  # the pieces are counted before a table is built
             check_table_size(self.n_events, self.dim, "the triangulation")
             check_pieces(self.n_events, max_pieces)

@@ -14,18 +14,24 @@ is then the one of MATH.md (rows of ``Dh`` negated, mask bits flipped for those 
 
 from __future__ import annotations
 
+import itertools
 from typing import NamedTuple
 
 import numpy as np
 
 from ._format import format_mask, transversality_message
 
-__all__ = ["EventGroup", "EventRecord", "group_tolerance", "switch"]
+__all__ = ["EventGroup", "EventRecord", "apply_resets", "group_tolerance", "switch"]
 
 #: global over local error of the integrator in :func:`group_tolerance`: an adaptive
 #: Runge-Kutta method keeps each step's error below atol + rtol |x|; the error of the
 #: state at a stop, a sum of such step errors, is a modest multiple of it.
 GLOBAL_ERROR_FACTOR = 10.0
+#: resets of simultaneous events whose results differ by more than this times the
+#: accuracy of the state at the stop do not commute (:func:`apply_resets`).
+RESET_MISMATCH = 1e3
+#: groups of up to this many events have their resets compared in every order.
+ORDERS_CHECKED = 4
 #: a crossing whose rate ``|Dh_k . F|`` is at most this times ``|Dh_k| |F|`` is grazing
 #: (the default ``transversality_tol`` of :class:`~bderiv.bderivative.BDerivative`).
 GRAZING_RTOL = 1e-9
@@ -63,7 +69,10 @@ class EventGroup(NamedTuple):
     mask_before, mask_after : int
         Region masks before and after the group (``mask_after = mask_before ^ bits``).
     state : ndarray, shape (d,)
-        State at ``time``.
+        State at ``time``, before the group.
+    state_after : ndarray, shape (d,)
+        State after the group: ``state`` moved by the resets of its events (a model with
+        resets), else ``state`` itself.
     directions : tuple of int (property)
         +1 (upward) or -1 (downward) for each event of ``events``.
     """
@@ -73,6 +82,7 @@ class EventGroup(NamedTuple):
     mask_before: int
     mask_after: int
     state: np.ndarray
+    state_after: np.ndarray | None = None
 
     @property
     def directions(self) -> tuple:
@@ -115,13 +125,15 @@ def switch(system, fired, mask, x, t, simultaneity_tol, options, scale):
         The events that cross, ascending.
     new : int
         The mask after them.
+    x_after : ndarray, shape (d,)
+        The state after their resets (:func:`apply_resets`; ``x`` without resets).
 
     Raises
     ------
     ValueError
         On a grazing crossing (a rate that is not clearly of the crossing's sign before or
-        after it: the time, event and direction are named) and on a grouped event that is
-        not at ``x``.
+        after it: the time, event and direction are named), on a grouped event that is
+        not at ``x``, and on resets that disagree or jump across a surface.
     """
     n = system.n_events
     sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])  # local orientation
@@ -142,12 +154,66 @@ def switch(system, fired, mask, x, t, simultaneity_tol, options, scale):
             near.append(k)
     _check_near(near, h, rate, tol, group, t, simultaneity_tol)
     new = mask ^ sum(1 << k for k in group)
-    F_new = system.eval_field(x, new)
+    x_after, Dh_after = x, Dh
+    if system.has_resets:
+        accuracy = RESET_MISMATCH * GLOBAL_ERROR_FACTOR * (options.atol + options.rtol * scale)
+        x_after = apply_resets(system, group, mask, x, t, accuracy)
+        Dh_after = sign[:, None] * system.eval_event_jacobian(x_after)
+        _check_after_resets(sign * system.eval_events(x_after), group, tol, t)
+    F_new = system.eval_field(x_after, new)
     for k in group:
         _check_crossing(k, Dh[k], F, mask, f"before switching events {group}", t, sign[k], n)
-        _check_crossing(k, Dh[k], F_new, new, f"after switching events {group}", t, sign[k],
-                        n)
-    return group, new
+        _check_crossing(k, Dh_after[k], F_new, new, f"after switching events {group}", t,
+                        sign[k], n)
+    return group, new, x_after
+
+
+def apply_resets(system, group, mask, x, t, accuracy):
+    """The state after the resets of ``group`` from region ``mask`` at ``x`` (ascending
+    order; each reset is called with the mask before its own crossing).
+
+    Groups of up to ``ORDERS_CHECKED`` events are reset in every order, larger ones also
+    in descending order; results further apart than ``accuracy`` (max norm) are refused:
+    the resets do not commute, so the state after simultaneous events is not defined.
+    """
+    groups = (list(itertools.permutations(group)) if len(group) <= ORDERS_CHECKED
+              else [tuple(group), tuple(reversed(group))])
+    results = []
+    for order in groups:
+        y, b = x, mask
+        for k in order:
+            y = system.eval_reset(y, b, k)
+            b ^= 1 << k
+        results.append((order, y))
+    first, y0 = results[0]
+    for order, y in results[1:]:
+        gap = float(np.abs(y - y0).max())
+        if not gap <= accuracy:
+            raise ValueError(
+                f"the resets of events {list(group)}, simultaneous at t={t:.10g}, do not "
+                f"commute: applied in the order {first} and {order} they give states "
+                f"{gap:.3g} apart (max norm; accepted: {accuracy:.3g}, {RESET_MISMATCH:g} "
+                f"times the integration accuracy), so the state after the events is not "
+                f"defined and the flow has no B-derivative there"
+            )
+    return y0
+
+
+def _check_after_resets(h, group, tol, t):
+    """Refuse resets that carry the state across a surface (``h``: the event values after
+    them, in the group's local orientation)."""
+    for k in range(h.size):
+        if k in group and h[k] < -tol[k]:
+            raise ValueError(
+                f"the resets at t={t:.10g} carry the state back across the surface of event "
+                f"{k}, just crossed (h_{k} = {h[k]:.3g} in the crossing's orientation)"
+            )
+        if k not in group and h[k] > tol[k]:
+            raise ValueError(
+                f"the resets of events {group} at t={t:.10g} carry the state across the "
+                f"surface of event {k} (h_{k} = {h[k]:.3g} in the orientation it would be "
+                f"crossed), a jump that is not a crossing; such models are not supported"
+            )
 
 
 def _check_crossing(k, dh, F, mask, when, t, sign, n):

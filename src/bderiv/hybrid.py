@@ -79,6 +79,15 @@ class HybridSystem(ModelCalls):
         ``corner_field(x) -> (2**n, d)``: all region fields at ``x`` at once, row ``mask``
         equal to ``field(x, mask)``. Used to sample the corner table without a Python loop
         over the 2**n masks (needed for n around 16 to 20).
+    reset : callable, optional
+        ``reset(x, mask, k) -> (d,)``: the state right after event k is crossed at ``x``
+        from region ``mask`` (an impact; MATH.md section 8; bit k of ``mask`` set: a
+        downward crossing, return ``x`` for no jump). Simultaneous events are reset
+        one after the other, in ascending order, each with the mask before its own
+        crossing; their resets must commute (checked, :func:`bderiv.crossings.apply_resets`)
+        and must not move the surfaces still pending. Default: no jump.
+    reset_jacobian : callable, optional
+        ``reset_jacobian(x, mask, k) -> (d, d)``. Default: numerical.
 
     Notes
     -----
@@ -124,7 +133,11 @@ class HybridSystem(ModelCalls):
         sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
         Dh = sign[:, None] * self.eval_event_jacobian(x)[list(events)]
         glob = _spread_masks(events, mask_before)
-        F = self.sample_corners(x, glob)
+        if self.has_resets:
+            base, R = self.sample_resets(x, events, glob, Dh, sign, where)
+            F = np.array([self.eval_field(b, int(m)) for b, m in zip(base, glob, strict=True)])
+        else:
+            F = self.sample_corners(x, glob)
         G = F @ Dh.T
         bad = np.argwhere(~(G > 0))
         if bad.size:
@@ -133,6 +146,11 @@ class HybridSystem(ModelCalls):
             if sign[j] < 0:
                 where += f" (event {events[j]} crossed downward: the rate is that of -h)"
             raise ValueError(transversality_message(events[j], region, G[i, j], where))
+        if self.has_resets:
+            try:
+                return BDerivative(Dh, F, resets=R, reset_tol=self.reset_tol)
+            except ValueError as exc:  # the existence check: say where
+                raise ValueError(f"{where} (events {list(events)}): {exc}") from None
         return BDerivative(Dh, F)
 
     def bderivative(self, rho, *, tol=1e-9):
@@ -148,7 +166,9 @@ class HybridSystem(ModelCalls):
         Returns
         -------
         BDerivative
-            With ``Dh = event_jacobian(rho)`` (n, d) and ``F[mask] = field(rho, mask)``.
+            With ``Dh = event_jacobian(rho)`` (n, d) and ``F[mask] = field(rho, mask)``;
+            with resets, ``F[mask]`` at rho moved by the resets of the events in ``mask``
+            and the reset Jacobians there (MATH.md section 8).
 
         Raises
         ------

@@ -287,10 +287,11 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
             break
         if sol.status == 0:
             break
-        group, new = switch(system, fired, mask, x, t, simultaneity_tol, options, scale)
+        group, new, x_after = switch(system, fired, mask, x, t, simultaneity_tol, options,
+                                     scale)
         log.records.extend(EventRecord(t, k, new) for k in group)
-        log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy()))
-        mask = new
+        log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy()))
+        mask, x = new, x_after
         if len(log.groups) > max_groups:
             raise RuntimeError(
                 f"more than max_groups={max_groups} event groups before t={t:.10g}: the "

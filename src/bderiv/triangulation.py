@@ -134,7 +134,9 @@ class Triangulation:
         minus = np.hstack([apex, inner, np.full((len(orders), 1), full + 1)])
         simplices = np.stack([plus, minus], axis=1).reshape(-1, n + 1)
         kernel = scipy.linalg.null_space(bd.Dh).reshape(bd.dim, bd.dim - n)
-        return cls(pre, post, simplices, kernel)
+        # with resets M moves ker Dh (by the product of the resets, MATH.md section 8)
+        moved = getattr(bd, "resets", None) is not None and kernel.shape[1]
+        return cls(pre, post, simplices, kernel, bd(kernel.T).T if moved else None)
 
     def composed(self, before, after) -> Triangulation:
         """The triangulation of ``v -> after @ self(before @ v)``, same simplices.

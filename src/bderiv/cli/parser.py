@@ -57,8 +57,9 @@ def _add_example_args(p, default_help, gaits=()):
                    help=f"the system (default: {default_help}): the models "
                    f"{', '.join(MODEL_EXAMPLES)} or the corner tables "
                    f"{' and '.join(TABLE_EXAMPLES)} (no model, so no flow map; planar: 2 "
-                   f"events in the plane)" + (f"; the gait {', '.join(gaits)} (a periodic "
-                                               f"orbit and its stability)" if gaits else ""))
+                   f"events in the plane)" + ("; the gait pronking (a periodic orbit and its "
+                                              "stability) and the impact landing (resets "
+                                              "at a simultaneous touchdown)" if gaits else ""))
     p.add_argument("--n", type=_positive_int, default=None,
                    help=f"number of events of --example network (1..{NETWORK_MAX_N}, "
                    f"default 3); --n alone means --example network")
@@ -172,14 +173,17 @@ def _demo(args) -> str | None:
 
 def _gait_demo(args) -> str:
     """``demo --example pronking``: from the model to a stability verdict, checked against
-    simulation (:func:`bderiv.examples.gaits.pronking_summary`)."""
+    simulation (:func:`bderiv.examples.gaits.pronking_summary`); ``--example landing``: a
+    simultaneous impact with resets (:func:`bderiv.examples.impacts.landing_summary`)."""
     if args.n is not None or args.extended:
         raise UsageError(f"--n and --extended are options of --example network, not "
                          f"{args.example}")
-    from ..examples import gaits
+    from ..examples import gaits, impacts
 
-    res = gaits.pronking_summary(seed=args.seed)
-    return render.to_json(res, indent=1) if args.json else gaits.summary_text(res)
+    module, run = ((impacts, impacts.landing_summary) if args.example == "landing"
+                   else (gaits, gaits.pronking_summary))
+    res = run(seed=args.seed)
+    return render.to_json(res, indent=1) if args.json else module.summary_text(res)
 
 
 def _bench(args) -> str:

@@ -10,8 +10,9 @@ from .usage import UsageError
 TABLE_EXAMPLES = ("corners", "planar")
 #: examples from :mod:`bderiv.examples` (nonlinear models)
 MODEL_EXAMPLES = ("chair", "network", "table")
-#: gaits (periodic orbits through simultaneous events): ``demo`` only, a stability verdict
-GAIT_EXAMPLES = ("pronking",)
+#: examples whose demo is a summary of their own (``demo`` only): a gait's periodic orbit
+#: and stability verdict, an impact with resets checked against simulation
+GAIT_EXAMPLES = ("pronking", "landing")
 #: largest n of the scalable network family the CLI accepts
 NETWORK_MAX_N = 20
 

@@ -10,19 +10,23 @@ event point ``rho`` where all its events happen at once, a start point ``x0`` th
 - :func:`table`: 3-D rigid body landing flat on 4 legs (n = 4 > rank of Dh = 3);
 - :func:`pronking`: a planar body pronking on two compliant legs (d = 4, n = 2), a gait
   whose two legs land and lift off together (module :mod:`~bderiv.examples.gaits`: its
-  section, periodic orbit and summary).
+  section, periodic orbit and summary);
+- :func:`landing`: a body on two massive feet landing together, resets at the touchdown
+  (d = 10, n = 2); the coupled variant (``coupling > 0``) is refused (module
+  :mod:`~bderiv.examples.impacts`).
 
 Two corner tables without a model, ``(Dh, F)`` pairs: :func:`three_event_table` (n = d = 3,
 event orders that overtake) and :func:`planar_table` (n = d = 2, for the 2-D figures).
 """
 
-from . import gaits
+from . import gaits, impacts
 from ._common import Example
 from .chair import chair
 from .gaits import pronking
+from .impacts import landing
 from .network import network
 from .table import table
 from .tables import planar_table, three_event_table
 
-__all__ = ["Example", "chair", "gaits", "network", "planar_table", "pronking", "table",
-           "three_event_table"]
+__all__ = ["Example", "chair", "gaits", "impacts", "landing", "network", "planar_table",
+           "pronking", "table", "three_event_table"]
