@@ -416,3 +416,12 @@ def test_demo_gait(capsys):
     assert res["stability"]["stable"] is True
     assert main(["demo", "--example", "pronking", "--n", "3"]) == 2
     assert "options of --example network" in capsys.readouterr().err
+
+
+def test_demo_impact(capsys):
+    """``demo --example landing``: the double touchdown with resets, its FD check, and the
+    coupled variant refused (numbers tested in tests/test_impacts.py)."""
+    assert main(["demo", "--example", "landing"]) == 0
+    out = capsys.readouterr().out
+    assert "resets: u0 0.6 -> 0, u1 -0.6 -> 0" in out
+    assert "refused" in out and "do not commute" in out

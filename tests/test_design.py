@@ -18,7 +18,7 @@ LAYERS = [
     {"hybrid", "_usercalls", "orbit"},  # orbit: periodic orbits (issue 12)
     {"checks"},
     {"simulate", "crossings", "flowmap", "returnmap", "stability"},
-    {"bderivative", "triangulation", "_triangulation_io"},
+    {"bderivative", "_geometry", "triangulation", "_triangulation_io"},
     {"corners", "_engines"},
     {"_kernels"},
 ]

@@ -4,38 +4,25 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from functools import cached_property
-from typing import NamedTuple
 
 import numpy as np
 
-from . import _tables
 from ._batch import evaluate
 from ._engines import DenseEngine, FunctionEngine, StructuredEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
-from ._format import MASK_MEANING, format_mask
+from ._geometry import MAX_PIECES, CornerGeometry, CornerPoints  # noqa: F401 (re-exported)
 from ._linearise import Linearisation
 from ._validate import (
     check_finite_result,
     check_matrix,
-    check_memory,
     check_order,
     check_pieces,
     check_points,
 )
-from .corners import CornerModel, StructuredCorners, check_table_size
-
-#: default cap on the number of pieces ``pieces()`` and ``triangulation()`` will build.
-MAX_PIECES = 40320  # 8!
+from .corners import CornerModel, StructuredCorners
 
 
-class CornerPoints(NamedTuple):
-    """The 2**n corner points: ``post[mask] = M(pre[mask])`` (MATH.md section 5)."""
-
-    pre: np.ndarray
-    post: np.ndarray
-
-
-class BDerivative(Linearisation):
+class BDerivative(Linearisation, CornerGeometry):
     """B-derivative of an event-selected piecewise-smooth flow at an n-event point.
 
     The map ``M`` sends a pre-event tangent vector to the post-event tangent vector of the
@@ -352,89 +339,3 @@ class BDerivative(Linearisation):
         for order in permutations(range(self.n_events)):
             order = np.array(order, dtype=np.int64)
             yield order, self.piece(order)
-
-    # -- corner points and triangulation ------------------------------------------------------
-
-    def _require_full_rank(self, what: str) -> None:
-        if not self.full_rank:
-            rank = np.linalg.matrix_rank(self.Dh)
-            raise ValueError(
-                f"{what} need Dh of full row rank n={self.n_events}, but rank(Dh) = {rank} "
-                f"(more events than independent surfaces); apply, inverse, event_times and "
-                f"piece still work"
-            )
-
-    def corner_points(self, memory_limit=None) -> CornerPoints:
-        """The 2**n pre- and post-event corner points (MATH.md section 5).
-
-        Returns
-        -------
-        CornerPoints
-            ``(pre, post)``, each of shape (2**n, d), with ``M(pre[mask]) == post[mask]``;
-            ``pre[0] = post[0] = 0``, ``pre[-1] = F[0]``, ``post[-1] = F[-1]`` (for d > n up
-            to a vector of ker Dh, on which M is the identity, or with resets their
-            product; their derivation: ``_engines.resets.ResetEngine.corner_points``).
-            Unpacks as ``pre, post = bd.corner_points()``.
-
-        Raises
-        ------
-        ValueError
-            If Dh is not of full row rank, or the points would exceed ``memory_limit``
-            (default: the memory available).
-        """
-        self._require_full_rank("corner points")
-        if self.model is not None:
-            return self.to_dense("corner points", memory_limit).corner_points(memory_limit)
-        need = _tables.corner_point_bytes(self.n_events, self.dim)
-        check_memory(need, memory_limit, f"corner points for n={self.n_events}")
-        if self.resets is not None:
-            return CornerPoints(*self._engine.corner_points())
-        return CornerPoints(*_tables.corner_points(self.F, self.Dh, self.rates))
-
-    def triangulation(self, max_pieces: int = MAX_PIECES):
-        """The PL homeomorphism as vertices and simplices (see :class:`Triangulation`).
-
-        Raises
-        ------
-        ValueError
-            If Dh is not of full row rank, n! exceeds ``max_pieces`` (checked before
-            anything is built), or a reset is singular (no homeomorphism).
-        """
-        from .triangulation import Triangulation
-
-        self._require_full_rank("the triangulation")
-        if self.resets is not None:  # a PL homeomorphism: refuses singular resets
-            self._engine.inverse_resets("triangulation")
-        if self.model is not None:  # the pieces are counted before a table is built
-            check_table_size(self.n_events, self.dim, "the triangulation")
-            check_pieces(self.n_events, max_pieces)
-            return self.to_dense("the triangulation").triangulation(max_pieces)
-        return Triangulation.from_bderivative(self, max_pieces=max_pieces)
-
-    def to_dense(self, what: str = "the dense table", memory_limit=None) -> BDerivative:
-        """This map with its corners as a dense (2**n, d) table.
-
-        For a corner model the table is built (n <= ``corners.MAX_TABLE_EVENTS`` and within
-        ``memory_limit``, default the memory available) and checked whole for
-        transversality; a dense map returns itself.
-
-        Raises
-        ------
-        ValueError
-            For a corner model with too many events, or a table too large for memory.
-        """
-        if self.model is None:
-            return self
-        n, d = self.n_events, self.dim
-        check_table_size(n, d, what)
-        check_memory(_tables.dense_table_bytes(n, d), memory_limit,
-                      f"{what} of a corner model with n={n} events in dimension d={d} "
-                      f"(its dense table)")
-        F = self._engine.dense_table()
-        if not np.isfinite(F).all():
-            mask = int(np.flatnonzero(~np.isfinite(F).all(axis=1))[0])
-            raise ValueError(
-                f"the corner model {self.model!r} gave a non-finite corner for region mask "
-                f"{format_mask(mask, n)} ({MASK_MEANING}): {F[mask]}"
-            )
-        return BDerivative(self.Dh, F, fast_paths=self._fast_paths)
