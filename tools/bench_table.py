@@ -182,7 +182,7 @@ def markdown(evals, builds, threads, info, stat: str) -> str:
         "",
         *thread_table(threads),
         "",
-        "Targets (issues 2 and 4, dense tables):",
+        "Targets (issues 2, 4 and 10, dense tables):",
         "",
         *targets(evals, builds, threads),
     ]
