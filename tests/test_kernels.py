@@ -16,12 +16,12 @@ from bderiv._kernels import _core
 _PROBE = """
 import json, numpy as np
 from bderiv import BDerivative
-from bderiv._kernels import _core, dense
+from bderiv._kernels import _core, dense, lanes
 F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [2.0, 2.0, 0.0]])
 bd = BDerivative(np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]]), F, fast_paths=False)
 V = np.random.default_rng(0).standard_normal((5000, 3))
 bd(V[:3]); bd(V)
-drivers = dense.apply if _core.PLAIN else dense.lane_apply
+drivers = dense.apply if _core.PLAIN else lanes.apply
 stats = [drivers.serial.stats, drivers.tasks.stats]
 print(json.dumps([[sum(s.cache_hits.values()), sum(s.cache_misses.values())] for s in stats]))
 """

@@ -68,6 +68,13 @@ def check_finite(arr: np.ndarray, name: str) -> None:
             raise ValueError(f"{name} must be finite, but {name}{list(idx)} = {arr[idx]}")
 
 
+def singular_condition(mat: np.ndarray) -> float | None:
+    """The condition number of a square matrix singular to working precision
+    (``cond * eps >= 1``, or not finite), else None."""
+    cond = np.linalg.cond(mat)
+    return None if cond * np.finfo(np.float64).eps < 1.0 else float(cond)
+
+
 def check_matrix(a, name: str, shape: tuple[int | None, int | None], *,
                  copy: bool = True) -> np.ndarray:
     """Validate a 2-D real finite matrix; ``None`` in ``shape`` means any size.

@@ -29,6 +29,7 @@ from ._validate import (
     check_matrix,
     check_points,
     check_real_array,
+    singular_condition,
 )
 from .bderivative import MAX_PIECES, BDerivative
 
@@ -281,8 +282,8 @@ class FlowBDerivative(Linearisation):
         """
         inverses = []
         for i, L in enumerate(self._linear):
-            cond = np.linalg.cond(L)
-            if not cond * np.finfo(np.float64).eps < 1.0:
+            cond = singular_condition(L)
+            if cond is not None:
                 raise ValueError(
                     f"the flow map is not invertible: its linear stage linear[{i}] is "
                     f"singular to working precision (condition number {cond:.3g}); inverse "

@@ -28,7 +28,13 @@ from ._triangulation_io import (
     read_json,
     read_npz,
 )
-from ._validate import all_finite, check_finite_result, check_matrix, check_positive_int
+from ._validate import (
+    all_finite,
+    check_finite_result,
+    check_matrix,
+    check_positive_int,
+    singular_condition,
+)
 
 
 class Triangulation:
@@ -176,8 +182,8 @@ class Triangulation:
         mats = {}
         for name, value in (("before", before), ("after", after)):
             mat = check_matrix(value, name, (d, d))
-            cond = np.linalg.cond(mat)
-            if not cond * np.finfo(np.float64).eps < 1.0:
+            cond = singular_condition(mat)
+            if cond is not None:
                 raise ValueError(
                     f"{name} must be invertible, but it is singular to working precision "
                     f"(condition number {cond:.3g})"

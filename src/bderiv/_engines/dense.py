@@ -7,6 +7,7 @@ import numpy as np
 from .. import _tables
 from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
+from .._kernels import lanes
 from .._kernels._core import PLAIN
 from .._validate import check_matrix, check_number, memory_limit_bytes
 from . import fastpath
@@ -136,7 +137,7 @@ class DenseEngine(Engine):
     def _apply(self, V, out, inverse, name, offset) -> int:
         if PLAIN:
             return kernels.apply(self._plain, V, (out,), inverse, launch=self.launch)
-        return kernels.lane_apply(self._lanes, V, (out,), inverse, launch=self.launch)
+        return lanes.apply(self._lanes, V, (out,), inverse, launch=self.launch)
 
     def _apply_own_rates(self, V, out, inverse) -> int:
         rate = self.fast.ratef if inverse else self.fast.rate0
@@ -146,7 +147,7 @@ class DenseEngine(Engine):
     def _event_times(self, V, times, orders, offset) -> int:
         if PLAIN:
             return kernels.event_times(self._plain, V, (times, orders), launch=self.launch)
-        return kernels.lane_event_times(self._lanes, V, (times, orders), launch=self.launch)
+        return lanes.event_times(self._lanes, V, (times, orders), launch=self.launch)
 
     def tangents(self, V, T, out, transpose: bool, offset: int = 0) -> int:
         if self.fast is not None:  # the fast path's orders, as orders() gives them
@@ -154,7 +155,7 @@ class DenseEngine(Engine):
         if PLAIN:
             return kernels.tangents(self._plain + (self.Dh,), V, (out, T), transpose,
                                     launch=self.launch)
-        return kernels.lane_tangents(self._lane_tangents, V, (out, T), transpose,
+        return lanes.tangents(self._lane_tangents, V, (out, T), transpose,
                                      launch=self.launch)
 
     def corners(self, happened) -> np.ndarray:

@@ -2,7 +2,10 @@
 
 A *block* is an njit function ``block(tables, V, outs, start, stop, inverse)`` that
 computes queries ``V[start:stop]`` of one corner representation (``tables``: a tuple of
-its arrays) and writes the rows ``start:stop`` of the arrays in the tuple ``outs``.
+its arrays) and writes the rows ``start:stop`` of the arrays in the tuple ``outs``. The
+arrays of ``outs`` are the per-query ones (row q belongs to ``V[q]``), cut with ``V`` into
+launches; ``outs[0]`` is the result whose non-finite rows are counted, and a block may read
+a later one as a second per-query input (the tangent vectors of jvp/vjp).
 :func:`batch` turns a block into a :class:`Batch`: a serial and a parallel driver around
 it. Every query is computed by the same serial code whatever the driver, the thread count
 or the split into tasks and launches, so results are bitwise independent of all three.
@@ -251,6 +254,17 @@ def _linear_block(tables, V, outs, start, stop, inverse):
             vc = V[q, c]
             for r in range(d):
                 out[q, r] += MT[c, r] * vc
+
+
+@njit(**JIT)
+def write_times(order, times, q0, pn, order_out, times_out):
+    """Rows q0.. of the outputs of ``event_times`` from a group's steps: ``order[p, j]``
+    the j-th event of query q0 + p and ``times[p, j]`` its time."""
+    for p in range(pn):
+        for j in range(order.shape[1]):
+            order_out[q0 + p, j] = order[p, j]
+            times_out[q0 + p, order[p, j]] = times[p, j]
+
 
 
 #: times and orders of an own-rates fast path: tables (DhT, rate), outs (times, orders).
