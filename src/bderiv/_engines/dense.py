@@ -9,6 +9,7 @@ from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
 from .._kernels import lanes
 from .._kernels._core import PLAIN
+from .._kernels._simd import Static
 from .._validate import check_matrix, check_number, memory_limit_bytes
 from . import fastpath
 from .base import Engine
@@ -22,7 +23,7 @@ class DenseEngine(Engine):
     """The region records ``R`` of ``_tables.region_records`` (checked by the caller), with
     ``F`` (2**n, d) and ``G = F @ Dh.T`` (2**n, n) as views into them; ``rate_spread``:
     the largest ratio of one event's rates (``_check_spread``). Runs the lane kernels, or
-    the plain ones when ``_core.PLAIN``."""
+    the plain ones when ``_core.PLAIN`` or d > ``lanes.MAX_D``."""
 
     def __init__(self, Dh, R, fast_paths: bool = True, rate_spread: float = 1.0):
         self.Dh, self.R = Dh, R
@@ -39,11 +40,14 @@ class DenseEngine(Engine):
         self.F = self.R[:, 16 * nc : 16 * nc + d]
         DhTp = np.zeros((d, 8 * nc))
         DhTp[:, :n] = self.Dh.T
-        far = int(self.R.nbytes > FAR_BYTES)
-        self._lanes = (self.R, DhTp, np.array([n, d, nc, dc, far], dtype=np.int64))
-        Dhp = np.zeros((n, 8 * dc))
-        Dhp[:, :d] = self.Dh
-        self._lane_tangents = self._lanes + (Dhp,)
+        self._lanes = self._lane_tangents = None
+        if not PLAIN and d <= lanes.MAX_D:
+            far = int(self.R.nbytes > FAR_BYTES)
+            self._lanes = (self.R, DhTp, np.array([n, d, nc, dc], dtype=np.int64),
+                           Static(8 * nc), Static(8 * dc), Static(far))
+            Dhp = np.zeros((n, 8 * dc))
+            Dhp[:, :d] = self.Dh
+            self._lane_tangents = self._lanes + (Dhp,)
         self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
 
     def __getstate__(self):
@@ -135,7 +139,7 @@ class DenseEngine(Engine):
         return ratio
 
     def _apply(self, V, out, inverse, name, offset) -> int:
-        if PLAIN:
+        if self._lanes is None:
             return kernels.apply(self._plain, V, (out,), inverse, launch=self.launch)
         return lanes.apply(self._lanes, V, (out,), inverse, launch=self.launch)
 
@@ -145,14 +149,14 @@ class DenseEngine(Engine):
                                     launch=self.launch)
 
     def _event_times(self, V, times, orders, offset) -> int:
-        if PLAIN:
+        if self._lanes is None:
             return kernels.event_times(self._plain, V, (times, orders), launch=self.launch)
         return lanes.event_times(self._lanes, V, (times, orders), launch=self.launch)
 
     def tangents(self, V, T, out, transpose: bool, offset: int = 0) -> int:
         if self.fast is not None:  # the fast path's orders, as orders() gives them
             return super().tangents(V, T, out, transpose, offset)
-        if PLAIN:
+        if self._lanes is None:
             return kernels.tangents(self._plain + (self.Dh,), V, (out, T), transpose,
                                     launch=self.launch)
         return lanes.tangents(self._lane_tangents, V, (out, T), transpose,

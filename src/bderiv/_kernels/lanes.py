@@ -1,11 +1,15 @@
-"""Lane blocks for dense corner tables: eight queries in lockstep, each step in 8-wide
-vectors (the default; ``_core.PLAIN`` runs the scalar blocks of :mod:`.dense` instead).
+"""Lane blocks for dense corner tables: eight queries in lockstep, each query's state in
+vector registers (the default; ``_core.PLAIN`` runs the scalar blocks of :mod:`.dense`
+instead).
 
-``tables = (R, DhTp, dims)`` with ``R`` the region records ``[-1/G | G | F]`` of
-``_tables.region_records`` (each part padded to a multiple of 8), ``DhTp`` (d, 8 nc)
-``Dh.T`` padded with zeros and ``dims`` int64 ``[n, d, nc, dc, far]`` (``far``: the
-records exceed the caches, prefetch them). Each step of each query is explicit 8-wide
-vector code (``_simd``). A query is one row of ``V`` (m, d).
+``tables = (R, DhTp, dims, wh, wx, far)`` with ``R`` the region records
+``[-1/G | G | F]`` of ``_tables.region_records`` (each part padded to a multiple of 8),
+``DhTp`` (d, 8 nc) ``Dh.T`` padded with zeros, ``dims`` int64 ``[n, d, nc, dc]``, and the
+:class:`~._simd.Static` values the kernels are compiled for: ``wh = 8 nc`` and
+``wx = 8 dc`` (the widths of the event values' and of the position's vectors, so d <= 64
+here: ``_engines.dense`` runs the plain blocks above) and ``far`` (1 when the records
+exceed the caches: see :func:`_step`). A query is
+one row of ``V`` (m, d).
 """
 
 from __future__ import annotations
@@ -16,178 +20,186 @@ from numba import njit
 from . import _simd as vec
 from ._core import JIT, batch, write_times
 
-#: queries per lockstep group of the lane blocks (8 independent chains hide the latency
-#: of each step's reduction; 12 or more spill registers).
+#: queries per lockstep group: eight independent chains hide the latency of each step's
+#: reduction (the lanes are written out in :func:`_lanes`: their state lives in registers).
 LANES = 8
+
+#: the largest d of the lane blocks (a query's position is one vector of 8 dc <= 64 lanes)
+MAX_D = 64
+
+@njit(**JIT)
+def _start(DhTp, V, q, d, s, wh):
+    """s Dh V[q]: the event values at time 0 (negated backwards), in a vector."""
+    h = vec.splat(0.0, wh)
+    for i in range(d):
+        h = vec.fma(vec.splat(s * V[q, i], wh), vec.load(DhTp, i, 0, wh), h)
+    return h
+
+
+@njit(**JIT)
+def _step(R, h, x, t, b, out, s, wh, wx, far):
+    """One event of one lane: the smallest pending ``dt_k = h_k * (-1 / G[b, k])`` (ties
+    to the smaller k, the lowest bit of the equality mask), then ``h += dt G[b]`` and
+    ``x += s dt F[b]``. ``out``: the bits of the events that are not candidates (they get
+    dt = +inf, so no entry of h is ever overwritten). If no candidate equals the smallest
+    time (a time overflowed to inf or NaN: the row is refused as non-finite) the first
+    candidate is taken, so that k is always a pending event. Returns (h, x, t, b) after
+    the event and k; when ``far`` (records beyond the caches), fetches the next record now
+    (it is read after the other lanes' steps).
+    """
+    og = vec.value(wh)
+    dt = vec.where_bits(vec.mul(h, vec.load(R, b, 0, wh)), out, np.inf)
+    best = vec.smallest(dt)
+    hit = vec.equal_mask(dt, best) & ~out
+    k = vec.trailing_zeros(hit if hit != 0 else ~out)
+    h = vec.fma(vec.splat(best, wh), vec.load(R, b, og, wh), h)
+    x = vec.fma(vec.splat(s * best, wx), vec.load(R, b, 2 * og, wx), x)
+    b ^= 1 << k
+    if vec.value(far):
+        for c in range((2 * og + vec.value(wx)) // 8):
+            vec.prefetch(R, b, 8 * c)
+    return h, x, t + best, b, k
+
+
+@njit(**JIT)
+def _record(order, times, p, j, k, t, s, record):
+    if record:
+        order[p, j], times[p, j] = k, s * t
+
+
+@njit(inline="always", **JIT)
+def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
+    """Run the chains of the queries ``V[q0:q0 + 8]`` in lockstep (queries past ``last``
+    repeat it: their results are not used).
+
+    In *actual* coordinates: ``h`` holds the event values h = Dh x(t) at the time ``t``
+    reached so far. Forwards, a pending event k is due after ``dt_k = h_k * (-1 / G[B, k])``;
+    the smallest wins, time advances by it, h by ``dt G[B]`` and the position by
+    ``dt F[B]``. Backwards (``inverse``) time runs the other way from the full region down;
+    with ``h = -Dh x`` there the same formulas hold. The first step may go back in time
+    (events before t = 0). Writes ``X[p]`` the move from v to the position at the last
+    event and ``T[p]`` its time (signed); with ``record``, ``order[p, j]`` the j-th event
+    and ``times[p, j]`` its time. One line per lane, on purpose: each lane's vectors are
+    local variables, kept in registers.
+    """
+    R, DhTp, dims, wh, wx, far = tables[0], tables[1], tables[2], tables[3], tables[4], tables[5]
+    n, d = dims[0], dims[1]
+    s = -1.0 if inverse else 1.0
+    # not candidates: the events that happened (forwards) or did not (backwards), and the
+    # padding lanes: out = (b ^ flip) | pad
+    flip, pad = (-1, 0) if inverse else (0, -1 << n)
+    b = (1 << n) - 1 if inverse else 0
+    q1, q2, q3 = min(q0 + 1, last), min(q0 + 2, last), min(q0 + 3, last)
+    q4, q5, q6, q7 = min(q0 + 4, last), min(q0 + 5, last), min(q0 + 6, last), min(q0 + 7, last)
+    h0, h1 = _start(DhTp, V, q0, d, s, wh), _start(DhTp, V, q1, d, s, wh)
+    h2, h3 = _start(DhTp, V, q2, d, s, wh), _start(DhTp, V, q3, d, s, wh)
+    h4, h5 = _start(DhTp, V, q4, d, s, wh), _start(DhTp, V, q5, d, s, wh)
+    h6, h7 = _start(DhTp, V, q6, d, s, wh), _start(DhTp, V, q7, d, s, wh)
+    x0 = x1 = x2 = x3 = x4 = x5 = x6 = x7 = vec.splat(0.0, wx)
+    t0 = t1 = t2 = t3 = t4 = t5 = t6 = t7 = 0.0
+    b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = b
+    for j in range(n):
+        h0, x0, t0, b0, k = _step(R, h0, x0, t0, b0, (b0 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 0, j, k, t0, s, record)
+        h1, x1, t1, b1, k = _step(R, h1, x1, t1, b1, (b1 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 1, j, k, t1, s, record)
+        h2, x2, t2, b2, k = _step(R, h2, x2, t2, b2, (b2 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 2, j, k, t2, s, record)
+        h3, x3, t3, b3, k = _step(R, h3, x3, t3, b3, (b3 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 3, j, k, t3, s, record)
+        h4, x4, t4, b4, k = _step(R, h4, x4, t4, b4, (b4 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 4, j, k, t4, s, record)
+        h5, x5, t5, b5, k = _step(R, h5, x5, t5, b5, (b5 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 5, j, k, t5, s, record)
+        h6, x6, t6, b6, k = _step(R, h6, x6, t6, b6, (b6 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 6, j, k, t6, s, record)
+        h7, x7, t7, b7, k = _step(R, h7, x7, t7, b7, (b7 ^ flip) | pad, s, wh, wx,
+                                  far)
+        _record(order, times, 7, j, k, t7, s, record)
+    vec.store(X, 0, 0, x0), vec.store(X, 1, 0, x1), vec.store(X, 2, 0, x2)
+    vec.store(X, 3, 0, x3), vec.store(X, 4, 0, x4), vec.store(X, 5, 0, x5)
+    vec.store(X, 6, 0, x6), vec.store(X, 7, 0, x7)
+    T[0], T[1], T[2], T[3], T[4], T[5], T[6], T[7] = (s * t0, s * t1, s * t2, s * t3, s * t4,
+                                                      s * t5, s * t6, s * t7)
 
 
 @njit(**JIT)
 def _lane_scratch(tables):
-    """H (event values), DT (their times), X (positions), B (regions), T (times so far),
-    order and times of the steps, for LANES queries."""
+    """X (moves), T (times of the last events), order and times of the steps of one
+    lockstep group."""
     dims = tables[2]
-    n, nc, dc = dims[0], dims[2], dims[3]
-    return (np.empty((LANES, 8 * nc)), np.empty((LANES, 8 * nc)), np.empty((LANES, 8 * dc)),
-            np.empty(LANES, dtype=np.int64), np.empty(LANES), np.empty((LANES, n), dtype=np.int64),
+    n, dc = dims[0], dims[3]
+    return (np.empty((LANES, 8 * dc)), np.empty(LANES), np.empty((LANES, n), dtype=np.int64),
             np.empty((LANES, n)))
 
 
 @njit(**JIT)
-def _lanes(tables, V, q0, pn, inverse, position, scratch):
-    """Run the chains of the queries ``V[q0:q0 + pn]`` (pn <= LANES) in lockstep.
-
-    In *actual* coordinates: ``H`` holds the event values h = Dh x(t) at the time ``T``
-    reached so far (not the virtual position of the plain blocks). Forwards, a pending
-    event k is due after ``dt_k = h_k * (-1 / G[B, k])``; the smallest wins (ties to the
-    smaller k: the lowest set bit of the equality mask), time advances by it, h by
-    ``dt G[B]`` and the position by ``dt F[B]``. Backwards (``inverse``) time runs the
-    other way from the full region down; with ``H = -h`` there the same two formulas
-    hold. Events that are no longer candidates (and the padding) get dt = +inf from the
-    region's bits, so no entry of H is ever overwritten. The first step may go back in
-    time (events before t = 0). Writes ``order[p, j]`` (the j-th event), ``times[p, j]``
-    (its time) and, when ``position``, ``X[p]`` the move from u to the position at the
-    last event.
-    """
-    R, DhTp, dims = tables[0], tables[1], tables[2]
-    H, DT, X, B, T, order, times = scratch
-    n, d, nc, dc, far = dims[0], dims[1], dims[2], dims[3], dims[4]
-    og, of = 8 * nc, 16 * nc
-    s = -1.0 if inverse else 1.0
-    pad = -1 << n  # the bits of the padding lanes
-    for p in range(pn):
-        q = q0 + p
-        for c in range(nc):
-            h = vec.splat(0.0)
-            for i in range(d):
-                h = vec.fma(vec.splat(s * V[q, i]), vec.load(DhTp, i, 8 * c), h)
-            vec.store(H, p, 8 * c, h)
-        if position:  # X collects sum_j dt_j F[B_j]: vector stores only (a vector load of
-            for c in range(dc):  # scalar stores would stall on store forwarding)
-                vec.store(X, p, 8 * c, vec.splat(0.0))
-        B[p] = (1 << n) - 1 if inverse else 0
-        T[p] = 0.0
-    for step in range(n):
-        for p in range(pn):
-            b = B[p]
-            out = ~b if inverse else b | pad  # not candidates: dt = +inf
-            # a candidate equal to the smallest time; if none (a time overflowed to inf or
-            # NaN: the row is then refused as non-finite) the first candidate, so that k
-            # is always a pending event
-            k = vec.trailing_zeros(~out)
-            if nc == 1:
-                dt = vec.where_bits(vec.mul(vec.load(H, p, 0), vec.load(R, b, 0)), out, np.inf)
-                best = vec.smallest(dt)
-                hit = vec.equal_mask(dt, best) & ~out
-                if hit != 0:
-                    k = vec.trailing_zeros(hit)
-            else:
-                best = np.inf
-                for c in range(nc):
-                    dt = vec.where_bits(vec.mul(vec.load(H, p, 8 * c), vec.load(R, b, 8 * c)),
-                                        out >> (8 * c), np.inf)
-                    vec.store(DT, p, 8 * c, dt)
-                    best = min(best, vec.smallest(dt))
-                for c in range(nc):
-                    hit = vec.equal_mask(vec.load(DT, p, 8 * c), best) & (~out >> (8 * c))
-                    if hit != 0:
-                        k = 8 * c + vec.trailing_zeros(hit)
-                        break
-            step_h = vec.splat(best)
-            for c in range(nc):
-                vec.store(H, p, 8 * c, vec.fma(step_h, vec.load(R, b, og + 8 * c),
-                                               vec.load(H, p, 8 * c)))
-            if position:
-                move = vec.splat(s * best)
-                for c in range(dc):
-                    vec.store(X, p, 8 * c, vec.fma(move, vec.load(R, b, of + 8 * c),
-                                                   vec.load(X, p, 8 * c)))
-            T[p] += best
-            order[p, step] = k
-            times[p, step] = s * T[p]
-            b ^= 1 << k
-            B[p] = b
-            if far:  # the next record is needed after the other lanes' steps: fetch it now
-                for c in range(2 * nc + (dc if position else 0)):
-                    vec.prefetch(R, b, 8 * c)
-
-
-@njit(**JIT)
 def _lane_apply_block(tables, V, outs, start, stop, inverse):
-    """out = M(V) (M^-1 when ``inverse``): the position at the last event, moved back to
-    time 0 along the final region's field, ``x - T F[end]``."""
-    R, dims = tables[0], tables[2]
+    """out = M(V) (M^-1 when ``inverse``): ``v + x - T F[end]``, the position at the last
+    event moved back to time 0 along the final region's field."""
+    R, dims, wx = tables[0], tables[2], tables[4]
     out = outs[0]
     n, d, of = dims[0], dims[1], 16 * dims[2]
-    scratch = _lane_scratch(tables)
-    X, T = scratch[2], scratch[4]
+    X, T, order, times = _lane_scratch(tables)
     end = 0 if inverse else (1 << n) - 1
-    s = -1.0 if inverse else 1.0
     for q0 in range(start, stop, LANES):
-        pn = min(LANES, stop - q0)
-        _lanes(tables, V, q0, pn, inverse, True, scratch)
-        for p in range(pn):
-            t = s * T[p]
-            for i in range(d):
-                out[q0 + p, i] = V[q0 + p, i] + X[p, i] - t * R[end, of + i]
+        _lanes(tables, V, q0, stop - 1, inverse, False, X, T, order, times)
+        for p in range(min(LANES, stop - q0)):
+            v = vec.add(vec.load_first(V, q0 + p, 0, d, wx), vec.load(X, p, 0, wx))
+            vec.store_first(out, q0 + p, 0, d,
+                            vec.fma(vec.splat(-T[p], wx), vec.load(R, end, of, wx), v))
 
 
 @njit(**JIT)
 def _lane_times_block(tables, V, outs, start, stop, inverse):
     times_out, order_out = outs
-    scratch = _lane_scratch(tables)
-    order, times = scratch[5], scratch[6]
+    X, T, order, times = _lane_scratch(tables)
     for q0 in range(start, stop, LANES):
-        pn = min(LANES, stop - q0)
-        _lanes(tables, V, q0, pn, False, False, scratch)
-        write_times(order, times, q0, pn, order_out, times_out)
+        _lanes(tables, V, q0, stop - 1, False, True, X, T, order, times)
+        write_times(order, times, q0, min(LANES, stop - q0), order_out, times_out)
 
 
 @njit(**JIT)
 def _lane_tangent_block(tables, V, outs, start, stop, transpose):
     """out[q] = M_sigma T[q] (or its transpose), sigma the order v = V[q] selects:
-    the saltation factors of MATH.md section 4 along the chain, in 8-wide vectors,
+    the saltation factors of MATH.md section 4 along the chain,
     ``S y = y + (F[after] - F[before]) (Dh[k] . y) / G[before, k]`` and
-    ``S^T y = y + Dh[k] ((F[after] - F[before]) . y) / G[before, k]`` (backwards).
-    ``tables = (R, DhTp, dims, Dhp)`` with ``Dhp`` (n, 8 dc) the rows of Dh padded;
-    ``outs = (out, T)`` (T is read)."""
-    R, dims, Dhp = tables[0], tables[2], tables[3]
+    ``S^T y = y + Dh[k] ((F[after] - F[before]) . y) / G[before, k]`` (backwards), with
+    y in a vector. ``tables = (R, DhTp, dims, wh, wx, far, Dhp)`` with ``Dhp`` (n, 8 dc)
+    the rows of Dh padded; ``outs = (out, T)`` (T is read)."""
+    R, dims, wx, Dhp = tables[0], tables[2], tables[4], tables[6]
     out, T = outs
-    n, d, og, of, dc = dims[0], dims[1], 8 * dims[2], 16 * dims[2], dims[3]
-    scratch = _lane_scratch(tables)
-    order = scratch[5]
-    Y = np.zeros((LANES, 8 * dc))  # the padding lanes stay 0 (so do F's and Dhp's)
+    n, d, og, of = dims[0], dims[1], 8 * dims[2], 16 * dims[2]
+    X, times, order, steps = _lane_scratch(tables)
     for q0 in range(start, stop, LANES):
-        pn = min(LANES, stop - q0)
-        _lanes(tables, V, q0, pn, False, False, scratch)
-        for p in range(pn):
-            vec.store(Y, p, 8 * (dc - 1), vec.splat(0.0))  # padding: 0 whatever came before
-            for i in range(d):
-                Y[p, i] = T[q0 + p, i]
+        _lanes(tables, V, q0, stop - 1, False, True, X, times, order, steps)
+        for p in range(min(LANES, stop - q0)):
+            y = vec.load_first(T, q0 + p, 0, d, wx)  # the padding lanes stay 0
             region = (1 << n) - 1 if transpose else 0  # walk the chain either way
             for st in range(n):
                 k = order[p, n - 1 - st] if transpose else order[p, st]
                 other = region ^ (1 << k)
                 before, after = (other, region) if transpose else (region, other)
-                dot = 0.0
-                for c in range(dc):
-                    along = (vec.sub(vec.load(R, after, of + 8 * c),
-                                     vec.load(R, before, of + 8 * c)) if transpose
-                             else vec.load(Dhp, k, 8 * c))
-                    dot += vec.total(vec.mul(along, vec.load(Y, p, 8 * c)))
-                m = vec.splat(dot / R[before, og + k])
-                for c in range(dc):
-                    along = (vec.load(Dhp, k, 8 * c) if transpose
-                             else vec.sub(vec.load(R, after, of + 8 * c),
-                                          vec.load(R, before, of + 8 * c)))
-                    vec.store(Y, p, 8 * c, vec.fma(m, along, vec.load(Y, p, 8 * c)))
+                jump = vec.sub(vec.load(R, after, of, wx), vec.load(R, before, of, wx))
+                dh = vec.load(Dhp, k, 0, wx)
+                along, onto = (jump, dh) if transpose else (dh, jump)
+                m = vec.total(vec.mul(along, y)) / R[before, og + k]
+                y = vec.fma(vec.splat(m, wx), onto, y)
                 region = other
-            for i in range(d):
-                out[q0 + p, i] = Y[p, i]
+            vec.store_first(out, q0 + p, 0, d, y)
 
 
-#: M(V) or M^-1(V): tables (R, DhTp, dims), outs (out,).
+#: M(V) or M^-1(V): tables (R, DhTp, dims, wh, wx, far), outs (out,).
 apply = batch(_lane_apply_block)
 #: event times and orders: outs (times, orders).
 event_times = batch(_lane_times_block)
-#: M_sigma(V) T or its transpose: tables (R, DhTp, dims, Dhp), outs (out, T).
+#: M_sigma(V) T or its transpose: tables (R, DhTp, dims, wh, wx, far, Dhp), outs
+#: (out, T).
 tangents = batch(_lane_tangent_block)

@@ -1,0 +1,79 @@
+"""The lane kernels of dense tables (``_kernels/lanes.py``): every vector width they are
+compiled for against the oracle, the prefetching variant bitwise equal to the other, a
+query's answer independent of the lockstep group it shares, and tables wider than the
+lanes (d > ``lanes.MAX_D``) on the plain blocks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from chain_tolerance import assert_matches_oracle
+from reference import random_system
+
+from bderiv import BDerivative
+from bderiv._kernels import _core, _simd, lanes
+
+pytestmark = pytest.mark.skipif(_core.PLAIN, reason="BDERIV_KERNELS=plain: no lane kernels")
+
+
+@pytest.mark.parametrize("n, d", [(1, 1), (3, 9), (8, 8), (8, 1), (9, 16), (12, 7),
+                                  (17, 3), (5, 64)])
+def test_every_width_matches_the_oracle(n, d):
+    """h in 8, 16 and 24 lanes, x in 8 to 64 lanes, d below, at and above a multiple of 8
+    (the masked loads and stores of a row)."""
+    rng = np.random.default_rng(100 * n + d)
+    Dh, F = random_system(rng, n, d)
+    bd = BDerivative(Dh, F, fast_paths=False)
+    assert bd._engine._lanes[3].value == 8 * (-(-n // 8))
+    V = rng.standard_normal((37 if n < 12 else 11, d))  # a tail group of 5 (or 3)
+    assert_matches_oracle(bd, Dh, F, V)
+
+
+def test_the_prefetching_variant_gives_the_same_bits(monkeypatch):
+    """``far`` (records beyond the caches) only adds prefetches: forced on a small table
+    it must not change a bit of any answer."""
+    rng = np.random.default_rng(7)
+    Dh, F = random_system(rng, 6, 10)
+    near = BDerivative(Dh, F, fast_paths=False)
+    monkeypatch.setattr("bderiv._engines.dense.FAR_BYTES", 0)
+    far = BDerivative(Dh, F, fast_paths=False)
+    assert (near._engine._lanes[5].value, far._engine._lanes[5].value) == (0, 1)
+    V = rng.standard_normal((3001, 10))
+    np.testing.assert_array_equal(far(V), near(V))
+    np.testing.assert_array_equal(far.inverse(V), near.inverse(V))
+    for a, b in zip(far.event_times(V), near.event_times(V), strict=True):
+        np.testing.assert_array_equal(a, b)
+    T = rng.standard_normal((3001, 10))
+    np.testing.assert_array_equal(far.jvp(V, T), near.jvp(V, T))
+    np.testing.assert_array_equal(far.vjp(V, T), near.vjp(V, T))
+
+
+def test_a_query_does_not_depend_on_its_lockstep_group():
+    """Eight queries run in lockstep (and a short group repeats its last query): each row
+    alone gives the bits it gets in any group, whatever its neighbours' orders."""
+    rng = np.random.default_rng(3)
+    Dh, F = random_system(rng, 7, 7)
+    bd = BDerivative(Dh, F, fast_paths=False)
+    V = rng.standard_normal((29, 7))
+    orders = bd.event_times(V)[1]
+    assert len({tuple(o) for o in orders}) > 20  # neighbours really differ
+    together, back = bd(V), bd.inverse(V)
+    for q in range(len(V)):
+        np.testing.assert_array_equal(bd(V[q:q + 1])[0], together[q])
+        np.testing.assert_array_equal(bd(V[q:q + 3])[0], together[q])
+        np.testing.assert_array_equal(bd.inverse(V[q:q + 1])[0], back[q])
+
+
+def test_tables_wider_than_the_lanes_run_the_plain_blocks():
+    rng = np.random.default_rng(11)
+    Dh, F = random_system(rng, 3, lanes.MAX_D + 1)
+    bd = BDerivative(Dh, F, fast_paths=False)
+    assert bd._engine._lanes is None
+    assert_matches_oracle(bd, Dh, F, rng.standard_normal((20, lanes.MAX_D + 1)))
+
+
+def test_static_values_are_checked():
+    with pytest.raises(ValueError, match="non-negative int, got -1"):
+        _simd.Static(-1)
+    with pytest.raises(ValueError, match="non-negative int, got 2.5"):
+        _simd.Static(2.5)
