@@ -172,28 +172,34 @@ def _lane_tangent_block(tables, V, outs, start, stop, transpose):
     the saltation factors of MATH.md section 4 along the chain,
     ``S y = y + (F[after] - F[before]) (Dh[k] . y) / G[before, k]`` and
     ``S^T y = y + Dh[k] ((F[after] - F[before]) . y) / G[before, k]`` (backwards), with
-    y in a vector. ``tables = (R, DhTp, dims, wh, wx, far, Dhp)`` with ``Dhp`` (n, 8 dc)
-    the rows of Dh padded; ``outs = (out, T)`` (T is read)."""
+    y in a vector, the eight lanes' factors in turn (their chains overlap).
+    ``tables = (R, DhTp, dims, wh, wx, far, Dhp)`` with ``Dhp`` (n, 8 dc) the rows of Dh
+    padded; ``outs = (out, T)`` (T is read)."""
     R, dims, wx, Dhp = tables[0], tables[2], tables[4], tables[6]
     out, T = outs
     n, d, og, of = dims[0], dims[1], 8 * dims[2], 16 * dims[2]
     X, times, order, steps = _lane_scratch(tables)
+    Y = np.empty_like(X)
+    region = np.empty(LANES, dtype=np.int64)
     for q0 in range(start, stop, LANES):
         _lanes(tables, V, q0, stop - 1, False, True, X, times, order, steps)
-        for p in range(min(LANES, stop - q0)):
-            y = vec.load_first(T, q0 + p, 0, d, wx)  # the padding lanes stay 0
-            region = (1 << n) - 1 if transpose else 0  # walk the chain either way
-            for st in range(n):
+        for p in range(LANES):  # the padding lanes of y stay 0
+            vec.store(Y, p, 0, vec.load_first(T, min(q0 + p, stop - 1), 0, d, wx))
+            region[p] = (1 << n) - 1 if transpose else 0  # walk the chain either way
+        for st in range(n):
+            for p in range(LANES):
                 k = order[p, n - 1 - st] if transpose else order[p, st]
-                other = region ^ (1 << k)
-                before, after = (other, region) if transpose else (region, other)
+                other = region[p] ^ (1 << k)
+                before, after = (other, region[p]) if transpose else (region[p], other)
                 jump = vec.sub(vec.load(R, after, of, wx), vec.load(R, before, of, wx))
                 dh = vec.load(Dhp, k, 0, wx)
                 along, onto = (jump, dh) if transpose else (dh, jump)
+                y = vec.load(Y, p, 0, wx)
                 m = vec.total(vec.mul(along, y)) / R[before, og + k]
-                y = vec.fma(vec.splat(m, wx), onto, y)
-                region = other
-            vec.store_first(out, q0 + p, 0, d, y)
+                vec.store(Y, p, 0, vec.fma(vec.splat(m, wx), onto, y))
+                region[p] = other
+        for p in range(min(LANES, stop - q0)):
+            vec.store_first(out, q0 + p, 0, d, vec.load(Y, p, 0, wx))
 
 
 #: M(V) or M^-1(V): tables (R, DhTp, dims, wh, wx, far), outs (out,).
