@@ -37,10 +37,10 @@ def _start(DhTp, V, q, d, s, wh):
 
 
 @njit(**JIT)
-def _step(R, h, x, t, b, out, s, wh, wx, far):
+def _step(R, h, x, t, b, out, wh, wx, far):
     """One event of one lane: the smallest pending ``dt_k = h_k * (-1 / G[b, k])`` (ties
     to the smaller k, the lowest bit of the equality mask), then ``h += dt G[b]`` and
-    ``x += s dt F[b]``. ``out``: the bits of the events that are not candidates (they get
+    ``x += dt F[b]``. ``out``: the bits of the events that are not candidates (they get
     dt = +inf, so no entry of h is ever overwritten). If no candidate equals the smallest
     time (a time overflowed to inf or NaN: the row is refused as non-finite) the first
     candidate is taken, so that k is always a pending event. Returns (h, x, t, b) after
@@ -53,7 +53,7 @@ def _step(R, h, x, t, b, out, s, wh, wx, far):
     hit = vec.equal_mask(dt, best) & ~out
     k = vec.trailing_zeros(hit if hit != 0 else ~out)
     h = vec.fma(vec.splat(best, wh), vec.load(R, b, og, wh), h)
-    x = vec.fma(vec.splat(s * best, wx), vec.load(R, b, 2 * og, wx), x)
+    x = vec.fma(vec.splat(best, wx), vec.load(R, b, 2 * og, wx), x)
     b ^= 1 << k
     if vec.value(far):
         for c in range((2 * og + vec.value(wx)) // 8):
@@ -77,8 +77,9 @@ def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
     the smallest wins, time advances by it, h by ``dt G[B]`` and the position by
     ``dt F[B]``. Backwards (``inverse``) time runs the other way from the full region down;
     with ``h = -Dh x`` there the same formulas hold. The first step may go back in time
-    (events before t = 0). Writes ``X[p]`` the move from v to the position at the last
-    event and ``T[p]`` its time (signed); with ``record``, ``order[p, j]`` the j-th event
+    (events before t = 0). Writes ``X[p]`` the sum of ``dt F[B]`` over the steps (s X is
+    the move from v to the position at the last event, s = -1 backwards) and ``T[p]`` the
+    time of that event (signed); with ``record``, ``order[p, j]`` the j-th event
     and ``times[p, j]`` its time. One line per lane, on purpose: each lane's vectors are
     local variables, kept in registers.
     """
@@ -99,28 +100,28 @@ def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
     t0 = t1 = t2 = t3 = t4 = t5 = t6 = t7 = 0.0
     b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = b
     for j in range(n):
-        h0, x0, t0, b0, k = _step(R, h0, x0, t0, b0, (b0 ^ flip) | pad, s, wh, wx,
+        h0, x0, t0, b0, k = _step(R, h0, x0, t0, b0, (b0 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 0, j, k, t0, s, record)
-        h1, x1, t1, b1, k = _step(R, h1, x1, t1, b1, (b1 ^ flip) | pad, s, wh, wx,
+        h1, x1, t1, b1, k = _step(R, h1, x1, t1, b1, (b1 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 1, j, k, t1, s, record)
-        h2, x2, t2, b2, k = _step(R, h2, x2, t2, b2, (b2 ^ flip) | pad, s, wh, wx,
+        h2, x2, t2, b2, k = _step(R, h2, x2, t2, b2, (b2 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 2, j, k, t2, s, record)
-        h3, x3, t3, b3, k = _step(R, h3, x3, t3, b3, (b3 ^ flip) | pad, s, wh, wx,
+        h3, x3, t3, b3, k = _step(R, h3, x3, t3, b3, (b3 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 3, j, k, t3, s, record)
-        h4, x4, t4, b4, k = _step(R, h4, x4, t4, b4, (b4 ^ flip) | pad, s, wh, wx,
+        h4, x4, t4, b4, k = _step(R, h4, x4, t4, b4, (b4 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 4, j, k, t4, s, record)
-        h5, x5, t5, b5, k = _step(R, h5, x5, t5, b5, (b5 ^ flip) | pad, s, wh, wx,
+        h5, x5, t5, b5, k = _step(R, h5, x5, t5, b5, (b5 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 5, j, k, t5, s, record)
-        h6, x6, t6, b6, k = _step(R, h6, x6, t6, b6, (b6 ^ flip) | pad, s, wh, wx,
+        h6, x6, t6, b6, k = _step(R, h6, x6, t6, b6, (b6 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 6, j, k, t6, s, record)
-        h7, x7, t7, b7, k = _step(R, h7, x7, t7, b7, (b7 ^ flip) | pad, s, wh, wx,
+        h7, x7, t7, b7, k = _step(R, h7, x7, t7, b7, (b7 ^ flip) | pad, wh, wx,
                                   far)
         _record(order, times, 7, j, k, t7, s, record)
     vec.store(X, 0, 0, x0), vec.store(X, 1, 0, x1), vec.store(X, 2, 0, x2)
@@ -142,17 +143,19 @@ def _lane_scratch(tables):
 
 @njit(**JIT)
 def _lane_apply_block(tables, V, outs, start, stop, inverse):
-    """out = M(V) (M^-1 when ``inverse``): ``v + x - T F[end]``, the position at the last
+    """out = M(V) (M^-1 when ``inverse``): ``v + s X - T F[end]``, the position at the last
     event moved back to time 0 along the final region's field."""
     R, dims, wx = tables[0], tables[2], tables[4]
     out = outs[0]
     n, d, of = dims[0], dims[1], 16 * dims[2]
     X, T, order, times = _lane_scratch(tables)
     end = 0 if inverse else (1 << n) - 1
+    s = -1.0 if inverse else 1.0
     for q0 in range(start, stop, LANES):
         _lanes(tables, V, q0, stop - 1, inverse, False, X, T, order, times)
         for p in range(min(LANES, stop - q0)):
-            v = vec.add(vec.load_first(V, q0 + p, 0, d, wx), vec.load(X, p, 0, wx))
+            v = vec.fma(vec.splat(s, wx), vec.load(X, p, 0, wx),
+                        vec.load_first(V, q0 + p, 0, d, wx))
             vec.store_first(out, q0 + p, 0, d,
                             vec.fma(vec.splat(-T[p], wx), vec.load(R, end, of, wx), v))
 
