@@ -240,3 +240,22 @@ def test_several_vector_blocks(n, d):
         scale = np.abs(P).max() * np.abs(T[q]).max()
         np.testing.assert_allclose(J[q], P @ T[q], rtol=0, atol=1e-11 * scale)
         np.testing.assert_allclose(Jt[q], P.T @ T[q], rtol=0, atol=1e-11 * scale)
+
+
+def test_an_overflowing_tangent_names_the_tangent_row():
+    """The directions are scaled before the selection, so only the tangent (or co-vector)
+    can overflow the result: the error names its row, through a flow map's groups too."""
+    Dh = np.eye(2)
+    F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]])
+    bd = BDerivative(Dh, F)
+    V = np.ones((4, 2))
+    T = np.ones((4, 2))
+    T[2] = 1e308
+    with pytest.raises(ValueError, match=r"the result for T\[2\] overflowed"):
+        bd.jvp(V, T)
+    with pytest.raises(ValueError, match=r"the result for W\[2\] overflowed"):
+        bd.vjp(V, T)
+    D = FlowBDerivative([np.eye(2), 2.0 * np.eye(2)], [bd])
+    T[[2, 3]] = T[[3, 2]]  # row 3: in the second chunk of two rows
+    with pytest.raises(ValueError, match=r"event group 0 .*the result for T\[3\] overflowed"):
+        D.jvp(V, T, chunk_size=2)

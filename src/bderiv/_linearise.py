@@ -14,7 +14,7 @@ selection's, which takes the smaller event index when two computed times are equ
 a tie (and at a tie reached after events whose times are rounded) rounding decides which
 neighbour that is; both agree on ``v`` itself, M being continuous.
 
-A class using it provides ``dim`` and ``_tangent_rows(V, T, res, transpose, offset)``,
+A class using it provides ``dim`` and ``_tangent_rows(V, T, res, transpose, offset, name)``,
 which writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows v of ``V`` and t of
 ``T`` (C-contiguous float64, (m, d) each) into ``res`` (m, d).
 """
@@ -124,7 +124,7 @@ class Linearisation:
             cols = np.empty(((e - s) * d, d))
             try:
                 self._tangent_rows(np.repeat(flat[s:e], d, axis=0), np.tile(eye, (e - s, 1)),
-                                   cols, False, 0)
+                                   cols, False, 0, "V")
             except ValueError as exc:  # rows repeated d times: name the caller's row
                 def row(match, s=s):
                     q = s + int(match.group(1)) // d
@@ -155,7 +155,7 @@ class Linearisation:
 
         def kernel(rows, res, offset):
             self._tangent_rows(unit_scale(rows), flat_t[offset : offset + rows.shape[0]], res,
-                               transpose, offset)
+                               transpose, offset, t_name)
 
         return evaluate(kernel, V, d, name="V", out=out, chunk_size=chunk_size,
                         progress=progress, desc=type(self).__name__)

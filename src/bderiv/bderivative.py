@@ -299,10 +299,11 @@ class BDerivative(Linearisation, CornerGeometry):
         """The event order (piece) of each vector: ``event_times(V)[1]``, shape (..., n)."""
         return self.event_times(V)[1]
 
-    def _tangent_rows(self, V, T, res, transpose: bool, offset: int) -> None:
-        """The kernel of ``jvp``/``vjp`` (:class:`~bderiv._linearise.Linearisation`)."""
+    def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:
+        """The kernel of ``jvp``/``vjp`` (:class:`~bderiv._linearise.Linearisation`);
+        ``name``: T's in the caller's errors."""
         if self._engine.tangents(V, T, res, transpose, offset):
-            check_finite_result(res, "V", offset)
+            check_finite_result(res, name, offset)
 
     # -- pieces -----------------------------------------------------------------------------
 

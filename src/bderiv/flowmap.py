@@ -166,7 +166,7 @@ class FlowBDerivative(Linearisation):
                 try:
                     W = self._jumps[i](W)
                 except ValueError as exc:
-                    raise ValueError(_in_group(str(exc), i, name, offset)) from None
+                    raise ValueError(_in_group(str(exc), i, offset, name)) from None
         return out
 
     def apply(self, V, out=None, *, dt=None, chunk_size=None, progress=None):
@@ -266,7 +266,7 @@ class FlowBDerivative(Linearisation):
             try:
                 V = self._jumps[i].inverse(V)
             except ValueError as exc:
-                raise ValueError(_in_group(str(exc), i, "W", offset)) from None
+                raise ValueError(_in_group(str(exc), i, offset, "W")) from None
             V = _stage(inverses[i], V)
         res[...] = V
         if not all_finite(res):
@@ -337,7 +337,7 @@ class FlowBDerivative(Linearisation):
         (L0, L1), (M,) = self._linear, self._jumps
         return M.triangulation(max_pieces).composed(L0, L1)
 
-    def _tangent_rows(self, V, T, res, transpose: bool, offset: int) -> None:
+    def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:
         """The kernel of ``jvp``/``vjp``: group i's piece is the one that the vector
         entering it (row v of ``V`` through the earlier stages) selects. Forwards
         ``L_m J_m ... J_1 L_0 t``; the transpose ``L_0^T J_1^T ... J_m^T L_m^T w``."""
@@ -348,13 +348,13 @@ class FlowBDerivative(Linearisation):
         for i in reversed(range(m)) if transpose else range(m):
             Z = np.empty_like(Y)
             try:
-                self._jumps[i]._tangent_rows(inputs[i], Y, Z, transpose, 0)
+                self._jumps[i]._tangent_rows(inputs[i], Y, Z, transpose, 0, name)
             except ValueError as exc:
-                raise ValueError(_in_group(str(exc), i, "V", offset)) from None
+                raise ValueError(_in_group(str(exc), i, offset)) from None
             Y = _stage(self._linear[i], Z, True) if transpose else _stage(self._linear[i + 1], Z)
         res[...] = Y
         if not all_finite(res):
-            check_finite_result(res, "V", offset)
+            check_finite_result(res, name, offset)
 
     def orders(self, V):
         """Local event order of each group for tangent vectors V: list of (..., n_g) int64.
@@ -415,10 +415,11 @@ def _stage(L, X, transpose: bool = False) -> np.ndarray:
     return out
 
 
-def _in_group(message: str, group: int, name: str, offset: int) -> str:
-    """An error of event group ``group``'s map, with its rows renamed to the caller's."""
-    message = re.sub(r"\b[VW]\[(\d+)\]", lambda m: f"{name}[{int(m.group(1)) + offset}]",
-                     message)
+def _in_group(message: str, group: int, offset: int, name: str | None = None) -> str:
+    """An error of event group ``group``'s map, with its rows renumbered to the caller's
+    (and V or W renamed ``name``)."""
+    message = re.sub(r"\b([VWT])\[(\d+)\]",
+                     lambda m: f"{name or m.group(1)}[{int(m.group(2)) + offset}]", message)
     return f"in event group {group} of the flow map, for the vectors entering it: {message}"
 
 
