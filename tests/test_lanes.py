@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from chain_tolerance import assert_matches_oracle
-from reference import random_system
+from chain_tolerance import assert_matches_oracle, chain_scale, excess, oracle, table_corners
+from reference import RTOL, random_system
 
 from bderiv import BDerivative
 from bderiv._kernels import _core, _simd, lanes
@@ -27,6 +27,24 @@ def test_every_width_matches_the_oracle(n, d):
     assert bd._engine._lanes[3].value == 8 * (-(-n // 8))
     V = rng.standard_normal((37 if n < 12 else 11, d))  # a tail group of 5 (or 3)
     assert_matches_oracle(bd, Dh, F, V)
+
+
+@pytest.mark.parametrize("n, d", [(2, 2), (5, 7), (8, 8), (11, 13)])
+def test_rounding_stays_within_n_eps_of_the_chain(n, d):
+    """The bound of docs/mathematics.md ("How the kernels round"): against the oracle (the
+    virtual-position loop in NumPy), apply, inverse and the event times agree within
+    n eps of the size of what their chains sum (``chain_tolerance.chain_scale``); the
+    tolerance of the other tests is RTOL = 1e-9 of it, this one is 4 n eps."""
+    rng = np.random.default_rng(n * d)
+    Dh, F = random_system(rng, n, d)
+    bd = BDerivative(Dh, F, fast_paths=False)
+    V = rng.standard_normal((400, d))
+    x, t, o = oracle(Dh, F, V)
+    S, S_back, dt, _ = chain_scale(Dh, table_corners(F), V, t, o)
+    bound = 4 * n * np.finfo(float).eps / RTOL  # in units of RTOL * scale
+    assert excess(bd(V), x, S).max() <= bound
+    assert excess(bd.inverse(x), V, S_back).max() <= bound
+    assert excess(bd.event_times(V)[0], t, np.abs(t) + dt).max() <= bound
 
 
 def test_the_prefetching_variant_gives_the_same_bits(monkeypatch):
