@@ -259,3 +259,17 @@ def test_an_overflowing_tangent_names_the_tangent_row():
     T[[2, 3]] = T[[3, 2]]  # row 3: in the second chunk of two rows
     with pytest.raises(ValueError, match=r"event group 0 .*the result for T\[3\] overflowed"):
         D.jvp(V, T, chunk_size=2)
+
+
+def test_unit_scale_is_ldexp_of_the_row_exponent():
+    """The directions' scaling (one compiled pass) is exactly NumPy's frexp/ldexp, down into
+    the subnormals and up from them."""
+    from bderiv._linearise import unit_scale
+
+    rng = np.random.default_rng(9)
+    R = (rng.standard_normal((20000, 5)) * 10.0 ** rng.integers(-290, 300, (20000, 1))
+         * 10.0 ** rng.integers(-30, 1, (20000, 5)))
+    R[:3] = [[0.0] * 5, [5e-324, 0, 0, 0, -5e-324], [1.7e308, 1e-300, 4e-320, 0, 1]]
+    expected = np.ldexp(R, -np.frexp(np.abs(R).max(axis=1))[1][:, None])
+    np.testing.assert_array_equal(unit_scale(R), expected)
+    assert np.all((np.abs(expected).max(axis=1) >= 0.5)[3:])

@@ -21,9 +21,11 @@ which writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows v of ``V`` an
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
+from numba import njit, prange
 
 from ._batch import evaluate, is_dask_array
 from ._validate import check_memory, check_points
@@ -34,15 +36,32 @@ PIECE_CHUNK_BYTES = 64 << 20
 
 
 def unit_scale(rows: np.ndarray) -> np.ndarray:
-    """The rows scaled by exact powers of two to largest entries in [0.5, 1).
+    """The rows (m, d) scaled by exact powers of two to largest entries in [0.5, 1).
 
     The piece a direction selects depends on the direction only (M is positively
     homogeneous), but its event times scale with it: a row near the ends of the float64
     range would overflow (or underflow) them and select a wrong order. Scaling by powers
     of two is exact, so rows that are fine select what they selected before.
     """
-    exponent = np.frexp(np.abs(rows).max(axis=1, initial=0.0))[1]
-    return np.ldexp(rows, -exponent[:, None])
+    out = np.empty_like(rows)
+    _scale_rows(rows, out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _scale_rows(rows, out):
+    # one pass on all threads (NumPy's frexp / max / ldexp took the kernels' time). Two
+    # factors 2**a, 2**b (each representable): the first product is exact, the second
+    # rounds only into the subnormals, as ldexp does
+    for q in prange(rows.shape[0]):
+        big = 0.0
+        for i in range(rows.shape[1]):
+            big = max(big, abs(rows[q, i]))
+        shift = -math.frexp(big)[1]
+        a = math.ldexp(1.0, shift // 2)
+        b = math.ldexp(1.0, shift - shift // 2)
+        for i in range(rows.shape[1]):
+            out[q, i] = rows[q, i] * a * b
 
 
 class Linearisation:
