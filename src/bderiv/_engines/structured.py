@@ -34,18 +34,9 @@ class StructuredEngine(Engine):
         bDh = np.ascontiguousarray(B @ Dh.T)  # (p, n)
         gfull = g0 + a.sum(axis=0) + bDh.sum(axis=0)
         self.transversal_proved = self._check_transversal(g0, gfull, a, bDh, pairs.shape[0])
-        # pairs touching each event, as CSR: pidx[ptr[i]:ptr[i+1]] with partner other[...]
-        p = pairs.shape[0]
-        ev = np.concatenate([pairs[:, 0], pairs[:, 1]])
-        partner = np.concatenate([pairs[:, 1], pairs[:, 0]])
-        pid = np.concatenate([np.arange(p), np.arange(p)])
-        srt = np.argsort(ev, kind="stable")
-        ptr = np.zeros(self.n + 1, dtype=np.int64)
-        np.cumsum(np.bincount(ev, minlength=self.n), out=ptr[1:])
-        self._tables = (DhT, g0, gfull, a, bDh, ptr,
-                        np.ascontiguousarray(partner[srt], dtype=np.int64),
-                        np.ascontiguousarray(pid[srt], dtype=np.int64), A, B,
-                        not self.transversal_proved)
+        self._own = (DhT, pairs, A, B)  # the own-rates fast path's tables
+        self._tables = _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B,
+                                      not self.transversal_proved)
         self.fast = fastpath.structured(Dh, g0, a, bDh, A, B) if fast_paths else None
 
     def _check_transversal(self, g0, gfull, a, bDh, n_pairs) -> bool:
@@ -77,16 +68,44 @@ class StructuredEngine(Engine):
         return self._run_checked(kernels.apply, V, (out,), inverse, name, offset)
 
     def _apply_own_rates(self, V, out, inverse) -> int:
-        t = self._tables
+        DhT, pairs, A, B = self._own
         rate = self.fast.ratef if inverse else self.fast.rate0
-        return kernels.apply_own_rates((t[0], rate, self.model.pairs, t[8], t[9]), V, (out,),
-                                       inverse, launch=self.launch)
+        return kernels.apply_own_rates((DhT, rate, pairs, A, B), V, (out,), inverse,
+                                       launch=self.launch)
 
     def _event_times(self, V, times, orders, offset) -> int:
         return self._run_checked(kernels.event_times, V, (times, orders), False, "V", offset)
 
     def _diagnose(self, u, inverse, hap, r):
-        return kernels.diagnose(self._tables, u, inverse, hap, r)
+        return kernels.diagnose(self._tables, u[None], inverse, hap, r)
 
     def corners(self, happened) -> np.ndarray:
         return self.model.corners(happened)
+
+
+def _padded(X, cols, fill=0.0):
+    """X (rows, c) in a C-contiguous (rows, cols) array, the extra columns ``fill``."""
+    out = np.full((X.shape[0], cols), fill)
+    out[:, : X.shape[1]] = X
+    return out
+
+
+def _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B, check):
+    """The tables of ``_kernels.structured`` (see its docstring): rows padded to multiples
+    of 8, the pairs of each event as CSR."""
+    (d, n), p = DhT.shape, pairs.shape[0]
+    nc, dc = -(-n // 8), -(-d // 8)
+    ev = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    partner = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    pid = np.concatenate([np.arange(p), np.arange(p)])
+    srt = np.argsort(ev, kind="stable")
+    counts = np.bincount(ev, minlength=n)
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    dims = np.array([n, d, nc, dc, p, counts.max(initial=0), check], dtype=np.int64)
+    return (_padded(DhT, 8 * nc), _padded(np.stack([g0, gfull]), 8 * nc, 1.0),
+            _padded(a, 8 * nc), _padded(bDh, 8 * nc), ptr,
+            np.ascontiguousarray(partner[srt], dtype=np.int64),
+            np.ascontiguousarray(pid[srt], dtype=np.int64),
+            _padded(np.vstack([A, B]), 8 * dc), _padded(np.arange(n)[None], 8 * nc, np.inf),
+            dims)

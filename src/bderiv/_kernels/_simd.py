@@ -276,6 +276,14 @@ def where_bits(typingctx, a, bits, x):
 
 
 @intrinsic
+def where_greater(typingctx, a, b, x, y):
+    """x where a > b (a NaN lane compares false), else y; lane by lane."""
+    def codegen(context, builder, sig, args):
+        return builder.select(builder.fcmp_ordered(">", args[0], args[1]), args[2], args[3])
+    return x(a, b, x, y), codegen
+
+
+@intrinsic
 def trailing_zeros(typingctx, x):
     """Index of the lowest set bit of an int64 (64 for 0)."""
     def codegen(context, builder, sig, args):
@@ -299,5 +307,3 @@ def prefetch(typingctx, a, row, col):
         return context.get_dummy_value()
     return types.void(a, row, col), codegen
 
-
-Width = Static  # TEMPORARY alias while the structured kernel moves to Static (remove)
