@@ -77,9 +77,9 @@ def test_the_plain_kernels_pass_the_same_tests():
 
 
 def test_the_lane_kernels_compile_for_a_generic_target(tmp_path):
-    """The explicit vectors of the lane kernels are legal on any LLVM target (LLVM splits
-    them): compiled for a generic x86-64 (SSE2 only: no AVX, no FMA unit) into a fresh
-    cache, they pass the lane tests against the oracle."""
+    """The explicit vectors of the lane kernels (dense and structured) are legal on any
+    LLVM target (LLVM splits them): compiled for a generic CPU (on x86-64: SSE2 only, no
+    AVX, no FMA unit) into a fresh cache, they pass their tests against the oracle."""
     import os
 
     tests = os.path.dirname(os.path.abspath(__file__))
@@ -87,7 +87,7 @@ def test_the_lane_kernels_compile_for_a_generic_target(tmp_path):
     env.pop("BDERIV_KERNELS", None)
     out = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider",
-         os.path.join(tests, "test_lanes.py")],
+         os.path.join(tests, "test_lanes.py"), os.path.join(tests, "test_structured_lanes.py")],
         capture_output=True, text=True, env=env, cwd=os.path.dirname(tests))
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     assert "passed" in out.stdout and "skipped" not in out.stdout, out.stdout[-500:]
