@@ -8,8 +8,10 @@ from __future__ import annotations
 import json
 import os
 
+import numpy as np
+
 from .machine import describe
-from .systems import load_example
+from .systems import ORBIT_EXAMPLES, load_example, load_orbit
 from .usage import (
     UsageError,
     check_writable_directory,
@@ -20,10 +22,15 @@ from .usage import (
 
 #: figures that draw the plane (need d = 2); ``note`` also needs n = 2
 FIGURES_2D = ("field", "triangulation", "circle", "note")
+#: figures of a gait's periodic orbit (the examples of :data:`ORBIT_EXAMPLES`)
+GAIT_FIGURES = ("orbit", "growth")
 #: every figure, by its file name
-FIGURES = (*FIGURES_2D, "pieces", "scaling")
+FIGURES = (*FIGURES_2D, "pieces", "scaling", *GAIT_FIGURES)
 #: Agg's bound on the pixels of a side of a raster image
 MAX_SIDE_PIXELS = 1 << 16
+#: simulated strides of the growth figure's decay check (the iterations it shows), and the
+#: directions and size of its perturbations
+DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-2
 
 
 def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-figures",
@@ -34,7 +41,8 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
     ----------
     example, n, extended
         The system (default ``planar``; ``--n`` alone means ``network``), as for
-        :func:`bderiv.cli.systems.load_example`.
+        :func:`bderiv.cli.systems.load_example`, or a gait of :data:`ORBIT_EXAMPLES`
+        (:func:`bderiv.cli.systems.load_orbit`).
     figures : list of str, optional
         Names from :data:`FIGURES` or ``"all"`` (default: all that apply to the system;
         ``scaling`` only with ``bench_json``).
@@ -57,30 +65,32 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
     if example is None:
         example = "network" if n is not None or extended else "planar"
     wanted = list(dict.fromkeys(figures or ["all"]))
-    _, bd = load_example(example, n, extended)
     if "scaling" in wanted and not bench_json:
         raise UsageError(
             "--figure scaling plots a benchmark run: run `bderiv bench --json > rows.json` "
             "(or `bderiv bench --plot scaling.png`) and pass --bench-json rows.json"
         )
     bench = read_bench(bench_json) if bench_json else None
+    # what the figures draw: a gait's periodic orbit, or the B-derivative at an event point
+    if example in ORBIT_EXAMPLES:
+        _, subject = load_orbit(example, n, extended)
+        sizes = (subject.system.dim, subject.system.n_events)
+    else:
+        _, subject = load_example(example, n, extended)
+        sizes = (subject.dim, subject.n_events)
     skipped = {}
     if "all" in wanted:
         wanted = [f for f in FIGURES if f != "scaling" or bench]
-        skipped = _not_applicable(wanted, bd)
+        skipped = _not_applicable(wanted, example, *sizes)
         wanted = [f for f in wanted if f not in skipped]
         if not bench:
             skipped["scaling"] = "needs --bench-json"
     else:
-        refused = _not_applicable(wanted, bd)
+        refused = _not_applicable(wanted, example, *sizes)
         if refused:
-            name, why = next(iter(refused.items()))
-            raise UsageError(f"figure {name} {why}, but {example} has n = {bd.n_events}, "
-                             f"d = {bd.dim}; use --example planar")
-    draw = {"field": plot.corner_field, "triangulation": plot.triangulation,
-            "circle": plot.tangent_circle, "note": plot.carried_fan, "pieces": plot.pieces}
+            raise UsageError(_refusal(*next(iter(refused.items())), example, *sizes))
     figs = {name: plot.scaling(bench["rows"], machine=bench["machine"]) if name == "scaling"
-            else draw[name](bd) for name in wanted}
+            else _draw(plot, name, example, subject) for name in wanted}
     for name, fig in figs.items():  # refuse a --dpi before writing anything
         check_raster(fig, dpi, name)
     _make_directory(out)
@@ -88,19 +98,65 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
     for name, fig in figs.items():
         written.append(os.path.join(out, f"{name}.{fmt}"))
         save_figure(fig, written[-1], dpi, "--out")
-    return {"example": example, "dim": bd.dim, "n_events": bd.n_events, "files": written,
+    return {"example": example, "dim": sizes[0], "n_events": sizes[1], "files": written,
             "skipped": skipped}
 
 
-def _not_applicable(names, bd) -> dict:
-    """The figures of ``names`` that cannot draw ``bd``, each with the reason."""
+def _draw(plot, name, example, subject):
+    """The figure ``name`` of a B-derivative, or of a gait's periodic orbit."""
+    if name == "orbit":
+        return plot.gait_orbit(subject, labels=ORBIT_EXAMPLES[example])
+    if name == "growth":
+        return plot.gait_growth(subject, iterations=DECAY_STRIDES, decay=_decay(subject))
+    draw = {"field": plot.corner_field, "triangulation": plot.triangulation,
+            "circle": plot.tangent_circle, "note": plot.carried_fan, "pieces": plot.pieces}
+    return draw[name](subject)
+
+
+def _decay(orbit):
+    """Simulated decay of perturbations of ``orbit`` along random unit directions tangent
+    to its section: the growth figure's check against the nonlinear system."""
+    from ..checks import decay_check  # simulates: only here
+
+    R = orbit.return_map
+    D = np.random.default_rng(0).standard_normal((DECAY_DIRECTIONS, R.tangent_basis.shape[1]))
+    D = D @ R.tangent_basis.T
+    return decay_check(orbit.system, orbit.x0, orbit.section,
+                       D / np.linalg.norm(D, axis=1)[:, None], eps=DECAY_EPS,
+                       strides=DECAY_STRIDES)
+
+
+def _not_applicable(names, example, dim, n_events) -> dict:
+    """The figures of ``names`` that cannot draw ``example`` (a B-derivative at an event
+    point, or the periodic orbit of a gait; ``dim`` and ``n_events`` its d and n), each
+    with the reason."""
     why = {}
+    gait = example in ORBIT_EXAMPLES
     for name in names:
-        if name in FIGURES_2D and bd.dim != 2:
+        if name in GAIT_FIGURES and not gait:
+            why[name] = "needs a gait's periodic orbit"
+        elif name in (*FIGURES_2D, "pieces") and gait:
+            why[name] = "draws a B-derivative at an event point, not a gait's orbit"
+        elif name in FIGURES_2D and dim != 2:
             why[name] = "draws the plane (needs d = 2)"
-        elif name == "note" and bd.n_events != 2:
+        elif name == "note" and n_events != 2:
             why[name] = "draws 2 events in the plane (needs n = d = 2)"
     return why
+
+
+def _refusal(name, why, example, dim, n_events) -> str:
+    """The usage error of a figure asked for that cannot draw ``example``: why, where it
+    applies, and the figures that do."""
+    if name in GAIT_FIGURES:
+        why, where = f"{why}, but {example} is not a gait", ", ".join(ORBIT_EXAMPLES)
+    elif example not in ORBIT_EXAMPLES:
+        why, where = f"{why}, but {example} has n = {n_events}, d = {dim}", "planar"
+    else:  # the reason says it: a gait's figures are those of its orbit
+        where = "planar"
+    drawn = [f for f in FIGURES if f != "scaling"
+             and f not in _not_applicable(FIGURES, example, dim, n_events)]
+    return (f"figure {name} {why}: use --example {where}, or a figure of {example}: "
+            f"{', '.join(drawn)} (or scaling, with --bench-json)")
 
 
 def read_bench(path: str) -> dict:

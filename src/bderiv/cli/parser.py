@@ -18,8 +18,14 @@ from . import render
 from .bench import run_bench
 from .demo import run_demo
 from .export import run_export
-from .figures import FIGURES, run_figures
-from .systems import GAIT_EXAMPLES, MODEL_EXAMPLES, NETWORK_MAX_N, TABLE_EXAMPLES
+from .figures import DECAY_STRIDES, FIGURES, GAIT_FIGURES, run_figures
+from .systems import (
+    GAIT_EXAMPLES,
+    MODEL_EXAMPLES,
+    NETWORK_MAX_N,
+    ORBIT_EXAMPLES,
+    TABLE_EXAMPLES,
+)
 from .usage import UsageError
 
 
@@ -52,14 +58,18 @@ _positive_float = _argument_type(float, lambda v: math.isfinite(v) and v > 0,
                                  "a positive number")
 
 
+#: the examples beyond the models and the corner tables, in the help of ``--example``
+_GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability)",
+              "landing": "the impact landing (resets at a simultaneous touchdown)"}
+
+
 def _add_example_args(p, default_help, gaits=()):
-    p.add_argument("--example", choices=MODEL_EXAMPLES + TABLE_EXAMPLES + gaits,
+    p.add_argument("--example", choices=MODEL_EXAMPLES + TABLE_EXAMPLES + tuple(gaits),
                    help=f"the system (default: {default_help}): the models "
                    f"{', '.join(MODEL_EXAMPLES)} or the corner tables "
                    f"{' and '.join(TABLE_EXAMPLES)} (no model, so no flow map; planar: 2 "
-                   f"events in the plane)" + ("; the gait pronking (a periodic orbit and its "
-                                              "stability) and the impact landing (resets "
-                                              "at a simultaneous touchdown)" if gaits else ""))
+                   f"events in the plane)"
+                   + "".join(f"; {_GAIT_HELP[g]}" for g in gaits))
     p.add_argument("--n", type=_positive_int, default=None,
                    help=f"number of events of --example network (1..{NETWORK_MAX_N}, "
                    f"default 3); --n alone means --example network")
@@ -120,12 +130,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     p = sub.add_parser("plot", help="figures to PNG, PDF or SVG files")
-    _add_example_args(p, "planar")
+    _add_example_args(p, "planar", tuple(ORBIT_EXAMPLES))
     p.add_argument("--figure", nargs="+", choices=(*FIGURES, "all"), metavar="NAME",
                    help=f"which figures, among {', '.join(FIGURES)}, all (default: all that "
                    "apply to the system; scaling only with --bench-json). note: the "
                    "triangulation carried through the corner-limit flow, in state and "
-                   "impact-time coordinates")
+                   f"impact-time coordinates. {' and '.join(GAIT_FIGURES)} (--example "
+                   f"{', '.join(ORBIT_EXAMPLES)} only): the gait's periodic orbit with its "
+                   "event groups, and the growth of perturbations through the return map "
+                   "against simulated strides (a few seconds, as long as `bderiv demo --example "
+                   f"pronking`: the orbit is found by Newton's method and {DECAY_STRIDES} "
+                   "strides simulated)")
     p.add_argument("--out", default="bderiv-figures",
                    help="output directory (default ./bderiv-figures, created if missing)")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",

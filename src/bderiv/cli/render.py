@@ -217,7 +217,8 @@ def figures_text(summary: dict) -> str:
              f"{summary['dim']})"]
     lines += [f"  wrote {path}" for path in summary["files"]]
     for name, why in summary["skipped"].items():
-        hint = "" if name == "scaling" else " (try --example planar)"
+        hint = {"scaling": "", "orbit": " (try --example pronking)",
+                "growth": " (try --example pronking)"}.get(name, " (try --example planar)")
         lines.append(f"  not drawn: {name}, which {why}{hint}")
     return "\n".join(lines) + "\n"
 

@@ -13,8 +13,19 @@ MODEL_EXAMPLES = ("chair", "network", "table")
 #: examples whose demo is a summary of their own (``demo`` only): a gait's periodic orbit
 #: and stability verdict, an impact with resets checked against simulation
 GAIT_EXAMPLES = ("pronking", "landing")
+#: gait examples with a periodic orbit (``plot``'s figures orbit and growth), with the
+#: names of their state components
+ORBIT_EXAMPLES = {"pronking": ("z", "theta", "vz", "omega")}
 #: largest n of the scalable network family the CLI accepts
 NETWORK_MAX_N = 20
+
+
+def _network_options_only(name: str, n: int | None, extended: bool) -> None:
+    """Refuse ``--n`` and ``--extended`` for an example other than ``network``."""
+    if n is not None and name != "network":
+        raise UsageError(f"--n applies to --example network only, not to {name!r}")
+    if extended and name != "network":
+        raise UsageError(f"--extended applies to --example network only, not to {name!r}")
 
 
 def load_example(name: str, n: int | None = None, extended: bool = False):
@@ -41,10 +52,7 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
     >>> ex is None, bd.n_events, bd.dim
     (True, 3, 3)
     """
-    if n is not None and name != "network":
-        raise UsageError(f"--n applies to --example network only, not to {name!r}")
-    if extended and name != "network":
-        raise UsageError(f"--extended applies to --example network only, not to {name!r}")
+    _network_options_only(name, n, extended)
     if name == "corners":
         return None, BDerivative(*examples.three_event_table())
     if name == "planar":
@@ -59,3 +67,28 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
             raise UsageError(f"--n must be between 1 and {NETWORK_MAX_N}, got {n}")
         ex = examples.network(n, extended=extended)
     return ex, ex.system.bderivative(ex.rho)
+
+
+def load_orbit(name: str, n: int | None = None, extended: bool = False):
+    """The gait example ``name`` and its periodic orbit, found as ``bderiv demo`` finds it.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`ORBIT_EXAMPLES`.
+    n, extended
+        Refused (options of ``network``), as in :func:`load_example`.
+
+    Returns
+    -------
+    example : Example
+    orbit : PeriodicOrbit
+        By Newton's method from a perturbed apex state
+        (:func:`bderiv.examples.gaits.pronking_orbit`, the demo's orbit).
+    """
+    _network_options_only(name, n, extended)
+    if name not in ORBIT_EXAMPLES:
+        raise UsageError(f"{name!r} has no periodic orbit; the gaits are "
+                         f"{', '.join(ORBIT_EXAMPLES)}")
+    ex = examples.gaits.pronking()
+    return ex, examples.gaits.pronking_orbit(ex)
