@@ -21,7 +21,7 @@ F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [2.0, 2.0, 0.0]
 bd = BDerivative(np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]]), F, fast_paths=False)
 V = np.random.default_rng(0).standard_normal((5000, 3))
 bd(V[:3]); bd(V)
-drivers = dense.apply if _core.PLAIN else lanes.apply
+drivers = dense.apply if _core.PLAIN else bd._engine._lane_kernels[0]
 stats = [drivers.serial.stats, drivers.tasks.stats]
 print(json.dumps([[sum(s.cache_hits.values()), sum(s.cache_misses.values())] for s in stats]))
 """

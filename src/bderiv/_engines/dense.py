@@ -9,7 +9,6 @@ from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
 from .._kernels import lanes
 from .._kernels._core import PLAIN
-from .._kernels._simd import Static
 from .._validate import check_matrix, check_number, memory_limit_bytes
 from . import fastpath
 from .base import Engine
@@ -40,19 +39,17 @@ class DenseEngine(Engine):
         self.F = self.R[:, 16 * nc : 16 * nc + d]
         DhTp = np.zeros((d, 8 * nc))
         DhTp[:, :n] = self.Dh.T
-        self._lanes = self._lane_tangents = None
+        self._lanes = self._lane_kernels = None
         if not PLAIN and d <= lanes.MAX_D:
-            far = int(self.R.nbytes > FAR_BYTES)
-            self._lanes = (self.R, DhTp, np.array([n, d, nc, dc], dtype=np.int64),
-                           Static(8 * nc), Static(8 * dc), Static(far))
             Dhp = np.zeros((n, 8 * dc))
             Dhp[:, :d] = self.Dh
-            self._lane_tangents = self._lanes + (Dhp,)
+            self._lanes = (self.R, DhTp, np.array([n, d, nc, dc], dtype=np.int64), Dhp)
+            self._lane_kernels = lanes.kernels(8 * nc, 8 * dc, int(self.R.nbytes > FAR_BYTES))
         self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        for name in ("F", "G", "_lanes", "_lane_tangents", "_plain"):  # rebuilt from R
+        for name in ("F", "G", "_lanes", "_lane_kernels", "_plain"):  # rebuilt from R
             state.pop(name, None)
         return state
 
@@ -141,7 +138,7 @@ class DenseEngine(Engine):
     def _apply(self, V, out, inverse, name, offset) -> int:
         if self._lanes is None:
             return kernels.apply(self._plain, V, (out,), inverse, launch=self.launch)
-        return lanes.apply(self._lanes, V, (out,), inverse, launch=self.launch)
+        return self._lane_kernels[0](self._lanes, V, (out,), inverse, launch=self.launch)
 
     def _apply_own_rates(self, V, out, inverse) -> int:
         rate = self.fast.ratef if inverse else self.fast.rate0
@@ -151,7 +148,7 @@ class DenseEngine(Engine):
     def _event_times(self, V, times, orders, offset) -> int:
         if self._lanes is None:
             return kernels.event_times(self._plain, V, (times, orders), launch=self.launch)
-        return lanes.event_times(self._lanes, V, (times, orders), launch=self.launch)
+        return self._lane_kernels[1](self._lanes, V, (times, orders), launch=self.launch)
 
     def tangents(self, V, T, out, transpose: bool, offset: int = 0) -> int:
         if self.fast is not None:  # the fast path's orders, as orders() gives them
@@ -159,8 +156,7 @@ class DenseEngine(Engine):
         if self._lanes is None:
             return kernels.tangents(self._plain + (self.Dh,), V, (out, T), transpose,
                                     launch=self.launch)
-        return lanes.tangents(self._lane_tangents, V, (out, T), transpose,
-                                     launch=self.launch)
+        return self._lane_kernels[2](self._lanes, V, (out, T), transpose, launch=self.launch)
 
     def corners(self, happened) -> np.ndarray:
         bits = np.asarray(happened, dtype=np.int64)

@@ -93,9 +93,10 @@ def _sources_digest() -> str:
 _SOURCES = _sources_digest()
 
 
-def _cached(dispatcher, block):
-    """Turn on the :class:`_DriverCache` of a driver of ``block``."""
-    key = f"{block.py_func.__module__}.{block.py_func.__qualname__}:{_SOURCES}"
+def _cached(dispatcher, block, statics):
+    """Turn on the :class:`_DriverCache` of a driver of ``block`` and ``statics``."""
+    key = (f"{block.py_func.__module__}.{block.py_func.__qualname__}"
+           f"{tuple(len(s) for s in statics)}:{_SOURCES}")
     try:
         dispatcher._cache = _DriverCache(dispatcher.py_func, key)
     except Exception:  # another numba: leave the driver uncached  # noqa: BLE001
@@ -118,14 +119,20 @@ def _note_layer() -> None:
 
 
 class Batch:
-    """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``."""
+    """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``.
 
-    def __init__(self, block, cache: bool = True):
+    ``statics``: ``_simd.static`` values compiled into the drivers and appended to the
+    tables the block gets (``tables + statics``). They are constants of the drivers, not
+    arguments: numba's parallel loops take no nested tuples, and a type of our own in an
+    argument would send every call through Python's typeof (35 us per call).
+    """
+
+    def __init__(self, block, cache: bool = True, statics: tuple = ()):
         jit = dict(JIT, cache=False)  # see _DriverCache
 
         @njit(**jit)
         def serial(tables, V, outs, inverse):
-            block(tables, V, outs, 0, V.shape[0], inverse)
+            block(tables + statics, V, outs, 0, V.shape[0], inverse)
             return nonfinite_rows(outs[0], 0, V.shape[0])
 
         @njit(parallel=True, **jit)
@@ -135,12 +142,12 @@ class Batch:
             for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
                 start = task * TASK_QUERIES
                 stop = min(start + TASK_QUERIES, m)
-                block(tables, V, outs, start, stop, inverse)
+                block(tables + statics, V, outs, start, stop, inverse)
                 bad += nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
             return bad
 
         if cache:
-            serial, tasks = _cached(serial, block), _cached(tasks, block)
+            serial, tasks = _cached(serial, block, statics), _cached(tasks, block, statics)
         self.block, self.serial, self.tasks = block, serial, tasks
 
     def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> int:
@@ -171,10 +178,10 @@ class Batch:
         return bad
 
 
-def batch(block, cache: bool = True) -> Batch:
+def batch(block, cache: bool = True, statics: tuple = ()) -> Batch:
     """The :class:`Batch` of an njit ``block`` (``cache=False`` for blocks that call a
     user's function: their compiled code cannot be keyed across processes)."""
-    return Batch(block, cache)
+    return Batch(block, cache, statics)
 
 
 # ----------------------------------------------------------------------------------------

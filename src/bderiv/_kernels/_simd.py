@@ -6,7 +6,7 @@ apart from the scratch rows). These intrinsics write the vector code directly: a
 a table is one load, the arg-min one reduction, a compare and a count of trailing zeros.
 A vector lives in registers (a local variable), never in an array.
 
-The width W is a multiple of 8 up to 64, fixed at compile time by a :class:`Static`
+The width W is a multiple of 8 up to 64, fixed at compile time by a :func:`static` value
 passed to the kernel (numba compiles one specialisation per value, as it does per dtype):
 ``load``, ``load_first`` and ``splat`` take it, the other operations read W from their
 operands.
@@ -24,33 +24,22 @@ from __future__ import annotations
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils, errors
-from numba.core.imputils import lower_constant
-from numba.extending import NativeValue, intrinsic, models, register_model, typeof_impl, unbox
+from numba.extending import intrinsic, models, register_model
 
 _I32 = ir.IntType(32)
 _I64 = ir.IntType(64)
 
 
-class Static:
-    """A non-negative int that kernels are compiled for: numba specialises a kernel on its
-    value as it does on a dtype (a vector width, a count of cache lines). Pass it inside a
-    kernel's tables; :func:`value` reads it as a constant (loops over it unroll)."""
-
-    def __init__(self, value: int):
-        if int(value) != value or value < 0:
-            raise ValueError(f"a static value must be a non-negative int, got {value!r}")
-        self.value = int(value)
-
-    def __reduce__(self):
-        return Static, (self.value,)
-
-
-class StaticType(types.Opaque):
-    """Numba type of a :class:`Static`: the value is in the type, the data is empty."""
-
-    def __init__(self, value: int):
-        self.value = value
-        super().__init__(name=f"static{value}")
+def static(value: int) -> tuple:
+    """A non-negative int that kernels are compiled for (a vector width, a flag), as the
+    tuple of ``value`` zeros: numba types it ``UniTuple(int64, value)``, so the value is in
+    the type and numba compiles one specialisation per value, as it does per dtype. Pass it
+    inside a kernel's tables; :func:`value` reads it as a constant (loops over it unroll).
+    (A tuple and not a type of our own: numba's dispatcher recognises tuples in C, and a
+    new type would send every call through Python's typeof, about 35 us.)"""
+    if isinstance(value, bool) or int(value) != value or value < 0:
+        raise ValueError(f"a static value must be a non-negative int, got {value!r}")
+    return (0,) * int(value)
 
 
 class F64xW(types.Type):
@@ -61,30 +50,20 @@ class F64xW(types.Type):
         super().__init__(name=f"f64x{width}")
 
 
-@typeof_impl.register(Static)
-def _typeof_static(val, c):
-    return StaticType(val.value)
-
-
-register_model(StaticType)(models.OpaqueModel)
-
-
-@unbox(StaticType)
-def _unbox_static(typ, obj, c):
-    return NativeValue(c.context.get_constant_null(typ))
-
-
-@lower_constant(StaticType)
-def _constant_static(context, builder, typ, pyval):  # a module-level Static in a kernel
-    return context.get_constant_null(typ)
+def _static(w) -> int:
+    """The int a :func:`static` tuple's type stands for."""
+    if not isinstance(w, types.BaseTuple) or any(t != types.int64 for t in w):
+        raise errors.TypingError(f"expected a static value (a tuple of int64 zeros), got {w}")
+    return len(w)
 
 
 def _width(w) -> int:
-    """The vector width a Static stands for (a multiple of 8, at most 64)."""
-    if not isinstance(w, StaticType) or w.value % 8 or not 8 <= w.value <= 64:
-        raise errors.TypingError(f"a vector width must be a Static multiple of 8 in "
-                                 f"[8, 64], got {w}")
-    return w.value
+    """The vector width a static value stands for (a multiple of 8, at most 64)."""
+    width = _static(w)
+    if width % 8 or not 8 <= width <= 64:
+        raise errors.TypingError(f"a vector width must be a static multiple of 8 in [8, 64], "
+                                 f"got {width}")
+    return width
 
 
 @register_model(F64xW)
@@ -126,18 +105,17 @@ def _suffix(width):
 
 @intrinsic
 def value(typingctx, w):
-    """The int of a :class:`Static`, as a compile-time constant."""
-    if not isinstance(w, StaticType):
-        raise errors.TypingError(f"value() takes a Static, got {w}")
+    """The int of a :func:`static` value, as a compile-time constant."""
+    number = _static(w)
 
     def codegen(context, builder, sig, args):
-        return context.get_constant(types.int64, w.value)
+        return context.get_constant(types.int64, number)
     return types.int64(w), codegen
 
 
 @intrinsic
 def load(typingctx, a, row, col, w):
-    """a[row, col:col + W] as a vector (W: the Static ``w``)."""
+    """a[row, col:col + W] as a vector (W: the static value ``w``)."""
     width = _width(w)
 
     def codegen(context, builder, sig, args):

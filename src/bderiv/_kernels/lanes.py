@@ -2,17 +2,19 @@
 vector registers (the default; ``_core.PLAIN`` runs the scalar blocks of :mod:`.dense`
 instead).
 
-``tables = (R, DhTp, dims, wh, wx, far)`` with ``R`` the region records
+A block gets ``tables = (R, DhTp, dims, Dhp, wh, wx, far)``: ``R`` the region records
 ``[-1/G | G | F]`` of ``_tables.region_records`` (each part padded to a multiple of 8),
-``DhTp`` (d, 8 nc) ``Dh.T`` padded with zeros, ``dims`` int64 ``[n, d, nc, dc]``, and the
-:class:`~._simd.Static` values the kernels are compiled for: ``wh = 8 nc`` and
-``wx = 8 dc`` (the widths of the event values' and of the position's vectors, so d <= 64
-here: ``_engines.dense`` runs the plain blocks above) and ``far`` (1 when the records
-exceed the caches: see :func:`_step`). A query is
-one row of ``V`` (m, d).
+``DhTp`` (d, 8 nc) ``Dh.T`` and ``Dhp`` (n, 8 dc) ``Dh`` padded with zeros, ``dims`` int64
+``[n, d, nc, dc]``, then the :func:`~._simd.static` values its drivers are compiled for
+(:func:`kernels`): ``wh = 8 nc`` and ``wx = 8 dc`` (the widths of the event values' and of
+the position's vectors, so d <= 64 here: ``_engines.dense`` runs the plain blocks above)
+and ``far`` (1 when the records exceed the caches: see :func:`_step`). A query is one row
+of ``V`` (m, d).
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 from numba import njit
@@ -83,7 +85,7 @@ def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
     and ``times[p, j]`` its time. One line per lane, on purpose: each lane's vectors are
     local variables, kept in registers.
     """
-    R, DhTp, dims, wh, wx, far = tables[0], tables[1], tables[2], tables[3], tables[4], tables[5]
+    R, DhTp, dims, wh, wx, far = tables[0], tables[1], tables[2], tables[4], tables[5], tables[6]
     n, d = dims[0], dims[1]
     s = -1.0 if inverse else 1.0
     # not candidates: the events that happened (forwards) or did not (backwards), and the
@@ -145,7 +147,7 @@ def _lane_scratch(tables):
 def _lane_apply_block(tables, V, outs, start, stop, inverse):
     """out = M(V) (M^-1 when ``inverse``): ``v + s X - T F[end]``, the position at the last
     event moved back to time 0 along the final region's field."""
-    R, dims, wx = tables[0], tables[2], tables[4]
+    R, dims, wx = tables[0], tables[2], tables[5]
     out = outs[0]
     n, d, of = dims[0], dims[1], 16 * dims[2]
     X, T, order, times = _lane_scratch(tables)
@@ -175,10 +177,9 @@ def _lane_tangent_block(tables, V, outs, start, stop, transpose):
     the saltation factors of MATH.md section 4 along the chain,
     ``S y = y + (F[after] - F[before]) (Dh[k] . y) / G[before, k]`` and
     ``S^T y = y + Dh[k] ((F[after] - F[before]) . y) / G[before, k]`` (backwards), with
-    y in a vector, the eight lanes' factors in turn (their chains overlap).
-    ``tables = (R, DhTp, dims, wh, wx, far, Dhp)`` with ``Dhp`` (n, 8 dc) the rows of Dh
-    padded; ``outs = (out, T)`` (T is read)."""
-    R, dims, wx, Dhp = tables[0], tables[2], tables[4], tables[6]
+    y in a vector, the eight lanes' factors in turn (their chains overlap);
+    ``outs = (out, T)`` (T is read)."""
+    R, dims, Dhp, wx = tables[0], tables[2], tables[3], tables[5]
     out, T = outs
     n, d, og, of = dims[0], dims[1], 8 * dims[2], 16 * dims[2]
     X, times, order, steps = _lane_scratch(tables)
@@ -205,10 +206,12 @@ def _lane_tangent_block(tables, V, outs, start, stop, transpose):
             vec.store_first(out, q0 + p, 0, d, vec.load(Y, p, 0, wx))
 
 
-#: M(V) or M^-1(V): tables (R, DhTp, dims, wh, wx, far), outs (out,).
-apply = batch(_lane_apply_block)
-#: event times and orders: outs (times, orders).
-event_times = batch(_lane_times_block)
-#: M_sigma(V) T or its transpose: tables (R, DhTp, dims, wh, wx, far, Dhp), outs
-#: (out, T).
-tangents = batch(_lane_tangent_block)
+@functools.cache
+def kernels(wh: int, wx: int, far: int):
+    """The batches ``(apply, event_times, tangents)`` compiled for vectors of ``wh`` and
+    ``wx`` lanes and ``far``; each takes ``tables = (R, DhTp, dims, Dhp)`` and outs
+    ``(out,)`` (M(V) or M^-1(V)), ``(times, orders)``, ``(out, T)`` (M_sigma(V) T or its
+    transpose)."""
+    statics = (vec.static(wh), vec.static(wx), vec.static(far))
+    return tuple(batch(block, statics=statics)
+                 for block in (_lane_apply_block, _lane_times_block, _lane_tangent_block))

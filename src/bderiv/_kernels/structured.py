@@ -37,7 +37,7 @@ GROUP = 32
 #: chains run in lockstep (independent chains hide each step's reduction latency)
 LOCK = 4
 #: the width of every vector here
-W8 = vec.Static(8)
+W8 = vec.static(8)
 
 
 @njit(**JIT)
