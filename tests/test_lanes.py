@@ -111,3 +111,18 @@ def test_the_tables_stay_on_numbas_fast_dispatch():
         for tables in (eng._lanes, eng._plain):
             if tables is not None:
                 assert compute_fingerprint(tables)
+
+
+def test_wide_positions_are_summed_after_the_chain():
+    """d > 32 (``lanes.WIDE_X``): apply sums the jumps after the chain instead of carrying
+    the position in registers; it meets the same rounding bound as the register path."""
+    rng = np.random.default_rng(40)
+    Dh, F = random_system(rng, 6, 40)
+    bd = BDerivative(Dh, F, fast_paths=False)
+    assert len(bd._engine._lanes) == 4 and lanes.WIDE_X < 40
+    V = rng.standard_normal((203, 40))
+    x, t, o = oracle(Dh, F, V)
+    S, S_back, _, _ = chain_scale(Dh, table_corners(F), V, t, o)
+    bound = 4 * 6 * np.finfo(float).eps / RTOL
+    assert excess(bd(V), x, S).max() <= bound
+    assert excess(bd.inverse(x), V, S_back).max() <= bound

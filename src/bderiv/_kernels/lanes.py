@@ -2,14 +2,14 @@
 vector registers (the default; ``_core.PLAIN`` runs the scalar blocks of :mod:`.dense`
 instead).
 
-A block gets ``tables = (R, DhTp, dims, Dhp, wh, wx, far)``: ``R`` the region records
+A block gets ``tables = (R, DhTp, dims, Dhp, wh, wx, far, wide)``: ``R`` the region records
 ``[-1/G | G | F]`` of ``_tables.region_records`` (each part padded to a multiple of 8),
 ``DhTp`` (d, 8 nc) ``Dh.T`` and ``Dhp`` (n, 8 dc) ``Dh`` padded with zeros, ``dims`` int64
 ``[n, d, nc, dc]``, then the :func:`~._simd.static` values its drivers are compiled for
 (:func:`kernels`): ``wh = 8 nc`` and ``wx = 8 dc`` (the widths of the event values' and of
-the position's vectors, so d <= 64 here: ``_engines.dense`` runs the plain blocks above)
-and ``far`` (1 when the records exceed the caches: see :func:`_step`). A query is one row
-of ``V`` (m, d).
+the position's vectors, so d <= 64 here: ``_engines.dense`` runs the plain blocks above),
+``far`` (1 when the records exceed the caches: see :func:`_step`) and ``wide`` (1 when
+``wx > WIDE_X``: see :func:`_lane_apply_block`). A query is one row of ``V`` (m, d).
 """
 
 from __future__ import annotations
@@ -29,6 +29,12 @@ LANES = 8
 #: the largest d of the lane blocks (a query's position is one vector of 8 dc <= 64 lanes)
 MAX_D = 64
 
+#: positions wider than this are summed after the chain (:func:`_lane_apply_block`)
+WIDE_X = 32
+
+#: the width of the loops over 8 coordinates
+W8 = vec.static(8)
+
 @njit(**JIT)
 def _start(DhTp, V, q, d, s, wh):
     """s Dh V[q]: the event values at time 0 (negated backwards), in a vector."""
@@ -39,7 +45,7 @@ def _start(DhTp, V, q, d, s, wh):
 
 
 @njit(**JIT)
-def _step(R, h, x, t, b, out, wh, wx, far):
+def _step(R, h, x, t, b, out, wh, wx, far, wide):
     """One event of one lane: the smallest pending ``dt_k = h_k * (-1 / G[b, k])`` (ties
     to the smaller k, the lowest bit of the equality mask), then ``h += dt G[b]`` and
     ``x += dt F[b]``. ``out``: the bits of the events that are not candidates (they get
@@ -47,7 +53,7 @@ def _step(R, h, x, t, b, out, wh, wx, far):
     time (a time overflowed to inf or NaN: the row is refused as non-finite) the first
     candidate is taken, so that k is always a pending event. Returns (h, x, t, b) after
     the event and k; when ``far`` (records beyond the caches), fetches the next record now
-    (it is read after the other lanes' steps).
+    (it is read after the other lanes' steps); when ``wide``, x is left alone.
     """
     og = vec.value(wh)
     dt = vec.where_bits(vec.mul(h, vec.load(R, b, 0, wh)), out, np.inf)
@@ -55,7 +61,8 @@ def _step(R, h, x, t, b, out, wh, wx, far):
     hit = vec.equal_mask(dt, best) & ~out
     k = vec.trailing_zeros(hit if hit != 0 else ~out)
     h = vec.fma(vec.splat(best, wh), vec.load(R, b, og, wh), h)
-    x = vec.fma(vec.splat(best, wx), vec.load(R, b, 2 * og, wx), x)
+    if not vec.value(wide):
+        x = vec.fma(vec.splat(best, wx), vec.load(R, b, 2 * og, wx), x)
     b ^= 1 << k
     if vec.value(far):
         for c in range((2 * og + vec.value(wx)) // 8):
@@ -85,7 +92,8 @@ def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
     and ``times[p, j]`` its time. One line per lane, on purpose: each lane's vectors are
     local variables, kept in registers.
     """
-    R, DhTp, dims, wh, wx, far = tables[0], tables[1], tables[2], tables[4], tables[5], tables[6]
+    R, DhTp, dims, wh, wx, far, wide = (tables[0], tables[1], tables[2], tables[4], tables[5],
+                                        tables[6], tables[7])
     n, d = dims[0], dims[1]
     s = -1.0 if inverse else 1.0
     # not candidates: the events that happened (forwards) or did not (backwards), and the
@@ -103,28 +111,28 @@ def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
     b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = b
     for j in range(n):
         h0, x0, t0, b0, k = _step(R, h0, x0, t0, b0, (b0 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 0, j, k, t0, s, record)
         h1, x1, t1, b1, k = _step(R, h1, x1, t1, b1, (b1 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 1, j, k, t1, s, record)
         h2, x2, t2, b2, k = _step(R, h2, x2, t2, b2, (b2 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 2, j, k, t2, s, record)
         h3, x3, t3, b3, k = _step(R, h3, x3, t3, b3, (b3 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 3, j, k, t3, s, record)
         h4, x4, t4, b4, k = _step(R, h4, x4, t4, b4, (b4 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 4, j, k, t4, s, record)
         h5, x5, t5, b5, k = _step(R, h5, x5, t5, b5, (b5 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 5, j, k, t5, s, record)
         h6, x6, t6, b6, k = _step(R, h6, x6, t6, b6, (b6 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 6, j, k, t6, s, record)
         h7, x7, t7, b7, k = _step(R, h7, x7, t7, b7, (b7 ^ flip) | pad, wh, wx,
-                                  far)
+                                  far, wide)
         _record(order, times, 7, j, k, t7, s, record)
     vec.store(X, 0, 0, x0), vec.store(X, 1, 0, x1), vec.store(X, 2, 0, x2)
     vec.store(X, 3, 0, x3), vec.store(X, 4, 0, x4), vec.store(X, 5, 0, x5)
@@ -146,20 +154,36 @@ def _lane_scratch(tables):
 @njit(**JIT)
 def _lane_apply_block(tables, V, outs, start, stop, inverse):
     """out = M(V) (M^-1 when ``inverse``): ``v + s X - T F[end]``, the position at the last
-    event moved back to time 0 along the final region's field."""
-    R, dims, wx = tables[0], tables[2], tables[5]
+    event moved back to time 0 along the final region's field. When ``wide`` (d > 32: the
+    lanes' positions would not fit the registers) the chain only records its steps and
+    ``v + sum_j t_j (F[before_j] - F[after_j])`` (MATH.md section 3) is summed afterwards,
+    8 coordinates at a time."""
+    R, dims, wx, wide = tables[0], tables[2], tables[5], tables[7]
     out = outs[0]
-    n, d, of = dims[0], dims[1], 16 * dims[2]
+    n, d, dc, of = dims[0], dims[1], dims[3], 16 * dims[2]
     X, T, order, times = _lane_scratch(tables)
     end = 0 if inverse else (1 << n) - 1
     s = -1.0 if inverse else 1.0
     for q0 in range(start, stop, LANES):
-        _lanes(tables, V, q0, stop - 1, inverse, False, X, T, order, times)
+        _lanes(tables, V, q0, stop - 1, inverse, vec.value(wide) == 1, X, T, order, times)
         for p in range(min(LANES, stop - q0)):
-            v = vec.fma(vec.splat(s, wx), vec.load(X, p, 0, wx),
-                        vec.load_first(V, q0 + p, 0, d, wx))
-            vec.store_first(out, q0 + p, 0, d,
-                            vec.fma(vec.splat(-T[p], wx), vec.load(R, end, of, wx), v))
+            if vec.value(wide):
+                for c in range(dc):
+                    count = min(d - 8 * c, 8)
+                    x = vec.load_first(V, q0 + p, 8 * c, count, W8)
+                    before = (1 << n) - 1 if inverse else 0
+                    for j in range(n):
+                        after = before ^ (1 << order[p, j])
+                        jump = vec.sub(vec.load(R, before, of + 8 * c, W8),
+                                       vec.load(R, after, of + 8 * c, W8))
+                        x = vec.fma(vec.splat(times[p, j], W8), jump, x)
+                        before = after
+                    vec.store_first(out, q0 + p, 8 * c, count, x)
+            else:
+                v = vec.fma(vec.splat(s, wx), vec.load(X, p, 0, wx),
+                            vec.load_first(V, q0 + p, 0, d, wx))
+                vec.store_first(out, q0 + p, 0, d,
+                                vec.fma(vec.splat(-T[p], wx), vec.load(R, end, of, wx), v))
 
 
 @njit(**JIT)
@@ -212,6 +236,6 @@ def kernels(wh: int, wx: int, far: int):
     ``wx`` lanes and ``far``; each takes ``tables = (R, DhTp, dims, Dhp)`` and outs
     ``(out,)`` (M(V) or M^-1(V)), ``(times, orders)``, ``(out, T)`` (M_sigma(V) T or its
     transpose)."""
-    statics = (vec.static(wh), vec.static(wx), vec.static(far))
+    statics = (vec.static(wh), vec.static(wx), vec.static(far), vec.static(int(wx > WIDE_X)))
     return tuple(batch(block, statics=statics)
                  for block in (_lane_apply_block, _lane_times_block, _lane_tangent_block))
