@@ -2,14 +2,15 @@
 vector registers (the default; ``_core.PLAIN`` runs the scalar blocks of :mod:`.dense`
 instead).
 
-A block gets ``tables = (R, DhTp, dims, Dhp, wh, wx, far, wide)``: ``R`` the region records
+A block gets ``tables = (R, DhTp, dims, Dhp, wh, wx, far, carry)``: ``R`` the region records
 ``[-1/G | G | F]`` of ``_tables.region_records`` (each part padded to a multiple of 8),
 ``DhTp`` (d, 8 nc) ``Dh.T`` and ``Dhp`` (n, 8 dc) ``Dh`` padded with zeros, ``dims`` int64
 ``[n, d, nc, dc]``, then the :func:`~._simd.static` values its drivers are compiled for
 (:func:`kernels`): ``wh = 8 nc`` and ``wx = 8 dc`` (the widths of the event values' and of
 the position's vectors, so d <= 64 here: ``_engines.dense`` runs the plain blocks above),
-``far`` (1 when the records exceed the caches: see :func:`_step`) and ``wide`` (1 when
-``wx > WIDE_X``: see :func:`_lane_apply_block`). A query is one row of ``V`` (m, d).
+``far`` (1 when the records exceed the caches: see :func:`_step`) and ``carry`` (1: the
+chain carries the position, see :func:`_lane_apply_block`; 0: it records its steps). A
+query is one row of ``V`` (m, d).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ WIDE_X = 32
 #: the width of the loops over 8 coordinates
 W8 = vec.static(8)
 
+
 @njit(**JIT)
 def _start(DhTp, V, q, d, s, wh):
     """s Dh V[q]: the event values at time 0 (negated backwards), in a vector."""
@@ -45,15 +47,15 @@ def _start(DhTp, V, q, d, s, wh):
 
 
 @njit(**JIT)
-def _step(R, h, x, t, b, out, wh, wx, far, wide):
+def _step(R, h, x, t, b, out, wh, wx, far, carry):
     """One event of one lane: the smallest pending ``dt_k = h_k * (-1 / G[b, k])`` (ties
-    to the smaller k, the lowest bit of the equality mask), then ``h += dt G[b]`` and
-    ``x += dt F[b]``. ``out``: the bits of the events that are not candidates (they get
-    dt = +inf, so no entry of h is ever overwritten). If no candidate equals the smallest
+    to the smaller k, the lowest bit of the equality mask), then ``h += dt G[b]`` and, when
+    ``carry``, ``x += dt F[b]``. ``out``: the bits of the events that are not candidates
+    (they get dt = +inf, so no entry of h is ever overwritten). If no candidate equals the smallest
     time (a time overflowed to inf or NaN: the row is refused as non-finite) the first
     candidate is taken, so that k is always a pending event. Returns (h, x, t, b) after
-    the event and k; when ``far`` (records beyond the caches), fetches the next record now
-    (it is read after the other lanes' steps); when ``wide``, x is left alone.
+    the event and k; when ``far`` (records beyond the caches), fetches the lines of the next
+    record it will read now (they are read after the other lanes' steps).
     """
     og = vec.value(wh)
     dt = vec.where_bits(vec.mul(h, vec.load(R, b, 0, wh)), out, np.inf)
@@ -61,23 +63,24 @@ def _step(R, h, x, t, b, out, wh, wx, far, wide):
     hit = vec.equal_mask(dt, best) & ~out
     k = vec.trailing_zeros(hit if hit != 0 else ~out)
     h = vec.fma(vec.splat(best, wh), vec.load(R, b, og, wh), h)
-    if not vec.value(wide):
+    if vec.value(carry):
         x = vec.fma(vec.splat(best, wx), vec.load(R, b, 2 * og, wx), x)
     b ^= 1 << k
     if vec.value(far):
-        for c in range((2 * og + vec.value(wx)) // 8):
+        for c in range((2 * og + vec.value(carry) * vec.value(wx)) // 8):
             vec.prefetch(R, b, 8 * c)
     return h, x, t + best, b, k
 
 
 @njit(**JIT)
-def _record(order, times, p, j, k, t, s, record):
-    if record:
+def _record(order, times, p, j, k, t, s, carry):
+    """The j-th event of lane p and its time, unless the chain carries the position."""
+    if not vec.value(carry):
         order[p, j], times[p, j] = k, s * t
 
 
 @njit(inline="always", **JIT)
-def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
+def _lanes(tables, V, q0, last, inverse, X, T, order, times):
     """Run the chains of the queries ``V[q0:q0 + 8]`` in lockstep (queries past ``last``
     repeat it: their results are not used).
 
@@ -86,14 +89,14 @@ def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
     the smallest wins, time advances by it, h by ``dt G[B]`` and the position by
     ``dt F[B]``. Backwards (``inverse``) time runs the other way from the full region down;
     with ``h = -Dh x`` there the same formulas hold. The first step may go back in time
-    (events before t = 0). Writes ``X[p]`` the sum of ``dt F[B]`` over the steps (s X is
-    the move from v to the position at the last event, s = -1 backwards) and ``T[p]`` the
-    time of that event (signed); with ``record``, ``order[p, j]`` the j-th event
-    and ``times[p, j]`` its time. One line per lane, on purpose: each lane's vectors are
+    (events before t = 0). Writes ``T[p]`` the time of the last event (signed) and, when
+    ``carry``, ``X[p]`` the sum of ``dt F[B]`` over the steps (s X is the move from v to the
+    position at the last event, s = -1 backwards), else ``order[p, j]`` the j-th event and
+    ``times[p, j]`` its time. One line per lane, on purpose: each lane's vectors are
     local variables, kept in registers.
     """
-    R, DhTp, dims, wh, wx, far, wide = (tables[0], tables[1], tables[2], tables[4], tables[5],
-                                        tables[6], tables[7])
+    R, DhTp, dims, wh, wx, far, carry = (tables[0], tables[1], tables[2], tables[4],
+                                         tables[5], tables[6], tables[7])
     n, d = dims[0], dims[1]
     s = -1.0 if inverse else 1.0
     # not candidates: the events that happened (forwards) or did not (backwards), and the
@@ -111,32 +114,33 @@ def _lanes(tables, V, q0, last, inverse, record, X, T, order, times):
     b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = b
     for j in range(n):
         h0, x0, t0, b0, k = _step(R, h0, x0, t0, b0, (b0 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 0, j, k, t0, s, record)
+                                  far, carry)
+        _record(order, times, 0, j, k, t0, s, carry)
         h1, x1, t1, b1, k = _step(R, h1, x1, t1, b1, (b1 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 1, j, k, t1, s, record)
+                                  far, carry)
+        _record(order, times, 1, j, k, t1, s, carry)
         h2, x2, t2, b2, k = _step(R, h2, x2, t2, b2, (b2 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 2, j, k, t2, s, record)
+                                  far, carry)
+        _record(order, times, 2, j, k, t2, s, carry)
         h3, x3, t3, b3, k = _step(R, h3, x3, t3, b3, (b3 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 3, j, k, t3, s, record)
+                                  far, carry)
+        _record(order, times, 3, j, k, t3, s, carry)
         h4, x4, t4, b4, k = _step(R, h4, x4, t4, b4, (b4 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 4, j, k, t4, s, record)
+                                  far, carry)
+        _record(order, times, 4, j, k, t4, s, carry)
         h5, x5, t5, b5, k = _step(R, h5, x5, t5, b5, (b5 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 5, j, k, t5, s, record)
+                                  far, carry)
+        _record(order, times, 5, j, k, t5, s, carry)
         h6, x6, t6, b6, k = _step(R, h6, x6, t6, b6, (b6 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 6, j, k, t6, s, record)
+                                  far, carry)
+        _record(order, times, 6, j, k, t6, s, carry)
         h7, x7, t7, b7, k = _step(R, h7, x7, t7, b7, (b7 ^ flip) | pad, wh, wx,
-                                  far, wide)
-        _record(order, times, 7, j, k, t7, s, record)
-    vec.store(X, 0, 0, x0), vec.store(X, 1, 0, x1), vec.store(X, 2, 0, x2)
-    vec.store(X, 3, 0, x3), vec.store(X, 4, 0, x4), vec.store(X, 5, 0, x5)
-    vec.store(X, 6, 0, x6), vec.store(X, 7, 0, x7)
+                                  far, carry)
+        _record(order, times, 7, j, k, t7, s, carry)
+    if vec.value(carry):
+        vec.store(X, 0, 0, x0), vec.store(X, 1, 0, x1), vec.store(X, 2, 0, x2)
+        vec.store(X, 3, 0, x3), vec.store(X, 4, 0, x4), vec.store(X, 5, 0, x5)
+        vec.store(X, 6, 0, x6), vec.store(X, 7, 0, x7)
     T[0], T[1], T[2], T[3], T[4], T[5], T[6], T[7] = (s * t0, s * t1, s * t2, s * t3, s * t4,
                                                       s * t5, s * t6, s * t7)
 
@@ -154,20 +158,20 @@ def _lane_scratch(tables):
 @njit(**JIT)
 def _lane_apply_block(tables, V, outs, start, stop, inverse):
     """out = M(V) (M^-1 when ``inverse``): ``v + s X - T F[end]``, the position at the last
-    event moved back to time 0 along the final region's field. When ``wide`` (d > 32: the
-    lanes' positions would not fit the registers) the chain only records its steps and
+    event moved back to time 0 along the final region's field. Unless ``carry`` (d > 32:
+    the lanes' positions would not fit the registers) the chain only records its steps and
     ``v + sum_j t_j (F[before_j] - F[after_j])`` (MATH.md section 3) is summed afterwards,
     8 coordinates at a time."""
-    R, dims, wx, wide = tables[0], tables[2], tables[5], tables[7]
+    R, dims, wx, carry = tables[0], tables[2], tables[5], tables[7]
     out = outs[0]
     n, d, dc, of = dims[0], dims[1], dims[3], 16 * dims[2]
     X, T, order, times = _lane_scratch(tables)
     end = 0 if inverse else (1 << n) - 1
     s = -1.0 if inverse else 1.0
     for q0 in range(start, stop, LANES):
-        _lanes(tables, V, q0, stop - 1, inverse, vec.value(wide) == 1, X, T, order, times)
+        _lanes(tables, V, q0, stop - 1, inverse, X, T, order, times)
         for p in range(min(LANES, stop - q0)):
-            if vec.value(wide):
+            if not vec.value(carry):
                 for c in range(dc):
                     count = min(d - 8 * c, 8)
                     x = vec.load_first(V, q0 + p, 8 * c, count, W8)
@@ -191,7 +195,7 @@ def _lane_times_block(tables, V, outs, start, stop, inverse):
     times_out, order_out = outs
     X, T, order, times = _lane_scratch(tables)
     for q0 in range(start, stop, LANES):
-        _lanes(tables, V, q0, stop - 1, False, True, X, T, order, times)
+        _lanes(tables, V, q0, stop - 1, False, X, T, order, times)
         write_times(order, times, q0, min(LANES, stop - q0), order_out, times_out)
 
 
@@ -210,7 +214,7 @@ def _lane_tangent_block(tables, V, outs, start, stop, transpose):
     Y = np.empty_like(X)
     region = np.empty(LANES, dtype=np.int64)
     for q0 in range(start, stop, LANES):
-        _lanes(tables, V, q0, stop - 1, False, True, X, times, order, steps)
+        _lanes(tables, V, q0, stop - 1, False, X, times, order, steps)
         for p in range(LANES):  # the padding lanes of y stay 0
             vec.store(Y, p, 0, vec.load_first(T, min(q0 + p, stop - 1), 0, d, wx))
             region[p] = (1 << n) - 1 if transpose else 0  # walk the chain either way
@@ -235,7 +239,10 @@ def kernels(wh: int, wx: int, far: int):
     """The batches ``(apply, event_times, tangents)`` compiled for vectors of ``wh`` and
     ``wx`` lanes and ``far``; each takes ``tables = (R, DhTp, dims, Dhp)`` and outs
     ``(out,)`` (M(V) or M^-1(V)), ``(times, orders)``, ``(out, T)`` (M_sigma(V) T or its
-    transpose)."""
-    statics = (vec.static(wh), vec.static(wx), vec.static(far), vec.static(int(wx > WIDE_X)))
-    return tuple(batch(block, statics=statics)
-                 for block in (_lane_apply_block, _lane_times_block, _lane_tangent_block))
+    transpose). Only apply carries the position along the chain (``carry``), and only
+    while it fits the registers; the others record the steps."""
+    def statics(carry):
+        return (vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry))
+    return (batch(_lane_apply_block, statics=statics(int(wx <= WIDE_X))),
+            batch(_lane_times_block, statics=statics(0)),
+            batch(_lane_tangent_block, statics=statics(0)))
