@@ -90,6 +90,14 @@ def aligned_empty(shape: tuple[int, int]) -> np.ndarray:
     return buf[start : start + size].reshape(shape)
 
 
+def padded(X, cols: int, fill: float = 0.0) -> np.ndarray:
+    """X (rows, c) in a C-contiguous (rows, cols) float64 array, the extra columns ``fill``
+    (the kernels read rows as whole vectors of a multiple of 8 entries)."""
+    out = np.full((X.shape[0], cols), fill)
+    out[:, : X.shape[1]] = X
+    return out
+
+
 def region_records(F, Dh: np.ndarray) -> np.ndarray:
     """The table of one record per region, 64-byte aligned, shape (2**n, stride).
 

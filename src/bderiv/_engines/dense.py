@@ -37,13 +37,11 @@ class DenseEngine(Engine):
         nc, dc, _ = _tables.record_layout(n, d)
         self.G = self.R[:, 8 * nc : 8 * nc + n]
         self.F = self.R[:, 16 * nc : 16 * nc + d]
-        DhTp = np.zeros((d, 8 * nc))
-        DhTp[:, :n] = self.Dh.T
         self._lanes = self._lane_kernels = None
         if not PLAIN and d <= lanes.MAX_D:
-            Dhp = np.zeros((n, 8 * dc))
-            Dhp[:, :d] = self.Dh
-            self._lanes = (self.R, DhTp, np.array([n, d, nc, dc], dtype=np.int64), Dhp)
+            self._lanes = (self.R, _tables.padded(self.Dh.T, 8 * nc),
+                           np.array([n, d, nc, dc], dtype=np.int64),
+                           _tables.padded(self.Dh, 8 * dc))
             self._lane_kernels = lanes.kernels(8 * nc, 8 * dc, int(self.R.nbytes > FAR_BYTES))
         self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
 

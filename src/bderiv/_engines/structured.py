@@ -6,6 +6,7 @@ import numpy as np
 
 from .._format import format_happened
 from .._kernels import structured as kernels
+from .._tables import padded
 from . import fastpath
 from .base import Engine
 
@@ -83,13 +84,6 @@ class StructuredEngine(Engine):
         return self.model.corners(happened)
 
 
-def _padded(X, cols, fill=0.0):
-    """X (rows, c) in a C-contiguous (rows, cols) array, the extra columns ``fill``."""
-    out = np.full((X.shape[0], cols), fill)
-    out[:, : X.shape[1]] = X
-    return out
-
-
 def _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B, check):
     """The tables of ``_kernels.structured`` (see its docstring): rows padded to multiples
     of 8, the pairs of each event as CSR."""
@@ -103,9 +97,9 @@ def _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B, check):
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=ptr[1:])
     dims = np.array([n, d, nc, dc, p, counts.max(initial=0), check], dtype=np.int64)
-    return (_padded(DhT, 8 * nc), _padded(np.stack([g0, gfull]), 8 * nc, 1.0),
-            _padded(a, 8 * nc), _padded(bDh, 8 * nc), ptr,
+    return (padded(DhT, 8 * nc), padded(np.stack([g0, gfull]), 8 * nc, 1.0),
+            padded(a, 8 * nc), padded(bDh, 8 * nc), ptr,
             np.ascontiguousarray(partner[srt], dtype=np.int64),
             np.ascontiguousarray(pid[srt], dtype=np.int64),
-            _padded(np.vstack([A, B]), 8 * dc), _padded(np.arange(n)[None], 8 * nc, np.inf),
+            padded(np.vstack([A, B]), 8 * dc), padded(np.arange(n)[None], 8 * nc, np.inf),
             dims)
