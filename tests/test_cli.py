@@ -272,7 +272,15 @@ BAD = [
     (["demo", "--example", "nope"], "invalid choice"),
     (["demo", "--batch", "0"], "positive integer"),
     (["demo", "--batch", "lots"], "positive integer"),
-    (["demo", "--eps", "-1"], "positive number"),
+    (["demo", "--eps", "-1"], "the steps must be positive, got '-1'"),
+    (["demo", "--eps", "-1e-4"], "the steps must be positive, got '-1e-4'"),
+    (["demo", "--eps", "1e-4", "1e-20"], "between 1e-12 and 0.1, got '1e-20'"),
+    (["demo", "--eps", "10"], "between 1e-12 and 0.1, got '10'"),
+    (["demo", "--batch", "2.5"], "positive integer, got '2.5'"),
+    (["demo", "--batch", "1e300"], "positive integer, got '1e300'"),
+    (["--example", "nope"], "invalid choice"),
+    (["plot", "--example", "planar", "--figure", "pieces", "--dpi", "5000"],
+     "image viewers and libraries refuse more than"),
     (["demo", "--check", "-2"], "integer >= 0"),
     (["demo", "--unknown-flag"], "unrecognized arguments"),
     (["demo", "--example", "corners", "--n", "3"], "--n applies to --example network"),
@@ -310,7 +318,8 @@ def test_bad_arguments_one_line_exit_2(capsys, argv, message):
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
     # one prefix for argparse's errors and the later ones: the command's name
-    prefix = "bderiv: error:" if argv[0] == "frobnicate" else f"bderiv {argv[0]}: error:"
+    command = "demo" if argv[0].startswith("-") else argv[0]  # no command: the demo
+    prefix = "bderiv: error:" if argv[0] == "frobnicate" else f"bderiv {command}: error:"
     assert lines[0].startswith(prefix), lines[0]
     assert message in lines[0]
     assert "Traceback" not in err
@@ -425,3 +434,13 @@ def test_demo_impact(capsys):
     out = capsys.readouterr().out
     assert "resets: u0 0.6 -> 0, u1 -0.6 -> 0" in out
     assert "refused" in out and "do not commute" in out
+
+
+def test_sizes_in_scientific_notation_and_options_without_a_command(capsys):
+    """``--batch 1e3`` is the integer 1000; options with no command run the demo."""
+    from bderiv.cli.parser import build_parser
+
+    args = build_parser().parse_args(["demo", "--batch", "1e3", "--check", "2E0"])
+    assert (args.batch, args.check) == (1000, 2) and type(args.batch) is int
+    code, out, _ = run(["--example", "corners", "--batch", "1e2"], capsys)
+    assert code == 0 and out.startswith("bderiv demo: corners")

@@ -28,6 +28,9 @@ GAIT_FIGURES = ("orbit", "growth")
 FIGURES = (*FIGURES_2D, "pieces", "scaling", *GAIT_FIGURES)
 #: Agg's bound on the pixels of a side of a raster image
 MAX_SIDE_PIXELS = 1 << 16
+#: the most pixels of a raster image that image libraries open without refusing it as a
+#: decompression bomb (Pillow's MAX_IMAGE_PIXELS, about 89 million)
+MAX_PIXELS = 89_478_485
 #: simulated strides of the growth figure's decay check (the iterations it shows), and the
 #: directions and size of its perturbations
 DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-2
@@ -204,6 +207,13 @@ def check_raster(fig, dpi: int, name: str) -> None:
         raise UsageError(
             f"--dpi {dpi} makes the figure {name} {width:.0f} x {height:.0f} pixels; at most "
             f"{MAX_SIDE_PIXELS - 1} pixels per side are possible"
+        )
+    if width * height > MAX_PIXELS:
+        raise UsageError(
+            f"--dpi {dpi} makes the figure {name} {width:.0f} x {height:.0f} = "
+            f"{width * height:.3g} pixels; image viewers and libraries refuse more than "
+            f"{MAX_PIXELS:.3g} (at most --dpi {int(dpi * (MAX_PIXELS / (width * height)) ** 0.5)} "
+            f"for this figure)"
         )
     require_memory(int(width * height) * 4, f"--dpi {dpi} ({width:.0f} x {height:.0f} pixels)")
 

@@ -10,7 +10,6 @@ other exception is a bug or a failure of the machine and propagates with its tra
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 
@@ -52,10 +51,23 @@ def _argument_type(convert, accept, expected: str):
     return parse
 
 
-_positive_int = _argument_type(int, lambda v: v >= 1, "a positive integer")
-_nonneg_int = _argument_type(int, lambda v: v >= 0, "an integer >= 0")
-_positive_float = _argument_type(float, lambda v: math.isfinite(v) and v > 0,
-                                 "a positive number")
+def _integer(text: str) -> int | None:
+    """``int(text)``, also for integral values in scientific notation (``1e6``) up to
+    2**53 (beyond it a float no longer holds every integer); None when not integral."""
+    try:
+        return int(text)
+    except ValueError:
+        value = float(text)
+    return int(value) if value.is_integer() and abs(value) <= 2.0**53 else None
+
+
+_positive_int = _argument_type(_integer, lambda v: v >= 1, "a positive integer")
+_nonneg_int = _argument_type(_integer, lambda v: v >= 0, "an integer >= 0")
+#: finite-difference steps: below 1e-12 rounding swamps the difference quotient, above 0.1
+#: the step leaves the neighbourhood where the B-derivative describes the flow
+EPS_RANGE = (1e-12, 0.1)
+_eps = _argument_type(float, lambda v: EPS_RANGE[0] <= v <= EPS_RANGE[1],
+                      f"a step between {EPS_RANGE[0]:g} and {EPS_RANGE[1]:g}")
 
 
 #: the examples beyond the models and the corner tables, in the help of ``--example``
@@ -107,8 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tangent vectors in the timed batch (default 1000000)")
     p.add_argument("--check", type=_nonneg_int, default=8,
                    help="vectors checked against finite differences (default 8, 0 = none)")
-    p.add_argument("--eps", type=_positive_float, nargs="+", default=[1e-4, 1e-5, 1e-6],
-                   help="finite-difference steps (default 1e-4 1e-5 1e-6)")
+    p.add_argument("--eps", type=_eps, nargs="+", default=[1e-4, 1e-5, 1e-6],
+                   help=f"finite-difference steps, each between {EPS_RANGE[0]:g} and "
+                   f"{EPS_RANGE[1]:g} (default 1e-4 1e-5 1e-6)")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
     p.add_argument("--full", action="store_true",
                    help="also print the matrices: the pieces listed, each group's Dh and "
@@ -226,6 +239,15 @@ def _export(args) -> str:
 _COMMANDS = {"demo": _demo, "bench": _bench, "plot": _plot, "export": _export}
 
 
+def _refuse_negative_eps(argv, parser) -> None:
+    """argparse reads ``--eps -1e-4`` as an option named ``-1e-4`` and says "expected at
+    least one argument"; say what is wrong instead."""
+    for i, arg in enumerate(argv[1:], 1):
+        if argv[i - 1] == "--eps" and arg[:1] == "-" and arg[1:2].isdigit():
+            parser.commands[argv[0] if argv[0] in parser.commands else "demo"].error(
+                f"argument --eps: the steps must be positive, got {arg!r}")
+
+
 def main(argv=None) -> int:
     """Entry point of ``bderiv`` and ``python -m bderiv``; returns the exit status.
 
@@ -253,6 +275,10 @@ def main(argv=None) -> int:
     0
     """
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version"):
+        argv.insert(0, "demo")  # options without a command are the demo's
+    _refuse_negative_eps(argv, parser)
     args, extra = parser.parse_known_args(argv)
     if args.command is None:
         args, extra = parser.parse_known_args(["demo", *extra])
