@@ -45,7 +45,14 @@ def test_demo_json_and_fd_convergence(capsys):
     res = json.loads(out)
     assert set(res) == {"example", "description", "dim", "n_events", "x0", "t_final",
                         "build_seconds", "groups", "pieces", "batch", "check",
-                        "total_seconds"}
+                        "total_seconds", "phases"}
+    # the phases account for the total; compilation is counted apart, not in the timings
+    phases = res["phases"]
+    assert list(phases) == ["loading the example", "flow map", "pieces", "batch", "check"]
+    assert sum(p["seconds"] for p in phases.values()) <= res["total_seconds"]
+    assert all(0 <= p["compiling_seconds"] <= p["seconds"] for p in phases.values())
+    assert res["build_seconds"] == pytest.approx(
+        phases["flow map"]["seconds"] - phases["flow map"]["compiling_seconds"])
     assert res["example"] == "chair" and (res["dim"], res["n_events"]) == (6, 2)
     assert res["groups"][0]["events"] == [0, 1]
     pieces = res["pieces"]
@@ -444,3 +451,22 @@ def test_sizes_in_scientific_notation_and_options_without_a_command(capsys):
     assert (args.batch, args.check) == (1000, 2) and type(args.batch) is int
     code, out, _ = run(["--example", "corners", "--batch", "1e2"], capsys)
     assert code == 0 and out.startswith("bderiv demo: corners")
+
+
+def test_phases_count_a_compilation_apart():
+    """numba compiling inside a phase is counted in its compiling seconds."""
+    import numba
+
+    from bderiv.cli.timing import Phases
+
+    @numba.njit(cache=False)
+    def fresh(x):  # a new function: compiled at its first call, inside the phase
+        return x + 1
+
+    phases = Phases()
+    with phases("first call"):
+        assert fresh(1) == 2
+    with phases("second call"):
+        assert fresh(2) == 3
+    assert 0 < phases.compiling["first call"] <= phases.seconds["first call"]
+    assert phases.compiling["second call"] == 0.0

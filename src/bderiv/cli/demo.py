@@ -9,7 +9,9 @@ The computation returns one JSON-ready dict and reports it section by section th
 callback ``report(section, res)`` as it goes (a model: ``"model"``, ``"trajectory"``,
 ``"pieces"``, ``"batch"``, ``"check"``; a corner table: ``"corner_table"``; both end with
 ``"total"``), so that the text can stream while the finite differences run;
-:mod:`bderiv.cli.render` turns each section into text.
+:mod:`bderiv.cli.render` turns each section into text. Each phase is timed apart, with
+the part of it spent compiling (or loading the cached kernels: the first run on a machine)
+in ``res["phases"]``; the timings reported (the build, the batch) leave compilation out.
 """
 
 from __future__ import annotations
@@ -23,11 +25,12 @@ from ..checks import fd_check
 from .machine import machine_info
 from .pieces import distinct_pieces, group_tables, piece_summary
 from .systems import load_example
+from .timing import Phases
 from .usage import require_memory
 
 #: tangent vectors of the batch whose event orders are counted (pieces met, shares)
 PIECE_SAMPLE = 100_000
-#: vectors of the untimed first call (compiling, or loading the cached kernels)
+#: vectors of the untimed first call (the kernels compiled or loaded, the caches warm)
 FIRST_CALL = 2048
 #: timed runs of the batch (the best and the slowest are reported)
 TIMED_RUNS = 3
@@ -63,44 +66,51 @@ def run_demo(example="chair", n=None, extended=False, batch=1_000_000, check=8,
     dict
     """
     report = report or (lambda section, res: None)
-    t_start = time.perf_counter()
+    t_start, phases = time.perf_counter(), Phases()
     rng = np.random.default_rng(seed)
-    ex, bd = load_example(example, n, extended)
+    with phases("loading the example"):
+        ex, bd = load_example(example, n, extended)
     dim = bd.dim if ex is None else ex.system.dim
     # the batch, its image and one temporary of the flow's stages, before anything runs
     require_memory(3 * batch * dim * 8, f"--batch {batch} (d = {dim})")
     require_memory(3 * check * dim * 8, f"--check {check} (d = {dim})")
     res = {"example": example}
     if ex is None:
-        _table_demo(bd, res, batch, rng, full, report)
+        with phases("corner table"):
+            _table_demo(bd, res, batch, rng, full, report)
     else:
-        _model_demo(ex, res, batch, check, eps, rng, full, progress, report)
+        _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     res["total_seconds"] = time.perf_counter() - t_start
+    res["phases"] = {name: {"seconds": sec, "compiling_seconds": phases.compiling[name]}
+                     for name, sec in phases.seconds.items()}
     report("total", res)
     return res
 
 
-def _model_demo(ex, res, batch, check, eps, rng, full, progress, report):
+def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases):
     """The demo of a model: trajectory, pieces, timed batch, finite-difference check."""
     system = ex.system
     res.update(description=ex.description, dim=system.dim, n_events=system.n_events,
                x0=ex.x0.tolist(), t_final=ex.t_final)
     report("model", res)
-    t0 = time.perf_counter()
-    fb = system.flow_bderivative(ex.x0, ex.t_final)
-    res["build_seconds"] = time.perf_counter() - t0
+    with phases("flow map"):
+        fb = system.flow_bderivative(ex.x0, ex.t_final)
+    res["build_seconds"] = phases.without_compiling("flow map")
     res["groups"] = _groups(fb, system.start_mask(ex.x0), full)
     if full:
         res["linear"] = [L.tolist() for L in fb.linear]
     report("trajectory", res)
     V = rng.standard_normal((batch, system.dim))
-    res["pieces"] = piece_summary(fb, V[:PIECE_SAMPLE], full)
+    with phases("pieces"):
+        res["pieces"] = piece_summary(fb, V[:PIECE_SAMPLE], full)
     report("pieces", res)
-    res["batch"] = _time_batch(fb, V)
+    with phases("batch"):
+        res["batch"] = _time_batch(fb, V)
     report("batch", res)
     if check > 0:
-        res["check"] = _check(ex, fb, rng, check, eps, progress,
-                              res["batch"]["ns_per_vector"] * 1e-9)
+        with phases("check"):
+            res["check"] = _check(ex, fb, rng, check, eps, progress,
+                                  res["batch"]["ns_per_vector"] * 1e-9)
         report("check", res)
 
 

@@ -40,7 +40,7 @@ def demo_section(section: str, res: dict) -> str:
     Examples
     --------
     >>> print(demo_section("total", {"total_seconds": 2.0}), end="")
-    total 2.0 s
+    total 2 s
     """
     return _DEMO_SECTIONS[section](res)
 
@@ -50,10 +50,11 @@ def numbers(values, digits: int = 6) -> str:
 
     Examples
     --------
-    >>> numbers([-2.9, 1 / 3, 0.0])
-    '[-2.9, 0.333333, 0]'
+    >>> numbers([-2.9, 1 / 3, 0.0, -0.0, -1e-9])
+    '[-2.9, 0.333333, 0, 0, -1e-09]'
     """
-    return "[" + ", ".join(f"{float(v):.{digits}g}" for v in values) + "]"
+    # + 0.0 turns -0.0 into 0.0 (a printed "-0" reads as a small negative number)
+    return "[" + ", ".join(f"{float(v) + 0.0:.{digits}g}" for v in values) + "]"
 
 
 def _matrix(name, rows, indent="    ") -> list:
@@ -83,7 +84,7 @@ def _trajectory(res):
     lines += [
         "two maps: M = the B-derivative at the event point of a group (a BDerivative)",
         f"          D = the B-derivative of the flow x -> Phi({tf:g}, x) at x0 (a "
-        f"FlowBDerivative, built in {res['build_seconds']:.2f} s)",
+        f"FlowBDerivative, built in {seconds(res['build_seconds'])})",
         "            = L_m M_m ... L_1 M_1 L_0, L: variational equations of the smooth "
         "stretches",
     ]
@@ -129,13 +130,25 @@ def _pieces(res):
     return "\n".join(lines) + "\n"
 
 
+def seconds(value: float) -> str:
+    """A duration with three significant digits in s, ms or us.
+
+    >>> seconds(21.63), seconds(0.000123), seconds(0.0456)
+    ('21.6 s', '123 us', '45.6 ms')
+    """
+    for unit, scale in (("s", 1.0), ("ms", 1e-3)):
+        if value >= scale:
+            return f"{value / scale:.3g} {unit}"
+    return f"{value * 1e6:.3g} us"
+
+
 def _batch(res, what="D"):
     b = res["batch"]
     runs = b["runs_seconds"]
     return (
         f"batch: {what} applied to {b['size']:,} tangent vectors: {b['ns_per_vector']:.0f} ns "
-        f"per vector (best of {len(runs)} runs of {min(runs):.3f} .. {max(runs):.3f} s; first "
-        f"call, compiling or loading the cached kernels: {b['first_call_seconds']:.2f} s); "
+        f"per vector (best of {len(runs)} runs of {seconds(min(runs))} .. "
+        f"{seconds(max(runs))}, after an untimed first call); "
         f"|{what} V| max = {b['max_abs_output']:.4g}\n"
         f"  measured on {describe(b['machine'])}\n"
     )
@@ -184,7 +197,19 @@ def _corner_table(res):
 
 
 def _total(res):
-    return f"total {res['total_seconds']:.1f} s\n"
+    """The total and where it went; compilation (the kernels compiled, or loaded from
+    numba's on-disk cache: the first run on a machine) said once, apart."""
+    phases = res.get("phases", {})
+    compiling = sum(p["compiling_seconds"] for p in phases.values())
+    parts = [f"{name} {seconds(p['seconds'] - p['compiling_seconds'])}"
+             for name, p in phases.items()]
+    text = f"total {seconds(res['total_seconds'])}"
+    if parts:
+        text += ": " + ", ".join(parts)
+    if compiling >= 0.05:
+        text += (f"; and compiling or loading the cached kernels {seconds(compiling)} "
+                 f"(once: numba keeps them on disk)")
+    return text + "\n"
 
 
 _DEMO_SECTIONS = {"model": _model, "trajectory": _trajectory, "pieces": _pieces,

@@ -231,7 +231,8 @@ def summary_text(res):
     o, st = res["orbit"], res["stability"]
     arrow = {1: "up", -1: "down"}
     lines = [f"bderiv demo: {res['name']}", f"  {res['description']}",
-             f"periodic orbit (apex section -vz = 0): x0 = {np.round(o['x0'], 10).tolist()}",
+             "periodic orbit (apex section -vz = 0): x0 = "
+             f"{(np.round(o['x0'], 10) + 0.0).tolist()}",  # + 0.0: no -0.0
              f"  period {o['period']:.10g}; Newton residuals "
              + ", ".join(f"{r:.2e}" for r in o["newton_residuals"])
              + f"; fixed-point residual |P(x0) - x0| = {o['residual']:.2e}"]
