@@ -7,17 +7,20 @@ independent long simulations of the nonlinear system.
 
 from __future__ import annotations
 
+import itertools
 import pickle
 
 import numpy as np
 import pytest
+from reference import ref_apply
 from scipy.integrate import solve_ivp
 from test_recurring import square_spiral
 
+from bderiv.bderivative import BDerivative
 from bderiv.checks import decay_check, fd_check
 from bderiv.examples import gaits
 from bderiv.flowmap import FlowBDerivative
-from bderiv.orbit import PeriodicOrbit, all_pieces
+from bderiv.orbit import MAX_PIECE_SWITCHES, PeriodicOrbit, newton_step
 from bderiv.returnmap import ReturnMap
 from bderiv.stability import Stability, growth_rate, piece_multipliers
 
@@ -212,6 +215,52 @@ def test_orbit_converges_and_is_confirmed_by_an_independent_simulation(gait):
     np.testing.assert_allclose(radau.x_final, orb.x0, atol=1e-8)
 
 
+def _random_event_map(rng, n, d):
+    """A BDerivative with random transversal tables (positive rates, mask-dependent)."""
+    Dh = np.linalg.qr(rng.standard_normal((d, n)))[0].T  # orthonormal rows
+    F0 = Dh.T @ np.ones(n)  # every rate 1 in region 0
+    F = F0 + 0.3 * rng.uniform(-1, 1, (1 << n, d)) / np.sqrt(d)  # rates in [0.7, 1.3]
+    return BDerivative(Dh, F), Dh, F
+
+
+@pytest.mark.parametrize("n, groups", [(3, 1), (8, 2)])
+def test_pl_newton_step_solves_the_equation_without_listing_pieces(n, groups):
+    # two groups of 8 events: (8!)^2 = 1.6e9 pieces, which the old solver listed; the step
+    # must land on the exact solution delta* of r + A(delta) - delta = 0, n . delta = -s
+    # (A evaluated by the plain reference, tests/reference.py, not by the kernels)
+    rng = np.random.default_rng(n)
+    d = n + 2
+    maps = [_random_event_map(rng, n, d) for _ in range(groups)]
+    Ls = [np.eye(d) + 0.2 * rng.standard_normal((d, d)) / np.sqrt(d)
+          for _ in range(groups + 1)]
+    # a contraction, as the return map of a stable gait: every I - A_piece then has a
+    # positive determinant, so the PL equation has exactly one solution
+    V = rng.standard_normal((4000, d))
+    lipschitz = (np.linalg.norm(FlowBDerivative(Ls, [m[0] for m in maps])(V), axis=1)
+                 / np.linalg.norm(V, axis=1)).max()
+    Ls[-1] *= 0.5 / lipschitz
+    R = FlowBDerivative(Ls, [m[0] for m in maps])
+
+    def A(v):
+        v = Ls[0] @ v
+        for (_, Dh, F), L in zip(maps, Ls[1:], strict=True):
+            v = L @ ref_apply(Dh, F, v)
+        return v
+
+    moved = 0
+    for _ in range(5):
+        delta_star = rng.standard_normal(d)
+        normal = rng.standard_normal(d)
+        r = delta_star - A(delta_star)
+        delta, piece, switches = newton_step(R, r, normal, -normal @ delta_star)
+        assert np.abs(r + A(delta) - delta).max() < 1e-12
+        np.testing.assert_allclose(delta, delta_star, rtol=1e-9, atol=1e-9)
+        assert [sorted(o) for o in piece] == [list(range(n))] * groups
+        assert switches < MAX_PIECE_SWITCHES
+        moved += switches
+    assert moved > 0  # the start piece (that of -r) was not always the solution's
+
+
 def test_newton_solves_the_piecewise_linear_equation_on_the_symmetric_subspace():
     # an exactly symmetric guess: the events of every iterate are simultaneous, and the
     # Newton steps come from the PL equation of groups of two events
@@ -239,7 +288,9 @@ def test_predicted_growth_rate_matches_long_simulations(gait):
     ex, orb = gait
     st = orb.stability(n_directions=500, iterations=1000)
     assert isinstance(st, Stability) and st.stable and st.spread < 1e-3
-    assert set(st.visits) <= set(all_pieces(orb.return_map)) and len(st.visits) >= 2
+    # two groups of two events: at most 2! * 2! pieces
+    every_piece = set(itertools.product(itertools.permutations(range(2)), repeat=2))
+    assert set(st.visits) <= every_piece and len(st.visits) >= 2
     assert all(m.shape == (3,) for m in st.multipliers.values())
     V = np.random.default_rng(0).standard_normal((2, 3)) @ orb.return_map.tangent_basis.T
     decay = decay_check(ex.system, orb.x0, gaits.apex_section,

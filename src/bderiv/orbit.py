@@ -7,9 +7,12 @@ exactly** (the B-derivative Newton method of Pang, 1990):
 
     find delta with   (P(x) - x) + A(delta) - delta = 0,   grad s(x) . delta = -s(x),
 
-by solving the linear system of every piece (one event order per group; few: a gait has
-a handful of simultaneous groups of a few events) and keeping the solution that lies in
-its own piece (``A(delta) = A_piece delta``). Why exactly and not "the piece at x": near
+by moving between pieces: solve the linear system of one piece (one event order per
+group), read the piece that its solution selects, and repeat until the solution lies in
+its own piece (``A(delta) = A_piece delta``), at most :data:`MAX_PIECE_SWITCHES` times;
+the work does not grow with the number of pieces (a product of n! orders per group, 1.6e9
+for two groups of eight feet), which are never listed (docs/mathematics.md section 10
+says what is guaranteed). Why exactly and not "the piece at x": near
 an orbit through a simultaneous-event point the iterates move between pieces, and the
 solution of the true PL equation is the step that makes the first-order model of P vanish,
 whichever piece it lands in; with the piece of x the step can point the wrong way and
@@ -25,7 +28,6 @@ never refused; the orbit's return map is then built with the caller's tolerance.
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +35,7 @@ import numpy as np
 from ._validate import check_number, check_positive_int
 from .returnmap import return_map
 from .simulate import SolverOptions, run
-from .stability import Stability, growth_rate, piece_multipliers
+from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
 __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
 
@@ -48,17 +50,46 @@ MAX_HALVINGS = 10
 #: a piece's solution lies in its piece when ``|A(delta) - A_piece delta|`` is below
 #: this times ``|A_piece| |delta|`` (ties between pieces give equal values).
 PIECE_RTOL = 1e-8
+#: pieces tried by one Newton step before it settles for a generalized Newton step.
+MAX_PIECE_SWITCHES = 32
+#: pieces whose Floquet multipliers ``stability()`` reports: the most visited.
+MULTIPLIER_PIECES = 12
 
 
 @dataclass(frozen=True)
 class NewtonIterate:
-    """One Newton iteration: the iterate, ``max |P(x) - x|`` there, the step taken, and
-    the piece (one event order per group) whose linear system gave it."""
+    """One Newton iteration.
+
+    Attributes
+    ----------
+    x : ndarray, shape (d,)
+        The iterate.
+    residual : float
+        ``max |P(x) - x|`` there.
+    step : float
+        ``max |x_next - x|`` of the step taken (0 for the last iterate).
+    piece : tuple
+        The piece of the return map's B-derivative whose linear system gave the step: one
+        event order per event group of the stride, each a tuple of the group's local event
+        indices in the order they happen (``((0,), (0,))``: two groups of one event each,
+        so a single linear piece). Empty for the last iterate, where no step was taken.
+    switches : int
+        Pieces tried before the step's piece (0: the first one was consistent).
+    """
 
     x: np.ndarray
     residual: float
     step: float
     piece: tuple
+    switches: int = 0
+
+    def __str__(self):
+        if not self.piece:
+            return f"residual {self.residual:.3g} (converged: no step)"
+        groups = ", ".join(f"group {i}: {' -> '.join(map(str, order))}"
+                           for i, order in enumerate(self.piece))
+        return (f"residual {self.residual:.3g}, step {self.step:.3g}, event orders "
+                f"[{groups}] ({self.switches} piece switches)")
 
 
 class PeriodicOrbit:
@@ -110,8 +141,10 @@ class PeriodicOrbit:
 
         Iterates the return map's B-derivative on ``n_directions`` random directions
         tangent to the section (:func:`bderiv.stability.growth_rate`) and reports the
-        Floquet multipliers of every piece met. See :mod:`bderiv.stability` for the
-        method and its limits.
+        Floquet multipliers of the pieces met most often (at most
+        :data:`MULTIPLIER_PIECES`; every piece met is counted in ``visits``). The work
+        grows with the directions and iterations, not with the number of pieces. See
+        :mod:`bderiv.stability` for the method and its limits.
 
         Parameters
         ----------
@@ -131,10 +164,12 @@ class PeriodicOrbit:
         n_directions = check_positive_int(n_directions, "n_directions")
         R = self.return_map
         basis = R.tangent_basis
+        check_growth_memory(n_directions, basis.shape[0], iterations)  # before V0 exists
         V0 = np.random.default_rng(seed).standard_normal((n_directions, basis.shape[1]))
         rates, spread, visits = growth_rate(R, V0 @ basis.T, iterations, burn_in,
                                             orders=R.orders)
-        multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in visits}
+        most = sorted(visits, key=visits.get, reverse=True)[:MULTIPLIER_PIECES]
+        multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in most}
         i = int(np.argmax(rates))
         burn_in = iterations // 4 if burn_in is None else int(burn_in)
         return Stability(float(rates[i]), bool(rates[i] < 1.0), rates, float(spread[i]),
@@ -194,9 +229,10 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
         if iteration == max_iter:
             raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
                                f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
-        delta, piece = newton_step(R, r, section.gradient(x), section(x))
+        delta, piece, switches = newton_step(R, r, section.gradient(x), section(x))
         x_new = _damped(system, section, x, delta, res, t_max, options)
-        history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece))
+        history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece,
+                                     switches))
         x = x_new
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
     R, traj = return_map(system, x, section, t_max=t_max, tol=1e-9,
@@ -205,34 +241,62 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
                          history)
 
 
-def newton_step(R, r, normal, value):
+def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES):
     """Solve the PL Newton equation ``r + R(delta) - delta = 0``, ``normal . delta =
-    -value`` exactly: the solution of a piece's linear system that lies in its piece.
+    -value`` by moving between pieces, never listing them.
 
-    Returns ``(delta, piece)``. When no piece's solution lies in its own piece (the PL
-    equation has no solution: the B-derivative is not invertible there), the solution
-    with the smallest PL residual ``|r + R(delta) - delta|`` is taken.
+    Starting from the piece that ``-r`` selects, solve that piece's linear system, and
+    move to the piece its solution selects until the solution lies in its own piece (then
+    it solves the PL equation exactly), a piece comes back (a cycle) or ``max_switches``
+    pieces were tried; then the solution with the smallest PL residual
+    ``|r + R(delta) - delta|`` among those tried is taken: a generalized Newton step with
+    that piece (docs/mathematics.md section 10).
+
+    Parameters
+    ----------
+    R : FlowBDerivative
+        The return map's B-derivative A (``R(V)``, ``R.orders``, ``R.piece``).
+    r : ndarray, shape (d,)
+        ``P(x) - x``.
+    normal : ndarray, shape (d,)
+        The section's gradient at x.
+    value : float
+        The section's value at x.
+    max_switches : int
+
+    Returns
+    -------
+    delta : ndarray, shape (d,)
+    piece : tuple of tuples
+        The piece of ``delta`` (one event order per group).
+    switches : int
+        Pieces tried before ``piece``.
     """
     d = R.dim
+    system = np.vstack((np.zeros((d, d)), normal))
     rhs = np.concatenate((-r, [-value]))
-    best = None
-    for piece in all_pieces(R):
+    piece, tried, best = _piece_of(R, -r), set(), None
+    for switches in range(max_switches):
         A = R.piece(list(piece))
-        delta = np.linalg.lstsq(np.vstack((A - np.eye(d), normal)), rhs, rcond=None)[0]
+        system[:d] = A - np.eye(d)
+        delta = np.linalg.lstsq(system, rhs, rcond=None)[0]
         image = R(delta)
-        off = np.abs(image - A @ delta).max()
-        if off <= PIECE_RTOL * np.abs(A).max() * np.abs(delta).max():
-            return delta, piece
+        if np.abs(image - A @ delta).max() <= PIECE_RTOL * np.abs(A).max() * np.abs(
+                delta).max():
+            return delta, piece, switches
         miss = np.abs(r + image - delta).max()
         if best is None or miss < best[0]:
-            best = (miss, delta, piece)
-    return best[1], best[2]
+            best = (miss, delta, piece, switches)
+        tried.add(piece)
+        piece = _piece_of(R, delta)
+        if piece in tried:
+            break
+    return best[1], best[2], best[3]
 
 
-def all_pieces(fmap):
-    """Every combination of one event order (local indices) per group of a flow map."""
-    per_group = [itertools.permutations(range(bd.n_events)) for bd in fmap.jumps]
-    return list(itertools.product(*per_group))
+def _piece_of(R, v):
+    """The piece (one event order per group, tuples of local indices) that v selects."""
+    return tuple(tuple(int(k) for k in order[0]) for order in R.orders(v[None]))
 
 
 def _onto_section(section, x, steps=20):

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import check_matrix, check_positive_int
+from ._validate import check_matrix, check_memory, check_positive_int
 
 __all__ = ["Stability", "growth_rate", "log_growth", "piece_multipliers"]
 
@@ -51,7 +51,8 @@ class Stability:
         ``|log(rate, first half) - log(rate, second half)|`` of the window, for the
         direction of the largest rate: how well the window has converged.
     multipliers : dict
-        ``{orders: eigenvalues}`` for every piece met during the iteration; ``orders`` a
+        ``{orders: eigenvalues}`` for the pieces met most often during the iteration
+        (``PeriodicOrbit.stability`` reports a dozen); ``orders`` a
         tuple of one event order (tuple) per group, ``eigenvalues`` the (d - 1,) complex
         Floquet multipliers of the piece on the section, by decreasing modulus.
     visits : dict
@@ -75,6 +76,9 @@ class Stability:
         lines = [f"growth rate {self.growth_rate:.6g} ({verdict}; spread of the estimate "
                  f"{self.spread:.2g}, {self.rates.size} directions, {self.iterations} "
                  f"iterations)"]
+        if len(self.visits) > len(self.multipliers):
+            lines.append(f"  {len(self.visits)} pieces met; the {len(self.multipliers)} met "
+                         f"most often:")
         for orders, mult in sorted(self.multipliers.items(), key=lambda kv: -self.visits[kv[0]]):
             radius = np.abs(mult).max() if mult.size else 0.0
             lines.append(f"  piece {orders}: {self.visits[orders]} visits, |multipliers| "
@@ -112,6 +116,8 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, orders=None):
     iterations = check_positive_int(iterations, "iterations")
     if iterations < 2:
         raise ValueError(f"iterations must be >= 2, got {iterations}")
+    if np.ndim(V0) == 2:  # (else check_matrix names the shape)
+        check_growth_memory(*np.shape(V0), iterations)
     burn_in = iterations // 4 if burn_in is None else int(burn_in)
     if not 0 <= burn_in <= iterations - 2:
         raise ValueError(f"burn_in must be in [0, iterations - 2 = {iterations - 2}], got "
@@ -123,6 +129,31 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, orders=None):
         slope = np.nan_to_num(_slope(window), nan=-np.inf)
         spread = np.nan_to_num(np.abs(_slope(window[:half]) - _slope(window[half:])), nan=0.0)
     return np.exp(slope), spread, visits
+
+
+#: (m, d) float arrays alive at once in a growth-rate run: the start directions (on the
+#: section and in the state), their checked copy, the iterate, its image and its
+#: renormalised image, with room for the map's own temporaries.
+GROWTH_ROW_ARRAYS = 8
+
+
+def check_growth_memory(n_directions, dim, iterations, memory_limit=None) -> None:
+    """Refuse a growth-rate run on ``n_directions`` directions before any array is made.
+
+    It keeps :data:`GROWTH_ROW_ARRAYS` arrays (n_directions, dim) and the log-growth table
+    (iterations, n_directions), all float64.
+
+    Raises
+    ------
+    ValueError
+        If they take more than ``memory_limit`` bytes (default: the memory available),
+        naming the sizes.
+    """
+    m, d = int(n_directions), int(dim)
+    iterations = check_positive_int(iterations, "iterations")
+    check_memory(8 * m * (GROWTH_ROW_ARRAYS * d + iterations), memory_limit,
+                 f"the growth rate of {m} directions in dimension {d} over {iterations} "
+                 f"iterations (n_directions x (8 d + iterations) floats)")
 
 
 def _slope(logs):
