@@ -20,6 +20,7 @@ from bderiv.bderivative import BDerivative
 from bderiv.checks import decay_check, fd_check
 from bderiv.examples import gaits
 from bderiv.flowmap import FlowBDerivative
+from bderiv.hybrid import HybridSystem
 from bderiv.orbit import MAX_PIECE_SWITCHES, PeriodicOrbit, newton_step
 from bderiv.returnmap import ReturnMap
 from bderiv.stability import Stability, growth_rate, piece_multipliers
@@ -358,7 +359,7 @@ def test_decay_check_validation(gait):
     with pytest.raises(ValueError, match="strides must be >= 4, got 3"):
         decay_check(ex.system, orb.x0, gaits.apex_section, V, strides=3)
     with pytest.raises(ValueError, match=r"deviation of vector 0 falls below floor=1 before "
-                       r"stride 3"):
+                       r"stride 4"):
         decay_check(ex.system, orb.x0, gaits.apex_section, V, strides=4, floor=1.0)
 
 
@@ -376,3 +377,40 @@ def test_return_map_pickles_and_is_read_only(gait):
     np.testing.assert_allclose(R.inverse(R(T)), T, atol=1e-10)
     out = np.empty_like(T)
     assert R.inverse(R(T), out=out) is out
+
+
+def radial_cycle(multiplier):
+    """A planar limit cycle r = 1 turning once per unit time, with the closed-form
+    multiplier of its return map to the half-line y = 0, x > 0: r' = mu (r - 1) (1 -
+    4 (r - 1)^2) gives delta r' = mu delta r near r = 1, so P'(1) = exp(mu) per turn; an
+    unstable cycle's perturbations saturate at the cycles r = 0.5 and 1.5."""
+    mu, omega = np.log(multiplier), 2 * np.pi
+
+    def field(x, mask):
+        r = np.hypot(x[0], x[1])
+        g = mu * (r - 1) * (1 - 4 * (r - 1) ** 2) / r
+        return np.array([-omega * x[1] + g * x[0], omega * x[0] + g * x[1]])
+
+    # one event that never happens (r stays below 1.5)
+    return HybridSystem(field, lambda x: np.array([x[0] - 10.0]), n_events=1, dim=2)
+
+
+def test_decay_check_fits_only_the_linear_regime():
+    V = np.array([[1.0, 0.0]])  # radial, on the section y = 0
+    x0 = np.array([1.0, 0.0])
+
+    def section(x):
+        return x[1]
+
+    stable = decay_check(radial_cycle(0.5), x0, section, V, eps=1e-2, strides=16)
+    assert stable.rate == pytest.approx(0.5, rel=0.01)
+    # growth 2.35 from eps = 1e-2 leaves the linear regime (5 % of |x0|) at stride 2: it
+    # must not report a rate (the old fit over the saturated strides gave about 1)
+    with pytest.warns(RuntimeWarning, match=r"vector 0 left the linear regime at stride 2 "
+                      r"\(deviation 0.05\d* > ceiling 0.05\).*smaller eps"):
+        grown = decay_check(radial_cycle(2.35), x0, section, V, eps=1e-2, strides=16)
+    assert np.isnan(grown.rate) and not grown.fitted[0, 3:].any()
+    # from eps = 1e-7 the growth is measured before the saturation: within 20 %
+    measured = decay_check(radial_cycle(2.35), x0, section, V, eps=1e-7, strides=12)
+    assert measured.rate == pytest.approx(2.35, rel=0.2)
+    assert measured.fitted[0].sum() >= 3 and measured.deviations[0, -1] > 1e-3

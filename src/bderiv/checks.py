@@ -12,6 +12,7 @@ many strides, the simulated counterpart of a predicted growth rate.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -172,6 +173,14 @@ def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=No
     return FDCheck(eps, np.array(errors).T, tuple(worst), ratios, per_vector)
 
 
+#: strides a direction needs in the linear regime for its rate to be fitted
+MIN_FIT_STRIDES = 3
+#: the linear regime of :func:`decay_check`: deviations at most this many times eps ...
+LINEAR_EPS = 100.0
+#: ... and at most this fraction of |x0|
+LINEAR_STATE = 0.05
+
+
 @dataclass(frozen=True)
 class DecayCheck:
     """Perturbations of a periodic orbit followed by simulation, stride by stride.
@@ -181,29 +190,44 @@ class DecayCheck:
     deviations : ndarray, shape (m, strides + 1)
         ``|P^k(x0 + eps v) - x0|`` (Euclidean) for every vector v and stride k = 0..strides.
     rates : ndarray, shape (m,)
-        Per-stride decay factor of each vector: ``exp`` of the least-squares slope of
-        ``log deviations`` over the strides in ``window`` where it is above ``floor``.
+        Per-stride growth factor of each vector: ``exp`` of the least-squares slope of
+        ``log deviations`` over its ``fitted`` strides; NaN for a vector with fewer than
+        :data:`MIN_FIT_STRIDES` of them (a warning said why).
     rate : float
-        The largest of ``rates``: the simulated counterpart of a predicted growth rate.
+        The largest of ``rates`` (NaN if any is NaN): the simulated counterpart of a
+        predicted growth rate.
     window : tuple of int
-        First and last stride fitted (the first strides are a transient).
+        First and last stride fitted over all vectors (the first strides are a transient).
+    fitted : ndarray of bool, shape (m, strides + 1)
+        The strides fitted for each vector: after the transient, above ``floor``, and in
+        the linear regime (before the deviation first exceeds ``ceiling``).
+    ceiling : float
+        The largest deviation counted as linear.
     """
 
     deviations: np.ndarray
     rates: np.ndarray
     rate: float
     window: tuple
+    fitted: np.ndarray
+    ceiling: float
 
 
-def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, t_max=10.0,
-                **simulate_options) -> DecayCheck:
+def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, ceiling=None,
+                t_max=10.0, **simulate_options) -> DecayCheck:
     """Measure how perturbations of a periodic orbit decay in long simulations.
 
     An independent check of a predicted growth rate
     (:meth:`PeriodicOrbit.stability <bderiv.orbit.PeriodicOrbit.stability>`): the
     nonlinear system is simulated from ``x0 + eps v`` through ``strides`` returns to the
     section, and the per-stride factor by which the deviation from ``x0`` shrinks is
-    fitted.
+    fitted, for each vector over the strides where the deviation is in the **linear
+    regime**: after the transient (the first quarter), above ``floor`` and before it first
+    exceeds ``ceiling``. A deviation that grows beyond the ceiling has left the regime the
+    linearisation describes (an unstable orbit's perturbations saturate), and later strides
+    say nothing about the rate; a vector with fewer than :data:`MIN_FIT_STRIDES` strides in
+    the regime gets the rate NaN and a ``RuntimeWarning`` with the reason, so a saturated
+    run never reports decay.
 
     Parameters
     ----------
@@ -220,6 +244,9 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, t_m
         Returns simulated per vector (>= 4).
     floor : float
         Deviations below this (the integration error) are not fitted.
+    ceiling : float, optional
+        The largest deviation counted as linear (default: ``LINEAR_EPS * eps``, and at most
+        ``LINEAR_STATE * |x0|`` when x0 is not 0).
     t_max : float
         Longest wait for each return.
     **simulate_options
@@ -229,16 +256,26 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, t_m
     Returns
     -------
     DecayCheck
+
+    Warns
+    -----
+    RuntimeWarning
+        When a vector's deviation leaves the linear regime before
+        :data:`MIN_FIT_STRIDES` strides after the transient (pass a smaller eps).
     """
     V = check_matrix(V, "V", (None, system.dim))
     eps = check_number(eps, "eps")
     strides = check_positive_int(strides, "strides")
     if strides < 4:
         raise ValueError(f"strides must be >= 4, got {strides}")
+    x0 = np.asarray(x0, dtype=np.float64)
+    size = float(np.linalg.norm(x0))
+    if ceiling is None:
+        ceiling = LINEAR_EPS * eps if size == 0 else min(LINEAR_EPS * eps, LINEAR_STATE * size)
+    ceiling = check_number(ceiling, "ceiling")
     simulate_options.setdefault("simultaneity_tol", FD_SIMULTANEITY_TOL)
     if not any(k in simulate_options for k in ("options", "rtol", "atol")):
         simulate_options["options"] = FD_OPTIONS
-    x0 = np.asarray(x0, dtype=np.float64)
     dev = np.empty((V.shape[0], strides + 1))
     for i, v in enumerate(V):
         x = x0 + eps * v
@@ -246,15 +283,37 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, t_m
         for k in range(1, strides + 1):
             x = system.simulate(x, t_max, section=section, **simulate_options).x_final
             dev[i, k] = np.linalg.norm(x - x0)
+    return _fit_decay(dev, floor, ceiling, eps)
+
+
+def _fit_decay(dev, floor, ceiling, eps) -> DecayCheck:
+    """Fit each row of ``dev`` (m, strides + 1) over its strides in the linear regime."""
+    strides = dev.shape[1] - 1
     first = strides // 4
-    rates = np.empty(V.shape[0])
-    last = first
-    for i, row in enumerate(dev):
-        k = np.arange(first, strides + 1)
-        keep = row[first:] > floor
-        if keep.sum() < 2:
+    k = np.arange(strides + 1)
+    # the regime ends at the first deviation above the ceiling, for good
+    linear = np.cumsum(dev > ceiling, axis=1) == 0
+    fitted = (k >= first) & linear & (dev > floor)
+    rates = np.full(dev.shape[0], np.nan)
+    left = []
+    for i, (row, keep) in enumerate(zip(dev, fitted, strict=True)):
+        if keep.sum() >= MIN_FIT_STRIDES:
+            rates[i] = np.exp(np.polyfit(k[keep], np.log(row[keep]), 1)[0])
+        elif not linear[i, -1]:
+            left.append(f"vector {i} left the linear regime at stride "
+                        f"{int(np.argmin(linear[i]))} (deviation "
+                        f"{row[np.argmin(linear[i])]:.3g} > ceiling {ceiling:.3g})")
+        else:
             raise ValueError(f"the deviation of vector {i} falls below floor={floor:g} "
-                             f"before stride {first + 2}: pass a larger eps or fewer strides")
-        last = max(last, int(k[keep][-1]))
-        rates[i] = np.exp(np.polyfit(k[keep], np.log(row[first:][keep]), 1)[0])
-    return DecayCheck(dev, rates, float(rates.max()), (first, last))
+                             f"before stride {first + MIN_FIT_STRIDES}: pass a larger eps "
+                             f"or fewer strides")
+    if left:
+        warnings.warn(
+            f"decay_check: {'; '.join(left)}, before {MIN_FIT_STRIDES} strides after the "
+            f"transient (stride {first}); the perturbations grow out of the regime the "
+            f"linearisation describes, so no rate is fitted for them (NaN). Pass a smaller "
+            f"eps (now {eps:g}) to measure the growth",
+            RuntimeWarning, stacklevel=3)
+    used = np.flatnonzero(fitted.any(axis=0))
+    window = (int(used[0]), int(used[-1])) if used.size else (first, first)
+    return DecayCheck(dev, rates, float(np.max(rates)), window, fitted, float(ceiling))
