@@ -1,0 +1,186 @@
+"""DOP853 (Dormand-Prince 8(5,3)) kernels: stages, error norm, step control, dense output.
+
+The tableau is scipy's own (``scipy.integrate._ivp.dop853_coefficients``), imported once
+here: the same digits as ``solve_ivp(method="DOP853")``, so that both take the same steps
+and the tests can hold this integrator to scipy's on the same problems. The module is
+private to scipy; if it moves, importing :mod:`bderiv.compiled` fails with an ImportError
+that says so (writing the tableau in would silently drift from the solver it is compared
+with). The arrays become compile-time constants of the kernels.
+
+The kernels mirror ``scipy.integrate._ivp.rk`` (``rk_step``, ``DOP853._estimate_error_norm``,
+``RungeKutta._step_impl``'s factors, ``Dop853DenseOutput``) and ``common.select_initial_step``.
+They work on the integrated vector ``y`` of length ``m`` (the state, or the state and its
+sensitivity, see :mod:`._rhs`) and do no validation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+try:
+    from scipy.integrate._ivp import dop853_coefficients as _tableau
+except ImportError as exc:  # pragma: no cover - depends on scipy's private layout
+    raise ImportError(
+        "bderiv.compiled reads the DOP853 tableau from scipy's private module "
+        "scipy.integrate._ivp.dop853_coefficients, which this scipy does not have; "
+        "install a scipy that has it (1.15 to 1.17 do)"
+    ) from exc
+
+from ._rhs import OK, rhs
+
+#: stages of a step (the 13th row of K holds f at the step's end, the FSAL value)
+N_STAGES = _tableau.N_STAGES
+#: stages with the three extra ones of the dense output
+N_STAGES_EXTENDED = _tableau.N_STAGES_EXTENDED
+#: rows of the dense output's coefficient array F
+INTERPOLATOR_POWER = _tableau.INTERPOLATOR_POWER
+A = np.ascontiguousarray(_tableau.A, dtype=np.float64)
+B = np.ascontiguousarray(_tableau.B, dtype=np.float64)
+C = np.ascontiguousarray(_tableau.C, dtype=np.float64)
+E3 = np.ascontiguousarray(_tableau.E3, dtype=np.float64)
+E5 = np.ascontiguousarray(_tableau.E5, dtype=np.float64)
+D = np.ascontiguousarray(_tableau.D, dtype=np.float64)
+#: step-size control of scipy's RungeKutta: safety factor, bounds of one change, and the
+#: exponent -1 / (error estimator order + 1) with the estimator of order 7
+SAFETY = 0.9
+MIN_FACTOR = 0.2
+MAX_FACTOR = 10.0
+ERROR_EXPONENT = -1.0 / 8.0
+
+
+@njit(cache=True)
+def rms(v, scale):
+    """RMS norm of ``v / scale`` (scipy's ``common.norm``)."""
+    s = 0.0
+    for j in range(v.size):
+        q = v[j] / scale[j]
+        s += q * q
+    return np.sqrt(s / v.size)
+
+
+@njit(cache=True)
+def initial_step(field, jac, variational, mask, d, t0, y0, f0, t_bound, max_step, rtol,
+                 atol, work, bad):
+    """scipy's ``select_initial_step`` (order 7): ``(status, h_abs)``; one rhs call.
+
+    ``work`` is an (3, m) scratch array; ``bad`` receives the state of a failed call.
+    """
+    m = y0.size
+    interval = abs(t_bound - t0)
+    scale, y1, f1 = work[0], work[1], work[2]
+    for j in range(m):
+        scale[j] = atol[j] + abs(y0[j]) * rtol
+    d0 = rms(y0, scale)
+    d1 = rms(f0, scale)
+    h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+    h0 = min(h0, interval)
+    for j in range(m):
+        y1[j] = y0[j] + h0 * f0[j]
+    status = rhs(field, jac, variational, mask, d, y1, f1, bad)
+    if status != OK:
+        return status, 0.0
+    for j in range(m):
+        y1[j] = f1[j] - f0[j]  # reuse y1 for the difference
+    d2 = rms(y1, scale) / h0
+    if d1 <= 1e-15 and d2 <= 1e-15:
+        h1 = max(1e-6, h0 * 1e-3)
+    else:
+        h1 = (0.01 / max(d1, d2)) ** (1.0 / 8.0)
+    return OK, min(100.0 * h0, h1, interval, max_step)
+
+
+@njit(cache=True)
+def _stage_point(y, K, row, s, h, out):
+    """``out = y + h * (K[:s].T @ A[row, :s])`` (scipy's ``y + dot(K[:s].T, a[:s]) * h``)."""
+    for j in range(y.size):
+        acc = 0.0
+        for r in range(s):
+            acc += K[r, j] * A[row, r]
+        out[j] = y[j] + acc * h
+
+
+@njit(cache=True)
+def step(field, jac, variational, mask, d, y, h, K, y_new, ys, bad):
+    """One DOP853 step from ``y`` (``K[0]`` = f(y) on entry): stages into ``K[1:13]``,
+    the 8th-order solution into ``y_new``, f(y_new) into ``K[12]``. Returns a status."""
+    for s in range(1, N_STAGES):
+        _stage_point(y, K, s, s, h, ys)
+        status = rhs(field, jac, variational, mask, d, ys, K[s], bad)
+        if status != OK:
+            return status
+    for j in range(y.size):
+        acc = 0.0
+        for r in range(N_STAGES):
+            acc += K[r, j] * B[r]
+        y_new[j] = y[j] + h * acc
+    return rhs(field, jac, variational, mask, d, y_new, K[N_STAGES], bad)
+
+
+@njit(cache=True)
+def error_norm(K, h, y, y_new, rtol, atol):
+    """scipy's combined 5th / 3rd order error estimate of DOP853, scaled RMS norm."""
+    m = y.size
+    e5 = 0.0
+    e3 = 0.0
+    for j in range(m):
+        scale = atol[j] + max(abs(y[j]), abs(y_new[j])) * rtol
+        a5 = 0.0
+        a3 = 0.0
+        for r in range(N_STAGES + 1):
+            a5 += K[r, j] * E5[r]
+            a3 += K[r, j] * E3[r]
+        a5 /= scale
+        a3 /= scale
+        e5 += a5 * a5
+        e3 += a3 * a3
+    if e5 == 0.0 and e3 == 0.0:
+        return 0.0
+    return abs(h) * e5 / np.sqrt((e5 + 0.01 * e3) * m)
+
+
+@njit(cache=True)
+def step_factor(err, rejected):
+    """The factor of the next step size after a step with error norm ``err``."""
+    if err < 1.0:
+        factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** ERROR_EXPONENT)
+        return min(1.0, factor) if rejected else factor
+    return max(MIN_FACTOR, SAFETY * err ** ERROR_EXPONENT)
+
+
+@njit(cache=True)
+def dense_coefficients(field, jac, variational, mask, d, y_old, y_new, h, K, F, ys, bad):
+    """The 7th-order dense output of the step ``y_old -> y_new`` of size ``h``: the three
+    extra stages into ``K[13:16]`` and the coefficients into ``F`` (7, m), as scipy's
+    ``DOP853._dense_output_impl``. Returns a status."""
+    for s in range(N_STAGES + 1, N_STAGES_EXTENDED):
+        _stage_point(y_old, K, s, s, h, ys)
+        status = rhs(field, jac, variational, mask, d, ys, K[s], bad)
+        if status != OK:
+            return status
+    f_old, f_new = K[0], K[N_STAGES]
+    for j in range(y_old.size):
+        dy = y_new[j] - y_old[j]
+        F[0, j] = dy
+        F[1, j] = h * f_old[j] - dy
+        F[2, j] = 2.0 * dy - h * (f_new[j] + f_old[j])
+        for i in range(D.shape[0]):
+            acc = 0.0
+            for r in range(N_STAGES_EXTENDED):
+                acc += D[i, r] * K[r, j]
+            F[3 + i, j] = h * acc
+    return OK
+
+
+@njit(cache=True)
+def dense_eval(F, y_old, t_old, h, t, count, out):
+    """The dense output at ``t`` of its first ``count`` components into ``out[:count]``
+    (scipy's ``Dop853DenseOutput``: alternating factors x and 1 - x, x = (t - t_old) / h)."""
+    x = (t - t_old) / h
+    n_rows = F.shape[0]
+    for j in range(count):
+        v = 0.0
+        for i in range(n_rows):
+            v += F[n_rows - 1 - i, j]
+            v *= x if i % 2 == 0 else 1.0 - x
+        out[j] = v + y_old[j]
