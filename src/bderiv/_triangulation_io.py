@@ -7,6 +7,20 @@ the header (format tag, version, sizes) and :func:`check_fields` the arrays (dty
 shapes, finiteness, index ranges, every vertex used, non-degenerate cones). The same
 :func:`check_fields` guards ``Triangulation(pre, post, simplices, kernel, kernel_post)``.
 
+Reading is bounded: only a regular file is opened (``/dev/zero``, a FIFO or a directory
+is refused), and before anything is read its size (and, for a JSON file, the memory the
+parse may take, :func:`json_parse_bytes`; for an ``.npz``, the sizes its members and their
+headers promise) is checked against the memory limit. A file saved by bderiv carries a
+sha256 digest of its content (:func:`json_digest`, :func:`npz_digest`), checked before the
+fields: a changed digit is refused, never read as another map. Files without a digest
+(written before the digest existed, or by another program) are still read, checked field
+by field only.
+
+Writing is all or nothing (:func:`write_files`): every file goes to a temporary file in
+the target's folder, is flushed and synced, and replaces the target (``os.replace``) only
+when all of them are written; a failure (a full disk, an exception, Ctrl-C) leaves the
+previous files as they were and removes the temporaries.
+
 Version 1 files hold maps that are the identity on the kernel (the B-derivative at an event
 point); version 2 adds ``kernel_post``, the images of the kernel basis (a flow map's
 triangulation, whose linear stages move the kernel). A map that version 1 can hold is
@@ -15,12 +29,19 @@ written as version 1, so older readers still read it.
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import hashlib
 import json
 import os
+import secrets
+import stat
 import zipfile
 import zlib
 
 import numpy as np
+
+from ._validate import check_memory
 
 #: tag written into every saved file, checked on load
 FILE_FORMAT = "bderiv.triangulation"
@@ -29,9 +50,14 @@ FILE_VERSION = 2
 FIELDS = ("pre", "post", "simplices", "kernel", "kernel_post")
 #: the arrays each file version holds
 VERSION_FIELDS = {1: FIELDS[:4], 2: FIELDS}
-#: what reading a damaged or hostile .npz can raise (BadZipFile for a truncated archive,
-#: zlib.error for a corrupt member, ValueError for object arrays with allow_pickle=False)
-_NPZ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error)
+#: the header field holding the sha256 digest of a file's content
+DIGEST = "sha256"
+#: what reading a damaged or hostile .npz can raise (BadZipFile for a truncated archive or
+#: a bad CRC, zlib.error for a corrupt member, ValueError for object arrays with
+#: allow_pickle=False, NotImplementedError for a compression method changed by a flipped
+#: bit, KeyError / IndexError / OverflowError for garbled zip records)
+_NPZ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error,
+               NotImplementedError, KeyError, IndexError, OverflowError)
 
 
 def check_data(data, source: str) -> dict:
@@ -89,23 +115,113 @@ def _check_header(data, source: str) -> int:
     return version
 
 
-def read_json(path: str, source: str):
-    """The parsed JSON of ``path``; any parse failure is a ``ValueError`` naming ``source``."""
-    with open(path, encoding="utf-8") as fh:
-        try:
-            return json.load(fh)
-        except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError
-            what = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
-            raise ValueError(f"{source} is not valid JSON: {what}") from None
+def read_json(path: str, source: str, memory_limit=None):
+    """The parsed JSON of ``path``, its digest checked (and removed) when it has one.
+
+    Any parse failure is a ``ValueError`` naming ``source``; so are a file that is not a
+    regular one, a text whose parse would take more than ``memory_limit`` bytes (default:
+    the memory available, :func:`json_parse_bytes`) and a digest that does not match.
+    """
+    text = _read_regular(path, source, memory_limit)
+    check_memory(json_parse_bytes(text), memory_limit, f"reading {source} (JSON)")
+    try:
+        data = json.loads(text)
+    except (ValueError, RecursionError, MemoryError) as exc:  # JSONDecodeError, Unicode...
+        what = {RecursionError: "nested too deeply", MemoryError: "out of memory"}.get(
+            type(exc), str(exc))
+        raise ValueError(f"{source} is not valid JSON: {what}") from None
+    if isinstance(data, dict) and DIGEST in data:
+        stored = data.pop(DIGEST)
+        _check_digest(stored, json_digest(data), source)
+    return data
 
 
-def read_npz(path: str, source: str):
+def json_parse_bytes(text: bytes) -> int:
+    """An upper bound of the bytes ``json.loads(text)`` and its digest check take.
+
+    Python's parser makes an object for every value: up to 32 bytes for a number (and its
+    list slot) of 2 or more characters, 64 to 96 for an empty list or object, the text
+    decoded and copied; counting the characters that open them bounds the total (checked
+    against tracemalloc on numbers, strings, escapes and nested containers, the worst
+    case being an empty container per 3 bytes: about 30 bytes per byte).
+    """
+    return (5 * len(text) + 96 * text.count(b"{") + 80 * text.count(b"[")
+            + 48 * (text.count(b",") + text.count(b":") + 1) + 32 * text.count(b'"'))
+
+
+def json_digest(data) -> str:
+    """sha256 (hex) of the canonical JSON of ``data`` (keys sorted, no spaces).
+
+    Floats are written with all their digits (``repr``), so a parsed file gives back the
+    text its writer hashed: any changed number, key or value changes the digest.
+    """
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def npz_digest(header: dict, arrays: dict) -> str:
+    """sha256 (hex) of a header (without its digest) and arrays, as an ``.npz`` holds them.
+
+    Each array contributes its name, dtype, shape and bytes (C order), so a file whose
+    dtype or shape record changed does not match either.
+    """
+    h = hashlib.sha256(json.dumps(header, sort_keys=True, separators=(",", ":")).encode())
+    for name in sorted(arrays):
+        arr = np.ascontiguousarray(arrays[name])
+        h.update(f"|{name}|{arr.dtype.str}|{arr.shape}|".encode())
+        h.update(arr.data if arr.size else b"")
+    return h.hexdigest()
+
+
+def _check_digest(stored, actual: str, source: str) -> None:
+    if stored != actual:
+        raise ValueError(
+            f"{source} is damaged: its content does not match the {DIGEST} digest stored "
+            f"in it when it was saved (got {str(stored)[:64]!r}, the content gives "
+            f"{actual!r}); restore the file from a copy, or save the map again"
+        )
+
+
+def _read_regular(path: str, source: str, memory_limit) -> bytes:
+    """The bytes of ``path``, a regular file no larger than the memory limit."""
+    with _open_regular(path, source) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        check_memory(size, memory_limit, f"reading {source} ({size} bytes)")
+        text = fh.read(size + 1)
+    if len(text) != size:
+        raise ValueError(f"{source} changed size while it was read ({size} bytes expected, "
+                         f"{len(text)}{'+' if len(text) > size else ''} read)")
+    return text
+
+
+def _open_regular(path: str, source: str):
+    """``path`` opened for binary reading, refused unless it is a regular file.
+
+    Opened without blocking (a FIFO would wait for a writer) and checked on the open
+    descriptor, so that nothing can swap the file between the check and the read.
+    """
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        kind = ("a directory" if stat.S_ISDIR(mode) else "a device" if stat.S_ISCHR(mode)
+                or stat.S_ISBLK(mode) else "a pipe" if stat.S_ISFIFO(mode) else
+                "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+        raise ValueError(f"{source} must be a regular file, got {kind}")
+    return os.fdopen(fd, "rb")
+
+
+def read_npz(path: str, source: str, memory_limit=None):
     """The ``meta`` header of an ``.npz`` (a dict, if valid) with its arrays added.
 
     Never unpickles; a damaged archive or member (truncated, corrupt, pickled objects, a
     header claiming an impossible size) is a ``ValueError`` naming ``source`` and the field.
+    Before any array is read, the bytes each member's ``.npy`` header promises are checked
+    against the member's size in the archive and, in total, against ``memory_limit``
+    (default: the memory available). The digest, when ``meta`` has one, is checked on the
+    arrays as read.
     """
-    with open(path, "rb") as fh:
+    with _open_regular(path, source) as fh:
         try:
             npz = np.load(fh, allow_pickle=False)
         except _NPZ_ERRORS as exc:
@@ -115,20 +231,59 @@ def read_npz(path: str, source: str):
         with npz:
             if "meta" not in npz.files:
                 raise ValueError(f"{source} is not a bderiv triangulation (no 'meta' entry)")
-            name = "meta"
-            try:
-                meta = npz["meta"]
-                if meta.dtype.kind != "U" or meta.ndim != 0:
-                    raise ValueError(f"expected a JSON text, got a {meta.dtype} array of "
-                                     f"shape {meta.shape}")
-                data = json.loads(str(meta))
-                if isinstance(data, dict):
-                    for name in (k for k in FIELDS if k in npz.files):
-                        data[name] = npz[name]
-            except (*_NPZ_ERRORS, RecursionError, MemoryError) as exc:
-                what = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
-                raise ValueError(f"{source}: field {name!r} cannot be read: {what}") from None
+            names = ["meta", *(k for k in FIELDS if k in npz.files)]
+            total = sum(_field(source, name, _promised_bytes, npz.zip, name) for name in names)
+            check_memory(total, memory_limit, f"reading {source} (its arrays)")
+            data = _field(source, "meta", _meta, npz)
+            if isinstance(data, dict):
+                arrays = {name: _field(source, name, npz.__getitem__, name)
+                          for name in names[1:]}
+                if DIGEST in data:
+                    stored = data.pop(DIGEST)
+                    _check_digest(stored, npz_digest(data, arrays), source)
+                data.update(arrays)
     return data
+
+
+def _field(source: str, name: str, read, *args):
+    """``read(*args)``, any failure of a damaged member a ``ValueError`` naming it."""
+    try:
+        return read(*args)
+    except (*_NPZ_ERRORS, RecursionError, MemoryError) as exc:
+        what = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
+        raise ValueError(f"{source}: field {name!r} cannot be read: {what}") from None
+
+
+def _meta(npz):
+    """The parsed JSON header of an ``.npz`` (a 0-d string array)."""
+    meta = npz["meta"]
+    if meta.dtype.kind != "U" or meta.ndim != 0:
+        raise ValueError(f"expected a JSON text, got a {meta.dtype} array of shape "
+                         f"{meta.shape}")
+    return json.loads(str(meta))
+
+
+def _promised_bytes(zf: zipfile.ZipFile, name: str) -> int:
+    """Bytes the ``.npy`` header of member ``name`` promises, no more than the member holds.
+
+    numpy allocates what the header says before it reads the data: a header claiming more
+    than the member's uncompressed size (from the archive's directory) is refused here.
+    """
+    info = zf.getinfo(f"{name}.npy")
+    with zf.open(info) as member:
+        version = np.lib.format.read_magic(member)
+        read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                       else np.lib.format.read_array_header_2_0)
+        shape, _, dtype = read_header(member)
+        header_bytes = member.tell()
+    count = 1
+    for s in shape:
+        count *= int(s)  # Python ints: no overflow for any claim
+    promised = count * dtype.itemsize
+    if promised > info.file_size - header_bytes:
+        raise ValueError(f"its header promises {promised} bytes of shape {shape}, but the "
+                         f"member holds {info.file_size - header_bytes}")
+    return promised
 
 
 def file_format(path: str, format: str | None) -> str:
@@ -141,6 +296,93 @@ def file_format(path: str, format: str | None) -> str:
             f".json file name, or format='npz' / 'json'"
         )
     return format
+
+
+def write_files(targets: dict, check=None) -> None:
+    """Write several triangulation files, all or none.
+
+    Parameters
+    ----------
+    targets : dict
+        ``{path: (format, header, arrays)}``: ``format`` ``"json"`` or ``"npz"``, ``header``
+        the fields ``format``, ``version``, ``n_events``, ``dim``, ``arrays`` the arrays of
+        the file version (name -> ndarray).
+    check : callable, optional
+        ``check({path: temporary path})``, called when every file is written and synced,
+        before any target is replaced (to read them back): if it raises, nothing is
+        replaced.
+
+    Notes
+    -----
+    Each file is written to a temporary file beside its target (``.NAME.<random>.tmp``,
+    with the target's permissions when it exists), flushed and ``fsync``-ed; only then are
+    the targets replaced with ``os.replace``, which is atomic for each file, and the folders
+    synced. Any failure before that (a full disk, an exception, Ctrl-C) removes the
+    temporaries and leaves every target as it was; a process killed outright may leave a
+    temporary file, never a damaged target. Between the replacements of two files there is
+    no writing, only renames.
+    """
+    temps = {}
+    try:
+        for path, (fmt, header, arrays) in targets.items():
+            temps[path], fd = _create_temp(path)
+            with os.fdopen(fd, "w", encoding="utf-8") if fmt == "json" else os.fdopen(
+                    fd, "wb") as fh:
+                WRITERS[fmt](fh, header, arrays)
+                fh.flush()
+                os.fsync(fh.fileno())
+        if check is not None:
+            check(dict(temps))
+        for path, temp in temps.items():
+            os.replace(temp, path)
+    except BaseException:
+        for temp in temps.values():
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(temp)
+        raise
+    for folder in {os.path.dirname(os.path.abspath(path)) for path in targets}:
+        _sync_folder(folder)
+
+
+def _create_temp(path: str) -> tuple[str, int]:
+    """A new temporary file beside ``path`` (same folder: ``os.replace`` stays atomic)."""
+    folder, name = os.path.split(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise IsADirectoryError(errno.EISDIR, "is a directory", path)
+    temp = os.path.join(folder, f".{name}.{secrets.token_hex(8)}.tmp")
+    fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0),
+                 0o666)
+    with contextlib.suppress(OSError):  # keep the permissions of the file it replaces
+        os.chmod(temp, stat.S_IMODE(os.stat(path).st_mode))
+    return temp, fd
+
+
+def _sync_folder(folder: str) -> None:
+    """Make the renames in ``folder`` durable (POSIX; a no-op where folders cannot be
+    opened)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _write_json(fh, header: dict, arrays: dict) -> None:
+    """The header, its digest and the arrays as nested lists (floats with all digits)."""
+    data = {**header, **{name: arr.tolist() for name, arr in arrays.items()}}
+    json.dump({**header, DIGEST: json_digest(data), **data}, fh)
+    fh.write("\n")
+
+
+def _write_npz(fh, header: dict, arrays: dict) -> None:
+    """The arrays and a JSON ``meta`` (the header and the digest), compressed."""
+    meta = {**header, DIGEST: npz_digest(header, arrays)}
+    np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
+
+
+#: the writer of each format: ``writer(fh, header, arrays)``
+WRITERS = {"json": _write_json, "npz": _write_npz}
 
 
 def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dict:

@@ -9,7 +9,6 @@ the event machinery. Files and direct construction alike are checked completely 
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from itertools import permutations
@@ -27,6 +26,7 @@ from ._triangulation_io import (
     file_format,
     read_json,
     read_npz,
+    write_files,
 )
 from ._validate import (
     all_finite,
@@ -272,22 +272,15 @@ class Triangulation:
             Keys ``format``, ``version``, ``n_events``, ``dim`` and the arrays ``pre``
             (n_vertices, d), ``post`` (n_vertices, d), ``simplices`` (n_simplices, n + 1)
             and ``kernel`` (d, d - n) as nested lists; version 2 (a map that is not the
-            identity on the kernel) also ``kernel_post`` (d, d - n).
+            identity on the kernel) also ``kernel_post`` (d, d - n). A saved file holds
+            these and the digest ``sha256`` of them.
         """
-        return {
-            "format": FILE_FORMAT,
-            "version": self._file_version(),
-            "n_events": self.n_events,
-            "dim": self.dim,
-            **{name: getattr(self, name).tolist() for name in self._file_fields()},
-        }
+        header, arrays = self._file_contents()
+        return {**header, **{name: arr.tolist() for name, arr in arrays.items()}}
 
     def _file_version(self) -> int:
         """1 when the map is the identity on the kernel (readable by older bderiv), else 2."""
         return 1 if np.array_equal(self.kernel, self.kernel_post) else 2
-
-    def _file_fields(self) -> tuple:
-        return VERSION_FIELDS[self._file_version()]
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "triangulation data") -> Triangulation:
@@ -330,23 +323,26 @@ class Triangulation:
         -----
         Both formats round-trip exactly (JSON writes floats with all their digits). The
         ``.npz`` holds the arrays ``pre``, ``post``, ``simplices``, ``kernel`` and a JSON
-        header ``meta``; it loads with ``numpy.load(path)`` alone.
+        header ``meta``; it loads with ``numpy.load(path)`` alone. Both carry a sha256
+        digest of their content (field ``sha256``), which :meth:`load` checks.
+
+        The save is atomic: the file is written to a temporary file in the same folder,
+        synced, and then replaces ``path``; a failure midway (a full disk, an exception,
+        a kill) leaves a previous file at ``path`` intact.
         """
         path = os.fspath(path)
-        fmt = file_format(path, format)
-        if fmt == "json":
-            with open(path, "w", encoding="utf-8") as fh:
-                json.dump(self.to_dict(), fh)
-                fh.write("\n")
-        else:
-            meta = {k: v for k, v in self.to_dict().items() if k not in FIELDS}
-            arrays = {k: getattr(self, k) for k in self._file_fields()}
-            with open(path, "wb") as fh:  # a file object: numpy must not append ".npz"
-                np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
+        save_files(self, {path: file_format(path, format)})
         return path
 
+    def _file_contents(self) -> tuple[dict, dict]:
+        """The header (format, version, sizes) and the arrays a file of this map holds."""
+        version = self._file_version()
+        header = {"format": FILE_FORMAT, "version": version, "n_events": self.n_events,
+                  "dim": self.dim}
+        return header, {name: getattr(self, name) for name in VERSION_FIELDS[version]}
+
     @classmethod
-    def load(cls, path, format: str | None = None) -> Triangulation:
+    def load(cls, path, format: str | None = None, *, memory_limit=None) -> Triangulation:
         """Read a triangulation written by :meth:`save`, checking it completely.
 
         Parameters
@@ -355,6 +351,9 @@ class Triangulation:
             A ``.npz`` or ``.json`` file; its suffix picks the format unless ``format``
             is given.
         format : {"npz", "json"}, optional
+        memory_limit : int, optional
+            Bytes reading may take (the file, its parse, the arrays its headers promise);
+            default: the memory currently available. Checked before anything is read.
 
         Returns
         -------
@@ -363,9 +362,13 @@ class Triangulation:
         Raises
         ------
         ValueError
-            If the file cannot be parsed, is not a bderiv triangulation, has an unknown
-            version, or any field fails the checks of :class:`Triangulation` (the message
-            names the file and the field). Nothing in the file is ever unpickled.
+            If the path is not a regular file (a device, a pipe, a folder), reading it
+            would take more than ``memory_limit``, it cannot be parsed, its content does
+            not match the digest stored in it, it is not a bderiv triangulation, has an
+            unknown version, or any field fails the checks of :class:`Triangulation` (the
+            message names the file and the field). Nothing in the file is ever unpickled.
+            A file without a digest (written by bderiv before digests, or by another
+            program) is read with the field checks alone.
         OSError
             If the file cannot be opened.
 
@@ -383,16 +386,35 @@ class Triangulation:
         path = os.fspath(path)
         source = f"triangulation file {path!r}"
         read = read_json if file_format(path, format) == "json" else read_npz
-        return cls.from_dict(read(path, source), source)
+        return cls.from_dict(read(path, source, memory_limit), source)
 
 
-def load_triangulation(path, format: str | None = None) -> Triangulation:
+def save_files(tri: Triangulation, paths: dict, check=None) -> None:
+    """Save ``tri`` to several files at once, all or none (``bderiv export``).
+
+    Parameters
+    ----------
+    tri : Triangulation
+    paths : dict
+        ``{path: format}``, format ``"npz"`` or ``"json"``.
+    check : callable, optional
+        ``check({path: temporary path})`` once every file is written, before any replaces
+        its target; if it raises, no target is touched (see
+        :func:`bderiv._triangulation_io.write_files`).
+    """
+    header, arrays = tri._file_contents()
+    write_files({path: (fmt, header, arrays) for path, fmt in paths.items()}, check)
+
+
+def load_triangulation(path, format: str | None = None, *,
+                       memory_limit=None) -> Triangulation:
     """Read a triangulation saved by :meth:`Triangulation.save` or ``bderiv export``.
 
-    Same as :meth:`Triangulation.load` (the file is checked completely); the result is
-    callable, ``tri(V)`` with V of shape ``(..., d)``, and has ``tri.inverse(W)``.
+    Same as :meth:`Triangulation.load` (the file is checked completely, its size before
+    it is read, its digest before its fields); the result is callable, ``tri(V)`` with V
+    of shape ``(..., d)``, and has ``tri.inverse(W)``.
     """
-    return Triangulation.load(path, format)
+    return Triangulation.load(path, format, memory_limit=memory_limit)
 
 
 # -- evaluation -------------------------------------------------------------------------------

@@ -2,7 +2,8 @@
 
 ``--map event`` (the default) saves the map at the event point, ``--map flow`` the flow map
 from ``x0`` over ``[0, t_final]``: the same fan with its vertices carried by the flow's
-linear stages.
+linear stages. The files (``.npz``, ``.json`` or both) are written all or none: each is
+read back from its temporary file before any replaces an earlier export.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import os
 import numpy as np
 
 from .._tables import corner_point_bytes
-from ..triangulation import load_triangulation
+from ..triangulation import load_triangulation, save_files
 from .systems import load_example
 from .usage import UsageError, check_writable_directory, not_writable, require_memory
 
@@ -91,16 +92,20 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
         tri = flow_triangulation(fmap, max_pieces)
     V = np.random.default_rng(0).standard_normal((CHECK_VECTORS, d))
     expected = fmap(V)
-    files = []
-    for f in ("npz", "json") if fmt == "both" else (fmt,):
-        path = f"{base}.{f}"
-        try:
-            tri.save(path)
-        except OSError as exc:
-            raise UsageError(not_writable("--out", path, exc)) from None
-        err = float(np.abs(load_triangulation(path)(V) - expected).max())
-        files.append({"path": path, "format": f, "bytes": os.path.getsize(path),
-                      "max_error_reloaded": err})
+    paths = {f"{base}.{f}": f for f in (("npz", "json") if fmt == "both" else (fmt,))}
+    errors = {}
+
+    def read_back(temps):  # every file read back before any replaces its target
+        for path, temp in temps.items():
+            errors[path] = float(np.abs(load_triangulation(temp, paths[path])(V)
+                                        - expected).max())
+
+    try:
+        save_files(tri, paths, check=read_back)
+    except OSError as exc:
+        raise UsageError(not_writable("--out", " and ".join(paths), exc)) from None
+    files = [{"path": path, "format": f, "bytes": os.path.getsize(path),
+              "max_error_reloaded": errors[path]} for path, f in paths.items()]
     return {"example": example, "map": which, "map_description": described, "n_events": n,
             "dim": d, "vertices": tri.pre.shape[0], "simplices": tri.simplices.shape[0],
             "files": files, "check_vectors": CHECK_VECTORS}
