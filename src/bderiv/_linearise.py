@@ -25,32 +25,43 @@ import math
 import re
 
 import numpy as np
+from numba import njit, prange
 
 from ._batch import evaluate, is_dask_array
-from ._kernels import scaling
-from ._validate import check_finite_result, check_memory, check_points, check_real_array
+from ._validate import check_memory, check_points, check_real_array
 
 #: bytes of the temporaries of one chunk of :meth:`Linearisation.piece_matrices` (each row
 #: is d queries: the repeated rows, the unit vectors and the columns, d * d floats each).
 PIECE_CHUNK_BYTES = 64 << 20
 
 
-def unit_scale(rows: np.ndarray, exps=None) -> np.ndarray:
-    """The rows (m, d) scaled by exact powers of two to largest entries in [0.5, 1)
-    (``exps``: an int64 array (m,) that receives each row's exponent, the power of two
-    that scales it back).
+def unit_scale(rows: np.ndarray) -> np.ndarray:
+    """The rows (m, d) scaled by exact powers of two to largest entries in [0.5, 1).
 
     The piece a direction selects depends on the direction only (M is positively
     homogeneous), but its event times scale with it: a row near the ends of the float64
-    range would overflow (or underflow) them and select a wrong order. The piece is
-    linear, so a tangent row scales likewise: unscaled, its products along the chain
-    could underflow or overflow where the result does not. Scaling by powers of two is
-    exact, so rows that are fine give what they gave before, bit for bit. One compiled
-    pass on all threads (:func:`bderiv._kernels.scaling.scale_rows`).
+    range would overflow (or underflow) them and select a wrong order. Scaling by powers
+    of two is exact, so rows that are fine select what they selected before.
     """
     out = np.empty_like(rows)
-    scaling.scale_rows(rows, out, np.empty(rows.shape[0], np.int64) if exps is None else exps)
+    _scale_rows(rows, out)
     return out
+
+
+@njit(parallel=True, cache=True)
+def _scale_rows(rows, out):
+    # one pass on all threads (NumPy's frexp / max / ldexp took the kernels' time). Two
+    # factors 2**a, 2**b (each representable): the first product is exact, the second
+    # rounds only into the subnormals, as ldexp does
+    for q in prange(rows.shape[0]):
+        big = 0.0
+        for i in range(rows.shape[1]):
+            big = max(big, abs(rows[q, i]))
+        shift = -math.frexp(big)[1]
+        a = math.ldexp(1.0, shift // 2)
+        b = math.ldexp(1.0, shift - shift // 2)
+        for i in range(rows.shape[1]):
+            out[q, i] = rows[q, i] * a * b
 
 
 class Linearisation:
@@ -164,11 +175,8 @@ class Linearisation:
             flat_t = flat_t.copy()  # out may be T itself (V is copied by evaluate)
 
         def kernel(rows, res, offset):
-            exps = np.empty(rows.shape[0], dtype=np.int64)
-            tangents = unit_scale(flat_t[offset : offset + rows.shape[0]], exps)
-            self._tangent_rows(unit_scale(rows), tangents, res, transpose, offset, t_name)
-            if scaling.unscale_rows(res, exps, 0):
-                check_finite_result(res, t_name, offset)
+            self._tangent_rows(unit_scale(rows), flat_t[offset : offset + rows.shape[0]], res,
+                               transpose, offset, t_name)
 
         return evaluate(kernel, V, d, name="V", out=out, chunk_size=chunk_size,
                         progress=progress, desc=type(self).__name__)
