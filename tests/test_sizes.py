@@ -1,0 +1,155 @@
+"""Sizes are refused before any copy (issue 27 item 8): big requests and big or endless
+files give a ValueError naming the size and the limit, and allocate nothing first."""
+
+from __future__ import annotations
+
+import json
+import os
+import tracemalloc
+import zipfile
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from bderiv import BDerivative, load_triangulation
+from bderiv._triangulation_io import json_parse_bytes
+from bderiv.stability import check_growth_memory, growth_rate
+
+MEMORY = r"take [\d.]+ [KMGTP]?i?B, more than the memory limit of"
+
+
+@pytest.fixture(scope="module")
+def bd():
+    F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.5], [1.0, 1.0, 0.5], [2.0, 1.0, 0.5]])
+    return BDerivative(np.eye(3)[:2], F)
+
+
+def peak_bytes(fn):
+    """Peak bytes traced (Python and NumPy allocations) while ``fn()`` runs."""
+    tracemalloc.start()
+    try:
+        fn()
+    finally:
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    return peak
+
+
+def refused_cheaply(fn, match):
+    """``fn()`` raises the memory ValueError matching ``match`` and allocates < 1 MiB first."""
+    def run():
+        with pytest.raises(ValueError, match=match):
+            fn()
+    assert peak_bytes(run) < 1 << 20
+
+
+# -- requests -----------------------------------------------------------------------------
+
+def test_piece_matrices_sized_before_the_copy(bd):
+    """A broadcast batch of 10**9 rows (no memory of its own) is refused, not copied."""
+    V = np.broadcast_to(np.array([-1.0, -2.0, 0.5]), (10**9, 3))
+    refused_cheaply(lambda: bd.piece_matrices(V), "the piece matrices of 1000000000 vectors "
+                    "in dimension 3 " + MEMORY)
+    refused_cheaply(lambda: bd.piece_matrices(V[:1000], memory_limit=1000),
+                    MEMORY + " 1000 B")
+    # within the limit it works: P[q] = diag(2, 1, 1) for v with v0 event first (closed form:
+    # v = (-1, -2, 0.5) reaches event 0 at t = 1, then its rate in x0 doubles)
+    P = bd.piece_matrices(V[:3], memory_limit=1 << 20)
+    assert_array_equal(P, np.broadcast_to(np.diag([2.0, 1.0, 1.0]), (3, 3, 3)))
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 3\)"):  # the shape first
+        bd.piece_matrices(np.broadcast_to(np.ones(4), (10**9, 4)))
+
+
+def test_growth_rate_sized_before_its_tables():
+    refused_cheaply(lambda: check_growth_memory(10**10, 3, 1000),
+                    "the growth rate of 10000000000 directions in dimension 3 over 1000 "
+                    "iterations")
+    refused_cheaply(lambda: check_growth_memory(10, 3, 10**12), MEMORY)
+    # growth_rate checks before its log table: 2 directions, 10**12 iterations
+    refused_cheaply(lambda: growth_rate(lambda V: V, np.eye(2), iterations=10**12), MEMORY)
+    # the bound: 8 bytes x n_directions x (8 d + iterations)
+    check_growth_memory(100, 3, 1000, memory_limit=8 * 100 * (24 + 1000))
+    with pytest.raises(ValueError, match="take 800.0 KiB, more than the memory limit of 800"):
+        check_growth_memory(100, 3, 1000, memory_limit=8 * 100 * (24 + 1000) - 1)
+
+
+# -- files ------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def tri(bd):
+    return bd.triangulation()
+
+
+@pytest.mark.parametrize("fmt", ["json", "npz"])
+def test_devices_pipes_and_folders_are_refused(tmp_path, fmt):
+    refused_cheaply(lambda: load_triangulation("/dev/zero", fmt),
+                    "'/dev/zero' must be a regular file, got a device")
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)  # opened without blocking: no writer is waited for
+    with pytest.raises(ValueError, match="must be a regular file, got a pipe"):
+        load_triangulation(fifo, fmt)
+    with pytest.raises(ValueError, match="must be a regular file, got a directory"):
+        load_triangulation(tmp_path, fmt)
+
+
+def sparse(path, size):
+    """A file of ``size`` bytes that takes no disk (a hole), or skip where impossible."""
+    with open(path, "wb"):
+        pass
+    try:
+        os.truncate(path, size)
+    except OSError as exc:
+        pytest.skip(f"no sparse file of {size} bytes here: {exc}")
+    return path
+
+
+@pytest.mark.parametrize("fmt", ["json", "npz"])
+def test_huge_files_are_refused_before_reading(tmp_path, fmt):
+    path = sparse(tmp_path / f"huge.{fmt}", 6 << 30)  # the issue's 6 GiB
+    if fmt == "json":
+        refused_cheaply(lambda: load_triangulation(path, memory_limit=1 << 30),
+                        r"reading triangulation file .* \(6442450944 bytes\) " + MEMORY)
+    else:  # an .npz is read by its directory (at the end): a hole is no archive
+        with pytest.raises(ValueError, match="cannot be read as .npz"):
+            load_triangulation(path)
+    path = sparse(tmp_path / "endless.json", 1 << 40)  # 1 TiB: above any machine's memory
+    refused_cheaply(lambda: load_triangulation(path), MEMORY)
+
+
+def test_json_parse_bound_holds_and_is_checked(tmp_path, tri):
+    """json_parse_bytes bounds what the parser takes (tracemalloc, an independent count),
+    from numbers to a text of empty containers; the bound is what load checks."""
+    texts = [json.dumps(tri.to_dict()), "[" + ",".join(["[]"] * 50_000) + "]",
+             "[" + ",".join(["{}"] * 50_000) + "]", "[" + ",".join(["0.5"] * 50_000) + "]",
+             '{' + ",".join(f'"{i}":1' for i in range(50_000)) + "}",
+             '"' + "x" * 200_000 + '"', "[" + ",".join(['"\\ud83d\\ude00"'] * 50_000) + "]",
+             "[" + ",".join(["[[[[]]]]"] * 20_000) + "]"]
+    for text in texts:
+        data = text.encode()
+        assert peak_bytes(lambda data=data: json.loads(data)) <= json_parse_bytes(data)
+    path = tmp_path / "tri.json"
+    tri.save(path)
+    need = json_parse_bytes(path.read_bytes())
+    assert_array_equal(load_triangulation(path, memory_limit=need).pre, tri.pre)
+    with pytest.raises(ValueError, match=r"reading triangulation file .* \(JSON\) " + MEMORY):
+        load_triangulation(path, memory_limit=need - 1)
+
+
+def test_npz_headers_are_checked_against_their_members(tmp_path, tri):
+    path = tri.save(tmp_path / "tri.npz")
+    with pytest.raises(ValueError, match=r"\(its arrays\) " + MEMORY + " 10 B"):
+        load_triangulation(path, memory_limit=10)
+    # a header promising 8 GB in a member of a few bytes: refused before numpy allocates
+    with np.load(path) as npz:
+        members = {k: npz[k] for k in npz.files}
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, arr in members.items():
+            with zf.open(f"{name}.npy", "w") as fh:
+                header = np.lib.format.header_data_from_array_1_0(arr)
+                if name == "pre":
+                    header["shape"] = (10**9, 1)
+                np.lib.format.write_array_header_1_0(fh, header)
+                fh.write(arr.tobytes())
+    refused_cheaply(lambda: load_triangulation(path),
+                    r"field 'pre' cannot be read: its header promises 8000000000 bytes")
