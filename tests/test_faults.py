@@ -6,6 +6,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -264,3 +265,39 @@ def test_npz_digest_covers_dtype_and_shape(tmp_path):
         np.savez_compressed(fh, **members)
     with pytest.raises(ValueError, match="is damaged"):
         load_triangulation(path)
+
+
+# -- 9d: dask sends the map once ---------------------------------------------------------------
+
+class CountedBDerivative(BDerivative):
+    """A BDerivative that counts how often it is pickled."""
+
+    pickles = 0
+
+    def __reduce_ex__(self, protocol):
+        type(self).pickles += 1
+        return super().__reduce_ex__(protocol)
+
+
+def test_dask_pickles_the_map_once_whatever_the_chunks():
+    """Each task pickled on its own (as a distributed scheduler ships them): the map goes
+    with one key of the graph, not with every block's task."""
+    da = pytest.importorskip("dask.array")
+    Dh, F = random_system(np.random.default_rng(7), 3, 4)
+    bd = CountedBDerivative(Dh, F)
+    X = np.random.default_rng(8).standard_normal((640, 4))
+    counts = []
+    for chunks in (4, 64):
+        lazy = bd(da.from_array(X, chunks=(640 // chunks, 4)))
+        inverse = bd.inverse(lazy)
+        CountedBDerivative.pickles = 0
+        for task in dict(lazy.__dask_graph__()).values():
+            pickle.dumps(task)
+        counts.append(CountedBDerivative.pickles)
+        CountedBDerivative.pickles = 0
+        for task in dict(inverse.__dask_graph__()).values():
+            pickle.dumps(task)
+        counts.append(CountedBDerivative.pickles)  # bd.apply and bd.inverse: 2 keys
+        assert_array_equal(lazy.compute(), bd(X))
+        assert_array_equal(inverse.compute(), bd.inverse(bd(X)))
+    assert counts == [1, 2, 1, 2]

@@ -3,15 +3,20 @@
 Imported by :func:`bderiv._batch.evaluate` only when a query is a dask array
 (``_batch.is_dask_array`` decides that from the type's module, without importing dask).
 Each block of the dask array is evaluated by the ordinary NumPy path of the map, in
-whatever process or machine the scheduler runs it; the map is shipped to the workers by
-pickling, so it must pickle (``BDerivative``, ``FlowBDerivative`` and ``Triangulation``
-do: they hold only NumPy arrays and plain values).
+whatever process or machine the scheduler runs it. The map is one key of the graph (a
+``dask.delayed`` value) on which every block's task depends, so a distributed scheduler
+pickles it once and moves it to each worker once, however many blocks there are (in a
+task of its own it was pickled with every task: 600 MB a task for n = d = 20). It must
+pickle (``BDerivative``, ``FlowBDerivative`` and ``Triangulation`` do: they hold only
+NumPy arrays and plain values).
 
 Point it at a cluster with ``dask.distributed.Client("tcp://scheduler:8786")`` before
 calling ``.compute()``; nothing here depends on the scheduler.
 """
 
 from __future__ import annotations
+
+import uuid
 
 import numpy as np
 
@@ -68,17 +73,17 @@ def map_blocks(fn, V, dim: int, name: str = "V", out=None):
     check_real_array(np.empty(0, V.dtype), name)  # the message of a NumPy query
     if len(V.chunks[-1]) != 1:
         V = V.rechunk({V.ndim - 1: dim})
-    return V.map_blocks(_BlockApply(fn), dtype=np.float64, meta=np.empty((0,) * V.ndim))
+    import dask
+
+    # fresh keys: naming them by a hash of the map would pickle all of it to hash it
+    token = uuid.uuid4().hex
+    what = getattr(fn, "__name__", "map")
+    shipped = dask.delayed(fn, pure=True, name=f"bderiv-map-{token}")
+    return V.map_blocks(_apply, shipped, dtype=np.float64, meta=np.empty((0,) * V.ndim),
+                        name=f"bderiv-{what}-{token}")
 
 
-class _BlockApply:
-    """Picklable wrapper: evaluate ``fn`` on one block, as a float64 ndarray."""
-
-    def __init__(self, fn):
-        self.fn = fn
-
-    def __call__(self, block):
-        return np.asarray(self.fn(np.asarray(block)), dtype=np.float64)
-
-    def __repr__(self):  # names the dask tasks readably ("bderiv-apply-...")
-        return f"bderiv-{getattr(self.fn, '__name__', 'map')}"
+def _apply(block, fn):
+    """One block's task: ``fn`` (the map's method, computed once per worker) on the block,
+    as a float64 ndarray."""
+    return np.asarray(fn(np.asarray(block)), dtype=np.float64)
