@@ -14,11 +14,12 @@ to draw into an existing figure instead.
 - :func:`pieces`: any n, determinant and gain of the linear pieces;
 - :func:`scaling`: time per query against n from a benchmark sweep;
 - :func:`gait_orbit`, :func:`gait_growth`: a periodic orbit with its event groups, and the
-  growth of a batch of directions through its piecewise-linear return map.
+  growth of a batch of directions through its piecewise-linear return map;
+- :func:`stability_map`: a gait's growth rate over a grid of two parameters.
 
 The figures live in private modules by subject (``_planar``, ``_carried_fan``,
-``_pieces``, ``_scaling``, ``_gait``, all on the figure set-up of ``_axes``); this package is their
-one public name.
+``_pieces``, ``_scaling``, ``_gait``, ``_stability_map``, all on the figure set-up of
+``_axes``); this package is their one public name.
 """
 
 from ._carried_fan import carried_fan
@@ -26,6 +27,7 @@ from ._gait import gait_growth, gait_orbit
 from ._pieces import pieces
 from ._planar import corner_field, tangent_circle, triangulation
 from ._scaling import scaling
+from ._stability_map import stability_map
 
 __all__ = ["carried_fan", "corner_field", "gait_growth", "gait_orbit", "pieces", "scaling",
-           "tangent_circle", "triangulation"]
+           "stability_map", "tangent_circle", "triangulation"]

@@ -1,0 +1,56 @@
+"""The figure of a stability map: a gait's growth rate over a grid of two parameters."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._axes import figure_axes
+
+
+def stability_map(smap, ax=None):
+    """The growth rate over a two-parameter grid, the unstable region marked.
+
+    Colour: the growth rate of the orbit at each grid point, on a diverging scale centred
+    at 1 (blue: perturbations decay, red: they grow); the contour ``growth rate = 1``
+    (the stability boundary) in black; unstable points hatched; points without an orbit
+    left blank and marked with a cross.
+
+    Parameters
+    ----------
+    smap : StabilityMap
+        Of two parameters (:func:`bderiv.stability_map.stability_map`).
+    ax : matplotlib Axes, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    if len(smap.names) != 2:
+        raise ValueError(f"the figure needs a map over two parameters, got {len(smap.names)}: "
+                         f"{list(smap.names)}")
+    from matplotlib.colors import TwoSlopeNorm
+
+    fig, (ax,) = figure_axes(ax, figsize=(5.8, 4.6))
+    x, y = smap.values
+    rate = smap.growth_rate.T  # rows: the second parameter (y)
+    finite = rate[np.isfinite(rate)]
+    low = min(float(finite.min()), 0.99) if finite.size else 0.5
+    high = max(float(finite.max()), 1.01) if finite.size else 1.5
+    mesh = ax.pcolormesh(x, y, rate, shading="nearest", cmap="RdBu_r",
+                         norm=TwoSlopeNorm(vcenter=1.0, vmin=low, vmax=high))
+    fig.colorbar(mesh, ax=ax, label="growth rate per stride")
+    if x.size > 1 and y.size > 1 and finite.size and low < 1.0 < high:
+        # the unstable region hatched, bounded by the contour growth rate = 1
+        ax.contourf(x, y, rate, levels=[1.0, np.inf], colors="none", hatches=["//"])
+        ax.contour(x, y, rate, levels=[1.0], colors="black", linewidths=1.2)
+    missing = np.argwhere(~np.isfinite(rate))
+    if missing.size:
+        ax.plot(x[missing[:, 1]], y[missing[:, 0]], "x", color="0.3", ms=6,
+                label="no orbit found")
+        ax.legend(loc="best", fontsize=8)
+    ax.set_xlabel(smap.names[0])
+    ax.set_ylabel(smap.names[1])
+    n_stable, n_found = int(smap.stable.sum()), int(np.isfinite(rate).sum())
+    ax.set_title(f"stable where the growth rate < 1 ({n_stable} of {n_found} orbits; "
+                 f"hatched: unstable)", fontsize=9)
+    return fig

@@ -1,0 +1,122 @@
+"""Stability maps over parameter grids (issue 20 item 5).
+
+Oracle: a planar limit cycle whose growth rate is known in closed form at every grid
+point (``cycle``), serially and through a Dask client; the pronking gait on a
+two-worker LocalCluster (slow).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from bderiv.examples._common import complex_step_jacobian
+from bderiv.hybrid import HybridSystem
+from bderiv.stability_map import StabilityMap, stability_map
+
+
+def cycle(multiplier, turns):
+    """The cycle r = 1 turning ``turns`` times per unit time; r' = mu (r - 1) (1 - 4 (r -
+    1)^2) with mu = log(multiplier), so the return map to y = 0, x > 0 has the period
+    1 / turns and the growth rate multiplier ** (1 / turns)."""
+    mu, omega = np.log(multiplier), 2 * np.pi * turns
+
+    def field(x, mask):
+        r = np.sqrt(x[0] ** 2 + x[1] ** 2)  # complex-safe: Jacobian by the complex step
+        g = mu * (r - 1) * (1 - 4 * (r - 1) ** 2) / r
+        return np.array([-omega * x[1] + g * x[0], omega * x[0] + g * x[1]])
+
+    return HybridSystem(field, lambda x: np.array([x[0] - 10.0]), n_events=1, dim=2,
+                        field_jacobian=lambda x, m: complex_step_jacobian(
+                            lambda y: field(y, m), x, 2),
+                        event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+
+
+def section(x):
+    return x[1]
+
+
+GRID = {"multiplier": [0.5, 0.9, 1.5], "turns": [1.0, 2.0]}
+
+
+def check_closed_form(smap):
+    assert isinstance(smap, StabilityMap) and smap.names == ("multiplier", "turns")
+    m, turns = np.meshgrid(*smap.values, indexing="ij")
+    np.testing.assert_allclose(smap.growth_rate, m ** (1 / turns), rtol=2e-3)
+    np.testing.assert_allclose(smap.period, 1 / turns, rtol=1e-8)
+    np.testing.assert_allclose(smap.x0[..., 0], 1.0, atol=1e-8)
+    assert smap.stable.tolist() == [[True, True], [True, True], [False, False]]
+    assert smap.failures == {}
+
+
+def test_closed_form_growth_rates_serially():
+    calls = []
+    smap = stability_map(cycle, GRID, [1.05, 0.0], section, period_guess=1.0,
+                         progress=lambda done, total: calls.append((done, total)))
+    check_closed_form(smap)
+    assert calls[-1] == (6, 6) and len(calls) == 6
+    assert "4 stable, 2 unstable, 0 without an orbit" in smap.summary()
+
+
+def test_through_a_dask_client_the_same_map():
+    distributed = pytest.importorskip("distributed")
+    with (distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                   dashboard_address=None) as cluster,
+          distributed.Client(cluster) as client):
+        smap = stability_map(cycle, GRID, [1.05, 0.0], section, period_guess=1.0,
+                             client=client)
+    check_closed_form(smap)
+
+
+def test_a_point_without_orbit_is_recorded_not_raised():
+    # no return to the section within 3 * period_guess when the cycle turns too slowly
+    smap = stability_map(cycle, {"multiplier": [0.5], "turns": [1.0, 0.05]}, [1.05, 0.0],
+                         section, period_guess=1.0, max_iter=3)
+    assert np.isfinite(smap.growth_rate[0, 0]) and np.isnan(smap.growth_rate[0, 1])
+    assert list(smap.failures) == [(0, 1)] and "section" in smap.failures[(0, 1)]
+    assert "no orbit at multiplier=0.5, turns=0.05" in smap.summary()
+
+
+def test_bad_grids_and_clients():
+    with pytest.raises(TypeError, match="grid must be a dict of one or two parameters"):
+        stability_map(cycle, [0.5], [1.0, 0.0], section)
+    with pytest.raises(ValueError, match=r"grid\['turns'\] must be a non-empty 1-d"):
+        stability_map(cycle, {"multiplier": [0.5], "turns": []}, [1.0, 0.0], section)
+    with pytest.raises(ValueError, match='client must be None, "local" or a distributed'):
+        stability_map(cycle, {"multiplier": [0.5], "turns": [1.0]}, [1.0, 0.0], section,
+                      client="cluster")
+
+
+def test_figure_marks_the_unstable_region(tmp_path):
+    pytest.importorskip("matplotlib")
+    from bderiv.plot import stability_map as figure
+
+    smap = stability_map(cycle, GRID, [1.05, 0.0], section, period_guess=1.0,
+                         n_directions=10, iterations=20)
+    fig = figure(smap)
+    ax = fig.axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("multiplier", "turns")
+    assert "4 of 6 orbits" in ax.get_title()
+    # the colour scale is centred at growth rate 1 and spans the map's rates
+    mesh = ax.collections[0]
+    assert mesh.norm.vcenter == 1.0 and mesh.norm.vmax >= 1.5 ** 1.0 - 1e-9
+    assert any("//" in (getattr(c, "hatches", None) or ()) for c in ax.collections)
+    fig.savefig(tmp_path / "map.png")
+    with pytest.raises(ValueError, match="needs a map over two parameters, got 1"):
+        figure(stability_map(functools.partial(cycle, turns=1.0), {"multiplier": [0.5]},
+                             [1.05, 0.0], section, period_guess=1.0))
+
+
+@pytest.mark.slow
+def test_pronking_on_a_local_cluster_equals_the_serial_map():
+    pytest.importorskip("distributed")
+    from bderiv.examples import gaits
+
+    grid = {"gain": [3.5, 4.0], "coupling": [0.3, 0.5]}
+    args = (gaits.pronking, grid, gaits.pronking().x0, gaits.apex_section)
+    serial = stability_map(*args, period_guess=0.5)
+    local = stability_map(*args, period_guess=0.5, client="local")
+    np.testing.assert_allclose(local.growth_rate, serial.growth_rate, rtol=1e-10)
+    assert serial.failures == {} and serial.stable.all()
