@@ -15,7 +15,7 @@ import textwrap
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
-from reference import random_system
+from reference import random_system, ref_apply
 
 import bderiv._triangulation_io as tio
 from bderiv import BDerivative, load_triangulation
@@ -106,7 +106,7 @@ def test_save_killed_midway_keeps_the_previous_file(tmp_path, fmt):
         sys.path.insert(0, {os.path.dirname(__file__)!r})
         import numpy as np
         import bderiv._triangulation_io as tio
-        from reference import random_system
+        from reference import random_system, ref_apply
         from bderiv import BDerivative
         real = tio.WRITERS[{fmt!r}]
         def dying(fh, header, arrays):
@@ -301,3 +301,59 @@ def test_dask_pickles_the_map_once_whatever_the_chunks():
         assert_array_equal(lazy.compute(), bd(X))
         assert_array_equal(inverse.compute(), bd.inverse(bd(X)))
     assert counts == [1, 2, 1, 2]
+
+
+# -- 9c: a damaged kernel cache is compiled again, never raised --------------------------------
+
+_CACHE_PROBE = """
+import json
+import numpy as np
+from bderiv import BDerivative
+F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+V = np.array([[-1.0, -2.0], [-2.0, -1.0], [0.5, -3.0]])
+out = BDerivative(np.eye(2), F)(V)
+print(json.dumps(out.tolist()))
+"""
+
+
+def _damage(folder):
+    """Truncate, garble or flip one bit of every cache file, in turn."""
+    damaged = 0
+    for i, path in enumerate(sorted(p for p in folder.rglob("*") if p.is_file())):
+        data = bytearray(path.read_bytes())
+        if i % 3 == 0:
+            data = data[: len(data) // 2]
+        elif i % 3 == 1:
+            data[10:40] = bytes(b ^ 0x5A for b in data[10:40])
+        else:
+            data[len(data) // 2] ^= 0x10
+        path.write_bytes(bytes(data))
+        damaged += 1
+    return damaged
+
+
+def test_damaged_kernel_cache_is_compiled_again(tmp_path):
+    """Every file of a fresh cache damaged (truncated, garbled, one bit flipped): the next
+    process computes the right map, says which folder is damaged, and rewrites the cache
+    (the process after it runs without a word). Oracle: tests/reference.py."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+
+    def run():
+        out = subprocess.run([sys.executable, "-c", _CACHE_PROBE], capture_output=True,
+                             text=True, env=env, timeout=600)
+        assert out.returncode == 0, out.stderr
+        return np.array(json.loads(out.stdout)), out.stderr
+
+    F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+    V = np.array([[-1.0, -2.0], [-2.0, -1.0], [0.5, -3.0]])
+    expected = np.array([ref_apply(np.eye(2), F, v) for v in V])
+    first, _ = run()
+    assert_array_equal(first, expected)
+    assert _damage(tmp_path / "cache") >= 3
+    second, log = run()
+    assert_array_equal(second, expected)
+    assert f"the compiled-kernel cache in {tmp_path / 'cache'}" in log
+    assert "is damaged" in log and "Traceback" not in log
+    third, log = run()
+    assert_array_equal(third, expected)
+    assert log == ""

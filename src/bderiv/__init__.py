@@ -4,12 +4,15 @@ where several events happen at once."""
 from importlib import metadata as _metadata
 
 from . import examples
+from ._kernels._cache import harden_all as _harden_all
 from .bderivative import BDerivative, LowRankResets
 from .corners import CornerFunction, CornerModel, StructuredCorners
 from .flowmap import FlowBDerivative
 from .hybrid import HybridSystem
 from .simulate import SolverOptions
 from .triangulation import Triangulation, load_triangulation
+
+_harden_all()  # every cached kernel: a damaged cache file is compiled again, never raised
 
 try:
     __version__ = _metadata.version("bderiv")

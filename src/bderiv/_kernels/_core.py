@@ -24,7 +24,8 @@ import warnings
 import numba
 import numpy as np
 from numba import njit, parallel_chunksize, prange
-from numba.core.caching import FunctionCache
+
+from ._cache import DriverCache, harden, harden_all
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
@@ -62,26 +63,6 @@ def launch_queries(n: int, d: int) -> int:
 INSERTION_SORT_MAX = 24
 
 
-class _DriverCache(FunctionCache):
-    """The on-disk cache of a driver, keyed by the sources of the kernel package.
-
-    Numba keys the cache of a closure by the pickle of what it closes over; a dispatcher
-    pickles with per-process ids (its own and those of every jitted function it calls), so
-    a driver closing over a block would miss the cache in every process and grow its
-    index. This key is the signature and a digest of every source file of ``_kernels``:
-    found again by every process, and invalidated by any edit of a block or of anything
-    it calls (numba itself watches only the driver's own file). ``FunctionCache`` is numba
-    internals; :func:`_cached` falls back to compiling per process without it.
-    """
-
-    def __init__(self, py_func, key: str):
-        super().__init__(py_func)
-        self._key = key
-
-    def _index_key(self, sig, codegen):
-        return (sig, codegen.magic_tuple(), (self._key,))
-
-
 def _sources_digest() -> str:
     """sha256 of the source files of this package (``_kernels``)."""
     h = hashlib.sha256()
@@ -94,14 +75,15 @@ _SOURCES = _sources_digest()
 
 
 def _cached(dispatcher, block, statics):
-    """Turn on the :class:`_DriverCache` of a driver of ``block`` and ``statics``."""
+    """Turn on the :class:`~._cache.DriverCache` of a driver of ``block`` and ``statics``
+    (and harden the kernels of the modules imported so far, :func:`~._cache.harden_all`)."""
     key = (f"{block.py_func.__module__}.{block.py_func.__qualname__}"
            f"{tuple(len(s) for s in statics)}:{_SOURCES}")
+    harden_all()
     try:
-        dispatcher._cache = _DriverCache(dispatcher.py_func, key)
+        return harden(dispatcher, DriverCache(dispatcher.py_func, key))
     except Exception:  # another numba: leave the driver uncached  # noqa: BLE001
-        pass
-    return dispatcher
+        return dispatcher
 
 
 #: numba's ``workqueue`` threading layer (its fallback without OpenMP or TBB) aborts the
@@ -128,7 +110,7 @@ class Batch:
     """
 
     def __init__(self, block, cache: bool = True, statics: tuple = ()):
-        jit = dict(JIT, cache=False)  # see _DriverCache
+        jit = dict(JIT, cache=False)  # see _cache.DriverCache
 
         @njit(**jit)
         def serial(tables, V, outs, inverse):
