@@ -1,0 +1,23 @@
+"""Models from equations: a :class:`~bderiv.hybrid.HybridSystem` from sympy expressions.
+
+:func:`from_sympy` takes the state, one flag per event, the vector field, the events, the
+resets and the parameters as sympy expressions, derives every Jacobian symbolically,
+shares common subexpressions (:func:`sympy.cse`) and generates numba kernels, cached on
+disk so that a second process neither re-derives nor recompiles. Needs the optional
+extra ``symbolic`` (sympy).
+
+Layout
+------
+- ``_inputs``: the argument checks and the canonical symbols (the cache key);
+- ``_codegen``: derivation, cse and the generated source; it lists the kernels'
+  signatures (``field(x, mask, p, out)``, ...: the njit functions a compiled integrator
+  calls directly, the parameter values ``p`` an array argument);
+- ``_cache``: the cache folder (``$BDERIV_CACHE_DIR``), keys, storing and importing;
+- ``_model``: :func:`from_sympy`, the :class:`Kernels` record, the Python-facing
+  :class:`ModelFunctions` (the signatures ``HybridSystem`` calls today) and
+  :class:`SymbolicSystem` (a ``HybridSystem`` with ``with_params``).
+"""
+
+from ._model import BuildInfo, Kernels, ModelFunctions, SymbolicSystem, from_sympy
+
+__all__ = ["BuildInfo", "Kernels", "ModelFunctions", "SymbolicSystem", "from_sympy"]

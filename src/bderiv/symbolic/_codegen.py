@@ -1,0 +1,213 @@
+"""The Python source of a symbolic model's numba kernels: derivation, cse and printing.
+
+:func:`generate` differentiates the model's expressions (exact Jacobians by
+:func:`sympy.diff`), shares their common subexpressions (:func:`sympy.cse`, one pass per
+kernel) and prints one module of ``@numba.njit`` kernels with explicit signatures (they
+compile when the module is imported, or load from numba's cache). The kernels take the
+state ``x`` (d,), the mask and event index where the function has them, the parameter
+values ``p`` and an ``out`` array they fill:
+
+=====================================================  =====================
+kernel                                                 ``out``
+=====================================================  =====================
+``field(x, mask, p, out)``                             (d,)
+``field_jacobian(x, mask, p, out)``                    (d, d)
+``events(x, p, out)``                                  (n,)
+``event_jacobian(x, p, out)``                          (n, d)
+``corner_field(x, p, out)``                            (2**n, d), all masks
+``reset(x, mask, k, p, out)`` (models with resets)     (d,)
+``reset_jacobian(x, mask, k, p, out)``                 (d, d)
+=====================================================  =====================
+
+Flag k is bit k of ``mask`` (as a float); an event without a reset expression is the
+identity in ``reset``. sympy is used through its module attributes (``sympy.diff``,
+``sympy.cse``) at call time.
+"""
+
+from __future__ import annotations
+
+import re
+
+from ._inputs import require_sympy
+
+#: bump when the generated source changes: old cache files are then no longer used
+CODEGEN_VERSION = 1
+
+_X1 = "float64[::1]"
+_X2 = "float64[:, ::1]"
+SIGNATURES = {
+    "field": f"void({_X1}, int64, {_X1}, {_X1})",
+    "field_jacobian": f"void({_X1}, int64, {_X1}, {_X2})",
+    "events": f"void({_X1}, {_X1}, {_X1})",
+    "event_jacobian": f"void({_X1}, {_X1}, {_X2})",
+    "corner_field": f"void({_X1}, {_X1}, {_X2})",
+    "reset": f"void({_X1}, int64, int64, {_X1}, {_X1})",
+    "reset_jacobian": f"void({_X1}, int64, int64, {_X1}, {_X2})",
+}
+
+
+class CodegenError(ValueError):
+    """An expression that cannot be printed as Python (an undefined function, a
+    derivative sympy cannot evaluate, ...): ``label`` names it."""
+
+    def __init__(self, label, expr, reason):
+        self.label = label
+        super().__init__(f"{label} = {expr} does not compile: {reason}")
+
+
+def _reason(exc) -> str:
+    """The first line of a printer's exception, without the printer's class."""
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    first = re.sub(r"^Unsupported by <class '[^']*'>: ", "", first)
+    return f"{type(exc).__name__}: {first}"
+
+
+def _printer():
+    require_sympy()
+    from sympy.printing.pycode import PythonCodePrinter
+
+    class Printer(PythonCodePrinter):
+        def _print_Float(self, expr):  # every bit of the double, not 15 digits
+            return repr(float(expr))
+
+    try:
+        printer = Printer({"fully_qualified_modules": True, "strict": True})
+    except TypeError:  # sympy < 1.13 has no "strict": checked through _not_supported
+        printer = Printer({"fully_qualified_modules": True})
+    return printer
+
+
+def print_expr(printer, expr, label: str, shown=None) -> str:
+    """``expr`` as Python source, or a :class:`CodegenError` naming ``label`` and
+    ``shown`` (the expression in the user's symbols; default ``expr``)."""
+    shown = expr if shown is None else shown
+    printer._not_supported = set()
+    try:
+        text = printer.doprint(expr)
+    except Exception as exc:  # sympy raises PrintMethodNotImplementedError and others
+        raise CodegenError(label, shown, f"sympy cannot print it as Python ({_reason(exc)})"
+                           ) from None
+    if printer._not_supported:
+        what = ", ".join(sorted(map(str, printer._not_supported)))
+        raise CodegenError(label, shown, f"not supported in Python: {what}")
+    return text
+
+
+def _block(printer, model, outputs, indent: str) -> list:
+    """Lines computing ``outputs`` [(target, expr, label)], subexpressions shared.
+
+    A failure of the shared print is located by printing each output alone.
+    """
+    sp = require_sympy()
+    exprs = [e for _, e, _ in outputs]
+    temps, reduced = sp.cse(exprs, symbols=sp.numbered_symbols("c_"), order="none")
+    try:
+        lines = [f"{indent}{t} = {print_expr(printer, e, '')}" for t, e in temps]
+        lines += [f"{indent}{target} = {print_expr(printer, e, '')}"
+                  for (target, _, _), e in zip(outputs, reduced, strict=True)]
+    except CodegenError:
+        for _, e, label in outputs:
+            print_expr(printer, e, label, model.show(e))
+        raise
+    return lines
+
+
+def _preamble(model, mask: bool) -> list:
+    lines = [f"    x_{i} = x[{i}]" for i in range(model.dim)]
+    if mask:
+        lines += [f"    s_{k} = float((mask >> {k}) & 1)" for k in range(model.n_events)]
+    lines += [f"    p_{j} = p[{j}]" for j in range(len(model.p))]
+    return lines
+
+
+def _kernel(name, args, body) -> list:
+    return ["", f'@numba.njit("{SIGNATURES[name]}", cache=True)', f"def {name}({args}):",
+            *body]
+
+
+def _vector(printer, model, exprs, label, indent="    "):
+    outputs = [(f"out[{i}]", e, f"{label}[{i}]") for i, e in enumerate(exprs)]
+    return _block(printer, model, outputs, indent)
+
+
+def _jacobian(printer, model, exprs, label, indent="    "):
+    """Lines filling ``out`` (len(exprs), d) with the derivatives of ``exprs`` by ``x``:
+    zeroed first, the nonzero entries written."""
+    sp = require_sympy()
+    outputs = []
+    for i, e in enumerate(exprs):
+        for j, xj in enumerate(model.x):
+            de = sp.diff(e, xj)
+            if de != 0:
+                outputs.append((f"out[{i}, {j}]", de, f"the derivative of {label}[{i}] by "
+                                                      f"state[{j}]"))
+    return [f"{indent}out[:, :] = 0.0", *_block(printer, model, outputs, indent)]
+
+
+def _resets(printer, model, jacobian: bool) -> list:
+    """The body of ``reset`` / ``reset_jacobian``: one branch per event with a reset,
+    the identity for the others."""
+    body = []
+    for branch, (k, exprs) in enumerate(model.resets.items()):
+        body.append(f"    {'if' if branch == 0 else 'elif'} k == {k}:")
+        label = f"resets[{k}]"
+        body += (_jacobian(printer, model, exprs, label, "        ") if jacobian
+                 else _vector(printer, model, exprs, label, "        "))
+    body.append("    else:")
+    if jacobian:
+        body += ["        out[:, :] = 0.0", f"        for i in range({model.dim}):",
+                 "            out[i, i] = 1.0"]
+    else:
+        body += [f"        for i in range({model.dim}):", "            out[i] = x[i]"]
+    return body
+
+
+def generate(model, key: str) -> str:
+    """The source of the kernel module of ``model`` (a :class:`~._inputs.Model`).
+
+    Raises
+    ------
+    CodegenError
+        If an expression or a derivative cannot be printed as Python (named).
+    """
+    sp = require_sympy()
+    printer = _printer()
+    for label, e in model.labelled():  # name the user's expression that fails, if any
+        print_expr(printer, e, label, model.show(e))
+    lines = [f"# generated by bderiv.symbolic (codegen version {CODEGEN_VERSION}, sympy "
+             f"{sp.__version__}); key {key}",
+             "# do not edit: delete this file (and __pycache__) to regenerate",
+             "import math  # noqa: F401",
+             "", "import numba", "",
+             f"DIM = {model.dim}", f"N_EVENTS = {model.n_events}",
+             f"N_PARAMS = {len(model.p)}", f"HAS_RESETS = {bool(model.resets)}"]
+    lines += _kernel("field", "x, mask, p, out",
+                     _preamble(model, True) + _vector(printer, model, model.field, "field"))
+    lines += _kernel("field_jacobian", "x, mask, p, out",
+                     _preamble(model, True) + _jacobian(printer, model, model.field, "field"))
+    lines += _kernel("events", "x, p, out",
+                     _preamble(model, False) + _vector(printer, model, model.events, "events"))
+    lines += _kernel("event_jacobian", "x, p, out",
+                     _preamble(model, False) + _jacobian(printer, model, model.events,
+                                                         "events"))
+    lines += _kernel("corner_field", "x, p, out",
+                     ["    for mask in range(out.shape[0]):",
+                      "        field(x, mask, p, out[mask])"])
+    if model.resets:
+        lines += _kernel("reset", "x, mask, k, p, out",
+                         _preamble(model, True) + _resets(printer, model, False))
+        lines += _kernel("reset_jacobian", "x, mask, k, p, out",
+                         _preamble(model, True) + _resets(printer, model, True))
+    return "\n".join(lines) + "\n"
+
+
+def probe_source(model) -> str:
+    """A module with one kernel per user expression, ``probe_<i>(x, mask, p) -> float``
+    in the order of ``model.labelled()``: compiled one by one to find the expression that
+    numba refuses when the model's module does not compile."""
+    printer = _printer()
+    lines = ["import math  # noqa: F401", "", "import numba"]
+    for i, (label, e) in enumerate(model.labelled()):
+        lines += ["", f"def probe_{i}(x, mask, p):  # {label}", *_preamble(model, True),
+                  f"    return {print_expr(printer, e, label, model.show(e))}"]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,235 @@
+"""Checks of :func:`~bderiv.symbolic.from_sympy`'s arguments and their canonical form.
+
+The user's symbols are replaced by real symbols ``x_i`` (state), ``s_k`` (flags) and
+``p_j`` (parameters, in the order of ``params``): the expressions then print as valid
+Python whatever the user called the symbols, differentiate as real functions (``Abs``
+gives ``sign``), and hash the same for the same model (:func:`canonical_text`).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def require_sympy():
+    """The ``sympy`` module, or an ImportError saying how to install it."""
+    try:
+        import sympy
+    except ImportError:
+        raise ImportError("bderiv.symbolic needs sympy: pip install 'bderiv[symbolic]' "
+                          "(or pip install 'sympy>=1.12')") from None
+    return sympy
+
+
+@dataclass(frozen=True)
+class Model:
+    """A checked symbolic model over the canonical symbols.
+
+    Attributes
+    ----------
+    field : tuple of sympy.Expr, length d
+    events : tuple of sympy.Expr, length n
+    resets : dict
+        ``{k: tuple of d sympy.Expr}`` for the events that have a reset.
+    x, s, p : tuple of sympy.Symbol
+        The canonical state (d), flag (n) and parameter symbols.
+    param_names : tuple of str
+        The user's names of the parameters, in the order of ``p``.
+    values : ndarray, shape (len(p),)
+        The parameter values.
+    original : dict
+        Canonical symbol -> the user's symbol.
+    """
+
+    field: tuple
+    events: tuple
+    resets: dict
+    x: tuple
+    s: tuple
+    p: tuple
+    param_names: tuple
+    values: np.ndarray
+    original: dict
+
+    def show(self, e):
+        """``e`` in the user's symbols (for messages)."""
+        return e.xreplace(self.original)
+
+    @property
+    def dim(self) -> int:
+        return len(self.x)
+
+    @property
+    def n_events(self) -> int:
+        return len(self.s)
+
+    def labelled(self):
+        """``(label, expression)`` of every user expression: ``field[i]``, ``events[k]``,
+        ``resets[k][i]``."""
+        yield from ((f"field[{i}]", e) for i, e in enumerate(self.field))
+        yield from ((f"events[{k}]", e) for k, e in enumerate(self.events))
+        for k in sorted(self.resets):
+            yield from ((f"resets[{k}][{i}]", e) for i, e in enumerate(self.resets[k]))
+
+    def canonical_text(self) -> list:
+        """Strings that identify the model (not the parameter values): the cache key."""
+        sp = require_sympy()
+        return [f"d={self.dim} n={self.n_events} p={len(self.p)}",
+                *(f"{label}={sp.srepr(e)}" for label, e in self.labelled())]
+
+
+def check_value(value, name: str) -> float:
+    """A parameter value: a finite real number."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__} {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return value
+
+
+def _symbols(seq, name: str) -> list:
+    sp = require_sympy()
+    if isinstance(seq, sp.Basic | str | bytes) and not isinstance(seq, sp.MatrixBase):
+        raise TypeError(f"{name} must be a sequence of sympy Symbols, got one "
+                        f"{type(seq).__name__} {seq!r}")
+    try:
+        items = list(seq)
+    except TypeError:
+        raise TypeError(f"{name} must be a sequence of sympy Symbols, got "
+                        f"{type(seq).__name__}") from None
+    for i, s in enumerate(items):
+        if not isinstance(s, sp.Symbol):
+            raise TypeError(f"{name}[{i}] must be a sympy Symbol, got {type(s).__name__} "
+                            f"{s!r}")
+    seen = {}
+    for i, s in enumerate(items):
+        if s in seen:
+            raise ValueError(f"{name}[{i}] = {s} repeats {name}[{seen[s]}]")
+        seen[s] = i
+    return items
+
+
+def _expressions(seq, name: str, length: int, length_text: str) -> list:
+    sp = require_sympy()
+    if isinstance(seq, sp.Basic | str | bytes) and not isinstance(seq, sp.MatrixBase):
+        raise TypeError(f"{name} must be a sequence of {length_text} sympy expressions, got "
+                        f"one {type(seq).__name__}")
+    try:
+        items = list(seq)
+    except TypeError:
+        raise TypeError(f"{name} must be a sequence of sympy expressions, got "
+                        f"{type(seq).__name__}") from None
+    if len(items) != length:
+        raise ValueError(f"{name} must have {length} expressions ({length_text}), got "
+                         f"{len(items)}")
+    out = []
+    for i, e in enumerate(items):
+        try:
+            e = sp.sympify(e, strict=True)
+        except (sp.SympifyError, TypeError):
+            raise TypeError(f"{name}[{i}] must be a sympy expression or a number, got "
+                            f"{type(e).__name__} {e!r}") from None
+        if not isinstance(e, sp.Expr):
+            raise TypeError(f"{name}[{i}] must be a sympy expression (sympy.Expr), got "
+                            f"{type(e).__name__} {e}")
+        out.append(e)
+    return out
+
+
+def _check_free(label: str, e, allowed: set, what: str) -> None:
+    extra = e.free_symbols - allowed
+    if extra:
+        names = ", ".join(sorted(str(s) for s in extra))
+        raise ValueError(f"{label} = {e} contains {names}, which {what}")
+
+
+def check_model(state, flags, field, events, resets, params) -> Model:
+    """Check :func:`~bderiv.symbolic.from_sympy`'s arguments; the canonical model.
+
+    Raises
+    ------
+    TypeError
+        A symbol that is not a sympy Symbol, an expression that is not a sympy expression,
+        a reset index that is not an integer, a parameter value that is not a real number.
+    ValueError
+        Wrong lengths, repeated symbols, flags in the events, free symbols that are neither
+        state, flags nor parameters (named), non-finite parameter values.
+    """
+    sp = require_sympy()
+    state = _symbols(state, "state")
+    flags = _symbols(flags, "flags")
+    if not state:
+        raise ValueError("state must have at least one symbol, got none")
+    if not flags:
+        raise ValueError("flags must have at least one symbol (one per event), got none")
+    both = set(state) & set(flags)
+    if both:
+        raise ValueError(f"{', '.join(sorted(map(str, both)))} is both a state symbol and a "
+                         f"flag")
+    d, n = len(state), len(flags)
+    field = _expressions(field, "field", d, f"one per state symbol, d = {d}")
+    events = _expressions(events, "events", n, f"one per flag, n = {n}")
+    if params is None:
+        params = {}
+    if not hasattr(params, "items"):
+        raise TypeError(f"params must be a mapping symbol -> value, got "
+                        f"{type(params).__name__}")
+    names, values = [], []
+    for sym, value in params.items():
+        if not isinstance(sym, sp.Symbol):
+            raise TypeError(f"params keys must be sympy Symbols, got {type(sym).__name__} "
+                            f"{sym!r}")
+        if sym in state or sym in flags:
+            raise ValueError(f"params[{sym}]: {sym} is a {'state' if sym in state else 'flag'} "
+                             f"symbol, not a parameter")
+        names.append(sym)
+        values.append(check_value(value, f"params[{sym}]"))
+    if len({str(s) for s in names}) != len(names):
+        raise ValueError("params has two symbols of the same name; with_params could not "
+                         "tell them apart: rename one")
+    allowed = set(state) | set(flags) | set(names)
+    unknown = ("are neither state, flags nor parameters: add them to state or flags, or "
+               "give them a value in params")
+    for i, e in enumerate(field):
+        _check_free(f"field[{i}]", e, allowed, unknown)
+    for k, e in enumerate(events):
+        _check_free(f"events[{k}]", e, allowed, unknown)
+        _check_free(f"events[{k}]", e, allowed - set(flags),
+                    "are flags: an event function depends on the state and the parameters "
+                    "only (the flags say which events have happened; the surface cannot)")
+    checked = {}
+    if resets is not None:
+        if not hasattr(resets, "items"):
+            raise TypeError(f"resets must be a mapping event index -> d expressions, got "
+                            f"{type(resets).__name__}")
+        for k, exprs in resets.items():
+            if isinstance(k, bool | np.bool_) or not isinstance(k, numbers.Integral):
+                raise TypeError(f"resets keys must be event indices (int), got "
+                                f"{type(k).__name__} {k!r}")
+            if not 0 <= k < n:
+                raise ValueError(f"resets key {k} is not an event index in [0, {n})")
+            label = f"resets[{int(k)}]"
+            exprs = _expressions(exprs, label, d, f"the state after event {k}, d = {d}")
+            for i, e in enumerate(exprs):
+                _check_free(f"{label}[{i}]", e, allowed, unknown)
+            checked[int(k)] = exprs
+    x = tuple(sp.Symbol(f"x_{i}", real=True) for i in range(d))
+    s = tuple(sp.Symbol(f"s_{k}", real=True) for k in range(n))
+    p = tuple(sp.Symbol(f"p_{j}", real=True) for j in range(len(names)))
+    to_canonical = dict(zip(state, x, strict=True))
+    to_canonical.update(zip(flags, s, strict=True))
+    to_canonical.update(zip(names, p, strict=True))
+
+    def canon(exprs):
+        return tuple(e.xreplace(to_canonical) for e in exprs)
+
+    return Model(field=canon(field), events=canon(events),
+                 resets={k: canon(v) for k, v in sorted(checked.items())},
+                 x=x, s=s, p=p, param_names=tuple(str(s) for s in names),
+                 values=np.array(values, dtype=np.float64),
+                 original={v: k for k, v in to_canonical.items()})

@@ -1,0 +1,326 @@
+"""``from_sympy``: a :class:`~bderiv.hybrid.HybridSystem` from sympy expressions.
+
+The compiled kernels (:mod:`bderiv.symbolic._codegen` lists them) live in a generated
+module in the cache folder (:mod:`bderiv.symbolic._cache`); :class:`Kernels` holds them,
+:class:`ModelFunctions` wraps them in the Python signatures ``HybridSystem`` calls, and
+:class:`SymbolicSystem` is the ``HybridSystem`` built on them, with its parameter values.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..hybrid import HybridSystem
+from . import _cache, _codegen
+from ._inputs import check_model, check_value, require_sympy
+
+
+@dataclass(frozen=True)
+class Kernels:
+    """The numba kernels of a symbolic model (the njit dispatchers; no validation).
+
+    Attributes
+    ----------
+    field, field_jacobian, events, event_jacobian, corner_field : numba dispatcher
+        ``field(x, mask, p, out)`` ... as in :mod:`bderiv.symbolic._codegen`: ``x`` (d,)
+        and ``p`` (n_params,) C-contiguous float64, ``mask`` and ``k`` int64, ``out``
+        C-contiguous float64 of the kernel's shape.
+    reset, reset_jacobian : numba dispatcher or None
+        None for a model without resets.
+    dim, n_events, n_params : int
+    param_names : tuple of str
+        The parameters in the order of ``p``.
+    source : pathlib.Path
+        The generated module.
+    """
+
+    field: object
+    field_jacobian: object
+    events: object
+    event_jacobian: object
+    corner_field: object
+    reset: object
+    reset_jacobian: object
+    dim: int
+    n_events: int
+    n_params: int
+    param_names: tuple
+    source: object
+
+
+@dataclass(frozen=True)
+class BuildInfo:
+    """How :func:`from_sympy` got the kernels.
+
+    Attributes
+    ----------
+    key : str
+        The hash of the model's expressions (the cache file's name).
+    cached : bool
+        True when the generated source was found in the cache (no derivation).
+    derive_seconds : float
+        Time of the symbolic derivation, cse and printing (0 when cached).
+    load_seconds : float
+        Time of importing the generated module: numba compilation, or loading the
+        compiled kernels from numba's cache.
+    """
+
+    key: str
+    cached: bool
+    derive_seconds: float
+    load_seconds: float
+
+
+class ModelFunctions:
+    """The kernels with the Python signatures of :class:`~bderiv.hybrid.HybridSystem`.
+
+    Each method allocates its output and calls its kernel with the parameter values
+    ``params``; the state is converted to a C-contiguous float64 array of shape (d,)
+    (other shapes are refused: the kernels do not check bounds).
+    """
+
+    def __init__(self, kernels: Kernels, params: np.ndarray):
+        self.k, self.p = kernels, params
+        self.d, self.n = kernels.dim, kernels.n_events
+
+    def _x(self, x):
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if x.shape != (self.d,):
+            raise ValueError(f"x must have shape ({self.d},), got shape {x.shape}")
+        return x
+
+    def field(self, x, mask):
+        """``field(x, mask) -> (d,)``."""
+        out = np.empty(self.d)
+        self.k.field(self._x(x), mask, self.p, out)
+        return out
+
+    def field_jacobian(self, x, mask):
+        """``field_jacobian(x, mask) -> (d, d)``."""
+        out = np.empty((self.d, self.d))
+        self.k.field_jacobian(self._x(x), mask, self.p, out)
+        return out
+
+    def events(self, x):
+        """``events(x) -> (n,)``."""
+        out = np.empty(self.n)
+        self.k.events(self._x(x), self.p, out)
+        return out
+
+    def event_jacobian(self, x):
+        """``event_jacobian(x) -> (n, d)``."""
+        out = np.empty((self.n, self.d))
+        self.k.event_jacobian(self._x(x), self.p, out)
+        return out
+
+    def corner_field(self, x):
+        """``corner_field(x) -> (2**n, d)``: row ``mask`` is ``field(x, mask)``."""
+        out = np.empty((1 << self.n, self.d))
+        self.k.corner_field(self._x(x), self.p, out)
+        return out
+
+    def reset(self, x, mask, k):
+        """``reset(x, mask, k) -> (d,)``."""
+        out = np.empty(self.d)
+        self.k.reset(self._x(x), mask, k, self.p, out)
+        return out
+
+    def reset_jacobian(self, x, mask, k):
+        """``reset_jacobian(x, mask, k) -> (d, d)``."""
+        out = np.empty((self.d, self.d))
+        self.k.reset_jacobian(self._x(x), mask, k, self.p, out)
+        return out
+
+
+class SymbolicSystem(HybridSystem):
+    """A :class:`~bderiv.hybrid.HybridSystem` built by :func:`from_sympy`.
+
+    Every method of ``HybridSystem`` applies. Its functions are :attr:`functions`
+    (:class:`ModelFunctions`, Python signatures), over the compiled :attr:`kernels`
+    (:class:`Kernels`, the njit functions taking the parameter values as an array).
+
+    Attributes
+    ----------
+    kernels : Kernels
+    functions : ModelFunctions
+    params : ndarray, shape (n_params,)
+        The parameter values (read-only), in the order of ``kernels.param_names``.
+    build : BuildInfo
+    """
+
+    def __init__(self, kernels: Kernels, params, build: BuildInfo):
+        # the kernels take a writable array (numba types read-only arrays apart)
+        self.functions = f = ModelFunctions(kernels, np.array(params, dtype=np.float64))
+        self.params = f.p.view()
+        self.params.flags.writeable = False
+        self.kernels, self.build = kernels, build
+        resets = kernels.reset is not None
+        super().__init__(f.field, f.events, n_events=kernels.n_events, dim=kernels.dim,
+                         event_jacobian=f.event_jacobian, field_jacobian=f.field_jacobian,
+                         corner_field=f.corner_field, reset=f.reset if resets else None,
+                         reset_jacobian=f.reset_jacobian if resets else None)
+
+    @property
+    def param_values(self) -> dict:
+        """``{name: value}`` of the parameters."""
+        return dict(zip(self.kernels.param_names, self.params.tolist(), strict=True))
+
+    def with_params(self, values=None, /, **by_name) -> SymbolicSystem:
+        """The same model with other parameter values: no derivation, no compilation.
+
+        Parameters
+        ----------
+        values : mapping, optional
+            ``{symbol or name: value}``.
+        **by_name
+            ``name=value``.
+
+        Returns
+        -------
+        SymbolicSystem
+            A new system sharing this one's kernels; unnamed parameters keep their value.
+
+        Raises
+        ------
+        TypeError
+            If a value is not a real number, or ``values`` not a mapping.
+        ValueError
+            If a name is not a parameter of the model (the parameters are listed), or a
+            value is not finite.
+        """
+        if values is not None and not hasattr(values, "items"):
+            raise TypeError(f"values must be a mapping parameter -> value, got "
+                            f"{type(values).__name__}")
+        new = self.params.copy()
+        index = {name: j for j, name in enumerate(self.kernels.param_names)}
+        for name, value in [*(values or {}).items(), *by_name.items()]:
+            if str(name) not in index:
+                known = ", ".join(self.kernels.param_names) or "none"
+                raise ValueError(f"{name} is not a parameter of this model (its parameters: "
+                                 f"{known})")
+            new[index[str(name)]] = check_value(value, f"the value of {name}")
+        return SymbolicSystem(self.kernels, new, self.build)
+
+    def __repr__(self):
+        params = ", ".join(f"{k}={v:g}" for k, v in self.param_values.items())
+        return (f"SymbolicSystem(n_events={self.n_events}, dim={self.dim}"
+                f"{', resets' if self.has_resets else ''}"
+                f"{', params: ' + params if params else ''})")
+
+
+def _locate_compile_error(model, exc):
+    """The ValueError naming the first user expression numba refuses alone (else the
+    module's error)."""
+    import numba
+
+    namespace = {}
+    exec(compile(_codegen.probe_source(model), "<bderiv.symbolic probe>", "exec"), namespace)
+    sig = "float64(float64[::1], int64, float64[::1])"
+    for i, (label, e) in enumerate(model.labelled()):
+        try:
+            numba.njit(sig)(namespace[f"probe_{i}"])
+        except Exception as probe_exc:  # numba's TypingError and its relatives
+            return ValueError(f"{label} = {model.show(e)} does not compile with numba: "
+                              f"{_numba_reason(probe_exc)}")
+    return ValueError(f"the generated kernels do not compile with numba: "
+                      f"{_numba_reason(exc)}")
+
+
+def _numba_reason(exc) -> str:
+    """The informative line of a numba error: the second line (the first says which
+    pipeline failed), without the terminal's colour codes."""
+    lines = [ln.strip() for ln in re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).splitlines()]
+    lines = [ln for ln in lines if ln]
+    return lines[1] if len(lines) > 1 and lines[0].startswith("Failed in") else (
+        lines[0] if lines else type(exc).__name__)
+
+
+def _kernels(model, key, module, path) -> Kernels:
+    resets = bool(module.HAS_RESETS)
+    return Kernels(field=module.field, field_jacobian=module.field_jacobian,
+                   events=module.events, event_jacobian=module.event_jacobian,
+                   corner_field=module.corner_field,
+                   reset=module.reset if resets else None,
+                   reset_jacobian=module.reset_jacobian if resets else None,
+                   dim=model.dim, n_events=model.n_events, n_params=len(model.p),
+                   param_names=model.param_names, source=path)
+
+
+def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_dir=None):
+    """A :class:`~bderiv.hybrid.HybridSystem` from sympy expressions, compiled with numba.
+
+    One expression covers all 2**n regions through the flags: flag k is 1 where event k
+    has happened (bit k of the region's mask), 0 before. The Jacobians are derived
+    symbolically (exact), common subexpressions shared, and the kernels generated as
+    numba source cached on disk (a second process loads them: no derivation, no
+    compilation).
+
+    Parameters
+    ----------
+    state : sequence of sympy.Symbol, length d
+        The state variables.
+    flags : sequence of sympy.Symbol, length n
+        One per event.
+    field : sequence of sympy.Expr, length d
+        The vector field, in state, flags and parameters.
+    events : sequence of sympy.Expr, length n
+        The event functions h_k (event k happens where h_k crosses 0; region bit k set
+        where h_k > 0), in state and parameters (no flags).
+    resets : mapping int -> sequence of sympy.Expr (length d), optional
+        The state right after crossing event k, in state, flags and parameters; the flags
+        are those before the crossing (flag k = 0: an upward crossing, 1: downward; write
+        ``s_k * v + (1 - s_k) * v_after`` for a jump at touchdown only). Events without an
+        entry do not move the state. Simultaneous resets must commute (HybridSystem).
+    params : mapping sympy.Symbol -> float, optional
+        Parameter values, changed later by :meth:`SymbolicSystem.with_params` without
+        re-deriving or recompiling (the kernels take them as an array).
+    cache_dir : str or os.PathLike, optional
+        Root of the cache folder (default ``$BDERIV_CACHE_DIR``, else
+        ``~/.cache/bderiv``; :mod:`bderiv.symbolic._cache`).
+
+    Returns
+    -------
+    SymbolicSystem
+        A ``HybridSystem`` with all its functions and Jacobians given; ``build`` says
+        whether the cache was hit and what the derivation and compilation took.
+
+    Raises
+    ------
+    TypeError
+        Symbols that are not sympy Symbols, expressions that are not sympy expressions,
+        parameter values that are not real numbers.
+    ValueError
+        Wrong lengths, flags in the events, free symbols that are neither state, flags
+        nor parameters (named), non-finite parameter values, an expression that does not
+        compile (named: printing as Python or numba typing fails).
+    ImportError
+        Without sympy (``pip install 'bderiv[symbolic]'``).
+    """
+    sympy = require_sympy()
+    model = check_model(state, flags, field, events, resets, params)
+    key = _cache.model_key([f"bderiv.symbolic codegen {_codegen.CODEGEN_VERSION}",
+                            f"sympy {sympy.__version__}", *model.canonical_text()])
+    path = _cache.module_path(_cache.cache_folder(cache_dir), key)
+    cached = path.exists()
+    start = time.perf_counter()
+    if not cached:
+        _cache.store(path, _codegen.generate(model, key))
+    derived = time.perf_counter()
+    try:
+        try:
+            module = _cache.load(path, key)
+        except Exception:
+            if not cached:
+                raise
+            _cache.clear_compiled(path)  # numba's cache of it unreadable: compile again
+            module = _cache.load(path, key)
+    except Exception as exc:  # numba refused the generated source: name the expression
+        path.unlink(missing_ok=True)
+        raise _locate_compile_error(model, exc) from None
+    build = BuildInfo(key=key, cached=cached, derive_seconds=derived - start,
+                      load_seconds=time.perf_counter() - derived)
+    return SymbolicSystem(_kernels(model, key, module, path), model.values, build)
