@@ -414,3 +414,32 @@ def test_decay_check_fits_only_the_linear_regime():
     measured = decay_check(radial_cycle(2.35), x0, section, V, eps=1e-7, strides=12)
     assert measured.rate == pytest.approx(2.35, rel=0.2)
     assert measured.fitted[0].sum() >= 3 and measured.deviations[0, -1] > 1e-3
+
+
+def test_eight_legs_orbit_and_its_growth_confirmed_by_simulation():
+    # eight feet land and lift off together: (8!)^2 = 1.6e9 pieces per stride, which the
+    # old Newton step listed (MemoryError after 34-53 s)
+    import tracemalloc
+
+    ex = gaits.pronking(legs=8)
+    tracemalloc.start()
+    try:
+        orb = gaits.pronking_orbit(ex, perturbation=(0.05, 0.0, 0.0, 0.0))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 100 * 2**20 and orb.residual < 1e-10
+    assert [bd.n_events for bd in orb.return_map.jumps] == [8, 8]
+    assert all(len(h.piece) == 2 and len(h.piece[0]) == 8 for h in orb.history[:-1])
+    # the legs share the two-legged totals, so the vertical motion of the symmetric gait,
+    # and the period, are those of two legs
+    assert orb.period == pytest.approx(0.48976329184, rel=1e-9)
+    # the pitch is unstable with eight legs: perturbations measured in simulation, fitted
+    # in the linear regime, grow at the rate the PL return map predicts
+    st = orb.stability(n_directions=200, iterations=300)
+    V = np.random.default_rng(0).standard_normal((2, 3)) @ orb.return_map.tangent_basis.T
+    decay = decay_check(ex.system, orb.x0, gaits.apex_section,
+                        V / np.linalg.norm(V, axis=1)[:, None], eps=1e-9, floor=1e-12,
+                        strides=10)
+    assert not st.stable and st.growth_rate > 4
+    assert decay.rate == pytest.approx(st.growth_rate, rel=0.01)

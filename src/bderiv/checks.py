@@ -175,9 +175,8 @@ def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=No
 
 #: strides a direction needs in the linear regime for its rate to be fitted
 MIN_FIT_STRIDES = 3
-#: the linear regime of :func:`decay_check`: deviations at most this many times eps ...
-LINEAR_EPS = 100.0
-#: ... and at most this fraction of |x0|
+#: the linear regime of :func:`decay_check`: deviations at most this fraction of |x0| (of
+#: 1 when x0 = 0), where the model's nonlinearity is still small
 LINEAR_STATE = 0.05
 
 
@@ -245,8 +244,8 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     floor : float
         Deviations below this (the integration error) are not fitted.
     ceiling : float, optional
-        The largest deviation counted as linear (default: ``LINEAR_EPS * eps``, and at most
-        ``LINEAR_STATE * |x0|`` when x0 is not 0).
+        The largest deviation counted as linear (default ``LINEAR_STATE * |x0|``, or
+        ``LINEAR_STATE`` when x0 is 0).
     t_max : float
         Longest wait for each return.
     **simulate_options
@@ -271,7 +270,7 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     x0 = np.asarray(x0, dtype=np.float64)
     size = float(np.linalg.norm(x0))
     if ceiling is None:
-        ceiling = LINEAR_EPS * eps if size == 0 else min(LINEAR_EPS * eps, LINEAR_STATE * size)
+        ceiling = LINEAR_STATE * (size if size > 0 else 1.0)
     ceiling = check_number(ceiling, "ceiling")
     simulate_options.setdefault("simultaneity_tol", FD_SIMULTANEITY_TOL)
     if not any(k in simulate_options for k in ("options", "rtol", "atol")):

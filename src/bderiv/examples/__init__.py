@@ -8,7 +8,7 @@ event point ``rho`` where all its events happen at once, a start point ``x0`` th
 - :func:`network`: first-order network for any n (d = n or d = 2n) whose events change each
   other's rates, so perturbations overtake (usable up to n = 20);
 - :func:`table`: 3-D rigid body landing flat on 4 legs (n = 4 > rank of Dh = 3);
-- :func:`pronking`: a planar body pronking on two compliant legs (d = 4, n = 2), a gait
+- :func:`pronking`: a planar body pronking on compliant legs (d = 4, n = 2 legs, or more), a gait
   whose two legs land and lift off together (module :mod:`~bderiv.examples.gaits`: its
   section, periodic orbit and summary);
 - :func:`landing`: a body on two massive feet landing together, resets at the touchdown

@@ -1,8 +1,9 @@
-"""Gaits: a planar body pronking on two compliant legs that land and lift off together.
+"""Gaits: a planar body pronking on compliant legs that land and lift off together.
 
 State ``(z, theta, vz, omega)`` (d = 4): height and pitch of the body and their rates;
 unit mass, pitch inertia ``inertia``. Leg k ends at the body-frame point
-``(a_k, -leg)`` with ``a = (-half_base, +half_base)``: its foot height is
+``(a_k, -leg)``, the ``a_k`` evenly spaced from ``-half_base`` to ``+half_base`` (two legs
+by default: ``a = (-half_base, +half_base)``): its foot height is
 ``z + a_k sin(theta) - leg cos(theta)``, and event k is ``h_k = -height_k`` (upward
 crossing: touchdown; downward crossing: lift-off; both recur every stride).
 
@@ -10,7 +11,7 @@ In contact the ground pushes the foot up with ``f_k = -stiffness * height_k - da
 v_k + thrust_k``, ``v_k`` the foot's vertical velocity, and an energy-regulating thrust
 ``thrust_k = gain(B) * (1 - vz^2 / v_ref^2) * vz`` (a Van der Pol term on the body's
 vertical velocity: it pumps energy in slow stance and dissipates in fast stance, so the
-hopping height settles); ``gain(B) = gain * (1 + coupling)`` while both legs touch, so
+hopping height settles); ``gain(B) = gain * (1 + coupling)`` while all legs touch, so
 the corner table is not additive and the event orders give different pieces. Gravity
 acts always; the forces are smooth in each region and jump at touchdown (damping and
 thrust do not vanish there), so both touchdown and lift-off are event-selected.
@@ -49,10 +50,13 @@ APEX = 0.6629663141
 
 
 class _Pronking:
-    def __init__(self, stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia):
-        self.K, self.C, self.gain, self.v_ref = stiffness, damping, gain, v_ref
-        self.coupling, self.leg, self.inertia = coupling, leg, inertia
-        self.a = np.array([-half_base, half_base])
+    def __init__(self, stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia,
+                 legs):
+        share = 2.0 / legs  # the totals of two legs, shared by all of them
+        self.K, self.C, self.gain = share * stiffness, share * damping, share * gain
+        self.v_ref, self.coupling, self.leg, self.inertia = v_ref, coupling, leg, inertia
+        self.a = np.linspace(-half_base, half_base, legs)
+        self.legs, self.all_down = legs, (1 << legs) - 1
 
     def _feet(self, x):
         c, s = np.cos(x[1]), np.sin(x[1])
@@ -63,10 +67,10 @@ class _Pronking:
     def field(self, x, mask):
         rx, height, v = self._feet(x)
         mask = int(mask)
-        gain = self.gain * (1.0 + self.coupling) if mask & 3 == 3 else self.gain
+        gain = self.gain * (1.0 + self.coupling) if mask == self.all_down else self.gain
         thrust = gain * (1.0 - x[2] ** 2 / self.v_ref**2) * x[2]
         az, alpha = -_G + 0.0 * x[0], 0.0 * x[0]
-        for k in range(2):
+        for k in range(self.legs):
             if mask >> k & 1:
                 f = -self.K * height[k] - self.C * v[k] + thrust
                 az = az + f
@@ -80,7 +84,7 @@ class _Pronking:
         return -self._feet(x)[1]
 
     def event_jacobian(self, x):
-        D = np.zeros((2, 4))
+        D = np.zeros((self.legs, 4))
         D[:, 0] = -1.0
         D[:, 1] = -self._feet(x)[0]
         return D
@@ -97,25 +101,32 @@ def apex_section_gradient(x):
 
 
 def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
-             half_base=0.4, leg=0.5, inertia=0.16, apex=APEX, t_after=0.05):
-    """The pronking body at the apex of its gait, about to land on both legs at once.
+             half_base=0.4, leg=0.5, inertia=0.16, apex=APEX, t_after=0.05, legs=2):
+    """The pronking body at the apex of its gait, about to land on all legs at once.
 
     Parameters
     ----------
     stiffness, damping : float
-        Ground spring and damper of each leg (per unit mass).
+        Ground spring and damper of each leg of a two-legged body (per unit mass); with
+        other ``legs``, the same totals shared equally (``2 / legs`` of them per leg).
     gain, v_ref : float
-        Thrust gain and the vertical speed at which the thrust changes sign.
+        Thrust gain (shared the same way) and the vertical speed at which the thrust
+        changes sign.
     coupling : float
-        Extra relative thrust gain while both legs touch (0: additive contact forces).
+        Extra relative thrust gain while all legs touch (0: additive contact forces).
     half_base, leg : float
-        Half the distance between the feet, and the legs' length.
+        Half the distance between the outermost feet, and the legs' length.
     inertia : float
         Pitch inertia per unit mass (0.16 makes the pitch motion stable).
     apex : float
         Apex height of the start point ``x0 = (apex, 0, 0, 0)`` (> ``leg``).
     t_after : float
         ``t_final = t_event + t_after`` (the legs still touch then).
+    legs : int
+        Number of legs (>= 2), their feet evenly spaced along the body: all touch down and
+        lift off together on the symmetric gait (n = legs simultaneous events; (legs!)^2
+        pieces per stride). The vertical motion of the symmetric gait is the same for any
+        number of legs.
 
     Returns
     -------
@@ -124,14 +135,18 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
         closed form: free fall from the apex), ``t_event`` the fall time. Use
         :func:`apex_section` and :func:`pronking_orbit` for the gait.
     """
-    model = _Pronking(stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia)
+    legs = int(legs)
+    if legs < 2:
+        raise ValueError(f"legs must be an integer >= 2, got {legs}")
+    model = _Pronking(stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia,
+                      legs)
     fall = float(np.sqrt(2.0 * (apex - leg) / _G))
     rho = np.array([leg, 0.0, -_G * fall, 0.0])
     return Example.from_model(
-        model, n_events=2, dim=4, rho=rho, x0=np.array([apex, 0.0, 0.0, 0.0]),
+        model, n_events=legs, dim=4, rho=rho, x0=np.array([apex, 0.0, 0.0, 0.0]),
         t_event=fall, t_after=t_after, name="pronking",
-        description=("planar body pronking on two compliant legs: both land and lift off "
-                     "together every stride (d = 4, n = 2, coupling = "
+        description=(f"planar body pronking on {legs} compliant legs: all land and lift "
+                     f"off together every stride (d = 4, n = {legs}, coupling = "
                      f"{coupling})"),
     )
 
