@@ -9,6 +9,7 @@ the driver left is evaluated again here, in Python, to say what came back.
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 
 import numpy as np
 from numba.core.dispatcher import Dispatcher
@@ -56,13 +57,20 @@ def check_compiled(fn, name: str) -> None:
         If ``fn`` is not a dispatcher, does not compile for the argument types, or returns
         another array type; the message names ``name`` and both types.
     """
-    signature, call, *_ = _FUNCTIONS[name]
-    expected = f"{call} with x float64[::1]" + (", mask int64" if "mask" in call else "")
     if not isinstance(fn, Dispatcher):
         raise TypeError(
             f"{name} must be a numba.njit-compiled function for the compiled integrator, got "
             f"{type(fn).__name__} {fn!r}"
         )
+    _check_types(fn, name)
+
+
+@lru_cache(maxsize=256)
+def _check_types(fn, name: str) -> None:
+    """The compilation and return type of :func:`check_compiled` (a passed check is
+    remembered: a dispatcher keeps what it compiled)."""
+    signature, call, *_ = _FUNCTIONS[name]
+    expected = f"{call} with x float64[::1]" + (", mask int64" if "mask" in call else "")
     args = signature.args
     if args not in fn.overloads:
         try:

@@ -1,8 +1,9 @@
 """The driver: one stretch of one region, from ``t0`` to ``t_final`` or the first event.
 
-:func:`drive_stretch` is compiled once, for the function types of :mod:`._rhs`: any
-dispatcher compiled for those types is passed as a first-class function (a pointer), so a
-new model does not recompile the driver and the driver is cached on disk. It repeats
+:func:`drive_stretch` is compiled once (at its first call, then cached on disk): the
+model's dispatchers come as first-class functions (pointers, of the types of :mod:`._rhs`)
+in one struct (:mod:`._model`) whose type is the same for every model, so a new model does
+not recompile the driver. It repeats
 ``solve_ivp(method="DOP853")``'s loop: the first step by ``select_initial_step``, each step
 tried and shrunk until the error norm is below one, the events evaluated at each accepted
 step, and at a crossing the dense output built and the crossing located on it.
@@ -11,7 +12,7 @@ step, and at a crossing the dense output built and the crossing located on it.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, types
+from numba import njit
 
 from ._dop853 import (
     INTERPOLATOR_POWER,
@@ -24,7 +25,7 @@ from ._dop853 import (
     step,
     step_factor,
 )
-from ._rhs import EVENTS_TYPE, FIELD_TYPE, JACOBIAN_TYPE, OK, call_events, rhs
+from ._rhs import OK, call_events, rhs
 from ._watch import crossed, locate
 
 #: the stretch reached ``t_final`` / stopped at an event crossing / the step size fell
@@ -34,25 +35,6 @@ EVENT = -2
 STEP_UNDERFLOW = -3
 #: entries of the returned counters
 NFEV, NJEV, N_STEPS, N_REJECTED = range(4)
-
-_RESULT = types.Tuple((
-    types.int64,  # status
-    types.float64,  # t at the end
-    types.float64[::1],  # y at the end, (m,)
-    types.float64[::1],  # times of the record, (N,)
-    types.float64[:, ::1],  # states of the record, (N, d)
-    types.boolean[::1],  # events that crossed in the last step, (n,)
-    types.float64[::1],  # their crossing times (nan for the others), (n,)
-    types.int64[::1],  # counters
-    types.float64[::1],  # state of a failed check, (d,)
-    types.float64,  # t of a failed check or of the step-size underflow
-))
-_SIGNATURE = _RESULT(
-    FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, types.boolean, types.int64, types.int64,
-    types.int64, types.float64, types.float64[::1], types.float64, types.float64,
-    types.float64[::1], types.float64, types.float64,
-)
-
 
 @njit(cache=True)
 def _record(ts, xs, count, t, y, d):
@@ -68,15 +50,36 @@ def _record(ts, xs, count, t, y, d):
     return ts, xs, count + 1
 
 
-@njit(_SIGNATURE, cache=True)
-def drive_stretch(field, jac, events, variational, n_events, mask, d, t0, y0, t_final,
-                  rtol, atol, max_step, first_step):
+@njit(cache=True)
+def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, atol,
+                  max_step, first_step):
     """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
 
     ``y0`` is the state (length d) or the state and the sensitivity (length d + d * d,
     ``variational``); ``atol`` has one entry per component of ``y0``; ``first_step`` 0
-    selects it as scipy does. Returns the tuple ``_RESULT`` describes. No validation.
+    selects it as scipy does. No validation.
+
+    Returns
+    -------
+    status : int
+        ``FINISHED``, ``EVENT``, ``STEP_UNDERFLOW`` or a failed check of :mod:`._rhs`.
+    t_end : float
+    y_end : ndarray, shape (m,)
+    ts : ndarray, shape (N,)
+        Times of the record (the start, the accepted steps, the stop).
+    xs : ndarray, shape (N, d)
+    active : ndarray, shape (n,), bool
+        Events that crossed in the last step.
+    roots : ndarray, shape (n,)
+        Their crossing times; NaN for the others.
+    counts : ndarray, shape (4,), int64
+        ``NFEV``, ``NJEV``, ``N_STEPS``, ``N_REJECTED``.
+    bad : ndarray, shape (d,)
+        The state of a failed check or of the step-size underflow.
+    t_bad : float
+        Its time.
     """
+    field, jac, events = model.field, model.jacobian, model.events
     m = y0.size
     counts = np.zeros(4, dtype=np.int64)
     bad = np.zeros(d)

@@ -24,6 +24,7 @@ from ._integrate import (
     STEP_UNDERFLOW,
     drive_stretch,
 )
+from ._model import bound_model
 from ._rhs import (
     EVENTS_NONFINITE,
     EVENTS_SHAPE,
@@ -201,8 +202,9 @@ def integrate_stretch(field, x0, t_final, *, mask=0, t0=0.0, events=None,
         raise ValueError(f"events must return at most {MAX_EVENTS} values (one bit each of "
                          f"the mask), got {n}")
     y0 = np.concatenate((x0, np.eye(d).ravel())) if variational else x0
-    out = drive_stretch(field, field_jacobian if variational else no_jacobian, events_fn,
-                        variational, n, mask, d, t0, y0, t_final, rtol, atol, max_step, first_step)
+    model = bound_model(field, field_jacobian if variational else no_jacobian, events_fn)
+    out = drive_stretch(model, variational, n, mask, d, t0, y0, t_final, rtol, atol, max_step,
+                        first_step)
     status, t_end, y_end, ts, xs, crossed, roots, counts, bad, t_bad = out
     if status not in (FINISHED, EVENT):
         _raise(status, named, bad, t_bad, mask, d, n)
