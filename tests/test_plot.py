@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from bderiv import BDerivative, CornerFunction, StructuredCorners, plot
+from bderiv._format import format_order
 from bderiv.examples import planar_table, three_event_table
 
 matplotlib = pytest.importorskip("matplotlib")
@@ -65,19 +66,112 @@ def test_triangulation(planar, tmp_path):
     png_bytes(fig2)
 
 
+def _style(artist):
+    """What a reader tells lines apart by: colour, line style, width, marker."""
+    from matplotlib.colors import to_hex
+
+    return (to_hex(artist.get_color()), artist.get_linestyle(), artist.get_linewidth(),
+            artist.get_marker())
+
+
 def test_tangent_circle(planar):
+    """The curves are drawn as the legend shows them: the circle dashed and its image
+    solid, each arc in its piece's colour; the points of an arc have the event order of
+    its legend entry and its image is the reference map of them (tests/reference.py)."""
+    from reference import ref_apply, ref_event_times
+
+    Dh, F = planar_table()
     fig = plot.tangent_circle(planar, n_vectors=90)
-    legend = fig.axes[0].get_legend()
-    labels = [t.get_text() for t in legend.get_texts()]
-    assert "order (0,1)" in labels and "order (1,0)" in labels
-    assert legend.get_bbox_to_anchor().x0 > fig.axes[0].get_window_extent().x1  # beside
-    assert "B-derivative at the event point" in fig.axes[0].get_title()
+    ax = fig.axes[0]
+    (legend,) = fig.legends
+    drawn = [ln for ln in ax.lines if len(ln.get_xdata())]
+    handles = {_style(h): h.get_label() for h in legend.legend_handles}
+    assert set(handles) == {_style(ln) for ln in drawn}  # no style unexplained, none unused
+    assert sorted(handles.values()) == ["order (0,1): M(u)", "order (0,1): u",
+                                        "order (1,0): M(u)", "order (1,0): u"]
+    for dashed, solid in zip(drawn[::2], drawn[1::2], strict=True):
+        label = handles[_style(dashed)]
+        assert label.endswith(": u") and handles[_style(solid)] == label[:-1] + "M(u)"
+        U = dashed.get_xydata()
+        np.testing.assert_allclose(np.hypot(*U.T), 1.0, rtol=1e-12)
+        np.testing.assert_allclose(solid.get_xydata(), [ref_apply(Dh, F, u) for u in U],
+                                   rtol=1e-12, atol=1e-12)
+        # the ends are shared with the next arc
+        orders = {format_order(ref_event_times(Dh, F, u)[1]) for u in U[1:-1]}
+        assert orders == {label.split()[1][:-1]}
+    # the axes fill the figure (no empty band beside a square plot), the legend below them
+    fig.canvas.draw()
+    box = ax.get_position()
+    assert box.width > 0.7 and box.height > 0.65
+    assert legend.get_window_extent().y1 < ax.get_window_extent().y0
+    assert "B-derivative M at the event point" in ax.get_title()
+    assert [t.get_text() for t in ax.texts if t.get_text()] == ["$F_0$", "$F_{full} = M(F_0)$"]
+    png_bytes(fig)
+
+
+def _bars(ax):
+    """Heights, tick labels and face colours of the bars of ``ax``."""
+    from matplotlib.colors import to_hex
+
+    bars = ax.patches
+    labels = [t.get_text() for t in ax.get_xticklabels()]
+    return ([b.get_height() for b in bars], labels,
+            {to_hex(b.get_facecolor(), keep_alpha=False) for b in bars})
+
+
+def test_pieces_one_bar_per_distinct_value():
+    """Corners whose rates change only at their own event (F[B, k] = a_k before event k,
+    b_k after) give every order the same det, prod b_k / a_k (the saltation determinant
+    lemma), while the free component d = n + 1 makes the gains differ: the det panel has
+    one bar saying so, the gain panel one bar per distinct gain, all in one colour."""
+    from reference import all_orders, ref_piece
+
+    n, a, b = 3, np.array([1.0, 2.0, 1.5]), np.array([2.0, 1.0, 3.0])
+    masks = np.arange(1 << n)
+    happened = (masks[:, None] >> np.arange(n)) & 1
+    free = np.random.default_rng(5).uniform(-1.0, 1.0, (1 << n, 1))
+    F = np.hstack([np.where(happened, b, a), free])
+    Dh = np.hstack([np.eye(n), np.zeros((n, 1))])
+    fig = plot.pieces(BDerivative(Dh, F))
+    heights, labels, colors = _bars(fig.axes[0])
+    np.testing.assert_allclose(heights, [np.prod(b / a)], rtol=1e-12)  # = 2
+    assert labels == ["all 6 pieces"] and len(colors) == 1
+    assert [t.get_text() for t in fig.axes[0].texts] == ["2"]  # the value, on the bar
+    gains = [np.linalg.norm(ref_piece(Dh, F, o), 2) for o in all_orders(n)]
+    distinct = sorted({round(g, 9) for g in gains})
+    heights, labels, gain_colors = _bars(fig.axes[1])
+    assert len(heights) == len(distinct) and gain_colors == colors
+    np.testing.assert_allclose(sorted(heights), distinct, rtol=1e-8)
+    assert "orientation kept" in fig.axes[0].get_title()
+
+
+def test_pieces_of_singular_resets_say_so():
+    """A reset that stops a velocity (R = I - e_0 e_0^T) makes every piece singular: the
+    determinant is 0, written on its bar, and the title says why instead of '> 0'."""
+    from reference import ref_reset_piece
+
+    Dh = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    F = np.array([[1.0, 1.0, 0.5], [2.0, 1.2, 0.1], [1.1, 2.0, 0.3], [2.2, 2.1, -0.4]])
+    stop = np.diag([1.0, 1.0, 0.0])
+    R = np.broadcast_to(stop, (4, 2, 3, 3)).copy()
+    bd = BDerivative(Dh, F, resets=R)
+    fig = plot.pieces(bd)
+    heights, labels, _ = _bars(fig.axes[0])
+    assert heights == [0.0] and labels == ["all 2 pieces"]
+    assert [np.linalg.det(ref_reset_piece(Dh, F, R, o)) for o in ([0, 1], [1, 0])] == [0, 0]
+    assert "every piece singular" in fig.axes[0].get_title()
+    assert "> 0" not in fig.axes[0].get_title()
     png_bytes(fig)
 
 
 def test_pieces_all_and_sampled():
+    from reference import all_orders, ref_det
+
     fig = plot.pieces(BDerivative(*three_event_table()))
-    assert len(fig.axes[0].patches) == 6
+    dets = [ref_det(*three_event_table(), o) for o in all_orders(3)]  # 3! pieces ...
+    assert len(set(np.round(dets, 9))) == 3  # ... with 3 determinants: 3 bars
+    np.testing.assert_allclose(sorted(p.get_height() for p in fig.axes[0].patches),
+                               sorted(set(np.round(dets, 9))), rtol=1e-8)
     # the dotted line at 1 says what it is (in the titles: no legend over the bars)
     assert fig.axes[0].get_title().endswith("dotted: det = 1, volume kept")
     assert fig.axes[1].get_title().endswith("dotted: gain = 1, no vector stretched")
@@ -119,10 +213,36 @@ def test_scaling():
     assert ax.get_title().splitlines() == [
         "B-derivative at the event point: time per tangent vector", "d = n, batch m = 10"]
     png_bytes(fig)
-    title = plot.scaling(rows, machine="CPU X (2 CPUs), numba threads 2").axes[0].get_title()
-    assert title.splitlines()[-1] == "measured on CPU X (2 CPUs), numba threads 2"
+    # where it was measured: small print under the axes, not in the title, without the
+    # environment variables that are unset
+    machine = ("CPU X (2 CPUs), numba threads 2, BLAS b 0.3; NUMBA_NUM_THREADS unset, "
+               "OMP_NUM_THREADS unset, OPENBLAS_NUM_THREADS 1")
+    fig = plot.scaling(rows, machine=machine)
+    assert fig.axes[0].get_title() == ax.get_title()
+    assert fig.get_supxlabel() == ("measured on CPU X (2 CPUs), numba threads 2, BLAS b "
+                                   "0.3; OPENBLAS_NUM_THREADS 1")
     with pytest.raises(ValueError, match="no benchmark rows to plot with batch m = 5"):
         plot.scaling(rows, batch=5)
+
+
+@pytest.mark.parametrize("ns_per_query", [(0.3, 0.5, 2.0), (12.0, 15.0, 30.0)])
+def test_scaling_labels_a_decade_on_each_side_of_the_points(ns_per_query):
+    """Below 10^0 too: the y axis runs between whole decades, each labelled, so every point
+    lies between two labelled ticks (one decade of data still gets two labels)."""
+    rows = [{"n": n, "d": n, "m": 10, "method": "bderiv", "seconds_per_query": 1e-9 * t}
+            for n, t in zip((2, 4, 8), ns_per_query, strict=True)]
+    fig = plot.scaling(rows)
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    lo, hi = ax.get_ylim()
+    labelled = [(tick, label.get_text()) for tick, label in
+                zip(ax.get_yticks(), ax.get_yticklabels(), strict=True)
+                if lo * (1 - 1e-9) <= tick <= hi * (1 + 1e-9) and label.get_text()]
+    ticks = [t for t, _ in labelled]
+    assert min(ticks) <= min(ns_per_query) and max(ticks) >= max(ns_per_query)
+    assert len(ticks) >= 2
+    assert [label for _, label in labelled] == [
+        f"$\\mathdefault{{10^{{{int(np.log10(t))}}}}}$" for t in ticks]
 
 
 def test_scaling_keeps_the_largest_batch_of_each_point():
@@ -290,6 +410,41 @@ def _edge_points():
     from bderiv.plot._carried_fan import EDGE_POINTS
 
     return EDGE_POINTS
+
+
+def test_simplices_and_hatching_say_what_they_are(planar):
+    """The regions under the simplices are greys (no hue shared with a simplex's colour);
+    the legend names each order's colour and the hatching: the hatched simplex of an order
+    is its half with the vertex -F[0] (docs/mathematics.md section 5), the plain one has
+    F[0] = U[full]; the super-title is a title and a line of detail."""
+    from matplotlib.colors import to_rgb
+
+    F = planar_table()[1]
+    fig = plot.carried_fan(planar, snapshots=(-2.0,))
+    left = fig.axes[0]
+    (mesh,) = left.collections
+    greys = np.array([to_rgb(c) for c in mesh.get_cmap()(np.linspace(0, 1, 4))])
+    assert np.ptp(greys, axis=1).max() == 0  # R = G = B
+    tri = planar.triangulation()
+    fig2 = plot.triangulation(planar)
+    pre = fig2.axes[0]
+    for i, patch in enumerate(pre.patches):
+        corners = patch.get_xy()[:3]
+        hatched = bool(patch.get_hatch())
+        assert hatched == (i % 2 == 1)
+        far = -F[0] if hatched else F[0]
+        assert np.isclose(corners, far, atol=1e-12).all(axis=1).any()
+        assert np.ptp(to_rgb(patch.get_facecolor())) > 0.2  # a hue, not a grey
+    for f in (fig, fig2):
+        (legend,) = f.legends
+        labels = [t.get_text() for t in legend.get_texts()]
+        assert labels == ["order (0,1)", "order (1,0)",
+                          "plain: half toward $+F_0$ (all events past)",
+                          "hatched: half toward $-F_0$ (the last event ahead)"]
+        hatches = [h.get_hatch() for h in legend.legend_handles]
+        assert hatches == [None, None, None, "///"]
+    assert len(fig.get_suptitle().splitlines()) == 2
+    assert len(tri.simplices) == len(pre.patches)
 
 
 def test_carried_fan_flow_matches_a_simulation(planar):

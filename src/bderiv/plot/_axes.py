@@ -14,12 +14,20 @@ PALETTE = (
     "#4477AA", "#EE6677", "#228833", "#CCBB44", "#66CCEE", "#AA3377", "#BBBBBB", "#000000",
 )
 
+#: opacity of a simplex (its colour is its event order)
+SIMPLEX_ALPHA = 0.55
+#: colours of the regions under the simplices: greys, so no region shares a simplex's hue
+REGION_GREYS = ("#FFFFFF", "#EEEEEE", "#E0E0E0", "#D0D0D0")
+
+#: the one colour of bars whose only variable is their height
+BAR_COLOR = PALETTE[0]
+
 
 def figure_axes(ax, ncols=1, figsize=(5.5, 5.0)):
     """The figure to draw into and its ``ncols`` axes.
 
-    The one place a figure imports matplotlib first, so a missing matplotlib is reported
-    with the install hint.
+    A figure's first call to matplotlib (here or in :func:`new_figure`), so a missing
+    matplotlib is reported with the install hint.
 
     Parameters
     ----------
@@ -34,15 +42,22 @@ def figure_axes(ax, ncols=1, figsize=(5.5, 5.0)):
     -------
     (matplotlib.figure.Figure, list of ``ncols`` matplotlib Axes)
     """
-    try:
-        from matplotlib.figure import Figure
-    except ImportError as exc:  # pragma: no cover - exercised without matplotlib only
-        raise ImportError(PLOT_HINT) from exc
     if ax is not None:
         axes = list(np.atleast_1d(ax))
         if len(axes) != ncols:
             raise ValueError(f"this figure needs {ncols} axes, got {len(axes)}")
         return axes[0].figure, axes
-    fig = Figure(figsize=figsize, layout="constrained")
+    fig = new_figure(figsize)
     axes = fig.subplots(1, ncols, squeeze=False)[0]
     return fig, list(axes)
+
+
+def new_figure(figsize):
+    """A new figure of ``figsize`` inches, built without pyplot (no global state), laid out
+    by matplotlib's constrained layout; a missing matplotlib is reported with the install
+    hint."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as exc:  # pragma: no cover - exercised without matplotlib only
+        raise ImportError(PLOT_HINT) from exc
+    return Figure(figsize=figsize, layout="constrained")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._format import format_mask
-from ._axes import PALETTE, figure_axes
+from ._axes import PALETTE, REGION_GREYS, SIMPLEX_ALPHA, figure_axes
 from ._planar import _event_lines, _order_handles, _region_masks
 
 #: points per edge of a simplex when its boundary is carried through the flow
@@ -29,11 +29,11 @@ def carried_fan(bd, axes=None, *, snapshots=(-2.0, 0.0, 2.0)):
     them the post-event simplex moved along ``F[full]``, and in between it bends along the
     event lines. Thin lines: the trajectories of the vertices.
 
-    Right, impact-time coordinates ``tau_k`` = time until event k (MATH.md section 3: the
-    event times of the trajectory, minus the time elapsed): here every trajectory moves
-    along ``-(1, 1)``, the event lines are the axes, and the simplices are the standard
-    fan (vertex ``mask``: ``tau_k = -1`` for the events of the mask, else 0), translated
-    and never bent.
+    Right, impact-time coordinates ``tau_k`` = time until event k (docs/mathematics.md
+    section 3: the event times of the trajectory, minus the time elapsed): here every
+    trajectory moves along ``-(1, 1)``, the event lines are the axes, and the simplices
+    are the standard fan (vertex ``mask``: ``tau_k = -1`` for the events of the mask, else
+    0), translated and never bent.
 
     Parameters
     ----------
@@ -85,19 +85,20 @@ def carried_fan(bd, axes=None, *, snapshots=(-2.0, 0.0, 2.0)):
         hatch = None if i % 2 == 0 else "///"
         for s in snapshots:
             for ax, xy in ((left, _flow(bd.F, points, tau, s)), (right, tau - s)):
-                ax.add_patch(Polygon(xy, closed=True, fc=color, ec="k", lw=0.7, alpha=0.45,
-                                     hatch=hatch))
+                ax.add_patch(Polygon(xy, closed=True, fc=color, ec="k", lw=0.7,
+                                     alpha=SIMPLEX_ALPHA, hatch=hatch))
     for ax, paths in ((left, state_paths), (right, vtimes[:, None, :] - path_t[:, None])):
         for path in paths:
             ax.plot(path[:, 0], path[:, 1], color="0.35", lw=0.6, zorder=1)
     _state_panel(left, bd, state_paths, snapshots)
     _time_panel(right, vtimes, snapshots, span)
-    fig.legend(handles=_order_handles(tri, 2), title="event order of the simplex",
-               fontsize=8, loc="outside lower center", ncols=3)
+    fig.legend(handles=_order_handles(tri, 2), title="the simplices of each event order",
+               fontsize=8, loc="outside lower center", ncols=2)
     fig.suptitle(
-        "the triangulation of the B-derivative at the event point, carried through the "
-        f"corner-limit flow (snapshots at t = {', '.join(f'{s:g}' for s in snapshots)}; "
-        "the events happen at t = 0)", fontsize=10)
+        "The triangulation of the B-derivative at the event point, carried through the "
+        "corner-limit flow\n"
+        f"snapshots at t = {', '.join(f'{s:g}' for s in snapshots)}; the events happen at "
+        "t = 0", fontsize=11)
     return fig
 
 
@@ -112,9 +113,9 @@ def _flow(F, U, times, s):
     """Positions (m, 2) at time ``s`` of the corner-limit trajectories of virtual starts U.
 
     ``times`` (m, n): each trajectory's event times (``bd.event_times``). The events that
-    have happened by time ``s`` move the virtual position as in MATH.md section 3 (so the
-    trajectory is continuous); the position is then the virtual one plus ``s`` times the
-    field of the region reached.
+    have happened by time ``s`` move the virtual position as in docs/mathematics.md
+    section 3 (so the trajectory is continuous); the position is then the virtual one plus
+    ``s`` times the field of the region reached.
     """
     x = np.array(U, dtype=np.float64)
     mask = np.zeros(len(x), dtype=np.int64)
@@ -134,8 +135,11 @@ def _state_panel(ax, bd, paths, snapshots):
     lo, hi = lo - pad, hi + pad
     X, Y = np.meshgrid(np.linspace(lo[0], hi[0], 301), np.linspace(lo[1], hi[1], 301))
     masks = _region_masks(np.stack([X.ravel(), Y.ravel()], axis=1), bd.Dh).reshape(X.shape)
-    ax.pcolormesh(X, Y, masks, cmap="Pastel1", vmin=0, vmax=8, shading="auto", alpha=0.35,
-                  rasterized=True, zorder=0)
+    from matplotlib.colors import ListedColormap
+
+    # regions in greys: the hues belong to the simplices (their event orders)
+    ax.pcolormesh(X, Y, masks, cmap=ListedColormap(REGION_GREYS), vmin=-0.5, vmax=3.5,
+                  shading="auto", rasterized=True, zorder=0)
     _event_lines(ax, bd.Dh, 2.0 * np.abs(np.r_[lo, hi]).max())
     for mask in range(4):
         sel = masks == mask

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._format import format_mask, format_order
-from ._axes import PALETTE, figure_axes
+from ._axes import PALETTE, SIMPLEX_ALPHA, figure_axes
 
 
 def _require_2d(bd, what):
@@ -136,7 +136,7 @@ def _draw_trajectories(ax, bd, F, radius, n_trajectories):
     """Draw sampled trajectories of ``bd`` (dense corners ``F``) across the box.
 
     Their virtual start points are spread across F[0], so all cross both surfaces inside
-    the box (MATH.md section 3: piecewise straight, bending at events).
+    the box (docs/mathematics.md section 3: piecewise straight, bending at events).
     """
     f0 = F[0] / np.linalg.norm(F[0])
     normal = np.array([-f0[1], f0[0]])
@@ -150,7 +150,7 @@ def _draw_trajectories(ax, bd, F, radius, n_trajectories):
 def _sampled_trajectory(F, u, times, order, length):
     """Corners (j, 2) of the trajectory of ``x' = F[mask(x)]`` through the virtual start u.
 
-    Straight in each region, bending at each event time (MATH.md section 3); it starts
+    Straight in each region, bending at each event time (docs/mathematics.md section 3); it starts
     ``length`` (in distance) before the first region's end and runs on as far after the
     last event.
     """
@@ -169,7 +169,7 @@ def _sampled_trajectory(F, u, times, order, length):
 def triangulation(bd, axes=None, *, tri=None):
     """The triangulation carried through the flow: pre-event and post-event fans (2-D).
 
-    Left: the simplices of the pre-event fan (vertices ``U[mask]``, MATH.md section 5);
+    Left: the simplices of the pre-event fan (vertices ``U[mask]``, docs/mathematics.md section 5);
     right: the same simplices on the post-event vertices ``W[mask]``. A simplex keeps its
     colour, so the picture shows how each cone of one event order is carried by its
     linear piece.
@@ -211,7 +211,7 @@ def triangulation(bd, axes=None, *, tri=None):
             color = PALETTE[(i // 2) % len(PALETTE)]
             hatch = None if i % 2 == 0 else "///"
             ax.add_patch(Polygon(verts[simplex], closed=True, fc=color, ec="k", lw=0.8,
-                                 alpha=0.45, hatch=hatch))
+                                 alpha=SIMPLEX_ALPHA, hatch=hatch))
         ax.plot(verts[:, 0], verts[:, 1], "ko", ms=3)
         letter, flow = ("U", "$F_0$") if name == "pre-event" else ("W", "$F_{full}$")
         for v in range(n_vertex):
@@ -236,8 +236,8 @@ def triangulation(bd, axes=None, *, tri=None):
     for ax in axs:
         ax.set_xlim(-lim, lim)
         ax.set_ylim(-lim, lim)
-    fig.legend(handles=_order_handles(tri, n), title="event order of the simplex",
-               fontsize=8, loc="outside lower center", ncols=len(PALETTE))
+    fig.legend(handles=_order_handles(tri, n), title="the simplices of each event order",
+               fontsize=8, loc="outside lower center", ncols=2)
     fig.suptitle(f"triangulation of the B-derivative M at the event point (n={n}, d=2)\n"
                  f"a simplex keeps its colour from its pre-event vertices U to W = M(U)",
                  fontsize=10)
@@ -252,24 +252,31 @@ def _arrow(ax, start, end, label, at=0.75, offset=(8, -6), ha="left"):
 
 
 def _order_handles(tri, n):
-    """Legend patches: one colour per event order (the order is read off the chain)."""
+    """Legend patches: one colour per event order (the order is read off the chain), and
+    what the hatching means (docs/mathematics.md section 5: each order's cone is cut into
+    the halves toward +F_0 and -F_0)."""
     from matplotlib.patches import Patch
 
-    handles = [Patch(fc="white", ec="k", hatch="///", label="half toward $-F$")]
+    handles = []
     for j in range(tri.simplices.shape[0] // 2):
         chain = [0, *tri.simplices[2 * j, 1:n], (1 << n) - 1]
         order = [int(np.log2(b ^ a)) for a, b in zip(chain[:-1], chain[1:], strict=True)]
-        handles.append(Patch(fc=PALETTE[j % len(PALETTE)], alpha=0.45, ec="k",
-                             label=format_order(order)))
-    return handles
+        handles.append(Patch(fc=PALETTE[j % len(PALETTE)], alpha=SIMPLEX_ALPHA, ec="k",
+                             label=f"order {format_order(order)}"))
+    return handles + [
+        Patch(fc="white", ec="k", label="plain: half toward $+F_0$ (all events past)"),
+        Patch(fc="white", ec="k", hatch="///",
+              label="hatched: half toward $-F_0$ (the last event ahead)")]
 
 
 def tangent_circle(bd, ax=None, *, n_vectors=720):
     """A circle of unit pre-event tangent vectors and its image under the map (2-D).
 
-    Points are coloured by their piece (event order); the image is a closed curve made of
-    linear images of arcs (each piece is linear), kinked on the piece boundaries. The
-    arrows ``F_0`` and ``F_full`` (scaled by ``1/|F_0|``) show ``M(F_0) = F_full``.
+    Both curves are drawn in arcs coloured by their piece (event order): the circle
+    dashed, its image solid. The image is a closed curve made of linear images of arcs
+    (each piece is linear), kinked on the piece boundaries. Grey arrows join a few ``u``
+    to ``M(u)``; the arrows ``F_0`` and ``F_full`` (scaled by ``1/|F_0|``) show
+    ``M(F_0) = F_full``.
 
     Parameters
     ----------
@@ -291,44 +298,74 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     >>> F = np.array([[1.0, 1.0], [0.4, 1.6], [1.5, 0.5], [0.8, 0.9]])
     >>> fig = plot.tangent_circle(BDerivative(np.eye(2), F), n_vectors=90)
     >>> print(fig.axes[0].get_title())
-    B-derivative at the event point:
-    unit tangent vectors u and their images M(u)
+    B-derivative M at the event point:
+    unit tangent vectors u (dashed) and their images M(u)
     """
     _require_2d(bd, "tangent_circle")
     F = bd.to_dense("the tangent-circle figure").F
-    fig, (ax,) = figure_axes(ax, figsize=(7.8, 5.0))
+    fig, (ax,) = figure_axes(ax, figsize=(5.2, 5.6))
     _, U = _unit_circle(n_vectors)
     W = bd(U)
     _, order = bd.event_times(U)
     uniq, ids = _piece_ids(order)
-    ax.plot(np.r_[U[:, 0], U[0, 0]], np.r_[U[:, 1], U[0, 1]], color="0.6", ls="--", lw=1,
-            label="unit circle $u$")
-    ax.plot(np.r_[W[:, 0], W[0, 0]], np.r_[W[:, 1], W[0, 1]], color="k", lw=0.8,
-            label="image $M(u)$", zorder=1)
-    for p, o in enumerate(uniq):
-        sel = ids == p
+    for p in range(len(uniq)):
         color = PALETTE[p % len(PALETTE)]
-        ax.scatter(U[sel, 0], U[sel, 1], s=4, color=color, zorder=2)
-        ax.scatter(W[sel, 0], W[sel, 1], s=7, color=color, label=f"order {format_order(o)}",
-                   zorder=3)
+        for arc in _arcs(ids == p):  # each run of the piece, closed over its ends
+            ax.plot(U[arc, 0], U[arc, 1], color=color, ls="--", lw=1.2)
+            ax.plot(W[arc, 0], W[arc, 1], color=color, ls="-", lw=2.0)
     # a few correspondences u -> M(u)
     for i in range(0, n_vectors, max(1, n_vectors // 12)):
-        ax.annotate("", W[i], U[i], arrowprops=dict(arrowstyle="->", color="0.5", lw=0.6))
-    # the flow directions: F[0] -> F[full] (M(F_0) = F_full, MATH.md section 2)
+        ax.annotate("", W[i], U[i], arrowprops=dict(arrowstyle="->", color="0.55", lw=0.6))
+    # the flow directions: F[0] -> F[full] (M(F_0) = F_full, docs/mathematics.md section 2),
+    # each named beside its tip, on the side away from the other
     f0, ff = F[0], F[-1]
-    for vec, color, label in ((f0, "#117733", "$F_0$ (flow before)"),
-                              (ff, "#882255", "$M(F_0) = F_{full}$ (flow after)")):
+    turn = np.sign(f0[0] * ff[1] - f0[1] * ff[0]) or 1.0  # ff left (+1) or right of f0
+    for vec, label, side in ((f0, "$F_0$", -turn), (ff, "$F_{full} = M(F_0)$", turn)):
         tip = vec / np.linalg.norm(f0)
-        ax.annotate("", tip, (0.0, 0.0), arrowprops=dict(arrowstyle="-|>", color=color, lw=1.5))
-        ax.plot([], [], color=color, lw=1.5, label=label)
-    lim = 1.2 * max(1.0, np.abs(W).max())
+        normal = side * np.array([-vec[1], vec[0]]) / np.linalg.norm(vec)
+        ax.annotate("", tip, (0.0, 0.0), arrowprops=dict(arrowstyle="-|>", color="k", lw=1.3))
+        ax.annotate(label, 0.7 * tip, textcoords="offset points", xytext=12 * normal,
+                    fontsize=9, ha="left" if normal[0] > 0 else "right", va="center",
+                    bbox=dict(boxstyle="round", fc="white", alpha=0.85, lw=0, pad=0.15))
+    lim = 1.06 * max(1.0, np.abs(W).max())
     ax.set_xlim(-lim, lim)
     ax.set_ylim(-lim, lim)
     ax.set_aspect("equal")
     ax.set_xlabel("$x_0$")
     ax.set_ylabel("$x_1$")
-    # beside the axes: the curves fill the square
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), markerscale=2)
-    ax.set_title("B-derivative at the event point:\nunit tangent vectors u and their images "
-                 "M(u)")
+    fig.legend(handles=_circle_handles(uniq), fontsize=8, loc="outside lower center",
+               ncols=2)
+    ax.set_title("B-derivative M at the event point:\nunit tangent vectors u (dashed) and "
+                 "their images M(u)", fontsize=10)
     return fig
+
+
+def _arcs(selected):
+    """Index runs (wrapping around) of the True entries of ``selected`` (m,) on a closed
+    curve, each extended by one point into the next run so that the arcs meet."""
+    m = selected.size
+    starts = np.flatnonzero(selected & ~np.roll(selected, 1))
+    if starts.size == 0:  # the whole circle is one piece
+        return [np.r_[np.arange(m), 0]]
+    runs = []
+    for s in starts:
+        length = 0
+        while length < m and selected[(s + length) % m]:
+            length += 1
+        runs.append(np.arange(s, s + length + 1) % m)
+    return runs
+
+
+def _circle_handles(orders):
+    """Legend entries of :func:`tangent_circle`: one per piece, both line styles of its
+    colour."""
+    from matplotlib.lines import Line2D
+
+    handles = []
+    for p, o in enumerate(orders):
+        color = PALETTE[p % len(PALETTE)]
+        handles += [Line2D([], [], color=color, ls="--", lw=1.2,
+                           label=f"order {format_order(o)}: u"),
+                    Line2D([], [], color=color, ls="-", lw=2.0,
+                           label=f"order {format_order(o)}: M(u)")]
+    return handles

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import textwrap
 
 from ._axes import PALETTE, figure_axes
@@ -38,7 +39,8 @@ def scaling(rows, ax=None, *, batch=None, machine=None):
     batch : int, optional
         Keep only rows with this batch size ``m``.
     machine : str, optional
-        Where the rows were measured (CPU, threads, BLAS), shown under the title.
+        Where the rows were measured (CPU, threads, BLAS), shown in small print under the
+        axes (without the environment variables it names as unset).
 
     Returns
     -------
@@ -78,16 +80,42 @@ def scaling(rows, ax=None, *, batch=None, machine=None):
     ns = sorted({n for _, n in points})
     ax.set_xticks(ns, [str(v) for v in ns])
     ax.minorticks_off()
+    _whole_decades(ax, [r["seconds_per_query"] * 1e9 for r in points.values()])
     ax.set_xlabel("number of simultaneous events n")
     ax.set_ylabel("time per query (ns)")
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # beside the lines
-    caption = _sweep_caption(list(points.values()))
+    ax.set_title("B-derivative at the event point: time per tangent vector\n"
+                 + _sweep_caption(list(points.values())), fontsize=10)
     if machine:
-        caption += "\n" + textwrap.fill(f"measured on {machine}", 80)
-    ax.set_title("B-derivative at the event point: time per tangent vector\n" + caption,
-                 fontsize=9 if machine else 10)
+        fig.supxlabel(textwrap.fill(f"measured on {_machine_note(machine)}", 110),
+                      fontsize=7, color="0.3")
     return fig
+
+
+def _whole_decades(ax, values) -> None:
+    """Limits of the log axis y at whole decades around ``values``, each decade labelled:
+    every point lies between two labelled ticks (below 10^0 too)."""
+    from matplotlib.ticker import LogFormatterSciNotation, LogLocator
+
+    lo = math.floor(math.log10(min(values)))
+    hi = max(math.ceil(math.log10(max(values))), lo + 1)
+    ax.set_ylim(10.0**lo, 10.0**hi)
+    ax.yaxis.set_major_locator(LogLocator(base=10.0, numticks=hi - lo + 2))
+    ax.yaxis.set_major_formatter(LogFormatterSciNotation(labelOnlyBase=True))
+
+
+def _machine_note(machine: str) -> str:
+    """``machine`` without the clauses that only say an environment variable is unset.
+
+    Examples
+    --------
+    >>> _machine_note("CPU X (2 CPUs), BLAS b; OMP_NUM_THREADS unset, MKL_NUM_THREADS 1")
+    'CPU X (2 CPUs), BLAS b; MKL_NUM_THREADS 1'
+    """
+    parts = [", ".join(c for c in part.split(", ") if not c.endswith(" unset"))
+             for part in machine.split("; ")]
+    return "; ".join(p for p in parts if p)
 
 
 def _check_one_dim(rows) -> None:
