@@ -15,7 +15,7 @@ PKG = ROOT / "src" / "bderiv"
 LAYERS = [
     {"cli", "__main__"},
     {"plot", "examples", "_bench"},  # _bench: the sweep of `bderiv bench`
-    {"hybrid", "_usercalls", "orbit"},  # orbit: periodic orbits (issue 12)
+    {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff"},  # orbit: issue 12
     {"checks"},
     {"simulate", "crossings", "flowmap", "returnmap", "stability"},
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},

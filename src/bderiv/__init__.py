@@ -9,6 +9,7 @@ from .bderivative import BDerivative, LowRankResets
 from .corners import CornerFunction, CornerModel, StructuredCorners
 from .flowmap import FlowBDerivative
 from .hybrid import HybridSystem
+from .jacobians import check_jacobians
 from .simulate import SolverOptions
 from .triangulation import Triangulation, load_triangulation
 
@@ -31,5 +32,6 @@ __all__ = [
     "StructuredCorners",
     "Triangulation",
     "__version__",
+    "check_jacobians",
     "load_triangulation",
 ]

@@ -7,19 +7,21 @@ section.
 
 from __future__ import annotations
 
-import numpy as np
-from scipy.differentiate import jacobian as _scipy_jacobian
+import logging
+import time
 
+import numpy as np
+
+from . import _numdiff as numdiff
 from ._format import format_mask
 from ._validate import check_positive_int, check_real_array
 
 #: relative tolerance of the checks of a model's resets with analytic Jacobians (event
-#: and reset), and with numerical ones (their error estimates are about 1e-10 relative).
+#: and reset), and with numerical ones (accurate to ``_numdiff.ACCEPT_RTOL`` or refused).
 RESET_TOL = 1e-9
 RESET_TOL_NUMERICAL = 1e-6
-#: Tolerances of :func:`scipy.differentiate.jacobian` for missing Jacobians.
-_JAC_TOLERANCES = {"atol": 1e-11, "rtol": 1e-10}
-_JAC_INITIAL_STEP = 0.05
+
+_log = logging.getLogger("bderiv")
 
 
 def check_callable(f, name: str) -> None:
@@ -43,27 +45,42 @@ def check_output(value, shape, what: str) -> np.ndarray:
     return arr
 
 
-def numerical_jacobian(fun, x, n_out: int, what: str) -> np.ndarray:
-    """Jacobian (n_out, d) of ``fun`` at ``x`` by :func:`scipy.differentiate.jacobian`
-    (adaptive step, error estimate) on a wrapper that loops over the points scipy asks for;
-    ``what`` names the function in the error raised for a non-finite result."""
-    d = x.shape[0]
+def numerical_jacobian(fun, x, what: str, jac_name: str) -> numdiff.Derivative:
+    """Jacobian of ``fun`` at ``x`` by :func:`bderiv._numdiff.jacobian`, refused where its
+    error estimate exceeds the accuracy the entry needs.
 
-    def vectorised(X):  # scipy passes (d, ...) and wants (n_out, ...)
-        batch = X.shape[1:]
-        flat = X.reshape(d, -1)
-        out = np.empty((n_out, flat.shape[1]))
-        for i in range(flat.shape[1]):
-            out[:, i] = fun(flat[:, i])
-        return out.reshape((n_out, *batch))
+    ``what`` names the function and its mask (and event) in the error, ``jac_name`` the
+    parameter that gives the Jacobian instead.
+    """
+    D = numdiff.jacobian(fun, x)
+    bad = np.argwhere(~(D.error <= D.needed))
+    if bad.size:
+        i, j = (int(k) for k in bad[np.argmax((D.error / D.needed)[tuple(bad.T)])])
+        raise ValueError(
+            f"the numerical Jacobian of {what} at x = {x} is not accurate enough: entry "
+            f"[{i}, {j}] (output {i} by x_{j}) = {D.value[i, j]:.6g} has an estimated error "
+            f"{D.error[i, j]:.3g}, more than the {D.needed[i, j]:.3g} it needs "
+            f"({numdiff.ACCEPT_RTOL:g} relative, or the rounding of its row); no "
+            f"finite-difference step resolves the function there (a kink or steep feature "
+            f"near x, or noise): pass {jac_name}"
+        )
+    return D
 
-    res = _scipy_jacobian(
-        vectorised, x, tolerances=_JAC_TOLERANCES, initial_step=_JAC_INITIAL_STEP
+
+def check_given_jacobian(fun, x, J, what: str, jac_name: str) -> None:
+    """Refuse a given Jacobian ``J`` of ``fun`` at ``x`` that does not match its
+    derivative along a random direction (:func:`bderiv._numdiff.compare`)."""
+    c = numdiff.compare(fun, x, J)
+    if c.passed:
+        return
+    i = c.component
+    raise ValueError(
+        f"{jac_name} does not match {what} at x = {x}: along a random direction v, "
+        f"component {i} of J v differs from the central difference of {what} by "
+        f"{c.mismatch[i]:.3g} (tolerance {c.tolerance[i]:.3g}; {c.relative:.3g} relative "
+        f"to |J| |v|). Correct {jac_name} (bderiv.check_jacobians lists every function and "
+        f"mask), or pass check_jacobians=False to skip this check"
     )
-    jac = np.asarray(res.df, dtype=np.float64).reshape(n_out, d)
-    if not np.isfinite(jac).all():
-        raise ValueError(f"the numerical Jacobian of {what} at x = {x} is not finite")
-    return jac
 
 
 class ModelCalls:
@@ -71,11 +88,15 @@ class ModelCalls:
 
     The parameters are those of :class:`~bderiv.hybrid.HybridSystem`, which documents
     them. Every output is checked (shape and finiteness); errors say which function,
-    which mask, the expected and the received shape.
+    which mask, the expected and the received shape. A given Jacobian is compared with a
+    central difference the first time it is used for each mask (and event), unless
+    ``check_jacobians`` is False; a missing one is computed numerically, its cost counted
+    in :attr:`numerical_jacobian_cost`.
     """
 
     def __init__(self, field, events, *, n_events, dim, event_jacobian=None,
-                 field_jacobian=None, corner_field=None, reset=None, reset_jacobian=None):
+                 field_jacobian=None, corner_field=None, reset=None, reset_jacobian=None,
+                 check_jacobians=True):
         for f, name in ((field, "field"), (events, "events"),
                         (event_jacobian, "event_jacobian"),
                         (field_jacobian, "field_jacobian"), (corner_field, "corner_field"),
@@ -85,6 +106,9 @@ class ModelCalls:
             raise TypeError("field and events are required callables")
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
+        if not isinstance(check_jacobians, bool | np.bool_):
+            raise TypeError(f"check_jacobians must be True or False, got "
+                            f"{type(check_jacobians).__name__}")
         self._reset, self._reset_jac = reset, reset_jacobian
         self.n_events = check_positive_int(n_events, "n_events")
         self.dim = check_positive_int(dim, "dim")
@@ -93,6 +117,9 @@ class ModelCalls:
         self._event_jac = event_jacobian
         self._field_jac = field_jacobian
         self._corner_field = corner_field
+        self.check_jacobians = bool(check_jacobians)
+        self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
+        self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
 
     def _check_state(self, x, name="x"):
         arr = check_real_array(x, name)
@@ -113,6 +140,9 @@ class ModelCalls:
             raise ValueError(f"mask must be in [0, 2**{self.n_events}), got {mask}")
         return int(mask)
 
+    def _mask_name(self, mask) -> str:
+        return format_mask(mask, self.n_events)
+
     def eval_field(self, x, mask):
         """The checked vector field of region ``mask`` at ``x``: shape (d,)."""
         return check_output(self._field(x, mask), (self.dim,), f"field(x, mask={mask})")
@@ -121,24 +151,58 @@ class ModelCalls:
         """The checked event values at ``x``: shape (n,)."""
         return check_output(self._events(x), (self.n_events,), "events(x)")
 
+    def _jacobian(self, given, key, fun, x, shape, what, jac_name):
+        """A Jacobian of ``fun`` at ``x``: the ``given`` one's output (checked the first
+        time for ``key``, ``key[1:]`` its mask and event), else the numerical one (cost
+        counted)."""
+        if given is not None:
+            args = "".join(f", {a}={b}" for a, b in zip(("mask", "k"), key[1:], strict=False))
+            J = check_output(given(), shape, f"{jac_name}(x{args})")
+            if self.check_jacobians and key not in self._checked:
+                check_given_jacobian(fun, x, J, what, jac_name)
+                self._checked.add(key)
+            return J
+        start = time.perf_counter()
+        D = numerical_jacobian(fun, x, what, jac_name)
+        cost = self._cost.setdefault(jac_name, [0, 0, 0.0])
+        if not cost[0]:
+            _log.info("%s not given: computing it numerically (%d calls of %s here); "
+                      "pass %s to save most of that time", jac_name, D.calls,
+                      what[:what.index("(")], jac_name)
+        cost[0] += 1
+        cost[1] += D.calls
+        cost[2] += time.perf_counter() - start
+        return D.value
+
+    @property
+    def numerical_jacobian_cost(self) -> dict:
+        """What the numerical Jacobians cost so far, per missing parameter.
+
+        Returns
+        -------
+        dict
+            ``{"field_jacobian": (jacobians, calls, seconds), ...}``: how many numerical
+            Jacobians were computed, the calls of the user's function they made and the
+            time they took. Passing the Jacobian saves nearly all of that time (inside
+            the variational equations of ``flow_bderivative`` typically 90 % of it).
+        """
+        return {name: (c[0], c[1], c[2]) for name, c in self._cost.items()}
+
     def eval_event_jacobian(self, x):
         """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""
         x = self._check_state(x)
-        n, d = self.n_events, self.dim
-        if self._event_jac is not None:
-            return check_output(self._event_jac(x), (n, d), "event_jacobian(x)")
-        return numerical_jacobian(self.eval_events, x, n, "events")
+        given = None if self._event_jac is None else (lambda: self._event_jac(x))
+        return self._jacobian(given, ("event_jacobian",), self.eval_events, x,
+                              (self.n_events, self.dim), "events(x)", "event_jacobian")
 
     def eval_field_jacobian(self, x, mask):
         """Jacobian of ``field(., mask)`` at ``x``, shape (d, d)."""
         x = self._check_state(x)
         mask = self._check_mask(mask)
-        d = self.dim
-        if self._field_jac is not None:
-            return check_output(
-                self._field_jac(x, mask), (d, d), f"field_jacobian(x, mask={mask})"
-            )
-        return numerical_jacobian(lambda y: self.eval_field(y, mask), x, d, "field")
+        given = None if self._field_jac is None else (lambda: self._field_jac(x, mask))
+        return self._jacobian(given, ("field_jacobian", mask),
+                              lambda y: self.eval_field(y, mask), x, (self.dim, self.dim),
+                              f"field(x, mask={self._mask_name(mask)})", "field_jacobian")
 
     @property
     def has_resets(self) -> bool:
@@ -156,11 +220,11 @@ class ModelCalls:
     def eval_reset_jacobian(self, x, mask, k):
         """Jacobian of ``reset(., mask, k)`` at ``x``, shape (d, d) (analytic if given)."""
         x = self._check_state(x)
-        d = self.dim
-        if self._reset_jac is not None:
-            return check_output(self._reset_jac(x, mask, k), (d, d),
-                                f"reset_jacobian(x, mask={mask}, k={k})")
-        return numerical_jacobian(lambda y: self.eval_reset(y, mask, k), x, d, "reset")
+        given = None if self._reset_jac is None else (lambda: self._reset_jac(x, mask, k))
+        return self._jacobian(given, ("reset_jacobian", int(mask), int(k)),
+                              lambda y: self.eval_reset(y, mask, k), x, (self.dim, self.dim),
+                              f"reset(x, mask={self._mask_name(mask)}, k={k})",
+                              "reset_jacobian")
 
     @property
     def reset_tol(self) -> float:
@@ -261,9 +325,12 @@ class Section:
         State dimension d.
     gradient : callable, optional
         ``gradient(x) -> (d,)``. Default: :func:`numerical_jacobian`.
+    check : bool
+        Compare a given gradient with a central difference of ``func`` the first time
+        it is used (:func:`check_given_jacobian`).
     """
 
-    def __init__(self, func, dim: int, gradient=None):
+    def __init__(self, func, dim: int, gradient=None, check=True):
         if isinstance(func, Section):
             func, gradient = func.func, gradient or func.grad
         if func is None:
@@ -271,6 +338,7 @@ class Section:
         check_callable(func, "section")
         check_callable(gradient, "section_gradient")
         self.func, self.grad, self.dim = func, gradient, dim
+        self.check = check  # compare a given gradient with a central difference, once
 
     def __call__(self, x) -> float:
         """The checked value ``section(x)``."""
@@ -283,5 +351,11 @@ class Section:
     def gradient(self, x) -> np.ndarray:
         """The gradient of the section at ``x``: shape (d,)."""
         if self.grad is not None:
-            return check_output(self.grad(x), (self.dim,), "section_gradient(x)")
-        return numerical_jacobian(lambda y: np.array([self(y)]), x, 1, "section")[0]
+            g = check_output(self.grad(x), (self.dim,), "section_gradient(x)")
+            if self.check:
+                check_given_jacobian(lambda y: np.array([self(y)]), np.asarray(x, float),
+                                     g[None], "section(x)", "section_gradient")
+                self.check = False
+            return g
+        return numerical_jacobian(lambda y: np.array([self(y)]), x, "section(x)",
+                                  "section_gradient").value[0]

@@ -34,6 +34,7 @@ from ._format import format_mask, transversality_message
 from ._usercalls import ModelCalls, Section
 from ._validate import check_number
 from .bderivative import BDerivative
+from .crossings import RESET_MISMATCH, apply_resets
 from .flowmap import FlowBDerivative
 from .orbit import ORBIT_OPTIONS, periodic_orbit
 from .returnmap import return_map
@@ -88,15 +89,27 @@ class HybridSystem(ModelCalls):
         and must not move the surfaces still pending. Default: no jump.
     reset_jacobian : callable, optional
         ``reset_jacobian(x, mask, k) -> (d, d)``. Default: numerical.
+    check_jacobians : bool
+        Compare each given Jacobian (and a ``section_gradient``) with a central difference
+        of its function along a random direction the first time it is used for each mask
+        (and event), and refuse a mismatch (default True; the cost is one numerical
+        directional derivative per mask). :func:`bderiv.check_jacobians` reports them
+        all at a point.
 
     Notes
     -----
     Every output of the user functions is checked (shape and finiteness); errors say which
-    function, which mask, the expected and the received shape. Numerical Jacobians use
-    :func:`scipy.differentiate.jacobian` (order 8, initial step 0.05, tolerances
-    ``atol=1e-11, rtol=1e-10``) on a wrapper that loops over the points scipy asks for;
-    inside the variational equations that costs one adaptive Jacobian per right-hand side
-    evaluation, so pass ``field_jacobian`` for speed.
+    function, which mask, the expected and the received shape.
+
+    A Jacobian not given is computed by central differences with Richardson extrapolation
+    (:mod:`bderiv._numdiff`: steps from an eighth of each variable's magnitude, smaller
+    and larger ones tried until each entry's error estimate is below 1e-7 of the entry)
+    and refused, naming the function, mask, entry and estimated error, where no step
+    reaches that. It costs 10 to 100 calls of the function per variable; inside the
+    variational equations of :meth:`flow_bderivative` that is one Jacobian per
+    right-hand side evaluation, typically 90 % of the time: pass ``field_jacobian``.
+    :attr:`numerical_jacobian_cost` says what they cost so far, and the first one of
+    each kind is logged (logger ``"bderiv"``, level INFO).
 
     Examples
     --------
@@ -117,7 +130,12 @@ class HybridSystem(ModelCalls):
     """
 
     def __repr__(self):
-        return f"HybridSystem(n_events={self.n_events}, dim={self.dim})"
+        missing = [name for name, f in (("event_jacobian", self._event_jac),
+                                        ("field_jacobian", self._field_jac),
+                                        ("reset_jacobian", self._reset_jac
+                                         if self.has_resets else True)) if f is None]
+        numerical = f", numerical: {', '.join(missing)}" if missing else ""
+        return f"HybridSystem(n_events={self.n_events}, dim={self.dim}{numerical})"
 
     # ------------------------------------------------------------------------------
     # B-derivative at an event point
@@ -176,8 +194,11 @@ class HybridSystem(ModelCalls):
             If ``tol`` is not a real number.
         ValueError
             If ``tol`` is NaN, infinite or negative, if some event value exceeds ``tol``
-            (the residuals are named), or when transversality fails (the mask and the
-            event are named).
+            (the residuals are named), when transversality fails (the mask and the
+            event are named), or when the resets of the events applied in different
+            orders give different states (:func:`bderiv.crossings.apply_resets`: further
+            apart than ``RESET_MISMATCH * reset_tol * max(1, max |rho|)``, rho taken as
+            accurate to ``reset_tol``), as :meth:`simulate` refuses them.
         """
         tol = check_number(tol, "tol", strict=False)
         rho = self._check_state(rho, "rho")
@@ -189,7 +210,16 @@ class HybridSystem(ModelCalls):
                 f"{h}; residuals above tol={tol:g} for events {off.tolist()} "
                 f"(values {h[off].tolist()})"
             )
-        return self._bderivative_at(rho, range(self.n_events), 0)
+        bd = self._bderivative_at(rho, range(self.n_events), 0)
+        if self.has_resets:  # simulate's zero-order check: the resets commute as maps
+            # rho taken to be accurate to reset_tol relative (of max(1, max |rho|))
+            accuracy = RESET_MISMATCH * self.reset_tol * max(1.0, float(np.abs(rho).max()))
+            try:
+                apply_resets(self, list(range(self.n_events)), 0, rho, 0.0, accuracy)
+            except ValueError as exc:
+                raise ValueError(f"at rho (taken as t=0, its integration accuracy as "
+                                 f"reset_tol={self.reset_tol:g} relative): {exc}") from None
+        return bd
 
     # ------------------------------------------------------------------------------
     # the flow: simulation, its B-derivative, its finite differences
@@ -334,7 +364,8 @@ class HybridSystem(ModelCalls):
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
-        return return_map(self, x0, Section(section, self.dim, section_gradient),
+        section = Section(section, self.dim, section_gradient, self.check_jacobians)
+        return return_map(self, x0, section,
                           t_max=check_number(t_max, "t_max"),
                           tol=check_number(tol, "tol", strict=False),
                           simultaneity_tol=simultaneity_tol, options=options)[0]
@@ -371,7 +402,8 @@ class HybridSystem(ModelCalls):
         """
         x_guess = self._check_state(x_guess, "x_guess")
         options = SolverOptions.resolve(options, ORBIT_OPTIONS)
-        return periodic_orbit(self, x_guess, Section(section, self.dim, section_gradient),
+        section = Section(section, self.dim, section_gradient, self.check_jacobians)
+        return periodic_orbit(self, x_guess, section,
                               period_guess=period_guess, tol=tol, max_iter=max_iter,
                               simultaneity_tol=simultaneity_tol, options=options)
 

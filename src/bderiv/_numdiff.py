@@ -1,0 +1,231 @@
+"""Derivatives of a user's function by central differences, with an error estimate.
+
+Ridders' method (Numerical Recipes, ``dfridr``): central differences at steps ``H, H/2,
+H/4, ...`` extrapolated to step 0 (Neville's tableau in ``h**2``), each entry's estimate
+the tableau value whose two neighbours agree best, its error estimate that disagreement.
+One run covers steps over a factor ``2**(LEVELS - 1)``; runs start at steps spaced by
+``START_SPACING`` around the variable's own scale, nearest first, until every entry's
+error estimate is small enough. Values equal at every step of a run bound the entry by
+their rounding over the largest step, not by 0. A function with a feature near ``x`` (a kink of
+``max(h, 0)**1.5`` at ``h = 1e-5``) needs small steps, one of large size and rounding
+(``x2 + 1e10 (1 + x0)``) large ones: the ladder finds either, and the error estimate says
+when neither exists.
+
+The step of coordinate ``j`` is the exact difference ``(x_j + h) - (x_j - h)`` of the
+points evaluated, so rounding of ``x_j +- h`` does not bias the quotient.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+#: levels of one run (steps H .. H / 2**(LEVELS - 1)), each two calls of the function.
+LEVELS = 8
+#: the first step of a run relative to the variable's scale.
+BASE_STEP = 2.0**-3
+#: ratio of the first steps of successive runs (a run covers 2**7: the ranges overlap).
+START_SPACING = 2.0**6
+#: runs in the order tried: powers of START_SPACING of the first run's step (smaller ones
+#: first: a feature near x is the common reason for a failure).
+STARTS = (0, -1, 1, -2, 2, -3, 3, -4, 4, -5, 5, -6, 6)
+#: variables smaller than this times ``max(1, max |x|)`` take that as their scale.
+SCALE_FLOOR = 2.0**-10
+#: a run stops once the next level's estimate is off by SAFE times the best error.
+SAFE = 2.0
+#: stop at this relative error (of the entry, or of the row, below); refuse above ACCEPT.
+TARGET_RTOL = 1e-10
+ACCEPT_RTOL = 1e-7
+#: every entry is accurate to ACCEPT_RTOL relative to itself, or to this fraction of its
+#: row's largest entry, or to ROUND_FLOOR times the rounding of the function's value over
+#: the variable's scale (``eps |f_i(x)| / s_j``): an entry 0 at x is known to no better.
+ROW_FLOOR = 2.0**-40
+ROUND_FLOOR = 2.0**10
+EPS = float(np.finfo(float).eps)
+
+
+class Derivative(NamedTuple):
+    """Estimates (m, k) of derivatives along k directions, their error estimates (m, k),
+    the accuracy each entry needs (m, k) and the number of calls of the function."""
+
+    value: np.ndarray
+    error: np.ndarray
+    needed: np.ndarray
+    calls: int
+
+
+def variable_scales(x: np.ndarray) -> np.ndarray:
+    """The scale of each variable (d,): ``|x_j|``, at least ``SCALE_FLOOR`` times
+    ``max(1, max |x|)``; a variable exactly 0 has no magnitude of its own: 1 (the unit)."""
+    s = np.abs(x)
+    return np.where(s > 0, np.maximum(s, SCALE_FLOOR * max(1.0, float(s.max(initial=0.0)))),
+                    1.0)
+
+
+def _run(fun, x, f0, v, first, needed_of):
+    """One Ridders run along ``v`` from step ``first``: (value (m,), error (m,), calls).
+
+    ``needed_of(value)`` gives the accuracy the entries need; the run stops when all
+    have it (from the third level on, so that the estimate rests on two extrapolations)
+    or when the tableau's diagonal drifts (rounding or a feature inside the steps).
+    """
+    h, calls = first, 0
+    prev = None
+    best = err = None
+    flat = np.ones(f0.shape, dtype=bool)  # equal values at every step so far
+    vv = float(v @ v)
+    for level in range(LEVELS):
+        xp, xm = x + h * v, x - h * v
+        step = float((xp - xm) @ v) / vv  # the exact displacement along v
+        try:
+            with np.errstate(all="ignore"):  # a probe's overflow shows as non-finite
+                fp, fm = fun(xp), fun(xm)
+        except (ValueError, ArithmeticError):  # no value there: steps too large here
+            break
+        calls += 2
+        flat &= fp == fm
+        row = [(fp - fm) / step]
+        fac = 4.0
+        for j in range(1, level + 1):
+            row.append((row[j - 1] * fac - prev[j - 1]) / (fac - 1.0))
+            fac *= 4.0
+            e = np.maximum(np.abs(row[j] - row[j - 1]), np.abs(row[j] - prev[j - 1]))
+            if best is None:
+                best, err = row[j].copy(), e
+            else:
+                better = e <= err
+                best[better], err[better] = row[j][better], e[better]
+        if level and best is not None:
+            if level >= 2 and (err <= needed_of(best) * (TARGET_RTOL / ACCEPT_RTOL)).all():
+                break
+            if (np.abs(row[level] - prev[level - 1]) >= SAFE * err).all():
+                break
+        prev = row
+        h /= 2.0
+    if best is None:
+        return None, None, calls
+    # values equal at every step up to ``first``: the derivative is below their rounding
+    # over that step, not known to be 0 (``x2 + 1e16`` at small steps)
+    err = np.where(flat, np.maximum(err, np.spacing(np.abs(f0)) / first), err)
+    return best, err, calls
+
+
+def _needed(value, row_max, f0, scale):
+    """The accuracy (m,) entries ``value`` (m,) of a column need: ``ACCEPT_RTOL``
+    relative, or ``ROW_FLOOR`` times the row's largest entry ``row_max`` (m,), or the
+    rounding of the values ``f0`` (m,) over the variable's ``scale``."""
+    return (ACCEPT_RTOL * np.abs(value) + ROW_FLOOR * row_max
+            + ROUND_FLOOR * EPS * np.abs(f0) / scale)
+
+
+def jacobian(fun, x) -> Derivative:
+    """The Jacobian (m, d) of ``fun`` at ``x`` (d,), column by column.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(y) -> (m,)`` float array; a ``ValueError`` at a probe point (a non-finite
+        value) ends the run of steps that reached it.
+    x : ndarray, shape (d,)
+
+    Returns
+    -------
+    Derivative
+        ``value`` (m, d); ``needed`` is ``ACCEPT_RTOL`` relative to the entry, or
+        ``ROW_FLOOR`` times the row's largest entry.
+    """
+    d = x.shape[0]
+    s = variable_scales(x)
+    f0 = fun(x)  # unguarded: a wrong output raises here, not as "no finite value"
+    columns, calls, row_max = [], 1, None
+    for j in range(d):
+        v = np.zeros(d)
+        v[j] = 1.0
+        col = _column(fun, x, f0, v, s[j], lambda val, known=row_max, s_j=s[j]: _needed(
+            val, np.abs(val) if known is None else np.maximum(known, np.abs(val)), f0, s_j))
+        calls += col.calls
+        row_max = np.abs(col.value) if row_max is None else np.maximum(row_max,
+                                                                       np.abs(col.value))
+        columns.append(col)
+    value = np.stack([c.value for c in columns], axis=1)
+    error = np.stack([c.error for c in columns], axis=1)
+    needed = _needed(value, np.abs(value).max(axis=1, keepdims=True), f0[:, None], s)
+    return Derivative(value, error, needed, calls)
+
+
+def directional(fun, x, v, scale=1.0) -> Derivative:
+    """The derivative (m, 1) of ``fun`` at ``x`` along ``v`` (d,), steps from
+    ``BASE_STEP * scale``; ``needed`` is ``ACCEPT_RTOL`` (or ``ROW_FLOOR``) relative to
+    each entry."""
+    f0 = fun(x)
+    col = _column(fun, x, f0, v, scale, lambda val: _needed(val, np.abs(val), f0, scale))
+    return Derivative(col.value[:, None], col.error[:, None], col.needed[:, None],
+                      col.calls + 1)
+
+
+def _column(fun, x, f0, v, scale, needed_of) -> Derivative:
+    """Runs from the ladder of first steps until one gives every entry the accuracy it
+    needs; per entry the estimate of smallest error over the runs made, an entry keeping
+    the first estimate that is accurate enough (steps far from a variable's scale can
+    agree by accident, on a piecewise linear stretch). ``f0 = fun(x)``."""
+    best = err = None
+    calls = 0
+    for k in STARTS:
+        value, e, c = _run(fun, x, f0, v, BASE_STEP * scale * START_SPACING**k, needed_of)
+        calls += c
+        if value is None:
+            continue
+        if best is None:
+            best, err = value, e
+        else:
+            better = ~(err <= needed_of(best)) & (e < err)
+            best[better], err[better] = value[better], e[better]
+        if (err <= needed_of(best)).all():
+            break
+    if best is None:  # every step of every run met a non-finite value
+        return Derivative(np.zeros_like(f0), np.full_like(f0, np.inf), needed_of(f0), calls)
+    return Derivative(best, err, needed_of(best), calls)
+
+
+#: a given Jacobian passes if ``|J v - D_v f|`` is within this relative to ``|J| |v|``
+#: (plus CHECK_ERROR_FACTOR times the difference's error estimate): far above what
+#: rounding and the extrapolation leave (about 1e-10), far below a wrong term.
+CHECK_RTOL = 1e-6
+CHECK_ERROR_FACTOR = 8.0
+
+
+class Comparison(NamedTuple):
+    """A given Jacobian against a central difference along a random direction ``v``.
+
+    ``mismatch`` (m,) is ``|J v - D_v f|``, ``tolerance`` (m,) what it may be,
+    ``relative`` the largest ``mismatch / (|J| |v| + |D_v f|)``, ``component`` where it is
+    (the worst ``mismatch / tolerance``), ``error`` (m,) the difference's error estimate.
+    """
+
+    mismatch: np.ndarray
+    tolerance: np.ndarray
+    relative: float
+    component: int
+    error: np.ndarray
+    calls: int
+
+    @property
+    def passed(self) -> bool:
+        return bool((self.mismatch <= self.tolerance).all())
+
+
+def compare(fun, x, J, seed=0) -> Comparison:
+    """Compare ``J`` (m, d), the claimed Jacobian of ``fun`` at ``x``, with the derivative
+    along a random direction (normal entries times the variables' scales, seeded)."""
+    v = np.random.default_rng(seed).standard_normal(x.size) * variable_scales(x)
+    D = directional(fun, x, v)
+    dv, err = D.value[:, 0], D.error[:, 0]
+    Jv, size = J @ v, np.abs(J) @ np.abs(v) + np.abs(dv)
+    mismatch = np.abs(Jv - dv)
+    tolerance = CHECK_RTOL * size + CHECK_ERROR_FACTOR * err
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative = np.where(mismatch > 0, mismatch / size, 0.0)
+        worst = np.where(mismatch > 0, mismatch / tolerance, 0.0)
+    return Comparison(mismatch, tolerance, float(relative.max(initial=0.0)),
+                      int(np.argmax(worst)) if worst.size else 0, err, D.calls)
