@@ -158,6 +158,49 @@ def test_with_params_changes_the_answer_as_the_closed_form_says(small):
     assert not small.params.flags.writeable
 
 
+def test_kernels_are_njit_functions_callable_from_compiled_code(small):
+    """The layout a compiled integrator uses: the kernels called from an njit function,
+    the parameters an array argument; they are closed to other argument types."""
+    import numba
+
+    K = small.kernels
+    field, events = K.field, K.events
+
+    @numba.njit
+    def euler(x, mask, p, dt, steps):  # explicit Euler steps through the field kernel
+        f = np.empty(x.size)
+        h = np.empty(2)
+        for _ in range(steps):
+            field(x, mask, p, f)
+            x = x + dt * f
+        events(x, p, h)
+        return x, h
+
+    x0, p = POINTS[0].copy(), np.array([1.3, 0.7, 2.1])
+    x, h = euler(x0, 3, p, 1e-3, 5)
+    expected = x0.copy()
+    for _ in range(5):
+        expected = expected + 1e-3 * closed_form(expected, 3, **PARAMS)[0]
+    assert_allclose(x, expected, rtol=1e-14)
+    assert_allclose(h, closed_form(expected, 3, **PARAMS)[2], rtol=1e-14)
+    out = np.empty((4, 3))
+    K.corner_field(x0, p, out)
+    assert_allclose(out, [closed_form(x0, m, **PARAMS)[0] for m in range(4)], rtol=1e-14)
+    assert (K.dim, K.n_events, K.n_params, K.param_names) == (3, 2, 3, ("a", "b", "c"))
+    with pytest.raises(TypeError, match="No matching definition"):
+        K.field(x0.astype(np.float32), 0, p, np.empty(3))
+
+
+def test_store_keeps_the_first_file(tmp_path):
+    from bderiv.symbolic import _cache
+
+    path = _cache.module_path(_cache.cache_folder(tmp_path), "k")
+    _cache.store(path, "first = 1\n")
+    _cache.store(path, "second = 2\n")  # another process's write of the same key
+    assert path.read_text() == "first = 1\n"
+    assert [p.name for p in path.parent.iterdir()] == [path.name]  # no temporary left
+
+
 # ------------------------------------------------------------------------------
 # the bundled examples written as equations, against their hand-written versions
 # ------------------------------------------------------------------------------

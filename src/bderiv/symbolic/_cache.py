@@ -68,29 +68,32 @@ def module_path(folder: pathlib.Path, key: str) -> pathlib.Path:
 
 
 def store(path: pathlib.Path, source: str) -> None:
-    """Write ``source`` to ``path`` atomically (a concurrent reader sees all or nothing)."""
+    """Write ``source`` to ``path`` atomically, unless it is there already.
+
+    A concurrent reader sees all or nothing, and a file written meanwhile by another
+    process (the same source: same key) is kept, so numba's cache of it stays valid (it
+    is keyed by the file's modification time).
+    """
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp_", suffix=".py")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(source)
-        os.replace(tmp, path)
-    except BaseException:
+        try:
+            os.link(tmp, path)  # fails if the file exists: the first writer wins
+        except FileExistsError:
+            pass
+        except OSError:  # no hard links on this file system
+            os.replace(tmp, path)
+    finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-        raise
-
-
-def clear_compiled(path: pathlib.Path) -> None:
-    """Delete numba's cache files of the module at ``path`` (they are rebuilt)."""
-    for f in (path.parent / "__pycache__").glob(f"{path.stem}.*"):
-        f.unlink(missing_ok=True)
 
 
 def load(path: pathlib.Path, key: str):
     """Import the generated module at ``path`` (once per process: later calls reuse it).
 
-    Importing compiles its kernels (explicit signatures), or loads them from numba's
-    cache next to the file. Exceptions of the compilation propagate.
+    Importing defines the kernels; they are compiled (or loaded from the cache next to
+    the file) by :func:`bderiv.symbolic._model.compile_kernels`.
     """
     name = f"bderiv_symbolic_{key}"
     if name in sys.modules:

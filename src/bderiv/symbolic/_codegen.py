@@ -2,8 +2,9 @@
 
 :func:`generate` differentiates the model's expressions (exact Jacobians by
 :func:`sympy.diff`), shares their common subexpressions (:func:`sympy.cse`, one pass per
-kernel) and prints one module of ``@numba.njit`` kernels with explicit signatures (they
-compile when the module is imported, or load from numba's cache). The kernels take the
+kernel) and prints one module of ``@numba.njit(cache=True)`` kernels, compiled (or loaded from the
+cache) for the signatures :data:`SIGNATURES` by :func:`bderiv.symbolic._model.compile_kernels`
+(in ``KERNELS`` order: ``corner_field`` calls ``field``). The kernels take the
 state ``x`` (d,), the mask and event index where the function has them, the parameter
 values ``p`` and an ``out`` array they fill:
 
@@ -32,6 +33,10 @@ from ._inputs import require_sympy
 
 #: bump when the generated source changes: old cache files are then no longer used
 CODEGEN_VERSION = 1
+
+#: the kernels of every model, then those of models with resets
+KERNELS = ("field", "field_jacobian", "events", "event_jacobian", "corner_field")
+RESET_KERNELS = ("reset", "reset_jacobian")
 
 _X1 = "float64[::1]"
 _X2 = "float64[:, ::1]"
@@ -121,8 +126,7 @@ def _preamble(model, mask: bool) -> list:
 
 
 def _kernel(name, args, body) -> list:
-    return ["", f'@numba.njit("{SIGNATURES[name]}", cache=True)', f"def {name}({args}):",
-            *body]
+    return ["", "@numba.njit(cache=True)", f"def {name}({args}):", *body]
 
 
 def _vector(printer, model, exprs, label, indent="    "):

@@ -239,13 +239,26 @@ def _numba_reason(exc) -> str:
         lines[0] if lines else type(exc).__name__)
 
 
-def _kernels(model, key, module, path) -> Kernels:
-    resets = bool(module.HAS_RESETS)
-    return Kernels(field=module.field, field_jacobian=module.field_jacobian,
-                   events=module.events, event_jacobian=module.event_jacobian,
-                   corner_field=module.corner_field,
-                   reset=module.reset if resets else None,
-                   reset_jacobian=module.reset_jacobian if resets else None,
+def compile_kernels(model, module, path) -> Kernels:
+    """The kernels of the generated ``module``, each compiled for its signature only.
+
+    Each is given bderiv's checked numba cache first (:func:`bderiv._kernels._cache.harden`:
+    a damaged cache entry is compiled again, never run), so a second process loads the
+    machine code instead of compiling; then its compilation is closed (other argument
+    types are refused, not compiled). Compiled once per process.
+    """
+    from .._kernels._cache import harden
+
+    names = _codegen.KERNELS + (_codegen.RESET_KERNELS if module.HAS_RESETS else ())
+    found = {}
+    for name in names:
+        dispatcher = getattr(module, name)
+        if not dispatcher.signatures:
+            harden(dispatcher).compile(_codegen.SIGNATURES[name])
+            dispatcher.disable_compile()
+        found[name] = dispatcher
+    return Kernels(**found, **{name: None for name in _codegen.RESET_KERNELS
+                               if name not in found},
                    dim=model.dim, n_events=model.n_events, n_params=len(model.p),
                    param_names=model.param_names, source=path)
 
@@ -311,16 +324,10 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
         _cache.store(path, _codegen.generate(model, key))
     derived = time.perf_counter()
     try:
-        try:
-            module = _cache.load(path, key)
-        except Exception:
-            if not cached:
-                raise
-            _cache.clear_compiled(path)  # numba's cache of it unreadable: compile again
-            module = _cache.load(path, key)
+        kernels = compile_kernels(model, _cache.load(path, key), path)
     except Exception as exc:  # numba refused the generated source: name the expression
         path.unlink(missing_ok=True)
         raise _locate_compile_error(model, exc) from None
     build = BuildInfo(key=key, cached=cached, derive_seconds=derived - start,
                       load_seconds=time.perf_counter() - derived)
-    return SymbolicSystem(_kernels(model, key, module, path), model.values, build)
+    return SymbolicSystem(kernels, model.values, build)
