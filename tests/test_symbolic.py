@@ -191,6 +191,19 @@ def test_kernels_are_njit_functions_callable_from_compiled_code(small):
         K.field(x0.astype(np.float32), 0, p, np.empty(3))
 
 
+def test_numbers_print_exactly(cache):
+    """Floats keep every bit, rationals are correctly rounded, integers beyond int64 work."""
+    x, s = sp.symbols("x s")
+    big = 10**30
+    sys_ = from_sympy([x], [s], [0.1 * x + sp.Rational(1, 3) + big * s + sp.Integer(3) * x**2],
+                      [x - sp.Rational(2, 7)], cache_dir=cache)
+    f = sys_.functions
+    assert f.field(np.array([2.0]), 0)[0] == 0.1 * 2.0 + 1 / 3 + 3 * 2.0**2
+    assert f.field(np.array([0.0]), 1)[0] == 1 / 3 + 1e30
+    assert f.events(np.array([1.0]))[0] == 1.0 - 2 / 7
+    assert f.field_jacobian(np.array([2.0]), 0)[0, 0] == 0.1 + 12.0
+
+
 def test_store_keeps_the_first_file(tmp_path):
     from bderiv.symbolic import _cache
 

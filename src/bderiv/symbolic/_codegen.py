@@ -75,6 +75,12 @@ def _printer():
         def _print_Float(self, expr):  # every bit of the double, not 15 digits
             return repr(float(expr))
 
+        def _print_Integer(self, expr):  # beyond 2**53 an int64 literal could overflow
+            return str(expr.p) if abs(expr.p) <= 2**53 else repr(float(expr))
+
+        def _print_Rational(self, expr):  # p/q correctly rounded, whatever their size
+            return repr(float(expr))
+
     try:
         printer = Printer({"fully_qualified_modules": True, "strict": True})
     except TypeError:  # sympy < 1.13 has no "strict": checked through _not_supported
