@@ -18,6 +18,7 @@ LAYERS = [
     {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff"},  # orbit: issue 12
     {"checks"},
     {"simulate", "crossings", "flowmap", "returnmap", "stability"},
+    {"compiled"},  # the compiled integrator (issue 19): imports only the helpers
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},
     {"corners", "_engines"},
     {"_kernels"},
