@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._cyclic import check_cyclic, kept
 from ._progress import resolve_progress
 from ._validate import check_matrix, check_number, check_points, check_positive_int
 from .simulate import SolverOptions
@@ -187,7 +188,8 @@ class DecayCheck:
     Attributes
     ----------
     deviations : ndarray, shape (m, strides + 1)
-        ``|P^k(x0 + eps v) - x0|`` (Euclidean) for every vector v and stride k = 0..strides.
+        ``|P^k(x0 + eps v) - x0|`` (Euclidean, cyclic coordinates left out) for every vector
+        v and stride k = 0..strides.
     rates : ndarray, shape (m,)
         Per-stride growth factor of each vector: ``exp`` of the least-squares slope of
         ``log deviations`` over its ``fitted`` strides; NaN for a vector with fewer than
@@ -213,7 +215,7 @@ class DecayCheck:
 
 
 def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, ceiling=None,
-                t_max=10.0, **simulate_options) -> DecayCheck:
+                cyclic=(), t_max=10.0, **simulate_options) -> DecayCheck:
     """Measure how perturbations of a periodic orbit decay in long simulations.
 
     An independent check of a predicted growth rate
@@ -246,6 +248,9 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     ceiling : float, optional
         The largest deviation counted as linear (default ``LINEAR_STATE * |x0|``, or
         ``LINEAR_STATE`` when x0 is 0).
+    cyclic : sequence of int
+        Coordinates that advance every stride (the orbit's ``cyclic``): left out of the
+        deviations and of ``|x0|``.
     t_max : float
         Longest wait for each return.
     **simulate_options
@@ -268,7 +273,8 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     if strides < 4:
         raise ValueError(f"strides must be >= 4, got {strides}")
     x0 = np.asarray(x0, dtype=np.float64)
-    size = float(np.linalg.norm(x0))
+    keep = kept(check_cyclic(cyclic, system.dim), system.dim)
+    size = float(np.linalg.norm(x0[keep]))
     if ceiling is None:
         ceiling = LINEAR_STATE * (size if size > 0 else 1.0)
     ceiling = check_number(ceiling, "ceiling")
@@ -278,10 +284,10 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     dev = np.empty((V.shape[0], strides + 1))
     for i, v in enumerate(V):
         x = x0 + eps * v
-        dev[i, 0] = np.linalg.norm(x - x0)
+        dev[i, 0] = np.linalg.norm((x - x0)[keep])
         for k in range(1, strides + 1):
             x = system.simulate(x, t_max, section=section, **simulate_options).x_final
-            dev[i, k] = np.linalg.norm(x - x0)
+            dev[i, k] = np.linalg.norm((x - x0)[keep])
     return _fit_decay(dev, floor, ceiling, eps)
 
 

@@ -32,6 +32,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._cyclic import (
+    SHIFT,
+    check_cyclic,
+    check_independence,
+    check_section_normal,
+    kept,
+    reduced_basis,
+)
 from ._validate import check_number, check_positive_int
 from .returnmap import return_map
 from .simulate import SolverOptions, run
@@ -109,12 +117,17 @@ class PeriodicOrbit:
     return_map : ReturnMap
         The B-derivative of the return map at ``x0``.
     residual : float
-        ``max |P(x0) - x0|`` (simulated).
+        ``max |P(x0) - x0|`` over the coordinates that are not cyclic (simulated).
     history : tuple of NewtonIterate
         The Newton iterations.
+    cyclic : tuple of int
+        The cyclic coordinates (left out of the fixed-point equation and the stability).
+    advance : ndarray, shape (len(cyclic),)
+        How far each cyclic coordinate advances per period, ``P(x0)_i - x0_i``.
     """
 
-    def __init__(self, system, section, x0, trajectory, return_map, residual, history):
+    def __init__(self, system, section, x0, trajectory, return_map, residual, history,
+                 cyclic=(), advance=()):
         self.system, self.section = system, section
         self.x0 = x0
         self.trajectory = trajectory
@@ -122,6 +135,8 @@ class PeriodicOrbit:
         self.period = return_map.period
         self.residual = float(residual)
         self.history = tuple(history)
+        self.cyclic = tuple(cyclic)
+        self.advance = np.asarray(advance, dtype=np.float64)
 
     def __repr__(self):
         groups = [(round(g.time, 6), g.events, g.directions) for g in self.trajectory.groups]
@@ -163,10 +178,13 @@ class PeriodicOrbit:
         """
         n_directions = check_positive_int(n_directions, "n_directions")
         R = self.return_map
-        basis = R.tangent_basis
+        fmap, basis = R, R.tangent_basis
         check_growth_memory(n_directions, basis.shape[0], iterations)  # before V0 exists
+        if self.cyclic:  # the map on the other coordinates: a cyclic shift is neutral
+            basis = reduced_basis(self.section.gradient(self.x0), self.cyclic, R.dim)
+            fmap = _without(R, list(self.cyclic))
         V0 = np.random.default_rng(seed).standard_normal((n_directions, basis.shape[1]))
-        rates, spread, visits = growth_rate(R, V0 @ basis.T, iterations, burn_in,
+        rates, spread, visits = growth_rate(fmap, V0 @ basis.T, iterations, burn_in,
                                             orders=R.orders)
         most = sorted(visits, key=visits.get, reverse=True)[:MULTIPLIER_PIECES]
         multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in most}
@@ -177,7 +195,7 @@ class PeriodicOrbit:
 
 
 def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, max_iter=30,
-                   simultaneity_tol=1e-7, options=None):
+                   simultaneity_tol=1e-7, options=None, cyclic=()):
     """Solve ``P(x) = x`` on the section by Newton's method with the B-derivative.
 
     Parameters
@@ -196,6 +214,12 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
         For the orbit's return map (the iterates use 0).
     options : SolverOptions, optional
         Default :data:`ORBIT_OPTIONS`.
+    cyclic : sequence of int
+        Coordinates the model and the section do not depend on (a forward position, a
+        heading): left out of ``P(x) = x`` (they advance every stride) and of the
+        stability; ``PeriodicOrbit.advance`` says by how much. Their independence is
+        checked at the start (a shift by :data:`bderiv._cyclic.SHIFT` must shift the
+        return by the same and change nothing else).
 
     Returns
     -------
@@ -218,30 +242,39 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
              else T_MAX_PER_PERIOD * check_number(period_guess, "period_guess"))
     options = ORBIT_OPTIONS if options is None else options
     x = _onto_section(section, x_guess)
+    cyclic = check_cyclic(cyclic, x.size)
+    keep = kept(cyclic, x.size)
+    check_section_normal(section.gradient(x), cyclic, x)
+    if cyclic:  # checked first: Newton's method fails, unexplained, on a wrong choice
+        starts = [x, *(x + SHIFT * np.eye(x.size)[i] for i in cyclic)]
+        returned, *shifted = [run(system, start, t_max, simultaneity_tol=0.0, options=options,
+                                  section=section).x_final for start in starts]
+        check_independence(returned, x, shifted, cyclic)
     history = []
     for iteration in range(max_iter + 1):
         R, _traj = return_map(system, x, section, t_max=t_max, tol=1e-9, simultaneity_tol=0.0,
                               options=options)
         r = R.x_final - x
-        res = float(np.abs(r).max())
-        if res <= tol * max(1.0, float(np.abs(x).max())):
+        res = float(np.abs(r[keep]).max())
+        if res <= tol * max(1.0, float(np.abs(x[keep]).max())):
             break
         if iteration == max_iter:
             raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
                                f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
-        delta, piece, switches = newton_step(R, r, section.gradient(x), section(x))
-        x_new = _damped(system, section, x, delta, res, t_max, options)
+        delta, piece, switches = newton_step(R, r, section.gradient(x), section(x), keep=keep)
+        x_new = _damped(system, section, x, delta, res, t_max, options, keep)
         history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece,
                                      switches))
         x = x_new
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
     R, traj = return_map(system, x, section, t_max=t_max, tol=1e-9,
                          simultaneity_tol=simultaneity_tol, options=options)
-    return PeriodicOrbit(system, section, x, traj, R, float(np.abs(R.x_final - x).max()),
-                         history)
+    r = R.x_final - x
+    return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
+                         cyclic, r[list(cyclic)])
 
 
-def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES):
+def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None):
     """Solve the PL Newton equation ``r + R(delta) - delta = 0``, ``normal . delta =
     -value`` by moving between pieces, never listing them.
 
@@ -263,6 +296,9 @@ def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES):
     value : float
         The section's value at x.
     max_switches : int
+    keep : ndarray of int, optional
+        The coordinates in the equation (default all): the others (cyclic) are left out
+        of ``r + R(delta) - delta = 0`` and held, ``delta_i = 0``.
 
     Returns
     -------
@@ -273,18 +309,22 @@ def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES):
         Pieces tried before ``piece``.
     """
     d = R.dim
-    system = np.vstack((np.zeros((d, d)), normal))
-    rhs = np.concatenate((-r, [-value]))
-    piece, tried, best = _piece_of(R, -r), set(), None
+    keep = np.arange(d) if keep is None else np.asarray(keep)
+    system = np.vstack((np.zeros((keep.size, keep.size)), normal[keep]))
+    rhs = np.concatenate((-r[keep], [-value]))
+    start = np.zeros(d)
+    start[keep] = -r[keep]
+    piece, tried, best = _piece_of(R, start), set(), None
     for switches in range(max_switches):
         A = R.piece(list(piece))
-        system[:d] = A - np.eye(d)
-        delta = np.linalg.lstsq(system, rhs, rcond=None)[0]
+        system[:-1] = (A - np.eye(d))[np.ix_(keep, keep)]
+        delta = np.zeros(d)
+        delta[keep] = np.linalg.lstsq(system, rhs, rcond=None)[0]
         image = R(delta)
         if np.abs(image - A @ delta).max() <= PIECE_RTOL * np.abs(A).max() * np.abs(
                 delta).max():
             return delta, piece, switches
-        miss = np.abs(r + image - delta).max()
+        miss = np.abs((r + image - delta)[keep]).max()
         if best is None or miss < best[0]:
             best = (miss, delta, piece, switches)
         tried.add(piece)
@@ -292,6 +332,17 @@ def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES):
         if piece in tried:
             break
     return best[1], best[2], best[3]
+
+
+def _without(R, cyclic):
+    """``V -> R(V)`` with the cyclic components of the images set to 0."""
+
+    def fmap(V):
+        W = R(V)
+        W[:, cyclic] = 0.0
+        return W
+
+    return fmap
 
 
 def _piece_of(R, v):
@@ -311,8 +362,9 @@ def _onto_section(section, x, steps=20):
     return x
 
 
-def _damped(system, section, x, delta, res, t_max, options):
-    """``x + delta`` (on the section), halved until ``max |P - x|`` falls below ``res``."""
+def _damped(system, section, x, delta, res, t_max, options, keep):
+    """``x + delta`` (on the section), halved until ``max |P - x|`` (over the coordinates
+    ``keep``) falls below ``res``."""
     failure = ""
     for _ in range(MAX_HALVINGS + 1):
         trial = _onto_section(section, x + delta)
@@ -323,7 +375,7 @@ def _damped(system, section, x, delta, res, t_max, options):
             failure = f"; the last trial point failed: {exc}"
             delta = delta / 2
             continue
-        if float(np.abs(traj.x_final - trial).max()) < res:
+        if float(np.abs((traj.x_final - trial)[keep]).max()) < res:
             return trial
         delta = delta / 2
     raise RuntimeError(f"a Newton step from x = {x} could not reduce max |P(x) - x| = "

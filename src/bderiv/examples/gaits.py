@@ -100,6 +100,16 @@ def apex_section_gradient(x):
     return np.array([0.0, 0.0, -1.0, 0.0])
 
 
+def body(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5, half_base=0.4,
+         leg=0.5, inertia=0.16, legs=2):
+    """The pronking body's model (fields, events, Jacobians) for :func:`pronking`'s
+    parameters: the part other gaits build on (:mod:`bderiv.examples.runner`)."""
+    legs = int(legs)
+    if legs < 2:
+        raise ValueError(f"legs must be an integer >= 2, got {legs}")
+    return _Pronking(stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia, legs)
+
+
 def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
              half_base=0.4, leg=0.5, inertia=0.16, apex=APEX, t_after=0.05, legs=2):
     """The pronking body at the apex of its gait, about to land on all legs at once.
@@ -135,11 +145,8 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
         closed form: free fall from the apex), ``t_event`` the fall time. Use
         :func:`apex_section` and :func:`pronking_orbit` for the gait.
     """
-    legs = int(legs)
-    if legs < 2:
-        raise ValueError(f"legs must be an integer >= 2, got {legs}")
-    model = _Pronking(stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia,
-                      legs)
+    model = body(stiffness=stiffness, damping=damping, gain=gain, v_ref=v_ref,
+                 coupling=coupling, half_base=half_base, leg=leg, inertia=inertia, legs=legs)
     fall = float(np.sqrt(2.0 * (apex - leg) / _G))
     rho = np.array([leg, 0.0, -_G * fall, 0.0])
     return Example.from_model(

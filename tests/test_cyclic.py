@@ -1,0 +1,74 @@
+"""Cyclic coordinates (issue 20 item 2): a gait that advances.
+
+Oracles: the running gait's closed forms (on the orbit the stance controller holds the
+speed at its target, so the advance per stride is ``v_target * period`` and the apex and
+period are those of the pronking gait; the speed mode decays by ``exp(-2 traction
+T_stance)`` per stride), a stride simulated by another integrator, and perturbations
+followed in long simulations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bderiv._usercalls import Section
+from bderiv.checks import decay_check
+from bderiv.examples import gaits, runner
+from bderiv.orbit import periodic_orbit
+
+
+@pytest.fixture(scope="module")
+def gait():
+    ex = runner.running(v_target=1.0, traction=8.0)
+    return ex, runner.running_orbit(ex)
+
+
+def test_running_orbit_advances_at_the_target_speed(gait):
+    ex, orb = gait
+    assert orb.cyclic == (0,) and orb.residual < 1e-9
+    assert orb.x0[3] == pytest.approx(1.0, abs=1e-9)       # vx at its target
+    assert orb.advance[0] == pytest.approx(1.0 * orb.period, abs=1e-8)
+    # the body's motion is the pronking gait's (the forward force vanishes on the orbit)
+    pronk = gaits.pronking_orbit()
+    assert orb.period == pytest.approx(pronk.period, rel=1e-9)
+    np.testing.assert_allclose(orb.x0[[1, 2, 4, 5]], pronk.x0, atol=1e-8)
+    # one stride by another integrator: everything returns but x, which advances
+    radau = ex.system.simulate(orb.x0, 3.0, section=runner.apex_section, method="Radau",
+                               rtol=1e-11, atol=1e-13)
+    expected = orb.x0 + np.eye(6)[0] * orb.advance[0]
+    np.testing.assert_allclose(radau.x_final, expected, atol=1e-7)
+
+
+def test_stability_leaves_the_advance_out(gait):
+    ex, orb = gait
+    st = orb.stability(n_directions=100, iterations=300)
+    # the body's modes (the pronking gait's rate) and the speed mode, which decays by
+    # exp(-2 traction T_stance) per stride: the double stance lasts from touchdown to
+    # lift-off, and both feet push with traction (v_target - vx) each
+    touchdown, liftoff = (g.time for g in orb.trajectory.groups)
+    speed_mode = np.exp(-2 * 8.0 * (liftoff - touchdown))
+    moduli = np.sort(np.abs(next(iter(st.multipliers.values()))))
+    assert moduli.size == 4  # d - 1 - len(cyclic): no neutral multiplier 1 for x
+    assert np.min(np.abs(moduli - speed_mode)) < 1e-6
+    assert st.stable and st.growth_rate == pytest.approx(0.7785, abs=2e-3)
+    V = np.zeros((1, 6))
+    V[0, 3] = 1.0  # a speed error
+    decay = decay_check(ex.system, orb.x0, runner.apex_section, V, eps=1e-3, strides=12,
+                        cyclic=[0])
+    assert decay.rate < 0.8
+
+
+def test_coordinates_that_are_not_cyclic_are_refused(gait):
+    ex, _ = gait
+    section = Section(runner.apex_section, 6, runner.apex_section_gradient)
+    guess = ex.x0 + [0.0, 0.02, 0.0, 0.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match=r"coordinate 1 is not cyclic: shifting it by 1 .* "
+                       r"the field, events, resets or section depend on it"):
+        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=[1])
+    with pytest.raises(ValueError, match="coordinate 4 cannot be cyclic: the section depends"):
+        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=[4])
+    with pytest.raises(ValueError, match=r"distinct coordinate indices in \[0, 6\), got \[0, 0\]"):
+        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=[0, 0])
+    with pytest.raises(TypeError, match="cyclic must be a sequence of coordinate indices"):
+        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=0)
