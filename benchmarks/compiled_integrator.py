@@ -5,14 +5,13 @@ damped oscillator chain of dimension d = 8, 20, 40) from a fixed start until its
 coordinate falls through -0.5 (one event, located on the dense output), with
 :func:`bderiv.compiled.integrate_stretch` and with ``solve_ivp(method="DOP853")`` on the
 same field as a Python function (the dispatcher's own ``py_func``: the same code), both
-with the sensitivity (variational equations, exact Jacobian) and without, in one process;
-min of several runs each. It prints the steps, the times, their ratio and the agreement of
-the end states and event times, and the first call's cost (compiling the model's
-functions; the driver itself loads from numba's disk cache), and what one call of the
-field costs compiled and in Python: the ratio cannot exceed theirs by much, since both
-integrators spend their time in the field (and, with the sensitivity, in the d x d
-products, BLAS in both).
-"""
+with the sensitivity (variational equations, exact Jacobian) and without, in one process,
+min of ``REPEATS`` runs each; the compiled path also with a loop-style version of the
+field (what one writes for numba). It prints the steps, the times, the ratios, the
+agreement of the end states and event times, the first call's cost (compiling the model's
+functions; the driver itself loads from numba's disk cache) and one call of the field
+compiled and in Python: both integrators spend their time in the field (and, with the
+sensitivity, in the d x d products, BLAS in both), so the ratio follows the field's."""
 
 from __future__ import annotations
 
@@ -27,7 +26,7 @@ from bderiv.compiled import integrate_stretch
 
 RTOL, ATOL = 1e-10, 1e-12
 DIMS = (8, 20, 40)
-REPEATS = 5
+REPEATS = 15
 LEVEL = -0.5
 
 
