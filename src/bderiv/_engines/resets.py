@@ -89,10 +89,13 @@ def check_existence(Dh, P, Q, low: int, tol: float) -> None:
     For every region b and pair j < k of pending events, on y in ker Dh_j ∩ ker Dh_k
     (MATH.md section 8): ``R[b|j, k] R[b, j] y = R[b|k, j] R[b, k] y`` (the two ways
     through the tie agree) and ``Dh_k R[b, j] y = 0 = Dh_j R[b, k] y`` (a reset does not
-    move the other surface). Mismatches are relative to the norms of the factors.
+    move the other surface). Mismatches are relative to the norms of the factors, and
+    computed on factors scaled by powers of two (:func:`_unit`): at entries of 1e200 the
+    products would overflow.
     """
     n, d = Dh.shape
     masks = np.arange(1 << n)
+    Dh = _unit(Dh[:, None, :])[0][:, 0]  # each row scaled: the same surfaces
     dh = np.linalg.norm(Dh, axis=1)
     for j in range(n):
         for k in range(j + 1, n):
@@ -102,12 +105,15 @@ def check_existence(Dh, P, Q, low: int, tol: float) -> None:
             free = masks[((masks >> j) & 1 == 0) & ((masks >> k) & 1 == 0)]
             for rows in blocks(free.size, CHECK_ROWS):
                 b = free[rows]
-                Rj, Rk = reset_matrices(P, Q, low, b, j), reset_matrices(P, Q, low, b, k)
-                Rjk = reset_matrices(P, Q, low, b | (1 << j), k)
-                Rkj = reset_matrices(P, Q, low, b | (1 << k), j)
+                (Rj, ej), (Rk, ek) = (_unit(reset_matrices(P, Q, low, b, i)) for i in (j, k))
+                Rjk, ejk = _unit(reset_matrices(P, Q, low, b | (1 << j), k))
+                Rkj, ekj = _unit(reset_matrices(P, Q, low, b | (1 << k), j))
                 RjN, RkN = Rj @ N, Rk @ N
-                gap = _norms(Rjk @ RjN - Rkj @ RkN) / (_norms(Rjk) * _norms(Rj)
-                                                       + _norms(Rkj) * _norms(Rk))
+                # the two ways' scales 2**(ejk + ej) and 2**(ekj + ek), over the larger
+                top = np.maximum(ejk + ej, ekj + ek)
+                a, c = (np.ldexp(1.0, e - top)[:, None, None] for e in (ejk + ej, ekj + ek))
+                gap = _norms(a * (Rjk @ RjN) - c * (Rkj @ RkN)) / (
+                    _norms(a * Rjk) * _norms(Rj) + _norms(c * Rkj) * _norms(Rk))
                 move_k = np.abs(Dh[k] @ RjN).max(axis=1) / (dh[k] * _norms(Rj))
                 move_j = np.abs(Dh[j] @ RkN).max(axis=1) / (dh[j] * _norms(Rk))
                 _refuse(gap, move_k, move_j, b, j, k, n, tol)
@@ -116,6 +122,13 @@ def check_existence(Dh, P, Q, low: int, tol: float) -> None:
 def _norms(A) -> np.ndarray:
     """Frobenius norms of a stack of matrices (m, p, q) -> (m,)."""
     return np.linalg.norm(A, axis=(1, 2))
+
+
+def _unit(A):
+    """A stack of matrices (m, p, q) scaled by powers of two (exact) so that each one's
+    largest entry is in [0.5, 1), and the exponents (m,) that undo it (0 for a zero one)."""
+    e = np.frexp(np.abs(A).max(axis=(1, 2)))[1]
+    return np.ldexp(A, -e[:, None, None]), e
 
 
 def _refuse(gap, move_k, move_j, b, j, k, n, tol) -> None:
