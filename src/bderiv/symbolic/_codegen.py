@@ -2,11 +2,11 @@
 
 :func:`generate` differentiates the model's expressions (exact Jacobians by
 :func:`sympy.diff`), shares their common subexpressions (:func:`sympy.cse`, one pass per
-kernel) and prints one module of ``@numba.njit(cache=True)`` kernels, compiled (or loaded from the
-cache) for the signatures :data:`SIGNATURES` by :func:`bderiv.symbolic._model.compile_kernels`
-(in ``KERNELS`` order: ``corner_field`` calls ``field``). The kernels take the
-state ``x`` (d,), the mask and event index where the function has them, the parameter
-values ``p`` and an ``out`` array they fill:
+kernel) and prints one module of ``@numba.njit(cache=True)`` kernels, compiled (or loaded
+from the cache) for the signatures :data:`SIGNATURES` by
+:func:`bderiv.symbolic._model.compile_kernels` (in ``KERNELS`` order: ``corner_field``
+calls ``field``). The kernels take the state ``x`` (d,), the mask and event index where
+the function has them, the parameter values ``p`` and an ``out`` array they fill:
 
 =====================================================  =====================
 kernel                                                 ``out``
@@ -150,7 +150,7 @@ def _jacobian(printer, model, exprs, label, indent="    "):
             de = sp.diff(e, xj)
             if de != 0:
                 outputs.append((f"out[{i}, {j}]", de, f"the derivative of {label}[{i}] by "
-                                                      f"state[{j}]"))
+                                                      f"{model.show(xj)}"))
     return [f"{indent}out[:, :] = 0.0", *_block(printer, model, outputs, indent)]
 
 
