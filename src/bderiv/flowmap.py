@@ -32,6 +32,7 @@ from ._validate import (
     singular_condition,
 )
 from .bderivative import MAX_PIECES, BDerivative
+from .finaltime import FinalTimeMap
 
 __all__ = ["FlowBDerivative"]
 
@@ -45,9 +46,13 @@ class FlowBDerivative(Linearisation):
         Classical derivatives of the smooth stretches, ``len(jumps) + 1`` of them, in time
         order: before the first group, between groups, after the last group.
     jumps : sequence of BDerivative
-        One per event group, in time order, each of dimension d.
+        One per event group, in time order, each of dimension d; the last may be a
+        :class:`~bderiv.finaltime.FinalTimeMap` (a group at the final time, whose local
+        event ``n_g`` is the final time; ``linear[-1]`` then follows it).
     final_field : array_like, shape (d,), optional
-        Vector field at the final point: the derivative in the final time.
+        Vector field at the final point: the derivative in the final time (with a group
+        at the final time, the field after it: ``dt`` also decides which of its events
+        come before the final time).
     group_times : sequence of float, optional
         Time of each group (information only).
     group_events : sequence of tuple of int, optional
@@ -78,8 +83,12 @@ class FlowBDerivative(Linearisation):
     ):
         jumps = list(jumps)
         for i, bd in enumerate(jumps):
-            if not isinstance(bd, BDerivative):
-                raise TypeError(f"jumps[{i}] must be a BDerivative, got {type(bd).__name__}")
+            last = i == len(jumps) - 1
+            if not isinstance(bd, BDerivative) and not (last and isinstance(bd, FinalTimeMap)):
+                where = " (only the last jump may be one)" if isinstance(bd, FinalTimeMap) else ""
+                raise TypeError(
+                    f"jumps[{i}] must be a BDerivative, got {type(bd).__name__}{where}"
+                )
         linear = list(linear)
         if len(linear) != len(jumps) + 1:
             raise ValueError(
@@ -133,6 +142,12 @@ class FlowBDerivative(Linearisation):
         return len(self._jumps)
 
     @property
+    def stops_at_group(self):
+        """True when the last event group lies at the final time (a
+        :class:`~bderiv.finaltime.FinalTimeMap`: its last local event is the final time)."""
+        return bool(self._jumps) and isinstance(self._jumps[-1], FinalTimeMap)
+
+    @property
     def is_linear(self):
         """True when no event group lies on the trajectory (a classical derivative)."""
         return not self._jumps
@@ -149,11 +164,12 @@ class FlowBDerivative(Linearisation):
                 arr.setflags(write=False)
 
     # ------------------------------------------------------------------------------
-    def _stage_inputs(self, flat, name="V", offset=0):
+    def _stage_inputs(self, flat, name="V", offset=0, dt=None):
         """The vectors entering each jump, then the final result: a list of (m, d) arrays.
 
         Errors name the row of the caller's batch (``offset`` is the first row's index) and
-        the group; a stage whose result overflows is refused, not passed on.
+        the group; a stage whose result overflows is refused, not passed on. ``dt`` (m,):
+        the final-time perturbations of the rows, for a group at the final time.
         """
         out = []
         W = flat
@@ -163,8 +179,9 @@ class FlowBDerivative(Linearisation):
                 check_finite_result(W, name, offset, f"result of linear stage linear[{i}]")
             out.append(W)
             if i < len(self._jumps):
+                jump = self._jumps[i]
                 try:
-                    W = self._jumps[i](W)
+                    W = jump(W, dt) if isinstance(jump, FinalTimeMap) else jump(W)
                 except ValueError as exc:
                     raise ValueError(_in_group(str(exc), i, offset, name)) from None
         return out
@@ -227,10 +244,12 @@ class FlowBDerivative(Linearisation):
 
     def _forward(self, rows, res, offset, dt=None):
         """The kernel of :meth:`apply`: ``res = D(rows) (+ dt * final_field)``."""
-        *_, W = self._stage_inputs(rows, "V", offset)
+        if dt is not None:
+            dt = dt[offset : offset + len(rows)]
+        *_, W = self._stage_inputs(rows, "V", offset, dt)
         if dt is not None:
             with np.errstate(over="ignore", invalid="ignore"):
-                W += dt[offset : offset + len(rows), None] * self.final_field
+                W += dt[:, None] * self.final_field
         res[...] = W
         if not all_finite(res):
             check_finite_result(res, "V", offset)
@@ -334,6 +353,12 @@ class FlowBDerivative(Linearisation):
                 f"the flow map meets {self.n_groups} event groups; a triangulation (one fan "
                 f"of simplices) exists for exactly one group"
             )
+        if self.stops_at_group:
+            raise ValueError(
+                "the flow map's event group lies at the final time (its map is stopped "
+                "there); no triangulation is offered for it: choose a final time after the "
+                "group"
+            )
         (L0, L1), (M,) = self._linear, self._jumps
         return M.triangulation(max_pieces).composed(L0, L1)
 
@@ -369,8 +394,9 @@ class FlowBDerivative(Linearisation):
         Parameters
         ----------
         orders : sequence of sequences of int, optional
-            ``orders[i]`` is a permutation of ``0..n_g - 1`` (local indices of group i).
-            May be omitted when every group has a single event (or there is none).
+            ``orders[i]`` is a permutation of ``0..n_g - 1`` (local indices of group i;
+            a group at the final time has the final time as one more local event, the
+            last). May be omitted when every group has a single event (or there is none).
         with_time : bool
             Append the final-time derivative as column d.
 
@@ -391,13 +417,18 @@ class FlowBDerivative(Linearisation):
             raise ValueError(
                 f"need one event order per group ({len(self._jumps)} groups), got {len(orders)}"
             )
-        M = self._linear[0]
+        if with_time and self.final_field is None:
+            raise ValueError("this map has no final_field, so with_time cannot be used")
+        M, shift = self._linear[0], 0.0
         for i, (bd, order) in enumerate(zip(self._jumps, orders, strict=True)):
-            M = self._linear[i + 1] @ bd.piece(order) @ M
+            if isinstance(bd, FinalTimeMap):  # the final time is one of its events
+                P = bd.piece(order, with_time=True)
+                M, shift = P[:, :-1] @ M, self._linear[i + 1] @ P[:, -1]
+            else:
+                M = bd.piece(order) @ M
+            M = self._linear[i + 1] @ M
         if with_time:
-            if self.final_field is None:
-                raise ValueError("this map has no final_field, so with_time cannot be used")
-            M = np.column_stack((M, self.final_field))
+            M = np.column_stack((M, self.final_field + shift))
         return np.array(M)
 
 

@@ -35,6 +35,7 @@ from ._usercalls import ModelCalls, Section
 from ._validate import check_number
 from .bderivative import BDerivative
 from .crossings import RESET_MISMATCH, apply_resets
+from .finaltime import FinalTimeMap
 from .flowmap import FlowBDerivative
 from .orbit import ORBIT_OPTIONS, periodic_orbit
 from .returnmap import return_map
@@ -305,7 +306,10 @@ class HybridSystem(ModelCalls):
         -------
         FlowBDerivative
             Evaluates tangent vectors ``(..., d)``; ``final_field`` is the field at the
-            final point (the derivative in the final time).
+            final point (the derivative in the final time). An event group within
+            ``simultaneity_tol`` of ``t_final`` (either side) has the final time as one
+            more event: its jumps apply only to the directions for which they come before
+            it (``stops_at_group``; MATH.md section 7). Refused there with resets.
         """
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
@@ -317,15 +321,22 @@ class HybridSystem(ModelCalls):
     def flow_map_along(self, traj):
         """The :class:`FlowBDerivative` along a trajectory integrated with its variational
         equations (``run(..., variational=True)``): one BDerivative per event group."""
+        groups, linear = list(traj.groups), list(traj.linear)
+        final_field = self.eval_field(traj.x_final, traj.mask_final)
+        if traj.final_pending:  # a group just after t_final: its map is stopped there too
+            groups.append(traj.final_group)
+            linear.append(np.eye(self.dim))
+            final_field = self.eval_field(traj.x_final, traj.final_group.mask_after)
         jumps = [
             self._bderivative_at(g.state, g.events, g.mask_before,
                                  where=f"at the event point at t={g.time:.10g}")
-            for g in traj.groups
+            for g in groups
         ]
+        if traj.final_group is not None:  # the final time is one more event of the group
+            jumps[-1] = FinalTimeMap(jumps[-1])
         return FlowBDerivative(
-            traj.linear, jumps, final_field=self.eval_field(traj.x_final, traj.mask_final),
-            group_times=[g.time for g in traj.groups],
-            group_events=[g.events for g in traj.groups],
+            linear, jumps, final_field=final_field,
+            group_times=[g.time for g in groups], group_events=[g.events for g in groups],
             x0=traj.x[0], x_final=traj.x_final, t_final=float(traj.t[-1]),
         )
 

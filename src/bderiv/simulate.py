@@ -22,6 +22,8 @@ from scipy.integrate import OdeSolver, solve_ivp
 
 from ._validate import check_number, check_positive_int
 from .crossings import GLOBAL_ERROR_FACTOR, EventGroup, EventRecord, group_tolerance, switch
+from .excursions import without_lost_crossings
+from .finaltime import pending_at_final_time
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -138,6 +140,15 @@ class Trajectory:
     linear : tuple of ndarray, each (d, d)
         Classical derivatives of the smooth stretches (variational equations); filled only
         when integrated with ``variational=True`` (for the flow's B-derivative).
+    final_group : EventGroup or None
+        The event group within ``simultaneity_tol`` of ``t_final`` (either side), whose
+        map the flow's B-derivative stops at the final time (MATH.md section 7); filled
+        only with ``variational=True``. Either the last of ``groups`` (switched at or
+        just before ``t_final``) or, when ``final_pending``, events about to cross just
+        after it: not switched, so in neither ``groups`` nor ``events``, and
+        ``mask_final`` is the mask before them.
+    final_pending : bool
+        Whether ``final_group`` lies just after ``t_final`` (not switched).
     """
 
     t: np.ndarray
@@ -148,6 +159,8 @@ class Trajectory:
     x_final: np.ndarray
     mask_final: int
     linear: tuple = dc_field(default=(), repr=False)
+    final_group: EventGroup | None = None
+    final_pending: bool = False
 
 
 class _EventValues:
@@ -207,11 +220,17 @@ def _integrate_stretch(system, x, t, t_final, mask, options, events, variational
             return system.eval_field(y, mask)
 
         y0 = x
-    sol = solve_ivp(rhs, (t, t_final), y0, events=events.terminal_events(mask),
-                    **options.solve_ivp_kwargs())
-    if sol.status == -1:
-        raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
-    return sol
+    funcs = events.terminal_events(mask)
+
+    def solve(start, y_start, stop):
+        sol = solve_ivp(rhs, (start, stop), y_start, events=funcs, dense_output=True,
+                        **options.solve_ivp_kwargs())
+        if sol.status == -1:
+            raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
+        return sol
+
+    # solve_ivp compares signs at step ends only: look inside the steps too
+    return without_lost_crossings(system, mask, options, solve, t, y0, t_final)
 
 
 @dataclass
@@ -306,10 +325,36 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         )
     if variational and len(log.linear) == len(log.groups):  # an event stopped it at t_final
         log.linear.append(np.eye(d))
+    final, pending = None, False
+    if variational and section is None:
+        final, pending = _final_group(system, log.groups, mask, x, t_final, simultaneity_tol)
     return Trajectory(t=np.concatenate(log.t), x=np.concatenate(log.x),
                       masks=np.concatenate(log.masks), events=tuple(log.records),
                       groups=tuple(log.groups), x_final=x, mask_final=mask,
-                      linear=tuple(log.linear))
+                      linear=tuple(log.linear), final_group=final, final_pending=pending)
+
+
+def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
+    """The event group within ``simultaneity_tol`` of ``t_final`` and whether it is
+    pending (after ``t_final``): ``(None, False)`` when there is none."""
+    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(system.n_events)])
+    rate = sign * (system.eval_event_jacobian(x) @ system.eval_field(x, mask))
+    pending = pending_at_final_time(sign * system.eval_events(x), rate, simultaneity_tol)
+    last = groups[-1] if groups and t_final - groups[-1].time <= simultaneity_tol else None
+    if last is not None and pending:
+        raise ValueError(
+            f"events {list(last.events)} at t={last.time:.10g} and events {pending} just "
+            f"after t_final={t_final:.10g} are all within simultaneity_tol="
+            f"{simultaneity_tol:g} of the final time, but not of each other: the flow map's "
+            f"B-derivative at that final time is not one event group; choose a final time "
+            f"away from them"
+        )
+    if last is not None:
+        return last, False
+    if pending:
+        bits = sum(1 << k for k in pending)
+        return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy()), True
+    return None, False
 
 
 def _refuse_event_at_return(fired, t):

@@ -1,0 +1,211 @@
+"""Excursions inside a step: a surface crossed and crossed back between two step ends.
+
+An integrator that compares the signs of the event functions at the ends of its steps
+(solve_ivp's event detection) loses a surface that the trajectory crosses and crosses back
+within one step: both ends are on the same side. An oscillator grazing its contact
+surface for 0.03 time units, less than one DOP853 step, lost every one of its ten
+contacts that way, and the final state was 31 % off, silently (docs/design.md,
+"Excursions inside a step"). The rules below are plain functions of arrays (samples of
+the dense output, event values, their windows), written once for any integrator; only
+:func:`without_lost_crossings` deals with a solver.
+
+Along a stretch in one region every event is pending in its local orientation (``h_k < 0``
+not yet crossed; the function negated for an event whose bit is set), so a crossing is a
+point where ``h_k > 0``. With ``h`` sampled at the step ends and the midpoints of the steps
+(:func:`sample_times`):
+
+1. :func:`peak_brackets`: every sample that is a local maximum of ``h_k`` (not lower than
+   its neighbours; an end of the stretch counts) and whose value could reach the surface,
+   ``h_i + REACH (h_i - min(neighbours)) >= -tol_k``, gives a bracket: its neighbours'
+   times. A smooth peak between samples rises above the highest sample by a fraction of
+   the samples' spread; ``REACH`` is ten times that.
+2. :func:`peak_of`: ``h_k`` along the dense output is maximised on the bracket (bounded
+   Brent, to a relative time accuracy ``PEAK_XTOL``). A peak above ``tol_k`` is a crossing
+   the integrator did not see; a peak within ``tol_k`` of the surface that rises above both
+   ends of its bracket by more than ``tol_k`` cannot be decided at this accuracy (a
+   grazing contact, where the flow has no B-derivative): refused. A peak at an end of the
+   stretch is left to the switching rule (:func:`bderiv.crossings.switch`).
+3. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
+   before the earliest lost crossing's bracket to its peak, where ``h_k > 0``: the sign
+   change is at the ends of a step now, and the crossing is located as any other.
+
+A step in which ``h_k`` rises and falls more than once is assumed to show one of its peaks
+among the samples; a step long against the time scale of the events needs ``max_step``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from .crossings import group_tolerance
+
+__all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
+
+#: how far above the highest sample a peak may rise, in units of the samples' spread
+#: around it, for its bracket to be searched (a parabola rises at most by the spread).
+REACH = 10.0
+#: time accuracy of a peak, relative to its bracket: ``h`` is flat at a peak, so its value
+#: is found to about the curvature times this squared.
+PEAK_XTOL = 1e-10
+
+
+def sample_times(ends: np.ndarray) -> np.ndarray:
+    """The step ends and the midpoint of every step, in order: shape (2 m - 1,) for m ends.
+
+    Examples
+    --------
+    >>> sample_times(np.array([0.0, 1.0, 3.0]))
+    array([0. , 0.5, 1. , 2. , 3. ])
+    """
+    out = np.empty(2 * ends.size - 1)
+    out[::2] = ends
+    out[1::2] = 0.5 * (ends[:-1] + ends[1:])
+    return out
+
+
+def peak_brackets(h: np.ndarray, tol: np.ndarray) -> list:
+    """Brackets of the sampled local maxima that could reach the surface.
+
+    Parameters
+    ----------
+    h : ndarray, shape (m, n)
+        Event values (local orientation: pending means ``h < 0``) at m sample times.
+    tol : ndarray, shape (n,)
+        How well each event's value is known.
+
+    Returns
+    -------
+    list of (k, lo, hi)
+        Event k may peak between the samples lo < hi (indices), in order of lo.
+
+    Examples
+    --------
+    A peak between samples 1 and 2 that the samples miss (-0.004 on both sides):
+
+    >>> h = np.array([[-0.02], [-0.004], [-0.004], [-0.02]])
+    >>> peak_brackets(h, np.array([1e-11]))
+    [(0, 0, 2), (0, 1, 3)]
+    >>> peak_brackets(h - 1.0, np.array([1e-11]))
+    []
+    """
+    m, n = h.shape
+    out = []
+    if m < 2:
+        return out
+    for k in range(n):
+        v = h[:, k]
+        left = np.concatenate(([-np.inf], v[:-1]))
+        right = np.concatenate((v[1:], [-np.inf]))
+        low = np.minimum(np.where(np.isfinite(left), left, right),
+                         np.where(np.isfinite(right), right, left))
+        peak = (v >= left) & (v >= right) & (v + REACH * (v - low) >= -tol[k])
+        out.extend((k, max(int(i) - 1, 0), min(int(i) + 1, m - 1))
+                   for i in np.flatnonzero(peak))
+    return sorted(out, key=lambda b: (b[1], b[0]))
+
+
+def peak_of(value, t_lo: float, t_hi: float) -> tuple[float, float]:
+    """The maximum of ``value(t)`` on ``[t_lo, t_hi]``: ``(t_peak, value(t_peak))``.
+
+    Examples
+    --------
+    >>> t, v = peak_of(lambda t: np.cos(t) - 0.999, -0.3, 0.2)
+    >>> abs(t) < 1e-8, round(v, 12)
+    (True, 0.001)
+    """
+    res = minimize_scalar(lambda s: -value(s), bounds=(t_lo, t_hi), method="bounded",
+                          options={"xatol": PEAK_XTOL * (t_hi - t_lo)})
+    candidates = [(float(res.x), -float(res.fun)), (t_lo, float(value(t_lo))),
+                  (t_hi, float(value(t_hi)))]
+    return max(candidates, key=lambda c: c[1])
+
+
+def without_lost_crossings(system, mask, options, solve, t0, y0, t_end):
+    """Integrate a stretch so that no surface is crossed unseen inside a step.
+
+    Parameters
+    ----------
+    system : HybridSystem
+        Its checked ``eval_events`` and ``eval_event_jacobian`` are used.
+    mask : int
+        The stretch's region (the events' local orientation).
+    options : SolverOptions
+        The tolerances of ``solve`` (for the windows, :func:`bderiv.crossings.group_tolerance`).
+    solve : callable ``solve(t_start, y_start, t_stop) -> OdeResult``
+        solve_ivp on the stretch's right-hand side and event functions, with dense output.
+    t0 : float
+    y0 : ndarray, shape (D,)
+        Start of the stretch (the state first, then any variational part).
+    t_end : float
+
+    Returns
+    -------
+    OdeResult-like
+        ``t``, ``y``, ``t_events``, ``status``: the stretch up to its first crossing (now
+        located), or to ``t_end``.
+
+    Raises
+    ------
+    ValueError
+        On a peak within the integration accuracy of a surface (undecidable).
+    RuntimeError
+        If a lost crossing is not located by the integration to its peak.
+    """
+    n = system.n_events
+    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])
+    head_t, head_y = [], []
+    sol = solve(t0, y0, t_end)
+    while True:
+        lost = _earliest_lost(system, sign, options, sol)
+        if lost is None:
+            break
+        i, t_peak = lost
+        head_t.append(sol.t[:i])
+        head_y.append(sol.y[:, :i])
+        sol = solve(float(sol.t[i]), sol.y[:, i], t_peak)  # checked on the next pass
+        if sol.status != 1:
+            raise RuntimeError(
+                f"a crossing inside a step near t={t_peak:.10g} was not located by the "
+                f"integration to its peak; pass a smaller max_step"
+            )
+    sol.t = np.concatenate([*head_t, sol.t])
+    sol.y = np.concatenate([*head_y, sol.y], axis=1)
+    return sol
+
+
+def _earliest_lost(system, sign, options, sol):
+    """``(i, t_peak)`` of the earliest crossing inside a step of ``sol`` (i: the last step
+    end before its bracket), or None."""
+    d = system.dim
+    times = sample_times(sol.t)
+    states = sol.sol(times)[:d].T
+    h = np.array([sign * system.eval_events(x) for x in states])
+    scale = float(np.abs(states).max())
+    tol = group_tolerance(sign[:, None] * system.eval_event_jacobian(states[-1]), options,
+                          scale)
+    # a peak at an end of the stretch is not an excursion: at the start the events were
+    # just switched (one may sit a rounding across its surface), at the stop an event is
+    # located, or across and switched with it (crossings.switch)
+    for k, lo, hi in peak_brackets(h, tol):
+
+        def value(t, k=k):
+            return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
+
+        t_peak, top = peak_of(value, times[lo], times[hi])
+        if not times[0] < t_peak < times[-1]:  # the ends were decided by the switching rule
+            continue
+        x_peak = sol.sol(t_peak)[:d]
+        window = group_tolerance(system.eval_event_jacobian(x_peak)[k : k + 1], options,
+                                 scale)[0]
+        if top > window:
+            return int(np.searchsorted(sol.t, times[lo], side="right")) - 1, t_peak
+        if top >= -window and top > max(h[lo, k], h[hi, k]) + window:
+            raise ValueError(
+                f"event {k} comes within the integration accuracy of its surface at "
+                f"t={t_peak:.10g} (its value peaks at {sign[k] * top:.3g}, known to "
+                f"{window:.3g}): whether it crosses cannot be decided (a grazing contact, "
+                f"where the flow has no B-derivative); tighten rtol and atol or move the "
+                f"start point"
+            )
+    return None

@@ -1,0 +1,165 @@
+"""Surfaces crossed and crossed back inside one solver step (issue 27 item 7a).
+
+The model: an oscillator ``q'' = -q`` of amplitude 1 that grazes ``q = C`` (C = 0.999);
+while ``q > C`` a force -2 acts. Each excursion above the surface lasts about 0.03, less
+than one DOP853 step at the default tolerances, so an integrator that compares signs at
+step ends sees none of them. The oracle is the closed-form flow: in either region the
+motion is a rotation at unit angular speed about ``(c, 0)`` in the ``(q, p)`` plane
+(c = 0 before the surface, c = -2 beyond it), and the crossing times solve
+``c + R cos(t - psi) = C``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bderiv import HybridSystem
+from bderiv.excursions import REACH, peak_brackets, peak_of, sample_times
+
+C = 0.999
+T = 30.0
+X0 = np.array([0.0, 1.0, 0.0])
+
+
+def oscillator(level=C, flipped=False):
+    """The model; ``flipped`` writes the event as ``C - q`` (the excursion is then a
+    downward crossing and back, bit set before it)."""
+    s = -1.0 if flipped else 1.0
+
+    def field(x, mask):
+        beyond = bool(mask & 1) != flipped  # q > level
+        return np.array([x[1], -x[0] - (2.0 if beyond else 0.0), 1.0])
+
+    return HybridSystem(
+        field,
+        lambda x: np.array([s * (x[0] - level)]),
+        n_events=1,
+        dim=3,
+        field_jacobian=lambda x, mask: np.array([[0.0, 1, 0], [-1, 0, 0], [0, 0, 0]]),
+        event_jacobian=lambda x: np.array([[s, 0.0, 0.0]]),
+    )
+
+
+def _rotate(q, p, c, t):
+    """The flow of ``q'' = -(q - c)`` for time t."""
+    u = q - c
+    return c + u * math.cos(t) + p * math.sin(t), -u * math.sin(t) + p * math.cos(t)
+
+
+def _next_crossing(q, p, c, upward):
+    """The first time > 0 at which the rotation about (c, 0) from (q, p) meets q = C
+    going up (p > 0) or down (p < 0); inf if it never does."""
+    u = q - c
+    R = math.hypot(u, p)
+    if R <= abs(C - c):
+        return math.inf
+    psi = math.atan2(p, u)
+    alpha = math.acos((C - c) / R)
+    times = []
+    for base in (psi + alpha, psi - alpha):
+        t = base % (2 * math.pi)
+        pt = -u * math.sin(t) + p * math.cos(t)
+        if t > 1e-12 and (pt > 0) == upward:
+            times.append(t)
+    return min(times, default=math.inf)
+
+
+def closed_form(x0, t_final):
+    """The exact flow ``(q, p, z)`` at t_final, and the crossing times."""
+    q, p, z = (float(v) for v in x0)
+    t, beyond, log = 0.0, q > C, []
+    while True:
+        c = -2.0 if beyond else 0.0
+        dt = _next_crossing(q, p, c, upward=not beyond)
+        if t + dt >= t_final:
+            q, p = _rotate(q, p, c, t_final - t)
+            return np.array([q, p, z + t_final]), log
+        q, p = _rotate(q, p, c, dt)
+        q = C  # exactly on the surface (rounding of the rotation)
+        t += dt
+        log.append(t)
+        beyond = not beyond
+
+
+def test_the_oracle_is_the_flow():
+    # the closed form against a tightly stepped integration of the same field (the
+    # excursions resolved by max_step): the oracle itself is right
+    x, log = closed_form(X0, T)
+    traj = oscillator().simulate(X0, T, max_step=0.005)
+    assert len(log) == len(traj.events) == 10
+    np.testing.assert_allclose([r.time for r in traj.events], log, atol=1e-8)
+    np.testing.assert_allclose(traj.x_final, x, atol=1e-8)
+
+
+@pytest.mark.parametrize("flipped", [False, True])
+def test_simulate_finds_every_excursion(flipped):
+    x, log = closed_form(X0, T)
+    traj = oscillator(flipped=flipped).simulate(X0, T)
+    times = [r.time for r in traj.events]
+    assert len(times) == 10, times
+    np.testing.assert_allclose(times, log, atol=1e-8)
+    np.testing.assert_allclose(traj.x_final, x, atol=1e-8)
+    up = -1 if flipped else 1  # the first crossing of each pair enters q > C
+    assert [r.direction for r in traj.events] == [up, -up] * 5
+
+
+def test_flow_bderivative_converges_to_the_closed_form():
+    D = oscillator().flow_bderivative(X0, T)
+    assert D.n_groups == 10
+    V = np.eye(3)
+    DV = D(V)
+    base, _ = closed_form(X0, T)
+    errors = []
+    for eps in (1e-5, 1e-6):
+        fd = np.array([(closed_form(X0 + eps * v, T)[0] - base) / eps for v in V])
+        errors.append(np.abs(DV - fd).max() / np.abs(fd).max())
+    # one-sided differences of the exact flow: error proportional to eps
+    assert errors[1] < 2e-3, errors
+    assert errors[1] < 0.2 * errors[0], errors
+
+
+def test_a_graze_within_the_accuracy_is_refused():
+    # the oscillator's top is the surface itself: whether it crosses is undecidable
+    with pytest.raises(ValueError, match=r"event 0 comes within the integration accuracy .*"
+                                         r"cannot be decided"):
+        oscillator(level=1.0).simulate(X0, 3.0)
+
+
+def test_a_peak_clearly_below_the_surface_is_no_event():
+    traj = oscillator(level=1.0 + 1e-6).simulate(X0, T)
+    assert traj.events == ()
+    np.testing.assert_allclose(traj.x_final[:2], [math.sin(T), math.cos(T)], atol=1e-8)
+
+
+def test_sample_times_interleave_midpoints():
+    np.testing.assert_array_equal(sample_times(np.array([0.0, 2.0, 3.0])),
+                                  [0.0, 1.0, 2.0, 2.5, 3.0])
+
+
+def test_peak_brackets():
+    tol = np.array([1e-9, 1e-9])
+    t = np.linspace(-0.5, 0.5, 7)
+    h = np.column_stack((np.cos(t) - 0.999, -np.ones(7)))  # the top at sample 3
+    assert peak_brackets(h, tol) == [(0, 2, 4)]
+    # the far one (-1 everywhere) is flat: each sample is a local maximum, none reaches 0
+    # within REACH times its spread; shifted to -tol it does
+    assert peak_brackets(np.column_stack((h[:, 0] - 1.0, h[:, 1])), tol) == []
+    flat = np.full((3, 1), -1e-9)
+    assert peak_brackets(flat, tol[:1]) == [(0, 0, 1), (0, 0, 2), (0, 1, 2)]
+    # a peak that rises above its neighbours by less than the reach is still searched
+    spread = 1e-3
+    top = -REACH * spread + spread / 2  # could rise by REACH * spread: to spread / 2 > 0
+    v = np.array([[top - spread], [top], [top - spread]])
+    assert peak_brackets(v, np.zeros(1)) == [(0, 0, 2)]
+    assert peak_brackets(v - spread, np.zeros(1)) == []
+    # an end of the stretch is a candidate (its neighbour is lower)
+    assert peak_brackets(np.array([[-1e-3], [-2e-3]]), np.zeros(1)) == [(0, 0, 1)]
+
+
+def test_peak_of_finds_the_top_and_the_ends():
+    t, v = peak_of(lambda s: math.cos(s) - 0.999, -0.3, 0.2)
+    assert abs(t) < 1e-7 and v == pytest.approx(0.001, abs=1e-14)
+    assert peak_of(lambda s: s, 0.0, 1.0) == (1.0, 1.0)  # monotone: the end
