@@ -312,6 +312,8 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
         compile (named: printing as Python or numba typing fails).
     ImportError
         Without sympy (``pip install 'bderiv[symbolic]'``).
+    OSError
+        If the cache folder cannot be created or written (named).
     """
     sympy = require_sympy()
     model = check_model(state, flags, field, events, resets, params)
@@ -321,7 +323,12 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
     cached = path.exists()
     start = time.perf_counter()
     if not cached:
-        _cache.store(path, _codegen.generate(model, key))
+        source = _codegen.generate(model, key)
+        try:
+            _cache.store(path, source)
+        except OSError as exc:
+            raise OSError(f"cannot write the generated kernels to {path}: {exc}; set "
+                          f"{_cache.CACHE_ENV} or pass cache_dir= a writable folder") from None
     derived = time.perf_counter()
     try:
         kernels = compile_kernels(model, _cache.load(path, key), path)
