@@ -17,6 +17,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
@@ -272,6 +274,55 @@ def test_the_driver_compiles_once_for_all_fields():
     integrate_stretch(pendulum, [1.0, 0.0], 0.5, field_jacobian=pendulum_jacobian,
                       events=pendulum_events)
     assert len(drive_stretch.signatures) == 1
+
+
+@numba.njit
+def linear_in_state(y, mask):
+    """x' = A x with A (k, k) carried in the state: y = (x, A row-major), A' = 0, so that
+    one compiled field integrates any linear system."""
+    k = int(np.sqrt(y.size + 0.25) - 0.5)  # y.size = k + k * k
+    out = np.zeros(y.size)
+    for i in range(k):
+        acc = 0.0
+        for j in range(k):
+            acc += y[k + i * k + j] * y[j]
+        out[i] = acc
+    return out
+
+
+@settings(max_examples=25, deadline=None, derandomize=True)
+@given(k=st.integers(1, 5), seed=st.integers(0, 2**32 - 1),
+       rtol=st.sampled_from([1e-6, 1e-9, 1e-12]), t_final=st.floats(0.1, 5.0),
+       max_step=st.sampled_from([np.inf, 0.3]))
+def test_random_linear_systems_as_solve_ivp_and_exp_At(k, seed, rtol, t_final, max_step):
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((k, k)) - 0.3 * np.eye(k)
+    y0 = np.concatenate((rng.standard_normal(k), A.ravel()))
+    s = integrate_stretch(linear_in_state, y0, t_final, rtol=rtol, atol=1e-12,
+                          max_step=max_step)
+    sol = solve_ivp(lambda t, y: linear_in_state(y, 0), (0.0, t_final), y0,
+                    method="DOP853", rtol=rtol, atol=1e-12, max_step=max_step)
+    assert s.n_steps == sol.t.size - 1 and s.nfev == sol.nfev
+    scale = np.abs(sol.y).max()
+    assert_allclose(s.x_end, sol.y[:, -1], rtol=1e-12, atol=1e-12 * scale)
+    exact = expm(A * t_final) @ y0[:k]
+    # DOP853's global error: a few hundred rtol here (measured up to ~40 rtol)
+    assert_allclose(s.x_end[:k], exact, atol=1e3 * rtol * max(1.0, np.abs(exact).max()))
+    assert s.x_end[k:].tolist() == y0[k:].tolist()  # A' = 0 exactly
+
+
+def test_the_field_may_overwrite_its_argument():
+    """Each call gets a copy of the state: a field that clobbers x changes nothing."""
+
+    @numba.njit
+    def clobber(x, mask):
+        out = np.array([x[1], -x[0]])
+        x[:] = np.nan
+        return out
+
+    s = integrate_stretch(clobber, [1.0, 0.0], 2.0, field_jacobian=rotation_jacobian)
+    ref = integrate_stretch(rotation, [1.0, 0.0], 2.0, field_jacobian=rotation_jacobian)
+    assert np.array_equal(s.x, ref.x) and np.array_equal(s.phi_end, ref.phi_end)
 
 
 # -- bad input ------------------------------------------------------------------------
