@@ -44,7 +44,7 @@ FD_SIMULTANEITY_TOL = 1e-13
 
 def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
                         options=None, rtol=None, atol=None, method=None, max_step=None,
-                        section=None):
+                        section=None, progress=None):
     """``(Phi(t_final, x0 + eps v) - Phi(t_final, x0)) / eps`` for every vector v.
 
     The error is O(eps) (the flow's B-derivative is its first-order term) plus the
@@ -70,6 +70,8 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
         Override the settings of ``options``.
     section : callable ``section(x) -> float``, optional
         Difference the Poincare map of this section instead of the flow.
+    progress : callable ``progress(done, total)``, or bool, optional
+        Called after each perturbed simulation; ``True`` draws a tqdm bar.
 
     Returns
     -------
@@ -84,11 +86,14 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
         return system.simulate(start, t_final, simultaneity_tol=simultaneity_tol,
                                options=options, section=section)
 
+    progress = resolve_progress(progress, desc="finite differences")
     base = simulate(x0)
     start = base.x[0]  # x0, checked
     out = np.empty_like(flat)
     for i, v in enumerate(flat):
         out[i] = (simulate(start + eps * v).x_final - base.x_final) / eps
+        if progress is not None:
+            progress(i + 1, len(flat))
     return out.reshape(*lead, system.dim)
 
 
@@ -140,7 +145,8 @@ def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=No
     eps : sequence of float
         Steps, each finite and > 0.
     progress : callable ``progress(done, total)``, or bool, optional
-        Called after each step size; ``True`` draws a tqdm bar.
+        Called after each simulation (``total``: one per vector and step); ``True``
+        draws a tqdm bar.
     **simulate_options
         Passed to :func:`forward_differences` (``simultaneity_tol``, ``options``,
         ``rtol``, ``atol``, ``method``, ``max_step``, ``section``: with a section,
@@ -161,14 +167,15 @@ def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=No
     scale_rows = np.linalg.norm(D_V, axis=1)
     scale = np.abs(D_V).max()
     errors, worst, seconds = [], [], 0.0
+    m = V.shape[0]
     for i, e in enumerate(eps):
         t0 = time.perf_counter()
-        FD = forward_differences(system, x0, t_final, V, e, **simulate_options)
+        step = None if progress is None else (
+            lambda done, total, i=i: progress(i * m + done, len(eps) * m))
+        FD = forward_differences(system, x0, t_final, V, e, progress=step, **simulate_options)
         seconds += time.perf_counter() - t0
         errors.append(np.linalg.norm(FD - D_V, axis=1) / scale_rows)
         worst.append(float(np.abs(FD - D_V).max() / scale))
-        if progress is not None:
-            progress(i + 1, len(eps))
     ratios = tuple(b / a if a else float("nan") for a, b in zip(worst, worst[1:], strict=False))
     per_vector = seconds / (len(eps) * (V.shape[0] + 1))
     return FDCheck(eps, np.array(errors).T, tuple(worst), ratios, per_vector)
