@@ -1,5 +1,6 @@
 """``bderiv plot`` on a gait: the figures orbit and growth of the pronking orbit, and the
-usage errors they share with the other figures."""
+usage errors they share with the other figures; ``plot`` and ``export`` on the impact
+example landing."""
 
 from __future__ import annotations
 
@@ -34,8 +35,8 @@ def test_all_figures_of_pronking(capsys, tmp_path):
         assert (f"not drawn: {name}, which draws a B-derivative at an event point, not a "
                 f"gait's orbit") in out
     assert "not drawn: scaling, which needs --bench-json" in out
-    # 10 x 4.2 inches (two panels) and 6 x 4.5 inches at 50 dpi
-    sizes = {"orbit": (500, 210), "growth": (300, 225)}
+    # 10 x 7.6 inches (four time panels beside the phase plane) and 6 x 4.5 inches at 50 dpi
+    sizes = {"orbit": (500, 380), "growth": (300, 225)}
     for name, size in sizes.items():
         with Image.open(tmp_path / f"{name}.png") as im:
             assert (im.format, im.size) == ("PNG", size)
@@ -95,13 +96,18 @@ BAD = [
      "--bench-json)"),
     (["--example", "pronking", "--n", "3"], "--n applies to --example network only"),
     (["--example", "pronking", "--extended"], "--extended applies to --example network"),
-    (["--example", "landing"], "invalid choice: 'landing'"),
+    (["--example", "landing", "--figure", "field"],
+     "figure field draws the plane (needs d = 2), but landing has n = 2, d = 10: use "
+     "--example planar, or a figure of landing: pieces (or scaling, with --bench-json)"),
+    (["--example", "landing", "--figure", "orbit"],
+     "figure orbit needs a gait's periodic orbit, but landing is not a gait"),
+    (["--example", "landing", "--n", "3"], "--n applies to --example network only"),
     (["--example", "pronking", "--figure", "gait"], "invalid choice: 'gait'"),
     (["--example", "pronking", "--figure", "growth", "scaling"], "pass --bench-json"),
     (["--example", "pronking", "--figure", "orbit", "--format", "jpg"], "invalid choice"),
     (["--example", "pronking", "--figure", "orbit", "--dpi", "0"], "positive integer"),
     (["--example", "pronking", "--figure", "orbit", "--dpi", "100000"],
-     "--dpi 100000 makes the figure orbit 1000000 x 420000 pixels"),
+     "--dpi 100000 makes the figure orbit 1000000 x 760000 pixels"),
 ]
 
 
@@ -133,4 +139,117 @@ def test_help_lists_the_gait_figures(capsys):
     assert "pieces, scaling, orbit, growth, all" in text
     assert "orbit and growth (--example pronking only)" in text
     assert "as long as `bderiv demo --example pronking`" in text  # it takes seconds
-    assert "the gait pronking" in text and "landing" not in text
+    assert "the gait pronking" in text
+    assert "the impact landing (resets at a simultaneous touchdown)" in text
+
+
+# -- the orbit figure, as a reader sees it ---------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def pronking():
+    from bderiv.cli.systems import load_orbit
+
+    return load_orbit("pronking")
+
+
+def _span(patch):
+    """(start, end) in time of a shaded stretch (an axvspan)."""
+    x = np.asarray(patch.get_xy() if not hasattr(patch, "get_width") else
+                   [[patch.get_x(), 0], [patch.get_x() + patch.get_width(), 0]])[:, 0]
+    return x.min(), x.max()
+
+
+def test_orbit_figure_components_units_and_stance(pronking):
+    """Each state component in a panel of its own with its unit (z and vz no longer share
+    an axis; the pitch is there), time in seconds, and the stance shaded: where both feet
+    are on the ground, found in the test from the model's own geometry (foot k at body
+    frame point (a_k, -leg): height z + a_k sin(theta) - leg cos(theta), a = -+0.4,
+    leg = 0.5), to within the sampling step."""
+    from bderiv import plot
+    from bderiv.cli.systems import ORBIT_EXAMPLES
+
+    ex, orbit = pronking
+    named = ORBIT_EXAMPLES["pronking"]
+    fig = plot.gait_orbit(orbit, **named)
+    *panels, phase = fig.axes
+    assert [ax.get_ylabel() for ax in panels] == list(named["labels"]) == [
+        "height $z$ (m)", "pitch $\\theta$ (rad)", "vertical velocity $v_z$ (m/s)",
+        "pitch rate $\\omega$ (rad/s)"]
+    assert panels[-1].get_xlabel() == "time (s)"
+    assert (phase.get_xlabel(), phase.get_ylabel()) == (named["labels"][0], named["labels"][2])
+    traj = orbit.sample()
+    a, leg = np.array([-0.4, 0.4]), 0.5
+    z, theta = traj.x[:, :1], traj.x[:, 1:2]
+    feet = z + a * np.sin(theta) - leg * np.cos(theta)
+    down = traj.t[(feet <= 0).all(axis=1)]
+    step = 1.01 * orbit.period / 400  # the sampling's largest step (and rounding)
+    for ax in panels:
+        (stance,) = [p for p in ax.patches]
+        start, end = _span(stance)
+        assert abs(start - down.min()) < step and abs(end - down.max()) < step
+    (legend,) = [ax.get_legend() for ax in panels if ax.get_legend()]
+    assert [t.get_text() for t in legend.get_texts()] == ["stance: both feet on the ground"]
+    # the symmetric orbit has no pitch: theta and omega are 0 (to rounding), drawn flat
+    for ax, k in ((panels[1], 1), (panels[3], 3)):
+        assert np.abs(traj.x[:, k]).max() < 1e-9
+        assert ax.get_ylim() == pytest.approx((-1.0, 1.0), abs=1e-9)
+        assert [t.get_text() for t in ax.texts][0].startswith("constant to rounding")
+    assert not panels[0].texts and not panels[2].texts
+
+
+def test_orbit_figure_refuses_bad_components(pronking):
+    from bderiv import plot
+
+    _, orbit = pronking
+    with pytest.raises(ValueError, match=r"components must be state indices in \[0, 4\), "
+                                         r"got \[0, 7\]"):
+        plot.gait_orbit(orbit, components=(0, 7))
+    with pytest.raises(ValueError, match=r"phase must be two state indices in \[0, 4\)"):
+        plot.gait_orbit(orbit, phase=(0, -1))
+
+
+# -- the impact example landing: plot and export ---------------------------------------------
+
+
+def test_plot_landing(capsys, tmp_path):
+    """landing (d = 10, n = 2): the figure that applies is pieces; the plane's figures and
+    the gait's are named as not drawn. Its two pieces pass through the plastic stop of a
+    foot's sliding (u_k -> 0), so every piece is singular: det 0, said in the title."""
+    code, out, err = run(["plot", "--example", "landing", "--dpi", "40", "--out",
+                          str(tmp_path), "--json"], capsys)
+    assert code == 0, err
+    summary = json.loads(out)
+    assert (summary["example"], summary["dim"], summary["n_events"]) == ("landing", 10, 2)
+    assert summary["files"] == [str(tmp_path / "pieces.png")]
+    assert summary["skipped"] == {**{f: "draws the plane (needs d = 2)"
+                                     for f in ("field", "triangulation", "circle", "note")},
+                                  "orbit": "needs a gait's periodic orbit",
+                                  "growth": "needs a gait's periodic orbit",
+                                  "scaling": "needs --bench-json"}
+    with Image.open(tmp_path / "pieces.png") as im:
+        im.load()
+    from bderiv import plot
+    from bderiv.cli.systems import load_example
+
+    _, bd = load_example("landing")
+    # each touchdown from region 0b00 stops one foot's sliding: a reset of rank d - 1
+    assert [np.linalg.matrix_rank(bd.resets[0, k]) for k in range(2)] == [9, 9]
+    fig = plot.pieces(bd)
+    assert [p.get_height() for p in fig.axes[0].patches] == [0.0]
+    assert "every piece singular" in fig.axes[0].get_title()
+
+
+@pytest.mark.parametrize("which", ["event", "flow"])
+def test_export_landing_says_why_there_is_no_triangulation(capsys, tmp_path, which):
+    """The stop of a foot's sliding is a singular reset: no homeomorphism, so no
+    triangulation, at the event point or along the flow; a usage error says so and
+    nothing is written."""
+    code, out, err = run(["export", "--example", "landing", "--map", which, "--out",
+                          str(tmp_path / "tri")], capsys)
+    assert (code, out) == (2, "") and err.count("\n") == 1
+    assert err.startswith("bderiv export: error: landing has no triangulation (nor has its "
+                          "flow map, which contains the same resets): the reset Jacobian "
+                          "R[0, 0] of event 0 crossed from region mask 0b00 is singular")
+    assert "not a homeomorphism" in err
+    assert list(tmp_path.iterdir()) == []

@@ -309,14 +309,14 @@ def test_gait_figures(gait, tmp_path):
 
     ex, orb = gait
     fig = gait_orbit(orb, labels=["z", "theta", "vz", "omega"])
-    ax_t, ax_p = fig.axes
+    *ax_t, ax_p = fig.axes
     legend = [t.get_text() for t in ax_p.get_legend().get_texts()]
     assert legend == ["events (0, 1) up at t = 0.1823", "events (0, 1) down at t = 0.3075",
                       "fixed point on the section"]
     assert ax_p.get_xlabel() == "z" and ax_p.get_ylabel() == "vz"
     fig.savefig(tmp_path / "orbit.png")
-    with pytest.raises(ValueError, match=r"components must be two state indices in \[0, 4\)"):
-        gait_orbit(orb, components=(0, 4))
+    with pytest.raises(ValueError, match=r"phase must be two state indices in \[0, 4\)"):
+        gait_orbit(orb, phase=(0, 4))
     with pytest.raises(ValueError, match="labels must name the 4 state components, got 2"):
         gait_orbit(orb, labels=["z", "vz"])
     st = orb.stability(n_directions=50, iterations=100)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._tables import corner_point_bytes
 from ..triangulation import load_triangulation, save_files
-from .systems import load_example
+from .systems import load_example, refuse_without_triangulation
 from .usage import UsageError, check_writable_directory, not_writable, require_memory
 
 #: random vectors on which every file read back is compared with the B-derivative
@@ -73,6 +73,7 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
             f"< n: its B-derivative has no triangulation (it is still evaluated exactly by "
             f"BDerivative)"
         )
+    refuse_without_triangulation(example, bd)  # resets that forget a direction
     if math.factorial(n) > max_pieces:
         raise UsageError(
             f"{n} events give 2 * {n}! simplices, more than 2 * --max-pieces={max_pieces}"

@@ -11,7 +11,7 @@ import os
 import numpy as np
 
 from .machine import describe
-from .systems import ORBIT_EXAMPLES, load_example, load_orbit
+from .systems import ORBIT_EXAMPLES, load_example, load_gait, load_orbit
 from .usage import (
     UsageError,
     check_writable_directory,
@@ -33,7 +33,7 @@ MAX_SIDE_PIXELS = 1 << 16
 MAX_PIXELS = 89_478_485
 #: simulated strides of the growth figure's decay check (the iterations it shows), and the
 #: directions and size of its perturbations
-DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-2
+DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-3
 
 
 def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-figures",
@@ -74,10 +74,11 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
             "(or `bderiv bench --plot scaling.png`) and pass --bench-json rows.json"
         )
     bench = read_bench(bench_json) if bench_json else None
-    # what the figures draw: a gait's periodic orbit, or the B-derivative at an event point
+    # what the figures draw: a gait's periodic orbit (found below, once the figures asked
+    # for are known to apply: it takes seconds), or the B-derivative at an event point
     if example in ORBIT_EXAMPLES:
-        _, subject = load_orbit(example, n, extended)
-        sizes = (subject.system.dim, subject.system.n_events)
+        model = load_gait(example, n, extended)
+        sizes = (model.system.dim, model.system.n_events)
     else:
         _, subject = load_example(example, n, extended)
         sizes = (subject.dim, subject.n_events)
@@ -92,6 +93,8 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
         refused = _not_applicable(wanted, example, *sizes)
         if refused:
             raise UsageError(_refusal(*next(iter(refused.items())), example, *sizes))
+    if example in ORBIT_EXAMPLES and set(wanted) - {"scaling"}:
+        _, subject = load_orbit(example, model=model)
     figs = {name: plot.scaling(bench["rows"], machine=bench["machine"]) if name == "scaling"
             else _draw(plot, name, example, subject) for name in wanted}
     for name, fig in figs.items():  # refuse a --dpi before writing anything
@@ -108,7 +111,7 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
 def _draw(plot, name, example, subject):
     """The figure ``name`` of a B-derivative, or of a gait's periodic orbit."""
     if name == "orbit":
-        return plot.gait_orbit(subject, labels=ORBIT_EXAMPLES[example])
+        return plot.gait_orbit(subject, **ORBIT_EXAMPLES[example])
     if name == "growth":
         return plot.gait_growth(subject, iterations=DECAY_STRIDES, decay=_decay(subject))
     draw = {"field": plot.corner_field, "triangulation": plot.triangulation,

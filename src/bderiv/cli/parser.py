@@ -20,6 +20,7 @@ from .export import run_export
 from .figures import DECAY_STRIDES, FIGURES, GAIT_FIGURES, run_figures
 from .systems import (
     GAIT_EXAMPLES,
+    IMPACT_EXAMPLES,
     MODEL_EXAMPLES,
     NETWORK_MAX_N,
     ORBIT_EXAMPLES,
@@ -143,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     p = sub.add_parser("plot", help="figures to PNG, PDF or SVG files")
-    _add_example_args(p, "planar", tuple(ORBIT_EXAMPLES))
+    _add_example_args(p, "planar", (*ORBIT_EXAMPLES, *IMPACT_EXAMPLES))
     p.add_argument("--figure", nargs="+", choices=(*FIGURES, "all"), metavar="NAME",
                    help=f"which figures, among {', '.join(FIGURES)}, all (default: all that "
                    "apply to the system; scaling only with --bench-json). note: the "
@@ -165,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the files written as JSON")
 
     p = sub.add_parser("export", help="the triangulation to .npz and .json")
-    _add_example_args(p, "chair")
+    _add_example_args(p, "chair", IMPACT_EXAMPLES)
     p.add_argument("--map", choices=("event", "flow"), default="event",
                    help="event (default): the B-derivative at the event point; flow: the "
                    "B-derivative of the flow from x0 over [0, t_final] (models with one "

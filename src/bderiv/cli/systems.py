@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from .. import examples
 from ..bderivative import BDerivative
 from .usage import UsageError
@@ -13,9 +15,18 @@ MODEL_EXAMPLES = ("chair", "network", "table")
 #: examples whose demo is a summary of their own (``demo`` only): a gait's periodic orbit
 #: and stability verdict, an impact with resets checked against simulation
 GAIT_EXAMPLES = ("pronking", "landing")
-#: gait examples with a periodic orbit (``plot``'s figures orbit and growth), with the
-#: names of their state components
-ORBIT_EXAMPLES = {"pronking": ("z", "theta", "vz", "omega")}
+#: gait examples with a periodic orbit (``plot``'s figures orbit and growth), with what
+#: the orbit figure names: the state components and time with their units, the phases
+#: (regions by mask)
+ORBIT_EXAMPLES = {"pronking": {
+    "labels": ("height $z$ (m)", "pitch $\\theta$ (rad)", "vertical velocity $v_z$ (m/s)",
+               "pitch rate $\\omega$ (rad/s)"),
+    "time_label": "time (s)",
+    "phases": {3: "stance: both feet on the ground"},
+}}
+#: impact examples (models with resets) whose B-derivative at the event point ``plot`` and
+#: ``export`` take as they take the models'
+IMPACT_EXAMPLES = ("landing",)
 #: largest n of the scalable network family the CLI accepts
 NETWORK_MAX_N = 20
 
@@ -34,7 +45,7 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
     Parameters
     ----------
     name : str
-        One of :data:`MODEL_EXAMPLES` or :data:`TABLE_EXAMPLES`.
+        One of :data:`MODEL_EXAMPLES`, :data:`TABLE_EXAMPLES` or :data:`IMPACT_EXAMPLES`.
     n : int, optional
         Number of events of ``network`` (default 3); refused for the other examples.
     extended : bool
@@ -61,6 +72,8 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
         ex = examples.chair()
     elif name == "table":
         ex = examples.table()
+    elif name == "landing":
+        ex = examples.impacts.landing()
     else:
         n = 3 if n is None else n
         if not 1 <= n <= NETWORK_MAX_N:
@@ -69,7 +82,20 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
     return ex, ex.system.bderivative(ex.rho)
 
 
-def load_orbit(name: str, n: int | None = None, extended: bool = False):
+def refuse_without_triangulation(name: str, bd) -> None:
+    """A usage error if the resets of ``bd`` (the example ``name``) make it no
+    homeomorphism, so that it has no triangulation (docs/mathematics.md section 9): a
+    singular reset, such as an impact that stops a velocity, forgets a direction."""
+    if bd.resets is None:
+        return
+    try:
+        bd.inverse(np.zeros((1, bd.dim)))  # builds the inverse resets: refuses singular ones
+    except ValueError as exc:
+        raise UsageError(f"{name} has no triangulation (nor has its flow map, which "
+                         f"contains the same resets): {exc}") from None
+
+
+def load_orbit(name: str, n: int | None = None, extended: bool = False, model=None):
     """The gait example ``name`` and its periodic orbit, found as ``bderiv demo`` finds it.
 
     Parameters
@@ -78,6 +104,8 @@ def load_orbit(name: str, n: int | None = None, extended: bool = False):
         One of :data:`ORBIT_EXAMPLES`.
     n, extended
         Refused (options of ``network``), as in :func:`load_example`.
+    model : Example, optional
+        The gait's model from :func:`load_gait` (built here if not given).
 
     Returns
     -------
@@ -86,9 +114,22 @@ def load_orbit(name: str, n: int | None = None, extended: bool = False):
         By Newton's method from a perturbed apex state
         (:func:`bderiv.examples.gaits.pronking_orbit`, the demo's orbit).
     """
+    ex = load_gait(name, n, extended) if model is None else model
+    return ex, examples.gaits.pronking_orbit(ex)
+
+
+def load_gait(name: str, n: int | None = None, extended: bool = False):
+    """The model of the gait example ``name``, without its orbit (found in seconds by
+    :func:`load_orbit`): its sizes decide which figures apply before any work.
+
+    Examples
+    --------
+    >>> ex = load_gait("pronking")
+    >>> ex.system.n_events, ex.system.dim
+    (2, 4)
+    """
     _network_options_only(name, n, extended)
     if name not in ORBIT_EXAMPLES:
         raise UsageError(f"{name!r} has no periodic orbit; the gaits are "
                          f"{', '.join(ORBIT_EXAMPLES)}")
-    ex = examples.gaits.pronking()
-    return ex, examples.gaits.pronking_orbit(ex)
+    return examples.gaits.pronking()
