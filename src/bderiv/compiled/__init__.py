@@ -10,6 +10,9 @@ the variational equations. The foundation of the compiled path of issue 19; see
 
 from __future__ import annotations
 
+from ._cached import key_all_kernels
 from .stretch import Stretch, integrate_stretch
+
+key_all_kernels()
 
 __all__ = ["Stretch", "integrate_stretch"]

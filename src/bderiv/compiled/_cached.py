@@ -1,0 +1,44 @@
+"""The on-disk cache of the integrator's kernels, keyed by every source file of the package.
+
+Numba invalidates a cached function when its own file changes, not when a function it
+calls (and compiled into it) does: after an edit of ``_rhs.py`` the driver and the steps
+would load the old right-hand side from the cache. Every kernel here is therefore cached
+under a key that includes a digest of all of ``compiled/``'s sources, in bderiv's checked
+cache format (:class:`bderiv._kernels._cache.DriverCache`: a damaged entry is compiled
+again, never run).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import pathlib
+import sys
+
+from numba.core.caching import FunctionCache
+from numba.core.dispatcher import Dispatcher
+
+from .._kernels._cache import DriverCache, harden
+
+
+def _sources_digest() -> str:
+    h = hashlib.sha256()
+    for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
+        h.update(path.name.encode() + path.read_bytes())
+    return h.hexdigest()
+
+
+def key_all_kernels() -> None:
+    """Give every lazily compiled, cached kernel of ``bderiv.compiled`` the sources key.
+
+    (The few kernels with an explicit signature compile at import, before this runs: they
+    call nothing of the package.)
+    """
+    digest = _sources_digest()
+    for name, module in list(sys.modules.items()):
+        if not name.startswith(__package__ + ".") or module is None:
+            continue
+        for value in list(vars(module).values()):
+            if (isinstance(value, Dispatcher) and value.py_func.__module__ == name
+                    and type(value._cache) is FunctionCache and not value.signatures):
+                key = f"{name}.{value.py_func.__qualname__}:{digest}"
+                harden(value, DriverCache(value.py_func, key))
