@@ -357,3 +357,35 @@ def test_damaged_kernel_cache_is_compiled_again(tmp_path):
     third, log = run()
     assert_array_equal(third, expected)
     assert log == ""
+
+
+# -- 9e: a tight address-space limit gives a MemoryError, not an abort --------------------------
+
+_LIMIT_PROBE = """
+import os, resource
+import numpy as np
+from bderiv import BDerivative
+F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+bd = BDerivative(np.eye(2), F)
+bd(-np.ones((10, 2)))  # the serial kernels, compiled without a limit
+with open("/proc/self/statm") as fh:
+    used = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+resource.setrlimit(resource.RLIMIT_AS, (used + (8 << 20), resource.RLIM_INFINITY))
+try:
+    bd(np.random.default_rng(0).standard_normal((5000, 2)))  # the parallel driver: new
+except MemoryError as exc:
+    print("MemoryError:", exc)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="RLIMIT_AS and /proc")
+def test_first_parallel_call_under_a_tight_limit_raises(tmp_path):
+    """8 MiB of address space left before the first parallel call: LLVM (compiling) or
+    the OpenMP runtime (starting threads) aborted the process; now a MemoryError names the
+    limit, and the process lives on."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    out = subprocess.run([sys.executable, "-c", _LIMIT_PROBE], capture_output=True,
+                         text=True, env=env, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "MemoryError:" in out.stdout
+    assert "address-space limit (RLIMIT_AS, ulimit -v)" in out.stdout

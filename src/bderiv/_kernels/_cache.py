@@ -28,6 +28,12 @@ import os
 import pickle
 import sys
 
+try:
+    import resource
+except ImportError:  # not on Windows: no address-space limit to check
+    resource = None
+
+import numba
 from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.dispatcher import Dispatcher
 
@@ -60,17 +66,32 @@ class CheckedCacheFile(IndexDataCacheFile):
 class CheckedCache(FunctionCache):
     """A function's cache whose failures are misses: compiled again, never raised."""
 
-    def __init__(self, py_func):
+    def __init__(self, py_func, parallel: bool = False):
         super().__init__(py_func)
+        self._parallel = parallel
         old = self._cache_file
         self._cache_file = CheckedCacheFile(old._cache_path, _base(old), old._source_stamp)
 
     def load_overload(self, sig, target_context):
+        # the first parallel kernel starts the threads, and the OpenMP runtime exits the
+        # process when it cannot create them: asked before the first one is loaded
+        threads = self._parallel and not _THREADS_CHECKED
         try:
-            return super().load_overload(sig, target_context)
-        except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises
-            self._discard(exc)
-            return None
+            data = super().load_overload(sig, target_context)
+        except OSError as exc:  # unreadable (permissions, I/O): a miss, not damage
+            log.debug("bderiv: kernel cache not read (%s: %s)", type(exc).__name__, exc)
+            data = None
+        except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises (also a
+            self._discard(exc)  # MemoryError: a garbled pickle may claim any length)
+            data = None
+        if data is None:  # numba compiles next: LLVM aborts the process when out of memory
+            check_address_space(COMPILE_BYTES, f"compiling the kernel "
+                                f"{self._py_func.__qualname__} (its first use here)")
+        if threads:
+            check_address_space(thread_bytes(), f"starting {numba.config.NUMBA_NUM_THREADS} "
+                                f"threads for the parallel kernels")
+            _threads_checked()
+        return data
 
     def save_overload(self, sig, data):
         try:
@@ -102,6 +123,61 @@ class CheckedCache(FunctionCache):
 _WARNED: set = set()
 
 
+#: address space a kernel's compilation may take (LLVM; measured 50 to 70 MiB for the
+#: drivers of a small dense map), with a margin
+COMPILE_BYTES = 128 << 20
+#: address space a thread takes besides its stack (guard page, TLS, the runtime's own
+#: structures; glibc's malloc arena of a thread is reserved only when it fits)
+THREAD_EXTRA_BYTES = 2 << 20
+
+
+def thread_bytes() -> int:
+    """Address space the parallel kernels' threads take: a stack (``RLIMIT_STACK``, the
+    default pthread stack) and :data:`THREAD_EXTRA_BYTES` each."""
+    stack = resource.getrlimit(resource.RLIMIT_STACK)[0] if resource else -1
+    if stack <= 0 or stack == getattr(resource, "RLIM_INFINITY", -1):
+        stack = 8 << 20
+    return numba.config.NUMBA_NUM_THREADS * (stack + THREAD_EXTRA_BYTES)
+
+
+#: whether the threads' address space was checked in this process (before the first
+#: parallel kernel of bderiv ran)
+_THREADS_CHECKED = False
+
+
+def _threads_checked() -> None:
+    global _THREADS_CHECKED
+    _THREADS_CHECKED = True
+
+
+def check_address_space(need: int, what: str) -> None:
+    """Raise ``MemoryError`` when ``need`` more bytes of address space exceed ``RLIMIT_AS``.
+
+    LLVM (a compilation) and the OpenMP runtime (starting threads) abort the whole process
+    when an allocation fails under ``ulimit -v``; checked here first, the caller gets an
+    exception that names the limit. Nothing is checked without a limit, or where the
+    address space in use cannot be read (``/proc/self/statm``).
+    """
+    if resource is None:
+        return
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit in (resource.RLIM_INFINITY, -1):
+        return
+    try:
+        with open("/proc/self/statm") as fh:
+            used = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return
+    if used + need > limit:
+        mib = 1 << 20
+        raise MemoryError(
+            f"{what} needs about {need // mib} MiB of address space, but the address-space "
+            f"limit (RLIMIT_AS, ulimit -v) of {limit // mib} MiB leaves "
+            f"{max(limit - used, 0) // mib} MiB; raise the limit (or run once without it: "
+            f"compiled kernels are cached on disk for later processes)"
+        )
+
+
 def _base(cache_file: IndexDataCacheFile) -> str:
     """The file name base numba chose (its index file's name without ``.nbi``)."""
     return cache_file._index_name[: -len(".nbi")]
@@ -118,8 +194,8 @@ class DriverCache(CheckedCache):
     it calls (numba itself watches only the driver's own file).
     """
 
-    def __init__(self, py_func, key: str):
-        super().__init__(py_func)
+    def __init__(self, py_func, key: str, parallel: bool = False):
+        super().__init__(py_func, parallel)
         self._key = key
 
     def _index_key(self, sig, codegen):
@@ -132,7 +208,8 @@ def harden(dispatcher, cache=None):
     Left as it is when numba's internals differ from what this module knows.
     """
     try:
-        dispatcher._cache = CheckedCache(dispatcher.py_func) if cache is None else cache
+        parallel = bool(dispatcher.targetoptions.get("parallel"))
+        dispatcher._cache = CheckedCache(dispatcher.py_func, parallel) if cache is None else cache
     except Exception:  # another numba: its own cache stays  # noqa: BLE001
         pass
     return dispatcher

@@ -81,7 +81,8 @@ def _cached(dispatcher, block, statics):
            f"{tuple(len(s) for s in statics)}:{_SOURCES}")
     harden_all()
     try:
-        return harden(dispatcher, DriverCache(dispatcher.py_func, key))
+        parallel = bool(dispatcher.targetoptions.get("parallel"))
+        return harden(dispatcher, DriverCache(dispatcher.py_func, key, parallel))
     except Exception:  # another numba: leave the driver uncached  # noqa: BLE001
         return dispatcher
 
