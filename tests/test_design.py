@@ -19,7 +19,7 @@ LAYERS = [
     {"checks"},
     {"simulate", "crossings", "flowmap", "returnmap", "stability", "excursions",
      "finaltime"},
-    {"compiled"},  # the compiled integrator (issue 19): imports only the helpers
+    {"compiled"},  # the compiled integrator (issue 19)
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},
     {"corners", "_engines"},
     {"_kernels"},
