@@ -17,7 +17,7 @@ LAYERS = [
     {"plot", "examples", "_bench"},  # _bench: the sweep of `bderiv bench`
     {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff"},  # orbit: issue 12
     {"checks"},
-    {"simulate", "crossings", "flowmap", "returnmap", "stability", "excursions",
+    {"simulate", "crossings", "locate", "flowmap", "returnmap", "stability", "excursions",
      "finaltime"},
     {"compiled"},  # the compiled integrator (issue 19)
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},

@@ -5,7 +5,8 @@ A region is named by the signs of the event functions (bit k of the mask set iff
 bit is set) or downward (the bit is cleared), any number of times. At each stop of the
 integrator :func:`switch` decides which events cross together (one :class:`EventGroup`),
 checks every crossing is transversal on both sides, in the direction it is crossed, and
-returns the mask after them (the mask before with the group's bits flipped).
+returns the mask after them (the mask before with the group's bits flipped). Which events
+are at the stop is decided by the rules of :mod:`bderiv.locate` (each event's window).
 
 In a group's **local orientation** an event crossed downward has its function negated
 (``-h_k``), so that every event of the group is crossed upward: the group's B-derivative
@@ -20,13 +21,17 @@ from typing import NamedTuple
 import numpy as np
 
 from ._format import format_mask, transversality_message
+from .locate import GLOBAL_ERROR_FACTOR, classify, local_view, state_error, windows
 
-__all__ = ["EventGroup", "EventRecord", "apply_resets", "group_tolerance", "switch"]
+__all__ = [
+    "GLOBAL_ERROR_FACTOR",
+    "EventGroup",
+    "EventRecord",
+    "apply_resets",
+    "group_tolerance",
+    "switch",
+]
 
-#: global over local error of the integrator in :func:`group_tolerance`: an adaptive
-#: Runge-Kutta method keeps each step's error below atol + rtol |x|; the error of the
-#: state at a stop, a sum of such step errors, is a modest multiple of it.
-GLOBAL_ERROR_FACTOR = 10.0
 #: resets of simultaneous events whose results differ by more than this times the
 #: accuracy of the state at the stop do not commute (:func:`apply_resets`).
 RESET_MISMATCH = 1e3
@@ -89,20 +94,30 @@ class EventGroup(NamedTuple):
         return tuple(-1 if self.mask_before >> k & 1 else 1 for k in self.events)
 
 
-def group_tolerance(Dh: np.ndarray, options, scale: float) -> np.ndarray:
-    """Largest ``|h_k(x)|`` at which event k counts as being at the stop ``x``: shape (n,).
+def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
+    """Largest ``|h_k(x)|`` at which event k counts as being at the stop ``x``, from the
+    state's error alone: shape (n,).
 
     The integrator keeps each component's step error below ``atol + rtol * |x_i|``; with
-    ``scale`` the largest ``|x_i|`` met so far, a state error ``e`` with
-    ``|e_i| <= GLOBAL_ERROR_FACTOR * (atol + rtol * scale)`` moves ``h_k`` by at most
-    ``|Dh[k]|_1`` times that. Events closer than this to their surface cannot be told
-    from simultaneous at the solver's accuracy; events further away are not at the stop.
+    ``scale`` the largest ``|x_i|`` met so far (a float, or one per component: shape (d,)),
+    the state's error is bounded by :func:`bderiv.locate.state_error`, and ``h_k`` moves by
+    at most ``sum_i |Dh[k, i]| err_i``: only the components event k depends on count. At a
+    stop, :func:`switch` adds the uncertainty of the stop's own time
+    (:func:`bderiv.locate.windows`).
+
+    Examples
+    --------
+    An event that does not depend on a large coordinate is not widened by it:
+
+    >>> from bderiv.simulate import SolverOptions
+    >>> group_tolerance(np.array([[1.0, 0.0]]), SolverOptions(), np.array([1e-3, 500.0]))
+    array([1.1e-11])
     """
-    step = options.atol + options.rtol * scale
-    return GLOBAL_ERROR_FACTOR * step * np.abs(Dh).sum(axis=1)
+    err = state_error(options.atol, options.rtol, scale)
+    return np.abs(Dh) @ np.broadcast_to(err, Dh.shape[1:])
 
 
-def switch(system, fired, mask, x, t, simultaneity_tol, options, scale):
+def switch(system, fired, mask, x, t, simultaneity_tol, err):
     """The events that cross at the stop ``(t, x)`` and the mask after them.
 
     Parameters
@@ -116,8 +131,9 @@ def switch(system, fired, mask, x, t, simultaneity_tol, options, scale):
     t : float
     simultaneity_tol : float
         Events within this time (first order) of crossing are switched too; they must be
-        at ``x`` to within :func:`group_tolerance` (``scale``: the largest ``|x_i|`` so far).
-    options : SolverOptions
+        at ``x`` to within their window (:func:`bderiv.locate.windows`).
+    err : ndarray, shape (d,)
+        Bound on the error of ``x``, per component (:func:`bderiv.locate.state_error`).
 
     Returns
     -------
@@ -136,30 +152,19 @@ def switch(system, fired, mask, x, t, simultaneity_tol, options, scale):
         not at ``x``, and on resets that disagree or jump across a surface.
     """
     n = system.n_events
-    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])  # local orientation
-    h = sign * system.eval_events(x)
-    Dh = sign[:, None] * system.eval_event_jacobian(x)
-    F = system.eval_field(x, mask)
-    rate = Dh @ F
-    tol = group_tolerance(Dh, options, scale)
-    group, near = [], []
-    for k in range(n):
-        # crossed, located or not (two surfaces crossed in one step): always switched, so
-        # none is ever lost; an event within tol of its surface is at it, and crosses
-        # only if the flow carries it across (an event just switched back sits there)
-        if k in fired or h[k] > tol[k]:
-            group.append(k)
-        elif rate[k] > 0 and -h[k] / rate[k] <= simultaneity_tol:
-            group.append(k)
-            near.append(k)
-    _check_near(near, h, rate, tol, group, t, simultaneity_tol)
+    sign, h, Dh, F, rate = local_view(system, mask, x)
+    window, _ = windows(Dh, rate, err, fired)
+    # crossed, located or not (two surfaces crossed in one step): always switched, so
+    # none is ever lost (bderiv.locate.classify)
+    classes = classify(h, rate, window, fired, simultaneity_tol)
+    group = classes.group
+    _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
     new = mask ^ sum(1 << k for k in group)
     x_after, Dh_after = x, Dh
     if system.has_resets:
-        accuracy = RESET_MISMATCH * GLOBAL_ERROR_FACTOR * (options.atol + options.rtol * scale)
-        x_after = apply_resets(system, group, mask, x, t, accuracy)
+        x_after = apply_resets(system, group, mask, x, t, RESET_MISMATCH * float(err.max()))
         Dh_after = sign[:, None] * system.eval_event_jacobian(x_after)
-        _check_after_resets(sign * system.eval_events(x_after), group, tol, t)
+        _check_after_resets(sign * system.eval_events(x_after), group, window, t)
     F_new = system.eval_field(x_after, new)
     for k in group:
         _check_crossing(k, Dh[k], F, mask, f"before switching events {group}", t, sign[k], n)
@@ -231,16 +236,17 @@ def _check_crossing(k, dh, F, mask, when, t, sign, n):
     raise ValueError(f"{message}; event {k} crossed {direction_name(sign)}{downward}")
 
 
-def _check_near(near, h, rate, tol, group, t, simultaneity_tol):
-    """Refuse events grouped by ``simultaneity_tol`` that are not at the stop."""
-    far = [k for k in near if abs(h[k]) > tol[k]]
-    if not far:
+def _check_near(near, h, rate, window, group, t, simultaneity_tol):
+    """Refuse events grouped by ``simultaneity_tol`` that are not at the stop: each is
+    further from its surface than its window, so its time is known better than its gap."""
+    if not near:
         return
-    k = far[0]
-    gap = -h[k] / rate[k]
+    k = near[0]
+    gap, known = -h[k] / rate[k], window[k] / rate[k]
     raise ValueError(
         f"events {group} were grouped at t={t:.10g} by simultaneity_tol={simultaneity_tol:g}, "
         f"but event {k} is not at that point: h_{k} = {h[k]:.3g}, beyond the integration "
-        f"accuracy {tol[k]:.3g}; it happens about {gap:.3g} later. Switching it early would "
-        f"give a wrong state: pass a simultaneity_tol below {gap:.3g} to switch it on its own"
+        f"accuracy {window[k]:.3g}; it happens about {gap:.3g} later (its time is known to "
+        f"{known:.3g}). Switching it early would give a wrong state: pass a simultaneity_tol "
+        f"below {gap:.3g} (and above {known:.3g}) to switch it on its own"
     )

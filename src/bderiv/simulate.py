@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from dataclasses import field as dc_field
+from functools import partial
 
 import numpy as np
 from scipy.integrate import OdeSolver, solve_ivp
@@ -24,6 +25,7 @@ from ._validate import check_number, check_positive_int
 from .crossings import GLOBAL_ERROR_FACTOR, EventGroup, EventRecord, group_tolerance, switch
 from .excursions import without_lost_crossings
 from .finaltime import pending_at_final_time
+from .locate import on_side_at_start, settle
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -220,7 +222,7 @@ def _integrate_stretch(system, x, t, t_final, mask, options, events, variational
             return system.eval_field(y, mask)
 
         y0 = x
-    funcs = events.terminal_events(mask)
+    funcs = on_side_at_start(events.terminal_events(mask), t, mask, system.n_events)
 
     def solve(start, y_start, stop):
         sol = solve_ivp(rhs, (start, stop), y_start, events=funcs, dense_output=True,
@@ -294,20 +296,23 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     d, n = system.dim, system.n_events
     mask = system.start_mask(x0)
     events, log = _EventValues(system, section), _Log()
-    t, x, scale = 0.0, x0, float(np.abs(x0).max())
+    t, x, scale, err = 0.0, x0, np.abs(x0), np.zeros(d)
     while True:
         sol = _integrate_stretch(system, x, t, t_final, mask, options, events, variational)
+        again = partial(_integrate_stretch, system, x, t, t_final, mask, events=events,
+                        variational=variational)
+        sol, err = settle(system, mask, sol, simultaneity_tol, options, scale, err,
+                          again if variational else None)
         log.add_stretch(sol, mask, d, variational)
         t, x = float(sol.t[-1]), np.array(sol.y[:d, -1])
-        scale = max(scale, float(np.abs(sol.y[:d]).max()))
+        scale = np.maximum(scale, np.abs(sol.y[:d]).max(axis=1))
         fired = [k for k in range(n) if sol.t_events[k].size]
         if section is not None and sol.t_events[n].size:
             _refuse_event_at_return(fired, t)
             break
         if sol.status == 0:
             break
-        group, new, x_after = switch(system, fired, mask, x, t, simultaneity_tol, options,
-                                     scale)
+        group, new, x_after = switch(system, fired, mask, x, t, simultaneity_tol, err)
         log.records.extend(EventRecord(t, k, new) for k in group)
         log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy()))
         mask, x = new, x_after

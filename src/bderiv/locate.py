@@ -1,0 +1,286 @@
+"""Event location at a stop of the integrator: how well each event is known, and when.
+
+The rules here are plain functions of arrays (the state's error bound, the event values,
+their gradients ``Dh`` and rates ``Dh . F``), written once for any integrator; only
+:func:`settle` and :func:`on_side_at_start` deal with :func:`scipy.integrate.solve_ivp`
+(docs/mathematics.md, section 11).
+
+At a stop ``x`` (the located crossing of the events that ``fired``):
+
+- the state is trusted to ``err_i = GLOBAL_ERROR_FACTOR (atol + rtol s_i)`` per component
+  (:func:`state_error`; ``s_i`` the largest ``|x_i|`` of the run so far), so event k's
+  value to ``sigma_k = sum_i |Dh_ki| err_i``: only the components it depends on count;
+- the stop's time is uncertain by ``u = max_j sigma_j / rate_j`` over the fired events;
+- event k is **at the stop** when ``|h_k| <= window_k = sigma_k + |rate_k| u``
+  (:func:`windows`), and its time is then known to ``U_k = window_k / rate_k``.
+
+Events at the stop are grouped: the integrator cannot order them. Those with ``U_k`` above
+``simultaneity_tol`` are **undecided**: they may be simultaneous or further apart than the
+tolerance. Where a derivative is computed, :func:`settle` integrates the stretch again
+with tighter tolerances until each is decided (at the stop within the tolerance, or
+clearly apart) or solve_ivp's floor is reached.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "GLOBAL_ERROR_FACTOR",
+    "Classes",
+    "classify",
+    "local_view",
+    "on_side_at_start",
+    "settle",
+    "state_error",
+    "tightened",
+    "windows",
+]
+
+#: global over local error of the integrator: an adaptive Runge-Kutta method keeps each
+#: step's error below atol + rtol |x_i|; the error of the state at a stop, a sum of such
+#: step errors, is a modest multiple of it.
+GLOBAL_ERROR_FACTOR = 10.0
+#: each tighter integration of an undecided stretch divides rtol and atol by this.
+REFINE_FACTOR = 100.0
+#: the smallest rtol solve_ivp honours (``bderiv.simulate.MIN_RTOL``).
+FINEST_RTOL = 100 * np.finfo(np.float64).eps
+
+
+def state_error(atol, rtol, scale, carried=0.0) -> np.ndarray:
+    """Bound on the error of the state at a stop, per component: shape (d,).
+
+    Parameters
+    ----------
+    atol : float or ndarray, shape (d,)
+    rtol : float
+        The tolerances of the stretch that ends at the stop.
+    scale : float or ndarray, shape (d,)
+        Largest ``|x_i|`` of the run up to the stop.
+    carried : float or ndarray, shape (d,)
+        Bound at the start of the stretch (0 at the run's start point, which is exact): a
+        stretch integrated more tightly than the run before it is no better than its start.
+
+    Examples
+    --------
+    >>> state_error(1e-12, 1e-10, np.array([500.0, 1e-3]))
+    array([5.0001e-07, 1.1000e-11])
+    """
+    return np.maximum(carried, GLOBAL_ERROR_FACTOR * (atol + rtol * np.asarray(scale)))
+
+
+def windows(Dh, rate, err, fired):
+    """Largest ``|h_k|`` at which event k is at the stop, and the stop's time uncertainty.
+
+    Parameters
+    ----------
+    Dh : ndarray, shape (n, d)
+        Event gradients at the stop.
+    rate : ndarray, shape (n,)
+        ``Dh . F`` in the region before the stop (in the events' local orientation).
+    err : ndarray, shape (d,)
+        The state's error bound (:func:`state_error`).
+    fired : sequence of int
+        The events whose crossing the integrator located at the stop.
+
+    Returns
+    -------
+    window : ndarray, shape (n,)
+        ``sigma_k + |rate_k| u``: event k's value is known to ``sigma_k = |Dh_k| . err``,
+        and the stop's time to ``u``, which moves ``h_k`` by ``|rate_k| u``.
+    u : float
+        ``max sigma_j / rate_j`` over the fired events crossing (rate > 0); 0 if none.
+
+    Examples
+    --------
+    A slow event (rate 1e-4) that stopped the integrator makes its time uncertain, and with
+    it the value of a fast event at the stop:
+
+    >>> w, u = windows(np.eye(2), np.array([1.0, 1e-4]), np.array([1e-9, 1e-11]), [1])
+    >>> float(u), w.tolist()
+    (1e-07, [1.01e-07, 2e-11])
+    """
+    sigma = np.abs(Dh) @ err
+    located = [sigma[j] / rate[j] for j in fired if rate[j] > 0]
+    u = max(located, default=0.0)
+    return sigma + np.abs(rate) * u, float(u)
+
+
+class Classes:
+    """The events at a stop sorted by :func:`classify` (lists of event indices).
+
+    Attributes
+    ----------
+    group : list of int
+        Switched at the stop: fired, crossed (``h_k > window_k``), or at the stop and
+        crossing within ``simultaneity_tol``.
+    near : list of int
+        Within ``simultaneity_tol`` of crossing but not at the stop: grouping them would
+        switch them early (refused).
+    undecided : list of int
+        At the stop and crossing, with a time uncertainty ``window_k / rate_k`` above
+        ``simultaneity_tol``: whether they belong to the group is not known.
+    """
+
+    def __init__(self, group, near, undecided):
+        self.group, self.near, self.undecided = group, near, undecided
+
+
+def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
+    """Sort the events at a stop (all arrays in the events' local orientation).
+
+    Parameters
+    ----------
+    h, rate, window : ndarray, shape (n,)
+        Event values, rates and windows (:func:`windows`) at the stop.
+    fired : sequence of int
+    simultaneity_tol : float
+
+    Returns
+    -------
+    Classes
+        An event within its window of the surface is at it, and crosses with the group
+        if the flow carries it across (an event just switched back sits there): the
+        integrator cannot order it after the stop. It is undecided when its time is known
+        only to more than ``simultaneity_tol``.
+
+    Examples
+    --------
+    >>> c = classify(np.array([0.0, -1e-12, -1e-8]), np.ones(3), np.full(3, 1e-9), [0], 1e-7)
+    >>> c.group, c.near, c.undecided
+    ([0, 1, 2], [2], [])
+    >>> classify(np.array([0.0, -1e-12]), np.ones(2), np.full(2, 1e-9), [0], 1e-10).undecided
+    [1]
+    """
+    group, near, undecided = [], [], []
+    for k in range(h.size):
+        if k in fired or h[k] > window[k]:
+            group.append(k)
+        elif not rate[k] > 0:
+            continue
+        elif abs(h[k]) <= window[k]:
+            group.append(k)
+            if window[k] / rate[k] > simultaneity_tol:
+                undecided.append(k)
+        elif -h[k] / rate[k] <= simultaneity_tol:
+            group.append(k)
+            near.append(k)
+    return Classes(group, near, undecided)
+
+
+def local_view(system, mask, x):
+    """Event values, gradients, field and rates at ``x`` in the local orientation of
+    region ``mask`` (an event whose bit is set has its function negated).
+
+    Returns
+    -------
+    sign : ndarray, shape (n,)
+    h : ndarray, shape (n,)
+    Dh : ndarray, shape (n, d)
+    F : ndarray, shape (d,)
+        The field of region ``mask``.
+    rate : ndarray, shape (n,)
+        ``Dh @ F``.
+    """
+    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(system.n_events)])
+    Dh = sign[:, None] * system.eval_event_jacobian(x)
+    F = system.eval_field(x, mask)
+    return sign, sign * system.eval_events(x), Dh, F, Dh @ F
+
+
+def tightened(options):
+    """``options`` with rtol and atol divided by ``REFINE_FACTOR`` (rtol no lower than
+    ``FINEST_RTOL``), or None when rtol is already at that floor."""
+    if options.rtol <= FINEST_RTOL:
+        return None
+    return options.with_overrides(rtol=max(options.rtol / REFINE_FACTOR, FINEST_RTOL),
+                                  atol=options.atol / REFINE_FACTOR)
+
+
+def settle(system, mask, sol, simultaneity_tol, options, scale, carried, integrate=None):
+    """The stretch ``sol`` integrated again, more tightly, until no event at its stop is
+    undecided or rtol reaches ``FINEST_RTOL`` (events still undecided there are grouped:
+    the integrator cannot order them); and the state's error bound at the stop.
+
+    Parameters
+    ----------
+    system : HybridSystem
+    mask : int
+        The stretch's region.
+    sol : OdeResult
+        The stretch from solve_ivp (one terminal event function per event, in order).
+    simultaneity_tol : float
+    options : SolverOptions
+        The tolerances ``sol`` was integrated with.
+    scale : ndarray, shape (d,)
+        Largest ``|x_i|`` of the run before the stretch.
+    carried : ndarray, shape (d,)
+        The error bound at the stretch's start (:func:`state_error`).
+    integrate : callable ``integrate(options) -> OdeResult``, optional
+        Integrates the same stretch with other options; without it (a run that needs no
+        derivative: the state does not depend on how near events are grouped) ``sol`` is
+        returned as it is.
+
+    Returns
+    -------
+    sol : OdeResult
+    err : ndarray, shape (d,)
+    """
+    d, n = system.dim, system.n_events
+    while True:
+        err = state_error(options.atol, options.rtol,
+                          np.maximum(scale, np.abs(sol.y[:d]).max(axis=1)), carried)
+        fired = [k for k in range(n) if sol.t_events[k].size]
+        finer = None if integrate is None or sol.status != 1 else tightened(options)
+        if finer is None or not fired:
+            return sol, err
+        _, h, Dh, _, rate = local_view(system, mask, sol.y[:d, -1])
+        window, _ = windows(Dh, rate, err, fired)
+        if not classify(h, rate, window, fired, simultaneity_tol).undecided:
+            return sol, err
+        options, sol = finer, integrate(finer)
+
+
+def on_side_at_start(funcs, t0, mask, n):
+    """solve_ivp event functions for a stretch from ``t0`` that read an event exactly on
+    its surface at ``t0`` on the side its bit of ``mask`` says.
+
+    solve_ivp takes a value 0 at a step's start as the end of a crossing, and places the
+    root there: a stretch that starts exactly on a surface (a located stop can land with
+    ``h_k == 0.0``) would otherwise stop at once, crossing nothing.
+
+    Parameters
+    ----------
+    funcs : list of callables ``f(t, y)``
+        The terminal event functions, the first ``n`` for the events in order (further
+        ones, a section, are kept as they are).
+    t0 : float
+    mask : int
+    n : int
+
+    Returns
+    -------
+    list of callables
+        With the ``terminal`` and ``direction`` attributes of ``funcs``.
+
+    Examples
+    --------
+    >>> def f(t, y):
+    ...     return y[0]
+    >>> g, = on_side_at_start([f], 1.0, 0b0, 1)
+    >>> float(g(1.0, [0.0])) < 0.0, float(g(1.5, [0.0]))
+    (True, 0.0)
+    """
+    tiny = np.finfo(np.float64).tiny
+
+    def on_side(func, side):
+        def ev(t, y):
+            value = func(t, y)
+            return side * tiny if t == t0 and value == 0.0 else value
+
+        ev.terminal = getattr(func, "terminal", False)
+        ev.direction = getattr(func, "direction", 0)
+        return ev
+
+    return ([on_side(f, 1.0 if mask >> k & 1 else -1.0) for k, f in enumerate(funcs[:n])]
+            + list(funcs[n:]))
