@@ -452,8 +452,10 @@ def test_step_size_underflow():
         ({"atol": [1e-9]}, ValueError, r"atol must be a number or an array of shape \(2,\)"),
         ({"atol": [1e-9, 0.0]}, ValueError, r"atol must be finite and > 0 in every entry"),
         ({"t0": 5.0}, ValueError, r"t_final must be a finite number > 5, got 1.0"),
-        ({"mask": -1}, TypeError, r"mask must be an int >= 0, got int -1"),
-        ({"mask": 1.0}, TypeError, r"mask must be an int >= 0, got float"),
+        ({"mask": -1}, ValueError, r"mask must be in \[0, 2\*\*63\) \(one bit per event\), "
+                                   r"got -1"),
+        ({"mask": 2**63}, ValueError, r"mask must be in \[0, 2\*\*63\)"),
+        ({"mask": 1.0}, TypeError, r"mask must be an int, got float"),
         ({"max_step": 0.0}, ValueError, r"max_step must be a number > 0"),
         ({"first_step": -1.0}, ValueError, r"first_step must be a finite number > 0"),
     ],

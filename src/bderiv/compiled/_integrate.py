@@ -95,7 +95,8 @@ def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, 
     x = np.empty(d)
     ts = np.empty(64)
     xs = np.empty((64, d))
-    ts, xs, count = _record(ts, xs, 0, t0, y, d)
+    count = 0
+    ts, xs, count = _record(ts, xs, count, t0, y, d)
     jev = 1 if variational else 0
 
     t = t0

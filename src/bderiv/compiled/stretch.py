@@ -108,8 +108,11 @@ def _start(x0, mask, t0, t_final, max_step, first_step):
         raise ValueError(f"x0 must be a non-empty 1-D array, got shape {x0.shape}")
     if not np.isfinite(x0).all():
         raise ValueError(f"x0 must be finite, got {x0}")
-    if isinstance(mask, bool) or not isinstance(mask, int | np.integer) or mask < 0:
-        raise TypeError(f"mask must be an int >= 0, got {type(mask).__name__} {mask!r}")
+    if isinstance(mask, bool) or not isinstance(mask, int | np.integer):
+        raise TypeError(f"mask must be an int, got {type(mask).__name__} {mask!r}")
+    if not 0 <= mask < 2**MAX_EVENTS:
+        raise ValueError(f"mask must be in [0, 2**{MAX_EVENTS}) (one bit per event), got "
+                         f"{mask!r}")
     t0 = check_number(t0, "t0", low=-np.inf)
     t_final = check_number(t_final, "t_final", low=t0)
     max_step = check_number(max_step, "max_step", allow_inf=True)
