@@ -155,8 +155,14 @@ def test_peak_brackets():
     v = np.array([[top - spread], [top], [top - spread]])
     assert peak_brackets(v, np.zeros(1)) == [(0, 0, 2)]
     assert peak_brackets(v - spread, np.zeros(1)) == []
-    # an end of the stretch is a candidate (its neighbour is lower)
-    assert peak_brackets(np.array([[-1e-3], [-2e-3]]), np.zeros(1)) == [(0, 0, 1)]
+    assert peak_brackets(v, np.zeros(1), reach=0.4) == []  # the finer screen's reach
+    # an end of the samples is a candidate (its neighbour is lower) ...
+    ends = np.array([[0.0], [-1e-3], [-2e-3], [-1e-3], [-1e-13]])
+    assert peak_brackets(ends, np.array([1e-12])) == [(0, 0, 1), (0, 3, 4)]
+    # ... but not at the surface when they span a stretch: the switch and the stop
+    assert peak_brackets(ends, np.array([1e-12]), stretch=True) == []
+    assert peak_brackets(ends - 1e-9, np.array([1e-12]), stretch=True) == [(0, 0, 1),
+                                                                           (0, 3, 4)]
 
 
 def test_peak_of_finds_the_top_and_the_ends():

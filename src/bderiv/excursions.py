@@ -15,16 +15,19 @@ point where ``h_k > 0``. With ``h`` sampled at the step ends and the midpoints o
 (:func:`sample_times`):
 
 1. :func:`peak_brackets`: every sample that is a local maximum of ``h_k`` (not lower than
-   its neighbours; an end of the stretch counts) and whose value could reach the surface,
+   its neighbours) and whose value could reach the surface,
    ``h_i + REACH (h_i - min(neighbours)) >= -tol_k``, gives a bracket: its neighbours'
    times. A smooth peak between samples rises above the highest sample by a fraction of
-   the samples' spread; ``REACH`` is ten times that.
-2. :func:`peak_of`: ``h_k`` along the dense output is maximised on the bracket (bounded
-   Brent, to a relative time accuracy ``PEAK_XTOL``). A peak above ``tol_k`` is a crossing
-   the integrator did not see; a peak within ``tol_k`` of the surface that rises above both
-   ends of its bracket by more than ``tol_k`` cannot be decided at this accuracy (a
-   grazing contact, where the flow has no B-derivative): refused. A peak at an end of the
-   stretch is left to the switching rule (:func:`bderiv.crossings.switch`).
+   the samples' spread; ``REACH`` is ten times that. The ends of the stretch are no peaks
+   where the event is at its surface (just switched at the start, at the stop at the end).
+2. The bracket is sampled again at ``FINE_SAMPLES`` points and screened with
+   ``FINE_REACH``; on what is left :func:`peak_of` maximises ``h_k`` along the dense
+   output (bounded Brent, to a relative time accuracy ``PEAK_XTOL``). A peak above
+   ``tol_k`` is a crossing the integrator did not see; a peak within ``tol_k`` of the
+   surface that rises above both ends of its bracket by more than ``tol_k`` cannot be
+   decided at this accuracy (a grazing contact, where the flow has no B-derivative):
+   refused. A peak at an end of the stretch is left to the switching rule
+   (:func:`bderiv.crossings.switch`).
 3. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
    before the earliest lost crossing's bracket to its peak, where ``h_k > 0``: the sign
    change is at the ends of a step now, and the crossing is located as any other.
@@ -45,9 +48,15 @@ __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_cr
 #: how far above the highest sample a peak may rise, in units of the samples' spread
 #: around it, for its bracket to be searched (a parabola rises at most by the spread).
 REACH = 10.0
+#: samples of a bracket, screened again (:func:`peak_brackets`) before a peak is searched:
+#: most brackets are dropped at this finer spacing, and the rest are eight times shorter.
+FINE_SAMPLES = 17
+#: the reach on those samples: a parabola through three equally spaced samples peaks
+#: above the highest by at most a quarter of its drop to the lower neighbour.
+FINE_REACH = 1.0
 #: time accuracy of a peak, relative to its bracket: ``h`` is flat at a peak, so its value
-#: is found to about the curvature times this squared.
-PEAK_XTOL = 1e-10
+#: is found to about the curvature times this squared (1e-14 of the bracket's scale).
+PEAK_XTOL = 1e-7
 
 
 def sample_times(ends: np.ndarray) -> np.ndarray:
@@ -64,7 +73,7 @@ def sample_times(ends: np.ndarray) -> np.ndarray:
     return out
 
 
-def peak_brackets(h: np.ndarray, tol: np.ndarray) -> list:
+def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH) -> list:
     """Brackets of the sampled local maxima that could reach the surface.
 
     Parameters
@@ -73,6 +82,14 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray) -> list:
         Event values (local orientation: pending means ``h < 0``) at m sample times.
     tol : ndarray, shape (n,)
         How well each event's value is known.
+    stretch : bool
+        The samples span a whole stretch: an event at its surface (``h_k >= -tol_k``) at
+        the first sample was just switched and leaves it, and one at the last sample is
+        at the integrator's stop (located there, or switched with the located ones), so
+        neither end is a peak to search there.
+    reach : float
+        How far above a sampled maximum a peak may rise, in units of its drop to the
+        lower neighbour.
 
     Returns
     -------
@@ -99,7 +116,9 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray) -> list:
         right = np.concatenate((v[1:], [-np.inf]))
         low = np.minimum(np.where(np.isfinite(left), left, right),
                          np.where(np.isfinite(right), right, left))
-        peak = (v >= left) & (v >= right) & (v + REACH * (v - low) >= -tol[k])
+        peak = (v >= left) & (v >= right) & (v + reach * (v - low) >= -tol[k])
+        if stretch:
+            peak[[0, -1]] &= v[[0, -1]] < -tol[k]
         out.extend((k, max(int(i) - 1, 0), min(int(i) + 1, m - 1))
                    for i in np.flatnonzero(peak))
     return sorted(out, key=lambda b: (b[1], b[0]))
@@ -187,12 +206,18 @@ def _earliest_lost(system, sign, options, sol):
     # a peak at an end of the stretch is not an excursion: at the start the events were
     # just switched (one may sit a rounding across its surface), at the stop an event is
     # located, or across and switched with it (crossings.switch)
-    for k, lo, hi in peak_brackets(h, tol):
+    for k, lo, hi in peak_brackets(h, tol, stretch=True):
 
         def value(t, k=k):
             return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
 
-        t_peak, top = peak_of(value, times[lo], times[hi])
+        fine = np.linspace(times[lo], times[hi], FINE_SAMPLES)
+        v = np.array([[sign[k] * system.eval_events(x)[k]] for x in sol.sol(fine)[:d].T])
+        sub = peak_brackets(v, tol[k : k + 1], reach=FINE_REACH)
+        if not sub:
+            continue
+        t_peak, top = max((peak_of(value, fine[a], fine[b]) for _, a, b in sub),
+                          key=lambda peak: peak[1])
         if not times[0] < t_peak < times[-1]:  # the ends were decided by the switching rule
             continue
         x_peak = sol.sol(t_peak)[:d]
