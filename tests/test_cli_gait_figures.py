@@ -205,8 +205,9 @@ def test_orbit_figure_refuses_bad_components(pronking):
     with pytest.raises(ValueError, match=r"components must be state indices in \[0, 4\), "
                                          r"got \[0, 7\]"):
         plot.gait_orbit(orbit, components=(0, 7))
-    with pytest.raises(ValueError, match=r"phase must be two state indices in \[0, 4\)"):
-        plot.gait_orbit(orbit, phase=(0, -1))
+    for phase in ((0, -1), (0, 1, 2)):
+        with pytest.raises(ValueError, match=r"phase must be two state indices in \[0, 4\)"):
+            plot.gait_orbit(orbit, phase=phase)
 
 
 # -- the impact example landing: plot and export ---------------------------------------------

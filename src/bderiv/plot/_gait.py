@@ -47,18 +47,18 @@ def gait_orbit(orbit, axes=None, *, components=None, phase=(0, 2), labels=None,
     -------
     matplotlib.figure.Figure
     """
-    traj = orbit.sample()
-    d, n = traj.x.shape[1], orbit.system.n_events
+    d, n = orbit.system.dim, orbit.system.n_events
     components = list(range(d)) if components is None else [int(c) for c in components]
-    i, j = (int(c) for c in phase)
     if not components or not all(0 <= c < d for c in components):
         raise ValueError(f"components must be state indices in [0, {d}), got {components}")
-    if not (0 <= i < d and 0 <= j < d):
+    if len(phase) != 2 or not all(0 <= int(c) < d for c in phase):
         raise ValueError(f"phase must be two state indices in [0, {d}), got {phase}")
+    i, j = (int(c) for c in phase)
     labels = [f"$x_{k}$" for k in range(d)] if labels is None else list(labels)
     if len(labels) != d:
         raise ValueError(f"labels must name the {d} state components, got {len(labels)}")
     phases = {} if phases is None else dict(phases)
+    traj = orbit.sample()
     if axes is None:
         fig = new_figure((10.0, 1.6 * len(components) + 1.2))
         grid = fig.add_gridspec(len(components), 2)
