@@ -9,6 +9,8 @@ converging O(eps) on the chair.
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -71,6 +73,13 @@ def test_pieces_and_tangents(at_final):
     W = np.array([0.0, 1.0]) * np.ones_like(U)  # the gradient of x1
     np.testing.assert_allclose(D.vjp(U, W), np.column_stack((slope - 1.0, np.ones(len(U)))),
                                atol=1e-7)
+
+
+def test_pickled_map_stops_at_the_group_too(at_final):
+    _, D = at_final
+    again = pickle.loads(pickle.dumps(D))
+    assert again.stops_at_group
+    np.testing.assert_array_equal(again(V, dt=0.25), D(V, dt=0.25))
 
 
 @pytest.mark.parametrize("T, jump", [(1.0 + 1e-6, True), (1.0 - 1e-6, False)])
