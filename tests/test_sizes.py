@@ -153,3 +153,13 @@ def test_npz_headers_are_checked_against_their_members(tmp_path, tri):
                 fh.write(arr.tobytes())
     refused_cheaply(lambda: load_triangulation(path),
                     r"field 'pre' cannot be read: its header promises 8000000000 bytes")
+
+
+def test_memory_limit_of_load_is_validated(tmp_path, tri):
+    path = tri.save(tmp_path / "tri.json")
+    with pytest.raises(TypeError, match="memory_limit must be a number of bytes"):
+        load_triangulation(path, memory_limit="1 GB")
+    with pytest.raises(ValueError, match="memory_limit must be a positive whole number"):
+        load_triangulation(path, memory_limit=-5)
+    with pytest.raises(ValueError, match=r"\(\d+ bytes\) " + MEMORY + " 100 B"):
+        load_triangulation(path, memory_limit=100)  # the file itself is larger
