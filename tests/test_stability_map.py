@@ -79,6 +79,15 @@ def test_a_point_without_orbit_is_recorded_not_raised():
     assert "no orbit at multiplier=0.5, turns=0.05" in smap.summary()
 
 
+def test_orbits_not_accepted_are_solved_again_from_the_guess():
+    # accept only periods below 0.75: turns = 1 (period 1) is refused, and its neighbour
+    # turns = 2 then starts from x_guess and is accepted
+    smap = stability_map(cycle, {"multiplier": [0.5], "turns": [1.0, 2.0]}, [1.05, 0.0],
+                         section, period_guess=1.0, accept=lambda orbit: orbit.period < 0.75)
+    assert np.isnan(smap.growth_rate[0, 0]) and "is not accepted" in smap.failures[(0, 0)]
+    assert smap.growth_rate[0, 1] == pytest.approx(0.5 ** 0.5, rel=2e-3)
+
+
 def test_bad_grids_and_clients():
     with pytest.raises(TypeError, match="grid must be a dict of one or two parameters"):
         stability_map(cycle, [0.5], [1.0, 0.0], section)

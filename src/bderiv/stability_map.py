@@ -12,6 +12,14 @@ one-parameter grid), every point of a wave starting from its neighbour in the pr
 wave (``(i - 1, j)``, else ``(i, j - 1)``; the first point, or one whose neighbours all
 failed, from ``x_guess``). The points of one wave are independent of each other.
 
+Continuation follows a **branch**, and a branch can be the wrong one: where a hopping
+gait does not exist, Newton's method finds the body standing still (an equilibrium on
+the section is a fixed point of P too), and continuing from there follows the standing
+branch into the region where the gait exists again. ``accept(orbit) -> bool`` says which
+orbits are the ones wanted (for a hopping gait: one with event groups); a point whose
+orbit from the neighbour is not accepted, or not found, is solved again from
+``x_guess``.
+
 **Where it runs.** Serially in this process, or on a Dask cluster (``dask.distributed``):
 ``client="local"`` starts a :class:`~distributed.LocalCluster` for the call and closes it
 afterwards, a :class:`~distributed.Client` is used as it is. Each wave's points are
@@ -94,7 +102,7 @@ class StabilityMap:
                          for name, v, i in zip(self.names, self.values, index, strict=True))
 
 
-def stability_map(make_system, grid, x_guess, section, *, period_guess=None,
+def stability_map(make_system, grid, x_guess, section, *, period_guess=None, accept=None,
                   n_directions=200, iterations=300, client=None, progress=None,
                   **orbit_options) -> StabilityMap:
     """Find the periodic orbit and its growth rate at every point of a parameter grid.
@@ -113,6 +121,11 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None,
         ``section(x) -> float``, crossed upward once per stride (must pickle with Dask).
     period_guess : float, optional
         Passed to :meth:`~bderiv.hybrid.HybridSystem.periodic_orbit`.
+    accept : callable, optional
+        ``accept(orbit) -> bool``: the orbits wanted (default: every orbit found); a
+        point whose orbit from its neighbour is refused is solved again from
+        ``x_guess``, and recorded as a failure if that one is refused too. Must pickle
+        with Dask.
     n_directions, iterations : int
         Of each orbit's :meth:`~bderiv.orbit.PeriodicOrbit.stability`.
     client : None, "local" or distributed.Client
@@ -142,8 +155,8 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None,
     n_directions = check_positive_int(n_directions, "n_directions")
     iterations = check_positive_int(iterations, "iterations")
     shape = tuple(a.size for a in axes)
-    task = _Task(make_system, names, section, period_guess, n_directions, iterations,
-                 orbit_options)
+    task = _Task(make_system, names, section, period_guess, accept, n_directions, iterations,
+                 orbit_options, x_guess)
     run, close = _runner(client)
     progress = resolve_progress(progress, desc="stability map", unit="point")
     results, done, total = {}, 0, math.prod(shape)
@@ -200,23 +213,29 @@ def _start(results, index, x_guess):
 class _Task:
     """One point: its orbit and growth rate, or the message of the failure (picklable)."""
 
-    def __init__(self, make_system, names, section, period_guess, n_directions,
-                 iterations, orbit_options):
+    def __init__(self, make_system, names, section, period_guess, accept, n_directions,
+                 iterations, orbit_options, x_guess):
         self.make_system, self.names, self.section = make_system, names, section
-        self.period_guess, self.orbit_options = period_guess, orbit_options
-        self.n_directions, self.iterations = n_directions, iterations
+        self.period_guess, self.accept, self.orbit_options = period_guess, accept, orbit_options
+        self.n_directions, self.iterations, self.x_guess = n_directions, iterations, x_guess
 
     def __call__(self, params, start):
         """(x0, period, growth rate) of the orbit, or (None, message, None)."""
-        try:
-            system = self.make_system(**params)
-            system = getattr(system, "system", system)  # an Example carries its system
-            orbit = system.periodic_orbit(start, self.section, period_guess=self.period_guess,
-                                          **self.orbit_options)
-            st = orbit.stability(n_directions=self.n_directions, iterations=self.iterations)
-        except (ValueError, RuntimeError) as exc:  # no orbit here: recorded, not raised
-            return None, f"{type(exc).__name__}: {exc}", None
-        return orbit.x0, orbit.period, st.growth_rate
+        system = self.make_system(**params)
+        system = getattr(system, "system", system)  # an Example carries its system
+        starts = [start] if np.array_equal(start, self.x_guess) else [start, self.x_guess]
+        for x in starts:
+            try:
+                orbit = system.periodic_orbit(x, self.section, period_guess=self.period_guess,
+                                              **self.orbit_options)
+            except (ValueError, RuntimeError) as exc:  # no orbit here: recorded, not raised
+                failure = f"{type(exc).__name__}: {exc}"
+                continue
+            if self.accept is None or self.accept(orbit):
+                st = orbit.stability(n_directions=self.n_directions, iterations=self.iterations)
+                return orbit.x0, orbit.period, st.growth_rate
+            failure = f"the orbit found (x0 = {orbit.x0}) is not accepted"
+        return None, failure, None
 
 
 def _runner(client):

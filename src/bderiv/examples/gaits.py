@@ -38,6 +38,7 @@ __all__ = [
     "APEX",
     "apex_section",
     "apex_section_gradient",
+    "body",
     "pronking",
     "pronking_orbit",
     "pronking_summary",
