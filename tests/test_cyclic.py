@@ -12,10 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bderiv._usercalls import Section
 from bderiv.checks import decay_check
 from bderiv.examples import gaits, runner
-from bderiv.orbit import periodic_orbit
 
 
 @pytest.fixture(scope="module")
@@ -61,14 +59,18 @@ def test_stability_leaves_the_advance_out(gait):
 
 def test_coordinates_that_are_not_cyclic_are_refused(gait):
     ex, _ = gait
-    section = Section(runner.apex_section, 6, runner.apex_section_gradient)
     guess = ex.x0 + [0.0, 0.02, 0.0, 0.0, 0.0, 0.0]
+
+    def orbit(cyclic):
+        return ex.system.periodic_orbit(guess, runner.apex_section, period_guess=0.5,
+                                        cyclic=cyclic)
+
     with pytest.raises(ValueError, match=r"coordinate 1 is not cyclic: shifting it by 1 .* "
                        r"the field, events, resets or section depend on it"):
-        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=[1])
+        orbit([1])
     with pytest.raises(ValueError, match="coordinate 4 cannot be cyclic: the section depends"):
-        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=[4])
+        orbit([4])
     with pytest.raises(ValueError, match=r"distinct coordinate indices in \[0, 6\), got \[0, 0\]"):
-        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=[0, 0])
+        orbit([0, 0])
     with pytest.raises(TypeError, match="cyclic must be a sequence of coordinate indices"):
-        periodic_orbit(ex.system, guess, section, period_guess=0.5, cyclic=0)
+        orbit(0)

@@ -382,7 +382,7 @@ class HybridSystem(ModelCalls):
                           simultaneity_tol=simultaneity_tol, options=options)[0]
 
     def periodic_orbit(self, x_guess, section, period_guess=None, *, section_gradient=None,
-                       tol=1e-10, max_iter=30, simultaneity_tol=1e-7, options=None):
+                       tol=1e-10, max_iter=30, simultaneity_tol=1e-7, options=None, cyclic=()):
         """A periodic orbit through the section ``section(x) = 0``: ``P(x) = x``.
 
         Newton's method with the return map's B-derivative, the piecewise-linear Newton
@@ -404,19 +404,24 @@ class HybridSystem(ModelCalls):
             For the orbit's return map, as for :meth:`flow_bderivative`.
         options : SolverOptions, optional
             Default ``SolverOptions(rtol=1e-12, atol=1e-13)``.
+        cyclic : sequence of int
+            Coordinates the model and the section do not depend on (a forward position,
+            a heading): left out of ``P(x) = x`` and of the stability, their advance per
+            period in ``PeriodicOrbit.advance`` (checked: :func:`bderiv.orbit.periodic_orbit`).
 
         Returns
         -------
         PeriodicOrbit
             With ``x0``, ``period``, ``trajectory``, ``return_map``, ``residual``,
-            ``history`` and ``stability()``.
+            ``history``, ``advance`` and ``stability()``.
         """
         x_guess = self._check_state(x_guess, "x_guess")
         options = SolverOptions.resolve(options, ORBIT_OPTIONS)
         section = Section(section, self.dim, section_gradient, self.check_jacobians)
         return periodic_orbit(self, x_guess, section,
                               period_guess=period_guess, tol=tol, max_iter=max_iter,
-                              simultaneity_tol=simultaneity_tol, options=options)
+                              simultaneity_tol=simultaneity_tol, options=options,
+                              cyclic=cyclic)
 
     def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=checks.FD_SIMULTANEITY_TOL,
                 options=None, rtol=None, atol=None, method=None, max_step=None):

@@ -123,12 +123,9 @@ def running_orbit(example=None, *, perturbation=(0.0, 0.02, 0.01, -0.3, 0.0, -0.
     PeriodicOrbit
         ``advance[0]``: the forward distance per stride.
     """
-    from .._usercalls import Section
-    from ..orbit import periodic_orbit
-
     ex = running() if example is None else example
     guess = ex.x0 + np.asarray(perturbation, dtype=np.float64)
     kwargs.setdefault("period_guess", 0.5)
     kwargs.setdefault("cyclic", [0])
-    section = Section(apex_section, 6, apex_section_gradient)
-    return periodic_orbit(ex.system, guess, section, **kwargs)
+    kwargs.setdefault("section_gradient", apex_section_gradient)
+    return ex.system.periodic_orbit(guess, apex_section, **kwargs)
