@@ -1,8 +1,8 @@
-"""A plain, per-query NumPy oracle for the PL saltation map (written from MATH.md alone).
+"""A plain, per-query NumPy oracle for the PL saltation map (written from mathematics.md alone).
 
 Nothing here uses bderiv's evaluation code (only its random system generator). Every
 function handles one vector (or one order) with explicit Python loops, so that each line
-can be checked against MATH.md by eye; ``F`` is a (2**n, d) table or, for corner models,
+can be checked against mathematics.md by eye; ``F`` is a (2**n, d) table or, for corner models,
 a function of the 0/1 flags of a region (then any n works: masks are Python integers):
 
 - ``ref_event_times`` / ``ref_apply``: section 3 (selection with re-read rates),
@@ -11,7 +11,7 @@ a function of the 0/1 flags of a region (then any n works: masks are Python inte
 - ``ref_corner_points`` / ``ref_qp_apply``: section 5 (corner points, M_sigma = Q P^-1).
 
 It also gives test systems: ``random_system`` (from ``bderiv._baselines``: transversal
-tables whose event order changes after events) and ``overtaking_system`` (the MATH.md
+tables whose event order changes after events) and ``overtaking_system`` (the mathematics.md
 section 3 example, where the order of the first-order impact times is not the true order).
 """
 
@@ -79,7 +79,7 @@ def _forward(Dh, F, u, dtype=float):
 
 
 def ref_apply(Dh, F, u, dtype=float):
-    """M(u) for one pre-event vector u of shape (d,), MATH.md section 3; ``dtype``:
+    """M(u) for one pre-event vector u of shape (d,), mathematics.md section 3; ``dtype``:
     the arithmetic (``np.longdouble``: 11 more bits on x86, to measure float64 errors)."""
     return _forward(Dh, F, u, dtype)[0]
 
@@ -91,7 +91,8 @@ def ref_event_times(Dh, F, u):
 
 
 def ref_first_order_order(Dh, F, u):
-    """The *wrong* shortcut of MATH.md section 3: sort the first-order times -(Dh u)_k/G[0, k]."""
+    """The *wrong* shortcut of mathematics.md section 3: sort the first-order times
+    -(Dh u)_k / G[0, k]."""
     G = rates(Dh, F)
     return np.argsort(-(np.asarray(Dh, float) @ np.asarray(u, float)) / G[0], kind="stable")
 
@@ -100,7 +101,7 @@ def ref_first_order_order(Dh, F, u):
 # Section 6: the inverse, time running backwards
 # --------------------------------------------------------------------------------------
 def ref_inverse(Dh, F, w):
-    """M^{-1}(w) for one post-event vector w, MATH.md section 6."""
+    """M^{-1}(w) for one post-event vector w, mathematics.md section 6."""
     Dh = np.asarray(Dh, dtype=float)
     n = Dh.shape[0]
     corner = _corner_lookup(F, n)
@@ -286,7 +287,7 @@ def ref_tri_apply(pre, post, simplices, kernel, u, tol=1e-9):
 # Test systems
 # --------------------------------------------------------------------------------------
 def overtaking_system(n, d=None, slow=0.1):
-    """MATH.md section 3 example generalised to n >= 3 events and d >= n dimensions.
+    """mathematics.md section 3 example generalised to n >= 3 events and d >= n dimensions.
 
     Dh = [I_n, 0], F = all ones except F[0b1] (after event 0 only), whose component 1 is
     ``slow``: after event 0, event 1 slows down until event 2 happens.
@@ -379,7 +380,7 @@ def ref_reset_flow(Dh, F, R, u):
 
 def ref_reset_piece(Dh, F, R, order):
     """S_n ... S_1 with S_j = R_j + (F[B_j] - R_j F[B_{j-1}]) Dh[k_j]^T / G[B_{j-1}, k_j],
-    R_j = R[B_{j-1}, k_j] (MATH.md section 8)."""
+    R_j = R[B_{j-1}, k_j] (mathematics.md section 9)."""
     Dh, F, R = (np.asarray(a, dtype=float) for a in (Dh, F, R))
     masks = chain(order)
     M = np.eye(Dh.shape[1])
@@ -416,7 +417,7 @@ def random_reset_system(rng, n, d, *, compatible=True, moving=False):
     from region b keeps h_l for l != j, scales h_j by a_j(b) > 0, and maps the rest r
     (d - n coordinates) to D_j r + c_j(b) h_j. With D_j diagonal (``compatible``) the
     resets commute on every common tangent space h_j = h_k = 0 and move no other surface
-    (MATH.md section 8); dense random D_j do not commute (``compatible=False``), and
+    (mathematics.md section 9); dense random D_j do not commute (``compatible=False``), and
     ``moving=True`` adds h_l += r_0 for l != j, so that a reset moves the other surfaces.
     """
     from bderiv._baselines import random_system as _random_system

@@ -67,7 +67,7 @@ def test_numpy_apply_matches_the_oracle(n, d, m, chunk):
 
 
 def test_numpy_apply_on_the_overtaking_example():
-    """MATH.md section 3: event 1 is overtaken; M(u) has -3.8 in component 1, not -2."""
+    """mathematics.md section 3: event 1 is overtaken; M(u) has -3.8 in component 1, not -2."""
     Dh, F, u, _, w, _ = reference.overtaking_system(4)
     np.testing.assert_allclose(numpy_apply(Dh, F, F @ Dh.T, u[None])[0], w, rtol=1e-14)
 

@@ -1,4 +1,5 @@
-"""BDerivative against the NumPy oracle of tests/reference.py and the checks of MATH.md s.7."""
+"""BDerivative against the NumPy oracle of tests/reference.py and the checks of
+mathematics.md section 8."""
 
 from __future__ import annotations
 
@@ -72,7 +73,7 @@ def ties_forced(Dh):
 # Hand-computed cases
 # --------------------------------------------------------------------------------------
 def test_math_md_worked_example():
-    # MATH.md section 3: Dh = I, F all ones except F[0b001] = (1, 0.1, 1), u = (-1, -2, -3).
+    # mathematics.md section 3: Dh = I, F all ones except F[0b001] = (1, 0.1, 1), u = (-1, -2, -3).
     # t0 = 1; x = u + 1 (F[0] - F[1]) = (-1, -1.1, -3), rates after event 0 are (., 0.1, 1):
     # event 1 would need 1.1 / 0.1 = 11, event 2 needs 3 -> event 2 at t = 3, back to the
     # all-ones field: x_1 = -1.1 + 3 (0.1 - 1) = -3.8 -> t1 = 3.8. Order (0, 2, 1).
@@ -209,7 +210,7 @@ def test_overtaking_is_common_in_random_systems():
 
 
 # --------------------------------------------------------------------------------------
-# Three independent evaluations agree; inverse round trip (MATH.md s.7, first bullet)
+# Three independent evaluations agree; inverse round trip (mathematics.md section 8, first bullet)
 # --------------------------------------------------------------------------------------
 @given(systems())
 def test_apply_matches_oracles(case):
@@ -307,7 +308,7 @@ def test_pieces_refuses_above_limit():
 
 
 # --------------------------------------------------------------------------------------
-# Structural properties (MATH.md s.7, second and third bullets)
+# Structural properties (mathematics.md section 8, second and third bullets)
 # --------------------------------------------------------------------------------------
 @given(systems(), st.sampled_from([1e-3, 0.5, 1.0, 3.0, 1e4]))
 def test_positive_homogeneity(case, s):

@@ -286,7 +286,7 @@ def test_corner_function_parallel_path():
 
 
 def test_corner_function_overtaking():
-    """The MATH.md section 3 pitfall: the order is not the first-order sort."""
+    """The mathematics.md section 3 pitfall: the order is not the first-order sort."""
     Dh, F, u, order, w, times = overtaking_system(4)
     G = F.copy()
 

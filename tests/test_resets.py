@@ -1,4 +1,4 @@
-"""Tables with resets (MATH.md section 8): BDerivative(Dh, F, resets=R) against the
+"""Tables with resets (mathematics.md section 9): BDerivative(Dh, F, resets=R) against the
 oracles of tests/reference.py (the sampled trajectory followed in physical time, and the
 products of saltation matrices with resets), the existence check, the low-rank form."""
 

@@ -56,13 +56,13 @@ def test_corner_points(case):
     assert U.shape == W.shape == (2**n, d)
     G = F @ Dh.T
     scale = np.abs(F).max()
-    # MATH.md s.5 defining equations: Dh W[S] = 1_S * G[S], U[S] - W[S] = F[0] - F[S]
+    # mathematics.md section 5 defining equations: Dh W[S] = 1_S * G[S], U[S] - W[S] = F[0] - F[S]
     bits = (np.arange(2**n)[:, None] >> np.arange(n)) & 1
     assert_allclose(W @ Dh.T, bits * G, atol=1e-10 * np.abs(G).max())
     assert_allclose(U - W, F[0] - F, atol=1e-12 * scale)
     assert_allclose(U[0], 0, atol=1e-12 * scale)
     # U[full] = F[0], W[full] = F[full] up to ker Dh (x_full is any solution of
-    # Dh x = G[full] = Dh F[full]; MATH.md's equalities hold exactly when d = n)
+    # Dh x = G[full] = Dh F[full]; mathematics.md's equalities hold exactly when d = n)
     Pr = np.eye(d) - np.linalg.pinv(Dh) @ Dh  # projector onto ker Dh
     assert_allclose((np.eye(d) - Pr) @ (U[-1] - F[0]), 0, atol=1e-10 * scale)
     assert_allclose((np.eye(d) - Pr) @ (W[-1] - F[-1]), 0, atol=1e-10 * scale)
@@ -162,7 +162,8 @@ def test_triangulation_inverse(case, m):
     tri = BDerivative(Dh, F).triangulation()
     V = rng.standard_normal((m, d)) * 10.0 ** rng.uniform(-2, 2, (m, 1))
     W = np.array([ref_apply(Dh, F, v) for v in V])
-    # MATH.md s.6: the post cones are a fan; the oracle inverts by running time backwards
+    # mathematics.md section 6: the post cones are a fan; the oracle inverts by running time
+    # backwards
     assert_maps_close(Dh, F, V, tri.inverse(W), [ref_inverse(Dh, F, w) for w in W], rtol=1e-7)
     assert_maps_close(Dh, F, V, tri.inverse(tri(V)), V, rtol=1e-7)
 

@@ -5,7 +5,7 @@ Used by ``bderiv bench`` (:mod:`bderiv._bench`), the pytest-benchmark suite in
 
 - :func:`random_system`: the random transversal test systems (also those of the tests),
   :func:`benchmark_system` the one of each size that every benchmark runs;
-- :func:`numpy_apply`: MATH.md sections 3 and 6 in batched NumPy, the baseline a NumPy
+- :func:`numpy_apply`: mathematics.md sections 3 and 6 in batched NumPy, the baseline a NumPy
   user would write;
 - :func:`useful_flops`: the work of one query counted as useful, ``n**2 + 2 n d``;
 - the BLAS yardstick: :func:`blas_operands`, :func:`blas_yardstick`,
@@ -137,7 +137,7 @@ def benchmark_system(n: int, d: int, seed: int = 0):
 # the NumPy baseline
 # --------------------------------------------------------------------------------------
 def numpy_apply(Dh, F, G, V, inverse=False, chunk=NUMPY_CHUNK):
-    """M(V) (or M^-1(V)) for a batch V, in batched NumPy (MATH.md sections 3 and 6).
+    """M(V) (or M^-1(V)) for a batch V, in batched NumPy (mathematics.md sections 3 and 6).
 
     Vectorised over the queries, looping over the n events. Per step: gather the rates of
     each query's current region (``G[B]``), the masked argmin (argmax for the inverse) of
@@ -204,7 +204,7 @@ def _buffers(c, n, d):
 
 
 def _numpy_chunk(F, G, DhT, x, b, start_mask, inverse):
-    """The n steps of MATH.md section 3 (or 6) on the queries x (q, d), in place."""
+    """The n steps of mathematics.md section 3 (or 6) on the queries x (q, d), in place."""
     np.matmul(x, DhT, out=b.g)
     b.B[...] = start_mask
     b.done[...] = inverse  # "done": the event is not a candidate for the next step

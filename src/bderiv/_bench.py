@@ -5,7 +5,7 @@ this module is the part an installed package can run on its own, with the same b
 and test systems (:mod:`bderiv._baselines`):
 
 - ``bderiv``: :meth:`BDerivative.__call__` on the batch (the compiled kernels);
-- ``numpy``: MATH.md section 3 in batched NumPy (:func:`~bderiv._baselines.numpy_apply`);
+- ``numpy``: mathematics.md section 3 in batched NumPy (:func:`~bderiv._baselines.numpy_apply`);
 - ``blas``: the time a BLAS matrix product would take for the flop count of the useful
   work, ``m (n**2 + 2 n d)``, at the rate of a 512 x 512 product measured once per sweep:
   a yardstick of the machine's peak.

@@ -233,7 +233,7 @@ class ModelCalls:
         return RESET_TOL if exact else RESET_TOL_NUMERICAL
 
     def sample_resets(self, x, events, glob, Dh, sign, where):
-        """Base points and reset Jacobians of a group (MATH.md section 8).
+        """Base points and reset Jacobians of a group (mathematics.md section 9).
 
         ``base[B]`` (2**g, d) is ``x`` moved by the resets of the events of local mask B
         (ascending; each called with the global mask before its crossing), ``R[B, j]``

@@ -10,7 +10,7 @@ are at the stop is decided by the rules of :mod:`bderiv.locate` (each event's wi
 
 In a group's **local orientation** an event crossed downward has its function negated
 (``-h_k``), so that every event of the group is crossed upward: the group's B-derivative
-is then the one of MATH.md (rows of ``Dh`` negated, mask bits flipped for those events).
+is then the one of mathematics.md (rows of ``Dh`` negated, mask bits flipped for those events).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 When an event group of a trajectory lies at ``t_final`` (within ``simultaneity_tol``, on
 either side), ``x -> Phi(t_final, x)`` is piecewise linear there: a perturbation whose
 events come before ``t_final`` meets their jumps, one whose events come after does not
-(MATH.md section 7, "A group at the final time"). The final time is then one more event
+(mathematics.md section 7, "A group at the final time"). The final time is then one more event
 of the group: ``h_T = s (t - t_final)`` in the state augmented by the time, with rate
 ``s`` in every region. The group's corner table is extended to the augmented state:
 

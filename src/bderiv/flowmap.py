@@ -1,7 +1,7 @@
 """FlowBDerivative: the B-derivative of a flow map along a trajectory with event groups.
 
 Along a trajectory that meets event groups at times t_1 < ... < t_m the B-derivative of
-``x -> Phi(T, x)`` is the composition (MATH.md section 2)
+``x -> Phi(T, x)`` is the composition (mathematics.md section 2)
 
     D = L_m . M_m . L_{m-1} . ... . M_1 . L_0
 

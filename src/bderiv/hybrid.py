@@ -1,7 +1,7 @@
 """HybridSystem: a nonlinear event-selected model and the B-derivative at its event points.
 
 A model is a family of smooth vector fields ``field(x, mask)`` (one per region, bit k of
-``mask`` set iff ``h_k(x) > 0``, MATH.md section 1) and the event functions
+``mask`` set iff ``h_k(x) > 0``, mathematics.md section 1) and the event functions
 ``events(x)``. Along a trajectory a surface may be crossed upward (the bit is set) or
 downward (cleared), any number of times; a group crossed downward is handled in its local
 orientation (:mod:`bderiv.crossings`). :class:`HybridSystem`
@@ -83,7 +83,7 @@ class HybridSystem(ModelCalls):
         over the 2**n masks (needed for n around 16 to 20).
     reset : callable, optional
         ``reset(x, mask, k) -> (d,)``: the state right after event k is crossed at ``x``
-        from region ``mask`` (an impact; MATH.md section 8; bit k of ``mask`` set: a
+        from region ``mask`` (an impact; mathematics.md section 9; bit k of ``mask`` set: a
         downward crossing, return ``x`` for no jump). Simultaneous events are reset
         one after the other, in ascending order, each with the mask before its own
         crossing; their resets must commute (checked, :func:`bderiv.crossings.apply_resets`)
@@ -187,7 +187,7 @@ class HybridSystem(ModelCalls):
         BDerivative
             With ``Dh = event_jacobian(rho)`` (n, d) and ``F[mask] = field(rho, mask)``;
             with resets, ``F[mask]`` at rho moved by the resets of the events in ``mask``
-            and the reset Jacobians there (MATH.md section 8).
+            and the reset Jacobians there (mathematics.md section 9).
 
         Raises
         ------
@@ -288,7 +288,7 @@ class HybridSystem(ModelCalls):
         group gives a :class:`BDerivative` built at the group's state from the model
         (event Jacobian rows of the group, region fields around the entering mask, in the
         group's local orientation: rows negated for events crossed downward), and the
-        stage is ``D+ . M . D-`` (MATH.md section 2).
+        stage is ``D+ . M . D-`` (mathematics.md section 2).
 
         Parameters
         ----------
@@ -309,7 +309,7 @@ class HybridSystem(ModelCalls):
             final point (the derivative in the final time). An event group within
             ``simultaneity_tol`` of ``t_final`` (either side) has the final time as one
             more event: its jumps apply only to the directions for which they come before
-            it (``stops_at_group``; MATH.md section 7). Refused there with resets.
+            it (``stops_at_group``; mathematics.md section 7). Refused there with resets.
         """
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)

@@ -144,7 +144,7 @@ class Trajectory:
         when integrated with ``variational=True`` (for the flow's B-derivative).
     final_group : EventGroup or None
         The event group within ``simultaneity_tol`` of ``t_final`` (either side), whose
-        map the flow's B-derivative stops at the final time (MATH.md section 7); filled
+        map the flow's B-derivative stops at the final time (mathematics.md section 7); filled
         only with ``variational=True``. Either the last of ``groups`` (switched at or
         just before ``t_final``) or, when ``final_pending``, events about to cross just
         after it: not switched, so in neither ``groups`` nor ``events``, and

@@ -1,6 +1,6 @@
 """``Triangulation``: the B-derivative as a PL homeomorphism given by vertices and simplices.
 
-This is the representation of the source note (MATH.md section 5): pre-event vertices
+This is the representation of the source note (mathematics.md section 5): pre-event vertices
 ``pre``, their post-event images ``post``, and the simplicial cones of the fan around
 F[0]. It holds everything needed to rebuild the map (and its inverse) elsewhere, without
 the event machinery. Files and direct construction alike are checked completely by
@@ -74,7 +74,7 @@ class Triangulation:
     B_{n-1}, 2**n]``, the halves of its cone before and after the flow direction.
 
     The map is a homeomorphism: the ``post`` cones are a fan too, so :meth:`inverse` is the
-    same evaluation with ``pre``, ``kernel`` and ``post``, ``kernel_post`` swapped (MATH.md
+    same evaluation with ``pre``, ``kernel`` and ``post``, ``kernel_post`` swapped (mathematics.md
     section 6). :meth:`composed` carries the fan through linear maps before and after (the
     triangulation of a flow map with one event group). Evaluation is brute force over all
     simplices: meant for checking, and for small n.
@@ -140,7 +140,7 @@ class Triangulation:
         minus = np.hstack([apex, inner, np.full((len(orders), 1), full + 1)])
         simplices = np.stack([plus, minus], axis=1).reshape(-1, n + 1)
         kernel = scipy.linalg.null_space(bd.Dh).reshape(bd.dim, bd.dim - n)
-        # with resets M moves ker Dh (by the product of the resets, MATH.md section 8)
+        # with resets M moves ker Dh (by the product of the resets, mathematics.md section 9)
         moved = getattr(bd, "resets", None) is not None and kernel.shape[1]
         return cls(pre, post, simplices, kernel, bd(kernel.T).T if moved else None)
 

@@ -1,4 +1,4 @@
-"""The fast paths shared by every representation (MATH.md sections 3 and 4).
+"""The fast paths shared by every representation (mathematics.md sections 3 and 4).
 
 - **own rates**: the rate of every event changes at most when that event itself happens
   (``G[mask, k]`` is ``G[0, k]`` or ``G[full, k]`` by bit k). Pending rates then never

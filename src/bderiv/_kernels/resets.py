@@ -1,4 +1,4 @@
-"""Blocks for dense corner tables with resets at the events (MATH.md section 8).
+"""Blocks for dense corner tables with resets at the events (mathematics.md section 9).
 
 ``tables = (DhT, F, G, P, Q, DhP, low)``: ``DhT`` (d, n) the transposed event Jacobian,
 ``F`` (2**n, d) the corners, ``G`` (2**n, n) the rates, and the reset Jacobians of the
@@ -80,7 +80,7 @@ def _scratch(n, d, P):
 def chain(tables, u, inverse, scratch):
     """The event chain of one query, leaving M(u) (M^-1(u) when ``inverse``) in ``x``.
 
-    MATH.md section 8: the next event is the pending k with the smallest time
+    mathematics.md section 9: the next event is the pending k with the smallest time
     t = -g[k] / G[B, k] (the largest happened one backwards; ties to the smaller k); it
     moves the virtual position by x' = R[B, k] (x + t F[B]) - t F[B'], and backwards by
     x' = R[B', k]^-1 (x + t F[B]) - t F[B'] (B' the region after the step); g = Dh x
@@ -155,7 +155,7 @@ def _times_block(tables, V, outs, start, stop, inverse):
 @njit(**JIT)
 def saltation_reset_step(tables, y, k, b, a, transpose, tmp, w):
     """y <- S y (S^T y when ``transpose``), S the saltation matrix with reset of event k
-    from region b to region a (MATH.md section 8), in place. With R = R[b, k] and
+    from region b to region a (mathematics.md section 9), in place. With R = R[b, k] and
     c = Dh[k] . y / G[b, k]: S y = R (y - c F[b]) + c F[a];
     S^T z = R^T z + Dh[k] (F[a] . z - F[b] . R^T z) / G[b, k]. O(d^2) dense, O(d r) low."""
     DhT, F, G, P, Q, DhP, low = tables

@@ -12,8 +12,8 @@ in the normal direction (spring and damper on the foot), so the foot keeps sinki
 (``w_i < 0``) and both surfaces are crossed transversally. While both feet are down the
 legs push (``thrust``): the stance force depends on the mode, so the touchdown order
 matters (the two pieces differ). The feet's horizontal motions are independent, so the
-two resets commute and the flow has a B-derivative at the double touchdown (MATH.md
-section 8). With ``coupling != 0`` the horizontal impulses are shared through an inverse
+two resets commute and the flow has a B-derivative at the double touchdown (mathematics.md
+section 9). With ``coupling != 0`` the horizontal impulses are shared through an inverse
 mass matrix ``[[1, c], [c, 1]] / foot_mass`` (contacts not orthogonal in the inverse-mass
 metric): stopping one foot moves the other, the resets do not commute, and the library
 refuses the model at the double touchdown with that explanation.

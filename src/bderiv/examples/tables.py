@@ -2,7 +2,7 @@
 
 Each function returns ``(Dh, F)``: the event Jacobian, shape (n, d), and the corner table,
 shape (2**n, d), row ``mask`` the field of the region where the events whose bits are set
-in ``mask`` have happened (MATH.md section 1); pass them to :class:`~bderiv.BDerivative`.
+in ``mask`` have happened (mathematics.md section 1); pass them to :class:`~bderiv.BDerivative`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 
 
 def three_event_table():
-    """A 3-event system in R^3 whose event order can be overtaken (MATH.md section 3).
+    """A 3-event system in R^3 whose event order can be overtaken (mathematics.md section 3).
 
     Returns
     -------
