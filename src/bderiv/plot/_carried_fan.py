@@ -145,10 +145,12 @@ def _state_panel(ax, bd, paths, snapshots):
         sel = masks == mask
         if sel.any():  # the region's name near its far corner, away from the simplices
             far = np.argmax(np.hypot(X[sel], Y[sel]))
-            ax.text(X[sel][far] * 0.9, Y[sel][far] * 0.9,
-                    f"mask {format_mask(mask, 2)}\nfield F[{mask}]", fontsize=7,
-                    ha="center", va="center",
-                    bbox=dict(boxstyle="round", fc="white", alpha=0.8, lw=0))
+            x, y = X[sel][far], Y[sel][far]  # inside the axes, aligned on that corner
+            ax.annotate(f"mask {format_mask(mask, 2)}\nfield F[{mask}]", (x, y),
+                        textcoords="offset points",
+                        xytext=(-4 if x > 0 else 4, -4 if y > 0 else 4), fontsize=7,
+                        ha="right" if x > 0 else "left", va="top" if y > 0 else "bottom",
+                        bbox=dict(boxstyle="round", fc="white", alpha=0.8, lw=0))
     for s, label in _snapshot_labels(snapshots):
         ax.annotate(label, _flow(bd.F, np.zeros((1, 2)), np.zeros((1, 2)), s)[0],
                     textcoords="offset points", xytext=(6, -14), fontsize=8,
