@@ -389,3 +389,26 @@ def test_first_parallel_call_under_a_tight_limit_raises(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     assert "MemoryError:" in out.stdout
     assert "address-space limit (RLIMIT_AS, ulimit -v)" in out.stdout
+
+
+def test_npz_records_flagged_encrypted_or_recompressed_are_refused(tmp_path):
+    """The zip flags and compression method of every record, changed by one bit (an
+    exhaustive flip of every bit of a small .npz once let a RuntimeError through: the
+    'encrypted' flag), give the documented ValueError."""
+    tri = triangulation(5, 2, 2)
+    tri.save(tmp_path / "good.npz")
+    data = (tmp_path / "good.npz").read_bytes()
+    fields = []  # (offset of the flags, offset of the compression method) of each record
+    for signature, flags in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        start = data.find(signature)
+        while start >= 0:
+            fields.append(start + flags)
+            start = data.find(signature, start + 1)
+    assert len(fields) == 10  # 5 members, each a local header and a directory entry
+    bad = tmp_path / "bad.npz"
+    for offset in fields:
+        for byte, bit in ((offset, 0), (offset, 6), (offset + 2, 1), (offset + 2, 3)):
+            flipped = bytearray(data)
+            flipped[byte] ^= 1 << bit  # encrypted, strong encryption, compression method
+            bad.write_bytes(bytes(flipped))
+            refused_or_identical(bad, tri, "npz")

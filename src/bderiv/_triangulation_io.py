@@ -55,9 +55,10 @@ DIGEST = "sha256"
 #: what reading a damaged or hostile .npz can raise (BadZipFile for a truncated archive or
 #: a bad CRC, zlib.error for a corrupt member, ValueError for object arrays with
 #: allow_pickle=False, NotImplementedError for a compression method changed by a flipped
-#: bit, KeyError / IndexError / OverflowError for garbled zip records)
+#: bit, RuntimeError for a member flagged as encrypted, KeyError / IndexError /
+#: OverflowError for garbled zip records)
 _NPZ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error,
-               NotImplementedError, KeyError, IndexError, OverflowError)
+               NotImplementedError, RuntimeError, KeyError, IndexError, OverflowError)
 
 
 def check_data(data, source: str) -> dict:
