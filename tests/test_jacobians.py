@@ -64,6 +64,11 @@ def test_a_numerical_jacobian_no_step_resolves_is_refused_with_its_entry():
                                          r".*entry \[1, 0\] .*estimated error .*pass "
                                          r"field_jacobian"):
         system.eval_field_jacobian(np.zeros(2), 1)
+    # a row 0 at x, whose entries need to be 0 exactly: the refusal still names its entry
+    sign = lambda x, mask: np.array([x[1], 0.0 if x[0] == 0 else np.sign(x[0])])  # noqa: E731
+    system = HybridSystem(sign, lambda x: x[:1] - 1.0, n_events=1, dim=2)
+    with pytest.raises(ValueError, match=r"entry \[1, 0\] \(output 1 by x_0\)"):
+        system.eval_field_jacobian(np.zeros(2), 0)
     # a reset with a steep step 1e-14 from the point (at large steps it looks like the
     # identity, which larger steps must not claim): named with its mask and event
     reset = lambda x, mask, k: x + np.array([0.0, 1e-3 * float(x[1] > 1e-14)])  # noqa: E731

@@ -55,7 +55,9 @@ def numerical_jacobian(fun, x, what: str, jac_name: str) -> numdiff.Derivative:
     D = numdiff.jacobian(fun, x)
     bad = np.argwhere(~(D.error <= D.needed))
     if bad.size:
-        i, j = (int(k) for k in bad[np.argmax((D.error / D.needed)[tuple(bad.T)])])
+        with np.errstate(divide="ignore", invalid="ignore"):  # an entry may need 0
+            worst = np.nan_to_num(D.error / D.needed, nan=np.inf)[tuple(bad.T)]
+        i, j = (int(k) for k in bad[np.argmax(worst)])
         raise ValueError(
             f"the numerical Jacobian of {what} at x = {x} is not accurate enough: entry "
             f"[{i}, {j}] (output {i} by x_{j}) = {D.value[i, j]:.6g} has an estimated error "
