@@ -14,8 +14,8 @@ PKG = ROOT / "src" / "bderiv"
 #: layers below, never one above.
 LAYERS = [
     {"cli", "__main__"},
-    {"plot", "examples", "_bench"},  # _bench: the sweep of `bderiv bench`
-    {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff"},  # orbit: issue 12
+    {"plot", "examples", "_bench", "symbolic"},  # _bench: the sweep of `bderiv bench`
+    {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff", "stability_map"},
     {"checks"},
     {"simulate", "crossings", "locate", "flowmap", "returnmap", "stability", "excursions",
      "finaltime"},
@@ -26,7 +26,7 @@ LAYERS = [
 ]
 #: helpers any layer may use; they import only each other.
 HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
-           "_linearise"}
+           "_linearise", "_cyclic"}
 
 
 def _top(path: pathlib.Path) -> str:
