@@ -242,7 +242,8 @@ class HybridSystem(ModelCalls):
             provided they are at the stop to within the integration accuracy
             (:func:`bderiv.simulate.group_tolerance`). Events that already crossed inside
             the step are always switched, so none is lost when two surfaces are crossed
-            inside one solver step.
+            inside one solver step, and so are events at the stop to within the accuracy
+            that are crossing (nothing orders them; :mod:`bderiv.locate`).
         options : SolverOptions, optional
             Integrator settings (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
             1e-12, no step limit).
@@ -298,7 +299,9 @@ class HybridSystem(ModelCalls):
             Time window within which events of the nominal trajectory count as
             simultaneous (default 1e-7, well above the event-location accuracy; events in
             the window must also be at the group's point to within the integration
-            accuracy, see :meth:`simulate`).
+            accuracy, see :meth:`simulate`). A stretch whose events' times are known
+            less well than this is integrated again more tightly until they are decided
+            (docs/mathematics.md, section 11).
         options, rtol, atol, method, max_step
             Integrator settings, as for :meth:`simulate`.
 
