@@ -382,3 +382,22 @@ def test_the_reset_existence_check_holds_at_extreme_scales(scale):
     # the relative gap is scale-free: the same number at any power of ten (to rounding)
     gap = [float(m.split("differ by ")[1].split(" ")[0]) for m in (unscaled, str(info.value))]
     np.testing.assert_allclose(gap[1], gap[0], rtol=1e-2)
+
+
+@pytest.mark.parametrize("c", [1.0, 1e100, 1e200])
+def test_commuting_resets_at_extreme_scales_with_numerical_jacobians(c):
+    # x2 += c SHEAR[k] @ x: numerical reset Jacobians with entries c, the existence check
+    # on their products (c**2 overflows at 1e200), the map against the reference flow
+    system = HybridSystem(lambda x, mask: F_SHEAR[mask], lambda x: x[:2] - 1.0, n_events=2,
+                          dim=3, reset=lambda x, mask, k: x + np.array([0.0, 0.0,
+                                                                        c * SHEAR[k] @ x]))
+    rho = np.array([1.0, 1.0, 0.5])
+    R = np.zeros((4, 2, 3, 3))
+    for b in range(4):
+        for k in range(2):
+            R[b, k] = np.eye(3)
+            R[b, k, 2] += c * SHEAR[k]
+    V = np.random.default_rng(2).standard_normal((20, 3))
+    exact = np.array([ref.ref_reset_flow(np.eye(2, 3), F_SHEAR, R, v)[0] for v in V])
+    np.testing.assert_allclose(system.bderivative(rho)(V), exact, rtol=1e-9,
+                               atol=1e-9 * c)

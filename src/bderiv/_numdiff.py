@@ -30,8 +30,8 @@ START_SPACING = 2.0**6
 #: runs in the order tried: powers of START_SPACING of the first run's step (smaller ones
 #: first: a feature near x is the common reason for a failure).
 STARTS = (0, -1, 1, -2, 2, -3, 3, -4, 4, -5, 5, -6, 6)
-#: variables smaller than this times ``max(1, max |x|)`` take that as their scale.
-SCALE_FLOOR = 2.0**-10
+#: variables smaller than this (not 0) take it as their scale (steps far below rounding).
+SCALE_FLOOR = 2.0**-20
 #: a run stops once the next level's estimate is off by SAFE times the best error.
 SAFE = 2.0
 #: stop at this relative error (of the entry, or of the row, below); refuse above ACCEPT.
@@ -56,11 +56,11 @@ class Derivative(NamedTuple):
 
 
 def variable_scales(x: np.ndarray) -> np.ndarray:
-    """The scale of each variable (d,): ``|x_j|``, at least ``SCALE_FLOOR`` times
-    ``max(1, max |x|)``; a variable exactly 0 has no magnitude of its own: 1 (the unit)."""
+    """The scale of each variable (d,): ``|x_j|``, at least ``SCALE_FLOOR``; a variable
+    exactly 0 has no magnitude of its own: 1 (the unit). Never from the other variables:
+    ``x = (1, 1, 9e199)`` keeps steps near 1 for the first two."""
     s = np.abs(x)
-    return np.where(s > 0, np.maximum(s, SCALE_FLOOR * max(1.0, float(s.max(initial=0.0)))),
-                    1.0)
+    return np.where(s > 0, np.maximum(s, SCALE_FLOOR), 1.0)
 
 
 def _run(fun, x, f0, v, first, needed_of):
