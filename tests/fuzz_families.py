@@ -10,11 +10,12 @@ also build the repros of ``test_reliability.py``.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numba
 import numpy as np
-from chain_tolerance import table_corners
+from chain_tolerance import chain_scale, oracle, table_corners
 from reference import random_system, ref_corner_points, tie_point
 
 from bderiv import BDerivative, CornerFunction, StructuredCorners
@@ -26,7 +27,8 @@ class Case:
     oracle gets (a table, or a function of the flags of any batch of regions).
     ``exps = (a, b, c)``: ``BDerivative`` gets ``2**a Dh``, ``2**b F`` (a table) and
     ``2**c V``; the oracle runs unscaled, and its answers are scaled by ``2**c``, its
-    event times by ``2**(c - b)``."""
+    event times by ``2**(c - b)``. ``resets``: reset Jacobians (2**n, n, d, d) of a table,
+    or None."""
 
     family: str
     Dh: np.ndarray
@@ -34,6 +36,7 @@ class Case:
     ref: object
     V: np.ndarray
     exps: tuple = (0, 0, 0)
+    resets: object = None
 
     def corners(self, hap) -> np.ndarray:
         """The corners of regions given as (..., n) flags."""
@@ -261,6 +264,44 @@ def fam_function(rng, m):
     d = int(rng.integers(1, 8))
     Dh = rng.uniform(0.05, 1.0, (n, d)) * 10.0 ** rng.uniform(-3, 3, (n, 1))
     return Case("function", Dh, WAVY, wavy_corners(d), queries(rng, m, d))
+
+
+def scaled_reference(case: Case):
+    """The oracle's answers and tolerances at the scale ``BDerivative`` works at, and
+    ``peak``: log2 of the largest magnitude met on each chain there."""
+    a, b, c = case.exps
+    Dh, V = case.Dh, case.V
+    x, t, o = oracle(Dh, case.ref, V)
+    with np.errstate(all="ignore"):
+        S, S_back, dt, rates = chain_scale(Dh, case.corners, V, t, o)
+        peak = np.maximum.reduce([
+            np.log2(S.max(axis=1)) + c, np.log2(S_back.max(axis=1)) + c,
+            np.log2((np.abs(t) + dt).max(axis=1)) + c - b,
+            np.log2(np.abs(V) @ np.abs(Dh).max(axis=0)) + a + c,
+            np.log2(np.abs(rates).max(axis=(1, 2))) + a + b])
+        return dict(V=np.ldexp(V, c), x=np.ldexp(x, c), S=np.ldexp(S, c),
+                    S_back=np.ldexp(S_back, c), t=np.ldexp(t, c - b),
+                    dt=np.ldexp(dt, c - b), rates=rates, peak=peak)
+
+
+def named_rate_is_not_positive(case: Case, msg: str) -> bool:
+    """Whether the rate that a transversality refusal names is <= 0 (to rounding): the
+    region can be off the oracle's chain (the inverse's chain, another order at a tie)."""
+    found = re.search(r"event (\d+) has rate \S+ <= 0 in region mask 0b([01]+)", msg)
+    assert found, f"the refusal names no event and region: {msg}"
+    k, hap = int(found[1]), np.array([int(ch) for ch in found[2][::-1]])
+    corner = case.corners(hap)
+    return case.Dh[k] @ corner <= 1e-12 * (np.abs(case.Dh[k]) @ np.abs(corner))
+
+
+def time_beyond_float64(case: Case, i: int) -> bool:
+    """Whether some event time of query i, at the scale ``BDerivative`` gets (2**(c - b)
+    times the oracle's), is beyond the normal float64 numbers (judged on the exponents,
+    with a factor 2 of margin for rounding)."""
+    _, b, c = case.exps
+    _, t, _ = oracle(case.Dh, case.ref, case.V[i : i + 1])
+    e = np.frexp(t[0])[1] + c - b
+    return bool(((t[0] != 0) & ((e >= 1024) | (e <= -1021))).any())
 
 
 FAMILIES = (fam_random, fam_wide, fam_huge, fam_mixed, fam_extreme, fam_tiny_rates,

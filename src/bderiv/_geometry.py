@@ -20,6 +20,13 @@ from .corners import check_table_size
 MAX_PIECES = 40320  # 8!
 
 
+def dh_rank(Dh) -> int:
+    """The row rank of Dh, with each row first scaled by a power of two to a largest entry
+    in [0.5, 1) (the rank does not change; NumPy's tolerance, relative to the largest
+    singular value, would count rows 2**40 smaller than the others as zero)."""
+    return int(np.linalg.matrix_rank(np.ldexp(Dh, -np.frexp(np.abs(Dh).max(axis=1))[1][:, None])))
+
+
 class CornerPoints(NamedTuple):
     """The 2**n corner points: ``post[mask] = M(pre[mask])`` (MATH.md section 5)."""
 
@@ -32,7 +39,7 @@ class CornerGeometry:
 
     def _require_full_rank(self, what: str) -> None:
         if not self.full_rank:
-            rank = np.linalg.matrix_rank(self.Dh)
+            rank = dh_rank(self.Dh)
             raise ValueError(
                 f"{what} need Dh of full row rank n={self.n_events}, but rank(Dh) = {rank} "
                 f"(more events than independent surfaces); apply, inverse, event_times and "
@@ -62,9 +69,7 @@ class CornerGeometry:
             return self.to_dense("corner points", memory_limit).corner_points(memory_limit)
         need = _tables.corner_point_bytes(self.n_events, self.dim)
         check_memory(need, memory_limit, f"corner points for n={self.n_events}")
-        if self.resets is not None:
-            return CornerPoints(*self._engine.corner_points())
-        return CornerPoints(*_tables.corner_points(self.F, self.Dh, self.rates))
+        return CornerPoints(*self._engine.corner_points())
 
     def triangulation(self, max_pieces: int = MAX_PIECES):
         """The PL homeomorphism as vertices and simplices (see :class:`Triangulation`).

@@ -25,9 +25,9 @@ import math
 import re
 
 import numpy as np
-from numba import njit, prange
 
 from ._batch import evaluate, is_dask_array
+from ._kernels import scaling
 from ._validate import check_memory, check_points, check_real_array
 
 #: bytes of the temporaries of one chunk of :meth:`Linearisation.piece_matrices` (each row
@@ -35,33 +35,20 @@ from ._validate import check_memory, check_points, check_real_array
 PIECE_CHUNK_BYTES = 64 << 20
 
 
-def unit_scale(rows: np.ndarray) -> np.ndarray:
-    """The rows (m, d) scaled by exact powers of two to largest entries in [0.5, 1).
+def unit_scale(rows: np.ndarray, exps=None) -> np.ndarray:
+    """The rows (m, d) scaled by exact powers of two to largest entries in [0.5, 1)
+    (``exps``: an int64 array (m,) that receives each row's exponent, the power of two
+    that scales it back).
 
     The piece a direction selects depends on the direction only (M is positively
     homogeneous), but its event times scale with it: a row near the ends of the float64
     range would overflow (or underflow) them and select a wrong order. Scaling by powers
-    of two is exact, so rows that are fine select what they selected before.
+    of two is exact, so rows that are fine select what they selected before. One compiled
+    pass on all threads (:func:`bderiv._kernels.scaling.scale_rows`).
     """
     out = np.empty_like(rows)
-    _scale_rows(rows, out)
+    scaling.scale_rows(rows, out, np.empty(rows.shape[0], np.int64) if exps is None else exps)
     return out
-
-
-@njit(parallel=True, cache=True)
-def _scale_rows(rows, out):
-    # one pass on all threads (NumPy's frexp / max / ldexp took the kernels' time). Two
-    # factors 2**a, 2**b (each representable): the first product is exact, the second
-    # rounds only into the subnormals, as ldexp does
-    for q in prange(rows.shape[0]):
-        big = 0.0
-        for i in range(rows.shape[1]):
-            big = max(big, abs(rows[q, i]))
-        shift = -math.frexp(big)[1]
-        a = math.ldexp(1.0, shift // 2)
-        b = math.ldexp(1.0, shift - shift // 2)
-        for i in range(rows.shape[1]):
-            out[q, i] = rows[q, i] * a * b
 
 
 class Linearisation:

@@ -98,15 +98,16 @@ def padded(X, cols: int, fill: float = 0.0) -> np.ndarray:
     return out
 
 
-def region_records(F, Dh: np.ndarray) -> np.ndarray:
+def region_records(F, Dh: np.ndarray, f_exp: int = 0) -> np.ndarray:
     """The table of one record per region, 64-byte aligned, shape (2**n, stride).
 
     Row ``mask`` holds ``[-1 / G[mask] | G[mask] | F[mask]]``, each part padded with
     (-1 | 0 | 0) to a multiple of 8 entries, so that a kernel reads a region's reciprocal
     rates, rates and corner as whole 8-wide vectors from one aligned record. ``F`` (2**n, d)
     is the caller's checked table (any real dtype and layout: copied block by block, so no
-    second table is held); the rates ``G = F @ Dh.T`` are computed into the records
-    (overflow gives inf, reported by the caller's checks).
+    second table is held), times ``2**f_exp`` (an exact scaling); the rates
+    ``G = F @ Dh.T`` are computed into the records (overflow gives inf, reported by the
+    caller's checks).
     """
     n, d = Dh.shape
     nc, dc, stride = record_layout(n, d)
@@ -117,7 +118,7 @@ def region_records(F, Dh: np.ndarray) -> np.ndarray:
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for rows in blocks(rows_total, RATE_BLOCK_ROWS):
             block = R[rows]
-            block[:, of : of + d] = F[rows]
+            block[:, of : of + d] = F[rows] if not f_exp else np.ldexp(F[rows], f_exp)
             block[:, of + d :] = 0.0
             G = block[:, of : of + d] @ DhT
             block[:, og : og + n] = G

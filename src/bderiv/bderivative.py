@@ -10,8 +10,14 @@ import numpy as np
 from ._batch import evaluate
 from ._engines import DenseEngine, FunctionEngine, StructuredEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
-from ._geometry import MAX_PIECES, CornerGeometry, CornerPoints  # noqa: F401 (re-exported)
-from ._linearise import Linearisation
+from ._geometry import (  # noqa: F401 (re-exported)
+    MAX_PIECES,
+    CornerGeometry,
+    CornerPoints,
+    dh_rank,
+)
+from ._kernels import scaling
+from ._linearise import Linearisation, unit_scale
 from ._validate import (
     check_finite_result,
     check_matrix,
@@ -145,7 +151,7 @@ class BDerivative(Linearisation, CornerGeometry):
             engine = ResetEngine.build(Dh, F, resets, transversality_tol, reset_tol,
                                        memory_limit)
             self.resets = engine.resets
-        F, G = engine.F, engine.G
+        F, G = engine.caller_tables()
         for a in (Dh, engine.R, F, G):
             a.flags.writeable = False
         self.Dh, self.F, self.rates = Dh, F, G
@@ -190,7 +196,7 @@ class BDerivative(Linearisation, CornerGeometry):
         self.__dict__.update(state)
         self.resets = getattr(self._engine, "resets", None)
         if self.model is None:
-            self.F, self.rates = self._engine.F, self._engine.G
+            self.F, self.rates = self._engine.caller_tables()
             self._engine.R.flags.writeable = False
         for arr in (self.Dh, self.F, self.rates):
             if isinstance(arr, np.ndarray):
@@ -198,7 +204,7 @@ class BDerivative(Linearisation, CornerGeometry):
 
     @cached_property
     def full_rank(self) -> bool:
-        return bool(np.linalg.matrix_rank(self.Dh) == self.n_events)
+        return dh_rank(self.Dh) == self.n_events
 
     @property
     def table_bytes(self) -> int:
@@ -286,23 +292,38 @@ class BDerivative(Linearisation, CornerGeometry):
             ``times[..., k]`` is the time at which event k happens.
         order : ndarray of int64, shape (..., n)
             ``order[..., j]`` is the j-th event to happen (the piece's event order).
+
+        Raises
+        ------
+        ValueError
+            If a nonzero time is beyond the normal float64 range (``V`` near the ends of
+            the range: times scale with it, ``times(c v) = c times(v)``), naming the
+            vector and the event; ``apply``, ``inverse`` and ``orders`` still work there.
         """
+        return self._event_times(V, True)
+
+    def orders(self, V) -> np.ndarray:
+        """The event order (piece) of each vector: ``event_times(V)[1]``, shape (..., n)
+        (given also where the times themselves are beyond float64)."""
+        return self._event_times(V, False)[1]
+
+    def _event_times(self, V, exact: bool):
         flat, lead = check_points(V, self.dim)
         n = self.n_events
         times = np.empty((flat.shape[0], n))
         order = np.empty((flat.shape[0], n), dtype=np.int64)
-        if self._engine.event_times(flat, times, order):
+        if self._engine.event_times(flat, times, order, exact=exact) and exact:
             check_finite_result(times, "V", 0, "event times")
         return times.reshape(lead + (n,)), order.reshape(lead + (n,))
 
-    def orders(self, V) -> np.ndarray:
-        """The event order (piece) of each vector: ``event_times(V)[1]``, shape (..., n)."""
-        return self.event_times(V)[1]
-
     def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:
         """The kernel of ``jvp``/``vjp`` (:class:`~bderiv._linearise.Linearisation`);
-        ``name``: T's in the caller's errors."""
-        if self._engine.tangents(V, T, res, transpose, offset):
+        ``name``: T's in the caller's errors. The piece is linear: each row of T runs
+        scaled by a power of two, as the queries of :meth:`apply` do, so that its products
+        along the chain under- or overflow only where the result does."""
+        exps = np.empty(T.shape[0], dtype=np.int64)
+        self._engine.tangents(V, unit_scale(T, exps), res, transpose, offset)
+        if scaling.unscale_rows(res, exps, 0):
             check_finite_result(res, name, offset)
 
     # -- pieces -----------------------------------------------------------------------------

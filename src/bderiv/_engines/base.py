@@ -7,7 +7,7 @@ import functools
 import numpy as np
 
 from .._format import format_happened, format_order, transversality_message
-from .._kernels import _core
+from .._kernels import _core, scaling
 from .._tables import chain_regions, tabulate
 
 #: bytes of chain corners gathered at a time by the generic :meth:`Engine.tangents`.
@@ -26,6 +26,16 @@ class Engine:
     """
 
     fast = None
+    #: whether the kernels of :meth:`_map` scale each query themselves (the dense ones,
+    #: ``_core.row_exponent``); otherwise :meth:`map` scales the batch around them
+    scales_queries = False
+    #: event times of the engine's tables are ``2**time_shift`` those of the caller's
+    #: (a dense table scaled at build, ``_engines.dense.table_exponents``)
+    time_shift = 0
+
+    def caller_tables(self):
+        """F and G in the caller's units (the engine's own unless scaled at build)."""
+        return self.F, self.G
 
     @functools.cached_property
     def launch(self) -> int:
@@ -37,17 +47,38 @@ class Engine:
         return None if self.fast is None else self.fast.kind
 
     def map(self, V, out, inverse: bool, name: str = "V", offset: int = 0) -> int:
-        """out = M(V), or M^-1(V) when ``inverse``; returns the number of non-finite rows
-        of ``out`` (overflow: the caller reports them)."""
+        """out = M(V), or M^-1(V) when ``inverse``, each query run scaled by a power of two
+        to a largest entry in [0.5, 1) (:mod:`.._kernels.scaling`); returns the number of
+        non-finite rows of ``out`` (overflow: the caller reports them)."""
+        if self.scales_queries:
+            return self._map(V, out, inverse, name, offset)
+        U, exps = unit_rows(V)
+        self._map(U, out, inverse, name, offset)
+        return scaling.unscale_rows(out, exps, 0)
+
+    def _map(self, V, out, inverse: bool, name: str, offset: int) -> int:
         if self.fast is None:
             return self._apply(V, out, inverse, name, offset)
         if self.fast.kind == "linear":
             return self.fast.apply_linear(V, out, inverse, self.launch)
         return self._apply_own_rates(V, out, inverse)
 
-    def event_times(self, V, times, orders, offset: int = 0) -> int:
+    def event_times(self, V, times, orders, offset: int = 0, exact: bool = True) -> int:
         """times[q, k]: time of event k; orders[q, j]: the j-th event. Returns the number
-        of rows of ``times`` that are not finite."""
+        of rows of ``times`` that are not finite.
+
+        The chains run on the queries scaled to a largest entry in [0.5, 1) and the times
+        are scaled back (``times(c v) = c times(v)``); a time that is then beyond the
+        normal float64 range is refused (ValueError naming the query and the event),
+        unless ``exact`` is False (only ``orders`` is wanted; ``times`` is then scratch).
+        """
+        U, exps = unit_rows(V)
+        bad = self._times(U, times, orders, offset)
+        if exact and not bad:
+            unscale_times(times, exps - self.time_shift, offset)
+        return bad
+
+    def _times(self, V, times, orders, offset: int) -> int:
         if self.fast is None:
             return self._event_times(V, times, orders, offset)
         return self.fast.event_times(V, times, orders, self.launch)
@@ -65,7 +96,7 @@ class Engine:
         for s in range(0, V.shape[0], rows):
             e = min(s + rows, V.shape[0])
             orders = np.empty((e - s, n), dtype=np.int64)
-            self.event_times(V[s:e], np.empty((e - s, n)), orders, offset + s)
+            self.event_times(V[s:e], np.empty((e - s, n)), orders, offset + s, exact=False)
             C = np.ascontiguousarray(
                 self.corners(chain_regions(orders, n).reshape(-1, n)), dtype=np.float64
             ).reshape(e - s, n + 1, d)
@@ -125,3 +156,30 @@ class Engine:
                 f"for region mask {format_happened(hap)} {where}; corners must be finite"
             )
         raise ValueError(transversality_message(k, format_happened(hap), float(r[k]), where))
+
+
+def unit_rows(V):
+    """(U, exps): ``U[q] = 2**-exps[q] V[q]``, each row's largest entry in [0.5, 1)."""
+    U = np.empty_like(V)
+    exps = np.empty(V.shape[0], dtype=np.int64)
+    scaling.scale_rows(V, U, exps)
+    return U, exps
+
+
+def unscale_times(times, exps, offset: int) -> None:
+    """``times[q] *= 2**exps[q]`` in place, refusing a nonzero time that leaves the normal
+    float64 range (overflow, or underflow into the subnormals or to 0)."""
+    with np.errstate(over="ignore", under="ignore"):
+        t = np.ldexp(times, exps[:, None])
+    bad = ~np.isfinite(t) | ((times != 0) & ~(np.abs(t) >= np.finfo(np.float64).tiny))
+    if bad.any():
+        q, k = (int(i) for i in np.argwhere(bad)[0])
+        e = int(np.frexp(times[q, k])[1] + exps[q])
+        what = "overflows" if e > 0 else "underflows"
+        raise ValueError(
+            f"the time of event {k} for V[{q + offset}] {what} float64 (about 2**{e - 1}, "
+            f"beyond the normal numbers): it cannot be returned. The map itself is "
+            f"representable: apply, inverse and orders still work. Event times scale with "
+            f"the vector (times(c v) = c times(v)): scale V by a power of two"
+        )
+    times[...] = t

@@ -7,11 +7,16 @@ import numpy as np
 from .. import _tables
 from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
-from .._kernels import lanes
+from .._kernels import lanes, scaling
 from .._kernels._core import PLAIN
 from .._validate import check_matrix, check_number, memory_limit_bytes
 from . import fastpath
-from .base import Engine
+from .base import Engine, unit_rows
+
+#: tables whose largest entry (of a row of Dh, or of F as a whole) is beyond 2**+-TABLE_BAND
+#: are scaled by a power of two at build (:func:`table_exponents`); within it the products
+#: of the kernels stay far from both ends of the float64 range, and nothing is copied.
+TABLE_BAND = 64
 
 #: records larger than this are prefetched one step ahead by the lane kernels (about the
 #: size of the last-level cache share of a core; below it the hint costs more than it saves)
@@ -24,12 +29,45 @@ class DenseEngine(Engine):
     the largest ratio of one event's rates (``_check_spread``). Runs the lane kernels, or
     the plain ones when ``_core.PLAIN`` or d > ``lanes.MAX_D``."""
 
-    def __init__(self, Dh, R, fast_paths: bool = True, rate_spread: float = 1.0):
+    # the kernels of _map scale their queries as they load them (the lane kernels: those
+    # outside the query band, see _apply)
+    scales_queries = True
+
+    def __init__(self, Dh, R, fast_paths: bool = True, rate_spread: float = 1.0,
+                 exps=None):
         self.Dh, self.R = Dh, R
         self.n, self.d = Dh.shape
         self.rate_spread = rate_spread
+        # the caller's Dh[k] is 2**dh_exps[k] Dh[k], its F 2**f_exp F (table_exponents)
+        if exps is None:
+            exps = (np.zeros(self.n, dtype=np.int64), 0)
+        self.dh_exps, self.f_exp = exps
+        self.time_shift = self.f_exp
         self._views()
         self.fast = fastpath.dense(self.F, self.G, Dh) if fast_paths else None
+
+    @property
+    def scaled(self) -> bool:
+        """Whether the tables were scaled at build (then F, G differ from the caller's)."""
+        return bool(self.f_exp or self.dh_exps.any())
+
+    def caller_tables(self):
+        """F (2**n, d) and G (2**n, n) in the caller's units: views of the records, or
+        for scaled tables new arrays (G may then hold inf or 0 where the caller's rates
+        are beyond float64; the kernels never read these)."""
+        if not self.scaled:
+            return self.F, self.G
+        with np.errstate(over="ignore", under="ignore"):
+            return (np.ldexp(self.F, self.f_exp),
+                    np.ldexp(self.G, self.f_exp + self.dh_exps[None, :]))
+
+    def corner_points(self):
+        """(pre, post) corner points (MATH.md section 5), from the records: a point scales
+        with F and not with the rows of Dh, so the scaled tables give them times
+        ``2**-f_exp``."""
+        with np.errstate(over="ignore", under="ignore"):
+            return tuple(np.ldexp(P, self.f_exp)
+                         for P in _tables.corner_points(self.F, self.Dh, self.G))
 
     def _views(self) -> None:
         """F, G and the kernels' tables, from Dh and R."""
@@ -60,9 +98,11 @@ class DenseEngine(Engine):
         self._views()
 
     @classmethod
-    def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True):
+    def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True,
+              scale: bool = True):
         """Validate a user's table F for Dh (size before anything is allocated, shape,
-        finiteness, transversality of every rate) and build the engine on a copy."""
+        finiteness, transversality of every rate) and build the engine on a copy, scaled
+        by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``."""
         n, d = Dh.shape
         limit = (_tables.available_memory() if memory_limit is None
                  else memory_limit_bytes(memory_limit))
@@ -82,15 +122,19 @@ class DenseEngine(Engine):
             )
         check_number(transversality_tol, "transversality_tol", strict=False)
 
-        R = _tables.region_records(F, Dh)
+        dh_exps, f_exp = table_exponents(Dh, F) if scale else (np.zeros(n, np.int64), 0)
+        if dh_exps.any():
+            Dh = np.ldexp(Dh, -dh_exps[:, None])
+        R = _tables.region_records(F, Dh, -f_exp)
         nc = _tables.record_layout(n, d)[0]
         G, F = R[:, 8 * nc : 8 * nc + n], R[:, 16 * nc : 16 * nc + d]
         bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol)
         if bad is not None:
             mask, k, kind, scale = bad
+            rate = np.ldexp(G[mask, k], f_exp + int(dh_exps[k]))  # in the caller's units
             where = (
                 f"event {k} in region mask {format_mask(mask, n)} ({MASK_MEANING}): rate "
-                f"G[{mask}, {k}] = F[{mask}] . Dh[{k}] = {G[mask, k]:.3g}"
+                f"G[{mask}, {k}] = F[{mask}] . Dh[{k}] = {rate:.3g}"
             )
             if kind == "underflow":
                 raise ValueError(
@@ -113,7 +157,7 @@ class DenseEngine(Engine):
                 f"nearly tangent to the flow"
             )
         spread = cls._check_spread(G, n, transversality_tol)
-        return cls(Dh, R, fast_paths, spread)
+        return cls(Dh, R, fast_paths, spread, (dh_exps, f_exp))
 
     @staticmethod
     def _check_spread(G, n, tol) -> float:
@@ -136,7 +180,18 @@ class DenseEngine(Engine):
     def _apply(self, V, out, inverse, name, offset) -> int:
         if self._lanes is None:
             return kernels.apply(self._plain, V, (out,), inverse, launch=self.launch)
-        return self._lane_kernels[0](self._lanes, V, (out,), inverse, launch=self.launch)
+        bad = self._lane_kernels[0](self._lanes, V, (out,), inverse, launch=self.launch)
+        if not bad:
+            return 0
+        # groups outside the query band came back NaN: run them scaled (and any overflow
+        # again, which stays non-finite)
+        rows = np.flatnonzero(~np.isfinite(out).all(axis=1))
+        U, exps = unit_rows(V[rows])
+        res = np.empty_like(U)
+        self._lane_kernels[3](self._lanes, U, (res,), inverse, launch=self.launch)
+        bad = scaling.unscale_rows(res, exps, 0)
+        out[rows] = res
+        return bad
 
     def _apply_own_rates(self, V, out, inverse) -> int:
         rate = self.fast.ratef if inverse else self.fast.rate0
@@ -162,3 +217,20 @@ class DenseEngine(Engine):
 
     def dense_table(self) -> np.ndarray:
         return self.F
+
+
+def table_exponents(Dh, F):
+    """(dh_exps (n,), f_exp): the binary exponents (``np.frexp``) of the largest entry of
+    each row of Dh and of F as a whole, each replaced by 0 within ``+-TABLE_BAND``.
+
+    The kernels run on ``2**-dh_exps[k] Dh[k]`` and ``2**-f_exp F``, which have the same
+    B-derivative (each piece is a product of ``I + (F[a] - F[b]) Dh[k]^T / (Dh[k] . F[b])``,
+    unchanged by either scaling; MATH.md "How the kernels round"); the event times are
+    ``2**f_exp`` times the caller's.
+    """
+    dh = np.frexp(np.abs(Dh).max(axis=1))[1].astype(np.int64)
+    big = max((float(np.abs(F[rows]).max()) for rows in _tables.blocks(F.shape[0])),
+              default=0.0)
+    f = int(np.frexp(big)[1])
+    dh[np.abs(dh) <= TABLE_BAND] = 0
+    return dh, (f if abs(f) > TABLE_BAND else 0)

@@ -203,7 +203,8 @@ class ResetEngine(Engine):
         n, d = Dh.shape
         reset_tol = check_number(reset_tol, "reset_tol")
         P, Q, low = _check_resets(resets, n, d, memory_limit)
-        table = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths=False)
+        table = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths=False,
+                                  scale=False)
         check_existence(Dh, P, Q, low, reset_tol)
         for a in (P, Q):
             a.flags.writeable = False
@@ -246,10 +247,10 @@ class ResetEngine(Engine):
             self._inverse = self._kernel_tables(Pi, self.Q)
         return self._inverse
 
-    def map(self, V, out, inverse: bool, name: str = "V", offset: int = 0) -> int:
+    def _map(self, V, out, inverse: bool, name: str, offset: int) -> int:
         return kernels.apply(self._tables(inverse), V, (out,), inverse, launch=self.launch)
 
-    def event_times(self, V, times, orders, offset: int = 0) -> int:
+    def _times(self, V, times, orders, offset: int) -> int:
         return kernels.event_times(self._tables(), V, (times, orders), launch=self.launch)
 
     def tangents(self, V, T, out, transpose: bool, offset: int = 0) -> int:

@@ -16,6 +16,7 @@ No validation here: callers pass C-contiguous arrays of consistent shapes.
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import pathlib
 import threading
@@ -26,6 +27,7 @@ import numpy as np
 from numba import njit, parallel_chunksize, prange
 
 from ._cache import DriverCache, harden, harden_all
+from ._simd import bits_float, float_bits
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
@@ -182,6 +184,43 @@ def nonfinite_rows(a, start, stop):
     return bad
 
 
+@njit(inline="always", **JIT)
+def row_exponent(V, q, d):
+    """e with ``max_i |V[q, i]|`` in [2**(e - 1), 2**e) (0 for a zero row), as
+    ``math.frexp`` gives it: the query ``2**-e V[q]`` has its largest entry in [0.5, 1)
+    (see :mod:`.scaling`). Read from the bits of a normal float (a libm call per query
+    cost the lane kernels half their time)."""
+    big = 0.0
+    for i in range(d):
+        big = max(big, abs(V[q, i]))
+    biased = (float_bits(big) >> 52) & 0x7FF
+    if biased == 0:  # 0 or subnormal
+        return math.frexp(big)[1]
+    return biased - 1022
+
+
+#: a query whose nonzero entries are within 2**+-QUERY_BAND keeps the chain of tables
+#: scaled within 2**+-64 (``_engines.dense.TABLE_BAND``) far from both ends of the float64
+#: range; kernels may run such queries as given (what the scaled query gives, scaled)
+QUERY_BAND = 256
+
+
+@njit(inline="always", **JIT)
+def _pow2(k):
+    """2.0**k for -1022 <= k <= 1023, from its bits."""
+    return bits_float((k + 1023) << 52)
+
+
+@njit(inline="always", **JIT)
+def factors(e):
+    """Two floats whose product is 2**e, for |e| <= 2044: ``(2**e, 1)`` when 2**e is a
+    normal float (one multiplication rounds once, into the subnormals too), else two
+    halves (the first product is exact, the second rounds only into the subnormals)."""
+    if -1022 <= e <= 1023:
+        return _pow2(e), 1.0
+    return _pow2(e // 2), _pow2(e - e // 2)
+
+
 @njit(**JIT)
 def impacts(DhT, u, g):
     """g = Dh @ u from DhT = Dh.T (d, n), as axpys over the rows of DhT (vectorises)."""
@@ -233,17 +272,24 @@ def _own_times_block(tables, V, outs, start, stop, inverse):
 
 @njit(**JIT)
 def _linear_block(tables, V, outs, start, stop, inverse):
-    """out[q] = M @ V[q] from tables = (M.T, M^-1.T), as axpys (vectorises)."""
+    """out[q] = M @ V[q] from tables = (M.T, M^-1.T), as axpys (vectorises), on V[q]
+    scaled by a power of two (:func:`row_exponent`: no product under- or overflows unless the
+    result does)."""
     MT = tables[1] if inverse else tables[0]
     out = outs[0]
     d = MT.shape[0]
     for q in range(start, stop):
+        e = row_exponent(V, q, d)
+        a, b = factors(-e)
         for r in range(d):
             out[q, r] = 0.0
         for c in range(d):
-            vc = V[q, c]
+            vc = V[q, c] * a * b
             for r in range(d):
                 out[q, r] += MT[c, r] * vc
+        a, b = factors(e)
+        for r in range(d):
+            out[q, r] = out[q, r] * a * b
 
 
 @njit(**JIT)

@@ -285,3 +285,34 @@ def prefetch(typingctx, a, row, col):
         return context.get_dummy_value()
     return types.void(a, row, col), codegen
 
+
+
+@intrinsic
+def float_bits(typingctx, x):
+    """The IEEE bits of a float64, as an int64 (a bit cast: no conversion)."""
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], _I64)
+    return types.int64(types.float64), codegen
+
+
+@intrinsic
+def bits_float(typingctx, i):
+    """The float64 whose IEEE bits are the int64 i (a bit cast)."""
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+    return types.float64(types.int64), codegen
+
+
+@intrinsic
+def outside_mask(typingctx, a, lo, hi):
+    """Bit k set iff lane k of a is neither 0 nor of a magnitude in [lo, hi] (NaN too)."""
+    def codegen(context, builder, sig, args):
+        vty = _vec(a.width)
+        fabs = _llvm_function(builder, f"llvm.fabs.{_suffix(a.width)}", vty, [vty])
+        mag = builder.call(fabs, [args[0]])
+        zero = builder.fcmp_ordered("==", args[0], ir.Constant(vty, [0.0] * a.width))
+        inside = builder.and_(builder.fcmp_ordered(">=", mag, _splat(builder, args[1], a.width)),
+                              builder.fcmp_ordered("<=", mag, _splat(builder, args[2], a.width)))
+        bad = builder.not_(builder.or_(zero, inside))
+        return builder.zext(builder.bitcast(bad, ir.IntType(a.width)), _I64)
+    return types.int64(a, types.float64, types.float64), codegen

@@ -12,7 +12,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._core import JIT, batch, own_rate_times, saltation_step, stable_order, write_times
+from ._core import (
+    JIT,
+    batch,
+    factors,
+    own_rate_times,
+    row_exponent,
+    saltation_step,
+    stable_order,
+    write_times,
+)
 
 #: queries evaluated in lockstep by one thread. Each query is a chain of n dependent steps
 #: (rates of the region reached -> event times -> next event -> next region), so one query
@@ -34,6 +43,9 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
     gets g[k] = -inf (+inf backwards), so that its time is never selected again: no bit
     tests in the inner loops, which are plain loops over k.
 
+    Each query runs scaled by a power of two, ``u = 2**-e V[q]`` with its largest entry in
+    [0.5, 1) (``scaling``): the times are those of u, ``2**-e`` times those of V[q].
+
     Writes, for each p < pn: ``times[p, j]`` (j-th event time; non-decreasing forwards),
     ``order[p, j]`` (its event) and ``chain[p, j]`` (region before the (j+1)-th event,
     chain[p, 0] = 0, chain[p, n] = full mask), all in forward order.
@@ -44,8 +56,9 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
         q = q0 + p
         for k in range(n):
             g[p, k] = 0.0
+        a, b = factors(-row_exponent(V, q, d))  # u = 2**-e V[q] (scaling.row_exponent)
         for i in range(d):
-            ui = V[q, i]
+            ui = V[q, i] * a * b
             for k in range(n):
                 g[p, k] += DhT[i, k] * ui
         chain[p, n if inverse else 0] = full if inverse else 0
@@ -104,16 +117,22 @@ def _apply_block(tables, V, outs, start, stop, inverse):
         pn = min(GROUP, stop - q0)
         _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain)
         # telescope (MATH.md section 3): x = u + sum_j t_j (F[B_{j-1}] - F[B_j])
+        # on u = 2**-e V[q], the chain's query; the result scaled back by 2**e
         for p in range(pn):
             q = q0 + p
+            e = row_exponent(V, q, d)
+            a, b = factors(-e)
             for i in range(d):
-                out[q, i] = V[q, i]
+                out[q, i] = V[q, i] * a * b
             for j in range(n):
                 t = sign * times[p, j]
                 Bp = chain[p, j]
                 Bn = chain[p, j + 1]
                 for i in range(d):
                     out[q, i] += t * (F[Bp, i] - F[Bn, i])
+            a, b = factors(e)
+            for i in range(d):
+                out[q, i] = out[q, i] * a * b
 
 
 @njit(**JIT)
@@ -139,14 +158,19 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
     out = outs[0]
     d, n = DhT.shape
     tev = np.empty(n)
+    u = np.empty(d)
     order = np.empty(n, dtype=np.int64)
     sign = 1.0 if inverse else -1.0
     for q in range(start, stop):
-        own_rate_times(DhT, rate, V[q], tev)
+        e = row_exponent(V, q, d)  # u = 2**-e V[q], the result scaled back by 2**e
+        a, b = factors(-e)
+        for i in range(d):
+            u[i] = V[q, i] * a * b
+        own_rate_times(DhT, rate, u, tev)
         stable_order(tev, order)
         # x = u -+ sum_j t_j (F[B_j] - F[B_{j-1}])
         for i in range(d):
-            out[q, i] = V[q, i]
+            out[q, i] = u[i]
         B = 0
         for j in range(n):
             k = order[j]
@@ -155,6 +179,9 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
             for i in range(d):
                 out[q, i] += c * (F[B2, i] - F[B, i])
             B = B2
+        a, b = factors(e)
+        for i in range(d):
+            out[q, i] = out[q, i] * a * b
 
 
 
