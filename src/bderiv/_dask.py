@@ -78,7 +78,7 @@ def map_blocks(fn, V, dim: int, name: str = "V", out=None):
     # fresh keys: naming them by a hash of the map would pickle all of it to hash it
     token = uuid.uuid4().hex
     what = getattr(fn, "__name__", "map")
-    shipped = dask.delayed(fn, pure=True, name=f"bderiv-map-{token}")
+    shipped = dask.delayed(fn, pure=True, name=f"bderiv-shipped-{token}")  # not the array's key
     return V.map_blocks(_apply, shipped, dtype=np.float64, meta=np.empty((0,) * V.ndim),
                         name=f"bderiv-{what}-{token}")
 
