@@ -315,6 +315,29 @@ def test_a_slow_approach_is_located_until_the_events_are_decided_simultaneous():
     np.testing.assert_allclose(fine(V), fb(V), rtol=1e-6)
 
 
+def test_deciding_simultaneous_events_integrates_the_variational_equations_once():
+    # the tighter integrations that decide are of the state alone; the first stretch is
+    # kept when they decide the group it found (at the floor rtol, numerical Jacobians
+    # in the variational equations took minutes)
+    calls = []
+
+    def counted(x, mask):
+        calls.append(mask)
+        return slow_field_jacobian(x, mask)
+
+    system = HybridSystem(slow_field, slow_events, n_events=2, dim=2, field_jacobian=counted,
+                          event_jacobian=lambda x: np.array([[1.0, 0.2 * x[1]], [0, 1.0]]))
+    V = np.random.default_rng(1).standard_normal((8, 2))
+    maps = []
+    for tol in (1e-3, 1e-9):  # decided at once; undecided down to rtol = 2.2e-14
+        calls.clear()
+        maps.append(system.flow_bderivative(SLOW_X0, 1.5, simultaneity_tol=tol))
+        assert maps[-1].group_events == ((0, 1),)
+        maps[-1] = (maps[-1](V), len(calls))
+    np.testing.assert_array_equal(maps[1][0], maps[0][0])
+    assert maps[1][1] == maps[0][1]
+
+
 def test_the_advice_of_a_refusal_tells_the_events_apart():
     # event 0 now about 1e-8 after event 1: within the default tolerance 1e-7, so refused;
     # the advice must name a tolerance the located times can resolve

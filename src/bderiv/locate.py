@@ -198,9 +198,15 @@ def tightened(options):
 
 
 def settle(system, mask, sol, simultaneity_tol, options, scale, carried, integrate=None):
-    """The stretch ``sol`` integrated again, more tightly, until no event at its stop is
-    undecided or rtol reaches ``FINEST_RTOL`` (events still undecided there are grouped:
-    the integrator cannot order them); and the state's error bound at the stop.
+    """The stretch ``sol``, or the same stretch integrated more tightly when events at its
+    stop are undecided; and the state's error bound at the stop.
+
+    The state alone is integrated again, rtol and atol divided by ``REFINE_FACTOR`` each
+    time, until no event at the stop is undecided or rtol reaches ``FINEST_RTOL`` (events
+    still undecided there are grouped: the integrator cannot order them). When that
+    decides the same group as ``sol`` (the common case: simultaneous events), ``sol`` is
+    kept; otherwise the stretch is integrated once more at the deciding tolerances, with
+    the variational equations, and returned.
 
     Parameters
     ----------
@@ -216,29 +222,39 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried, integra
         Largest ``|x_i|`` of the run before the stretch.
     carried : ndarray, shape (d,)
         The error bound at the stretch's start (:func:`state_error`).
-    integrate : callable ``integrate(options) -> OdeResult``, optional
-        Integrates the same stretch with other options; without it (a run that needs no
-        derivative: the state does not depend on how near events are grouped) ``sol`` is
-        returned as it is.
+    integrate : callable ``integrate(options, variational=...) -> OdeResult``, optional
+        Integrates the same stretch with other options (the state alone with
+        ``variational=False``); without it (a run that needs no derivative: the state does
+        not depend on how near events are grouped) ``sol`` is returned as it is.
 
     Returns
     -------
     sol : OdeResult
     err : ndarray, shape (d,)
     """
-    d, n = system.dim, system.n_events
-    while True:
+    d = system.dim
+
+    def decide(sol, options):
         err = state_error(options.atol, options.rtol,
                           np.maximum(scale, np.abs(sol.y[:d]).max(axis=1)), carried)
-        fired = [k for k in range(n) if sol.t_events[k].size]
-        finer = None if integrate is None or sol.status != 1 else tightened(options)
-        if finer is None or not fired:
-            return sol, err
+        fired = [k for k in range(system.n_events) if sol.t_events[k].size]
+        if sol.status != 1 or not fired:
+            return err, None
         _, h, Dh, _, rate = local_view(system, mask, sol.y[:d, -1])
         window, _ = windows(Dh, rate, err, fired)
-        if not classify(h, rate, window, fired, simultaneity_tol).undecided:
-            return sol, err
-        options, sol = finer, integrate(finer)
+        return err, classify(h, rate, window, fired, simultaneity_tol)
+
+    err, first = decide(sol, options)
+    if integrate is None or first is None or not first.undecided:
+        return sol, err
+    classes, finer = first, options
+    while classes is not None and classes.undecided and tightened(finer) is not None:
+        finer = tightened(finer)
+        classes = decide(integrate(finer, variational=False), finer)[1]
+    if classes is not None and (classes.group, classes.near) == (first.group, first.near):
+        return sol, err
+    sol = integrate(finer)
+    return sol, decide(sol, finer)[0]
 
 
 def on_side_at_start(funcs, t0, mask, n):
