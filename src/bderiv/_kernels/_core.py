@@ -206,6 +206,14 @@ QUERY_BAND = 256
 
 
 @njit(inline="always", **JIT)
+def query_exponent(V, q, d):
+    """:func:`row_exponent`, or 0 for a row within the query band (``QUERY_BAND``): such
+    a row runs as given, which gives the scaled row's bits, scaled."""
+    e = row_exponent(V, q, d)
+    return 0 if -QUERY_BAND <= e <= QUERY_BAND else e
+
+
+@njit(inline="always", **JIT)
 def _pow2(k):
     """2.0**k for -1022 <= k <= 1023, from its bits."""
     return bits_float((k + 1023) << 52)
@@ -273,13 +281,13 @@ def _own_times_block(tables, V, outs, start, stop, inverse):
 @njit(**JIT)
 def _linear_block(tables, V, outs, start, stop, inverse):
     """out[q] = M @ V[q] from tables = (M.T, M^-1.T), as axpys (vectorises), on V[q]
-    scaled by a power of two (:func:`row_exponent`: no product under- or overflows unless the
+    scaled by a power of two (:func:`query_exponent`: no product under- or overflows unless the
     result does)."""
     MT = tables[1] if inverse else tables[0]
     out = outs[0]
     d = MT.shape[0]
     for q in range(start, stop):
-        e = row_exponent(V, q, d)
+        e = query_exponent(V, q, d)
         a, b = factors(-e)
         for r in range(d):
             out[q, r] = 0.0
@@ -287,9 +295,10 @@ def _linear_block(tables, V, outs, start, stop, inverse):
             vc = V[q, c] * a * b
             for r in range(d):
                 out[q, r] += MT[c, r] * vc
-        a, b = factors(e)
-        for r in range(d):
-            out[q, r] = out[q, r] * a * b
+        if e != 0:
+            a, b = factors(e)
+            for r in range(d):
+                out[q, r] = out[q, r] * a * b
 
 
 @njit(**JIT)

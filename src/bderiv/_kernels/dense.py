@@ -17,7 +17,7 @@ from ._core import (
     batch,
     factors,
     own_rate_times,
-    row_exponent,
+    query_exponent,
     saltation_step,
     stable_order,
     write_times,
@@ -43,8 +43,9 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
     gets g[k] = -inf (+inf backwards), so that its time is never selected again: no bit
     tests in the inner loops, which are plain loops over k.
 
-    Each query runs scaled by a power of two, ``u = 2**-e V[q]`` with its largest entry in
-    [0.5, 1) (``scaling``): the times are those of u, ``2**-e`` times those of V[q].
+    Each query outside the query band runs scaled by a power of two, ``u = 2**-e V[q]``
+    with its largest entry in [0.5, 1) (``_core.query_exponent``): the times are then
+    those of u, ``2**-e`` times those of V[q].
 
     Writes, for each p < pn: ``times[p, j]`` (j-th event time; non-decreasing forwards),
     ``order[p, j]`` (its event) and ``chain[p, j]`` (region before the (j+1)-th event,
@@ -56,7 +57,7 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
         q = q0 + p
         for k in range(n):
             g[p, k] = 0.0
-        a, b = factors(-row_exponent(V, q, d))  # u = 2**-e V[q] (scaling.row_exponent)
+        a, b = factors(-query_exponent(V, q, d))  # u = 2**-e V[q] (_core.query_exponent)
         for i in range(d):
             ui = V[q, i] * a * b
             for k in range(n):
@@ -120,7 +121,7 @@ def _apply_block(tables, V, outs, start, stop, inverse):
         # on u = 2**-e V[q], the chain's query; the result scaled back by 2**e
         for p in range(pn):
             q = q0 + p
-            e = row_exponent(V, q, d)
+            e = query_exponent(V, q, d)
             a, b = factors(-e)
             for i in range(d):
                 out[q, i] = V[q, i] * a * b
@@ -130,9 +131,10 @@ def _apply_block(tables, V, outs, start, stop, inverse):
                 Bn = chain[p, j + 1]
                 for i in range(d):
                     out[q, i] += t * (F[Bp, i] - F[Bn, i])
-            a, b = factors(e)
-            for i in range(d):
-                out[q, i] = out[q, i] * a * b
+            if e != 0:
+                a, b = factors(e)
+                for i in range(d):
+                    out[q, i] = out[q, i] * a * b
 
 
 @njit(**JIT)
@@ -162,7 +164,7 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
     order = np.empty(n, dtype=np.int64)
     sign = 1.0 if inverse else -1.0
     for q in range(start, stop):
-        e = row_exponent(V, q, d)  # u = 2**-e V[q], the result scaled back by 2**e
+        e = query_exponent(V, q, d)  # u = 2**-e V[q], the result scaled back by 2**e
         a, b = factors(-e)
         for i in range(d):
             u[i] = V[q, i] * a * b
@@ -179,9 +181,10 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
             for i in range(d):
                 out[q, i] += c * (F[B2, i] - F[B, i])
             B = B2
-        a, b = factors(e)
-        for i in range(d):
-            out[q, i] = out[q, i] * a * b
+        if e != 0:
+            a, b = factors(e)
+            for i in range(d):
+                out[q, i] = out[q, i] * a * b
 
 
 
