@@ -412,3 +412,20 @@ def test_npz_records_flagged_encrypted_or_recompressed_are_refused(tmp_path):
             flipped[byte] ^= 1 << bit  # encrypted, strong encryption, compression method
             bad.write_bytes(bytes(flipped))
             refused_or_identical(bad, tri, "npz")
+
+
+def test_dask_keys_of_a_map_without_a_name_do_not_collide():
+    """A partial (no ``__name__``) as the map: its shipped key and the result's differ."""
+    da = pytest.importorskip("dask.array")
+    import functools
+
+    from bderiv._dask import map_blocks
+
+    Dh, F = random_system(np.random.default_rng(9), 2, 3)
+    bd = BDerivative(Dh, F)
+    X = np.random.default_rng(10).standard_normal((60, 3))
+    lazy = map_blocks(functools.partial(bd.apply), da.from_array(X, chunks=(20, 3)), 3)
+    got = lazy.compute()
+    assert_array_equal(got, bd(X))  # block by block as in one call, bit for bit
+    np.testing.assert_allclose(got, np.array([ref_apply(Dh, F, x) for x in X]), rtol=1e-12,
+                               atol=1e-14)
