@@ -109,7 +109,10 @@ def test_huge_files_are_refused_before_reading(tmp_path, fmt):
     path = sparse(tmp_path / f"huge.{fmt}", 6 << 30)  # the 6 GiB
     if fmt == "json":
         refused_cheaply(lambda: load_triangulation(path, memory_limit=1 << 30),
-                        r"reading triangulation file .* \(6442450944 bytes\) " + MEMORY)
+                        r"reading triangulation file .* \(6442450944 bytes parsed as JSON: 5 "
+                        r"bytes a byte at least\) " + MEMORY)
+        # within the limit as a file, not once parsed: refused before it is read too
+        refused_cheaply(lambda: load_triangulation(path, memory_limit=12 << 30), MEMORY)
     else:  # an .npz is read by its directory (at the end): a hole is no archive
         with pytest.raises(ValueError, match="cannot be read as .npz"):
             load_triangulation(path)
@@ -161,5 +164,5 @@ def test_memory_limit_of_load_is_validated(tmp_path, tri):
         load_triangulation(path, memory_limit="1 GB")
     with pytest.raises(ValueError, match="memory_limit must be a positive whole number"):
         load_triangulation(path, memory_limit=-5)
-    with pytest.raises(ValueError, match=r"\(\d+ bytes\) " + MEMORY + " 100 B"):
+    with pytest.raises(ValueError, match=r"\(\d+ bytes parsed as JSON.*\) " + MEMORY + " 100 B"):
         load_triangulation(path, memory_limit=100)  # the file itself is larger

@@ -123,7 +123,7 @@ def read_json(path: str, source: str, memory_limit=None):
     regular one, a text whose parse would take more than ``memory_limit`` bytes (default:
     the memory available, :func:`json_parse_bytes`) and a digest that does not match.
     """
-    text = _read_regular(path, source, memory_limit)
+    text = _read_regular(path, source, memory_limit, JSON_BYTES_PER_BYTE, " parsed as JSON")
     check_memory(json_parse_bytes(text), memory_limit, f"reading {source} (JSON)")
     try:
         data = json.loads(text)
@@ -137,6 +137,11 @@ def read_json(path: str, source: str, memory_limit=None):
     return data
 
 
+#: the least memory a byte of JSON takes, read and parsed (the first term of
+#: :func:`json_parse_bytes`): checked from the file's size before it is read
+JSON_BYTES_PER_BYTE = 5
+
+
 def json_parse_bytes(text: bytes) -> int:
     """An upper bound of the bytes ``json.loads(text)`` and its digest check take.
 
@@ -146,7 +151,7 @@ def json_parse_bytes(text: bytes) -> int:
     against tracemalloc on numbers, strings, escapes and nested containers, the worst
     case being an empty container per 3 bytes: about 30 bytes per byte).
     """
-    return (5 * len(text) + 96 * text.count(b"{") + 80 * text.count(b"[")
+    return (JSON_BYTES_PER_BYTE * len(text) + 96 * text.count(b"{") + 80 * text.count(b"[")
             + 48 * (text.count(b",") + text.count(b":") + 1) + 32 * text.count(b'"'))
 
 
@@ -183,11 +188,14 @@ def _check_digest(stored, actual: str, source: str) -> None:
         )
 
 
-def _read_regular(path: str, source: str, memory_limit) -> bytes:
-    """The bytes of ``path``, a regular file no larger than the memory limit."""
+def _read_regular(path: str, source: str, memory_limit, per_byte: int = 1,
+                  how: str = "") -> bytes:
+    """The bytes of ``path``, a regular file whose size times ``per_byte`` (the least
+    memory a byte of it takes once read and ``how``) fits in the memory limit."""
     with _open_regular(path, source) as fh:
         size = os.fstat(fh.fileno()).st_size
-        check_memory(size, memory_limit, f"reading {source} ({size} bytes)")
+        check_memory(per_byte * size, memory_limit,
+                     f"reading {source} ({size} bytes{how}: {per_byte} bytes a byte at least)")
         text = fh.read(size + 1)
     if len(text) != size:
         raise ValueError(f"{source} changed size while it was read ({size} bytes expected, "
