@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from numba import njit, prange
 
-from ._core import factors, row_exponent
+from ._core import QUERY_BAND, factors, row_exponent
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -44,4 +44,17 @@ def unscale_rows(out, exps, shift):
             out[q, i] = out[q, i] * a * b
             s += out[q, i] * 0.0
         bad += s != s
+    return bad
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def outside_band(V, exps):
+    """``exps[q]``: the :func:`row_exponent` of each row (read only); returns how many
+    rows are beyond ``_core.QUERY_BAND`` (those need :func:`scale_rows`)."""
+    d = V.shape[1]
+    bad = 0
+    for q in prange(V.shape[0]):
+        e = row_exponent(V, q, d)
+        exps[q] = e
+        bad += (e < -QUERY_BAND) | (e > QUERY_BAND)
     return bad
