@@ -200,7 +200,7 @@ def _earliest_lost(system, sign, options, sol):
     times = sample_times(sol.t)
     states = sol.sol(times)[:d].T
     h = np.array([sign * system.eval_events(x) for x in states])
-    scale = float(np.abs(states).max())
+    scale = np.abs(states).max(axis=0)  # per component: only those an event reads count
     tol = group_tolerance(sign[:, None] * system.eval_event_jacobian(states[-1]), options,
                           scale)
     # a peak at an end of the stretch is not an excursion: at the start the events were
