@@ -151,3 +151,24 @@ def test_public_namespace():
               and name not in bderiv.__all__
               and not isinstance(getattr(bderiv, name), types.ModuleType)]
     assert leaked == []
+
+
+def test_cited_documents_and_sections_exist():
+    """The documentation is self-contained: every document a doc, docstring or comment
+    cites by its file name is in the repository, and every numbered section of
+    docs/mathematics.md cited (``mathematics.md section 9``, ``sections 3 and 6``) exists."""
+    known = {p.name for p in DOCS}
+    numbered = set(re.findall(r"^## (\d+)\.", (ROOT / "docs" / "mathematics.md").read_text(
+        encoding="utf-8"), re.M))
+    cites = re.compile(r"mathematics\.md\)?[\s,]+sections?\s+(\d+(?:\s*(?:,|and|or|to)\s*\d+)*)")
+    files = [*DOCS, *sorted((ROOT / "src").rglob("*.py")), *sorted((ROOT / "tests").glob("*.py")),
+             *sorted((ROOT / "benchmarks").glob("*.py")), *sorted((ROOT / "tools").glob("*.py"))]
+    for path in files:
+        text = path.read_text(encoding="utf-8")
+        for name in re.findall(r"\b([A-Za-z][\w-]*\.md)\b", text):
+            assert name in known, f"{path.relative_to(ROOT)} cites {name}, not in the repository"
+        for match in cites.finditer(text):
+            for number in re.findall(r"\d+", match.group(1)):
+                assert number in numbered, (
+                    f"{path.relative_to(ROOT)} cites docs/mathematics.md section {number}, "
+                    f"which does not exist")

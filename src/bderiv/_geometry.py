@@ -1,7 +1,7 @@
 """Corner points, triangulation and dense table of a ``BDerivative`` (a mix-in).
 
 What needs the 2**n regions as a whole rather than one query's chain: the corner points
-(MATH.md section 5), the triangulation built on them, and a corner model's dense table.
+(mathematics.md section 5), the triangulation built on them, and a corner model's dense table.
 Each checks its size (and the rank of Dh) before building anything.
 """
 
@@ -28,7 +28,7 @@ def dh_rank(Dh) -> int:
 
 
 class CornerPoints(NamedTuple):
-    """The 2**n corner points: ``post[mask] = M(pre[mask])`` (MATH.md section 5)."""
+    """The 2**n corner points: ``post[mask] = M(pre[mask])`` (mathematics.md section 5)."""
 
     pre: np.ndarray
     post: np.ndarray
@@ -47,7 +47,7 @@ class CornerGeometry:
             )
 
     def corner_points(self, memory_limit=None) -> CornerPoints:
-        """The 2**n pre- and post-event corner points (MATH.md section 5).
+        """The 2**n pre- and post-event corner points (mathematics.md section 5).
 
         Returns
         -------

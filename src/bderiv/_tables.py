@@ -1,7 +1,7 @@
 """Bitmask-indexed corner tables (NumPy only).
 
 Row ``mask`` of every table belongs to the region where the events whose bits are set in
-``mask`` have happened (MATH.md section 1). Tables are built block by block so that the
+``mask`` have happened (mathematics.md section 1). Tables are built block by block so that the
 temporaries stay a small fraction of the tables themselves; no Python loop runs over the
 individual masks.
 """
@@ -196,7 +196,7 @@ def find_transversality_violation(G, F, Dh, tol):
 
 
 def corner_points(F: np.ndarray, Dh: np.ndarray, G: np.ndarray):
-    """Pre- and post-event corner points U, W, each (2**n, d) (MATH.md section 5).
+    """Pre- and post-event corner points U, W, each (2**n, d) (mathematics.md section 5).
 
     x_S solves Dh x_S = 1_S * G[S] (minimum-norm solution); W[S] = x_S and
     U[S] = x_S - F[S] + F[0]. Requires Dh of full row rank.

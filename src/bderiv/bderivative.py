@@ -32,7 +32,7 @@ class BDerivative(Linearisation, CornerGeometry):
     """B-derivative of an event-selected piecewise-smooth flow at an n-event point.
 
     The map ``M`` sends a pre-event tangent vector to the post-event tangent vector of the
-    sampled (corner-limit) system (MATH.md section 2). It is continuous and piecewise
+    sampled (corner-limit) system (mathematics.md section 2). It is continuous and piecewise
     linear with one linear piece per event order (n! pieces), none of which is built
     unless asked for: each query finds its own event order and event times.
 
@@ -59,7 +59,7 @@ class BDerivative(Linearisation, CornerGeometry):
     fast_paths : bool, optional
         Use the fast paths when the tables allow them (default True; see ``fast_path``).
     resets : array_like of shape (2**n, n, d, d), or LowRankResets, optional
-        Reset Jacobians at the events (impacts; dense tables only; MATH.md section 8):
+        Reset Jacobians at the events (impacts; dense tables only; mathematics.md section 9):
         ``resets[mask, k]`` for event k crossed from region ``mask``, or ``I + U V^T``
         (:class:`~bderiv._engines.resets.LowRankResets`). Refused (ValueError naming the
         region and the events) when the flow has no B-derivative with them.

@@ -62,7 +62,7 @@ class DenseEngine(Engine):
                     np.ldexp(self.G, self.f_exp + self.dh_exps[None, :]))
 
     def corner_points(self):
-        """(pre, post) corner points (MATH.md section 5), from the records: a point scales
+        """(pre, post) corner points (mathematics.md section 5), from the records: a point scales
         with F and not with the rows of Dh, so the scaled tables give them times
         ``2**-f_exp``."""
         with np.errstate(over="ignore", under="ignore"):
@@ -225,7 +225,7 @@ def table_exponents(Dh, F):
 
     The kernels run on ``2**-dh_exps[k] Dh[k]`` and ``2**-f_exp F``, which have the same
     B-derivative (each piece is a product of ``I + (F[a] - F[b]) Dh[k]^T / (Dh[k] . F[b])``,
-    unchanged by either scaling; MATH.md "How the kernels round"); the event times are
+    unchanged by either scaling; mathematics.md "How the kernels round"); the event times are
     ``2**f_exp`` times the caller's.
     """
     dh = np.frexp(np.abs(Dh).max(axis=1))[1].astype(np.int64)

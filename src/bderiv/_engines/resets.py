@@ -1,4 +1,4 @@
-"""The engine of a dense corner table with reset maps at the events (MATH.md section 8).
+"""The engine of a dense corner table with reset maps at the events (mathematics.md section 9).
 
 A crossing of event k from region ``mask`` makes the state jump; near the event point its
 Jacobian ``R[mask, k]`` (d, d) enters the update of the virtual position. The resets are
@@ -87,7 +87,7 @@ def check_existence(Dh, P, Q, low: int, tol: float) -> None:
     """Refuse resets under which the flow is not continuous at the event point.
 
     For every region b and pair j < k of pending events, on y in ker Dh_j ∩ ker Dh_k
-    (MATH.md section 8): ``R[b|j, k] R[b, j] y = R[b|k, j] R[b, k] y`` (the two ways
+    (mathematics.md section 9): ``R[b|j, k] R[b, j] y = R[b|k, j] R[b, k] y`` (the two ways
     through the tie agree) and ``Dh_k R[b, j] y = 0 = Dh_j R[b, k] y`` (a reset does not
     move the other surface). Mismatches are relative to the norms of the factors, and
     computed on factors scaled by powers of two (:func:`_unit`): at entries of 1e200 the

@@ -320,7 +320,7 @@ linear = batch(_linear_block)
 
 @njit(**JIT)
 def piece_from_corners(Dh, Fc, order, out):
-    """Linear piece S_n ... S_1 of one order (MATH.md section 4) into ``out`` (d, d).
+    """Linear piece S_n ... S_1 of one order (mathematics.md section 4) into ``out`` (d, d).
 
     ``Fc[j]`` is the corner of the region before the (j+1)-th event (``Fc[n]`` after the
     last). S_j = I + (Fc[j] - Fc[j-1]) Dh[k_j]^T / rate, rate = Dh[k_j] . Fc[j-1]; applied
@@ -352,7 +352,7 @@ def piece_from_corners(Dh, Fc, order, out):
 # ----------------------------------------------------------------------------------------
 @njit(**JIT)
 def saltation_step(y, Dh, k, Fc, before, after, rate, transpose):
-    """y <- S y, or S^T y when ``transpose``, in place (MATH.md section 4).
+    """y <- S y, or S^T y when ``transpose``, in place (mathematics.md section 4).
 
     S = I + (Fc[after] - Fc[before]) Dh[k]^T / rate, the factor of event k leaving the
     region whose corner is ``Fc[before]`` (``rate`` = Dh[k] . Fc[before] > 0). O(d).

@@ -1,7 +1,7 @@
 """Plain blocks for dense corner tables, and a table scan of their rates.
 
 ``tables = (DhT, F, G)``: ``DhT`` (d, n) is ``Dh.T``, ``F`` (2**n, d) the corners and
-``G`` (2**n, n) the rates ``F @ Dh.T`` (MATH.md section 1); scalar loops only, so any numba
+``G`` (2**n, n) the rates ``F @ Dh.T`` (mathematics.md section 1); scalar loops only, so any numba
 target compiles them. They run when ``_core.PLAIN`` (``BDERIV_KERNELS=plain``); the
 default is the same selection in explicit vectors, :mod:`.lanes`. A query is one row of
 ``V`` (m, d).
@@ -36,7 +36,7 @@ GROUP = 4
 def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
     """Event chains of the queries ``V[q0:q0 + pn]`` (pn <= GROUP), in lockstep.
 
-    MATH.md section 3 (section 6 when ``inverse``): keep g = Dh x for the virtual
+    mathematics.md section 3 (section 6 when ``inverse``): keep g = Dh x for the virtual
     position x; at each step the next event is the pending k with the smallest time
     -g[k] / G[B, k] *in the current region B* (the largest among the happened ones,
     going backwards). Ties go to the smaller k. An event that is no longer a candidate
@@ -117,7 +117,7 @@ def _apply_block(tables, V, outs, start, stop, inverse):
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
         _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain)
-        # telescope (MATH.md section 3): x = u + sum_j t_j (F[B_{j-1}] - F[B_j])
+        # telescope (mathematics.md section 3): x = u + sum_j t_j (F[B_{j-1}] - F[B_j])
         # on u = 2**-e V[q], the chain's query; the result scaled back by 2**e
         for p in range(pn):
             q = q0 + p

@@ -196,7 +196,7 @@ def _assemble(tables, V, r0, pn, inverse, out, q0, X, T, order, times):
     ``v + s X - T F[end]``, the position at the last event moved back to time 0 along the
     final region's field. Unless ``carry`` (d > 32: the lanes' positions would not fit
     the registers) the chain only records its steps and
-    ``v + sum_j t_j (F[before_j] - F[after_j])`` (MATH.md section 3) is summed afterwards,
+    ``v + sum_j t_j (F[before_j] - F[after_j])`` (mathematics.md section 3) is summed afterwards,
     8 coordinates at a time."""
     R, dims, wx, carry = tables[0], tables[2], tables[5], tables[7]
     n, d, dc, of = dims[0], dims[1], dims[3], 16 * dims[2]
@@ -234,7 +234,7 @@ def _lane_times_block(tables, V, outs, start, stop, inverse):
 @njit(**JIT)
 def _lane_tangent_block(tables, V, outs, start, stop, transpose):
     """out[q] = M_sigma T[q] (or its transpose), sigma the order v = V[q] selects:
-    the saltation factors of MATH.md section 4 along the chain,
+    the saltation factors of mathematics.md section 4 along the chain,
     ``S y = y + (F[after] - F[before]) (Dh[k] . y) / G[before, k]`` and
     ``S^T y = y + Dh[k] ((F[after] - F[before]) . y) / G[before, k]`` (backwards), with
     y in a vector, the eight lanes' factors in turn (their chains overlap);
