@@ -92,16 +92,22 @@ def check_value(value, name: str) -> float:
     return value
 
 
-def _symbols(seq, name: str) -> list:
+def _sequence(seq, name: str, what: str) -> list:
+    """``list(seq)``, refusing a single sympy object, a string or a non-sequence."""
     sp = require_sympy()
     if isinstance(seq, sp.Basic | str | bytes) and not isinstance(seq, sp.MatrixBase):
-        raise TypeError(f"{name} must be a sequence of sympy Symbols, got one "
+        raise TypeError(f"{name} must be a sequence of {what}, got one "
                         f"{type(seq).__name__} {seq!r}")
     try:
-        items = list(seq)
+        return list(seq)
     except TypeError:
-        raise TypeError(f"{name} must be a sequence of sympy Symbols, got "
+        raise TypeError(f"{name} must be a sequence of {what}, got "
                         f"{type(seq).__name__}") from None
+
+
+def _symbols(seq, name: str) -> list:
+    sp = require_sympy()
+    items = _sequence(seq, name, "sympy Symbols")
     for i, s in enumerate(items):
         if not isinstance(s, sp.Symbol):
             raise TypeError(f"{name}[{i}] must be a sympy Symbol, got {type(s).__name__} "
@@ -116,14 +122,7 @@ def _symbols(seq, name: str) -> list:
 
 def _expressions(seq, name: str, length: int, length_text: str) -> list:
     sp = require_sympy()
-    if isinstance(seq, sp.Basic | str | bytes) and not isinstance(seq, sp.MatrixBase):
-        raise TypeError(f"{name} must be a sequence of {length_text} sympy expressions, got "
-                        f"one {type(seq).__name__}")
-    try:
-        items = list(seq)
-    except TypeError:
-        raise TypeError(f"{name} must be a sequence of sympy expressions, got "
-                        f"{type(seq).__name__}") from None
+    items = _sequence(seq, name, f"{length_text} sympy expressions")
     if len(items) != length:
         raise ValueError(f"{name} must have {length} expressions ({length_text}), got "
                          f"{len(items)}")
