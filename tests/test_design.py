@@ -21,12 +21,12 @@ LAYERS = [
      "finaltime"},
     {"compiled"},  # the compiled integrator (issue 19)
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},
-    {"corners", "_engines"},
+    {"corners", "_engines", "_linearise"},  # _linearise scales rows with a kernel
     {"_kernels"},
 ]
 #: helpers any layer may use; they import only each other.
 HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
-           "_linearise", "_cyclic"}
+           "_cyclic"}
 
 
 def _top(path: pathlib.Path) -> str:

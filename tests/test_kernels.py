@@ -76,10 +76,14 @@ def test_the_plain_kernels_pass_the_same_tests():
     assert probe.stdout.strip() == "True"
 
 
+@pytest.mark.slow
 def test_the_lane_kernels_compile_for_a_generic_target(tmp_path):
     """The explicit vectors of the lane kernels (dense and structured) are legal on any
     LLVM target (LLVM splits them): compiled for a generic CPU (on x86-64: SSE2 only, no
-    AVX, no FMA unit) into a fresh cache, they pass their tests against the oracle."""
+    AVX, no FMA unit) into a fresh cache, they pass their tests against the oracle.
+
+    Slow (about 200 s on 2 cores since the kernels scale their queries): run with
+    ``pytest -m slow`` after a change to the kernels."""
     import os
 
     tests = os.path.dirname(os.path.abspath(__file__))

@@ -103,6 +103,17 @@ def _note_layer() -> None:
         pass
 
 
+def serialised(kernel, *args):
+    """``kernel(*args)`` for a parallel kernel outside a :class:`Batch`, under the launch
+    lock while the threading layer is not known to be thread-safe."""
+    if _SAFE_LAYER[0]:
+        return kernel(*args)
+    with _LAUNCH_LOCK:
+        result = kernel(*args)
+        _note_layer()
+    return result
+
+
 class Batch:
     """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``.
 

@@ -9,18 +9,36 @@ range (event times that would underflow or overflow) give the answer of a mid-ra
 A factor ``2**e`` with ``|e|`` up to 2098 is applied as two representable factors
 (``_core.factors``). The lane, plain, own-rates and linear kernels of dense tables scale
 each query as they load it (``_core.row_exponent``); the other engines scale a batch with
-:func:`scale_rows` and :func:`unscale_rows`.
+:func:`scale_rows` and :func:`unscale_rows`, which launch their parallel kernels through
+``_core.serialised`` (numba's workqueue layer aborts on concurrent launches).
 """
 
 from __future__ import annotations
 
 from numba import njit, prange
 
-from ._core import QUERY_BAND, factors, row_exponent
+from ._core import QUERY_BAND, factors, row_exponent, serialised
+
+
+def scale_rows(V, out, exps):
+    """``out[q] = 2**-e V[q]`` and ``exps[q] = e`` (:func:`row_exponent`), on all threads."""
+    return serialised(_scale_rows, V, out, exps)
+
+
+def unscale_rows(out, exps, shift):
+    """``out[q] *= 2**(exps[q] + shift)`` in place; returns the number of rows that are no
+    longer finite (an overflowing result)."""
+    return serialised(_unscale_rows, out, exps, shift)
+
+
+def outside_band(V, exps):
+    """``exps[q]``: the :func:`row_exponent` of each row (read only); returns how many
+    rows are beyond ``_core.QUERY_BAND`` (those need :func:`scale_rows`)."""
+    return serialised(_outside_band, V, exps)
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def scale_rows(V, out, exps):
+def _scale_rows(V, out, exps):
     """``out[q] = 2**-e V[q]`` and ``exps[q] = e`` (:func:`row_exponent`), on all threads."""
     d = V.shape[1]
     for q in prange(V.shape[0]):
@@ -32,7 +50,7 @@ def scale_rows(V, out, exps):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def unscale_rows(out, exps, shift):
+def _unscale_rows(out, exps, shift):
     """``out[q] *= 2**(exps[q] + shift)`` in place; returns the number of rows that are no
     longer finite (an overflowing result)."""
     d = out.shape[1]
@@ -48,7 +66,7 @@ def unscale_rows(out, exps, shift):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def outside_band(V, exps):
+def _outside_band(V, exps):
     """``exps[q]``: the :func:`row_exponent` of each row (read only); returns how many
     rows are beyond ``_core.QUERY_BAND`` (those need :func:`scale_rows`)."""
     d = V.shape[1]
