@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from reference import random_system
 
 from bderiv import BDerivative
