@@ -16,10 +16,10 @@ fields: a changed digit is refused, never read as another map. Files without a d
 (written before the digest existed, or by another program) are still read, checked field
 by field only.
 
-Writing is all or nothing (:func:`write_files`): every file goes to a temporary file in
-the target's folder, is flushed and synced, and replaces the target (``os.replace``) only
-when all of them are written; a failure (a full disk, an exception, Ctrl-C) leaves the
-previous files as they were and removes the temporaries.
+Writing is all or nothing (:func:`write_files`, on :mod:`bderiv._safefiles`): every file
+goes to a temporary file in the target's folder, is flushed and synced, and replaces the
+target (``os.replace``) only when all of them are written; a failure (a full disk, an
+exception, Ctrl-C) leaves the previous files as they were and removes the temporaries.
 
 Version 1 files hold maps that are the identity on the kernel (the B-derivative at an event
 point); version 2 adds ``kernel_post``, the images of the kernel basis (a flow map's
@@ -29,18 +29,16 @@ written as version 1, so older readers still read it.
 
 from __future__ import annotations
 
-import contextlib
-import errno
+import functools
 import hashlib
 import json
 import os
-import secrets
-import stat
 import zipfile
 import zlib
 
 import numpy as np
 
+from ._safefiles import open_regular, read_regular, write_all
 from ._validate import check_memory
 
 #: tag written into every saved file, checked on load
@@ -123,7 +121,7 @@ def read_json(path: str, source: str, memory_limit=None):
     regular one, a text whose parse would take more than ``memory_limit`` bytes (default:
     the memory available, :func:`json_parse_bytes`) and a digest that does not match.
     """
-    text = _read_regular(path, source, memory_limit, JSON_BYTES_PER_BYTE, " parsed as JSON")
+    text = read_regular(path, source, memory_limit, JSON_BYTES_PER_BYTE, " parsed as JSON")
     check_memory(json_parse_bytes(text), memory_limit, f"reading {source} (JSON)")
     try:
         data = json.loads(text)
@@ -188,38 +186,6 @@ def _check_digest(stored, actual: str, source: str) -> None:
         )
 
 
-def _read_regular(path: str, source: str, memory_limit, per_byte: int = 1,
-                  how: str = "") -> bytes:
-    """The bytes of ``path``, a regular file whose size times ``per_byte`` (the least
-    memory a byte of it takes once read and ``how``) fits in the memory limit."""
-    with _open_regular(path, source) as fh:
-        size = os.fstat(fh.fileno()).st_size
-        check_memory(per_byte * size, memory_limit,
-                     f"reading {source} ({size} bytes{how}: {per_byte} bytes a byte at least)")
-        text = fh.read(size + 1)
-    if len(text) != size:
-        raise ValueError(f"{source} changed size while it was read ({size} bytes expected, "
-                         f"{len(text)}{'+' if len(text) > size else ''} read)")
-    return text
-
-
-def _open_regular(path: str, source: str):
-    """``path`` opened for binary reading, refused unless it is a regular file.
-
-    Opened without blocking (a FIFO would wait for a writer) and checked on the open
-    descriptor, so that nothing can swap the file between the check and the read.
-    """
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
-    mode = os.fstat(fd).st_mode
-    if not stat.S_ISREG(mode):
-        os.close(fd)
-        kind = ("a directory" if stat.S_ISDIR(mode) else "a device" if stat.S_ISCHR(mode)
-                or stat.S_ISBLK(mode) else "a pipe" if stat.S_ISFIFO(mode) else
-                "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
-        raise ValueError(f"{source} must be a regular file, got {kind}")
-    return os.fdopen(fd, "rb")
-
-
 def read_npz(path: str, source: str, memory_limit=None):
     """The ``meta`` header of an ``.npz`` (a dict, if valid) with its arrays added.
 
@@ -230,7 +196,7 @@ def read_npz(path: str, source: str, memory_limit=None):
     (default: the memory available). The digest, when ``meta`` has one, is checked on the
     arrays as read.
     """
-    with _open_regular(path, source) as fh:
+    with open_regular(path, source) as fh:
         try:
             npz = np.load(fh, allow_pickle=False)
         except _NPZ_ERRORS as exc:
@@ -308,7 +274,7 @@ def file_format(path: str, format: str | None) -> str:
 
 
 def write_files(targets: dict, check=None) -> None:
-    """Write several triangulation files, all or none.
+    """Write several triangulation files, all or none (:func:`bderiv._safefiles.write_all`).
 
     Parameters
     ----------
@@ -320,61 +286,13 @@ def write_files(targets: dict, check=None) -> None:
         ``check({path: temporary path})``, called when every file is written and synced,
         before any target is replaced (to read them back): if it raises, nothing is
         replaced.
-
-    Notes
-    -----
-    Each file is written to a temporary file beside its target (``.NAME.<random>.tmp``,
-    with the target's permissions when it exists), flushed and ``fsync``-ed; only then are
-    the targets replaced with ``os.replace``, which is atomic for each file, and the folders
-    synced. Any failure before that (a full disk, an exception, Ctrl-C) removes the
-    temporaries and leaves every target as it was; a process killed outright may leave a
-    temporary file, never a damaged target. Between the replacements of two files there is
-    no writing, only renames.
     """
-    temps = {}
-    try:
-        for path, (fmt, header, arrays) in targets.items():
-            temps[path], fd = _create_temp(path)
-            with os.fdopen(fd, "w", encoding="utf-8") if fmt == "json" else os.fdopen(
-                    fd, "wb") as fh:
-                WRITERS[fmt](fh, header, arrays)
-                fh.flush()
-                os.fsync(fh.fileno())
-        if check is not None:
-            check(dict(temps))
-        for path, temp in temps.items():
-            os.replace(temp, path)
-    except BaseException:
-        for temp in temps.values():
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(temp)
-        raise
-    for folder in {os.path.dirname(os.path.abspath(path)) for path in targets}:
-        _sync_folder(folder)
+    write_all({path: (fmt == "npz", functools.partial(_write, fmt, header, arrays))
+               for path, (fmt, header, arrays) in targets.items()}, check)
 
 
-def _create_temp(path: str) -> tuple[str, int]:
-    """A new temporary file beside ``path`` (same folder: ``os.replace`` stays atomic)."""
-    folder, name = os.path.split(os.path.abspath(path))
-    if os.path.isdir(path):
-        raise IsADirectoryError(errno.EISDIR, "is a directory", path)
-    temp = os.path.join(folder, f".{name}.{secrets.token_hex(8)}.tmp")
-    fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0),
-                 0o666)
-    with contextlib.suppress(OSError):  # keep the permissions of the file it replaces
-        os.chmod(temp, stat.S_IMODE(os.stat(path).st_mode))
-    return temp, fd
-
-
-def _sync_folder(folder: str) -> None:
-    """Make the renames in ``folder`` durable (POSIX; a no-op where folders cannot be
-    opened)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+def _write(fmt: str, header: dict, arrays: dict, fh) -> None:
+    WRITERS[fmt](fh, header, arrays)  # looked up at the write: tests replace a writer
 
 
 def _write_json(fh, header: dict, arrays: dict) -> None:
