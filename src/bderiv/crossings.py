@@ -48,18 +48,19 @@ def direction_name(direction: int) -> str:
 
 
 class EventRecord(NamedTuple):
-    """One line of the event log: ``event`` crossed at ``time``; ``mask`` is the mask after.
+    """One line of the event log: ``event`` crossed at ``time``; ``mask`` is the region
+    mask after its group.
 
-    ``direction`` is +1 for an upward crossing (bit set after it), -1 for a downward one.
+    ``direction`` is +1 for an upward crossing (``h_k`` from negative to positive), -1 for
+    a downward one. Its bit of ``mask`` is flipped, except after an impact whose reset
+    sends the state back to the side it came from (a bounce, a leg swap: mathematics.md
+    section 9, "Where a reset lands").
     """
 
     time: float
     event: int
     mask: int
-
-    @property
-    def direction(self) -> int:
-        return 1 if self.mask >> self.event & 1 else -1
+    direction: int
 
 
 class EventGroup(NamedTuple):

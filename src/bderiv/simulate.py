@@ -313,7 +313,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         if sol.status == 0:
             break
         group, new, x_after = switch(system, fired, mask, x, t, simultaneity_tol, err)
-        log.records.extend(EventRecord(t, k, new) for k in group)
+        log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
         log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy()))
         mask, x = new, x_after
         if len(log.groups) > max_groups:
