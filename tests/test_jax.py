@@ -317,6 +317,21 @@ def test_bmap_of_a_bderivative_against_the_reference():
     np.testing.assert_allclose(jax.jit(m)(U), bd(U), rtol=1e-14)
 
 
+def test_transpose_of_a_tangent_shared_by_a_batch():
+    """One tangent t pushed through the pieces of a batch of points: the transpose sums
+    their transposes (the primitive's cotangent summed over the broadcast axis)."""
+    bd = BDerivative(*three_event_table())
+    m = bmap(bd)
+    U = np.random.default_rng(7).standard_normal((5, 3))
+    W = np.random.default_rng(8).standard_normal((5, 3))
+
+    def push(t):
+        return jax.vmap(lambda u: jax.jvp(m, (u,), (t,))[1])(U)
+
+    (t_bar,) = jax.linear_transpose(push, np.ones(3))(W)
+    np.testing.assert_allclose(t_bar, bd.vjp(U, W).sum(axis=0), rtol=1e-12)
+
+
 def test_bmap_of_a_flow_bderivative(touchdown):
     ex, D, T = touchdown
     m = bmap(D)
