@@ -34,7 +34,8 @@ def bmap(bd):
         If ``bd`` is neither; when ``m`` is traced, for a non-real dtype of u.
     ValueError
         When ``m`` is traced, for a shape other than ``(..., d)``; bderiv's refusals
-        while it computes reach the caller as ``jax.errors.JaxRuntimeError`` with
+        while it computes reach the caller as JAX's error for a failed callback
+        (``jax.errors.JaxRuntimeError``, or ValueError on JAX's fast dispatch path) with
         bderiv's message.
 
     Examples

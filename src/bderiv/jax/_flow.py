@@ -55,8 +55,10 @@ def flow(system, t_final, *, direction=None, simultaneity_tol=1e-7, options=None
         At once, for a bad argument (named); when ``phi`` is traced, for an ``x0`` of
         the wrong dtype or shape. A refusal of bderiv while it computes (a start on an
         event surface, a grazing crossing, a non-finite start, ...) reaches the caller
-        as a ``jax.errors.JaxRuntimeError`` whose message ends with bderiv's message,
-        the start point named first (JAX also logs the callback's traceback).
+        as the exception JAX raises for a failed callback, whose message ends with
+        bderiv's, the start point named first: ``jax.errors.JaxRuntimeError`` (a
+        ValueError once JAX runs the computation on its fast dispatch path, after a
+        successful call); JAX also logs the callback's traceback.
 
     Notes
     -----
