@@ -84,10 +84,14 @@ class HybridSystem(ModelCalls):
     reset : callable, optional
         ``reset(x, mask, k) -> (d,)``: the state right after event k is crossed at ``x``
         from region ``mask`` (an impact; mathematics.md section 9; bit k of ``mask`` set: a
-        downward crossing, return ``x`` for no jump). Simultaneous events are reset
-        one after the other, in ascending order, each with the mask before its own
-        crossing; their resets must commute (checked, :func:`bderiv.crossings.apply_resets`)
-        and must not move the surfaces still pending. Default: no jump.
+        downward crossing, return ``x`` for no jump). The state may land on the far side
+        (its bit flips) or back on the side it came from: a bounce (``[q, -e v]`` for a
+        ball) or a leg swap keeps the bit, and the next crossing of that surface is a new
+        event (:func:`bderiv.crossings.landing` decides; ``EventGroup.bounced``).
+        Simultaneous events are reset one after the other, in ascending order, each with
+        the mask before the group with the bits of the events already reset flipped;
+        their resets must commute (checked, :func:`bderiv.crossings.apply_resets`) and
+        must not move the surfaces still pending. Default: no jump.
     reset_jacobian : callable, optional
         ``reset_jacobian(x, mask, k) -> (d, d)``. Default: numerical.
     check_jacobians : bool
