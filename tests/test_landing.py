@@ -58,18 +58,39 @@ def test_a_bounce_on_the_surface_keeps_the_bit():
     assert traj.x_final == pytest.approx([-1.0, -0.5])  # back 2 s at speed 0.5
 
 
-def test_an_impact_that_leaves_the_state_on_the_surface_is_refused():
-    """Stopped on the surface with a field that does not move it on either side."""
-    stalled = _line(lambda x, m, k: np.array([0.0, x[1]]), field_after=0.0)
-    with pytest.raises(ValueError, match=r"rate of h_0 .* is 0 in region 0b1 .* and 1 in "):
-        stalled.simulate(np.array([-1.0, 0.0]), 2.0)
-    system = _line(lambda x, m, k: np.array([0.0, x[1]]))
-    system_stop = HybridSystem(lambda x, m: np.array([x[1], 0.0]), lambda x: x[:1],
-                               n_events=1, dim=2,
-                               reset=lambda x, m, k: np.array([x[0], 0.0]))
-    with pytest.raises(ValueError, match="stays on its surface"):
-        system_stop.simulate(np.array([-1.0, 1.0]), 2.0)
+def test_a_plastic_impact_on_compliant_ground_stays_in_contact():
+    """A mass falling on a spring-damper ground (h = -height) whose impact stops it: the
+    rate after the reset is zero, the bit flips (contact), and the ground's force takes
+    over; the flow map agrees with forward differences of the simulation."""
+    g, k, c = 9.81, 400.0, 2.0
+
+    def field(x, mask):
+        if mask & 1:
+            return np.array([x[1], -g - k * x[0] - c * x[1]])
+        return np.array([x[1], -g])
+
+    def reset(x, mask, _k):
+        return np.array([x[0], 0.0]) if not mask & 1 else x.copy()
+
+    system = HybridSystem(field, lambda x: -x[:1], n_events=1, dim=2, reset=reset)
+    x0 = np.array([0.5, 0.0])
+    traj = system.simulate(x0, 1.0)
+    (group,) = traj.groups
+    assert group.time == pytest.approx(np.sqrt(2 * 0.5 / g), rel=1e-9)
+    assert group.bounced == () and group.mask_after == 1 and traj.mask_final == 1
+    D = system.flow_bderivative(x0, 1.0)(np.eye(2))
+    fd = system.flow_fd(x0, 1.0, np.eye(2), 1e-6)
+    np.testing.assert_allclose(D, fd, atol=2e-5)
+
+
+def test_a_landing_that_would_slide_along_the_surface_is_refused():
+    """Sent back by the contact region's field, pushed on by the free region's field."""
+    sliding = _line(lambda x, m, k: np.array([0.0, x[1]]), field_after=-1.0)
+    with pytest.raises(ValueError, match=r"rate of h_0 .* is -1 in region 0b1 .* and 1 in "
+                                         r"region 0b0 \(sent back\), so the state would slide"):
+        sliding.simulate(np.array([-1.0, 0.0]), 2.0)
     # the same landing with a field after that pushes on: an ordinary crossing
+    system = _line(lambda x, m, k: np.array([0.0, x[1]]))
     assert system.simulate(np.array([-1.0, 0.0]), 2.0).groups[0].bounced == ()
 
 
