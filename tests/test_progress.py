@@ -110,3 +110,51 @@ def test_callback_error_in_nested_progress_is_said_once():
     assert str(info.value).count("the progress callback") == 1
     assert "at progress(3, 4), after 3 of 4 vectors" in str(info.value)
     assert isinstance(info.value.__cause__, KeyError) and calls[-1] == (3, 4)
+
+
+def test_long_simulation_shows_progress_and_stops_on_ctrl_c(monkeypatch):
+    """simulate(max_step=1e-7) would run for hours: its bar of simulated time appears
+    after the delay, and a Ctrl-C (SIGINT, delivered as Python delivers it) stops it
+    within a second."""
+    import _thread
+    import signal
+    import threading
+    import time
+
+    from bderiv import _progress, examples
+
+    pytest.importorskip("tqdm")
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "SIMULATION_BAR_DELAY", 0.2)
+    monkeypatch.setattr(_progress, "SIMULATION_BAR",
+                        {"file": buffer, "disable": False, "leave": True})
+    # a background job may ignore SIGINT: take it as an interactive session does
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    ex = examples.chair()
+    sent = []
+    timer = threading.Timer(1.0, lambda: (sent.append(time.monotonic()),
+                                          _thread.interrupt_main(signal.SIGINT)))
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            ex.system.simulate(ex.x0, ex.t_final, max_step=1e-7)
+        stopped = time.monotonic()
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    assert sent and stopped - sent[0] < 1.0
+    text = buffer.getvalue()
+    assert "simulate: " in text and f"of {ex.t_final:.4g} [" in text, text
+    assert "t = 0 of" not in text.split("\r")[-1]  # it moved
+
+
+def test_short_simulations_draw_no_bar(monkeypatch):
+    """The bar waits for SIMULATION_BAR_DELAY: a run shorter than that draws nothing."""
+    from bderiv import _progress, examples
+
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "SIMULATION_BAR",
+                        {"file": buffer, "disable": False, "leave": True})
+    ex = examples.chair()
+    ex.system.simulate(ex.x0, ex.t_final)
+    assert buffer.getvalue() == ""
