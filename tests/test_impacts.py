@@ -135,13 +135,28 @@ def test_a_reset_that_jumps_across_another_surface_is_refused(example):
     with pytest.raises(ValueError, match="carry the state across the surface of event 0"):
         _system(model, reset=reset).simulate(x0, example.t_final)
 
+
+
+def test_a_reset_that_puts_the_foot_back_above_the_ground_keeps_its_bit(example):
+    """A foot put back above the ground it went through lands on the side it came from
+    (a leg swap, mathematics.md section 9): its bit stays clear, and the next touchdown
+    of that foot is a new crossing of the same event, upward again."""
+    model = _model()
+
     def back(x, mask, k):
         y = model.reset(x, mask, k)
-        y[_FOOT[k][1]] = 0.01  # the foot put back above the ground it just went through
+        y[_FOOT[k][1]] = 0.01
         return y
 
-    with pytest.raises(ValueError, match="carry the state back across the surface of event 1"):
-        _system(model, reset=back).simulate(x0, example.t_final)
+    x0 = example.x0.copy()
+    x0[P1] += 2e-3
+    traj = _system(model, reset=back).simulate(x0, example.t_final)
+    first = traj.groups[0]
+    assert first.events == (1,) and first.bounced == (1,)
+    assert first.mask_after == first.mask_before == 0
+    assert first.state_after[_FOOT[1][1]] == 0.01
+    ones = [r for r in traj.events if r.event == 1]
+    assert len(ones) >= 2 and all(r.direction == 1 for r in ones[:2])
 
 
 def test_bad_reset_arguments_and_outputs_are_named():

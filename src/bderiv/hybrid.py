@@ -34,7 +34,7 @@ from ._format import format_mask, transversality_message
 from ._usercalls import ModelCalls, Section
 from ._validate import check_number
 from .bderivative import BDerivative
-from .crossings import RESET_MISMATCH, apply_resets
+from .crossings import RESET_MISMATCH, apply_resets, landing
 from .finaltime import FinalTimeMap
 from .flowmap import FlowBDerivative
 from .orbit import ORBIT_OPTIONS, periodic_orbit
@@ -141,24 +141,34 @@ class HybridSystem(ModelCalls):
     # ------------------------------------------------------------------------------
     # B-derivative at an event point
     # ------------------------------------------------------------------------------
-    def _bderivative_at(self, x, events, mask_before, *, where="at rho"):
+    def _bderivative_at(self, x, events, mask_before, mask_after=None, *, where="at rho"):
         """BDerivative of the group ``events`` at ``x`` entered from region ``mask_before``.
 
         Built in the group's local orientation: the rows of ``Dh`` of the events crossed
         downward (bit set in ``mask_before``) are negated, and local mask bit j means
-        "event ``events[j]`` crossed" (its global bit flipped).
+        "event ``events[j]`` happened". Its global bit is flipped, except for the events
+        whose bits ``mask_after`` (default: all flipped) keeps: a reset sent the state back
+        (a bounce, a leg swap), and the field after it is that of the region it came from
+        (mathematics.md section 9). Only the rates of pending events must be positive.
         """
         events = tuple(int(k) for k in events)
         sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
         Dh = sign[:, None] * self.eval_event_jacobian(x)[list(events)]
-        glob = _spread_masks(events, mask_before)
+        glob = _spread_masks(events, mask_before)  # every event's bit flipped
         if self.has_resets:
             base, R = self.sample_resets(x, events, glob, Dh, sign, where)
-            F = np.array([self.eval_field(b, int(m)) for b, m in zip(base, glob, strict=True)])
+            lands = (1 << len(events)) - 1  # local bits of the events whose bit flips
+            if mask_after is not None:
+                lands = sum(1 << j for j, k in enumerate(events)
+                            if (mask_before ^ mask_after) >> k & 1)
+            regions = glob[np.arange(glob.size) & lands]  # the bits of bounces kept
+            F = np.array([self.eval_field(b, int(m)) for b, m in zip(base, regions,
+                                                                     strict=True)])
         else:
             F = self.sample_corners(x, glob)
         G = F @ Dh.T
-        bad = np.argwhere(~(G > 0))
+        pending = (np.arange(G.shape[0])[:, None] >> np.arange(len(events)) & 1) == 0
+        bad = np.argwhere(~(G > 0) & (pending | (not self.has_resets)))
         if bad.size:
             i, j = (int(v) for v in bad[0])
             region = format_mask(int(glob[i]), self.n_events)
@@ -186,8 +196,11 @@ class HybridSystem(ModelCalls):
         -------
         BDerivative
             With ``Dh = event_jacobian(rho)`` (n, d) and ``F[mask] = field(rho, mask)``;
-            with resets, ``F[mask]`` at rho moved by the resets of the events in ``mask``
-            and the reset Jacobians there (mathematics.md section 9).
+            with resets, ``F[mask]`` at rho moved by the resets of the events in ``mask``,
+            the field of the region the state lands in (an event whose reset sends the
+            state back, a bounce or a leg swap, keeps its bit: :func:`bderiv.crossings.landing`
+            decides as :meth:`simulate` does), and the reset Jacobians there
+            (mathematics.md section 9).
 
         Raises
         ------
@@ -211,15 +224,25 @@ class HybridSystem(ModelCalls):
                 f"{h}; residuals above tol={tol:g} for events {off.tolist()} "
                 f"(values {h[off].tolist()})"
             )
-        bd = self._bderivative_at(rho, range(self.n_events), 0)
-        if self.has_resets:  # simulate's zero-order check: the resets commute as maps
-            # rho taken to be accurate to reset_tol relative (of max(1, max |rho|))
-            accuracy = RESET_MISMATCH * self.reset_tol * max(1.0, float(np.abs(rho).max()))
-            try:
-                apply_resets(self, list(range(self.n_events)), 0, rho, 0.0, accuracy)
-            except ValueError as exc:
-                raise ValueError(f"at rho (taken as t=0, its integration accuracy as "
-                                 f"reset_tol={self.reset_tol:g} relative): {exc}") from None
+        if not self.has_resets:
+            return self._bderivative_at(rho, range(self.n_events), 0)
+        # simulate's zero-order check (the resets commute as maps) and its landing rule,
+        # rho taken to be accurate to reset_tol relative (of max(1, max |rho|))
+        events, accuracy = list(range(self.n_events)), self.reset_tol * max(
+            1.0, float(np.abs(rho).max()))
+        context = (f"at rho (taken as t=0, its integration accuracy as reset_tol="
+                   f"{self.reset_tol:g} relative)")
+        after = apply_resets(self, events, 0, rho, 0.0, np.inf)  # orders compared below
+        window = np.maximum(accuracy * np.abs(self.eval_event_jacobian(after)).sum(axis=1), tol)
+        try:
+            mask_after = landing(self, events, 0, after, window)
+        except ValueError as exc:
+            raise ValueError(f"{context}: {exc}") from None
+        bd = self._bderivative_at(rho, events, 0, mask_after)
+        try:
+            apply_resets(self, events, 0, rho, 0.0, RESET_MISMATCH * accuracy)
+        except ValueError as exc:
+            raise ValueError(f"{context}: {exc}") from None
         return bd
 
     # ------------------------------------------------------------------------------
@@ -331,7 +354,7 @@ class HybridSystem(ModelCalls):
             linear.append(np.eye(self.dim))
             final_field = self.eval_field(traj.x_final, traj.final_group.mask_after)
         jumps = [
-            self._bderivative_at(g.state, g.events, g.mask_before,
+            self._bderivative_at(g.state, g.events, g.mask_before, g.mask_after,
                                  where=f"at the event point at t={g.time:.10g}")
             for g in groups
         ]
