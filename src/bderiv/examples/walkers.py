@@ -56,7 +56,11 @@ simplest walking model: stability, complexity, and scaling", ASME J. Biomech. En
 ``theta* = 0.20031090049483``, ``theta'* = -0.19983247291764``, and its stride map's
 nonzero eigenvalues are ``-0.19120868949940 +- 0.55633363687106 i`` (the digits of the
 simulation code published with the paper, M. Garcia 1998, integrated to 1e-10:
-:data:`GARCIA_FIXED_POINT`, :data:`GARCIA_EIGENVALUES`).
+:data:`GARCIA_FIXED_POINT`, :data:`GARCIA_EIGENVALUES`). The fixed point agrees to 1e-9;
+the eigenvalues to 1.3e-3 only: the return map's B-derivative gives ``-0.1900998 +-
+0.5575988 i`` (modulus 0.58911, Garcia's 0.58827), and so do central differences of the
+stride map of Garcia's equations integrated by scipy at rtol 1e-13 (tests/test_bounces.py),
+to 1e-7: the published eigenvalues are the less accurate numbers.
 """
 
 from __future__ import annotations
@@ -228,13 +232,13 @@ def _cross(a, b):
 
 
 class _Compass:
-    """The compass gait's functions (complex-safe: Jacobians by the complex step)."""
+    """The compass gait's functions; the heel strike's Jacobian by the complex step."""
 
     def __init__(self, hip_mass, leg_mass, leg, leg_com, slope, g):
         self.M, self.m, self.leg, self.slope = hip_mass, leg_mass, leg, slope
         self.b = leg_com * leg  # leg mass from the hip
         self.a = leg - self.b   # ... from the foot
-        self.gravity = g * np.array([np.sin(slope), -np.cos(slope)])
+        self.g = g
 
     def _masses(self, q):
         """Positions (from the stance foot) and Jacobians d/d(theta, phi) of the hip, the
@@ -248,32 +252,56 @@ class _Compass:
         J_swing = np.stack([self.leg * du - self.b * dw, self.b * dw], axis=1)
         return (hip, J_hip), (stance, J_stance), (swing, J_swing)
 
+    def _system(self, x):
+        """Lagrange's equations ``A(phi) q'' = r(x)``: the theta row is the whole walker's,
+        the phi row the swing leg's torque balance about the (free) hip divided by its
+        mass, so that ``leg_mass = 0`` is Garcia et al.'s limit. With ``psi = theta - phi``
+        (the swing leg's angle from the normal), ``l, a, b`` the leg and the leg mass's
+        distances from the foot and the hip:
+
+        A = [[M l^2 + m a^2 + m (l^2 - 2 l b cos phi + b^2), m (l b cos phi - b^2)],
+             [l b cos phi - b^2, b^2]]
+        r = [(M l + m a + m l) g sin(theta - slope) - m b g sin(psi - slope)
+               - m l b sin(phi) (theta'^2 - psi'^2),
+             b g sin(psi - slope) + l b theta'^2 sin(phi)]
+        """
+        theta, phi, thd, phd = x
+        psi, psd = theta - phi, thd - phd
+        M, m, ell, a, b, g, s = self.M, self.m, self.leg, self.a, self.b, self.g, self.slope
+        cphi, sphi = np.cos(phi), np.sin(phi)
+        A = np.array([[M * ell**2 + m * a**2 + m * (ell**2 - 2 * ell * b * cphi + b**2),
+                       m * (ell * b * cphi - b**2)],
+                      [ell * b * cphi - b**2, b**2]])
+        r = np.array([(M * ell + m * a + m * ell) * g * np.sin(theta - s)
+                      - m * b * g * np.sin(psi - s) - m * ell * b * sphi * (thd**2 - psd**2),
+                      b * g * np.sin(psi - s) + ell * b * thd**2 * sphi])
+        return A, r
+
     def field(self, x, mask):
-        """Lagrange's equations: the theta row is the whole walker's, the phi row the
-        swing leg's torque balance about the (free) hip, divided by its mass (so that
-        ``leg_mass = 0`` is Garcia et al.'s limit)."""
-        q, qd = x[:2], x[2:]
-        (_, J_hip), (_, J_stance), (_, J_swing) = self._masses(q)
-        theta, psi = q[0], q[0] - q[1]
-        u_dd = -_along(theta)[0]  # d2/dt2 of the unit vectors: -rate^2 times themselves
-        w_dd = -_along(psi)[0]
-        psid = qd[0] - qd[1]
-        # centripetal accelerations (the part of each acceleration without q'')
-        c_hip = self.leg * qd[0] ** 2 * u_dd
-        c_stance = self.a * qd[0] ** 2 * u_dd
-        c_swing = c_hip - self.b * psid**2 * w_dd
-        A = np.zeros((2, 2), dtype=x.dtype)
-        rhs = np.zeros(2, dtype=x.dtype)
-        for mass, J, c in ((self.M, J_hip, c_hip), (self.m, J_stance, c_stance),
-                           (self.m, J_swing, c_swing)):
-            A[0] = A[0] + mass * J[:, 0] @ J
-            rhs[0] = rhs[0] + mass * J[:, 0] @ (self.gravity - c)
-        A[1] = J_swing[:, 1] @ J_swing
-        rhs[1] = J_swing[:, 1] @ (self.gravity - c_swing)
-        return np.concatenate([qd, np.linalg.solve(A, rhs)])
+        A, r = self._system(x)
+        return np.concatenate([x[2:], np.linalg.solve(A, r)])
 
     def field_jacobian(self, x, mask):
-        return complex_step_jacobian(lambda y: self.field(y, mask), x, 4)
+        """``d q'' = A^-1 (dr - dA q'')`` (A depends on phi alone)."""
+        theta, phi, thd, phd = x
+        psi, psd = theta - phi, thd - phd
+        m, ell, b, g, s = self.m, self.leg, self.b, self.g, self.slope
+        A, r = self._system(x)
+        qdd = np.linalg.solve(A, r)
+        cphi, sphi = np.cos(phi), np.sin(phi)
+        cpsi, K0 = np.cos(psi - s), (self.M * ell + m * self.a + m * ell) * g
+        dr = np.array([
+            [K0 * np.cos(theta - s) - m * b * g * cpsi,
+             m * b * g * cpsi - m * ell * b * cphi * (thd**2 - psd**2),
+             -2 * m * ell * b * sphi * phd, -2 * m * ell * b * sphi * psd],
+            [b * g * cpsi, -b * g * cpsi + ell * b * thd**2 * cphi, 2 * ell * b * thd * sphi, 0.0],
+        ])
+        dA_dphi = ell * b * sphi * np.array([[2 * m, -m], [-1.0, 0.0]])
+        dr[:, 1] -= dA_dphi @ qdd
+        J = np.zeros((4, 4))
+        J[0, 2] = J[1, 3] = 1.0
+        J[2:] = np.linalg.solve(A, dr)
+        return J
 
     def events(self, x):
         return np.array([x[1] - 2.0 * x[0]])
