@@ -547,9 +547,10 @@ def summary_text(res):
                  f"on the section {mult}")
     ref = res["reference"]
     lines.append(f"reference ({ref['source']}), published or closed form / bderiv:")
-    for key, (want, got) in ref.items():
+    for key, pair in ref.items():
         if key == "source":
             continue
+        want, got = pair
         if key == "eigenvalues":
             want = ", ".join(f"{complex(*z):.8f}" for z in want)
             got = ", ".join(f"{complex(*z):.8f}" for z in got)
