@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bderiv import HybridSystem
+from bderiv.assembly import group_bderivative
 from bderiv.examples.impacts import _FOOT, _Feet, landing, landing_summary, summary_text
 
 U0, U1 = _FOOT[0][2], _FOOT[1][2]
@@ -48,7 +49,7 @@ def test_one_event_gives_the_saltation_matrix_with_reset(example):
     before the jump and after it, from the model's functions directly."""
     model, system = _model(), example.system
     x = example.rho
-    M = system._bderivative_at(x, (0,), 0)
+    M = group_bderivative(system, x, (0,), 0)
     R = model.reset_jacobian(x, 0, 0)
     f_minus, f_plus = model.field(x, 0), model.field(model.reset(x, 0, 0), 1)
     dh = model.Dh[0]

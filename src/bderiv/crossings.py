@@ -195,15 +195,17 @@ def landing(system, group, mask, x_after, window, t=None):
     In each event's crossing orientation (``s_k h_k`` crosses upward), with ``window`` (n,)
     the accuracy of the event values: an event that lands beyond its window on the far
     side has its bit flipped; one that lands beyond it on the side it came from (a leg
-    swap) keeps its bit; on the surface, the flow decides: a rate clearly positive in the
-    region with the bit flipped flips it (a crossing, an impact that stays in contact), one
-    clearly negative in the region with the bit kept keeps it (a bounce).
+    swap) keeps its bit; on the surface, the flow decides: a rate in the region with the
+    bit flipped that is not clearly negative flips it (a crossing, an impact that stays in
+    contact, a plastic one that stops on the surface), and where that rate is clearly
+    negative, one clearly negative in the region with the bit kept too keeps it (a bounce).
 
     Raises
     ------
     ValueError
-        When neither rate is clearly of its sign: the state would stay on the surface
-        (sliding along it, or grazing), which is not a transversal event.
+        When the flow sends the state back in the region with the bit flipped and not in
+        the region with it kept: it would slide along the surface (a Filippov sliding
+        mode), which is not an event.
     """
     n = system.n_events
     new = mask ^ sum(1 << k for k in group)
@@ -216,20 +218,20 @@ def landing(system, group, mask, x_after, window, t=None):
         if h[k] > window[k]:
             continue
         if h[k] >= -window[k]:  # on the surface: the flow after the reset decides
-            if _clearly_positive(Dh[k], field):
+            if not _clearly_positive(-Dh[k], field):  # moves on, or stays (plastic)
                 continue
             back = system.eval_field(x_after, new ^ 1 << k)
             if not _clearly_positive(-Dh[k], back):
                 at = "" if t is None else f" at t={t:.10g}"
                 raise ValueError(
-                    f"after the reset of event {k}{at} the state stays on its surface "
-                    f"(h_{k} = {h[k]:.3g}, within the accuracy {window[k]:.3g}): the rate "
-                    f"of h_{k} in the crossing's orientation is {float(Dh[k] @ field):.3g} "
-                    f"in region {format_mask(new, n)} (the crossing completed) and "
+                    f"after the reset of event {k}{at} the state is on its surface "
+                    f"(h_{k} = {h[k]:.3g}, within the accuracy {window[k]:.3g}) and the flow "
+                    f"pushes it against the surface from both sides: the rate of h_{k} in "
+                    f"the crossing's orientation is {float(Dh[k] @ field):.3g} in region "
+                    f"{format_mask(new, n)} (the crossing completed) and "
                     f"{float(Dh[k] @ back):.3g} in region {format_mask(new ^ 1 << k, n)} "
-                    f"(sent back), neither clearly of its sign: the state would slide along "
-                    f"or graze the surface, which is not a transversal event; event {k} "
-                    f"crossed {direction_name(sign[k])}"
+                    f"(sent back), so the state would slide along the surface, which is "
+                    f"not an event; event {k} crossed {direction_name(sign[k])}"
                 )
         kept |= 1 << k
     return new ^ kept
