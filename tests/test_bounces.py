@@ -291,3 +291,44 @@ def test_compass_gait_refuses_a_heel_strike_behind_the_stance_leg():
     x = np.array([0.1, 0.2, -0.3, 0.1])  # h = 0 with phi > 0: the scuff, crossed upward
     with pytest.raises(ValueError, match="swing leg behind the stance leg"):
         ex.system.bderivative(x)
+
+
+# ----------------------------------------------------------------------------------
+# the command line and the figure
+# ----------------------------------------------------------------------------------
+def test_demo_rimless_wheel_prints_the_gait_beside_its_closed_forms(capsys):
+    from bderiv.cli import main
+
+    assert main(["demo", "--example", "rimless-wheel"]) == 0
+    out = capsys.readouterr().out
+    assert "event 0 crossed up" in out and "the bit kept" in out
+    c2 = np.cos(np.pi / 4) ** 2
+    assert f"multiplier: {c2:.10f} / {c2:.10f}" in out
+    assert main(["demo", "--example", "compass-gait", "--n", "3"]) == 2  # a network option
+    assert "--n and --extended are options of --example network" in capsys.readouterr().err
+
+
+def test_the_impacts_figure_script_draws_the_three_cases(tmp_path):
+    pytest.importorskip("matplotlib")
+    import importlib.util
+    import pathlib
+
+    tool = pathlib.Path(__file__).resolve().parents[1] / "tools" / "impacts_figure.py"
+    spec = importlib.util.spec_from_file_location("bderiv_impacts_figure", tool)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    # the third case: the bit set at the landing, cleared at the lift-off, no other event
+    system, x0, t_final = module.compliant_landing()
+    traj = system.simulate(x0, t_final)
+    assert [(g.directions, g.mask_after) for g in traj.groups] == [((1,), 1), ((-1,), 0)]
+    module.main([str(tmp_path / "impacts.png")])
+    assert (tmp_path / "impacts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_compass_gait_refuses_bad_parameters_and_a_start_that_does_not_step():
+    with pytest.raises(ValueError, match="leg_com must be in"):
+        walkers.compass_gait(leg_com=0.0)
+    with pytest.raises(ValueError, match="start must be two finite numbers"):
+        walkers.compass_gait(start=(0.2,))
+    with pytest.raises(ValueError, match="does not complete a step"):
+        walkers.compass_gait(start=(0.2, 0.5))  # rolling backward
