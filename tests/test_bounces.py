@@ -332,3 +332,38 @@ def test_compass_gait_refuses_bad_parameters_and_a_start_that_does_not_step():
         walkers.compass_gait(start=(0.2,))
     with pytest.raises(ValueError, match="does not complete a step"):
         walkers.compass_gait(start=(0.2, 0.5))  # rolling backward
+
+
+@pytest.mark.parametrize(("leg_mass", "leg_com"), [(5.0, 0.5), (0.3, 1.0), (1e-3, 0.8)])
+def test_compass_heel_strike_is_the_rigid_impact_of_the_floating_walker(leg_mass, leg_com):
+    """The leg swap's velocities against the impulsive dynamics of the free walker,
+    written out here: coordinates (hip x, hip y, theta, psi) (psi = theta - phi, the swing
+    leg's absolute angle), M (q'+ - q'-) = J^T lambda with the new stance foot stopped,
+    J q'+ = 0 (no impulse on the old stance foot, which lifts off). Legs with mass (the
+    massless limit is checked against Garcia et al.'s gait above)."""
+    hip_mass, leg = 10.0, 1.2
+    model = walkers._Compass(hip_mass, leg_mass, leg, leg_com, 0.05, 9.81)
+    b = leg_com * leg  # the leg mass from the hip
+
+    def u(a):
+        return np.array([-np.sin(a), np.cos(a)]), np.array([-np.cos(a), -np.sin(a)])
+
+    theta, psi, thd, psd = -0.21, 0.23, -0.9, 0.4  # psi = theta - phi; phi < 0: ahead
+    x = np.array([theta, theta - psi, thd, thd - psd])
+    (_, du_t), (_, du_p) = u(theta), u(psi)
+    # Jacobians of the point masses in (xh, yh, theta, psi): hip, stance mass, swing mass
+    I2 = np.eye(2)
+    J = [np.column_stack([I2, np.zeros((2, 2))]),
+         np.column_stack([I2, -b * du_t, np.zeros(2)]),
+         np.column_stack([I2, np.zeros(2), -b * du_p])]
+    masses = [hip_mass, leg_mass, leg_mass]
+    M = sum(m * Ji.T @ Ji for m, Ji in zip(masses, J, strict=True))
+    J_foot = np.column_stack([I2, np.zeros(2), -leg * du_p])  # the new stance foot
+    qd_minus = np.array([*(leg * thd * du_t), thd, psd])  # the old stance foot at rest
+    K = np.block([[M, -J_foot.T], [J_foot, np.zeros((2, 2))]])
+    qd_plus = np.linalg.solve(K, np.concatenate([M @ qd_minus, np.zeros(2)]))[:4]
+    new_theta_rate, new_psi_rate = qd_plus[3], qd_plus[2]  # the legs' roles swapped
+    after = model.reset(x, 0, 0)
+    np.testing.assert_allclose(after[:2], [psi, psi - theta], atol=1e-15)
+    np.testing.assert_allclose(after[2:], [new_theta_rate, new_theta_rate - new_psi_rate],
+                               rtol=1e-9, atol=1e-12)
