@@ -60,7 +60,8 @@ simulation code published with the paper, M. Garcia 1998, integrated to 1e-10:
 the eigenvalues to 1.3e-3 only: the return map's B-derivative gives ``-0.1900998 +-
 0.5575988 i`` (modulus 0.58911, Garcia's 0.58827), and so do central differences of the
 stride map of Garcia's equations integrated by scipy at rtol 1e-13 (tests/test_bounces.py),
-to 1e-7: the published eigenvalues are the less accurate numbers.
+to 1e-7. The two computations here agree with each other, not with the code's comment
+beyond its third digit (whose integration and differencing steps the code does not say).
 """
 
 from __future__ import annotations
