@@ -380,6 +380,8 @@ class ModelCalls:
         if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
             table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
             return np.ascontiguousarray(table[masks])
+        if self.compiled is not None:  # one compiled loop over the masks
+            return self.compiled.fields(x, masks)
         out = np.empty((masks.size, d))
         for i, m in enumerate(masks.tolist()):
             out[i] = self.eval_field(x, m)

@@ -107,20 +107,19 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH)
     []
     """
     m, n = h.shape
-    out = []
     if m < 2:
-        return out
-    for k in range(n):
-        v = h[:, k]
-        left = np.concatenate(([-np.inf], v[:-1]))
-        right = np.concatenate((v[1:], [-np.inf]))
-        low = np.minimum(np.where(np.isfinite(left), left, right),
-                         np.where(np.isfinite(right), right, left))
-        peak = (v >= left) & (v >= right) & (v + reach * (v - low) >= -tol[k])
-        if stretch:
-            peak[[0, -1]] &= v[[0, -1]] < -tol[k]
-        out.extend((k, max(int(i) - 1, 0), min(int(i) + 1, m - 1))
-                   for i in np.flatnonzero(peak))
+        return []
+    edge = np.full((1, n), -np.inf)
+    left = np.concatenate((edge, h[:-1]))
+    right = np.concatenate((h[1:], edge))
+    low = np.minimum(np.where(np.isfinite(left), left, right),
+                     np.where(np.isfinite(right), right, left))
+    peak = (h >= left) & (h >= right) & (h + reach * (h - low) >= -tol)
+    if stretch:
+        peak[[0, -1]] &= h[[0, -1]] < -tol
+    ks, rows = np.nonzero(peak.T)  # event by event, samples in order
+    out = [(int(k), max(int(i) - 1, 0), min(int(i) + 1, m - 1))
+           for k, i in zip(ks, rows, strict=True)]
     return sorted(out, key=lambda b: (b[1], b[0]))
 
 

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .compiled import EVENT
+from .compiled import EVENT, dense_at
 from .excursions import without_lost_crossings
 
 
 class DenseOutput:
     """The state's dense output over a compiled stretch: ``sol(t)``, shape (d,) or
-    (d, len(t)), scipy's ``Dop853DenseOutput`` on each step.
+    (d, len(t)), scipy's ``Dop853DenseOutput`` on each step (evaluated in compiled code).
 
     Parameters
     ----------
@@ -33,20 +33,11 @@ class DenseOutput:
     """
 
     def __init__(self, steps, F, y_old):
-        self.t_old, self.h, self.F, self.y_old = steps[:, 0], steps[:, 1], F, y_old
+        self.steps, self.F, self.y_old = steps, F, y_old
 
     def __call__(self, t):
-        t = np.asarray(t, dtype=np.float64)
-        T = np.atleast_1d(t)
-        i = np.clip(np.searchsorted(self.t_old, T, side="right") - 1, 0, self.h.size - 1)
-        x = ((T - self.t_old[i]) / self.h[i])[:, None]
-        F = self.F[i]
-        y = np.zeros((T.size, self.y_old.shape[1]))
-        for r in range(F.shape[1]):  # alternating factors x and 1 - x, as scipy's
-            y += F[:, F.shape[1] - 1 - r]
-            y *= x if r % 2 == 0 else 1.0 - x
-        y += self.y_old[i]
-        return y[0] if t.ndim == 0 else y.T
+        y = dense_at(self.steps, self.F, self.y_old, np.atleast_1d(t))
+        return y[0] if np.ndim(t) == 0 else y.T
 
 
 class CompiledSolution:

@@ -15,10 +15,10 @@ from __future__ import annotations
 from ._cached import key_all_kernels
 from ._checks import check_compiled, is_compiled
 from ._integrate import EVENT
-from .model import JACOBIAN_MODES, CompiledModel
+from .model import JACOBIAN_MODES, CompiledModel, dense_at
 from .stretch import Stretch, integrate_stretch
 
 key_all_kernels()
 
 __all__ = ["EVENT", "JACOBIAN_MODES", "CompiledModel", "Stretch", "check_compiled",
-           "integrate_stretch", "is_compiled"]
+           "dense_at", "integrate_stretch", "is_compiled"]

@@ -184,3 +184,14 @@ def dense_eval(F, y_old, t_old, h, t, count, out):
             v += F[n_rows - 1 - i, j]
             v *= x if i % 2 == 0 else 1.0 - x
         out[j] = v + y_old[j]
+
+
+@njit(cache=True)
+def dense_rows(t_old, h, F, y_old, T, out):
+    """``out[i]`` = the dense output at ``T[i]`` of the recorded steps (start times
+    ``t_old`` (S,), sizes ``h``, coefficients ``F`` (S, 7, d), start states ``y_old``
+    (S, d)): each time on the step that holds it (the first or last outside them)."""
+    last = t_old.size - 1
+    for i in range(T.size):
+        j = min(max(np.searchsorted(t_old, T[i], side="right") - 1, 0), last)
+        dense_eval(F[j], y_old[j], t_old[j], h[j], T[i], out.shape[1], out[i])

@@ -176,6 +176,20 @@ def events_rows(model, X, n, G, bad):
     return OK
 
 
+@njit(cache=True)
+def field_rows(model, x, masks, d, out):
+    """``out[i] = field(x, masks[i])`` for every mask, checked: ``(status, i)`` (i: the
+    failed mask's index)."""
+    for i in range(masks.size):
+        f = model.field(x.copy(), masks[i])
+        if f.size != d:
+            return FIELD_SHAPE, i
+        if not all_finite(f):
+            return FIELD_NONFINITE, i
+        out[i] = f
+    return OK, 0
+
+
 @njit(JACOBIAN_SIGNATURE, cache=True)
 def no_jacobian(x, mask):  # pragma: no cover - passed, never called
     """Stands for ``field_jacobian`` when the sensitivity is not carried (never called)."""

@@ -42,6 +42,16 @@ class Driven(NamedTuple):
     t_bad: float
 
 
+def _interrupted(exc) -> None:
+    """Raise the KeyboardInterrupt behind ``exc`` (a SystemError numba raised when the
+    interrupt's handler ran while it built the results), if there is one."""
+    seen = exc
+    while seen is not None:
+        if isinstance(seen, KeyboardInterrupt):
+            raise KeyboardInterrupt from None
+        seen = seen.__cause__ or seen.__context__
+
+
 def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
           rtol, atol, max_step, first_step, forced, dense) -> Driven:
     """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
@@ -51,9 +61,13 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         per_step = _cost.get(key)
         budget = FIRST_SLICE if per_step is None else max(1, int(SLICE_SECONDS / per_step))
         start = time.perf_counter()
-        out = drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
-                            t0, y0, t_final, rtol, atol, max_step, first_step, forced,
-                            budget, dense)
+        try:
+            out = drive_stretch(model, jac_mode, variational, with_section, n_events, mask,
+                                d, t0, y0, t_final, rtol, atol, max_step, first_step, forced,
+                                budget, dense)
+        except SystemError as exc:  # Ctrl-C seen while numba boxed the results
+            _interrupted(exc)
+            raise
         elapsed = time.perf_counter() - start
         status, t_end, y_end, ts, ys, steps, Fd, active, roots, part, bad, t_bad, h = out
         if part[N_STEPS]:

@@ -14,6 +14,7 @@ import numpy as np
 
 from .._format import MASK_MEANING, format_mask
 from ._checks import check_compiled, compiles_for_complex, format_state, raise_failed_run
+from ._dop853 import dense_rows
 from ._integrate import EVENT, FINISHED
 from ._model import bound_model
 from ._rhs import (
@@ -22,6 +23,7 @@ from ._rhs import (
     JAC_GIVEN,
     OK,
     events_rows,
+    field_rows,
     jacobian,
     no_complex_field,
     no_jacobian,
@@ -99,6 +101,17 @@ class CompiledModel:
             raise_failed_run(status, self.named, bad, 0.0, 0, self.dim, self.n_events)
         return G
 
+    def fields(self, x, masks) -> np.ndarray:
+        """``field(x, mask)`` for every mask of ``masks`` (m,): shape (m, d), checked."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        masks = np.ascontiguousarray(masks, dtype=np.int64)
+        out = np.empty((masks.size, self.dim))
+        status, i = field_rows(self.struct(), x, masks, self.dim, out)
+        if status != OK:
+            raise_failed_run(status, self.named, x, 0.0, int(masks[i]), self.dim,
+                             self.n_events)
+        return out
+
     def stretch(self, y0, t0, t_final, mask, *, rtol, atol, max_step, variational,
                 section=None, forced=False, dense=True) -> Driven:
         """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
@@ -141,3 +154,16 @@ class CompiledModel:
             named = dict(self.named, section=section)
             raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n, self.jac_mode)
         return out
+
+
+def dense_at(steps, F, y_old, T) -> np.ndarray:
+    """The dense output of a stretch's recorded steps at the times ``T`` (m,): (m, d).
+
+    ``steps`` (S, 2) start times and sizes, ``F`` (S, 7, d) coefficients, ``y_old`` (S, d)
+    start states (the record of :meth:`CompiledModel.stretch` with ``dense``).
+    """
+    T = np.ascontiguousarray(T, dtype=np.float64)
+    out = np.empty((T.size, y_old.shape[1]))
+    dense_rows(np.ascontiguousarray(steps[:, 0]), np.ascontiguousarray(steps[:, 1]), F,
+               np.ascontiguousarray(y_old), T, out)
+    return out
