@@ -16,7 +16,7 @@ LAYERS = [
     {"cli", "__main__"},
     {"plot", "examples", "_bench", "symbolic"},  # _bench: the sweep of `bderiv bench`
     {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff", "stability_map"},
-    {"checks"},
+    {"checks", "assembly"},  # assembly: the model's B-derivatives, group by group
     {"simulate", "crossings", "locate", "flowmap", "returnmap", "stability", "excursions",
      "finaltime", "stretch_scipy", "stretch_compiled"},
     {"compiled"},  # the compiled integrator (issue 19)

@@ -3,7 +3,9 @@
 The engine reports progress through a plain callable ``progress(done, total)`` (work units
 done so far, total units). This module turns the user-facing values into such a callable:
 ``None``/``False`` (no reporting), ``True`` (a tqdm bar; tqdm is the optional extra
-``progress``) or any callable (used as it is). tqdm is imported only when a bar is asked for.
+``progress``) or any callable (guarded: an exception it raises stops the work as a
+:class:`ProgressCallbackError` that says how far the work got, with the callback's own
+exception as its cause). tqdm is imported only when a bar is asked for.
 """
 
 from __future__ import annotations
@@ -14,6 +16,55 @@ _TQDM_HINT = (
     "`pip install 'bderiv[progress]'` (or `pip install tqdm`), or pass progress=None, or "
     "a callable progress(done, total)"
 )
+
+
+#: the plural of each tqdm unit, for messages
+_UNITS = {"vec": "vectors", "point": "grid points"}
+
+
+class ProgressCallbackError(ValueError):
+    """A ``progress(done, total)`` callback raised: the work stopped at that call.
+
+    The callback's own exception is ``__cause__`` (shown above this one in a traceback).
+    """
+
+
+class GuardedCallback:
+    """A user's ``progress(done, total)`` callable whose exceptions say where they came
+    from: a :class:`ProgressCallbackError` naming the call and how far the work got,
+    raised from the callback's exception.
+
+    Examples
+    --------
+    >>> def stop(done, total):
+    ...     if done > 10:
+    ...         raise KeyError("enough")
+    >>> guarded = GuardedCallback(stop)
+    >>> guarded(10, 30)
+    >>> guarded(20, 30)
+    Traceback (most recent call last):
+    ...
+    bderiv._progress.ProgressCallbackError: the progress callback stop raised
+    KeyError('enough') at progress(20, 30), after 20 of 30 vectors: the work stopped there
+    (the callback's exception is the cause)
+    """
+
+    def __init__(self, callback, unit: str = "vec"):
+        self.callback = callback
+        self.units = _UNITS.get(unit, unit)
+
+    def __call__(self, done: int, total: int) -> None:
+        try:
+            self.callback(done, total)
+        except ProgressCallbackError:  # a guarded callback inside this one: said already
+            raise
+        except Exception as exc:
+            name = getattr(self.callback, "__name__", type(self.callback).__name__)
+            raise ProgressCallbackError(
+                f"the progress callback {name} raised {exc!r} at progress({done}, {total}), "
+                f"after {done} of {total} {self.units}: the work stopped there (the "
+                f"callback's exception is the cause)"
+            ) from exc
 
 
 class TqdmCallback:
@@ -83,11 +134,13 @@ def resolve_progress(progress, desc: str = "bderiv", **kwargs):
     ----------
     progress : None, bool or callable
         ``None``/``False``: no reporting; ``True``: a tqdm bar (needs tqdm, the extra
-        ``progress``); a callable: used as it is.
+        ``progress``); a callable: called as it is, its exceptions raised as a
+        :class:`ProgressCallbackError` (:class:`GuardedCallback`).
     desc : str
         Label of the tqdm bar.
     **kwargs
-        Passed to :class:`TqdmCallback`.
+        Passed to :class:`TqdmCallback` (``unit`` also names the work in the message of
+        a callback that raised).
 
     Raises
     ------
@@ -109,8 +162,10 @@ def resolve_progress(progress, desc: str = "bderiv", **kwargs):
         return None
     if progress is True:
         return TqdmCallback(desc, **kwargs)
-    if callable(progress):
+    if isinstance(progress, TqdmCallback | GuardedCallback):
         return progress
+    if callable(progress):
+        return GuardedCallback(progress, kwargs.get("unit", "vec"))
     raise TypeError(
         f"progress must be None, a bool or a callable progress(done, total), got "
         f"{type(progress).__name__}"

@@ -14,7 +14,7 @@ import numpy as np
 
 from . import _numdiff as numdiff
 from ._format import format_mask
-from ._validate import check_positive_int, check_real_array
+from ._validate import check_bool, check_positive_int, check_real_array
 from .compiled import JACOBIAN_MODES, CompiledModel, check_compiled, is_compiled
 
 #: relative tolerance of the checks of a model's resets with analytic Jacobians (event
@@ -147,9 +147,6 @@ class ModelCalls:
             raise TypeError("field and events are required callables")
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
-        if not isinstance(check_jacobians, bool | np.bool_):
-            raise TypeError(f"check_jacobians must be True or False, got "
-                            f"{type(check_jacobians).__name__}")
         self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
         self._compiled = None
         field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
@@ -163,7 +160,7 @@ class ModelCalls:
         self._event_jac = event_jacobian
         self._field_jac = field_jacobian
         self._corner_field = corner_field
-        self.check_jacobians = bool(check_jacobians)
+        self.check_jacobians = check_bool(check_jacobians, "check_jacobians")
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
         self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
 

@@ -17,7 +17,7 @@ from . import render
 from .bench import run_bench
 from .demo import run_demo
 from .export import run_export
-from .figures import DECAY_STRIDES, FIGURES, GAIT_FIGURES, run_figures
+from .figures import DECAY_STRIDES, DEFAULT_OUT, FIGURES, GAIT_FIGURES, run_figures
 from .systems import (
     GAIT_EXAMPLES,
     IMPACT_EXAMPLES,
@@ -139,7 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="queries per batch (default 100000)")
     p.add_argument("--repeat", type=_positive_int, default=3, help="timed runs, best kept")
     p.add_argument("--plot", metavar="FILE",
-                   help="also save the log-log plot (.png, .pdf or .svg)")
+                   help="also save the log-log plot (.png, .pdf or .svg; its directory is "
+                   "made if missing)")
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -155,8 +156,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "against simulated strides (a few seconds, as long as `bderiv demo --example "
                    f"pronking`: the orbit is found by Newton's method and {DECAY_STRIDES} "
                    "strides simulated)")
-    p.add_argument("--out", default="bderiv-figures",
-                   help="output directory (default ./bderiv-figures, created if missing)")
+    p.add_argument("--out", default=None,
+                   help=f"output directory, made if missing (default ./{DEFAULT_OUT}/EXAMPLE:"
+                   f" one folder per example); files of the same name are replaced, and "
+                   f"the output says which")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
                    help="file format (default png)")
     p.add_argument("--dpi", type=_positive_int, default=120,
@@ -172,7 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "B-derivative of the flow from x0 over [0, t_final] (models with one "
                    "event group)")
     p.add_argument("--out", default="triangulation",
-                   help="output path without suffix (default ./triangulation)")
+                   help="output path without suffix (default ./triangulation); its directory "
+                   "is made if missing, and the output says which files it replaced")
     p.add_argument("--format", choices=("npz", "json", "both"), default="both",
                    help="file format (default both)")
     p.add_argument("--max-pieces", type=_positive_int, default=40320,
@@ -221,7 +225,7 @@ def _bench(args) -> str:
                        plot=args.plot, progress=progress)
     if args.json:
         return render.to_json(result, indent=1)
-    return render.bench_text(result, plot=args.plot)
+    return render.bench_text(result)
 
 
 def _plot(args) -> str:
@@ -265,7 +269,7 @@ def main(argv=None) -> int:
 
     Examples
     --------
-    >>> main(["export", "--example", "corners", "--out", "/nonexistent/dir/tri"])
+    >>> main(["export", "--example", "corners", "--out", "/proc/dir/tri"])  # not writable
     2
     >>> main(["demo", "--example", "corners", "--batch", "100"])  # doctest: +ELLIPSIS
     bderiv demo: corners, corner table without a model, 3 events in R^3
