@@ -25,6 +25,7 @@ import time
 import numba
 import numpy as np
 
+from bderiv.checks import FD_SIMULTANEITY_TOL
 from bderiv.hybrid import HybridSystem
 
 G = 9.81
@@ -139,8 +140,8 @@ def central_differences(system, x0, eps=1e-6):
     for j in range(d):
         e = np.zeros(d)
         e[j] = eps
-        plus = system.simulate(x0 + e, T_FINAL, simultaneity_tol=1e-7).x_final
-        minus = system.simulate(x0 - e, T_FINAL, simultaneity_tol=1e-7).x_final
+        plus = system.simulate(x0 + e, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL).x_final
+        minus = system.simulate(x0 - e, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL).x_final
         J[:, j] = (plus - minus) / (2 * eps)
     return J
 
@@ -165,12 +166,12 @@ def main(sizes=SIZES):
         sims, builds = {}, {}
         for _ in range(REPEATS):  # alternated: one of each in turn
             for name, system in (("c", compiled), ("py", python)):
-                t, traj = best(lambda s=system: s.simulate(x0, T_FINAL,
-                                                           simultaneity_tol=1e-7), 1)
+                t, traj = best(lambda s=system, x=x0: s.simulate(x, T_FINAL,
+                                                                 simultaneity_tol=1e-7), 1)
                 sims.setdefault(name, []).append((t, traj))
-                t, D = best(lambda s=system: s.flow_bderivative(x0, T_FINAL), 1)
+                t, D = best(lambda s=system, x=x0: s.flow_bderivative(x, T_FINAL), 1)
                 builds.setdefault(name, []).append((t, D))
-        t_fd, J_fd = best(lambda s=python: central_differences(s, x0), 1)
+        t_fd, J_fd = best(lambda s=python, x=x0: central_differences(s, x), 1)
         (sc, tc), (sp, tp) = (min(sims[n], key=lambda r: r[0]) for n in ("c", "py"))
         (bc, Dc), (bp, Dp) = (min(builds[n], key=lambda r: r[0]) for n in ("c", "py"))
         V = np.random.default_rng(0).standard_normal((64, d))

@@ -17,9 +17,9 @@ import time
 import numba
 import numpy as np
 import pytest
-from compiled_models import apex_section, chair_pair, pronking_functions, pronking_pair
+from compiled_models import apex_section, chair_pair, pronking_pair
 from numpy.testing import assert_allclose
-from test_excursions import C, T, X0, closed_form
+from test_excursions import X0, C, T, closed_form
 
 from bderiv import HybridSystem
 from bderiv.compiled import JACOBIAN_MODES
@@ -317,3 +317,44 @@ def test_ctrl_c_stops_a_long_compiled_run_within_a_second():
     with pytest.raises(KeyboardInterrupt):  # about 1e9 steps: hours if not interrupted
         system.simulate(np.array([1.0, 0.0]), 1e6, max_step=1e-3)
     assert time.perf_counter() - start < 0.3 + 1.0
+
+
+# --- resets that land back (crossings.landing), on the compiled path -------------------
+
+GRAVITY, RESTITUTION = 9.81, 0.8
+
+
+@numba.njit
+def ball_field(x, mask):
+    return np.array([x[1], -GRAVITY])
+
+
+@numba.njit
+def ball_events(x):
+    return np.array([-x[0]])
+
+
+@numba.njit
+def ball_reset(x, mask, k):
+    return np.array([x[0], -RESTITUTION * x[1]])
+
+
+def test_a_bouncing_ball_on_both_paths_and_against_its_closed_form():
+    """Each impact reverses the velocity (times e): the ball leaves the ground, the bit
+    stays clear (a bounce), and the next impact is again upward for h = -height."""
+    python = HybridSystem(ball_field.py_func, ball_events.py_func, n_events=1, dim=2,
+                          reset=ball_reset.py_func)
+    compiled = HybridSystem(ball_field, ball_events, n_events=1, dim=2, reset=ball_reset)
+    x0, t_final = np.array([1.0, 0.0]), 2.5
+    _, tc = agree(python, compiled, x0, t_final, simultaneity_tol=1e-7)
+    assert all(g.bounced == (0,) and g.mask_after == 0 for g in tc.groups)
+    assert [e.direction for e in tc.events] == [1] * len(tc.events)
+    # closed form: the first fall, then flights of 2 e^j v / g
+    v = math.sqrt(2.0 * GRAVITY)
+    times = [v / GRAVITY]
+    while times[-1] + 2 * RESTITUTION ** len(times) * v / GRAVITY < t_final:
+        times.append(times[-1] + 2 * RESTITUTION ** len(times) * v / GRAVITY)
+    assert_allclose([e.time for e in tc.events], times, atol=1e-9)
+    up, dt = RESTITUTION ** len(times) * v, t_final - times[-1]
+    assert_allclose(tc.x_final, [up * dt - 0.5 * GRAVITY * dt**2, up - GRAVITY * dt],
+                    atol=1e-9)

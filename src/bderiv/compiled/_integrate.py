@@ -119,10 +119,9 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     ys = np.empty((64, m))
     steps = np.empty((64 if dense else 0, 2))
     Fd = np.empty((64 if dense else 0, INTERPOLATOR_POWER, d))
-    count = n_dense = 0
     ts[0] = t0
     ys[0] = y
-    count = 1
+    count, n_dense = 1, 0
     jev = 1 if variational else 0
 
     t = t0

@@ -30,6 +30,7 @@ from ._rhs import (
     no_section,
 )
 from ._slices import Driven, drive
+from .stretch import MAX_EVENTS
 
 #: how ``J`` is had, by the code of :mod:`._rhs`
 JACOBIAN_MODES = {JAC_GIVEN: "given", JAC_COMPLEX_STEP: "complex step",
@@ -52,9 +53,14 @@ class CompiledModel:
     TypeError
         A function that is not a dispatcher or does not compile for the integrator's types
         (:func:`._checks.check_compiled`).
+    ValueError
+        More than ``MAX_EVENTS`` events (the region mask is an int64).
     """
 
     def __init__(self, field, events, field_jacobian=None, *, n_events, dim):
+        if n_events > MAX_EVENTS:
+            raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
+                             f"bit each of an int64 region mask), got n_events={n_events}")
         self.named = {"field": field, "events": events}
         if field_jacobian is not None:
             self.named["field_jacobian"] = field_jacobian
