@@ -28,11 +28,11 @@ import time
 
 import numpy as np
 
-__all__ = ["APEX", "apex_section", "quadruped", "quadruped_orbit", "quadruped_summary",
-           "summary_text"]
+__all__ = ["APEX", "LABELS", "apex_section", "quadruped", "quadruped_figure",
+           "quadruped_orbit", "quadruped_summary", "summary_text"]
 
 #: the body's apex state on the gait with the default parameters (a guess for Newton)
-APEX = np.array([0.0, 0.75, 0.0, 0.51, 0.51, 0.51, 0.51, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+APEX = np.array([0.0, 0.56, 0.0, 0.49, 0.49, 0.49, 0.49, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
 #: index of the body's vertical velocity in the state
 VZ = 8
 
@@ -62,7 +62,7 @@ def quadruped(**values):
     v = sp.symbols("vx vz omega dl0:4")
     flags = sp.symbols("s0:4")
     P = dict(m_body=1.0, I_body=0.16, m_foot=0.05, half_base=0.4, rest=0.5, k_leg=100.0,
-             c_leg=1.0, gain=2.0, v_ref=1.0, mu=20.0, g=9.81, contact_stiffness=1e4,
+             c_leg=1.0, gain=2.0, v_ref=2.0, mu=2.0, g=9.81, contact_stiffness=1e4,
              contact_damping=40.0)
     unknown = set(values) - set(P)
     if unknown:
@@ -114,3 +114,107 @@ def quadruped_orbit(system=None, guess=None, **kwargs):
     kwargs.setdefault("period_guess", 0.5)
     kwargs.setdefault("section_gradient", _apex_gradient)
     return system.periodic_orbit(guess, apex_section, cyclic=[0], **kwargs)
+
+
+#: names of the state components, with their units (figures)
+LABELS = ("$x$ (m)", "height $z$ (m)", "pitch $\\theta$ (rad)",
+          *(f"leg $l_{k}$ (m)" for k in range(4)), "$v_x$ (m/s)", "$v_z$ (m/s)",
+          "$\\omega$ (rad/s)", *(f"$l_{k}'$ (m/s)" for k in range(4)))
+
+
+def quadruped_figure(orbit):
+    """The gait over one period: height, pitch, a leg, the vertical velocity, stance
+    shaded, the event groups marked (:func:`bderiv.plot.gait_orbit`)."""
+    from ..plot import gait_orbit
+
+    return gait_orbit(orbit, components=[1, 2, 3, VZ], phase=(1, VZ), labels=LABELS,
+                      time_label="time (s)", phases={15: "stance: all four feet down"})
+
+
+def _max_coupling(system, x) -> float:
+    """The largest relative inverse-mass coupling of two contacts at ``x``."""
+    C = system.coupling(x)
+    rel = np.abs(C) / np.sqrt(np.outer(np.diag(C), np.diag(C)))
+    return float((rel - np.eye(len(C))).max())
+
+
+def quadruped_summary(*, seed=0, n_directions=200, iterations=200, figure=None):
+    """From the equations to the stability verdict, with the times and the
+    mass-orthogonality check of the touchdowns.
+
+    Parameters
+    ----------
+    seed, n_directions, iterations
+        Of :meth:`~bderiv.orbit.PeriodicOrbit.stability`.
+    figure : str or os.PathLike, optional
+        Where to save :func:`quadruped_figure` (needs matplotlib).
+
+    Returns
+    -------
+    dict
+        JSON-friendly: ``build`` (derivation and compilation seconds, cache hit),
+        ``orbit`` (x0, period, Newton residuals, seconds), ``groups`` (time, events,
+        directions, the largest relative coupling of the contacts there), ``coupling``
+        (the same at a pitched touchdown, for contrast), ``stability`` (growth rate,
+        stable, pieces met, |multipliers| of the most visited, seconds).
+    """
+    start = time.perf_counter()
+    system = quadruped()
+    built = time.perf_counter()
+    orb = quadruped_orbit(system)
+    found = time.perf_counter()
+    st = orb.stability(n_directions=n_directions, iterations=iterations, seed=seed)
+    judged = time.perf_counter()
+    pitched = orb.trajectory.groups[0].state.copy()
+    pitched[2] = 0.2
+    top = max(st.visits, key=st.visits.get)
+    res = {
+        "name": "quadruped",
+        "description": "planar quadruped pronking: body x, z, pitch and four telescopic "
+                       "legs with massive feet (d = 14, n = 4), plastic foot impacts, "
+                       "compliant ground, from bderiv.symbolic.contact_system",
+        "build": {"cached": system.build.cached, "derive_seconds": system.build.derive_seconds,
+                  "load_seconds": system.build.load_seconds, "seconds": built - start},
+        "orbit": {"x0": orb.x0.tolist(), "period": orb.period, "residual": orb.residual,
+                  "newton_residuals": [h.residual for h in orb.history],
+                  "seconds": found - built},
+        "groups": [{"time": g.time, "events": list(g.events), "directions": list(g.directions),
+                    "coupling": _max_coupling(system, g.state)}
+                   for g in orb.trajectory.groups],
+        "coupling": {"pitch": 0.2, "max_relative": _max_coupling(system, pitched)},
+        "stability": {"growth_rate": st.growth_rate, "stable": st.stable,
+                      "pieces": len(st.visits), "top_piece": [list(o) for o in top],
+                      "abs_multipliers": np.abs(st.multipliers[top]).tolist(),
+                      "seconds": judged - found},
+    }
+    if figure is not None:
+        quadruped_figure(orb).savefig(figure)
+        res["figure"] = str(figure)
+    return res
+
+
+def summary_text(res) -> str:
+    """The lines of :func:`quadruped_summary` for a terminal."""
+    b, o, st = res["build"], res["orbit"], res["stability"]
+    arrow = {1: "down", -1: "up"}  # touchdown is an upward crossing of -phi
+    lines = [f"bderiv demo: {res['name']}", f"  {res['description']}",
+             f"model: derivation {b['derive_seconds']:.2f} s, compilation or cache load "
+             f"{b['load_seconds']:.2f} s ({'cache hit' if b['cached'] else 'generated'})",
+             f"periodic orbit (apex section -vz = 0, x cyclic) in {o['seconds']:.2f} s: "
+             f"period {o['period']:.10g}, apex height {o['x0'][1]:.6f}; Newton residuals "
+             + ", ".join(f"{r:.2e}" for r in o["newton_residuals"])]
+    for g in res["groups"]:
+        kind = "touchdown" if g["directions"][0] == 1 else "lift-off"
+        lines.append(f"  {kind} of feet {tuple(g['events'])} at t = {g['time']:.6f} (feet "
+                     f"{arrow[-g['directions'][0]]}): largest inverse-mass coupling of two "
+                     f"feet {g['coupling']:.1e}")
+    lines.append(f"  at a touchdown pitched by {res['coupling']['pitch']} rad the feet would "
+                 f"be coupled ({res['coupling']['max_relative']:.3f}): refused if simultaneous")
+    verdict = "stable" if st["stable"] else "unstable"
+    mult = ", ".join(f"{m:.4f}" for m in st["abs_multipliers"] if m > 1e-9)
+    lines.append(f"return map: growth rate {st['growth_rate']:.6f} -> {verdict} in "
+                 f"{st['seconds']:.2f} s ({st['pieces']} pieces met; the most visited has "
+                 f"|multipliers| {mult}, the others below 1e-9)")
+    if "figure" in res:
+        lines.append(f"figure: {res['figure']}")
+    return "\n".join(lines)

@@ -49,8 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._inputs import (_check_free, _expressions, _sequence, _symbols, check_value,
-                      require_sympy)
+from ._inputs import _check_free, _expressions, _sequence, _symbols, check_value, require_sympy
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
 from ._model import SymbolicSystem, load_model
 
