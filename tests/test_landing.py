@@ -175,3 +175,22 @@ def test_walls_at_sixty_degrees_are_refused_naming_the_walls():
         F[B, :2] = M @ vel0
     with pytest.raises(ValueError, match="resets of events 0 and 1 .* do not commute"):
         BDerivative(Dh, F, resets=R)
+
+
+def test_a_corner_bounce_has_corner_points_and_a_triangulation():
+    bd = BDerivative(*_corner()[:2], resets=_corner()[2])
+    tri = bd.triangulation()
+    V = np.random.default_rng(4).standard_normal((200, 4))
+    np.testing.assert_allclose(tri(V), bd(V), atol=1e-12)
+    U, W = bd.corner_points()
+    np.testing.assert_allclose(bd(U), W, atol=1e-12)
+
+
+def test_jvp_and_vjp_of_a_corner_bounce_are_the_selected_piece():
+    bd = BDerivative(*_corner()[:2], resets=_corner()[2])
+    rng = np.random.default_rng(6)
+    V, T, W = (rng.standard_normal((30, 4)) for _ in range(3))
+    _, orders = bd.event_times(V)
+    pieces = np.array([bd.piece(o) for o in orders])
+    np.testing.assert_allclose(bd.jvp(V, T), np.einsum("mij,mj->mi", pieces, T), atol=1e-12)
+    np.testing.assert_allclose(bd.vjp(V, W), np.einsum("mji,mj->mi", pieces, W), atol=1e-12)

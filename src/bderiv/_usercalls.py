@@ -14,7 +14,7 @@ import numpy as np
 
 from . import _numdiff as numdiff
 from ._format import format_mask
-from ._validate import check_positive_int, check_real_array
+from ._validate import check_bool, check_positive_int, check_real_array
 
 #: relative tolerance of the checks of a model's resets with analytic Jacobians (event
 #: and reset), and with numerical ones (accurate to ``_numdiff.ACCEPT_RTOL`` or refused).
@@ -108,9 +108,6 @@ class ModelCalls:
             raise TypeError("field and events are required callables")
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
-        if not isinstance(check_jacobians, bool | np.bool_):
-            raise TypeError(f"check_jacobians must be True or False, got "
-                            f"{type(check_jacobians).__name__}")
         self._reset, self._reset_jac = reset, reset_jacobian
         self.n_events = check_positive_int(n_events, "n_events")
         self.dim = check_positive_int(dim, "dim")
@@ -119,7 +116,7 @@ class ModelCalls:
         self._event_jac = event_jacobian
         self._field_jac = field_jacobian
         self._corner_field = corner_field
-        self.check_jacobians = bool(check_jacobians)
+        self.check_jacobians = check_bool(check_jacobians, "check_jacobians")
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
         self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
 

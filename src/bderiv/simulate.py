@@ -21,6 +21,7 @@ from functools import partial
 import numpy as np
 from scipy.integrate import OdeSolver, solve_ivp
 
+from ._progress import SimulationProgress
 from ._validate import check_number, check_positive_int
 from .crossings import GLOBAL_ERROR_FACTOR, EventGroup, EventRecord, group_tolerance, switch
 from .excursions import without_lost_crossings
@@ -204,7 +205,8 @@ class _EventValues:
         return funcs
 
 
-def _integrate_stretch(system, x, t, t_final, mask, options, events, variational):
+def _integrate_stretch(system, x, t, t_final, mask, options, events, variational,
+                       watch=None):
     """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
     section."""
     d = system.dim
@@ -225,7 +227,8 @@ def _integrate_stretch(system, x, t, t_final, mask, options, events, variational
     funcs = on_side_at_start(events.terminal_events(mask), t, mask, system.n_events)
 
     def solve(start, y_start, stop):
-        sol = solve_ivp(rhs, (start, stop), y_start, events=funcs, dense_output=True,
+        field = rhs if watch is None else watch.wrap(rhs)
+        sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
                         **options.solve_ivp_kwargs())
         if sol.status == -1:
             raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
@@ -296,11 +299,13 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     d, n = system.dim, system.n_events
     mask = system.start_mask(x0)
     events, log = _EventValues(system, section), _Log()
+    watch = SimulationProgress(t_final)  # a bar for long runs; Ctrl-C at each evaluation
     t, x, scale, err = 0.0, x0, np.abs(x0), np.zeros(d)
     while True:
-        sol = _integrate_stretch(system, x, t, t_final, mask, options, events, variational)
+        sol = _integrate_stretch(system, x, t, t_final, mask, options, events, variational,
+                                 watch)
         again = partial(_integrate_stretch, system, x, t, t_final, mask, events=events,
-                        variational=variational)
+                        variational=variational, watch=watch)
         sol, err = settle(system, mask, sol, simultaneity_tol, options, scale, err,
                           again if variational else None)
         log.add_stretch(sol, mask, d, variational)
@@ -323,6 +328,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
             )
         if t >= t_final:
             break
+    watch.close()
     if section is not None and not sol.t_events[n].size:
         raise ValueError(
             f"the trajectory did not return to the section (upward) before t={t_final:g}; "
