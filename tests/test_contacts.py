@@ -218,3 +218,53 @@ def test_parameters_changed_without_rederiving_equal_a_fresh_build(walls, cache)
                             rtol=0, atol=0)
         assert_allclose(changed.functions.reset(x, 0, 1), fresh.functions.reset(x, 0, 1),
                         rtol=0, atol=0)
+
+
+# --- the quadruped (slow: its first build compiles for about 30 s of CPU) -------------
+@pytest.fixture(scope="module")
+def quadruped_system():
+    from bderiv.examples.quadruped import quadruped
+
+    return quadruped()
+
+
+@pytest.mark.slow
+def test_quadruped_feet_are_orthogonal_with_vertical_legs_and_refused_pitched(
+        quadruped_system):
+    system = quadruped_system
+    x = np.zeros(14)
+    x[1], x[3:7] = 0.5, 0.5  # theta = 0: every foot on the ground
+    C = system.coupling(x)
+    # an impulse at a foot shortens its own leg only: M^-1 J_k^T = -e_{l_k} / m_foot
+    assert_allclose(C, np.eye(4) / 0.05, atol=1e-12)
+    # nose down by 0.2, the front feet (2, 3) land together, the hind ones are still up
+    th, b = -0.2, 0.4
+    x = np.zeros(14)
+    x[2], x[3:7] = th, 0.5
+    x[1] = 0.5 * np.cos(th) - b * np.sin(th) + 0.01  # front feet 0.01 above the ground
+    x[8] = -1.0
+    assert system.coupling(x)[2, 3] != 0.0
+    with pytest.raises(ValueError, match=r"contacts 2 \(phi = .*\) and 3 .* are hit at the "
+                                         r"same instant and are coupled"):
+        system.simulate(x, 0.05, simultaneity_tol=1e-9)
+
+
+@pytest.mark.slow
+def test_quadruped_pronking_orbit_is_found_and_stable(quadruped_system):
+    from bderiv.examples.quadruped import quadruped_orbit
+
+    orb = quadruped_orbit(quadruped_system)
+    assert orb.residual < 1e-10
+    assert [(g.events, g.directions) for g in orb.trajectory.groups] == [
+        ((0, 1, 2, 3), (1, 1, 1, 1)), ((0, 1, 2, 3), (-1, -1, -1, -1))]
+    assert abs(orb.x0[2]) < 1e-12 and abs(orb.advance[0]) < 1e-9  # pronking in place
+    # the return map against the simulation: one stride's differences
+    V = np.zeros((2, 14))
+    V[0, 1], V[1, 3:7] = 1.0, 1.0
+    from bderiv.checks import fd_check
+    from bderiv.examples.quadruped import apex_section
+
+    fd = fd_check(quadruped_system, orb.x0, 2.0, V, orb.return_map(V), eps=(1e-5, 1e-6),
+                  section=apex_section)
+    assert min(fd.max_errors) < 1e-4, fd.max_errors
+    assert orb.stability(n_directions=50, iterations=60).stable

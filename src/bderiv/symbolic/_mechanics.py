@@ -1,10 +1,13 @@
 """The numba kernels of a body with point contacts: the mass matrix solved in compiled code.
 
 The field of ``M(q) q'' = b(x, s)`` (:mod:`bderiv.symbolic.contacts` builds ``b``) is
-``(q', M^-1 b)``. Inverting ``M`` symbolically grows its expressions factorially with the
-size (a 7 x 7 mass matrix of sines and cosines gives pages per entry), so the kernels
-fill ``M`` and ``b`` from their own cse'd expressions and solve ``M a = b`` numerically
-(Gaussian elimination with partial pivoting, O(m^3), a few hundred flops for m = 7).
+``(q', M^-1 b)``. Solving ``M a = b`` symbolically multiplies the expressions' size about
+7-fold per coordinate: for the quadruped's mass matrix (:mod:`bderiv.examples.quadruped`,
+380 operations in all) sympy's ``LUsolve`` of its leading k x k block has 643, 4116,
+29651 and 216118 operations for k = 3, 4, 5, 6 (the last in 10 s), before the Jacobians
+differentiate them. So the kernels fill ``M`` and ``b`` from their own cse'd expressions
+and solve numerically (Gaussian elimination with partial pivoting, O(m^3): a few hundred
+flops for m = 7).
 The Jacobians stay exact through the implicit-function rule: from ``M a = b``,
 
     M da/dx_j = db/dx_j - (dM/dx_j) a,
