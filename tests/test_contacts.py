@@ -220,6 +220,31 @@ def test_parameters_changed_without_rederiving_equal_a_fresh_build(walls, cache)
                         rtol=0, atol=0)
 
 
+# --- refusals (before any derivation or compilation) ----------------------------------
+def test_bad_input_is_refused_with_the_argument_named(tmp_path):
+    x, y, vx, k = sp.symbols("x y x_dot k")
+    ok = dict(q=[x, y], mass_matrix=sp.eye(2), forces=[0, -G], contacts=[y],
+              cache_dir=tmp_path)
+    cases = [
+        (dict(q=[x, 2]), TypeError, r"q\[1\] must be a sympy Symbol"),
+        (dict(mass_matrix=sp.eye(3)), ValueError, r"mass_matrix must be 2 x 2 .* \(3, 3\)"),
+        (dict(mass_matrix=[[1, x], [0, 1]]), ValueError, "mass_matrix must be symmetric"),
+        (dict(forces=[0]), ValueError, r"forces must have 2 expressions"),
+        (dict(contacts=[y + vx]), ValueError, r"contacts\[0\] = .* contains x_dot, which "
+                                              r"are not coordinates or parameters"),
+        (dict(forces=[k, 0]), ValueError, r"forces\[0\] = k contains k, which are neither"),
+        (dict(impact=1.5), ValueError, r"restitution e must be in \[0, 1\], got 1.5"),
+        (dict(impact="elastic"), ValueError, "impact must be 'plastic'"),
+        (dict(impact=[0.5]), TypeError, "impact must be 'plastic'"),
+        (dict(stance=[None]), TypeError, "stance must be None, a callable"),
+        (dict(params=[1.0]), TypeError, "params must be a mapping"),
+    ]
+    for change, error, message in cases:
+        with pytest.raises(error, match=message):
+            contact_system(**{**ok, **change})
+    assert not any(tmp_path.rglob("*.py"))  # nothing was generated
+
+
 # --- the quadruped (slow: its first build compiles for about 30 s of CPU) -------------
 @pytest.fixture(scope="module")
 def quadruped_system():
@@ -268,3 +293,18 @@ def test_quadruped_pronking_orbit_is_found_and_stable(quadruped_system):
                   section=apex_section)
     assert min(fd.max_errors) < 1e-4, fd.max_errors
     assert orb.stability(n_directions=50, iterations=60).stable
+
+
+@pytest.mark.slow
+def test_demo_quadruped(capsys, quadruped_system):
+    """``bderiv demo --example quadruped``: orbit, groups, couplings, verdict."""
+    import json
+
+    from bderiv.cli.parser import main
+
+    assert main(["demo", "--example", "quadruped", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["orbit"]["residual"] < 1e-10 and res["stability"]["stable"] is True
+    assert [g["directions"] for g in res["groups"]] == [[1] * 4, [-1] * 4]
+    assert max(g["coupling"] for g in res["groups"]) < 1e-12
+    assert res["coupling"]["max_relative"] > 1e-3
