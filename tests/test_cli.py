@@ -164,11 +164,12 @@ def test_demo_corner_table(capsys):
 
 
 def test_bench(capsys, tmp_path):
-    png = tmp_path / "scaling.png"
+    png = tmp_path / "new" / "scaling.png"  # its directory is made, as plot's and export's
     code, out, _ = run(["bench", "--n", "2", "3", "--batch", "500", "--repeat", "1",
                         "--no-progress", "--plot", str(png)], capsys)
     assert code == 0
     assert "speed-up" in out and png.stat().st_size > 1000
+    assert f"made the directory {tmp_path / 'new'}\nplot written to {png}\n" in out
     assert out.startswith("bderiv bench: d = n, batch m = 500") and "measured on" in out
     code, out, _ = run(["bench", "--n", "2", "--batch", "300", "--repeat", "1", "--d-factor",
                         "2", "--no-progress", "--json"], capsys)
@@ -292,7 +293,8 @@ BAD = [
     (["demo", "--unknown-flag"], "unrecognized arguments"),
     (["demo", "--example", "corners", "--n", "3"], "--n applies to --example network"),
     (["bench", "--plot", "out.txt", "--n", "2"], "must end in .png"),
-    (["bench", "--plot", "/nonexistent/dir/s.png", "--n", "2"], "does not exist"),
+    (["bench", "--plot", "/proc/dir/s.png", "--n", "2"],
+     "cannot make the directory '/proc/dir': output directory '/proc' is not writable"),
     (["plot", "--example", "corners", "--figure", "field"], "figure field draws the plane"),
     (["plot", "--example", "network", "--n", "3", "--extended", "--figure", "note"],
      "needs d = 2"),
@@ -301,7 +303,8 @@ BAD = [
     (["export", "--map", "both"], "invalid choice"),
     (["plot", "--figure", "scaling", "--bench-json", "/nonexistent/rows.json"],
      "cannot read benchmark rows"),
-    (["export", "--example", "corners", "--out", "/nonexistent/dir/tri"], "does not exist"),
+    (["export", "--example", "corners", "--out", "/proc/dir/tri"],
+     "cannot make the directory '/proc/dir': output directory '/proc' is not writable"),
     (["export", "--example", "corners", "--max-pieces", "2"], "--max-pieces=2"),
     (["export", "--example", "corners", "--out", ""], "--out must be a file path"),
     (["export", "--example", "corners", "--out", "somewhere/"], "got 'somewhere/'"),
@@ -362,6 +365,33 @@ def test_unwritable_output_is_a_usage_error(capsys, tmp_path):
                          capsys)
     assert (code, out) == (2, "") and err.count("\n") == 1
     assert "--out: cannot make the directory" in err and "not writable" in err
+
+
+def test_output_directories_are_made_and_replaced_files_named(capsys, tmp_path, monkeypatch):
+    """plot, export and bench make a missing output directory (with its parents) and say
+    so; a file written over an earlier one is named; plot's default folder is the
+    example's own, so that one example's figures never replace another's."""
+    base = tmp_path / "a" / "b" / "tri"
+    argv = ["export", "--example", "corners", "--out", str(base)]
+    code, out, _ = run(argv, capsys)
+    assert code == 0 and f"  made the directory {tmp_path / 'a'}\n" in out
+    assert out.count("(replacing the file there)") == 0
+    assert (tmp_path / "a" / "b" / "tri.npz").is_file()
+    code, out, _ = run(argv, capsys)
+    assert code == 0 and "made the directory" not in out
+    assert f"wrote {base}.npz" in out and out.count("(replacing the file there)") == 2
+    monkeypatch.chdir(tmp_path)
+    plot = ["plot", "--figure", "pieces", "--dpi", "20"]
+    for example in ("planar", "chair"):
+        code, out, _ = run([*plot, "--example", example, "--json"], capsys)
+        summary = json.loads(out)
+        assert summary["files"] == [os.path.join("bderiv-figures", example, "pieces.png")]
+        assert summary["replaced"] == [] and summary["created"] is not None
+    code, out, _ = run([*plot, "--example", "chair"], capsys)
+    path = os.path.join("bderiv-figures", "chair", "pieces.png")
+    assert f"  wrote {path} (replacing the file there)\n" in out
+    assert "made the directory" not in out
+    assert sorted(os.listdir("bderiv-figures")) == ["chair", "planar"]
 
 
 @pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs Linux's /proc")

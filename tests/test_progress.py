@@ -58,3 +58,103 @@ def test_bderivative_progress_true_draws_a_bar(capsys):
     np.testing.assert_array_equal(W, bd(V))
     err = capsys.readouterr().err
     assert "5.00k/5.00k" in err or "5000/5000" in err
+
+
+def _raise_at(k, exc):
+    """A progress callback that raises ``exc`` at its k-th call."""
+    calls = []
+
+    def progress(done, total):
+        calls.append((done, total))
+        if len(calls) == k:
+            raise exc
+
+    return progress, calls
+
+
+def test_callback_that_raises_mid_batch_says_how_far_the_work_got():
+    """The callback's exception stops the batch at that chunk and is chained: a
+    ProgressCallbackError (a ValueError) naming the call, its cause the original."""
+    import numpy as np
+
+    from bderiv import BDerivative
+    from bderiv._progress import ProgressCallbackError
+
+    bd = BDerivative(np.eye(2), np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]]))
+    V = np.random.default_rng(0).standard_normal((10_000, 2))
+    boom = ZeroDivisionError("my callback's bug")
+    progress, calls = _raise_at(3, boom)
+    with pytest.raises(ProgressCallbackError, match=r"the progress callback progress raised "
+                       r"ZeroDivisionError\(\"my callback's bug\"\) at progress\(3000, 10000\)"
+                       r", after 3000 of 10000 vectors: the work stopped there") as info:
+        bd.apply(V, progress=progress, chunk_size=1000)
+    assert isinstance(info.value, ValueError) and info.value.__cause__ is boom
+    assert calls == [(1000, 10_000), (2000, 10_000), (3000, 10_000)]  # no chunk after it
+
+
+def test_callback_error_in_nested_progress_is_said_once():
+    """fd_check hands forward_differences a callback around the user's: the user's
+    exception is wrapped once, with fd_check's counts (all steps of eps)."""
+    import numpy as np
+
+    from bderiv import examples
+    from bderiv._progress import ProgressCallbackError
+    from bderiv.checks import fd_check
+
+    ex = examples.chair()
+    V = np.random.default_rng(0).standard_normal((2, ex.system.dim))
+    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    progress, calls = _raise_at(3, KeyError("stop"))
+    with pytest.raises(ProgressCallbackError) as info:
+        fd_check(ex.system, ex.x0, ex.t_final, V, D(V), eps=(1e-4, 1e-5), progress=progress)
+    assert str(info.value).count("the progress callback") == 1
+    assert "at progress(3, 4), after 3 of 4 vectors" in str(info.value)
+    assert isinstance(info.value.__cause__, KeyError) and calls[-1] == (3, 4)
+
+
+def test_long_simulation_shows_progress_and_stops_on_ctrl_c(monkeypatch):
+    """simulate(max_step=1e-7) would run for hours: its bar of simulated time appears
+    after the delay, and a Ctrl-C (SIGINT, delivered as Python delivers it) stops it
+    within a second."""
+    import _thread
+    import signal
+    import threading
+    import time
+
+    from bderiv import _progress, examples
+
+    pytest.importorskip("tqdm")
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "SIMULATION_BAR_DELAY", 0.2)
+    monkeypatch.setattr(_progress, "SIMULATION_BAR",
+                        {"file": buffer, "disable": False, "leave": True})
+    # a background job may ignore SIGINT: take it as an interactive session does
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    ex = examples.chair()
+    sent = []
+    timer = threading.Timer(1.0, lambda: (sent.append(time.monotonic()),
+                                          _thread.interrupt_main(signal.SIGINT)))
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            ex.system.simulate(ex.x0, ex.t_final, max_step=1e-7)
+        stopped = time.monotonic()
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    assert sent and stopped - sent[0] < 1.0
+    text = buffer.getvalue()
+    assert "simulate: " in text and f"of {ex.t_final:.4g} [" in text, text
+    assert "t = 0 of" not in text.split("\r")[-1]  # it moved
+
+
+def test_short_simulations_draw_no_bar(monkeypatch):
+    """The bar waits for SIMULATION_BAR_DELAY: a run shorter than that draws nothing."""
+    from bderiv import _progress, examples
+
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "SIMULATION_BAR",
+                        {"file": buffer, "disable": False, "leave": True})
+    ex = examples.chair()
+    ex.system.simulate(ex.x0, ex.t_final)
+    assert buffer.getvalue() == ""

@@ -320,3 +320,39 @@ def test_model_triangulation_counts_pieces_before_building_a_table():
     bd = BDerivative(np.eye(12), StructuredCorners(np.ones(12), 0.01 * np.eye(12)))
     with pytest.raises(ValueError, match=r"12! = 479001600 pieces, more than max_pieces"):
         bd.triangulation()
+
+
+# --------------------------------------------------------------------------------------
+# Flags: True or False only (a truthy string such as "no" would silently mean True)
+# --------------------------------------------------------------------------------------
+def _flag_calls():
+    from bderiv import FlowBDerivative, HybridSystem, examples
+
+    def hybrid(flag):
+        return HybridSystem(lambda x, m: x, lambda x: x, n_events=1, dim=1,
+                            check_jacobians=flag)
+
+    return {
+        "fast_paths": lambda flag: BDerivative(DH2, F2, fast_paths=flag),
+        "with_time": lambda flag: FlowBDerivative([np.eye(2)], []).piece(with_time=flag),
+        "check_jacobians": hybrid,
+        "extended": lambda flag: examples.network(2, extended=flag),
+    }
+
+
+@pytest.mark.parametrize("name", ["fast_paths", "with_time", "check_jacobians", "extended"])
+@pytest.mark.parametrize("bad", ["no", "False", 1, 0.0, None, [True]])
+def test_flags_refuse_anything_but_bools(name, bad):
+    call = _flag_calls()[name]
+    with pytest.raises(TypeError, match=rf"{name} must be True or False, got "
+                                        rf"{type(bad).__name__} "):
+        call(bad)
+    call(False), call(np.bool_(False))  # the bools themselves are taken
+
+
+def test_fast_paths_false_means_no_fast_path():
+    V = np.random.default_rng(1).standard_normal((50, 2))
+    slow, fast = BDerivative(DH2, F2, fast_paths=False), BDerivative(DH2, F2)
+    assert slow._fast_paths is False and fast._fast_paths is True
+    expected = np.array([ref_apply(DH2, F2, v) for v in V])
+    np.testing.assert_allclose(slow(V), expected, rtol=1e-13, atol=1e-13)

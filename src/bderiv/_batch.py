@@ -83,7 +83,7 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
     chunk_size = check_positive_int(
         DEFAULT_CHUNK_ROWS if chunk_size is None else chunk_size, "chunk_size"
     )
-    if progress is not None and not callable(progress):
+    if progress is not None:
         from ._progress import resolve_progress
 
         progress = resolve_progress(progress, desc=desc)

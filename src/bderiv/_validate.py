@@ -172,6 +172,26 @@ def check_positive_int(value, name: str) -> int:
     return int(value)
 
 
+def check_bool(value, name: str) -> bool:
+    """Validate a flag: ``True`` or ``False`` (a NumPy bool too), returned as a bool.
+
+    Anything else is refused, above all the truthy values that would silently mean True
+    (``"no"``, ``"False"``, ``1``, a list).
+
+    Examples
+    --------
+    >>> check_bool(False, "fast_paths")
+    False
+    >>> check_bool("no", "fast_paths")
+    Traceback (most recent call last):
+    ...
+    TypeError: fast_paths must be True or False, got str 'no'
+    """
+    if not isinstance(value, bool | np.bool_):
+        raise TypeError(f"{name} must be True or False, got {type(value).__name__} {value!r}")
+    return bool(value)
+
+
 def check_finite_result(res, name: str, offset: int, what: str = "result") -> None:
     """Refuse a result that overflowed (finite inputs near the float64 range): a
     :class:`~bderiv._errors.QueryError` naming the row, ``offset`` its batch's first."""

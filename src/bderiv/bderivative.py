@@ -20,6 +20,7 @@ from ._geometry import (  # noqa: F401 (re-exported)
 from ._kernels import scaling
 from ._linearise import Linearisation, unit_scale
 from ._validate import (
+    check_bool,
     check_finite_result,
     check_matrix,
     check_order,
@@ -133,7 +134,7 @@ class BDerivative(Linearisation, CornerGeometry):
         n, d = Dh.shape
         if n == 0 or d == 0:
             raise ValueError(f"Dh must have at least one event and one dimension, got {Dh.shape}")
-        self._fast_paths = bool(fast_paths)
+        fast_paths = self._fast_paths = check_bool(fast_paths, "fast_paths")
         self.resets = None
         if resets is not None and hasattr(F, "corner_function"):
             raise TypeError(f"resets need a dense table F (2**n, d), got the model {F!r}")

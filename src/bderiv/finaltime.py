@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validate import check_points
+from ._validate import check_bool, check_points
 from .bderivative import BDerivative
 
 __all__ = ["FinalTimeMap", "pending_at_final_time"]
@@ -187,6 +187,7 @@ class FinalTimeMap:
             Column d: the derivative in the final time, less the field after the group
             (the flow map adds it).
         """
+        with_time = check_bool(with_time, "with_time")
         P = self.augmented.piece(order)
         d = self.dim
         if with_time:

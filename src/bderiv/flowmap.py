@@ -25,6 +25,7 @@ from ._kernels import _core
 from ._linearise import Linearisation
 from ._validate import (
     all_finite,
+    check_bool,
     check_finite_result,
     check_matrix,
     check_points,
@@ -417,7 +418,7 @@ class FlowBDerivative(Linearisation):
             raise ValueError(
                 f"need one event order per group ({len(self._jumps)} groups), got {len(orders)}"
             )
-        if with_time and self.final_field is None:
+        if check_bool(with_time, "with_time") and self.final_field is None:
             raise ValueError("this map has no final_field, so with_time cannot be used")
         M, shift = self._linear[0], 0.0
         for i, (bd, order) in enumerate(zip(self._jumps, orders, strict=True)):

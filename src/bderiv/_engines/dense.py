@@ -108,9 +108,10 @@ class DenseEngine(Engine):
 
     @classmethod
     def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True,
-              scale: bool = True):
+              scale: bool = True, pending_only: bool = False):
         """Validate a user's table F for Dh (size before anything is allocated, shape,
-        finiteness, transversality of every rate) and build the engine on a copy, scaled
+        finiteness, transversality of every rate, or of the rates of pending events only
+        when ``pending_only``: a table with resets) and build the engine on a copy, scaled
         by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``."""
         n, d = Dh.shape
         limit = (_tables.available_memory() if memory_limit is None
@@ -137,7 +138,8 @@ class DenseEngine(Engine):
         R = _tables.region_records(F, Dh, -f_exp)
         nc = _tables.record_layout(n, d)[0]
         G, F = R[:, 8 * nc : 8 * nc + n], R[:, 16 * nc : 16 * nc + d]
-        bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol)
+        bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol,
+                                                    pending_only)
         if bad is not None:
             mask, k, kind, scale = bad
             rate = np.ldexp(G[mask, k], f_exp + int(dh_exps[k]))  # in the caller's units

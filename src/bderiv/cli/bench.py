@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import os
+
 from .. import _bench
 from .._tables import dense_table_bytes
 from .figures import save_figure
 from .machine import describe, machine_info
-from .usage import check_figure_path, require_memory, require_module
+from .usage import check_figure_path, make_output_directory, require_memory, require_module
 
 
 def sweep_bytes(n: int, d: int, batch: int) -> int:
@@ -34,7 +36,8 @@ def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=No
     repeat : int
         Timed runs, best kept.
     plot : str, optional
-        A ``.png``, ``.pdf`` or ``.svg`` file for :func:`bderiv.plot.scaling`.
+        A ``.png``, ``.pdf`` or ``.svg`` file for :func:`bderiv.plot.scaling` (its
+        directory made if missing).
     progress : callable ``progress(done, total)``, optional
 
     Returns
@@ -42,7 +45,9 @@ def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=No
     dict
         ``d_factor``, ``batch``, ``repeat``, ``machine`` (:func:`~bderiv.cli.machine.
         machine_info`) and ``rows`` (those of :func:`bderiv._bench.sweep`): the JSON of
-        ``bderiv bench --json``, which ``bderiv plot --bench-json`` reads.
+        ``bderiv bench --json``, which ``bderiv plot --bench-json`` reads; with ``plot``
+        also ``plot`` (``path``, ``replaced``: whether it replaced an earlier file,
+        ``created``: the topmost directory made, or None).
     """
     if plot:
         require_module("matplotlib", "--plot")
@@ -58,5 +63,8 @@ def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=No
         from .. import plot as figures
 
         fig = figures.scaling(rows, machine=describe(result["machine"]))
+        replaced = os.path.exists(plot)
+        created = make_output_directory(os.path.dirname(plot) or ".", "--plot")
         save_figure(fig, plot, 120, "--plot")
+        result["plot"] = {"path": plot, "replaced": replaced, "created": created}
     return result

@@ -16,7 +16,13 @@ import numpy as np
 from .._tables import corner_point_bytes
 from ..triangulation import load_triangulation, save_files
 from .systems import load_example, refuse_without_triangulation
-from .usage import UsageError, check_writable_directory, not_writable, require_memory
+from .usage import (
+    UsageError,
+    check_output_directory,
+    make_output_directory,
+    not_writable,
+    require_memory,
+)
 
 #: random vectors on which every file read back is compared with the B-derivative
 CHECK_VECTORS = 200
@@ -47,7 +53,8 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
     example, n, extended
         The system, as for :func:`bderiv.cli.systems.load_example`.
     out : str
-        Path without suffix (a ``.npz`` or ``.json`` suffix is dropped).
+        Path without suffix (a ``.npz`` or ``.json`` suffix is dropped); its directory is
+        made if missing, with its missing parents.
     fmt : {"npz", "json", "both"}
     max_pieces : int
         Refuse more than this many event orders.
@@ -60,7 +67,8 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
     dict
         ``example``, ``map`` (``which``), ``map_description``, ``n_events``, ``dim``,
         ``vertices``, ``simplices``, ``files`` (each ``path``, ``format``, ``bytes``,
-        ``max_error_reloaded``), ``check_vectors``.
+        ``max_error_reloaded``, ``replaced``: whether it replaced an earlier file),
+        ``check_vectors``, ``created`` (the topmost directory made for ``out``, or None).
     """
     base = _output_base(out)
     if example is None:
@@ -101,15 +109,18 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
             errors[path] = float(np.abs(load_triangulation(temp, paths[path])(V)
                                         - expected).max())
 
+    replaced = {path: os.path.exists(path) for path in paths}
+    created = make_output_directory(os.path.dirname(base) or ".", "--out")
     try:
         save_files(tri, paths, check=read_back)
     except OSError as exc:
         raise UsageError(not_writable("--out", " and ".join(paths), exc)) from None
     files = [{"path": path, "format": f, "bytes": os.path.getsize(path),
-              "max_error_reloaded": errors[path]} for path, f in paths.items()]
+              "max_error_reloaded": errors[path], "replaced": replaced[path]}
+             for path, f in paths.items()]
     return {"example": example, "map": which, "map_description": described, "n_events": n,
             "dim": d, "vertices": tri.pre.shape[0], "simplices": tri.simplices.shape[0],
-            "files": files, "check_vectors": CHECK_VECTORS}
+            "files": files, "check_vectors": CHECK_VECTORS, "created": created}
 
 
 def flow_triangulation(fb, max_pieces):
@@ -130,7 +141,8 @@ def flow_triangulation(fb, max_pieces):
 
 
 def _output_base(out: str) -> str:
-    """``--out`` without a ``.npz`` / ``.json`` suffix, checked to name a file to write."""
+    """``--out`` without a ``.npz`` / ``.json`` suffix, checked to name a file that can be
+    written (in a directory that exists or can be made)."""
     base = out
     for ext in (".npz", ".json"):
         if base.endswith(ext):
@@ -140,5 +152,5 @@ def _output_base(out: str) -> str:
             f"--out must be a file path such as results/tri (the suffixes .npz and .json "
             f"are added), got {out!r}"
         )
-    check_writable_directory(os.path.dirname(os.path.abspath(base)), "--out")
+    check_output_directory(os.path.dirname(os.path.abspath(base)), "--out")
     return base

@@ -14,7 +14,8 @@ from .machine import describe
 from .systems import ORBIT_EXAMPLES, load_example, load_gait, load_orbit
 from .usage import (
     UsageError,
-    check_writable_directory,
+    check_output_directory,
+    make_output_directory,
     not_writable,
     require_memory,
     require_module,
@@ -31,12 +32,15 @@ MAX_SIDE_PIXELS = 1 << 16
 #: the most pixels of a raster image that image libraries open without refusing it as a
 #: decompression bomb (Pillow's MAX_IMAGE_PIXELS, about 89 million)
 MAX_PIXELS = 89_478_485
+#: the default output directory: one folder per example inside it, so that the figures of
+#: one example do not replace another's
+DEFAULT_OUT = "bderiv-figures"
 #: simulated strides of the growth figure's decay check (the iterations it shows), and the
 #: directions and size of its perturbations
 DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-3
 
 
-def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-figures",
+def run_figures(example=None, n=None, extended=False, figures=None, out=None,
                 fmt="png", dpi=120, bench_json=None) -> dict:
     """Write the figures asked for; return what was drawn and the files written.
 
@@ -49,8 +53,10 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
     figures : list of str, optional
         Names from :data:`FIGURES` or ``"all"`` (default: all that apply to the system;
         ``scaling`` only with ``bench_json``).
-    out : str
-        Directory of the files (created if missing).
+    out : str, optional
+        Directory of the files (made if missing, with its missing parents); default
+        ``bderiv-figures/<example>``. Files of the same name in it are replaced, and the
+        summary lists them.
     fmt : {"png", "pdf", "svg"}
     dpi : int
     bench_json : str, optional
@@ -59,14 +65,18 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
     Returns
     -------
     dict
-        ``example``, ``dim``, ``n_events``, ``files`` (the paths written) and ``skipped``
-        (figures of "all" that do not apply, with the reason).
+        ``example``, ``dim``, ``n_events``, ``files`` (the paths written), ``replaced``
+        (those of them that replaced an earlier file), ``created`` (the topmost directory
+        made, or None) and ``skipped`` (figures of "all" that do not apply, with the
+        reason).
     """
     require_module("matplotlib", "bderiv plot")
     from .. import plot
 
     if example is None:
         example = "network" if n is not None or extended else "planar"
+    out = os.path.join(DEFAULT_OUT, example) if out is None else out
+    check_output_directory(out, "--out")  # before the work: finding an orbit takes seconds
     wanted = list(dict.fromkeys(figures or ["all"]))
     if "scaling" in wanted and not bench_json:
         raise UsageError(
@@ -99,13 +109,13 @@ def run_figures(example=None, n=None, extended=False, figures=None, out="bderiv-
             else _draw(plot, name, example, subject) for name in wanted}
     for name, fig in figs.items():  # refuse a --dpi before writing anything
         check_raster(fig, dpi, name)
-    _make_directory(out)
-    written = []
-    for name, fig in figs.items():
-        written.append(os.path.join(out, f"{name}.{fmt}"))
-        save_figure(fig, written[-1], dpi, "--out")
+    written = [os.path.join(out, f"{name}.{fmt}") for name in figs]
+    replaced = [path for path in written if os.path.exists(path)]
+    created = make_output_directory(out, "--out")
+    for fig, path in zip(figs.values(), written, strict=True):
+        save_figure(fig, path, dpi, "--out")
     return {"example": example, "dim": sizes[0], "n_events": sizes[1], "files": written,
-            "skipped": skipped}
+            "replaced": replaced, "created": created, "skipped": skipped}
 
 
 def _draw(plot, name, example, subject):
@@ -192,15 +202,6 @@ def read_bench(path: str) -> dict:
         raise UsageError(f"--bench-json: {path!r} lacks the machine record of `bderiv bench "
                          f"--json`") from None
     return {"rows": rows, "machine": machine}
-
-
-def _make_directory(path: str) -> None:
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"--out: cannot make the directory {path!r}: the location is not "
-                         f"writable ({exc.strerror or exc})") from None
-    check_writable_directory(path, "--out")
 
 
 def check_raster(fig, dpi: int, name: str) -> None:

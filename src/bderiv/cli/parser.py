@@ -17,7 +17,7 @@ from . import render
 from .bench import run_bench
 from .demo import run_demo
 from .export import run_export
-from .figures import DECAY_STRIDES, FIGURES, GAIT_FIGURES, run_figures
+from .figures import DECAY_STRIDES, DEFAULT_OUT, FIGURES, GAIT_FIGURES, run_figures
 from .systems import (
     GAIT_EXAMPLES,
     IMPACT_EXAMPLES,
@@ -73,7 +73,10 @@ _eps = _argument_type(float, lambda v: EPS_RANGE[0] <= v <= EPS_RANGE[1],
 
 #: the examples beyond the models and the corner tables, in the help of ``--example``
 _GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability)",
-              "landing": "the impact landing (resets at a simultaneous touchdown)"}
+              "landing": "the impact landing (resets at a simultaneous touchdown)",
+              "rimless-wheel": "the rimless wheel's gait (a leg swap every step, against "
+                               "its closed forms)",
+              "compass-gait": "the compass gait (leg swaps; against Garcia et al. 1998)"}
 
 
 def _add_example_args(p, default_help, gaits=()):
@@ -139,7 +142,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="queries per batch (default 100000)")
     p.add_argument("--repeat", type=_positive_int, default=3, help="timed runs, best kept")
     p.add_argument("--plot", metavar="FILE",
-                   help="also save the log-log plot (.png, .pdf or .svg)")
+                   help="also save the log-log plot (.png, .pdf or .svg; its directory is "
+                   "made if missing)")
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -155,8 +159,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "against simulated strides (a few seconds, as long as `bderiv demo --example "
                    f"pronking`: the orbit is found by Newton's method and {DECAY_STRIDES} "
                    "strides simulated)")
-    p.add_argument("--out", default="bderiv-figures",
-                   help="output directory (default ./bderiv-figures, created if missing)")
+    p.add_argument("--out", default=None,
+                   help=f"output directory, made if missing (default ./{DEFAULT_OUT}/EXAMPLE:"
+                   f" one folder per example); files of the same name are replaced, and "
+                   f"the output says which")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
                    help="file format (default png)")
     p.add_argument("--dpi", type=_positive_int, default=120,
@@ -172,7 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "B-derivative of the flow from x0 over [0, t_final] (models with one "
                    "event group)")
     p.add_argument("--out", default="triangulation",
-                   help="output path without suffix (default ./triangulation)")
+                   help="output path without suffix (default ./triangulation); its directory "
+                   "is made if missing, and the output says which files it replaced")
     p.add_argument("--format", choices=("npz", "json", "both"), default="both",
                    help="file format (default both)")
     p.add_argument("--max-pieces", type=_positive_int, default=40320,
@@ -203,12 +210,17 @@ def _demo(args) -> str | None:
 def _gait_demo(args) -> str:
     """``demo --example pronking``: from the model to a stability verdict, checked against
     simulation (:func:`bderiv.examples.gaits.pronking_summary`); ``--example landing``: a
-    simultaneous impact with resets (:func:`bderiv.examples.impacts.landing_summary`)."""
+    simultaneous impact with resets (:func:`bderiv.examples.impacts.landing_summary`);
+    ``--example rimless-wheel`` or ``compass-gait``: a walker's gait through leg swaps
+    (:func:`bderiv.examples.walkers.walker_summary`)."""
     if args.n is not None or args.extended:
         raise UsageError(f"--n and --extended are options of --example network, not "
                          f"{args.example}")
-    from ..examples import gaits, impacts
+    from ..examples import gaits, impacts, walkers
 
+    if args.example in ("rimless-wheel", "compass-gait"):
+        res = walkers.walker_summary(args.example, seed=args.seed)
+        return render.to_json(res, indent=1) if args.json else walkers.summary_text(res)
     module, run = ((impacts, impacts.landing_summary) if args.example == "landing"
                    else (gaits, gaits.pronking_summary))
     res = run(seed=args.seed)
@@ -221,7 +233,7 @@ def _bench(args) -> str:
                        plot=args.plot, progress=progress)
     if args.json:
         return render.to_json(result, indent=1)
-    return render.bench_text(result, plot=args.plot)
+    return render.bench_text(result)
 
 
 def _plot(args) -> str:
@@ -265,7 +277,7 @@ def main(argv=None) -> int:
 
     Examples
     --------
-    >>> main(["export", "--example", "corners", "--out", "/nonexistent/dir/tri"])
+    >>> main(["export", "--example", "corners", "--out", "/proc/dir/tri"])  # not writable
     2
     >>> main(["demo", "--example", "corners", "--batch", "100"])  # doctest: +ELLIPSIS
     bderiv demo: corners, corner table without a model, 3 events in R^3

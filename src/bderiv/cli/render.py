@@ -220,9 +220,9 @@ _DEMO_SECTIONS = {"model": _model, "trajectory": _trajectory, "pieces": _pieces,
 # -- bench, plot, export ----------------------------------------------------------------------
 
 
-def bench_text(result: dict, plot=None) -> str:
-    """The text of ``bderiv bench``: a header, the sweep table, what its columns mean, and
-    the machine it ran on."""
+def bench_text(result: dict) -> str:
+    """The text of ``bderiv bench``: a header, the sweep table, what its columns mean, the
+    machine it ran on, and the plot written."""
     k = result["d_factor"]
     dim = "d = n" if k == 1 else f"d = {k}n"
     lines = [f"bderiv bench: {dim}, batch m = {result['batch']:,}, best of "
@@ -231,16 +231,29 @@ def bench_text(result: dict, plot=None) -> str:
              "speed-up = numpy / bderiv; % of BLAS = useful work rate (n^2 + 2 n d flops per "
              "query) over a matrix product of the same flop count",
              f"measured on {describe(result['machine'])}"]
-    if plot:
-        lines.append(f"plot written to {plot}")
+    if "plot" in result:
+        plot = result["plot"]
+        lines += _made(plot["created"])
+        lines.append(f"plot written to {plot['path']}{_replaced(plot['replaced'])}")
     return "\n".join(lines) + "\n"
+
+
+def _made(directory, indent="") -> list:
+    """The line saying that an output directory was made (none when it existed)."""
+    return [f"{indent}made the directory {directory}"] if directory else []
+
+
+def _replaced(replaced: bool) -> str:
+    return " (replacing the file there)" if replaced else ""
 
 
 def figures_text(summary: dict) -> str:
     """The text of ``bderiv plot``: the files written, and the figures left out and why."""
     lines = [f"bderiv plot: {summary['example']} (n = {summary['n_events']}, d = "
              f"{summary['dim']})"]
-    lines += [f"  wrote {path}" for path in summary["files"]]
+    lines += _made(summary["created"], "  ")
+    lines += [f"  wrote {path}{_replaced(path in summary['replaced'])}"
+              for path in summary["files"]]
     for name, why in summary["skipped"].items():
         hint = {"scaling": "", "orbit": " (try --example pronking)",
                 "growth": " (try --example pronking)"}.get(name, " (try --example planar)")
@@ -256,8 +269,10 @@ def export_text(summary: dict) -> str:
              "  pre-event vertices (n_vertices, d), post-event images, simplices "
              "(n_simplices, n + 1; column 0 the apex), kernel basis and its images"]
     what = "D" if summary["map"] == "flow" else "M"
+    lines += _made(summary["created"], "  ")
     for f in summary["files"]:
-        lines.append(f"  wrote {f['path']} ({f['bytes']:,} bytes); reloaded with "
+        lines.append(f"  wrote {f['path']} ({f['bytes']:,} bytes){_replaced(f['replaced'])}; "
+                     f"reloaded with "
                      f"bderiv.load_triangulation: max |tri(V) - {what}(V)| = "
                      f"{f['max_error_reloaded']:.2e} on {summary['check_vectors']} vectors")
     return "\n".join(lines) + "\n"

@@ -55,29 +55,75 @@ def require_module(module: str, for_what: str) -> None:
 
 
 def check_figure_path(path: str, option: str) -> None:
-    """Refuse a figure path before any work is done (suffix, writable directory)."""
+    """Refuse a figure path before any work is done (suffix; a directory that exists and
+    is writable, or can be made)."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".png", ".pdf", ".svg"):
         raise UsageError(f"{option}: figure file {path!r} must end in .png, .pdf or .svg")
-    check_writable_directory(os.path.dirname(os.path.abspath(path)), option)
+    check_output_directory(os.path.dirname(os.path.abspath(path)), option)
 
 
-def check_writable_directory(directory: str, option: str) -> None:
-    """Refuse an output directory that does not exist or where no file can be created.
+def check_output_directory(directory: str, option: str) -> None:
+    """Refuse, before any work is done, an output directory that cannot be written.
 
-    Tried by creating (and removing) a temporary file, so that read-only mounts and
-    pseudo file systems such as ``/proc`` are refused before any work is done.
+    Every command that writes files makes a missing output directory, with its missing
+    parents (:func:`make_output_directory`, once the work is done). So a directory that
+    exists must take a file, and a missing one must have a writable directory as its
+    nearest existing ancestor. Writability is tried by creating (and removing) a temporary
+    file, so that read-only mounts and pseudo file systems such as ``/proc`` are refused.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> blocker = os.path.join(tempfile.mkdtemp(), "file")
+    >>> open(blocker, "w").close()
+    >>> check_output_directory(os.path.join(blocker, "figs"), "--out")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    bderiv.cli.usage.UsageError: --out: cannot make the directory ...: ... not a directory)
     """
-    if not os.path.isdir(directory):
-        raise UsageError(f"{option}: output directory {directory!r} does not exist")
+    target = os.path.abspath(directory)
+    ancestor = target
+    while not os.path.exists(ancestor):
+        ancestor = os.path.dirname(ancestor)
+    if not os.path.isdir(ancestor):
+        raise UsageError(f"{option}: cannot make the directory {directory!r}: the location is "
+                         f"not writable ({ancestor!r} is a file, not a directory)")
     try:
-        with tempfile.TemporaryFile(dir=directory):
+        with tempfile.TemporaryFile(dir=ancestor):
             pass
     except OSError as exc:
+        made = "" if ancestor == target else f"cannot make the directory {directory!r}: "
         raise UsageError(
-            f"{option}: output directory {directory!r} is not writable (creating a file "
-            f"there failed: {exc.strerror or exc})"
+            f"{option}: {made}output directory {ancestor!r} is not writable (creating a "
+            f"file there failed: {exc.strerror or exc})"
         ) from None
+
+
+def make_output_directory(directory: str, option: str) -> str | None:
+    """Make ``directory`` and its missing parents; return the topmost directory made (to
+    say so in the command's output), or None when it existed.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> root = tempfile.mkdtemp()
+    >>> made = make_output_directory(os.path.join(root, "a", "b"), "--out")
+    >>> made == os.path.join(root, "a"), make_output_directory(made, "--out")
+    (True, None)
+    """
+    target = os.path.abspath(directory)
+    top = None
+    while not os.path.exists(target):
+        top, target = target, os.path.dirname(target)
+    if top is None:
+        return None
+    try:
+        os.makedirs(directory, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{option}: cannot make the directory {directory!r}: the location is "
+                         f"not writable ({exc.strerror or exc})") from None
+    return top
 
 
 def not_writable(option: str, path: str, exc: OSError) -> str:

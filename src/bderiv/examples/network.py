@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import check_bool
 from ._common import Example, flow_back
 
 __all__ = ["network"]
@@ -135,7 +136,7 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
     n = int(n)
     if not 1 <= n <= 24:
         raise ValueError(f"n must be in 1..24, got {n}")
-    net = _Network(n, bool(extended), seed, float(coupling))
+    net = _Network(n, check_bool(extended, "extended"), seed, float(coupling))
     rho = np.zeros(net.d)
     x0 = flow_back(lambda x: net.field(x, 0), rho, t_event)
     return Example.from_model(
