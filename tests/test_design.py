@@ -26,7 +26,7 @@ LAYERS = [
 ]
 #: helpers any layer may use; they import only each other.
 HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
-           "_cyclic", "_safefiles"}
+           "_cyclic", "_safefiles", "_errors"}
 
 
 def _top(path: pathlib.Path) -> str:
