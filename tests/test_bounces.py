@@ -291,3 +291,79 @@ def test_compass_gait_refuses_a_heel_strike_behind_the_stance_leg():
     x = np.array([0.1, 0.2, -0.3, 0.1])  # h = 0 with phi > 0: the scuff, crossed upward
     with pytest.raises(ValueError, match="swing leg behind the stance leg"):
         ex.system.bderivative(x)
+
+
+# ----------------------------------------------------------------------------------
+# the command line and the figure
+# ----------------------------------------------------------------------------------
+def test_demo_rimless_wheel_prints_the_gait_beside_its_closed_forms(capsys):
+    from bderiv.cli import main
+
+    assert main(["demo", "--example", "rimless-wheel"]) == 0
+    out = capsys.readouterr().out
+    assert "event 0 crossed up" in out and "the bit kept" in out
+    c2 = np.cos(np.pi / 4) ** 2
+    assert f"multiplier: {c2:.10f} / {c2:.10f}" in out
+    assert main(["demo", "--example", "compass-gait", "--n", "3"]) == 2  # a network option
+    assert "--n and --extended are options of --example network" in capsys.readouterr().err
+
+
+def test_the_impacts_figure_script_draws_the_three_cases(tmp_path):
+    pytest.importorskip("matplotlib")
+    import importlib.util
+    import pathlib
+
+    tool = pathlib.Path(__file__).resolve().parents[1] / "tools" / "impacts_figure.py"
+    spec = importlib.util.spec_from_file_location("bderiv_impacts_figure", tool)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    # the third case: the bit set at the landing, cleared at the lift-off, no other event
+    system, x0, t_final = module.compliant_landing()
+    traj = system.simulate(x0, t_final)
+    assert [(g.directions, g.mask_after) for g in traj.groups] == [((1,), 1), ((-1,), 0)]
+    module.main([str(tmp_path / "impacts.png")])
+    assert (tmp_path / "impacts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_compass_gait_refuses_bad_parameters_and_a_start_that_does_not_step():
+    with pytest.raises(ValueError, match="leg_com must be in"):
+        walkers.compass_gait(leg_com=0.0)
+    with pytest.raises(ValueError, match="start must be two finite numbers"):
+        walkers.compass_gait(start=(0.2,))
+    with pytest.raises(ValueError, match="does not complete a step"):
+        walkers.compass_gait(start=(0.2, 0.5))  # rolling backward
+
+
+@pytest.mark.parametrize(("leg_mass", "leg_com"), [(5.0, 0.5), (0.3, 1.0), (1e-3, 0.8)])
+def test_compass_heel_strike_is_the_rigid_impact_of_the_floating_walker(leg_mass, leg_com):
+    """The leg swap's velocities against the impulsive dynamics of the free walker,
+    written out here: coordinates (hip x, hip y, theta, psi) (psi = theta - phi, the swing
+    leg's absolute angle), M (q'+ - q'-) = J^T lambda with the new stance foot stopped,
+    J q'+ = 0 (no impulse on the old stance foot, which lifts off). Legs with mass (the
+    massless limit is checked against Garcia et al.'s gait above)."""
+    hip_mass, leg = 10.0, 1.2
+    model = walkers._Compass(hip_mass, leg_mass, leg, leg_com, 0.05, 9.81)
+    b = leg_com * leg  # the leg mass from the hip
+
+    def u(a):
+        return np.array([-np.sin(a), np.cos(a)]), np.array([-np.cos(a), -np.sin(a)])
+
+    theta, psi, thd, psd = -0.21, 0.23, -0.9, 0.4  # psi = theta - phi; phi < 0: ahead
+    x = np.array([theta, theta - psi, thd, thd - psd])
+    (_, du_t), (_, du_p) = u(theta), u(psi)
+    # Jacobians of the point masses in (xh, yh, theta, psi): hip, stance mass, swing mass
+    I2 = np.eye(2)
+    J = [np.column_stack([I2, np.zeros((2, 2))]),
+         np.column_stack([I2, -b * du_t, np.zeros(2)]),
+         np.column_stack([I2, np.zeros(2), -b * du_p])]
+    masses = [hip_mass, leg_mass, leg_mass]
+    M = sum(m * Ji.T @ Ji for m, Ji in zip(masses, J, strict=True))
+    J_foot = np.column_stack([I2, np.zeros(2), -leg * du_p])  # the new stance foot
+    qd_minus = np.array([*(leg * thd * du_t), thd, psd])  # the old stance foot at rest
+    K = np.block([[M, -J_foot.T], [J_foot, np.zeros((2, 2))]])
+    qd_plus = np.linalg.solve(K, np.concatenate([M @ qd_minus, np.zeros(2)]))[:4]
+    new_theta_rate, new_psi_rate = qd_plus[3], qd_plus[2]  # the legs' roles swapped
+    after = model.reset(x, 0, 0)
+    np.testing.assert_allclose(after[:2], [psi, psi - theta], atol=1e-15)
+    np.testing.assert_allclose(after[2:], [new_theta_rate, new_theta_rate - new_psi_rate],
+                               rtol=1e-9, atol=1e-12)

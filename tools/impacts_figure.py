@@ -43,7 +43,7 @@ def compliant_landing():
 
 
 def _panel(ax, system, x0, t_final, h, title, ylabel, bottom=1.25):
-    traj = system.simulate(x0, t_final, max_step=t_final / 400, simultaneity_tol=1e-9)
+    traj = system.simulate(x0, t_final, max_step=t_final / 200, simultaneity_tol=1e-9)
     values = np.array([h(x) for x in traj.x])
     cuts = [0, *(int(i) + 1 for i in np.flatnonzero(np.diff(traj.t) == 0)), len(traj.t)]
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):  # the stretches between jumps

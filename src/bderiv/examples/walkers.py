@@ -60,7 +60,8 @@ simulation code published with the paper, M. Garcia 1998, integrated to 1e-10:
 the eigenvalues to 1.3e-3 only: the return map's B-derivative gives ``-0.1900998 +-
 0.5575988 i`` (modulus 0.58911, Garcia's 0.58827), and so do central differences of the
 stride map of Garcia's equations integrated by scipy at rtol 1e-13 (tests/test_bounces.py),
-to 1e-7: the published eigenvalues are the less accurate numbers.
+to 1e-7. The two computations here agree with each other, not with the code's comment
+beyond its third digit (whose integration and differencing steps the code does not say).
 """
 
 from __future__ import annotations
@@ -356,7 +357,7 @@ def compass_section_gradient(x):
 
 
 def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.0,
-                 g=1.0) -> Example:
+                 g=1.0, start=None) -> Example:
     """The compass-gait walker on its periodic gait (module docstring).
 
     Parameters
@@ -371,14 +372,24 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
         Where the leg mass sits, as a fraction of the leg from the hip, in (0, 1].
     leg, g : float
         Leg length and gravity, > 0.
+    start : (float, float), optional
+        ``(theta, theta')`` just after a heel strike to start the step from (with ``phi =
+        2 theta``, ``phi' = theta' (1 - cos 2 theta)``, exact for ``leg_mass = 0``).
+        Default: Garcia et al.'s published fixed point, ``theta'`` scaled by
+        ``sqrt(g / leg)`` (a good start for slopes near 0.009 and light legs).
 
     Returns
     -------
     Example
-        d = 4, n = 1. Built from Garcia et al.'s published fixed point (a good start for
-        slopes near 0.009 and light legs): ``x0`` its state at mid-stance (after the
-        scuff), ``rho`` the heel strike, ``t_event`` the time between them, by
-        integration. :func:`compass_gait_orbit` finds the gait of the parameters given.
+        d = 4, n = 1: ``x0`` the step's state at mid-stance (after the scuff), ``rho`` the
+        heel strike, ``t_event`` the time between them, by integration (scipy).
+        :func:`compass_gait_orbit` finds the gait of the parameters given from there.
+
+    Raises
+    ------
+    ValueError
+        On a parameter out of range (named), or when the step from ``start`` does not
+        reach mid-stance and the heel strike.
 
     Examples
     --------
@@ -400,8 +411,13 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
                           event_jacobian=model.event_jacobian,
                           field_jacobian=model.field_jacobian, reset=model.reset,
                           reset_jacobian=model.reset_jacobian)
-    theta, rate = GARCIA_FIXED_POINT
-    rate *= np.sqrt(g / leg)
+    if start is None:
+        theta, rate = GARCIA_FIXED_POINT[0], GARCIA_FIXED_POINT[1] * np.sqrt(g / leg)
+    else:
+        given = np.asarray(start, dtype=np.float64)
+        if given.shape != (2,) or not np.isfinite(given).all():
+            raise ValueError(f"start must be two finite numbers (theta, theta'), got {start!r}")
+        theta, rate = given
     start = np.array([theta, 2 * theta, rate, rate * (1.0 - np.cos(2.0 * theta))])
     x0, rho, t_event = _step_from(model, start)
     return Example(system=system, rho=rho, x0=x0, t_event=t_event,
@@ -426,13 +442,14 @@ def _step_from(model, start):
     options = dict(method="DOP853", rtol=1e-12, atol=1e-13)
     field = lambda _t, x: model.field(x, 0)  # noqa: E731
     a = solve_ivp(field, (0.0, 50.0), start, events=mid, **options)
-    x0 = a.y_events[0][0]
-    b = solve_ivp(field, (0.0, 50.0), x0, events=strike, **options)
+    b = (solve_ivp(field, (0.0, 50.0), a.y_events[0][0], events=strike, **options)
+         if a.status == 1 else a)
     if not (a.status == 1 and b.status == 1):
-        raise ValueError("the compass gait with these parameters does not complete a step "
-                         "from Garcia et al.'s fixed point: try a slope nearer 0.009 or "
-                         "lighter legs")
-    return x0, b.y_events[0][0], float(b.t_events[0][0])
+        raise ValueError(f"the compass gait with these parameters does not complete a step "
+                         f"from (theta, theta') = {start[[0, 2]].tolist()} just after heel "
+                         f"strike (no mid-stance and heel strike within 50 time units): "
+                         f"pass another start")
+    return a.y_events[0][0], b.y_events[0][0], float(b.t_events[0][0])
 
 
 def compass_gait_orbit(example=None, *, perturbation=(0.0, 0.01, -0.01, 0.005), **kwargs):
@@ -547,9 +564,10 @@ def summary_text(res):
                  f"on the section {mult}")
     ref = res["reference"]
     lines.append(f"reference ({ref['source']}), published or closed form / bderiv:")
-    for key, (want, got) in ref.items():
+    for key, pair in ref.items():
         if key == "source":
             continue
+        want, got = pair
         if key == "eigenvalues":
             want = ", ".join(f"{complex(*z):.8f}" for z in want)
             got = ", ".join(f"{complex(*z):.8f}" for z in got)
