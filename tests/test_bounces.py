@@ -367,3 +367,14 @@ def test_compass_heel_strike_is_the_rigid_impact_of_the_floating_walker(leg_mass
     np.testing.assert_allclose(after[:2], [psi, psi - theta], atol=1e-15)
     np.testing.assert_allclose(after[2:], [new_theta_rate, new_theta_rate - new_psi_rate],
                                rtol=1e-9, atol=1e-12)
+
+
+def test_export_of_the_corner_double_bounce_round_trips(tmp_path, capsys):
+    from bderiv.cli import main
+
+    assert main(["export", "--example", "ball-in-corner", "--out", str(tmp_path / "tri"),
+                 "--format", "npz"]) == 0
+    out = capsys.readouterr().out
+    assert "triangulation of 2 events in R^4" in out
+    error = float(out.split("max |tri(V) - M(V)| = ")[1].split()[0])
+    assert error < 1e-12

@@ -76,7 +76,9 @@ _GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability
               "landing": "the impact landing (resets at a simultaneous touchdown)",
               "rimless-wheel": "the rimless wheel's gait (a leg swap every step, against "
                                "its closed forms)",
-              "compass-gait": "the compass gait (leg swaps; against Garcia et al. 1998)"}
+              "compass-gait": "the compass gait (leg swaps; against Garcia et al. 1998)",
+              "ball-in-corner": "a ball bouncing off two walls at once (resets that send "
+                                "the state back)"}
 
 
 def _add_example_args(p, default_help, gaits=()):
