@@ -18,7 +18,7 @@ LAYERS = [
     {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff", "stability_map"},
     {"checks", "assembly"},  # assembly: the model's B-derivatives, group by group
     {"simulate", "crossings", "locate", "flowmap", "returnmap", "stability", "excursions",
-     "finaltime"},
+     "finaltime", "stretch_scipy", "stretch_compiled"},
     {"compiled"},  # the compiled integrator (issue 19)
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},
     {"corners", "_engines", "_linearise"},  # _linearise scales rows with a kernel
