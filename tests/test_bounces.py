@@ -278,12 +278,12 @@ def test_compass_gait_eigenvalues_match_garcia_and_finite_differences(compass_or
     assert abs(mult[2]) < 1e-9  # the leg swap forgets a direction: rank 2 on the section
     pair = sorted(mult[:2], key=lambda z: z.imag)
     published = sorted(walkers.GARCIA_EIGENVALUES, key=lambda z: z.imag)
-    assert np.abs(np.subtract(pair, published)).max() < 2e-3  # their digits: to 1.3e-3
+    assert np.abs(np.subtract(pair, published)).max() < 2e-3  # their digits: to 1.7e-3
     z, h = np.array(walkers.GARCIA_FIXED_POINT), 1e-6
     J = np.column_stack([(_garcia_stride(z + h * d) - _garcia_stride(z - h * d)) / (2 * h)
                          for d in np.eye(2)])
     fd = sorted(np.linalg.eigvals(J), key=lambda z: z.imag)
-    assert np.abs(np.subtract(pair, fd)).max() < 1e-6
+    assert np.abs(np.subtract(pair, fd)).max() < 1e-7
 
 
 def test_compass_gait_refuses_a_heel_strike_behind_the_stance_leg():
