@@ -45,6 +45,14 @@ class DenseEngine(Engine):
         self.time_shift = self.f_exp
         self._views()
         self.fast = fastpath.dense(self.F, self.G, Dh) if fast_paths else None
+        self._sorted = self._sorted_tables()
+
+    def _sorted_tables(self):
+        """The own-rates fast path's tables, forwards and backwards (None without it)."""
+        if self.fast is None or self.fast.kind != "own-rates":
+            return None
+        return tuple(kernels.SortedTables(self._plain.DhT, self.F, rate)
+                     for rate in (self.fast.rate0, self.fast.ratef))
 
     @property
     def scaled(self) -> bool:
@@ -77,15 +85,15 @@ class DenseEngine(Engine):
         self.F = self.R[:, 16 * nc : 16 * nc + d]
         self._lanes = self._lane_kernels = None
         if not PLAIN and d <= lanes.MAX_D:
-            self._lanes = (self.R, _tables.padded(self.Dh.T, 8 * nc),
-                           np.array([n, d, nc, dc], dtype=np.int64),
-                           _tables.padded(self.Dh, 8 * dc))
+            self._lanes = lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
+                                           _tables.padded(self.Dh, 8 * dc), n, d, nc, dc)
             self._lane_kernels = lanes.kernels(8 * nc, 8 * dc, int(self.R.nbytes > FAR_BYTES))
-        self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
+        self._plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G,
+                                          self.Dh)
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        for name in ("F", "G", "_lanes", "_lane_kernels", "_plain"):  # rebuilt from R
+        for name in ("F", "G", "_lanes", "_lane_kernels", "_plain", "_sorted"):  # rebuilt
             state.pop(name, None)
         return state
 
@@ -96,6 +104,7 @@ class DenseEngine(Engine):
             R[...] = self.R
             self.R = R
         self._views()
+        self._sorted = self._sorted_tables()
 
     @classmethod
     def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True,
@@ -196,8 +205,7 @@ class DenseEngine(Engine):
         return bad
 
     def _apply_own_rates(self, V, out, inverse) -> int:
-        rate = self.fast.ratef if inverse else self.fast.rate0
-        return kernels.apply_sorted((self._plain[0], self.F, rate), V, (out,), inverse,
+        return kernels.apply_sorted(self._sorted[inverse], V, (out,), inverse,
                                     launch=self.launch)
 
     def _event_times(self, V, times, orders, offset) -> int:
@@ -209,8 +217,7 @@ class DenseEngine(Engine):
         if self.fast is not None:  # the fast path's orders, as orders() gives them
             return super().tangents(V, T, out, transpose, offset)
         if self._lanes is None:
-            return kernels.tangents(self._plain + (self.Dh,), V, (out, T), transpose,
-                                    launch=self.launch)
+            return kernels.tangents(self._plain, V, (out, T), transpose, launch=self.launch)
         return self._lane_kernels[2](self._lanes, V, (out, T), transpose, launch=self.launch)
 
     def corners(self, happened) -> np.ndarray:

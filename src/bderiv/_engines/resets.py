@@ -195,7 +195,8 @@ class ResetEngine(Engine):
         """The tables of ``_kernels/resets`` for resets P, Q in this engine's form."""
         DhP = (np.ascontiguousarray(_transposed(self.Dh @ P)) if self.low
                else np.zeros((1, 1, 1, 1)))
-        return (self._DhT, self._F, self._G, _transposed(P), _transposed(Q), DhP, self.low)
+        return kernels.ResetTables(self._DhT, self._F, self._G, _transposed(P), _transposed(Q),
+                                   DhP, self.low)
 
     @classmethod
     def build(cls, Dh, F, resets, transversality_tol, reset_tol, memory_limit):
