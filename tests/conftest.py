@@ -1,4 +1,12 @@
-"""Shared test set-up: hypothesis settings and a session fixture that warms the JIT."""
+"""Shared test set-up: hypothesis settings, a session fixture that warms the JIT, and the
+session fixtures of objects that take seconds to make (each made once per process).
+
+Rules for new tests (README, "Tests"): a case that takes more than a few seconds on a warm
+cache is marked ``slow`` and keeps a smaller case of the same check in the default run; an
+object that takes seconds and several files need is a session fixture here, never a
+module-level computation (collection runs in every pytest-xdist worker); a nested pytest
+run passes ``-n 0``; timings live in benchmarks/ and run with ``-n 0``.
+"""
 
 from __future__ import annotations
 
@@ -43,3 +51,13 @@ def warm_jit():
         bd.event_times(V)
     bd.triangulation()(V[:3])
     list(bd.pieces())
+
+
+@pytest.fixture(scope="session")
+def pronking_gait():
+    """``(example, orbit)``: the two-legged pronking gait's periodic orbit, found once per
+    process from a perturbed apex (Newton's method and a few strides: seconds)."""
+    from bderiv.examples import gaits
+
+    ex = gaits.pronking()
+    return ex, gaits.pronking_orbit(ex, perturbation=(0.02, 0.01, 0.03, -0.05))
