@@ -14,11 +14,11 @@ PKG = ROOT / "src" / "bderiv"
 #: layers below, never one above.
 LAYERS = [
     {"cli", "__main__"},
-    {"plot", "examples", "_bench", "symbolic"},  # _bench: the sweep of `bderiv bench`
+    {"plot", "examples", "_bench", "symbolic", "jax"},  # _bench: the sweep of `bderiv bench`
     {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff", "stability_map"},
-    {"checks"},
+    {"checks", "assembly"},  # assembly: the model's B-derivatives, group by group
     {"simulate", "crossings", "locate", "flowmap", "returnmap", "stability", "excursions",
-     "finaltime"},
+     "finaltime", "stretch_scipy", "stretch_compiled"},
     {"compiled"},  # the compiled integrator (issue 19)
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},
     {"corners", "_engines", "_linearise"},  # _linearise scales rows with a kernel
@@ -26,7 +26,7 @@ LAYERS = [
 ]
 #: helpers any layer may use; they import only each other.
 HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
-           "_cyclic", "_safefiles"}
+           "_cyclic", "_safefiles", "_errors"}
 
 
 def _top(path: pathlib.Path) -> str:

@@ -39,6 +39,10 @@ def test_python_blocks_run(path, tmp_path, monkeypatch):
         pytest.importorskip("dask.array")
     if any("plot" in code for _, code in found):
         pytest.importorskip("matplotlib")
+    if any("import jax" in code for _, code in found):
+        pytest.importorskip("jax")
+    if any("import diffrax" in code for _, code in found):
+        pytest.importorskip("diffrax")
     monkeypatch.chdir(tmp_path)  # blocks that write files write them here
     namespace = {"__name__": "__doc__"}
     for line, code in found:
@@ -47,7 +51,7 @@ def test_python_blocks_run(path, tmp_path, monkeypatch):
 
 
 def test_modules_import_without_extras():
-    """Every module of the package imports with matplotlib, tqdm and dask missing.
+    """Every module of the package imports with matplotlib, tqdm, dask and jax missing.
 
     (The doctests import them all; the extras are only needed inside the functions.)
     """
@@ -56,7 +60,7 @@ def test_modules_import_without_extras():
 
     code = (
         "import sys, importlib, pkgutil\n"
-        "for name in ('matplotlib', 'tqdm', 'dask', 'distributed'):\n"
+        "for name in ('matplotlib', 'tqdm', 'dask', 'distributed', 'jax', 'diffrax'):\n"
         "    sys.modules[name] = None\n"
         "import bderiv\n"
         "names = [m.name for m in pkgutil.walk_packages(bderiv.__path__, 'bderiv.')]\n"

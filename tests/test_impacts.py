@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bderiv import HybridSystem
+from bderiv.assembly import group_bderivative
 from bderiv.examples.impacts import _FOOT, _Feet, landing, landing_summary, summary_text
 
 U0, U1 = _FOOT[0][2], _FOOT[1][2]
@@ -48,7 +49,7 @@ def test_one_event_gives_the_saltation_matrix_with_reset(example):
     before the jump and after it, from the model's functions directly."""
     model, system = _model(), example.system
     x = example.rho
-    M = system._bderivative_at(x, (0,), 0)
+    M = group_bderivative(system, x, (0,), 0)
     R = model.reset_jacobian(x, 0, 0)
     f_minus, f_plus = model.field(x, 0), model.field(model.reset(x, 0, 0), 1)
     dh = model.Dh[0]
@@ -135,13 +136,28 @@ def test_a_reset_that_jumps_across_another_surface_is_refused(example):
     with pytest.raises(ValueError, match="carry the state across the surface of event 0"):
         _system(model, reset=reset).simulate(x0, example.t_final)
 
+
+
+def test_a_reset_that_puts_the_foot_back_above_the_ground_keeps_its_bit(example):
+    """A foot put back above the ground it went through lands on the side it came from
+    (a leg swap, mathematics.md section 9): its bit stays clear, and the next touchdown
+    of that foot is a new crossing of the same event, upward again."""
+    model = _model()
+
     def back(x, mask, k):
         y = model.reset(x, mask, k)
-        y[_FOOT[k][1]] = 0.01  # the foot put back above the ground it just went through
+        y[_FOOT[k][1]] = 0.01
         return y
 
-    with pytest.raises(ValueError, match="carry the state back across the surface of event 1"):
-        _system(model, reset=back).simulate(x0, example.t_final)
+    x0 = example.x0.copy()
+    x0[P1] += 2e-3
+    traj = _system(model, reset=back).simulate(x0, example.t_final)
+    first = traj.groups[0]
+    assert first.events == (1,) and first.bounced == (1,)
+    assert first.mask_after == first.mask_before == 0
+    assert first.state_after[_FOOT[1][1]] == 0.01
+    ones = [r for r in traj.events if r.event == 1]
+    assert len(ones) >= 2 and all(r.direction == 1 for r in ones[:2])
 
 
 def test_bad_reset_arguments_and_outputs_are_named():

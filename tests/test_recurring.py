@@ -16,6 +16,7 @@ from scipy.integrate import solve_ivp
 from test_hybrid import assert_shrinks, fd_rel_errors
 
 from bderiv import examples
+from bderiv.assembly import group_bderivative
 from bderiv.hybrid import HybridSystem
 
 
@@ -118,7 +119,7 @@ def test_groups_downward_and_mixed(down):
     sign = np.where(down, -1.0, 1.0)
     Dh = sign[:, None] * np.eye(2)  # the event Jacobian at the origin is I
     F = np.array([field(np.zeros(2), before ^ j) for j in range(4)])
-    M = system._bderivative_at(np.zeros(2), (0, 1), before)
+    M = group_bderivative(system, np.zeros(2), (0, 1), before)
     U = np.random.default_rng(1).standard_normal((20, 2))
     np.testing.assert_allclose(M(U), np.array([ref_apply(Dh, F, u) for u in U]),
                                rtol=1e-12, atol=1e-12)
@@ -171,4 +172,4 @@ def test_group_bderivative_names_a_downward_event_whose_rate_fails():
     s = HybridSystem(field, lambda x: x.copy(), n_events=2, dim=2)
     with pytest.raises(ValueError, match=r"event 1 crossed downward: the rate is that of -h\)"
                        r": event 1 has rate 0 <= 0 in region mask 0b10"):
-        s._bderivative_at(np.zeros(2), (0, 1), 0b11, where="at the test point")
+        group_bderivative(s, np.zeros(2), (0, 1), 0b11, where="at the test point")

@@ -8,10 +8,9 @@ asked, chunk by chunk with progress reports; or, for a dask array, lazily block 
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
+from ._errors import QueryError
 from ._validate import check_out, check_points, check_positive_int
 
 #: rows per chunk when chunking is implied (a ``progress`` callback or a memmap input) and
@@ -114,19 +113,13 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
 
 
 def _run(kernel, rows, res, offset, name, lead) -> None:
-    """``kernel(rows, res, offset)``; its errors name rows by their flat index, ``V[5]``,
-    which for a batch with several leading axes becomes the full index, ``V[1, 2]``."""
-    if len(lead) < 2:
-        kernel(rows, res, offset)
-        return
+    """``kernel(rows, res, offset)``; its refusals of a row (:class:`QueryError`, by flat
+    index: ``V[5]``) name it, for a batch with several leading axes, by its full index
+    (``V[1, 2]``)."""
     try:
         kernel(rows, res, offset)
-    except ValueError as exc:
-        def full(m):
-            index = np.unravel_index(int(m.group(1)), lead)
-            return f"{name}[{', '.join(str(int(i)) for i in index)}]"
-
-        raise ValueError(re.sub(rf"\b{name}\[(\d+)\]", full, str(exc))) from None
+    except QueryError as exc:
+        raise exc.at(shape=lead) from None
 
 
 def _same_rows(a: np.ndarray, b: np.ndarray) -> bool:

@@ -22,11 +22,11 @@ which writes ``M_sigma(v) t`` (or ``M_sigma(v)^T t``) for the rows v of ``V`` an
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 
 from ._batch import evaluate, is_dask_array
+from ._errors import QueryError
 from ._kernels import scaling
 from ._validate import check_memory, check_points, check_real_array
 
@@ -133,12 +133,8 @@ class Linearisation:
             try:
                 self._tangent_rows(np.repeat(flat[s:e], d, axis=0), np.tile(eye, (e - s, 1)),
                                    cols, False, 0, "V")
-            except ValueError as exc:  # rows repeated d times: name the caller's row
-                def row(match, s=s):
-                    q = s + int(match.group(1)) // d
-                    index = np.unravel_index(q, lead) if lead else (q,)
-                    return f"V[{', '.join(str(int(i)) for i in index)}]"
-                raise ValueError(re.sub(r"\bV\[(\d+)\]", row, str(exc))) from None
+            except QueryError as exc:  # rows repeated d times: name the caller's row
+                raise exc.at(row=s + exc.row // d, shape=lead) from None
             P[s:e] = cols.reshape(e - s, d, d).transpose(0, 2, 1)  # [q, i, :] = M e_i
         return P.reshape(lead + (d, d))
 

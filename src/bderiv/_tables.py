@@ -164,8 +164,13 @@ UNDERFLOW_LOG10 = -290
 TINY = np.finfo(np.float64).tiny
 
 
-def find_transversality_violation(G, F, Dh, tol):
+def find_transversality_violation(G, F, Dh, tol, pending_only=False):
     """First (mask, k, kind, scale) with G[mask, k] <= tol * |F[mask]| |Dh[k]|, or None.
+
+    With ``pending_only`` only the rates of events still pending in the region (bit k of
+    mask clear) must be positive: after an impact whose reset sends the state back to the
+    side it came from, the event's rate is negative (mathematics.md section 9); every rate
+    must still be finite.
 
     ``kind`` is ``"overflow"`` for a rate beyond float64, ``"underflow"`` for one below it
     (``scale`` is then log10 |F[mask]| |Dh[k]|), ``"violated"`` for a rate <= 0 and
@@ -178,13 +183,16 @@ def find_transversality_violation(G, F, Dh, tol):
         with np.errstate(over="ignore"):
             scale = f_norm[:, None] * dh_norm
         # a subnormal rate (below finfo.tiny) has lost digits: never accepted
-        bad = (G[rows] <= tol * scale) | (G[rows] < TINY) | ~np.isfinite(G[rows])
+        bad = (G[rows] <= tol * scale) | (G[rows] < TINY)
+        if pending_only:
+            bad &= mask_bits(np.arange(rows.start, rows.stop, dtype=np.int64), G.shape[1]) == 0
+        bad |= ~np.isfinite(G[rows])
         if bad.any():
             if not np.isfinite(G[rows]).all():
                 i, k = np.argwhere(~np.isfinite(G[rows]))[0]
                 return rows.start + int(i), int(k), "overflow", float(scale[i, k])
             # report a sign violation before a grazing rate anywhere in the block
-            neg = G[rows] <= 0
+            neg = (G[rows] <= 0) & bad
             i, k = np.argwhere(neg if neg.any() else bad)[0]
             kind = "violated" if neg.any() else "grazing"
             # |F| |Dh| below ~1e-290: the rate is lost to underflow, not known to be <= 0

@@ -15,6 +15,7 @@ import numpy as np
 from . import _numdiff as numdiff
 from ._format import format_mask
 from ._validate import check_bool, check_positive_int, check_real_array
+from .compiled import JACOBIAN_MODES, CompiledModel, check_compiled, is_compiled
 
 #: relative tolerance of the checks of a model's resets with analytic Jacobians (event
 #: and reset), and with numerical ones (accurate to ``_numdiff.ACCEPT_RTOL`` or refused).
@@ -28,6 +29,44 @@ def check_callable(f, name: str) -> None:
     """Refuse a parameter that should be a function (None passes: optional)."""
     if f is not None and not callable(f):
         raise TypeError(f"{name} must be callable, got {type(f).__name__}")
+
+
+def _contiguous_args(fn):
+    """``fn`` itself, or for a numba dispatcher a function that passes it the types the
+    compiled path compiled it for (a C-contiguous float64 state, int masks and events): a
+    strided view or an int array would make numba compile another version of it."""
+    if not is_compiled(fn):
+        return fn
+
+    def call(x, *ints):
+        return fn(np.ascontiguousarray(x, dtype=np.float64), *(int(i) for i in ints))
+
+    call.__wrapped__ = fn
+    return call
+
+
+def compiled_or_refused(field, events, field_jacobian):
+    """The compiled path's functions when ``field`` is a numba dispatcher, else None.
+
+    A compiled ``field`` takes a compiled ``events`` and ``field_jacobian`` (or none):
+    the integrator calls all three at every step. The functions called only at the stops
+    (event and reset Jacobians, resets, corner fields) may be either.
+
+    Raises
+    ------
+    TypeError
+        Naming the function that is not compiled.
+    """
+    if not is_compiled(field):
+        return None
+    for fn, name in ((events, "events"), (field_jacobian, "field_jacobian")):
+        if fn is not None and not is_compiled(fn):
+            raise TypeError(
+                f"field is numba-compiled, so {name} must be too (the compiled integrator "
+                f"calls it at every step), got the Python function {fn!r}; compile it with "
+                f"numba.njit, or pass field as a Python function"
+            )
+    return field, events, field_jacobian
 
 
 def check_output(value, shape, what: str) -> np.ndarray:
@@ -108,6 +147,11 @@ class ModelCalls:
             raise TypeError("field and events are required callables")
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
+        self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
+        self._compiled = None
+        field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
+            _contiguous_args(f) for f in (field, events, event_jacobian, field_jacobian,
+                                          corner_field, reset, reset_jacobian))
         self._reset, self._reset_jac = reset, reset_jacobian
         self.n_events = check_positive_int(n_events, "n_events")
         self.dim = check_positive_int(dim, "dim")
@@ -119,6 +163,48 @@ class ModelCalls:
         self.check_jacobians = check_bool(check_jacobians, "check_jacobians")
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
         self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
+
+    @property
+    def compiled(self) -> CompiledModel | None:
+        """The compiled path's model when ``field`` is a numba dispatcher (its functions
+        checked and compiled for the integrator's types at the first use; the time that
+        took is logged once, logger ``"bderiv"``, level INFO), else None."""
+        if self._compiled is None and self._compiled_functions is not None:
+            start = time.perf_counter()
+            field, events, jac = self._compiled_functions
+            self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,
+                                           dim=self.dim)
+            _log.info("compiled the model's functions for the compiled integrator in %.2f s "
+                      "(once per model; field_jacobian: %s)", time.perf_counter() - start,
+                      JACOBIAN_MODES[self._compiled.jac_mode])
+        return self._compiled
+
+    def check_compiled_jacobian(self, x, mask) -> None:
+        """Before the compiled integrator carries the sensitivity in region ``mask``: the
+        first time for each mask, compare its ``J`` at ``x`` with a central difference of
+        the field (:func:`check_given_jacobian`): a given ``field_jacobian`` unless
+        ``check_jacobians`` is False, and always a complex-step one (a field that is not
+        complex-analytic, ``abs`` or a comparison of x, gives a wrong complex step: the
+        model then uses central differences)."""
+        model, key = self.compiled, ("compiled field_jacobian", int(mask))
+        mode = JACOBIAN_MODES[model.jac_mode]
+        given = mode == "given"
+        if key in self._checked or mode == "central differences" or \
+                (given and not self.check_jacobians):
+            return
+        x = self._check_state(x)
+        what = f"field(x, mask={self._mask_name(mask)})"
+        try:
+            check_given_jacobian(lambda y: self.eval_field(y, mask), x,
+                                 model.jacobian(x, mask), what, "field_jacobian")
+        except ValueError:
+            if given:
+                raise
+            _log.info("the complex-step Jacobian of %s does not match its central "
+                      "differences (the field is not complex-analytic): central differences "
+                      "are used", what)
+            model.use_central_differences()
+        self._checked.add(key)
 
     def _check_state(self, x, name="x"):
         arr = check_real_array(x, name)
@@ -291,6 +377,8 @@ class ModelCalls:
         if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
             table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
             return np.ascontiguousarray(table[masks])
+        if self.compiled is not None:  # one compiled loop over the masks
+            return self.compiled.fields(x, masks)
         out = np.empty((masks.size, d))
         for i, m in enumerate(masks.tolist()):
             out[i] = self.eval_field(x, m)
@@ -336,12 +424,31 @@ class Section:
             raise TypeError("section must be a callable section(x) -> float, got None")
         check_callable(func, "section")
         check_callable(gradient, "section_gradient")
-        self.func, self.grad, self.dim = func, gradient, dim
+        self.func, self.grad, self.dim = func, _contiguous_args(gradient), dim
+        self._call = _contiguous_args(func)
         self.check = check  # compare a given gradient with a central difference, once
+
+    def compiled(self):
+        """The section as a checked numba dispatcher, for the compiled integrator.
+
+        Raises
+        ------
+        TypeError
+            A Python function (the integrator evaluates the section at every step), or a
+            dispatcher that does not compile as ``section(x: float64[::1]) -> float64``.
+        """
+        if not is_compiled(self.func):
+            raise TypeError(
+                f"the model's functions are numba-compiled, so section must be too (the "
+                f"compiled integrator evaluates it at every step), got the Python function "
+                f"{self.func!r}; compile it with numba.njit"
+            )
+        check_compiled(self.func, "section")
+        return self.func
 
     def __call__(self, x) -> float:
         """The checked value ``section(x)``."""
-        value = self.func(x)
+        value = self._call(x)
         if np.ndim(value) != 0 and np.size(value) != 1:
             raise ValueError(f"section(x) must return one real number, got shape "
                              f"{np.shape(value)}")

@@ -12,6 +12,7 @@ import numbers
 
 import numpy as np
 
+from ._errors import QUERY, QueryError
 from ._tables import available_memory, human_bytes
 
 _KIND_NAMES = {
@@ -192,14 +193,15 @@ def check_bool(value, name: str) -> bool:
 
 
 def check_finite_result(res, name: str, offset: int, what: str = "result") -> None:
-    """Refuse a result that overflowed (finite inputs near the float64 range)."""
+    """Refuse a result that overflowed (finite inputs near the float64 range): a
+    :class:`~bderiv._errors.QueryError` naming the row, ``offset`` its batch's first."""
     if not all_finite(res):
         q = int(np.flatnonzero(~np.isfinite(res).all(axis=1))[0])
-        raise ValueError(
-            f"the {what} for {name}[{q + offset}] overflowed (not finite) although the input "
+        raise QueryError(
+            f"the {what} for {QUERY} overflowed (not finite) although the input "
             f"is finite: its entries are too large for float64. The map is positively "
-            f"homogeneous, M(s v) = s M(v) for s > 0: scale the vectors down and the result up"
-        )
+            f"homogeneous, M(s v) = s M(v) for s > 0: scale the vectors down and the result up",
+            q + offset, name)
 
 
 def check_memory(need: int, memory_limit, what: str) -> None:

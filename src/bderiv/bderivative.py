@@ -10,6 +10,7 @@ import numpy as np
 from ._batch import evaluate
 from ._engines import DenseEngine, FunctionEngine, StructuredEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
+from ._errors import QueryError
 from ._geometry import (  # noqa: F401 (re-exported)
     MAX_PIECES,
     CornerGeometry,
@@ -313,8 +314,11 @@ class BDerivative(Linearisation, CornerGeometry):
         n = self.n_events
         times = np.empty((flat.shape[0], n))
         order = np.empty((flat.shape[0], n), dtype=np.int64)
-        if self._engine.event_times(flat, times, order, exact=exact) and exact:
-            check_finite_result(times, "V", 0, "event times")
+        try:
+            if self._engine.event_times(flat, times, order, exact=exact) and exact:
+                check_finite_result(times, "V", 0, "event times")
+        except QueryError as exc:  # named by its full index in a batch of several axes
+            raise exc.at(shape=lead) from None
         return times.reshape(lead + (n,)), order.reshape(lead + (n,))
 
     def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:

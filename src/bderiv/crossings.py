@@ -4,9 +4,11 @@ A region is named by the signs of the event functions (bit k of the mask set iff
 ``h_k(x) > 0``). A surface may be crossed upward (``h_k`` from negative to positive: the
 bit is set) or downward (the bit is cleared), any number of times. At each stop of the
 integrator :func:`switch` decides which events cross together (one :class:`EventGroup`),
-checks every crossing is transversal on both sides, in the direction it is crossed, and
-returns the mask after them (the mask before with the group's bits flipped). Which events
-are at the stop is decided by the rules of :mod:`bderiv.locate` (each event's window).
+checks every crossing is transversal before it, applies the resets, decides where each
+event lands (:func:`landing`: on the far side, its bit flipped; back on the side it came
+from, a bounce or a leg swap, its bit unchanged) and returns the mask after them. Which
+events are at the stop is decided by the rules of :mod:`bderiv.locate` (each event's
+window).
 
 In a group's **local orientation** an event crossed downward has its function negated
 (``-h_k``), so that every event of the group is crossed upward: the group's B-derivative
@@ -29,6 +31,7 @@ __all__ = [
     "EventRecord",
     "apply_resets",
     "group_tolerance",
+    "landing",
     "switch",
 ]
 
@@ -73,7 +76,8 @@ class EventGroup(NamedTuple):
     events : tuple of int
         Global indices of the events that crossed, ascending.
     mask_before, mask_after : int
-        Region masks before and after the group (``mask_after = mask_before ^ bits``).
+        Region masks before and after the group: ``mask_after = mask_before ^ bits`` of
+        the events that landed on the far side (all of them without resets).
     state : ndarray, shape (d,)
         State at ``time``, before the group.
     state_after : ndarray, shape (d,)
@@ -81,6 +85,9 @@ class EventGroup(NamedTuple):
         resets), else ``state`` itself.
     directions : tuple of int (property)
         +1 (upward) or -1 (downward) for each event of ``events``.
+    bounced : tuple of int (property)
+        Events of the group whose reset sent the state back to the side it came from (a
+        bounce, a leg swap): their bits of ``mask_after`` are not flipped.
     """
 
     time: float
@@ -93,6 +100,10 @@ class EventGroup(NamedTuple):
     @property
     def directions(self) -> tuple:
         return tuple(-1 if self.mask_before >> k & 1 else 1 for k in self.events)
+
+    @property
+    def bounced(self) -> tuple:
+        return tuple(k for k in self.events if not (self.mask_before ^ self.mask_after) >> k & 1)
 
 
 def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
@@ -141,16 +152,19 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err):
     group : list of int
         The events that cross, ascending.
     new : int
-        The mask after them.
+        The mask after them: the bits of the events that landed on the far side flipped
+        (all of them without resets; :func:`landing`).
     x_after : ndarray, shape (d,)
         The state after their resets (:func:`apply_resets`; ``x`` without resets).
 
     Raises
     ------
     ValueError
-        On a grazing crossing (a rate that is not clearly of the crossing's sign before or
-        after it: the time, event and direction are named), on a grouped event that is
-        not at ``x``, and on resets that disagree or jump across a surface.
+        On a grazing crossing (a rate that is not clearly of the crossing's sign before
+        it, or after it where the state stays on the surface: the time, event and
+        direction are named), on a grouped event that is not at ``x``, and on resets that
+        disagree, jump across another surface or leave the state on a surface it neither
+        leaves nor crosses.
     """
     n = system.n_events
     sign, h, Dh, F, rate = local_view(system, mask, x)
@@ -160,18 +174,72 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err):
     classes = classify(h, rate, window, fired, simultaneity_tol)
     group = classes.group
     _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
-    new = mask ^ sum(1 << k for k in group)
-    x_after, Dh_after = x, Dh
-    if system.has_resets:
-        x_after = apply_resets(system, group, mask, x, t, RESET_MISMATCH * float(err.max()))
-        Dh_after = sign[:, None] * system.eval_event_jacobian(x_after)
-        _check_after_resets(sign * system.eval_events(x_after), group, window, t)
-    F_new = system.eval_field(x_after, new)
     for k in group:
         _check_crossing(k, Dh[k], F, mask, f"before switching events {group}", t, sign[k], n)
-        _check_crossing(k, Dh_after[k], F_new, new, f"after switching events {group}", t,
-                        sign[k], n)
-    return group, new, x_after
+    if not system.has_resets:  # every event lands on the far side, and must move on
+        new = mask ^ sum(1 << k for k in group)
+        F_new = system.eval_field(x, new)
+        for k in group:
+            _check_crossing(k, Dh[k], F_new, new, f"after switching events {group}", t,
+                            sign[k], n)
+        return group, new, x
+    x_after = apply_resets(system, group, mask, x, t, RESET_MISMATCH * float(err.max()))
+    _check_jumps(sign * system.eval_events(x_after), group, window, t)
+    return group, landing(system, group, mask, x_after, window, t), x_after
+
+
+def landing(system, group, mask, x_after, window, t=None):
+    """The region mask after ``group``, crossed from region ``mask``, whose resets took the
+    state to ``x_after`` (mathematics.md section 9, "Where a reset lands").
+
+    In each event's crossing orientation (``s_k h_k`` crosses upward), with ``window`` (n,)
+    the accuracy of the event values: an event that lands beyond its window on the far
+    side has its bit flipped; one that lands beyond it on the side it came from (a leg
+    swap) keeps its bit; on the surface, the flow decides: a rate in the region with the
+    bit flipped that is not clearly negative flips it (a crossing, an impact that stays in
+    contact, a plastic one that stops on the surface), and where that rate is clearly
+    negative, one clearly negative in the region with the bit kept too keeps it (a bounce).
+
+    Raises
+    ------
+    ValueError
+        When the flow sends the state back in the region with the bit flipped and not in
+        the region with it kept: it would slide along the surface (a Filippov sliding
+        mode), which is not an event.
+    """
+    n = system.n_events
+    new = mask ^ sum(1 << k for k in group)
+    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])
+    h = sign * system.eval_events(x_after)
+    Dh = sign[:, None] * system.eval_event_jacobian(x_after)
+    field = system.eval_field(x_after, new)
+    kept = 0
+    for k in group:
+        if h[k] > window[k]:
+            continue
+        if h[k] >= -window[k]:  # on the surface: the flow after the reset decides
+            if not _clearly_positive(-Dh[k], field):  # moves on, or stays (plastic)
+                continue
+            back = system.eval_field(x_after, new ^ 1 << k)
+            if not _clearly_positive(-Dh[k], back):
+                at = "" if t is None else f" at t={t:.10g}"
+                raise ValueError(
+                    f"after the reset of event {k}{at} the state is on its surface "
+                    f"(h_{k} = {h[k]:.3g}, within the accuracy {window[k]:.3g}) and the flow "
+                    f"pushes it against the surface from both sides: the rate of h_{k} in "
+                    f"the crossing's orientation is {float(Dh[k] @ field):.3g} in region "
+                    f"{format_mask(new, n)} (the crossing completed) and "
+                    f"{float(Dh[k] @ back):.3g} in region {format_mask(new ^ 1 << k, n)} "
+                    f"(sent back), so the state would slide along the surface, which is "
+                    f"not an event; event {k} crossed {direction_name(sign[k])}"
+                )
+        kept |= 1 << k
+    return new ^ kept
+
+
+def _clearly_positive(dh, F) -> bool:
+    """Whether the rate ``dh . F`` is positive beyond the grazing threshold."""
+    return float(dh @ F) > GRAZING_RTOL * np.linalg.norm(dh) * np.linalg.norm(F)
 
 
 def apply_resets(system, group, mask, x, t, accuracy):
@@ -205,15 +273,10 @@ def apply_resets(system, group, mask, x, t, accuracy):
     return y0
 
 
-def _check_after_resets(h, group, tol, t):
-    """Refuse resets that carry the state across a surface (``h``: the event values after
-    them, in the group's local orientation)."""
+def _check_jumps(h, group, tol, t):
+    """Refuse resets that carry the state across the surface of an event not in the group
+    (``h``: the event values after them, in the local orientation of the region before)."""
     for k in range(h.size):
-        if k in group and h[k] < -tol[k]:
-            raise ValueError(
-                f"the resets at t={t:.10g} carry the state back across the surface of event "
-                f"{k}, just crossed (h_{k} = {h[k]:.3g} in the crossing's orientation)"
-            )
         if k not in group and h[k] > tol[k]:
             raise ValueError(
                 f"the resets of events {group} at t={t:.10g} carry the state across the "
@@ -225,14 +288,12 @@ def _check_after_resets(h, group, tol, t):
 def _check_crossing(k, dh, F, mask, when, t, sign, n):
     """Refuse a crossing of event k (``dh``: its gradient in local orientation) whose rate
     ``dh . F`` in region ``mask`` is not clearly positive: grazing, or pushed back."""
-    rate = float(dh @ F)
-    if rate > GRAZING_RTOL * np.linalg.norm(dh) * np.linalg.norm(F):
+    if _clearly_positive(dh, F):
         return
-    message = transversality_message(k, format_mask(mask, n), rate, f"at t={t:.10g} {when}")
-    if when.startswith("after"):
-        message += " (the event would cross back)"
-    else:
-        message += " (a grazing crossing)"
+    message = transversality_message(k, format_mask(mask, n), float(dh @ F),
+                                     f"at t={t:.10g} {when}")
+    message += " (the event would cross back)" if when.startswith("after") else (
+        " (a grazing crossing)")
     downward = f" (the rate is that of -h_{k}, which crosses upward)" if sign < 0 else ""
     raise ValueError(f"{message}; event {k} crossed {direction_name(sign)}{downward}")
 

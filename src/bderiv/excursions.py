@@ -107,20 +107,19 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH)
     []
     """
     m, n = h.shape
-    out = []
     if m < 2:
-        return out
-    for k in range(n):
-        v = h[:, k]
-        left = np.concatenate(([-np.inf], v[:-1]))
-        right = np.concatenate((v[1:], [-np.inf]))
-        low = np.minimum(np.where(np.isfinite(left), left, right),
-                         np.where(np.isfinite(right), right, left))
-        peak = (v >= left) & (v >= right) & (v + reach * (v - low) >= -tol[k])
-        if stretch:
-            peak[[0, -1]] &= v[[0, -1]] < -tol[k]
-        out.extend((k, max(int(i) - 1, 0), min(int(i) + 1, m - 1))
-                   for i in np.flatnonzero(peak))
+        return []
+    edge = np.full((1, n), -np.inf)
+    left = np.concatenate((edge, h[:-1]))
+    right = np.concatenate((h[1:], edge))
+    low = np.minimum(np.where(np.isfinite(left), left, right),
+                     np.where(np.isfinite(right), right, left))
+    peak = (h >= left) & (h >= right) & (h + reach * (h - low) >= -tol)
+    if stretch:
+        peak[[0, -1]] &= h[[0, -1]] < -tol
+    ks, rows = np.nonzero(peak.T)  # event by event, samples in order
+    out = [(int(k), max(int(i) - 1, 0), min(int(i) + 1, m - 1))
+           for k, i in zip(ks, rows, strict=True)]
     return sorted(out, key=lambda b: (b[1], b[0]))
 
 
@@ -140,7 +139,7 @@ def peak_of(value, t_lo: float, t_hi: float) -> tuple[float, float]:
     return max(candidates, key=lambda c: c[1])
 
 
-def without_lost_crossings(system, mask, options, solve, t0, y0, t_end):
+def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_at=None):
     """Integrate a stretch so that no surface is crossed unseen inside a step.
 
     Parameters
@@ -157,6 +156,9 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end):
     y0 : ndarray, shape (D,)
         Start of the stretch (the state first, then any variational part).
     t_end : float
+    events_at : callable ``events_at(X) -> (m, n)``, optional
+        The event values at the rows of ``X`` (m, d), checked (the compiled integrator
+        gives them in one compiled call); default: ``system.eval_events`` row by row.
 
     Returns
     -------
@@ -173,10 +175,15 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end):
     """
     n = system.n_events
     sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])
+    if events_at is None:
+
+        def events_at(X):
+            return np.array([system.eval_events(x) for x in X])
+
     head_t, head_y = [], []
     sol = solve(t0, y0, t_end)
     while True:
-        lost = _earliest_lost(system, sign, options, sol)
+        lost = _earliest_lost(system, sign, options, sol, events_at)
         if lost is None:
             break
         i, t_peak = lost
@@ -193,13 +200,13 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end):
     return sol
 
 
-def _earliest_lost(system, sign, options, sol):
+def _earliest_lost(system, sign, options, sol, events_at):
     """``(i, t_peak)`` of the earliest crossing inside a step of ``sol`` (i: the last step
     end before its bracket), or None."""
     d = system.dim
     times = sample_times(sol.t)
     states = sol.sol(times)[:d].T
-    h = np.array([sign * system.eval_events(x) for x in states])
+    h = sign * events_at(states)
     scale = np.abs(states).max(axis=0)  # per component: only those an event reads count
     tol = group_tolerance(sign[:, None] * system.eval_event_jacobian(states[-1]), options,
                           scale)
@@ -212,7 +219,7 @@ def _earliest_lost(system, sign, options, sol):
             return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
 
         fine = np.linspace(times[lo], times[hi], FINE_SAMPLES)
-        v = np.array([[sign[k] * system.eval_events(x)[k]] for x in sol.sol(fine)[:d].T])
+        v = sign[k] * events_at(sol.sol(fine)[:d].T)[:, k : k + 1]
         sub = peak_brackets(v, tol[k : k + 1], reach=FINE_REACH)
         if not sub:
             continue

@@ -16,11 +16,11 @@ the variational equations, the jumps PL homeomorphisms), and so is D:
 from __future__ import annotations
 
 import functools
-import re
 
 import numpy as np
 
 from ._batch import evaluate, is_dask_array
+from ._errors import QueryError
 from ._kernels import _core
 from ._linearise import Linearisation
 from ._validate import (
@@ -184,7 +184,7 @@ class FlowBDerivative(Linearisation):
                 try:
                     W = jump(W, dt) if isinstance(jump, FinalTimeMap) else jump(W)
                 except ValueError as exc:
-                    raise ValueError(_in_group(str(exc), i, offset, name)) from None
+                    raise _in_group(exc, i, offset, name) from None
         return out
 
     def apply(self, V, out=None, *, dt=None, chunk_size=None, progress=None):
@@ -286,7 +286,7 @@ class FlowBDerivative(Linearisation):
             try:
                 V = self._jumps[i].inverse(V)
             except ValueError as exc:
-                raise ValueError(_in_group(str(exc), i, offset, "W")) from None
+                raise _in_group(exc, i, offset, "W") from None
             V = _stage(inverses[i], V)
         res[...] = V
         if not all_finite(res):
@@ -376,7 +376,7 @@ class FlowBDerivative(Linearisation):
             try:
                 self._jumps[i]._tangent_rows(inputs[i], Y, Z, transpose, 0, name)
             except ValueError as exc:
-                raise ValueError(_in_group(str(exc), i, offset)) from None
+                raise _in_group(exc, i, offset) from None
             Y = _stage(self._linear[i], Z, True) if transpose else _stage(self._linear[i + 1], Z)
         res[...] = Y
         if not all_finite(res):
@@ -442,17 +442,20 @@ def _stage(L, X, transpose: bool = False) -> np.ndarray:
     """
     M = np.ascontiguousarray(L if transpose else L.T)  # the kernel combines rows of M
     out = np.empty((X.shape[0], M.shape[1]))
-    _core.linear((M, M), np.ascontiguousarray(X), (out,), False,
+    _core.linear(_core.LinearTables(M, M), np.ascontiguousarray(X), (out,), False,
                  launch=_core.launch_queries(1, X.shape[1]))
     return out
 
 
-def _in_group(message: str, group: int, offset: int, name: str | None = None) -> str:
-    """An error of event group ``group``'s map, with its rows renumbered to the caller's
-    (and V or W renamed ``name``)."""
-    message = re.sub(r"\b([VWT])\[(\d+)\]",
-                     lambda m: f"{name or m.group(1)}[{int(m.group(2)) + offset}]", message)
-    return f"in event group {group} of the flow map, for the vectors entering it: {message}"
+def _in_group(exc: ValueError, group: int, offset: int, name: str | None = None
+              ) -> ValueError:
+    """An error of event group ``group``'s map, said of the flow map's batch: a refusal of
+    one row (:class:`~bderiv._errors.QueryError`) numbered as the caller's row ``offset +
+    row`` (of the batch ``name``, else the name it had)."""
+    where = f"in event group {group} of the flow map, for the vectors entering it: "
+    if isinstance(exc, QueryError):
+        return exc.at(row=exc.row + offset, name=name, shape=(), prefix=where)
+    return ValueError(where + str(exc))
 
 
 def _read_only(a) -> np.ndarray:

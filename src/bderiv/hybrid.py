@@ -5,15 +5,15 @@ A model is a family of smooth vector fields ``field(x, mask)`` (one per region, 
 ``events(x)``. Along a trajectory a surface may be crossed upward (the bit is set) or
 downward (cleared), any number of times; a group crossed downward is handled in its local
 orientation (:mod:`bderiv.crossings`). :class:`HybridSystem`
-checks every call of the user functions, gives their Jacobians (analytic when given, else
-numerical), samples the corner table and builds the
-:class:`~bderiv.bderivative.BDerivative` at an event point. Its other methods are thin:
+checks every call of the user functions and gives their Jacobians (analytic when given,
+else numerical). Its methods are thin:
 
+- :meth:`HybridSystem.bderivative`: the :class:`~bderiv.bderivative.BDerivative` at an
+  event point, its corner table sampled from the model (:mod:`bderiv.assembly`);
 - :meth:`HybridSystem.simulate`: event-detecting integration (:mod:`bderiv.simulate`);
-- :meth:`HybridSystem.flow_bderivative`: the flow map's B-derivative, assembled here from a
+- :meth:`HybridSystem.flow_bderivative`: the flow map's B-derivative, assembled from a
   trajectory integrated with its variational equations and one ``BDerivative`` per event
-  group (here rather than in :mod:`bderiv.flowmap`, which only composes given stages: the
-  assembly needs the model, and the map should not import the model side);
+  group (:mod:`bderiv.assembly`);
 - :meth:`HybridSystem.flow_fd`: forward differences of the simulated flow
   (:mod:`bderiv.checks`);
 - :meth:`HybridSystem.return_map`: the B-derivative of a Poincare map
@@ -30,30 +30,15 @@ from __future__ import annotations
 import numpy as np
 
 from . import checks
-from ._format import format_mask, transversality_message
 from ._usercalls import ModelCalls, Section
 from ._validate import check_number
-from .bderivative import BDerivative
-from .crossings import RESET_MISMATCH, apply_resets
-from .finaltime import FinalTimeMap
-from .flowmap import FlowBDerivative
+from .assembly import flow_map_along, point_bderivative
 from .orbit import ORBIT_OPTIONS, periodic_orbit
 from .returnmap import return_map
 from .simulate import MAX_GROUPS, EventGroup, EventRecord, SolverOptions, Trajectory, run
 
 # EventGroup, EventRecord, Trajectory live in bderiv.simulate; re-exported for old imports
 __all__ = ["EventGroup", "EventRecord", "HybridSystem", "SolverOptions", "Trajectory"]
-
-
-def _spread_masks(events, mask_before):
-    """Global masks of all 2**g local masks of a group (bit j of local: event events[j]
-    crossed, i.e. its bit of ``mask_before`` flipped, whichever the direction)."""
-    g = len(events)
-    local = np.arange(1 << g, dtype=np.int64)
-    glob = np.full(1 << g, int(mask_before), dtype=np.int64)
-    for j, k in enumerate(events):
-        glob ^= ((local >> j) & 1) << int(k)
-    return glob
 
 
 class HybridSystem(ModelCalls):
@@ -84,10 +69,14 @@ class HybridSystem(ModelCalls):
     reset : callable, optional
         ``reset(x, mask, k) -> (d,)``: the state right after event k is crossed at ``x``
         from region ``mask`` (an impact; mathematics.md section 9; bit k of ``mask`` set: a
-        downward crossing, return ``x`` for no jump). Simultaneous events are reset
-        one after the other, in ascending order, each with the mask before its own
-        crossing; their resets must commute (checked, :func:`bderiv.crossings.apply_resets`)
-        and must not move the surfaces still pending. Default: no jump.
+        downward crossing, return ``x`` for no jump). The state may land on the far side
+        (its bit flips) or back on the side it came from: a bounce (``[q, -e v]`` for a
+        ball) or a leg swap keeps the bit, and the next crossing of that surface is a new
+        event (:func:`bderiv.crossings.landing` decides; ``EventGroup.bounced``).
+        Simultaneous events are reset one after the other, in ascending order, each with
+        the mask before the group with the bits of the events already reset flipped;
+        their resets must commute (checked, :func:`bderiv.crossings.apply_resets`) and
+        must not move the surfaces still pending. Default: no jump.
     reset_jacobian : callable, optional
         ``reset_jacobian(x, mask, k) -> (d, d)``. Default: numerical.
     check_jacobians : bool
@@ -141,37 +130,6 @@ class HybridSystem(ModelCalls):
     # ------------------------------------------------------------------------------
     # B-derivative at an event point
     # ------------------------------------------------------------------------------
-    def _bderivative_at(self, x, events, mask_before, *, where="at rho"):
-        """BDerivative of the group ``events`` at ``x`` entered from region ``mask_before``.
-
-        Built in the group's local orientation: the rows of ``Dh`` of the events crossed
-        downward (bit set in ``mask_before``) are negated, and local mask bit j means
-        "event ``events[j]`` crossed" (its global bit flipped).
-        """
-        events = tuple(int(k) for k in events)
-        sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
-        Dh = sign[:, None] * self.eval_event_jacobian(x)[list(events)]
-        glob = _spread_masks(events, mask_before)
-        if self.has_resets:
-            base, R = self.sample_resets(x, events, glob, Dh, sign, where)
-            F = np.array([self.eval_field(b, int(m)) for b, m in zip(base, glob, strict=True)])
-        else:
-            F = self.sample_corners(x, glob)
-        G = F @ Dh.T
-        bad = np.argwhere(~(G > 0))
-        if bad.size:
-            i, j = (int(v) for v in bad[0])
-            region = format_mask(int(glob[i]), self.n_events)
-            if sign[j] < 0:
-                where += f" (event {events[j]} crossed downward: the rate is that of -h)"
-            raise ValueError(transversality_message(events[j], region, G[i, j], where))
-        if self.has_resets:
-            try:
-                return BDerivative(Dh, F, resets=R, reset_tol=self.reset_tol)
-            except ValueError as exc:  # the existence check: say where
-                raise ValueError(f"{where} (events {list(events)}): {exc}") from None
-        return BDerivative(Dh, F)
-
     def bderivative(self, rho, *, tol=1e-9):
         """The B-derivative (PL saltation map) at a point where all n events are 0.
 
@@ -186,8 +144,11 @@ class HybridSystem(ModelCalls):
         -------
         BDerivative
             With ``Dh = event_jacobian(rho)`` (n, d) and ``F[mask] = field(rho, mask)``;
-            with resets, ``F[mask]`` at rho moved by the resets of the events in ``mask``
-            and the reset Jacobians there (mathematics.md section 9).
+            with resets, ``F[mask]`` at rho moved by the resets of the events in ``mask``,
+            the field of the region the state lands in (an event whose reset sends the
+            state back, a bounce or a leg swap, keeps its bit: :func:`bderiv.crossings.landing`
+            decides as :meth:`simulate` does), and the reset Jacobians there
+            (mathematics.md section 9).
 
         Raises
         ------
@@ -211,16 +172,7 @@ class HybridSystem(ModelCalls):
                 f"{h}; residuals above tol={tol:g} for events {off.tolist()} "
                 f"(values {h[off].tolist()})"
             )
-        bd = self._bderivative_at(rho, range(self.n_events), 0)
-        if self.has_resets:  # simulate's zero-order check: the resets commute as maps
-            # rho taken to be accurate to reset_tol relative (of max(1, max |rho|))
-            accuracy = RESET_MISMATCH * self.reset_tol * max(1.0, float(np.abs(rho).max()))
-            try:
-                apply_resets(self, list(range(self.n_events)), 0, rho, 0.0, accuracy)
-            except ValueError as exc:
-                raise ValueError(f"at rho (taken as t=0, its integration accuracy as "
-                                 f"reset_tol={self.reset_tol:g} relative): {exc}") from None
-        return bd
+        return point_bderivative(self, rho, tol)
 
     # ------------------------------------------------------------------------------
     # the flow: simulation, its B-derivative, its finite differences
@@ -323,25 +275,8 @@ class HybridSystem(ModelCalls):
 
     def flow_map_along(self, traj):
         """The :class:`FlowBDerivative` along a trajectory integrated with its variational
-        equations (``run(..., variational=True)``): one BDerivative per event group."""
-        groups, linear = list(traj.groups), list(traj.linear)
-        final_field = self.eval_field(traj.x_final, traj.mask_final)
-        if traj.final_pending:  # a group just after t_final: its map is stopped there too
-            groups.append(traj.final_group)
-            linear.append(np.eye(self.dim))
-            final_field = self.eval_field(traj.x_final, traj.final_group.mask_after)
-        jumps = [
-            self._bderivative_at(g.state, g.events, g.mask_before,
-                                 where=f"at the event point at t={g.time:.10g}")
-            for g in groups
-        ]
-        if traj.final_group is not None:  # the final time is one more event of the group
-            jumps[-1] = FinalTimeMap(jumps[-1])
-        return FlowBDerivative(
-            linear, jumps, final_field=final_field,
-            group_times=[g.time for g in groups], group_events=[g.events for g in groups],
-            x0=traj.x[0], x_final=traj.x_final, t_final=float(traj.t[-1]),
-        )
+        equations (``run(..., variational=True)``): :func:`bderiv.assembly.flow_map_along`."""
+        return flow_map_along(self, traj)
 
     # ------------------------------------------------------------------------------
     # gaits: return maps and periodic orbits

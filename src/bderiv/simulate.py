@@ -19,14 +19,15 @@ from dataclasses import field as dc_field
 from functools import partial
 
 import numpy as np
-from scipy.integrate import OdeSolver, solve_ivp
+from scipy.integrate import OdeSolver
 
 from ._progress import SimulationProgress
 from ._validate import check_number, check_positive_int
 from .crossings import GLOBAL_ERROR_FACTOR, EventGroup, EventRecord, group_tolerance, switch
-from .excursions import without_lost_crossings
 from .finaltime import pending_at_final_time
-from .locate import on_side_at_start, settle
+from .locate import settle
+from .stretch_compiled import CompiledStretches
+from .stretch_scipy import ScipyStretches
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -36,6 +37,7 @@ __all__ = [
     "Trajectory",
     "group_tolerance",
     "run",
+    "stretches_for",
 ]
 
 #: the methods of :func:`scipy.integrate.solve_ivp` by name.
@@ -166,78 +168,6 @@ class Trajectory:
     final_pending: bool = False
 
 
-class _EventValues:
-    """``events(x)`` cached on the last state (solve_ivp calls every event function)."""
-
-    def __init__(self, system, section=None):
-        self.system, self.key, self.value = system, None, None
-        self.section = section
-
-    def __call__(self, y):
-        x = y[: self.system.dim]
-        if self.key is None or not np.array_equal(self.key, x):
-            self.key, self.value = x.copy(), self.system.eval_events(x)
-        return self.value
-
-    def terminal_events(self, mask):
-        """One terminal solve_ivp event per event, each looking for the crossing that
-        flips its bit; then the section (upward) if any."""
-        funcs = []
-        for k in range(self.system.n_events):
-
-            def ev(_t, y, k=k):
-                return self(y)[k]
-
-            ev.terminal = True
-            ev.direction = -1 if mask >> k & 1 else 1
-            funcs.append(ev)
-        if self.section is not None:
-            section, d = self.section, self.system.dim
-
-            def sec(t, y):
-                # the run starts on the section: read it as positive there, so that only
-                # a return from below counts (solve_ivp counts 0 -> positive as a crossing)
-                return 1.0 if t == 0.0 else section(y[:d])
-
-            sec.terminal = True
-            sec.direction = 1
-            funcs.append(sec)
-        return funcs
-
-
-def _integrate_stretch(system, x, t, t_final, mask, options, events, variational,
-                       watch=None):
-    """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
-    section."""
-    d = system.dim
-    if variational:  # the state and the (d, d) derivative of the flow, row-major
-
-        def rhs(_t, y):
-            J = system.eval_field_jacobian(y[:d], mask)
-            return np.concatenate((system.eval_field(y[:d], mask),
-                                   (J @ y[d:].reshape(d, d)).ravel()))
-
-        y0 = np.concatenate((x, np.eye(d).ravel()))
-    else:
-
-        def rhs(_t, y):
-            return system.eval_field(y, mask)
-
-        y0 = x
-    funcs = on_side_at_start(events.terminal_events(mask), t, mask, system.n_events)
-
-    def solve(start, y_start, stop):
-        field = rhs if watch is None else watch.wrap(rhs)
-        sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
-                        **options.solve_ivp_kwargs())
-        if sol.status == -1:
-            raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
-        return sol
-
-    # solve_ivp compares signs at step ends only: look inside the steps too
-    return without_lost_crossings(system, mask, options, solve, t, y0, t_final)
-
-
 @dataclass
 class _Log:
     """What :func:`run` accumulates, stretch by stretch."""
@@ -257,6 +187,29 @@ class _Log:
             self.linear.append(np.array(sol.y[d:, -1].reshape(d, d)))
 
 
+def stretches_for(system, options, section=None, watch=None):
+    """The integrator of a run's stretches: compiled when the model's functions are numba
+    dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
+    (``watch``: a :class:`~bderiv._progress.SimulationProgress` told each evaluation's time;
+    the compiled driver returns to Python between slices of steps instead).
+
+    Raises
+    ------
+    TypeError
+        A compiled model with a Python section (named).
+    ValueError
+        A compiled model with another method than DOP853 (the compiled integrator's).
+    """
+    if getattr(system, "compiled", None) is None:
+        return ScipyStretches(system, section, watch)
+    if options.method != "DOP853":
+        raise ValueError(
+            f"the model's functions are numba-compiled: they are integrated by the compiled "
+            f"DOP853, so method must be 'DOP853', got {options.method!r}"
+        )
+    return CompiledStretches(system, None if section is None else section.compiled())
+
+
 def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=False,
         section=None, max_groups=MAX_GROUPS):
     """Integrate ``system`` from ``x0`` at time 0 to ``t_final`` with event detection.
@@ -274,9 +227,11 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     options : SolverOptions, optional
     variational : bool
         Also integrate the variational equations (fills ``Trajectory.linear``).
-    section : callable ``section(x) -> float``, optional
+    section : Section, optional
         Stop at the first upward crossing of ``section(x) = 0`` after time 0 (x0 is on
-        the section, or below it); the trajectory ends there.
+        the section, or below it); the trajectory ends there
+        (:class:`bderiv._usercalls.Section`: checked calls; numba-compiled with a compiled
+        model).
     max_groups : int
         Largest number of event groups (a Zeno or chattering trajectory is refused).
 
@@ -298,14 +253,12 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     options = SolverOptions() if options is None else options
     d, n = system.dim, system.n_events
     mask = system.start_mask(x0)
-    events, log = _EventValues(system, section), _Log()
     watch = SimulationProgress(t_final)  # a bar for long runs; Ctrl-C at each evaluation
+    stretches, log = stretches_for(system, options, section, watch), _Log()
     t, x, scale, err = 0.0, x0, np.abs(x0), np.zeros(d)
     while True:
-        sol = _integrate_stretch(system, x, t, t_final, mask, options, events, variational,
-                                 watch)
-        again = partial(_integrate_stretch, system, x, t, t_final, mask, events=events,
-                        variational=variational, watch=watch)
+        sol = stretches(x, t, t_final, mask, options, variational)
+        again = partial(stretches, x, t, t_final, mask, variational=variational)
         sol, err = settle(system, mask, sol, simultaneity_tol, options, scale, err,
                           again if variational else None)
         log.add_stretch(sol, mask, d, variational)

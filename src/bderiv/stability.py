@@ -26,7 +26,7 @@ linearisation: it predicts the decay of small perturbations of the nonlinear sys
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -63,10 +63,10 @@ class Stability:
 
     growth_rate: float
     stable: bool
-    rates: np.ndarray
+    rates: np.ndarray = field(repr=False)
     spread: float
     multipliers: dict
-    visits: dict
+    visits: dict = field(repr=False)
     iterations: int
     burn_in: int
 

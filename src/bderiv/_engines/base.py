@@ -6,6 +6,7 @@ import functools
 
 import numpy as np
 
+from .._errors import ChainStop, refusal
 from .._format import format_happened, format_order, transversality_message
 from .._kernels import _core, scaling
 from .._tables import chain_regions, tabulate
@@ -100,8 +101,8 @@ class Engine:
             C = np.ascontiguousarray(
                 self.corners(chain_regions(orders, n).reshape(-1, n)), dtype=np.float64
             ).reshape(e - s, n + 1, d)
-            bad += _core.saltations((self.Dh, C, orders), V[s:e], (out[s:e], T[s:e]),
-                                    transpose, launch=e - s)
+            bad += _core.saltations(_core.ChainCornerTables(self.Dh, C, orders), V[s:e],
+                                    (out[s:e], T[s:e]), transpose, launch=e - s)
         return bad
 
     def chain_corners(self, order) -> np.ndarray:
@@ -141,7 +142,8 @@ class Engine:
         return bad
 
     def _check(self, status, V, inverse, name, offset) -> None:
-        """Raise for the first query whose chain stopped (status != -1)."""
+        """Raise for the first query whose chain stopped (status != -1), re-run alone
+        (:meth:`_diagnose`) to find the region and the rate."""
         bad = np.flatnonzero(status != -1)
         if not bad.size:
             return
@@ -149,13 +151,9 @@ class Engine:
         hap = np.empty(self.n, dtype=np.uint8)
         r = np.empty(self.n)
         k = int(self._diagnose(V[q], inverse, hap, r))
-        where = f"on the chain of {name}[{q + offset}]{' (inverse map)' if inverse else ''}"
-        if k < 0:
-            raise ValueError(
-                f"the corner model gave a non-finite value (or left an entry of out unwritten) "
-                f"for region mask {format_happened(hap)} {where}; corners must be finite"
-            )
-        raise ValueError(transversality_message(k, format_happened(hap), float(r[k]), where))
+        stop = (ChainStop("corner", q, -1, format_happened(hap), np.nan) if k < 0 else
+                ChainStop("rate", q, k, format_happened(hap), float(r[k])))
+        raise refusal(stop, name, offset, inverse)
 
 
 def unit_rows(V):
@@ -175,11 +173,5 @@ def unscale_times(times, exps, offset: int) -> None:
     if bad.any():
         q, k = (int(i) for i in np.argwhere(bad)[0])
         e = int(np.frexp(times[q, k])[1] + exps[q])
-        what = "overflows" if e > 0 else "underflows"
-        raise ValueError(
-            f"the time of event {k} for V[{q + offset}] {what} float64 (about 2**{e - 1}, "
-            f"beyond the normal numbers): it cannot be returned. The map itself is "
-            f"representable: apply, inverse and orders still work. Event times scale with "
-            f"the vector (times(c v) = c times(v)): scale V by a power of two"
-        )
+        raise refusal(ChainStop("time", q, k, "", e), "V", offset)
     times[...] = t

@@ -45,6 +45,14 @@ class DenseEngine(Engine):
         self.time_shift = self.f_exp
         self._views()
         self.fast = fastpath.dense(self.F, self.G, Dh) if fast_paths else None
+        self._sorted = self._sorted_tables()
+
+    def _sorted_tables(self):
+        """The own-rates fast path's tables, forwards and backwards (None without it)."""
+        if self.fast is None or self.fast.kind != "own-rates":
+            return None
+        return tuple(kernels.SortedTables(self._plain.DhT, self.F, rate)
+                     for rate in (self.fast.rate0, self.fast.ratef))
 
     @property
     def scaled(self) -> bool:
@@ -77,15 +85,15 @@ class DenseEngine(Engine):
         self.F = self.R[:, 16 * nc : 16 * nc + d]
         self._lanes = self._lane_kernels = None
         if not PLAIN and d <= lanes.MAX_D:
-            self._lanes = (self.R, _tables.padded(self.Dh.T, 8 * nc),
-                           np.array([n, d, nc, dc], dtype=np.int64),
-                           _tables.padded(self.Dh, 8 * dc))
+            self._lanes = lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
+                                           _tables.padded(self.Dh, 8 * dc), n, d, nc, dc)
             self._lane_kernels = lanes.kernels(8 * nc, 8 * dc, int(self.R.nbytes > FAR_BYTES))
-        self._plain = (np.ascontiguousarray(self.Dh.T), self.F, self.G)
+        self._plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G,
+                                          self.Dh)
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        for name in ("F", "G", "_lanes", "_lane_kernels", "_plain"):  # rebuilt from R
+        for name in ("F", "G", "_lanes", "_lane_kernels", "_plain", "_sorted"):  # rebuilt
             state.pop(name, None)
         return state
 
@@ -96,12 +104,14 @@ class DenseEngine(Engine):
             R[...] = self.R
             self.R = R
         self._views()
+        self._sorted = self._sorted_tables()
 
     @classmethod
     def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True,
-              scale: bool = True):
+              scale: bool = True, pending_only: bool = False):
         """Validate a user's table F for Dh (size before anything is allocated, shape,
-        finiteness, transversality of every rate) and build the engine on a copy, scaled
+        finiteness, transversality of every rate, or of the rates of pending events only
+        when ``pending_only``: a table with resets) and build the engine on a copy, scaled
         by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``."""
         n, d = Dh.shape
         limit = (_tables.available_memory() if memory_limit is None
@@ -128,7 +138,8 @@ class DenseEngine(Engine):
         R = _tables.region_records(F, Dh, -f_exp)
         nc = _tables.record_layout(n, d)[0]
         G, F = R[:, 8 * nc : 8 * nc + n], R[:, 16 * nc : 16 * nc + d]
-        bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol)
+        bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol,
+                                                    pending_only)
         if bad is not None:
             mask, k, kind, scale = bad
             rate = np.ldexp(G[mask, k], f_exp + int(dh_exps[k]))  # in the caller's units
@@ -194,8 +205,7 @@ class DenseEngine(Engine):
         return bad
 
     def _apply_own_rates(self, V, out, inverse) -> int:
-        rate = self.fast.ratef if inverse else self.fast.rate0
-        return kernels.apply_sorted((self._plain[0], self.F, rate), V, (out,), inverse,
+        return kernels.apply_sorted(self._sorted[inverse], V, (out,), inverse,
                                     launch=self.launch)
 
     def _event_times(self, V, times, orders, offset) -> int:
@@ -207,8 +217,7 @@ class DenseEngine(Engine):
         if self.fast is not None:  # the fast path's orders, as orders() gives them
             return super().tangents(V, T, out, transpose, offset)
         if self._lanes is None:
-            return kernels.tangents(self._plain + (self.Dh,), V, (out, T), transpose,
-                                    launch=self.launch)
+            return kernels.tangents(self._plain, V, (out, T), transpose, launch=self.launch)
         return self._lane_kernels[2](self._lanes, V, (out, T), transpose, launch=self.launch)
 
     def corners(self, happened) -> np.ndarray:

@@ -40,13 +40,15 @@ class FastPath:
             eye = np.eye(Dh.shape[1])
             self.M = eye + A.T @ (Dh / rate0[:, None])
             self.Minv = eye - A.T @ (Dh / ratef[:, None])
-            self._MT = (np.ascontiguousarray(self.M.T), np.ascontiguousarray(self.Minv.T))
+            self._linear = _core.LinearTables(np.ascontiguousarray(self.M.T),
+                                              np.ascontiguousarray(self.Minv.T))
+        self._own = _core.OwnRateTables(self.DhT, self.rate0)
 
     def apply_linear(self, V, out, inverse: bool, launch: int) -> int:
-        return _core.linear(self._MT, V, (out,), inverse, launch)
+        return _core.linear(self._linear, V, (out,), inverse, launch)
 
     def event_times(self, V, times, orders, launch: int) -> int:
-        return _core.own_times((self.DhT, self.rate0), V, (times, orders), False, launch)
+        return _core.own_times(self._own, V, (times, orders), False, launch)
 
 
 def dense(F, G, Dh, rtol: float = FAST_RTOL):

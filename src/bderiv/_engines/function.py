@@ -17,7 +17,7 @@ class FunctionEngine(Engine):
     def __init__(self, Dh, func):
         self.Dh, self.func = Dh, func
         self.n, self.d = Dh.shape
-        self._tables = (np.ascontiguousarray(Dh.T),)
+        self._tables = kernels.FunctionTables(np.ascontiguousarray(Dh.T))
         self._apply_batch, self._times_batch = kernels.batches(func)
 
     @classmethod
@@ -32,7 +32,7 @@ class FunctionEngine(Engine):
         return self._run_checked(self._times_batch, V, (times, orders), False, "V", offset)
 
     def _diagnose(self, u, inverse, hap, r):
-        return kernels.diagnose(self.func, self._tables[0], u, inverse, hap, r)
+        return kernels.diagnose(self.func, self._tables.DhT, u, inverse, hap, r)
 
     def corners(self, happened) -> np.ndarray:
         """F on regions given as (m, n) 0/1 flags; NaN where ``func`` wrote nothing."""

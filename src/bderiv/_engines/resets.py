@@ -195,7 +195,8 @@ class ResetEngine(Engine):
         """The tables of ``_kernels/resets`` for resets P, Q in this engine's form."""
         DhP = (np.ascontiguousarray(_transposed(self.Dh @ P)) if self.low
                else np.zeros((1, 1, 1, 1)))
-        return (self._DhT, self._F, self._G, _transposed(P), _transposed(Q), DhP, self.low)
+        return kernels.ResetTables(self._DhT, self._F, self._G, _transposed(P), _transposed(Q),
+                                   DhP, self.low)
 
     @classmethod
     def build(cls, Dh, F, resets, transversality_tol, reset_tol, memory_limit):
@@ -203,8 +204,9 @@ class ResetEngine(Engine):
         n, d = Dh.shape
         reset_tol = check_number(reset_tol, "reset_tol")
         P, Q, low = _check_resets(resets, n, d, memory_limit)
+        # rates of events that happened may have either sign (a bounce: section 9)
         table = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths=False,
-                                  scale=False)
+                                  scale=False, pending_only=True)
         check_existence(Dh, P, Q, low, reset_tol)
         for a in (P, Q):
             a.flags.writeable = False
@@ -221,6 +223,7 @@ class ResetEngine(Engine):
         """The kernel tables of the inverse resets, built once; refuses a singular reset
         (``what`` names what needs the homeomorphism)."""
         if self._inverse is None:
+            self._check_invertible_order(what)
             n, d = self.n, self.d
             Pi = _transposed(np.zeros_like(_transposed(self.P)))
             for k in range(n):
@@ -246,6 +249,44 @@ class ResetEngine(Engine):
                     Pi[b, k] = np.linalg.inv(K)
             self._inverse = self._kernel_tables(Pi, self.Q)
         return self._inverse
+
+    def _check_invertible_order(self, what: str) -> None:
+        """Refuse an inverse that running time backwards cannot find (mathematics.md
+        section 9, "The inverse"): each event's rate after it happened must have one sign
+        in every region (positive: crossed; negative: a bounce) away from zero, and its
+        reset must map the surface's tangent space into itself (``Dh_k R[b, k]`` parallel to
+        ``Dh_k``), so that ``-(Dh_k x) / G[B, k]`` is the time it happened."""
+        n, tol = self.n, self.reset_tol
+        masks = np.arange(1 << n)
+        for k in range(n):
+            after = masks[(masks >> k) & 1 == 1]
+            rate = self.G[after, k]
+            scale = np.linalg.norm(self.F[after], axis=1) * np.linalg.norm(self.Dh[k])
+            sides = np.sign(rate) * (np.abs(rate) > tol * scale)
+            if not (np.all(sides > 0) or np.all(sides < 0)):
+                i = int(np.argmin(np.abs(rate) / np.maximum(scale, 1e-300)))
+                raise ValueError(
+                    f"no {what}: the rate of event {k} after it happened changes sign or "
+                    f"vanishes over the regions (G[{after[i]}, {k}] = {rate[i]:.3g} in region "
+                    f"mask {format_mask(int(after[i]), n)}), so the time it happened cannot be "
+                    f"read back from the state after; apply, event_times, piece, jvp and vjp "
+                    f"still work"
+                )
+            before = masks[(masks >> k) & 1 == 0]
+            DhR = self.Dh[k] @ reset_matrices(self.P, self.Q, self.low, before, k)  # (m, d)
+            along = DhR @ self.Dh[k] / (self.Dh[k] @ self.Dh[k])
+            off = np.linalg.norm(DhR - along[:, None] * self.Dh[k], axis=1)
+            bad = np.flatnonzero(~(off <= self.reset_tol * np.linalg.norm(DhR, axis=1)
+                                   + 1e-300))
+            if bad.size:
+                b = int(before[bad[0]])
+                raise ValueError(
+                    f"no {what}: the reset of event {k} from region mask {format_mask(b, n)} "
+                    f"does not map the surface of event {k} to itself to first order "
+                    f"(Dh_{k} R[{b}, {k}] is not parallel to Dh_{k}: off by {off[bad[0]]:.3g}), "
+                    f"so the time it happened cannot be read back from the state after; "
+                    f"apply, event_times, piece, jvp and vjp still work"
+                )
 
     def _map(self, V, out, inverse: bool, name: str, offset: int) -> int:
         return kernels.apply(self._tables(inverse), V, (out,), inverse, launch=self.launch)

@@ -35,10 +35,13 @@ class StructuredEngine(Engine):
         bDh = np.ascontiguousarray(B @ Dh.T)  # (p, n)
         gfull = g0 + a.sum(axis=0) + bDh.sum(axis=0)
         self.transversal_proved = self._check_transversal(g0, gfull, a, bDh, pairs.shape[0])
-        self._own = (DhT, pairs, A, B)  # the own-rates fast path's tables
         self._tables = _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B,
                                       not self.transversal_proved)
         self.fast = fastpath.structured(Dh, g0, a, bDh, A, B) if fast_paths else None
+        self._own = None  # the own-rates fast path's tables, forwards and backwards
+        if self.fast is not None and self.fast.kind == "own-rates":
+            self._own = tuple(kernels.StructuredOwnTables(DhT, rate, pairs, A, B)
+                              for rate in (self.fast.rate0, self.fast.ratef))
 
     def _check_transversal(self, g0, gfull, a, bDh, n_pairs) -> bool:
         """Refuse a provable violation; return True when transversality is proved."""
@@ -69,9 +72,7 @@ class StructuredEngine(Engine):
         return self._run_checked(kernels.apply, V, (out,), inverse, name, offset)
 
     def _apply_own_rates(self, V, out, inverse) -> int:
-        DhT, pairs, A, B = self._own
-        rate = self.fast.ratef if inverse else self.fast.rate0
-        return kernels.apply_own_rates((DhT, rate, pairs, A, B), V, (out,), inverse,
+        return kernels.apply_own_rates(self._own[inverse], V, (out,), inverse,
                                        launch=self.launch)
 
     def _event_times(self, V, times, orders, offset) -> int:
@@ -96,10 +97,10 @@ def _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B, check):
     counts = np.bincount(ev, minlength=n)
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=ptr[1:])
-    dims = np.array([n, d, nc, dc, p, counts.max(initial=0), check], dtype=np.int64)
-    return (padded(DhT, 8 * nc), padded(np.stack([g0, gfull]), 8 * nc, 1.0),
-            padded(a, 8 * nc), padded(bDh, 8 * nc), ptr,
-            np.ascontiguousarray(partner[srt], dtype=np.int64),
-            np.ascontiguousarray(pid[srt], dtype=np.int64),
-            padded(np.vstack([A, B]), 8 * dc), padded(np.arange(n)[None], 8 * nc, np.inf),
-            dims)
+    return kernels.StructuredTables(
+        padded(DhT, 8 * nc), padded(np.stack([g0, gfull]), 8 * nc, 1.0),
+        padded(a, 8 * nc), padded(bDh, 8 * nc), ptr,
+        np.ascontiguousarray(partner[srt], dtype=np.int64),
+        np.ascontiguousarray(pid[srt], dtype=np.int64),
+        padded(np.vstack([A, B]), 8 * dc), padded(np.arange(n)[None], 8 * nc, np.inf),
+        n, d, nc, dc, p, int(counts.max(initial=0)), int(check))

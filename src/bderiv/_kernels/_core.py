@@ -1,8 +1,10 @@
 """What every kernel shares: jit options, the one task driver, and the common steps.
 
 A *block* is an njit function ``block(tables, V, outs, start, stop, inverse)`` that
-computes queries ``V[start:stop]`` of one corner representation (``tables``: a tuple of
-its arrays) and writes the rows ``start:stop`` of the arrays in the tuple ``outs``. The
+computes queries ``V[start:stop]`` of one corner representation (``tables``: a named tuple
+of its arrays, one class per representation, defined beside the blocks that read it and
+built once by its engine) and writes the rows ``start:stop`` of the arrays in the tuple
+``outs``. The
 arrays of ``outs`` are the per-query ones (row q belongs to ``V[q]``), cut with ``V`` into
 launches; ``outs[0]`` is the result whose non-finite rows are counted, and a block may read
 a later one as a second per-query input (the tangent vectors of jvp/vjp).
@@ -21,6 +23,7 @@ import os
 import pathlib
 import threading
 import warnings
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -79,8 +82,8 @@ _SOURCES = _sources_digest()
 def _cached(dispatcher, block, statics):
     """Turn on the :class:`~._cache.DriverCache` of a driver of ``block`` and ``statics``
     (and harden the kernels of the modules imported so far, :func:`~._cache.harden_all`)."""
-    key = (f"{block.py_func.__module__}.{block.py_func.__qualname__}"
-           f"{tuple(len(s) for s in statics)}:{_SOURCES}")
+    sizes = () if statics is None else tuple(len(s) for s in statics)
+    key = f"{block.py_func.__module__}.{block.py_func.__qualname__}{sizes}:{_SOURCES}"
     harden_all()
     try:
         parallel = bool(dispatcher.targetoptions.get("parallel"))
@@ -114,21 +117,35 @@ def serialised(kernel, *args):
     return result
 
 
+@njit(inline="always", **JIT)
+def _alone(tables, statics):
+    """What a block without static values gets: its tables."""
+    return tables
+
+
+@njit(inline="always", **JIT)
+def _paired(tables, statics):
+    """What a block compiled for static values gets: ``(tables, statics)``."""
+    return tables, statics
+
+
 class Batch:
     """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``.
 
-    ``statics``: ``_simd.static`` values compiled into the drivers and appended to the
-    tables the block gets (``tables + statics``). They are constants of the drivers, not
-    arguments: numba's parallel loops take no nested tuples, and a type of our own in an
-    argument would send every call through Python's typeof (35 us per call).
+    ``statics``: a named tuple of ``_simd.static`` values compiled into the drivers; the
+    block then gets ``(tables, statics)`` in place of ``tables``. They are constants of
+    the drivers, not arguments: numba's parallel loops take no nested tuples, and a type
+    of our own in an argument would send every call through Python's typeof (35 us per
+    call).
     """
 
-    def __init__(self, block, cache: bool = True, statics: tuple = ()):
+    def __init__(self, block, cache: bool = True, statics: NamedTuple | None = None):
         jit = dict(JIT, cache=False)  # see _cache.DriverCache
+        bind = _alone if statics is None else _paired
 
         @njit(**jit)
         def serial(tables, V, outs, inverse):
-            block(tables + statics, V, outs, 0, V.shape[0], inverse)
+            block(bind(tables, statics), V, outs, 0, V.shape[0], inverse)
             return nonfinite_rows(outs[0], 0, V.shape[0])
 
         @njit(parallel=True, **jit)
@@ -138,7 +155,7 @@ class Batch:
             for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
                 start = task * TASK_QUERIES
                 stop = min(start + TASK_QUERIES, m)
-                block(tables + statics, V, outs, start, stop, inverse)
+                block(bind(tables, statics), V, outs, start, stop, inverse)
                 bad += nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
             return bad
 
@@ -174,7 +191,7 @@ class Batch:
         return bad
 
 
-def batch(block, cache: bool = True, statics: tuple = ()) -> Batch:
+def batch(block, cache: bool = True, statics: NamedTuple | None = None) -> Batch:
     """The :class:`Batch` of an njit ``block`` (``cache=False`` for blocks that call a
     user's function: their compiled code cannot be keyed across processes)."""
     return Batch(block, cache, statics)
@@ -279,22 +296,50 @@ def stable_order(t, order):
         order[:] = np.argsort(t, kind="mergesort")
 
 
+class OwnRateTables(NamedTuple):
+    """The own-rates fast path's event times (any representation)."""
+
+    #: (d, n) the transposed event Jacobian
+    DhT: np.ndarray
+    #: (n,) the rates of the region the chains start from
+    rate: np.ndarray
+
+
+class LinearTables(NamedTuple):
+    """The linear fast path, and the linear stages of a flow map."""
+
+    #: (d, d) M transposed (forwards)
+    MT: np.ndarray
+    #: (d, d) M^-1 transposed (backwards)
+    MinvT: np.ndarray
+
+
+class ChainCornerTables(NamedTuple):
+    """Tangents along chains found beforehand (:func:`_saltations_block`)."""
+
+    #: (n, d) the event Jacobian
+    Dh: np.ndarray
+    #: (m, n + 1, d): C[q, j] the corner of the region before the (j+1)-th event of query q
+    C: np.ndarray
+    #: (m, n) int64: the order of each query's chain
+    orders: np.ndarray
+
+
 @njit(**JIT)
 def _own_times_block(tables, V, outs, start, stop, inverse):
     """Event times and orders from own rates (any representation's own-rates fast path)."""
-    DhT, rate = tables
     times, orders = outs
     for q in range(start, stop):
-        own_rate_times(DhT, rate, V[q], times[q])
+        own_rate_times(tables.DhT, tables.rate, V[q], times[q])
         stable_order(times[q], orders[q])
 
 
 @njit(**JIT)
 def _linear_block(tables, V, outs, start, stop, inverse):
-    """out[q] = M @ V[q] from tables = (M.T, M^-1.T), as axpys (vectorises), on V[q]
-    scaled by a power of two (:func:`query_exponent`: no product under- or overflows unless the
+    """out[q] = M @ V[q] (:class:`LinearTables`), as axpys (vectorises), on V[q] scaled by
+    a power of two (:func:`query_exponent`: no product under- or overflows unless the
     result does)."""
-    MT = tables[1] if inverse else tables[0]
+    MT = tables.MinvT if inverse else tables.MT
     out = outs[0]
     d = MT.shape[0]
     for q in range(start, stop):
@@ -323,9 +368,9 @@ def write_times(order, times, q0, pn, order_out, times_out):
 
 
 
-#: times and orders of an own-rates fast path: tables (DhT, rate), outs (times, orders).
+#: times and orders of an own-rates fast path: :class:`OwnRateTables`, outs (times, orders).
 own_times = batch(_own_times_block)
-#: the linear fast path: tables (M.T, M^-1.T), outs (out,).
+#: the linear fast path: :class:`LinearTables`, outs (out,).
 linear = batch(_linear_block)
 
 
@@ -386,13 +431,11 @@ def saltation_step(y, Dh, k, Fc, before, after, rate, transpose):
 
 @njit(**JIT)
 def _saltations_block(tables, V, outs, start, stop, transpose):
-    """out[q] = M_sigma T[q] (or M_sigma^T T[q]) from the corners along each chain.
-
-    ``tables = (Dh, C, orders)``: ``C[q]`` (n + 1, d) the corners of the regions along the
-    order ``orders[q]`` (n,) of query q, found beforehand; ``outs = (out, T)``. The
-    transpose runs the factors backwards: M^T = S_1^T ... S_n^T.
+    """out[q] = M_sigma T[q] (or M_sigma^T T[q]) from the corners along each chain
+    (:class:`ChainCornerTables`); ``outs = (out, T)``. The transpose runs the factors
+    backwards: M^T = S_1^T ... S_n^T.
     """
-    Dh, C, orders = tables
+    Dh, C, orders = tables.Dh, tables.C, tables.orders
     out, T = outs
     n, d = Dh.shape
     for q in range(start, stop):
@@ -409,5 +452,5 @@ def _saltations_block(tables, V, outs, start, stop, transpose):
             saltation_step(y, Dh, k, Cq, j, j + 1, rate, transpose)
 
 
-#: tangents from chain corners: tables (Dh, C, orders), outs (out, T).
+#: tangents from chain corners: :class:`ChainCornerTables`, outs (out, T).
 saltations = batch(_saltations_block)

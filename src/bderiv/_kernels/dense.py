@@ -1,13 +1,14 @@
 """Plain blocks for dense corner tables, and a table scan of their rates.
 
-``tables = (DhT, F, G)``: ``DhT`` (d, n) is ``Dh.T``, ``F`` (2**n, d) the corners and
-``G`` (2**n, n) the rates ``F @ Dh.T`` (mathematics.md section 1); scalar loops only, so any numba
-target compiles them. They run when ``_core.PLAIN`` (``BDERIV_KERNELS=plain``); the
-default is the same selection in explicit vectors, :mod:`.lanes`. A query is one row of
-``V`` (m, d).
+The tables are a :class:`DenseTables` (the own-rates fast path: :class:`SortedTables`);
+scalar loops only, so any numba target compiles them. They run when ``_core.PLAIN``
+(``BDERIV_KERNELS=plain``); the default is the same selection in explicit vectors,
+:mod:`.lanes`. A query is one row of ``V`` (m, d).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -22,6 +23,7 @@ from ._core import (
     stable_order,
     write_times,
 )
+from .selection import advance, earliest, pending_times, retire
 
 #: queries evaluated in lockstep by one thread. Each query is a chain of n dependent steps
 #: (rates of the region reached -> event times -> next event -> next region), so one query
@@ -32,16 +34,40 @@ from ._core import (
 GROUP = 4
 
 
+class DenseTables(NamedTuple):
+    """A dense corner table (mathematics.md section 1) as the plain blocks read it."""
+
+    #: (d, n) the transposed event Jacobian, Dh.T
+    DhT: np.ndarray
+    #: (2**n, d) the corners, row ``mask``: the field in the region where the events of
+    #: ``mask`` happened
+    F: np.ndarray
+    #: (2**n, n) the rates ``F @ Dh.T``
+    G: np.ndarray
+    #: (n, d) the event Jacobian (the tangents' saltation factors)
+    Dh: np.ndarray
+
+
+class SortedTables(NamedTuple):
+    """The own-rates fast path of a dense table: times from the start region's rates."""
+
+    #: (d, n) the transposed event Jacobian, Dh.T
+    DhT: np.ndarray
+    #: (2**n, d) the corners
+    F: np.ndarray
+    #: (n,) the rates of the region the chains start from (``G[0]`` forwards, ``G[-1]``
+    #: backwards)
+    rate: np.ndarray
+
+
 @njit(**JIT)
 def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
     """Event chains of the queries ``V[q0:q0 + pn]`` (pn <= GROUP), in lockstep.
 
-    mathematics.md section 3 (section 6 when ``inverse``): keep g = Dh x for the virtual
-    position x; at each step the next event is the pending k with the smallest time
-    -g[k] / G[B, k] *in the current region B* (the largest among the happened ones,
-    going backwards). Ties go to the smaller k. An event that is no longer a candidate
-    gets g[k] = -inf (+inf backwards), so that its time is never selected again: no bit
-    tests in the inner loops, which are plain loops over k.
+    mathematics.md section 3 (section 6 when ``inverse``), in the steps of
+    :mod:`.selection`: keep g = Dh x for the virtual position x; at each step the next
+    event is the pending k with the smallest time -g[k] / G[B, k] *in the current region
+    B* (the largest among the happened ones, going backwards), ties to the smaller k.
 
     Each query outside the query band runs scaled by a power of two, ``u = 2**-e V[q]``
     with its largest entry in [0.5, 1) (``_core.query_exponent``): the times are then
@@ -66,35 +92,19 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
     for step in range(n):
         j = n - 1 - step if inverse else step
         for p in range(pn):
-            b = chain[p, j + 1] if inverse else chain[p, j]
-            for k in range(n):
-                tau[p, k] = -g[p, k] / G[b, k]
+            pending_times(g, p, G, chain[p, j + 1] if inverse else chain[p, j], tau)
         for p in range(pn):
-            best = tau[p, 0]
-            kb = 0
+            kb, best = earliest(tau, p, inverse)
+            retire(g, p, kb, inverse)
             if inverse:
-                for k in range(1, n):
-                    tk = tau[p, k]
-                    better = tk > best
-                    best = tk if better else best
-                    kb = k if better else kb
-                g[p, kb] = np.inf
                 b = chain[p, j + 1]
                 b2 = b & ~(1 << kb)
                 chain[p, j] = b2
             else:
-                for k in range(1, n):
-                    tk = tau[p, k]
-                    better = tk < best
-                    best = tk if better else best
-                    kb = k if better else kb
-                g[p, kb] = -np.inf
                 b = chain[p, j]
                 b2 = b | (1 << kb)
                 chain[p, j + 1] = b2
-            # the virtual position moves by best * (F[b] - F[b2]); so does g = Dh x
-            for k in range(n):
-                g[p, k] += best * (G[b, k] - G[b2, k])
+            advance(g, p, best, G, b, b2)
             times[p, j] = best
             order[p, j] = kb
 
@@ -108,7 +118,7 @@ def _scratch(n):
 
 @njit(**JIT)
 def _apply_block(tables, V, outs, start, stop, inverse):
-    DhT, F, G = tables
+    DhT, F, G = tables.DhT, tables.F, tables.G
     out = outs[0]
     d, n = DhT.shape
     g, tau, times, order, chain = _scratch(n)
@@ -139,7 +149,7 @@ def _apply_block(tables, V, outs, start, stop, inverse):
 
 @njit(**JIT)
 def _times_block(tables, V, outs, start, stop, inverse):
-    DhT, F, G = tables
+    DhT, G = tables.DhT, tables.G
     times_out, order_out = outs
     n = DhT.shape[1]
     g, tau, times, order, chain = _scratch(n)
@@ -151,12 +161,9 @@ def _times_block(tables, V, outs, start, stop, inverse):
 
 @njit(**JIT)
 def _sorted_block(tables, V, outs, start, stop, inverse):
-    """Own-rates fast path: times from the rates of the start region, order by a sort.
-
-    ``tables = (DhT, F, rate)`` with ``rate`` the rates of the region the chain starts from
-    (``G[0]`` forwards, ``G[-1]`` backwards).
-    """
-    DhT, F, rate = tables
+    """Own-rates fast path (:class:`SortedTables`): times from the rates of the start
+    region, order by a sort."""
+    DhT, F, rate = tables.DhT, tables.F, tables.rate
     out = outs[0]
     d, n = DhT.shape
     tev = np.empty(n)
@@ -192,7 +199,7 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
 def _tangent_block(tables, V, outs, start, stop, transpose):
     """out[q] = M_sigma T[q], or M_sigma^T T[q] when ``transpose``, with sigma the order
     that v = V[q] selects (the chain of :func:`_chains`); ``outs = (out, T)``."""
-    DhT, F, G, Dh = tables
+    DhT, F, G, Dh = tables.DhT, tables.F, tables.G, tables.Dh
     out, T = outs
     d, n = DhT.shape
     g, tau, times, order, chain = _scratch(n)
@@ -215,9 +222,9 @@ def _tangent_block(tables, V, outs, start, stop, transpose):
 apply = batch(_apply_block)
 #: event times and orders: outs (times, orders).
 event_times = batch(_times_block)
-#: the own-rates fast path: tables (DhT, F, rate), outs (out,).
+#: the own-rates fast path: :class:`SortedTables`, outs (out,).
 apply_sorted = batch(_sorted_block)
-#: M_sigma(V) T or its transpose: tables (DhT, F, G, Dh), outs (out, T).
+#: M_sigma(V) T or its transpose: outs (out, T).
 tangents = batch(_tangent_block)
 
 

@@ -1,4 +1,5 @@
-"""Blocks for corners computed by a user's njit function ``func``: ``tables = (DhT,)``.
+"""Blocks for corners computed by a user's njit function ``func`` (tables: a
+:class:`FunctionTables`).
 
 ``func(happened, out)`` writes the corner of the region ``happened`` (uint8 flags,
 ``happened[k] = 1`` iff event k happened) into ``out`` (d,); it is evaluated on the n + 1
@@ -12,14 +13,23 @@ in every process.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from ._core import batch, impacts
+from .selection import advance, earliest, pending_times, retire
 
 #: status of a query whose chain met a corner with a non-finite (or unwritten) entry.
 NON_FINITE = -2
+
+
+class FunctionTables(NamedTuple):
+    """What the blocks read besides the corner function."""
+
+    #: (d, n) the transposed event Jacobian
+    DhT: np.ndarray
 
 
 @njit(error_model="numpy")
@@ -40,53 +50,48 @@ def _region(func, DhT, hap, f, r):
 
 
 @njit
-def chain(func, DhT, u, inverse, x, g, r, r2, f, f2, hap, tev, order):
+def chain(func, DhT, u, inverse, x, g, tau, R, C, hap, tev, order):
     """One query; x = M(u) (or M^-1(u)), ``tev[k]`` the time of event k, ``order``.
 
-    The next event is the candidate with the smallest time -g[k] / r[k] in the current
-    region (the largest going backwards), ties to the smaller event; on switching, the
-    position moves by t (F[before] - F[after]) and so does g = Dh x. Returns -1, or (the
-    chain stops there, ``hap`` its region) the event whose rate is <= 0 or NON_FINITE.
+    The steps of :mod:`.selection` on row 0 of ``g`` and ``tau`` (1, n), with the rates
+    and corners of the current and the next region in the rows of ``R`` (2, n) and ``C``
+    (2, d), taken in turn; on switching, the position moves by t (F[before] - F[after]).
+    Returns -1, or (the chain stops there, ``hap`` its region) the event whose rate is
+    <= 0 or NON_FINITE.
     """
     d, n = DhT.shape
-    impacts(DhT, u, g)
+    impacts(DhT, u, g[0])
     for k in range(n):
         hap[k] = 1 if inverse else 0
     for i in range(d):
         x[i] = u[i]
-    bad = _region(func, DhT, hap, f, r)
+    now = 0
+    bad = _region(func, DhT, hap, C[now], R[now])
     if bad != -1:
         return bad
-    want = 1 if inverse else 0
     for j in range(n):
-        best = 0.0
-        kb = -1
-        for k in range(n):
-            if hap[k] == want:
-                tau = -g[k] / r[k]
-                if kb < 0 or (tau > best if inverse else tau < best):
-                    best = tau
-                    kb = k
-        hap[kb] = 1 - want
+        pending_times(g, 0, R, now, tau)
+        kb, best = earliest(tau, 0, inverse)
+        retire(g, 0, kb, inverse)
+        hap[kb] = 0 if inverse else 1
         tev[kb] = best
         order[n - 1 - j if inverse else j] = kb
-        bad = _region(func, DhT, hap, f2, r2)
+        bad = _region(func, DhT, hap, C[1 - now], R[1 - now])
         if bad != -1:
             return bad
         for i in range(d):
-            x[i] += best * (f[i] - f2[i])
-            f[i] = f2[i]
-        for k in range(n):
-            g[k] += best * (r[k] - r2[k])
-            r[k] = r2[k]
+            x[i] += best * (C[now, i] - C[1 - now, i])
+        advance(g, 0, best, R, now, 1 - now)
+        now = 1 - now
     return -1
 
 
 @njit
 def _scratch(n, d):
-    """x, g, r, r2, f, f2, hap, tev, order: the per-query work arrays of :func:`chain`."""
-    return (np.empty(d), np.empty(n), np.empty(n), np.empty(n), np.empty(d), np.empty(d),
-            np.zeros(n, dtype=np.uint8), np.empty(n), np.empty(n, dtype=np.int64))
+    """x, g, tau, R, C, hap, tev, order: the per-query work arrays of :func:`chain`."""
+    return (np.empty(d), np.empty((1, n)), np.empty((1, n)), np.empty((2, n)),
+            np.empty((2, d)), np.zeros(n, dtype=np.uint8), np.empty(n),
+            np.empty(n, dtype=np.int64))
 
 
 def _blocks(func):
@@ -95,22 +100,22 @@ def _blocks(func):
 
     @njit(error_model="numpy")
     def apply_block(tables, V, outs, start, stop, inverse):
-        DhT = tables[0]
+        DhT = tables.DhT
         out, status = outs
         d, n = DhT.shape
-        x, g, r, r2, f, f2, hap, tev, order = _scratch(n, d)
+        x, g, tau, R, C, hap, tev, order = _scratch(n, d)
         for q in range(start, stop):
-            status[q] = chain(func, DhT, V[q], inverse, x, g, r, r2, f, f2, hap, tev, order)
+            status[q] = chain(func, DhT, V[q], inverse, x, g, tau, R, C, hap, tev, order)
             out[q, :] = x
 
     @njit(error_model="numpy")
     def times_block(tables, V, outs, start, stop, inverse):
-        DhT = tables[0]
+        DhT = tables.DhT
         times, orders, status = outs
         d, n = DhT.shape
-        x, g, r, r2, f, f2, hap, _, _ = _scratch(n, d)
+        x, g, tau, R, C, hap, _, _ = _scratch(n, d)
         for q in range(start, stop):
-            status[q] = chain(func, DhT, V[q], False, x, g, r, r2, f, f2, hap, times[q],
+            status[q] = chain(func, DhT, V[q], False, x, g, tau, R, C, hap, times[q],
                               orders[q])
 
     return apply_block, times_block
@@ -119,8 +124,8 @@ def _blocks(func):
 @functools.lru_cache(maxsize=64)
 def batches(func):
     """``(apply, event_times)`` :class:`~bderiv._kernels._core.Batch` of a corner function
-    (``tables = (DhT,)``; outs ``(out, status)`` and ``(times, orders, status)``), compiled
-    once per function."""
+    (tables: a :class:`FunctionTables`; outs ``(out, status)`` and ``(times, orders,
+    status)``), compiled once per function."""
     apply_block, times_block = _blocks(func)
     return batch(apply_block, cache=False), batch(times_block, cache=False)
 
@@ -129,10 +134,10 @@ def batches(func):
 def diagnose(func, DhT, u, inverse, hap, r):
     """Re-run one query; returns the bad event (or -1), ``hap`` and ``r`` at that point."""
     d, n = DhT.shape
-    x, g, _, r2, f, f2, _, tev, order = _scratch(n, d)
-    bad = chain(func, DhT, u, inverse, x, g, r, r2, f, f2, hap, tev, order)
+    x, g, tau, R, C, _, tev, order = _scratch(n, d)
+    bad = chain(func, DhT, u, inverse, x, g, tau, R, C, hap, tev, order)
     if bad >= 0:  # rates of the region where the chain stopped
-        _region(func, DhT, hap, f, r)
+        _region(func, DhT, hap, C[0], r)
     return bad
 
 

@@ -2,21 +2,19 @@
 vector registers (the default; ``_core.PLAIN`` runs the scalar blocks of :mod:`.dense`
 instead).
 
-A block gets ``tables = (R, DhTp, dims, Dhp, wh, wx, far, carry, check)``: ``R`` the region records
-``[-1/G | G | F]`` of ``_tables.region_records`` (each part padded to a multiple of 8),
-``DhTp`` (d, 8 nc) ``Dh.T`` and ``Dhp`` (n, 8 dc) ``Dh`` padded with zeros, ``dims`` int64
-``[n, d, nc, dc]``, then the :func:`~._simd.static` values its drivers are compiled for
-(:func:`kernels`): ``wh = 8 nc`` and ``wx = 8 dc`` (the widths of the event values' and of
-the position's vectors, so d <= 64 here: ``_engines.dense`` runs the plain blocks above),
-``far`` (1 when the records exceed the caches: see :func:`_step`), ``carry`` (1: the
-chain carries the position, see :func:`_assemble`; 0: it records its steps) and
-``check`` (1: apply tests the query band, see :func:`_lane_apply_block`). A
-query is one row of ``V`` (m, d).
+A block gets ``(tables, shape)``: the :class:`LaneTables` of the engine and the
+:class:`LaneShape` its drivers are compiled for (:func:`kernels`): the widths ``wh`` and
+``wx`` of the event values' and of the position's vectors (so d <= 64 here:
+``_engines.dense`` runs the plain blocks above), ``far`` (1 when the records exceed the
+caches: see :func:`_step`), ``carry`` (1: the chain carries the position, see
+:func:`_assemble`; 0: it records its steps) and ``check`` (1: apply tests the query band,
+see :func:`_lane_apply_block`). A query is one row of ``V`` (m, d).
 """
 
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -39,6 +37,41 @@ W8 = vec.static(8)
 
 #: the query band of ``_core.QUERY_BAND``
 LOW, HIGH = 2.0**-QUERY_BAND, 2.0**QUERY_BAND
+
+
+class LaneTables(NamedTuple):
+    """A dense corner table as the lane blocks read it (built by ``_engines.dense``)."""
+
+    #: (2**n, 24 nc + 8 dc) the region records ``[-1/G | G | F]`` of
+    #: ``_tables.region_records``, each part padded to a multiple of 8
+    R: np.ndarray
+    #: (d, 8 nc) Dh.T, each row padded with zeros
+    DhTp: np.ndarray
+    #: (n, 8 dc) Dh, each row padded with zeros
+    Dhp: np.ndarray
+    #: the number of events
+    n: int
+    #: the dimension
+    d: int
+    #: vectors of 8 per event row (``8 nc >= n``)
+    nc: int
+    #: vectors of 8 per position (``8 dc >= d``)
+    dc: int
+
+
+class LaneShape(NamedTuple):
+    """The :func:`~._simd.static` values a lane batch is compiled for."""
+
+    #: the width of the event values' vectors, 8 nc
+    wh: tuple
+    #: the width of the position's vectors, 8 dc
+    wx: tuple
+    #: 1: prefetch the next record (records beyond the caches)
+    far: tuple
+    #: 1: the chain carries the position; 0: it records its steps
+    carry: tuple
+    #: 1: apply tests the query band
+    check: tuple
 
 
 @njit(**JIT)
@@ -84,7 +117,7 @@ def _record(order, times, p, j, k, t, s, carry):
 
 
 @njit(inline="always", **JIT)
-def _lanes(tables, V, q0, last, inverse, X, T, order, times):
+def _lanes(args, V, q0, last, inverse, X, T, order, times):
     """Run the chains of the queries ``V[q0:q0 + 8]`` in lockstep (queries past ``last``
     repeat it: their results are not used).
 
@@ -99,9 +132,9 @@ def _lanes(tables, V, q0, last, inverse, X, T, order, times):
     ``times[p, j]`` its time. One line per lane, on purpose: each lane's vectors are
     local variables, kept in registers.
     """
-    R, DhTp, dims, wh, wx, far, carry = (tables[0], tables[1], tables[2], tables[4],
-                                         tables[5], tables[6], tables[7])
-    n, d = dims[0], dims[1]
+    tables, shape = args
+    R, DhTp, n, d = tables.R, tables.DhTp, tables.n, tables.d
+    wh, wx, far, carry = shape.wh, shape.wx, shape.far, shape.carry
     s = -1.0 if inverse else 1.0
     # not candidates: the events that happened (forwards) or did not (backwards), and the
     # padding lanes: out = (b ^ flip) | pad
@@ -159,14 +192,13 @@ def _lanes(tables, V, q0, last, inverse, X, T, order, times):
 def _lane_scratch(tables):
     """X (moves), T (times of the last events), order and times of the steps of one
     lockstep group."""
-    dims = tables[2]
-    n, dc = dims[0], dims[3]
+    n, dc = tables.n, tables.dc
     return (np.empty((LANES, 8 * dc)), np.empty(LANES), np.empty((LANES, n), dtype=np.int64),
             np.empty((LANES, n)))
 
 
 @njit(**JIT)
-def _lane_apply_block(tables, V, outs, start, stop, inverse):
+def _lane_apply_block(args, V, outs, start, stop, inverse):
     """out = M(V) (M^-1 when ``inverse``), eight queries at a time (:func:`_assemble`).
 
     When ``check``, a group whose event values at time 0 (``Dh v``, the tables scaled
@@ -176,14 +208,15 @@ def _lane_apply_block(tables, V, outs, start, stop, inverse):
     test, on vectors in registers and without a branch in the chains, costs about 2 %;
     scaling every query in the kernel cost 1.3x to 2x.
     """
-    d, check = tables[2][1], tables[8]
+    tables, shape = args
+    d, check = tables.d, shape.check
     out = outs[0]
     X, T, order, times = _lane_scratch(tables)
     for q0 in range(start, stop, LANES):
         pn = min(LANES, stop - q0)
-        if _lanes(tables, V, q0, q0 + pn - 1, inverse, X, T, order, times) or not vec.value(
+        if _lanes(args, V, q0, q0 + pn - 1, inverse, X, T, order, times) or not vec.value(
                 check):
-            _assemble(tables, V, q0, pn, inverse, out, q0, X, T, order, times)
+            _assemble(args, V, q0, pn, inverse, out, q0, X, T, order, times)
         else:
             for p in range(pn):
                 for i in range(d):
@@ -191,15 +224,16 @@ def _lane_apply_block(tables, V, outs, start, stop, inverse):
 
 
 @njit(inline="always", **JIT)
-def _assemble(tables, V, r0, pn, inverse, out, q0, X, T, order, times):
+def _assemble(args, V, r0, pn, inverse, out, q0, X, T, order, times):
     """out[q0 + p] = M(V[r0 + p]) for p < pn from the chains of :func:`_lanes`:
     ``v + s X - T F[end]``, the position at the last event moved back to time 0 along the
     final region's field. Unless ``carry`` (d > 32: the lanes' positions would not fit
     the registers) the chain only records its steps and
     ``v + sum_j t_j (F[before_j] - F[after_j])`` (mathematics.md section 3) is summed afterwards,
     8 coordinates at a time."""
-    R, dims, wx, carry = tables[0], tables[2], tables[5], tables[7]
-    n, d, dc, of = dims[0], dims[1], dims[3], 16 * dims[2]
+    tables, shape = args
+    R, wx, carry = tables.R, shape.wx, shape.carry
+    n, d, dc, of = tables.n, tables.d, tables.dc, 16 * tables.nc
     end = 0 if inverse else (1 << n) - 1
     s = -1.0 if inverse else 1.0
     for p in range(pn):
@@ -223,30 +257,31 @@ def _assemble(tables, V, r0, pn, inverse, out, q0, X, T, order, times):
 
 
 @njit(**JIT)
-def _lane_times_block(tables, V, outs, start, stop, inverse):
+def _lane_times_block(args, V, outs, start, stop, inverse):
     times_out, order_out = outs
-    X, T, order, times = _lane_scratch(tables)
+    X, T, order, times = _lane_scratch(args[0])
     for q0 in range(start, stop, LANES):
-        _lanes(tables, V, q0, stop - 1, False, X, T, order, times)
+        _lanes(args, V, q0, stop - 1, False, X, T, order, times)
         write_times(order, times, q0, min(LANES, stop - q0), order_out, times_out)
 
 
 @njit(**JIT)
-def _lane_tangent_block(tables, V, outs, start, stop, transpose):
+def _lane_tangent_block(args, V, outs, start, stop, transpose):
     """out[q] = M_sigma T[q] (or its transpose), sigma the order v = V[q] selects:
     the saltation factors of mathematics.md section 4 along the chain,
     ``S y = y + (F[after] - F[before]) (Dh[k] . y) / G[before, k]`` and
     ``S^T y = y + Dh[k] ((F[after] - F[before]) . y) / G[before, k]`` (backwards), with
     y in a vector, the eight lanes' factors in turn (their chains overlap);
     ``outs = (out, T)`` (T is read)."""
-    R, dims, Dhp, wx = tables[0], tables[2], tables[3], tables[5]
+    tables, shape = args
+    R, Dhp, wx = tables.R, tables.Dhp, shape.wx
     out, T = outs
-    n, d, og, of = dims[0], dims[1], 8 * dims[2], 16 * dims[2]
+    n, d, og, of = tables.n, tables.d, 8 * tables.nc, 16 * tables.nc
     X, times, order, steps = _lane_scratch(tables)
     Y = np.empty_like(X)
     region = np.empty(LANES, dtype=np.int64)
     for q0 in range(start, stop, LANES):
-        _lanes(tables, V, q0, stop - 1, False, X, times, order, steps)
+        _lanes(args, V, q0, stop - 1, False, X, times, order, steps)
         for p in range(LANES):  # the padding lanes of y stay 0
             vec.store(Y, p, 0, vec.load_first(T, min(q0 + p, stop - 1), 0, d, wx))
             region[p] = (1 << n) - 1 if transpose else 0  # walk the chain either way
@@ -269,8 +304,8 @@ def _lane_tangent_block(tables, V, outs, start, stop, transpose):
 @functools.cache
 def kernels(wh: int, wx: int, far: int):
     """The batches ``(apply, event_times, tangents, apply_unchecked)`` compiled for
-    vectors of ``wh`` and ``wx`` lanes and ``far``; each takes ``tables = (R, DhTp, dims,
-    Dhp)`` and outs ``(out,)`` (M(V) or M^-1(V)), ``(times, orders)``, ``(out, T)``
+    vectors of ``wh`` and ``wx`` lanes and ``far``; each takes a :class:`LaneTables` and
+    outs ``(out,)`` (M(V) or M^-1(V)), ``(times, orders)``, ``(out, T)``
     (M_sigma(V) T or its transpose). Only apply carries the position along the chain
     (``carry``), and only while it fits the registers; the others record the steps.
     ``apply`` gives NaN rows for groups outside the query band (``check``, see
@@ -278,8 +313,8 @@ def kernels(wh: int, wx: int, far: int):
     carry = int(wx <= WIDE_X)
 
     def statics(carry, check=0):
-        return (vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry),
-                vec.static(check))
+        return LaneShape(vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry),
+                         vec.static(check))
     return (batch(_lane_apply_block, statics=statics(carry, 1)),
             batch(_lane_times_block, statics=statics(0)),
             batch(_lane_tangent_block, statics=statics(0)),

@@ -1,9 +1,9 @@
 """Blocks for dense corner tables with resets at the events (mathematics.md section 9).
 
-``tables = (DhT, F, G, P, Q, DhP, low)``: ``DhT`` (d, n) the transposed event Jacobian,
-``F`` (2**n, d) the corners, ``G`` (2**n, n) the rates, and the reset Jacobians of the
-crossings (b, k), k not in b, stored transposed so that every product is a run of
-contiguous axpys (which vectorise; dot products would wait on each addition):
+The tables are a :class:`ResetTables`: the corners and rates of a dense table and the
+reset Jacobians of the crossings (b, k), k not in b, stored transposed so that every
+product is a run of contiguous axpys (which vectorise; dot products would wait on each
+addition):
 
 - ``low == 0``: ``P[b, k]`` (d, d) is ``R[b, k]^T``; ``Q``, ``DhP`` unused;
 - ``low == 1``: ``R[b, k] = I + U V^T`` with ``P[b, k] = U^T``, ``Q[b, k] = V^T`` (r, d)
@@ -15,10 +15,32 @@ entry (b, k) of the crossing they undo. Plain loops, one query at a time.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from ._core import JIT, batch, impacts
+from .selection import advance, earliest, pending_times, retire
+
+
+class ResetTables(NamedTuple):
+    """A dense corner table with reset Jacobians (see the module's docstring)."""
+
+    #: (d, n) the transposed event Jacobian
+    DhT: np.ndarray
+    #: (2**n, d) the corners
+    F: np.ndarray
+    #: (2**n, n) the rates ``F @ Dh.T``
+    G: np.ndarray
+    #: (2**n, n, d, d) the transposed resets, or (2**n, n, r, d) U^T when ``low``
+    P: np.ndarray
+    #: (2**n, n, r, d) V^T when ``low`` (unused otherwise)
+    Q: np.ndarray
+    #: (2**n, n, r, n) (Dh U)^T when ``low`` (unused otherwise)
+    DhP: np.ndarray
+    #: 1: the resets are I + U V^T; 0: dense
+    low: int
 
 
 @njit(**JIT)
@@ -70,41 +92,38 @@ def reset_move_t(P, Q, low, b, k, z, out, w):
 
 @njit(**JIT)
 def _scratch(n, d, P):
-    """x, g, y, w, times, order, regions for one query."""
+    """x, g (1, n), tau (1, n), y, w, times, order, regions for one query."""
     r = max(P.shape[2], 1)
-    return (np.empty(d), np.empty(n), np.empty(d), np.empty(r), np.empty(n),
-            np.empty(n, dtype=np.int64), np.empty(n + 1, dtype=np.int64))
+    return (np.empty(d), np.empty((1, n)), np.empty((1, n)), np.empty(d), np.empty(r),
+            np.empty(n), np.empty(n, dtype=np.int64), np.empty(n + 1, dtype=np.int64))
 
 
 @njit(**JIT)
 def chain(tables, u, inverse, scratch):
     """The event chain of one query, leaving M(u) (M^-1(u) when ``inverse``) in ``x``.
 
-    mathematics.md section 9: the next event is the pending k with the smallest time
-    t = -g[k] / G[B, k] (the largest happened one backwards; ties to the smaller k); it
-    moves the virtual position by x' = R[B, k] (x + t F[B]) - t F[B'], and backwards by
-    x' = R[B', k]^-1 (x + t F[B]) - t F[B'] (B' the region after the step); g = Dh x
-    follows (recomputed for dense resets, updated by Dh U for low-rank ones).
+    mathematics.md section 9, in the steps of :mod:`.selection`: the next event is the
+    pending k with the smallest time t = -g[k] / G[B, k] (the largest happened one
+    backwards; ties to the smaller k); it moves the virtual position by
+    x' = R[B, k] (x + t F[B]) - t F[B'], and backwards by x' = R[B', k]^-1 (x + t F[B]) -
+    t F[B'] (B' the region after the step); g = Dh x follows (recomputed for dense
+    resets, updated by Dh U for low-rank ones), the events that are no candidates in B'
+    retired again.
     Fills times[j], order[j] (the j-th event in forward order) and regions[j] (the
     region before it; regions[n] = full).
     """
-    DhT, F, G, P, Q, DhP, low = tables
-    x, g, y, w, times, order, regions = scratch
+    DhT, F, G, P, Q, DhP, low = (tables.DhT, tables.F, tables.G, tables.P, tables.Q,
+                                 tables.DhP, tables.low)
+    x, g, tau, y, w, times, order, regions = scratch
     d, n = DhT.shape
     B = (1 << n) - 1 if inverse else 0
     for i in range(d):
         x[i] = u[i]
-    impacts(DhT, x, g)
+    impacts(DhT, x, g[0])
     regions[n if inverse else 0] = B
     for step in range(n):
-        kb = -1
-        best = 0.0
-        for k in range(n):
-            if ((B >> k) & 1) != inverse:
-                continue
-            tk = -g[k] / G[B, k]
-            if kb < 0 or (tk > best if inverse else tk < best):
-                best, kb = tk, k
+        pending_times(g, 0, G, B, tau)
+        kb, best = earliest(tau, 0, inverse)
         B2 = B & ~(1 << kb) if inverse else B | (1 << kb)
         e = B2 if inverse else B  # the entry of the crossing
         for i in range(d):
@@ -112,14 +131,16 @@ def chain(tables, u, inverse, scratch):
             x[i] = -best * F[B2, i]
         reset_move(P, Q, low, e, kb, y, x, w)
         if low:  # Dh x' = g + t G[B] + (Dh U) w - t G[B']
-            for k in range(n):
-                g[k] += best * (G[B, k] - G[B2, k])
+            advance(g, 0, best, G, B, B2)
             for s in range(P.shape[2]):
                 ws = w[s]
                 for k in range(n):
-                    g[k] += DhP[e, kb, s, k] * ws
+                    g[0, k] += DhP[e, kb, s, k] * ws
         else:
-            impacts(DhT, x, g)
+            impacts(DhT, x, g[0])
+        for k in range(n):
+            if ((B2 >> k) & 1) != inverse:
+                retire(g, 0, k, inverse)
         j = n - 1 - step if inverse else step
         times[j] = best
         order[j] = kb
@@ -130,8 +151,8 @@ def chain(tables, u, inverse, scratch):
 @njit(**JIT)
 def _apply_block(tables, V, outs, start, stop, inverse):
     out = outs[0]
-    d, n = tables[0].shape
-    scratch = _scratch(n, d, tables[3])
+    d, n = tables.DhT.shape
+    scratch = _scratch(n, d, tables.P)
     x = scratch[0]
     for q in range(start, stop):
         chain(tables, V[q], inverse, scratch)
@@ -142,9 +163,9 @@ def _apply_block(tables, V, outs, start, stop, inverse):
 @njit(**JIT)
 def _times_block(tables, V, outs, start, stop, inverse):
     times_out, order_out = outs
-    d, n = tables[0].shape
-    scratch = _scratch(n, d, tables[3])
-    times, order = scratch[4], scratch[5]
+    d, n = tables.DhT.shape
+    scratch = _scratch(n, d, tables.P)
+    times, order = scratch[5], scratch[6]
     for q in range(start, stop):
         chain(tables, V[q], False, scratch)
         for j in range(n):
@@ -158,7 +179,7 @@ def saltation_reset_step(tables, y, k, b, a, transpose, tmp, w):
     from region b to region a (mathematics.md section 9), in place. With R = R[b, k] and
     c = Dh[k] . y / G[b, k]: S y = R (y - c F[b]) + c F[a];
     S^T z = R^T z + Dh[k] (F[a] . z - F[b] . R^T z) / G[b, k]. O(d^2) dense, O(d r) low."""
-    DhT, F, G, P, Q, DhP, low = tables
+    DhT, F, G, P, Q, low = tables.DhT, tables.F, tables.G, tables.P, tables.Q, tables.low
     d = y.shape[0]
     rate = G[b, k]
     if transpose:
@@ -187,9 +208,9 @@ def _tangent_block(tables, V, outs, start, stop, transpose):
     """out[q] = M_sigma T[q] (M_sigma^T T[q] when ``transpose``), sigma the order that
     V[q] selects; ``outs = (out, T)``. The transpose runs the factors backwards."""
     out, T = outs
-    d, n = tables[0].shape
-    scratch = _scratch(n, d, tables[3])
-    w, order, regions = scratch[3], scratch[5], scratch[6]
+    d, n = tables.DhT.shape
+    scratch = _scratch(n, d, tables.P)
+    w, order, regions = scratch[4], scratch[6], scratch[7]
     tmp = np.empty(d)
     for q in range(start, stop):
         chain(tables, V[q], False, scratch)

@@ -5,15 +5,9 @@ current region are updated incrementally along each query's chain; the result is
 ``u -+ (A^T t + B^T s)`` with ``t`` the event times and ``s[p]`` the time at which pair p
 switched on (the later of its two event times).
 
-``tables = (DhTp, rates, ap, bDhp, ptr, other, pidx, ABp, iota, dims)`` (built by
-``_engines.structured``; the event axis padded to ``8 nc``, the coordinates to ``8 dc``):
-``DhTp`` (d, 8 nc) ``Dh.T``; ``rates`` (2, 8 nc) the rates of region 0 and of the full
-region (padding 1); ``ap`` (n, 8 nc) and ``bDhp`` (p, 8 nc) the rate jumps
-``a[i, k] = Dh[k] . A[i]`` and ``bDh[p, k] = Dh[k] . B[p]``; the pairs touching event i
-are ``pidx[ptr[i]:ptr[i+1]]`` with partner ``other[...]``; ``ABp`` (n + p, 8 dc) the
-stacked jumps ``[A; B]``; ``iota`` (1, 8 nc) the event indices as floats; ``dims`` int64
-``[n, d, nc, dc, p, deg, check]`` (``deg``: the most pairs of one event; ``check``: test
-every rate of every region on the chain, transversality not being proved).
+The tables are a :class:`StructuredTables` (built by ``_engines.structured``; the event
+axis padded to ``8 nc``, the coordinates to ``8 dc``); the own-rates fast path reads an
+:class:`StructuredOwnTables`.
 
 A block takes its queries in groups of :data:`GROUP`: the event values ``Dh u`` of the
 group as one matrix product, the chains :data:`LOCK` queries in lockstep, then the
@@ -25,6 +19,8 @@ A query whose chain meets a rate that is not > 0 stops and writes the offending 
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -38,6 +34,58 @@ GROUP = 32
 LOCK = 4
 #: the width of every vector here
 W8 = vec.static(8)
+
+
+class StructuredTables(NamedTuple):
+    """Structured corners as the chains read them."""
+
+    #: (d, 8 nc) Dh.T
+    DhTp: np.ndarray
+    #: (2, 8 nc) the rates of region 0 and of the full region (padding 1)
+    rates: np.ndarray
+    #: (n, 8 nc) the rate jumps of the events, ``a[i, k] = Dh[k] . A[i]``
+    ap: np.ndarray
+    #: (p, 8 nc) the rate jumps of the pairs, ``bDh[p, k] = Dh[k] . B[p]``
+    bDhp: np.ndarray
+    #: (n + 1,) int64: the pairs touching event i are ``pidx[ptr[i]:ptr[i + 1]]``
+    ptr: np.ndarray
+    #: int64: the partner event of each such pair
+    other: np.ndarray
+    #: int64: the index of each such pair
+    pidx: np.ndarray
+    #: (n + p, 8 dc) the stacked jumps ``[A; B]``
+    ABp: np.ndarray
+    #: (1, 8 nc) the event indices as floats (padding inf)
+    iota: np.ndarray
+    #: the number of events
+    n: int
+    #: the dimension
+    d: int
+    #: vectors of 8 per event row (``8 nc >= n``)
+    nc: int
+    #: vectors of 8 per position (``8 dc >= d``)
+    dc: int
+    #: the number of pairs
+    npairs: int
+    #: the most pairs of one event
+    deg: int
+    #: 1: test every rate of every region on the chain (transversality not proved)
+    check: int
+
+
+class StructuredOwnTables(NamedTuple):
+    """The own-rates fast path of structured corners."""
+
+    #: (d, n) Dh.T
+    DhT: np.ndarray
+    #: (n,) the rates of the region the chains start from
+    rate: np.ndarray
+    #: (p, 2) int64: the events of each pair
+    pairs: np.ndarray
+    #: (n, d) the jumps of the events
+    A: np.ndarray
+    #: (p, d) the jumps of the pairs
+    B: np.ndarray
 
 
 @njit(**JIT)
@@ -199,10 +247,10 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
     Writes ``TS[p, k]`` (time of event k), ``TS[p, n + pair]``, ``ORD[p, j]`` (the j-th
     event) and ``status[q0 + p]``.
     """
-    rates, bDhp, ptr, other, pidx, iota, dims = (tables[1], tables[3], tables[4], tables[5],
-                                                 tables[6], tables[8], tables[9])
+    rates, bDhp, ptr, other, pidx, iota = (tables.rates, tables.bDhp, tables.ptr,
+                                           tables.other, tables.pidx, tables.iota)
     R, HAP, J, ROW, T, BEST, PL, K = work
-    n, nc = dims[0], dims[2]
+    n, nc = tables.n, tables.nc
     cand = 1 if inverse else 0  # HAP of a candidate (happened: 1)
     sigma = -1.0 if inverse else 1.0  # the rates gain the jumps forwards, lose them back
     _start(rates, G, p0, ln, cand, n, nc, status, q0, R, HAP, ROW, T)
@@ -244,10 +292,9 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
 def _scratch(tables):
     """G (and zeros of its shape), TS, ORD of a group and the lockstep work arrays R, HAP, J,
     ROW, T, BEST, PL, K (``J``: the jump rows of :func:`_chains`, with a copy of ``a``)."""
-    ap, dims = tables[2], tables[9]
-    n, nc, npairs, deg = dims[0], dims[2], dims[4], dims[5]
+    n, nc, npairs, deg = tables.n, tables.nc, tables.npairs, tables.deg
     J = np.zeros((n + LOCK + 1, 8 * nc))
-    J[:n] = ap
+    J[:n] = tables.ap
     work = (np.empty((LOCK, 8 * nc)), np.empty((LOCK, n), dtype=np.uint8), J,
             np.empty(LOCK, dtype=np.int64), np.empty(LOCK), np.empty((LOCK, 24)),
             np.empty(max(deg, 1), dtype=np.int64), np.empty(LOCK, dtype=np.int64))
@@ -259,7 +306,7 @@ def _scratch(tables):
 def _group(tables, V, q0, pn, inverse, check, status, scratch):
     """Event values, then the chains, of the queries ``V[q0:q0 + pn]`` (pn <= GROUP)."""
     G, TS, ORD, work, zeros = scratch
-    _products(tables[0], V, q0, pn, -1.0 if inverse else 1.0, zeros, 0, G, 0)  # s Dh u
+    _products(tables.DhTp, V, q0, pn, -1.0 if inverse else 1.0, zeros, 0, G, 0)  # s Dh u
     for p0 in range(0, pn, LOCK):
         _chains(tables, G, p0, min(LOCK, pn - p0), inverse, check, TS, ORD, status, q0, work)
 
@@ -267,24 +314,22 @@ def _group(tables, V, q0, pn, inverse, check, status, scratch):
 @njit(**JIT)
 def _apply_block(tables, V, outs, start, stop, inverse):
     out, status = outs
-    dims = tables[9]
     scratch = _scratch(tables)
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _group(tables, V, q0, pn, inverse, dims[6] != 0, status, scratch)
-        _products(tables[7], scratch[1], 0, pn, 1.0 if inverse else -1.0, V, q0, out, q0)
+        _group(tables, V, q0, pn, inverse, tables.check != 0, status, scratch)
+        _products(tables.ABp, scratch[1], 0, pn, 1.0 if inverse else -1.0, V, q0, out, q0)
 
 
 @njit(**JIT)
 def _times_block(tables, V, outs, start, stop, inverse):
     times, orders, status = outs
-    dims = tables[9]
-    n = dims[0]
+    n = tables.n
     scratch = _scratch(tables)
     TS, ORD = scratch[1], scratch[2]
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _group(tables, V, q0, pn, False, dims[6] != 0, status, scratch)
+        _group(tables, V, q0, pn, False, tables.check != 0, status, scratch)
         for p in range(pn):
             for k in range(n):
                 times[q0 + p, k] = TS[p, k]
@@ -329,9 +374,9 @@ def _pair_times(pairs, tev, s):
 
 @njit(**JIT)
 def _own_block(tables, V, outs, start, stop, inverse):
-    """Own-rates fast path: ``tables = (DhT, rate, pairs, A, B)``, ``rate`` the rates of the
-    start region; the times are first-order times, pairs switch on at the later one."""
-    DhT, rate, pairs, A, Bm = tables
+    """Own-rates fast path (:class:`StructuredOwnTables`): the times are first-order times, pairs
+    switch on at the later one."""
+    DhT, rate, pairs, A, Bm = tables.DhT, tables.rate, tables.pairs, tables.A, tables.B
     out = outs[0]
     tev = np.empty(DhT.shape[1])
     s = np.empty(pairs.shape[0])

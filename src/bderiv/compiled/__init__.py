@@ -4,15 +4,21 @@
 first event crossing with scipy's DOP853 (the same tableau, error norm, step-size control,
 first step and dense output) in one compiled driver, the user's ``field``, ``events`` and
 ``field_jacobian`` called as compiled functions (no Python call per step), optionally with
-the variational equations. The foundation of the compiled path of issue 19; see
-``docs/design.md``, "The compiled integrator".
+the variational equations. :class:`CompiledModel` holds a model's checked dispatchers for
+the model side (:mod:`bderiv.stretch_compiled`), with the Jacobian computed in compiled code
+where none is given. See ``docs/design.md``, "The compiled integrator" and "The compiled
+path".
 """
 
 from __future__ import annotations
 
 from ._cached import key_all_kernels
+from ._checks import check_compiled, is_compiled
+from ._integrate import EVENT
+from .model import JACOBIAN_MODES, CompiledModel, dense_at
 from .stretch import Stretch, integrate_stretch
 
 key_all_kernels()
 
-__all__ = ["Stretch", "integrate_stretch"]
+__all__ = ["EVENT", "JACOBIAN_MODES", "CompiledModel", "Stretch", "check_compiled",
+           "dense_at", "integrate_stretch", "is_compiled"]

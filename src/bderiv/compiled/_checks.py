@@ -16,16 +16,22 @@ from numba.core.dispatcher import Dispatcher
 from numba.core.errors import NumbaError
 
 from .._format import MASK_MEANING, format_mask
+from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
+    COMPLEX_FIELD_SIGNATURE,
     EVENTS_NONFINITE,
     EVENTS_SHAPE,
     EVENTS_SIGNATURE,
     FIELD_NONFINITE,
     FIELD_SHAPE,
     FIELD_SIGNATURE,
+    JAC_COMPLEX_STEP,
+    JAC_GIVEN,
     JACOBIAN_NONFINITE,
     JACOBIAN_SHAPE,
     JACOBIAN_SIGNATURE,
+    SECTION_NONFINITE,
+    SECTION_SIGNATURE,
 )
 
 #: each user function: its signature, how its call is written, the shape it must return
@@ -37,6 +43,7 @@ _FUNCTIONS = {
                        JACOBIAN_SHAPE, JACOBIAN_NONFINITE),
     "events": (EVENTS_SIGNATURE, "events(x)", lambda d, n: (n,), EVENTS_SHAPE,
                EVENTS_NONFINITE),
+    "section": (SECTION_SIGNATURE, "section(x)", lambda d, n: (), None, SECTION_NONFINITE),
 }
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
@@ -46,6 +53,11 @@ def _typing_summary(exc: Exception) -> str:
     lines = [ln.strip() for ln in _ANSI.sub("", str(exc)).splitlines() if ln.strip()]
     useful = [ln for ln in lines if not ln.startswith(("Failed in", "File", "During"))]
     return (useful or lines or ["(no message)"])[0]
+
+
+def is_compiled(fn) -> bool:
+    """Whether ``fn`` is a numba dispatcher (``numba.njit``-compiled function)."""
+    return isinstance(fn, Dispatcher)
 
 
 def check_compiled(fn, name: str) -> None:
@@ -86,11 +98,25 @@ def _check_types(fn, name: str) -> None:
             ) from None
     returned = fn.overloads[args].signature.return_type
     if returned != signature.return_type:
+        hint = ("a float" if name == "section" else "a C-contiguous float64 array; return a "
+                "new array (e.g. np.ascontiguousarray(...))")
         raise TypeError(
-            f"{name} must return {signature.return_type} (a C-contiguous float64 array) "
-            f"when called as {expected}, but returns {returned}; return a new array (e.g. "
-            f"np.ascontiguousarray(...))"
+            f"{name} must return {signature.return_type} ({hint}) when called as "
+            f"{expected}, but returns {returned}"
         )
+
+
+@lru_cache(maxsize=256)
+def compiles_for_complex(field) -> bool:
+    """Whether the dispatcher ``field`` compiles for ``(complex128[::1], int64)`` and
+    returns a complex128 array (then its Jacobian is had by complex step)."""
+    args = COMPLEX_FIELD_SIGNATURE.args
+    if args not in field.overloads:
+        try:
+            field.compile(args)
+        except (NumbaError, RuntimeError, TypeError, ValueError):
+            return False
+    return field.overloads[args].signature.return_type == COMPLEX_FIELD_SIGNATURE.return_type
 
 
 def format_state(x) -> str:
@@ -102,6 +128,7 @@ def raise_failed_check(status, fn, name, x, mask, d, n) -> None:
     """Raise the ValueError of a failed output check of ``fn`` (``name``) at ``x``."""
     _, call, shape_of, shape_code, _ = _FUNCTIONS[name]
     region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
+    x = np.ascontiguousarray(x, dtype=np.float64)
     value = np.asarray(fn(x.copy(), mask) if "mask" in call else fn(x.copy()))
     where = f"in {region} at x = {format_state(x)}"
     if status == shape_code:
@@ -112,3 +139,31 @@ def raise_failed_check(status, fn, name, x, mask, d, n) -> None:
     bad = np.argwhere(~np.isfinite(value))
     entry = f", entry {bad[0].tolist()} = {value[tuple(bad[0])]}" if bad.size else ""
     raise ValueError(f"{call} returned a non-finite value{entry} {where}")
+
+
+def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN) -> None:
+    """Raise the error of a failed driver run: its status code, the state ``x`` at ``t``.
+
+    ``named`` maps "field", "events", "field_jacobian", "section" to the functions passed.
+    """
+    region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
+    if status == STEP_UNDERFLOW:
+        raise RuntimeError(
+            f"step size underflow at t = {t!r} in {region}, x = {format_state(x)}: the step "
+            f"the tolerances need is below 10 ulp of t (a singular or very stiff field?)"
+        )
+    if status in (FIELD_SHAPE, FIELD_NONFINITE):
+        name = "field"
+    elif status in (EVENTS_SHAPE, EVENTS_NONFINITE):
+        name = "events"
+    elif status == SECTION_NONFINITE:
+        name = "section"
+    elif jac_mode == JAC_GIVEN:
+        name = "field_jacobian"
+    else:
+        how = "complex step" if jac_mode == JAC_COMPLEX_STEP else "central differences"
+        raise ValueError(
+            f"the Jacobian of field computed by {how} (no field_jacobian given) is not "
+            f"finite in {region} at x = {format_state(x)}"
+        )
+    raise_failed_check(status, named[name], name, x, mask, d, n)

@@ -60,7 +60,7 @@ def rms(v, scale):
 
 
 @njit(cache=True)
-def initial_step(field, jac, variational, mask, d, t0, y0, f0, t_bound, max_step, rtol,
+def initial_step(model, jac_mode, variational, mask, d, t0, y0, f0, t_bound, max_step, rtol,
                  atol, work, bad):
     """scipy's ``select_initial_step`` (order 7): ``(status, h_abs)``; one rhs call.
 
@@ -77,7 +77,7 @@ def initial_step(field, jac, variational, mask, d, t0, y0, f0, t_bound, max_step
     h0 = min(h0, interval)
     for j in range(m):
         y1[j] = y0[j] + h0 * f0[j]
-    status = rhs(field, jac, variational, mask, d, y1, f1, bad)
+    status = rhs(model, jac_mode, variational, mask, d, y1, f1, bad)
     if status != OK:
         return status, 0.0
     for j in range(m):
@@ -101,12 +101,12 @@ def _stage_point(y, K, row, s, h, out):
 
 
 @njit(cache=True)
-def step(field, jac, variational, mask, d, y, h, K, y_new, ys, bad):
+def step(model, jac_mode, variational, mask, d, y, h, K, y_new, ys, bad):
     """One DOP853 step from ``y`` (``K[0]`` = f(y) on entry): stages into ``K[1:13]``,
     the 8th-order solution into ``y_new``, f(y_new) into ``K[12]``. Returns a status."""
     for s in range(1, N_STAGES):
         _stage_point(y, K, s, s, h, ys)
-        status = rhs(field, jac, variational, mask, d, ys, K[s], bad)
+        status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
         if status != OK:
             return status
     for j in range(y.size):
@@ -114,7 +114,7 @@ def step(field, jac, variational, mask, d, y, h, K, y_new, ys, bad):
         for r in range(N_STAGES):
             acc += K[r, j] * B[r]
         y_new[j] = y[j] + h * acc
-    return rhs(field, jac, variational, mask, d, y_new, K[N_STAGES], bad)
+    return rhs(model, jac_mode, variational, mask, d, y_new, K[N_STAGES], bad)
 
 
 @njit(cache=True)
@@ -149,13 +149,13 @@ def step_factor(err, rejected):
 
 
 @njit(cache=True)
-def dense_coefficients(field, jac, variational, mask, d, y_old, y_new, h, K, F, ys, bad):
+def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K, F, ys, bad):
     """The 7th-order dense output of the step ``y_old -> y_new`` of size ``h``: the three
     extra stages into ``K[13:16]`` and the coefficients into ``F`` (7, m), as scipy's
     ``DOP853._dense_output_impl``. Returns a status."""
     for s in range(N_STAGES + 1, N_STAGES_EXTENDED):
         _stage_point(y_old, K, s, s, h, ys)
-        status = rhs(field, jac, variational, mask, d, ys, K[s], bad)
+        status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
         if status != OK:
             return status
     f_old, f_new = K[0], K[N_STAGES]
@@ -184,3 +184,14 @@ def dense_eval(F, y_old, t_old, h, t, count, out):
             v += F[n_rows - 1 - i, j]
             v *= x if i % 2 == 0 else 1.0 - x
         out[j] = v + y_old[j]
+
+
+@njit(cache=True)
+def dense_rows(t_old, h, F, y_old, T, out):
+    """``out[i]`` = the dense output at ``T[i]`` of the recorded steps (start times
+    ``t_old`` (S,), sizes ``h``, coefficients ``F`` (S, 7, d), start states ``y_old``
+    (S, d)): each time on the step that holds it (the first or last outside them)."""
+    last = t_old.size - 1
+    for i in range(T.size):
+        j = min(max(np.searchsorted(t_old, T[i], side="right") - 1, 0), last)
+        dense_eval(F[j], y_old[j], t_old[j], h[j], T[i], out.shape[1], out[i])

@@ -7,6 +7,10 @@ not recompile the driver. It repeats
 ``solve_ivp(method="DOP853")``'s loop: the first step by ``select_initial_step``, each step
 tried and shrunk until the error norm is below one, the events evaluated at each accepted
 step, and at a crossing the dense output built and the crossing located on it.
+
+A call returns after ``max_steps`` accepted steps (``PAUSED``, with the next step size):
+called again from there with that first step, it goes on with the same steps, so that a
+long stretch comes back to Python (and to Ctrl-C) now and then.
 """
 
 from __future__ import annotations
@@ -29,45 +33,60 @@ from ._rhs import OK, call_events, rhs
 from ._watch import crossed, locate
 
 #: the stretch reached ``t_final`` / stopped at an event crossing / the step size fell
-#: below 10 ulp of t (scipy's TOO_SMALL_STEP); other codes: a failed check of :mod:`._rhs`
+#: below 10 ulp of t (scipy's TOO_SMALL_STEP) / returned after ``max_steps`` steps; other
+#: codes: a failed check of :mod:`._rhs`
 FINISHED = -1
 EVENT = -2
 STEP_UNDERFLOW = -3
+PAUSED = -4
 #: entries of the returned counters
 NFEV, NJEV, N_STEPS, N_REJECTED = range(4)
-
-@njit(cache=True)
-def _record(ts, xs, count, t, y, d):
-    """Append ``(t, y[:d])`` to the record, doubling its buffers when full."""
-    if count == ts.size:
-        ts2 = np.empty(2 * ts.size)
-        xs2 = np.empty((2 * ts.size, d))
-        ts2[:count] = ts
-        xs2[:count] = xs
-        ts, xs = ts2, xs2
-    ts[count] = t
-    xs[count] = y[:d]
-    return ts, xs, count + 1
+_DENSE_EXTRA = N_STAGES_EXTENDED - N_STAGES - 1
 
 
 @njit(cache=True)
-def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, atol,
-                  max_step, first_step):
+def _grown(a, count):
+    """``a`` with its first axis doubled when ``count`` rows fill it."""
+    if count < a.shape[0]:
+        return a
+    b = np.empty((2 * a.shape[0],) + a.shape[1:])
+    b[:count] = a
+    return b
+
+
+@njit(cache=True)
+def _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active, roots, counts, bad,
+             t_bad, h_abs):
+    """The driver's result tuple (records cut to their lengths)."""
+    return (status, t, y, ts[:count], ys[:count], steps[:n_dense], Fd[:n_dense], active,
+            roots, counts, bad, t_bad, h_abs)
+
+
+@njit(cache=True)
+def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
+                  t_final, rtol, atol, max_step, first_step, forced, max_steps, dense):
     """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
 
     ``y0`` is the state (length d) or the state and the sensitivity (length d + d * d,
-    ``variational``); ``atol`` has one entry per component of ``y0``; ``first_step`` 0
-    selects it as scipy does. No validation.
+    ``variational``, J by ``jac_mode``); ``atol`` has one entry per component of ``y0``;
+    ``first_step`` 0 selects it as scipy does. ``n_events`` values are watched: the model's
+    events, and its section last when ``with_section`` (upward: its bit of ``mask`` is
+    clear); the value of event ``forced`` (-1: none) reads 1 at the start (a run that
+    starts on its section counts only a return from below). No validation.
 
     Returns
     -------
     status : int
-        ``FINISHED``, ``EVENT``, ``STEP_UNDERFLOW`` or a failed check of :mod:`._rhs`.
+        ``FINISHED``, ``EVENT``, ``PAUSED``, ``STEP_UNDERFLOW`` or a failed check of
+        :mod:`._rhs`.
     t_end : float
     y_end : ndarray, shape (m,)
-    ts : ndarray, shape (N,)
-        Times of the record (the start, the accepted steps, the stop).
-    xs : ndarray, shape (N, d)
+    ts, ys : ndarray, shapes (N,), (N, m)
+        The record: the start, every accepted step's end, the stop.
+    steps, Fd : ndarray, shapes (S, 2), (S, 7, d)
+        With ``dense`` (else empty): each step's start time and size, and the
+        coefficients of the state's dense output over it (the last step's cover the whole
+        step, also when the stretch stopped inside it).
     active : ndarray, shape (n,), bool
         Events that crossed in the last step.
     roots : ndarray, shape (n,)
@@ -78,8 +97,9 @@ def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, 
         The state of a failed check or of the step-size underflow.
     t_bad : float
         Its time.
+    h_abs : float
+        The size of the next step (to go on after ``PAUSED``).
     """
-    field, jac, events = model.field, model.jacobian, model.events
     m = y0.size
     counts = np.zeros(4, dtype=np.int64)
     bad = np.zeros(d)
@@ -87,6 +107,8 @@ def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, 
     roots = np.full(n_events, np.nan)
     K = np.empty((N_STAGES_EXTENDED, m))
     F = np.empty((INTERPOLATOR_POWER, m))
+    Kd = np.empty((N_STAGES_EXTENDED, d))
+    Fs = np.empty((INTERPOLATOR_POWER, d))
     work = np.empty((3, m))
     y = y0.copy()
     y_new = np.empty(m)
@@ -94,27 +116,34 @@ def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, 
     g_new = np.empty(n_events)
     x = np.empty(d)
     ts = np.empty(64)
-    xs = np.empty((64, d))
-    count = 0
-    ts, xs, count = _record(ts, xs, count, t0, y, d)
+    ys = np.empty((64, m))
+    steps = np.empty((64 if dense else 0, 2))
+    Fd = np.empty((64 if dense else 0, INTERPOLATOR_POWER, d))
+    ts[0] = t0
+    ys[0] = y
+    count, n_dense = 1, 0
     jev = 1 if variational else 0
 
     t = t0
-    status = rhs(field, jac, variational, mask, d, y, K[0], bad)
+    status = rhs(model, jac_mode, variational, mask, d, y, K[0], bad)
     counts[NFEV] += 1
     counts[NJEV] += jev
     if status == OK:
-        status = call_events(events, y[:d], n_events, g, bad)
+        status = call_events(model, with_section, y[:d], n_events, g, bad)
     if status != OK:
-        return status, t, y, ts[:count], xs[:count], active, roots, counts, bad, t
+        return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
+                        counts, bad, t, 0.0)
+    if forced >= 0:
+        g[forced] = 1.0
     h_abs = first_step
     if h_abs == 0.0:
-        status, h_abs = initial_step(field, jac, variational, mask, d, t0, y, K[0], t_final,
-                                     max_step, rtol, atol, work, bad)
+        status, h_abs = initial_step(model, jac_mode, variational, mask, d, t0, y, K[0],
+                                     t_final, max_step, rtol, atol, work, bad)
         counts[NFEV] += 1
         counts[NJEV] += jev
         if status != OK:
-            return status, t, y, ts[:count], xs[:count], active, roots, counts, bad, t
+            return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
+                            counts, bad, t, 0.0)
 
     while True:
         min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
@@ -123,16 +152,18 @@ def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, 
         while True:  # scipy's RungeKutta._step_impl
             if h_abs < min_step:
                 bad[:] = y[:d]
-                return STEP_UNDERFLOW, t, y, ts[:count], xs[:count], active, roots, counts, \
-                    bad, t
+                return _stopped(STEP_UNDERFLOW, t, y, ts, ys, count, steps, Fd, n_dense,
+                                active, roots, counts, bad, t, h_abs)
             t_new = min(t + h_abs, t_final)
             h = t_new - t
             h_abs = abs(h)
-            status = step(field, jac, variational, mask, d, y, h, K, y_new, work[0], bad)
+            status = step(model, jac_mode, variational, mask, d, y, h, K, y_new, work[0],
+                          bad)
             counts[NFEV] += N_STAGES
             counts[NJEV] += jev * N_STAGES
             if status != OK:
-                return status, t, y, ts[:count], xs[:count], active, roots, counts, bad, t
+                return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active,
+                                roots, counts, bad, t, h_abs)
             err = error_norm(K, h, y, y_new, rtol, atol)
             h_abs *= step_factor(err, rejected)
             if err < 1.0:
@@ -140,31 +171,60 @@ def drive_stretch(model, variational, n_events, mask, d, t0, y0, t_final, rtol, 
             rejected = True
             counts[N_REJECTED] += 1
         counts[N_STEPS] += 1
-        status = call_events(events, y_new[:d], n_events, g_new, bad)
+        status = call_events(model, with_section, y_new[:d], n_events, g_new, bad)
         if status != OK:
-            return status, t_new, y_new, ts[:count], xs[:count], active, roots, counts, bad, \
-                t_new
-        if n_events > 0 and crossed(g, g_new, mask, active):
-            status = dense_coefficients(field, jac, variational, mask, d, y, y_new, h, K, F,
-                                        work[0], bad)
-            counts[NFEV] += N_STAGES_EXTENDED - N_STAGES - 1
-            counts[NJEV] += jev * (N_STAGES_EXTENDED - N_STAGES - 1)
+            return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
+                            roots, counts, bad, t_new, h_abs)
+        event = n_events > 0 and crossed(g, g_new, mask, active)
+        if event:  # the whole vector's dense output: the stop's state and sensitivity
+            status = dense_coefficients(model, jac_mode, variational, mask, d, y, y_new, h,
+                                        K, F, work[0], bad)
+            counts[NFEV] += _DENSE_EXTRA
+            counts[NJEV] += jev * _DENSE_EXTRA
+        elif dense:  # the state's only, for the search of crossings inside the step
+            Kd[0] = K[0, :d]
+            Kd[N_STAGES] = K[N_STAGES, :d]
+            Kd[1:N_STAGES] = K[1:N_STAGES, :d]
+            status = dense_coefficients(model, jac_mode, False, mask, d, y[:d], y_new[:d],
+                                        h, Kd, Fs, work[0, :d], bad)
+            counts[NFEV] += _DENSE_EXTRA
+        if status != OK:
+            return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
+                            roots, counts, bad, t_new, h_abs)
+        if dense:
+            steps = _grown(steps, n_dense)
+            Fd = _grown(Fd, n_dense)
+            steps[n_dense, 0] = t
+            steps[n_dense, 1] = h
+            Fd[n_dense] = F[:, :d] if event else Fs
+            n_dense += 1
+        ts = _grown(ts, count)
+        ys = _grown(ys, count)
+        if event:
             t_stop = t_new
             for k in range(n_events):
                 if active[k] and status == OK:
-                    status, roots[k] = locate(events, k, F, y, t, t_new, x, g_new, bad)
+                    status, roots[k] = locate(model, with_section, k, F, y, t, t_new, x,
+                                              g_new, bad)
                     t_stop = min(t_stop, roots[k])
             if status != OK:
-                return status, t_new, y_new, ts[:count], xs[:count], active, roots, counts, \
-                    bad, t_new
+                return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense,
+                                active, roots, counts, bad, t_new, h_abs)
             dense_eval(F, y, t, h, t_stop, m, y_new)
-            ts, xs, count = _record(ts, xs, count, t_stop, y_new, d)
-            return EVENT, t_stop, y_new, ts[:count], xs[:count], active, roots, counts, bad, \
-                t_stop
+            ts[count] = t_stop
+            ys[count] = y_new
+            return _stopped(EVENT, t_stop, y_new, ts, ys, count + 1, steps, Fd, n_dense,
+                            active, roots, counts, bad, t_stop, h_abs)
         t = t_new
         y[:] = y_new
         K[0] = K[N_STAGES]
         g[:] = g_new
-        ts, xs, count = _record(ts, xs, count, t, y, d)
+        ts[count] = t
+        ys[count] = y
+        count += 1
         if t >= t_final:
-            return FINISHED, t, y, ts[:count], xs[:count], active, roots, counts, bad, t
+            return _stopped(FINISHED, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
+                            counts, bad, t, h_abs)
+        if counts[N_STEPS] >= max_steps:
+            return _stopped(PAUSED, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
+                            counts, bad, t, h_abs)

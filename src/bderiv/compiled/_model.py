@@ -1,10 +1,10 @@
 """The user's compiled functions bound once into one struct the driver takes.
 
 The driver is compiled once for first-class function types (:mod:`._rhs`), so a new model
-does not recompile it. Passing three dispatchers from Python as first-class functions costs
+does not recompile it. Passing dispatchers from Python as first-class functions costs
 numba a compile-result lookup each, about 50 us per function per call (measured: 150 us of
-a 220 us stretch at d = 8); a struct holding the three functions is passed for about 1 us.
-:func:`bound_model` builds that struct once per triple of functions and keeps it.
+a 220 us stretch at d = 8); a struct holding the functions is passed for about 1 us.
+:func:`bound_model` builds that struct once per set of functions and keeps it.
 """
 
 from __future__ import annotations
@@ -14,7 +14,15 @@ from functools import lru_cache
 from numba import njit, types
 from numba.experimental import structref
 
-from ._rhs import EVENTS_TYPE, FIELD_TYPE, JACOBIAN_TYPE
+from ._rhs import (
+    COMPLEX_FIELD_TYPE,
+    EVENTS_TYPE,
+    FIELD_TYPE,
+    JACOBIAN_TYPE,
+    SECTION_TYPE,
+    no_complex_field,
+    no_section,
+)
 
 
 @structref.register
@@ -24,24 +32,28 @@ class _ModelType(types.StructRef):
 
 
 class _Model(structref.StructRefProxy):
-    """A model's ``field``, ``jacobian`` and ``events`` as first-class functions."""
+    """A model's ``field``, ``jacobian``, ``events``, complex field and section as
+    first-class functions."""
 
 
-structref.define_proxy(_Model, _ModelType, ["field", "jacobian", "events"])
-MODEL_TYPE = _ModelType([("field", FIELD_TYPE), ("jacobian", JACOBIAN_TYPE),
-                         ("events", EVENTS_TYPE)])
+_MEMBERS = ("field", "jacobian", "events", "cfield", "section")
+structref.define_proxy(_Model, _ModelType, list(_MEMBERS))
+_TYPES = (FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, COMPLEX_FIELD_TYPE, SECTION_TYPE)
+MODEL_TYPE = _ModelType(list(zip(_MEMBERS, _TYPES, strict=True)))
 
 
-@njit(MODEL_TYPE(FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE), cache=True)
-def _bind(field, jacobian, events):
+@njit(MODEL_TYPE(*_TYPES), cache=True)
+def _bind(field, jacobian, events, cfield, section):
     model = structref.new(MODEL_TYPE)
     model.field = field
     model.jacobian = jacobian
     model.events = events
+    model.cfield = cfield
+    model.section = section
     return model
 
 
 @lru_cache(maxsize=64)
-def bound_model(field, jacobian, events):
-    """The struct of three checked dispatchers (kept for the 64 latest triples)."""
-    return _bind(field, jacobian, events)
+def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_section):
+    """The struct of checked dispatchers (kept for the 64 latest sets)."""
+    return _bind(field, jacobian, events, cfield, section)

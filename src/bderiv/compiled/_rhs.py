@@ -5,6 +5,10 @@ The integrated vector is ``y = x`` (length d), or with the variational equations
 ``Phi' = J(x) Phi``, ``J = field_jacobian(x, mask)``: the layout of the Python path
 (:func:`bderiv.simulate.run`), so that both control the error of the same vector.
 
+Without a ``field_jacobian``, ``J`` is computed here (:func:`jacobian`): by complex step
+when the field compiles for complex input (exact to rounding: no difference is taken), else
+by central differences, each coordinate with a step from its own magnitude.
+
 Every output of a user function is checked here (shape, finite); a failure returns a status
 code and leaves the state in ``bad``, and the driver stops: the Python side turns the code
 into an error that names the function, the region and the state.
@@ -22,16 +26,36 @@ JACOBIAN_SHAPE = 3
 JACOBIAN_NONFINITE = 4
 EVENTS_SHAPE = 5
 EVENTS_NONFINITE = 6
+SECTION_NONFINITE = 7
+
+#: how J is had: the given ``field_jacobian``, complex step, central differences
+JAC_GIVEN = 0
+JAC_COMPLEX_STEP = 1
+JAC_CENTRAL = 2
+#: complex step: the imaginary step relative to the coordinate's scale (no cancellation,
+#: so any tiny step is exact to rounding; this one keeps x + ih far from underflow)
+COMPLEX_STEP = 2.0**-60
+#: central differences: the step relative to the coordinate's scale, about eps^(1/3)
+#: (truncation h^2 against rounding eps / h); a coordinate's scale is its magnitude, at
+#: least ``SCALE_FLOOR``, and 1 for a coordinate at 0 (as ``bderiv._numdiff``)
+CENTRAL_STEP = 2.0**-17
+SCALE_FLOOR = 2.0**-20
 
 _VECTOR = types.float64[::1]
+_CVECTOR = types.complex128[::1]
 #: the types the integrator calls the user's functions with: field(x, mask) -> (d,),
-#: field_jacobian(x, mask) -> (d, d), events(x) -> (n,); C-contiguous float64 arrays.
+#: field_jacobian(x, mask) -> (d, d), events(x) -> (n,), section(x) -> float;
+#: C-contiguous float64 arrays (the field for complex step: complex128 in and out).
 FIELD_SIGNATURE = _VECTOR(_VECTOR, types.int64)
+COMPLEX_FIELD_SIGNATURE = _CVECTOR(_CVECTOR, types.int64)
 JACOBIAN_SIGNATURE = types.float64[:, ::1](_VECTOR, types.int64)
 EVENTS_SIGNATURE = _VECTOR(_VECTOR)
+SECTION_SIGNATURE = types.float64(_VECTOR)
 FIELD_TYPE = types.FunctionType(FIELD_SIGNATURE)
+COMPLEX_FIELD_TYPE = types.FunctionType(COMPLEX_FIELD_SIGNATURE)
 JACOBIAN_TYPE = types.FunctionType(JACOBIAN_SIGNATURE)
 EVENTS_TYPE = types.FunctionType(EVENTS_SIGNATURE)
+SECTION_TYPE = types.FunctionType(SECTION_SIGNATURE)
 
 
 @njit(cache=True)
@@ -44,26 +68,73 @@ def all_finite(a):
 
 
 @njit(cache=True)
-def rhs(field, jac, variational, mask, d, y, out, bad):
-    """``out = f(y)``: the field at ``x = y[:d]``, and ``J(x) Phi`` when ``variational``.
+def coordinate_scale(v):
+    """A coordinate's own scale: ``|v|``, at least ``SCALE_FLOOR``; 1 for ``v = 0``."""
+    s = abs(v)
+    return max(s, SCALE_FLOOR) if s > 0.0 else 1.0
+
+
+@njit(cache=True)
+def jacobian(model, mode, x, mask, d, J):
+    """``J = d field(x, mask) / dx`` (d, d) by ``mode``; a status (checked: shape, finite).
+
+    ``x`` is a copy the function may change. Complex step: column j is
+    ``Im field(x + i h e_j) / h``; central differences: ``(f(x + h e_j) - f(x - h e_j))
+    / (2 h)`` with the step as represented (``(x_j + h) - x_j``).
+    """
+    if mode == JAC_GIVEN:
+        given = model.jacobian(x, mask)
+        if given.shape[0] != d or given.shape[1] != d:
+            return JACOBIAN_SHAPE
+        J[:, :] = given
+    elif mode == JAC_COMPLEX_STEP:
+        z = np.empty(d, dtype=np.complex128)
+        for j in range(d):
+            h = COMPLEX_STEP * coordinate_scale(x[j])
+            z[:] = x
+            z[j] = complex(x[j], h)
+            f = model.cfield(z, mask)
+            if f.size != d:
+                return FIELD_SHAPE
+            for i in range(d):
+                J[i, j] = f[i].imag / h
+    else:
+        xs = x.copy()
+        for j in range(d):
+            step = CENTRAL_STEP * coordinate_scale(x[j])
+            xs[:] = x
+            xs[j] = x[j] + step
+            up_step = xs[j] - x[j]
+            up = model.field(xs.copy(), mask)
+            xs[j] = x[j] - step
+            down_step = x[j] - xs[j]
+            down = model.field(xs.copy(), mask)
+            if up.size != d or down.size != d:
+                return FIELD_SHAPE
+            for i in range(d):
+                J[i, j] = (up[i] - down[i]) / (up_step + down_step)
+    return OK if all_finite(J) else JACOBIAN_NONFINITE
+
+
+@njit(cache=True)
+def rhs(model, mode, variational, mask, d, y, out, bad):
+    """``out = f(y)``: the field at ``x = y[:d]``, and ``J(x) Phi`` when ``variational``
+    (``out`` may be shorter than ``y``: the state's part only, for ``d`` entries).
 
     The user's functions get a fresh copy of ``x`` (they may keep or change it). Returns
     ``OK`` or the code of the failed check, the state copied into ``bad``.
     """
     x = y[:d].copy()
-    f = field(x, mask)
+    f = model.field(x, mask)
     status = OK
     if f.size != d:
         status = FIELD_SHAPE
     elif not all_finite(f):
         status = FIELD_NONFINITE
     elif variational:
-        J = jac(x, mask)
-        if J.shape[0] != d or J.shape[1] != d:
-            status = JACOBIAN_SHAPE
-        elif not all_finite(J):
-            status = JACOBIAN_NONFINITE
-        else:  # Phi row-major in y[d:]; BLAS for the product (d^3 of the stage's work)
+        J = np.empty((d, d))
+        status = jacobian(model, mode, y[:d].copy(), mask, d, J)
+        if status == OK:  # Phi row-major in y[d:]; BLAS for the product (d^3 of the work)
             out[d:] = np.dot(J, y[d:].reshape((d, d))).ravel()
     if status != OK:
         bad[:] = y[:d]
@@ -73,17 +144,50 @@ def rhs(field, jac, variational, mask, d, y, out, bad):
 
 
 @njit(cache=True)
-def call_events(events, x, n, g, bad):
-    """``g = events(x)`` checked (shape (n,), finite); a status as :func:`rhs`."""
-    value = events(x.copy())
-    if value.size != n:
+def call_events(model, with_section, x, n, g, bad):
+    """``g = events(x)`` checked (shape, finite), and ``g[n - 1] = section(x)`` when
+    ``with_section``; a status as :func:`rhs`."""
+    m = n - 1 if with_section else n
+    value = model.events(x.copy())
+    if value.size != m:
         bad[:] = x
         return EVENTS_SHAPE
     if not all_finite(value):
         bad[:] = x
         return EVENTS_NONFINITE
-    g[:] = value
+    g[:m] = value
+    if with_section:
+        s = model.section(x.copy())
+        if not np.isfinite(s):
+            bad[:] = x
+            return SECTION_NONFINITE
+        g[m] = s
     return OK
+
+
+@njit(cache=True)
+def events_rows(model, X, n, G, bad):
+    """``G[i] = events(X[i])`` for every row of ``X`` (m, d), checked; a status (the
+    failed row in ``bad``)."""
+    for i in range(X.shape[0]):
+        status = call_events(model, False, X[i].copy(), n, G[i], bad)
+        if status != OK:
+            return status
+    return OK
+
+
+@njit(cache=True)
+def field_rows(model, x, masks, d, out):
+    """``out[i] = field(x, masks[i])`` for every mask, checked: ``(status, i)`` (i: the
+    failed mask's index)."""
+    for i in range(masks.size):
+        f = model.field(x.copy(), masks[i])
+        if f.size != d:
+            return FIELD_SHAPE, i
+        if not all_finite(f):
+            return FIELD_NONFINITE, i
+        out[i] = f
+    return OK, 0
 
 
 @njit(JACOBIAN_SIGNATURE, cache=True)
@@ -92,7 +196,19 @@ def no_jacobian(x, mask):  # pragma: no cover - passed, never called
     return np.empty((0, 0))
 
 
+@njit(COMPLEX_FIELD_SIGNATURE, cache=True)
+def no_complex_field(x, mask):  # pragma: no cover - passed, never called
+    """Stands for the complex field when complex step is not used (never called)."""
+    return np.empty(0, dtype=np.complex128)
+
+
 @njit(EVENTS_SIGNATURE, cache=True)
 def no_events(x):
     """``events`` of a model without events: no values."""
     return np.empty(0)
+
+
+@njit(SECTION_SIGNATURE, cache=True)
+def no_section(x):  # pragma: no cover - passed, never called
+    """Stands for the section of a run without one (never called)."""
+    return 0.0

@@ -40,15 +40,15 @@ def crossed(g, g_new, mask, active):
 
 
 @njit(cache=True)
-def _event_at(events, k, F, y_old, t_old, h, t, x, g, bad):
+def _event_at(model, with_section, k, F, y_old, t_old, h, t, x, g, bad):
     """``(status, events(x(t))[k])`` on the dense output ``F``."""
     dense_eval(F, y_old, t_old, h, t, x.size, x)
-    status = call_events(events, x, g.size, g, bad)
+    status = call_events(model, with_section, x, g.size, g, bad)
     return status, g[k]
 
 
 @njit(cache=True)
-def locate(events, k, F, y_old, t_old, t_new, x, g, bad):
+def locate(model, with_section, k, F, y_old, t_old, t_new, x, g, bad):
     """``(status, t)``: the root of event k in ``[t_old, t_new]`` on the dense output.
 
     scipy's ``brentq`` (``Zeros/brentq.c``): inverse quadratic interpolation or secant
@@ -57,10 +57,10 @@ def locate(events, k, F, y_old, t_old, t_new, x, g, bad):
     """
     h = t_new - t_old
     xpre, xcur = t_old, t_new
-    status, fpre = _event_at(events, k, F, y_old, t_old, h, xpre, x, g, bad)
+    status, fpre = _event_at(model, with_section, k, F, y_old, t_old, h, xpre, x, g, bad)
     if status != OK:
         return status, xpre
-    status, fcur = _event_at(events, k, F, y_old, t_old, h, xcur, x, g, bad)
+    status, fcur = _event_at(model, with_section, k, F, y_old, t_old, h, xcur, x, g, bad)
     if status != OK:
         return status, xcur
     if fpre == 0.0:
@@ -96,7 +96,7 @@ def locate(events, k, F, y_old, t_old, t_new, x, g, bad):
             spre = scur = sbis
         xpre, fpre = xcur, fcur
         xcur += scur if abs(scur) > delta else (delta if sbis > 0.0 else -delta)
-        status, fcur = _event_at(events, k, F, y_old, t_old, h, xcur, x, g, bad)
+        status, fcur = _event_at(model, with_section, k, F, y_old, t_old, h, xcur, x, g, bad)
         if status != OK:
             return status, xcur
     return OK, xcur

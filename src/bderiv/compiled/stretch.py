@@ -11,28 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._format import MASK_MEANING, format_mask
 from .._validate import check_number, check_real_array
-from ._checks import check_compiled, format_state, raise_failed_check
-from ._integrate import (
-    EVENT,
-    FINISHED,
-    N_REJECTED,
-    N_STEPS,
-    NFEV,
-    NJEV,
-    STEP_UNDERFLOW,
-    drive_stretch,
-)
+from ._checks import check_compiled, raise_failed_run
+from ._integrate import EVENT, FINISHED, N_REJECTED, N_STEPS, NFEV, NJEV
 from ._model import bound_model
-from ._rhs import (
-    EVENTS_NONFINITE,
-    EVENTS_SHAPE,
-    FIELD_NONFINITE,
-    FIELD_SHAPE,
-    no_events,
-    no_jacobian,
-)
+from ._rhs import JAC_GIVEN, no_events, no_jacobian
+from ._slices import drive
 
 #: smallest rtol, as :class:`bderiv.simulate.SolverOptions` (solve_ivp's floor)
 MIN_RTOL = 100 * np.finfo(np.float64).eps
@@ -206,32 +190,17 @@ def integrate_stretch(field, x0, t_final, *, mask=0, t0=0.0, events=None,
                          f"the mask), got {n}")
     y0 = np.concatenate((x0, np.eye(d).ravel())) if variational else x0
     model = bound_model(field, field_jacobian if variational else no_jacobian, events_fn)
-    out = drive_stretch(model, variational, n, mask, d, t0, y0, t_final, rtol, atol, max_step,
-                        first_step)
-    status, t_end, y_end, ts, xs, crossed, roots, counts, bad, t_bad = out
-    if status not in (FINISHED, EVENT):
-        _raise(status, named, bad, t_bad, mask, d, n)
+    out = drive(model, JAC_GIVEN, variational, False, n, mask, d, t0, y0, t_final, rtol,
+                atol, max_step, first_step, -1, False)
+    if out.status not in (FINISHED, EVENT):
+        raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n)
+    counts = out.counts
     return Stretch(
-        t=ts, x=xs, t_end=float(t_end), x_end=y_end[:d].copy(),
-        phi_end=y_end[d:].reshape(d, d).copy() if variational else None,
-        event=status == EVENT, crossed=crossed, event_times=roots,
+        t=out.ts, x=np.ascontiguousarray(out.ys[:, :d]), t_end=float(out.t_end),
+        x_end=out.y_end[:d].copy(),
+        phi_end=out.y_end[d:].reshape(d, d).copy() if variational else None,
+        event=out.status == EVENT, crossed=out.active, event_times=out.roots,
         n_steps=int(counts[N_STEPS]), n_rejected=int(counts[N_REJECTED]),
         nfev=int(counts[NFEV]), njev=int(counts[NJEV]),
     )
 
-
-def _raise(status, named, x, t, mask, d, n):
-    """The error of a failed driver run (status code, the state ``x`` at ``t``)."""
-    if status == STEP_UNDERFLOW:
-        raise RuntimeError(
-            f"step size underflow at t = {t!r} in region mask {format_mask(mask, max(n, 1))} "
-            f"({MASK_MEANING}), x = {format_state(x)}: the step the tolerances need is below "
-            f"10 ulp of t (a singular or very stiff field?)"
-        )
-    if status in (FIELD_SHAPE, FIELD_NONFINITE):
-        name = "field"
-    elif status in (EVENTS_SHAPE, EVENTS_NONFINITE):
-        name = "events"
-    else:
-        name = "field_jacobian"
-    raise_failed_check(status, named[name], name, x, mask, d, n)

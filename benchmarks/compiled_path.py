@@ -1,0 +1,188 @@
+"""The compiled path against the Python path on a k-leg pronking body (issue 19's targets).
+
+``python benchmarks/compiled_path.py`` builds, for d = 8 to 44 and k = 2 to 8 legs, a planar
+body pronking on k compliant legs with a leg-extension coordinate each and p passive body
+modes (state ``(z, theta, s_1..s_k, q_1..q_p)`` and their rates: d = 2 (2 + k + p)); all
+feet touch down and lift off together. The model is written once as ``numba.njit``
+functions; the Python path runs the same code as Python functions (the dispatchers'
+``py_func``), with the field Jacobian by complex step in Python (exact, as the examples do);
+the compiled path gets no ``field_jacobian`` (complex step in compiled code). One stride:
+from the apex through touchdown and lift-off to ``T_FINAL``.
+
+Timed in one process, alternated, min of ``REPEATS``: ``simulate``, ``flow_bderivative``
+(the build), and central finite differences of the Python path's simulation (2 d runs: the
+brute-force flow Jacobian). The first call of each compiled model (compiling its functions
+and loading the driver) is reported apart, not charged. Printed: the times, the ratios, and
+the agreement of the two paths (end states, flow maps on random directions, event logs).
+``--quick`` runs the smallest and largest model only.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numba
+import numpy as np
+
+from bderiv.checks import FD_SIMULTANEITY_TOL
+from bderiv.hybrid import HybridSystem
+
+G = 9.81
+T_FINAL = 0.5
+APEX = 0.66
+REPEATS = 3
+#: (legs, passive modes): d = 2 (2 + k + p)
+SIZES = ((2, 0), (4, 2), (6, 4), (8, 4), (4, 10), (8, 8), (8, 12))
+
+
+def body(k, p):
+    """``field, events, event_jacobian`` (njit) of the body on k legs with p modes."""
+    a = np.linspace(-0.4, 0.4, k)
+    share = 2.0 / k
+    K, C, gain, v_ref, coupling = 400.0 * share, 2.0 * share, 4.0 * share, 2.0, 0.5
+    leg, inertia, k_leg, c_leg, push = 0.5, 0.16, 900.0, 6.0, 0.2
+    w = 10.0 + 3.0 * np.arange(p)
+    all_down = (1 << k) - 1
+    n = 2 + k + p  # positions; rates after them
+
+    @numba.njit
+    def field(x, mask):
+        c, s = np.cos(x[1]), np.sin(x[1])
+        vz, om = x[n], x[n + 1]
+        g = gain * (1.0 + coupling) if mask == all_down else gain
+        thrust = g * (1.0 - vz**2 / v_ref**2) * vz
+        out = np.empty_like(x)
+        out[:n] = x[n:]
+        az = -G + 0.0 * x[0]
+        alpha = 0.0 * x[0]
+        for j in range(p):
+            az += 0.5 * x[2 + k + j] / max(p, 1)
+        for i in range(k):
+            length = leg + x[2 + i]
+            out[n + 2 + i] = -k_leg * x[2 + i] - c_leg * x[n + 2 + i]
+            if mask >> i & 1:
+                rx = a[i] * c + length * s
+                height = x[0] + a[i] * s - length * c
+                f = -K * height - C * (vz + om * rx - x[n + 2 + i] * c) + thrust
+                az += f
+                alpha += rx * f / inertia
+                out[n + 2 + i] -= push * f
+        out[n], out[n + 1] = az, alpha
+        for j in range(p):
+            out[n + 2 + k + j] = (-w[j] ** 2 * x[2 + k + j] - 0.1 * w[j] * x[n + 2 + k + j]
+                                  - 0.3 * (az + G))
+        return out
+
+    @numba.njit
+    def events(x):
+        c, s = np.cos(x[1]), np.sin(x[1])
+        out = np.empty(k)
+        for i in range(k):
+            out[i] = -(x[0] + a[i] * s - (leg + x[2 + i]) * c)
+        return out
+
+    @numba.njit
+    def event_jacobian(x):
+        c, s = np.cos(x[1]), np.sin(x[1])
+        D = np.zeros((k, 2 * n))
+        for i in range(k):
+            D[i, 0] = -1.0
+            D[i, 1] = -(a[i] * c + (leg + x[2 + i]) * s)
+            D[i, 2 + i] = c
+        return D
+
+    return field, events, event_jacobian
+
+
+def complex_step(f, d):
+    """The Python path's field Jacobian: complex step of the Python field."""
+
+    def jacobian(x, mask):
+        J = np.empty((d, d))
+        z = np.asarray(x, dtype=np.complex128)
+        for j in range(d):
+            zj = z.copy()
+            zj[j] += 1e-30j
+            J[:, j] = f(zj, mask).imag / 1e-30
+        return J
+
+    return jacobian
+
+
+def systems(k, p):
+    """The compiled and the Python system of the same model, and the apex start."""
+    field, events, event_jacobian = body(k, p)
+    d = 2 * (2 + k + p)
+    compiled = HybridSystem(field, events, n_events=k, dim=d, event_jacobian=event_jacobian)
+    python = HybridSystem(field.py_func, events.py_func, n_events=k, dim=d,
+                          event_jacobian=event_jacobian.py_func,
+                          field_jacobian=complex_step(field.py_func, d))
+    x0 = np.zeros(d)
+    x0[0] = APEX
+    return compiled, python, x0
+
+
+def best(fn, repeats=REPEATS):
+    """Min wall time of ``repeats`` calls, and the last result."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - start)
+    return min(times), out
+
+
+def central_differences(system, x0, eps=1e-6):
+    """The flow Jacobian by central differences of the simulation (2 d runs)."""
+    d = x0.size
+    J = np.empty((d, d))
+    for j in range(d):
+        e = np.zeros(d)
+        e[j] = eps
+        plus = system.simulate(x0 + e, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL).x_final
+        minus = system.simulate(x0 - e, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL).x_final
+        J[:, j] = (plus - minus) / (2 * eps)
+    return J
+
+
+def log_of(traj):
+    return [(e.event, e.mask, e.direction) for e in traj.events]
+
+
+def main(sizes=SIZES):
+    print(f"one stride (apex to t = {T_FINAL}), rtol 1e-10, atol 1e-12, min of {REPEATS}, "
+          f"alternated; times in ms")
+    print(f"{'k':>2} {'p':>2} {'d':>3} {'1st call':>8} | {'sim c':>6} {'sim py':>7} "
+          f"{'ratio':>6} | {'build c':>7} {'build py':>8} {'ratio':>6} | {'FD py':>7} "
+          f"{'ratio':>6} | {'x rel':>7} {'map rel':>7} {'log':>4}")
+    for k, p in sizes:
+        compiled, python, x0 = systems(k, p)
+        d = x0.size
+        start = time.perf_counter()
+        compiled.flow_bderivative(x0, T_FINAL)
+        first = time.perf_counter() - start
+        python.flow_bderivative(x0, T_FINAL)
+        sims, builds = {}, {}
+        for _ in range(REPEATS):  # alternated: one of each in turn
+            for name, system in (("c", compiled), ("py", python)):
+                t, traj = best(lambda s=system, x=x0: s.simulate(x, T_FINAL,
+                                                                 simultaneity_tol=1e-7), 1)
+                sims.setdefault(name, []).append((t, traj))
+                t, D = best(lambda s=system, x=x0: s.flow_bderivative(x, T_FINAL), 1)
+                builds.setdefault(name, []).append((t, D))
+        t_fd, J_fd = best(lambda s=python, x=x0: central_differences(s, x), 1)
+        (sc, tc), (sp, tp) = (min(sims[n], key=lambda r: r[0]) for n in ("c", "py"))
+        (bc, Dc), (bp, Dp) = (min(builds[n], key=lambda r: r[0]) for n in ("c", "py"))
+        V = np.random.default_rng(0).standard_normal((64, d))
+        x_rel = np.abs(tc.x_final - tp.x_final).max() / np.abs(tp.x_final).max()
+        map_rel = np.abs(Dc(V) - Dp(V)).max() / np.abs(Dp(V)).max()
+        same = log_of(tc) == log_of(tp)
+        print(f"{k:>2} {p:>2} {d:>3} {first:>6.2f} s | {sc * 1e3:>6.2f} {sp * 1e3:>7.1f} "
+              f"{sp / sc:>5.0f}x | {bc * 1e3:>7.2f} {bp * 1e3:>8.1f} {bp / bc:>5.0f}x | "
+              f"{t_fd * 1e3:>7.0f} {t_fd / bc:>5.0f}x | {x_rel:>7.1e} {map_rel:>7.1e} "
+              f"{'same' if same else 'DIFF':>4}", flush=True)
+
+
+if __name__ == "__main__":
+    main(SIZES[:: len(SIZES) - 1] if "--quick" in sys.argv else SIZES)

@@ -1,0 +1,67 @@
+"""The selection of mathematics.md section 3, written once: the steps of every scalar chain.
+
+A chain keeps ``g = Dh x`` for its virtual position x (``g[p]``: row p of a lockstep
+group). In a region whose rates are ``r`` (a row of a rate table, or the rates a corner
+model's region gives), a pending event k is due at ``-g_k / r_k``; the next event is the
+earliest (the latest going backwards), ties to the smaller k. An event that is no longer
+a candidate holds ``g_k = -inf`` (``+inf`` backwards): its time is then ``+inf``
+(``-inf``) and it is never selected again, so the loops are plain loops over k with no
+bit tests. Moving the position by ``t (F[before] - F[after])`` moves g by
+``t (r_before - r_after)``.
+
+Used by the plain dense chains (:mod:`.dense`, four queries in lockstep), the corner
+functions' chain (:mod:`.function`) and the chain with resets (:mod:`.resets`). Not by
+two specialisations, which select with other arithmetic on purpose: the lanes
+(:mod:`.lanes`: the same steps in vector registers, in actual coordinates, with a stored
+``-1 / G``) and structured corners (:mod:`.structured`: division-free comparisons
+``g_k r_b > g_b r_k`` in 8-wide vectors); each is checked against ``tests/reference.py``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._core import JIT
+
+
+@njit(inline="always", **JIT)
+def pending_times(g, p, rates, b, tau):
+    """``tau[p, k] = -g[p, k] / rates[b, k]`` for every event k (the times in region b)."""
+    for k in range(tau.shape[1]):
+        tau[p, k] = -g[p, k] / rates[b, k]
+
+
+@njit(inline="always", **JIT)
+def earliest(tau, p, inverse):
+    """``(k, tau[p, k])``: the smallest time of row p (the largest when ``inverse``), ties
+    to the smaller k. Branch-free selects: the outcome is random, a branch mispredicts."""
+    best = tau[p, 0]
+    kb = 0
+    if inverse:
+        for k in range(1, tau.shape[1]):
+            tk = tau[p, k]
+            better = tk > best
+            best = tk if better else best
+            kb = k if better else kb
+    else:
+        for k in range(1, tau.shape[1]):
+            tk = tau[p, k]
+            better = tk < best
+            best = tk if better else best
+            kb = k if better else kb
+    return kb, best
+
+
+@njit(inline="always", **JIT)
+def retire(g, p, k, inverse):
+    """Event k of row p is no longer a candidate: its time is never selected again."""
+    g[p, k] = np.inf if inverse else -np.inf
+
+
+@njit(inline="always", **JIT)
+def advance(g, p, t, rates, before, after):
+    """``g[p] += t (rates[before] - rates[after])``: the position moved by
+    ``t (F[before] - F[after])``."""
+    for k in range(g.shape[1]):
+        g[p, k] += t * (rates[before, k] - rates[after, k])

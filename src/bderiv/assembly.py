@@ -1,0 +1,126 @@
+"""The B-derivatives a model gives: at one group of events, and along a trajectory.
+
+:func:`group_bderivative` samples a model at a group's event point (event Jacobian rows,
+region fields where the state lands, resets and their Jacobians) and builds the group's
+:class:`~bderiv.bderivative.BDerivative` in the group's local orientation;
+:func:`flow_map_along` composes one per group of a trajectory integrated with its
+variational equations into a :class:`~bderiv.flowmap.FlowBDerivative` (mathematics.md
+sections 2, 7 and 9). Here rather than in :mod:`bderiv.flowmap`, which only composes given
+stages: the assembly needs the model, and the map should not import the model side.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._format import format_mask, transversality_message
+from .bderivative import BDerivative
+from .crossings import RESET_MISMATCH, apply_resets, landing
+from .finaltime import FinalTimeMap
+from .flowmap import FlowBDerivative
+
+__all__ = ["flow_map_along", "group_bderivative", "point_bderivative", "spread_masks"]
+
+
+def spread_masks(events, mask_before):
+    """Global masks of all 2**g local masks of a group (bit j of local: event events[j]
+    crossed, i.e. its bit of ``mask_before`` flipped, whichever the direction)."""
+    g = len(events)
+    local = np.arange(1 << g, dtype=np.int64)
+    glob = np.full(1 << g, int(mask_before), dtype=np.int64)
+    for j, k in enumerate(events):
+        glob ^= ((local >> j) & 1) << int(k)
+    return glob
+
+
+def group_bderivative(system, x, events, mask_before, mask_after=None, *, where="at rho"):
+    """BDerivative of the group ``events`` at ``x`` entered from region ``mask_before``.
+
+    Built in the group's local orientation: the rows of ``Dh`` of the events crossed
+    downward (bit set in ``mask_before``) are negated, and local mask bit j means
+    "event ``events[j]`` happened". Its global bit is flipped, except for the events
+    whose bits ``mask_after`` (default: all flipped) keeps: a reset sent the state back
+    (a bounce, a leg swap), and the field after it is that of the region it came from
+    (mathematics.md section 9). Only the rates of pending events must be positive.
+    """
+    events = tuple(int(k) for k in events)
+    sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
+    Dh = sign[:, None] * system.eval_event_jacobian(x)[list(events)]
+    glob = spread_masks(events, mask_before)  # every event's bit flipped
+    if system.has_resets:
+        base, R = system.sample_resets(x, events, glob, Dh, sign, where)
+        lands = (1 << len(events)) - 1  # local bits of the events whose bit flips
+        if mask_after is not None:
+            lands = sum(1 << j for j, k in enumerate(events)
+                        if (mask_before ^ mask_after) >> k & 1)
+        regions = glob[np.arange(glob.size) & lands]  # the bits of bounces kept
+        F = np.array([system.eval_field(b, int(m)) for b, m in zip(base, regions,
+                                                                 strict=True)])
+    else:
+        F = system.sample_corners(x, glob)
+    G = F @ Dh.T
+    pending = (np.arange(G.shape[0])[:, None] >> np.arange(len(events)) & 1) == 0
+    bad = np.argwhere(~(G > 0) & (pending | (not system.has_resets)))
+    if bad.size:
+        i, j = (int(v) for v in bad[0])
+        region = format_mask(int(glob[i]), system.n_events)
+        if sign[j] < 0:
+            where += f" (event {events[j]} crossed downward: the rate is that of -h)"
+        raise ValueError(transversality_message(events[j], region, G[i, j], where))
+    if system.has_resets:
+        try:
+            return BDerivative(Dh, F, resets=R, reset_tol=system.reset_tol)
+        except ValueError as exc:  # the existence check: say where
+            raise ValueError(f"{where} (events {list(events)}): {exc}") from None
+    return BDerivative(Dh, F)
+
+
+def flow_map_along(system, traj):
+    """The :class:`FlowBDerivative` along a trajectory integrated with its variational
+    equations (``run(..., variational=True)``): one BDerivative per event group."""
+    groups, linear = list(traj.groups), list(traj.linear)
+    final_field = system.eval_field(traj.x_final, traj.mask_final)
+    if traj.final_pending:  # a group just after t_final: its map is stopped there too
+        groups.append(traj.final_group)
+        linear.append(np.eye(system.dim))
+        final_field = system.eval_field(traj.x_final, traj.final_group.mask_after)
+    jumps = [
+        group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
+                             where=f"at the event point at t={g.time:.10g}")
+        for g in groups
+    ]
+    if traj.final_group is not None:  # the final time is one more event of the group
+        jumps[-1] = FinalTimeMap(jumps[-1])
+    return FlowBDerivative(
+        linear, jumps, final_field=final_field,
+        group_times=[g.time for g in groups], group_events=[g.events for g in groups],
+        x0=traj.x[0], x_final=traj.x_final, t_final=float(traj.t[-1]),
+    )
+
+
+def point_bderivative(system, rho, tol):
+    """The BDerivative of all n events at ``rho`` (checked: every event value within
+    ``tol``), entered from region 0: :meth:`HybridSystem.bderivative
+    <bderiv.hybrid.HybridSystem.bderivative>`. With resets, where each event lands is
+    decided by :func:`bderiv.crossings.landing` as in a simulation, and the resets must
+    commute as maps (:func:`bderiv.crossings.apply_resets`), rho taken to be accurate to
+    ``reset_tol`` relative (of ``max(1, max |rho|)``).
+    """
+    if not system.has_resets:
+        return group_bderivative(system, rho, range(system.n_events), 0)
+    events, accuracy = list(range(system.n_events)), system.reset_tol * max(
+        1.0, float(np.abs(rho).max()))
+    context = (f"at rho (taken as t=0, its integration accuracy as reset_tol="
+               f"{system.reset_tol:g} relative)")
+    after = apply_resets(system, events, 0, rho, 0.0, np.inf)  # orders compared below
+    window = np.maximum(accuracy * np.abs(system.eval_event_jacobian(after)).sum(axis=1), tol)
+    try:
+        mask_after = landing(system, events, 0, after, window)
+    except ValueError as exc:
+        raise ValueError(f"{context}: {exc}") from None
+    bd = group_bderivative(system, rho, events, 0, mask_after)
+    try:
+        apply_resets(system, events, 0, rho, 0.0, RESET_MISMATCH * accuracy)
+    except ValueError as exc:
+        raise ValueError(f"{context}: {exc}") from None
+    return bd

@@ -1,0 +1,84 @@
+"""The driver called in slices of steps, so that a long stretch comes back to Python.
+
+Numba's compiled code does not see Ctrl-C: the signal is handled when the driver returns.
+:func:`drive` calls :func:`._integrate.drive_stretch` for about ``SLICE_SECONDS`` of steps at
+a time (the steps a slice takes are learned from the calls so far), and goes on from where
+it paused with the step size it had: the same steps as one call.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from ._integrate import N_STEPS, PAUSED, drive_stretch
+
+#: the longest a slice should run, in seconds
+SLICE_SECONDS = 0.2
+#: accepted steps of a slice before the model's cost per step is known
+FIRST_SLICE = 256
+#: seconds per accepted step measured so far, per (model, length of the integrated vector)
+_cost: dict = {}
+
+
+class Driven(NamedTuple):
+    """What the driver's calls of one stretch gave (see ``drive_stretch``): ``status``,
+    ``t_end``, ``y_end``, ``ts`` (N,), ``ys`` (N, m), ``steps`` (S, 2), ``Fd``
+    (S, 7, d), ``active`` (n,), ``roots`` (n,), ``counts`` (4,), ``bad`` (d,), ``t_bad``."""
+
+    status: int
+    t_end: float
+    y_end: np.ndarray
+    ts: np.ndarray
+    ys: np.ndarray
+    steps: np.ndarray
+    Fd: np.ndarray
+    active: np.ndarray
+    roots: np.ndarray
+    counts: np.ndarray
+    bad: np.ndarray
+    t_bad: float
+
+
+def _interrupted(exc) -> None:
+    """Raise the KeyboardInterrupt behind ``exc`` (a SystemError numba raised when the
+    interrupt's handler ran while it built the results), if there is one."""
+    seen = exc
+    while seen is not None:
+        if isinstance(seen, KeyboardInterrupt):
+            raise KeyboardInterrupt from None
+        seen = seen.__cause__ or seen.__context__
+
+
+def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
+          rtol, atol, max_step, first_step, forced, dense) -> Driven:
+    """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
+    key = (id(model), y0.size)
+    parts, counts = [], np.zeros(4, dtype=np.int64)
+    while True:
+        per_step = _cost.get(key)
+        budget = FIRST_SLICE if per_step is None else max(1, int(SLICE_SECONDS / per_step))
+        start = time.perf_counter()
+        try:
+            out = drive_stretch(model, jac_mode, variational, with_section, n_events, mask,
+                                d, t0, y0, t_final, rtol, atol, max_step, first_step, forced,
+                                budget, dense)
+        except SystemError as exc:  # Ctrl-C seen while numba boxed the results
+            _interrupted(exc)
+            raise
+        elapsed = time.perf_counter() - start
+        status, t_end, y_end, ts, ys, steps, Fd, active, roots, part, bad, t_bad, h = out
+        if part[N_STEPS]:
+            _cost[key] = elapsed / part[N_STEPS]
+        counts += part
+        parts.append((ts, ys, steps, Fd) if not parts else (ts[1:], ys[1:], steps, Fd))
+        if status != PAUSED:
+            break
+        t0, y0, first_step, forced = t_end, y_end, h, -1
+    if len(parts) == 1:
+        ts, ys, steps, Fd = parts[0]
+    else:
+        ts, ys, steps, Fd = (np.concatenate(p) for p in zip(*parts, strict=True))
+    return Driven(status, t_end, y_end, ts, ys, steps, Fd, active, roots, counts, bad, t_bad)

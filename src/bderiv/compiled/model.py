@@ -1,0 +1,175 @@
+"""A model's compiled functions, checked and bound once, and one stretch of one region.
+
+:class:`CompiledModel` is what the model side (:mod:`bderiv.simulate`) integrates with:
+the user's dispatchers checked (they compile for the integrator's types and return its
+array types), the way ``J`` is had (given, complex step, central differences; see
+:mod:`._rhs`), and the struct the driver takes; :meth:`CompiledModel.stretch` runs the
+driver from a state to ``t_final`` or the first crossing and turns a failed run into an
+error that names the function, the region and the state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._format import MASK_MEANING, format_mask
+from ._checks import check_compiled, compiles_for_complex, format_state, raise_failed_run
+from ._dop853 import dense_rows
+from ._integrate import EVENT, FINISHED
+from ._model import bound_model
+from ._rhs import (
+    JAC_CENTRAL,
+    JAC_COMPLEX_STEP,
+    JAC_GIVEN,
+    OK,
+    events_rows,
+    field_rows,
+    jacobian,
+    no_complex_field,
+    no_jacobian,
+    no_section,
+)
+from ._slices import Driven, drive
+from .stretch import MAX_EVENTS
+
+#: how ``J`` is had, by the code of :mod:`._rhs`
+JACOBIAN_MODES = {JAC_GIVEN: "given", JAC_COMPLEX_STEP: "complex step",
+                  JAC_CENTRAL: "central differences"}
+
+
+class CompiledModel:
+    """A model's ``field``, ``events`` (and ``field_jacobian``) as checked dispatchers.
+
+    Parameters
+    ----------
+    field, events, field_jacobian : numba dispatchers
+        ``field(x, mask) -> (d,)``, ``events(x) -> (n,)``, ``field_jacobian(x, mask) ->
+        (d, d)`` (optional: complex step where ``field`` compiles for complex input, else
+        central differences).
+    n_events, dim : int
+
+    Raises
+    ------
+    TypeError
+        A function that is not a dispatcher or does not compile for the integrator's types
+        (:func:`._checks.check_compiled`).
+    ValueError
+        More than ``MAX_EVENTS`` events (the region mask is an int64).
+    """
+
+    def __init__(self, field, events, field_jacobian=None, *, n_events, dim):
+        if n_events > MAX_EVENTS:
+            raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
+                             f"bit each of an int64 region mask), got n_events={n_events}")
+        self.named = {"field": field, "events": events}
+        if field_jacobian is not None:
+            self.named["field_jacobian"] = field_jacobian
+        for name, fn in self.named.items():
+            check_compiled(fn, name)
+        if field_jacobian is not None:
+            self.jac_mode = JAC_GIVEN
+        elif compiles_for_complex(field):
+            self.jac_mode = JAC_COMPLEX_STEP
+        else:
+            self.jac_mode = JAC_CENTRAL
+        self.n_events, self.dim = n_events, dim
+
+    def struct(self, section=None):
+        """The driver's struct of the functions (with ``section``, a checked dispatcher)."""
+        f = self.named
+        return bound_model(f["field"], f.get("field_jacobian", no_jacobian), f["events"],
+                           f["field"] if self.jac_mode == JAC_COMPLEX_STEP
+                           else no_complex_field,
+                           no_section if section is None else section)
+
+    def use_central_differences(self) -> None:
+        """Compute ``J`` by central differences from now on (complex step found wrong)."""
+        self.jac_mode = JAC_CENTRAL
+
+    def jacobian(self, x, mask) -> np.ndarray:
+        """The ``J`` the integrator uses at ``x`` in region ``mask``: shape (d, d)."""
+        d = self.dim
+        J = np.empty((d, d))
+        x = np.array(x, dtype=np.float64)
+        status = jacobian(self.struct(), self.jac_mode, x.copy(), int(mask), d, J)
+        if status != OK:
+            raise_failed_run(status, self.named, x, 0.0, mask, d, self.n_events,
+                             self.jac_mode)
+        return J
+
+    def events_rows(self, X) -> np.ndarray:
+        """``events`` at every row of ``X`` (m, d): shape (m, n), checked."""
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        G = np.empty((X.shape[0], self.n_events))
+        bad = np.zeros(self.dim)
+        status = events_rows(self.struct(), X, self.n_events, G, bad)
+        if status != OK:
+            raise_failed_run(status, self.named, bad, 0.0, 0, self.dim, self.n_events)
+        return G
+
+    def fields(self, x, masks) -> np.ndarray:
+        """``field(x, mask)`` for every mask of ``masks`` (m,): shape (m, d), checked."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        masks = np.ascontiguousarray(masks, dtype=np.int64)
+        out = np.empty((masks.size, self.dim))
+        status, i = field_rows(self.struct(), x, masks, self.dim, out)
+        if status != OK:
+            raise_failed_run(status, self.named, x, 0.0, int(masks[i]), self.dim,
+                             self.n_events)
+        return out
+
+    def stretch(self, y0, t0, t_final, mask, *, rtol, atol, max_step, variational,
+                section=None, forced=False, dense=True) -> Driven:
+        """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
+
+        Parameters
+        ----------
+        y0 : ndarray, shape (d,) or (d + d * d,)
+            The state, and with ``variational`` the sensitivity (row-major) after it.
+        rtol, atol : float
+            Tolerances (``atol`` of every state component; the sensitivity's rows take
+            their state component's).
+        section : numba dispatcher, optional
+            ``section(x) -> float``: watched upward after the events (event ``n``).
+        forced : bool
+            The section reads 1 at ``t0`` (a run that starts on it).
+        dense : bool
+            Record the state's dense output of every step.
+
+        Returns
+        -------
+        Driven
+            Status ``FINISHED`` or ``EVENT``.
+        """
+        d, n = self.dim, self.n_events
+        m = d * (d + 1) if variational else d
+        y0 = np.ascontiguousarray(y0, dtype=np.float64)
+        watched = n + (section is not None)
+        try:
+            out = drive(self.struct(section), self.jac_mode, variational, section is not None,
+                        watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
+                        np.full(m, float(atol)), float(max_step), 0.0,
+                        n if forced else -1, dense)
+        except Exception as exc:  # raised inside a user function: say where
+            raise ValueError(
+                f"a compiled function of the model raised {type(exc).__name__}: {exc}; while "
+                f"integrating region mask {format_mask(mask, n)} ({MASK_MEANING}) from "
+                f"t = {t0!r}, x = {format_state(y0[:d])}"
+            ) from exc
+        if out.status not in (FINISHED, EVENT):
+            named = dict(self.named, section=section)
+            raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n, self.jac_mode)
+        return out
+
+
+def dense_at(steps, F, y_old, T) -> np.ndarray:
+    """The dense output of a stretch's recorded steps at the times ``T`` (m,): (m, d).
+
+    ``steps`` (S, 2) start times and sizes, ``F`` (S, 7, d) coefficients, ``y_old`` (S, d)
+    start states (the record of :meth:`CompiledModel.stretch` with ``dense``).
+    """
+    T = np.ascontiguousarray(T, dtype=np.float64)
+    out = np.empty((T.size, y_old.shape[1]))
+    dense_rows(np.ascontiguousarray(steps[:, 0]), np.ascontiguousarray(steps[:, 1]), F,
+               np.ascontiguousarray(y_old), T, out)
+    return out

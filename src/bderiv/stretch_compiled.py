@@ -1,0 +1,92 @@
+"""One stretch of a region in compiled code: the compiled integrator of a run.
+
+:class:`CompiledStretches` is :class:`bderiv.stretch_scipy.ScipyStretches`'s twin for a
+model whose ``field``, ``events`` (and ``field_jacobian``, and the section) are numba
+dispatchers: the stretch runs in :mod:`bderiv.compiled`'s driver (scipy's DOP853, no Python
+call per step) and comes back with solve_ivp's fields (``t``, ``y``, ``t_events``,
+``status``, and ``sol``, the state's dense output), so that everything at a stop (location,
+grouping, crossings inside a step, the final time) is the same code for both integrators:
+:func:`bderiv.simulate.run`, :mod:`bderiv.locate`, :mod:`bderiv.crossings`,
+:mod:`bderiv.excursions`, :mod:`bderiv.finaltime`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .compiled import EVENT, dense_at
+from .excursions import without_lost_crossings
+
+
+class DenseOutput:
+    """The state's dense output over a compiled stretch: ``sol(t)``, shape (d,) or
+    (d, len(t)), scipy's ``Dop853DenseOutput`` on each step (evaluated in compiled code).
+
+    Parameters
+    ----------
+    steps : ndarray, shape (S, 2)
+        Start time and size of each step.
+    F : ndarray, shape (S, 7, d)
+        The coefficients of each step.
+    y_old : ndarray, shape (S, d)
+        The state at each step's start.
+    """
+
+    def __init__(self, steps, F, y_old):
+        self.steps, self.F, self.y_old = steps, F, y_old
+
+    def __call__(self, t):
+        y = dense_at(self.steps, self.F, self.y_old, np.atleast_1d(t))
+        return y[0] if np.ndim(t) == 0 else y.T
+
+
+class CompiledSolution:
+    """A compiled stretch with solve_ivp's fields: ``t`` (N,), ``y`` (m, N), ``t_events``
+    (the earliest crossing's event; one list per watched value), ``status`` (1: stopped at
+    a crossing, 0: at the final time), ``sol`` (:class:`DenseOutput` of the state)."""
+
+    def __init__(self, out, d, watched):
+        self.t, self.y = out.ts, out.ys.T
+        self.status = 1 if out.status == EVENT else 0
+        self.t_events = [np.empty(0) for _ in range(watched)]
+        if self.status:  # as solve_ivp's terminal events: the first root, lowest index
+            first = int(np.flatnonzero(out.roots == out.t_end)[0])
+            self.t_events[first] = np.array([out.t_end])
+        self.sol = DenseOutput(out.steps, out.Fd, out.ys[:-1, :d]) if out.steps.size else None
+
+
+class CompiledStretches:
+    """The stretches of a run in compiled code: ``stretches(x, t, t_final, mask, options,
+    variational) -> CompiledSolution``.
+
+    Parameters
+    ----------
+    system : HybridSystem
+        Its compiled model (``system.compiled``), and its checked evaluations at stops.
+    section : numba dispatcher, optional
+        ``section(x) -> float``: watched upward after the events.
+    """
+
+    def __init__(self, system, section=None):
+        self.system, self.model, self.section = system, system.compiled, section
+
+    def __call__(self, x, t, t_final, mask, options, variational):
+        """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
+        section; the state and its (d, d) sensitivity (row-major) with ``variational``."""
+        system, d = self.system, self.system.dim
+        watched = system.n_events + (self.section is not None)
+        if variational:
+            system.check_compiled_jacobian(x, mask)
+            y0 = np.concatenate((x, np.eye(d).ravel()))
+        else:
+            y0 = x
+
+        def solve(start, y_start, stop):
+            out = self.model.stretch(
+                y_start, start, stop, mask, rtol=options.rtol, atol=options.atol,
+                max_step=options.max_step, variational=variational, section=self.section,
+                forced=self.section is not None and start == 0.0)
+            return CompiledSolution(out, d, watched)
+
+        return without_lost_crossings(system, mask, options, solve, t, y0, t_final,
+                                      events_at=self.model.events_rows)

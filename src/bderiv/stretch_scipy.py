@@ -1,0 +1,108 @@
+"""One stretch of a region by :func:`scipy.integrate.solve_ivp`: the Python integrator.
+
+:class:`ScipyStretches` integrates a model whose functions are Python callables (each
+called through :class:`~bderiv._usercalls.ModelCalls`, checked) from a state to the final
+time or the first crossing, with the variational equations when asked; its compiled twin is
+:class:`bderiv.stretch_compiled.CompiledStretches`. Both return a stretch with solve_ivp's
+fields (``t``, ``y``, ``t_events``, ``status``, ``sol``) and leave everything that happens
+at a stop to :func:`bderiv.simulate.run`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from .excursions import without_lost_crossings
+from .locate import on_side_at_start
+
+
+class _EventValues:
+    """``events(x)`` cached on the last state (solve_ivp calls every event function)."""
+
+    def __init__(self, system, section=None):
+        self.system, self.key, self.value = system, None, None
+        self.section = section
+
+    def __call__(self, y):
+        x = y[: self.system.dim]
+        if self.key is None or not np.array_equal(self.key, x):
+            self.key, self.value = x.copy(), self.system.eval_events(x)
+        return self.value
+
+    def terminal_events(self, mask):
+        """One terminal solve_ivp event per event, each looking for the crossing that
+        flips its bit; then the section (upward) if any."""
+        funcs = []
+        for k in range(self.system.n_events):
+
+            def ev(_t, y, k=k):
+                return self(y)[k]
+
+            ev.terminal = True
+            ev.direction = -1 if mask >> k & 1 else 1
+            funcs.append(ev)
+        if self.section is not None:
+            section, d = self.section, self.system.dim
+
+            def sec(t, y):
+                # the run starts on the section: read it as positive there, so that only
+                # a return from below counts (solve_ivp counts 0 -> positive as a crossing)
+                return 1.0 if t == 0.0 else section(y[:d])
+
+            sec.terminal = True
+            sec.direction = 1
+            funcs.append(sec)
+        return funcs
+
+
+class ScipyStretches:
+    """The stretches of a run by solve_ivp: ``stretches(x, t, t_final, mask, options,
+    variational) -> OdeResult``.
+
+    Parameters
+    ----------
+    system : HybridSystem
+        Its checked evaluations are used.
+    section : callable ``section(x) -> float``, optional
+        Watched upward after the events (solve_ivp's event ``n``).
+    watch : SimulationProgress, optional
+        Told the time of each evaluation of the field (a progress bar; Ctrl-C is seen
+        there).
+    """
+
+    def __init__(self, system, section=None, watch=None):
+        self.system, self.events = system, _EventValues(system, section)
+        self.watch = watch
+
+    def __call__(self, x, t, t_final, mask, options, variational):
+        """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
+        section; the state and its (d, d) sensitivity (row-major) with ``variational``."""
+        system, d = self.system, self.system.dim
+        if variational:
+
+            def rhs(_t, y):
+                J = system.eval_field_jacobian(y[:d], mask)
+                return np.concatenate((system.eval_field(y[:d], mask),
+                                       (J @ y[d:].reshape(d, d)).ravel()))
+
+            y0 = np.concatenate((x, np.eye(d).ravel()))
+        else:
+
+            def rhs(_t, y):
+                return system.eval_field(y, mask)
+
+            y0 = x
+        funcs = on_side_at_start(self.events.terminal_events(mask), t, mask, system.n_events)
+
+        field = rhs if self.watch is None else self.watch.wrap(rhs)
+
+        def solve(start, y_start, stop):
+            sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
+                            **options.solve_ivp_kwargs())
+            if sol.status == -1:
+                raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
+            return sol
+
+        # solve_ivp compares signs at step ends only: look inside the steps too
+        return without_lost_crossings(system, mask, options, solve, t, y0, t_final)

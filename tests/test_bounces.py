@@ -1,0 +1,369 @@
+"""Bounces and leg swaps (issue 24): resets that send the state back to the side it came
+from. The examples (bouncing ball, ball in a corner, rimless wheel, compass gait) against
+closed forms, the saltation formula written out here, finite differences of closed-form
+flows, a scipy simulation of Garcia et al.'s walker, and their published numbers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import quad, solve_ivp
+
+from bderiv import HybridSystem
+from bderiv.examples import bounces, walkers
+
+G = 9.81
+
+
+# ----------------------------------------------------------------------------------
+# the bouncing ball
+# ----------------------------------------------------------------------------------
+def _ball_flow(x, T, e, g=G):
+    """The ball's state at T from x = (q, v), q > 0, in closed form (impacts by the
+    quadratic formula, the rebound velocity -e v)."""
+    q, v, t = float(x[0]), float(x[1]), 0.0
+    while True:
+        hit = (v + np.sqrt(v * v + 2 * g * q)) / g  # q + v s - g s^2 / 2 = 0, s > 0
+        if t + hit > T:
+            s = T - t
+            return np.array([q + v * s - 0.5 * g * s * s, v - g * s])
+        t, q, v = t + hit, 0.0, -e * (v - g * hit)
+
+
+def test_ball_bounces_at_the_closed_form_times_with_velocities_e_to_the_k():
+    e, height = 0.8, 1.0
+    ex = bounces.bouncing_ball(e=e, height=height)
+    traj = ex.system.simulate(ex.x0, 3.0)
+    v1 = np.sqrt(2 * G * height)
+    k = np.arange(1, len(traj.groups) + 1)
+    # t_k = t_1 + 2 (e + ... + e^(k-1)) v_1 / g
+    times = np.sqrt(2 * height / G) + 2 * v1 / G * (e - e**k) / (1 - e)
+    assert len(traj.groups) == 6  # the 7th impact is at 3.12 s
+    np.testing.assert_allclose([g.time for g in traj.groups], times, rtol=1e-10)
+    np.testing.assert_allclose([g.state_after[1] for g in traj.groups], e**k * v1, rtol=1e-9)
+    for g in traj.groups:  # every impact an upward crossing of h = -q, its bit kept
+        assert g.events == (0,) and g.directions == (1,)
+        assert g.mask_before == g.mask_after == 0 and g.bounced == (0,)
+    np.testing.assert_allclose(traj.x_final, _ball_flow(ex.x0, 3.0, e), rtol=1e-9, atol=1e-10)
+
+
+def test_ball_flow_bderivative_across_bounces_matches_the_closed_form_flow():
+    """Four bounces; central differences of the closed-form flow (each impact is one
+    event, so the flow is smooth at x0 and its B-derivative linear)."""
+    e, T = 0.7, 2.0
+    ex = bounces.bouncing_ball(e=e)
+    x0 = np.array([0.8, 1.3])
+    D = ex.system.flow_bderivative(x0, T)
+    assert len(D.group_times) == 4
+    h = 1e-6
+    J = np.column_stack([(_ball_flow(x0 + h * d, T, e) - _ball_flow(x0 - h * d, T, e)) / (2 * h)
+                         for d in np.eye(2)])
+    np.testing.assert_allclose(D(np.eye(2)).T, J, rtol=1e-7, atol=1e-7)
+
+
+def test_bouncing_ball_refuses_bad_parameters():
+    with pytest.raises(ValueError, match="restitution e must be between 0 and 1, got 1.5"):
+        bounces.bouncing_ball(e=1.5)
+    with pytest.raises(ValueError, match="height and g must be > 0"):
+        bounces.bouncing_ball(height=-1.0)
+
+
+# ----------------------------------------------------------------------------------
+# one impact on random systems: the saltation formula with reset
+# ----------------------------------------------------------------------------------
+def _random_system(rng, landing):
+    """A random smooth system in R^3 with one event at rho and a reset that lands
+    ``"back"`` (off the surface, where it came from: a leg swap), on the surface with
+    the flow leaving it (``"bounce"``) or on the far side (``"far"``: bit flipped).
+
+    Fields ``A_m (x - rho) + b_m + (x - rho).(x - rho) q_m``; event ``c.(x - rho) +
+    (x - rho)^T H (x - rho) / 2`` (linear for the bounce: the reset keeps it on it);
+    reset ``rho + s + L (x - rho) + ((x - rho).(x - rho)) p``."""
+    d = 3
+    rho = rng.standard_normal(d)
+    A, b = rng.standard_normal((2, d, d)), rng.standard_normal((2, d))
+    q = rng.standard_normal((2, d))
+    c = rng.standard_normal(d)
+    H = np.zeros((d, d)) if landing == "bounce" else 0.2 * rng.standard_normal((d, d))
+    H = 0.5 * (H + np.transpose(H))
+    if c @ b[0] < 0:  # crossing upward from region 0
+        b[0] = -b[0]
+    L, p = rng.standard_normal((d, d)), 0.3 * rng.standard_normal(d)
+    tangent = np.linalg.svd(c[None])[2][1:]  # rows: a basis of c's orthogonal complement
+    if landing == "bounce":  # on the surface, the flow of both regions leaving it
+        s = rng.standard_normal(2) @ tangent
+        for m in (0, 1):  # the rate -1 at rho + s, by the quadratic term (0 at rho)
+            rate = c @ (A[m] @ s + b[m] + (s @ s) * q[m])
+            q[m] -= (rate + 1.0) / (s @ s) * c / (c @ c)
+    else:  # off the surface by one unit of c, back or across
+        s = ((-1.0 if landing == "back" else 1.0) * c / (c @ c)
+             + 0.3 * rng.standard_normal(2) @ tangent)
+        if landing == "far" and c @ (A[1] @ s + b[1]) < 0:
+            b[1] -= 2 * (c @ (A[1] @ s + b[1])) * c / (c @ c)  # crossing still, after
+
+    def field(x, mask):
+        y = x - rho
+        return A[mask] @ y + b[mask] + (y @ y) * q[mask]
+
+    def field_jacobian(x, mask):
+        return A[mask] + 2.0 * np.outer(q[mask], x - rho)
+
+    def events(x):
+        y = x - rho
+        return np.array([c @ y + 0.5 * y @ H @ y])
+
+    def event_jacobian(x):
+        return (c + H @ (x - rho))[None]
+
+    def reset(x, mask, k):
+        y = x - rho
+        return rho + s + L @ y + (y @ y) * p
+
+    def reset_jacobian(x, mask, k):
+        return L + 2.0 * np.outer(p, x - rho)
+
+    system = HybridSystem(field, events, n_events=1, dim=d, event_jacobian=event_jacobian,
+                          field_jacobian=field_jacobian, reset=reset,
+                          reset_jacobian=reset_jacobian)
+    return system, rho, field, reset, reset_jacobian, c
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("landing", ["back", "bounce", "far"])
+def test_single_impact_bderivative_is_the_saltation_matrix_with_reset(seed, landing):
+    """Xi = R + (f+ - R f-) Dh / (Dh f-), f+ the field at the reset state of the region
+    it lands in: region 0 (bit kept) after a leg swap or a bounce, region 1 after."""
+    rng = np.random.default_rng(100 * seed + len(landing))
+    system, rho, field, reset, reset_jacobian, c = _random_system(rng, landing)
+    R = reset_jacobian(rho, 0, 0)
+    f_minus = field(rho, 0)
+    f_plus = field(reset(rho, 0, 0), 1 if landing == "far" else 0)
+    Xi = R + np.outer(f_plus - R @ f_minus, c) / (c @ f_minus)
+    M = system.bderivative(rho)
+    np.testing.assert_allclose(M.piece([0]), Xi, rtol=1e-12, atol=1e-12)
+    V = rng.standard_normal((5, 3))
+    np.testing.assert_allclose(M(V), V @ Xi.T, rtol=1e-12, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------------
+# the ball in a corner: two bounces at once
+# ----------------------------------------------------------------------------------
+def _corner_flow(x, T, e, g=G):
+    """The ball in the right-angled corner x, y >= 0 in closed form: the walls act on
+    orthogonal components, so x and y bounce independently (x: at most one impact, the
+    ball then moves away; y: under gravity, impacts by the quadratic formula)."""
+    px, py, vx, vy = (float(v) for v in x)
+    hit = -px / vx if vx < 0 else np.inf
+    px, vx = (px + vx * T, vx) if T < hit else (-e * vx * (T - hit), -e * vx)
+    y = _ball_flow(np.array([py, vy]), T, e, g)
+    return np.array([px, y[0], vx, y[1]])
+
+
+def test_right_corner_double_bounce_flow_matches_closed_form_differences():
+    """Directions on both sides of the simultaneous impact (floor first, wall first);
+    one-sided differences of the closed-form flow agree to O(eps). Both pieces are the
+    same map: the walls act on orthogonal components (the B-derivative is linear)."""
+    e = 0.8
+    ex = bounces.ball_in_corner(e=e)
+    traj = ex.system.simulate(ex.x0, ex.t_final, simultaneity_tol=1e-7)
+    np.testing.assert_allclose(traj.x_final, _corner_flow(ex.x0, ex.t_final, e), rtol=1e-9,
+                               atol=1e-10)
+    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    assert list(D.group_events) == [(0, 1)]
+    V = np.random.default_rng(3).standard_normal((12, 4))
+    V /= np.linalg.norm(V, axis=1)[:, None]
+    orders = {tuple(int(k) for k in o) for o in D.orders(V)[0]}
+    assert orders == {(0, 1), (1, 0)}
+    base = _corner_flow(ex.x0, ex.t_final, e)
+    DV = D(V)
+    errors = []
+    for eps in (1e-5, 1e-6):
+        fd = np.array([(_corner_flow(ex.x0 + eps * v, ex.t_final, e) - base) / eps for v in V])
+        errors.append(np.abs(fd - DV).max() / np.abs(DV).max())
+    assert errors[1] < 1e-5 and errors[1] < errors[0] / 5  # O(eps)
+    M = ex.system.bderivative(ex.rho)
+    np.testing.assert_allclose(M.piece([0, 1]), M.piece([1, 0]), atol=1e-13)
+
+
+def test_sixty_degree_corner_is_refused_naming_the_two_walls():
+    ex = bounces.ball_in_corner(angle=np.pi / 3)
+    with pytest.raises(ValueError, match=r"resets of events 0 and 1 .* do not commute"):
+        ex.system.bderivative(ex.rho)
+    with pytest.raises(ValueError, match=r"resets of events \[0, 1\].* do not commute"):
+        ex.system.simulate(ex.x0, ex.t_final, simultaneity_tol=1e-7)
+
+
+def test_ball_in_corner_refuses_bad_angles():
+    with pytest.raises(ValueError, match="angle must be in"):
+        bounces.ball_in_corner(angle=np.pi)
+
+
+# ----------------------------------------------------------------------------------
+# the rimless wheel
+# ----------------------------------------------------------------------------------
+@pytest.mark.parametrize(("alpha", "slope"), [(np.pi / 8, 0.08), (np.pi / 6, 0.2)])
+def test_rimless_wheel_orbit_and_multiplier_match_the_energy_balance(alpha, slope):
+    """omega^2 after an impact maps as u -> c^2 (u + 4 sin(alpha) sin(slope)), c =
+    cos(2 alpha) (g = leg = 1): fixed point u* = c^2 K / (1 - c^2), multiplier c^2; the
+    period is the integral of dtheta / omega over a step."""
+    ex = walkers.rimless_wheel(alpha=alpha, slope=slope)
+    orbit = walkers.rimless_wheel_orbit(ex, perturbation=(0.0, 0.1))
+    c2, K = np.cos(2 * alpha) ** 2, 4 * np.sin(alpha) * np.sin(slope)
+    u = c2 * K / (1 - c2)
+
+    def omega(theta):  # energy from theta = -alpha
+        return np.sqrt(u + 2 * (np.cos(slope - alpha) - np.cos(theta + slope)))
+
+    np.testing.assert_allclose(orbit.x0, [0.0, omega(0.0)], atol=1e-10)
+    period = quad(lambda th: 1 / omega(th), -alpha, alpha, epsabs=1e-13, epsrel=1e-13)[0]
+    assert abs(orbit.period - period) < 1e-9
+    (group,) = orbit.trajectory.groups
+    assert group.mask_before == group.mask_after == 0 and group.bounced == (0,)
+    np.testing.assert_allclose(group.state_after, [-alpha, np.sqrt(u)], atol=1e-10)
+    (mult,) = orbit.stability(n_directions=10, iterations=50).multipliers.values()
+    assert abs(mult[0] - c2) < 1e-9
+
+
+def test_rimless_wheel_refuses_a_wheel_that_cannot_roll_over():
+    with pytest.raises(ValueError, match="stops before rolling over its spoke"):
+        walkers.rimless_wheel(alpha=np.pi / 5, slope=0.01)
+
+
+# ----------------------------------------------------------------------------------
+# the compass gait: Garcia et al.'s simplest walker
+# ----------------------------------------------------------------------------------
+def _garcia_stride(z, gam=0.009):
+    """Garcia et al.'s stride map on (theta, theta') just after heel strike, from their
+    equations (g = l = 1, leg mass 0), by scipy: the heel strike is phi - 2 theta = 0
+    crossed upward with phi < 0 (the scuff at mid-stance ignored)."""
+
+    def f(_t, y):
+        th, ph, thd, _ = y
+        return [thd, y[3], np.sin(th - gam),
+                np.sin(ph) * (thd**2 - np.cos(th - gam)) + np.sin(th - gam)]
+
+    def strike(_t, y):
+        return y[1] - 2 * y[0] if y[1] < 0 else -1.0
+
+    strike.terminal, strike.direction = True, 1
+    th, thd = z
+    y0 = [th, 2 * th, thd, thd * (1 - np.cos(2 * th))]
+    sol = solve_ivp(f, (0, 20), y0, events=strike, method="DOP853", rtol=1e-13, atol=1e-14)
+    th, _, thd, _ = sol.y_events[0][0]
+    return np.array([-th, np.cos(2 * th) * thd])
+
+
+@pytest.fixture(scope="module")
+def compass_orbit():
+    return walkers.compass_gait_orbit()
+
+
+def test_compass_gait_matches_garcia_fixed_point(compass_orbit):
+    groups = compass_orbit.trajectory.groups
+    # a scuff (downward, no jump) and a heel strike (upward, the legs swapped)
+    assert [g.directions for g in groups] == [(1,), (-1,)]
+    strike, scuff = groups
+    assert np.array_equal(scuff.state, scuff.state_after)
+    th, ph, thd, phd = strike.state_after
+    assert abs(th - walkers.GARCIA_FIXED_POINT[0]) < 1e-9
+    assert abs(thd - walkers.GARCIA_FIXED_POINT[1]) < 1e-9
+    np.testing.assert_allclose([ph, phd], [2 * th, thd * (1 - np.cos(2 * th))], atol=1e-12)
+
+
+def test_compass_gait_eigenvalues_match_garcia_and_finite_differences(compass_orbit):
+    R = compass_orbit.return_map
+    from bderiv.stability import piece_multipliers
+
+    mult = piece_multipliers(R.piece([[0], [0]]), R.tangent_basis)
+    assert abs(mult[2]) < 1e-9  # the leg swap forgets a direction: rank 2 on the section
+    pair = sorted(mult[:2], key=lambda z: z.imag)
+    published = sorted(walkers.GARCIA_EIGENVALUES, key=lambda z: z.imag)
+    assert np.abs(np.subtract(pair, published)).max() < 2e-3  # their digits: to 1.3e-3
+    z, h = np.array(walkers.GARCIA_FIXED_POINT), 1e-6
+    J = np.column_stack([(_garcia_stride(z + h * d) - _garcia_stride(z - h * d)) / (2 * h)
+                         for d in np.eye(2)])
+    fd = sorted(np.linalg.eigvals(J), key=lambda z: z.imag)
+    assert np.abs(np.subtract(pair, fd)).max() < 1e-6
+
+
+def test_compass_gait_refuses_a_heel_strike_behind_the_stance_leg():
+    ex = walkers.compass_gait()
+    x = np.array([0.1, 0.2, -0.3, 0.1])  # h = 0 with phi > 0: the scuff, crossed upward
+    with pytest.raises(ValueError, match="swing leg behind the stance leg"):
+        ex.system.bderivative(x)
+
+
+# ----------------------------------------------------------------------------------
+# the command line and the figure
+# ----------------------------------------------------------------------------------
+def test_demo_rimless_wheel_prints_the_gait_beside_its_closed_forms(capsys):
+    from bderiv.cli import main
+
+    assert main(["demo", "--example", "rimless-wheel"]) == 0
+    out = capsys.readouterr().out
+    assert "event 0 crossed up" in out and "the bit kept" in out
+    c2 = np.cos(np.pi / 4) ** 2
+    assert f"multiplier: {c2:.10f} / {c2:.10f}" in out
+    assert main(["demo", "--example", "compass-gait", "--n", "3"]) == 2  # a network option
+    assert "--n and --extended are options of --example network" in capsys.readouterr().err
+
+
+def test_the_impacts_figure_script_draws_the_three_cases(tmp_path):
+    pytest.importorskip("matplotlib")
+    import importlib.util
+    import pathlib
+
+    tool = pathlib.Path(__file__).resolve().parents[1] / "tools" / "impacts_figure.py"
+    spec = importlib.util.spec_from_file_location("bderiv_impacts_figure", tool)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    # the third case: the bit set at the landing, cleared at the lift-off, no other event
+    system, x0, t_final = module.compliant_landing()
+    traj = system.simulate(x0, t_final)
+    assert [(g.directions, g.mask_after) for g in traj.groups] == [((1,), 1), ((-1,), 0)]
+    module.main([str(tmp_path / "impacts.png")])
+    assert (tmp_path / "impacts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_compass_gait_refuses_bad_parameters_and_a_start_that_does_not_step():
+    with pytest.raises(ValueError, match="leg_com must be in"):
+        walkers.compass_gait(leg_com=0.0)
+    with pytest.raises(ValueError, match="start must be two finite numbers"):
+        walkers.compass_gait(start=(0.2,))
+    with pytest.raises(ValueError, match="does not complete a step"):
+        walkers.compass_gait(start=(0.2, 0.5))  # rolling backward
+
+
+@pytest.mark.parametrize(("leg_mass", "leg_com"), [(5.0, 0.5), (0.3, 1.0), (1e-3, 0.8)])
+def test_compass_heel_strike_is_the_rigid_impact_of_the_floating_walker(leg_mass, leg_com):
+    """The leg swap's velocities against the impulsive dynamics of the free walker,
+    written out here: coordinates (hip x, hip y, theta, psi) (psi = theta - phi, the swing
+    leg's absolute angle), M (q'+ - q'-) = J^T lambda with the new stance foot stopped,
+    J q'+ = 0 (no impulse on the old stance foot, which lifts off). Legs with mass (the
+    massless limit is checked against Garcia et al.'s gait above)."""
+    hip_mass, leg = 10.0, 1.2
+    model = walkers._Compass(hip_mass, leg_mass, leg, leg_com, 0.05, 9.81)
+    b = leg_com * leg  # the leg mass from the hip
+
+    def u(a):
+        return np.array([-np.sin(a), np.cos(a)]), np.array([-np.cos(a), -np.sin(a)])
+
+    theta, psi, thd, psd = -0.21, 0.23, -0.9, 0.4  # psi = theta - phi; phi < 0: ahead
+    x = np.array([theta, theta - psi, thd, thd - psd])
+    (_, du_t), (_, du_p) = u(theta), u(psi)
+    # Jacobians of the point masses in (xh, yh, theta, psi): hip, stance mass, swing mass
+    I2 = np.eye(2)
+    J = [np.column_stack([I2, np.zeros((2, 2))]),
+         np.column_stack([I2, -b * du_t, np.zeros(2)]),
+         np.column_stack([I2, np.zeros(2), -b * du_p])]
+    masses = [hip_mass, leg_mass, leg_mass]
+    M = sum(m * Ji.T @ Ji for m, Ji in zip(masses, J, strict=True))
+    J_foot = np.column_stack([I2, np.zeros(2), -leg * du_p])  # the new stance foot
+    qd_minus = np.array([*(leg * thd * du_t), thd, psd])  # the old stance foot at rest
+    K = np.block([[M, -J_foot.T], [J_foot, np.zeros((2, 2))]])
+    qd_plus = np.linalg.solve(K, np.concatenate([M @ qd_minus, np.zeros(2)]))[:4]
+    new_theta_rate, new_psi_rate = qd_plus[3], qd_plus[2]  # the legs' roles swapped
+    after = model.reset(x, 0, 0)
+    np.testing.assert_allclose(after[:2], [psi, psi - theta], atol=1e-15)
+    np.testing.assert_allclose(after[2:], [new_theta_rate, new_theta_rate - new_psi_rate],
+                               rtol=1e-9, atol=1e-12)
