@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from ._core import JIT, batch, impacts
-from .selection import advance, earliest, pending_times, retire
+from .selection import advance, earliest, exclude, pending_times
 
 
 class ResetTables(NamedTuple):
@@ -107,8 +107,8 @@ def chain(tables, u, inverse, scratch):
     backwards; ties to the smaller k); it moves the virtual position by
     x' = R[B, k] (x + t F[B]) - t F[B'], and backwards by x' = R[B', k]^-1 (x + t F[B]) -
     t F[B'] (B' the region after the step); g = Dh x follows (recomputed for dense
-    resets, updated by Dh U for low-rank ones), the events that are no candidates in B'
-    retired again.
+    resets, updated by Dh U for low-rank ones). The events that are no candidates are
+    excluded from each region's times: after a bounce their rates may be negative.
     Fills times[j], order[j] (the j-th event in forward order) and regions[j] (the
     region before it; regions[n] = full).
     """
@@ -123,6 +123,9 @@ def chain(tables, u, inverse, scratch):
     regions[n if inverse else 0] = B
     for step in range(n):
         pending_times(g, 0, G, B, tau)
+        for k in range(n):
+            if ((B >> k) & 1) != inverse:
+                exclude(tau, 0, k, inverse)
         kb, best = earliest(tau, 0, inverse)
         B2 = B & ~(1 << kb) if inverse else B | (1 << kb)
         e = B2 if inverse else B  # the entry of the crossing
@@ -138,9 +141,6 @@ def chain(tables, u, inverse, scratch):
                     g[0, k] += DhP[e, kb, s, k] * ws
         else:
             impacts(DhT, x, g[0])
-        for k in range(n):
-            if ((B2 >> k) & 1) != inverse:
-                retire(g, 0, k, inverse)
         j = n - 1 - step if inverse else step
         times[j] = best
         order[j] = kb

@@ -4,9 +4,11 @@ A chain keeps ``g = Dh x`` for its virtual position x (``g[p]``: row p of a lock
 group). In a region whose rates are ``r`` (a row of a rate table, or the rates a corner
 model's region gives), a pending event k is due at ``-g_k / r_k``; the next event is the
 earliest (the latest going backwards), ties to the smaller k. An event that is no longer
-a candidate holds ``g_k = -inf`` (``+inf`` backwards): its time is then ``+inf``
-(``-inf``) and it is never selected again, so the loops are plain loops over k with no
-bit tests. Moving the position by ``t (F[before] - F[after])`` moves g by
+a candidate is :func:`retire`-d, ``g_k = -inf`` (``+inf`` backwards): while its rates are
+positive its time is then ``+inf`` (``-inf``) and it is never selected again, so the
+loops are plain loops over k with no bit tests. Where the rates of events that happened
+may be negative (resets: a bounce) the chain :func:`exclude`-s them from each region's
+times instead. Moving the position by ``t (F[before] - F[after])`` moves g by
 ``t (r_before - r_after)``.
 
 Used by the plain dense chains (:mod:`.dense`, four queries in lockstep), the corner
@@ -55,8 +57,16 @@ def earliest(tau, p, inverse):
 
 @njit(inline="always", **JIT)
 def retire(g, p, k, inverse):
-    """Event k of row p is no longer a candidate: its time is never selected again."""
+    """Event k of row p is no longer a candidate: its time is never selected again (its
+    rates in the later regions must be positive)."""
     g[p, k] = np.inf if inverse else -np.inf
+
+
+@njit(inline="always", **JIT)
+def exclude(tau, p, k, inverse):
+    """Event k of row p is no candidate in this region: its time ``tau[p, k]`` is never
+    the earliest (whatever the sign of its rate)."""
+    tau[p, k] = -np.inf if inverse else np.inf
 
 
 @njit(inline="always", **JIT)

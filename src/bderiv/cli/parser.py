@@ -77,6 +77,8 @@ _GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability
               "rimless-wheel": "the rimless wheel's gait (a leg swap every step, against "
                                "its closed forms)",
               "compass-gait": "the compass gait (leg swaps; against Garcia et al. 1998)",
+              "ball-in-corner": "a ball bouncing off two walls at once (resets that send "
+                                "the state back)",
               "quadruped": "a planar quadruped pronking, built from its equations "
                            "(bderiv.symbolic.contact_system; sympy)"}
 

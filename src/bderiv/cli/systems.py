@@ -27,7 +27,7 @@ ORBIT_EXAMPLES = {"pronking": {
 }}
 #: impact examples (models with resets) whose B-derivative at the event point ``plot`` and
 #: ``export`` take as they take the models'
-IMPACT_EXAMPLES = ("landing",)
+IMPACT_EXAMPLES = ("landing", "ball-in-corner")
 #: largest n of the scalable network family the CLI accepts
 NETWORK_MAX_N = 20
 
@@ -75,6 +75,8 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
         ex = examples.table()
     elif name == "landing":
         ex = examples.impacts.landing()
+    elif name == "ball-in-corner":
+        ex = examples.ball_in_corner()
     else:
         n = 3 if n is None else n
         if not 1 <= n <= NETWORK_MAX_N:

@@ -29,9 +29,10 @@ code, and every Jacobian is exact through the implicit-function rule
 (:mod:`bderiv.symbolic._mechanics`, which gives the measurements). For m = 7 the solve is
 a few hundred flops, below the cost of the expressions themselves.
 
-Simultaneous impacts (docs/mathematics.md section 9, "When the B-derivative exists"): two
-plastic or restitution impacts at once commute, so that the state after them and the
-B-derivative exist, when the contacts are orthogonal in the inverse-mass metric,
+Simultaneous impacts (docs/mathematics.md section 9, "When the B-derivative exists", which
+derives the condition): two plastic or restitution impacts at once commute, so that the
+state after them and the B-derivative exist, exactly when the contacts are orthogonal in
+the inverse-mass metric,
 ``J_i M^-1 J_j^T = 0`` (the impulse at one does not change the other's normal velocity).
 :class:`ContactSystem` checks it wherever an impact resets the state while another
 contact is hit at the same instant (on its surface, within ``SURFACE_TOL`` relative,
@@ -45,8 +46,8 @@ where the legs are vertical, and coupled where the body is pitched.
 
 from __future__ import annotations
 
+import functools
 import numbers
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -54,7 +55,7 @@ from ._inputs import _check_free, _expressions, _sequence, _symbols, check_value
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
 from ._model import SymbolicSystem, load_model
 
-__all__ = ["DEFAULT_STANCE", "SURFACE_TOL", "ContactSystem", "contact_system"]
+__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ContactSystem", "contact_system"]
 
 #: parameters of the default stance law ``stiffness * pen + damping * rate``, and values
 DEFAULT_STANCE = {"contact_stiffness": 1.0e4, "contact_damping": 100.0}
@@ -64,37 +65,37 @@ SURFACE_TOL = 1e-6
 COUPLING_TOL = 1e-9
 
 
-@dataclass(frozen=True)
 class ContactModel:
     """A checked contact model over canonical symbols (``x_i``: q then q', ``s_k``,
     ``p_j``), what :mod:`bderiv.symbolic._mechanics` prints.
+
+    It holds the user's expressions (the cache key, :meth:`canonical_text`, is theirs: a
+    cached model is neither derived nor compiled); the right-hand side ``b`` and the
+    gradients ``J`` are derived when first asked for (by the code generator).
 
     Attributes
     ----------
     M : tuple of tuples, (m, m)
         The mass matrix.
-    b : tuple, (m,)
-        The right-hand side: forces, Coriolis terms, stance forces (flags ``s_k``).
+    forces : tuple, (m,)
     contacts : tuple, (n,)
         The gaps phi_k.
-    J : tuple of tuples, (n, m)
-        Their gradients d phi_k / dq.
+    laws : tuple, (n,)
+        Each contact's normal force in the symbols ``pen[k]`` and ``rate[k]``.
     restitution : sympy.Expr or None
         ``e`` (in the parameters), None without impacts.
+    coriolis : bool
+    x, s, p : tuple of sympy.Symbol
+        The state (q then q'), flags and parameters.
     """
 
-    M: tuple
-    b: tuple
-    contacts: tuple
-    J: tuple
-    restitution: object
-    x: tuple
-    s: tuple
-    p: tuple
-    param_names: tuple
-    values: np.ndarray
-    original: dict
-    names: tuple  # the contacts as the user wrote them (for messages)
+    def __init__(self, *, M, forces, contacts, laws, restitution, coriolis, x, s, p, pen,
+                 rate, param_names, values, original, names):
+        self.M, self.forces, self.contacts, self.laws = M, forces, contacts, laws
+        self.restitution, self.coriolis = restitution, coriolis
+        self.x, self.s, self.p, self.pen, self.rate = x, s, p, pen, rate
+        self.param_names, self.values, self.original = param_names, values, original
+        self.names = names  # the contacts as the user wrote them (for messages)
 
     @property
     def m(self) -> int:
@@ -116,18 +117,47 @@ class ContactModel:
         sp = require_sympy()
         return tuple(sp.Symbol(f"{name}_{i}", real=True) for i in range(count))
 
+    @functools.cached_property
+    def J(self) -> tuple:
+        """(n, m): the gradients d phi_k / dq."""
+        sp = require_sympy()
+        return tuple(tuple(sp.diff(phi, q) for q in self.x[:self.m]) for phi in self.contacts)
+
+    def stance_force(self, k: int):
+        """Contact k's normal force in the state: the law at ``-phi_k``, ``-J_k q'``."""
+        rate = -sum(g * v for g, v in zip(self.J[k], self.x[self.m:], strict=True))
+        return self.laws[k].xreplace({self.pen[k]: -self.contacts[k], self.rate[k]: rate})
+
+    @functools.cached_property
+    def b(self) -> tuple:
+        """(m,): forces, Coriolis terms, stance forces ``s_k J_k^T lambda_k``."""
+        m = self.m
+        rhs = list(self.forces)
+        if self.coriolis:
+            rhs = [a + c for a, c in zip(rhs, _coriolis(self.M, self.x[:m], self.x[m:]),
+                                         strict=True)]
+        for k in range(self.n_events):
+            lam = self.stance_force(k)
+            rhs = [r + self.s[k] * self.J[k][i] * lam for i, r in enumerate(rhs)]
+        return tuple(rhs)
+
     def labelled(self):
+        """``(label, expression)`` of the user's expressions (the stance laws in the
+        state)."""
         m = self.m
         yield from ((f"mass_matrix[{i}][{j}]", self.M[i][j]) for i in range(m)
                     for j in range(m))
-        yield from ((f"right-hand side[{i}]", e) for i, e in enumerate(self.b))
+        yield from ((f"forces[{i}]", e) for i, e in enumerate(self.forces))
         yield from ((f"contacts[{k}]", e) for k, e in enumerate(self.contacts))
+        yield from ((f"the stance force of contact {k}", self.stance_force(k))
+                    for k in range(self.n_events))
         if self.restitution is not None:
             yield "restitution", self.restitution
 
     def canonical_text(self) -> list:
+        """Strings that identify the model (not the parameter values): the cache key."""
         sp = require_sympy()
-        return [f"m={self.m} n={self.n_events} p={len(self.p)}",
+        return [f"m={self.m} n={self.n_events} p={len(self.p)} coriolis={self.coriolis}",
                 *(f"{label}={sp.srepr(e)}" for label, e in self.labelled())]
 
 
@@ -374,6 +404,8 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
          else [sp.Dummy(f"contact_{k}") for k in range(n)])
     if len(s) != n:
         raise ValueError(f"flags must have one symbol per contact ({n}), got {len(s)}")
+    if not isinstance(coriolis, bool | np.bool_):
+        raise TypeError(f"coriolis must be True or False, got {type(coriolis).__name__}")
     if params is not None and not hasattr(params, "items"):
         raise TypeError(f"params must be a mapping symbol -> value, got "
                         f"{type(params).__name__}")
@@ -402,14 +434,14 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         _check_free(f"forces[{i}]", f, allowed, unknown)
     if e is not None:
         _check_free("the restitution", e, names, "are not parameters")
-    J = [[sp.diff(phi, qi) for qi in q] for phi in phis]
-    rhs = list(forces)
-    if coriolis:
-        rhs = [a + b for a, b in zip(rhs, _coriolis(M, q, v), strict=True)]
-    for k, (phi, law) in enumerate(zip(phis, laws, strict=True)):
-        lam = sp.sympify(law(-phi, -sum(J[k][i] * v[i] for i in range(m))))
-        _check_free(f"the stance force of contact {k}", lam, allowed, unknown)
-        rhs = [r + s[k] * J[k][i] * lam for i, r in enumerate(rhs)]
+    pen = [sp.Dummy(f"pen_{k}") for k in range(n)]
+    rate = [sp.Dummy(f"rate_{k}") for k in range(n)]
+    lams = []
+    for k, law in enumerate(laws):
+        lam = sp.sympify(law(pen[k], rate[k]))
+        _check_free(f"the stance force of contact {k}", lam, allowed | {pen[k], rate[k]},
+                    unknown)
+        lams.append(lam)
 
     # canonical symbols: x_i (q then q'), s_k, p_j
     pnames = list(params)
@@ -419,17 +451,19 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     x = tuple(sp.Symbol(f"x_{i}", real=True) for i in range(2 * m))
     sc = tuple(sp.Symbol(f"s_{k}", real=True) for k in range(n))
     pc = tuple(sp.Symbol(f"p_{j}", real=True) for j in range(len(pnames)))
+    pens = tuple(sp.Symbol(f"pen_{k}", real=True) for k in range(n))
+    rates = tuple(sp.Symbol(f"rate_{k}", real=True) for k in range(n))
     to = {**dict(zip([*q, *v], x, strict=True)), **dict(zip(s, sc, strict=True)),
-          **dict(zip(pnames, pc, strict=True))}
+          **dict(zip(pnames, pc, strict=True)), **dict(zip(pen, pens, strict=True)),
+          **dict(zip(rate, rates, strict=True))}
 
-    def canon(e):
-        return sp.sympify(e).xreplace(to)
+    def canon(exprs):
+        return tuple(sp.sympify(e).xreplace(to) for e in exprs)
 
     model = ContactModel(
-        M=tuple(tuple(canon(e) for e in row) for row in M), b=tuple(map(canon, rhs)),
-        contacts=tuple(map(canon, phis)), J=tuple(tuple(map(canon, row)) for row in J),
-        restitution=None if e is None else canon(e), x=x, s=sc, p=pc,
-        param_names=tuple(map(str, pnames)),
+        M=tuple(map(canon, M)), forces=canon(forces), contacts=canon(phis), laws=canon(lams),
+        restitution=None if e is None else canon([e])[0], coriolis=bool(coriolis), x=x,
+        s=sc, p=pc, pen=pens, rate=rates, param_names=tuple(map(str, pnames)),
         values=np.array([float(params[p]) for p in pnames], dtype=np.float64),
         original={c: u for u, c in to.items()}, names=tuple(map(str, phis)))
     module, kernels, build = load_model(
