@@ -40,7 +40,8 @@ def measure(m: int, rounds: int) -> dict:
     t = np.eye(6)[2]
     X = x0 + 1e-3 * np.random.default_rng(0).standard_normal((m, 6))
     phi = flow(system, T)
-    starts = iter(x0 + 1e-9 * np.arange(1, 2 * rounds + 3)[:, None])
+    # moved along x, which the model does not depend on: the feet still land together
+    starts = iter(x0 + 1e-3 * np.arange(1, rounds + 2)[:, None] * np.eye(6)[0])
     runs = {
         ("value", "jax"): lambda: np.asarray(phi(x0)),
         ("value", "numpy"): lambda: system.simulate(x0, T).x_final,

@@ -11,7 +11,7 @@ Groups (pytest-benchmark ``group``):
 With the default ``--benchmark-disable`` the small cases run once as smoke tests (a few
 seconds). The sweep (n = 16, 32, 64, 128; big cases are marked ``slow``)::
 
-    python -m pytest benchmarks/test_bench_corners.py -m "slow or not slow" \\
+    python -m pytest benchmarks/test_bench_corners.py -n 0 -m "slow or not slow" \\
         --benchmark-enable --benchmark-json=corners.json
 
 or, for the table of time per query up to n = 256 and the growth exponent from n = 16 to

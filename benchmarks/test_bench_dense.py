@@ -14,7 +14,7 @@ Groups (pytest-benchmark ``group``):
 With the default ``--benchmark-disable`` every case runs once as a smoke test; the small
 cases take well under a minute. The full sweep (big cases are marked ``slow``)::
 
-    python -m pytest benchmarks/test_bench_dense.py -m "slow or not slow" \\
+    python -m pytest benchmarks/test_bench_dense.py -n 0 -m "slow or not slow" \\
         --benchmark-enable --benchmark-json=bench.json
     python tools/bench_table.py bench.json --plot bench.png
 

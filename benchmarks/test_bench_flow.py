@@ -8,7 +8,7 @@ Two ways to run it:
   ``flow_bderivative`` construction, of the map per vector (batch of 1000 and one vector
   at a time) and of one ``flow_fd`` per vector, all in the same run; prints a markdown
   table (the numbers of the issue 3 closing note);
-- with pytest-benchmark (``pytest benchmarks/test_bench_flow.py --benchmark-enable``): the
+- with pytest-benchmark (``pytest benchmarks/test_bench_flow.py -n 0 --benchmark-enable``): the
   same contenders, grouped per example so that the ratio can be read; with the default
   ``--benchmark-disable`` they run once as smoke tests.
 """

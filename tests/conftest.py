@@ -1,6 +1,16 @@
-"""Shared test set-up: hypothesis settings and a session fixture that warms the JIT."""
+"""Shared test set-up: hypothesis settings, a session fixture that warms the JIT, and the
+session fixtures of objects that take seconds to make (each made once per process).
+
+Rules for new tests (README, "Tests"): a case that takes more than a few seconds on a warm
+cache is marked ``slow`` and keeps a smaller case of the same check in the default run; an
+object that takes seconds and several files need is a session fixture here, never a
+module-level computation (collection runs in every pytest-xdist worker); a nested pytest
+run passes ``-n 0``; timings live in benchmarks/ and run with ``-n 0``.
+"""
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import pytest
@@ -28,18 +38,48 @@ def pytest_configure(config):
     )
 
 
-@pytest.fixture(scope="session", autouse=True)
-def warm_jit():
-    """Compile every kernel once (serial and parallel paths) on a tiny system."""
+def _warm_ups():
+    """The kernels nearly every test file runs, as independent tasks on a tiny system (one
+    size class of the lane kernels): small batches run serially, large ones with prange."""
     from bderiv import BDerivative
 
     Dh = np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]])
     F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [2.0, 2.0, 0.0]])
     bd = BDerivative(Dh, F)
     rng = np.random.default_rng(0)
-    for m in (3, 5000):  # small batches run serially, large ones with prange
-        V = rng.standard_normal((m, 3))
-        bd.inverse(bd(V))
-        bd.event_times(V)
-    bd.triangulation()(V[:3])
-    list(bd.pieces())
+    small, large = rng.standard_normal((3, 3)), rng.standard_normal((5000, 3))
+    return [
+        lambda: (bd(small), bd.inverse(small), bd.event_times(small)),
+        lambda: bd(large),
+        lambda: bd.inverse(large),
+        lambda: bd.event_times(large),
+        lambda: (bd.triangulation()(small), list(bd.pieces())),
+        lambda: (bd.jvp(small, small), bd.vjp(small, small)),
+        lambda: bd.jvp(large, large),
+        lambda: bd.vjp(large, large),
+    ]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def warm_jit():
+    """Compile (or load from numba's disk cache) the kernels of :func:`_warm_ups`.
+
+    Under pytest-xdist, worker k of K starts with the tasks k, k + K, ... and then runs
+    the others: both workers compiling at once, each saves its half to the disk cache, where
+    the other then finds it (a task still being compiled by the other is compiled again:
+    the same result, never a wait)."""
+    tasks = _warm_ups()
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    k, count = int(worker[2:]), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    for task in tasks[k::count] + [t for i, t in enumerate(tasks) if i % count != k]:
+        task()
+
+
+@pytest.fixture(scope="session")
+def pronking_gait():
+    """``(example, orbit)``: the two-legged pronking gait's periodic orbit, found once per
+    process from a perturbed apex (Newton's method and a few strides: seconds)."""
+    from bderiv.examples import gaits
+
+    ex = gaits.pronking()
+    return ex, gaits.pronking_orbit(ex, perturbation=(0.02, 0.01, 0.03, -0.05))

@@ -278,12 +278,12 @@ def test_compass_gait_eigenvalues_match_garcia_and_finite_differences(compass_or
     assert abs(mult[2]) < 1e-9  # the leg swap forgets a direction: rank 2 on the section
     pair = sorted(mult[:2], key=lambda z: z.imag)
     published = sorted(walkers.GARCIA_EIGENVALUES, key=lambda z: z.imag)
-    assert np.abs(np.subtract(pair, published)).max() < 2e-3  # their digits: to 1.3e-3
+    assert np.abs(np.subtract(pair, published)).max() < 2e-3  # their digits: to 1.7e-3
     z, h = np.array(walkers.GARCIA_FIXED_POINT), 1e-6
     J = np.column_stack([(_garcia_stride(z + h * d) - _garcia_stride(z - h * d)) / (2 * h)
                          for d in np.eye(2)])
     fd = sorted(np.linalg.eigvals(J), key=lambda z: z.imag)
-    assert np.abs(np.subtract(pair, fd)).max() < 1e-6
+    assert np.abs(np.subtract(pair, fd)).max() < 1e-7
 
 
 def test_compass_gait_refuses_a_heel_strike_behind_the_stance_leg():
@@ -367,3 +367,14 @@ def test_compass_heel_strike_is_the_rigid_impact_of_the_floating_walker(leg_mass
     np.testing.assert_allclose(after[:2], [psi, psi - theta], atol=1e-15)
     np.testing.assert_allclose(after[2:], [new_theta_rate, new_theta_rate - new_psi_rate],
                                rtol=1e-9, atol=1e-12)
+
+
+def test_export_of_the_corner_double_bounce_round_trips(tmp_path, capsys):
+    from bderiv.cli import main
+
+    assert main(["export", "--example", "ball-in-corner", "--out", str(tmp_path / "tri"),
+                 "--format", "npz"]) == 0
+    out = capsys.readouterr().out
+    assert "triangulation of 2 events in R^4" in out
+    error = float(out.split("max |tri(V) - M(V)| = ")[1].split()[0])
+    assert error < 1e-12

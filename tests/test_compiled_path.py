@@ -66,6 +66,18 @@ def test_chair_on_both_paths():
     agree(ex.system, compiled, ex.x0, ex.t_final, simultaneity_tol=1e-7)
 
 
+@pytest.mark.parametrize("shift", [-3e-9, 0.0, 3e-9], ids=["before", "at", "after"])
+def test_a_group_at_the_final_time_on_both_paths(shift):
+    """The chair's touchdown within simultaneity_tol of t_final (finaltime.py): switched just
+    before it, or pending just after it; the same map on both paths."""
+    ex, compiled = chair_pair()
+    t_final = ex.t_event + shift
+    Dp, Dc = (s.flow_bderivative(ex.x0, t_final) for s in (ex.system, compiled))
+    assert Dc.stops_at_group and Dp.stops_at_group
+    V = np.random.default_rng(3).standard_normal((200, 6))
+    assert relative(Dc(V), Dp(V)) < 1e-6
+
+
 A = np.array([[[-0.2, 1.0], [-1.0, -0.2]], [[-0.1, 2.0], [-0.5, 0.0]]])
 B = np.array([[0.0, 0.3], [0.5, -1.0]])
 

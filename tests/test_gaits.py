@@ -166,9 +166,8 @@ def test_growth_rate_validation():
 # the pronking gait: orbit, return map, stability, against simulation
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def gait():
-    ex = gaits.pronking()
-    return ex, gaits.pronking_orbit(ex, perturbation=(0.02, 0.01, 0.03, -0.05))
+def gait(pronking_gait):
+    return pronking_gait  # tests/conftest.py: found once per process
 
 
 def vertical_hop_apex(ex_params, z_apex):

@@ -162,6 +162,21 @@ def test_reverse_mode_without_direction():
         jax.grad(lambda x: jnp.dot(w, phi(x)))(ex.x0)
 
 
+def test_a_compiled_model_runs_on_the_compiled_path(touchdown):
+    """A model of numba dispatchers (tests/compiled_models.py: the chair's twin) is
+    simulated in compiled code through the same callbacks: values and tangents agree with
+    the Python model's B-derivative."""
+    from compiled_models import chair_pair
+
+    ex, D, T = touchdown
+    _, compiled = chair_pair()
+    assert compiled.compiled is not None
+    phi = flow(compiled, ex.t_final, **TIGHT)
+    np.testing.assert_allclose(phi(ex.x0), D.x_final, rtol=1e-9, atol=1e-10)
+    dy = jax.vmap(lambda t: jax.jvp(phi, (ex.x0,), (t,))[1])(T)
+    assert np.abs(dy - D(T)).max() < 1e-6 * np.abs(D(T)).max()
+
+
 def _plane():
     """Two events of constant fields in the plane (HybridSystem's docstring example)."""
     F = np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [1.5, 1.5]])

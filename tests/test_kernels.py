@@ -67,7 +67,7 @@ def test_the_plain_kernels_pass_the_same_tests():
     tests = os.path.dirname(os.path.abspath(__file__))
     env = dict(os.environ, BDERIV_KERNELS="plain")
     out = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider",
+        [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "-n", "0",
          os.path.join(tests, "test_bderivative.py"), os.path.join(tests, "test_adjoints.py"),
          os.path.join(tests, "test_fuzz.py")],
         capture_output=True, text=True, env=env, cwd=os.path.dirname(tests))
@@ -91,7 +91,7 @@ def test_the_lane_kernels_compile_for_a_generic_target(tmp_path):
     env = dict(os.environ, NUMBA_CPU_NAME="generic", NUMBA_CACHE_DIR=str(tmp_path))
     env.pop("BDERIV_KERNELS", None)
     out = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider",
+        [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "-n", "0",
          os.path.join(tests, "test_lanes.py"), os.path.join(tests, "test_structured_lanes.py")],
         capture_output=True, text=True, env=env, cwd=os.path.dirname(tests))
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]

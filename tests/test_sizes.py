@@ -168,13 +168,10 @@ def test_memory_limit_of_load_is_validated(tmp_path, tri):
         load_triangulation(path, memory_limit=100)  # the file itself is larger
 
 
-def test_orbit_stability_sized_before_its_directions():
+def test_orbit_stability_sized_before_its_directions(pronking_gait):
     """The issue's ``orbit.stability(n_directions=10**10)`` (224 GiB of directions): refused
     before one is drawn."""
-    from bderiv.examples import gaits
-
-    ex = gaits.pronking()
-    orbit = gaits.pronking_orbit(ex, perturbation=(0.02, 0.01, 0.03, -0.05))
+    _, orbit = pronking_gait
     assert orbit.return_map.dim == 4  # built first: its own memory is not the point here
     refused_cheaply(lambda: orbit.stability(n_directions=10**10),
                     "the growth rate of 10000000000 directions in dimension 4 over 1000 "

@@ -52,7 +52,7 @@ class CompiledSolution:
         if self.status:  # as solve_ivp's terminal events: the first root, lowest index
             first = int(np.flatnonzero(out.roots == out.t_end)[0])
             self.t_events[first] = np.array([out.t_end])
-        self.sol = DenseOutput(out.steps, out.Fd, out.ys[:-1, :d]) if out.steps.size else None
+        self.sol = DenseOutput(out.steps, out.Fd, out.ys[:-1, :d])  # >= 1 step each
 
 
 class CompiledStretches:

@@ -76,7 +76,11 @@ _GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability
               "landing": "the impact landing (resets at a simultaneous touchdown)",
               "rimless-wheel": "the rimless wheel's gait (a leg swap every step, against "
                                "its closed forms)",
-              "compass-gait": "the compass gait (leg swaps; against Garcia et al. 1998)"}
+              "compass-gait": "the compass gait (leg swaps; against Garcia et al. 1998)",
+              "ball-in-corner": "a ball bouncing off two walls at once (resets that send "
+                                "the state back)",
+              "quadruped": "a planar quadruped pronking, built from its equations "
+                           "(bderiv.symbolic.contact_system; sympy)"}
 
 
 def _add_example_args(p, default_help, gaits=()):
@@ -212,12 +216,18 @@ def _gait_demo(args) -> str:
     simulation (:func:`bderiv.examples.gaits.pronking_summary`); ``--example landing``: a
     simultaneous impact with resets (:func:`bderiv.examples.impacts.landing_summary`);
     ``--example rimless-wheel`` or ``compass-gait``: a walker's gait through leg swaps
-    (:func:`bderiv.examples.walkers.walker_summary`)."""
+    (:func:`bderiv.examples.walkers.walker_summary`); ``--example quadruped``: a model from
+    equations to its stability verdict (:func:`bderiv.examples.quadruped.quadruped_summary`)."""
     if args.n is not None or args.extended:
         raise UsageError(f"--n and --extended are options of --example network, not "
                          f"{args.example}")
     from ..examples import gaits, impacts, walkers
 
+    if args.example == "quadruped":
+        from ..examples import quadruped
+
+        res = quadruped.quadruped_summary(seed=args.seed)
+        return render.to_json(res, indent=1) if args.json else quadruped.summary_text(res)
     if args.example in ("rimless-wheel", "compass-gait"):
         res = walkers.walker_summary(args.example, seed=args.seed)
         return render.to_json(res, indent=1) if args.json else walkers.summary_text(res)

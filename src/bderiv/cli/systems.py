@@ -15,7 +15,7 @@ MODEL_EXAMPLES = ("chair", "network", "table")
 #: examples whose demo is a summary of their own (``demo`` only): a gait's periodic orbit
 #: and stability verdict, an impact with resets checked against simulation, a passive
 #: walker's gait through leg swaps beside its reference numbers
-GAIT_EXAMPLES = ("pronking", "landing", "rimless-wheel", "compass-gait")
+GAIT_EXAMPLES = ("pronking", "landing", "rimless-wheel", "compass-gait", "quadruped")
 #: gait examples with a periodic orbit (``plot``'s figures orbit and growth), with what
 #: the orbit figure names: the state components and time with their units, the phases
 #: (regions by mask)
@@ -27,7 +27,7 @@ ORBIT_EXAMPLES = {"pronking": {
 }}
 #: impact examples (models with resets) whose B-derivative at the event point ``plot`` and
 #: ``export`` take as they take the models'
-IMPACT_EXAMPLES = ("landing",)
+IMPACT_EXAMPLES = ("landing", "ball-in-corner")
 #: largest n of the scalable network family the CLI accepts
 NETWORK_MAX_N = 20
 
@@ -75,6 +75,8 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
         ex = examples.table()
     elif name == "landing":
         ex = examples.impacts.landing()
+    elif name == "ball-in-corner":
+        ex = examples.ball_in_corner()
     else:
         n = 3 if n is None else n
         if not 1 <= n <= NETWORK_MAX_N:

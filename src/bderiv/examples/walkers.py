@@ -56,12 +56,12 @@ simplest walking model: stability, complexity, and scaling", ASME J. Biomech. En
 ``theta* = 0.20031090049483``, ``theta'* = -0.19983247291764``, and its stride map's
 nonzero eigenvalues are ``-0.19120868949940 +- 0.55633363687106 i`` (the digits of the
 simulation code published with the paper, M. Garcia 1998, integrated to 1e-10:
-:data:`GARCIA_FIXED_POINT`, :data:`GARCIA_EIGENVALUES`). The fixed point agrees to 1e-9;
-the eigenvalues to 1.3e-3 only: the return map's B-derivative gives ``-0.1900998 +-
+:data:`GARCIA_FIXED_POINT`, :data:`GARCIA_EIGENVALUES`). The fixed point agrees to 1e-10;
+the eigenvalues to 1.7e-3 only: the return map's B-derivative gives ``-0.1900998 +-
 0.5575988 i`` (modulus 0.58911, Garcia's 0.58827), and so do central differences of the
 stride map of Garcia's equations integrated by scipy at rtol 1e-13 (tests/test_bounces.py),
-to 1e-7. The two computations here agree with each other, not with the code's comment
-beyond its third digit (whose integration and differencing steps the code does not say).
+to 1e-8. The two computations here agree with each other, not with the code's comment
+beyond the second decimal (whose integration and differencing steps the code does not say).
 """
 
 from __future__ import annotations

@@ -15,9 +15,15 @@ Layout
 - ``_cache``: the cache folder (``$BDERIV_CACHE_DIR``), keys, storing and importing;
 - ``_model``: :func:`from_sympy`, the :class:`Kernels` record, the Python-facing
   :class:`ModelFunctions` (the signatures ``HybridSystem`` calls today) and
-  :class:`SymbolicSystem` (a ``HybridSystem`` with ``with_params``).
+  :class:`SymbolicSystem` (a ``HybridSystem`` with ``with_params``);
+- ``contacts``: :func:`contact_system`, bodies with point contacts (mass matrix, forces,
+  gaps, stance law, impacts) and :class:`ContactSystem`, which checks simultaneous impacts;
+- ``_mechanics``: their kernels, the mass matrix solved in compiled code with exact
+  Jacobians.
 """
 
 from ._model import BuildInfo, Kernels, ModelFunctions, SymbolicSystem, from_sympy
+from .contacts import ContactSystem, contact_system
 
-__all__ = ["BuildInfo", "Kernels", "ModelFunctions", "SymbolicSystem", "from_sympy"]
+__all__ = ["BuildInfo", "ContactSystem", "Kernels", "ModelFunctions", "SymbolicSystem",
+           "contact_system", "from_sympy"]

@@ -203,11 +203,15 @@ class SymbolicSystem(HybridSystem):
                 raise ValueError(f"{name} is not a parameter of this model (its parameters: "
                                  f"{known})")
             new[index[str(name)]] = check_value(value, f"the value of {name}")
-        return SymbolicSystem(self.kernels, new, self.build)
+        return self._with_values(new)
+
+    def _with_values(self, values) -> SymbolicSystem:
+        """This system's kernels with the parameter values ``values`` (checked)."""
+        return SymbolicSystem(self.kernels, values, self.build)
 
     def __repr__(self):
         params = ", ".join(f"{k}={v:g}" for k, v in self.param_values.items())
-        return (f"SymbolicSystem(n_events={self.n_events}, dim={self.dim}"
+        return (f"{type(self).__name__}(n_events={self.n_events}, dim={self.dim}"
                 f"{', resets' if self.has_resets else ''}"
                 f"{', params: ' + params if params else ''})")
 
@@ -239,6 +243,16 @@ def _numba_reason(exc) -> str:
         lines[0] if lines else type(exc).__name__)
 
 
+def _compile_closed(dispatcher, signature):
+    """``dispatcher`` compiled for ``signature`` only, through bderiv's checked cache."""
+    from .._kernels._cache import harden
+
+    if not dispatcher.signatures:
+        harden(dispatcher).compile(signature)
+        dispatcher.disable_compile()
+    return dispatcher
+
+
 def compile_kernels(model, module, path) -> Kernels:
     """The kernels of the generated ``module``, each compiled for its signature only.
 
@@ -247,16 +261,10 @@ def compile_kernels(model, module, path) -> Kernels:
     machine code instead of compiling; then its compilation is closed (other argument
     types are refused, not compiled). Compiled once per process.
     """
-    from .._kernels._cache import harden
-
     names = _codegen.KERNELS + (_codegen.RESET_KERNELS if module.HAS_RESETS else ())
     found = {}
     for name in names:
-        dispatcher = getattr(module, name)
-        if not dispatcher.signatures:
-            harden(dispatcher).compile(_codegen.SIGNATURES[name])
-            dispatcher.disable_compile()
-        found[name] = dispatcher
+        found[name] = _compile_closed(getattr(module, name), _codegen.SIGNATURES[name])
     return Kernels(**found, **{name: None for name in _codegen.RESET_KERNELS
                                if name not in found},
                    dim=model.dim, n_events=model.n_events, n_params=len(model.p),
@@ -317,13 +325,31 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
     """
     sympy = require_sympy()
     model = check_model(state, flags, field, events, resets, params)
-    key = _cache.model_key([f"bderiv.symbolic codegen {_codegen.CODEGEN_VERSION}",
-                            f"sympy {sympy.__version__}", *model.canonical_text()])
+    _, kernels, build = load_model(
+        model, [f"bderiv.symbolic codegen {_codegen.CODEGEN_VERSION}",
+                f"sympy {sympy.__version__}", *model.canonical_text()],
+        _codegen.generate, cache_dir)
+    return SymbolicSystem(kernels, model.values, build)
+
+
+def load_model(model, key_parts, generate, cache_dir, extra=None):
+    """The generated module of ``model``, its kernels and how they were got.
+
+    ``key_parts`` (strings) identify the model and its generator; ``generate(model, key)``
+    returns the module's source, written to the cache unless it is there already;
+    ``extra`` ``{name: signature}`` are further kernels of the module compiled likewise
+    (``module.<name>``).
+
+    Returns
+    -------
+    module, Kernels, BuildInfo
+    """
+    key = _cache.model_key(key_parts)
     path = _cache.module_path(_cache.cache_folder(cache_dir), key)
     cached = path.exists()
     start = time.perf_counter()
     if not cached:
-        source = _codegen.generate(model, key)
+        source = generate(model, key)
         try:
             _cache.store(path, source)
         except OSError as exc:
@@ -331,10 +357,13 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
                           f"{_cache.CACHE_ENV} or pass cache_dir= a writable folder") from None
     derived = time.perf_counter()
     try:
-        kernels = compile_kernels(model, _cache.load(path, key), path)
+        module = _cache.load(path, key)
+        kernels = compile_kernels(model, module, path)
+        for name, signature in (extra or {}).items():
+            _compile_closed(getattr(module, name), signature)
     except Exception as exc:  # numba refused the generated source: name the expression
         path.unlink(missing_ok=True)
         raise _locate_compile_error(model, exc) from None
     build = BuildInfo(key=key, cached=cached, derive_seconds=derived - start,
                       load_seconds=time.perf_counter() - derived)
-    return SymbolicSystem(kernels, model.values, build)
+    return module, kernels, build

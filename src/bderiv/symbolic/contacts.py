@@ -1,0 +1,472 @@
+"""Rigid bodies with point contacts: a hybrid system from the equations of motion.
+
+:func:`contact_system` takes generalized coordinates ``q`` (m), the mass matrix ``M(q)``,
+the generalized forces and the contacts' gap functions ``phi_k(q)`` (>= 0 apart) and
+builds the :class:`~bderiv.hybrid.HybridSystem` of state ``x = (q, q')`` (d = 2m) with
+one event per contact, the penetration ``h_k = -phi_k(q)`` (touchdown: an upward crossing;
+lift-off: downward):
+
+- in stance contact k pushes along its normal ``J_k = d phi_k / dq`` with the force
+  ``lambda_k = law(-phi_k, -J_k q')`` of its penetration and penetration rate (a
+  compliant law; default a spring-damper ``contact_stiffness * pen + contact_damping *
+  rate``, parameters changeable with ``with_params``), so the field is
+
+      M(q) q'' = forces - C(q, q') q' + sum_k s_k J_k^T lambda_k,
+
+  ``s_k`` the contact's flag (1 in stance) and ``C(q, q') q'`` the Coriolis and centrifugal
+  terms derived from ``M`` (Christoffel symbols; ``coriolis=False`` leaves them out);
+- at touchdown an impact resets the velocity, ``q'+ = q'- - (1 + e) w (J q'-) / (J w)``
+  with ``w = M^-1 J^T``: plastic (``e = 0``) zeroes the contact's normal velocity ``J q'``
+  (the state stays on the surface and the stance begins: docs/mathematics.md section 9,
+  "Where a reset lands"), restitution ``e > 0`` reverses and scales it (a bounce: the
+  contact's bit is kept, the body flies on). ``impact=None``: no impulse, the compliant
+  law alone.
+
+How the mass matrix is handled: never inverted symbolically (the solution's expressions
+grow about 7-fold per coordinate: 216118 operations for 6 of the quadruped's 7); the
+kernels fill ``M`` and the right-hand side from cse'd expressions and solve in compiled
+code, and every Jacobian is exact through the implicit-function rule
+(:mod:`bderiv.symbolic._mechanics`, which gives the measurements). For m = 7 the solve is
+a few hundred flops, below the cost of the expressions themselves.
+
+Simultaneous impacts (docs/mathematics.md section 9, "When the B-derivative exists", which
+derives the condition): two plastic or restitution impacts at once commute, so that the
+state after them and the B-derivative exist, exactly when the contacts are orthogonal in
+the inverse-mass metric,
+``J_i M^-1 J_j^T = 0`` (the impulse at one does not change the other's normal velocity).
+:class:`ContactSystem` checks it wherever an impact resets the state while another
+contact is hit at the same instant (on its surface, within ``SURFACE_TOL`` relative,
+approaching, not yet in stance): in the simulation, the B-derivative at a point and along
+trajectories; coupled contacts are refused with their names, the coupling and what to
+do (a compliant contact, ``impact=None``, or the impacts one after the other). The
+check is local: a quadruped's feet on spring legs are orthogonal at a pronking touchdown,
+where the legs are vertical, and coupled where the body is pitched.
+:meth:`ContactSystem.coupling` gives the matrix at any state.
+"""
+
+from __future__ import annotations
+
+import functools
+import numbers
+
+import numpy as np
+
+from ._inputs import _check_free, _expressions, _sequence, _symbols, check_value, require_sympy
+from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
+from ._model import SymbolicSystem, load_model
+
+__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ContactSystem", "contact_system"]
+
+#: parameters of the default stance law ``stiffness * pen + damping * rate``, and values
+DEFAULT_STANCE = {"contact_stiffness": 1.0e4, "contact_damping": 100.0}
+#: a contact is on its surface when ``|phi| <= SURFACE_TOL * max(1, max |q|)``
+SURFACE_TOL = 1e-6
+#: relative coupling ``|J_i M^-1 J_j^T| / sqrt(J_i M^-1 J_i^T J_j M^-1 J_j^T)`` accepted
+COUPLING_TOL = 1e-9
+
+
+class ContactModel:
+    """A checked contact model over canonical symbols (``x_i``: q then q', ``s_k``,
+    ``p_j``), what :mod:`bderiv.symbolic._mechanics` prints.
+
+    It holds the user's expressions (the cache key, :meth:`canonical_text`, is theirs: a
+    cached model is neither derived nor compiled); the right-hand side ``b`` and the
+    gradients ``J`` are derived when first asked for (by the code generator).
+
+    Attributes
+    ----------
+    M : tuple of tuples, (m, m)
+        The mass matrix.
+    forces : tuple, (m,)
+    contacts : tuple, (n,)
+        The gaps phi_k.
+    laws : tuple, (n,)
+        Each contact's normal force in the symbols ``pen[k]`` and ``rate[k]``.
+    restitution : sympy.Expr or None
+        ``e`` (in the parameters), None without impacts.
+    coriolis : bool
+    x, s, p : tuple of sympy.Symbol
+        The state (q then q'), flags and parameters.
+    """
+
+    def __init__(self, *, M, forces, contacts, laws, restitution, coriolis, x, s, p, pen,
+                 rate, param_names, values, original, names):
+        self.M, self.forces, self.contacts, self.laws = M, forces, contacts, laws
+        self.restitution, self.coriolis = restitution, coriolis
+        self.x, self.s, self.p, self.pen, self.rate = x, s, p, pen, rate
+        self.param_names, self.values, self.original = param_names, values, original
+        self.names = names  # the contacts as the user wrote them (for messages)
+
+    @property
+    def m(self) -> int:
+        return len(self.M)
+
+    @property
+    def dim(self) -> int:
+        return len(self.x)
+
+    @property
+    def n_events(self) -> int:
+        return len(self.s)
+
+    def show(self, e):
+        return e.xreplace(self.original)
+
+    def aux(self, name: str, count: int) -> tuple:
+        """Symbols ``name_0 ...`` the kernels fill with numbers (solves' results)."""
+        sp = require_sympy()
+        return tuple(sp.Symbol(f"{name}_{i}", real=True) for i in range(count))
+
+    @functools.cached_property
+    def J(self) -> tuple:
+        """(n, m): the gradients d phi_k / dq."""
+        sp = require_sympy()
+        return tuple(tuple(sp.diff(phi, q) for q in self.x[:self.m]) for phi in self.contacts)
+
+    def stance_force(self, k: int):
+        """Contact k's normal force in the state: the law at ``-phi_k``, ``-J_k q'``."""
+        rate = -sum(g * v for g, v in zip(self.J[k], self.x[self.m:], strict=True))
+        return self.laws[k].xreplace({self.pen[k]: -self.contacts[k], self.rate[k]: rate})
+
+    @functools.cached_property
+    def b(self) -> tuple:
+        """(m,): forces, Coriolis terms, stance forces ``s_k J_k^T lambda_k``."""
+        m = self.m
+        rhs = list(self.forces)
+        if self.coriolis:
+            rhs = [a + c for a, c in zip(rhs, _coriolis(self.M, self.x[:m], self.x[m:]),
+                                         strict=True)]
+        for k in range(self.n_events):
+            lam = self.stance_force(k)
+            rhs = [r + self.s[k] * self.J[k][i] * lam for i, r in enumerate(rhs)]
+        return tuple(rhs)
+
+    def labelled(self):
+        """``(label, expression)`` of the user's expressions (the stance laws in the
+        state)."""
+        m = self.m
+        yield from ((f"mass_matrix[{i}][{j}]", self.M[i][j]) for i in range(m)
+                    for j in range(m))
+        yield from ((f"forces[{i}]", e) for i, e in enumerate(self.forces))
+        yield from ((f"contacts[{k}]", e) for k, e in enumerate(self.contacts))
+        yield from ((f"the stance force of contact {k}", self.stance_force(k))
+                    for k in range(self.n_events))
+        if self.restitution is not None:
+            yield "restitution", self.restitution
+
+    def canonical_text(self) -> list:
+        """Strings that identify the model (not the parameter values): the cache key."""
+        sp = require_sympy()
+        return [f"m={self.m} n={self.n_events} p={len(self.p)} coriolis={self.coriolis}",
+                *(f"{label}={sp.srepr(e)}" for label, e in self.labelled())]
+
+
+class ContactSystem(SymbolicSystem):
+    """The :class:`~bderiv.symbolic.SymbolicSystem` of :func:`contact_system`: every
+    method of ``HybridSystem``, the parameters (``with_params``), :meth:`coupling`, and
+    simultaneous impacts checked for mass-orthogonality (module docstring).
+
+    Attributes
+    ----------
+    contacts : tuple of str
+        The gap functions as given (in the messages).
+    n_coordinates : int
+        m; the state is ``(q, q')``, d = 2m.
+    """
+
+    def __init__(self, kernels, params, build, coupling_kernel, contacts):
+        super().__init__(kernels, params, build)
+        self._coupling_kernel, self.contacts = coupling_kernel, contacts
+        self.n_coordinates = self.dim // 2
+
+    def _with_values(self, values) -> ContactSystem:
+        return ContactSystem(self.kernels, values, self.build, self._coupling_kernel,
+                             self.contacts)
+
+    def coupling(self, x) -> np.ndarray:
+        """``J M^-1 J^T`` (n, n) at the state ``x`` (d,) or the coordinates ``q`` (m,):
+        entry (i, j) is the change of contact i's normal velocity per unit impulse at
+        contact j; zero off the diagonal where the contacts are mass-orthogonal.
+
+        Examples
+        --------
+        A ball on a floor and a wall at angle beta to the vertical: orthogonal impulses
+        at beta = 0, coupled by sin(beta) otherwise.
+
+        >>> import sympy as sp
+        >>> from bderiv.symbolic import contact_system
+        >>> x, y, beta = sp.symbols("x y beta")
+        >>> corner = contact_system([x, y], sp.eye(2), [0, -9.81],
+        ...                         [y, sp.cos(beta) * x + sp.sin(beta) * y], impact=0.8,
+        ...                         params={beta: 0.0})
+        >>> corner.coupling([0.0, 0.0])
+        array([[1., 0.],
+               [0., 1.]])
+        >>> corner.with_params(beta=0.5).coupling([0.0, 0.0]).round(6)
+        array([[1.      , 0.479426],
+               [0.479426, 1.      ]])
+        """
+        x = np.asarray(x, dtype=np.float64)
+        m = self.n_coordinates
+        if x.shape not in ((m,), (2 * m,)):
+            raise ValueError(f"x must be a state of shape ({2 * m},) or coordinates of shape "
+                             f"({m},), got shape {x.shape}")
+        x = np.ascontiguousarray(np.concatenate((x[:m], np.zeros(m))))
+        out = np.empty((self.n_events, self.n_events))
+        self._coupling_kernel(x, self.functions.p, out)
+        return out
+
+    def eval_reset(self, x, mask, k):
+        """The state after the impact of contact k, refused (ValueError naming the
+        contacts, the coupling and the remedies) when another contact is hit at the same
+        instant and coupled to k through the inverse mass matrix."""
+        if not int(mask) >> int(k) & 1:  # a touchdown: an impact
+            self._check_simultaneous(np.asarray(x, dtype=np.float64), int(mask), int(k))
+        return super().eval_reset(x, mask, k)
+
+    def _check_simultaneous(self, x, mask, k) -> None:
+        m = self.n_coordinates
+        h = self.functions.events(x)
+        rate = self.functions.event_jacobian(x)[:, :m] @ x[m:]  # d(-phi)/dt
+        on = np.abs(h) <= SURFACE_TOL * max(1.0, float(np.abs(x[:m]).max()))
+        hit = [j for j in range(self.n_events)
+               if j != k and on[j] and rate[j] > 0.0 and not mask >> j & 1]
+        if not hit:
+            return
+        C = self.coupling(x)
+        for j in hit:
+            rel = abs(C[k, j]) / np.sqrt(abs(C[k, k] * C[j, j]))
+            if not rel <= COUPLING_TOL:
+                a, b = sorted((k, j))
+                raise ValueError(
+                    f"contacts {a} (phi = {self.contacts[a]}) and {b} (phi = "
+                    f"{self.contacts[b]}) are hit at the same instant and are coupled "
+                    f"through the inverse mass matrix: J_{a} M^-1 J_{b}^T = {C[a, b]:.6g} "
+                    f"({rel:.3g} relative to J_{a} M^-1 J_{a}^T = {C[a, a]:.6g} and J_{b} "
+                    f"M^-1 J_{b}^T = {C[b, b]:.6g}), so the impulse at one changes the "
+                    f"other's normal velocity: the impacts do not commute, the state after "
+                    f"them depends on their order and the flow has no B-derivative there. "
+                    f"Make the contacts compliant (impact=None, the stance law alone), or "
+                    f"treat the impacts one after the other (a state where they are not "
+                    f"simultaneous)"
+                )
+
+
+def _matrix(mass_matrix, m: int) -> list:
+    sp = require_sympy()
+    try:
+        rows = sp.Matrix(mass_matrix)
+    except Exception:
+        raise TypeError(f"mass_matrix must be an m x m matrix (m = {m}) of sympy "
+                        f"expressions, got {type(mass_matrix).__name__}") from None
+    if rows.shape != (m, m):
+        raise ValueError(f"mass_matrix must be {m} x {m} (one row and column per "
+                         f"coordinate), got shape {rows.shape}")
+    for i in range(m):
+        for j in range(i + 1, m):
+            gap = rows[i, j] - rows[j, i]
+            if gap != 0 and sp.simplify(gap) != 0:
+                raise ValueError(f"mass_matrix must be symmetric: entry [{i}][{j}] = "
+                                 f"{rows[i, j]} and [{j}][{i}] = {rows[j, i]} differ")
+    return [[rows[i, j] for j in range(m)] for i in range(m)]
+
+
+def _laws(stance, n: int, params: dict):
+    """One callable ``law(pen, rate)`` per contact, and the parameters it adds."""
+    sp = require_sympy()
+    if stance is None:
+        k, c = (sp.Symbol(name) for name in DEFAULT_STANCE)
+        added = {s: v for s, v in zip((k, c), DEFAULT_STANCE.values(), strict=True)
+                 if str(s) not in {str(p) for p in params}}
+        taken = {str(p): p for p in params}
+        k, c = taken.get(str(k), k), taken.get(str(c), c)
+        return [lambda pen, rate: k * pen + c * rate] * n, added
+    if callable(stance):
+        return [stance] * n, {}
+    laws = list(stance) if isinstance(stance, list | tuple) else None
+    if laws is None or len(laws) != n or not all(map(callable, laws)):
+        raise TypeError(f"stance must be None, a callable law(penetration, rate) -> force, or "
+                        f"a list of {n} such callables (one per contact), got "
+                        f"{type(stance).__name__}")
+    return laws, {}
+
+
+def _restitution(impact, params: dict):
+    """The restitution expression (None without impacts) and the parameter it adds."""
+    sp = require_sympy()
+    if impact is None:
+        return None, {}
+    if isinstance(impact, str):
+        if impact != "plastic":
+            raise ValueError(f"impact must be 'plastic', ('restitution', e), a number e in "
+                             f"[0, 1] or None, got {impact!r}")
+        return sp.Integer(0), {}
+    if isinstance(impact, tuple) and len(impact) == 2 and impact[0] == "restitution":
+        impact = impact[1]
+    if isinstance(impact, sp.Expr) and not impact.is_number:
+        return impact, {}  # an expression in the parameters (checked with the others)
+    if isinstance(impact, bool) or not isinstance(impact, numbers.Real | sp.Number):
+        raise TypeError(f"impact must be 'plastic', ('restitution', e), a number e in [0, 1] "
+                        f"or None, got {type(impact).__name__} {impact!r}")
+    e = check_value(float(impact), "the restitution e")
+    if not 0.0 <= e <= 1.0:
+        raise ValueError(f"the restitution e must be in [0, 1], got {e!r}")
+    sym = {str(p): p for p in params}.get("restitution", sp.Symbol("restitution"))
+    return sym, ({} if sym in params else {sym: e})
+
+
+def _coriolis(M, q, v) -> list:
+    """``-C(q, v) v``: ``-sum_jk (dM_ij/dq_k - dM_jk/dq_i / 2) v_j v_k``."""
+    sp = require_sympy()
+    m = len(q)
+    dM = [[[sp.diff(M[i][j], q[k]) for k in range(m)] for j in range(m)] for i in range(m)]
+    return [-sp.Add(*(v[j] * v[k] * (dM[i][j][k] - dM[j][k][i] / 2)
+                      for j in range(m) for k in range(m)
+                      if dM[i][j][k] != 0 or dM[j][k][i] != 0)) for i in range(m)]
+
+
+def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plastic",
+                   params=None, *, velocities=None, flags=None, coriolis=True,
+                   cache_dir=None) -> ContactSystem:
+    """A body with point contacts as a compiled hybrid system (module docstring).
+
+    Parameters
+    ----------
+    q : sequence of sympy.Symbol, length m
+        The generalized coordinates; the state is ``(q, q')``, d = 2m.
+    mass_matrix : sympy.Matrix or nested sequence, (m, m)
+        ``M(q)``, symmetric positive definite, in q and the parameters.
+    forces : sequence of sympy.Expr, length m
+        The generalized forces other than the inertial and contact ones (gravity, springs,
+        dampers, actuators), in q, the velocities, the flags and the parameters.
+    contacts : sequence of sympy.Expr, length n
+        The gaps ``phi_k(q)``, >= 0 apart, in q and the parameters: event k is
+        ``-phi_k``.
+    stance : callable or list of n callables, optional
+        ``law(penetration, rate) -> normal force`` (sympy expressions in, one out; it may
+        use the state and the parameters too). Default: ``contact_stiffness * pen +
+        contact_damping * rate``, parameters with the values of :data:`DEFAULT_STANCE`
+        unless ``params`` names them.
+    impact : "plastic", ("restitution", e), float e in [0, 1], sympy expression or None
+        The velocity reset at touchdown (e = 0 plastic; a number becomes the parameter
+        ``restitution``, changeable with ``with_params``); None: no impulse.
+    params : mapping sympy.Symbol -> float, optional
+        Parameter values (``with_params`` changes them without re-deriving).
+    velocities : sequence of sympy.Symbol, length m, optional
+        The symbols of q' (default ``<name>_dot`` for each coordinate).
+    flags : sequence of sympy.Symbol, length n, optional
+        Symbols the forces may use for "contact k in stance" (1) or not (0): friction,
+        thrust. Default: new ones (the forces then cannot name them).
+    coriolis : bool
+        Add the Coriolis and centrifugal terms derived from ``M(q)`` (default True).
+    cache_dir : optional
+        As for :func:`~bderiv.symbolic.from_sympy`.
+
+    Returns
+    -------
+    ContactSystem
+
+    Raises
+    ------
+    TypeError, ValueError
+        Wrong lengths or types (named), a non-symmetric mass matrix, contacts depending on
+        velocities or flags, free symbols that are not coordinates, velocities, flags or
+        parameters, a restitution outside [0, 1]; as :func:`~bderiv.symbolic.from_sympy`.
+
+    Examples
+    --------
+    A ball of unit mass in a corner: a floor and a wall at angle ``beta`` to the
+    vertical, restitution 0.8; its impact on the floor at 3 m/s:
+
+    >>> import numpy as np, sympy as sp
+    >>> from bderiv.symbolic import contact_system
+    >>> x, y, beta = sp.symbols("x y beta")
+    >>> corner = contact_system([x, y], sp.eye(2), [0, -9.81],
+    ...                         [y, sp.cos(beta) * x + sp.sin(beta) * y], impact=0.8,
+    ...                         params={beta: 0.0})
+    >>> corner.functions.reset(np.array([1.0, 0.0, 0.5, -3.0]), 0, 0)
+    array([1. , 0. , 0.5, 2.4])
+    """
+    sp = require_sympy()
+    q = _symbols(q, "q")
+    m = len(q)
+    if not m:
+        raise ValueError("q must have at least one coordinate, got none")
+    v = (_symbols(velocities, "velocities") if velocities is not None
+         else [sp.Symbol(f"{s.name}_dot") for s in q])
+    if len(v) != m:
+        raise ValueError(f"velocities must have one symbol per coordinate ({m}), got {len(v)}")
+    n = len(_sequence(contacts, "contacts", "gap functions"))
+    phis = _expressions(contacts, "contacts", n, "one gap per contact")
+    if not n:
+        raise ValueError("contacts must have at least one gap function, got none")
+    s = (_symbols(flags, "flags") if flags is not None
+         else [sp.Dummy(f"contact_{k}") for k in range(n)])
+    if len(s) != n:
+        raise ValueError(f"flags must have one symbol per contact ({n}), got {len(s)}")
+    if not isinstance(coriolis, bool | np.bool_):
+        raise TypeError(f"coriolis must be True or False, got {type(coriolis).__name__}")
+    if params is not None and not hasattr(params, "items"):
+        raise TypeError(f"params must be a mapping symbol -> value, got "
+                        f"{type(params).__name__}")
+    params = dict(params or {})
+    M = _matrix(mass_matrix, m)
+    forces = _expressions(forces, "forces", m, f"one per coordinate, m = {m}")
+    laws, added_law = _laws(stance, n, params)
+    e, added_e = _restitution(impact, params)
+    params = {**params, **added_law, **added_e}
+    for sym, value in params.items():
+        if not isinstance(sym, sp.Symbol):
+            raise TypeError(f"params keys must be sympy Symbols, got {type(sym).__name__} "
+                            f"{sym!r}")
+        check_value(value, f"params[{sym}]")
+    names = set(params)
+    where = "are not coordinates or parameters"
+    for i, row in enumerate(M):
+        for j, entry in enumerate(row):
+            _check_free(f"mass_matrix[{i}][{j}]", entry, set(q) | names, where)
+    for k, phi in enumerate(phis):
+        _check_free(f"contacts[{k}]", phi, set(q) | names, where + " (a gap depends on the "
+                    "coordinates only)")
+    allowed = set(q) | set(v) | set(s) | names
+    unknown = "are neither coordinates, velocities, flags nor parameters"
+    for i, f in enumerate(forces):
+        _check_free(f"forces[{i}]", f, allowed, unknown)
+    if e is not None:
+        _check_free("the restitution", e, names, "are not parameters")
+    pen = [sp.Dummy(f"pen_{k}") for k in range(n)]
+    rate = [sp.Dummy(f"rate_{k}") for k in range(n)]
+    lams = []
+    for k, law in enumerate(laws):
+        lam = sp.sympify(law(pen[k], rate[k]))
+        _check_free(f"the stance force of contact {k}", lam, allowed | {pen[k], rate[k]},
+                    unknown)
+        lams.append(lam)
+
+    # canonical symbols: x_i (q then q'), s_k, p_j
+    pnames = list(params)
+    if len({str(p) for p in pnames}) != len(pnames):
+        raise ValueError("params has two symbols of the same name; with_params could not "
+                         "tell them apart: rename one")
+    x = tuple(sp.Symbol(f"x_{i}", real=True) for i in range(2 * m))
+    sc = tuple(sp.Symbol(f"s_{k}", real=True) for k in range(n))
+    pc = tuple(sp.Symbol(f"p_{j}", real=True) for j in range(len(pnames)))
+    pens = tuple(sp.Symbol(f"pen_{k}", real=True) for k in range(n))
+    rates = tuple(sp.Symbol(f"rate_{k}", real=True) for k in range(n))
+    to = {**dict(zip([*q, *v], x, strict=True)), **dict(zip(s, sc, strict=True)),
+          **dict(zip(pnames, pc, strict=True)), **dict(zip(pen, pens, strict=True)),
+          **dict(zip(rate, rates, strict=True))}
+
+    def canon(exprs):
+        return tuple(sp.sympify(e).xreplace(to) for e in exprs)
+
+    model = ContactModel(
+        M=tuple(map(canon, M)), forces=canon(forces), contacts=canon(phis), laws=canon(lams),
+        restitution=None if e is None else canon([e])[0], coriolis=bool(coriolis), x=x,
+        s=sc, p=pc, pen=pens, rate=rates, param_names=tuple(map(str, pnames)),
+        values=np.array([float(params[p]) for p in pnames], dtype=np.float64),
+        original={c: u for u, c in to.items()}, names=tuple(map(str, phis)))
+    module, kernels, build = load_model(
+        model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"sympy {sp.__version__}",
+                *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE})
+    return ContactSystem(kernels, model.values, build, module.coupling, model.names)
