@@ -56,6 +56,8 @@ def test_a_bounce_on_the_surface_keeps_the_bit():
     (group,) = traj.groups
     assert group.bounced == (0,) and group.mask_after == 0
     assert traj.x_final == pytest.approx([-1.0, -0.5])  # back 2 s at speed 0.5
+    flow = system.flow_bderivative(np.array([-1.0, 1.0]), 3.0)
+    assert flow.group_masks == ((0, 0),)  # what the demo reports: the bit kept
 
 
 def test_a_plastic_impact_on_compliant_ground_stays_in_contact():

@@ -59,6 +59,9 @@ class FlowBDerivative(Linearisation):
     group_events : sequence of tuple of int, optional
         Global event indices of each group (information only; the local event k of
         ``jumps[i]`` is global event ``group_events[i][k]``).
+    group_masks : sequence of (int, int), optional
+        Region masks before and after each group (information only; after an impact that
+        sends the state back, a bounce's bit is the same in both).
     x0, x_final : array_like, shape (d,), optional
         Start and final point of the nominal trajectory (information only).
     t_final : float, optional
@@ -78,6 +81,7 @@ class FlowBDerivative(Linearisation):
         final_field=None,
         group_times=None,
         group_events=None,
+        group_masks=None,
         x0=None,
         x_final=None,
         t_final=None,
@@ -122,6 +126,7 @@ class FlowBDerivative(Linearisation):
                 f"group_events has {len(self.group_events)} groups but there are "
                 f"{len(jumps)} jumps"
             )
+        self.group_masks = tuple((int(b), int(a)) for b, a in (group_masks or ()))
         self.x0 = None if x0 is None else _read_only(x0)
         self.x_final = None if x_final is None else _read_only(x_final)
         self.t_final = None if t_final is None else float(t_final)

@@ -69,7 +69,8 @@ class ReturnMap(FlowBDerivative):
         projection = flow_projection(normal, field)
         linear = [*flow.linear[:-1], projection @ flow.linear[-1]]
         super().__init__(linear, flow.jumps, group_times=flow.group_times,
-                         group_events=flow.group_events, x0=flow.x0, x_final=flow.x_final,
+                         group_events=flow.group_events, group_masks=flow.group_masks,
+                         x0=flow.x0, x_final=flow.x_final,
                          t_final=flow.t_final)
         self.flow = flow
         self.period = flow.t_final

@@ -96,7 +96,7 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     with phases("flow map"):
         fb = system.flow_bderivative(ex.x0, ex.t_final)
     res["build_seconds"] = phases.without_compiling("flow map")
-    res["groups"] = _groups(fb, system.start_mask(ex.x0), full)
+    res["groups"] = _groups(fb, full)
     if full:
         res["linear"] = [L.tolist() for L in fb.linear]
     report("trajectory", res)
@@ -114,16 +114,13 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
         report("check", res)
 
 
-def _groups(fb, mask, full):
+def _groups(fb, full):
     """The event groups with the region masks before and after each (and their tables)."""
-    groups = []
-    tables = group_tables(fb, full)
-    for t, events, table in zip(fb.group_times, fb.group_events, tables, strict=True):
-        after = mask ^ sum(1 << k for k in events)  # a group may cross downward
-        groups.append({"time": t, "events": list(events), "mask_before": mask,
-                       "mask_after": after, **table})
-        mask = after
-    return groups
+    return [{"time": t, "events": list(events), "mask_before": before, "mask_after": after,
+             **table}
+            for t, events, (before, after), table in zip(
+                fb.group_times, fb.group_events, fb.group_masks, group_tables(fb, full),
+                strict=True)]
 
 
 def _time_batch(fmap, V):
