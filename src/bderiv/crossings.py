@@ -18,6 +18,7 @@ is then the one of mathematics.md (rows of ``Dh`` negated, mask bits flipped for
 from __future__ import annotations
 
 import itertools
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -239,7 +240,8 @@ def landing(system, group, mask, x_after, window, t=None):
 
 def _clearly_positive(dh, F) -> bool:
     """Whether the rate ``dh . F`` is positive beyond the grazing threshold."""
-    return float(dh @ F) > GRAZING_RTOL * np.linalg.norm(dh) * np.linalg.norm(F)
+    # math.hypot: scaled like np.linalg.norm (no overflow), a tenth of its cost here
+    return float(dh @ F) > GRAZING_RTOL * math.hypot(*dh) * math.hypot(*F)
 
 
 def apply_resets(system, group, mask, x, t, accuracy):
