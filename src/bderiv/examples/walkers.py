@@ -211,11 +211,17 @@ def rimless_wheel_orbit(example=None, *, perturbation=(0.0, 0.05), **kwargs):
     -------
     PeriodicOrbit
     """
-    ex = rimless_wheel() if example is None else example
-    kwargs.setdefault("section_gradient", wheel_section_gradient)
+    return _orbit(rimless_wheel() if example is None else example, perturbation,
+                  wheel_section, wheel_section_gradient, kwargs)
+
+
+def _orbit(ex, perturbation, section, gradient, kwargs):
+    """``periodic_orbit`` of a walker from ``ex.x0 + perturbation``, awaiting the return
+    for two steps' time by default."""
+    kwargs.setdefault("section_gradient", gradient)
     kwargs.setdefault("period_guess", 2.0 * ex.t_event)
     return ex.system.periodic_orbit(ex.x0 + np.asarray(perturbation, dtype=np.float64),
-                                    wheel_section, **kwargs)
+                                    section, **kwargs)
 
 
 # ----------------------------------------------------------------------------------
@@ -468,11 +474,8 @@ def compass_gait_orbit(example=None, *, perturbation=(0.0, 0.01, -0.01, 0.005), 
     -------
     PeriodicOrbit
     """
-    ex = compass_gait() if example is None else example
-    kwargs.setdefault("section_gradient", compass_section_gradient)
-    kwargs.setdefault("period_guess", 2.0 * ex.t_event)
-    return ex.system.periodic_orbit(ex.x0 + np.asarray(perturbation, dtype=np.float64),
-                                    compass_section, **kwargs)
+    return _orbit(compass_gait() if example is None else example, perturbation,
+                  compass_section, compass_section_gradient, kwargs)
 
 
 # ----------------------------------------------------------------------------------

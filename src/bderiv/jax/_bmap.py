@@ -5,7 +5,7 @@ from __future__ import annotations
 from ..bderivative import BDerivative
 from ..flowmap import FlowBDerivative
 from ._host import MapHost
-from ._primitive import as_vectors, host_call, require_jax, tangent_map
+from ._primitive import pl_function
 
 
 def bmap(bd):
@@ -56,22 +56,8 @@ def bmap(bd):
     if not isinstance(bd, BDerivative | FlowBDerivative):
         raise TypeError(f"bd must be a BDerivative or a FlowBDerivative, got "
                         f"{type(bd).__name__}")
-    jax = require_jax()
     host = MapHost(bd)
-    d = bd.dim
-
-    @jax.custom_jvp
-    def pl_map(u):
-        return host_call(host.values, u.dtype, u)
-
-    @pl_map.defjvp
-    def pl_map_jvp(primals, tangents):
-        (u,), (du,) = primals, tangents
-        return pl_map(u), tangent_map(u, du, host.tangents, host.cotangents)
-
-    def m(u):
-        return pl_map(as_vectors(u, d, "u"))
-
+    m = pl_function(host.values, host, bd.dim, "u")
     m.__name__ = m.__qualname__ = "bmap"
-    m.__doc__ = f"u (..., {d}) -> M(u) of {bd!r} (bderiv.jax.bmap)"
+    m.__doc__ = f"u (..., {bd.dim}) -> M(u) of {bd!r} (bderiv.jax.bmap)"
     return m

@@ -8,7 +8,7 @@ from .._validate import check_number, check_positive_int
 from ..hybrid import HybridSystem
 from ..simulate import SolverOptions
 from ._host import FlowHost
-from ._primitive import as_vectors, host_call, require_jax, tangent_map
+from ._primitive import pl_function
 
 
 def flow(system, t_final, *, direction=None, simultaneity_tol=1e-7, options=None, rtol=None,
@@ -95,22 +95,9 @@ def flow(system, t_final, *, direction=None, simultaneity_tol=1e-7, options=None
     cache_size = check_positive_int(cache_size, "cache_size")
     if direction is not None:
         direction = _check_direction(direction, d)
-    jax = require_jax()
     host = FlowHost(system, t_final, options=options, simultaneity_tol=simultaneity_tol,
                     direction=direction, cache_size=cache_size)
-
-    @jax.custom_jvp
-    def flow_map(x0):
-        return host_call(host.final_states, x0.dtype, x0)
-
-    @flow_map.defjvp
-    def flow_map_jvp(primals, tangents):
-        (x0,), (t,) = primals, tangents
-        return flow_map(x0), tangent_map(x0, t, host.tangents, host.cotangents)
-
-    def phi(x0):
-        return flow_map(as_vectors(x0, d, "x0"))
-
+    phi = pl_function(host.final_states, host, d, "x0")
     phi.__name__ = phi.__qualname__ = "flow_map"
     phi.__doc__ = f"x0 (..., {d}) -> Phi({t_final:g}, x0) of {system!r} (bderiv.jax.flow)"
     return phi

@@ -168,3 +168,24 @@ def as_vectors(x, d: int, name: str):
         raise ValueError(f"{name} must have shape (..., {d}) (vectors of dimension {d}), "
                          f"got {got}")
     return arr
+
+
+def pl_function(values, host, d: int, name: str):
+    """The JAX function ``x (..., d) -> values(x)`` of a host's piecewise-linear map: its
+    value by :func:`host_call`, its JVP by :func:`tangent_map` (exact forward mode, the
+    host's stated piece in reverse mode); ``name`` is the argument's name in errors."""
+    jax = require_jax()
+
+    @jax.custom_jvp
+    def value(x):
+        return host_call(values, x.dtype, x)
+
+    @value.defjvp
+    def value_jvp(primals, tangents):
+        (x,), (t,) = primals, tangents
+        return value(x), tangent_map(x, t, host.tangents, host.cotangents)
+
+    def function(x):
+        return value(as_vectors(x, d, name))
+
+    return function
