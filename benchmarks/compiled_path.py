@@ -29,6 +29,7 @@ import time
 
 import numba
 import numpy as np
+from compiled_integrator import best  # min wall time of repeated calls (benchmarks/)
 
 from bderiv.checks import FD_SIMULTANEITY_TOL
 from bderiv.hybrid import HybridSystem
@@ -127,16 +128,6 @@ def systems(k, p):
     x0 = np.zeros(d)
     x0[0] = APEX
     return compiled, python, x0
-
-
-def best(fn, repeats):
-    """Min wall time of ``repeats`` calls, and the last result."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - start)
-    return min(times), out
 
 
 def central_differences(system, x0, eps=1e-6):
