@@ -14,6 +14,7 @@ import hashlib
 import pathlib
 import sys
 
+from numba import njit
 from numba.core.caching import FunctionCache
 from numba.core.dispatcher import Dispatcher
 
@@ -25,6 +26,20 @@ def _sources_digest() -> str:
     for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
         h.update(path.name.encode() + path.read_bytes())
     return h.hexdigest()
+
+
+def eager(signature):
+    """``njit(signature, cache=True)``, compiled at import, that survives a damaged cache:
+    a cache entry that cannot be loaded (truncated, garbled) is replaced by a compilation
+    in this process (numba raises at decoration, before any checked cache can step in)."""
+
+    def decorate(fn):
+        try:
+            return njit(signature, cache=True)(fn)
+        except Exception:  # noqa: BLE001 - whatever the damaged file raises (pickle, EOF, ...)
+            return njit(signature)(fn)
+
+    return decorate
 
 
 def key_all_kernels() -> None:

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from numba import njit, types
+from numba import types
 from numba.experimental import structref
 
+from ._cached import eager
 from ._rhs import (
     COMPLEX_FIELD_TYPE,
     EVENTS_TYPE,
@@ -42,7 +43,7 @@ _TYPES = (FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, COMPLEX_FIELD_TYPE, SECTION_TY
 MODEL_TYPE = _ModelType(list(zip(_MEMBERS, _TYPES, strict=True)))
 
 
-@njit(MODEL_TYPE(*_TYPES), cache=True)
+@eager(MODEL_TYPE(*_TYPES))
 def _bind(field, jacobian, events, cfield, section):
     model = structref.new(MODEL_TYPE)
     model.field = field

@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, types
 
+from ._cached import eager
+
 OK = 0
 FIELD_SHAPE = 1
 FIELD_NONFINITE = 2
@@ -190,25 +192,25 @@ def field_rows(model, x, masks, d, out):
     return OK, 0
 
 
-@njit(JACOBIAN_SIGNATURE, cache=True)
+@eager(JACOBIAN_SIGNATURE)
 def no_jacobian(x, mask):  # pragma: no cover - passed, never called
     """Stands for ``field_jacobian`` when the sensitivity is not carried (never called)."""
     return np.empty((0, 0))
 
 
-@njit(COMPLEX_FIELD_SIGNATURE, cache=True)
+@eager(COMPLEX_FIELD_SIGNATURE)
 def no_complex_field(x, mask):  # pragma: no cover - passed, never called
     """Stands for the complex field when complex step is not used (never called)."""
     return np.empty(0, dtype=np.complex128)
 
 
-@njit(EVENTS_SIGNATURE, cache=True)
+@eager(EVENTS_SIGNATURE)
 def no_events(x):
     """``events`` of a model without events: no values."""
     return np.empty(0)
 
 
-@njit(SECTION_SIGNATURE, cache=True)
+@eager(SECTION_SIGNATURE)
 def no_section(x):  # pragma: no cover - passed, never called
     """Stands for the section of a run without one (never called)."""
     return 0.0
