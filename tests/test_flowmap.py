@@ -333,3 +333,11 @@ def test_triangulation_of_a_flow_map_with_one_group(composed):
     np.testing.assert_allclose(tri.inverse(W), V, rtol=0, atol=1e-9 * np.abs(V).max())
     with pytest.raises(ValueError, match=r"meets 2 event groups; a triangulation"):
         composed.triangulation()
+
+
+def test_orders_of_subnormal_vectors_are_given():
+    """The falsifying example of test_invariants_hypothesis: event times of 5e-324 vectors
+    underflow, their orders do not (orders(c v) = orders(v))."""
+    v = np.full(4, 5e-324)
+    orders = _COMPOSED.orders(v)
+    assert [o.tolist() for o in orders] == [o.tolist() for o in _COMPOSED.orders(v * 2.0**1000)]

@@ -390,9 +390,12 @@ class FlowBDerivative(Linearisation):
     def orders(self, V):
         """Local event order of each group for tangent vectors V: list of (..., n_g) int64.
 
-        The ``order`` halves of :meth:`event_times`.
+        The ``order`` halves of :meth:`event_times`, given also where the times themselves
+        are beyond float64 (each stage's ``orders``: V of subnormal size).
         """
-        return [order for _, order in self.event_times(V)]
+        flat, lead = check_points(V, self.dim)
+        return [bd.orders(W).reshape(*lead, bd.n_events)
+                for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False)]
 
     def piece(self, orders=None, *, with_time=False):
         """The linear piece for one event order per group.
