@@ -216,12 +216,12 @@ def _gait_demo(args) -> str:
     simulation (:func:`bderiv.examples.gaits.pronking_summary`); ``--example landing``: a
     simultaneous impact with resets (:func:`bderiv.examples.impacts.landing_summary`);
     ``--example rimless-wheel`` or ``compass-gait``: a walker's gait through leg swaps
-    (:func:`bderiv.examples.walkers.walker_summary`); ``--example quadruped``: a model from
+    (:func:`bderiv.examples.walker_report.walker_summary`); ``--example quadruped``: a model from
     equations to its stability verdict (:func:`bderiv.examples.quadruped.quadruped_summary`)."""
     if args.n is not None or args.extended:
         raise UsageError(f"--n and --extended are options of --example network, not "
                          f"{args.example}")
-    from ..examples import gaits, impacts, walkers
+    from ..examples import gaits, impacts, walker_report
 
     if args.example == "quadruped":
         from ..examples import quadruped
@@ -229,8 +229,8 @@ def _gait_demo(args) -> str:
         res = quadruped.quadruped_summary(seed=args.seed)
         return render.to_json(res, indent=1) if args.json else quadruped.summary_text(res)
     if args.example in ("rimless-wheel", "compass-gait"):
-        res = walkers.walker_summary(args.example, seed=args.seed)
-        return render.to_json(res, indent=1) if args.json else walkers.summary_text(res)
+        res = walker_report.walker_summary(args.example, seed=args.seed)
+        return render.to_json(res, indent=1) if args.json else walker_report.summary_text(res)
     module, run = ((impacts, impacts.landing_summary) if args.example == "landing"
                    else (gaits, gaits.pronking_summary))
     res = run(seed=args.seed)
