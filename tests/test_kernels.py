@@ -37,6 +37,66 @@ def test_drivers_load_from_the_disk_cache_in_a_new_process():
     assert runs[1] == [[1, 0], [1, 0]], runs  # (hits, misses) of the serial and parallel drivers
 
 
+def _kernel_modules():
+    import importlib
+    import pkgutil
+
+    import bderiv._kernels as package
+
+    return [importlib.import_module(f"bderiv._kernels.{m.name}")
+            for m in pkgutil.iter_modules(package.__path__)]
+
+
+def test_every_cached_kernel_is_named_by_the_sources_and_checked():
+    """Numba watches a cached function's own file only: every kernel of ``_kernels`` that
+    is cached carries the digest of all the package's sources in its name (an edit of a
+    callee in another file names new cache files), and reads checked files (a damaged
+    entry is compiled again). Everything else is compiled uncached, into them."""
+    from numba.core.dispatcher import Dispatcher
+
+    from bderiv._kernels._cache import hardened
+
+    found = []
+    for module in _kernel_modules():
+        for value in vars(module).values():
+            if isinstance(value, _core.Batch):
+                value = value.serial
+            if not isinstance(value, Dispatcher) or value.stats.cache_path is None:
+                continue
+            if module.__name__.endswith(".scaling"):  # owned elsewhere: still its own file
+                continue
+            found.append(value.py_func.__qualname__)
+            assert value.py_func.__qualname__.endswith(f".k{_core.SOURCES}"), found[-1]
+            assert hardened(value), found[-1]
+    assert len(found) >= 10, found  # the drivers and the kernels called from Python
+
+
+def test_the_sources_digest_follows_every_file(tmp_path):
+    from bderiv._kernels._cache import KEY_DIGITS, sources_digest
+
+    (tmp_path / "a.py").write_text("x = 1\n")
+    (tmp_path / "b.py").write_text("y = 2\n")
+    first = sources_digest(tmp_path)
+    assert len(first) == KEY_DIGITS and first == sources_digest(tmp_path)
+    (tmp_path / "b.py").write_text("y = 3\n")
+    assert sources_digest(tmp_path) != first
+    (tmp_path / "b.py").write_text("y = 2\n")
+    (tmp_path / "c.py").write_text("")
+    assert sources_digest(tmp_path) != first  # a new file counts too
+
+
+def test_a_closure_is_refused_for_the_disk_cache():
+    from bderiv._kernels._cache import keyed
+
+    def outer(c):
+        def inner(x):
+            return x + c
+        return inner
+
+    with pytest.raises(TypeError, match="closure"):
+        keyed(outer(1.0), "0" * 16)
+
+
 def test_launches_do_not_change_the_result(monkeypatch):
     rng = np.random.default_rng(5)
     Dh, F = random_system(rng, 5, 6)

@@ -1,22 +1,37 @@
-"""The on-disk cache of the compiled kernels: checked, and never fatal.
+"""The on-disk cache of the compiled kernels: keyed by numba, checked, never fatal.
 
-Numba keeps compiled code in an index file and data files (pickles) per function, in
-``__pycache__`` beside the sources or under ``NUMBA_CACHE_DIR``. Read as numba reads them,
-a truncated or garbled file raises ``UnpicklingError``/``EOFError`` from every first call in
-every process, and a flipped bit inside the machine code may crash the process. Here:
+Keys. Numba caches a function by its own file: an index per function, named by its module,
+qualified name and first line, stamped with the sha256 of the function's source file, and
+keyed by signature, target and the hash of its bytecode and closure. A function compiled
+into another (a block into its driver, a step into its block) is not watched: after an
+edit of ``selection.py`` a driver of ``dense.py`` would load the old steps from the cache.
+:func:`keyed` therefore caches a function under a qualified name that ends with a digest of
+every source file its compiled code comes from (:func:`sources_digest`), so an edit of any
+of them names new cache files, which numba then fills by its own means; the functions
+below the cached ones are compiled uncached (in the process that needs them, only when
+the cached one is missing). Drivers are plain functions without closures (numba could not
+key a closure over dispatchers: they pickle with per-process ids), bound to their block
+by their globals (``_core.batch``).
 
-- :class:`CheckedCache` (every cached kernel of bderiv, by :func:`harden`) treats a cache
-  entry that fails to load as absent: the kernel is compiled again and the entry
-  rewritten; the logger ``bderiv`` warns once per folder, naming it and the first damaged
-  entry (a log message, not a Python warning: the call itself succeeds).
-- its data files carry the sha256 of their content (:class:`CheckedCacheFile`, suffixes
-  ``.bdi`` / ``.bdc`` so that plain numba never reads them), checked before anything is
-  unpickled: damaged machine code is never run.
-- :class:`DriverCache` keys a task driver (a closure over its block) by the sources of
-  ``_kernels`` (see its docstring).
+Damage. Read as numba reads them, a truncated or garbled file raises
+``UnpicklingError``/``EOFError`` from every first call in every process, and a flipped bit
+inside the machine code may crash the process. :func:`harden` (every cached kernel of
+bderiv: :func:`keyed`, and :func:`harden_all` at import) gives a kernel's cache a
+:class:`CheckedCacheFile`: an entry that fails to load is a miss (compiled again, the entry
+rewritten; the logger ``bderiv`` warns once per folder, naming it and the first damaged
+entry), and data files carry the sha256 of their content, checked before anything is
+unpickled, so damaged machine code is never run (suffixes ``.bdi``/``.bdc``: plain numba
+never reads them). This is the one guarantee that needs numba internals: numba reads its
+files in ``numba.core.caching.IndexDataCacheFile``, with no public hook, so the checked
+file subclasses it (``_load_data``, ``_save_data``, ``load``, ``save``, ``_index_path``,
+``_data_name_pattern``) and is put in place as the ``_cache_file`` of the dispatcher's
+cache. If numba changes these, :func:`harden` leaves numba's own files (kernels still
+cache, without the check) and ``tests/test_faults.py`` fails; nothing else here depends on
+them.
 
-``FunctionCache`` and ``IndexDataCacheFile`` are numba internals: if they change, the
-kernels fall back to numba's own cache (or none), never fail to import.
+Address space. A miss is followed by a compilation (LLVM), and the first parallel kernel
+starts the threads (OpenMP); both abort the process when memory runs out under
+``ulimit -v``, so a checked file asks :func:`check_address_space` first.
 """
 
 from __future__ import annotations
@@ -25,8 +40,10 @@ import contextlib
 import hashlib
 import logging
 import os
+import pathlib
 import pickle
 import sys
+import types
 
 try:
     import resource
@@ -34,20 +51,93 @@ except ImportError:  # not on Windows: no address-space limit to check
     resource = None
 
 import numba
-from numba.core.caching import FunctionCache, IndexDataCacheFile
+from numba import njit
+from numba.core.caching import IndexDataCacheFile
 from numba.core.dispatcher import Dispatcher
 
 log = logging.getLogger("bderiv")
 
+#: hex digits of a sources digest in a cached function's qualified name
+KEY_DIGITS = 16
+
+
+def sources_digest(folder) -> str:
+    """The first :data:`KEY_DIGITS` hex digits of the sha256 of the ``*.py`` files of
+    ``folder`` (names and contents, in name order)."""
+    h = hashlib.sha256()
+    for path in sorted(pathlib.Path(folder).glob("*.py")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()[:KEY_DIGITS]
+
+
+def keyed(fn, key: str, name: str | None = None, namespace: dict | None = None, **options):
+    """``njit(cache=True, **options)`` of ``fn``, cached under the qualified name
+    ``f"{name or fn.__qualname__}.k{key}"`` (``key``: a :func:`sources_digest` of every
+    file its compiled code comes from), and :func:`harden`-ed.
+
+    ``namespace``: the globals ``fn``'s code runs with (a copy of ``fn`` is compiled; its
+    ``__name__`` entry names the module), so one function's code can be bound to several
+    callees, each a plain function numba caches on its own. ``fn`` has no closure (numba
+    keys a closure by the pickle of what it holds).
+    """
+    if fn.__closure__:
+        raise TypeError(f"{fn.__qualname__} is a closure: numba cannot key it across "
+                        f"processes; bind what it calls through namespace=")
+    glob = fn.__globals__ if namespace is None else namespace
+    func = types.FunctionType(fn.__code__, glob, fn.__name__, fn.__defaults__)
+    func.__qualname__ = f"{name or fn.__qualname__}.k{key}"
+    func.__doc__ = fn.__doc__
+    return harden(njit(cache=True, **options)(func))
+
+
+def rekey(dispatcher, key: str):
+    """Cache a module-level ``njit(cache=True)`` kernel under ``key`` as :func:`keyed`
+    does (its qualified name gets ``.k{key}``; numba's ``enable_caching`` makes its
+    cache again under that name), :func:`harden`-ed; returns it. For kernels decorated
+    before the key was known (a package keys its own at import)."""
+    dispatcher.py_func.__qualname__ = f"{dispatcher.py_func.__qualname__}.k{key}"
+    dispatcher.enable_caching()
+    return harden(dispatcher)
+
 
 class CheckedCacheFile(IndexDataCacheFile):
-    """Numba's index and data files, each data file led by the sha256 of the rest."""
+    """Numba's index and data files, each data file led by the sha256 of the rest; an entry
+    that fails to load is a miss (see the module docstring)."""
 
-    def __init__(self, cache_path, filename_base, source_stamp):
-        super().__init__(cache_path, filename_base, source_stamp)
-        self._index_name = f"{filename_base}.bdi"
+    def __init__(self, plain: IndexDataCacheFile, qualname: str, parallel: bool):
+        base = plain._index_name[: -len(".nbi")]
+        super().__init__(plain._cache_path, base, plain._source_stamp)
+        self._index_name = f"{base}.bdi"
         self._index_path = os.path.join(self._cache_path, self._index_name)
-        self._data_name_pattern = f"{filename_base}.{{number:d}}.bdc"
+        self._data_name_pattern = f"{base}.{{number:d}}.bdc"
+        self._qualname, self._parallel = qualname, parallel
+
+    def load(self, key):
+        # the first parallel kernel starts the threads, and the OpenMP runtime exits the
+        # process when it cannot create them: asked before the first one is loaded
+        threads = self._parallel and not _THREADS_CHECKED
+        try:
+            data = super().load(key)
+        except OSError as exc:  # unreadable (permissions, I/O): a miss, not damage
+            log.debug("bderiv: kernel cache not read (%s: %s)", type(exc).__name__, exc)
+            data = None
+        except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises (also a
+            self._discard(exc)  # MemoryError: a garbled pickle may claim any length)
+            data = None
+        if data is None:  # numba compiles next: LLVM aborts the process when out of memory
+            check_address_space(COMPILE_BYTES, f"compiling the kernel {self._qualname} "
+                                f"(its first use here)")
+        if threads:
+            check_address_space(thread_bytes(), f"starting {numba.config.NUMBA_NUM_THREADS} "
+                                f"threads for the parallel kernels")
+            _threads_checked()
+        return data
+
+    def save(self, key, data):
+        try:
+            super().save(key, data)
+        except Exception as exc:  # noqa: BLE001 - a cache that cannot be written is no cache
+            log.debug("bderiv: not cached (%s: %s)", type(exc).__name__, exc)
 
     def _load_data(self, name):
         with open(self._data_path(name), "rb") as f:
@@ -62,51 +152,13 @@ class CheckedCacheFile(IndexDataCacheFile):
         with self._open_for_write(self._data_path(name)) as f:
             f.write(hashlib.sha256(payload).digest() + payload)
 
-
-class CheckedCache(FunctionCache):
-    """A function's cache whose failures are misses: compiled again, never raised."""
-
-    def __init__(self, py_func, parallel: bool = False):
-        super().__init__(py_func)
-        self._parallel = parallel
-        old = self._cache_file
-        self._cache_file = CheckedCacheFile(old._cache_path, _base(old), old._source_stamp)
-
-    def load_overload(self, sig, target_context):
-        # the first parallel kernel starts the threads, and the OpenMP runtime exits the
-        # process when it cannot create them: asked before the first one is loaded
-        threads = self._parallel and not _THREADS_CHECKED
-        try:
-            data = super().load_overload(sig, target_context)
-        except OSError as exc:  # unreadable (permissions, I/O): a miss, not damage
-            log.debug("bderiv: kernel cache not read (%s: %s)", type(exc).__name__, exc)
-            data = None
-        except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises (also a
-            self._discard(exc)  # MemoryError: a garbled pickle may claim any length)
-            data = None
-        if data is None:  # numba compiles next: LLVM aborts the process when out of memory
-            check_address_space(COMPILE_BYTES, f"compiling the kernel "
-                                f"{self._py_func.__qualname__} (its first use here)")
-        if threads:
-            check_address_space(thread_bytes(), f"starting {numba.config.NUMBA_NUM_THREADS} "
-                                f"threads for the parallel kernels")
-            _threads_checked()
-        return data
-
-    def save_overload(self, sig, data):
-        try:
-            super().save_overload(sig, data)
-        except Exception as exc:  # noqa: BLE001 - a cache that cannot be written is no cache
-            log.debug("bderiv: not cached (%s: %s)", type(exc).__name__, exc)
-
     def _discard(self, exc: Exception) -> None:
         """Remove the index of a damaged entry (the next save writes a fresh one); warn
         once per folder, list every entry at DEBUG."""
-        index = self._cache_file._index_path
         with contextlib.suppress(OSError):
-            os.unlink(index)
-        what = (f"{type(exc).__name__}: {exc} in the entry of {self._py_func.__qualname__}, "
-                f"{os.path.basename(index)}")
+            os.unlink(self._index_path)
+        what = (f"{type(exc).__name__}: {exc} in the entry of {self._qualname}, "
+                f"{self._index_name}")
         if self._cache_path in _WARNED:
             log.debug("bderiv: damaged kernel cache entry (%s), compiled again", what)
             return
@@ -178,52 +230,35 @@ def check_address_space(need: int, what: str) -> None:
         )
 
 
-def _base(cache_file: IndexDataCacheFile) -> str:
-    """The file name base numba chose (its index file's name without ``.nbi``)."""
-    return cache_file._index_name[: -len(".nbi")]
-
-
-class DriverCache(CheckedCache):
-    """The on-disk cache of a driver, keyed by the sources of the kernel package.
-
-    Numba keys the cache of a closure by the pickle of what it closes over; a dispatcher
-    pickles with per-process ids (its own and those of every jitted function it calls), so
-    a driver closing over a block would miss the cache in every process and grow its
-    index. This key is the signature and a digest of every source file of ``_kernels``:
-    found again by every process, and invalidated by any edit of a block or of anything
-    it calls (numba itself watches only the driver's own file).
-    """
-
-    def __init__(self, py_func, key: str, parallel: bool = False):
-        super().__init__(py_func, parallel)
-        self._key = key
-
-    def _index_key(self, sig, codegen):
-        return (sig, codegen.magic_tuple(), (self._key,))
-
-
-def harden(dispatcher, cache=None):
-    """Give ``dispatcher`` a :class:`CheckedCache` (or ``cache``); returns it.
-
-    Left as it is when numba's internals differ from what this module knows.
-    """
+def harden(dispatcher):
+    """Give a cached ``dispatcher`` a :class:`CheckedCacheFile` (see the module docstring);
+    returns it. Left as it is when uncached, or when numba's internals differ."""
     try:
-        parallel = bool(dispatcher.targetoptions.get("parallel"))
-        dispatcher._cache = CheckedCache(dispatcher.py_func, parallel) if cache is None else cache
-    except Exception:  # another numba: its own cache stays  # noqa: BLE001
+        cache = dispatcher._cache
+        if type(cache._cache_file) is IndexDataCacheFile:
+            parallel = bool(dispatcher.targetoptions.get("parallel"))
+            cache._cache_file = CheckedCacheFile(cache._cache_file,
+                                                 dispatcher.py_func.__qualname__, parallel)
+    except AttributeError:  # uncached (numba's NullCache), or another numba
         pass
     return dispatcher
 
 
-def harden_all() -> None:
-    """Harden every cached kernel defined at the top level of an imported bderiv module.
+def hardened(dispatcher) -> bool:
+    """Whether ``dispatcher``'s cache reads and writes :class:`CheckedCacheFile` files."""
+    return isinstance(getattr(getattr(dispatcher, "_cache", None), "_cache_file", None),
+                      CheckedCacheFile)
 
-    Called when the package is imported and when a driver is made (kernel modules make
-    theirs at import), so modules imported later are covered too. Idempotent and cheap.
+
+def harden_all() -> None:
+    """:func:`harden` every kernel defined at the top level of an imported bderiv module.
+
+    Called when the package is imported and when a driver is made, so modules imported
+    later are covered too. Idempotent and cheap.
     """
     for name, module in list(sys.modules.items()):
         if name.split(".")[0] != "bderiv" or module is None:
             continue
         for value in list(vars(module).values()):
-            if isinstance(value, Dispatcher) and type(value._cache) is FunctionCache:
+            if isinstance(value, Dispatcher):
                 harden(value)

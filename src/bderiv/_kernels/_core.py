@@ -17,11 +17,11 @@ No validation here: callers pass C-contiguous arrays of consistent shapes.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import pathlib
 import threading
+import types
 import warnings
 from typing import NamedTuple
 
@@ -29,13 +29,26 @@ import numba
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from ._cache import DriverCache, harden, harden_all
+from ._cache import harden_all, keyed, sources_digest
 from ._simd import bits_float, float_bits
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
-# when tables are built, or per region by the model kernels).
-JIT = {"cache": True, "error_model": "numpy"}
+# when tables are built, or per region by the model kernels). Not cached: only the
+# functions called from Python are (:func:`cached`, the drivers), under a key that
+# covers everything compiled into them (see ``_cache``).
+JIT = {"error_model": "numpy"}
+
+#: the digest of this package's sources that names every cached kernel (``_cache.keyed``)
+SOURCES = sources_digest(pathlib.Path(__file__).parent)
+
+
+def cached(fn=None, *, parallel: bool = False):
+    """A kernel called from Python: ``njit(parallel=parallel, **JIT)``, cached on disk
+    under :data:`SOURCES`. ``@cached`` or ``@cached(parallel=True)``."""
+    if fn is None:
+        return lambda f: keyed(f, SOURCES, parallel=parallel, **JIT)
+    return keyed(fn, SOURCES, parallel=parallel, **JIT)
 
 #: ``BDERIV_KERNELS=plain`` (read at import) runs the scalar dense kernels instead of the
 #: explicit-vector ones (``_simd``): a path any numba target compiles, tested in CI.
@@ -66,30 +79,6 @@ def launch_queries(n: int, d: int) -> int:
 
 #: insertion sort up to this many events, merge sort above (fast-path orders).
 INSERTION_SORT_MAX = 24
-
-
-def _sources_digest() -> str:
-    """sha256 of the source files of this package (``_kernels``)."""
-    h = hashlib.sha256()
-    for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
-        h.update(path.name.encode() + path.read_bytes())
-    return h.hexdigest()
-
-
-_SOURCES = _sources_digest()
-
-
-def _cached(dispatcher, block, statics):
-    """Turn on the :class:`~._cache.DriverCache` of a driver of ``block`` and ``statics``
-    (and harden the kernels of the modules imported so far, :func:`~._cache.harden_all`)."""
-    sizes = () if statics is None else tuple(len(s) for s in statics)
-    key = f"{block.py_func.__module__}.{block.py_func.__qualname__}{sizes}:{_SOURCES}"
-    harden_all()
-    try:
-        parallel = bool(dispatcher.targetoptions.get("parallel"))
-        return harden(dispatcher, DriverCache(dispatcher.py_func, key, parallel))
-    except Exception:  # another numba: leave the driver uncached  # noqa: BLE001
-        return dispatcher
 
 
 #: numba's ``workqueue`` threading layer (its fallback without OpenMP or TBB) aborts the
@@ -129,6 +118,25 @@ def _paired(tables, statics):
     return tables, statics
 
 
+# The code of the drivers. ``block``, ``bind`` and ``statics`` are no names of this module:
+# :class:`Batch` runs this code with globals of its own, one namespace per block, so each
+# driver is a plain function without a closure that numba caches by its own means.
+def _serial(tables, V, outs, inverse):
+    block(bind(tables, statics), V, outs, 0, V.shape[0], inverse)  # noqa: F821
+    return nonfinite_rows(outs[0], 0, V.shape[0])
+
+
+def _tasks(tables, V, outs, inverse):
+    m = V.shape[0]
+    bad = 0
+    for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
+        start = task * TASK_QUERIES
+        stop = min(start + TASK_QUERIES, m)
+        block(bind(tables, statics), V, outs, start, stop, inverse)  # noqa: F821
+        bad += nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
+    return bad
+
+
 class Batch:
     """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``.
 
@@ -137,30 +145,24 @@ class Batch:
     the drivers, not arguments: numba's parallel loops take no nested tuples, and a type
     of our own in an argument would send every call through Python's typeof (35 us per
     call).
+
+    The drivers are cached on disk (``cache=True``) under the block's qualified name, the
+    statics' sizes and :data:`SOURCES`; ``cache=False`` for blocks that call a user's
+    function (a closure: numba cannot key it across processes).
     """
 
     def __init__(self, block, cache: bool = True, statics: NamedTuple | None = None):
-        jit = dict(JIT, cache=False)  # see _cache.DriverCache
-        bind = _alone if statics is None else _paired
-
-        @njit(**jit)
-        def serial(tables, V, outs, inverse):
-            block(bind(tables, statics), V, outs, 0, V.shape[0], inverse)
-            return nonfinite_rows(outs[0], 0, V.shape[0])
-
-        @njit(parallel=True, **jit)
-        def tasks(tables, V, outs, inverse):
-            m = V.shape[0]
-            bad = 0
-            for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
-                start = task * TASK_QUERIES
-                stop = min(start + TASK_QUERIES, m)
-                block(bind(tables, statics), V, outs, start, stop, inverse)
-                bad += nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
-            return bad
-
+        namespace = dict(globals(), block=block, statics=statics,
+                         bind=_alone if statics is None else _paired)
         if cache:
-            serial, tasks = _cached(serial, block, statics), _cached(tasks, block, statics)
+            sizes = "" if statics is None else "_" + "_".join(str(len(s)) for s in statics)
+            name = f"{block.py_func.__module__.rsplit('.', 1)[-1]}.{block.__name__}{sizes}"
+            serial = keyed(_serial, SOURCES, f"{name}.serial", namespace, **JIT)
+            tasks = keyed(_tasks, SOURCES, f"{name}.tasks", namespace, parallel=True, **JIT)
+            harden_all()  # the kernels of the modules imported so far
+        else:
+            serial = njit(**JIT)(_bound(_serial, namespace))
+            tasks = njit(parallel=True, **JIT)(_bound(_tasks, namespace))
         self.block, self.serial, self.tasks = block, serial, tasks
 
     def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> int:
@@ -191,9 +193,13 @@ class Batch:
         return bad
 
 
+def _bound(fn, namespace):
+    """A copy of ``fn`` whose code runs with ``namespace`` as its globals."""
+    return types.FunctionType(fn.__code__, namespace, fn.__name__, fn.__defaults__)
+
+
 def batch(block, cache: bool = True, statics: NamedTuple | None = None) -> Batch:
-    """The :class:`Batch` of an njit ``block`` (``cache=False`` for blocks that call a
-    user's function: their compiled code cannot be keyed across processes)."""
+    """The :class:`Batch` of an njit ``block``."""
     return Batch(block, cache, statics)
 
 
@@ -374,7 +380,7 @@ own_times = batch(_own_times_block)
 linear = batch(_linear_block)
 
 
-@njit(**JIT)
+@cached
 def piece_from_corners(Dh, Fc, order, out):
     """Linear piece S_n ... S_1 of one order (mathematics.md section 4) into ``out`` (d, d).
 

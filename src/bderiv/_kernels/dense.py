@@ -16,6 +16,7 @@ from numba import njit
 from ._core import (
     JIT,
     batch,
+    cached,
     factors,
     own_rate_times,
     query_exponent,
@@ -228,7 +229,7 @@ apply_sorted = batch(_sorted_block)
 tangents = batch(_tangent_block)
 
 
-@njit(**JIT)
+@cached
 def widest_rate_spread(G):
     """(ratio, k, slow_mask, fast_mask): the event k whose rate varies most over the
     regions where it is pending, ``G[fast_mask, k] / G[slow_mask, k]`` (rates positive,

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from . import _simd as vec
-from ._core import JIT, batch, own_rate_times
+from ._core import JIT, batch, cached, own_rate_times
 
 #: queries whose event values and outputs are computed as one matrix product
 GROUP = 32
@@ -336,7 +336,7 @@ def _times_block(tables, V, outs, start, stop, inverse):
                 orders[q0 + p, k] = ORD[p, k]
 
 
-@njit(**JIT)
+@cached
 def diagnose(tables, U, inverse, hap, r):
     """Re-run the query ``U[0]`` (U: (1, d)) checking every rate; returns the bad event (or
     -1) and writes ``hap`` (the region's flags) and ``r`` (its rates) where it stopped."""

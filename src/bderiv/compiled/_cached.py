@@ -3,29 +3,20 @@
 Numba invalidates a cached function when its own file changes, not when a function it
 calls (and compiled into it) does: after an edit of ``_rhs.py`` the driver and the steps
 would load the old right-hand side from the cache. Every kernel here is therefore cached
-under a key that includes a digest of all of ``compiled/``'s sources, in bderiv's checked
-cache format (:class:`bderiv._kernels._cache.DriverCache`: a damaged entry is compiled
-again, never run).
+under a name that ends with a digest of all of ``compiled/``'s sources, by numba's own
+cache, in bderiv's checked cache files (:func:`bderiv._kernels._cache.rekey`: a damaged
+entry is compiled again, never run).
 """
 
 from __future__ import annotations
 
-import hashlib
 import pathlib
 import sys
 
 from numba import njit
-from numba.core.caching import FunctionCache
 from numba.core.dispatcher import Dispatcher
 
-from .._kernels._cache import DriverCache, harden
-
-
-def _sources_digest() -> str:
-    h = hashlib.sha256()
-    for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
-        h.update(path.name.encode() + path.read_bytes())
-    return h.hexdigest()
+from .._kernels._cache import rekey, sources_digest
 
 
 def eager(signature):
@@ -48,12 +39,12 @@ def key_all_kernels() -> None:
     (The few kernels with an explicit signature compile at import, before this runs: they
     call nothing of the package.)
     """
-    digest = _sources_digest()
+    digest = sources_digest(pathlib.Path(__file__).parent)
     for name, module in list(sys.modules.items()):
         if not name.startswith(__package__ + ".") or module is None:
             continue
         for value in list(vars(module).values()):
             if (isinstance(value, Dispatcher) and value.py_func.__module__ == name
-                    and type(value._cache) is FunctionCache and not value.signatures):
-                key = f"{name}.{value.py_func.__qualname__}:{digest}"
-                harden(value, DriverCache(value.py_func, key))
+                    and value.stats.cache_path is not None and not value.signatures
+                    and not value.py_func.__qualname__.endswith(f".k{digest}")):
+                rekey(value, digest)
