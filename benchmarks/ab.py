@@ -2,15 +2,16 @@
 
     python benchmarks/ab.py /work/main/src [--rounds 7] [--queries 1000000] [--cases ...]
 
-The other checkout's package (``<src>/bderiv``, whose imports are all relative) is copied
-to a folder of the temporary directory named by a digest of its sources (so that its
-compiled kernels are cached there from one run to the next) and imported as
-``bderiv_base``. Both build the same systems and run the same queries, alternated round
-by round, after checking that each operation gives the same bits in both; the table
-gives the median and the minimum time per query of each and the ratios this / base
-(below 1: this checkout is faster). ``BDERIV_KERNELS=plain`` runs the scalar kernels of
-dense tables in both. The machine is shared: take the medians of several rounds, and
-repeat a run whose ratios look odd.
+The cases and operations are those of ``tests/variants.py`` (every kernel variant listed
+once: a variant added there is benchmarked here). The other checkout's package
+(``<src>/bderiv``, whose imports are all relative) is copied to a folder of the temporary
+directory named by a digest of its sources (so that its compiled kernels are cached there
+from one run to the next) and imported as ``bderiv_base``. Both build the same systems and
+run the same queries, alternated round by round, after checking that each operation gives
+the same bits in both; the table gives the median and the minimum time per query of each
+and the ratios this / base (below 1: this checkout is faster). ``BDERIV_KERNELS=plain``
+runs the scalar kernels of dense tables in both. The machine is shared: take the medians
+of several rounds, and repeat a run whose ratios look odd.
 """
 
 from __future__ import annotations
@@ -28,16 +29,12 @@ import time
 import numpy as np
 
 HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+
+from variants import OPERATIONS, REPRESENTATIONS, bench_cases  # noqa: E402
 
 #: case name -> (representation, n, d, default queries)
-CASES = {
-    "dense8": ("dense", 8, 8, 10**6),
-    "dense16": ("dense", 16, 16, 10**6),
-    "dense20": ("dense", 20, 20, 2 * 10**5),
-    "structured128": ("structured", 128, 128, 1 << 15),
-    "function8": ("function", 8, 8, 1 << 16),
-    "resets6": ("resets", 6, 8, 1 << 17),
-}
+CASES = bench_cases()
 
 
 def base_package(src: pathlib.Path):
@@ -56,52 +53,15 @@ def base_package(src: pathlib.Path):
     return importlib.import_module("bderiv_base")
 
 
-def system(kind: str, n: int, d: int, package):
-    """The map of one case built by ``package`` (the same arrays for both checkouts)."""
-    from bderiv._baselines import benchmark_system
-
-    if kind == "structured":
-        sys.path.insert(0, str(HERE))
-        from test_bench_corners import contact_system
-
-        Dh, model = contact_system(n, d)
-        corners = package.corners.StructuredCorners(model.F0, model.A, model.pairs, model.B)
-        return package.BDerivative(Dh, corners, fast_paths=False)
-    Dh, F = benchmark_system(n, d)
-    if kind == "dense":
-        return package.BDerivative(Dh, F, fast_paths=False)
-    if kind == "function":
-        return package.BDerivative(Dh, package.CornerFunction(_table_function(F)),
-                                   fast_paths=False)
-    # resets that scale the last coordinate (beyond the events' Jacobian, so that they
-    # commute and keep the surfaces): the reset kernels' dense update
-    Dh = np.eye(n, d)
-    resets = np.broadcast_to(np.eye(d), (1 << n, n, d, d)).copy()
-    resets[..., d - 1, d - 1] = 0.5
-    return package.BDerivative(Dh, np.abs(F) + 1.0, resets=resets)
-
-
-def _table_function(F):
-    """An njit corner function that reads a dense table (the function engine's kernels on
-    a known model)."""
-    from numba import njit
-
-    @njit
-    def func(happened, out):
-        b = 0
-        for k in range(happened.shape[0]):
-            b |= np.int64(happened[k]) << k
-        for i in range(out.shape[0]):
-            out[i] = F[b, i]
-
-    return func
-
-
 def operations(bd, V):
-    """The timed operations of a map on the queries V."""
-    W = bd(V)
-    return {"apply": lambda: bd(V), "inverse": lambda: bd.inverse(W),
-            "orders": lambda: bd.orders(V), "jvp": lambda: bd.jvp(V, V)}
+    """The timed operations of a map on the queries V (tangents: V itself)."""
+    return {op: (lambda run=operation.run: run(bd, V, V))
+            for op, operation in OPERATIONS.items()}
+
+
+def _same(a, b, op):
+    for x, y in zip(np.atleast_1d(a), np.atleast_1d(b), strict=True):
+        np.testing.assert_array_equal(x, y, err_msg=op)
 
 
 def main(argv=None):
@@ -112,7 +72,7 @@ def main(argv=None):
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--queries", type=int, default=None, help="override per case")
     parser.add_argument("--cases", default=",".join(CASES), help="comma-separated")
-    parser.add_argument("--ops", default="apply,inverse,orders,jvp")
+    parser.add_argument("--ops", default="apply,inverse,times,jvp", help=f"of {list(OPERATIONS)}")
     parser.add_argument("--threads", type=int, default=None,
                         help="numba threads (default: all; 1 is steadier on a busy machine)")
     parser.add_argument("--base-first", action="store_true",
@@ -138,10 +98,11 @@ def main(argv=None):
         V = np.random.default_rng(1).standard_normal((m, d))
         order = ("base", "this") if args.base_first else ("this", "base")
         packages = {"this": bderiv, "base": base}
-        maps = {who: system(kind, n, d, packages[who]) for who in order}
+        build = REPRESENTATIONS[kind].build
+        maps = {who: build(packages[who], n, d).bd for who in order}
         ops = {who: operations(bd, V) for who, bd in maps.items()}
         for op in args.ops.split(","):  # the same bits, or the timing means nothing
-            np.testing.assert_array_equal(ops["this"][op](), ops["base"][op](), err_msg=op)
+            _same(ops["this"][op](), ops["base"][op](), op)
         for op in args.ops.split(","):
             times = {"this": [], "base": []}
             for _ in range(args.rounds):

@@ -2,21 +2,17 @@
 
 Oracles: the pieces of ``reference.py`` (saltation products of the order the oracle's
 selection finds for each vector), the dot-product identity, and finite differences of the
-simulated flow of the examples.
+simulated flow of the examples. Every representation's jvp and vjp against the oracle's
+pieces, with the dot-product identity and ``jvp(V, V) = M(V)``: ``tests/test_variants.py``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from fuzz_families import WAVY, own_rate_table, structured_corners, wavy_corners
 from reference import random_system, ref_event_times, ref_piece
 
 from bderiv import BDerivative, FlowBDerivative, StructuredCorners, examples
-
-
-def table_of(corners, n):
-    return corners(((np.arange(2**n)[:, None] >> np.arange(n)) & 1).astype(float))
 
 
 def structured_normals(rng, n, d):
@@ -24,53 +20,6 @@ def structured_normals(rng, n, d):
     e = rng.standard_normal(d)
     e /= np.linalg.norm(e)
     return e + 0.4 * rng.uniform(-1, 1, (n, d)) / np.sqrt(d), 1.5 * e
-
-
-def maps(rng):
-    """(name, map, Dh, table) for dense tables (n = d, d > n, n > d, fast paths) and
-    corner models."""
-    out = []
-    for n, d in [(3, 3), (4, 4), (2, 5), (5, 3)]:
-        Dh, F = random_system(rng, n, d)
-        out.append((f"dense {n}x{d}", BDerivative(Dh, F), Dh, F))
-    for additive in (False, True):
-        Dh, F = own_rate_table(rng, 4, 5, additive)
-        bd = BDerivative(Dh, F)
-        assert bd.fast_path == ("linear" if additive else "own-rates")
-        out.append((f"fast {bd.fast_path}", bd, Dh, F))
-    n, d = 4, 5
-    Dh, F0 = structured_normals(rng, n, d)
-    A = 0.1 * rng.standard_normal((n, d))
-    pairs = np.array([(0, 1), (2, 3)])
-    B = 0.1 * rng.standard_normal((2, d))
-    model = StructuredCorners(F0, A, pairs, B)
-    oracle = table_of(structured_corners(F0, A, pairs, B), n)
-    out.append(("structured", BDerivative(Dh, model), Dh, oracle))
-    Dh = np.eye(3, 4) + 0.1 * rng.standard_normal((3, 4))
-    out.append(("function", BDerivative(Dh, WAVY), Dh, table_of(wavy_corners(4), 3)))
-    return out
-
-
-MAPS = maps(np.random.default_rng(11))
-
-
-@pytest.mark.parametrize("name, bd, Dh, F", MAPS, ids=[m[0] for m in MAPS])
-def test_jvp_and_vjp_are_the_oracles_piece(name, bd, Dh, F):
-    rng = np.random.default_rng(5)
-    d = bd.dim
-    V, T, W = (rng.standard_normal((1500, d)) for _ in range(3))
-    J, Jt = bd.jvp(V, T), bd.vjp(V, W)
-    for q in range(0, 1500, 61):
-        P = ref_piece(Dh, F, ref_event_times(Dh, F, V[q])[1])
-        scale = np.abs(P).max() * np.abs(T[q]).max()
-        np.testing.assert_allclose(J[q], P @ T[q], rtol=0, atol=1e-12 * scale)
-        np.testing.assert_allclose(Jt[q], P.T @ W[q], rtol=0,
-                                   atol=1e-12 * np.abs(P).max() * np.abs(W[q]).max())
-    # <W, M T> == <M^T W, T> row by row, and positive homogeneity: jvp(V, V) = M(V)
-    lhs, rhs = np.einsum("ij,ij->i", W, J), np.einsum("ij,ij->i", Jt, T)
-    size = np.abs(W) @ np.abs(J).max(axis=0) + np.abs(Jt) @ np.abs(T).max(axis=0)
-    assert np.all(np.abs(lhs - rhs) <= 1e-12 * size)
-    np.testing.assert_allclose(bd.jvp(V, V), bd(V), rtol=1e-11, atol=1e-11 * np.abs(V).max())
 
 
 def test_a_tie_takes_the_smaller_events_piece():

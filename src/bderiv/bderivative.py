@@ -30,6 +30,30 @@ from ._validate import (
 from .corners import CornerModel, StructuredCorners
 
 
+def _representation(Dh, F, resets) -> str:
+    """Which engine ``F`` and ``resets`` call for: ``"dense"``, ``"resets"``,
+    ``"structured"`` or ``"function"``; refuses resets with a corner model, half a corner
+    model, and a model whose sizes differ from ``Dh``'s."""
+    if resets is not None and hasattr(F, "corner_function"):
+        raise TypeError(f"resets need a dense table F (2**n, d), got the model {F!r}")
+    if not isinstance(F, CornerModel):
+        if hasattr(F, "corners") or hasattr(F, "corner_function"):
+            raise TypeError(
+                f"F = {F!r} looks like a corner model but lacks part of the protocol: it "
+                f"needs n_events, dim, corners(happened) and corner_function() (see "
+                f"bderiv.corners.CornerModel)"
+            )
+        return "dense" if resets is None else "resets"
+    n, d = Dh.shape
+    want = (n if F.n_events is None else F.n_events, d if F.dim is None else F.dim)
+    if want != (n, d):
+        raise ValueError(
+            f"Dh has shape {Dh.shape} (n={n} events, dimension d={d}) but the corner "
+            f"model {F!r} has n={want[0]} events in dimension d={want[1]}"
+        )
+    return "structured" if isinstance(F, StructuredCorners) else "function"
+
+
 class BDerivative(Linearisation, CornerGeometry):
     """B-derivative of an event-selected piecewise-smooth flow at an n-event point.
 
@@ -130,59 +154,41 @@ class BDerivative(Linearisation, CornerGeometry):
 
     def __init__(self, Dh, F, *, transversality_tol: float = 1e-9, memory_limit=None,
                  fast_paths: bool = True, resets=None, reset_tol: float = 1e-9):
+        # validate
         Dh = check_matrix(Dh, "Dh", (None, None))
-        n, d = Dh.shape
-        if n == 0 or d == 0:
+        if Dh.shape[0] == 0 or Dh.shape[1] == 0:
             raise ValueError(f"Dh must have at least one event and one dimension, got {Dh.shape}")
         fast_paths = self._fast_paths = check_bool(fast_paths, "fast_paths")
-        self.resets = None
-        if resets is not None and hasattr(F, "corner_function"):
-            raise TypeError(f"resets need a dense table F (2**n, d), got the model {F!r}")
-        if isinstance(F, CornerModel):
-            self._init_model(Dh, F, fast_paths)
-            return
-        if hasattr(F, "corners") or hasattr(F, "corner_function"):
-            raise TypeError(
-                f"F = {F!r} looks like a corner model but lacks part of the protocol: it needs "
-                f"n_events, dim, corners(happened) and corner_function() (see "
-                f"bderiv.corners.CornerModel)"
-            )
-        if resets is None:
+        # choose the representation
+        kind = _representation(Dh, F, resets)
+        # build its engine (which validates its own tables)
+        if kind == "dense":
             engine = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths)
-        else:
+        elif kind == "resets":
             engine = ResetEngine.build(Dh, F, resets, transversality_tol, reset_tol,
                                        memory_limit)
-            self.resets = engine.resets
-        F, G = engine.caller_tables()
-        for a in (Dh, engine.R, F, G):
-            a.flags.writeable = False
-        self.Dh, self.F, self.rates = Dh, F, G
-        self.n_events, self.dim = n, d
-        self.model = None
-        self._engine = engine
-        self.fast_path = self._engine.fast_path
-        self.rate_spread = engine.rate_spread
-        self.transversality = "table"
-
-    def _init_model(self, Dh, model, fast_paths: bool) -> None:
-        n, d = Dh.shape
-        want = (n if model.n_events is None else model.n_events,
-                d if model.dim is None else model.dim)
-        if want != (n, d):
-            raise ValueError(
-                f"Dh has shape {Dh.shape} (n={n} events, dimension d={d}) but the corner "
-                f"model {model!r} has n={want[0]} events in dimension d={want[1]}"
-            )
-        if isinstance(model, StructuredCorners):
-            self._engine = StructuredEngine(Dh, model, fast_paths)
+        elif kind == "structured":
+            engine = StructuredEngine(Dh, F, fast_paths)
         else:
-            self._engine = FunctionEngine.from_model(Dh, model)
+            engine = FunctionEngine.from_model(Dh, F)
+        self._adopt(Dh, engine, None if kind in ("dense", "resets") else F)
+
+    def _adopt(self, Dh, engine, model) -> None:
+        """The attributes of a map from its engine (``model``: None for a dense table)."""
+        self.n_events, self.dim = Dh.shape
+        self.Dh, self.model, self._engine = Dh, model, engine
+        self.fast_path = engine.fast_path
+        self.resets = getattr(engine, "resets", None)
         Dh.flags.writeable = False
-        self.Dh, self.F, self.rates, self.model = Dh, None, None, model
-        self.n_events, self.dim = n, d
-        self.fast_path = self._engine.fast_path
-        self.rate_spread = None
-        self.transversality = "proved" if self._engine.transversal_proved else "per-query"
+        if model is None:
+            self.F, self.rates = engine.caller_tables()
+            for a in (engine.R, self.F, self.rates):
+                a.flags.writeable = False
+            self.rate_spread = engine.rate_spread
+            self.transversality = "table"
+        else:
+            self.F = self.rates = self.rate_spread = None
+            self.transversality = "proved" if engine.transversal_proved else "per-query"
 
     def __repr__(self) -> str:
         return f"BDerivative(n_events={self.n_events}, dim={self.dim})"
