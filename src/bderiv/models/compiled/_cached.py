@@ -16,7 +16,7 @@ import sys
 from numba import njit
 from numba.core.dispatcher import Dispatcher
 
-from .._kernels._cache import rekey, sources_digest
+from ..._kernels._cache import rekey, sources_digest
 
 
 def eager(signature):
@@ -34,7 +34,7 @@ def eager(signature):
 
 
 def key_all_kernels() -> None:
-    """Give every lazily compiled, cached kernel of ``bderiv.compiled`` the sources key.
+    """Give every lazily compiled, cached kernel of ``bderiv.models.compiled`` the sources key.
 
     (The few kernels with an explicit signature compile at import, before this runs: they
     call nothing of the package.)
