@@ -9,6 +9,17 @@ A block gets ``(tables, shape)``: the :class:`LaneTables` of the engine and the
 caches: see :func:`_step`), ``carry`` (1: the chain carries the position, see
 :func:`_assemble`; 0: it records its steps) and ``check`` (1: apply tests the query band,
 see :func:`_lane_apply_block`). A query is one row of ``V`` (m, d).
+
+Speed against the positional tables these named ones replaced (issue 26;
+``benchmarks/ab.py <src> --cases dense20 --ops apply,inverse --clock cpu --queries 200000``,
+CPU time, medians of 11-15 alternated rounds): on one thread (``--threads 1``) apply 1.008
+and inverse 0.964 of the old kernels' time, and the apply block compiles to the same
+vector code (at wh = wx = 24, the same count of every vector instruction; 70 more scalar
+ones out of 9200, calls and tests outside the steps). On two threads three runs gave apply
+1.06-1.19 and inverse 1.03-1.12 (a run against the closures' drivers of the named tables
+gave 0.90 and 0.95): a cost of running both threads on the 805 MB table of n = 20 that
+the one-thread runs do not show; not found yet (a suspect: the tables' int fields, which
+numba's parallel loop passes as scalar parameters, where the old tables held an array).
 """
 
 from __future__ import annotations
