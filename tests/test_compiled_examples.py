@@ -18,6 +18,11 @@ from bderiv.examples import gaits, runner
 
 #: (name, factory of the example given compiled=...)
 CASES = {
+    "chair": lambda compiled: examples.chair(compiled=compiled),
+    "network": lambda compiled: examples.network(4, compiled=compiled),
+    "network-extended": lambda compiled: examples.network(3, extended=True, seed=1,
+                                                          compiled=compiled),
+    "landing": lambda compiled: examples.landing(compiled=compiled),
     "pronking": lambda compiled: gaits.pronking(compiled=compiled),
     "pronking-4": lambda compiled: gaits.pronking(legs=4, compiled=compiled),
     "running": lambda compiled: runner.running(compiled=compiled),
