@@ -89,4 +89,4 @@ def test_compiled_section_is_needed_and_given():
     with pytest.raises(TypeError, match="section must be too"):
         cc.system.return_map(cc.x0, gaits.apex_section)
     assert gaits.compiled_apex_section(np.array([0.6, 0.0, 0.25, 0.0])) == -0.25
-    assert examples.pronking(compiled=True).description.endswith("(compiled)")
+    assert examples.pronking(compiled=True).description.endswith(", numba-compiled")

@@ -111,7 +111,7 @@ class Example:
         return cls(system=system, rho=np.asarray(rho, dtype=np.float64),
                    x0=np.asarray(x0, dtype=np.float64), t_event=float(t_event),
                    t_final=float(f"{float(t_event) + float(t_after):.15g}"), name=name,
-                   description=description + (" (compiled)" if compiled else ""),
+                   description=description + (", numba-compiled" if compiled else ""),
                    compiled=bool(compiled))
 
 

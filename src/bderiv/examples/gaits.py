@@ -232,7 +232,8 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
     return ex.system.periodic_orbit(guess, section, **kwargs)
 
 
-def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0):
+def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0,
+                     compiled=False):
     """The gait from model to stability verdict, with its checks against simulation.
 
     Finds the orbit (:func:`orbit`), its event groups, the return map's pieces met by a
@@ -250,6 +251,8 @@ def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0):
     strides : int
         Strides of the decay check.
     seed : int
+    compiled : bool
+        The compiled model (:func:`pronking` with ``compiled=True``), else the Python one.
 
     Returns
     -------
@@ -261,15 +264,16 @@ def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0):
     """
     from ..checks import decay_check, fd_check  # the checks simulate: only here
 
-    ex = pronking()
+    ex = pronking(compiled=compiled)
+    section = compiled_apex_section if compiled else apex_section
     orb = pronking_orbit(ex)
     st = orb.stability(seed=seed)
     R, rng = orb.return_map, np.random.default_rng(seed)
     W = rng.standard_normal((100_000, 4)) @ R.tangent_basis @ R.tangent_basis.T
     V = _one_per_piece(R, W)
-    fd = fd_check(ex.system, orb.x0, 3.0, V, R(V), eps=eps, section=apex_section)
+    fd = fd_check(ex.system, orb.x0, 3.0, V, R(V), eps=eps, section=section)
     D = rng.standard_normal((n_check, 3)) @ R.tangent_basis.T
-    decay = decay_check(ex.system, orb.x0, apex_section,
+    decay = decay_check(ex.system, orb.x0, section,
                         D / np.linalg.norm(D, axis=1)[:, None], eps=1e-2, strides=strides)
     return {
         "name": ex.name, "description": ex.description,

@@ -129,14 +129,14 @@ def landing(*, foot_mass=0.4, leg_stiffness=200.0, leg_damping=4.0, ground_stiff
                                   name=name, description=description)
 
 
-def landing_summary(*, n_check=8, eps=(1e-4, 1e-5, 1e-6), seed=0):
+def landing_summary(*, n_check=8, eps=(1e-4, 1e-5, 1e-6), seed=0, compiled=False):
     """The landing from model to checked B-derivative, and the refused variant.
 
     Simulates the landing (the event group and the resets it applied), builds the
     B-derivative M at the double touchdown and the flow map's D over ``[0, t_final]``,
     checks D against finite differences of the simulation on ``n_check`` random unit
     directions (both touchdown orders), and builds the coupled variant to show why it is
-    refused.
+    refused. ``compiled``: the compiled model (:func:`landing` with ``compiled=True``).
 
     Returns
     -------
@@ -147,7 +147,7 @@ def landing_summary(*, n_check=8, eps=(1e-4, 1e-5, 1e-6), seed=0):
     """
     from ..checks import fd_check  # simulates: only here
 
-    ex = landing()
+    ex = landing(compiled=compiled)
     system = ex.system
     traj = system.simulate(ex.x0, ex.t_final, simultaneity_tol=1e-7)
     M = system.bderivative(ex.rho)
