@@ -20,7 +20,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from .._kernels._cache import DriverCache, harden
-from ..hybrid import HybridSystem
+from ..models.system import HybridSystem
 
 __all__ = ["Example", "compile_function", "complex_step_jacobian", "flow_back"]
 
