@@ -2,7 +2,7 @@
 
 Models with a compiled version write their equations once, as plain functions that numba
 compiles (closures over constant numbers and arrays, loop style, no Python objects):
-:meth:`Example.from_functions` passes them to :class:`~bderiv.hybrid.HybridSystem` as
+:meth:`Example.from_functions` passes them to :class:`~bderiv.models.system.HybridSystem` as
 they are (the Python version) or each compiled by :func:`compile_function` (the compiled
 version, ``compiled=True``): one code path for both.
 """
