@@ -78,6 +78,8 @@ def stance(z, theta, vz, omega, mask, p):
             az = az + f
             alpha = alpha + rx * f / p.inertia
     return az, alpha
+
+
 class Body(NamedTuple):
     """The pronking body's constants (per leg: the totals of two legs shared by all)."""
 
