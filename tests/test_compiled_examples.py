@@ -90,3 +90,20 @@ def test_compiled_section_is_needed_and_given():
         cc.system.return_map(cc.x0, gaits.apex_section)
     assert gaits.compiled_apex_section(np.array([0.6, 0.0, 0.25, 0.0])) == -0.25
     assert examples.pronking(compiled=True).description.endswith(", numba-compiled")
+
+
+@pytest.mark.parametrize("make", [examples.chair, examples.landing, gaits.pronking,
+                                  runner.running, lambda **kw: examples.network(2, **kw)])
+def test_compiled_must_be_a_flag(make):
+    with pytest.raises(TypeError, match="compiled must be True or False, got str 'yes'"):
+        make(compiled="yes")
+
+
+@pytest.mark.parametrize("legs, error, message", [
+    (1, ValueError, "legs must be an integer >= 2, got 1"),
+    (2.5, TypeError, "legs must be an integer, got float"),
+    ("4", TypeError, "legs must be an integer, got str"),
+])
+def test_pronking_legs_are_checked(legs, error, message):
+    with pytest.raises(error, match=message):
+        gaits.pronking(legs=legs, compiled=True)

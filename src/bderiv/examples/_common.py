@@ -20,6 +20,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from .._kernels._cache import DriverCache, harden
+from .._validate import check_bool
 from ..models.system import HybridSystem
 
 __all__ = ["Example", "compile_function", "complex_step_jacobian", "flow_back"]
@@ -98,6 +99,7 @@ class Example:
             integrator. Without ``field_jacobian`` the Jacobian is taken by complex step
             in either version (in compiled code when compiled).
         """
+        compiled = check_bool(compiled, "compiled")
         fns = dict(functions)
         if compiled:
             fns.update({k: compile_function(f) for k, f in fns.items()
@@ -112,7 +114,7 @@ class Example:
                    x0=np.asarray(x0, dtype=np.float64), t_event=float(t_event),
                    t_final=float(f"{float(t_event) + float(t_after):.15g}"), name=name,
                    description=description + (", numba-compiled" if compiled else ""),
-                   compiled=bool(compiled))
+                   compiled=compiled)
 
 
 @cache

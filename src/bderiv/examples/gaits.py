@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from numba.extending import register_jitable
 
+from .._validate import check_positive_int
 from ._common import Example, compile_function
 
 __all__ = [
@@ -139,9 +140,9 @@ def body(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5, hal
          leg=0.5, inertia=0.16, legs=2) -> Body:
     """The pronking body's constants for :func:`pronking`'s parameters: the part other
     gaits build on (:mod:`bderiv.examples.runner`)."""
-    if isinstance(legs, bool) or int(legs) != legs or legs < 2:
-        raise ValueError(f"legs must be an integer >= 2, got {legs!r}")
-    legs = int(legs)
+    legs = check_positive_int(legs, "legs")
+    if legs < 2:
+        raise ValueError(f"legs must be an integer >= 2, got {legs}")
     share = 2.0 / legs  # the totals of two legs, shared by all of them
     return Body(a=np.linspace(-half_base, half_base, legs), K=share * float(stiffness),
                 C=share * float(damping), gain=share * float(gain), coupling=float(coupling),
