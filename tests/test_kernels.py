@@ -85,18 +85,6 @@ def test_the_sources_digest_follows_every_file(tmp_path):
     assert sources_digest(tmp_path) != first  # a new file counts too
 
 
-def test_a_closure_is_refused_for_the_disk_cache():
-    from bderiv._kernels._cache import keyed
-
-    def outer(c):
-        def inner(x):
-            return x + c
-        return inner
-
-    with pytest.raises(TypeError, match="closure"):
-        keyed(outer(1.0), "0" * 16)
-
-
 def test_launches_do_not_change_the_result(monkeypatch):
     rng = np.random.default_rng(5)
     Dh, F = random_system(rng, 5, 6)

@@ -77,14 +77,12 @@ def keyed(fn, key: str, name: str | None = None, namespace: dict | None = None, 
 
     ``namespace``: the globals ``fn``'s code runs with (a copy of ``fn`` is compiled; its
     ``__name__`` entry names the module), so one function's code can be bound to several
-    callees, each a plain function numba caches on its own. ``fn`` has no closure (numba
-    keys a closure by the pickle of what it holds).
+    callees, each a plain function numba caches on its own. A closure is keyed by numba
+    by the pickle of the values it holds: plain values only (a dispatcher pickles with ids
+    that are new in every process: it would be compiled again in every process).
     """
-    if fn.__closure__:
-        raise TypeError(f"{fn.__qualname__} is a closure: numba cannot key it across "
-                        f"processes; bind what it calls through namespace=")
     glob = fn.__globals__ if namespace is None else namespace
-    func = types.FunctionType(fn.__code__, glob, fn.__name__, fn.__defaults__)
+    func = types.FunctionType(fn.__code__, glob, fn.__name__, fn.__defaults__, fn.__closure__)
     func.__qualname__ = f"{name or fn.__qualname__}.k{key}"
     func.__doc__ = fn.__doc__
     return harden(njit(cache=True, **options)(func))

@@ -9,17 +9,14 @@ version, ``compiled=True``): one code path for both.
 
 from __future__ import annotations
 
-import hashlib
 import pathlib
-import pickle
 from dataclasses import dataclass
 from functools import cache
 
-import numba
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .._kernels._cache import DriverCache, harden
+from .._kernels._cache import keyed, sources_digest
 from .._validate import check_bool
 from ..models.system import HybridSystem
 
@@ -119,25 +116,20 @@ class Example:
 
 @cache
 def _sources_digest() -> str:
-    """sha256 of the examples' sources (a compiled function may inline helpers of other
+    """The digest of the examples' sources (a compiled function may inline helpers of other
     files of the package: any edit invalidates every cached example function)."""
-    h = hashlib.sha256()
-    for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
-        h.update(path.name.encode() + path.read_bytes())
-    return h.hexdigest()
+    return sources_digest(pathlib.Path(__file__).parent)
 
 
 def compile_function(fn):
-    """``numba.njit(fn)``, cached on disk under the examples' sources and the values ``fn``
-    closes over (compiled at its first call; later processes load it in milliseconds).
+    """``numba.njit(fn)``, cached on disk by numba (compiled at its first call; later
+    processes load it in milliseconds) under a name that ends with the examples' sources
+    digest (:func:`bderiv._kernels._cache.keyed`).
 
-    Numba would key a closure's cache by its values alone and invalidate it only when its
-    own file changes; the key here also changes when a helper it inlines does.
+    Numba keys a closure's cache by the values it holds and invalidates it only when its
+    own file changes; the name changes when a helper it inlines does.
     """
-    cells = tuple(c.cell_contents for c in fn.__closure__ or ())
-    values = hashlib.sha256(pickle.dumps(cells)).hexdigest()
-    key = f"{fn.__module__}.{fn.__qualname__}:{_sources_digest()}:{values}"
-    return harden(numba.njit(fn), DriverCache(fn, key))
+    return keyed(fn, _sources_digest())
 
 
 def complex_step_jacobian(fun, x, n_out):
