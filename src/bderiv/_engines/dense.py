@@ -86,7 +86,8 @@ class DenseEngine(Engine):
         self._lanes = self._lane_kernels = None
         if not PLAIN and d <= lanes.MAX_D:
             self._lanes = lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
-                                           _tables.padded(self.Dh, 8 * dc), n, d, nc, dc)
+                                           _tables.padded(self.Dh, 8 * dc),
+                                           np.array([n, d, nc, dc], dtype=np.int64))
             self._lane_kernels = lanes.kernels(8 * nc, 8 * dc, int(self.R.nbytes > FAR_BYTES))
         self._plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G,
                                           self.Dh)

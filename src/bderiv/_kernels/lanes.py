@@ -10,16 +10,15 @@ caches: see :func:`_step`), ``carry`` (1: the chain carries the position, see
 :func:`_assemble`; 0: it records its steps) and ``check`` (1: apply tests the query band,
 see :func:`_lane_apply_block`). A query is one row of ``V`` (m, d).
 
-Speed against the positional tables these named ones replaced (issue 26;
-``benchmarks/ab.py <src> --cases dense20 --ops apply,inverse --clock cpu --queries 200000``,
-CPU time, medians of 11-15 alternated rounds): on one thread (``--threads 1``) apply 1.008
-and inverse 0.964 of the old kernels' time, and the apply block compiles to the same
-vector code (at wh = wx = 24, the same count of every vector instruction; 70 more scalar
-ones out of 9200, calls and tests outside the steps). On two threads three runs gave apply
-1.06-1.19 and inverse 1.03-1.12 (a run against the closures' drivers of the named tables
-gave 0.90 and 0.95): a cost of running both threads on the 805 MB table of n = 20 that
-the one-thread runs do not show; not found yet (a suspect: the tables' int fields, which
-numba's parallel loop passes as scalar parameters, where the old tables held an array).
+The sizes are an int64 array, ``LaneTables.dims``, not four int fields: on two threads
+at n = d = 20 the int fields cost 6-14 % (``benchmarks/ab.py <src> --cases dense20 --ops
+apply,inverse --clock cpu --queries 200000``, CPU time, medians of 11 alternated rounds,
+two runs: apply 0.94 and 0.86, inverse 0.92 and 0.89 of their time with the array), the
+slowdown the named tables had shown against the positional ones before them (apply
+1.06-1.19, inverse 1.03-1.12 in three runs). On one thread the two ran alike (apply
+1.008, inverse 0.964), with the same vector code (at wh = wx = 24, the same count of
+every vector instruction): the cost comes with the parallel driver (how numba's parallel
+loop passes a tuple's ints is the likely place; not traced further).
 """
 
 from __future__ import annotations
@@ -60,14 +59,9 @@ class LaneTables(NamedTuple):
     DhTp: np.ndarray
     #: (n, 8 dc) Dh, each row padded with zeros
     Dhp: np.ndarray
-    #: the number of events
-    n: int
-    #: the dimension
-    d: int
-    #: vectors of 8 per event row (``8 nc >= n``)
-    nc: int
-    #: vectors of 8 per position (``8 dc >= d``)
-    dc: int
+    #: int64 [n, d, nc, dc]: the events, the dimension, vectors of 8 per event row
+    #: (``8 nc >= n``) and per position (``8 dc >= d``); an array, see the module docstring
+    dims: np.ndarray
 
 
 class LaneShape(NamedTuple):
@@ -144,7 +138,7 @@ def _lanes(args, V, q0, last, inverse, X, T, order, times):
     local variables, kept in registers.
     """
     tables, shape = args
-    R, DhTp, n, d = tables.R, tables.DhTp, tables.n, tables.d
+    R, DhTp, n, d = tables.R, tables.DhTp, tables.dims[0], tables.dims[1]
     wh, wx, far, carry = shape.wh, shape.wx, shape.far, shape.carry
     s = -1.0 if inverse else 1.0
     # not candidates: the events that happened (forwards) or did not (backwards), and the
@@ -203,7 +197,7 @@ def _lanes(args, V, q0, last, inverse, X, T, order, times):
 def _lane_scratch(tables):
     """X (moves), T (times of the last events), order and times of the steps of one
     lockstep group."""
-    n, dc = tables.n, tables.dc
+    n, dc = tables.dims[0], tables.dims[3]
     return (np.empty((LANES, 8 * dc)), np.empty(LANES), np.empty((LANES, n), dtype=np.int64),
             np.empty((LANES, n)))
 
@@ -220,7 +214,7 @@ def _lane_apply_block(args, V, outs, start, stop, inverse):
     scaling every query in the kernel cost 1.3x to 2x.
     """
     tables, shape = args
-    d, check = tables.d, shape.check
+    d, check = tables.dims[1], shape.check
     out = outs[0]
     X, T, order, times = _lane_scratch(tables)
     for q0 in range(start, stop, LANES):
@@ -244,7 +238,7 @@ def _assemble(args, V, r0, pn, inverse, out, q0, X, T, order, times):
     8 coordinates at a time."""
     tables, shape = args
     R, wx, carry = tables.R, shape.wx, shape.carry
-    n, d, dc, of = tables.n, tables.d, tables.dc, 16 * tables.nc
+    n, d, dc, of = tables.dims[0], tables.dims[1], tables.dims[3], 16 * tables.dims[2]
     end = 0 if inverse else (1 << n) - 1
     s = -1.0 if inverse else 1.0
     for p in range(pn):
@@ -287,7 +281,7 @@ def _lane_tangent_block(args, V, outs, start, stop, transpose):
     tables, shape = args
     R, Dhp, wx = tables.R, tables.Dhp, shape.wx
     out, T = outs
-    n, d, og, of = tables.n, tables.d, 8 * tables.nc, 16 * tables.nc
+    n, d, og, of = tables.dims[0], tables.dims[1], 8 * tables.dims[2], 16 * tables.dims[2]
     X, times, order, steps = _lane_scratch(tables)
     Y = np.empty_like(X)
     region = np.empty(LANES, dtype=np.int64)
