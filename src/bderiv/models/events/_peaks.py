@@ -1,9 +1,8 @@
 """The sampled local maxima of the event values that could reach their surfaces, compiled.
 
-:func:`peak_rows` is the screen of :func:`bderiv.excursions.peak_brackets` in one loop:
-the rule is written there; here it runs on every stretch of a run (both integrators),
-where NumPy's dozen array operations on a few dozen samples cost more than the stretch's
-compiled integration.
+:func:`peak_rows` is the screen of :func:`.excursions.peak_brackets` in one loop (the rule
+is written there): it runs on every stretch of a run, for both integrators, where NumPy's
+dozen array operations on a few dozen samples cost more than a compiled stretch.
 """
 
 from __future__ import annotations

@@ -203,7 +203,7 @@ def _earliest_lost(system, sign, options, sol, events_at):
     h = sign * events_at(states)
     scale = np.abs(states).max(axis=0)  # per component: only those an event reads count
     # the gradients at the stretch's end, the point the switching rule looks at (one
-    # evaluation for both when the model's calls are kept: bderiv.locate.StopCalls)
+    # evaluation for both where the run keeps them: locate.StopCalls)
     tol = group_tolerance(system.eval_event_jacobian(sol.y[:d, -1]), options, scale)
     # a peak at an end of the stretch is not an excursion: at the start the events were
     # just switched (one may sit a rounding across its surface), at the stop an event is

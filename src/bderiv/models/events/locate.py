@@ -173,7 +173,7 @@ class StopCalls:
     """A model's checked evaluations at the stops of one run, each kept for the last state
     it was asked at (and mask, for the field).
 
-    At a stop the excursion screen, :func:`settle`, :func:`bderiv.crossings.switch` and the
+    At a stop the excursion screen, :func:`settle`, :func:`.crossings.switch` and the
     final time look at the same state: the event Jacobian (numerical where not given: tens
     of calls of ``events``), the events and the region's field are evaluated there once.
     The arrays given out are shared: read them, do not change them. Everything else is the
@@ -186,7 +186,7 @@ class StopCalls:
 
     Examples
     --------
-    >>> from bderiv.hybrid import HybridSystem
+    >>> from bderiv.models.system import HybridSystem
     >>> seen = []
     >>> s = HybridSystem(lambda x, mask: -x, lambda x: seen.append(1) or x[:1], n_events=1,
     ...                  dim=2)

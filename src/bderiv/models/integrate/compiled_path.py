@@ -68,8 +68,9 @@ class CompiledStretches:
     section : numba dispatcher, optional
         ``section(x) -> float``: watched upward after the events.
     stops : StopCalls, optional
-        The run's evaluations at the stops (:class:`bderiv.locate.StopCalls`), for the
-        search of crossings inside the steps; default ``system``.
+        The run's evaluations at the stops
+        (:class:`bderiv.models.events.locate.StopCalls`), for the search of crossings
+        inside the steps; default ``system``.
     """
 
     def __init__(self, system, section=None, stops=None):

@@ -199,7 +199,7 @@ def stretches_for(system, options, section=None, watch=None, stops=None):
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
     (``watch``: a :class:`~bderiv._progress.SimulationProgress` told each evaluation's time;
     the compiled driver returns to Python between slices of steps instead; ``stops``: the
-    run's :class:`~bderiv.locate.StopCalls`).
+    run's :class:`~bderiv.models.events.locate.StopCalls`).
 
     Raises
     ------

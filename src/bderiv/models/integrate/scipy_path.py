@@ -71,8 +71,9 @@ class ScipyStretches:
         Told the time of each evaluation of the field (a progress bar; Ctrl-C is seen
         there).
     stops : StopCalls, optional
-        The run's evaluations at the stops (:class:`bderiv.locate.StopCalls`), for the
-        search of crossings inside the steps; default ``system``.
+        The run's evaluations at the stops
+        (:class:`bderiv.models.events.locate.StopCalls`), for the search of crossings
+        inside the steps; default ``system``.
     """
 
     def __init__(self, system, section=None, watch=None, stops=None):
