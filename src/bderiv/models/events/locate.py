@@ -229,7 +229,7 @@ class StopCalls:
     def local_view(self, mask, x):
         """:func:`local_view` at ``x`` in region ``mask``, kept as the evaluations are."""
         return self._kept_value(("view", int(mask)), x,
-                                lambda y: _local_view(self.system, mask, y))
+                                lambda y: _local_view(self, mask, y))
 
 
 def local_view(system, mask, x):
