@@ -174,14 +174,14 @@ class ContactSystem(SymbolicSystem):
         m; the state is ``(q, q')``, d = 2m.
     """
 
-    def __init__(self, kernels, params, build, coupling_kernel, contacts):
-        super().__init__(kernels, params, build)
+    def __init__(self, kernels, params, build, coupling_kernel, contacts, *, compiled=True):
+        super().__init__(kernels, params, build, compiled=compiled)
         self._coupling_kernel, self.contacts = coupling_kernel, contacts
         self.n_coordinates = self.dim // 2
 
-    def _with_values(self, values) -> ContactSystem:
+    def _copy(self, values, *, compiled) -> ContactSystem:
         return ContactSystem(self.kernels, values, self.build, self._coupling_kernel,
-                             self.contacts)
+                             self.contacts, compiled=compiled)
 
     def coupling(self, x) -> np.ndarray:
         """``J M^-1 J^T`` (n, n) at the state ``x`` (d,) or the coordinates ``q`` (m,):
@@ -211,10 +211,7 @@ class ContactSystem(SymbolicSystem):
         if x.shape not in ((m,), (2 * m,)):
             raise ValueError(f"x must be a state of shape ({2 * m},) or coordinates of shape "
                              f"({m},), got shape {x.shape}")
-        x = np.ascontiguousarray(np.concatenate((x[:m], np.zeros(m))))
-        out = np.empty((self.n_events, self.n_events))
-        self._coupling_kernel(x, self.functions.p, out)
-        return out
+        return self._coupling_kernel(np.concatenate((x[:m], np.zeros(m), self.functions.p)))
 
     def eval_reset(self, x, mask, k):
         """The state after the impact of contact k, refused (ValueError naming the
