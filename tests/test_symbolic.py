@@ -192,24 +192,30 @@ def test_kernels_are_njit_functions_callable_from_compiled_code(small):
 def test_the_compiled_integrator_calls_the_kernels_without_python(small, monkeypatch):
     """A symbolic model is on the compiled path: integrating it calls the Python
     wrappers only at the stops (a handful of times), where solve_ivp on its scipy path
-    calls them at every step; both give the same trajectory."""
+    calls them at every step; both give the same trajectory and flow map."""
     from bderiv.symbolic import ModelFunctions
 
-    assert small.compiled is not None and small.scipy_path().compiled is None
+    python = small.scipy_path()
+    assert small.compiled is not None and python.compiled is None
+    assert python.kernels is small.kernels and python.param_values == small.param_values
     calls = []
     x_of = ModelFunctions._x
-    monkeypatch.setattr(ModelFunctions, "_x", lambda self, x: calls.append(1) or x_of(self, x))
-    x0, counted = np.array([0.5, -0.2, 0.3]), {}
-    for name, system in (("compiled", small), ("scipy", small.scipy_path())):
-        calls.clear()
-        traj = system.simulate(x0, 2.0)
-        counted[name] = (len(calls), traj)
-    (n_compiled, compiled), (n_scipy, scipy_) = counted["compiled"], counted["scipy"]
-    assert len(compiled.groups) >= 2 and n_compiled * 10 < n_scipy, (n_compiled, n_scipy)
-    assert [g.events for g in compiled.groups] == [g.events for g in scipy_.groups]
+    x0, T, counted = np.array([0.66, 0.08, -0.57]), 2.0, {}
+    with monkeypatch.context() as m:
+        m.setattr(ModelFunctions, "_x", lambda self, x: calls.append(1) or x_of(self, x))
+        for name, system in (("compiled", small), ("scipy", python)):
+            calls.clear()
+            counted[name] = (system.simulate(x0, T), len(calls))
+    (compiled, n_compiled), (scipy_, n_scipy) = counted["compiled"], counted["scipy"]
+    assert n_compiled * 10 < n_scipy, (n_compiled, n_scipy)
+    assert [g.events for g in compiled.groups] == [g.events for g in scipy_.groups] == [
+        (0,), (1,), (0,)]
     assert_allclose([g.time for g in compiled.groups], [g.time for g in scipy_.groups],
                     rtol=1e-12)
     assert_allclose(compiled.x_final, scipy_.x_final, rtol=1e-12, atol=1e-12)
+    V = np.random.default_rng(4).standard_normal((20, 3))
+    D_compiled, D_scipy = small.flow_bderivative(x0, T)(V), python.flow_bderivative(x0, T)(V)
+    assert_allclose(D_compiled, D_scipy, rtol=0, atol=1e-10 * np.abs(D_scipy).max())
 
 
 def test_numbers_print_exactly(cache):

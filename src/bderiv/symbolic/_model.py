@@ -63,6 +63,8 @@ class BuildInfo:
         The hash of the model's expressions (the cache file's name).
     cached : bool
         True when the generated source was found in the cache (no derivation).
+    check_seconds : float
+        Time of the argument checks and the cache key (the expressions' canonical text).
     derive_seconds : float
         Time of the symbolic derivation, cse and printing (0 when cached).
     load_seconds : float
@@ -72,6 +74,7 @@ class BuildInfo:
 
     key: str
     cached: bool
+    check_seconds: float
     derive_seconds: float
     load_seconds: float
 
@@ -333,22 +336,24 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
     OSError
         If the cache folder cannot be created or written (named).
     """
+    started = time.perf_counter()
     sympy = require_sympy()
     model = check_model(state, flags, field, events, resets, params)
     _, kernels, build = load_model(
         model, [f"bderiv.symbolic codegen {_codegen.CODEGEN_VERSION}",
                 f"sympy {sympy.__version__}", *model.canonical_text()],
-        _codegen.generate, cache_dir)
+        _codegen.generate, cache_dir, started=started)
     return SymbolicSystem(kernels, model.values, build)
 
 
-def load_model(model, key_parts, generate, cache_dir, extra=None):
+def load_model(model, key_parts, generate, cache_dir, extra=None, *, started):
     """The generated module of ``model``, its kernels and how they were got.
 
     ``key_parts`` (strings) identify the model and its generator; ``generate(model, key)``
     returns the module's source, written to the cache unless it is there already;
     ``extra`` ``{name: signature}`` are further kernels of the module compiled likewise
-    (``module.<name>``).
+    (``module.<name>``); ``started`` is when the caller began checking its arguments
+    (:func:`time.perf_counter`).
 
     Returns
     -------
@@ -374,6 +379,6 @@ def load_model(model, key_parts, generate, cache_dir, extra=None):
     except Exception as exc:  # numba refused the generated source: name the expression
         path.unlink(missing_ok=True)
         raise _locate_compile_error(model, exc) from None
-    build = BuildInfo(key=key, cached=cached, derive_seconds=derived - start,
-                      load_seconds=time.perf_counter() - derived)
+    build = BuildInfo(key=key, cached=cached, check_seconds=start - started,
+                      derive_seconds=derived - start, load_seconds=time.perf_counter() - derived)
     return module, kernels, build

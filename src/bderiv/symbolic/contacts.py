@@ -48,10 +48,19 @@ from __future__ import annotations
 
 import functools
 import numbers
+import time
 
 import numpy as np
 
-from ._inputs import _check_free, _expressions, _sequence, _symbols, check_value, require_sympy
+from ._inputs import (
+    _check_free,
+    _expressions,
+    _sequence,
+    _symbols,
+    check_value,
+    require_sympy,
+    tree_text,
+)
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
 from ._model import SymbolicSystem, load_model
 
@@ -156,9 +165,9 @@ class ContactModel:
 
     def canonical_text(self) -> list:
         """Strings that identify the model (not the parameter values): the cache key."""
-        sp = require_sympy()
+        memo = {}
         return [f"m={self.m} n={self.n_events} p={len(self.p)} coriolis={self.coriolis}",
-                *(f"{label}={sp.srepr(e)}" for label, e in self.labelled())]
+                *(f"{label}={tree_text(e, memo)}" for label, e in self.labelled())]
 
 
 class ContactSystem(SymbolicSystem):
@@ -384,6 +393,7 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     >>> corner.functions.reset(np.array([1.0, 0.0, 0.5, -3.0]), 0, 0)
     array([1. , 0. , 0.5, 2.4])
     """
+    started = time.perf_counter()
     sp = require_sympy()
     q = _symbols(q, "q")
     m = len(q)
@@ -465,5 +475,6 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         original={c: u for u, c in to.items()}, names=tuple(map(str, phis)))
     module, kernels, build = load_model(
         model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"sympy {sp.__version__}",
-                *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE})
+                *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE},
+        started=started)
     return ContactSystem(kernels, model.values, build, module.coupling, model.names)
