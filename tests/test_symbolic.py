@@ -265,8 +265,11 @@ def chair_equations(legs):
 
 @pytest.fixture(scope="module")
 def chair_pair(cache):
+    import inspect
+
     ex = chair()
-    legs = ex.system._field.__self__.legs  # the example's leg geometry (a_k, b_k)
+    # the example's leg geometry (a_k, b_k), a constant of its field's closure
+    legs = inspect.getclosurevars(ex.system._field).nonlocals["legs"]
     return ex, from_sympy(**chair_equations(legs), cache_dir=cache)
 
 
