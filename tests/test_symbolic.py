@@ -218,6 +218,20 @@ def test_the_compiled_integrator_calls_the_kernels_without_python(small, monkeyp
     assert_allclose(D_compiled, D_scipy, rtol=0, atol=1e-10 * np.abs(D_scipy).max())
 
 
+def test_a_python_section_is_refused_on_the_compiled_path(small):
+    """The compiled integrator watches the section at every step: a Python one is
+    refused, naming the way out; the scipy path takes it."""
+    x0 = np.array([0.5, -0.2, 0.3])  # q falls through 0 before t = 2
+
+    def section(x):
+        return -x[0]
+
+    with pytest.raises(TypeError, match=r"so section must be too .*scipy_path\(\)"):
+        small.simulate(x0, 2.0, section=section)
+    traj = small.scipy_path().simulate(x0, 2.0, section=section)
+    assert traj.x_final[0] == pytest.approx(0.0, abs=1e-9)
+
+
 def test_numbers_print_exactly(cache):
     """Floats keep every bit, rationals are correctly rounded, integers beyond int64 work."""
     x, s = sp.symbols("x s")
