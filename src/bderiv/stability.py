@@ -206,11 +206,26 @@ def _count_pieces(orders_list, visits):
         return
     stacked = np.concatenate(orders_list, axis=-1)
     sizes = [o.shape[-1] for o in orders_list]
-    rows, counts = np.unique(stacked, axis=0, return_counts=True)
-    for row, count in zip(rows, counts, strict=True):
+    codes = _piece_codes(stacked, sizes)
+    if codes is None:  # too many events for one int64 a row: sort the rows themselves
+        _, first, counts = np.unique(stacked, axis=0, return_index=True, return_counts=True)
+    else:  # a sort of int64 codes: 4-6x cheaper than the rows' (measured on
+        # 200 rows of 2 x 2 to 2 x 8 events; the rows' sort was 35 % of a verdict at d = 8)
+        _, first, counts = np.unique(codes, return_index=True, return_counts=True)
+    for row, count in zip(stacked[first], counts, strict=True):
         parts = np.split(row, np.cumsum(sizes)[:-1])
         key = tuple(tuple(int(k) for k in p) for p in parts)
         visits[key] = visits.get(key, 0) + int(count)
+
+
+def _piece_codes(stacked, sizes):
+    """One int64 per row, the same for the same pieces: the local indices (each below its
+    group's size n_g) as digits of a mixed radix; None if ``prod n_g**n_g >= 2**62``."""
+    radix = np.repeat(np.asarray(sizes, dtype=np.int64), sizes)
+    if np.sum(np.log2(np.maximum(radix, 1))) >= 62:
+        return None
+    weights = np.cumprod(np.concatenate(([1], radix[:-1])))
+    return stacked.astype(np.int64) @ weights
 
 
 def piece_multipliers(piece, basis):
