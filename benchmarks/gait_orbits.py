@@ -15,7 +15,7 @@ first compiled call (compiling the model's functions) is reported apart, not cha
 ``--scaling`` times ``stability()`` alone on the compiled orbits, with the small-batch
 serial scaling of ``bderiv._kernels.scaling`` (``SERIAL_ENTRIES``) against every batch on
 the parallel kernels (``SERIAL_ENTRIES = 0``, the behaviour before), alternated.
-``--quick``: the smallest and largest model only.
+``--quick``: the smallest and largest model only; ``--rounds N``: N rounds.
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def scaling_paths(sizes):
             for name, entries in (("serial", serial_entries), ("parallel", 0)):
                 scaling.SERIAL_ENTRIES = entries
                 try:
-                    times[name].append(best(lambda: orbit.stability(**VERDICT), 1)[0])
+                    times[name].append(best(lambda o=orbit: o.stability(**VERDICT), 1)[0])
                 finally:
                     scaling.SERIAL_ENTRIES = serial_entries
         ser, par = min(times["serial"]), min(times["parallel"])
@@ -126,5 +126,7 @@ def scaling_paths(sizes):
 
 
 if __name__ == "__main__":
+    if "--rounds" in sys.argv:
+        ROUNDS = int(sys.argv[sys.argv.index("--rounds") + 1])
     chosen = SIZES[:: len(SIZES) - 1] if "--quick" in sys.argv else SIZES
     (scaling_paths if "--scaling" in sys.argv else compare)(chosen)

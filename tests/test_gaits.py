@@ -150,14 +150,15 @@ def test_visits_count_every_piece_of_the_batch(sizes):
     they are coded as one int64 a row or sorted as rows (beyond 2**62 codes)."""
     from collections import Counter
 
-    from bderiv.stability import _count_pieces
+    from bderiv.stability import _Visits
 
     rng = np.random.default_rng(sum(sizes))
     orders = [np.argsort(rng.integers(0, 2, (500, n)), axis=1, kind="stable")
               for n in sizes]
-    visits = {}
-    _count_pieces(orders, visits)
-    _count_pieces([o[:7] for o in orders], visits)  # a second batch adds to the counts
+    tally = _Visits()
+    tally.add(orders)
+    tally.add([o[:7] for o in orders])  # a second batch adds to the counts
+    visits = tally.result()
     want = Counter(tuple(tuple(int(k) for k in o[i]) for o in orders) for i in range(500))
     want.update(tuple(tuple(int(k) for k in o[i]) for o in orders) for i in range(7))
     assert visits == dict(want) and len(visits) > 2
