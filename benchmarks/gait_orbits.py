@@ -15,7 +15,11 @@ first compiled call (compiling the model's functions) is reported apart, not cha
 ``--scaling`` times ``stability()`` alone on the compiled orbits, with the small-batch
 serial scaling of ``bderiv._kernels.scaling`` (``SERIAL_ENTRIES``) against every batch on
 the parallel kernels (``SERIAL_ENTRIES = 0``, the behaviour before), alternated.
-``--quick``: the smallest and largest model only; ``--rounds N``: N rounds.
+``--eight``: issue 20's target, the compiled job alone on the 8-leg models (and on
+``gaits.pronking(legs=8, compiled=True)`` where bderiv has it) against 1 s, wall time and
+the process's CPU time (what the job costs when other jobs share the cores).
+``--quick``: the smallest and largest model only; ``--sizes 8:0,2:0``: these (k, p);
+``--rounds N``: N rounds.
 """
 
 from __future__ import annotations
@@ -103,6 +107,46 @@ def compare(sizes):
               flush=True)
 
 
+def eight_legs(sizes):
+    """Issue 20's target: an 8-leg orbit + verdict on a compiled model under 1 s (warm)."""
+    cases = [(f"k-leg body k={k} p={p} (d={2 * (2 + k + p)})", jobs(k, p)[0]) for k, p in sizes]
+    from bderiv.examples import gaits
+
+    try:
+        ex = gaits.pronking(legs=8, compiled=True)
+    except TypeError:  # an older bderiv without the compiled examples
+        print("gaits.pronking(legs=8, compiled=True): not in this bderiv")
+    else:
+        def pronking8(ex=ex):
+            start = time.perf_counter()
+            orbit = gaits.pronking_orbit(ex)
+            middle = time.perf_counter()
+            st = orbit.stability(**VERDICT)
+            return middle - start, time.perf_counter() - middle, orbit, st
+
+        cases.append(("gaits.pronking(legs=8, compiled=True) (d=4)", pronking8))
+    print(f"compiled: periodic orbit + stability({VERDICT}), min of {ROUNDS * COMPILED_PER_ROUND} "
+          f"runs after a first (compiling) one; load {os.getloadavg()[0]:.1f}")
+    for name, job in cases:
+        start = time.perf_counter()
+        job()
+        first = time.perf_counter() - start
+        runs, cpu = [], []
+        gc.disable()
+        try:
+            for _ in range(ROUNDS * COMPILED_PER_ROUND):
+                start = time.process_time()
+                runs.append(job())
+                cpu.append(time.process_time() - start)
+        finally:
+            gc.enable()
+        orbit_s, stab_s, orbit, st = min(runs, key=lambda r: r[0] + r[1])
+        print(f"  {name}: orbit {orbit_s:.3f} s ({len(orbit.history) - 1} Newton steps) + "
+              f"verdict {stab_s:.3f} s = {orbit_s + stab_s:.3f} s wall, {min(cpu):.3f} s CPU "
+              f"of this process (target 1 s; first call {first:.1f} s); growth rate "
+              f"{st.growth_rate:.5f}", flush=True)
+
+
 def scaling_paths(sizes):
     """stability() with the small-batch serial scaling against parallel launches only."""
     print(f"stability({VERDICT}) on the compiled orbit: serial scaling below "
@@ -129,4 +173,10 @@ if __name__ == "__main__":
     if "--rounds" in sys.argv:
         ROUNDS = int(sys.argv[sys.argv.index("--rounds") + 1])
     chosen = SIZES[:: len(SIZES) - 1] if "--quick" in sys.argv else SIZES
-    (scaling_paths if "--scaling" in sys.argv else compare)(chosen)
+    if "--sizes" in sys.argv:
+        chosen = [tuple(int(v) for v in kp.split(":"))
+                  for kp in sys.argv[sys.argv.index("--sizes") + 1].split(",")]
+    if "--eight" in sys.argv:
+        eight_legs([kp for kp in chosen if kp[0] == 8])
+    else:
+        (scaling_paths if "--scaling" in sys.argv else compare)(chosen)
