@@ -63,8 +63,6 @@ def test_every_cached_kernel_is_named_by_the_sources_and_checked():
                 value = value.serial
             if not isinstance(value, Dispatcher) or value.stats.cache_path is None:
                 continue
-            if module.__name__.endswith(".scaling"):  # owned elsewhere: still its own file
-                continue
             found.append(value.py_func.__qualname__)
             assert value.py_func.__qualname__.endswith(f".k{_core.SOURCES}"), found[-1]
             assert hardened(value), found[-1]

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from numba import njit, prange
 
-from ._core import JIT, QUERY_BAND, factors, row_exponent, serialised
+from ._core import JIT, QUERY_BAND, cached, factors, row_exponent, serialised
 
 #: batches with fewer entries (rows x d) are scaled serially: measured (load 8 on 2 cores)
 #: 0.7-1.8 ns per entry serially, a parallel launch 13-34 us when its threads get cores at
@@ -59,7 +59,8 @@ def outside_band(V, exps):
 
 # Each operation is one row's function (inlined) and two loops over the rows: parallel
 # (prange) and serial. Two loops and not one Python function compiled twice: numba's
-# cache does not tell compilations of one function with different options apart.
+# cache does not tell compilations of one function with different options apart. The loops
+# are called from Python: cached under the sources' digest (``_core.cached``).
 
 
 @njit(inline="always", **JIT)
@@ -90,19 +91,19 @@ def _band_row(V, exps, q):
     return 1 if (e < -QUERY_BAND) | (e > QUERY_BAND) else 0
 
 
-@njit(parallel=True, **JIT)
+@cached(parallel=True)
 def _scale_rows(V, out, exps):
     for q in prange(V.shape[0]):
         _scale_row(V, out, exps, q)
 
 
-@njit(**JIT)
+@cached
 def _scale_rows_serial(V, out, exps):
     for q in range(V.shape[0]):
         _scale_row(V, out, exps, q)
 
 
-@njit(parallel=True, **JIT)
+@cached(parallel=True)
 def _unscale_rows(out, exps, shift):
     bad = 0
     for q in prange(out.shape[0]):
@@ -110,7 +111,7 @@ def _unscale_rows(out, exps, shift):
     return bad
 
 
-@njit(**JIT)
+@cached
 def _unscale_rows_serial(out, exps, shift):
     bad = 0
     for q in range(out.shape[0]):
@@ -118,7 +119,7 @@ def _unscale_rows_serial(out, exps, shift):
     return bad
 
 
-@njit(parallel=True, **JIT)
+@cached(parallel=True)
 def _outside_band(V, exps):
     bad = 0
     for q in prange(V.shape[0]):
@@ -126,7 +127,7 @@ def _outside_band(V, exps):
     return bad
 
 
-@njit(**JIT)
+@cached
 def _outside_band_serial(V, exps):
     bad = 0
     for q in range(V.shape[0]):
