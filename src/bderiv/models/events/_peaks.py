@@ -8,13 +8,15 @@ dozen array operations on a few dozen samples cost more than a compiled stretch.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, types
+from numba import types
+
+from ..compiled._cached import eager
 
 _SIGNATURE = types.int64[:, ::1](types.float64[:, ::1], types.float64[::1], types.boolean,
                                  types.float64)
 
 
-@njit(_SIGNATURE, cache=True)
+@eager(_SIGNATURE)  # compiled at import; a damaged cache entry is compiled again
 def peak_rows(h, tol, stretch, reach):
     """``(k, i)`` rows (B, 2) of the samples ``h[i, k]`` (m >= 2 samples, n events) not lower
     than their neighbours with ``h + reach (h - lower neighbour) >= -tol_k`` (with
