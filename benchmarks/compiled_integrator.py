@@ -3,7 +3,7 @@
 ``python benchmarks/compiled_integrator.py`` integrates ``x' = A x + 0.5 sin(x)`` (A: a
 damped oscillator chain of dimension d = 8, 20, 40) from a fixed start until its first
 coordinate falls through -0.5 (one event, located on the dense output), with
-:func:`bderiv.compiled.integrate_stretch` and with ``solve_ivp(method="DOP853")`` on the
+:func:`bderiv.models.compiled.integrate_stretch` and with ``solve_ivp(method="DOP853")`` on the
 same field as a Python function (the dispatcher's own ``py_func``: the same code), both
 with the sensitivity (variational equations, exact Jacobian) and without, in one process,
 min of ``REPEATS`` runs each; the compiled path also with a loop-style version of the
@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from bderiv.compiled import integrate_stretch
+from bderiv.models.compiled import integrate_stretch
 
 RTOL, ATOL = 1e-10, 1e-12
 DIMS = (8, 20, 40)

@@ -32,7 +32,7 @@ import numpy as np
 from compiled_integrator import best  # min wall time of repeated calls (benchmarks/)
 
 from bderiv.checks import FD_SIMULTANEITY_TOL
-from bderiv.hybrid import HybridSystem
+from bderiv.models.system import HybridSystem
 
 G = 9.81
 T_FINAL = 0.5

@@ -11,7 +11,7 @@ import numba
 import numpy as np
 
 from bderiv.examples import chair, pronking
-from bderiv.hybrid import HybridSystem
+from bderiv.models.system import HybridSystem
 
 G = 9.81
 

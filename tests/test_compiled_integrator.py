@@ -1,4 +1,5 @@
-"""The compiled DOP853 (bderiv.compiled) against solve_ivp(method="DOP853") and closed forms.
+"""The compiled DOP853 (bderiv.models.compiled) against solve_ivp(method="DOP853") and closed
+forms.
 
 Oracles: scipy's solve_ivp on the same problems with the same settings (end states, step
 counts, field calls, event times and states, the variational system integrated as scipy
@@ -23,8 +24,8 @@ from numpy.testing import assert_allclose
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from bderiv.compiled import integrate_stretch
-from bderiv.compiled._integrate import drive_stretch
+from bderiv.models.compiled import integrate_stretch
+from bderiv.models.compiled._integrate import drive_stretch
 
 RTOL, ATOL = 1e-10, 1e-12
 

@@ -22,9 +22,9 @@ from numpy.testing import assert_allclose
 from test_excursions import X0, C, T, closed_form
 
 from bderiv import HybridSystem
-from bderiv.compiled import JACOBIAN_MODES
-from bderiv.compiled import _slices as slices
 from bderiv.examples.gaits import apex_section as python_apex_section
+from bderiv.models.compiled import JACOBIAN_MODES
+from bderiv.models.compiled import _slices as slices
 
 
 def log_of(traj):

@@ -15,11 +15,12 @@ PKG = ROOT / "src" / "bderiv"
 LAYERS = [
     {"cli", "__main__"},
     {"plot", "examples", "_bench", "symbolic", "jax"},  # _bench: the sweep of `bderiv bench`
-    {"hybrid", "_usercalls", "orbit", "jacobians", "_numdiff", "stability_map"},
-    {"checks", "assembly"},  # assembly: the model's B-derivatives, group by group
-    {"simulate", "crossings", "locate", "flowmap", "returnmap", "stability", "excursions",
-     "finaltime", "stretch_scipy", "stretch_compiled"},
-    {"compiled"},  # the compiled integrator (issue 19)
+    {"models", "models/system", "models/calls", "orbit", "jacobians", "_numdiff",
+     "stability_map"},
+    {"checks", "models/assembly"},  # assembly: the model's B-derivatives, group by group
+    {"models/integrate", "flowmap", "returnmap", "stability"},
+    {"models/events"},  # the event logic at a stop, for both integrators
+    {"models/compiled"},  # the compiled integrator
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},
     {"corners", "_engines", "_linearise"},  # _linearise scales rows with a kernel
     {"_kernels"},
@@ -29,10 +30,17 @@ HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_
            "_cyclic", "_safefiles", "_errors"}
 
 
+def _unit(parts) -> str:
+    """The unit of a module path: ``cli/render`` -> ``cli``; in the model side's
+    sub-package one level down: ``models/events/locate`` -> ``models/events``."""
+    if parts[0] == "models" and len(parts) > 1 and parts[1] != "__init__":
+        return "models/" + parts[1]
+    return parts[0]
+
+
 def _top(path: pathlib.Path) -> str:
-    """The top-level unit of a module file: ``cli/render.py`` -> ``cli``."""
-    rel = path.relative_to(PKG).with_suffix("")
-    return rel.parts[0]
+    """The unit of a module file: ``cli/render.py`` -> ``cli``."""
+    return _unit(path.relative_to(PKG).with_suffix("").parts)
 
 
 def _imported_units(path: pathlib.Path):
@@ -43,20 +51,22 @@ def _imported_units(path: pathlib.Path):
             for alias in node.names:
                 parts = alias.name.split(".")
                 if parts[0] == "bderiv" and len(parts) > 1:
-                    yield parts[1]
+                    yield _unit(parts[1:])
         elif isinstance(node, ast.ImportFrom):
             if node.level == 0:
                 if node.module and node.module.split(".")[0] == "bderiv":
                     parts = node.module.split(".")[1:]
-                    yield from ([parts[0]] if parts else [a.name for a in node.names])
+                    yield from ([_unit(parts)] if parts else [a.name for a in node.names])
                 continue
             up = node.level - 1  # levels above the module's own package
             if up > depth:
                 continue
             base = list(path.relative_to(PKG).parts[: depth - up])
             parts = base + (node.module.split(".") if node.module else [])
-            if parts:
-                yield parts[0]
+            if parts == ["models"] and not node.module:  # from . import x (in models)
+                yield from ("models/" + a.name for a in node.names)
+            elif parts:
+                yield _unit(parts)
             else:  # from . import x (at the package root)
                 yield from (a.name for a in node.names)
 

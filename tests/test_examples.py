@@ -17,7 +17,7 @@ import pytest
 from bderiv import examples
 from bderiv.checks import fd_check
 from bderiv.flowmap import FlowBDerivative
-from bderiv.hybrid import HybridSystem
+from bderiv.models.system import HybridSystem
 
 EPS = (1e-3, 1e-4, 1e-5)
 

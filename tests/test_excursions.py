@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from bderiv import HybridSystem
-from bderiv.excursions import REACH, peak_brackets, peak_of, sample_times
+from bderiv.models.events.excursions import REACH, peak_brackets, peak_of, sample_times
 
 C = 0.999
 T = 30.0

@@ -16,7 +16,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from bderiv import BDerivative, HybridSystem, examples
-from bderiv.finaltime import FinalTimeMap, pending_at_final_time
+from bderiv.models.events.finaltime import FinalTimeMap, pending_at_final_time
 
 
 def _constant_model(reset=None):

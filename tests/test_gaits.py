@@ -20,7 +20,7 @@ from bderiv.bderivative import BDerivative
 from bderiv.checks import decay_check, fd_check
 from bderiv.examples import gaits
 from bderiv.flowmap import FlowBDerivative
-from bderiv.hybrid import HybridSystem
+from bderiv.models.system import HybridSystem
 from bderiv.orbit import MAX_PIECE_SWITCHES, PeriodicOrbit, newton_step
 from bderiv.returnmap import ReturnMap
 from bderiv.stability import Stability, growth_rate, piece_multipliers

@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from bderiv.crossings import group_tolerance
-from bderiv.hybrid import HybridSystem
-from bderiv.locate import (
+from bderiv.models.events.crossings import group_tolerance
+from bderiv.models.events.locate import (
     GLOBAL_ERROR_FACTOR,
     classify,
     on_side_at_start,
     state_error,
     windows,
 )
-from bderiv.simulate import SolverOptions
+from bderiv.models.integrate.run import SolverOptions
+from bderiv.models.system import HybridSystem
 
 
 # ------------------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ import scipy.linalg
 
 from bderiv import BDerivative, examples
 from bderiv.checks import fd_check
-from bderiv.hybrid import HybridSystem
+from bderiv.models.system import HybridSystem
 
 EPS = (1e-3, 1e-4, 1e-5)
 

@@ -18,7 +18,7 @@ import reference as ref
 from scipy.integrate import solve_ivp
 
 from bderiv import BDerivative, HybridSystem, check_jacobians, examples
-from bderiv._usercalls import Section
+from bderiv.models.calls import Section
 
 # ----------------------------------------------------------------------------------
 # item 2: numerical Jacobians

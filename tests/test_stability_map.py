@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bderiv.examples._common import complex_step_jacobian
-from bderiv.hybrid import HybridSystem
+from bderiv.models.system import HybridSystem
 from bderiv.stability_map import StabilityMap, stability_map
 
 

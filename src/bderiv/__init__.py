@@ -8,9 +8,9 @@ from ._kernels._cache import harden_all as _harden_all
 from .bderivative import BDerivative, LowRankResets
 from .corners import CornerFunction, CornerModel, StructuredCorners
 from .flowmap import FlowBDerivative
-from .hybrid import HybridSystem
 from .jacobians import check_jacobians
-from .simulate import SolverOptions
+from .models.integrate.run import SolverOptions
+from .models.system import HybridSystem
 from .triangulation import Triangulation, load_triangulation
 
 _harden_all()  # every cached kernel: a damaged cache file is compiled again, never raised

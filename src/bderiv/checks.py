@@ -1,7 +1,7 @@
 """Checks of a B-derivative against finite differences of the event-detecting simulation.
 
 One routine for the CLI, the tests and the benchmarks: :func:`forward_differences` (also
-:meth:`HybridSystem.flow_fd <bderiv.hybrid.HybridSystem.flow_fd>`) and :func:`fd_check`,
+:meth:`HybridSystem.flow_fd <bderiv.models.system.HybridSystem.flow_fd>`) and :func:`fd_check`,
 which runs it for several steps and measures the errors. The differences are one-sided on
 purpose: the flow is only piecewise differentiable, so a central quotient converges to
 ``(D(v) - D(-v)) / 2``, not to ``D(v)``. With a Poincare section they difference the
@@ -20,7 +20,7 @@ import numpy as np
 from ._cyclic import check_cyclic, kept
 from ._progress import resolve_progress
 from ._validate import check_matrix, check_number, check_points, check_positive_int
-from .simulate import SolverOptions
+from .models.integrate.run import SolverOptions
 
 __all__ = [
     "FD_OPTIONS",
@@ -51,7 +51,7 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
     integration error divided by eps. With ``section`` the differences are those of the
     Poincare map: ``(P(x0 + eps v) - P(x0)) / eps`` (the state at the next upward
     crossing of the section; ``t_final`` is the longest wait), the oracle of
-    :meth:`HybridSystem.return_map <bderiv.hybrid.HybridSystem.return_map>`.
+    :meth:`HybridSystem.return_map <bderiv.models.system.HybridSystem.return_map>`.
 
     Parameters
     ----------

@@ -33,7 +33,7 @@ from ._validate import (
     singular_condition,
 )
 from .bderivative import MAX_PIECES, BDerivative
-from .finaltime import FinalTimeMap
+from .models.events.finaltime import FinalTimeMap
 
 __all__ = ["FlowBDerivative"]
 
@@ -48,7 +48,8 @@ class FlowBDerivative(Linearisation):
         order: before the first group, between groups, after the last group.
     jumps : sequence of BDerivative
         One per event group, in time order, each of dimension d; the last may be a
-        :class:`~bderiv.finaltime.FinalTimeMap` (a group at the final time, whose local
+        :class:`~bderiv.models.events.finaltime.FinalTimeMap` (a group at the final time, whose
+        local
         event ``n_g`` is the final time; ``linear[-1]`` then follows it).
     final_field : array_like, shape (d,), optional
         Vector field at the final point: the derivative in the final time (with a group
@@ -150,7 +151,8 @@ class FlowBDerivative(Linearisation):
     @property
     def stops_at_group(self):
         """True when the last event group lies at the final time (a
-        :class:`~bderiv.finaltime.FinalTimeMap`: its last local event is the final time)."""
+        :class:`~bderiv.models.events.finaltime.FinalTimeMap`: its last local event is the final
+        time)."""
         return bool(self._jumps) and isinstance(self._jumps[-1], FinalTimeMap)
 
     @property

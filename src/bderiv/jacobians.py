@@ -6,7 +6,7 @@ every given Jacobian, for every mask (and event), is compared with a central dif
 of its function along a random direction (Richardson-extrapolated, with an error
 estimate: :mod:`bderiv._numdiff`); a Jacobian not given is computed numerically and its
 estimated accuracy reported, so that the report also says where the numerical one would
-be refused. :class:`~bderiv.hybrid.HybridSystem` runs the same comparison once per mask
+be refused. :class:`~bderiv.models.system.HybridSystem` runs the same comparison once per mask
 at the first use of each given Jacobian (``check_jacobians=True``).
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 
 from . import _numdiff as numdiff
 from ._format import format_mask
-from ._usercalls import Section, check_output
+from .models.calls import Section, check_output
 
 __all__ = ["JacobianCheck", "JacobianReport", "check_jacobians"]
 

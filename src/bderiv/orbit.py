@@ -41,8 +41,8 @@ from ._cyclic import (
     reduced_basis,
 )
 from ._validate import check_number, check_positive_int
+from .models.integrate.run import SolverOptions, run
 from .returnmap import return_map
-from .simulate import SolverOptions, run
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
 __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
@@ -203,7 +203,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
     system : HybridSystem
     x_guess : ndarray, shape (d,)
         Checked start; it is first moved onto the section along the section's gradient.
-    section : bderiv._usercalls.Section
+    section : bderiv.models.calls.Section
     period_guess : float, optional
         Expected period; the return is awaited for ``3 * period_guess`` (default 100).
     tol : float

@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .crossings import GRAZING_RTOL
 from .flowmap import FlowBDerivative, _read_only
-from .simulate import run
+from .models.events.crossings import GRAZING_RTOL
+from .models.integrate.run import run
 
 __all__ = ["ReturnMap", "flow_projection", "return_map"]
 
@@ -40,7 +40,7 @@ class ReturnMap(FlowBDerivative):
 
     Maps tangent vectors ``(..., d)`` at x0 to tangent vectors at ``P(x0)`` (on the
     section's tangent space there). Built by :meth:`HybridSystem.return_map
-    <bderiv.hybrid.HybridSystem.return_map>`.
+    <bderiv.models.system.HybridSystem.return_map>`.
 
     Parameters
     ----------
@@ -121,7 +121,7 @@ def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
     system : HybridSystem
     x0 : ndarray, shape (d,)
         Checked start point, with ``|section(x0)| <= tol``.
-    section : bderiv._usercalls.Section
+    section : bderiv.models.calls.Section
         The checked section.
     t_max : float
         Longest time to wait for the return.

@@ -120,7 +120,7 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     section : callable
         ``section(x) -> float``, crossed upward once per stride (must pickle with Dask).
     period_guess : float, optional
-        Passed to :meth:`~bderiv.hybrid.HybridSystem.periodic_orbit`.
+        Passed to :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
     accept : callable, optional
         ``accept(orbit) -> bool``: the orbits wanted (default: every orbit found); a
         point whose orbit from its neighbour is refused is solved again from

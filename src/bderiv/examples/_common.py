@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ..hybrid import HybridSystem
+from ..models.system import HybridSystem
 
 __all__ = ["Example", "complex_step_jacobian", "flow_back"]
 

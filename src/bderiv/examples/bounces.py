@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hybrid import HybridSystem
+from ..models.system import HybridSystem
 from ._common import Example
 
 __all__ = ["ball_in_corner", "bouncing_ball"]

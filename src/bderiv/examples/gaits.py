@@ -170,7 +170,7 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
         Added to ``example.x0`` for the guess (it breaks the symmetry on purpose).
     **kwargs
         Passed to :meth:`HybridSystem.periodic_orbit
-        <bderiv.hybrid.HybridSystem.periodic_orbit>`.
+        <bderiv.models.system.HybridSystem.periodic_orbit>`.
 
     Returns
     -------

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hybrid import HybridSystem
+from ..models.system import HybridSystem
 from ._common import Example, flow_back
 
 __all__ = ["landing", "landing_summary", "summary_text"]

@@ -69,7 +69,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import quad, solve_ivp
 
-from ..hybrid import HybridSystem
+from ..models.system import HybridSystem
 from ._common import Example, complex_step_jacobian
 
 __all__ = [
@@ -154,7 +154,7 @@ def rimless_wheel(*, alpha=np.pi / 8, slope=0.08, g=1.0, leg=1.0) -> Example:
         d = 2, n = 1. ``x0 = (0, omega_0)`` the gait's state at mid-stance and ``rho =
         (alpha, omega_-)`` the impact that ends the step, at ``t_event`` (both in closed
         form from the energy balance; the time by quadrature). :func:`rimless_wheel_orbit`
-        finds the gait with :meth:`~bderiv.hybrid.HybridSystem.periodic_orbit`.
+        finds the gait with :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
 
     Examples
     --------
@@ -203,7 +203,7 @@ def rimless_wheel_orbit(example=None, *, perturbation=(0.0, 0.05), **kwargs):
     perturbation : array_like, shape (2,)
         Added to ``example.x0`` for the guess.
     **kwargs
-        Passed to :meth:`~bderiv.hybrid.HybridSystem.periodic_orbit`.
+        Passed to :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
 
     Returns
     -------
@@ -466,7 +466,7 @@ def compass_gait_orbit(example=None, *, perturbation=(0.0, 0.01, -0.01, 0.005), 
     perturbation : array_like, shape (4,)
         Added to ``example.x0`` for the guess.
     **kwargs
-        Passed to :meth:`~bderiv.hybrid.HybridSystem.periodic_orbit`.
+        Passed to :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
 
     Returns
     -------

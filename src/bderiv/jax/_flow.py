@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._validate import check_number, check_positive_int
-from ..hybrid import HybridSystem
-from ..simulate import SolverOptions
+from ..models.integrate.run import SolverOptions
+from ..models.system import HybridSystem
 from ._host import FlowHost
 from ._primitive import pl_function
 

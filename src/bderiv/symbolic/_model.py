@@ -1,4 +1,4 @@
-"""``from_sympy``: a :class:`~bderiv.hybrid.HybridSystem` from sympy expressions.
+"""``from_sympy``: a :class:`~bderiv.models.system.HybridSystem` from sympy expressions.
 
 The compiled kernels (:mod:`bderiv.symbolic._codegen` lists them) live in a generated
 module in the cache folder (:mod:`bderiv.symbolic._cache`); :class:`Kernels` holds them,
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..hybrid import HybridSystem
+from ..models.system import HybridSystem
 from . import _cache, _codegen
 from ._inputs import check_model, check_value, require_sympy
 
@@ -76,7 +76,7 @@ class BuildInfo:
 
 
 class ModelFunctions:
-    """The kernels with the Python signatures of :class:`~bderiv.hybrid.HybridSystem`.
+    """The kernels with the Python signatures of :class:`~bderiv.models.system.HybridSystem`.
 
     Each method allocates its output and calls its kernel with the parameter values
     ``params``; the state is converted to a C-contiguous float64 array of shape (d,)
@@ -137,7 +137,7 @@ class ModelFunctions:
 
 
 class SymbolicSystem(HybridSystem):
-    """A :class:`~bderiv.hybrid.HybridSystem` built by :func:`from_sympy`.
+    """A :class:`~bderiv.models.system.HybridSystem` built by :func:`from_sympy`.
 
     Every method of ``HybridSystem`` applies. Its functions are :attr:`functions`
     (:class:`ModelFunctions`, Python signatures), over the compiled :attr:`kernels`
@@ -272,7 +272,7 @@ def compile_kernels(model, module, path) -> Kernels:
 
 
 def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_dir=None):
-    """A :class:`~bderiv.hybrid.HybridSystem` from sympy expressions, compiled with numba.
+    """A :class:`~bderiv.models.system.HybridSystem` from sympy expressions, compiled with numba.
 
     One expression covers all 2**n regions through the flags: flag k is 1 where event k
     has happened (bit k of the region's mask), 0 before. The Jacobians are derived

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validate import check_bool, check_points
-from .bderivative import BDerivative
+from ..._validate import check_bool, check_points
+from ...bderivative import BDerivative
 
 __all__ = ["FinalTimeMap", "pending_at_final_time"]
 

@@ -1,12 +1,13 @@
 """Event-detecting integration of a hybrid model: trajectory, event log, solver options.
 
 :func:`run` integrates a model (any object with the checked evaluations of
-:class:`~bderiv.hybrid.HybridSystem`: ``eval_field``, ``eval_events``,
+:class:`~bderiv.models.system.HybridSystem`: ``eval_field``, ``eval_events``,
 ``eval_event_jacobian``, ``eval_field_jacobian``, ``start_mask``, ``n_events``, ``dim``)
 from region to region with :func:`scipy.integrate.solve_ivp`. Each stretch stops at the
 first event crossing, upward or downward (a surface may be crossed any number of times);
 the events that crossed, and those within ``simultaneity_tol`` (in time) of crossing,
-switch together as one :class:`~bderiv.crossings.EventGroup` (:func:`bderiv.crossings.switch`
+switch together as one :class:`~bderiv.models.events.crossings.EventGroup`
+(:func:`bderiv.models.events.crossings.switch`
 checks each crossing and that every event of a group is at the stop). With ``section``
 the run ends at the first upward crossing of a Poincare section after the start.
 :class:`SolverOptions` holds the integrator settings with their one set of defaults.
@@ -21,13 +22,19 @@ from functools import partial
 import numpy as np
 from scipy.integrate import OdeSolver
 
-from ._progress import SimulationProgress
-from ._validate import check_number, check_positive_int
-from .crossings import GLOBAL_ERROR_FACTOR, EventGroup, EventRecord, group_tolerance, switch
-from .finaltime import pending_at_final_time
-from .locate import settle
-from .stretch_compiled import CompiledStretches
-from .stretch_scipy import ScipyStretches
+from ..._progress import SimulationProgress
+from ..._validate import check_number, check_positive_int
+from ..events.crossings import (
+    GLOBAL_ERROR_FACTOR,
+    EventGroup,
+    EventRecord,
+    group_tolerance,
+    switch,
+)
+from ..events.finaltime import pending_at_final_time
+from ..events.locate import settle
+from .compiled_path import CompiledStretches
+from .scipy_path import ScipyStretches
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -123,7 +130,7 @@ class SolverOptions:
 
 @dataclass(frozen=True, eq=False)
 class Trajectory:
-    """Result of :meth:`HybridSystem.simulate <bderiv.hybrid.HybridSystem.simulate>`.
+    """Result of :meth:`HybridSystem.simulate <bderiv.models.system.HybridSystem.simulate>`.
 
     Attributes
     ----------
@@ -230,7 +237,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     section : Section, optional
         Stop at the first upward crossing of ``section(x) = 0`` after time 0 (x0 is on
         the section, or below it); the trajectory ends there
-        (:class:`bderiv._usercalls.Section`: checked calls; numba-compiled with a compiled
+        (:class:`bderiv.models.calls.Section`: checked calls; numba-compiled with a compiled
         model).
     max_groups : int
         Largest number of event groups (a Zeno or chattering trajectory is refused).
@@ -242,7 +249,8 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     Raises
     ------
     ValueError
-        From :func:`bderiv.crossings.switch`; with ``section``, when the trajectory does
+        From :func:`bderiv.models.events.crossings.switch`; with ``section``, when the trajectory
+        does
         not return to it before ``t_final`` or an event crosses at the return.
     RuntimeError
         When the integrator fails or the run has more than ``max_groups`` event groups.

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._format import format_mask, transversality_message
-from .bderivative import BDerivative
-from .crossings import RESET_MISMATCH, apply_resets, landing
-from .finaltime import FinalTimeMap
-from .flowmap import FlowBDerivative
+from .._format import format_mask, transversality_message
+from ..bderivative import BDerivative
+from ..flowmap import FlowBDerivative
+from .events.crossings import RESET_MISMATCH, apply_resets, landing
+from .events.finaltime import FinalTimeMap
 
 __all__ = ["flow_map_along", "group_bderivative", "point_bderivative", "spread_masks"]
 
@@ -102,9 +102,11 @@ def flow_map_along(system, traj):
 def point_bderivative(system, rho, tol):
     """The BDerivative of all n events at ``rho`` (checked: every event value within
     ``tol``), entered from region 0: :meth:`HybridSystem.bderivative
-    <bderiv.hybrid.HybridSystem.bderivative>`. With resets, where each event lands is
-    decided by :func:`bderiv.crossings.landing` as in a simulation, and the resets must
-    commute as maps (:func:`bderiv.crossings.apply_resets`), rho taken to be accurate to
+    <bderiv.models.system.HybridSystem.bderivative>`. With resets, where each event lands is
+    decided by :func:`bderiv.models.events.crossings.landing` as in a simulation, and the resets
+    must
+    commute as maps (:func:`bderiv.models.events.crossings.apply_resets`), rho taken to be
+    accurate to
     ``reset_tol`` relative (of ``max(1, max |rho|)``).
     """
     if not system.has_resets:

@@ -3,7 +3,7 @@
 The integrated vector is ``y = x`` (length d), or with the variational equations
 ``y = (x, Phi)`` (length d + d * d, the sensitivity Phi row-major) with
 ``Phi' = J(x) Phi``, ``J = field_jacobian(x, mask)``: the layout of the Python path
-(:func:`bderiv.simulate.run`), so that both control the error of the same vector.
+(:func:`bderiv.models.integrate.run.run`), so that both control the error of the same vector.
 
 Without a ``field_jacobian``, ``J`` is computed here (:func:`jacobian`): by complex step
 when the field compiles for complex input (exact to rounding: no difference is taken), else

@@ -3,7 +3,7 @@
 The tableau is scipy's own (``scipy.integrate._ivp.dop853_coefficients``), imported once
 here: the same digits as ``solve_ivp(method="DOP853")``, so that both take the same steps
 and the tests can hold this integrator to scipy's on the same problems. The module is
-private to scipy; if it moves, importing :mod:`bderiv.compiled` fails with an ImportError
+private to scipy; if it moves, importing :mod:`bderiv.models.compiled` fails with an ImportError
 that says so (writing the tableau in would silently drift from the solver it is compared
 with). The arrays become compile-time constants of the kernels.
 
@@ -22,7 +22,7 @@ try:
     from scipy.integrate._ivp import dop853_coefficients as _tableau
 except ImportError as exc:  # pragma: no cover - depends on scipy's private layout
     raise ImportError(
-        "bderiv.compiled reads the DOP853 tableau from scipy's private module "
+        "bderiv.models.compiled reads the DOP853 tableau from scipy's private module "
         "scipy.integrate._ivp.dop853_coefficients, which this scipy does not have; "
         "install a scipy that has it (1.15 to 1.17 do)"
     ) from exc

@@ -1,6 +1,6 @@
 """A model's compiled functions, checked and bound once, and one stretch of one region.
 
-:class:`CompiledModel` is what the model side (:mod:`bderiv.simulate`) integrates with:
+:class:`CompiledModel` is what the model side (:mod:`bderiv.models.integrate.run`) integrates with:
 the user's dispatchers checked (they compile for the integrator's types and return its
 array types), the way ``J`` is had (given, complex step, central differences; see
 :mod:`._rhs`), and the struct the driver takes; :meth:`CompiledModel.stretch` runs the
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._format import MASK_MEANING, format_mask
+from ..._format import MASK_MEANING, format_mask
 from ._checks import check_compiled, compiles_for_complex, format_state, raise_failed_run
 from ._dop853 import dense_rows
 from ._integrate import EVENT, FINISHED

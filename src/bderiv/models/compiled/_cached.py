@@ -18,7 +18,7 @@ from numba import njit
 from numba.core.caching import FunctionCache
 from numba.core.dispatcher import Dispatcher
 
-from .._kernels._cache import DriverCache, harden
+from ..._kernels._cache import DriverCache, harden
 
 
 def _sources_digest() -> str:
@@ -43,7 +43,7 @@ def eager(signature):
 
 
 def key_all_kernels() -> None:
-    """Give every lazily compiled, cached kernel of ``bderiv.compiled`` the sources key.
+    """Give every lazily compiled, cached kernel of ``bderiv.models.compiled`` the sources key.
 
     (The few kernels with an explicit signature compile at import, before this runs: they
     call nothing of the package.)

@@ -43,7 +43,7 @@ __all__ = [
 GLOBAL_ERROR_FACTOR = 10.0
 #: each tighter integration of an undecided stretch divides rtol and atol by this.
 REFINE_FACTOR = 100.0
-#: the smallest rtol solve_ivp honours (``bderiv.simulate.MIN_RTOL``).
+#: the smallest rtol solve_ivp honours (``bderiv.models.integrate.run.MIN_RTOL``).
 FINEST_RTOL = 100 * np.finfo(np.float64).eps
 
 

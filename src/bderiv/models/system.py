@@ -4,23 +4,23 @@ A model is a family of smooth vector fields ``field(x, mask)`` (one per region, 
 ``mask`` set iff ``h_k(x) > 0``, mathematics.md section 1) and the event functions
 ``events(x)``. Along a trajectory a surface may be crossed upward (the bit is set) or
 downward (cleared), any number of times; a group crossed downward is handled in its local
-orientation (:mod:`bderiv.crossings`). :class:`HybridSystem`
+orientation (:mod:`bderiv.models.events.crossings`). :class:`HybridSystem`
 checks every call of the user functions and gives their Jacobians (analytic when given,
 else numerical). Its methods are thin:
 
 - :meth:`HybridSystem.bderivative`: the :class:`~bderiv.bderivative.BDerivative` at an
-  event point, its corner table sampled from the model (:mod:`bderiv.assembly`);
-- :meth:`HybridSystem.simulate`: event-detecting integration (:mod:`bderiv.simulate`);
+  event point, its corner table sampled from the model (:mod:`bderiv.models.assembly`);
+- :meth:`HybridSystem.simulate`: event-detecting integration (:mod:`bderiv.models.integrate.run`);
 - :meth:`HybridSystem.flow_bderivative`: the flow map's B-derivative, assembled from a
   trajectory integrated with its variational equations and one ``BDerivative`` per event
-  group (:mod:`bderiv.assembly`);
+  group (:mod:`bderiv.models.assembly`);
 - :meth:`HybridSystem.flow_fd`: forward differences of the simulated flow
   (:mod:`bderiv.checks`);
 - :meth:`HybridSystem.return_map`: the B-derivative of a Poincare map
   (:mod:`bderiv.returnmap`), and :meth:`HybridSystem.periodic_orbit`: a gait found by
   Newton's method with it, with its stability (:mod:`bderiv.orbit`).
 
-The checked evaluations of the user functions live in :class:`bderiv._usercalls.ModelCalls`.
+The checked evaluations of the user functions live in :class:`bderiv.models.calls.ModelCalls`.
 Missing Jacobians are computed with :func:`scipy.differentiate.jacobian` (adaptive step,
 error estimate); the user functions need not be vectorised, they are wrapped.
 """
@@ -29,15 +29,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import checks
-from ._usercalls import ModelCalls, Section
-from ._validate import check_number
+from .. import checks
+from .._validate import check_number
+from ..orbit import ORBIT_OPTIONS, periodic_orbit
+from ..returnmap import return_map
 from .assembly import flow_map_along, point_bderivative
-from .orbit import ORBIT_OPTIONS, periodic_orbit
-from .returnmap import return_map
-from .simulate import MAX_GROUPS, EventGroup, EventRecord, SolverOptions, Trajectory, run
+from .calls import ModelCalls, Section
+from .integrate.run import MAX_GROUPS, EventGroup, EventRecord, SolverOptions, Trajectory, run
 
-# EventGroup, EventRecord, Trajectory live in bderiv.simulate; re-exported for old imports
+# EventGroup, EventRecord, Trajectory live in models.integrate.run: the types the methods
+# return, re-exported beside the model
 __all__ = ["EventGroup", "EventRecord", "HybridSystem", "SolverOptions", "Trajectory"]
 
 
@@ -72,10 +73,11 @@ class HybridSystem(ModelCalls):
         downward crossing, return ``x`` for no jump). The state may land on the far side
         (its bit flips) or back on the side it came from: a bounce (``[q, -e v]`` for a
         ball) or a leg swap keeps the bit, and the next crossing of that surface is a new
-        event (:func:`bderiv.crossings.landing` decides; ``EventGroup.bounced``).
+        event (:func:`bderiv.models.events.crossings.landing` decides; ``EventGroup.bounced``).
         Simultaneous events are reset one after the other, in ascending order, each with
         the mask before the group with the bits of the events already reset flipped;
-        their resets must commute (checked, :func:`bderiv.crossings.apply_resets`) and
+        their resets must commute (checked, :func:`bderiv.models.events.crossings.apply_resets`)
+        and
         must not move the surfaces still pending. Default: no jump.
     reset_jacobian : callable, optional
         ``reset_jacobian(x, mask, k) -> (d, d)``. Default: numerical.
@@ -106,7 +108,7 @@ class HybridSystem(ModelCalls):
     Two events of a constant field that both happen at t = 1 from the origin:
 
     >>> import numpy as np
-    >>> from bderiv.hybrid import HybridSystem
+    >>> from bderiv.models.system import HybridSystem
     >>> F = np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [1.5, 1.5]])
     >>> sys = HybridSystem(lambda x, mask: F[mask], lambda x: x - 1.0, n_events=2, dim=2)
     >>> sys.bderivative(np.ones(2))(np.array([-1.0, -2.0]))
@@ -146,7 +148,8 @@ class HybridSystem(ModelCalls):
             With ``Dh = event_jacobian(rho)`` (n, d) and ``F[mask] = field(rho, mask)``;
             with resets, ``F[mask]`` at rho moved by the resets of the events in ``mask``,
             the field of the region the state lands in (an event whose reset sends the
-            state back, a bounce or a leg swap, keeps its bit: :func:`bderiv.crossings.landing`
+            state back, a bounce or a leg swap, keeps its bit:
+            :func:`bderiv.models.events.crossings.landing`
             decides as :meth:`simulate` does), and the reset Jacobians there
             (mathematics.md section 9).
 
@@ -158,7 +161,8 @@ class HybridSystem(ModelCalls):
             If ``tol`` is NaN, infinite or negative, if some event value exceeds ``tol``
             (the residuals are named), when transversality fails (the mask and the
             event are named), or when the resets of the events applied in different
-            orders give different states (:func:`bderiv.crossings.apply_resets`: further
+            orders give different states (:func:`bderiv.models.events.crossings.apply_resets`:
+            further
             apart than ``RESET_MISMATCH * reset_tol * max(1, max |rho|)``, rho taken as
             accurate to ``reset_tol``), as :meth:`simulate` refuses them.
         """
@@ -192,10 +196,11 @@ class HybridSystem(ModelCalls):
             Events whose (first-order) time to crossing, counted from the integrator's stop
             at an event, is at most this are switched together at the stop (one group),
             provided they are at the stop to within the integration accuracy
-            (:func:`bderiv.simulate.group_tolerance`). Events that already crossed inside
+            (:func:`bderiv.models.integrate.run.group_tolerance`). Events that already crossed
+            inside
             the step are always switched, so none is lost when two surfaces are crossed
             inside one solver step, and so are events at the stop to within the accuracy
-            that are crossing (nothing orders them; :mod:`bderiv.locate`).
+            that are crossing (nothing orders them; :mod:`bderiv.models.events.locate`).
         options : SolverOptions, optional
             Integrator settings (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
             1e-12, no step limit).
@@ -275,7 +280,8 @@ class HybridSystem(ModelCalls):
 
     def flow_map_along(self, traj):
         """The :class:`FlowBDerivative` along a trajectory integrated with its variational
-        equations (``run(..., variational=True)``): :func:`bderiv.assembly.flow_map_along`."""
+        equations (``run(..., variational=True)``):
+        :func:`bderiv.models.assembly.flow_map_along`."""
         return flow_map_along(self, traj)
 
     # ------------------------------------------------------------------------------

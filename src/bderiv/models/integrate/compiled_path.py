@@ -1,21 +1,23 @@
 """One stretch of a region in compiled code: the compiled integrator of a run.
 
-:class:`CompiledStretches` is :class:`bderiv.stretch_scipy.ScipyStretches`'s twin for a
+:class:`CompiledStretches` is :class:`bderiv.models.integrate.scipy_path.ScipyStretches`'s twin
+for a
 model whose ``field``, ``events`` (and ``field_jacobian``, and the section) are numba
-dispatchers: the stretch runs in :mod:`bderiv.compiled`'s driver (scipy's DOP853, no Python
+dispatchers: the stretch runs in :mod:`bderiv.models.compiled`'s driver (scipy's DOP853, no Python
 call per step) and comes back with solve_ivp's fields (``t``, ``y``, ``t_events``,
 ``status``, and ``sol``, the state's dense output), so that everything at a stop (location,
 grouping, crossings inside a step, the final time) is the same code for both integrators:
-:func:`bderiv.simulate.run`, :mod:`bderiv.locate`, :mod:`bderiv.crossings`,
-:mod:`bderiv.excursions`, :mod:`bderiv.finaltime`.
+:func:`bderiv.models.integrate.run.run`, :mod:`bderiv.models.events.locate`,
+:mod:`bderiv.models.events.crossings`,
+:mod:`bderiv.models.events.excursions`, :mod:`bderiv.models.events.finaltime`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .compiled import EVENT, dense_at
-from .excursions import without_lost_crossings
+from ..compiled import EVENT, dense_at
+from ..events.excursions import without_lost_crossings
 
 
 class DenseOutput:

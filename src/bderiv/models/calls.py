@@ -1,7 +1,7 @@
 """Checked calls of a user's model functions: outputs validated, numerical Jacobians.
 
 :class:`ModelCalls` holds a model's functions and evaluates them checked (the base of
-:class:`~bderiv.hybrid.HybridSystem`); :class:`Section` does the same for a Poincare
+:class:`~bderiv.models.system.HybridSystem`); :class:`Section` does the same for a Poincare
 section.
 """
 
@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from . import _numdiff as numdiff
-from ._format import format_mask
-from ._validate import check_bool, check_positive_int, check_real_array
+from .. import _numdiff as numdiff
+from .._format import format_mask
+from .._validate import check_bool, check_positive_int, check_real_array
 from .compiled import JACOBIAN_MODES, CompiledModel, check_compiled, is_compiled
 
 #: relative tolerance of the checks of a model's resets with analytic Jacobians (event
@@ -127,7 +127,7 @@ def check_given_jacobian(fun, x, J, what: str, jac_name: str) -> None:
 class ModelCalls:
     """A model's user functions, evaluated with every output checked.
 
-    The parameters are those of :class:`~bderiv.hybrid.HybridSystem`, which documents
+    The parameters are those of :class:`~bderiv.models.system.HybridSystem`, which documents
     them. Every output is checked (shape and finiteness); errors say which function,
     which mask, the expected and the received shape. A given Jacobian is compared with a
     central difference the first time it is used for each mask (and event), unless

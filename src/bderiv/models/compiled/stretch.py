@@ -11,14 +11,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import check_number, check_real_array
+from ..._validate import check_number, check_real_array
 from ._checks import check_compiled, raise_failed_run
 from ._integrate import EVENT, FINISHED, N_REJECTED, N_STEPS, NFEV, NJEV
 from ._model import bound_model
 from ._rhs import JAC_GIVEN, no_events, no_jacobian
 from ._slices import drive
 
-#: smallest rtol, as :class:`bderiv.simulate.SolverOptions` (solve_ivp's floor)
+#: smallest rtol, as :class:`bderiv.models.integrate.run.SolverOptions` (solve_ivp's floor)
 MIN_RTOL = 100 * np.finfo(np.float64).eps
 #: largest number of events (one bit each of an int64 mask)
 MAX_EVENTS = 63

@@ -27,7 +27,7 @@ point where ``h_k > 0``. With ``h`` sampled at the step ends and the midpoints o
    surface that rises above both ends of its bracket by more than ``tol_k`` cannot be
    decided at this accuracy (a grazing contact, where the flow has no B-derivative):
    refused. A peak at an end of the stretch is left to the switching rule
-   (:func:`bderiv.crossings.switch`).
+   (:func:`bderiv.models.events.crossings.switch`).
 3. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
    before the earliest lost crossing's bracket to its peak, where ``h_k > 0``: the sign
    change is at the ends of a step now, and the crossing is located as any other.
@@ -149,7 +149,8 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
     mask : int
         The stretch's region (the events' local orientation).
     options : SolverOptions
-        The tolerances of ``solve`` (for the windows, :func:`bderiv.crossings.group_tolerance`).
+        The tolerances of ``solve`` (for the windows,
+        :func:`bderiv.models.events.crossings.group_tolerance`).
     solve : callable ``solve(t_start, y_start, t_stop) -> OdeResult``
         solve_ivp on the stretch's right-hand side and event functions, with dense output.
     t0 : float

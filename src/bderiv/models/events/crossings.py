@@ -7,7 +7,7 @@ integrator :func:`switch` decides which events cross together (one :class:`Event
 checks every crossing is transversal before it, applies the resets, decides where each
 event lands (:func:`landing`: on the far side, its bit flipped; back on the side it came
 from, a bounce or a leg swap, its bit unchanged) and returns the mask after them. Which
-events are at the stop is decided by the rules of :mod:`bderiv.locate` (each event's
+events are at the stop is decided by the rules of :mod:`bderiv.models.events.locate` (each event's
 window).
 
 In a group's **local orientation** an event crossed downward has its function negated
@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._format import format_mask, transversality_message
+from ..._format import format_mask, transversality_message
 from .locate import GLOBAL_ERROR_FACTOR, classify, local_view, state_error, windows
 
 __all__ = [
@@ -112,16 +112,17 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
 
     The integrator keeps each component's step error below ``atol + rtol * |x_i|``; with
     ``scale`` the largest ``|x_i|`` met so far (a float, or one per component: shape (d,)),
-    the state's error is bounded by :func:`bderiv.locate.state_error`, and ``h_k`` moves by
+    the state's error is bounded by :func:`bderiv.models.events.locate.state_error`, and ``h_k``
+    moves by
     at most ``sum_i |Dh[k, i]| err_i``: only the components event k depends on count. At a
     stop, :func:`switch` adds the uncertainty of the stop's own time
-    (:func:`bderiv.locate.windows`).
+    (:func:`bderiv.models.events.locate.windows`).
 
     Examples
     --------
     An event that does not depend on a large coordinate is not widened by it:
 
-    >>> from bderiv.simulate import SolverOptions
+    >>> from bderiv.models.integrate.run import SolverOptions
     >>> group_tolerance(np.array([[1.0, 0.0]]), SolverOptions(), np.array([1e-3, 500.0]))
     array([1.1e-11])
     """
@@ -143,9 +144,10 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err):
     t : float
     simultaneity_tol : float
         Events within this time (first order) of crossing are switched too; they must be
-        at ``x`` to within their window (:func:`bderiv.locate.windows`).
+        at ``x`` to within their window (:func:`bderiv.models.events.locate.windows`).
     err : ndarray, shape (d,)
-        Bound on the error of ``x``, per component (:func:`bderiv.locate.state_error`).
+        Bound on the error of ``x``, per component
+        (:func:`bderiv.models.events.locate.state_error`).
 
     Returns
     -------
@@ -170,7 +172,7 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err):
     sign, h, Dh, F, rate = local_view(system, mask, x)
     window, _ = windows(Dh, rate, err, fired)
     # crossed, located or not (two surfaces crossed in one step): always switched, so
-    # none is ever lost (bderiv.locate.classify)
+    # none is ever lost (bderiv.models.events.locate.classify)
     classes = classify(h, rate, window, fired, simultaneity_tol)
     group = classes.group
     _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)

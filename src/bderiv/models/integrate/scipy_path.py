@@ -1,11 +1,12 @@
 """One stretch of a region by :func:`scipy.integrate.solve_ivp`: the Python integrator.
 
 :class:`ScipyStretches` integrates a model whose functions are Python callables (each
-called through :class:`~bderiv._usercalls.ModelCalls`, checked) from a state to the final
+called through :class:`~bderiv.models.calls.ModelCalls`, checked) from a state to the final
 time or the first crossing, with the variational equations when asked; its compiled twin is
-:class:`bderiv.stretch_compiled.CompiledStretches`. Both return a stretch with solve_ivp's
+:class:`bderiv.models.integrate.compiled_path.CompiledStretches`. Both return a stretch with
+solve_ivp's
 fields (``t``, ``y``, ``t_events``, ``status``, ``sol``) and leave everything that happens
-at a stop to :func:`bderiv.simulate.run`.
+at a stop to :func:`bderiv.models.integrate.run.run`.
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .excursions import without_lost_crossings
-from .locate import on_side_at_start
+from ..events.excursions import without_lost_crossings
+from ..events.locate import on_side_at_start
 
 
 class _EventValues:

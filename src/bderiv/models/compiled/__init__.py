@@ -5,7 +5,8 @@ first event crossing with scipy's DOP853 (the same tableau, error norm, step-siz
 first step and dense output) in one compiled driver, the user's ``field``, ``events`` and
 ``field_jacobian`` called as compiled functions (no Python call per step), optionally with
 the variational equations. :class:`CompiledModel` holds a model's checked dispatchers for
-the model side (:mod:`bderiv.stretch_compiled`), with the Jacobian computed in compiled code
+the model side (:mod:`bderiv.models.integrate.compiled_path`), with the Jacobian computed in
+compiled code
 where none is given. See ``docs/design.md``, "The compiled integrator" and "The compiled
 path".
 """
