@@ -12,7 +12,7 @@ Groups (pytest-benchmark ``group``):
 - ``threads n=.. d=.. m=..``: ``bd(V)`` on 1 and on 2 numba threads.
 
 With the default ``--benchmark-disable`` every case up to n = 8 runs once as a smoke test
-(well under a minute); ``-m slow`` runs the others once. The full sweep (big cases are marked ``slow``)::
+(well under a minute); ``-m slow`` runs the others once. The full sweep::
 
     python -m pytest benchmarks/test_bench_dense.py -n 0 -m "slow or not slow" \\
         --benchmark-enable --benchmark-json=bench.json
