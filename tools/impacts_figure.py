@@ -97,12 +97,13 @@ def draw(path):
            "a plastic impact that stays in contact:\nlands on $h = 0$, moves into $h > 0$",
            "$h = -q$")
     axes[0].legend(loc="lower right", fontsize=7, frameon=False)
-    notes = (((0.97, 0.3, "right"), "reset $(q, v) \\to (q, -0.6\\,v)$:\n$h$ keeps its value, its rate\n"
-              "changes sign"),
+    notes = (((0.97, 0.3, "right"), "reset $(q, v) \\to (q, -0.6\\,v)$:\n"
+              "$h$ keeps its value, its rate\nchanges sign"),
              ((0.5, 0.03, "center"), "reset $(\\theta, \\omega) \\to$\n"
               "$(\\theta - 2\\alpha,\\ \\cos(2\\alpha)\\,\\omega)$"),
-             ((0.97, 0.06, "right"), f"reset $(q, v) \\to (q, {KEEP:g}\\,v)$:\n$h$ keeps its value, "
-              f"its rate\nhalved; the ground's spring\npushes the ball back out"))
+             ((0.97, 0.06, "right"), f"reset $(q, v) \\to (q, {KEEP:g}\\,v)$:\n"
+              f"$h$ keeps its value, its rate\nhalved; the ground's spring\npushes the ball "
+              f"back out"))
     for ax, ((x, y, ha), text) in zip(axes, notes, strict=True):
         ax.text(x, y, text, transform=ax.transAxes, ha=ha, va="bottom", fontsize=7,
                 color="#333333")

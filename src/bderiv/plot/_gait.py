@@ -25,9 +25,9 @@ def gait_orbit(orbit, axes=None, *, components=None, phase=(0, 2), labels=None,
     Left: each of the chosen state components against time in a panel of its own (own
     axis, own units), a vertical line at every event group (marker ``^``: crossed upward,
     ``v``: downward, ``D``: mixed; one colour per kind in every panel) and the stretches
-    of each region other than mask 0 shaded grey (named by ``phases``, for example a gait's stance). Right: the phase plane
-    of two components, the event points marked the same way and the fixed point on the
-    section as a star.
+    of each region other than mask 0 shaded grey (named by ``phases``, for example a
+    gait's stance). Right: the phase plane of two components, the event points marked the
+    same way and the fixed point on the section as a star.
 
     Parameters
     ----------
