@@ -30,7 +30,7 @@ def test_the_printed_table_reads_back(tool, tmp_path):
                             tool.REF: ref, tool.BLAS: blas, tool.COPY: copy,
                             "blas_rate": (n * n + 2 * n * d) / blas}
     info = {"datetime": "2026-11-25T18:00:00", "cpu": "CPU X", "cores": 2, "blas": "b"}
-    path = tmp_path / "table.md"
+    path = tmp_path / "printed_table.txt"
     path.write_text("# A run\n\n" + tool.markdown(evals, {}, {}, info, "min"))
     back, back_info = tool.load_markdown(str(path))
     assert set(back) == set(rows)
