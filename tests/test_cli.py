@@ -34,8 +34,26 @@ def test_demo_text(capsys):
                  "|D|_2 =", "det M =", "ns per vector", "best of 3 runs", "eps = 1e-04",
                  "eps = 1e-06", "O(eps) expected", "mask 0b00 -> 0b11", "g0=(0,1)",
                  "g0=(1,0)", "B-derivative at the event point", "B-derivative of the flow",
-                 "measured on", "numba threads", "OPENBLAS_NUM_THREADS", "over [0, 0.15]"):
+                 "measured on", "numba threads", "OPENBLAS_NUM_THREADS", "over [0, 0.15]",
+                 "numba-compiled functions: every simulation runs on the compiled"):
         assert text in out, text
+
+
+def test_demo_python_model_agrees_with_the_compiled_default(capsys):
+    """--python: the chair's Python functions on solve_ivp; the same pieces as the compiled
+    default (the same equations on the other integrator), and each says which it ran."""
+    runs = {}
+    for flag in ([], ["--python"]):
+        code, out, _ = run(["demo", *SMALL, "--check", "0", "--json", *flag], capsys)
+        assert code == 0
+        runs[bool(flag)] = json.loads(out)
+    py, cc = runs[True], runs[False]
+    assert (py["compiled"], cc["compiled"]) == (False, True)
+    assert cc["description"] == py["description"] + ", numba-compiled"
+    assert [g["time"] for g in cc["groups"]] == pytest.approx([g["time"] for g in py["groups"]],
+                                                              abs=1e-10)
+    for a, b in zip(py["pieces"]["most_visited"], cc["pieces"]["most_visited"], strict=True):
+        assert a["orders"] == b["orders"] and b["det"] == pytest.approx(a["det"], rel=1e-8)
 
 
 def test_demo_json_and_fd_convergence(capsys):
@@ -44,8 +62,9 @@ def test_demo_json_and_fd_convergence(capsys):
     assert '"t_final": 0.15,' in out  # 0.1 + 0.05 as asked for, not 0.15000000000000002
     res = json.loads(out)
     assert set(res) == {"example", "description", "dim", "n_events", "x0", "t_final",
-                        "build_seconds", "groups", "pieces", "batch", "check",
+                        "compiled", "build_seconds", "groups", "pieces", "batch", "check",
                         "total_seconds", "phases"}
+    assert res["compiled"] is True  # the chair's compiled version is the default
     # the phases account for the total; compilation is counted apart, not in the timings
     phases = res["phases"]
     assert list(phases) == ["loading the example", "flow map", "pieces", "batch", "check"]

@@ -218,6 +218,14 @@ def test_parameters_changed_without_rederiving_equal_a_fresh_build(walls, cache)
                             rtol=0, atol=0)
         assert_allclose(changed.functions.reset(x, 0, 1), fresh.functions.reset(x, 0, 1),
                         rtol=0, atol=0)
+    # on the compiled integrator: the parameters reach the kernels through its model
+    assert changed.compiled is not None and changed.compiled is not walls.compiled
+    x0 = np.array([0.3, 0.5, -1.0, 0.0])  # bounces between the floor and the leaning wall
+    a, b = changed.simulate(x0, 1.0), fresh.simulate(x0, 1.0)
+    assert [g.events for g in a.groups] == [g.events for g in b.groups]
+    assert {k for g in a.groups for k in g.events} == {0, 1}
+    assert_allclose([g.time for g in a.groups], [g.time for g in b.groups], rtol=0, atol=0)
+    assert_allclose(a.x_final, b.x_final, rtol=0, atol=0)
 
 
 # --- refusals (before any derivation or compilation) ----------------------------------

@@ -165,6 +165,41 @@ def test_peak_brackets():
                                                                            (0, 3, 4)]
 
 
+def numpy_peak_brackets(h, tol, stretch=False, reach=REACH):
+    """The screen's rule in array operations (the oracle of the compiled loop): a sample
+    not lower than its neighbours whose value plus ``reach`` times its drop to the lower
+    neighbour reaches ``-tol``; with ``stretch`` the ends only below ``-tol``."""
+    m, n = h.shape
+    if m < 2:
+        return []
+    edge = np.full((1, n), -np.inf)
+    left, right = np.concatenate((edge, h[:-1])), np.concatenate((h[1:], edge))
+    low = np.minimum(np.where(np.isfinite(left), left, right),
+                     np.where(np.isfinite(right), right, left))
+    peak = (h >= left) & (h >= right) & (h + reach * (h - low) >= -tol)
+    if stretch:
+        peak[[0, -1]] &= h[[0, -1]] < -tol
+    ks, rows = np.nonzero(peak.T)
+    out = [(int(k), max(int(i) - 1, 0), min(int(i) + 1, m - 1))
+           for k, i in zip(ks, rows, strict=True)]
+    return sorted(out, key=lambda b: (b[1], b[0]))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_peak_brackets_follow_the_rule_on_random_samples(seed):
+    rng = np.random.default_rng(seed)
+    m, n = rng.integers(2, 40), rng.integers(1, 6)
+    h = -np.abs(rng.standard_normal((m, n))) * 10.0 ** rng.integers(-9, 1, size=n)
+    h[rng.random((m, n)) < 0.2] = 0.0  # samples on a surface, ties between neighbours
+    h[:, 0] = np.round(h[:, 0], 1)  # flat stretches
+    tol = 10.0 ** rng.integers(-12, -2, size=n)
+    for stretch in (False, True):
+        for reach in (REACH, 1.0, 0.0):
+            assert peak_brackets(h, tol, stretch=stretch, reach=reach) == \
+                numpy_peak_brackets(h, tol, stretch, reach)
+    assert peak_brackets(h[:1], tol) == []
+
+
 def test_peak_of_finds_the_top_and_the_ends():
     t, v = peak_of(lambda s: math.cos(s) - 0.999, -0.3, 0.2)
     assert abs(t) < 1e-7 and v == pytest.approx(0.001, abs=1e-14)

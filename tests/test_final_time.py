@@ -75,6 +75,15 @@ def test_pieces_and_tangents(at_final):
                                atol=1e-7)
 
 
+def test_apply_orders_at_the_final_time(at_final):
+    """A group at the final time: ``apply_orders`` gives ``D(V)`` and ``D.orders(V)``."""
+    _, D = at_final
+    W, orders = D.apply_orders(V)
+    np.testing.assert_array_equal(W, D(V))
+    for got, want in zip(orders, D.orders(V), strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
 def test_pickled_map_stops_at_the_group_too(at_final):
     _, D = at_final
     again = pickle.loads(pickle.dumps(D))

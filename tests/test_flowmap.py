@@ -92,6 +92,21 @@ def test_piece_of_each_vector_orders(composed):
     assert len(seen) > 3
 
 
+def test_apply_orders_is_apply_and_orders_in_one_pass(composed):
+    """The same bits as ``D(V)`` and ``D.orders(V)``, and the pieces' products (written
+    out) agree with the images."""
+    V = np.random.default_rng(13).standard_normal((40, 4))
+    W, orders = composed.apply_orders(V)
+    np.testing.assert_array_equal(W, composed(V))
+    for got, want in zip(orders, composed.orders(V), strict=True):
+        np.testing.assert_array_equal(got, want)
+    for i, v in enumerate(V):
+        P = manual_piece(composed, [orders[0][i], orders[1][i]])
+        np.testing.assert_allclose(P @ v, W[i], rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="V must"):
+        composed.apply_orders(V[:, :3])
+
+
 def test_event_times_are_the_jumps_event_times(composed):
     V = np.random.default_rng(3).standard_normal((6, 5, 4))
     pairs = composed.event_times(V)

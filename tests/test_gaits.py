@@ -144,6 +144,26 @@ def test_growth_rate_closed_form_and_pieces_do_not_decide():
     np.testing.assert_allclose(rates, 2.0**0.5, rtol=1e-4)
 
 
+@pytest.mark.parametrize("sizes", [(2, 3), (8, 8), (9, 9, 9)])  # the last: rows sorted
+def test_visits_count_every_piece_of_the_batch(sizes):
+    """The pieces visited are counted as a tally of the rows' tuples does it, whether
+    they are coded as one int64 a row or sorted as rows (beyond 2**62 codes)."""
+    from collections import Counter
+
+    from bderiv.stability import _Visits
+
+    rng = np.random.default_rng(sum(sizes))
+    orders = [np.argsort(rng.integers(0, 2, (500, n)), axis=1, kind="stable")
+              for n in sizes]
+    tally = _Visits()
+    tally.add(orders)
+    tally.add([o[:7] for o in orders])  # a second batch adds to the counts
+    visits = tally.result()
+    want = Counter(tuple(tuple(int(k) for k in o[i]) for o in orders) for i in range(500))
+    want.update(tuple(tuple(int(k) for k in o[i]) for o in orders) for i in range(7))
+    assert visits == dict(want) and len(visits) > 2
+
+
 def test_growth_rate_validation():
     fmap = rotating_pl_map(1.0, 1.0, 1.0, 1.0)[0]
     V0 = np.ones((3, 2))

@@ -4,11 +4,20 @@ impacts example and its refused variant."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from bderiv import HybridSystem
-from bderiv.examples.impacts import _FOOT, _Feet, landing, landing_summary, summary_text
+from bderiv.examples.impacts import (
+    _FOOT,
+    _functions,
+    _tables,
+    landing,
+    landing_summary,
+    summary_text,
+)
 from bderiv.models.assembly import group_bderivative
 
 U0, U1 = _FOOT[0][2], _FOOT[1][2]
@@ -28,7 +37,9 @@ def _system(model, **overrides):
 
 
 def _model(coupling=0.0):
-    return _Feet(0.4, 200.0, 4.0, 2000.0, 20.0, 30.0, 40.0, 6.0, coupling)
+    """The landing's functions (the default parameters) as attributes."""
+    tables = _tables(0.4, 200.0, 4.0, 2000.0, 20.0, 30.0, 40.0, 6.0)
+    return SimpleNamespace(**_functions(*tables, coupling))
 
 
 def test_simulate_applies_the_resets_of_a_simultaneous_group(example):
@@ -52,7 +63,7 @@ def test_one_event_gives_the_saltation_matrix_with_reset(example):
     M = group_bderivative(system, x, (0,), 0)
     R = model.reset_jacobian(x, 0, 0)
     f_minus, f_plus = model.field(x, 0), model.field(model.reset(x, 0, 0), 1)
-    dh = model.Dh[0]
+    dh = model.event_jacobian(x)[0]
     Xi = R + np.outer(f_plus - R @ f_minus, dh) / (dh @ f_minus)
     np.testing.assert_allclose(M.piece([0]), Xi, rtol=1e-14, atol=1e-14)
 

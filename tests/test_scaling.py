@@ -187,3 +187,42 @@ def test_issue_fuzz_homogeneity_dense_and_structured():
             checked += int(normal.sum())
     assert checked > 1000
 
+
+
+def test_small_batches_scale_serially_with_the_same_bits():
+    """A batch below ``SERIAL_ENTRIES`` runs the serial loops (no parallel launch: 11-16 ms
+    each under load), with the parallel kernels' bits: scaled rows, exponents, the rows
+    beyond the band and the overflow count, on rows from 5e-324 to 1.7e308; the oracle of
+    the scaling is NumPy's frexp/ldexp."""
+    from bderiv._kernels import _core, scaling
+
+    rng = np.random.default_rng(4)
+    R = (rng.standard_normal((300, 7)) * 10.0 ** rng.integers(-300, 300, (300, 1))
+         * 10.0 ** rng.integers(-20, 1, (300, 7)))
+    R[:3] = [[0.0] * 7, [5e-324, 0, 0, 0, 0, 0, -5e-324], [1.7e308, 1e-300, 4e-320, 0, 1, 2, 3]]
+    assert R.size < scaling.SERIAL_ENTRIES
+    outs = {}
+    for name, scale, unscale, band in (
+            ("serial", scaling._scale_rows_serial, scaling._unscale_rows_serial,
+             scaling._outside_band_serial),
+            ("parallel", scaling._scale_rows, scaling._unscale_rows, scaling._outside_band)):
+        U, exps = np.empty_like(R), np.empty(R.shape[0], np.int64)
+        _core.serialised(scale, R, U, exps)
+        band_exps = np.empty_like(exps)
+        beyond = _core.serialised(band, R, band_exps)
+        back = U.copy()
+        bad = _core.serialised(unscale, back, exps, 300)  # overflows the rows beyond 2**724
+        outs[name] = (U, exps, band_exps, beyond, back, bad)
+    serial, parallel = outs["serial"], outs["parallel"]
+    for s, p in zip(serial, parallel, strict=True):
+        np.testing.assert_array_equal(s, p)
+    U, exps, _, beyond, _, bad = serial
+    np.testing.assert_array_equal(U, np.ldexp(R, -np.frexp(np.abs(R).max(axis=1))[1][:, None]))
+    assert beyond == int(np.sum(np.abs(exps) > _core.QUERY_BAND)) > 0
+    with np.errstate(over="ignore"):
+        overflows = ~np.isfinite(np.ldexp(U, (exps + 300)[:, None])).all(axis=1)
+    assert bad == int(np.sum(overflows)) > 0
+    # the public functions take the serial loops for this batch (same bits again)
+    U2, exps2 = np.empty_like(R), np.empty(R.shape[0], np.int64)
+    scaling.scale_rows(R, U2, exps2)
+    np.testing.assert_array_equal(U2, U)

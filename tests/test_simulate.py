@@ -262,3 +262,17 @@ def test_options_object_and_keywords_agree():
     np.testing.assert_array_equal(a.t, b.t)
     c = s.simulate(np.zeros(2), 2.0, method=RK23)  # an OdeSolver class works too
     np.testing.assert_allclose(c.x_final, [4.0, 4.0], rtol=1e-8)
+
+
+def test_one_event_jacobian_per_stop():
+    """The excursion screen, settle and switch look at a stop's state through one set of
+    evaluations (locate.StopCalls): one event Jacobian per stretch end, on both paths."""
+    ex = examples.chair()
+    s = ex.system
+    calls = []
+    counted = HybridSystem(s._field, s._events, n_events=2, dim=6,
+                           event_jacobian=lambda x: calls.append(1) or s.eval_event_jacobian(x),
+                           field_jacobian=s._field_jac)
+    traj = counted.simulate(ex.x0, 1.0)
+    assert len(traj.groups) == 5
+    assert len(calls) == len(traj.groups) + 1  # each stop, and the end at t_final

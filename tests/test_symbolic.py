@@ -159,8 +159,9 @@ def test_with_params_changes_the_answer_as_the_closed_form_says(small):
 
 
 def test_kernels_are_njit_functions_callable_from_compiled_code(small):
-    """The layout a compiled integrator uses: the kernels called from an njit function,
-    the parameters an array argument; they are closed to other argument types."""
+    """The layout the compiled integrator uses: the kernels called from an njit function,
+    their ``x`` the state followed by the parameter values; they are closed to other
+    argument types."""
     import numba
 
     K = small.kernels
@@ -168,13 +169,11 @@ def test_kernels_are_njit_functions_callable_from_compiled_code(small):
 
     @numba.njit
     def euler(x, mask, p, dt, steps):  # explicit Euler steps through the field kernel
-        f = np.empty(x.size)
-        h = np.empty(2)
+        d = x.size
+        xp = np.concatenate((x, p))
         for _ in range(steps):
-            field(x, mask, p, f)
-            x = x + dt * f
-        events(x, p, h)
-        return x, h
+            xp[:d] = xp[:d] + dt * field(xp, mask)
+        return xp[:d], events(xp)
 
     x0, p = POINTS[0].copy(), np.array([1.3, 0.7, 2.1])
     x, h = euler(x0, 3, p, 1e-3, 5)
@@ -183,12 +182,54 @@ def test_kernels_are_njit_functions_callable_from_compiled_code(small):
         expected = expected + 1e-3 * closed_form(expected, 3, **PARAMS)[0]
     assert_allclose(x, expected, rtol=1e-14)
     assert_allclose(h, closed_form(expected, 3, **PARAMS)[2], rtol=1e-14)
-    out = np.empty((4, 3))
-    K.corner_field(x0, p, out)
-    assert_allclose(out, [closed_form(x0, m, **PARAMS)[0] for m in range(4)], rtol=1e-14)
+    assert_allclose(K.corner_field(np.concatenate((x0, p))),
+                    [closed_form(x0, m, **PARAMS)[0] for m in range(4)], rtol=1e-14)
     assert (K.dim, K.n_events, K.n_params, K.param_names) == (3, 2, 3, ("a", "b", "c"))
     with pytest.raises(TypeError, match="No matching definition"):
-        K.field(x0.astype(np.float32), 0, p, np.empty(3))
+        K.field(x0.astype(np.float32), 0)
+
+
+def test_the_compiled_integrator_calls_the_kernels_without_python(small, monkeypatch):
+    """A symbolic model is on the compiled path: integrating it calls the Python
+    wrappers only at the stops (a handful of times), where solve_ivp on its scipy path
+    calls them at every step; both give the same trajectory and flow map."""
+    from bderiv.symbolic import ModelFunctions
+
+    python = small.scipy_path()
+    assert small.compiled is not None and python.compiled is None
+    assert python.kernels is small.kernels and python.param_values == small.param_values
+    calls = []
+    x_of = ModelFunctions._x
+    x0, T, counted = np.array([0.66, 0.08, -0.57]), 2.0, {}
+    with monkeypatch.context() as m:
+        m.setattr(ModelFunctions, "_x", lambda self, x: calls.append(1) or x_of(self, x))
+        for name, system in (("compiled", small), ("scipy", python)):
+            calls.clear()
+            counted[name] = (system.simulate(x0, T), len(calls))
+    (compiled, n_compiled), (scipy_, n_scipy) = counted["compiled"], counted["scipy"]
+    assert n_compiled * 10 < n_scipy, (n_compiled, n_scipy)
+    assert [g.events for g in compiled.groups] == [g.events for g in scipy_.groups] == [
+        (0,), (1,), (0,)]
+    assert_allclose([g.time for g in compiled.groups], [g.time for g in scipy_.groups],
+                    rtol=1e-12)
+    assert_allclose(compiled.x_final, scipy_.x_final, rtol=1e-12, atol=1e-12)
+    V = np.random.default_rng(4).standard_normal((20, 3))
+    D_compiled, D_scipy = small.flow_bderivative(x0, T)(V), python.flow_bderivative(x0, T)(V)
+    assert_allclose(D_compiled, D_scipy, rtol=0, atol=1e-10 * np.abs(D_scipy).max())
+
+
+def test_a_python_section_is_refused_on_the_compiled_path(small):
+    """The compiled integrator watches the section at every step: a Python one is
+    refused, naming the way out; the scipy path takes it."""
+    x0 = np.array([0.5, -0.2, 0.3])  # q falls through 0 before t = 2
+
+    def section(x):
+        return -x[0]
+
+    with pytest.raises(TypeError, match=r"so section must be too .*scipy_path\(\)"):
+        small.simulate(x0, 2.0, section=section)
+    traj = small.scipy_path().simulate(x0, 2.0, section=section)
+    assert traj.x_final[0] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_numbers_print_exactly(cache):
@@ -238,8 +279,11 @@ def chair_equations(legs):
 
 @pytest.fixture(scope="module")
 def chair_pair(cache):
+    import inspect
+
     ex = chair()
-    legs = ex.system._field.__self__.legs  # the example's leg geometry (a_k, b_k)
+    # the example's leg geometry (a_k, b_k), a constant of its field's closure
+    legs = inspect.getclosurevars(ex.system._field).nonlocals["legs"]
     return ex, from_sympy(**chair_equations(legs), cache_dir=cache)
 
 
@@ -264,12 +308,16 @@ def test_chair_functions_match_the_hand_written_model(chair_pair):
 def test_chair_flow_bderivative_matches_the_hand_written_model(chair_pair):
     ex, sym = chair_pair
     V = np.random.default_rng(2).standard_normal((40, 6))
-    D_sym = sym.flow_bderivative(ex.x0, ex.t_final)
+    D_sym = sym.flow_bderivative(ex.x0, ex.t_final)  # on the compiled integrator
+    D_py = sym.scipy_path().flow_bderivative(ex.x0, ex.t_final)  # solve_ivp, Python calls
     D_hand = ex.system.flow_bderivative(ex.x0, ex.t_final)
-    assert list(D_sym.group_events) == list(D_hand.group_events) == [(0, 1)]
+    assert sym.compiled is not None and ex.system.compiled is None
+    assert list(D_sym.group_events) == list(D_py.group_events) == list(D_hand.group_events) \
+        == [(0, 1)]
     orders = {tuple(o) for o in D_hand.orders(V)[0]}
     assert orders == {(0, 1), (1, 0)}  # both pieces are compared
-    assert_allclose(D_sym(V), D_hand(V), rtol=0, atol=1e-10 * np.abs(D_hand(V)).max())
+    for D in (D_sym, D_py):
+        assert_allclose(D(V), D_hand(V), rtol=0, atol=1e-10 * np.abs(D_hand(V)).max())
 
 
 def landing_equations():

@@ -22,7 +22,7 @@ _TQDM_HINT = (
 
 
 #: the plural of each tqdm unit, for messages
-_UNITS = {"vec": "vectors", "point": "grid points"}
+_UNITS = {"vec": "vectors", "point": "grid points", "run": "runs"}
 
 
 class ProgressCallbackError(ValueError):

@@ -82,19 +82,13 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
     eps = check_number(eps, "eps")
     flat, lead = check_points(V, system.dim, "V")
 
-    def simulate(start):
-        return system.simulate(start, t_final, simultaneity_tol=simultaneity_tol,
-                               options=options, section=section)
-
+    settings = {"simultaneity_tol": simultaneity_tol, "options": options, "section": section}
     progress = resolve_progress(progress, desc="finite differences")
-    base = simulate(x0)
+    base = system.simulate(x0, t_final, **settings)
     start = base.x[0]  # x0, checked
-    out = np.empty_like(flat)
-    for i, v in enumerate(flat):
-        out[i] = (simulate(start + eps * v).x_final - base.x_final) / eps
-        if progress is not None:
-            progress(i + 1, len(flat))
-    return out.reshape(*lead, system.dim)
+    # the perturbed runs as one batch (its bar, or the callback after each run)
+    runs = system.simulate_many(start + eps * flat, t_final, progress=progress, **settings)
+    return ((runs.x_final - base.x_final) / eps).reshape(*lead, system.dim)
 
 
 @dataclass(frozen=True)
@@ -289,11 +283,11 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     if not any(k in simulate_options for k in ("options", "rtol", "atol")):
         simulate_options["options"] = FD_OPTIONS
     dev = np.empty((V.shape[0], strides + 1))
-    for i, v in enumerate(V):
-        x = x0 + eps * v
-        dev[i, 0] = np.linalg.norm((x - x0)[keep])
-        for k in range(1, strides + 1):
-            x = system.simulate(x, t_max, section=section, **simulate_options).x_final
+    X = x0 + eps * V
+    for k in range(strides + 1):  # stride by stride, every vector's run in one batch
+        if k:
+            X = system.simulate_many(X, t_max, section=section, **simulate_options).x_final
+        for i, x in enumerate(X):
             dev[i, k] = np.linalg.norm((x - x0)[keep])
     return _fit_decay(dev, floor, ceiling, eps)
 

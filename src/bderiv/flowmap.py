@@ -399,6 +399,25 @@ class FlowBDerivative(Linearisation):
         return [bd.orders(W).reshape(*lead, bd.n_events)
                 for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False)]
 
+    def apply_orders(self, V):
+        """``(self(V), self.orders(V))`` from one pass through the stages (for a (m, d)
+        batch): what an iteration of the map that counts its pieces needs
+        (:func:`bderiv.stability.growth_rate`), at the cost of :meth:`orders` alone.
+
+        Parameters
+        ----------
+        V : array_like, shape (m, d)
+
+        Returns
+        -------
+        W : ndarray, shape (m, d)
+            The images, the same bits as :meth:`apply`.
+        orders : list of ndarray, shape (m, n_g), int64
+            As :meth:`orders`.
+        """
+        inputs = self._stage_inputs(check_matrix(V, "V", (None, self.dim)))
+        return inputs[-1], [bd.orders(X) for bd, X in zip(self._jumps, inputs, strict=False)]
+
     def piece(self, orders=None, *, with_time=False):
         """The linear piece for one event order per group.
 

@@ -178,14 +178,14 @@ class PeriodicOrbit:
         """
         n_directions = check_positive_int(n_directions, "n_directions")
         R = self.return_map
-        fmap, basis = R, R.tangent_basis
+        fmap, fmap_orders, basis = R, R.apply_orders, R.tangent_basis
         check_growth_memory(n_directions, basis.shape[0], iterations)  # before V0 exists
         if self.cyclic:  # the map on the other coordinates: a cyclic shift is neutral
             basis = reduced_basis(self.section.gradient(self.x0), self.cyclic, R.dim)
-            fmap = _without(R, list(self.cyclic))
+            fmap, fmap_orders = _without(R, list(self.cyclic))
         V0 = np.random.default_rng(seed).standard_normal((n_directions, basis.shape[1]))
         rates, spread, visits = growth_rate(fmap, V0 @ basis.T, iterations, burn_in,
-                                            orders=R.orders)
+                                            fmap_orders=fmap_orders)
         most = sorted(visits, key=visits.get, reverse=True)[:MULTIPLIER_PIECES]
         multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in most}
         i = int(np.argmax(rates))
@@ -335,14 +335,20 @@ def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None)
 
 
 def _without(R, cyclic):
-    """``V -> R(V)`` with the cyclic components of the images set to 0."""
+    """``V -> R(V)`` with the cyclic components of the images set to 0, and the same with
+    the orders (``R.apply_orders``)."""
 
     def fmap(V):
         W = R(V)
         W[:, cyclic] = 0.0
         return W
 
-    return fmap
+    def fmap_orders(V):
+        W, orders = R.apply_orders(V)
+        W[:, cyclic] = 0.0
+        return W, orders
+
+    return fmap, fmap_orders
 
 
 def _piece_of(R, v):

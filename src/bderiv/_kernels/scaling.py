@@ -10,69 +10,125 @@ A factor ``2**e`` with ``|e|`` up to 2098 is applied as two representable factor
 (``_core.factors``). The lane, plain, own-rates and linear kernels of dense tables scale
 each query as they load it (``_core.row_exponent``); the other engines scale a batch with
 :func:`scale_rows` and :func:`unscale_rows`, which launch their parallel kernels through
-``_core.serialised`` (numba's workqueue layer aborts on concurrent launches).
+``_core.serialised`` (numba's workqueue layer aborts on concurrent launches). A batch of
+fewer than :data:`SERIAL_ENTRIES` entries runs serially instead: the same rows in the same
+order, so the same bits, without a launch that costs more than the work.
 """
 
 from __future__ import annotations
 
 from numba import njit, prange
 
-from ._core import QUERY_BAND, factors, row_exponent, serialised
+from ._core import JIT, QUERY_BAND, factors, row_exponent, serialised
+
+#: batches with fewer entries (rows x d) are scaled serially: measured (load 8 on 2 cores)
+#: 0.7-1.8 ns per entry serially, a parallel launch 13-34 us when its threads get cores at
+#: once and 11-16 ms when they wait (318 launches on (200, 8) batches were 6 of the 7 s of
+#: a stability verdict); below 2**18 entries (about 0.3 ms of serial work) parallel saves
+#: at most half of that and risks 16 ms.
+SERIAL_ENTRIES = 1 << 18
+
+
+def _small(A):
+    return A.shape[0] * A.shape[1] < SERIAL_ENTRIES
 
 
 def scale_rows(V, out, exps):
-    """``out[q] = 2**-e V[q]`` and ``exps[q] = e`` (:func:`row_exponent`), on all threads."""
+    """``out[q] = 2**-e V[q]`` and ``exps[q] = e`` (:func:`row_exponent`), on all threads
+    (serially for a small batch)."""
+    if _small(V):
+        return _scale_rows_serial(V, out, exps)
     return serialised(_scale_rows, V, out, exps)
 
 
 def unscale_rows(out, exps, shift):
     """``out[q] *= 2**(exps[q] + shift)`` in place; returns the number of rows that are no
     longer finite (an overflowing result)."""
+    if _small(out):
+        return _unscale_rows_serial(out, exps, shift)
     return serialised(_unscale_rows, out, exps, shift)
 
 
 def outside_band(V, exps):
     """``exps[q]``: the :func:`row_exponent` of each row (read only); returns how many
     rows are beyond ``_core.QUERY_BAND`` (those need :func:`scale_rows`)."""
+    if _small(V):
+        return _outside_band_serial(V, exps)
     return serialised(_outside_band, V, exps)
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+# Each operation is one row's function (inlined) and two loops over the rows: parallel
+# (prange) and serial. Two loops and not one Python function compiled twice: numba's
+# cache does not tell compilations of one function with different options apart.
+
+
+@njit(inline="always", **JIT)
+def _scale_row(V, out, exps, q):
+    e = row_exponent(V, q, V.shape[1])
+    exps[q] = e
+    a, b = factors(-e)
+    for i in range(V.shape[1]):
+        out[q, i] = V[q, i] * a * b
+
+
+@njit(inline="always", **JIT)
+def _unscale_row(out, exps, shift, q):
+    """Scales row q back; 1 if it is no longer finite, else 0."""
+    a, b = factors(exps[q] + shift)
+    s = 0.0
+    for i in range(out.shape[1]):
+        out[q, i] = out[q, i] * a * b
+        s += out[q, i] * 0.0
+    return 1 if s != s else 0
+
+
+@njit(inline="always", **JIT)
+def _band_row(V, exps, q):
+    """Row q's exponent into exps; 1 if it is beyond the band, else 0."""
+    e = row_exponent(V, q, V.shape[1])
+    exps[q] = e
+    return 1 if (e < -QUERY_BAND) | (e > QUERY_BAND) else 0
+
+
+@njit(parallel=True, **JIT)
 def _scale_rows(V, out, exps):
-    """``out[q] = 2**-e V[q]`` and ``exps[q] = e`` (:func:`row_exponent`), on all threads."""
-    d = V.shape[1]
     for q in prange(V.shape[0]):
-        e = row_exponent(V, q, d)
-        exps[q] = e
-        a, b = factors(-e)
-        for i in range(d):
-            out[q, i] = V[q, i] * a * b
+        _scale_row(V, out, exps, q)
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(**JIT)
+def _scale_rows_serial(V, out, exps):
+    for q in range(V.shape[0]):
+        _scale_row(V, out, exps, q)
+
+
+@njit(parallel=True, **JIT)
 def _unscale_rows(out, exps, shift):
-    """``out[q] *= 2**(exps[q] + shift)`` in place; returns the number of rows that are no
-    longer finite (an overflowing result)."""
-    d = out.shape[1]
     bad = 0
     for q in prange(out.shape[0]):
-        a, b = factors(exps[q] + shift)
-        s = 0.0
-        for i in range(d):
-            out[q, i] = out[q, i] * a * b
-            s += out[q, i] * 0.0
-        bad += s != s
+        bad += _unscale_row(out, exps, shift, q)
     return bad
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(**JIT)
+def _unscale_rows_serial(out, exps, shift):
+    bad = 0
+    for q in range(out.shape[0]):
+        bad += _unscale_row(out, exps, shift, q)
+    return bad
+
+
+@njit(parallel=True, **JIT)
 def _outside_band(V, exps):
-    """``exps[q]``: the :func:`row_exponent` of each row (read only); returns how many
-    rows are beyond ``_core.QUERY_BAND`` (those need :func:`scale_rows`)."""
-    d = V.shape[1]
     bad = 0
     for q in prange(V.shape[0]):
-        e = row_exponent(V, q, d)
-        exps[q] = e
-        bad += (e < -QUERY_BAND) | (e > QUERY_BAND)
+        bad += _band_row(V, exps, q)
+    return bad
+
+
+@njit(**JIT)
+def _outside_band_serial(V, exps):
+    bad = 0
+    for q in range(V.shape[0]):
+        bad += _band_row(V, exps, q)
     return bad

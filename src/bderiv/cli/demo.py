@@ -39,7 +39,8 @@ TABLE_VECTORS = ((-1.0, -2.0, -3.0), (-3.0, -1.0, -2.0), (0.5, -0.2, 0.1))
 
 
 def run_demo(example="chair", n=None, extended=False, batch=1_000_000, check=8,
-             eps=(1e-4, 1e-5, 1e-6), seed=0, full=False, progress=None, report=None) -> dict:
+             eps=(1e-4, 1e-5, 1e-6), seed=0, full=False, progress=None, report=None,
+             compiled=True) -> dict:
     """Run the demo and return its results as a JSON-ready dict.
 
     Parameters
@@ -60,6 +61,9 @@ def run_demo(example="chair", n=None, extended=False, batch=1_000_000, check=8,
         Called after each step of the finite-difference check.
     report : callable ``report(section, res)``, optional
         Called with the results so far after each section.
+    compiled : bool
+        The example's compiled version where it has one
+        (:data:`~bderiv.cli.systems.COMPILED_EXAMPLES`), else its Python functions.
 
     Returns
     -------
@@ -69,7 +73,7 @@ def run_demo(example="chair", n=None, extended=False, batch=1_000_000, check=8,
     t_start, phases = time.perf_counter(), Phases()
     rng = np.random.default_rng(seed)
     with phases("loading the example"):
-        ex, bd = load_example(example, n, extended)
+        ex, bd = load_example(example, n, extended, compiled)
     dim = bd.dim if ex is None else ex.system.dim
     # the batch, its image and one temporary of the flow's stages, before anything runs
     require_memory(3 * batch * dim * 8, f"--batch {batch} (d = {dim})")
@@ -91,7 +95,7 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     """The demo of a model: trajectory, pieces, timed batch, finite-difference check."""
     system = ex.system
     res.update(description=ex.description, dim=system.dim, n_events=system.n_events,
-               x0=ex.x0.tolist(), t_final=ex.t_final)
+               x0=ex.x0.tolist(), t_final=ex.t_final, compiled=ex.compiled)
     report("model", res)
     with phases("flow map"):
         fb = system.flow_bderivative(ex.x0, ex.t_final)
@@ -144,6 +148,9 @@ def _check(ex, fb, rng, k, eps, progress, per_batch):
     """Finite differences of the simulation against the B-derivative on k unit vectors."""
     V = rng.standard_normal((k, ex.system.dim))
     V /= np.linalg.norm(V, axis=1, keepdims=True)
+    # untimed: the simulations' first calls (a compiled model's functions and integrator
+    # compiled or loaded from the disk cache), so that the time per vector is the run's
+    ex.system.flow_fd(ex.x0, ex.t_final, V[:1], eps[0])
     fd = fd_check(ex.system, ex.x0, ex.t_final, V, fb(V), eps, progress=progress)
     t0 = time.perf_counter()
     for _ in range(10):

@@ -19,6 +19,7 @@ from .demo import run_demo
 from .export import run_export
 from .figures import DECAY_STRIDES, DEFAULT_OUT, FIGURES, GAIT_FIGURES, run_figures
 from .systems import (
+    COMPILED_EXAMPLES,
     GAIT_EXAMPLES,
     IMPACT_EXAMPLES,
     MODEL_EXAMPLES,
@@ -136,6 +137,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "corner table F, the flow map's linear stages")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--python", action="store_true",
+                   help=f"the example's Python functions on scipy's solve_ivp instead of its "
+                   f"numba-compiled ones on the compiled integrator (the default for "
+                   f"{', '.join(COMPILED_EXAMPLES)}; the same equations)")
 
     p = sub.add_parser("bench", help="dimension sweep against the baselines")
     p.add_argument("--n", type=_positive_int, nargs="+", default=[2, 4, 8, 12, 16],
@@ -207,7 +212,7 @@ def _demo(args) -> str | None:
     progress = None if args.no_progress else render.progress_bar("finite differences")
     res = run_demo(example, args.n, args.extended, args.batch, args.check, tuple(args.eps),
                    args.seed, args.full, progress=progress,
-                   report=show if not args.json else None)
+                   report=show if not args.json else None, compiled=not args.python)
     return render.to_json(res, indent=1) if args.json else None
 
 
@@ -233,7 +238,7 @@ def _gait_demo(args) -> str:
         return render.to_json(res, indent=1) if args.json else walker_report.summary_text(res)
     module, run = ((impacts, impacts.landing_summary) if args.example == "landing"
                    else (gaits, gaits.pronking_summary))
-    res = run(seed=args.seed)
+    res = run(seed=args.seed, compiled=not args.python)
     return render.to_json(res, indent=1) if args.json else module.summary_text(res)
 
 

@@ -63,7 +63,12 @@ def _matrix(name, rows, indent="    ") -> list:
 
 
 def _model(res):
-    return f"bderiv demo: {res['example']}\n  {res['description']}\n"
+    text = f"bderiv demo: {res['example']}\n  {res['description']}\n"
+    if res.get("compiled"):
+        text += ("  its field, events and Jacobians are numba-compiled functions: every "
+                 "simulation runs on the compiled integrator (--python: the same equations "
+                 "as Python functions on scipy's solve_ivp)\n")
+    return text
 
 
 def _trajectory(res):

@@ -28,6 +28,9 @@ ORBIT_EXAMPLES = {"pronking": {
 #: impact examples (models with resets) whose B-derivative at the event point ``plot`` and
 #: ``export`` take as they take the models'
 IMPACT_EXAMPLES = ("landing", "ball-in-corner")
+#: examples with a compiled version (``compiled=True``: numba functions on the compiled
+#: integrator, the same equations as the Python version)
+COMPILED_EXAMPLES = ("chair", "network", "pronking", "landing")
 #: largest n of the scalable network family the CLI accepts
 NETWORK_MAX_N = 20
 
@@ -40,7 +43,8 @@ def _network_options_only(name: str, n: int | None, extended: bool) -> None:
         raise UsageError(f"--extended applies to --example network only, not to {name!r}")
 
 
-def load_example(name: str, n: int | None = None, extended: bool = False):
+def load_example(name: str, n: int | None = None, extended: bool = False,
+                 compiled: bool = False):
     """The example ``name`` and the B-derivative at its event point.
 
     Parameters
@@ -51,6 +55,9 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
         Number of events of ``network`` (default 3); refused for the other examples.
     extended : bool
         The ``network`` variant with d = 2n; refused for the other examples.
+    compiled : bool
+        The compiled version of the examples of :data:`COMPILED_EXAMPLES` (the others
+        have none: their Python version).
 
     Returns
     -------
@@ -69,19 +76,20 @@ def load_example(name: str, n: int | None = None, extended: bool = False):
         return None, BDerivative(*examples.three_event_table())
     if name == "planar":
         return None, BDerivative(*examples.planar_table())
+    compiled = compiled and name in COMPILED_EXAMPLES
     if name == "chair":
-        ex = examples.chair()
+        ex = examples.chair(compiled=compiled)
     elif name == "table":
         ex = examples.table()
     elif name == "landing":
-        ex = examples.impacts.landing()
+        ex = examples.impacts.landing(compiled=compiled)
     elif name == "ball-in-corner":
         ex = examples.ball_in_corner()
     else:
         n = 3 if n is None else n
         if not 1 <= n <= NETWORK_MAX_N:
             raise UsageError(f"--n must be between 1 and {NETWORK_MAX_N}, got {n}")
-        ex = examples.network(n, extended=extended)
+        ex = examples.network(n, extended=extended, compiled=compiled)
     return ex, ex.system.bderivative(ex.rho)
 
 

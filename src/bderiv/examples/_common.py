@@ -1,15 +1,34 @@
-"""The :class:`Example` record and helpers shared by the examples."""
+"""The :class:`Example` record and helpers shared by the examples.
+
+Models with a compiled version write their equations once, as plain functions that numba
+compiles (closures over constant numbers and arrays, loop style, no Python objects):
+:meth:`Example.from_functions` passes them to :class:`~bderiv.models.system.HybridSystem` as
+they are (the Python version) or each compiled by :func:`compile_function` (the compiled
+version, ``compiled=True``): one code path for both.
+"""
 
 from __future__ import annotations
 
+import hashlib
+import pathlib
+import pickle
 from dataclasses import dataclass
+from functools import cache
 
+import numba
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from .._kernels._cache import DriverCache, harden
+from .._validate import check_bool
 from ..models.system import HybridSystem
 
-__all__ = ["Example", "complex_step_jacobian", "flow_back"]
+__all__ = ["Example", "compile_function", "complex_step_jacobian", "flow_back"]
+
+#: the functions of a model that the compiled version compiles (corner_field stays Python:
+#: it is called at the event points only, with the whole table at once)
+COMPILED_FUNCTIONS = ("field", "events", "field_jacobian", "event_jacobian", "reset",
+                      "reset_jacobian")
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +57,7 @@ class Example:
     t_final: float
     name: str
     description: str
+    compiled: bool = False
 
     @classmethod
     def from_model(cls, model, *, n_events, dim, rho, x0, t_event, t_after, name, description):
@@ -62,6 +82,62 @@ class Example:
             name=name,
             description=description,
         )
+
+    @classmethod
+    def from_functions(cls, functions, *, compiled, n_events, dim, rho, x0, t_event,
+                       t_after, name, description):
+        """An example from its model's functions, compiled or not.
+
+        Parameters
+        ----------
+        functions : dict
+            ``field``, ``events``, ``event_jacobian`` and optionally ``field_jacobian``,
+            ``corner_field``, ``reset``, ``reset_jacobian``: plain functions that numba
+            can compile (except ``corner_field``, always called as Python).
+        compiled : bool
+            Compile them (:func:`compile_function`): the model then runs on the compiled
+            integrator. Without ``field_jacobian`` the Jacobian is taken by complex step
+            in either version (in compiled code when compiled).
+        """
+        compiled = check_bool(compiled, "compiled")
+        fns = dict(functions)
+        if compiled:
+            fns.update({k: compile_function(f) for k, f in fns.items()
+                        if k in COMPILED_FUNCTIONS})
+        elif "field_jacobian" not in fns:
+            field = fns["field"]
+            fns["field_jacobian"] = lambda x, mask: complex_step_jacobian(
+                lambda y: field(y, mask), x, dim)
+        system = HybridSystem(fns.pop("field"), fns.pop("events"), n_events=n_events,
+                              dim=dim, **fns)
+        return cls(system=system, rho=np.asarray(rho, dtype=np.float64),
+                   x0=np.asarray(x0, dtype=np.float64), t_event=float(t_event),
+                   t_final=float(f"{float(t_event) + float(t_after):.15g}"), name=name,
+                   description=description + (", numba-compiled" if compiled else ""),
+                   compiled=compiled)
+
+
+@cache
+def _sources_digest() -> str:
+    """sha256 of the examples' sources (a compiled function may inline helpers of other
+    files of the package: any edit invalidates every cached example function)."""
+    h = hashlib.sha256()
+    for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
+        h.update(path.name.encode() + path.read_bytes())
+    return h.hexdigest()
+
+
+def compile_function(fn):
+    """``numba.njit(fn)``, cached on disk under the examples' sources and the values ``fn``
+    closes over (compiled at its first call; later processes load it in milliseconds).
+
+    Numba would key a closure's cache by its values alone and invalidate it only when its
+    own file changes; the key here also changes when a helper it inlines does.
+    """
+    cells = tuple(c.cell_contents for c in fn.__closure__ or ())
+    values = hashlib.sha256(pickle.dumps(cells)).hexdigest()
+    key = f"{fn.__module__}.{fn.__qualname__}:{_sources_digest()}:{values}"
+    return harden(numba.njit(fn), DriverCache(fn, key))
 
 
 def complex_step_jacobian(fun, x, n_out):

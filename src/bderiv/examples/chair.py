@@ -21,62 +21,57 @@ free-flight state ``t_event`` earlier (both feet descend all the way).
 from __future__ import annotations
 
 import numpy as np
+from numba.extending import register_jitable
 
-from ._common import Example, complex_step_jacobian
+from ._common import Example
 
 __all__ = ["chair"]
 
 _G = 9.81
 
 
-class _Chair:
-    def __init__(self, stiffness, damping, mode_damping, friction, inertia, legs):
-        self.K = stiffness
-        self.C = damping
-        self.kappa = mode_damping
-        self.Ct = friction
-        self.inertia = inertia
-        self.legs = np.asarray(legs, dtype=np.float64)  # (2, 2): rows (a_k, b_k)
+@register_jitable
+def _offset(a, b, theta):
+    """World-frame offset ``(r_x, r_z)`` of the body-frame point ``(a, b)`` at pitch
+    ``theta``."""
+    c, s = np.cos(theta), np.sin(theta)
+    return a * c - b * s, a * s + b * c
 
-    def _feet(self, x):
-        th = x[2]
-        a, b = self.legs[:, 0], self.legs[:, 1]
-        c, s = np.cos(th), np.sin(th)
-        rx = a * c - b * s  # foot offset from the centre of mass, world frame
-        rz = a * s + b * c
-        height = x[1] + rz
-        vfx = x[3] - x[5] * rz
-        vfz = x[4] + x[5] * rx
-        return rx, rz, height, vfx, vfz
 
-    def field(self, x, mask):
-        rx, rz, height, vfx, vfz = self._feet(x)
-        both = (int(mask) & 3) == 3
-        c_leg = self.C * (1.0 + self.kappa) if both else self.C
-        ax = 0.0 * x[0]
-        az = -_G + 0.0 * x[0]
-        alpha = 0.0 * x[0]
+def _functions(K, C, kappa, Ct, inertia, legs) -> dict:
+    """The chair's field, events and event Jacobian: plain functions over the constants
+    (``legs`` (2, 2): rows ``(a_k, b_k)``), for Python as they are and for numba compiled."""
+
+    def field(x, mask):
+        c_leg = C * (1.0 + kappa) if (mask & 3) == 3 else C
+        out = np.empty_like(x)  # complex for complex x: the complex step
+        out[0], out[1], out[2] = x[3], x[4], x[5]
+        ax, az, alpha = 0.0 * x[0], -_G + 0.0 * x[0], 0.0 * x[0]
         for k in range(2):
-            if int(mask) >> k & 1:
-                fz = -self.K * height[k] - c_leg * vfz[k]
-                fx = -self.Ct * vfx[k]
+            if mask >> k & 1:
+                rx, rz = _offset(legs[k, 0], legs[k, 1], x[2])
+                fz = -K * (x[1] + rz) - c_leg * (x[4] + x[5] * rx)  # height, v_foot_z
+                fx = -Ct * (x[3] - x[5] * rz)  # v_foot_x
                 ax = ax + fx
                 az = az + fz
-                alpha = alpha + (rx[k] * fz - rz[k] * fx) / self.inertia
-        return np.array([x[3], x[4], x[5], ax, az, alpha])
+                alpha = alpha + (rx * fz - rz * fx) / inertia
+        out[3], out[4], out[5] = ax, az, alpha
+        return out
 
-    def field_jacobian(self, x, mask):
-        return complex_step_jacobian(lambda y: self.field(y, mask), x, 6)
+    def events(x):
+        out = np.empty(2)
+        for k in range(2):
+            out[k] = -(x[1] + _offset(legs[k, 0], legs[k, 1], x[2])[1])
+        return out
 
-    def events(self, x):
-        return -self._feet(x)[2]
-
-    def event_jacobian(self, x):
-        rx = self._feet(x)[0]
+    def event_jacobian(x):
         D = np.zeros((2, 6))
-        D[:, 1] = -1.0
-        D[:, 2] = -rx
+        for k in range(2):
+            D[k, 1] = -1.0
+            D[k, 2] = -_offset(legs[k, 0], legs[k, 1], x[2])[0]
         return D
+
+    return {"field": field, "events": events, "event_jacobian": event_jacobian}
 
 
 def chair(
@@ -88,6 +83,7 @@ def chair(
     inertia=0.1,
     t_event=0.1,
     t_after=0.05,
+    compiled=False,
 ):
     """The planar two-legged body landing on both legs at once (d = 6, n = 2).
 
@@ -103,6 +99,9 @@ def chair(
     t_event, t_after : float
         Flight time from ``x0`` to the touchdown; ``t_final = t_event + t_after`` (the
         legs are still in contact then).
+    compiled : bool
+        The model's functions compiled with numba (they run on the compiled integrator),
+        else Python functions: the same equations either way.
 
     Returns
     -------
@@ -111,15 +110,18 @@ def chair(
     theta = 0.1
     a0, b0, a1 = -0.5, -0.4, 0.6
     b1 = b0 + (a0 - a1) * np.tan(theta)  # both feet on the ground at theta
-    model = _Chair(stiffness, damping, mode_damping, friction, inertia, [[a0, b0], [a1, b1]])
+    legs = np.array([[a0, b0], [a1, b1]])
+    functions = _functions(float(stiffness), float(damping), float(mode_damping),
+                           float(friction), float(inertia), legs)
     z = -(a0 * np.sin(theta) + b0 * np.cos(theta))
     vx, vz, om = 0.5, -2.0, 0.3
     rho = np.array([0.0, z, theta, vx, vz, om])
     T = float(t_event)
     vz0 = vz + _G * T
     x0 = np.array([-vx * T, z - vz0 * T + 0.5 * _G * T**2, theta - om * T, vx, vz0, om])
-    return Example.from_model(
-        model,
+    return Example.from_functions(
+        functions,
+        compiled=compiled,
         n_events=2,
         dim=6,
         rho=rho,

@@ -30,15 +30,20 @@ stability verdict with its checks against simulation (``summary_text`` prints it
 
 from __future__ import annotations
 
-import numpy as np
+from typing import NamedTuple
 
-from ._common import Example, complex_step_jacobian
+import numpy as np
+from numba.extending import register_jitable
+
+from .._validate import check_positive_int
+from ._common import Example, compile_function
 
 __all__ = [
     "APEX",
     "apex_section",
     "apex_section_gradient",
     "body",
+    "compiled_apex_section",
     "pronking",
     "pronking_orbit",
     "pronking_summary",
@@ -50,50 +55,80 @@ _G = 9.81
 APEX = 0.6629663141
 
 
-class _Pronking:
-    def __init__(self, stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia,
-                 legs):
-        share = 2.0 / legs  # the totals of two legs, shared by all of them
-        self.K, self.C, self.gain = share * stiffness, share * damping, share * gain
-        self.v_ref, self.coupling, self.leg, self.inertia = v_ref, coupling, leg, inertia
-        self.a = np.linspace(-half_base, half_base, legs)
-        self.legs, self.all_down = legs, (1 << legs) - 1
+@register_jitable
+def foot_offset(a_k, leg, theta):
+    """Foot k's offset from the centre of mass in the world frame, ``(r_x, r_z)``, for the
+    body pitched by ``theta`` (the foot at ``(a_k, -leg)`` in the body frame)."""
+    c, s = np.cos(theta), np.sin(theta)
+    return a_k * c + leg * s, a_k * s - leg * c
 
-    def _feet(self, x):
-        c, s = np.cos(x[1]), np.sin(x[1])
-        rx = self.a * c + self.leg * s  # horizontal lever arm of each foot
-        height = x[0] + self.a * s - self.leg * c
-        return rx, height, x[2] + x[3] * rx
 
-    def field(self, x, mask):
-        rx, height, v = self._feet(x)
-        mask = int(mask)
-        gain = self.gain * (1.0 + self.coupling) if mask == self.all_down else self.gain
-        thrust = gain * (1.0 - x[2] ** 2 / self.v_ref**2) * x[2]
-        az, alpha = -_G + 0.0 * x[0], 0.0 * x[0]
-        for k in range(self.legs):
-            if mask >> k & 1:
-                f = -self.K * height[k] - self.C * v[k] + thrust
-                az = az + f
-                alpha = alpha + rx[k] * f / self.inertia
-        return np.array([x[2], x[3], az, alpha])
+@register_jitable
+def stance(z, theta, vz, omega, mask, p):
+    """``(a_z, alpha)``: the body's vertical and pitch accelerations in region ``mask``:
+    gravity, and each leg whose bit is set (spring, damper, thrust). ``p`` is the
+    :class:`Body`'s constants. Plain code that numba compiles and Python runs alike
+    (complex input passes through: the complex step)."""
+    gain = p.gain * (1.0 + p.coupling) if mask == p.all_down else p.gain
+    thrust = gain * (1.0 - vz**2 / p.v_ref**2) * vz
+    az, alpha = -_G + 0.0 * vz, 0.0 * vz
+    for k in range(p.a.size):
+        if mask >> k & 1:
+            rx, rz = foot_offset(p.a[k], p.leg, theta)
+            f = -p.K * (z + rz) - p.C * (vz + omega * rx) + thrust
+            az = az + f
+            alpha = alpha + rx * f / p.inertia
+    return az, alpha
 
-    def field_jacobian(self, x, mask):
-        return complex_step_jacobian(lambda y: self.field(y, mask), x, 4)
 
-    def events(self, x):
-        return -self._feet(x)[1]
+class Body(NamedTuple):
+    """The pronking body's constants (per leg: the totals of two legs shared by all)."""
 
-    def event_jacobian(self, x):
-        D = np.zeros((self.legs, 4))
-        D[:, 0] = -1.0
-        D[:, 1] = -self._feet(x)[0]
+    a: np.ndarray  #: (legs,) body-frame horizontal positions of the feet
+    K: float  #: ground stiffness per leg
+    C: float  #: damping per leg
+    gain: float  #: thrust gain per leg
+    coupling: float  #: extra relative gain while all legs touch
+    v_ref: float
+    leg: float
+    inertia: float
+    all_down: int  #: the mask with every leg down
+
+
+def _functions(p: Body) -> dict:
+    """The pronking model's field, events and event Jacobian (d = 4): plain functions
+    over the constants ``p``, for Python as they are and for numba compiled."""
+
+    def field(x, mask):
+        out = np.empty_like(x)  # complex for complex x: the complex step
+        out[0], out[1] = x[2], x[3]
+        out[2], out[3] = stance(x[0], x[1], x[2], x[3], mask, p)
+        return out
+
+    def events(x):
+        out = np.empty(p.a.size)
+        for k in range(p.a.size):
+            out[k] = -(x[0] + foot_offset(p.a[k], p.leg, x[1])[1])
+        return out
+
+    def event_jacobian(x):
+        D = np.zeros((p.a.size, 4))
+        for k in range(p.a.size):
+            D[k, 0] = -1.0
+            D[k, 1] = -foot_offset(p.a[k], p.leg, x[1])[0]
         return D
+
+    return {"field": field, "events": events, "event_jacobian": event_jacobian}
 
 
 def apex_section(x):
     """The apex section ``-vz``: crossed upward when the body starts to fall."""
     return -x[2]
+
+
+#: :func:`apex_section` compiled: the section of a compiled model (``pronking(...,
+#: compiled=True)``)
+compiled_apex_section = compile_function(apex_section)
 
 
 def apex_section_gradient(x):
@@ -102,17 +137,22 @@ def apex_section_gradient(x):
 
 
 def body(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5, half_base=0.4,
-         leg=0.5, inertia=0.16, legs=2):
-    """The pronking body's model (fields, events, Jacobians) for :func:`pronking`'s
-    parameters: the part other gaits build on (:mod:`bderiv.examples.runner`)."""
-    legs = int(legs)
+         leg=0.5, inertia=0.16, legs=2) -> Body:
+    """The pronking body's constants for :func:`pronking`'s parameters: the part other
+    gaits build on (:mod:`bderiv.examples.runner`)."""
+    legs = check_positive_int(legs, "legs")
     if legs < 2:
         raise ValueError(f"legs must be an integer >= 2, got {legs}")
-    return _Pronking(stiffness, damping, gain, v_ref, coupling, half_base, leg, inertia, legs)
+    share = 2.0 / legs  # the totals of two legs, shared by all of them
+    return Body(a=np.linspace(-half_base, half_base, legs), K=share * float(stiffness),
+                C=share * float(damping), gain=share * float(gain), coupling=float(coupling),
+                v_ref=float(v_ref), leg=float(leg), inertia=float(inertia),
+                all_down=(1 << legs) - 1)
 
 
 def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
-             half_base=0.4, leg=0.5, inertia=0.16, apex=APEX, t_after=0.05, legs=2):
+             half_base=0.4, leg=0.5, inertia=0.16, apex=APEX, t_after=0.05, legs=2,
+             compiled=False):
     """The pronking body at the apex of its gait, about to land on all legs at once.
 
     Parameters
@@ -138,6 +178,10 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
         lift off together on the symmetric gait (n = legs simultaneous events; (legs!)^2
         pieces per stride). The vertical motion of the symmetric gait is the same for any
         number of legs.
+    compiled : bool
+        The model's functions compiled with numba (they run on the compiled integrator;
+        the section is then :data:`compiled_apex_section`), else Python functions: the
+        same equations either way.
 
     Returns
     -------
@@ -145,16 +189,23 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
         ``x0`` the apex state, ``rho`` the touchdown state (both feet on the ground, in
         closed form: free fall from the apex), ``t_event`` the fall time. Use
         :func:`apex_section` and :func:`pronking_orbit` for the gait.
+
+    Examples
+    --------
+    >>> ex = pronking(legs=4, compiled=True)
+    >>> ex.system.simulate(ex.x0, ex.t_final).groups[0].events
+    (0, 1, 2, 3)
     """
-    model = body(stiffness=stiffness, damping=damping, gain=gain, v_ref=v_ref,
-                 coupling=coupling, half_base=half_base, leg=leg, inertia=inertia, legs=legs)
+    p = body(stiffness=stiffness, damping=damping, gain=gain, v_ref=v_ref,
+             coupling=coupling, half_base=half_base, leg=leg, inertia=inertia, legs=legs)
     fall = float(np.sqrt(2.0 * (apex - leg) / _G))
     rho = np.array([leg, 0.0, -_G * fall, 0.0])
-    return Example.from_model(
-        model, n_events=legs, dim=4, rho=rho, x0=np.array([apex, 0.0, 0.0, 0.0]),
-        t_event=fall, t_after=t_after, name="pronking",
-        description=(f"planar body pronking on {legs} compliant legs: all land and lift "
-                     f"off together every stride (d = 4, n = {legs}, coupling = "
+    n = p.a.size
+    return Example.from_functions(
+        _functions(p), compiled=compiled, n_events=n, dim=4, rho=rho,
+        x0=np.array([apex, 0.0, 0.0, 0.0]), t_event=fall, t_after=t_after, name="pronking",
+        description=(f"planar body pronking on {n} compliant legs: all land and lift "
+                     f"off together every stride (d = 4, n = {n}, coupling = "
                      f"{coupling})"),
     )
 
@@ -180,10 +231,12 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
     guess = ex.x0 + np.asarray(perturbation, dtype=np.float64)
     kwargs.setdefault("section_gradient", apex_section_gradient)
     kwargs.setdefault("period_guess", 0.5)
-    return ex.system.periodic_orbit(guess, apex_section, **kwargs)
+    section = compiled_apex_section if ex.compiled else apex_section
+    return ex.system.periodic_orbit(guess, section, **kwargs)
 
 
-def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0):
+def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0,
+                     compiled=False):
     """The gait from model to stability verdict, with its checks against simulation.
 
     Finds the orbit (:func:`orbit`), its event groups, the return map's pieces met by a
@@ -201,6 +254,8 @@ def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0):
     strides : int
         Strides of the decay check.
     seed : int
+    compiled : bool
+        The compiled model (:func:`pronking` with ``compiled=True``), else the Python one.
 
     Returns
     -------
@@ -212,15 +267,16 @@ def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0):
     """
     from ..checks import decay_check, fd_check  # the checks simulate: only here
 
-    ex = pronking()
+    ex = pronking(compiled=compiled)
+    section = compiled_apex_section if compiled else apex_section
     orb = pronking_orbit(ex)
     st = orb.stability(seed=seed)
     R, rng = orb.return_map, np.random.default_rng(seed)
     W = rng.standard_normal((100_000, 4)) @ R.tangent_basis @ R.tangent_basis.T
     V = _one_per_piece(R, W)
-    fd = fd_check(ex.system, orb.x0, 3.0, V, R(V), eps=eps, section=apex_section)
+    fd = fd_check(ex.system, orb.x0, 3.0, V, R(V), eps=eps, section=section)
     D = rng.standard_normal((n_check, 3)) @ R.tangent_basis.T
-    decay = decay_check(ex.system, orb.x0, apex_section,
+    decay = decay_check(ex.system, orb.x0, section,
                         D / np.linalg.norm(D, axis=1)[:, None], eps=1e-2, strides=strides)
     return {
         "name": ex.name, "description": ex.description,

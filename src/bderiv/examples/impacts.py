@@ -26,8 +26,8 @@ velocities; ``x0`` is the state ``t_event`` earlier (both feet in the air), and
 from __future__ import annotations
 
 import numpy as np
+from numba.extending import register_jitable
 
-from ..models.system import HybridSystem
 from ._common import Example, flow_back
 
 __all__ = ["landing", "landing_summary", "summary_text"]
@@ -37,94 +37,106 @@ _G = 9.81
 _FOOT = ((2, 3, 4, 5), (6, 7, 8, 9))
 
 
-class _Feet:
-    """Affine fields ``A[mask] x + b[mask]``, the events, the resets and their Jacobians."""
+def _tables(foot_mass, leg_stiffness, leg_damping, ground_stiffness, ground_damping,
+            hip_stiffness, friction, thrust):
+    """The affine fields ``A[mask] x + b[mask]`` of the four regions: A (4, 10, 10), b
+    (4, 10)."""
+    m = foot_mass
+    A = np.zeros((4, 10, 10))
+    b = np.zeros((4, 10))
+    for mask in range(4):
+        Am, bm = A[mask], b[mask]
+        Am[0, 1] = 1.0
+        bm[1] = -_G
+        push = thrust if mask == 3 else 0.0
+        for i, (s, p, u, w) in enumerate(_FOOT):
+            # leg force f_i = k (1 - (Y - p_i)) - c (vY - w_i) + push, up on the body
+            f = np.zeros(10)
+            f[0], f[p], f[1], f[w] = -leg_stiffness, leg_stiffness, -leg_damping, leg_damping
+            f0 = leg_stiffness + push
+            Am[1] += f
+            bm[1] += f0
+            Am[s, u] = Am[p, w] = 1.0
+            Am[u, s] = -hip_stiffness / m
+            Am[w] = -f / m
+            bm[w] = -_G - f0 / m
+            if mask >> i & 1:  # stance: ground spring and damper, sliding damped
+                Am[w, p] -= ground_stiffness / m
+                Am[w, w] -= ground_damping / m
+                Am[u, u] -= friction / m
+    return A, b
 
-    def __init__(self, foot_mass, leg_stiffness, leg_damping, ground_stiffness,
-                 ground_damping, hip_stiffness, friction, thrust, coupling):
-        self.coupling = coupling
-        m = foot_mass
-        self.A = np.zeros((4, 10, 10))
-        self.b = np.zeros((4, 10))
-        for mask in range(4):
-            A, b = self.A[mask], self.b[mask]
-            A[0, 1] = 1.0
-            b[1] = -_G
-            push = thrust if mask == 3 else 0.0
-            for i, (s, p, u, w) in enumerate(_FOOT):
-                # leg force f_i = k (1 - (Y - p_i)) - c (vY - w_i) + push, up on the body
-                f = np.zeros(10)
-                f[0], f[p], f[1], f[w] = -leg_stiffness, leg_stiffness, -leg_damping, leg_damping
-                f0 = leg_stiffness + push
-                A[1] += f
-                b[1] += f0
-                A[s, u] = A[p, w] = 1.0
-                A[u, s] = -hip_stiffness / m
-                A[w] = -f / m
-                b[w] = -_G - f0 / m
-                if mask >> i & 1:  # stance: ground spring and damper, sliding damped
-                    A[w, p] -= ground_stiffness / m
-                    A[w, w] -= ground_damping / m
-                    A[u, u] -= friction / m
-        self.Dh = np.zeros((2, 10))
-        self.Dh[0, 3] = self.Dh[1, 7] = -1.0
 
-    def field(self, x, mask):
-        return self.A[mask] @ x + self.b[mask]
+@register_jitable
+def _stop(mask, k, coupling):
+    """The reset Jacobian of crossing event k from ``mask``: at touchdown (bit k clear) the
+    plastic stop of u_k, the other foot's u moved by ``-coupling u_k``; at lift-off no
+    jump."""
+    J = np.eye(10)
+    if not mask >> k & 1:
+        uk, uo = _FOOT[k][2], _FOOT[1 - k][2]
+        J[uk, uk] = 0.0
+        J[uo, uk] = -coupling
+    return J
 
-    def field_jacobian(self, x, mask):
-        return self.A[mask].copy()
 
-    def events(self, x):
-        return self.Dh @ x
+def _functions(A, b, coupling) -> dict:
+    """The landing's fields, events, resets and their Jacobians: plain functions over the
+    tables, for Python as they are and for numba compiled."""
+    Dh = np.zeros((2, 10))
+    Dh[0, 3] = Dh[1, 7] = -1.0  # h_i = -p_i
 
-    def event_jacobian(self, x):
-        return self.Dh.copy()
+    def field(x, mask):
+        return A[mask] @ x + b[mask]
 
-    def reset_jacobian(self, x, mask, k):
-        """Touchdown (bit k clear): the plastic stop of u_k, the other foot's u moved by
-        ``-coupling u_k``; lift-off: no jump."""
-        J = np.eye(10)
-        if not mask >> k & 1:
-            uk, uo = _FOOT[k][2], _FOOT[1 - k][2]
-            J[uk, uk] = 0.0
-            J[uo, uk] = -self.coupling
-        return J
+    def field_jacobian(x, mask):
+        return A[mask].copy()
 
-    def reset(self, x, mask, k):
-        return self.reset_jacobian(x, mask, k) @ x
+    def events(x):
+        return Dh @ x
+
+    def event_jacobian(x):
+        return Dh.copy()
+
+    def reset(x, mask, k):
+        return _stop(mask, k, coupling) @ x
+
+    def reset_jacobian(x, mask, k):
+        return _stop(mask, k, coupling)
+
+    return {"field": field, "events": events, "event_jacobian": event_jacobian,
+            "field_jacobian": field_jacobian, "reset": reset, "reset_jacobian": reset_jacobian}
 
 
 def landing(*, foot_mass=0.4, leg_stiffness=200.0, leg_damping=4.0, ground_stiffness=2000.0,
             ground_damping=20.0, hip_stiffness=30.0, friction=40.0, thrust=6.0,
-            coupling=0.0, t_event=0.1, t_after=0.1) -> Example:
-    """The two-foot landing (module docstring); ``coupling != 0``: the refused variant."""
-    model = _Feet(foot_mass, leg_stiffness, leg_damping, ground_stiffness, ground_damping,
-                  hip_stiffness, friction, thrust, coupling)
-    system = HybridSystem(model.field, model.events, n_events=2, dim=10,
-                          event_jacobian=model.event_jacobian,
-                          field_jacobian=model.field_jacobian, reset=model.reset,
-                          reset_jacobian=model.reset_jacobian)
+            coupling=0.0, t_event=0.1, t_after=0.1, compiled=False) -> Example:
+    """The two-foot landing (module docstring); ``coupling != 0``: the refused variant;
+    ``compiled``: the model's functions compiled with numba (the same equations)."""
+    A, b = _tables(foot_mass, leg_stiffness, leg_damping, ground_stiffness, ground_damping,
+                   hip_stiffness, friction, thrust)
+    functions = _functions(A, b, float(coupling))
     rho = np.array([1.0, -1.0, 0.05, 0.0, 0.6, -1.2, -0.05, 0.0, -0.6, -1.2])
-    x0 = flow_back(lambda x: model.field(x, 0), rho, t_event)
+    field = functions["field"]
+    x0 = flow_back(lambda x: field(x, 0), rho, t_event)
     name = "landing" if coupling == 0 else "landing-coupled"
     description = (f"body on two massive feet (mass {foot_mass:g}) landing together: plastic "
                    f"stop of the sliding at touchdown (reset), compliant ground, legs push "
                    f"in double support (d = 10, n = 2"
                    + (f", horizontal impulses coupled by {coupling:g})" if coupling else ")"))
-    return Example(system=system, rho=rho, x0=x0, t_event=float(t_event),
-                   t_final=float(f"{t_event + t_after:.15g}"), name=name,
-                   description=description)
+    return Example.from_functions(functions, compiled=compiled, n_events=2, dim=10,
+                                  rho=rho, x0=x0, t_event=t_event, t_after=t_after,
+                                  name=name, description=description)
 
 
-def landing_summary(*, n_check=8, eps=(1e-4, 1e-5, 1e-6), seed=0):
+def landing_summary(*, n_check=8, eps=(1e-4, 1e-5, 1e-6), seed=0, compiled=False):
     """The landing from model to checked B-derivative, and the refused variant.
 
     Simulates the landing (the event group and the resets it applied), builds the
     B-derivative M at the double touchdown and the flow map's D over ``[0, t_final]``,
     checks D against finite differences of the simulation on ``n_check`` random unit
     directions (both touchdown orders), and builds the coupled variant to show why it is
-    refused.
+    refused. ``compiled``: the compiled model (:func:`landing` with ``compiled=True``).
 
     Returns
     -------
@@ -135,7 +147,7 @@ def landing_summary(*, n_check=8, eps=(1e-4, 1e-5, 1e-6), seed=0):
     """
     from ..checks import fd_check  # simulates: only here
 
-    ex = landing()
+    ex = landing(compiled=compiled)
     system = ex.system
     traj = system.simulate(ex.x0, ex.t_final, simultaneity_tol=1e-7)
     M = system.bderivative(ex.rho)

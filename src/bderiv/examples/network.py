@@ -41,78 +41,71 @@ def _exponent_table(W):
     return E
 
 
-class _Network:
-    def __init__(self, n, extended, seed, coupling):
-        rng = np.random.default_rng(seed)
-        self.n = n
-        self.extended = extended
-        self.d = 2 * n if extended else n
-        self.r = rng.uniform(0.8, 1.2, n)
-        self.W = coupling * rng.standard_normal((n, n))
-        self.W2 = coupling * rng.standard_normal((n, n)) if extended else None
-        self.nxt = (np.arange(n) + 1) % n
+def _functions(r, W, W2, extended) -> dict:
+    """The network's field, events and their analytic Jacobians, and its corner table:
+    plain functions over the rates ``r`` and couplings ``W``, ``W2`` (zero unless
+    ``extended``), for Python as they are and for numba compiled (the corner table stays
+    Python)."""
+    n = r.size
+    d = 2 * n if extended else n
+    nxt = (np.arange(n) + 1) % n  # x_{k+1}, indices mod n
 
-    def _mask_bits(self, mask):
-        return ((int(mask) >> np.arange(self.n)) & 1).astype(np.float64)
-
-    def field(self, x, mask):
-        n = self.n
-        bits = self._mask_bits(mask)
+    def field(x, mask):
+        bits = ((mask >> np.arange(n)) & 1).astype(np.float64)  # bit j: event j happened
         xs = x[:n]
-        fx = self.r * np.exp(_S * np.tanh(bits @ self.W)) * (1 + 0.2 * np.tanh(xs[self.nxt]))
-        if not self.extended:
+        fx = r * np.exp(_S * np.tanh(bits @ W)) * (1 + 0.2 * np.tanh(xs[nxt]))
+        if not extended:
             return fx
-        y = x[n:]
-        fy = np.exp(_S * np.tanh(bits @ self.W2)) - 0.5 * y + 0.3 * np.tanh(xs)
+        fy = np.exp(_S * np.tanh(bits @ W2)) - 0.5 * x[n:] + 0.3 * np.tanh(xs)
         return np.concatenate((fx, fy))
 
-    def corner_field(self, x):
-        n = self.n
+    def field_jacobian(x, mask):
+        bits = ((mask >> np.arange(n)) & 1).astype(np.float64)
+        scale = r * np.exp(_S * np.tanh(bits @ W))
+        J = np.zeros((d, d))
+        for k in range(n):
+            J[k, nxt[k]] += scale[k] * 0.2 / np.cosh(x[nxt[k]]) ** 2
+            if extended:
+                J[n + k, n + k] = -0.5
+                J[n + k, k] = 0.3 / np.cosh(x[k]) ** 2
+        return J
+
+    def events(x):
         xs = x[:n]
-        rates = np.tanh(_exponent_table(self.W))
+        h = xs + _A * np.sin(xs[nxt])
+        if extended:
+            h = h + _C * np.tanh(x[n:])
+        return h
+
+    def event_jacobian(x):
+        D = np.zeros((n, d))
+        for k in range(n):
+            D[k, k] += 1.0
+            D[k, nxt[k]] += _A * np.cos(x[nxt[k]])
+            if extended:
+                D[k, n + k] = _C / np.cosh(x[n + k]) ** 2
+        return D
+
+    def corner_field(x):
+        xs = x[:n]
+        rates = np.tanh(_exponent_table(W))
         rates *= _S
         np.exp(rates, out=rates)
-        rates *= self.r * (1 + 0.2 * np.tanh(xs[self.nxt]))
-        if not self.extended:
+        rates *= r * (1 + 0.2 * np.tanh(xs[nxt]))
+        if not extended:
             return rates
-        fy = np.tanh(_exponent_table(self.W2))
+        fy = np.tanh(_exponent_table(W2))
         fy *= _S
         np.exp(fy, out=fy)
         fy += -0.5 * x[n:] + 0.3 * np.tanh(xs)
         return np.concatenate((rates, fy), axis=1)
 
-    def field_jacobian(self, x, mask):
-        n, d = self.n, self.d
-        bits = self._mask_bits(mask)
-        xs = x[:n]
-        J = np.zeros((d, d))
-        scale = self.r * np.exp(_S * np.tanh(bits @ self.W))
-        J[np.arange(n), self.nxt] += scale * 0.2 / np.cosh(xs[self.nxt]) ** 2
-        if self.extended:
-            J[n + np.arange(n), n + np.arange(n)] = -0.5
-            J[n + np.arange(n), np.arange(n)] = 0.3 / np.cosh(xs) ** 2
-        return J
-
-    def events(self, x):
-        n = self.n
-        xs = x[:n]
-        h = xs + _A * np.sin(xs[self.nxt])
-        if self.extended:
-            h = h + _C * np.tanh(x[n:])
-        return h
-
-    def event_jacobian(self, x):
-        n = self.n
-        xs = x[:n]
-        D = np.zeros((n, self.d))
-        D[np.arange(n), np.arange(n)] += 1.0
-        D[np.arange(n), self.nxt] += _A * np.cos(xs[self.nxt])
-        if self.extended:
-            D[np.arange(n), n + np.arange(n)] = _C / np.cosh(x[n:]) ** 2
-        return D
+    return {"field": field, "events": events, "event_jacobian": event_jacobian,
+            "field_jacobian": field_jacobian, "corner_field": corner_field}
 
 
-def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0.5):
+def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0.5,
+            compiled=False):
     """The rate-changing network with n simultaneous events at ``rho = 0``.
 
     Parameters
@@ -128,6 +121,9 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
         the rate of event k).
     t_event, t_after : float
         The events happen at ``t_event`` from ``x0``; ``t_final = t_event + t_after``.
+    compiled : bool
+        The model's functions compiled with numba (they run on the compiled integrator;
+        the corner table stays Python), else Python functions: the same equations.
 
     Returns
     -------
@@ -136,20 +132,28 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
     n = int(n)
     if not 1 <= n <= 24:
         raise ValueError(f"n must be in 1..24, got {n}")
-    net = _Network(n, check_bool(extended, "extended"), seed, float(coupling))
-    rho = np.zeros(net.d)
-    x0 = flow_back(lambda x: net.field(x, 0), rho, t_event)
-    return Example.from_model(
-        net,
+    extended = check_bool(extended, "extended")
+    rng = np.random.default_rng(seed)
+    r = rng.uniform(0.8, 1.2, n)
+    W = float(coupling) * rng.standard_normal((n, n))
+    W2 = float(coupling) * rng.standard_normal((n, n)) if extended else np.zeros((n, n))
+    functions = _functions(r, W, W2, extended)
+    d = 2 * n if extended else n
+    rho = np.zeros(d)
+    field = functions["field"]
+    x0 = flow_back(lambda x: field(x, 0), rho, t_event)
+    return Example.from_functions(
+        functions,
+        compiled=compiled,
         n_events=n,
-        dim=net.d,
+        dim=d,
         rho=rho,
         x0=x0,
         t_event=t_event,
         t_after=t_after,
         name=f"network(n={n}{', extended' if extended else ''})",
         description=(
-            f"first-order network, n = {n} events, d = {net.d}; each event changes the "
+            f"first-order network, n = {n} events, d = {d}; each event changes the "
             "rates of the others, so perturbations change order"
         ),
     )

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 
+import numba
 import numpy as np
 
 __all__ = ["APEX", "LABELS", "apex_section", "quadruped", "quadruped_figure",
@@ -92,8 +93,10 @@ def quadruped(**values):
                           params={p[n]: P[n] for n in P}, velocities=v, flags=flags)
 
 
+@numba.njit(cache=True)
 def apex_section(x):
-    """The apex section ``-vz``: crossed upward when the body starts to fall."""
+    """The apex section ``-vz``: crossed upward when the body starts to fall (compiled:
+    the compiled integrator watches it at every step)."""
     return -x[VZ]
 
 

@@ -19,44 +19,48 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import Example, complex_step_jacobian
-from .gaits import _Pronking, body, pronking
+from ._common import Example, compile_function
+from .gaits import Body, body, foot_offset, pronking, stance
 
-__all__ = ["apex_section", "apex_section_gradient", "running", "running_orbit"]
-
-#: the pronking body's coordinates (z, theta, vz, omega) in the running state
-_BODY = np.array([1, 2, 4, 5])
+__all__ = ["apex_section", "apex_section_gradient", "compiled_apex_section", "running",
+           "running_orbit"]
 
 
-class _Running:
-    def __init__(self, body: _Pronking, traction: float, v_target: float):
-        self.body, self.traction, self.v_target = body, traction, v_target
+def _functions(p: Body, traction: float, v_target: float) -> dict:
+    """The running model's field, events and event Jacobian (d = 6): the pronking body's
+    equations (:func:`~bderiv.examples.gaits.stance`) on ``(z, theta, vz, omega)`` and the
+    forward force; plain functions for Python as they are and for numba compiled."""
+    legs = p.a.size
+    push = 2.0 / legs * traction  # shared by the legs like the other forces
 
-    def field(self, x, mask):
-        mask = int(mask)
-        y = x[_BODY]
-        vz, omega, az, alpha = self.body.field(y, mask)
-        _, height, _ = self.body._feet(y)
-        share = 2.0 / self.body.legs
-        ax = 0.0 * x[0]
-        for k in range(self.body.legs):
+    def field(x, mask):
+        out = np.empty_like(x)
+        az, alpha = stance(x[1], x[2], x[4], x[5], mask, p)
+        ax = 0.0 * x[3]
+        for k in range(legs):
             if mask >> k & 1:
-                fx = share * self.traction * (self.v_target - x[3])
+                fx = push * (v_target - x[3])
                 ax = ax + fx
-                # the foot is height_k - z below the centre of mass (< 0): -r_z f_x
-                alpha = alpha - (height[k] - x[1]) * fx / self.body.inertia
-        return np.array([x[3], vz, omega, ax, az, alpha])
+                # the force acts at the foot, r_z below the centre of mass: -r_z f_x
+                alpha = alpha - foot_offset(p.a[k], p.leg, x[2])[1] * fx / p.inertia
+        out[0], out[1], out[2] = x[3], x[4], x[5]
+        out[3], out[4], out[5] = ax, az, alpha
+        return out
 
-    def field_jacobian(self, x, mask):
-        return complex_step_jacobian(lambda y: self.field(y, mask), x, 6)
+    def events(x):
+        out = np.empty(legs)
+        for k in range(legs):
+            out[k] = -(x[1] + foot_offset(p.a[k], p.leg, x[2])[1])
+        return out
 
-    def events(self, x):
-        return self.body.events(x[_BODY])
-
-    def event_jacobian(self, x):
-        D = np.zeros((self.body.legs, 6))
-        D[:, _BODY] = self.body.event_jacobian(x[_BODY])
+    def event_jacobian(x):
+        D = np.zeros((legs, 6))
+        for k in range(legs):
+            D[k, 1] = -1.0
+            D[k, 2] = -foot_offset(p.a[k], p.leg, x[2])[0]
         return D
+
+    return {"field": field, "events": events, "event_jacobian": event_jacobian}
 
 
 def apex_section(x):
@@ -64,12 +68,17 @@ def apex_section(x):
     return -x[4]
 
 
+#: :func:`apex_section` compiled: the section of a compiled model (``running(...,
+#: compiled=True)``)
+compiled_apex_section = compile_function(apex_section)
+
+
 def apex_section_gradient(x):
     """Gradient of :func:`apex_section`: ``-e_4``."""
     return -np.eye(6)[4]
 
 
-def running(*, v_target=1.0, traction=8.0, t_after=0.05, **params):
+def running(*, v_target=1.0, traction=8.0, t_after=0.05, compiled=False, **params):
     """The running body at the apex of its gait, moving at ``v_target``.
 
     Parameters
@@ -80,6 +89,9 @@ def running(*, v_target=1.0, traction=8.0, t_after=0.05, **params):
         Gain of the forward force per unit mass (shared by the legs).
     t_after : float
         ``t_final = t_event + t_after`` (the legs still touch then).
+    compiled : bool
+        The model's functions compiled with numba (the section is then
+        :data:`compiled_apex_section`), else Python functions: the same equations.
     **params
         The pronking body's parameters (:func:`bderiv.examples.gaits.pronking`: stiffness,
         damping, gain, legs, apex, ...).
@@ -91,14 +103,13 @@ def running(*, v_target=1.0, traction=8.0, t_after=0.05, **params):
         symmetric gait, ``t_event`` the fall time. :func:`running_orbit` finds the gait.
     """
     base = pronking(t_after=t_after, **params)
-    model = _Running(body(**{k: v for k, v in params.items() if k != "apex"}),
-                     float(traction), float(v_target))
+    p = body(**{k: v for k, v in params.items() if k != "apex"})
     x0 = np.array([0.0, base.x0[0], 0.0, v_target, 0.0, 0.0])
     rho = np.array([v_target * base.t_event, base.rho[0], 0.0, v_target, base.rho[2], 0.0])
-    n = model.body.legs
-    return Example.from_model(
-        model, n_events=n, dim=6, rho=rho, x0=x0, t_event=base.t_event, t_after=t_after,
-        name="running",
+    n = p.a.size
+    return Example.from_functions(
+        _functions(p, float(traction), float(v_target)), compiled=compiled, n_events=n,
+        dim=6, rho=rho, x0=x0, t_event=base.t_event, t_after=t_after, name="running",
         description=(f"planar body running on {n} compliant legs at a target speed "
                      f"{v_target:g} (d = 6, n = {n}; the forward position is cyclic)"),
     )
@@ -128,4 +139,5 @@ def running_orbit(example=None, *, perturbation=(0.0, 0.02, 0.01, -0.3, 0.0, -0.
     kwargs.setdefault("period_guess", 0.5)
     kwargs.setdefault("cyclic", [0])
     kwargs.setdefault("section_gradient", apex_section_gradient)
-    return ex.system.periodic_orbit(guess, apex_section, **kwargs)
+    section = compiled_apex_section if ex.compiled else apex_section
+    return ex.system.periodic_orbit(guess, section, **kwargs)

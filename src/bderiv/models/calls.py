@@ -441,7 +441,8 @@ class Section:
             raise TypeError(
                 f"the model's functions are numba-compiled, so section must be too (the "
                 f"compiled integrator evaluates it at every step), got the Python function "
-                f"{self.func!r}; compile it with numba.njit"
+                f"{self.func!r}; compile it with numba.njit (or integrate the model by "
+                f"solve_ivp: a bderiv.symbolic model's scipy_path())"
             )
         check_compiled(self.func, "section")
         return self.func

@@ -35,11 +35,13 @@ from ..orbit import ORBIT_OPTIONS, periodic_orbit
 from ..returnmap import return_map
 from .assembly import flow_map_along, point_bderivative
 from .calls import ModelCalls, Section
+from .integrate.many import Trajectories, check_states, run_many
 from .integrate.run import MAX_GROUPS, EventGroup, EventRecord, SolverOptions, Trajectory, run
 
 # EventGroup, EventRecord, Trajectory live in models.integrate.run: the types the methods
 # return, re-exported beside the model
-__all__ = ["EventGroup", "EventRecord", "HybridSystem", "SolverOptions", "Trajectory"]
+__all__ = ["EventGroup", "EventRecord", "HybridSystem", "SolverOptions", "Trajectories",
+           "Trajectory"]
 
 
 class HybridSystem(ModelCalls):
@@ -236,6 +238,62 @@ class HybridSystem(ModelCalls):
             section = Section(section, self.dim)
         return run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
                    max_groups=max_groups, section=section)
+
+    def simulate_many(self, X0, t_final, *, simultaneity_tol=1e-12, options=None,
+                      rtol=None, atol=None, method=None, max_step=None,
+                      max_groups=MAX_GROUPS, section=None, progress=None):
+        """:meth:`simulate` from every start state of a batch.
+
+        Each run is the one :meth:`simulate` makes from that state (the same trajectory,
+        to the bit), one after the other in this process
+        (:mod:`bderiv.models.integrate.many`: the stop logic is Python, so the runs are not
+        spread over threads; a compiled model integrates each stretch in compiled code).
+
+        Parameters
+        ----------
+        X0 : array_like, shape (m, d) or (..., d)
+            Start states, one per row; each not on an event surface.
+        t_final : float
+            Final time, > 0 (with ``section``: the longest time to wait).
+        simultaneity_tol, options, rtol, atol, method, max_step, max_groups, section
+            As for :meth:`simulate`, the same for every run.
+        progress : None, bool or callable ``progress(done, total)``, optional
+            None: a bar of the runs done, drawn once the batch has lasted a few seconds
+            (on a terminal); False: none; True: a tqdm bar from the start; a callable:
+            called after each run.
+
+        Returns
+        -------
+        Trajectories
+            ``trajectories`` (one :class:`Trajectory` per start state, also by ``len``,
+            iteration and ``runs[i]``), ``x_final`` of shape (..., d) and ``mask_final``
+            of shape (...).
+
+        Raises
+        ------
+        TypeError, ValueError
+            On a bad argument (named; ``X0`` of another shape than (..., d), or not
+            finite: the row is named); a run's ValueError or RuntimeError with the index
+            and value of its start state before the message.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from bderiv.models.system import HybridSystem
+        >>> s = HybridSystem(lambda x, mask: np.array([1.0, -x[0]]), lambda x: x[:1] - 1.0,
+        ...                  n_events=1, dim=2)
+        >>> runs = s.simulate_many(np.array([[0.0, 0.0], [0.5, 0.0]]), 2.0)
+        >>> runs.x_final.shape, [round(r.events[0].time, 9) for r in runs]
+        ((2, 2), [1.0, 0.5])
+        """
+        options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
+                                        max_step=max_step)
+        X0, lead = check_states(X0, self.dim)
+        if section is not None:
+            section = Section(section, self.dim)
+        return run_many(self, X0, lead, t_final, simultaneity_tol=simultaneity_tol,
+                        options=options, max_groups=max_groups, section=section,
+                        progress=progress)
 
     def flow_bderivative(self, x0, t_final, *, simultaneity_tol=1e-7, options=None,
                          rtol=None, atol=None, method=None, max_step=None):

@@ -10,12 +10,13 @@ Layout
 ------
 - ``_inputs``: the argument checks and the canonical symbols (the cache key);
 - ``_codegen``: derivation, cse and the generated source; it lists the kernels'
-  signatures (``field(x, mask, p, out)``, ...: the njit functions a compiled integrator
-  calls directly, the parameter values ``p`` an array argument);
+  signatures (``field(x, mask) -> (d,)``, ...: the njit functions the compiled
+  integrator calls directly, ``x`` the state followed by the parameter values);
 - ``_cache``: the cache folder (``$BDERIV_CACHE_DIR``), keys, storing and importing;
 - ``_model``: :func:`from_sympy`, the :class:`Kernels` record, the Python-facing
-  :class:`ModelFunctions` (the signatures ``HybridSystem`` calls today) and
-  :class:`SymbolicSystem` (a ``HybridSystem`` with ``with_params``);
+  :class:`ModelFunctions` (the state alone, the parameters appended) and
+  :class:`SymbolicSystem` (a ``HybridSystem`` on the compiled path, with
+  ``with_params``);
 - ``contacts``: :func:`contact_system`, bodies with point contacts (mass matrix, forces,
   gaps, stance law, impacts) and :class:`ContactSystem`, which checks simultaneous impacts;
 - ``_mechanics``: their kernels, the mass matrix solved in compiled code with exact

@@ -19,7 +19,7 @@ impact reset of contact k, ``v+ = v - (1 + e) w (J v) / (J w)`` with ``w = M^-1 
 ``J v`` is zeroed, ``-e J v`` otherwise), is differentiated the same way:
 ``M dw/dq_j = d J^T/dq_j - (dM/dq_j) w``. The kernels have the signatures of
 :mod:`bderiv.symbolic._codegen` (the same compile and cache path), plus
-``coupling(x, p, out)``: ``out`` (n, n) = ``J M^-1 J^T`` of all contacts.
+``coupling(x) -> (n, n)``, ``J M^-1 J^T`` of all contacts.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from . import _codegen
 from ._inputs import require_sympy
 
 #: bump when the generated source changes
-MECHANICS_VERSION = 1
+MECHANICS_VERSION = 2
 
-COUPLING_SIGNATURE = "void(float64[::1], float64[::1], float64[:, ::1])"
+COUPLING_SIGNATURE = "float64[:, ::1](float64[::1])"
 
 _SOLVE = '''
 @numba.njit(cache=True)
@@ -78,7 +78,8 @@ def _field_body(printer, model, jacobian: bool) -> list:
     outputs = [(f"M[{i}, {j}]", model.M[i][j], f"mass_matrix[{i}][{j}]")
                for i in range(m) for j in range(m)]
     outputs += [(f"b[{i}, 0]", model.b[i], f"the forces' row {i}") for i in range(m)]
-    lines = [*_codegen._preamble(model, True), f"{ind}M = np.empty(({m}, {m}))",
+    lines = [*_codegen._preamble(model, True, (d, d) if jacobian else d),
+             f"{ind}M = np.empty(({m}, {m}))",
              f"{ind}b = np.empty(({m}, 1))", *_codegen._block(printer, model, outputs, ind)]
     if jacobian:
         lines.append(f"{ind}M2 = M.copy()")
@@ -136,10 +137,10 @@ def _contact_rows(printer, model, ind, hessian: bool) -> list:
 def _reset_body(printer, model, jacobian: bool) -> list:
     """``v+ = v - (1 + e) w g / c``, ``g = J v``, ``c = J w`` (module docstring)."""
     m, d, ind = model.m, model.dim, "    "
-    lines = [*_codegen._preamble(model, True)]
+    lines = [*_codegen._preamble(model, True, (d, d) if jacobian else d)]
     lines += ([f"{ind}out[:, :] = 0.0", f"{ind}for i in range({d}):", f"{ind}    out[i, i] = 1.0"]
               if jacobian else [f"{ind}for i in range({d}):", f"{ind}    out[i] = x[i]"])
-    lines += [f"{ind}if (mask >> k) & 1:  # a lift-off: no impact", f"{ind}    return"]
+    lines += [f"{ind}if (mask >> k) & 1:  # a lift-off: no impact", f"{ind}    return out"]
     lines += _matrix_lines(printer, model, ind)
     lines += [f"{ind}J = np.zeros(({m}, 1))", f"{ind}W = np.zeros(({m}, 1))",
               f"{ind}M2 = np.empty(({m}, {m}))"]
@@ -173,7 +174,7 @@ def _coupling_body(printer, model) -> list:
     outputs = [(f"J[{i}, {k}]", model.J[k][i], f"the derivative of contacts[{k}] by "
                                                f"{model.show(model.x[i])}")
                for k in range(n) for i in range(m)]
-    return [*_codegen._preamble(model, False), *_matrix_lines(printer, model, ind),
+    return [*_codegen._preamble(model, False, (n, n)), *_matrix_lines(printer, model, ind),
             f"{ind}J = np.empty(({m}, {n}))", *_codegen._block(printer, model, outputs, ind),
             f"{ind}W = J.copy()", f"{ind}_solve(M, W)",
             f"{ind}for k in range({n}):", f"{ind}    for j in range({n}):",
@@ -195,21 +196,18 @@ def generate(model, key: str) -> str:
              "import math  # noqa: F401", "", "import numba", "import numpy as np", "",
              f"DIM = {model.dim}", f"N_EVENTS = {model.n_events}",
              f"N_PARAMS = {len(model.p)}", f"HAS_RESETS = {resets}", _SOLVE]
-    lines += _codegen._kernel("field", "x, mask, p, out", _field_body(printer, model, False))
-    lines += _codegen._kernel("field_jacobian", "x, mask, p, out",
-                              _field_body(printer, model, True))
+    lines += _codegen._kernel("field", "x, mask", _field_body(printer, model, False))
+    lines += _codegen._kernel("field_jacobian", "x, mask", _field_body(printer, model, True))
     events = [-phi for phi in model.contacts]
-    lines += _codegen._kernel("events", "x, p, out", _codegen._preamble(model, False)
+    d, n = model.dim, model.n_events
+    lines += _codegen._kernel("events", "x", _codegen._preamble(model, False, n)
                               + _codegen._vector(printer, model, events, "events"))
-    lines += _codegen._kernel("event_jacobian", "x, p, out", _codegen._preamble(model, False)
+    lines += _codegen._kernel("event_jacobian", "x", _codegen._preamble(model, False, (n, d))
                               + _codegen._jacobian(printer, model, events, "events"))
-    lines += _codegen._kernel("corner_field", "x, p, out",
-                              ["    for mask in range(out.shape[0]):",
-                               "        field(x, mask, p, out[mask])"])
+    lines += _codegen._kernel("corner_field", "x", _codegen.corner_body(model))
     if resets:
-        lines += _codegen._kernel("reset", "x, mask, k, p, out",
-                                  _reset_body(printer, model, False))
-        lines += _codegen._kernel("reset_jacobian", "x, mask, k, p, out",
+        lines += _codegen._kernel("reset", "x, mask, k", _reset_body(printer, model, False))
+        lines += _codegen._kernel("reset_jacobian", "x, mask, k",
                                   _reset_body(printer, model, True))
-    lines += _codegen._kernel("coupling", "x, p, out", _coupling_body(printer, model))
+    lines += _codegen._kernel("coupling", "x", _coupling_body(printer, model))
     return "\n".join(lines) + "\n"

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..models.compiled import CompiledModel
 from ..models.system import HybridSystem
 from . import _cache, _codegen
 from ._inputs import check_model, check_value, require_sympy
@@ -26,14 +27,14 @@ class Kernels:
     Attributes
     ----------
     field, field_jacobian, events, event_jacobian, corner_field : numba dispatcher
-        ``field(x, mask, p, out)`` ... as in :mod:`bderiv.symbolic._codegen`: ``x`` (d,)
-        and ``p`` (n_params,) C-contiguous float64, ``mask`` and ``k`` int64, ``out``
-        C-contiguous float64 of the kernel's shape.
+        ``field(x, mask) -> (d,)`` ... as in :mod:`bderiv.symbolic._codegen`: ``x``
+        (d + n_params,) C-contiguous float64, the state then the parameter values;
+        ``mask`` and ``k`` int64. Each returns a new array.
     reset, reset_jacobian : numba dispatcher or None
         None for a model without resets.
     dim, n_events, n_params : int
     param_names : tuple of str
-        The parameters in the order of ``p``.
+        The parameters in the order they follow the state in ``x``.
     source : pathlib.Path
         The generated module.
     """
@@ -62,6 +63,8 @@ class BuildInfo:
         The hash of the model's expressions (the cache file's name).
     cached : bool
         True when the generated source was found in the cache (no derivation).
+    check_seconds : float
+        Time of the argument checks and the cache key (the expressions' canonical text).
     derive_seconds : float
         Time of the symbolic derivation, cse and printing (0 when cached).
     load_seconds : float
@@ -71,6 +74,7 @@ class BuildInfo:
 
     key: str
     cached: bool
+    check_seconds: float
     derive_seconds: float
     load_seconds: float
 
@@ -78,9 +82,9 @@ class BuildInfo:
 class ModelFunctions:
     """The kernels with the Python signatures of :class:`~bderiv.models.system.HybridSystem`.
 
-    Each method allocates its output and calls its kernel with the parameter values
-    ``params``; the state is converted to a C-contiguous float64 array of shape (d,)
-    (other shapes are refused: the kernels do not check bounds).
+    Each method checks the state (converted to float64; shapes other than (d,) are
+    refused: the kernels do not check bounds) and calls its kernel on the state followed
+    by the parameter values ``params``.
     """
 
     def __init__(self, kernels: Kernels, params: np.ndarray):
@@ -88,60 +92,49 @@ class ModelFunctions:
         self.d, self.n = kernels.dim, kernels.n_events
 
     def _x(self, x):
-        x = np.ascontiguousarray(x, dtype=np.float64)
+        x = np.asarray(x, dtype=np.float64)
         if x.shape != (self.d,):
             raise ValueError(f"x must have shape ({self.d},), got shape {x.shape}")
-        return x
+        return np.concatenate((x, self.p))
 
     def field(self, x, mask):
         """``field(x, mask) -> (d,)``."""
-        out = np.empty(self.d)
-        self.k.field(self._x(x), mask, self.p, out)
-        return out
+        return self.k.field(self._x(x), mask)
 
     def field_jacobian(self, x, mask):
         """``field_jacobian(x, mask) -> (d, d)``."""
-        out = np.empty((self.d, self.d))
-        self.k.field_jacobian(self._x(x), mask, self.p, out)
-        return out
+        return self.k.field_jacobian(self._x(x), mask)
 
     def events(self, x):
         """``events(x) -> (n,)``."""
-        out = np.empty(self.n)
-        self.k.events(self._x(x), self.p, out)
-        return out
+        return self.k.events(self._x(x))
 
     def event_jacobian(self, x):
         """``event_jacobian(x) -> (n, d)``."""
-        out = np.empty((self.n, self.d))
-        self.k.event_jacobian(self._x(x), self.p, out)
-        return out
+        return self.k.event_jacobian(self._x(x))
 
     def corner_field(self, x):
         """``corner_field(x) -> (2**n, d)``: row ``mask`` is ``field(x, mask)``."""
-        out = np.empty((1 << self.n, self.d))
-        self.k.corner_field(self._x(x), self.p, out)
-        return out
+        return self.k.corner_field(self._x(x))
 
     def reset(self, x, mask, k):
         """``reset(x, mask, k) -> (d,)``."""
-        out = np.empty(self.d)
-        self.k.reset(self._x(x), mask, k, self.p, out)
-        return out
+        return self.k.reset(self._x(x), mask, k)
 
     def reset_jacobian(self, x, mask, k):
         """``reset_jacobian(x, mask, k) -> (d, d)``."""
-        out = np.empty((self.d, self.d))
-        self.k.reset_jacobian(self._x(x), mask, k, self.p, out)
-        return out
+        return self.k.reset_jacobian(self._x(x), mask, k)
 
 
 class SymbolicSystem(HybridSystem):
     """A :class:`~bderiv.models.system.HybridSystem` built by :func:`from_sympy`.
 
     Every method of ``HybridSystem`` applies. Its functions are :attr:`functions`
-    (:class:`ModelFunctions`, Python signatures), over the compiled :attr:`kernels`
-    (:class:`Kernels`, the njit functions taking the parameter values as an array).
+    (:class:`ModelFunctions`, Python signatures) over the compiled :attr:`kernels`
+    (:class:`Kernels`, the njit functions), which are also its :attr:`compiled` model:
+    the trajectories are integrated by the compiled integrator (scipy's DOP853 in compiled
+    code, the kernels called without Python; a section must then be a numba dispatcher),
+    unless the system is on the scipy path (:meth:`scipy_path`).
 
     Attributes
     ----------
@@ -152,17 +145,35 @@ class SymbolicSystem(HybridSystem):
     build : BuildInfo
     """
 
-    def __init__(self, kernels: Kernels, params, build: BuildInfo):
-        # the kernels take a writable array (numba types read-only arrays apart)
+    def __init__(self, kernels: Kernels, params, build: BuildInfo, *, compiled=True):
         self.functions = f = ModelFunctions(kernels, np.array(params, dtype=np.float64))
         self.params = f.p.view()
         self.params.flags.writeable = False
-        self.kernels, self.build = kernels, build
+        self.kernels, self.build, self._on_compiled_path = kernels, build, compiled
         resets = kernels.reset is not None
+        # the Jacobians are derived, not written by hand: no difference check at first use
         super().__init__(f.field, f.events, n_events=kernels.n_events, dim=kernels.dim,
                          event_jacobian=f.event_jacobian, field_jacobian=f.field_jacobian,
                          corner_field=f.corner_field, reset=f.reset if resets else None,
-                         reset_jacobian=f.reset_jacobian if resets else None)
+                         reset_jacobian=f.reset_jacobian if resets else None,
+                         check_jacobians=False)
+
+    @property
+    def compiled(self) -> CompiledModel | None:
+        """The compiled integrator's model: the kernels ``field``, ``events`` and
+        ``field_jacobian`` with this system's parameter values (None on the scipy path)."""
+        if self._compiled is None and self._on_compiled_path:
+            k = self.kernels
+            self._compiled = CompiledModel(k.field, k.events, k.field_jacobian,
+                                           n_events=k.n_events, dim=k.dim,
+                                           params=self.functions.p)
+        return self._compiled
+
+    def scipy_path(self) -> SymbolicSystem:
+        """The same model integrated by :func:`scipy.integrate.solve_ivp` through the
+        Python wrappers (:attr:`functions`): for a Python section, another method than
+        DOP853, or to compare the two integrators."""
+        return self._copy(self.params, compiled=False)
 
     @property
     def param_values(self) -> dict:
@@ -182,7 +193,8 @@ class SymbolicSystem(HybridSystem):
         Returns
         -------
         SymbolicSystem
-            A new system sharing this one's kernels; unnamed parameters keep their value.
+            A new system sharing this one's kernels (on the same path); unnamed
+            parameters keep their value.
 
         Raises
         ------
@@ -203,11 +215,12 @@ class SymbolicSystem(HybridSystem):
                 raise ValueError(f"{name} is not a parameter of this model (its parameters: "
                                  f"{known})")
             new[index[str(name)]] = check_value(value, f"the value of {name}")
-        return self._with_values(new)
+        return self._copy(new, compiled=self._on_compiled_path)
 
-    def _with_values(self, values) -> SymbolicSystem:
-        """This system's kernels with the parameter values ``values`` (checked)."""
-        return SymbolicSystem(self.kernels, values, self.build)
+    def _copy(self, values, *, compiled) -> SymbolicSystem:
+        """This system's kernels with the parameter values ``values`` (checked), on the
+        compiled path or not."""
+        return SymbolicSystem(self.kernels, values, self.build, compiled=compiled)
 
     def __repr__(self):
         params = ", ".join(f"{k}={v:g}" for k, v in self.param_values.items())
@@ -223,7 +236,7 @@ def _locate_compile_error(model, exc):
 
     namespace = {}
     exec(compile(_codegen.probe_source(model), "<bderiv.symbolic probe>", "exec"), namespace)
-    sig = "float64(float64[::1], int64, float64[::1])"
+    sig = "float64(float64[::1], int64)"
     for i, (label, e) in enumerate(model.labelled()):
         try:
             numba.njit(sig)(namespace[f"probe_{i}"])
@@ -323,22 +336,24 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
     OSError
         If the cache folder cannot be created or written (named).
     """
+    started = time.perf_counter()
     sympy = require_sympy()
     model = check_model(state, flags, field, events, resets, params)
     _, kernels, build = load_model(
         model, [f"bderiv.symbolic codegen {_codegen.CODEGEN_VERSION}",
                 f"sympy {sympy.__version__}", *model.canonical_text()],
-        _codegen.generate, cache_dir)
+        _codegen.generate, cache_dir, started=started)
     return SymbolicSystem(kernels, model.values, build)
 
 
-def load_model(model, key_parts, generate, cache_dir, extra=None):
+def load_model(model, key_parts, generate, cache_dir, extra=None, *, started):
     """The generated module of ``model``, its kernels and how they were got.
 
     ``key_parts`` (strings) identify the model and its generator; ``generate(model, key)``
     returns the module's source, written to the cache unless it is there already;
     ``extra`` ``{name: signature}`` are further kernels of the module compiled likewise
-    (``module.<name>``).
+    (``module.<name>``); ``started`` is when the caller began checking its arguments
+    (:func:`time.perf_counter`).
 
     Returns
     -------
@@ -364,6 +379,6 @@ def load_model(model, key_parts, generate, cache_dir, extra=None):
     except Exception as exc:  # numba refused the generated source: name the expression
         path.unlink(missing_ok=True)
         raise _locate_compile_error(model, exc) from None
-    build = BuildInfo(key=key, cached=cached, derive_seconds=derived - start,
-                      load_seconds=time.perf_counter() - derived)
+    build = BuildInfo(key=key, cached=cached, check_seconds=start - started,
+                      derive_seconds=derived - start, load_seconds=time.perf_counter() - derived)
     return module, kernels, build

@@ -48,10 +48,19 @@ from __future__ import annotations
 
 import functools
 import numbers
+import time
 
 import numpy as np
 
-from ._inputs import _check_free, _expressions, _sequence, _symbols, check_value, require_sympy
+from ._inputs import (
+    _check_free,
+    _expressions,
+    _sequence,
+    _symbols,
+    check_value,
+    require_sympy,
+    tree_text,
+)
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
 from ._model import SymbolicSystem, load_model
 
@@ -156,9 +165,9 @@ class ContactModel:
 
     def canonical_text(self) -> list:
         """Strings that identify the model (not the parameter values): the cache key."""
-        sp = require_sympy()
+        memo = {}
         return [f"m={self.m} n={self.n_events} p={len(self.p)} coriolis={self.coriolis}",
-                *(f"{label}={sp.srepr(e)}" for label, e in self.labelled())]
+                *(f"{label}={tree_text(e, memo)}" for label, e in self.labelled())]
 
 
 class ContactSystem(SymbolicSystem):
@@ -174,14 +183,14 @@ class ContactSystem(SymbolicSystem):
         m; the state is ``(q, q')``, d = 2m.
     """
 
-    def __init__(self, kernels, params, build, coupling_kernel, contacts):
-        super().__init__(kernels, params, build)
+    def __init__(self, kernels, params, build, coupling_kernel, contacts, *, compiled=True):
+        super().__init__(kernels, params, build, compiled=compiled)
         self._coupling_kernel, self.contacts = coupling_kernel, contacts
         self.n_coordinates = self.dim // 2
 
-    def _with_values(self, values) -> ContactSystem:
+    def _copy(self, values, *, compiled) -> ContactSystem:
         return ContactSystem(self.kernels, values, self.build, self._coupling_kernel,
-                             self.contacts)
+                             self.contacts, compiled=compiled)
 
     def coupling(self, x) -> np.ndarray:
         """``J M^-1 J^T`` (n, n) at the state ``x`` (d,) or the coordinates ``q`` (m,):
@@ -211,10 +220,7 @@ class ContactSystem(SymbolicSystem):
         if x.shape not in ((m,), (2 * m,)):
             raise ValueError(f"x must be a state of shape ({2 * m},) or coordinates of shape "
                              f"({m},), got shape {x.shape}")
-        x = np.ascontiguousarray(np.concatenate((x[:m], np.zeros(m))))
-        out = np.empty((self.n_events, self.n_events))
-        self._coupling_kernel(x, self.functions.p, out)
-        return out
+        return self._coupling_kernel(np.concatenate((x[:m], np.zeros(m), self.functions.p)))
 
     def eval_reset(self, x, mask, k):
         """The state after the impact of contact k, refused (ValueError naming the
@@ -387,6 +393,7 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     >>> corner.functions.reset(np.array([1.0, 0.0, 0.5, -3.0]), 0, 0)
     array([1. , 0. , 0.5, 2.4])
     """
+    started = time.perf_counter()
     sp = require_sympy()
     q = _symbols(q, "q")
     m = len(q)
@@ -468,5 +475,6 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         original={c: u for u, c in to.items()}, names=tuple(map(str, phis)))
     module, kernels, build = load_model(
         model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"sympy {sp.__version__}",
-                *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE})
+                *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE},
+        started=started)
     return ContactSystem(kernels, model.values, build, module.coupling, model.names)

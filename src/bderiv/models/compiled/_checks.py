@@ -124,12 +124,14 @@ def format_state(x) -> str:
     return "[" + ", ".join(repr(float(v)) for v in x) + "]"
 
 
-def raise_failed_check(status, fn, name, x, mask, d, n) -> None:
-    """Raise the ValueError of a failed output check of ``fn`` (``name``) at ``x``."""
+def raise_failed_check(status, fn, name, x, mask, d, n, params=None) -> None:
+    """Raise the ValueError of a failed output check of ``fn`` (``name``) at ``x`` (the
+    model's ``params`` after it, but for the section)."""
     _, call, shape_of, shape_code, _ = _FUNCTIONS[name]
     region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
     x = np.ascontiguousarray(x, dtype=np.float64)
-    value = np.asarray(fn(x.copy(), mask) if "mask" in call else fn(x.copy()))
+    arg = x if params is None or name == "section" else np.concatenate((x, params))
+    value = np.asarray(fn(arg.copy(), mask) if "mask" in call else fn(arg.copy()))
     where = f"in {region} at x = {format_state(x)}"
     if status == shape_code:
         raise ValueError(
@@ -141,10 +143,12 @@ def raise_failed_check(status, fn, name, x, mask, d, n) -> None:
     raise ValueError(f"{call} returned a non-finite value{entry} {where}")
 
 
-def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN) -> None:
+def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
+                     params=None) -> None:
     """Raise the error of a failed driver run: its status code, the state ``x`` at ``t``.
 
-    ``named`` maps "field", "events", "field_jacobian", "section" to the functions passed.
+    ``named`` maps "field", "events", "field_jacobian", "section" to the functions passed;
+    ``params`` are the model's parameter values (None: none).
     """
     region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
     if status == STEP_UNDERFLOW:
@@ -166,4 +170,4 @@ def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN) -> Non
             f"the Jacobian of field computed by {how} (no field_jacobian given) is not "
             f"finite in {region} at x = {format_state(x)}"
         )
-    raise_failed_check(status, named[name], name, x, mask, d, n)
+    raise_failed_check(status, named[name], name, x, mask, d, n, params)

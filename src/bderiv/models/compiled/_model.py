@@ -4,13 +4,15 @@ The driver is compiled once for first-class function types (:mod:`._rhs`), so a 
 does not recompile it. Passing dispatchers from Python as first-class functions costs
 numba a compile-result lookup each, about 50 us per function per call (measured: 150 us of
 a 220 us stretch at d = 8); a struct holding the functions is passed for about 1 us.
-:func:`bound_model` builds that struct once per set of functions and keeps it.
+:func:`bound_model` builds that struct once per set of functions and keeps it. The struct
+also holds the model's parameter values (an empty array for a model without: :mod:`._rhs`).
 """
 
 from __future__ import annotations
 
 from functools import lru_cache
 
+import numpy as np
 from numba import types
 from numba.experimental import structref
 
@@ -34,27 +36,39 @@ class _ModelType(types.StructRef):
 
 class _Model(structref.StructRefProxy):
     """A model's ``field``, ``jacobian``, ``events``, complex field and section as
-    first-class functions."""
+    first-class functions, and its parameter values."""
 
 
-_MEMBERS = ("field", "jacobian", "events", "cfield", "section")
+_MEMBERS = ("field", "jacobian", "events", "cfield", "section", "params")
 structref.define_proxy(_Model, _ModelType, list(_MEMBERS))
-_TYPES = (FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, COMPLEX_FIELD_TYPE, SECTION_TYPE)
+_TYPES = (FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, COMPLEX_FIELD_TYPE, SECTION_TYPE,
+          types.float64[::1])
 MODEL_TYPE = _ModelType(list(zip(_MEMBERS, _TYPES, strict=True)))
+#: the parameters of a model without
+NO_PARAMS = np.empty(0)
 
 
 @eager(MODEL_TYPE(*_TYPES))
-def _bind(field, jacobian, events, cfield, section):
+def _bind(field, jacobian, events, cfield, section, params):
     model = structref.new(MODEL_TYPE)
     model.field = field
     model.jacobian = jacobian
     model.events = events
     model.cfield = cfield
     model.section = section
+    model.params = params
     return model
 
 
 @lru_cache(maxsize=64)
-def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_section):
-    """The struct of checked dispatchers (kept for the 64 latest sets)."""
-    return _bind(field, jacobian, events, cfield, section)
+def _bound(field, jacobian, events, cfield, section):
+    return _bind(field, jacobian, events, cfield, section, NO_PARAMS)
+
+
+def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_section,
+                params=None):
+    """The struct of checked dispatchers and parameter values ``params`` (C-contiguous
+    float64; None: none). Without parameters it is kept for the 64 latest sets."""
+    if params is None:
+        return _bound(field, jacobian, events, cfield, section)
+    return _bind(field, jacobian, events, cfield, section, params)

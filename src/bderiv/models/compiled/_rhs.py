@@ -9,6 +9,11 @@ Without a ``field_jacobian``, ``J`` is computed here (:func:`jacobian`): by comp
 when the field compiles for complex input (exact to rounding: no difference is taken), else
 by central differences, each coordinate with a step from its own magnitude.
 
+A model with parameters (:class:`~bderiv.models.compiled.CompiledModel`'s ``params``, m values)
+has functions that take ``x`` of length d + m, the state followed by the parameter values
+(:func:`argument`): a parameter change is another array in the model's struct, not
+another compilation. The section takes the state alone.
+
 Every output of a user function is checked here (shape, finite); a failure returns a status
 code and leaves the state in ``bad``, and the driver stops: the Python side turns the code
 into an error that names the function, the region and the state.
@@ -77,23 +82,35 @@ def coordinate_scale(v):
 
 
 @njit(cache=True)
+def argument(model, x):
+    """What the model's functions take at the state ``x`` (d,): a fresh copy of it,
+    followed by the model's parameter values (none for a model without)."""
+    p = model.params
+    a = np.empty(x.size + p.size)
+    a[:x.size] = x
+    a[x.size:] = p
+    return a
+
+
+@njit(cache=True)
 def jacobian(model, mode, x, mask, d, J):
     """``J = d field(x, mask) / dx`` (d, d) by ``mode``; a status (checked: shape, finite).
 
-    ``x`` is a copy the function may change. Complex step: column j is
+    ``x`` (d,) is the state. Complex step: column j is
     ``Im field(x + i h e_j) / h``; central differences: ``(f(x + h e_j) - f(x - h e_j))
     / (2 h)`` with the step as represented (``(x_j + h) - x_j``).
     """
     if mode == JAC_GIVEN:
-        given = model.jacobian(x, mask)
+        given = model.jacobian(argument(model, x), mask)
         if given.shape[0] != d or given.shape[1] != d:
             return JACOBIAN_SHAPE
         J[:, :] = given
     elif mode == JAC_COMPLEX_STEP:
-        z = np.empty(d, dtype=np.complex128)
+        base = argument(model, x)
+        z = np.empty(base.size, dtype=np.complex128)
         for j in range(d):
             h = COMPLEX_STEP * coordinate_scale(x[j])
-            z[:] = x
+            z[:] = base
             z[j] = complex(x[j], h)
             f = model.cfield(z, mask)
             if f.size != d:
@@ -101,10 +118,10 @@ def jacobian(model, mode, x, mask, d, J):
             for i in range(d):
                 J[i, j] = f[i].imag / h
     else:
-        xs = x.copy()
+        xs = argument(model, x)
         for j in range(d):
             step = CENTRAL_STEP * coordinate_scale(x[j])
-            xs[:] = x
+            xs[:d] = x
             xs[j] = x[j] + step
             up_step = xs[j] - x[j]
             up = model.field(xs.copy(), mask)
@@ -123,11 +140,11 @@ def rhs(model, mode, variational, mask, d, y, out, bad):
     """``out = f(y)``: the field at ``x = y[:d]``, and ``J(x) Phi`` when ``variational``
     (``out`` may be shorter than ``y``: the state's part only, for ``d`` entries).
 
-    The user's functions get a fresh copy of ``x`` (they may keep or change it). Returns
+    The user's functions get a fresh copy of ``x`` (they may keep or change it;
+    :func:`argument`). Returns
     ``OK`` or the code of the failed check, the state copied into ``bad``.
     """
-    x = y[:d].copy()
-    f = model.field(x, mask)
+    f = model.field(argument(model, y[:d]), mask)
     status = OK
     if f.size != d:
         status = FIELD_SHAPE
@@ -150,7 +167,7 @@ def call_events(model, with_section, x, n, g, bad):
     """``g = events(x)`` checked (shape, finite), and ``g[n - 1] = section(x)`` when
     ``with_section``; a status as :func:`rhs`."""
     m = n - 1 if with_section else n
-    value = model.events(x.copy())
+    value = model.events(argument(model, x))
     if value.size != m:
         bad[:] = x
         return EVENTS_SHAPE
@@ -183,7 +200,7 @@ def field_rows(model, x, masks, d, out):
     """``out[i] = field(x, masks[i])`` for every mask, checked: ``(status, i)`` (i: the
     failed mask's index)."""
     for i in range(masks.size):
-        f = model.field(x.copy(), masks[i])
+        f = model.field(argument(model, x), masks[i])
         if f.size != d:
             return FIELD_SHAPE, i
         if not all_finite(f):

@@ -47,6 +47,12 @@ class CompiledModel:
         (d, d)`` (optional: complex step where ``field`` compiles for complex input, else
         central differences).
     n_events, dim : int
+    params : array_like, shape (m,), optional
+        Parameter values: the functions then take ``x`` of shape (d + m,), the state
+        followed by ``params`` (the section takes the state alone), so that a model
+        whose parameters change (``bderiv.symbolic``'s ``with_params``) is another
+        ``CompiledModel`` over the same compiled functions, not another compilation.
+        ``field_jacobian`` is the Jacobian by the state, (d, d).
 
     Raises
     ------
@@ -57,7 +63,7 @@ class CompiledModel:
         More than ``MAX_EVENTS`` events (the region mask is an int64).
     """
 
-    def __init__(self, field, events, field_jacobian=None, *, n_events, dim):
+    def __init__(self, field, events, field_jacobian=None, *, n_events, dim, params=None):
         if n_events > MAX_EVENTS:
             raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
                              f"bit each of an int64 region mask), got n_events={n_events}")
@@ -73,14 +79,20 @@ class CompiledModel:
         else:
             self.jac_mode = JAC_CENTRAL
         self.n_events, self.dim = n_events, dim
+        self.params = None if params is None else np.array(params, dtype=np.float64).ravel()
+        self._structs = {}
 
     def struct(self, section=None):
-        """The driver's struct of the functions (with ``section``, a checked dispatcher)."""
-        f = self.named
-        return bound_model(f["field"], f.get("field_jacobian", no_jacobian), f["events"],
-                           f["field"] if self.jac_mode == JAC_COMPLEX_STEP
-                           else no_complex_field,
-                           no_section if section is None else section)
+        """The driver's struct of the functions (with ``section``, a checked dispatcher)
+        and the parameters."""
+        key = (section, self.jac_mode)
+        if key not in self._structs:
+            f = self.named
+            self._structs[key] = bound_model(
+                f["field"], f.get("field_jacobian", no_jacobian), f["events"],
+                f["field"] if self.jac_mode == JAC_COMPLEX_STEP else no_complex_field,
+                no_section if section is None else section, self.params)
+        return self._structs[key]
 
     def use_central_differences(self) -> None:
         """Compute ``J`` by central differences from now on (complex step found wrong)."""
@@ -94,7 +106,7 @@ class CompiledModel:
         status = jacobian(self.struct(), self.jac_mode, x.copy(), int(mask), d, J)
         if status != OK:
             raise_failed_run(status, self.named, x, 0.0, mask, d, self.n_events,
-                             self.jac_mode)
+                             self.jac_mode, self.params)
         return J
 
     def events_rows(self, X) -> np.ndarray:
@@ -104,7 +116,8 @@ class CompiledModel:
         bad = np.zeros(self.dim)
         status = events_rows(self.struct(), X, self.n_events, G, bad)
         if status != OK:
-            raise_failed_run(status, self.named, bad, 0.0, 0, self.dim, self.n_events)
+            raise_failed_run(status, self.named, bad, 0.0, 0, self.dim, self.n_events,
+                             params=self.params)
         return G
 
     def fields(self, x, masks) -> np.ndarray:
@@ -115,7 +128,7 @@ class CompiledModel:
         status, i = field_rows(self.struct(), x, masks, self.dim, out)
         if status != OK:
             raise_failed_run(status, self.named, x, 0.0, int(masks[i]), self.dim,
-                             self.n_events)
+                             self.n_events, params=self.params)
         return out
 
     def stretch(self, y0, t0, t_final, mask, *, rtol, atol, max_step, variational,
@@ -158,7 +171,8 @@ class CompiledModel:
             ) from exc
         if out.status not in (FINISHED, EVENT):
             named = dict(self.named, section=section)
-            raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n, self.jac_mode)
+            raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n, self.jac_mode,
+                             self.params)
         return out
 
 

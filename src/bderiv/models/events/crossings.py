@@ -127,7 +127,7 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     array([1.1e-11])
     """
     err = state_error(options.atol, options.rtol, scale)
-    return np.abs(Dh) @ np.broadcast_to(err, Dh.shape[1:])
+    return np.abs(Dh) @ (err if err.shape == Dh.shape[1:] else np.full(Dh.shape[1], err))
 
 
 def switch(system, fired, mask, x, t, simultaneity_tol, err):
@@ -176,14 +176,10 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err):
     classes = classify(h, rate, window, fired, simultaneity_tol)
     group = classes.group
     _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
-    for k in group:
-        _check_crossing(k, Dh[k], F, mask, f"before switching events {group}", t, sign[k], n)
+    _check_crossings(group, Dh, F, mask, "before", t, sign, n)
     if not system.has_resets:  # every event lands on the far side, and must move on
         new = mask ^ sum(1 << k for k in group)
-        F_new = system.eval_field(x, new)
-        for k in group:
-            _check_crossing(k, Dh[k], F_new, new, f"after switching events {group}", t,
-                            sign[k], n)
+        _check_crossings(group, Dh, system.eval_field(x, new), new, "after", t, sign, n)
         return group, new, x
     x_after = apply_resets(system, group, mask, x, t, RESET_MISMATCH * float(err.max()))
     _check_jumps(sign * system.eval_events(x_after), group, window, t)
@@ -285,6 +281,20 @@ def _check_jumps(h, group, tol, t):
                 f"surface of event {k} (h_{k} = {h[k]:.3g} in the orientation it would be "
                 f"crossed), a jump that is not a crossing; such models are not supported"
             )
+
+
+def _check_crossings(group, Dh, F, mask, when, t, sign, n):
+    """Refuse a crossing of an event of ``group`` whose rate ``Dh_k . F`` in region ``mask``
+    is not clearly positive (:func:`_clearly_positive`, every event at once): grazing, or
+    pushed back (``when``: "before" or "after" switching the group; ``Dh`` and ``sign``:
+    the gradients and signs of the local orientation, all n events)."""
+    rows = Dh[group]
+    rate = rows @ F
+    clear = rate > GRAZING_RTOL * np.sqrt(np.einsum("ij,ij->i", rows, rows)) * np.sqrt(F @ F)
+    if clear.all():
+        return
+    for k in group:  # one by one: the first refused is named
+        _check_crossing(k, Dh[k], F, mask, f"{when} switching events {group}", t, sign[k], n)
 
 
 def _check_crossing(k, dh, F, mask, when, t, sign, n):

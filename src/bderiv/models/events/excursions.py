@@ -41,6 +41,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from ._peaks import peak_rows
 from .crossings import group_tolerance
 
 __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
@@ -106,20 +107,12 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH)
     >>> peak_brackets(h - 1.0, np.array([1e-11]))
     []
     """
-    m, n = h.shape
+    m = h.shape[0]
     if m < 2:
         return []
-    edge = np.full((1, n), -np.inf)
-    left = np.concatenate((edge, h[:-1]))
-    right = np.concatenate((h[1:], edge))
-    low = np.minimum(np.where(np.isfinite(left), left, right),
-                     np.where(np.isfinite(right), right, left))
-    peak = (h >= left) & (h >= right) & (h + reach * (h - low) >= -tol)
-    if stretch:
-        peak[[0, -1]] &= h[[0, -1]] < -tol
-    ks, rows = np.nonzero(peak.T)  # event by event, samples in order
-    out = [(int(k), max(int(i) - 1, 0), min(int(i) + 1, m - 1))
-           for k, i in zip(ks, rows, strict=True)]
+    rows = peak_rows(np.ascontiguousarray(h, dtype=np.float64),
+                     np.ascontiguousarray(tol, dtype=np.float64), bool(stretch), float(reach))
+    out = [(k, max(i - 1, 0), min(i + 1, m - 1)) for k, i in rows.tolist()]
     return sorted(out, key=lambda b: (b[1], b[0]))
 
 
@@ -209,8 +202,9 @@ def _earliest_lost(system, sign, options, sol, events_at):
     states = sol.sol(times)[:d].T
     h = sign * events_at(states)
     scale = np.abs(states).max(axis=0)  # per component: only those an event reads count
-    tol = group_tolerance(sign[:, None] * system.eval_event_jacobian(states[-1]), options,
-                          scale)
+    # the gradients at the stretch's end, the point the switching rule looks at (one
+    # evaluation for both where the run keeps them: locate.StopCalls)
+    tol = group_tolerance(system.eval_event_jacobian(sol.y[:d, -1]), options, scale)
     # a peak at an end of the stretch is not an excursion: at the start the events were
     # just switched (one may sit a rounding across its surface), at the stop an event is
     # located, or across and switched with it (crossings.switch)

@@ -28,6 +28,7 @@ import numpy as np
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
     "Classes",
+    "StopCalls",
     "classify",
     "local_view",
     "on_side_at_start",
@@ -168,9 +169,73 @@ def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     return Classes(group, near, undecided)
 
 
+class StopCalls:
+    """A model's checked evaluations at the stops of one run, each kept for the last state
+    it was asked at (and mask, for the field).
+
+    At a stop the excursion screen, :func:`settle`, :func:`.crossings.switch` and the
+    final time look at the same state: the event Jacobian (numerical where not given: tens
+    of calls of ``events``), the events and the region's field are evaluated there once.
+    The arrays given out are shared: read them, do not change them. Everything else is the
+    model's own (``calls.dim``, ``calls.eval_reset``, ...).
+
+    Parameters
+    ----------
+    system : HybridSystem
+        The model (any object with the checked evaluations).
+
+    Examples
+    --------
+    >>> from bderiv.models.system import HybridSystem
+    >>> seen = []
+    >>> s = HybridSystem(lambda x, mask: -x, lambda x: seen.append(1) or x[:1], n_events=1,
+    ...                  dim=2)
+    >>> calls = StopCalls(s)
+    >>> a = calls.eval_events(np.ones(2)); b = calls.eval_events(np.ones(2))
+    >>> a is b, len(seen), calls.dim
+    (True, 1, 2)
+    """
+
+    def __init__(self, system):
+        self.system = system
+        self._kept = {}  # (name, mask) -> (the state's bytes, the value)
+
+    def __getattr__(self, name):
+        return getattr(self.system, name)
+
+    def _kept_value(self, name, x, evaluate):
+        x = np.asarray(x, dtype=np.float64)
+        key, state = name, x.tobytes()
+        kept = self._kept.get(key)
+        if kept is not None and kept[0] == state:
+            return kept[1]
+        value = evaluate(x)
+        self._kept[key] = (state, value)
+        return value
+
+    def eval_events(self, x):
+        """The checked event values at ``x``: shape (n,)."""
+        return self._kept_value("events", x, self.system.eval_events)
+
+    def eval_event_jacobian(self, x):
+        """The checked event Jacobian at ``x``: shape (n, d)."""
+        return self._kept_value("event_jacobian", x, self.system.eval_event_jacobian)
+
+    def eval_field(self, x, mask):
+        """The checked field of region ``mask`` at ``x``: shape (d,)."""
+        return self._kept_value(("field", int(mask)), x,
+                                lambda y: self.system.eval_field(y, mask))
+
+    def local_view(self, mask, x):
+        """:func:`local_view` at ``x`` in region ``mask``, kept as the evaluations are."""
+        return self._kept_value(("view", int(mask)), x,
+                                lambda y: _local_view(self, mask, y))
+
+
 def local_view(system, mask, x):
     """Event values, gradients, field and rates at ``x`` in the local orientation of
-    region ``mask`` (an event whose bit is set has its function negated).
+    region ``mask`` (an event whose bit is set has its function negated); through
+    ``system``'s own ``local_view`` when it keeps them (:class:`StopCalls`).
 
     Returns
     -------
@@ -182,6 +247,12 @@ def local_view(system, mask, x):
     rate : ndarray, shape (n,)
         ``Dh @ F``.
     """
+    if isinstance(system, StopCalls):
+        return system.local_view(mask, x)
+    return _local_view(system, mask, x)
+
+
+def _local_view(system, mask, x):
     sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(system.n_events)])
     Dh = sign[:, None] * system.eval_event_jacobian(x)
     F = system.eval_field(x, mask)

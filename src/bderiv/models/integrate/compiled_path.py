@@ -67,10 +67,15 @@ class CompiledStretches:
         Its compiled model (``system.compiled``), and its checked evaluations at stops.
     section : numba dispatcher, optional
         ``section(x) -> float``: watched upward after the events.
+    stops : StopCalls, optional
+        The run's evaluations at the stops
+        (:class:`bderiv.models.events.locate.StopCalls`), for the search of crossings
+        inside the steps; default ``system``.
     """
 
-    def __init__(self, system, section=None):
+    def __init__(self, system, section=None, stops=None):
         self.system, self.model, self.section = system, system.compiled, section
+        self.stops = system if stops is None else stops
 
     def __call__(self, x, t, t_final, mask, options, variational):
         """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
@@ -90,5 +95,5 @@ class CompiledStretches:
                 forced=self.section is not None and start == 0.0)
             return CompiledSolution(out, d, watched)
 
-        return without_lost_crossings(system, mask, options, solve, t, y0, t_final,
+        return without_lost_crossings(self.stops, mask, options, solve, t, y0, t_final,
                                       events_at=self.model.events_rows)

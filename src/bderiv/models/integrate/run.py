@@ -32,7 +32,7 @@ from ..events.crossings import (
     switch,
 )
 from ..events.finaltime import pending_at_final_time
-from ..events.locate import settle
+from ..events.locate import StopCalls, settle
 from .compiled_path import CompiledStretches
 from .scipy_path import ScipyStretches
 
@@ -194,11 +194,12 @@ class _Log:
             self.linear.append(np.array(sol.y[d:, -1].reshape(d, d)))
 
 
-def stretches_for(system, options, section=None, watch=None):
+def stretches_for(system, options, section=None, watch=None, stops=None):
     """The integrator of a run's stretches: compiled when the model's functions are numba
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
     (``watch``: a :class:`~bderiv._progress.SimulationProgress` told each evaluation's time;
-    the compiled driver returns to Python between slices of steps instead).
+    the compiled driver returns to Python between slices of steps instead; ``stops``: the
+    run's :class:`~bderiv.models.events.locate.StopCalls`).
 
     Raises
     ------
@@ -208,13 +209,14 @@ def stretches_for(system, options, section=None, watch=None):
         A compiled model with another method than DOP853 (the compiled integrator's).
     """
     if getattr(system, "compiled", None) is None:
-        return ScipyStretches(system, section, watch)
+        return ScipyStretches(system, section, watch, stops)
     if options.method != "DOP853":
         raise ValueError(
             f"the model's functions are numba-compiled: they are integrated by the compiled "
             f"DOP853, so method must be 'DOP853', got {options.method!r}"
         )
-    return CompiledStretches(system, None if section is None else section.compiled())
+    return CompiledStretches(system, None if section is None else section.compiled(),
+                             stops)
 
 
 def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=False,
@@ -262,12 +264,13 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     d, n = system.dim, system.n_events
     mask = system.start_mask(x0)
     watch = SimulationProgress(t_final)  # a bar for long runs; Ctrl-C at each evaluation
-    stretches, log = stretches_for(system, options, section, watch), _Log()
+    stops = StopCalls(system)  # the checked calls at a stop, made once for all its rules
+    stretches, log = stretches_for(system, options, section, watch, stops), _Log()
     t, x, scale, err = 0.0, x0, np.abs(x0), np.zeros(d)
     while True:
         sol = stretches(x, t, t_final, mask, options, variational)
         again = partial(stretches, x, t, t_final, mask, variational=variational)
-        sol, err = settle(system, mask, sol, simultaneity_tol, options, scale, err,
+        sol, err = settle(stops, mask, sol, simultaneity_tol, options, scale, err,
                           again if variational else None)
         log.add_stretch(sol, mask, d, variational)
         t, x = float(sol.t[-1]), np.array(sol.y[:d, -1])
@@ -278,7 +281,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
             break
         if sol.status == 0:
             break
-        group, new, x_after = switch(system, fired, mask, x, t, simultaneity_tol, err)
+        group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, err)
         log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
         log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy()))
         mask, x = new, x_after
@@ -299,7 +302,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         log.linear.append(np.eye(d))
     final, pending = None, False
     if variational and section is None:
-        final, pending = _final_group(system, log.groups, mask, x, t_final, simultaneity_tol)
+        final, pending = _final_group(stops, log.groups, mask, x, t_final, simultaneity_tol)
     return Trajectory(t=np.concatenate(log.t), x=np.concatenate(log.x),
                       masks=np.concatenate(log.masks), events=tuple(log.records),
                       groups=tuple(log.groups), x_final=x, mask_final=mask,

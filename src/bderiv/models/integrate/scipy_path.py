@@ -70,11 +70,15 @@ class ScipyStretches:
     watch : SimulationProgress, optional
         Told the time of each evaluation of the field (a progress bar; Ctrl-C is seen
         there).
+    stops : StopCalls, optional
+        The run's evaluations at the stops
+        (:class:`bderiv.models.events.locate.StopCalls`), for the search of crossings
+        inside the steps; default ``system``.
     """
 
-    def __init__(self, system, section=None, watch=None):
+    def __init__(self, system, section=None, watch=None, stops=None):
         self.system, self.events = system, _EventValues(system, section)
-        self.watch = watch
+        self.watch, self.stops = watch, system if stops is None else stops
 
     def __call__(self, x, t, t_final, mask, options, variational):
         """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
@@ -106,4 +110,4 @@ class ScipyStretches:
             return sol
 
         # solve_ivp compares signs at step ends only: look inside the steps too
-        return without_lost_crossings(system, mask, options, solve, t, y0, t_final)
+        return without_lost_crossings(self.stops, mask, options, solve, t, y0, t_final)
