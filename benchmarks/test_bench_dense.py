@@ -11,8 +11,8 @@ Groups (pytest-benchmark ``group``):
 - ``build n=.. d=..``: the constructor (tables, checks), timed apart from evaluation.
 - ``threads n=.. d=.. m=..``: ``bd(V)`` on 1 and on 2 numba threads.
 
-With the default ``--benchmark-disable`` every case runs once as a smoke test; the small
-cases take well under a minute. The full sweep (big cases are marked ``slow``)::
+With the default ``--benchmark-disable`` every case up to n = 8 runs once as a smoke test
+(well under a minute); ``-m slow`` runs the others once. The full sweep::
 
     python -m pytest benchmarks/test_bench_dense.py -n 0 -m "slow or not slow" \\
         --benchmark-enable --benchmark-json=bench.json
@@ -54,7 +54,9 @@ REF_QUERIES_SMOKE = 20
 
 
 def _is_slow(n: int, m: int) -> bool:
-    return n >= 16 or m >= 10**6
+    """Outside the smoke run: n >= 12 (tables of 4096 records and up, lane kernels of
+    16 and 24 events compiled for the benchmark alone) and batches of 10**6."""
+    return n >= 12 or m >= 10**6
 
 
 CONTENDERS = ("bderiv apply", "bderiv inverse", "numpy batched", "reference per-query",
@@ -159,7 +161,7 @@ def test_eval(benchmark, contender, n, d, m):
 def _build_cases():
     for n in NS:
         for d in (n, 2 * n):
-            yield pytest.param(n, d, marks=[SLOW] if n >= 16 else [], id=f"n{n}-d{d}")
+            yield pytest.param(n, d, marks=[SLOW] if _is_slow(n, 1) else [], id=f"n{n}-d{d}")
 
 
 @pytest.mark.parametrize(("n", "d"), list(_build_cases()))

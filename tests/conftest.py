@@ -6,6 +6,30 @@ cache is marked ``slow`` and keeps a smaller case of the same check in the defau
 object that takes seconds and several files need is a session fixture here, never a
 module-level computation (collection runs in every pytest-xdist worker); a nested pytest
 run passes ``-n 0``; timings live in benchmarks/ and run with ``-n 0``.
+
+The default run (README's ``python -m pytest``, CI) and ``python -m pytest -m slow``.
+On a fresh numba cache most of the default run is compilation (about 85 % of the CPU of
+the kernel files), so what is left out is what compiles kernels no other test needs, or
+repeats a check at a size that only costs time; each keeps a smaller case in the run:
+
+- the plain kernels (``BDERIV_KERNELS=plain``) on the whole files test_bderivative,
+  test_adjoints and test_fuzz; by default on their dense-engine tests (test_kernels);
+- the lane kernels compiled for a generic CPU (test_kernels); the native ones are tested
+  by test_lanes and test_structured_lanes;
+- the lane width 16 x 16 (test_lanes); h in 16 lanes and x in 16 lanes stay, apart;
+- the benchmark smoke cases from n = 12 and batches of 10**6 (benchmarks/); n <= 8 stay;
+- the fuzz run of 10**6 evaluations (test_fuzz, tools/fuzz.py); the fast run stays;
+- more examples against finite differences and network(20) (test_examples), the
+  quadruped (test_contacts), the pronking map on a local Dask cluster of processes
+  (test_stability_map), jax's vmap at m = 1000: the chair, the table and smaller
+  networks, the pronking gaits, the map through a threaded in-process cluster and
+  m = 100 stay;
+- the n = 20 build timing (benchmarks/test_bench_dense.py), a timing: its memory check
+  stays.
+
+CI runs the default run only (the slow set holds a timing that fails on a loaded machine
+and a compile of every lane kernel for another CPU); ``-m slow`` is for a change of the
+kernels or before a release (README, "Set-up").
 """
 
 from __future__ import annotations

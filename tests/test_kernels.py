@@ -105,17 +105,27 @@ def test_launch_sizes():
     assert _core.launch_queries(1, 1) == 1 << 20  # ceiling
 
 
-def test_the_plain_kernels_pass_the_same_tests():
+#: the tests of the plain kernels' files that reach another engine (corner functions,
+#: structured models, simulations of the flow), left out of the default run's subprocess
+NOT_DENSE = ("not function and not structured and not terminal_cost and not flow_jvp")
+
+
+@pytest.mark.parametrize("select", [
+    pytest.param(["-k", NOT_DENSE], id="dense-engine-tests"),
+    pytest.param([], id="whole-files", marks=pytest.mark.slow)])
+def test_the_plain_kernels_pass_the_same_tests(select):
     """``BDERIV_KERNELS=plain`` (the scalar kernels any numba target compiles) runs the dense
-    tests against the oracle in a subprocess, so both paths are tested on every run."""
+    tests against the oracle in a subprocess, so both paths are tested on every run: by
+    default the tests of the three files that reach the dense engine (those of the other
+    engines run the same kernels as in this process), with ``-m slow`` the whole files."""
     import os
 
     tests = os.path.dirname(os.path.abspath(__file__))
     env = dict(os.environ, BDERIV_KERNELS="plain")
     out = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "-n", "0",
-         os.path.join(tests, "test_bderivative.py"), os.path.join(tests, "test_adjoints.py"),
-         os.path.join(tests, "test_fuzz.py")],
+         *select, os.path.join(tests, "test_bderivative.py"),
+         os.path.join(tests, "test_adjoints.py"), os.path.join(tests, "test_fuzz.py")],
         capture_output=True, text=True, env=env, cwd=os.path.dirname(tests))
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     probe = subprocess.run([sys.executable, "-c", "from bderiv._kernels import _core; "

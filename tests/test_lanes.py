@@ -16,8 +16,9 @@ from bderiv._kernels import _core, _simd, lanes
 pytestmark = pytest.mark.skipif(_core.PLAIN, reason="BDERIV_KERNELS=plain: no lane kernels")
 
 
-@pytest.mark.parametrize("n, d", [(1, 1), (3, 9), (8, 8), (8, 1), (9, 16), (12, 7),
-                                  (17, 3), (5, 64)])
+@pytest.mark.parametrize("n, d", [(1, 1), (3, 9), (8, 8), (8, 1),
+                                  pytest.param(9, 16, marks=pytest.mark.slow), (12, 7),
+                                  (17, 3), (5, 64)])  # (9, 16): 16 x 16 lanes, its own compile
 def test_every_width_matches_the_oracle(n, d):
     """h in 8, 16 and 24 lanes, x in 8 to 64 lanes, d below, at and above a multiple of 8
     (the masked loads and stores of a row)."""

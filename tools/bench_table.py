@@ -11,7 +11,13 @@ group; then construction times, the 1 -> 2 thread speed-up and the targets of is
 and 4 with the measured value. Ratios are always between entries of one run.
 
 ``--plot`` writes the log-log figure of time per query against n (d = n, largest batch)
-of ``bderiv.plot.scaling``, the one of ``bderiv bench --plot`` (needs matplotlib).
+of ``bderiv.plot.scaling``, the one of ``bderiv bench --plot`` (needs matplotlib), with
+the machine in small print. Given a Markdown file instead of the JSON (README.md), the
+tool reads back the time-per-query table it printed there and only redraws the figure:
+the figure of README's run is remade from README alone (3 significant digits; the BLAS
+time per query from the "% of BLAS" column, 2 digits)::
+
+    python tools/bench_table.py README.md --plot docs/bench_dense.png
 """
 
 from __future__ import annotations
@@ -60,6 +66,42 @@ def load(path: str, stat: str = "min"):
     info["cores"] = machine.get("cpu", {}).get("count", "?")
     info["datetime"] = data.get("datetime", "?")
     return evals, builds, threads, info
+
+
+def load_markdown(path: str):
+    """(evals, info) read back from the Markdown of :func:`markdown` (in README.md): the
+    time per query of each contender by (n, d, m), the BLAS product's from the apply
+    time and its percentage of the BLAS rate, and the "Measured ..." line's machine."""
+    units = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+
+    def seconds(cell):
+        value, unit = cell.split()
+        return float(value) * units[unit]
+
+    evals, info = defaultdict(dict), {}
+    with open(path) as fh:
+        lines = fh.read().splitlines()
+    header = eval_table({})[0]
+    start = lines.index(header) + 2  # after the header and its alignment row
+    for line in lines[:start]:
+        if line.startswith("Measured "):
+            info["machine"] = line.removeprefix("Measured ").rstrip(".")
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        n, d, m = int(cells[0]), int(cells[1]), int(float(cells[2]))
+        row = evals[(n, d, m)]
+        for contender, cell in zip((APPLY, INVERSE, NUMPY, REF), cells[3:7], strict=True):
+            if cell != "-":
+                row[contender] = seconds(cell)
+        if cells[11] != "-":
+            row[COPY] = seconds(cells[11])
+        if APPLY in row and cells[10] != "-":
+            row[BLAS] = row[APPLY] * float(cells[10].rstrip("%")) / 100.0
+    if not evals:
+        raise ValueError(f"{path}: no row under the time-per-query table's header")
+    return evals, info
 
 
 def fmt_time(seconds: float | None) -> str:
@@ -165,8 +207,7 @@ def targets(evals, builds, threads) -> list[str]:
 
 def markdown(evals, builds, threads, info, stat: str) -> str:
     out = [
-        f"Measured {info['datetime'][:16]} on {info['cpu']} ({info['cores']} cores, shared "
-        f"with other work), {stat} over rounds; BLAS: {info['blas']}.",
+        f"Measured {machine_note(info, stat)}.",
         "",
         "Time per query (BLAS: time of the same-flop product / m). *The per-query reference "
         "(`tests/reference.py`, a Python loop) is timed on the first 200 queries (20 for "
@@ -189,8 +230,9 @@ def markdown(evals, builds, threads, info, stat: str) -> str:
     return "\n".join(out) + "\n"
 
 
-def plot(evals, path: str) -> None:
-    """Write ``bderiv.plot.scaling`` of the d = n entries (largest batch per point)."""
+def plot(evals, path: str, machine: str | None = None) -> None:
+    """Write ``bderiv.plot.scaling`` of the d = n entries (largest batch per point), with
+    ``machine`` in small print."""
     from bderiv.plot import scaling
 
     rows = [
@@ -198,20 +240,33 @@ def plot(evals, path: str) -> None:
         for (n, d, m), row in sorted(evals.items()) if d == n
         for contender in CONTENDERS if contender in row
     ]
-    scaling(rows).savefig(path, dpi=110)
+    scaling(rows, machine=machine).savefig(path, dpi=110)
+
+
+def machine_note(info, stat: str) -> str:
+    """Where and how the run was measured, as the "Measured ..." line says it."""
+    return (f"{info['datetime'][:16]} on {info['cpu']} ({info['cores']} cores, shared "
+            f"with other work), {stat} over rounds; BLAS: {info['blas']}")
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("json", help="pytest-benchmark JSON (--benchmark-json)")
+    p.add_argument("json", help="pytest-benchmark JSON (--benchmark-json), or a Markdown "
+                   "file with the table this tool printed (README.md: redraw --plot only)")
     p.add_argument("--plot", help="write a log-log PNG of time per query against n")
     p.add_argument("--stat", default="min", choices=("min", "median", "mean"),
                    help="statistic of the rounds (default min: least disturbed by other load)")
     args = p.parse_args(argv)
+    if args.json.endswith(".md"):
+        if not args.plot:
+            p.error("a Markdown input only redraws the figure: give --plot")
+        evals, info = load_markdown(args.json)
+        plot(evals, args.plot, info.get("machine"))
+        return 0
     evals, builds, threads, info = load(args.json, args.stat)
     sys.stdout.write(markdown(evals, builds, threads, info, args.stat))
     if args.plot:
-        plot(evals, args.plot)
+        plot(evals, args.plot, machine_note(info, args.stat))
     return 0
 
 

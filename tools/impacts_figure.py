@@ -48,7 +48,7 @@ def _panel(ax, system, x0, t_final, h, title, ylabel, bottom=1.25):
     cuts = [0, *(int(i) + 1 for i in np.flatnonzero(np.diff(traj.t) == 0)), len(traj.t)]
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):  # the stretches between jumps
         ax.plot(traj.t[a:b], values[a:b], color="#4477AA", lw=1.6,
-                label="h along the flow" if a == 0 else None)
+                label="$h$ along the flow" if a == 0 else None)
     ax.axhline(0.0, color="black", lw=0.8)
     top = max(values.max(), 0.1 * np.abs(values).max())
     ax.axhspan(0.0, 1.5 * top, color="#EEEEEE", zorder=0)
@@ -64,7 +64,7 @@ def _panel(ax, system, x0, t_final, h, title, ylabel, bottom=1.25):
             label = "bit kept"
         way = "up" if g.directions[0] > 0 else "down"
         ax.annotate(f"{way}: {label}", (g.time, after), textcoords="offset points",
-                    xytext=(-4, -12), ha="right", fontsize=7)
+                    xytext=(-9, -11), ha="right", fontsize=7)
     ax.set_ylim(bottom * values.min(), 1.5 * top)
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("time")
@@ -84,30 +84,31 @@ def draw(path):
     axes = fig.subplots(1, 3)
     ball = bouncing_ball(e=0.6, height=0.5)
     _panel(axes[0], ball.system, ball.x0, 0.85, lambda x: -x[0],
-           "a bounce (ball, e = 0.6): lands on h = 0,\nleaves it downward", "h = -q")
+           "a bounce (ball, $e = 0.6$): lands on $h = 0$,\nleaves it downward", "$h = -q$")
     wheel = rimless_wheel()
     x0 = wheel.x0
     alpha = wheel.rho[0]
     period = quad(lambda th: 1.0 / _wheel_speed(wheel, th), -alpha, alpha)[0]
     _panel(axes[1], wheel.system, x0, wheel.t_event + 1.15 * period, lambda x: x[0] - alpha,
-           "a leg swap (rimless wheel): lands at\nh = -2 alpha, back where the step began",
-           "h = theta - alpha", bottom=1.5)
+           "a leg swap (rimless wheel): lands at\n$h = -2\\alpha$, back where the step began",
+           "$h = \\theta - \\alpha$", bottom=1.5)
     system, x0, t_final = compliant_landing()
     _panel(axes[2], system, x0, t_final, lambda x: -x[0],
-           "a plastic impact that stays in contact:\nlands on h = 0, moves into h > 0",
-           "h = -q")
+           "a plastic impact that stays in contact:\nlands on $h = 0$, moves into $h > 0$",
+           "$h = -q$")
     axes[0].legend(loc="lower right", fontsize=7, frameon=False)
-    notes = (((0.97, 0.3, "right"), "reset (q, v) -> (q, -0.6 v):\nh keeps its value, its rate\n"
-              "changes sign"),
-             ((0.5, 0.03, "center"), "reset (theta, omega) ->\n(theta - 2 alpha, "
-              "cos(2 alpha) omega)"),
-             ((0.97, 0.06, "right"), f"reset (q, v) -> (q, {KEEP:g} v):\nh keeps its value, "
-              f"its rate\nhalved; the ground's spring\npushes the ball back out"))
+    notes = (((0.97, 0.3, "right"), "reset $(q, v) \\to (q, -0.6\\,v)$:\n"
+              "$h$ keeps its value, its rate\nchanges sign"),
+             ((0.5, 0.03, "center"), "reset $(\\theta, \\omega) \\to$\n"
+              "$(\\theta - 2\\alpha,\\ \\cos(2\\alpha)\\,\\omega)$"),
+             ((0.97, 0.06, "right"), f"reset $(q, v) \\to (q, {KEEP:g}\\,v)$:\n"
+              f"$h$ keeps its value, its rate\nhalved; the ground's spring\npushes the ball "
+              f"back out"))
     for ax, ((x, y, ha), text) in zip(axes, notes, strict=True):
         ax.text(x, y, text, transform=ax.transAxes, ha=ha, va="bottom", fontsize=7,
                 color="#333333")
     for ax in axes:
-        ax.text(0.99, 0.97, "h > 0 (bit set)", transform=ax.transAxes, ha="right",
+        ax.text(0.99, 0.97, "$h > 0$ (bit set)", transform=ax.transAxes, ha="right",
                 va="top", fontsize=7, color="#555555")
     fig.savefig(path, dpi=120)
 

@@ -10,6 +10,8 @@ from ._axes import PALETTE, figure_axes, new_figure
 
 #: marker of an event group by its directions: all upward, all downward, mixed.
 _MARKERS = {1: "^", -1: "v", 0: "D"}
+#: its colour, the same in the time panels and the phase plane
+_COLORS = {1: PALETTE[3], -1: PALETTE[4], 0: PALETTE[2]}
 
 
 def _group_kind(directions):
@@ -22,10 +24,10 @@ def gait_orbit(orbit, axes=None, *, components=None, phase=(0, 2), labels=None,
 
     Left: each of the chosen state components against time in a panel of its own (own
     axis, own units), a vertical line at every event group (marker ``^``: crossed upward,
-    ``v``: downward, ``D``: mixed) and the stretches of each region other than mask 0
-    shaded grey (named by ``phases``, for example a gait's stance). Right: the phase plane
-    of two components, the event points marked the same way and the fixed point on the
-    section as a star.
+    ``v``: downward, ``D``: mixed; one colour per kind in every panel) and the stretches
+    of each region other than mask 0 shaded grey (named by ``phases``, for example a
+    gait's stance). Right: the phase plane of two components, the event points marked the
+    same way and the fixed point on the section as a star.
 
     Parameters
     ----------
@@ -73,7 +75,8 @@ def gait_orbit(orbit, axes=None, *, components=None, phase=(0, 2), labels=None,
         ax.plot(traj.t, traj.x[:, k], color=PALETTE[0], lw=1.3)
         for g in traj.groups:
             ax.axvline(g.time, color="0.45", lw=0.8, zorder=0)
-            ax.plot(g.time, g.state[k], _MARKERS[_group_kind(g.directions)], color="k", ms=6)
+            kind = _group_kind(g.directions)
+            ax.plot(g.time, g.state[k], _MARKERS[kind], color=_COLORS[kind], ms=6)
         ax.set_ylabel(labels[k], fontsize=9)
         ax.margins(x=0)
         _constant_to_rounding(ax, traj.x[:, k], np.abs(traj.x).max())
@@ -87,7 +90,7 @@ def gait_orbit(orbit, axes=None, *, components=None, phase=(0, 2), labels=None,
     for g in traj.groups:
         kind = _group_kind(g.directions)
         name = f"events {g.events} {'up' if kind > 0 else 'down' if kind < 0 else 'mixed'}"
-        ax_p.plot(g.state[i], g.state[j], _MARKERS[kind], ms=9, color=PALETTE[2 + kind % 3],
+        ax_p.plot(g.state[i], g.state[j], _MARKERS[kind], ms=9, color=_COLORS[kind],
                   label=f"{name} at t = {g.time:.4g}")
     ax_p.plot(orbit.x0[i], orbit.x0[j], "*", ms=14, color=PALETTE[5],
               label="fixed point on the section")

@@ -19,6 +19,8 @@ _METHODS = {
                             PALETTE[3]),
     "blas": ("BLAS matrix product, same flops", ":", PALETTE[4]),
     "BLAS matmul": ("BLAS matrix product, same flops", ":", PALETTE[4]),
+    "parallel copy": ("parallel copy of the queries\n(the memory-bandwidth limit)", ":",
+                      PALETTE[5]),
 }
 
 
