@@ -124,3 +124,15 @@ def chair_pair():
     ex = chair()
     field, events, event_jacobian = chair_functions()
     return ex, HybridSystem(field, events, n_events=2, dim=6, event_jacobian=event_jacobian)
+
+
+@numba.njit
+def slow_rotation(x, mask):
+    """A rotation that never reaches ``far_event``: a run as long as ``t_final`` says
+    (the Ctrl-C tests)."""
+    return np.array([x[1], -x[0]])
+
+
+@numba.njit
+def far_event(x):
+    return np.array([x[0] - 2.0])  # never reached

@@ -17,7 +17,7 @@ import time
 import numba
 import numpy as np
 import pytest
-from compiled_models import apex_section, chair_pair, pronking_pair
+from compiled_models import apex_section, chair_pair, far_event, pronking_pair, slow_rotation
 from numpy.testing import assert_allclose
 from test_excursions import X0, C, T, closed_form
 
@@ -308,16 +308,6 @@ def test_a_stretch_in_slices_takes_the_same_steps(monkeypatch):
     np.testing.assert_array_equal(sliced.x, traj.x)
     V = np.eye(4)
     np.testing.assert_array_equal(compiled.flow_bderivative(x0, 0.9)(V), whole(V))
-
-
-@numba.njit
-def slow_rotation(x, mask):
-    return np.array([x[1], -x[0]])
-
-
-@numba.njit
-def far_event(x):
-    return np.array([x[0] - 2.0])  # never reached
 
 
 def test_ctrl_c_stops_a_long_compiled_run_within_a_second():

@@ -7,10 +7,9 @@ import io
 import threading
 import time
 
-import numba
 import numpy as np
 import pytest
-from compiled_models import pronking_pair
+from compiled_models import far_event, pronking_pair, slow_rotation
 
 from bderiv import HybridSystem, _progress, examples
 
@@ -63,9 +62,9 @@ def test_one_state_and_an_empty_batch():
 
 
 @pytest.mark.parametrize("X0, message", [
-    (np.zeros((3, 5)), r"X0 must have shape \(m, 6\) or \(\.\.\., 6\).*got shape \(3, 5\)"),
+    (np.zeros((3, 5)), r"X0 must have shape \(\.\.\., 6\) \(start states.*got shape \(3, 5\)"),
     (1.0, r"X0 must have shape .*got a scalar"),
-    (np.array([[0.0] * 6, [0.0, np.nan, 0, 0, 0, 0]]), r"X0 must be finite: .*X0\[1\]"),
+    (np.array([[0.0] * 6, [0.0, np.nan, 0, 0, 0, 0]]), r"X0 must be finite, but vector X0\[1\]"),
 ])
 def test_bad_start_states_are_named(X0, message):
     ex = examples.chair()
@@ -106,16 +105,6 @@ def test_progress_callback_after_each_run_and_the_bar(monkeypatch):
                         {"file": buffer, "disable": False, "leave": True})
     ex.system.simulate_many(X0, ex.t_final)  # the default: a bar once it lasts
     assert "simulate_many: " in buffer.getvalue() and "3 of 3 runs" in buffer.getvalue()
-
-
-@numba.njit
-def slow_rotation(x, mask):
-    return np.array([x[1], -x[0]])
-
-
-@numba.njit
-def far_event(x):
-    return np.array([x[0] - 2.0])  # never reached
 
 
 def test_ctrl_c_stops_a_long_compiled_batch_within_a_second():

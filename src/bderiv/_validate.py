@@ -97,13 +97,15 @@ def check_matrix(a, name: str, shape: tuple[int | None, int | None], *,
     return np.array(arr, dtype=np.float64, order="C", copy=True) if copy else arr
 
 
-def check_points(V, dim: int, name: str = "V", *, index_shape=None,
-                 offset: int = 0) -> tuple[np.ndarray, tuple[int, ...]]:
+def check_points(V, dim: int, name: str = "V", *, index_shape=None, offset: int = 0,
+                 meaning: str = "vectors of dimension {dim}, the dimension of this map"
+                 ) -> tuple[np.ndarray, tuple[int, ...]]:
     """Validate query vectors of shape ``(..., dim)``.
 
     ``index_shape`` and ``offset`` say where the rows sit in a larger batch (a chunk of
     rows ``offset:`` of a batch of leading shape ``index_shape``), so that a non-finite
-    vector is named by its index in the whole batch.
+    vector is named by its index in the whole batch. ``meaning`` says what the rows are in
+    the shape's message (``{dim}`` filled in).
 
     Returns
     -------
@@ -116,8 +118,7 @@ def check_points(V, dim: int, name: str = "V", *, index_shape=None,
     if arr.ndim == 0 or arr.shape[-1] != dim:
         got = "a scalar" if arr.ndim == 0 else f"shape {arr.shape}"
         raise ValueError(
-            f"{name} must have shape (..., {dim}) (vectors of dimension {dim}, the dimension "
-            f"of this map), got {got}"
+            f"{name} must have shape (..., {dim}) ({meaning.format(dim=dim)}), got {got}"
         )
     lead = arr.shape[:-1]
     flat = np.ascontiguousarray(arr.reshape(-1, dim), dtype=np.float64)

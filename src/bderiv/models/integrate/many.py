@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..._progress import SimulationProgress, resolve_progress
-from ..._validate import check_number, check_positive_int, check_real_array
+from ..._validate import check_number, check_points, check_positive_int
 from .run import run
 
 __all__ = ["Trajectories", "check_states", "run_many"]
@@ -62,21 +62,7 @@ def check_states(X0, dim: int) -> tuple[np.ndarray, tuple]:
     """Start states ``(..., d)`` as C-contiguous float64 rows ``(m, d)`` and the leading
     shape; a ValueError names what was expected and what came, or the first row that is
     not finite."""
-    arr = check_real_array(X0, "X0")
-    if arr.ndim == 0 or arr.shape[-1] != dim:
-        got = "a scalar" if arr.ndim == 0 else f"shape {arr.shape}"
-        raise ValueError(
-            f"X0 must have shape (m, {dim}) or (..., {dim}): start states of this system "
-            f"(dimension {dim}), one per row; got {got}"
-        )
-    lead = arr.shape[:-1]
-    flat = np.ascontiguousarray(arr.reshape(-1, dim), dtype=np.float64)
-    bad = ~np.isfinite(flat).all(axis=1)
-    if bad.any():
-        row = int(np.flatnonzero(bad)[0])
-        where = ", ".join(str(int(i)) for i in np.unravel_index(row, lead)) if lead else ""
-        raise ValueError(f"X0 must be finite: the start state X0[{where}] = {flat[row]}")
-    return flat, lead
+    return check_points(X0, dim, "X0", meaning="start states of this system, one per row")
 
 
 def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups,
