@@ -176,7 +176,7 @@ class StopCalls:
     At a stop the excursion screen, :func:`settle`, :func:`.crossings.switch` and the
     final time look at the same state: the event Jacobian (numerical where not given: tens
     of calls of ``events``), the events and the region's field are evaluated there once.
-    The arrays given out are shared: read them, do not change them. Everything else is the
+    The arrays given out are shared, so they are read-only. Everything else is the
     model's own (``calls.dim``, ``calls.eval_reset``, ...).
 
     Parameters
@@ -210,6 +210,9 @@ class StopCalls:
         if kept is not None and kept[0] == state:
             return kept[1]
         value = evaluate(x)
+        for a in value if isinstance(value, tuple) else (value,):
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False  # shared by every caller at this stop
         self._kept[key] = (state, value)
         return value
 
