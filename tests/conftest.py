@@ -34,11 +34,17 @@ kernels or before a release (README, "Set-up").
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
+
+try:
+    import fcntl
+except ImportError:  # Windows: the workers may then compile a task twice at once
+    fcntl = None
 
 # deadline=None: the first call of each njit kernel compiles (seconds); the warm-up fixture
 # below takes most of that out of the examples, but the cache can still be cold on CI.
@@ -63,8 +69,10 @@ def pytest_configure(config):
 
 
 def _warm_ups():
-    """The kernels nearly every test file runs, as independent tasks on a tiny system (one
-    size class of the lane kernels): small batches run serially, large ones with prange."""
+    """The kernel families nearly every test file runs, one task per family, on a tiny
+    system (one size class of the lane kernels): each task runs a small batch (the serial
+    driver) and a large one (the parallel driver), so that the two drivers are compiled in
+    one process, where the family's block is compiled once for both."""
     from bderiv import BDerivative
 
     Dh = np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]])
@@ -72,31 +80,48 @@ def _warm_ups():
     bd = BDerivative(Dh, F)
     rng = np.random.default_rng(0)
     small, large = rng.standard_normal((3, 3)), rng.standard_normal((5000, 3))
+    # ordered for two workers (the tasks 0, 2 and 1, 3): about 11 and 15 s on a cold cache
     return [
-        lambda: (bd(small), bd.inverse(small), bd.event_times(small)),
-        lambda: bd(large),
-        lambda: bd.inverse(large),
-        lambda: bd.event_times(large),
+        lambda: (bd(small), bd(large), bd.inverse(small), bd.inverse(large)),
+        lambda: (bd.event_times(small), bd.event_times(large)),
         lambda: (bd.triangulation()(small), list(bd.pieces())),
-        lambda: (bd.jvp(small, small), bd.vjp(small, small)),
-        lambda: bd.jvp(large, large),
-        lambda: bd.vjp(large, large),
+        lambda: (bd.jvp(small, small), bd.vjp(small, small), bd.jvp(large, large),
+                 bd.vjp(large, large)),
     ]
 
 
+@contextlib.contextmanager
+def _held(path):
+    """An exclusive lock on the file ``path`` for the duration (none without fcntl)."""
+    if fcntl is None:
+        yield
+        return
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 @pytest.fixture(scope="session", autouse=True)
-def warm_jit():
+def warm_jit(tmp_path_factory):
     """Compile (or load from numba's disk cache) the kernels of :func:`_warm_ups`.
 
-    Under pytest-xdist, worker k of K starts with the tasks k, k + K, ... and then runs
-    the others: both workers compiling at once, each saves its half to the disk cache, where
-    the other then finds it (a task still being compiled by the other is compiled again:
-    the same result, never a wait)."""
+    Under pytest-xdist, worker k of K runs the tasks k, k + K, ... and then the others,
+    each under a lock shared by the workers: a task that the other worker is compiling is
+    waited for and then loaded from the disk cache, never compiled twice at once (the
+    lock's folder: the parent of the workers' base temporary folders, shared by them)."""
     tasks = _warm_ups()
     worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
     k, count = int(worker[2:]), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    for task in tasks[k::count] + [t for i, t in enumerate(tasks) if i % count != k]:
-        task()
+    order = list(range(k, len(tasks), count)) + [i for i in range(len(tasks)) if i % count != k]
+    for i in order:
+        if count == 1:
+            tasks[i]()
+            continue
+        with _held(tmp_path_factory.getbasetemp().parent / f"warm_jit_{i}.lock"):
+            tasks[i]()
 
 
 @pytest.fixture(scope="session")

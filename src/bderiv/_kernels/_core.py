@@ -122,8 +122,11 @@ def _paired(tables, statics):
 # :class:`Batch` runs this code with globals of its own, one namespace per block, so each
 # driver is a plain function without a closure that numba caches by its own means.
 def _serial(tables, V, outs, inverse):
-    block(bind(tables, statics), V, outs, 0, V.shape[0], inverse)  # noqa: F821
-    return nonfinite_rows(outs[0], 0, V.shape[0])
+    m = V.shape[0]
+    start = m - m  # 0 as an int64, as :func:`_tasks` passes it: a literal 0 would compile
+    # the block (and its steps) a second time, for the literal
+    block(bind(tables, statics), V, outs, start, m, inverse)  # noqa: F821
+    return nonfinite_rows(outs[0], start, m)
 
 
 def _tasks(tables, V, outs, inverse):

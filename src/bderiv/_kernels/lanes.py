@@ -115,10 +115,12 @@ def _step(R, h, x, t, b, out, wh, wx, far, carry):
 
 
 @njit(**JIT)
-def _record(order, times, p, j, k, t, s, carry):
-    """The j-th event of lane p and its time, unless the chain carries the position."""
+def _record(order, times, j, k, t, s, carry):
+    """The j-th event of a lane and its time (``order``, ``times``: the lane's rows),
+    unless the chain carries the position. (Rows, not a lane index: each literal index
+    would compile a copy of this function.)"""
     if not vec.value(carry):
-        order[p, j], times[p, j] = k, s * t
+        order[j], times[j] = k, s * t
 
 
 @njit(inline="always", **JIT)
@@ -144,7 +146,8 @@ def _lanes(args, V, q0, last, inverse, X, T, order, times):
     # not candidates: the events that happened (forwards) or did not (backwards), and the
     # padding lanes: out = (b ^ flip) | pad
     flip, pad = (-1, 0) if inverse else (0, -1 << n)
-    b = (1 << n) - 1 if inverse else 0
+    # an int64 0, not a literal: _step would be compiled for both while the loop is typed
+    b = (1 << n) - 1 if inverse else np.int64(0)
     q1, q2, q3 = min(q0 + 1, last), min(q0 + 2, last), min(q0 + 3, last)
     q4, q5, q6, q7 = min(q0 + 4, last), min(q0 + 5, last), min(q0 + 6, last), min(q0 + 7, last)
     h0, h1 = _start(DhTp, V, q0, d, s, wh), _start(DhTp, V, q1, d, s, wh)
@@ -162,28 +165,28 @@ def _lanes(args, V, q0, last, inverse, X, T, order, times):
     for j in range(n):
         h0, x0, t0, b0, k = _step(R, h0, x0, t0, b0, (b0 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 0, j, k, t0, s, carry)
+        _record(order[0], times[0], j, k, t0, s, carry)
         h1, x1, t1, b1, k = _step(R, h1, x1, t1, b1, (b1 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 1, j, k, t1, s, carry)
+        _record(order[1], times[1], j, k, t1, s, carry)
         h2, x2, t2, b2, k = _step(R, h2, x2, t2, b2, (b2 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 2, j, k, t2, s, carry)
+        _record(order[2], times[2], j, k, t2, s, carry)
         h3, x3, t3, b3, k = _step(R, h3, x3, t3, b3, (b3 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 3, j, k, t3, s, carry)
+        _record(order[3], times[3], j, k, t3, s, carry)
         h4, x4, t4, b4, k = _step(R, h4, x4, t4, b4, (b4 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 4, j, k, t4, s, carry)
+        _record(order[4], times[4], j, k, t4, s, carry)
         h5, x5, t5, b5, k = _step(R, h5, x5, t5, b5, (b5 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 5, j, k, t5, s, carry)
+        _record(order[5], times[5], j, k, t5, s, carry)
         h6, x6, t6, b6, k = _step(R, h6, x6, t6, b6, (b6 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 6, j, k, t6, s, carry)
+        _record(order[6], times[6], j, k, t6, s, carry)
         h7, x7, t7, b7, k = _step(R, h7, x7, t7, b7, (b7 ^ flip) | pad, wh, wx,
                                   far, carry)
-        _record(order, times, 7, j, k, t7, s, carry)
+        _record(order[7], times[7], j, k, t7, s, carry)
     if vec.value(carry):
         vec.store(X, 0, 0, x0), vec.store(X, 1, 0, x1), vec.store(X, 2, 0, x2)
         vec.store(X, 3, 0, x3), vec.store(X, 4, 0, x4), vec.store(X, 5, 0, x5)

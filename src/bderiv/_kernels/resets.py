@@ -116,7 +116,9 @@ def chain(tables, u, inverse, scratch):
                                  tables.DhP, tables.low)
     x, g, tau, y, w, times, order, regions = scratch
     d, n = DhT.shape
-    B = (1 << n) - 1 if inverse else 0
+    # an int64 0, not a literal: the callees would be compiled for both while the loop is
+    # typed
+    B = (1 << n) - 1 if inverse else np.int64(0)
     for i in range(d):
         x[i] = u[i]
     impacts(DhT, x, g[0])

@@ -121,7 +121,9 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     Fd = np.empty((64 if dense else 0, INTERPOLATOR_POWER, d))
     ts[0] = t0
     ys[0] = y
-    count, n_dense = 1, 0
+    # int64 values, never literals: a callee is compiled for each literal type it sees
+    # (_grown for 0 and 1 while the loop is typed, _stopped for each status code)
+    count, n_dense = np.int64(1), np.int64(0)
     jev = 1 if variational else 0
 
     t = t0
@@ -152,7 +154,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         while True:  # scipy's RungeKutta._step_impl
             if h_abs < min_step:
                 bad[:] = y[:d]
-                return _stopped(STEP_UNDERFLOW, t, y, ts, ys, count, steps, Fd, n_dense,
+                return _stopped(np.int64(STEP_UNDERFLOW), t, y, ts, ys, count, steps, Fd, n_dense,
                                 active, roots, counts, bad, t, h_abs)
             t_new = min(t + h_abs, t_final)
             h = t_new - t
@@ -185,8 +187,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             Kd[0] = K[0, :d]
             Kd[N_STAGES] = K[N_STAGES, :d]
             Kd[1:N_STAGES] = K[1:N_STAGES, :d]
-            status = dense_coefficients(model, jac_mode, False, mask, d, y[:d], y_new[:d],
-                                        h, Kd, Fs, work[0, :d], bad)
+            status = dense_coefficients(model, jac_mode, np.bool_(False), mask, d, y[:d],
+                                        y_new[:d], h, Kd, Fs, work[0, :d], bad)
             counts[NFEV] += _DENSE_EXTRA
         if status != OK:
             return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
@@ -213,7 +215,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             dense_eval(F, y, t, h, t_stop, m, y_new)
             ts[count] = t_stop
             ys[count] = y_new
-            return _stopped(EVENT, t_stop, y_new, ts, ys, count + 1, steps, Fd, n_dense,
+            return _stopped(np.int64(EVENT), t_stop, y_new, ts, ys, count + 1, steps, Fd, n_dense,
                             active, roots, counts, bad, t_stop, h_abs)
         t = t_new
         y[:] = y_new
@@ -223,8 +225,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         ys[count] = y
         count += 1
         if t >= t_final:
-            return _stopped(FINISHED, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
-                            counts, bad, t, h_abs)
+            return _stopped(np.int64(FINISHED), t, y, ts, ys, count, steps, Fd, n_dense, active,
+                            roots, counts, bad, t, h_abs)
         if counts[N_STEPS] >= max_steps:
-            return _stopped(PAUSED, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
-                            counts, bad, t, h_abs)
+            return _stopped(np.int64(PAUSED), t, y, ts, ys, count, steps, Fd, n_dense, active,
+                            roots, counts, bad, t, h_abs)
