@@ -12,12 +12,12 @@ from ._engines import DenseEngine, FunctionEngine, StructuredEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
 from ._errors import QueryError
 from ._geometry import (  # noqa: F401 (re-exported)
-    MAX_PIECES,
     CornerGeometry,
     CornerPoints,
     dh_rank,
 )
 from ._kernels import scaling
+from ._limits import GRAZING_RTOL, MAX_PIECES, RESET_TOL
 from ._linearise import Linearisation, unit_scale
 from ._validate import (
     check_bool,
@@ -152,8 +152,8 @@ class BDerivative(Linearisation, CornerGeometry):
     array([ 0.3, -0.7])
     """
 
-    def __init__(self, Dh, F, *, transversality_tol: float = 1e-9, memory_limit=None,
-                 fast_paths: bool = True, resets=None, reset_tol: float = 1e-9):
+    def __init__(self, Dh, F, *, transversality_tol: float = GRAZING_RTOL, memory_limit=None,
+                 fast_paths: bool = True, resets=None, reset_tol: float = RESET_TOL):
         # validate
         Dh = check_matrix(Dh, "Dh", (None, None))
         if Dh.shape[0] == 0 or Dh.shape[1] == 0:

@@ -40,6 +40,18 @@ from ._cyclic import (
     kept,
     reduced_basis,
 )
+from ._limits import (
+    DEFAULT_T_MAX,
+    DERIVATIVE_SIMULTANEITY_TOL,
+    MAX_HALVINGS,
+    MAX_PIECE_SWITCHES,
+    MULTIPLIER_PIECES,
+    ON_SURFACE_TOL,
+    ORBIT_MAX_ITER,
+    ORBIT_TOL,
+    PIECE_RTOL,
+    T_MAX_PER_PERIOD,
+)
 from ._validate import check_number, check_positive_int
 from .models.integrate.run import SolverOptions, run
 from .returnmap import return_map
@@ -50,18 +62,6 @@ __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
 #: integrator settings of the orbit search: the residual is only as good as the
 #: integration, and Newton's method converges to within it.
 ORBIT_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13)
-#: longest wait for the return without a period guess, and in multiples of the guess.
-DEFAULT_T_MAX = 100.0
-T_MAX_PER_PERIOD = 3.0
-#: halvings of a Newton step that does not reduce the residual before giving up.
-MAX_HALVINGS = 10
-#: a piece's solution lies in its piece when ``|A(delta) - A_piece delta|`` is below
-#: this times ``|A_piece| |delta|`` (ties between pieces give equal values).
-PIECE_RTOL = 1e-8
-#: pieces tried by one Newton step before it settles for a generalized Newton step.
-MAX_PIECE_SWITCHES = 32
-#: pieces whose Floquet multipliers ``stability()`` reports: the most visited.
-MULTIPLIER_PIECES = 12
 
 
 @dataclass(frozen=True)
@@ -149,7 +149,8 @@ class PeriodicOrbit:
         n_points = check_positive_int(n_points, "n_points")
         return self.system.simulate(self.x0, T_MAX_PER_PERIOD * self.period,
                                     section=self.section, max_step=self.period / n_points,
-                                    simultaneity_tol=1e-7, options=ORBIT_OPTIONS)
+                                    simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                                    options=ORBIT_OPTIONS)
 
     def stability(self, n_directions=1000, iterations=1000, burn_in=None, seed=0) -> Stability:
         """The stability of the orbit, from the piecewise-linear return map.
@@ -194,8 +195,9 @@ class PeriodicOrbit:
                          multipliers, visits, int(iterations), burn_in)
 
 
-def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, max_iter=30,
-                   simultaneity_tol=1e-7, options=None, cyclic=()):
+def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL,
+                   max_iter=ORBIT_MAX_ITER, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                   options=None, cyclic=()):
     """Solve ``P(x) = x`` on the section by Newton's method with the B-derivative.
 
     Parameters
@@ -252,8 +254,8 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
         check_independence(returned, x, shifted, cyclic)
     history = []
     for iteration in range(max_iter + 1):
-        R, _traj = return_map(system, x, section, t_max=t_max, tol=1e-9, simultaneity_tol=0.0,
-                              options=options)
+        R, _traj = return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
+                              simultaneity_tol=0.0, options=options)
         r = R.x_final - x
         res = float(np.abs(r[keep]).max())
         if res <= tol * max(1.0, float(np.abs(x[keep]).max())):
@@ -267,7 +269,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
                                      switches))
         x = x_new
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
-    R, traj = return_map(system, x, section, t_max=t_max, tol=1e-9,
+    R, traj = return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
                          simultaneity_tol=simultaneity_tol, options=options)
     r = R.x_final - x
     return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,

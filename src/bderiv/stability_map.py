@@ -40,13 +40,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._limits import LOCAL_WORKERS
 from ._progress import resolve_progress
 from ._validate import check_positive_int
 
 __all__ = ["StabilityMap", "stability_map"]
-
-#: worker processes of ``client="local"`` (one per core of this project's machines)
-LOCAL_WORKERS = 2
 
 
 @dataclass(frozen=True, eq=False)

@@ -29,8 +29,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._limits import QUERY_BAND
 from . import _simd as vec
-from ._core import JIT, QUERY_BAND, batch, write_times
+from ._core import JIT, batch, write_times
 
 #: queries per lockstep group: eight independent chains hide the latency of each step's
 #: reduction (the lanes are written out in :func:`_lanes`: their state lives in registers).

@@ -13,6 +13,7 @@ import argparse
 import os
 import sys
 
+from .._limits import EPS_RANGE
 from . import render
 from .bench import run_bench
 from .demo import run_demo
@@ -65,9 +66,6 @@ def _integer(text: str) -> int | None:
 
 _positive_int = _argument_type(_integer, lambda v: v >= 1, "a positive integer")
 _nonneg_int = _argument_type(_integer, lambda v: v >= 0, "an integer >= 0")
-#: finite-difference steps: below 1e-12 rounding swamps the difference quotient, above 0.1
-#: the step leaves the neighbourhood where the B-derivative describes the flow
-EPS_RANGE = (1e-12, 0.1)
 _eps = _argument_type(float, lambda v: EPS_RANGE[0] <= v <= EPS_RANGE[1],
                       f"a step between {EPS_RANGE[0]:g} and {EPS_RANGE[1]:g}")
 

@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._format import format_mask, transversality_message
+from .._limits import RESET_MISMATCH
 from ..bderivative import BDerivative
 from ..flowmap import FlowBDerivative
-from .events.crossings import RESET_MISMATCH, apply_resets, landing
+from .events.crossings import apply_resets, landing
 from .events.finaltime import FinalTimeMap
 
 __all__ = ["flow_map_along", "group_bderivative", "point_bderivative", "spread_masks"]

@@ -14,13 +14,9 @@ import numpy as np
 
 from .. import _numdiff as numdiff
 from .._format import format_mask
+from .._limits import ACCEPT_RTOL, RESET_TOL, RESET_TOL_NUMERICAL
 from .._validate import check_bool, check_positive_int, check_real_array
 from .compiled import JACOBIAN_MODES, CompiledModel, check_compiled, is_compiled
-
-#: relative tolerance of the checks of a model's resets with analytic Jacobians (event
-#: and reset), and with numerical ones (accurate to ``_numdiff.ACCEPT_RTOL`` or refused).
-RESET_TOL = 1e-9
-RESET_TOL_NUMERICAL = 1e-6
 
 _log = logging.getLogger("bderiv")
 
@@ -101,7 +97,7 @@ def numerical_jacobian(fun, x, what: str, jac_name: str) -> numdiff.Derivative:
             f"the numerical Jacobian of {what} at x = {x} is not accurate enough: entry "
             f"[{i}, {j}] (output {i} by x_{j}) = {D.value[i, j]:.6g} has an estimated error "
             f"{D.error[i, j]:.3g}, more than the {D.needed[i, j]:.3g} it needs "
-            f"({numdiff.ACCEPT_RTOL:g} relative, or the rounding of its row); no "
+            f"({ACCEPT_RTOL:g} relative, or the rounding of its row); no "
             f"finite-difference step resolves the function there (a kink or steep feature "
             f"near x, or noise): pass {jac_name}"
         )

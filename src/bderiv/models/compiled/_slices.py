@@ -13,12 +13,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._limits import FIRST_SLICE, SLICE_SECONDS
 from ._integrate import N_STEPS, PAUSED, drive_stretch
 
-#: the longest a slice should run, in seconds
-SLICE_SECONDS = 0.2
-#: accepted steps of a slice before the model's cost per step is known
-FIRST_SLICE = 256
 #: seconds per accepted step measured so far, per (model, length of the integrated vector)
 _cost: dict = {}
 

@@ -23,7 +23,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._format import format_mask, transversality_message
-from .locate import GLOBAL_ERROR_FACTOR, classify, local_view, state_error, windows
+from ..._limits import GLOBAL_ERROR_FACTOR, GRAZING_RTOL, ORDERS_CHECKED, RESET_MISMATCH
+from .locate import classify, local_view, state_error, windows
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -34,15 +35,6 @@ __all__ = [
     "landing",
     "switch",
 ]
-
-#: resets of simultaneous events whose results differ by more than this times the
-#: accuracy of the state at the stop do not commute (:func:`apply_resets`).
-RESET_MISMATCH = 1e3
-#: groups of up to this many events have their resets compared in every order.
-ORDERS_CHECKED = 4
-#: a crossing whose rate ``|Dh_k . F|`` is at most this times ``|Dh_k| |F|`` is grazing
-#: (the default ``transversality_tol`` of :class:`~bderiv.bderivative.BDerivative`).
-GRAZING_RTOL = 1e-9
 
 
 def direction_name(direction: int) -> str:

@@ -41,23 +41,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from ..._limits import FINE_REACH, FINE_SAMPLES, PEAK_XTOL, REACH
 from ._peaks import peak_rows
 from .crossings import group_tolerance
 
 __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
-
-#: how far above the highest sample a peak may rise, in units of the samples' spread
-#: around it, for its bracket to be searched (a parabola rises at most by the spread).
-REACH = 10.0
-#: samples of a bracket, screened again (:func:`peak_brackets`) before a peak is searched:
-#: most brackets are dropped at this finer spacing, and the rest are eight times shorter.
-FINE_SAMPLES = 17
-#: the reach on those samples: a parabola through three equally spaced samples peaks
-#: above the highest by at most a quarter of its drop to the lower neighbour.
-FINE_REACH = 1.0
-#: time accuracy of a peak, relative to its bracket: ``h`` is flat at a peak, so its value
-#: is found to about the curvature times this squared (1e-14 of the bracket's scale).
-PEAK_XTOL = 1e-7
 
 
 def sample_times(ends: np.ndarray) -> np.ndarray:

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..._limits import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
+
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
     "Classes",
@@ -37,15 +39,6 @@ __all__ = [
     "tightened",
     "windows",
 ]
-
-#: global over local error of the integrator: an adaptive Runge-Kutta method keeps each
-#: step's error below atol + rtol |x_i|; the error of the state at a stop, a sum of such
-#: step errors, is a modest multiple of it.
-GLOBAL_ERROR_FACTOR = 10.0
-#: each tighter integration of an undecided stretch divides rtol and atol by this.
-REFINE_FACTOR = 100.0
-#: the smallest rtol solve_ivp honours (``bderiv.models.integrate.run.MIN_RTOL``).
-FINEST_RTOL = 100 * np.finfo(np.float64).eps
 
 
 def state_error(atol, rtol, scale, carried=0.0) -> np.ndarray:
@@ -264,10 +257,10 @@ def _local_view(system, mask, x):
 
 def tightened(options):
     """``options`` with rtol and atol divided by ``REFINE_FACTOR`` (rtol no lower than
-    ``FINEST_RTOL``), or None when rtol is already at that floor."""
-    if options.rtol <= FINEST_RTOL:
+    ``MIN_RTOL``), or None when rtol is already at that floor."""
+    if options.rtol <= MIN_RTOL:
         return None
-    return options.with_overrides(rtol=max(options.rtol / REFINE_FACTOR, FINEST_RTOL),
+    return options.with_overrides(rtol=max(options.rtol / REFINE_FACTOR, MIN_RTOL),
                                   atol=options.atol / REFINE_FACTOR)
 
 
@@ -276,7 +269,7 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried, integra
     stop are undecided; and the state's error bound at the stop.
 
     The state alone is integrated again, rtol and atol divided by ``REFINE_FACTOR`` each
-    time, until no event at the stop is undecided or rtol reaches ``FINEST_RTOL`` (events
+    time, until no event at the stop is undecided or rtol reaches ``MIN_RTOL`` (events
     still undecided there are grouped: the integrator cannot order them). When that
     decides the same group as ``sol`` (the common case: simultaneous events), ``sol`` is
     kept; otherwise the stretch is integrated once more at the deciding tolerances, with

@@ -22,15 +22,10 @@ from functools import partial
 import numpy as np
 from scipy.integrate import OdeSolver
 
+from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, GLOBAL_ERROR_FACTOR, MAX_GROUPS, MIN_RTOL
 from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
-from ..events.crossings import (
-    GLOBAL_ERROR_FACTOR,
-    EventGroup,
-    EventRecord,
-    group_tolerance,
-    switch,
-)
+from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
 from ..events.locate import StopCalls, settle
 from .compiled_path import CompiledStretches
@@ -49,11 +44,6 @@ __all__ = [
 
 #: the methods of :func:`scipy.integrate.solve_ivp` by name.
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
-#: smallest rtol solve_ivp honours (it raises smaller ones to this, with a warning).
-MIN_RTOL = 100 * np.finfo(np.float64).eps
-#: default largest number of event groups of one run (a Zeno or chattering trajectory
-#: would otherwise never end): enough for hundreds of strides of a many-legged gait.
-MAX_GROUPS = 10_000
 
 @dataclass(frozen=True)
 class SolverOptions:
@@ -80,8 +70,8 @@ class SolverOptions:
     ValueError: atol must be a finite number > 0, got nan
     """
 
-    rtol: float = 1e-10
-    atol: float = 1e-12
+    rtol: float = DEFAULT_RTOL
+    atol: float = DEFAULT_ATOL
     method: object = "DOP853"
     max_step: float = np.inf
 
