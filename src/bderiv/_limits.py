@@ -31,8 +31,8 @@ _EPS = float(np.finfo(np.float64).eps)
 # --- integration ------------------------------------------------------------------------
 
 #: default relative and absolute tolerance of the integrators (``SolverOptions``, the
-#: compiled ``integrate_stretch``): a judgement, four and two digits above float64's
-#: rounding, so that the integration error stays far below the tolerances downstream.
+#: compiled ``integrate_stretch``): a judgement, about ten digits of the state, well
+#: above what the integrators can reach (MIN_RTOL) and cheap enough for the default.
 DEFAULT_RTOL = 1e-10
 DEFAULT_ATOL = 1e-12
 #: smallest rtol solve_ivp honours (it raises smaller ones to this, with a warning: scipy's
@@ -57,18 +57,18 @@ EVENT_XTOL = 4.0 * _EPS
 EVENT_RTOL = 4.0 * _EPS
 EVENT_MAX_ITER = 100
 #: the longest a slice of the compiled driver runs, in seconds, between which Ctrl-C and
-#: progress are seen (a judgement: responsive, and a slice costs about a microsecond).
+#: progress are seen (a judgement: an answer to Ctrl-C within a fifth of a second).
 SLICE_SECONDS = 0.2
-#: accepted steps of a slice before the model's cost per step is known (a judgement: a
-#: fraction of a millisecond on the examples).
+#: accepted steps of a slice before the model's cost per step is known (a judgement: few
+#: enough that the first slice stays short on a costly model).
 FIRST_SLICE = 256
 
 # --- events at a stop -------------------------------------------------------------------
 
 #: default ``simultaneity_tol`` of ``simulate`` and ``simulate_many``: events whose
 #: first-order time to crossing is at most this switch together at a stop (a judgement:
-#: far below the time the default tolerances resolve, so only events the integrator
-#: cannot tell apart are grouped).
+#: only events all but at the stop together, so that a simulation keeps every order the
+#: integrator resolves; the B-derivatives group more widely, below).
 SIMULATION_SIMULTANEITY_TOL = 1e-12
 #: default ``simultaneity_tol`` of the B-derivatives along trajectories (flow maps, return
 #: maps, periodic orbits, ``bderiv.jax.flow``): a judgement, well above the event-location
@@ -81,11 +81,12 @@ DERIVATIVE_SIMULTANEITY_TOL = 1e-7
 FD_SIMULTANEITY_TOL = 1e-13
 #: a crossing whose rate ``|Dh_k . F|`` is at most this times ``|Dh_k| |F|`` is grazing;
 #: the default ``transversality_tol`` of ``BDerivative`` (a judgement: far above the
-#: rounding of the product, about d EPS, far below a rate that can be trusted).
+#: rounding of the product, about d EPS; a rate this small against its factors does not
+#: decide the order of the crossings).
 GRAZING_RTOL = 1e-9
 #: relative accuracy to which a model's resets are checked: with analytic Jacobians (event
 #: and reset; the default ``reset_tol`` of ``BDerivative``), and with numerical ones
-#: (accurate to ``ACCEPT_RTOL`` or refused, so checked well above it).
+#: (accurate to ``ACCEPT_RTOL`` or refused, so checked at ten times it).
 RESET_TOL = 1e-9
 RESET_TOL_NUMERICAL = 1e-6
 #: resets of simultaneous events whose results differ by more than this times the
@@ -96,7 +97,9 @@ RESET_MISMATCH = 1e3
 #: orders; larger groups also in descending order only: a judgement of cost).
 ORDERS_CHECKED = 4
 #: largest accepted ``|events(rho)|`` at an event point (``HybridSystem.bderivative``) and
-#: ``|section(x0)|`` at a section point (``return_map``): a judgement, as GRAZING_RTOL.
+#: ``|section(x0)|`` at a section point (``return_map``; the orbit's iterates): a
+#: judgement, far above the rounding of an event function at unit scale, far below a point
+#: visibly off the surface.
 ON_SURFACE_TOL = 1e-9
 
 # --- the excursion screen (surfaces crossed and crossed back inside a step) ------------
@@ -262,8 +265,8 @@ MAX_PIECE_SWITCHES = 32
 #: pieces whose Floquet multipliers ``stability()`` reports: the most visited.
 MULTIPLIER_PIECES = 12
 #: a shifted return that differs from the shifted original by more than this times
-#: ``max(1, |x|)`` shows that a coordinate is not cyclic (well above the integration
-#: error of the default tolerances, far below a real dependence).
+#: ``max(1, |x|)`` shows that a coordinate is not cyclic (a judgement: well above the
+#: integration error of a return, far below a real dependence).
 INDEPENDENCE_RTOL = 1e-7
 #: strides a direction of ``decay_check`` needs in the linear regime for its rate to be
 #: fitted (a line through fewer points has no check of its own).
@@ -277,9 +280,12 @@ LOCAL_WORKERS = 2
 
 # --- contacts (``symbolic.contacts``) -------------------------------------------------
 
-#: a contact is on its surface when ``|phi| <= SURFACE_TOL * max(1, max |q|)``
+#: a contact is on its surface when ``|phi| <= SURFACE_TOL * max(1, max |q|)`` (a
+#: judgement)
 SURFACE_TOL = 1e-6
 #: relative coupling ``|J_i M^-1 J_j^T| / sqrt(J_i M^-1 J_i^T J_j M^-1 J_j^T)`` accepted
+#: between simultaneous contacts (a judgement: orthogonal contacts give rounding only,
+#: about 1e-16; coupled ones give a number of order one)
 COUPLING_TOL = 1e-9
 
 # --- the command line ---------------------------------------------------------------------
@@ -292,9 +298,10 @@ EPS_RANGE = (1e-12, 0.1)
 #: has 2**n rows)
 NETWORK_MAX_N = 20
 #: random vectors on which every file ``export`` reads back is compared with the
-#: B-derivative
+#: B-derivative (a judgement: a wrong entry shows on any random vector)
 CHECK_VECTORS = 200
-#: corner tables with more entries than this are left out of ``--full`` output
+#: corner tables with more entries than this are left out of ``--full`` output (a
+#: judgement: longer tables are not read)
 FULL_TABLE_ENTRIES = 1 << 14
 #: Agg's bound on the pixels of a side of a raster image
 MAX_SIDE_PIXELS = 1 << 16
