@@ -290,6 +290,22 @@ COUPLING_TOL = 1e-9
 
 # --- the command line ---------------------------------------------------------------------
 
+#: default steps of the finite differences (``checks.fd_check``, ``bderiv demo --eps``, the
+#: gait and landing summaries): three decades, so that the error's fall with the step is
+#: seen (first order), each far above EPS_RANGE's rounding floor
+FD_EPS = (1e-4, 1e-5, 1e-6)
+#: default tangent vectors of ``bderiv demo``'s timed batch, and of its finite-difference
+#: check (a judgement: a batch long enough to time both threads; a check of a few
+#: vectors, each a pair of simulations per step)
+DEMO_BATCH = 1_000_000
+DEMO_CHECK = 8
+#: default numbers of events, queries per batch and timed runs (the best kept) of
+#: ``bderiv bench`` (a judgement: a short sweep; the best of three runs tames the noise of
+#: a shared machine)
+BENCH_NS = (2, 4, 8, 12, 16)
+BENCH_BATCH = 100_000
+BENCH_REPEAT = 3
+
 #: finite-difference steps of ``--eps``: below 1e-12 rounding swamps the difference
 #: quotient, above 0.1 the step leaves the neighbourhood where the B-derivative describes
 #: the flow

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._cyclic import check_cyclic, kept
-from ._limits import FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
+from ._limits import FD_EPS, FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
 from ._progress import resolve_progress
 from ._validate import check_matrix, check_number, check_points, check_positive_int
 from .models.integrate.run import SolverOptions
@@ -119,7 +119,7 @@ class FDCheck:
         return all(low < r < high for r in self.ratios)
 
 
-def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=None,
+def fd_check(system, x0, t_final, V, D_V, eps=FD_EPS, *, progress=None,
              **simulate_options) -> FDCheck:
     """Compare ``D_V = D(V)`` with forward differences of ``system``'s simulated flow.
 

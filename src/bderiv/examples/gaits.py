@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from numba.extending import register_jitable
 
+from .._limits import FD_EPS
 from .._validate import check_positive_int
 from ._common import Example, compile_function
 
@@ -235,7 +236,7 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
     return ex.system.periodic_orbit(guess, section, **kwargs)
 
 
-def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0,
+def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
                      compiled=False):
     """The gait from model to stability verdict, with its checks against simulation.
 
