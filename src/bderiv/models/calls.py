@@ -392,13 +392,14 @@ class ModelCalls:
         """
         x0 = self._check_state(x0, "x0")
         h = self.eval_events(x0)
-        on = np.flatnonzero(h == 0)
-        if on.size:
+        values = h.tolist()
+        on = [k for k, v in enumerate(values) if v == 0]
+        if on:
             raise ValueError(
-                f"x0 lies on the surface of event(s) {on.tolist()} (events(x0) = {h}); the "
+                f"x0 lies on the surface of event(s) {on} (events(x0) = {h}); the "
                 f"region is ambiguous there: start slightly before or after the event"
             )
-        return int(np.sum((h > 0).astype(np.int64) << np.arange(self.n_events)))
+        return sum(1 << k for k, v in enumerate(values) if v > 0)
 
 
 class Section:
