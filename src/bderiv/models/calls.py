@@ -275,7 +275,12 @@ class ModelCalls:
 
     def eval_event_jacobian(self, x):
         """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""
-        x = self._check_state(x)
+        return self.event_jacobian_at(self._check_state(x))
+
+    def event_jacobian_at(self, x):
+        """:meth:`eval_event_jacobian` at a state known to be one (float64, shape (d,),
+        finite: the integrator's stop), not checked again; the function gets a copy."""
+        x = np.array(x, dtype=np.float64)
         given = None if self._event_jac is None else (lambda: self._event_jac(x))
         return self._jacobian(given, ("event_jacobian",), self.eval_events, x,
                               (self.n_events, self.dim), "events(x)", "event_jacobian")

@@ -258,6 +258,9 @@ class StopCalls:
         self.system = system
         self._kept = {}  # (name, mask) -> (the state's bytes, the value)
         self._compiled = getattr(system, "compiled", None)
+        # read at every stop: plain attributes, not a __getattr__ each time
+        self.n_events, self.dim = system.n_events, system.dim
+        self.has_resets = getattr(system, "has_resets", False)
 
     def __getattr__(self, name):
         return getattr(self.system, name)
@@ -286,7 +289,8 @@ class StopCalls:
 
     def eval_event_jacobian(self, x):
         """The checked event Jacobian at ``x``: shape (n, d)."""
-        return self._kept_value("event_jacobian", x, self.system.eval_event_jacobian)
+        at = getattr(self.system, "event_jacobian_at", self.system.eval_event_jacobian)
+        return self._kept_value("event_jacobian", x, at)
 
     def eval_field(self, x, mask):
         """The checked field of region ``mask`` at ``x``: shape (d,)."""
