@@ -122,16 +122,16 @@ class SolverOptions:
         base = options if options is not None else (default or _defaults(cls))
         return base.with_overrides(**settings)
 
+    def solve_ivp_kwargs(self) -> dict:
+        """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
+        return {"rtol": self.rtol, "atol": self.atol, "method": self.method,
+                "max_step": self.max_step}
+
 
 @lru_cache(maxsize=8)
 def _defaults(cls) -> SolverOptions:
     """``cls()``, made once (frozen: shared by every run that passes no options)."""
     return cls()
-
-    def solve_ivp_kwargs(self) -> dict:
-        """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
-        return {"rtol": self.rtol, "atol": self.atol, "method": self.method,
-                "max_step": self.max_step}
 
 
 @dataclass(frozen=True, eq=False)
