@@ -43,6 +43,7 @@ from scipy.optimize import minimize_scalar
 
 from ._peaks import peak_rows
 from .crossings import group_tolerance
+from .locate import StopCalls
 
 __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
 
@@ -177,7 +178,7 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
     head_t, head_y = [], []
     sol = solve(t0, y0, t_end)
     while True:
-        lost = _earliest_lost(system, sign, options, sol, events_at)
+        lost = _earliest_lost(system, mask, sign, options, sol, events_at)
         if lost is None:
             break
         i, t_peak = lost
@@ -194,7 +195,7 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
     return sol
 
 
-def _earliest_lost(system, sign, options, sol, events_at):
+def _earliest_lost(system, mask, sign, options, sol, events_at):
     """``(i, t_peak)`` of the earliest crossing inside a step of ``sol`` (i: the last step
     end before its bracket), or None."""
     d = system.dim
@@ -208,6 +209,8 @@ def _earliest_lost(system, sign, options, sol, events_at):
     # a peak at an end of the stretch is not an excursion: at the start the events were
     # just switched (one may sit a rounding across its surface), at the stop an event is
     # located, or across and switched with it (crossings.switch)
+    rates = _EndRates(system, sign, mask, sol.y[:d, 0], sol.y[:d, -1])
+    last = times.size - 1
     for k, lo, hi in peak_brackets(h, tol, stretch=True):
 
         def value(t, k=k):
@@ -215,10 +218,14 @@ def _earliest_lost(system, sign, options, sol, events_at):
 
         fine = np.linspace(times[lo], times[hi], FINE_SAMPLES)
         v = sign[k] * events_at(sol.sol(fine)[:d].T)[:, k : k + 1]
-        sub = peak_brackets(v, tol[k : k + 1], reach=FINE_REACH)
+        # a bracket at an end of the stretch that the event leaves from, or rises into,
+        # peaks at that end, where the switching rule decides it (module docstring, 2)
+        sub = [(a, b) for _, a, b in peak_brackets(v, tol[k : k + 1], reach=FINE_REACH)
+               if not (lo == 0 and a == 0 and rates.start()[k] < 0.0)
+               and not (hi == last and b == FINE_SAMPLES - 1 and rates.end()[k] > 0.0)]
         if not sub:
             continue
-        t_peak, top = max((peak_of(value, fine[a], fine[b]) for _, a, b in sub),
+        t_peak, top = max((peak_of(value, fine[a], fine[b]) for a, b in sub),
                           key=lambda peak: peak[1])
         if not times[0] < t_peak < times[-1]:  # the ends were decided by the switching rule
             continue
@@ -236,3 +243,33 @@ def _earliest_lost(system, sign, options, sol, events_at):
                 f"start point"
             )
     return None
+
+
+class _EndRates:
+    """The events' rates ``Dh . F`` (local orientation) at the stretch's start and end,
+    each evaluated at its first use: ``start()``, ``end()``, shape (n,).
+
+    The end's gradients and field are those the switching rule asks for at the stop (kept
+    by :class:`~bderiv.models.events.locate.StopCalls`); the start's gradients are asked
+    of the model itself, so that they do not replace the end's among the kept ones.
+    """
+
+    def __init__(self, system, sign, mask, x_start, x_end):
+        self.system, self.sign, self.mask = system, sign, mask
+        self.x = {"start": x_start, "end": x_end}
+        self.rate = {}
+
+    def _at(self, end):
+        if end not in self.rate:
+            system, x = self.system, self.x[end]
+            model = system.system if isinstance(system, StopCalls) and end == "start" \
+                else system
+            Dh = model.eval_event_jacobian(x)
+            self.rate[end] = self.sign * (Dh @ system.eval_field(x, self.mask))
+        return self.rate[end]
+
+    def start(self):
+        return self._at("start")
+
+    def end(self):
+        return self._at("end")
