@@ -27,7 +27,13 @@ point where ``h_k > 0``. With ``h`` sampled at the step ends and the midpoints o
    surface that rises above both ends of its bracket by more than ``tol_k`` cannot be
    decided at this accuracy (a grazing contact, where the flow has no B-derivative):
    refused. A peak at an end of the stretch is left to the switching rule
-   (:func:`bderiv.models.events.crossings.switch`).
+   (:func:`bderiv.models.events.crossings.switch`). A finer bracket at the end of the
+   stretch where ``h_k`` rises (its rate ``Dh_k . F > 0`` there), or at its start where
+   ``h_k`` falls, is not searched: with one maximum in the bracket (the search's own
+   assumption: bounded Brent finds the maximum of such a function only) it is that end.
+   These are the events about to cross just after a stop, or that crossed just before
+   it (feet landing apart): the search found the end and gave it up, at about 25
+   evaluations of the dense output and the events each (docs/mathematics.md, section 11).
 3. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
    before the earliest lost crossing's bracket to its peak, where ``h_k > 0``: the sign
    change is at the ends of a step now, and the crossing is located as any other.
