@@ -226,7 +226,7 @@ class _UnknownRates(excursions._EndRates):
     """The excursion screen's rates at a stretch's ends unknown: every bracket at an end is
     searched (the screen before its end rule)."""
 
-    def _at(self, end):
+    def _rate(self, model, x):
         return np.full(self.sign.size, np.nan)
 
 

@@ -276,7 +276,7 @@ class _UnknownRates(excursions._EndRates):
     """The rates at a stretch's ends unknown (NaN): every bracket is searched, as the
     screen did before it read them."""
 
-    def _at(self, end):
+    def _rate(self, model, x):
         return np.full(self.sign.size, np.nan)
 
 

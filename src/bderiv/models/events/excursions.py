@@ -262,20 +262,20 @@ class _EndRates:
 
     def __init__(self, system, sign, mask, x_start, x_end):
         self.system, self.sign, self.mask = system, sign, mask
-        self.x = {"start": x_start, "end": x_end}
-        self.rate = {}
-
-    def _at(self, end):
-        if end not in self.rate:
-            system, x = self.system, self.x[end]
-            model = system.system if isinstance(system, StopCalls) and end == "start" \
-                else system
-            Dh = model.eval_event_jacobian(x)
-            self.rate[end] = self.sign * (Dh @ system.eval_field(x, self.mask))
-        return self.rate[end]
+        self.x_start, self.x_end = x_start, x_end
+        self._start = self._end = None
 
     def start(self):
-        return self._at("start")
+        if self._start is None:
+            stops = self.system
+            model = stops.system if isinstance(stops, StopCalls) else stops
+            self._start = self._rate(model, self.x_start)
+        return self._start
 
     def end(self):
-        return self._at("end")
+        if self._end is None:
+            self._end = self._rate(self.system, self.x_end)
+        return self._end
+
+    def _rate(self, model, x):
+        return self.sign * (model.eval_event_jacobian(x) @ self.system.eval_field(x, self.mask))
