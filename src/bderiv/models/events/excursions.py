@@ -187,11 +187,15 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
         lost = _earliest_lost(system, mask, sign, options, sol, events_at)
         if lost is None:
             break
-        i, t_peak = lost
+        i, t_peak, through = lost
         head_t.append(sol.t[:i])
         head_y.append(sol.y[:, :i])
         sol = solve(float(sol.t[i]), sol.y[:, i], t_peak)  # checked on the next pass
-        if sol.status != 1:
+        if through and sol.status == 0:  # a step end below the surface: go on from it
+            head_t.append(sol.t[:-1])
+            head_y.append(sol.y[:, :-1])
+            sol = solve(float(sol.t[-1]), sol.y[:, -1], t_end)
+        elif sol.status != 1:
             raise RuntimeError(
                 f"a crossing inside a step near t={t_peak:.10g} was not located by the "
                 f"integration to its peak; pass a smaller max_step"
@@ -202,8 +206,9 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
 
 
 def _earliest_lost(system, mask, sign, options, sol, events_at):
-    """``(i, t_peak)`` of the earliest crossing inside a step of ``sol`` (i: the last step
-    end before its bracket), or None."""
+    """``(i, t, through)`` of the earliest crossing inside a step of ``sol``, or None: from
+    the step end ``i`` integrate to the peak ``t`` (``through`` False), or to the sample
+    ``t`` below the surface before a return across it (``through`` True: :func:`_return`)."""
     d = system.dim
     times = sample_times(sol.t)
     states = sol.sol(times)[:d].T
@@ -217,7 +222,10 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
     # located, or across and switched with it (crossings.switch)
     rates = _EndRates(system, sign, mask, sol.y[:d, 0], sol.y[:d, -1])
     last = times.size - 1
+    dip = _return(h, tol)
     for k, lo, hi in peak_brackets(h, tol, stretch=True):
+        if dip is not None and times[lo] >= times[dip]:
+            break
 
         def value(t, k=k):
             return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
@@ -239,7 +247,7 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
         window = group_tolerance(system.eval_event_jacobian(x_peak)[k : k + 1], options,
                                  scale)[0]
         if top > window:
-            return int(np.searchsorted(sol.t, times[lo], side="right")) - 1, t_peak
+            return int(np.searchsorted(sol.t, times[lo], side="right")) - 1, t_peak, False
         if top >= -window and top > max(h[lo, k], h[hi, k]) + window:
             raise ValueError(
                 f"event {k} comes within the integration accuracy of its surface at "
@@ -248,7 +256,30 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
                 f"where the flow has no B-derivative); tighten rtol and atol or move the "
                 f"start point"
             )
+    if dip is not None:
+        return int(np.searchsorted(sol.t, times[dip], side="left")) - 1, times[dip], True
     return None
+
+
+def _return(h, tol):
+    """The earliest sample (index >= 1) below the surface, ``h_k < 0``, of an event that is
+    across it, ``h_k > tol_k``, at a later sample; None if there is none.
+
+    A stretch's integrator stops at the first crossing it sees, so a sample across a
+    surface is one it did not see. Unless a peak between samples hides it, it is an event
+    that started the stretch a rounding across its surface (just switched: the located
+    crossing left it on the side it came from), left it and came back within the first
+    step: both step ends read across, no sign change. Integrated again to the lowest
+    sample before the return, the stretch has a step end below the surface there.
+    """
+    first = None
+    for k in range(h.shape[1]):
+        across = np.flatnonzero(h[1:, k] > tol[k])
+        if across.size == 0 or not across[0] > 0 or not h[1 : 1 + across[0], k].min() < 0:
+            continue
+        i = 1 + int(np.argmin(h[1 : 1 + across[0], k]))
+        first = i if first is None else min(first, i)
+    return first
 
 
 class _EndRates:
