@@ -34,9 +34,14 @@ point where ``h_k > 0``. With ``h`` sampled at the step ends and the midpoints o
    These are the events about to cross just after a stop, or that crossed just before
    it (feet landing apart): the search found the end and gave it up, at about 25
    evaluations of the dense output and the events each (docs/mathematics.md, section 11).
-3. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
-   before the earliest lost crossing's bracket to its peak, where ``h_k > 0``: the sign
-   change is at the ends of a step now, and the crossing is located as any other.
+3. :func:`_return`: a sample below the surface (``h_k < 0``) before a sample across it
+   (``h_k > tol_k``, at no peak) is a return the integrator did not see: an event just
+   switched, left a rounding on the side it came from by its located crossing, that
+   comes back within the stretch's first step (both step ends read across).
+4. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
+   before the earliest lost crossing's bracket to its peak, where ``h_k > 0``, or, for a
+   return, to the lowest sample before it, and on from there: the sign change is at the
+   ends of a step now, and the crossing is located as any other.
 
 A step in which ``h_k`` rises and falls more than once is assumed to show one of its peaks
 among the samples; a step long against the time scale of the events needs ``max_step``.
@@ -272,13 +277,13 @@ def _return(h, tol):
     step: both step ends read across, no sign change. Integrated again to the lowest
     sample before the return, the stretch has a step end below the surface there.
     """
+    across = h[1:] > tol
     first = None
-    for k in range(h.shape[1]):
-        across = np.flatnonzero(h[1:, k] > tol[k])
-        if across.size == 0 or not across[0] > 0 or not h[1 : 1 + across[0], k].min() < 0:
-            continue
-        i = 1 + int(np.argmin(h[1 : 1 + across[0], k]))
-        first = i if first is None else min(first, i)
+    for k in np.flatnonzero(across.any(axis=0)):  # none, on almost every stretch
+        j = 1 + int(np.argmax(across[:, k]))  # the first sample across
+        if j > 1 and h[1:j, k].min() < 0:
+            i = 1 + int(np.argmin(h[1:j, k]))
+            first = i if first is None else min(first, i)
     return first
 
 
