@@ -291,6 +291,18 @@ def test_a_return_within_the_first_step_after_a_found_crossing_is_found():
     np.testing.assert_allclose(traj.x_final, [T_END, 2 * w], rtol=1e-9)
 
 
+def test_a_return_is_a_sample_below_the_surface_before_one_across():
+    tol = np.array([1e-9, 1e-9])
+    h = np.array([[1e-17, -1.0], [-1e-3, -0.5], [-2e-3, -0.2], [5e-3, -0.1]])
+    assert excursions._return(h, tol) == 2  # the lowest sample before the return
+    assert excursions._return(h[:, ::-1], tol[::-1]) == 2
+    assert excursions._return(h[[0, 3]], tol) is None  # across at once: no sample below
+    assert excursions._return(h[:3], tol) is None  # never back across
+    assert excursions._return(h - 1e-2, tol) is None
+    # across by less than tol (a rounding): no return
+    assert excursions._return(np.array([[0.0], [-1e-3], [1e-10]]), tol[:1]) is None
+
+
 class _UnknownRates(excursions._EndRates):
     """The rates at a stretch's ends unknown (NaN): every bracket is searched, as the
     screen did before it read them."""
