@@ -2,6 +2,9 @@
 
     python benchmarks/ab.py /work/main/src [--rounds 7] [--queries 1000000] [--cases ...]
 
+A case is a name of the registry or ``<representation>:<n>:<d>:<queries>`` (a size the
+registry does not list, e.g. ``structured:32:32:65536``).
+
 The cases and operations are those of ``tests/variants.py`` (every kernel variant listed
 once: a variant added there is benchmarked here). The other checkout's package
 (``<src>/bderiv``, whose imports are all relative) is copied to a folder of the temporary
@@ -35,6 +38,18 @@ from variants import OPERATIONS, REPRESENTATIONS, bench_cases  # noqa: E402
 
 #: case name -> (representation, n, d, default queries)
 CASES = bench_cases()
+
+
+def case(name):
+    """(representation, n, d, queries) of a registry case or of ``rep:n:d:queries``."""
+    if name in CASES:
+        return CASES[name]
+    kind, *size = name.split(":")
+    if kind not in REPRESENTATIONS or len(size) != 3:
+        raise SystemExit(f"unknown case {name!r}: expected one of {list(CASES)} or "
+                         f"<representation>:<n>:<d>:<queries> with a representation of "
+                         f"{list(REPRESENTATIONS)}")
+    return (kind, *map(int, size))
 
 
 def base_package(src: pathlib.Path):
@@ -93,7 +108,7 @@ def main(argv=None):
     print(f"{'case':>14} {'op':>8} {'this ns/q':>10} {'base ns/q':>10} {'ratio':>6} "
           f"{'this min':>10} {'base min':>10} {'ratio':>6}")
     for name in args.cases.split(","):
-        kind, n, d, m = CASES[name]
+        kind, n, d, m = case(name)
         m = args.queries or m
         V = np.random.default_rng(1).standard_normal((m, d))
         order = ("base", "this") if args.base_first else ("this", "base")

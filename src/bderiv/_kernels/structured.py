@@ -57,20 +57,11 @@ class StructuredTables(NamedTuple):
     ABp: np.ndarray
     #: (1, 8 nc) the event indices as floats (padding inf)
     iota: np.ndarray
-    #: the number of events
-    n: int
-    #: the dimension
-    d: int
-    #: vectors of 8 per event row (``8 nc >= n``)
-    nc: int
-    #: vectors of 8 per position (``8 dc >= d``)
-    dc: int
-    #: the number of pairs
-    npairs: int
-    #: the most pairs of one event
-    deg: int
-    #: 1: test every rate of every region on the chain (transversality not proved)
-    check: int
+    #: int64 [n, d, nc, dc, npairs, deg, check]: the events, the dimension, vectors of 8
+    #: per event row (``8 nc >= n``) and per position (``8 dc >= d``), the number of pairs,
+    #: the most pairs of one event, and 1 to test every rate of every region on the chain
+    #: (transversality not proved); an array, see the module docstring
+    dims: np.ndarray
 
 
 class StructuredOwnTables(NamedTuple):
@@ -250,7 +241,7 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
     rates, bDhp, ptr, other, pidx, iota = (tables.rates, tables.bDhp, tables.ptr,
                                            tables.other, tables.pidx, tables.iota)
     R, HAP, J, ROW, T, BEST, PL, K = work
-    n, nc = tables.n, tables.nc
+    n, nc = tables.dims[0], tables.dims[2]
     cand = 1 if inverse else 0  # HAP of a candidate (happened: 1)
     sigma = -1.0 if inverse else 1.0  # the rates gain the jumps forwards, lose them back
     _start(rates, G, p0, ln, cand, n, nc, status, q0, R, HAP, ROW, T)
@@ -292,7 +283,7 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
 def _scratch(tables):
     """G (and zeros of its shape), TS, ORD of a group and the lockstep work arrays R, HAP, J,
     ROW, T, BEST, PL, K (``J``: the jump rows of :func:`_chains`, with a copy of ``a``)."""
-    n, nc, npairs, deg = tables.n, tables.nc, tables.npairs, tables.deg
+    n, nc, npairs, deg = tables.dims[0], tables.dims[2], tables.dims[4], tables.dims[5]
     J = np.zeros((n + LOCK + 1, 8 * nc))
     J[:n] = tables.ap
     work = (np.empty((LOCK, 8 * nc)), np.empty((LOCK, n), dtype=np.uint8), J,
@@ -317,19 +308,19 @@ def _apply_block(tables, V, outs, start, stop, inverse):
     scratch = _scratch(tables)
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _group(tables, V, q0, pn, inverse, tables.check != 0, status, scratch)
+        _group(tables, V, q0, pn, inverse, tables.dims[6] != 0, status, scratch)
         _products(tables.ABp, scratch[1], 0, pn, 1.0 if inverse else -1.0, V, q0, out, q0)
 
 
 @njit(**JIT)
 def _times_block(tables, V, outs, start, stop, inverse):
     times, orders, status = outs
-    n = tables.n
+    n = tables.dims[0]
     scratch = _scratch(tables)
     TS, ORD = scratch[1], scratch[2]
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _group(tables, V, q0, pn, False, tables.check != 0, status, scratch)
+        _group(tables, V, q0, pn, False, tables.dims[6] != 0, status, scratch)
         for p in range(pn):
             for k in range(n):
                 times[q0 + p, k] = TS[p, k]
