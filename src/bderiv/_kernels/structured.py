@@ -27,7 +27,6 @@ from numba import njit
 
 from . import _simd as vec
 from ._core import JIT, batch, cached, own_rate_times
-from .selection import earliest, pending_times, retire
 
 #: queries whose event values and outputs are computed as one matrix product
 GROUP = 32
@@ -108,42 +107,74 @@ def _products(M, X, x0, pn, s, B, b0, Y, y0):
 
 
 @njit(inline="always", **JIT)
-def _update(G, p, R, lane, J, row, c, ct, cs):
+def _block(G, p, R, lane, J, row, c, ct, cs, best, idx):
     """Vector c of one lane (row p of G, ``lane`` of R): ``g -= t jump``, ``r += sigma
-    jump`` with the jump ``J[row]`` (``ct = -t``, ``cs = sigma``)."""
+    jump`` with the jump ``J[row]`` (``ct = -t``, ``cs = sigma``), then the lane-wise best
+    of ``best`` and these candidates: k beats b iff ``g_k r_b > g_b r_k`` (the earlier
+    ``-g / r``; rates are positive, no division), so the first of equal ones stays."""
+    gb, rb, ib = best
     jump = vec.load(J, row, 8 * c, W8)
-    vec.store(G, p, 8 * c, vec.fma(ct, jump, vec.load(G, p, 8 * c, W8)))
-    vec.store(R, lane, 8 * c, vec.fma(cs, jump, vec.load(R, lane, 8 * c, W8)))
+    g = vec.fma(ct, jump, vec.load(G, p, 8 * c, W8))
+    r = vec.fma(cs, jump, vec.load(R, lane, 8 * c, W8))
+    vec.store(G, p, 8 * c, g)
+    vec.store(R, lane, 8 * c, r)
+    new, old = vec.mul(g, rb), vec.mul(gb, r)
+    return (vec.where_greater(new, old, g, gb), vec.where_greater(new, old, r, rb),
+            vec.where_greater(new, old, idx, ib))
 
 
 @njit(inline="always", **JIT)
-def _pass(G, p0, R, J, ROW, T, nc, sigma):
-    """One pass of the LOCK lanes (rows p0.. of G) over their events: the update of each
-    lane's previous step (the jump of lane i is ``J[ROW[i]]``)."""
+def _pass(G, p0, R, J, ROW, T, BEST, iota, nc, sigma):
+    """One fused pass of the LOCK lanes (rows p0.. of G) over their events: the update of
+    each lane's previous step and the scan for its next one, four independent chains of
+    compare-and-select. The jump of lane i is ``J[ROW[i]]``; the eight vector lanes'
+    winners (g, r, index) of lane i go to ``BEST[i]``."""
     cs = vec.splat(sigma, W8)
     ta, tb = vec.splat(-T[0], W8), vec.splat(-T[1], W8)
     tc, td = vec.splat(-T[2], W8), vec.splat(-T[3], W8)
     ja, jb, jc, jd = ROW[0], ROW[1], ROW[2], ROW[3]
+    ba = bb = bc = bd = (vec.splat(-np.inf, W8), vec.splat(1.0, W8), vec.splat(np.inf, W8))
     for c in range(nc):
-        _update(G, p0, R, 0, J, ja, c, ta, cs)
-        _update(G, p0 + 1, R, 1, J, jb, c, tb, cs)
-        _update(G, p0 + 2, R, 2, J, jc, c, tc, cs)
-        _update(G, p0 + 3, R, 3, J, jd, c, td, cs)
+        idx = vec.load(iota, 0, 8 * c, W8)
+        ba = _block(G, p0, R, 0, J, ja, c, ta, cs, ba, idx)
+        bb = _block(G, p0 + 1, R, 1, J, jb, c, tb, cs, bb, idx)
+        bc = _block(G, p0 + 2, R, 2, J, jc, c, tc, cs, bc, idx)
+        bd = _block(G, p0 + 3, R, 3, J, jd, c, td, cs, bd, idx)
+    for lane, best in ((0, ba), (1, bb), (2, bc), (3, bd)):
+        for i in range(3):
+            vec.store(BEST, lane, 8 * i, best[i])
 
 
 @njit(inline="always", **JIT)
-def _winner(G, p, R, lane, HAP, cand, TAU):
-    """The next event of a lane by the selection's steps: ``-g_k / r_k`` for every event,
-    the earliest (ties to the smaller k); if that is no candidate (every candidate's time
-    is NaN or inf: the row is refused as non-finite) the first candidate."""
-    pending_times(G, p, R, lane, TAU)
-    kb, best = earliest(TAU, p, False)
-    if HAP[lane, kb] == cand:
-        return kb, best
-    for k in range(TAU.shape[1]):
+def _beats(a, b):
+    """The better of candidates a and b, each (g, r, index); equal products: the smaller
+    index."""
+    new, old = b[0] * a[1], a[0] * b[1]
+    take = (new > old) | ((new == old) & (b[2] < a[2]))  # no branch: the outcome is random
+    return (b[0] if take else a[0]), (b[1] if take else a[1]), (b[2] if take else a[2])
+
+
+@njit(inline="always", **JIT)
+def _pair(BEST, lane, i):
+    """The better of vector lanes i and i + 4 of ``BEST[lane]``."""
+    return _beats((BEST[lane, i], BEST[lane, 8 + i], BEST[lane, 16 + i]),
+                  (BEST[lane, i + 4], BEST[lane, 12 + i], BEST[lane, 20 + i]))
+
+
+@njit(inline="always", **JIT)
+def _winner(BEST, lane, HAP, cand, n):
+    """The winner of the eight vector lanes of ``BEST[lane]``, as a tree; if none (every
+    candidate's g is NaN or -inf: the row is refused as non-finite) the first candidate,
+    so that the winner is always a candidate."""
+    b0, b1 = _pair(BEST, lane, 0), _pair(BEST, lane, 1)
+    b2, b3 = _pair(BEST, lane, 2), _pair(BEST, lane, 3)
+    i = _beats(_beats(b0, b2), _beats(b1, b3))[2]
+    if i < n:
+        return int(i)
+    for k in range(n):
         if HAP[lane, k] == cand:
-            return k, TAU[p, k]
-    return 0, TAU[p, 0]
+            return k
+    return 0
 
 
 @njit(inline="always", **JIT)
@@ -207,15 +238,15 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
     Writes ``TS[p, k]`` (time of event k), ``TS[p, n + pair]``, ``ORD[p, j]`` (the j-th
     event) and ``status[q0 + p]``.
     """
-    rates, bDhp, ptr, other, pidx = (tables.rates, tables.bDhp, tables.ptr, tables.other,
-                                     tables.pidx)
-    R, HAP, J, ROW, T, TAU, PL, K = work
+    rates, bDhp, ptr, other, pidx, iota = (tables.rates, tables.bDhp, tables.ptr,
+                                           tables.other, tables.pidx, tables.iota)
+    R, HAP, J, ROW, T, BEST, PL, K = work
     n, nc = tables.dims[0], tables.dims[2]
     cand = 1 if inverse else 0  # HAP of a candidate (happened: 1)
     sigma = -1.0 if inverse else 1.0  # the rates gain the jumps forwards, lose them back
     _start(rates, G, p0, ln, cand, n, nc, status, q0, R, HAP, ROW, T)
     for j in range(n + 1 if check else n):  # with check: the last update is checked too
-        _pass(G, p0, R, J, ROW, T, nc, sigma)
+        _pass(G, p0, R, J, ROW, T, BEST, iota, nc, sigma)
         for lane in range(ln):  # the lanes' next events and times (independent chains)
             p = p0 + lane
             K[lane] = -1
@@ -226,8 +257,8 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
                 status[q0 + p] = bad
                 ROW[lane], T[lane] = n + LOCK, 0.0  # stop: R stays for diagnose
                 continue
-            kb, best = _winner(G, p, R, lane, HAP, cand, TAU)
-            K[lane], T[lane] = kb, -best if inverse else best
+            kb = _winner(BEST, lane, HAP, cand, n)
+            K[lane], T[lane] = kb, (G[p, kb] if inverse else -G[p, kb]) / R[lane, kb]
         for lane in range(ln):  # their bookkeeping
             kb, t, p = K[lane], T[lane], p0 + lane
             if kb < 0:
@@ -235,7 +266,7 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
             TS[p, kb] = t
             ORD[p, n - 1 - j if inverse else j] = kb
             HAP[lane, kb] = 1 - cand
-            retire(G, p, kb, False)
+            G[p, kb] = -np.inf
             na = 0
             for e in range(ptr[kb], ptr[kb + 1]):  # pairs switched on (backwards: off)
                 pe = pidx[e]
@@ -256,7 +287,7 @@ def _scratch(tables):
     J = np.zeros((n + LOCK + 1, 8 * nc))
     J[:n] = tables.ap
     work = (np.empty((LOCK, 8 * nc)), np.empty((LOCK, n), dtype=np.uint8), J,
-            np.empty(LOCK, dtype=np.int64), np.empty(LOCK), np.empty((GROUP, n)),
+            np.empty(LOCK, dtype=np.int64), np.empty(LOCK), np.empty((LOCK, 24)),
             np.empty(max(deg, 1), dtype=np.int64), np.empty(LOCK, dtype=np.int64))
     return (np.empty((GROUP, 8 * nc)), np.empty((GROUP, n + npairs)),
             np.empty((GROUP, n), dtype=np.int64), work, np.zeros((GROUP, 8 * nc)))
