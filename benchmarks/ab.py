@@ -79,6 +79,12 @@ def _same(a, b, op):
         np.testing.assert_array_equal(x, y, err_msg=op)
 
 
+def _difference(a, b):
+    """The largest |a - b| relative to max |b| over the arrays of an operation's result."""
+    return max(float(np.abs(x - y).max() / max(np.abs(y).max(), 1e-300))
+               for x, y in zip(np.atleast_1d(a), np.atleast_1d(b), strict=True))
+
+
 def main(argv=None):
     import bderiv
 
@@ -90,6 +96,9 @@ def main(argv=None):
     parser.add_argument("--ops", default="apply,inverse,times,jvp", help=f"of {list(OPERATIONS)}")
     parser.add_argument("--threads", type=int, default=None,
                         help="numba threads (default: all; 1 is steadier on a busy machine)")
+    parser.add_argument("--unequal", action="store_true",
+                        help="time even where the bits differ (an A/B of a change of "
+                             "arithmetic), printing the largest difference of each operation")
     parser.add_argument("--base-first", action="store_true",
                         help="build the base's tables first (memory placement can matter "
                              "for tables beyond the caches)")
@@ -117,7 +126,11 @@ def main(argv=None):
         maps = {who: build(packages[who], n, d).bd for who in order}
         ops = {who: operations(bd, V) for who, bd in maps.items()}
         for op in args.ops.split(","):  # the same bits, or the timing means nothing
-            _same(ops["this"][op](), ops["base"][op](), op)
+            if args.unequal:
+                print(f"{name:>14} {op:>8} largest difference "
+                      f"{_difference(ops['this'][op](), ops['base'][op]()):.3g}")
+            else:
+                _same(ops["this"][op](), ops["base"][op](), op)
         for op in args.ops.split(","):
             times = {"this": [], "base": []}
             for _ in range(args.rounds):
