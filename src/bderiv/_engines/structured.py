@@ -103,4 +103,4 @@ def _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B, check):
         np.ascontiguousarray(partner[srt], dtype=np.int64),
         np.ascontiguousarray(pid[srt], dtype=np.int64),
         padded(np.vstack([A, B]), 8 * dc), padded(np.arange(n)[None], 8 * nc, np.inf),
-        np.array([n, d, nc, dc, p, int(counts.max(initial=0)), int(check)], dtype=np.int64))
+        n, d, nc, dc, p, int(counts.max(initial=0)), int(check))

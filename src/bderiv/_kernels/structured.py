@@ -32,8 +32,11 @@ selection stays. (At small n the shared steps were faster; a switch by size woul
 quotients where this compares products, which can order near ties differently, so the
 results would no longer be the same bits: not done.)
 
-The sizes are an int64 array, ``StructuredTables.dims``, as for ``lanes.LaneTables``
-(where int fields cost 6-14 % on two threads).
+The sizes stay int fields: unlike ``lanes.LaneTables`` (where int fields cost 6-14 % on
+two threads), an int64 array of them measured no difference beyond the noise (the
+command above against the fields, array / fields: n = 128 apply 0.99 and 1.02, inverse
+0.95 and 1.05; n = 32 apply 0.98 and 0.94, inverse 0.98 and 0.96; runs of 11 and 15
+rounds, load 5-11 on two cores).
 """
 
 from __future__ import annotations
@@ -75,11 +78,20 @@ class StructuredTables(NamedTuple):
     ABp: np.ndarray
     #: (1, 8 nc) the event indices as floats (padding inf)
     iota: np.ndarray
-    #: int64 [n, d, nc, dc, npairs, deg, check]: the events, the dimension, vectors of 8
-    #: per event row (``8 nc >= n``) and per position (``8 dc >= d``), the number of pairs,
-    #: the most pairs of one event, and 1 to test every rate of every region on the chain
-    #: (transversality not proved); an array, see the module docstring
-    dims: np.ndarray
+    #: the number of events
+    n: int
+    #: the dimension
+    d: int
+    #: vectors of 8 per event row (``8 nc >= n``)
+    nc: int
+    #: vectors of 8 per position (``8 dc >= d``)
+    dc: int
+    #: the number of pairs
+    npairs: int
+    #: the most pairs of one event
+    deg: int
+    #: 1: test every rate of every region on the chain (transversality not proved)
+    check: int
 
 
 class StructuredOwnTables(NamedTuple):
@@ -259,7 +271,7 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
     rates, bDhp, ptr, other, pidx, iota = (tables.rates, tables.bDhp, tables.ptr,
                                            tables.other, tables.pidx, tables.iota)
     R, HAP, J, ROW, T, BEST, PL, K = work
-    n, nc = tables.dims[0], tables.dims[2]
+    n, nc = tables.n, tables.nc
     cand = 1 if inverse else 0  # HAP of a candidate (happened: 1)
     sigma = -1.0 if inverse else 1.0  # the rates gain the jumps forwards, lose them back
     _start(rates, G, p0, ln, cand, n, nc, status, q0, R, HAP, ROW, T)
@@ -301,7 +313,7 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
 def _scratch(tables):
     """G (and zeros of its shape), TS, ORD of a group and the lockstep work arrays R, HAP, J,
     ROW, T, BEST, PL, K (``J``: the jump rows of :func:`_chains`, with a copy of ``a``)."""
-    n, nc, npairs, deg = tables.dims[0], tables.dims[2], tables.dims[4], tables.dims[5]
+    n, nc, npairs, deg = tables.n, tables.nc, tables.npairs, tables.deg
     J = np.zeros((n + LOCK + 1, 8 * nc))
     J[:n] = tables.ap
     work = (np.empty((LOCK, 8 * nc)), np.empty((LOCK, n), dtype=np.uint8), J,
@@ -326,19 +338,19 @@ def _apply_block(tables, V, outs, start, stop, inverse):
     scratch = _scratch(tables)
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _group(tables, V, q0, pn, inverse, tables.dims[6] != 0, status, scratch)
+        _group(tables, V, q0, pn, inverse, tables.check != 0, status, scratch)
         _products(tables.ABp, scratch[1], 0, pn, 1.0 if inverse else -1.0, V, q0, out, q0)
 
 
 @njit(**JIT)
 def _times_block(tables, V, outs, start, stop, inverse):
     times, orders, status = outs
-    n = tables.dims[0]
+    n = tables.n
     scratch = _scratch(tables)
     TS, ORD = scratch[1], scratch[2]
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _group(tables, V, q0, pn, False, tables.dims[6] != 0, status, scratch)
+        _group(tables, V, q0, pn, False, tables.check != 0, status, scratch)
         for p in range(pn):
             for k in range(n):
                 times[q0 + p, k] = TS[p, k]
