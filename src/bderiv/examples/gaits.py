@@ -212,7 +212,9 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
     compiled : bool
         The model's functions compiled with numba (they run on the compiled integrator;
         the section is then :data:`compiled_apex_section`), else Python functions: the
-        same equations either way.
+        same equations either way. The constants are the system's parameters
+        (:meth:`Body.values`), so the functions are compiled once per process for every
+        body and number of legs (a stability map compiles nothing per point).
 
     Returns
     -------

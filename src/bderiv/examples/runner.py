@@ -101,7 +101,9 @@ def running(*, v_target=1.0, traction=8.0, t_after=0.05, compiled=False, **param
         ``t_final = t_event + t_after`` (the legs still touch then).
     compiled : bool
         The model's functions compiled with numba (the section is then
-        :data:`compiled_apex_section`), else Python functions: the same equations.
+        :data:`compiled_apex_section`), else Python functions: the same equations. The
+        speed, the traction and the body's constants are the system's parameters: the
+        functions are compiled once per process.
     **params
         The pronking body's parameters (:func:`bderiv.examples.gaits.pronking`: stiffness,
         damping, gain, legs, apex, ...).
