@@ -313,7 +313,12 @@ class ModelCalls:
 
     def eval_event_jacobian(self, x):
         """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""
-        x = self._check_state(x)
+        return self.event_jacobian_at(self._check_state(x))
+
+    def event_jacobian_at(self, x):
+        """:meth:`eval_event_jacobian` at a state known to be one (float64, shape (d,),
+        finite: the integrator's stop), not checked again; the function gets a copy."""
+        x = np.array(x, dtype=np.float64)
         given = None if self._event_jac is None else (lambda: self._event_jac(x))
         return self._jacobian(given, ("event_jacobian",), self.eval_events, x,
                               (self.n_events, self.dim), "events(x)", "event_jacobian")
@@ -430,13 +435,14 @@ class ModelCalls:
         """
         x0 = self._check_state(x0, "x0")
         h = self.eval_events(x0)
-        on = np.flatnonzero(h == 0)
-        if on.size:
+        values = h.tolist()
+        on = [k for k, v in enumerate(values) if v == 0]
+        if on:
             raise ValueError(
-                f"x0 lies on the surface of event(s) {on.tolist()} (events(x0) = {h}); the "
+                f"x0 lies on the surface of event(s) {on} (events(x0) = {h}); the "
                 f"region is ambiguous there: start slightly before or after the event"
             )
-        return int(np.sum((h > 0).astype(np.int64) << np.arange(self.n_events)))
+        return sum(1 << k for k, v in enumerate(values) if v > 0)
 
 
 class Section:

@@ -209,6 +209,22 @@ def field_rows(model, x, masks, d, out):
     return OK, 0
 
 
+@njit(cache=True)
+def events_and_field(model, x, mask, n, d, h, F):
+    """``h = events(x)`` and ``F = field(x, mask)``, checked (what a stop reads first, in
+    one call); a status as :func:`rhs`."""
+    status = call_events(model, False, x, n, h, np.empty(d))
+    if status != OK:
+        return status
+    f = model.field(argument(model, x), mask)
+    if f.size != d:
+        return FIELD_SHAPE
+    if not all_finite(f):
+        return FIELD_NONFINITE
+    F[:] = f
+    return OK
+
+
 @eager(JACOBIAN_SIGNATURE)
 def no_jacobian(x, mask):  # pragma: no cover - passed, never called
     """Stands for ``field_jacobian`` when the sensitivity is not carried (never called)."""

@@ -56,7 +56,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
           rtol, atol, max_step, first_step, forced, dense) -> Driven:
     """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
     key = (id(model), y0.size)
-    parts, counts = [], np.zeros(4, dtype=np.int64)
+    parts, counts = [], None
     while True:
         per_step = _cost.get(key)
         budget = FIRST_SLICE if per_step is None else max(1, int(SLICE_SECONDS / per_step))
@@ -72,7 +72,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         status, t_end, y_end, ts, ys, steps, Fd, active, roots, part, bad, t_bad, h = out
         if part[N_STEPS]:
             _cost[key] = elapsed / part[N_STEPS]
-        counts += part
+        counts = part if counts is None else counts + part
         parts.append((ts, ys, steps, Fd) if not parts else (ts[1:], ys[1:], steps, Fd))
         if status != PAUSED:
             break

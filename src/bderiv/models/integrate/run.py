@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from dataclasses import field as dc_field
-from functools import partial
+from functools import lru_cache, partial
 
 import numpy as np
 from scipy.integrate import OdeSolver
@@ -32,7 +32,7 @@ from ..events.crossings import (
     switch,
 )
 from ..events.finaltime import pending_at_final_time
-from ..events.locate import StopCalls, settle
+from ..events.locate import StopCalls, orientation, settle
 from .compiled_path import CompiledStretches
 from .scipy_path import ScipyStretches
 
@@ -119,13 +119,19 @@ class SolverOptions:
         """
         if options is not None and not isinstance(options, cls):
             raise TypeError(f"options must be a SolverOptions, got {type(options).__name__}")
-        base = options if options is not None else (default or cls())
+        base = options if options is not None else (default or _defaults(cls))
         return base.with_overrides(**settings)
 
     def solve_ivp_kwargs(self) -> dict:
         """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
         return {"rtol": self.rtol, "atol": self.atol, "method": self.method,
                 "max_step": self.max_step}
+
+
+@lru_cache(maxsize=8)
+def _defaults(cls) -> SolverOptions:
+    """``cls()``, made once (frozen: shared by every run that passes no options)."""
+    return cls()
 
 
 @dataclass(frozen=True, eq=False)
@@ -270,18 +276,18 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     while True:
         sol = stretches(x, t, t_final, mask, options, variational)
         again = partial(stretches, x, t, t_final, mask, variational=variational)
-        sol, err = settle(stops, mask, sol, simultaneity_tol, options, scale, err,
-                          again if variational else None)
+        settled = settle(stops, mask, sol, simultaneity_tol, options, scale, err,
+                         again if variational else None)
+        sol, err, scale, fired = settled.sol, settled.err, settled.scale, settled.fired
         log.add_stretch(sol, mask, d, variational)
         t, x = float(sol.t[-1]), np.array(sol.y[:d, -1])
-        scale = np.maximum(scale, np.abs(sol.y[:d]).max(axis=1))
-        fired = [k for k in range(n) if sol.t_events[k].size]
         if section is not None and sol.t_events[n].size:
             _refuse_event_at_return(fired, t)
             break
         if sol.status == 0:
             break
-        group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, err)
+        group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, err,
+                                     settled.stop)
         log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
         log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy()))
         mask, x = new, x_after
@@ -312,7 +318,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
 def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
     """The event group within ``simultaneity_tol`` of ``t_final`` and whether it is
     pending (after ``t_final``): ``(None, False)`` when there is none."""
-    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(system.n_events)])
+    sign = orientation(int(mask), system.n_events)
     rate = sign * (system.eval_event_jacobian(x) @ system.eval_field(x, mask))
     pending = pending_at_final_time(sign * system.eval_events(x), rate, simultaneity_tol)
     last = groups[-1] if groups and t_final - groups[-1].time <= simultaneity_tol else None
