@@ -99,6 +99,12 @@ class HybridSystem(ModelCalls):
         (and event), and refuse a mismatch (default True; the cost is one numerical
         directional derivative per mask). :func:`bderiv.check_jacobians` reports them
         all at a point.
+    params : array_like, shape (m,), optional
+        Parameter values: every function above then takes ``x`` of shape (d + m,), the
+        state followed by ``params`` (Jacobians are still by the state: (n, d), (d, d));
+        the methods and a Poincare section take the state alone. With compiled functions
+        a model with other values is another ``HybridSystem`` over the same dispatchers,
+        not another compilation (a stability map builds one per grid point).
 
     Notes
     -----
