@@ -53,6 +53,15 @@ def chain_regions(order, n: int) -> np.ndarray:
     return hap.reshape(order.shape[:-1] + (n + 1, n))
 
 
+#: a default memory limit is not read for a need up to this many bytes (1 MiB): the limit
+#: guards against the 2**n rows of many events (or a huge file) exhausting the machine, and
+#: a process that got this far already holds over 100 MiB (numpy, numba and the compiled
+#: kernels), so 1 MiB more is never what runs it out. Reading /proc/meminfo costs tens of
+#: microseconds, a sizeable part of a small BDerivative's construction (two per build of a
+#: flow map with one event group); dense tables of d = 8 reach 1 MiB at n = 12.
+SMALL_NEED_BYTES = 1 << 20
+
+
 def available_memory() -> int:
     """Bytes of physical memory currently available (a conservative estimate)."""
     try:
