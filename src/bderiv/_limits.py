@@ -205,6 +205,13 @@ SERIAL_ENTRIES = 1 << 18
 #: records larger than this are prefetched one step ahead by the lane kernels (about the
 #: size of the last-level cache share of a core; below it the hint costs more than it saves)
 FAR_BYTES = 4 << 20
+#: a default memory limit is not read for a need up to this many bytes (1 MiB): the limit
+#: guards against the 2**n rows of many events (or a huge file) exhausting the machine, and
+#: a process that got this far already holds over 100 MiB (numpy, numba and the compiled
+#: kernels), so 1 MiB more is never what runs it out. Reading /proc/meminfo costs tens of
+#: microseconds, a sizeable part of a small BDerivative's construction (two per build of a
+#: flow map with one event group); dense tables of d = 8 reach 1 MiB at n = 12.
+SMALL_NEED_BYTES = 1 << 20
 #: address space a kernel's compilation may take (LLVM; measured 50 to 70 MiB for the
 #: drivers of a small dense map), with a margin
 COMPILE_BYTES = 128 << 20

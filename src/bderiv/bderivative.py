@@ -29,11 +29,17 @@ from ._validate import (
 )
 from .corners import CornerModel, StructuredCorners
 
+#: the types of a table given as an array: the common case, told apart without the
+#: typing-Protocol ``isinstance`` (which looks up each member of the protocol by name).
+_TABLE_TYPES = (np.ndarray, list, tuple)
+
 
 def _representation(Dh, F, resets) -> str:
     """Which engine ``F`` and ``resets`` call for: ``"dense"``, ``"resets"``,
     ``"structured"`` or ``"function"``; refuses resets with a corner model, half a corner
     model, and a model whose sizes differ from ``Dh``'s."""
+    if type(F) in _TABLE_TYPES:  # has none of the protocol's members: no isinstance needed
+        return "dense" if resets is None else "resets"
     if resets is not None and hasattr(F, "corner_function"):
         raise TypeError(f"resets need a dense table F (2**n, d), got the model {F!r}")
     if not isinstance(F, CornerModel):

@@ -10,7 +10,7 @@ from .._kernels import dense as kernels
 from .._kernels import lanes, scaling
 from .._kernels._core import PLAIN
 from .._limits import FAR_BYTES, TABLE_BAND
-from .._validate import check_matrix, check_number, memory_limit_bytes
+from .._validate import check_matrix, check_number, memory_limit_for
 from . import fastpath
 from .base import Engine, unit_rows
 
@@ -107,9 +107,8 @@ class DenseEngine(Engine):
         when ``pending_only``: a table with resets) and build the engine on a copy, scaled
         by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``."""
         n, d = Dh.shape
-        limit = (_tables.available_memory() if memory_limit is None
-                 else memory_limit_bytes(memory_limit))
         need = _tables.dense_table_bytes(n, d)
+        limit = memory_limit_for(need, memory_limit)
         if n > 40 or need > limit:
             raise ValueError(
                 f"dense corner tables for n={n} events in dimension d={d} need 2**{n} rows, "

@@ -75,6 +75,9 @@ class EventGroup(NamedTuple):
     state_after : ndarray, shape (d,)
         State after the group: ``state`` moved by the resets of its events (a model with
         resets), else ``state`` itself.
+    event_jacobian : ndarray, shape (n, d), or None
+        The checked event Jacobian at ``state`` as the stop evaluated it (kept by a run
+        with variational equations, read-only, for the group's B-derivative), else None.
     directions : tuple of int (property)
         +1 (upward) or -1 (downward) for each event of ``events``.
     bounced : tuple of int (property)
@@ -88,6 +91,7 @@ class EventGroup(NamedTuple):
     mask_after: int
     state: np.ndarray
     state_after: np.ndarray | None = None
+    event_jacobian: np.ndarray | None = None
 
     @property
     def directions(self) -> tuple:

@@ -279,7 +279,10 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, err,
                                      settled.stop)
         log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
-        log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy()))
+        # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
+        jac = stops.eval_event_jacobian(x) if variational else None
+        log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy(),
+                                     jac))
         mask, x = new, x_after
         if len(log.groups) > max_groups:
             raise RuntimeError(
@@ -309,7 +312,8 @@ def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
     """The event group within ``simultaneity_tol`` of ``t_final`` and whether it is
     pending (after ``t_final``): ``(None, False)`` when there is none."""
     sign = orientation(int(mask), system.n_events)
-    rate = sign * (system.eval_event_jacobian(x) @ system.eval_field(x, mask))
+    jac = system.eval_event_jacobian(x)
+    rate = sign * (jac @ system.eval_field(x, mask))
     pending = pending_at_final_time(sign * system.eval_events(x), rate, simultaneity_tol)
     last = groups[-1] if groups and t_final - groups[-1].time <= simultaneity_tol else None
     if last is not None and pending:
@@ -324,7 +328,8 @@ def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
         return last, False
     if pending:
         bits = sum(1 << k for k in pending)
-        return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy()), True
+        return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
+                          jac), True
     return None, False
 
 
