@@ -2,6 +2,9 @@
 
     python benchmarks/ab.py /work/main/src [--rounds 7] [--queries 1000000] [--cases ...]
 
+A case is a name of the registry or ``<representation>:<n>:<d>:<queries>`` (a size the
+registry does not list, e.g. ``structured:32:32:65536``).
+
 The cases and operations are those of ``tests/variants.py`` (every kernel variant listed
 once: a variant added there is benchmarked here). The other checkout's package
 (``<src>/bderiv``, whose imports are all relative) is copied to a folder of the temporary
@@ -37,6 +40,18 @@ from variants import OPERATIONS, REPRESENTATIONS, bench_cases  # noqa: E402
 CASES = bench_cases()
 
 
+def case(name):
+    """(representation, n, d, queries) of a registry case or of ``rep:n:d:queries``."""
+    if name in CASES:
+        return CASES[name]
+    kind, *size = name.split(":")
+    if kind not in REPRESENTATIONS or len(size) != 3:
+        raise SystemExit(f"unknown case {name!r}: expected one of {list(CASES)} or "
+                         f"<representation>:<n>:<d>:<queries> with a representation of "
+                         f"{list(REPRESENTATIONS)}")
+    return (kind, *map(int, size))
+
+
 def base_package(src: pathlib.Path):
     """The package ``src/bderiv`` imported as ``bderiv_base`` (copied once per version)."""
     pkg = src / "bderiv"
@@ -64,6 +79,12 @@ def _same(a, b, op):
         np.testing.assert_array_equal(x, y, err_msg=op)
 
 
+def _difference(a, b):
+    """The largest |a - b| relative to max |b| over the arrays of an operation's result."""
+    return max(float(np.abs(x - y).max() / max(np.abs(y).max(), 1e-300))
+               for x, y in zip(np.atleast_1d(a), np.atleast_1d(b), strict=True))
+
+
 def main(argv=None):
     import bderiv
 
@@ -75,6 +96,9 @@ def main(argv=None):
     parser.add_argument("--ops", default="apply,inverse,times,jvp", help=f"of {list(OPERATIONS)}")
     parser.add_argument("--threads", type=int, default=None,
                         help="numba threads (default: all; 1 is steadier on a busy machine)")
+    parser.add_argument("--unequal", action="store_true",
+                        help="time even where the bits differ (an A/B of a change of "
+                             "arithmetic), printing the largest difference of each operation")
     parser.add_argument("--base-first", action="store_true",
                         help="build the base's tables first (memory placement can matter "
                              "for tables beyond the caches)")
@@ -93,7 +117,7 @@ def main(argv=None):
     print(f"{'case':>14} {'op':>8} {'this ns/q':>10} {'base ns/q':>10} {'ratio':>6} "
           f"{'this min':>10} {'base min':>10} {'ratio':>6}")
     for name in args.cases.split(","):
-        kind, n, d, m = CASES[name]
+        kind, n, d, m = case(name)
         m = args.queries or m
         V = np.random.default_rng(1).standard_normal((m, d))
         order = ("base", "this") if args.base_first else ("this", "base")
@@ -102,7 +126,11 @@ def main(argv=None):
         maps = {who: build(packages[who], n, d).bd for who in order}
         ops = {who: operations(bd, V) for who, bd in maps.items()}
         for op in args.ops.split(","):  # the same bits, or the timing means nothing
-            _same(ops["this"][op](), ops["base"][op](), op)
+            if args.unequal:
+                print(f"{name:>14} {op:>8} largest difference "
+                      f"{_difference(ops['this'][op](), ops['base'][op]()):.3g}")
+            else:
+                _same(ops["this"][op](), ops["base"][op](), op)
         for op in args.ops.split(","):
             times = {"this": [], "base": []}
             for _ in range(args.rounds):

@@ -20,6 +20,9 @@ not charged. Printed: the times, the ratios, and
 the agreement of the two paths (end states, flow maps on random directions, event logs).
 ``--quick`` runs the smallest and largest model only; ``--many`` times ``simulate_many`` of
 64 starts against a loop of ``simulate`` on the compiled model (smallest and largest).
+``--perturbed`` times runs from perturbed starts (the feet land apart) against the run from
+the apex, on both paths, with the excursion screen as it is and with its end rule off (every
+bracket at a stretch's end searched, as before: ``perturbed``), and ``flow_fd`` at d = 8.
 """
 
 from __future__ import annotations
@@ -33,6 +36,9 @@ import numpy as np
 from compiled_integrator import best  # min wall time of repeated calls (benchmarks/)
 
 from bderiv.checks import FD_SIMULTANEITY_TOL
+from bderiv.models.events import excursions
+from bderiv.models.integrate import compiled_path as compiled_stretches
+from bderiv.models.integrate import scipy_path
 from bderiv.models.system import HybridSystem
 
 G = 9.81
@@ -216,8 +222,112 @@ def many(sizes=(SIZES[0], SIZES[-1]), batch=64):
               f"{t_loop / t_many:.2f}x", flush=True)
 
 
+class _UnknownRates(excursions._EndRates):
+    """The excursion screen's rates at a stretch's ends unknown: every bracket at an end is
+    searched (the screen before its end rule)."""
+
+    def _rate(self, model, x):
+        return np.full(self.sign.size, np.nan)
+
+
+#: ``(name, rates class)`` of the screen with and without its end rule
+RULES = (("new", excursions._EndRates), ("old", _UnknownRates))
+
+
+def perturbed(sizes=(SIZES[0], SIZES[-1]), rounds=5):
+    """Runs from perturbed starts against the run from the apex, both paths, the screen
+    with its end rule (new) and without (old), alternated in one process; per start the
+    minimum over ``rounds``. The starts: ``x0 + 1e-6 e_j`` (``flow_fd``'s, 8 coordinates)
+    and 4 random ones (normal, 1e-4). Then ``flow_fd(x0, T, I, 1e-6)`` at d = 8."""
+    print(f"simulate from the apex and from 12 perturbed starts (simultaneity_tol "
+          f"{FD_SIMULTANEITY_TOL:g}), min over {rounds} alternated rounds per start; "
+          f"old: every bracket at a stretch's end searched; times in ms per run")
+    print(f"{'d':>3} {'path':>4} {'rule':>4} | {'apex':>7} {'perturbed':>9} {'ratio':>6} | "
+          f"{'searches':>8} {'stretches':>9} (apex); per perturbed run")
+    real_peak_of, real_screen = excursions.peak_of, excursions.without_lost_crossings
+    searches, stretches = [0], [0]
+
+    def counted(*args):
+        searches[0] += 1
+        return real_peak_of(*args)
+
+    def screened(*args, **kwargs):
+        stretches[0] += 1
+        return real_screen(*args, **kwargs)
+
+    excursions.peak_of = counted
+    for module in (compiled_stretches, scipy_path):
+        module.without_lost_crossings = screened
+    try:
+        for k, p in sizes:
+            compiled, python, x0 = systems(k, p)
+            d = x0.size
+            rng = np.random.default_rng(2)
+            starts = [x0 + 1e-6 * np.eye(d)[j] for j in np.linspace(0, d - 1, 8).astype(int)]
+            starts += [x0 + 1e-4 * rng.standard_normal(d) for _ in range(4)]
+            times, counts = {}, {}
+            for system in (compiled, python):  # compiled, the kernels loaded: not timed
+                system.simulate(starts[0], T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL)
+            gc.disable()
+            try:
+                for _ in range(rounds):
+                    for path, system in (("c", compiled), ("py", python)):
+                        for rule, rates in RULES:
+                            excursions._EndRates = rates
+                            for i, x in enumerate([x0, *starts]):
+                                searches[0] = stretches[0] = 0
+                                t, _ = best(lambda s=system, x=x: s.simulate(
+                                    x, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL), 1)
+                                times.setdefault((path, rule, i), []).append(t)
+                                counts[(path, rule, i)] = searches[0], stretches[0]
+            finally:
+                gc.enable()
+                excursions._EndRates = RULES[0][1]
+            for path in ("c", "py"):
+                # the run from the apex searches nothing: the same work under both rules
+                apex = min(times[(path, "new", 0)] + times[(path, "old", 0)])
+                pert = {rule: np.mean([min(times[(path, rule, i)])
+                                       for i in range(1, len(starts) + 1)])
+                        for rule, _ in RULES}
+                for rule, _ in RULES:
+                    n, m = np.mean([counts[(path, rule, i)] for i in range(1, len(starts) + 1)],
+                                   axis=0)
+                    print(f"{d:>3} {path:>4} {rule:>4} | {apex * 1e3:>7.2f} "
+                          f"{pert[rule] * 1e3:>9.2f} {pert[rule] / apex:>5.1f}x | {n:>8.2f} "
+                          f"{m:>9.1f} ({counts[(path, rule, 0)][1]})", flush=True)
+                print(f"{'':>8} old/new, perturbed: {pert['old'] / pert['new']:.2f}x")
+        compiled, python, x0 = systems(*SIZES[0])
+        d = x0.size
+        print(f"flow_fd(x0, {T_FINAL}, I, 1e-6) at d = {d} (d + 1 runs), min over {rounds} "
+              f"alternated rounds; ms")
+        fd = {}
+        for system in (compiled, python):  # its first call compiles the batch: not timed
+            system.flow_fd(x0, T_FINAL, np.eye(d)[:1], 1e-6)
+        gc.disable()
+        try:
+            for _ in range(rounds):
+                for path, system in (("c", compiled), ("py", python)):
+                    for rule, rates in RULES:
+                        excursions._EndRates = rates
+                        t, _ = best(lambda s=system: s.flow_fd(x0, T_FINAL, np.eye(d), 1e-6), 1)
+                        fd.setdefault((path, rule), []).append(t)
+        finally:
+            gc.enable()
+            excursions._EndRates = RULES[0][1]
+        for path in ("c", "py"):
+            old, new = min(fd[(path, "old")]), min(fd[(path, "new")])
+            print(f"  {path:>2}: old {old * 1e3:8.1f}  new {new * 1e3:8.1f}  old/new "
+                  f"{old / new:5.2f}x", flush=True)
+    finally:
+        excursions.peak_of = real_peak_of
+        for module in (compiled_stretches, scipy_path):
+            module.without_lost_crossings = real_screen
+
+
 if __name__ == "__main__":
     if "--many" in sys.argv:
         many()
+    elif "--perturbed" in sys.argv:
+        perturbed()
     else:
         main(SIZES[:: len(SIZES) - 1] if "--quick" in sys.argv else SIZES)

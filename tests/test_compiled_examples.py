@@ -10,11 +10,13 @@ module (the first compilation of each takes seconds; numba keeps it on disk).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
 from bderiv import examples
 from bderiv.examples import gaits, runner
+from bderiv.models.system import HybridSystem
 
 #: (name, factory of the example given compiled=...)
 CASES = {
@@ -107,3 +109,37 @@ def test_compiled_must_be_a_flag(make):
 def test_pronking_legs_are_checked(legs, error, message):
     with pytest.raises(error, match=message):
         gaits.pronking(legs=legs, compiled=True)
+
+
+def test_another_body_reuses_the_compiled_functions_bit_for_bit():
+    """The compiled gaits take their constants at run time (the system's ``params``):
+    another body compiles nothing, and simulates bit for bit as a fresh compilation of the
+    same functions with its constants."""
+    from numba.core import event
+
+    first = gaits.pronking(compiled=True)
+    first.system.simulate(first.x0, first.t_final)  # what a first model compiles
+    values = {"stiffness": 300.0, "damping": 3.0, "inertia": 0.2, "half_base": 0.35}
+    start = np.array([0.02, 0.03, 0.0, 0.2])  # pitched: the feet land apart
+    with event.install_recorder("numba:compile") as compiled:
+        ex = gaits.pronking(compiled=True, **values)
+        reused = ex.system.simulate(ex.x0 + start, 3.0 * ex.t_final)
+    assert compiled.buffer == []
+    assert ex.system.compiled.named["field"] is first.system.compiled.named["field"]
+    fresh = HybridSystem(numba.njit(gaits.field), numba.njit(gaits.events), n_events=2,
+                         dim=4, event_jacobian=gaits.event_jacobian,
+                         params=gaits.body(**values).values())
+    new = fresh.simulate(ex.x0 + start, 3.0 * ex.t_final)
+    assert len(new.groups) >= 4 and [g.events for g in new.groups] == [
+        g.events for g in reused.groups]
+    for a, b in ((new.t, reused.t), (new.x, reused.x), (new.x_final, reused.x_final),
+                 ([g.time for g in new.groups], [g.time for g in reused.groups])):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_the_compiled_running_gait_takes_its_speed_at_run_time():
+    a, b = runner.running(compiled=True), runner.running(compiled=True, v_target=1.5)
+    assert a.system.compiled.named["field"] is b.system.compiled.named["field"]
+    x = b.x0 + 0.01
+    np.testing.assert_array_equal(b.system.eval_field(x, 3)[3],
+                                  2 * 8.0 * (1.5 - x[3]))  # traction 8 shared by 2 legs

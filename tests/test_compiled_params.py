@@ -13,6 +13,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from bderiv.models.compiled import CompiledModel
+from bderiv.models.system import HybridSystem
 
 
 @numba.njit
@@ -74,3 +75,32 @@ def test_a_failed_check_is_evaluated_with_the_parameters():
                                          r"entry \[0\] = nan in region mask 0"):
         model.stretch(np.ones(2), 0.0, 1.0, 0, rtol=1e-9, atol=1e-12, max_step=np.inf,
                       variational=False)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_hybrid_system_with_parameters_on_either_path(compiled):
+    """``HybridSystem(..., params=p)``: the functions take the state followed by ``p``,
+    the methods the state alone; the event at x_0 = 0.5 comes at log(2) / r_0."""
+    fns = (decay, below_half, decay_jacobian)
+    if not compiled:
+        fns = tuple(f.py_func for f in fns)
+    rates = np.array([0.5, 3.0])
+    system = HybridSystem(fns[0], fns[1], n_events=1, dim=2, field_jacobian=fns[2],
+                          event_jacobian=lambda x: np.array([[-1.0, 0.0]]), params=rates)
+    assert (system.compiled is not None) == compiled
+    assert_allclose(system.eval_field([1.0, 2.0], 0), [-0.5, -6.0], rtol=0)
+    assert_allclose(system.eval_field_jacobian([1.0, 2.0], 0), -np.diag(rates), rtol=0)
+    traj = system.simulate(np.ones(2), 2.0, rtol=1e-12, atol=1e-14)
+    assert traj.groups[0].time == pytest.approx(np.log(2.0) / 0.5, rel=1e-9)
+    assert_allclose(traj.x_final, np.exp(-rates * 2.0) * [1.0, 1.0], rtol=1e-9)
+
+
+@pytest.mark.parametrize("params, error, message", [
+    ([[1.0, 2.0]], ValueError, r"params must be a 1-d array of parameter values, got "
+                               r"shape \(1, 2\)"),
+    ([1.0, np.nan], ValueError, r"params must be finite, but params\[1\] = nan"),
+    ([1.0, 2j], TypeError, "params"),
+])
+def test_bad_parameters_are_refused(params, error, message):
+    with pytest.raises(error, match=message):
+        HybridSystem(decay, below_half, n_events=1, dim=2, params=params)

@@ -289,6 +289,22 @@ def test_bad_compiled_functions_are_named(field, error, message):
         system.simulate(np.array([0.0, 1.0]), 3.0)
 
 
+@numba.njit
+def nan_after_the_event(x, mask):
+    return np.array([x[1], math.nan if mask else -x[0]])
+
+
+def test_a_bad_field_at_a_stop_is_named():
+    """The field of the region after a group is first evaluated at the stop (the
+    transversality check after switching), checked in compiled code: the error names the
+    function, the region and the state, as the driver's do."""
+    system = HybridSystem(nan_after_the_event, linear_events, n_events=1, dim=2)
+    with pytest.raises(ValueError, match=r"field\(x, mask\) returned a non-finite value, "
+                                         r"entry \[1\] = nan in region mask 0b1 .* at x = "
+                                         r"\[0\.4"):
+        system.simulate(np.array([0.0, 1.0]), 3.0)
+
+
 # --- slices of steps and Ctrl-C --------------------------------------------------------
 
 def test_a_stretch_in_slices_takes_the_same_steps(monkeypatch):

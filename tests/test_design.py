@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import pathlib
+import re
 
 import pytest
 
@@ -25,9 +26,12 @@ LAYERS = [
     {"corners", "_engines", "_linearise"},  # _linearise scales rows with a kernel
     {"_kernels"},
 ]
-#: helpers any layer may use; they import only each other.
+#: helpers any layer may use; they import only each other and the foundation.
 HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
            "_cyclic", "_safefiles", "_errors"}
+#: the numbers (tolerances, sizes, limits): every module may import it, the kernels and the
+#: helpers included; it imports nothing of the package.
+FOUNDATION = {"_limits"}
 
 
 def _unit(parts) -> str:
@@ -72,7 +76,7 @@ def _imported_units(path: pathlib.Path):
 
 
 def _layer(unit: str):
-    if unit in HELPERS:
+    if unit in HELPERS or unit in FOUNDATION:
         return None
     for i, layer in enumerate(LAYERS):
         if unit in layer:
@@ -95,7 +99,7 @@ def test_imports_point_down(path):
     unit = _top(path)
     mine = _layer(unit)
     for other in _imported_units(path):
-        if other in ("__init__", unit) or other == "__version__":
+        if other in ("__init__", unit) or other == "__version__" or other in FOUNDATION:
             continue
         theirs = _layer(other)
         if mine is None:
@@ -106,5 +110,26 @@ def test_imports_point_down(path):
 
 def test_kernels_import_nothing_of_the_package():
     for path in (PKG / "_kernels").glob("*.py"):
-        others = set(_imported_units(path)) - {"_kernels", "__init__"}
+        others = set(_imported_units(path)) - {"_kernels", "__init__"} - FOUNDATION
         assert not others, f"{path.name} imports {others}"
+
+
+@pytest.mark.parametrize("unit", sorted(FOUNDATION))
+def test_the_foundation_imports_nothing_of_the_package(unit):
+    assert not set(_imported_units(PKG / f"{unit}.py")), unit
+
+
+def test_every_number_is_explained_and_used():
+    """Each name of ``_limits`` has its own ``#:`` line above it (or shares the block of the
+    names defined with it) and is imported by some module of the package."""
+    lines = (PKG / "_limits.py").read_text().splitlines()
+    names = [(i, line.split("=")[0].strip()) for i, line in enumerate(lines)
+             if line[:1].isupper() and "=" in line]
+    assert names
+    sources = [p.read_text() for p in MODULES if p.name != "_limits.py"]
+    for i, name in names:
+        j = i - 1
+        while j >= 0 and lines[j][:1].isupper() and "=" in lines[j]:
+            j -= 1  # a name defined in the same block as the one above
+        assert lines[j].startswith("#:"), f"{name} has no #: line"
+        assert any(re.search(rf"\b{name}\b", text) for text in sources), f"{name} is unused"

@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 
 from bderiv import HybridSystem
+from bderiv.examples import pronking
+from bderiv.models.events import excursions
 from bderiv.models.events.excursions import REACH, peak_brackets, peak_of, sample_times
 
 C = 0.999
@@ -204,3 +206,137 @@ def test_peak_of_finds_the_top_and_the_ends():
     t, v = peak_of(lambda s: math.cos(s) - 0.999, -0.3, 0.2)
     assert abs(t) < 1e-7 and v == pytest.approx(0.001, abs=1e-14)
     assert peak_of(lambda s: s, 0.0, 1.0) == (1.0, 1.0)  # monotone: the end
+
+
+# --- brackets at the ends of a stretch ---------------------------------------------------
+# The screen leaves a bracket at an end of a stretch unsearched when the event rises into
+# the end (or leaves the start): its one peak is that end. These check that a crossing lost
+# right at an end is still found (the rate points the other way), and that the rule saves
+# the searches that found nothing.
+
+STOP, T_END = 1.0, 1.1
+
+
+def clock_model(a, w, scale, push=1.0):
+    """``z' = 1``, ``y' = V`` while event 1's bit is set; event 0 is ``z = STOP``, event 1
+    is ``(w^2 - (z - a)^2) / scale^2 + push y``: along the clock it rises above 0 at
+    ``a - w`` and, without the push of ``y``, falls back at ``a + w``: an excursion of
+    width ``2 w``. With the push it stays across (``V`` exceeds its fall rate until
+    ``T_END``), so the closed form is: event 1 at ``a - w``, event 0 at STOP, ``y(T_END) =
+    V (T_END - a + w)``; without (``V = 1``), event 1 at ``a -+ w`` and ``y(T_END) = 2 w``."""
+    K = 1.0 / scale**2
+    V = 2.0 * K * (T_END - a) + 1.0 if push else 1.0
+
+    def field(x, mask):
+        return np.array([1.0, V if mask >> 1 & 1 else 0.0])
+
+    return HybridSystem(
+        field,
+        lambda x: np.array([x[0] - STOP, K * (w * w - (x[0] - a) ** 2) + push * x[1]]),
+        n_events=2,
+        dim=2,
+        field_jacobian=lambda x, mask: np.zeros((2, 2)),
+        event_jacobian=lambda x: np.array([[1.0, 0.0], [-2.0 * K * (x[0] - a), push]]),
+    ), V
+
+
+def steps_around_the_stop():
+    """The step ends just before and just after the stop at STOP (the solver's steps do
+    not depend on the events: the same in every run of :func:`clock_model`)."""
+    far, _ = clock_model(-10.0, 1.0, 1.0)
+    traj = far.simulate(np.zeros(2), T_END, simultaneity_tol=1e-12)
+    t_stop = traj.events[0].time
+    return traj.t[traj.t < t_stop][-1], t_stop, traj.t[traj.t > t_stop][0]
+
+
+@pytest.mark.parametrize("end", ["stop", "start"])
+def test_an_excursion_next_to_an_end_of_a_stretch_is_found(end):
+    # the excursion lies inside the finer screen's bracket at the end of the stretch that
+    # the stop ends ("stop"; the event falls into the stop) or at the start of the next
+    # one ("start"; it rises from the start): the sampled maximum is that end, and the
+    # peak is inside the bracket, invisible to the samples and the step ends
+    before, t_stop, after = steps_around_the_stop()
+    if end == "stop":
+        delta = 0.5 * (t_stop - before) / 16  # the finer screen's spacing
+        a = t_stop - 0.3 * delta
+    else:
+        delta = 0.5 * (after - t_stop) / 16
+        a = t_stop + 0.3 * delta
+    w = 0.2 * delta
+    system, V = clock_model(a, w, delta)
+    traj = system.simulate(np.zeros(2), T_END, simultaneity_tol=1e-12)
+    expected = sorted([(a - w, 1), (STOP, 0)])
+    assert [r.event for r in traj.events] == [k for _, k in expected]
+    np.testing.assert_allclose([r.time for r in traj.events], [t for t, _ in expected],
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(traj.x_final, [T_END, V * (T_END - a + w)], rtol=1e-9)
+
+
+def test_a_return_within_the_first_step_after_a_found_crossing_is_found():
+    # the excursion of the "stop" case above, falling back before the stop: once its
+    # crossing is located, the next stretch starts on the surface and its first step
+    # spans the return. The located root may sit a rounding on the side it came from
+    # (here it does: the bit says across, the value not), so both ends of that step read
+    # across and the return showed only as the event across at the stop, switched there
+    # 2.4e-3 late (y 25 % off); the samples show it below the surface in between
+    before, t_stop, _ = steps_around_the_stop()
+    delta = 0.5 * (t_stop - before) / 16
+    a, w = t_stop - 0.3 * delta, 0.2 * delta
+    system, V = clock_model(a, w, delta, push=0.0)
+    traj = system.simulate(np.zeros(2), T_END, simultaneity_tol=1e-12)
+    assert [(r.event, r.direction) for r in traj.events] == [(1, 1), (1, -1), (0, 1)]
+    np.testing.assert_allclose([r.time for r in traj.events], [a - w, a + w, STOP],
+                               rtol=0, atol=1e-9)
+    assert V == 1.0
+    np.testing.assert_allclose(traj.x_final, [T_END, 2 * w], rtol=1e-9)
+
+
+def test_a_return_is_a_sample_below_the_surface_before_one_across():
+    tol = np.array([1e-9, 1e-9])
+    h = np.array([[1e-17, -1.0], [-1e-3, -0.5], [-2e-3, -0.2], [5e-3, -0.1]])
+    assert excursions._return(h, tol) == 2  # the lowest sample before the return
+    assert excursions._return(h[:, ::-1], tol[::-1]) == 2
+    assert excursions._return(h[[0, 3]], tol) is None  # across at once: no sample below
+    assert excursions._return(h[:3], tol) is None  # never back across
+    assert excursions._return(h - 1e-2, tol) is None
+    # across by less than tol (a rounding): no return
+    assert excursions._return(np.array([[0.0], [-1e-3], [1e-10]]), tol[:1]) is None
+
+
+class _UnknownRates(excursions._EndRates):
+    """The rates at a stretch's ends unknown (NaN): every bracket is searched, as the
+    screen did before it read them."""
+
+    def _rate(self, model, x):
+        return np.full(self.sign.size, np.nan)
+
+
+def test_an_event_rising_into_a_stop_is_not_searched(monkeypatch):
+    # the feet of a tilted pronking body land and lift off one by one: at each stop the
+    # other foot's event rises into it (or leaves the previous stop), its samples' maximum
+    # at the end. The search found those ends and left them to the switching rule; the
+    # rates there say so at once: the same run, without a search and its evaluations.
+    ex = pronking(legs=2)
+    x0 = ex.x0 + np.array([0.0, 1e-5, 0.0, 0.0])  # the feet 3.5-4.5 us apart
+    searches, evaluations = [], []
+    real_peak_of, real_events = excursions.peak_of, ex.system.eval_events
+    monkeypatch.setattr(excursions, "peak_of",
+                        lambda *args: searches.append(args[1:]) or real_peak_of(*args))
+    monkeypatch.setattr(ex.system, "eval_events",
+                        lambda x: evaluations.append(1) or real_events(x))
+
+    def run():
+        searches.clear(), evaluations.clear()
+        traj = ex.system.simulate(x0, 0.5, simultaneity_tol=1e-12)
+        return traj, len(searches), len(evaluations)
+
+    traj, n_searches, n_evaluations = run()
+    assert n_searches == 0
+    monkeypatch.setattr(excursions, "_EndRates", _UnknownRates)
+    before, n_before, n_evaluations_before = run()
+    assert [len(g.events) for g in traj.groups] == [1, 1, 1, 1]
+    assert n_before >= 2  # 4: one at each stop, for the other foot
+    assert n_evaluations_before - n_evaluations >= 20 * n_before  # a search: ~25 calls
+    assert [(r.time, r.event) for r in before.events] == \
+        [(r.time, r.event) for r in traj.events]
+    np.testing.assert_array_equal(before.x_final, traj.x_final)

@@ -462,3 +462,36 @@ def test_eight_legs_orbit_and_its_growth_confirmed_by_simulation():
                         strides=10)
     assert not st.stable and st.growth_rate > 4
     assert decay.rate == pytest.approx(st.growth_rate, rel=0.01)
+
+
+@pytest.mark.parametrize("name", ["pronking", "running"])
+def test_the_orbit_map_is_built_once_at_the_orbit(monkeypatch, name):
+    # the last iterate's map is built with the caller's simultaneity_tol and returned, not
+    # built again; it is the map a fresh build at the orbit gives, bit for bit (on the
+    # running gait the iterates' tolerance 0 splits the feet's touchdown in two groups
+    # 1e-12 apart: the orbit's map must group them, as 1e-7 does)
+    import bderiv.orbit as orbit_module
+    from bderiv.examples import runner
+
+    real, built = orbit_module.return_map, []
+
+    def counted(system, x, section, **kw):
+        built.append((x.copy(), kw["simultaneity_tol"]))
+        return real(system, x, section, **kw)
+
+    monkeypatch.setattr(orbit_module, "return_map", counted)
+    if name == "pronking":
+        ex = gaits.pronking(compiled=True)
+        orb = gaits.pronking_orbit(ex)
+    else:
+        ex = runner.running(compiled=True)
+        orb = runner.running_orbit(ex)
+    assert len(built) == len(orb.history) >= 3  # one map per iterate, none again
+    assert np.array_equal(built[-1][0], orb.x0) and built[-1][1] == 1e-7
+    assert [g.events for g in orb.trajectory.groups] == [(0, 1), (0, 1)]
+    R, traj = real(ex.system, orb.x0, orb.section, t_max=1.5, tol=1e-9,
+                   simultaneity_tol=1e-7, options=orbit_module.ORBIT_OPTIONS)
+    V = np.random.default_rng(0).standard_normal((100, ex.system.dim))
+    for a, b in ((R.x_final, orb.return_map.x_final), (R.period, orb.period),
+                 (R(V), orb.return_map(V)), (traj.t, orb.trajectory.t)):
+        np.testing.assert_array_equal(a, b)

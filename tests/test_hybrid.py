@@ -314,3 +314,25 @@ def test_constant_fields_flow_bderivative_is_the_bderivative():
     V = np.random.default_rng(0).standard_normal((50, 2))
     np.testing.assert_allclose(fb(V), bd(V), rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(fb.final_field, rates[3])
+
+
+def test_groups_keep_the_stops_event_jacobian_and_the_map_is_the_same():
+    """A variational run's groups carry the event Jacobian the stop evaluated at their
+    state; the assembly's map from it is the map of a Jacobian evaluated again."""
+    import dataclasses
+
+    from bderiv.models.assembly import flow_map_along
+    from bderiv.models.integrate.run import run
+
+    ex = examples.network(2, seed=1)
+    s = ex.system
+    traj = run(s, ex.x0, ex.t_final, simultaneity_tol=1e-7, variational=True)
+    assert traj.groups
+    for g in traj.groups:
+        np.testing.assert_array_equal(g.event_jacobian, s.eval_event_jacobian(g.state))
+    assert all(g.event_jacobian is None
+               for g in run(s, ex.x0, ex.t_final, simultaneity_tol=1e-7).groups)
+    again = dataclasses.replace(traj, groups=tuple(g._replace(event_jacobian=None)
+                                                   for g in traj.groups))
+    V = np.random.default_rng(3).standard_normal((50, s.dim))
+    np.testing.assert_array_equal(flow_map_along(s, traj)(V), flow_map_along(s, again)(V))

@@ -11,7 +11,7 @@ from chain_tolerance import assert_matches_oracle, chain_scale, excess, oracle, 
 from reference import RTOL, random_system
 
 from bderiv import BDerivative
-from bderiv._kernels import _core, _simd, lanes
+from bderiv._kernels import _core, _simd, dense, lanes
 
 pytestmark = pytest.mark.skipif(_core.PLAIN, reason="BDERIV_KERNELS=plain: no lane kernels")
 
@@ -127,3 +127,101 @@ def test_wide_positions_are_summed_after_the_chain():
     bound = 4 * 6 * np.finfo(float).eps / RTOL
     assert excess(bd(V), x, S).max() <= bound
     assert excess(bd.inverse(x), V, S_back).max() <= bound
+
+
+def _plain(e, V, T):
+    """apply, inverse, (times, orders), jvp, vjp of the scalar chain (``dense.py``: the
+    steps of ``selection.py``, what ``BDERIV_KERNELS=plain`` runs) on an engine's tables."""
+    m, n = V.shape[0], e.n
+    res = [np.empty_like(V), np.empty_like(V), np.empty((m, n)), np.empty((m, n), np.int64),
+           np.empty_like(V), np.empty_like(V)]
+    dense.apply(e._plain, V, (res[0],), False)
+    dense.apply(e._plain, V, (res[1],), True)
+    dense.event_times(e._plain, V, (res[2], res[3]))
+    dense.tangents(e._plain, V, (res[4], T), False)
+    dense.tangents(e._plain, V, (res[5], T), True)
+    return res
+
+
+def _tangent_scales(e, orders, T):
+    """``|S_n| ... |S_1| |T|`` and ``|S_1|^T ... |S_n|^T |T|`` row by row: the sizes the
+    saltation factors (mathematics.md section 4) sum along each order."""
+    d = e.d
+    fwd, back = np.abs(T).copy(), np.abs(T).copy()
+    for q, order in enumerate(orders):
+        factors, before = [], 0
+        for k in order:
+            after = before | (1 << int(k))
+            factors.append(np.abs(np.eye(d) + np.outer(e.F[after] - e.F[before], e.Dh[k])
+                                  / e.G[before, k]))
+            before = after
+        for S in factors:
+            fwd[q] = S @ fwd[q]
+        for S in factors[::-1]:
+            back[q] = S.T @ back[q]
+    return fwd, back
+
+
+@pytest.mark.parametrize("n, d", [(3, 3), (8, 8), (9, 17), (6, 40)])
+def test_the_lanes_agree_with_the_scalar_chain(n, d):
+    """The lanes select with their own arithmetic (a stored ``-1 / G`` in actual
+    coordinates, fused updates, tree sums: the module docstring gives what the scalar
+    chain's arithmetic costs them). Against the scalar chain on the same tables: the same
+    event orders exactly, apply, inverse and the times within 4 n eps of their chains'
+    scales (the bound they meet against the oracle), jvp and vjp within 4 n (d + 2) eps of
+    the sizes their factors sum."""
+    rng = np.random.default_rng(500 + n * d)
+    Dh, F = random_system(rng, n, d)
+    e = BDerivative(Dh, F, fast_paths=False)._engine
+    assert e._lanes is not None
+    V, T = rng.standard_normal((300, d)), rng.standard_normal((300, d))
+    x, back, t, o, jvp, vjp = _plain(e, V, T)
+    lanes_apply, lanes_back = np.empty_like(V), np.empty_like(V)
+    e._lane_kernels[0](e._lanes, V, (lanes_apply,), False)
+    e._lane_kernels[0](e._lanes, V, (lanes_back,), True)
+    lanes_t, lanes_o = np.empty_like(t), np.empty_like(o)
+    e._lane_kernels[1](e._lanes, V, (lanes_t, lanes_o))
+    lanes_jvp, lanes_vjp = np.empty_like(V), np.empty_like(V)
+    e._lane_kernels[2](e._lanes, V, (lanes_jvp, T), False)
+    e._lane_kernels[2](e._lanes, V, (lanes_vjp, T), True)
+    np.testing.assert_array_equal(lanes_o, o)
+    S, _, dt, _ = chain_scale(e.Dh, table_corners(e.F), V, t, o)
+    t_back, o_back = np.empty_like(t), np.empty_like(o)
+    dense.event_times(e._plain, back, (t_back, o_back))
+    # the scale of M^-1(V): the chain of M^-1(V), summed back from V
+    S_back = chain_scale(e.Dh, table_corners(e.F), back, t_back, o_back)[1]
+    eps = np.finfo(float).eps
+    bound = 4 * n * eps / RTOL  # in units of RTOL * scale
+    assert excess(lanes_apply, x, S).max() <= bound
+    assert excess(lanes_back, back, S_back).max() <= bound
+    assert excess(lanes_t, t, np.abs(t) + dt).max() <= bound
+    fwd, bwd = _tangent_scales(e, o, T)
+    assert excess(lanes_jvp, jvp, fwd).max() <= 4 * n * (d + 2) * eps / RTOL
+    assert excess(lanes_vjp, vjp, bwd).max() <= 4 * n * (d + 2) * eps / RTOL
+
+
+def test_the_lanes_agree_with_the_scalar_chain_at_ties():
+    """Queries whose first two events tie exactly (and d = 1, where every time ties): the
+    lanes' product ``h * (-1 / G)`` can break a tie of ``-g / G`` the other way, so the
+    orders may differ there; the map is continuous across ties, and apply and inverse
+    agree with the scalar chain within 4 n eps of the scales of both orders."""
+    rng = np.random.default_rng(8)
+    for n, d in [(3, 3), (5, 5), (4, 1)]:
+        Dh = np.eye(n, d) if d > 1 else np.ones((n, 1))
+        F = np.exp(rng.uniform(-1, 1, (2**n, d)))  # positive: every rate > 0
+        e = BDerivative(Dh, F, fast_paths=False)._engine
+        assert e._lanes is not None
+        U = -F[0] * np.concatenate([np.ones((40, min(2, d))),
+                                    rng.uniform(1.5, 3.0, (40, d - min(2, d)))], axis=1)
+        U *= rng.uniform(0.5, 2.0, (40, 1))
+        x, back, t, o = _plain(e, U, U)[:4]
+        lanes_apply, lanes_back = np.empty_like(U), np.empty_like(U)
+        e._lane_kernels[0](e._lanes, U, (lanes_apply,), False)
+        e._lane_kernels[0](e._lanes, U, (lanes_back,), True)
+        S = chain_scale(e.Dh, table_corners(e.F), U, t, o)[0]
+        t_back, o_back = np.empty_like(t), np.empty_like(o)
+        dense.event_times(e._plain, back, (t_back, o_back))
+        S_back = chain_scale(e.Dh, table_corners(e.F), back, t_back, o_back)[1]
+        bound = 4 * n * np.finfo(float).eps / RTOL
+        assert excess(lanes_apply, x, S).max() <= bound
+        assert excess(lanes_back, back, S_back).max() <= bound

@@ -176,3 +176,30 @@ def test_orbit_stability_sized_before_its_directions(pronking_gait):
     refused_cheaply(lambda: orbit.stability(n_directions=10**10),
                     "the growth rate of 10000000000 directions in dimension 4 over 1000 "
                     "iterations")
+
+
+def test_default_memory_limit_read_only_for_tables_above_the_small_size(monkeypatch):
+    from bderiv import _limits, _tables, _validate
+
+    reads = []
+
+    def none_left():
+        reads.append(1)
+        return 0  # no memory at all: whatever is measured against it is refused
+
+    monkeypatch.setattr(_tables, "available_memory", none_left)
+    monkeypatch.setattr(_validate, "available_memory", none_left)
+    # n = 2, d = 8: 768 bytes of records, under SMALL_NEED_BYTES: the limit is not read
+    assert _tables.dense_table_bytes(2, 8) <= _limits.SMALL_NEED_BYTES
+    BDerivative(np.eye(2, 8), np.ones((4, 8)))
+    assert reads == []
+    # n = 12, d = 8: 1.25 MiB, above it: read, and refused against the 0 bytes left
+    n = 12
+    assert _tables.dense_table_bytes(n, 8) > _limits.SMALL_NEED_BYTES
+    with pytest.raises(ValueError, match="more than the memory limit of 0 B"):
+        BDerivative(np.ones((n, 8)), np.ones((1 << n, 8)))
+    assert reads == [1]
+    # an explicit limit is checked at any size, the default not read
+    with pytest.raises(ValueError, match="more than the memory limit of 100 B"):
+        BDerivative(np.eye(2, 8), np.ones((4, 8)), memory_limit=100)
+    assert reads == [1]

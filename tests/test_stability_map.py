@@ -112,6 +112,10 @@ def test_figure_marks_the_unstable_region(tmp_path):
     mesh = ax.collections[0]
     assert mesh.norm.vcenter == 1.0 and mesh.norm.vmax >= 1.5 ** 1.0 - 1e-9
     assert any("//" in (getattr(c, "hatches", None) or ()) for c in ax.collections)
+    # the colour bar is labelled on both sides of 1 (the stable values too)
+    ticks = fig.axes[1].get_yticks()
+    assert 1.0 in ticks and ticks.min() < 0.75 and ticks.max() > 1.25
+    assert all(0.5 <= t <= 1.5 ** 1.0 + 1e-9 for t in ticks)
     fig.savefig(tmp_path / "map.png")
     with pytest.raises(ValueError, match="needs a map over two parameters, got 1"):
         figure(stability_map(functools.partial(cycle, turns=1.0), {"multiplier": [0.5]},

@@ -27,11 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-#: queries per chunk of the NumPy baseline; its temporaries are a few (chunk, n) and
-#: (chunk, d) arrays, which then stay in L2. Measured best of 1024..65536 on 2 cores.
-NUMPY_CHUNK = 4096
-#: side of the square product whose rate :func:`measure_blas_rate` measures
-BLAS_SIZE = 512
+from ._limits import BLAS_SIZE, NUMPY_CHUNK
 
 
 def useful_flops(n: int, d: int) -> int:

@@ -11,12 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._errors import QueryError
+from ._limits import DEFAULT_CHUNK_ROWS
 from ._validate import check_out, check_points, check_positive_int
-
-#: rows per chunk when chunking is implied (a ``progress`` callback or a memmap input) and
-#: no ``chunk_size`` is given: 2**16 rows of d = 128 are 64 MiB, and a chunk is long enough
-#: to keep two threads busy.
-DEFAULT_CHUNK_ROWS = 1 << 16
 
 
 def is_dask_array(x) -> bool:

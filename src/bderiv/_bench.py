@@ -20,10 +20,11 @@ from __future__ import annotations
 import numpy as np
 
 from ._baselines import benchmark_system, best_time, measure_blas_rate, numpy_apply, useful_flops
+from ._limits import BENCH_BATCH, BENCH_NS, BENCH_REPEAT
 from .bderivative import BDerivative
 
 
-def sweep(ns=(2, 4, 8, 12, 16), *, d_factor: int = 1, batch: int = 100_000, repeat: int = 3,
+def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: int = BENCH_REPEAT,
           numpy_max_n: int = 16, seed: int = 0, progress=None):
     """Time bderiv, the NumPy baseline and the BLAS yardstick for each n.
 

@@ -14,11 +14,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
+from ._limits import INDEPENDENCE_RTOL
+
 #: shift applied to a cyclic coordinate to check that the model does not depend on it
 SHIFT = 1.0
-#: a shifted return that differs from the shifted original by more than this times
-#: ``max(1, |x|)`` shows that the coordinate is not cyclic
-INDEPENDENCE_RTOL = 1e-7
 
 
 def check_cyclic(cyclic, dim: int) -> tuple:

@@ -13,11 +13,9 @@ import numpy as np
 
 from . import _tables
 from ._format import MASK_MEANING, format_mask
+from ._limits import MAX_PIECES
 from ._validate import check_memory, check_pieces
 from .corners import check_table_size
-
-#: default cap on the number of pieces ``pieces()`` and ``triangulation()`` will build.
-MAX_PIECES = 40320  # 8!
 
 
 def dh_rank(Dh) -> int:

@@ -28,11 +28,8 @@ import numpy as np
 from ._batch import evaluate, is_dask_array
 from ._errors import QueryError
 from ._kernels import scaling
+from ._limits import PIECE_CHUNK_BYTES
 from ._validate import check_memory, check_points, check_real_array
-
-#: bytes of the temporaries of one chunk of :meth:`Linearisation.piece_matrices` (each row
-#: is d queries: the repeated rows, the unit vectors and the columns, d * d floats each).
-PIECE_CHUNK_BYTES = 64 << 20
 
 
 def unit_scale(rows: np.ndarray, exps=None) -> np.ndarray:

@@ -21,27 +21,26 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._limits import (
+    ACCEPT_RTOL,
+    BASE_STEP,
+    CHECK_ERROR_FACTOR,
+    CHECK_RTOL,
+    ROUND_FLOOR,
+    ROW_FLOOR,
+    SCALE_FLOOR,
+    TARGET_RTOL,
+)
+
 #: levels of one run (steps H .. H / 2**(LEVELS - 1)), each two calls of the function.
 LEVELS = 8
-#: the first step of a run relative to the variable's scale.
-BASE_STEP = 2.0**-3
 #: ratio of the first steps of successive runs (a run covers 2**7: the ranges overlap).
 START_SPACING = 2.0**6
 #: runs in the order tried: powers of START_SPACING of the first run's step (smaller ones
 #: first: a feature near x is the common reason for a failure).
 STARTS = (0, -1, 1, -2, 2, -3, 3, -4, 4, -5, 5, -6, 6)
-#: variables smaller than this (not 0) take it as their scale (steps far below rounding).
-SCALE_FLOOR = 2.0**-20
 #: a run stops once the next level's estimate is off by SAFE times the best error.
 SAFE = 2.0
-#: stop at this relative error (of the entry, or of the row, below); refuse above ACCEPT.
-TARGET_RTOL = 1e-10
-ACCEPT_RTOL = 1e-7
-#: every entry is accurate to ACCEPT_RTOL relative to itself, or to this fraction of its
-#: row's largest entry, or to ROUND_FLOOR times the rounding of the function's value over
-#: the variable's scale (``eps |f_i(x)| / s_j``): an entry 0 at x is known to no better.
-ROW_FLOOR = 2.0**-40
-ROUND_FLOOR = 2.0**10
 EPS = float(np.finfo(float).eps)
 
 
@@ -192,13 +191,6 @@ def _column(fun, x, f0, v, scale, needed_of) -> Derivative:
     if best is None:  # every step of every run met a non-finite value
         return Derivative(np.zeros_like(f0), np.full_like(f0, np.inf), needed_of(f0), calls)
     return Derivative(best, err, needed_of(best), calls)
-
-
-#: a given Jacobian passes if ``|J v - D_v f|`` is within this relative to ``|J| |v|``
-#: (plus CHECK_ERROR_FACTOR times the difference's error estimate): far above what
-#: rounding and the extrapolation leave (about 1e-10), far below a wrong term.
-CHECK_RTOL = 1e-6
-CHECK_ERROR_FACTOR = 8.0
 
 
 class Comparison(NamedTuple):

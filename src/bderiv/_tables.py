@@ -12,8 +12,7 @@ import os
 
 import numpy as np
 
-#: rows per block when a table is built or scanned; 2**15 rows of 20 float64 are 5 MiB.
-BLOCK_ROWS = 1 << 15
+from ._limits import BLOCK_ROWS, RATE_BLOCK_ROWS, UNDERFLOW_LOG10
 
 
 def blocks(n_rows: int, block: int = BLOCK_ROWS):
@@ -142,13 +141,6 @@ def human_bytes(nbytes: float) -> str:
     raise AssertionError("unreachable")
 
 
-#: rows per BLAS call when the rates of the region records are built. Products this small
-#: run on one BLAS thread; one big call spreads over BLAS threads, which on a shared 2-core
-#: machine was measured 5x to 50x slower (n = d = 20: 0.09 s in blocks of 512 rows, 0.5 s
-#: to 5 s in one call or in blocks of 2**11..2**15 rows, depending on the other load).
-RATE_BLOCK_ROWS = 512
-
-
 def row_norms(A: np.ndarray) -> np.ndarray:
     """Euclidean norms of the rows of A, without overflow or underflow for entries near the
     ends of the float64 range (rows divided by their largest entry first; einsum: no
@@ -158,8 +150,6 @@ def row_norms(A: np.ndarray) -> np.ndarray:
     return big * np.sqrt(np.einsum("ij,ij->i", unit, unit))
 
 
-#: a rate whose factors multiply below 10**UNDERFLOW_LOG10 is lost to underflow
-UNDERFLOW_LOG10 = -290
 #: the smallest normal float64: rates below it are subnormal (fewer than 53 bits)
 TINY = np.finfo(np.float64).tiny
 

@@ -13,6 +13,7 @@ import numbers
 import numpy as np
 
 from ._errors import QUERY, QueryError
+from ._limits import SMALL_NEED_BYTES
 from ._tables import available_memory, human_bytes
 
 _KIND_NAMES = {
@@ -207,12 +208,21 @@ def check_finite_result(res, name: str, offset: int, what: str = "result") -> No
 
 def check_memory(need: int, memory_limit, what: str) -> None:
     """Refuse ``need`` bytes above ``memory_limit`` (default: the memory available)."""
-    limit = available_memory() if memory_limit is None else memory_limit_bytes(memory_limit)
+    limit = memory_limit_for(need, memory_limit)
     if need > limit:
         raise ValueError(
             f"{what} take {human_bytes(need)}, more than the memory limit of "
             f"{human_bytes(limit)}"
         )
+
+
+def memory_limit_for(need: int, memory_limit) -> int:
+    """The limit, in bytes, that ``need`` bytes are held to: ``memory_limit`` checked
+    (:func:`memory_limit_bytes`), or by default the memory available, read only for a need
+    above ``SMALL_NEED_BYTES`` (a smaller one is its own limit: never refused by default)."""
+    if memory_limit is not None:
+        return memory_limit_bytes(memory_limit)
+    return available_memory() if need > SMALL_NEED_BYTES else need
 
 
 def memory_limit_bytes(value) -> int:

@@ -12,12 +12,12 @@ from ._engines import DenseEngine, FunctionEngine, StructuredEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
 from ._errors import QueryError
 from ._geometry import (  # noqa: F401 (re-exported)
-    MAX_PIECES,
     CornerGeometry,
     CornerPoints,
     dh_rank,
 )
 from ._kernels import scaling
+from ._limits import GRAZING_RTOL, MAX_PIECES, RESET_TOL
 from ._linearise import Linearisation, unit_scale
 from ._validate import (
     check_bool,
@@ -29,11 +29,17 @@ from ._validate import (
 )
 from .corners import CornerModel, StructuredCorners
 
+#: the types of a table given as an array: the common case, told apart without the
+#: typing-Protocol ``isinstance`` (which looks up each member of the protocol by name).
+_TABLE_TYPES = (np.ndarray, list, tuple)
+
 
 def _representation(Dh, F, resets) -> str:
     """Which engine ``F`` and ``resets`` call for: ``"dense"``, ``"resets"``,
     ``"structured"`` or ``"function"``; refuses resets with a corner model, half a corner
     model, and a model whose sizes differ from ``Dh``'s."""
+    if type(F) in _TABLE_TYPES:  # has none of the protocol's members: no isinstance needed
+        return "dense" if resets is None else "resets"
     if resets is not None and hasattr(F, "corner_function"):
         raise TypeError(f"resets need a dense table F (2**n, d), got the model {F!r}")
     if not isinstance(F, CornerModel):
@@ -152,8 +158,8 @@ class BDerivative(Linearisation, CornerGeometry):
     array([ 0.3, -0.7])
     """
 
-    def __init__(self, Dh, F, *, transversality_tol: float = 1e-9, memory_limit=None,
-                 fast_paths: bool = True, resets=None, reset_tol: float = 1e-9):
+    def __init__(self, Dh, F, *, transversality_tol: float = GRAZING_RTOL, memory_limit=None,
+                 fast_paths: bool = True, resets=None, reset_tol: float = RESET_TOL):
         # validate
         Dh = check_matrix(Dh, "Dh", (None, None))
         if Dh.shape[0] == 0 or Dh.shape[1] == 0:

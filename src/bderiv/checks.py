@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._cyclic import check_cyclic, kept
+from ._limits import FD_EPS, FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
 from ._progress import resolve_progress
 from ._validate import check_matrix, check_number, check_points, check_positive_int
 from .models.integrate.run import SolverOptions
@@ -37,9 +38,6 @@ __all__ = [
 #: error on ``examples.network(3)`` stalls at 1e-6 for eps = 1e-6 instead of falling to
 #: 1e-7 (tests/test_checks.py shows it); with these it keeps falling in proportion to eps.
 FD_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13)
-#: Far below the event-time spread ``eps |v|`` of a perturbed start, so that the events of
-#: a perturbed trajectory switch one by one, in their true order.
-FD_SIMULTANEITY_TOL = 1e-13
 
 
 def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
@@ -121,7 +119,7 @@ class FDCheck:
         return all(low < r < high for r in self.ratios)
 
 
-def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=None,
+def fd_check(system, x0, t_final, V, D_V, eps=FD_EPS, *, progress=None,
              **simulate_options) -> FDCheck:
     """Compare ``D_V = D(V)`` with forward differences of ``system``'s simulated flow.
 
@@ -173,13 +171,6 @@ def fd_check(system, x0, t_final, V, D_V, eps=(1e-4, 1e-5, 1e-6), *, progress=No
     ratios = tuple(b / a if a else float("nan") for a, b in zip(worst, worst[1:], strict=False))
     per_vector = seconds / (len(eps) * (V.shape[0] + 1))
     return FDCheck(eps, np.array(errors).T, tuple(worst), ratios, per_vector)
-
-
-#: strides a direction needs in the linear regime for its rate to be fitted
-MIN_FIT_STRIDES = 3
-#: the linear regime of :func:`decay_check`: deviations at most this fraction of |x0| (of
-#: 1 when x0 = 0), where the model's nonlinearity is still small
-LINEAR_STATE = 0.05
 
 
 @dataclass(frozen=True)

@@ -35,13 +35,10 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from . import _tables
+from ._limits import MAX_TABLE_EVENTS
 from ._validate import check_finite, check_matrix, check_real_array
 
 __all__ = ["CornerFunction", "CornerModel", "StructuredCorners"]
-
-#: the largest n for which a model's dense table (2**n rows) is built on request
-#: (``corner_points``, ``triangulation``, ``table``).
-MAX_TABLE_EVENTS = 20
 
 
 @runtime_checkable

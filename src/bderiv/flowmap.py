@@ -22,6 +22,7 @@ import numpy as np
 from ._batch import evaluate, is_dask_array
 from ._errors import QueryError
 from ._kernels import _core
+from ._limits import MAX_PIECES
 from ._linearise import Linearisation
 from ._validate import (
     all_finite,
@@ -32,7 +33,7 @@ from ._validate import (
     check_real_array,
     singular_condition,
 )
-from .bderivative import MAX_PIECES, BDerivative
+from .bderivative import BDerivative
 from .models.events.finaltime import FinalTimeMap
 
 __all__ = ["FlowBDerivative"]

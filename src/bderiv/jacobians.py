@@ -18,12 +18,10 @@ import numpy as np
 
 from . import _numdiff as numdiff
 from ._format import format_mask
+from ._limits import DEFAULT_MASKS
 from .models.calls import Section, check_output
 
 __all__ = ["JacobianCheck", "JacobianReport", "check_jacobians"]
-
-#: largest number of masks checked by default (all 2**n up to n = 8).
-DEFAULT_MASKS = 1 << 8
 
 
 class JacobianCheck(NamedTuple):

@@ -23,7 +23,11 @@ quadratically there as well: each smooth piece of P passes through the fixed poi
 
 The iterates use ``simultaneity_tol = 0`` (events are grouped only when the integrator
 cannot tell them apart), so an iterate whose events are close but not simultaneous is
-never refused; the orbit's return map is then built with the caller's tolerance.
+never refused; the orbit's return map is built with the caller's tolerance. When the run
+that accepted a Newton step already returns within the tolerance, the map at the new
+iterate is built with the caller's tolerance: it is then both the convergence test and
+the orbit's map, built once (a map built twice at the orbit was about a sixth of the
+search). Convergence is judged on the map returned.
 """
 
 from __future__ import annotations
@@ -40,6 +44,18 @@ from ._cyclic import (
     kept,
     reduced_basis,
 )
+from ._limits import (
+    DEFAULT_T_MAX,
+    DERIVATIVE_SIMULTANEITY_TOL,
+    MAX_HALVINGS,
+    MAX_PIECE_SWITCHES,
+    MULTIPLIER_PIECES,
+    ON_SURFACE_TOL,
+    ORBIT_MAX_ITER,
+    ORBIT_TOL,
+    PIECE_RTOL,
+    T_MAX_PER_PERIOD,
+)
 from ._validate import check_number, check_positive_int
 from .models.integrate.run import SolverOptions, run
 from .returnmap import return_map
@@ -50,18 +66,6 @@ __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
 #: integrator settings of the orbit search: the residual is only as good as the
 #: integration, and Newton's method converges to within it.
 ORBIT_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13)
-#: longest wait for the return without a period guess, and in multiples of the guess.
-DEFAULT_T_MAX = 100.0
-T_MAX_PER_PERIOD = 3.0
-#: halvings of a Newton step that does not reduce the residual before giving up.
-MAX_HALVINGS = 10
-#: a piece's solution lies in its piece when ``|A(delta) - A_piece delta|`` is below
-#: this times ``|A_piece| |delta|`` (ties between pieces give equal values).
-PIECE_RTOL = 1e-8
-#: pieces tried by one Newton step before it settles for a generalized Newton step.
-MAX_PIECE_SWITCHES = 32
-#: pieces whose Floquet multipliers ``stability()`` reports: the most visited.
-MULTIPLIER_PIECES = 12
 
 
 @dataclass(frozen=True)
@@ -149,7 +153,8 @@ class PeriodicOrbit:
         n_points = check_positive_int(n_points, "n_points")
         return self.system.simulate(self.x0, T_MAX_PER_PERIOD * self.period,
                                     section=self.section, max_step=self.period / n_points,
-                                    simultaneity_tol=1e-7, options=ORBIT_OPTIONS)
+                                    simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                                    options=ORBIT_OPTIONS)
 
     def stability(self, n_directions=1000, iterations=1000, burn_in=None, seed=0) -> Stability:
         """The stability of the orbit, from the piecewise-linear return map.
@@ -194,8 +199,9 @@ class PeriodicOrbit:
                          multipliers, visits, int(iterations), burn_in)
 
 
-def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, max_iter=30,
-                   simultaneity_tol=1e-7, options=None, cyclic=()):
+def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL,
+                   max_iter=ORBIT_MAX_ITER, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                   options=None, cyclic=()):
     """Solve ``P(x) = x`` on the section by Newton's method with the B-derivative.
 
     Parameters
@@ -250,10 +256,9 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
         returned, *shifted = [run(system, start, t_max, simultaneity_tol=0.0, options=options,
                                   section=section).x_final for start in starts]
         check_independence(returned, x, shifted, cyclic)
-    history = []
+    history, build_tol = [], 0.0
     for iteration in range(max_iter + 1):
-        R, _traj = return_map(system, x, section, t_max=t_max, tol=1e-9, simultaneity_tol=0.0,
-                              options=options)
+        R, traj, built_with = _build(system, x, section, t_max, build_tol, options)
         r = R.x_final - x
         res = float(np.abs(r[keep]).max())
         if res <= tol * max(1.0, float(np.abs(x[keep]).max())):
@@ -262,16 +267,36 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=1e-10, ma
             raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
                                f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
         delta, piece, switches = newton_step(R, r, section.gradient(x), section(x), keep=keep)
-        x_new = _damped(system, section, x, delta, res, t_max, options, keep)
+        x_new, returned = _damped(system, section, x, delta, res, t_max, options, keep)
         history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece,
                                      switches))
         x = x_new
+        # converged already by the damped step's run: the next map is likely the orbit's,
+        # so it is built with the caller's tolerance (and kept if the test passes on it)
+        build_tol = simultaneity_tol if returned <= tol * max(1.0, float(np.abs(
+            x[keep]).max())) else 0.0
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
-    R, traj = return_map(system, x, section, t_max=t_max, tol=1e-9,
-                         simultaneity_tol=simultaneity_tol, options=options)
+    if built_with != simultaneity_tol:  # the map at x was built for the iteration only
+        R, traj = return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
+                             simultaneity_tol=simultaneity_tol, options=options)
     r = R.x_final - x
     return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
                          cyclic, r[list(cyclic)])
+
+
+def _build(system, x, section, t_max, simultaneity_tol, options):
+    """``(R, trajectory, tolerance)``: the return map at x with ``simultaneity_tol``, else
+    with 0 where that refuses (two events of an iterate close in time but not at one
+    point)."""
+    if simultaneity_tol != 0.0:
+        try:
+            return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
+                                simultaneity_tol=simultaneity_tol, options=options),
+                    simultaneity_tol)
+        except ValueError:
+            pass
+    return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL, simultaneity_tol=0.0,
+                        options=options), 0.0)
 
 
 def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None):
@@ -370,7 +395,7 @@ def _onto_section(section, x, steps=20):
 
 def _damped(system, section, x, delta, res, t_max, options, keep):
     """``x + delta`` (on the section), halved until ``max |P - x|`` (over the coordinates
-    ``keep``) falls below ``res``."""
+    ``keep``) falls below ``res``; and that ``max |P - x|`` at it."""
     failure = ""
     for _ in range(MAX_HALVINGS + 1):
         trial = _onto_section(section, x + delta)
@@ -381,8 +406,9 @@ def _damped(system, section, x, delta, res, t_max, options, keep):
             failure = f"; the last trial point failed: {exc}"
             delta = delta / 2
             continue
-        if float(np.abs((traj.x_final - trial)[keep]).max()) < res:
-            return trial
+        returned = float(np.abs((traj.x_final - trial)[keep]).max())
+        if returned < res:
+            return trial, returned
         delta = delta / 2
     raise RuntimeError(f"a Newton step from x = {x} could not reduce max |P(x) - x| = "
                        f"{res:.3g} in {MAX_HALVINGS} halvings: the guess is too far from "

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._limits import GRAZING_RTOL
 from .flowmap import FlowBDerivative, _read_only
-from .models.events.crossings import GRAZING_RTOL
 from .models.integrate.run import run
 
 __all__ = ["ReturnMap", "flow_projection", "return_map"]

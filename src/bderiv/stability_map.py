@@ -26,8 +26,11 @@ afterwards, a :class:`~distributed.Client` is used as it is. Each wave's points 
 submitted at once, so a cluster runs up to one wave at a time in parallel. The model is
 made on the workers from ``make_system`` and the point's parameters, so
 ``make_system`` must pickle (a module-level function, or a :func:`functools.partial` of
-one). Dask is used because a parameter sweep is the job that outgrows one machine; the
-waves are this module's own because Dask schedules independent tasks, not continuation.
+one). A compiled model should take the swept values at run time
+(``HybridSystem(..., params=p)``, as the bundled gaits do): its functions then compile
+once per process (the workers load them from numba's disk cache), not once per point.
+Dask is used because a parameter sweep is the job that outgrows one machine; the waves are
+this module's own because Dask schedules independent tasks, not continuation.
 
 A point whose orbit is not found (Newton's method fails, the model refuses) is recorded
 with its message, not raised: a map has unstable and degenerate regions by nature.
@@ -40,13 +43,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._limits import LOCAL_WORKERS
 from ._progress import resolve_progress
 from ._validate import check_positive_int
 
 __all__ = ["StabilityMap", "stability_map"]
-
-#: worker processes of ``client="local"`` (one per core of this project's machines)
-LOCAL_WORKERS = 2
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,10 +9,8 @@ import numpy as np
 from .._errors import ChainStop, refusal
 from .._format import format_happened, format_order, transversality_message
 from .._kernels import _core, scaling
+from .._limits import CHAIN_BYTES
 from .._tables import chain_regions, tabulate
-
-#: bytes of chain corners gathered at a time by the generic :meth:`Engine.tangents`.
-CHAIN_BYTES = 64 << 20
 
 
 class Engine:

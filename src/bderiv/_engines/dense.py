@@ -9,18 +9,10 @@ from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
 from .._kernels import lanes, scaling
 from .._kernels._core import PLAIN
-from .._validate import check_matrix, check_number, memory_limit_bytes
+from .._limits import FAR_BYTES, TABLE_BAND
+from .._validate import check_matrix, check_number, memory_limit_for
 from . import fastpath
 from .base import Engine, unit_rows
-
-#: tables whose largest entry (of a row of Dh, or of F as a whole) is beyond 2**+-TABLE_BAND
-#: are scaled by a power of two at build (:func:`table_exponents`); within it the products
-#: of the kernels stay far from both ends of the float64 range, and nothing is copied.
-TABLE_BAND = 64
-
-#: records larger than this are prefetched one step ahead by the lane kernels (about the
-#: size of the last-level cache share of a core; below it the hint costs more than it saves)
-FAR_BYTES = 4 << 20
 
 
 class DenseEngine(Engine):
@@ -115,9 +107,8 @@ class DenseEngine(Engine):
         when ``pending_only``: a table with resets) and build the engine on a copy, scaled
         by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``."""
         n, d = Dh.shape
-        limit = (_tables.available_memory() if memory_limit is None
-                 else memory_limit_bytes(memory_limit))
         need = _tables.dense_table_bytes(n, d)
+        limit = memory_limit_for(need, memory_limit)
         if n > 40 or need > limit:
             raise ValueError(
                 f"dense corner tables for n={n} events in dimension d={d} need 2**{n} rows, "

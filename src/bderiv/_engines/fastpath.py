@@ -19,10 +19,7 @@ import numpy as np
 
 from .. import _tables
 from .._kernels import _core
-
-#: entries that must agree may differ by this times their own rounding scale (rounding of
-#: a dot product of d terms is ~ d * 1.1e-16 of that scale).
-FAST_RTOL = 1e-12
+from .._limits import FAST_RTOL
 
 
 class FastPath:

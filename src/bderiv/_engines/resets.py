@@ -17,13 +17,11 @@ import scipy.linalg
 
 from .._format import MASK_MEANING, format_mask
 from .._kernels import resets as kernels
+from .._limits import CHECK_ROWS
 from .._tables import blocks, dense_table_bytes
 from .._validate import check_finite, check_memory, check_number, check_real_array
 from .base import Engine
 from .dense import DenseEngine
-
-#: masks per block of the existence check (each block holds a few (m, d, d) products).
-CHECK_ROWS = 1 << 10
 
 
 class LowRankResets(NamedTuple):

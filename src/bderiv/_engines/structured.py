@@ -6,14 +6,10 @@ import numpy as np
 
 from .._format import format_happened
 from .._kernels import structured as kernels
+from .._limits import PROOF_MARGIN
 from .._tables import padded
 from . import fastpath
 from .base import Engine
-
-#: transversality counts as proved when the lower bound on every rate exceeds this fraction
-#: of the sum of the magnitudes it adds up (the rates are updated along a chain by n + p
-#: additions, whose rounding is ~ (n + p) eps of that sum, far below this).
-PROOF_MARGIN = 1e-9
 
 
 class StructuredEngine(Engine):

@@ -55,17 +55,20 @@ from numba import njit
 from numba.core.caching import IndexDataCacheFile
 from numba.core.dispatcher import Dispatcher
 
+from .._limits import COMPILE_BYTES, THREAD_EXTRA_BYTES
+
 log = logging.getLogger("bderiv")
 
 #: hex digits of a sources digest in a cached function's qualified name
 KEY_DIGITS = 16
 
 
-def sources_digest(folder) -> str:
+def sources_digest(folder, *files) -> str:
     """The first :data:`KEY_DIGITS` hex digits of the sha256 of the ``*.py`` files of
-    ``folder`` (names and contents, in name order)."""
+    ``folder`` (names and contents, in name order), then of ``files`` (the modules outside
+    ``folder`` whose values are compiled in: ``bderiv._limits``)."""
     h = hashlib.sha256()
-    for path in sorted(pathlib.Path(folder).glob("*.py")):
+    for path in [*sorted(pathlib.Path(folder).glob("*.py")), *map(pathlib.Path, files)]:
         h.update(path.name.encode() + b"\0" + path.read_bytes())
     return h.hexdigest()[:KEY_DIGITS]
 
@@ -171,14 +174,6 @@ class CheckedCacheFile(IndexDataCacheFile):
 
 #: cache folders already warned about in this process
 _WARNED: set = set()
-
-
-#: address space a kernel's compilation may take (LLVM; measured 50 to 70 MiB for the
-#: drivers of a small dense map), with a margin
-COMPILE_BYTES = 128 << 20
-#: address space a thread takes besides its stack (guard page, TLS, the runtime's own
-#: structures; glibc's malloc arena of a thread is reserved only when it fits)
-THREAD_EXTRA_BYTES = 2 << 20
 
 
 def thread_bytes() -> int:

@@ -29,6 +29,14 @@ import numba
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
+from .. import _limits
+from .._limits import (
+    INSERTION_SORT_MAX,
+    LAUNCH_WORK,
+    PARALLEL_MIN_QUERIES,
+    QUERY_BAND,
+    TASK_QUERIES,
+)
 from ._cache import harden_all, keyed, sources_digest
 from ._simd import bits_float, float_bits
 
@@ -39,8 +47,9 @@ from ._simd import bits_float, float_bits
 # covers everything compiled into them (see ``_cache``).
 JIT = {"error_model": "numpy"}
 
-#: the digest of this package's sources that names every cached kernel (``_cache.keyed``)
-SOURCES = sources_digest(pathlib.Path(__file__).parent)
+#: the digest of this package's sources and of the numbers compiled into them
+#: (``bderiv._limits``) that names every cached kernel (``_cache.keyed``)
+SOURCES = sources_digest(pathlib.Path(__file__).parent, _limits.__file__)
 
 
 def cached(fn=None, *, parallel: bool = False):
@@ -58,27 +67,10 @@ if _KERNELS not in ("", "plain", "simd"):
     warnings.warn(f"BDERIV_KERNELS={_KERNELS!r} is not 'plain' or 'simd'; using the "
                   f"default (simd) kernels", RuntimeWarning, stacklevel=1)
 
-#: queries per parallel task. Threads take tasks one at a time (dynamic schedule), so a
-#: thread that the OS delays does not hold the other back; at n = 8, 256 queries take
-#: about 90 us on one thread, far above the start-up of the second.
-TASK_QUERIES = 256
-
-#: batches smaller than this run on one thread (thread start-up costs more than it saves).
-PARALLEL_MIN_QUERIES = 1024
-
-#: work per kernel launch, in units of n (n + d) (about a nanosecond each). Ctrl-C is seen
-#: between launches only, so a long batch is cut into launches of about 0.05 to 0.3 s;
-#: a launch wakes the threads, which costs more on a busy machine, so not shorter.
-LAUNCH_WORK = 1 << 25
-
 
 def launch_queries(n: int, d: int) -> int:
     """Queries per launch for n events in dimension d (between 2**14 and 2**20)."""
     return min(max(LAUNCH_WORK // (n * (n + d)), 1 << 14), 1 << 20)
-
-
-#: insertion sort up to this many events, merge sort above (fast-path orders).
-INSERTION_SORT_MAX = 24
 
 
 #: numba's ``workqueue`` threading layer (its fallback without OpenMP or TBB) aborts the
@@ -234,12 +226,6 @@ def row_exponent(V, q, d):
     if biased == 0:  # 0 or subnormal
         return math.frexp(big)[1]
     return biased - 1022
-
-
-#: a query whose nonzero entries are within 2**+-QUERY_BAND keeps the chain of tables
-#: scaled within 2**+-64 (``_engines.dense.TABLE_BAND``) far from both ends of the float64
-#: range; kernels may run such queries as given (what the scaled query gives, scaled)
-QUERY_BAND = 256
 
 
 @njit(inline="always", **JIT)

@@ -19,6 +19,24 @@ slowdown the named tables had shown against the positional ones before them (app
 1.008, inverse 0.964), with the same vector code (at wh = wx = 24, the same count of
 every vector instruction): the cost comes with the parallel driver (how numba's parallel
 loop passes a tuple's ints is the likely place; not traced further).
+
+The lanes select with arithmetic of their own, not the scalar chain's (:mod:`.selection`,
+run by :mod:`.dense`): actual coordinates (h = Dh x(t), one record row read per step), a
+stored ``-1 / G`` (a multiplication on each step's critical path, not a division), fused
+updates and tree sums. A prototype with the scalar chain's arithmetic in the same vectors
+(virtual g, ``-g / G[B]`` by division, ``g += t (G[B] - G[B'])`` and the position
+likewise by products and sums, the tangents' dot products summed in order) gave the plain
+kernels' bits for apply, times, jvp and vjp, and cost (``benchmarks/ab.py <src> --cases
+dense8,dense16,dense20 --ops apply,inverse,times,jvp --clock cpu --rounds 9 --unequal``,
+two threads, CPU time, medians of 8 alternated rounds (minima), load 8-11 on two cores):
+n = 8 apply 0.99 (1.27), inverse 1.31 (1.60), times 0.83 (1.13), jvp 1.52 (1.49);
+n = 16 apply 1.69 (1.65), inverse 1.53 (1.25), times 1.47 (1.59), jvp 1.63 (1.66);
+n = 20 apply 1.36 (1.17). Far beyond the 5 % the issue allowed, so the lanes keep their
+arithmetic. ``tests/test_lanes.py`` holds them to the scalar chain on the same tables: the
+same orders exactly, apply, inverse and times within 4 n eps of their chains' scales,
+jvp and vjp within 4 n (d + 2) eps of the sizes their factors sum; at an exact tie of
+``-g / G`` the product ``h * (-1 / G)`` may break it the other way (the map is continuous
+there: values within the same bound).
 """
 
 from __future__ import annotations
@@ -29,8 +47,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._limits import QUERY_BAND
 from . import _simd as vec
-from ._core import JIT, QUERY_BAND, batch, write_times
+from ._core import JIT, batch, write_times
 
 #: queries per lockstep group: eight independent chains hide the latency of each step's
 #: reduction (the lanes are written out in :func:`_lanes`: their state lives in registers).

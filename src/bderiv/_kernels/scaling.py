@@ -19,14 +19,8 @@ from __future__ import annotations
 
 from numba import njit, prange
 
-from ._core import JIT, QUERY_BAND, cached, factors, row_exponent, serialised
-
-#: batches with fewer entries (rows x d) are scaled serially: measured (load 8 on 2 cores)
-#: 0.7-1.8 ns per entry serially, a parallel launch 13-34 us when its threads get cores at
-#: once and 11-16 ms when they wait (318 launches on (200, 8) batches were 6 of the 7 s of
-#: a stability verdict); below 2**18 entries (about 0.3 ms of serial work) parallel saves
-#: at most half of that and risks 16 ms.
-SERIAL_ENTRIES = 1 << 18
+from .._limits import QUERY_BAND, SERIAL_ENTRIES
+from ._core import JIT, cached, factors, row_exponent, serialised
 
 
 def _small(A):

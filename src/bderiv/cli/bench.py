@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 
 from .. import _bench
+from .._limits import BENCH_BATCH, BENCH_REPEAT
 from .._tables import dense_table_bytes
 from .figures import save_figure
 from .machine import describe, machine_info
@@ -23,7 +24,8 @@ def sweep_bytes(n: int, d: int, batch: int) -> int:
     return (1 << n) * d * 8 + dense_table_bytes(n, d) + 2 * batch * d * 8
 
 
-def run_bench(ns, *, d_factor=1, batch=100_000, repeat=3, plot=None, progress=None) -> dict:
+def run_bench(ns, *, d_factor=1, batch=BENCH_BATCH, repeat=BENCH_REPEAT, plot=None,
+              progress=None) -> dict:
     """Run the sweep (and save its log-log plot to ``plot``); return its rows and setting.
 
     Parameters

@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from .._limits import DEMO_BATCH, DEMO_CHECK, FD_EPS
 from ..checks import fd_check
 from .machine import machine_info
 from .pieces import distinct_pieces, group_tables, piece_summary
@@ -38,8 +39,8 @@ TIMED_RUNS = 3
 TABLE_VECTORS = ((-1.0, -2.0, -3.0), (-3.0, -1.0, -2.0), (0.5, -0.2, 0.1))
 
 
-def run_demo(example="chair", n=None, extended=False, batch=1_000_000, check=8,
-             eps=(1e-4, 1e-5, 1e-6), seed=0, full=False, progress=None, report=None,
+def run_demo(example="chair", n=None, extended=False, batch=DEMO_BATCH, check=DEMO_CHECK,
+             eps=FD_EPS, seed=0, full=False, progress=None, report=None,
              compiled=True) -> dict:
     """Run the demo and return its results as a JSON-ready dict.
 

@@ -13,6 +13,7 @@ import os
 
 import numpy as np
 
+from .._limits import CHECK_VECTORS, MAX_PIECES
 from .._tables import corner_point_bytes
 from ..triangulation import load_triangulation, save_files
 from .systems import load_example, refuse_without_triangulation
@@ -23,9 +24,6 @@ from .usage import (
     not_writable,
     require_memory,
 )
-
-#: random vectors on which every file read back is compared with the B-derivative
-CHECK_VECTORS = 200
 
 
 def triangulation_bytes(n: int, d: int) -> int:
@@ -45,7 +43,7 @@ def triangulation_bytes(n: int, d: int) -> int:
 
 
 def run_export(example=None, n=None, extended=False, out="triangulation", fmt="both",
-               max_pieces=40320, which="event") -> dict:
+               max_pieces=MAX_PIECES, which="event") -> dict:
     """Save the triangulation of ``example`` (default chair) and check the files read back.
 
     Parameters

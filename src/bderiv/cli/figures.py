@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 
+from .._limits import MAX_PIXELS, MAX_SIDE_PIXELS
 from .machine import describe
 from .systems import ORBIT_EXAMPLES, load_example, load_gait, load_orbit
 from .usage import (
@@ -27,11 +28,6 @@ FIGURES_2D = ("field", "triangulation", "circle", "note")
 GAIT_FIGURES = ("orbit", "growth")
 #: every figure, by its file name
 FIGURES = (*FIGURES_2D, "pieces", "scaling", *GAIT_FIGURES)
-#: Agg's bound on the pixels of a side of a raster image
-MAX_SIDE_PIXELS = 1 << 16
-#: the most pixels of a raster image that image libraries open without refusing it as a
-#: decompression bomb (Pillow's MAX_IMAGE_PIXELS, about 89 million)
-MAX_PIXELS = 89_478_485
 #: the default output directory: one folder per example inside it, so that the figures of
 #: one example do not replace another's
 DEFAULT_OUT = "bderiv-figures"

@@ -13,6 +13,15 @@ import argparse
 import os
 import sys
 
+from .._limits import (
+    BENCH_BATCH,
+    BENCH_NS,
+    BENCH_REPEAT,
+    DEMO_BATCH,
+    DEMO_CHECK,
+    EPS_RANGE,
+    FD_EPS,
+)
 from . import render
 from .bench import run_bench
 from .demo import run_demo
@@ -65,9 +74,6 @@ def _integer(text: str) -> int | None:
 
 _positive_int = _argument_type(_integer, lambda v: v >= 1, "a positive integer")
 _nonneg_int = _argument_type(_integer, lambda v: v >= 0, "an integer >= 0")
-#: finite-difference steps: below 1e-12 rounding swamps the difference quotient, above 0.1
-#: the step leaves the neighbourhood where the B-derivative describes the flow
-EPS_RANGE = (1e-12, 0.1)
 _eps = _argument_type(float, lambda v: EPS_RANGE[0] <= v <= EPS_RANGE[1],
                       f"a step between {EPS_RANGE[0]:g} and {EPS_RANGE[1]:g}")
 
@@ -124,13 +130,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="the B-derivative of a built-in model, checked against "
                        "simulation (default command)")
     _add_example_args(p, "chair", GAIT_EXAMPLES)
-    p.add_argument("--batch", type=_positive_int, default=1_000_000,
-                   help="tangent vectors in the timed batch (default 1000000)")
-    p.add_argument("--check", type=_nonneg_int, default=8,
-                   help="vectors checked against finite differences (default 8, 0 = none)")
-    p.add_argument("--eps", type=_eps, nargs="+", default=[1e-4, 1e-5, 1e-6],
+    p.add_argument("--batch", type=_positive_int, default=DEMO_BATCH,
+                   help=f"tangent vectors in the timed batch (default {DEMO_BATCH})")
+    p.add_argument("--check", type=_nonneg_int, default=DEMO_CHECK,
+                   help=f"vectors checked against finite differences (default {DEMO_CHECK}, "
+                   f"0 = none)")
+    p.add_argument("--eps", type=_eps, nargs="+", default=list(FD_EPS),
                    help=f"finite-difference steps, each between {EPS_RANGE[0]:g} and "
-                   f"{EPS_RANGE[1]:g} (default 1e-4 1e-5 1e-6)")
+                   f"{EPS_RANGE[1]:g} (default {' '.join(f'{e:.0e}' for e in FD_EPS)})")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
     p.add_argument("--full", action="store_true",
                    help="also print the matrices: the pieces listed, each group's Dh and "
@@ -143,13 +150,14 @@ def build_parser() -> argparse.ArgumentParser:
                    f"{', '.join(COMPILED_EXAMPLES)}; the same equations)")
 
     p = sub.add_parser("bench", help="dimension sweep against the baselines")
-    p.add_argument("--n", type=_positive_int, nargs="+", default=[2, 4, 8, 12, 16],
-                   help="numbers of events (default 2 4 8 12 16)")
+    p.add_argument("--n", type=_positive_int, nargs="+", default=list(BENCH_NS),
+                   help=f"numbers of events (default {' '.join(map(str, BENCH_NS))})")
     p.add_argument("--d-factor", type=int, choices=(1, 2), default=1,
                    help="dimension d = d_factor * n (default 1)")
-    p.add_argument("--batch", type=_positive_int, default=100_000,
-                   help="queries per batch (default 100000)")
-    p.add_argument("--repeat", type=_positive_int, default=3, help="timed runs, best kept")
+    p.add_argument("--batch", type=_positive_int, default=BENCH_BATCH,
+                   help=f"queries per batch (default {BENCH_BATCH})")
+    p.add_argument("--repeat", type=_positive_int, default=BENCH_REPEAT,
+                   help="timed runs, best kept")
     p.add_argument("--plot", metavar="FILE",
                    help="also save the log-log plot (.png, .pdf or .svg; its directory is "
                    "made if missing)")

@@ -12,14 +12,14 @@ import math
 
 import numpy as np
 
+from .._limits import FULL_TABLE_ENTRIES
+
 #: the most visited pieces listed
 SHOWN = 6
 #: vectors whose pieces give the determinant and gain ranges (one piece matrix each)
 RANGE_VECTORS = 1000
 #: a list of the most visited pieces is shown when the first holds at least this share
 LIST_SHARE = 0.01
-#: corner tables with more entries than this are left out of ``--full`` output
-FULL_TABLE_ENTRIES = 1 << 14
 
 
 def distinct_pieces(orders, limit=None):

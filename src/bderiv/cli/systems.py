@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import examples
+from .._limits import NETWORK_MAX_N
 from ..bderivative import BDerivative
 from .usage import UsageError
 
@@ -31,8 +32,6 @@ IMPACT_EXAMPLES = ("landing", "ball-in-corner")
 #: examples with a compiled version (``compiled=True``: numba functions on the compiled
 #: integrator, the same equations as the Python version)
 COMPILED_EXAMPLES = ("chair", "network", "pronking", "landing")
-#: largest n of the scalable network family the CLI accepts
-NETWORK_MAX_N = 20
 
 
 def _network_options_only(name: str, n: int | None, extended: bool) -> None:

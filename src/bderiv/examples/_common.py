@@ -1,10 +1,13 @@
 """The :class:`Example` record and helpers shared by the examples.
 
 Models with a compiled version write their equations once, as plain functions that numba
-compiles (closures over constant numbers and arrays, loop style, no Python objects):
-:meth:`Example.from_functions` passes them to :class:`~bderiv.models.system.HybridSystem` as
-they are (the Python version) or each compiled by :func:`compile_function` (the compiled
-version, ``compiled=True``): one code path for both.
+compiles (loop style, no Python objects): :meth:`Example.from_functions` passes them to
+:class:`~bderiv.models.system.HybridSystem` as they are (the Python version) or each
+compiled by :func:`compile_function` (the compiled version, ``compiled=True``): one code
+path for both. Their constants are either closed over (numbers and arrays: a compilation
+per set of values) or, for the models that are swept over parameters (the gaits), read
+from the state's tail as the system's ``params``: module-level functions compiled once per
+process (:func:`compiled_once`) and loaded from numba's disk cache in later ones.
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ from .._kernels._cache import keyed, sources_digest
 from .._validate import check_bool
 from ..models.system import HybridSystem
 
-__all__ = ["Example", "compile_function", "complex_step_jacobian", "flow_back"]
+__all__ = ["Example", "compile_function", "compiled_once", "complex_step_jacobian",
+           "flow_back"]
 
 #: the functions of a model that the compiled version compiles (corner_field stays Python:
 #: it is called at the event points only, with the whole table at once)
@@ -82,7 +86,7 @@ class Example:
 
     @classmethod
     def from_functions(cls, functions, *, compiled, n_events, dim, rho, x0, t_event,
-                       t_after, name, description):
+                       t_after, name, description, params=None):
         """An example from its model's functions, compiled or not.
 
         Parameters
@@ -95,18 +99,24 @@ class Example:
             Compile them (:func:`compile_function`): the model then runs on the compiled
             integrator. Without ``field_jacobian`` the Jacobian is taken by complex step
             in either version (in compiled code when compiled).
+        params : array_like, shape (m,), optional
+            The system's parameter values (:class:`~bderiv.models.system.HybridSystem`):
+            the functions take the state followed by them. The functions are then
+            module-level ones holding no constants, compiled once per process
+            (:func:`compiled_once`).
         """
         compiled = check_bool(compiled, "compiled")
         fns = dict(functions)
         if compiled:
-            fns.update({k: compile_function(f) for k, f in fns.items()
-                        if k in COMPILED_FUNCTIONS})
+            compile_ = compile_function if params is None else compiled_once
+            fns.update({k: compile_(f) for k, f in fns.items() if k in COMPILED_FUNCTIONS})
         elif "field_jacobian" not in fns:
             field = fns["field"]
+            # by the state (the first dim entries), the parameters held
             fns["field_jacobian"] = lambda x, mask: complex_step_jacobian(
-                lambda y: field(y, mask), x, dim)
+                lambda y: field(np.concatenate((y, x[dim:])), mask), x[:dim], dim)
         system = HybridSystem(fns.pop("field"), fns.pop("events"), n_events=n_events,
-                              dim=dim, **fns)
+                              dim=dim, params=params, **fns)
         return cls(system=system, rho=np.asarray(rho, dtype=np.float64),
                    x0=np.asarray(x0, dtype=np.float64), t_event=float(t_event),
                    t_final=float(f"{float(t_event) + float(t_after):.15g}"), name=name,
@@ -130,6 +140,14 @@ def compile_function(fn):
     own file changes; the name changes when a helper it inlines does.
     """
     return keyed(fn, _sources_digest())
+
+
+@cache
+def compiled_once(fn):
+    """:func:`compile_function` of a module-level ``fn``, once per process: every model
+    built on it shares the dispatcher (its constants are parameters), so a second model
+    compiles nothing."""
+    return compile_function(fn)
 
 
 def complex_step_jacobian(fun, x, n_out):

@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from numba.extending import register_jitable
 
+from .._limits import FD_EPS
 from .._validate import check_positive_int
 from ._common import Example, compile_function
 
@@ -55,6 +56,13 @@ _G = 9.81
 APEX = 0.6629663141
 
 
+#: where the body's constants sit in a pronking model's parameter vector (what its
+#: functions read after the state): per-leg stiffness, damping and thrust gain, the
+#: coupling, v_ref, the legs' length and the pitch inertia, then the feet's ``a_k`` (one
+#: per leg, ``FEET`` onwards: the number of legs is the vector's length less ``FEET``)
+STIFFNESS, DAMPING, GAIN, COUPLING, V_REF, LEG, INERTIA, FEET = range(8)
+
+
 @register_jitable
 def foot_offset(a_k, leg, theta):
     """Foot k's offset from the centre of mass in the world frame, ``(r_x, r_z)``, for the
@@ -64,21 +72,45 @@ def foot_offset(a_k, leg, theta):
 
 
 @register_jitable
-def stance(z, theta, vz, omega, mask, p):
+def stance(z, theta, vz, omega, mask, q):
     """``(a_z, alpha)``: the body's vertical and pitch accelerations in region ``mask``:
-    gravity, and each leg whose bit is set (spring, damper, thrust). ``p`` is the
-    :class:`Body`'s constants. Plain code that numba compiles and Python runs alike
-    (complex input passes through: the complex step)."""
-    gain = p.gain * (1.0 + p.coupling) if mask == p.all_down else p.gain
-    thrust = gain * (1.0 - vz**2 / p.v_ref**2) * vz
+    gravity, and each leg whose bit is set (spring, damper, thrust). ``q`` is the body's
+    constants (:meth:`Body.values`, shape (FEET + legs,)). Plain code that numba compiles
+    and Python runs alike (complex input passes through: the complex step)."""
+    legs = q.size - FEET
+    all_down = (1 << legs) - 1
+    gain = q[GAIN] * (1.0 + q[COUPLING]) if mask == all_down else q[GAIN]
+    thrust = gain * (1.0 - vz**2 / q[V_REF] ** 2) * vz
     az, alpha = -_G + 0.0 * vz, 0.0 * vz
-    for k in range(p.a.size):
+    for k in range(legs):
         if mask >> k & 1:
-            rx, rz = foot_offset(p.a[k], p.leg, theta)
-            f = -p.K * (z + rz) - p.C * (vz + omega * rx) + thrust
+            rx, rz = foot_offset(q[FEET + k], q[LEG], theta)
+            f = -q[STIFFNESS] * (z + rz) - q[DAMPING] * (vz + omega * rx) + thrust
             az = az + f
-            alpha = alpha + rx * f / p.inertia
+            alpha = alpha + rx * f / q[INERTIA]
     return az, alpha
+
+
+@register_jitable
+def foot_heights(z, theta, q):
+    """The event values ``-height_k`` of the feet, (legs,), ``q`` the body's constants."""
+    legs = q.size - FEET
+    out = np.empty(legs)
+    for k in range(legs):
+        out[k] = -(z + foot_offset(q[FEET + k], q[LEG], theta)[1])
+    return out
+
+
+@register_jitable
+def foot_heights_jacobian(theta, q, dim, z_at, theta_at):
+    """The Jacobian of :func:`foot_heights` in a state of size ``dim`` whose height and
+    pitch are coordinates ``z_at`` and ``theta_at``: (legs, dim)."""
+    legs = q.size - FEET
+    D = np.zeros((legs, dim))
+    for k in range(legs):
+        D[k, z_at] = -1.0
+        D[k, theta_at] = -foot_offset(q[FEET + k], q[LEG], theta)[0]
+    return D
 
 
 class Body(NamedTuple):
@@ -92,33 +124,34 @@ class Body(NamedTuple):
     v_ref: float
     leg: float
     inertia: float
-    all_down: int  #: the mask with every leg down
+
+    def values(self) -> np.ndarray:
+        """The constants as the model's functions read them: ``(K, C, gain, coupling,
+        v_ref, leg, inertia, a_0, ..., a_{legs-1})``, shape (FEET + legs,)."""
+        return np.concatenate(([self.K, self.C, self.gain, self.coupling, self.v_ref,
+                                self.leg, self.inertia], self.a))
 
 
-def _functions(p: Body) -> dict:
-    """The pronking model's field, events and event Jacobian (d = 4): plain functions
-    over the constants ``p``, for Python as they are and for numba compiled."""
+# The pronking model (d = 4): plain functions of ``x = (z, theta, vz, omega, *q)``, the
+# state followed by the body's constants ``q`` (:meth:`Body.values`), for Python as they are
+# and for numba compiled once (the constants come at run time: no compilation per body).
 
-    def field(x, mask):
-        out = np.empty_like(x)  # complex for complex x: the complex step
-        out[0], out[1] = x[2], x[3]
-        out[2], out[3] = stance(x[0], x[1], x[2], x[3], mask, p)
-        return out
+def field(x, mask):
+    """The body's field in region ``mask``: (4,)."""
+    out = np.empty_like(x[:4])  # complex for complex x: the complex step
+    out[0], out[1] = x[2], x[3]
+    out[2], out[3] = stance(x[0], x[1], x[2], x[3], mask, x[4:])
+    return out
 
-    def events(x):
-        out = np.empty(p.a.size)
-        for k in range(p.a.size):
-            out[k] = -(x[0] + foot_offset(p.a[k], p.leg, x[1])[1])
-        return out
 
-    def event_jacobian(x):
-        D = np.zeros((p.a.size, 4))
-        for k in range(p.a.size):
-            D[k, 0] = -1.0
-            D[k, 1] = -foot_offset(p.a[k], p.leg, x[1])[0]
-        return D
+def events(x):
+    """The feet's event values ``-height_k``: (legs,)."""
+    return foot_heights(x[0], x[1], x[4:])
 
-    return {"field": field, "events": events, "event_jacobian": event_jacobian}
+
+def event_jacobian(x):
+    """The Jacobian of :func:`events` by the state: (legs, 4)."""
+    return foot_heights_jacobian(x[1], x[4:], 4, 0, 1)
 
 
 def apex_section(x):
@@ -146,8 +179,7 @@ def body(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5, hal
     share = 2.0 / legs  # the totals of two legs, shared by all of them
     return Body(a=np.linspace(-half_base, half_base, legs), K=share * float(stiffness),
                 C=share * float(damping), gain=share * float(gain), coupling=float(coupling),
-                v_ref=float(v_ref), leg=float(leg), inertia=float(inertia),
-                all_down=(1 << legs) - 1)
+                v_ref=float(v_ref), leg=float(leg), inertia=float(inertia))
 
 
 def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
@@ -181,7 +213,9 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
     compiled : bool
         The model's functions compiled with numba (they run on the compiled integrator;
         the section is then :data:`compiled_apex_section`), else Python functions: the
-        same equations either way.
+        same equations either way. The constants are the system's parameters
+        (:meth:`Body.values`), so the functions are compiled once per process for every
+        body and number of legs (a stability map compiles nothing per point).
 
     Returns
     -------
@@ -202,7 +236,8 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
     rho = np.array([leg, 0.0, -_G * fall, 0.0])
     n = p.a.size
     return Example.from_functions(
-        _functions(p), compiled=compiled, n_events=n, dim=4, rho=rho,
+        {"field": field, "events": events, "event_jacobian": event_jacobian},
+        params=p.values(), compiled=compiled, n_events=n, dim=4, rho=rho,
         x0=np.array([apex, 0.0, 0.0, 0.0]), t_event=fall, t_after=t_after, name="pronking",
         description=(f"planar body pronking on {n} compliant legs: all land and lift "
                      f"off together every stride (d = 4, n = {n}, coupling = "
@@ -235,7 +270,7 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
     return ex.system.periodic_orbit(guess, section, **kwargs)
 
 
-def pronking_summary(*, n_check=4, eps=(1e-4, 1e-5, 1e-6), strides=60, seed=0,
+def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
                      compiled=False):
     """The gait from model to stability verdict, with its checks against simulation.
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba.extending import register_jitable
 
+from .._limits import FD_EPS
 from ._common import Example, flow_back
 
 __all__ = ["landing", "landing_summary", "summary_text"]
@@ -129,7 +130,7 @@ def landing(*, foot_mass=0.4, leg_stiffness=200.0, leg_damping=4.0, ground_stiff
                                   name=name, description=description)
 
 
-def landing_summary(*, n_check=8, eps=(1e-4, 1e-5, 1e-6), seed=0, compiled=False):
+def landing_summary(*, n_check=8, eps=FD_EPS, seed=0, compiled=False):
     """The landing from model to checked B-derivative, and the refused variant.
 
     Simulates the landing (the event group and the resets it applied), builds the

@@ -20,47 +20,57 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import Example, compile_function
-from .gaits import Body, body, foot_offset, pronking, stance
+from .gaits import (
+    FEET,
+    INERTIA,
+    LEG,
+    body,
+    foot_heights,
+    foot_heights_jacobian,
+    foot_offset,
+    pronking,
+    stance,
+)
 
 __all__ = ["apex_section", "apex_section_gradient", "compiled_apex_section", "running",
            "running_orbit"]
 
 
-def _functions(p: Body, traction: float, v_target: float) -> dict:
-    """The running model's field, events and event Jacobian (d = 6): the pronking body's
-    equations (:func:`~bderiv.examples.gaits.stance`) on ``(z, theta, vz, omega)`` and the
-    forward force; plain functions for Python as they are and for numba compiled."""
-    legs = p.a.size
-    push = 2.0 / legs * traction  # shared by the legs like the other forces
+# The running model (d = 6): plain functions of ``x = (x, z, theta, vx, vz, omega, push,
+# v_target, *q)``, the state followed by the forward force's gain per leg, the target speed
+# and the pronking body's constants ``q`` (:meth:`~bderiv.examples.gaits.Body.values`): for
+# Python as they are and for numba compiled once (no compilation per set of values).
+#: where the body's constants start in the parameters (after ``push`` and ``v_target``)
+BODY = 2
 
-    def field(x, mask):
-        out = np.empty_like(x)
-        az, alpha = stance(x[1], x[2], x[4], x[5], mask, p)
-        ax = 0.0 * x[3]
-        for k in range(legs):
-            if mask >> k & 1:
-                fx = push * (v_target - x[3])
-                ax = ax + fx
-                # the force acts at the foot, r_z below the centre of mass: -r_z f_x
-                alpha = alpha - foot_offset(p.a[k], p.leg, x[2])[1] * fx / p.inertia
-        out[0], out[1], out[2] = x[3], x[4], x[5]
-        out[3], out[4], out[5] = ax, az, alpha
-        return out
 
-    def events(x):
-        out = np.empty(legs)
-        for k in range(legs):
-            out[k] = -(x[1] + foot_offset(p.a[k], p.leg, x[2])[1])
-        return out
+def field(x, mask):
+    """The running body's field in region ``mask``: the pronking body's equations
+    (:func:`~bderiv.examples.gaits.stance`) on ``(z, theta, vz, omega)`` and the forward
+    force: (6,)."""
+    push, v_target, q = x[6], x[7], x[6 + BODY:]
+    out = np.empty_like(x[:6])
+    az, alpha = stance(x[1], x[2], x[4], x[5], mask, q)
+    ax = 0.0 * x[3]
+    for k in range(q.size - FEET):
+        if mask >> k & 1:
+            fx = push * (v_target - x[3])
+            ax = ax + fx
+            # the force acts at the foot, r_z below the centre of mass: -r_z f_x
+            alpha = alpha - foot_offset(q[FEET + k], q[LEG], x[2])[1] * fx / q[INERTIA]
+    out[0], out[1], out[2] = x[3], x[4], x[5]
+    out[3], out[4], out[5] = ax, az, alpha
+    return out
 
-    def event_jacobian(x):
-        D = np.zeros((legs, 6))
-        for k in range(legs):
-            D[k, 1] = -1.0
-            D[k, 2] = -foot_offset(p.a[k], p.leg, x[2])[0]
-        return D
 
-    return {"field": field, "events": events, "event_jacobian": event_jacobian}
+def events(x):
+    """The feet's event values ``-height_k``: (legs,)."""
+    return foot_heights(x[1], x[2], x[6 + BODY:])
+
+
+def event_jacobian(x):
+    """The Jacobian of :func:`events` by the state: (legs, 6)."""
+    return foot_heights_jacobian(x[2], x[6 + BODY:], 6, 1, 2)
 
 
 def apex_section(x):
@@ -91,7 +101,9 @@ def running(*, v_target=1.0, traction=8.0, t_after=0.05, compiled=False, **param
         ``t_final = t_event + t_after`` (the legs still touch then).
     compiled : bool
         The model's functions compiled with numba (the section is then
-        :data:`compiled_apex_section`), else Python functions: the same equations.
+        :data:`compiled_apex_section`), else Python functions: the same equations. The
+        speed, the traction and the body's constants are the system's parameters: the
+        functions are compiled once per process.
     **params
         The pronking body's parameters (:func:`bderiv.examples.gaits.pronking`: stiffness,
         damping, gain, legs, apex, ...).
@@ -107,9 +119,11 @@ def running(*, v_target=1.0, traction=8.0, t_after=0.05, compiled=False, **param
     x0 = np.array([0.0, base.x0[0], 0.0, v_target, 0.0, 0.0])
     rho = np.array([v_target * base.t_event, base.rho[0], 0.0, v_target, base.rho[2], 0.0])
     n = p.a.size
+    push = 2.0 / n * float(traction)  # shared by the legs like the other forces
     return Example.from_functions(
-        _functions(p, float(traction), float(v_target)), compiled=compiled, n_events=n,
-        dim=6, rho=rho, x0=x0, t_event=base.t_event, t_after=t_after, name="running",
+        {"field": field, "events": events, "event_jacobian": event_jacobian},
+        params=np.concatenate(([push, float(v_target)], p.values())), compiled=compiled,
+        n_events=n, dim=6, rho=rho, x0=x0, t_event=base.t_event, t_after=t_after, name="running",
         description=(f"planar body running on {n} compliant legs at a target speed "
                      f"{v_target:g} (d = 6, n = {n}; the forward position is cyclic)"),
     )

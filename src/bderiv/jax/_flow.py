@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._limits import DERIVATIVE_SIMULTANEITY_TOL
 from .._validate import check_number, check_positive_int
 from ..models.integrate.run import SolverOptions
 from ..models.system import HybridSystem
@@ -11,8 +12,8 @@ from ._host import FlowHost
 from ._primitive import pl_function
 
 
-def flow(system, t_final, *, direction=None, simultaneity_tol=1e-7, options=None, rtol=None,
-         atol=None, method=None, max_step=None, cache_size=256):
+def flow(system, t_final, *, direction=None, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+         options=None, rtol=None, atol=None, method=None, max_step=None, cache_size=256):
     """The flow map ``x0 -> Phi(t_final, x0)`` of a :class:`~bderiv.HybridSystem` as a
     JAX function, with the exact B-derivative as its forward mode.
 

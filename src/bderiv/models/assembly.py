@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._format import format_mask, transversality_message
+from .._limits import RESET_MISMATCH
 from ..bderivative import BDerivative
 from ..flowmap import FlowBDerivative
-from .events.crossings import RESET_MISMATCH, apply_resets, landing
+from .events.crossings import apply_resets, landing
 from .events.finaltime import FinalTimeMap
 
 __all__ = ["flow_map_along", "group_bderivative", "point_bderivative", "spread_masks"]
@@ -33,7 +34,8 @@ def spread_masks(events, mask_before):
     return glob
 
 
-def group_bderivative(system, x, events, mask_before, mask_after=None, *, where="at rho"):
+def group_bderivative(system, x, events, mask_before, mask_after=None, *, where="at rho",
+                      event_jacobian=None):
     """BDerivative of the group ``events`` at ``x`` entered from region ``mask_before``.
 
     Built in the group's local orientation: the rows of ``Dh`` of the events crossed
@@ -42,10 +44,14 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
     whose bits ``mask_after`` (default: all flipped) keeps: a reset sent the state back
     (a bounce, a leg swap), and the field after it is that of the region it came from
     (mathematics.md section 9). Only the rates of pending events must be positive.
+    ``event_jacobian`` (n, d): the checked event Jacobian at ``x`` when the caller has it
+    (the stop's, :class:`~bderiv.models.events.crossings.EventGroup`), else evaluated.
     """
     events = tuple(int(k) for k in events)
     sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
-    Dh = sign[:, None] * system.eval_event_jacobian(x)[list(events)]
+    if event_jacobian is None:
+        event_jacobian = system.eval_event_jacobian(x)
+    Dh = sign[:, None] * event_jacobian[list(events)]
     glob = spread_masks(events, mask_before)  # every event's bit flipped
     if system.has_resets:
         base, R = system.sample_resets(x, events, glob, Dh, sign, where)
@@ -86,7 +92,8 @@ def flow_map_along(system, traj):
         final_field = system.eval_field(traj.x_final, traj.final_group.mask_after)
     jumps = [
         group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
-                             where=f"at the event point at t={g.time:.10g}")
+                          where=f"at the event point at t={g.time:.10g}",
+                          event_jacobian=g.event_jacobian)
         for g in groups
     ]
     if traj.final_group is not None:  # the final time is one more event of the group

@@ -14,13 +14,9 @@ import numpy as np
 
 from .. import _numdiff as numdiff
 from .._format import format_mask
-from .._validate import check_bool, check_positive_int, check_real_array
+from .._limits import ACCEPT_RTOL, RESET_TOL, RESET_TOL_NUMERICAL
+from .._validate import check_bool, check_finite, check_positive_int, check_real_array
 from .compiled import JACOBIAN_MODES, CompiledModel, check_compiled, is_compiled
-
-#: relative tolerance of the checks of a model's resets with analytic Jacobians (event
-#: and reset), and with numerical ones (accurate to ``_numdiff.ACCEPT_RTOL`` or refused).
-RESET_TOL = 1e-9
-RESET_TOL_NUMERICAL = 1e-6
 
 _log = logging.getLogger("bderiv")
 
@@ -43,6 +39,41 @@ def _contiguous_args(fn):
 
     call.__wrapped__ = fn
     return call
+
+
+def _appending(fn, params):
+    """``fn`` itself without parameters, else a function of the state that calls ``fn``
+    on the state followed by ``params`` (the model's functions take both)."""
+    if fn is None or params is None:
+        return fn
+
+    def call(x, *rest):
+        return fn(np.concatenate((np.asarray(x), params)), *rest)
+
+    call.__wrapped__ = fn
+    return call
+
+
+def check_params(params):
+    """``params`` as a read-only float64 array, shape (m,), or None.
+
+    Raises
+    ------
+    TypeError
+        If it is not real (bool, complex, ...).
+    ValueError
+        If it is not 1-d or not finite.
+    """
+    if params is None:
+        return None
+    arr = check_real_array(params, "params")
+    if arr.ndim != 1:
+        raise ValueError(f"params must be a 1-d array of parameter values, got shape "
+                         f"{arr.shape}")
+    arr = np.array(arr, dtype=np.float64)
+    check_finite(arr, "params")
+    arr.flags.writeable = False
+    return arr
 
 
 def compiled_or_refused(field, events, field_jacobian):
@@ -101,7 +132,7 @@ def numerical_jacobian(fun, x, what: str, jac_name: str) -> numdiff.Derivative:
             f"the numerical Jacobian of {what} at x = {x} is not accurate enough: entry "
             f"[{i}, {j}] (output {i} by x_{j}) = {D.value[i, j]:.6g} has an estimated error "
             f"{D.error[i, j]:.3g}, more than the {D.needed[i, j]:.3g} it needs "
-            f"({numdiff.ACCEPT_RTOL:g} relative, or the rounding of its row); no "
+            f"({ACCEPT_RTOL:g} relative, or the rounding of its row); no "
             f"finite-difference step resolves the function there (a kink or steep feature "
             f"near x, or noise): pass {jac_name}"
         )
@@ -132,12 +163,13 @@ class ModelCalls:
     which mask, the expected and the received shape. A given Jacobian is compared with a
     central difference the first time it is used for each mask (and event), unless
     ``check_jacobians`` is False; a missing one is computed numerically, its cost counted
-    in :attr:`numerical_jacobian_cost`.
+    in :attr:`numerical_jacobian_cost`. With ``params`` the functions are called on the
+    state followed by the parameter values; every ``eval_*`` method takes the state alone.
     """
 
     def __init__(self, field, events, *, n_events, dim, event_jacobian=None,
                  field_jacobian=None, corner_field=None, reset=None, reset_jacobian=None,
-                 check_jacobians=True):
+                 check_jacobians=True, params=None):
         for f, name in ((field, "field"), (events, "events"),
                         (event_jacobian, "event_jacobian"),
                         (field_jacobian, "field_jacobian"), (corner_field, "corner_field"),
@@ -149,9 +181,11 @@ class ModelCalls:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
         self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
         self._compiled = None
+        self._params = params = check_params(params)
         field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
-            _contiguous_args(f) for f in (field, events, event_jacobian, field_jacobian,
-                                          corner_field, reset, reset_jacobian))
+            _appending(_contiguous_args(f), params)
+            for f in (field, events, event_jacobian, field_jacobian, corner_field, reset,
+                      reset_jacobian))
         self._reset, self._reset_jac = reset, reset_jacobian
         self.n_events = check_positive_int(n_events, "n_events")
         self.dim = check_positive_int(dim, "dim")
@@ -173,7 +207,7 @@ class ModelCalls:
             start = time.perf_counter()
             field, events, jac = self._compiled_functions
             self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,
-                                           dim=self.dim)
+                                           dim=self.dim, params=self._params)
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
                       "(once per model; field_jacobian: %s)", time.perf_counter() - start,
                       JACOBIAN_MODES[self._compiled.jac_mode])
@@ -275,7 +309,12 @@ class ModelCalls:
 
     def eval_event_jacobian(self, x):
         """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""
-        x = self._check_state(x)
+        return self.event_jacobian_at(self._check_state(x))
+
+    def event_jacobian_at(self, x):
+        """:meth:`eval_event_jacobian` at a state known to be one (float64, shape (d,),
+        finite: the integrator's stop), not checked again; the function gets a copy."""
+        x = np.array(x, dtype=np.float64)
         given = None if self._event_jac is None else (lambda: self._event_jac(x))
         return self._jacobian(given, ("event_jacobian",), self.eval_events, x,
                               (self.n_events, self.dim), "events(x)", "event_jacobian")
@@ -392,13 +431,14 @@ class ModelCalls:
         """
         x0 = self._check_state(x0, "x0")
         h = self.eval_events(x0)
-        on = np.flatnonzero(h == 0)
-        if on.size:
+        values = h.tolist()
+        on = [k for k, v in enumerate(values) if v == 0]
+        if on:
             raise ValueError(
-                f"x0 lies on the surface of event(s) {on.tolist()} (events(x0) = {h}); the "
+                f"x0 lies on the surface of event(s) {on} (events(x0) = {h}); the "
                 f"region is ambiguous there: start slightly before or after the event"
             )
-        return int(np.sum((h > 0).astype(np.int64) << np.arange(self.n_events)))
+        return sum(1 << k for k, v in enumerate(values) if v > 0)
 
 
 class Section:

@@ -30,13 +30,23 @@ from __future__ import annotations
 import numpy as np
 
 from .. import checks
+from .._limits import (
+    DEFAULT_T_MAX,
+    DERIVATIVE_SIMULTANEITY_TOL,
+    FD_SIMULTANEITY_TOL,
+    MAX_GROUPS,
+    ON_SURFACE_TOL,
+    ORBIT_MAX_ITER,
+    ORBIT_TOL,
+    SIMULATION_SIMULTANEITY_TOL,
+)
 from .._validate import check_number
 from ..orbit import ORBIT_OPTIONS, periodic_orbit
 from ..returnmap import return_map
 from .assembly import flow_map_along, point_bderivative
 from .calls import ModelCalls, Section
 from .integrate.many import Trajectories, check_states, run_many
-from .integrate.run import MAX_GROUPS, EventGroup, EventRecord, SolverOptions, Trajectory, run
+from .integrate.run import EventGroup, EventRecord, SolverOptions, Trajectory, run
 
 # EventGroup, EventRecord, Trajectory live in models.integrate.run: the types the methods
 # return, re-exported beside the model
@@ -89,6 +99,12 @@ class HybridSystem(ModelCalls):
         (and event), and refuse a mismatch (default True; the cost is one numerical
         directional derivative per mask). :func:`bderiv.check_jacobians` reports them
         all at a point.
+    params : array_like, shape (m,), optional
+        Parameter values: every function above then takes ``x`` of shape (d + m,), the
+        state followed by ``params`` (Jacobians are still by the state: (n, d), (d, d));
+        the methods and a Poincare section take the state alone. With compiled functions
+        a model with other values is another ``HybridSystem`` over the same dispatchers,
+        not another compilation (a stability map builds one per grid point).
 
     Notes
     -----
@@ -134,7 +150,7 @@ class HybridSystem(ModelCalls):
     # ------------------------------------------------------------------------------
     # B-derivative at an event point
     # ------------------------------------------------------------------------------
-    def bderivative(self, rho, *, tol=1e-9):
+    def bderivative(self, rho, *, tol=ON_SURFACE_TOL):
         """The B-derivative (PL saltation map) at a point where all n events are 0.
 
         Parameters
@@ -183,9 +199,9 @@ class HybridSystem(ModelCalls):
     # ------------------------------------------------------------------------------
     # the flow: simulation, its B-derivative, its finite differences
     # ------------------------------------------------------------------------------
-    def simulate(self, x0, t_final, *, simultaneity_tol=1e-12, options=None, rtol=None,
-                 atol=None, method=None, max_step=None, max_groups=MAX_GROUPS,
-                 section=None):
+    def simulate(self, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
+                 options=None, rtol=None, atol=None, method=None, max_step=None,
+                 max_groups=MAX_GROUPS, section=None):
         """Integrate from ``x0`` at time 0 to ``t_final`` with event detection.
 
         Parameters
@@ -239,8 +255,8 @@ class HybridSystem(ModelCalls):
         return run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
                    max_groups=max_groups, section=section)
 
-    def simulate_many(self, X0, t_final, *, simultaneity_tol=1e-12, options=None,
-                      rtol=None, atol=None, method=None, max_step=None,
+    def simulate_many(self, X0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
+                      options=None, rtol=None, atol=None, method=None, max_step=None,
                       max_groups=MAX_GROUPS, section=None, progress=None):
         """:meth:`simulate` from every start state of a batch.
 
@@ -295,8 +311,8 @@ class HybridSystem(ModelCalls):
                         options=options, max_groups=max_groups, section=section,
                         progress=progress)
 
-    def flow_bderivative(self, x0, t_final, *, simultaneity_tol=1e-7, options=None,
-                         rtol=None, atol=None, method=None, max_step=None):
+    def flow_bderivative(self, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                         options=None, rtol=None, atol=None, method=None, max_step=None):
         """The B-derivative of ``x -> Phi(t_final, x)`` at ``x0``.
 
         The nominal trajectory and its variational equations are integrated once. Events
@@ -345,9 +361,9 @@ class HybridSystem(ModelCalls):
     # ------------------------------------------------------------------------------
     # gaits: return maps and periodic orbits
     # ------------------------------------------------------------------------------
-    def return_map(self, x0, section, *, section_gradient=None, t_max=100.0, tol=1e-9,
-                   simultaneity_tol=1e-7, options=None, rtol=None, atol=None, method=None,
-                   max_step=None):
+    def return_map(self, x0, section, *, section_gradient=None, t_max=DEFAULT_T_MAX,
+                   tol=ON_SURFACE_TOL, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL, options=None,
+                   rtol=None, atol=None, method=None, max_step=None):
         """The B-derivative of the Poincare map of ``section(x) = 0`` at x0 on it.
 
         Parameters
@@ -384,7 +400,8 @@ class HybridSystem(ModelCalls):
                           simultaneity_tol=simultaneity_tol, options=options)[0]
 
     def periodic_orbit(self, x_guess, section, period_guess=None, *, section_gradient=None,
-                       tol=1e-10, max_iter=30, simultaneity_tol=1e-7, options=None, cyclic=()):
+                       tol=ORBIT_TOL, max_iter=ORBIT_MAX_ITER,
+                       simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL, options=None, cyclic=()):
         """A periodic orbit through the section ``section(x) = 0``: ``P(x) = x``.
 
         Newton's method with the return map's B-derivative, the piecewise-linear Newton
@@ -425,7 +442,7 @@ class HybridSystem(ModelCalls):
                               simultaneity_tol=simultaneity_tol, options=options,
                               cyclic=cyclic)
 
-    def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=checks.FD_SIMULTANEITY_TOL,
+    def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
                 options=None, rtol=None, atol=None, method=None, max_step=None):
         """Forward (one-sided) finite differences of the simulated flow.
 

@@ -52,6 +52,7 @@ import time
 
 import numpy as np
 
+from .._limits import COUPLING_TOL, SURFACE_TOL
 from ._inputs import (
     _check_free,
     _expressions,
@@ -68,10 +69,6 @@ __all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ContactSystem", "co
 
 #: parameters of the default stance law ``stiffness * pen + damping * rate``, and values
 DEFAULT_STANCE = {"contact_stiffness": 1.0e4, "contact_damping": 100.0}
-#: a contact is on its surface when ``|phi| <= SURFACE_TOL * max(1, max |q|)``
-SURFACE_TOL = 1e-6
-#: relative coupling ``|J_i M^-1 J_j^T| / sqrt(J_i M^-1 J_i^T J_j M^-1 J_j^T)`` accepted
-COUPLING_TOL = 1e-9
 
 
 class ContactModel:

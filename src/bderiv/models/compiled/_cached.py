@@ -3,9 +3,10 @@
 Numba invalidates a cached function when its own file changes, not when a function it
 calls (and compiled into it) does: after an edit of ``_rhs.py`` the driver and the steps
 would load the old right-hand side from the cache. Every kernel here is therefore cached
-under a name that ends with a digest of all of ``compiled/``'s sources, by numba's own
-cache, in bderiv's checked cache files (:func:`bderiv._kernels._cache.rekey`: a damaged
-entry is compiled again, never run).
+under a name that ends with a digest of all of ``compiled/``'s sources and of
+``bderiv._limits`` (whose numbers are compiled in), by numba's own cache, in bderiv's
+checked cache files (:func:`bderiv._kernels._cache.rekey`: a damaged entry is compiled
+again, never run).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import sys
 from numba import njit
 from numba.core.dispatcher import Dispatcher
 
+from ... import _limits
 from ..._kernels._cache import rekey, sources_digest
 
 
@@ -39,7 +41,7 @@ def key_all_kernels() -> None:
     (The few kernels with an explicit signature compile at import, before this runs: they
     call nothing of the package.)
     """
-    digest = sources_digest(pathlib.Path(__file__).parent)
+    digest = sources_digest(pathlib.Path(__file__).parent, _limits.__file__)
     for name, module in list(sys.modules.items()):
         if not name.startswith(__package__ + ".") or module is None:
             continue

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, types
 
+from ..._limits import CENTRAL_STEP, COMPLEX_STEP, SCALE_FLOOR
 from ._cached import eager
 
 OK = 0
@@ -39,14 +40,6 @@ SECTION_NONFINITE = 7
 JAC_GIVEN = 0
 JAC_COMPLEX_STEP = 1
 JAC_CENTRAL = 2
-#: complex step: the imaginary step relative to the coordinate's scale (no cancellation,
-#: so any tiny step is exact to rounding; this one keeps x + ih far from underflow)
-COMPLEX_STEP = 2.0**-60
-#: central differences: the step relative to the coordinate's scale, about eps^(1/3)
-#: (truncation h^2 against rounding eps / h); a coordinate's scale is its magnitude, at
-#: least ``SCALE_FLOOR``, and 1 for a coordinate at 0 (as ``bderiv._numdiff``)
-CENTRAL_STEP = 2.0**-17
-SCALE_FLOOR = 2.0**-20
 
 _VECTOR = types.float64[::1]
 _CVECTOR = types.complex128[::1]
@@ -207,6 +200,22 @@ def field_rows(model, x, masks, d, out):
             return FIELD_NONFINITE, i
         out[i] = f
     return OK, 0
+
+
+@njit(cache=True)
+def events_and_field(model, x, mask, n, d, h, F):
+    """``h = events(x)`` and ``F = field(x, mask)``, checked (what a stop reads first, in
+    one call); a status as :func:`rhs`."""
+    status = call_events(model, False, x, n, h, np.empty(d))
+    if status != OK:
+        return status
+    f = model.field(argument(model, x), mask)
+    if f.size != d:
+        return FIELD_SHAPE
+    if not all_finite(f):
+        return FIELD_NONFINITE
+    F[:] = f
+    return OK
 
 
 @eager(JACOBIAN_SIGNATURE)

@@ -13,12 +13,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._limits import FIRST_SLICE, SLICE_SECONDS
 from ._integrate import N_STEPS, PAUSED, drive_stretch
 
-#: the longest a slice should run, in seconds
-SLICE_SECONDS = 0.2
-#: accepted steps of a slice before the model's cost per step is known
-FIRST_SLICE = 256
 #: seconds per accepted step measured so far, per (model, length of the integrated vector)
 _cost: dict = {}
 
@@ -56,7 +53,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
           rtol, atol, max_step, first_step, forced, dense) -> Driven:
     """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
     key = (id(model), y0.size)
-    parts, counts = [], np.zeros(4, dtype=np.int64)
+    parts, counts = [], None
     while True:
         per_step = _cost.get(key)
         budget = FIRST_SLICE if per_step is None else max(1, int(SLICE_SECONDS / per_step))
@@ -72,7 +69,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         status, t_end, y_end, ts, ys, steps, Fd, active, roots, part, bad, t_bad, h = out
         if part[N_STEPS]:
             _cost[key] = elapsed / part[N_STEPS]
-        counts += part
+        counts = part if counts is None else counts + part
         parts.append((ts, ys, steps, Fd) if not parts else (ts[1:], ys[1:], steps, Fd))
         if status != PAUSED:
             break

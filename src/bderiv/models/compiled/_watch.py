@@ -14,14 +14,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..._limits import EVENT_MAX_ITER, EVENT_RTOL, EVENT_XTOL
 from ._dop853 import dense_eval
 from ._rhs import OK, call_events
-
-#: scipy's tolerances of the event equation (``ivp.solve_event_equation``) and brentq's
-#: default iteration cap
-XTOL = 4.0 * np.finfo(np.float64).eps
-RTOL = 4.0 * np.finfo(np.float64).eps
-MAX_ITER = 100
 
 
 @njit(cache=True)
@@ -70,14 +65,14 @@ def locate(model, with_section, k, F, y_old, t_old, t_new, x, g, bad):
         # by rounding, and the crossing is at the end
         return OK, xcur
     xblk = fblk = spre = scur = 0.0
-    for _ in range(MAX_ITER):
+    for _ in range(EVENT_MAX_ITER):
         if fpre != 0.0 and fcur != 0.0 and (np.signbit(fpre) != np.signbit(fcur)):
             xblk, fblk = xpre, fpre
             spre = scur = xcur - xpre
         if abs(fblk) < abs(fcur):
             xpre, xcur, xblk = xcur, xblk, xcur
             fpre, fcur, fblk = fcur, fblk, fcur
-        delta = (XTOL + RTOL * abs(xcur)) / 2.0
+        delta = (EVENT_XTOL + EVENT_RTOL * abs(xcur)) / 2.0
         sbis = (xblk - xcur) / 2.0
         if fcur == 0.0 or abs(sbis) < delta:
             return OK, xcur

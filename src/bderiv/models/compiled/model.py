@@ -22,6 +22,7 @@ from ._rhs import (
     JAC_COMPLEX_STEP,
     JAC_GIVEN,
     OK,
+    events_and_field,
     events_rows,
     field_rows,
     jacobian,
@@ -81,6 +82,7 @@ class CompiledModel:
         self.n_events, self.dim = n_events, dim
         self.params = None if params is None else np.array(params, dtype=np.float64).ravel()
         self._structs = {}
+        self._atol = {}  # (length, atol) -> the driver's atol array
 
     def struct(self, section=None):
         """The driver's struct of the functions (with ``section``, a checked dispatcher)
@@ -120,6 +122,16 @@ class CompiledModel:
                              params=self.params)
         return G
 
+    def events_and_field(self, x, mask) -> tuple[np.ndarray, np.ndarray]:
+        """``events(x)`` (n,) and ``field(x, mask)`` (d,) in one compiled call, checked."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        h, F = np.empty(self.n_events), np.empty(self.dim)
+        status = events_and_field(self.struct(), x, int(mask), self.n_events, self.dim, h, F)
+        if status != OK:
+            raise_failed_run(status, self.named, x, 0.0, mask, self.dim, self.n_events,
+                             params=self.params)
+        return h, F
+
     def fields(self, x, masks) -> np.ndarray:
         """``field(x, mask)`` for every mask of ``masks`` (m,): shape (m, d), checked."""
         x = np.ascontiguousarray(x, dtype=np.float64)
@@ -158,11 +170,16 @@ class CompiledModel:
         m = d * (d + 1) if variational else d
         y0 = np.ascontiguousarray(y0, dtype=np.float64)
         watched = n + (section is not None)
+        key = (m, float(atol))
+        atols = self._atol.get(key)
+        if atols is None:  # the same for every stretch of a run (the driver reads it only)
+            if len(self._atol) >= 16:
+                self._atol.clear()
+            atols = self._atol[key] = np.full(m, key[1])
         try:
             out = drive(self.struct(section), self.jac_mode, variational, section is not None,
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
-                        np.full(m, float(atol)), float(max_step), 0.0,
-                        n if forced else -1, dense)
+                        atols, float(max_step), 0.0, n if forced else -1, dense)
         except Exception as exc:  # raised inside a user function: say where
             raise ValueError(
                 f"a compiled function of the model raised {type(exc).__name__}: {exc}; while "
@@ -176,14 +193,14 @@ class CompiledModel:
         return out
 
 
-def dense_at(steps, F, y_old, T) -> np.ndarray:
+def dense_at(t_old, h, F, y_old, T) -> np.ndarray:
     """The dense output of a stretch's recorded steps at the times ``T`` (m,): (m, d).
 
-    ``steps`` (S, 2) start times and sizes, ``F`` (S, 7, d) coefficients, ``y_old`` (S, d)
-    start states (the record of :meth:`CompiledModel.stretch` with ``dense``).
+    ``t_old``, ``h`` (S,) start times and sizes, ``F`` (S, 7, d) coefficients, ``y_old``
+    (S, d) start states (the record of :meth:`CompiledModel.stretch` with ``dense``:
+    ``steps[:, 0]``, ``steps[:, 1]``, ``Fd``), all C-contiguous float64.
     """
     T = np.ascontiguousarray(T, dtype=np.float64)
     out = np.empty((T.size, y_old.shape[1]))
-    dense_rows(np.ascontiguousarray(steps[:, 0]), np.ascontiguousarray(steps[:, 1]), F,
-               np.ascontiguousarray(y_old), T, out)
+    dense_rows(t_old, h, F, y_old, T, out)
     return out

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, MIN_RTOL
 from ..._validate import check_number, check_real_array
 from ._checks import check_compiled, raise_failed_run
 from ._integrate import EVENT, FINISHED, N_REJECTED, N_STEPS, NFEV, NJEV
@@ -18,8 +19,6 @@ from ._model import bound_model
 from ._rhs import JAC_GIVEN, no_events, no_jacobian
 from ._slices import drive
 
-#: smallest rtol, as :class:`bderiv.models.integrate.run.SolverOptions` (solve_ivp's floor)
-MIN_RTOL = 100 * np.finfo(np.float64).eps
 #: largest number of events (one bit each of an int64 mask)
 MAX_EVENTS = 63
 
@@ -106,7 +105,7 @@ def _start(x0, mask, t0, t_final, max_step, first_step):
 
 
 def integrate_stretch(field, x0, t_final, *, mask=0, t0=0.0, events=None,
-                      field_jacobian=None, rtol=1e-10, atol=1e-12, max_step=np.inf,
+                      field_jacobian=None, rtol=DEFAULT_RTOL, atol=DEFAULT_ATOL, max_step=np.inf,
                       first_step=None) -> Stretch:
     """Integrate region ``mask`` from ``x0`` at ``t0`` to ``t_final`` or the first crossing.
 

@@ -23,7 +23,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._format import format_mask, transversality_message
-from .locate import GLOBAL_ERROR_FACTOR, classify, local_view, state_error, windows
+from ..._limits import GLOBAL_ERROR_FACTOR, GRAZING_RTOL, ORDERS_CHECKED, RESET_MISMATCH
+from .locate import examine, orientation, state_error
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -34,15 +35,6 @@ __all__ = [
     "landing",
     "switch",
 ]
-
-#: resets of simultaneous events whose results differ by more than this times the
-#: accuracy of the state at the stop do not commute (:func:`apply_resets`).
-RESET_MISMATCH = 1e3
-#: groups of up to this many events have their resets compared in every order.
-ORDERS_CHECKED = 4
-#: a crossing whose rate ``|Dh_k . F|`` is at most this times ``|Dh_k| |F|`` is grazing
-#: (the default ``transversality_tol`` of :class:`~bderiv.bderivative.BDerivative`).
-GRAZING_RTOL = 1e-9
 
 
 def direction_name(direction: int) -> str:
@@ -83,6 +75,9 @@ class EventGroup(NamedTuple):
     state_after : ndarray, shape (d,)
         State after the group: ``state`` moved by the resets of its events (a model with
         resets), else ``state`` itself.
+    event_jacobian : ndarray, shape (n, d), or None
+        The checked event Jacobian at ``state`` as the stop evaluated it (kept by a run
+        with variational equations, read-only, for the group's B-derivative), else None.
     directions : tuple of int (property)
         +1 (upward) or -1 (downward) for each event of ``events``.
     bounced : tuple of int (property)
@@ -96,6 +91,7 @@ class EventGroup(NamedTuple):
     mask_after: int
     state: np.ndarray
     state_after: np.ndarray | None = None
+    event_jacobian: np.ndarray | None = None
 
     @property
     def directions(self) -> tuple:
@@ -130,7 +126,7 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     return np.abs(Dh) @ (err if err.shape == Dh.shape[1:] else np.full(Dh.shape[1], err))
 
 
-def switch(system, fired, mask, x, t, simultaneity_tol, err):
+def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
     """The events that cross at the stop ``(t, x)`` and the mask after them.
 
     Parameters
@@ -148,6 +144,10 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err):
     err : ndarray, shape (d,)
         Bound on the error of ``x``, per component
         (:func:`bderiv.models.events.locate.state_error`).
+    stop : Stop, optional
+        :func:`bderiv.models.events.locate.examine` at ``x`` with these ``err`` and
+        ``fired`` (:func:`bderiv.models.events.locate.settle` made it); made here when not
+        given.
 
     Returns
     -------
@@ -169,17 +169,19 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err):
         leaves nor crosses.
     """
     n = system.n_events
-    sign, h, Dh, F, rate = local_view(system, mask, x)
-    window, _ = windows(Dh, rate, err, fired)
+    if stop is None:
+        stop = examine(system, mask, x, err, fired, simultaneity_tol)
+    sign, h, Dh, F, rate, window, classes = stop
     # crossed, located or not (two surfaces crossed in one step): always switched, so
     # none is ever lost (bderiv.models.events.locate.classify)
-    classes = classify(h, rate, window, fired, simultaneity_tol)
     group = classes.group
     _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
-    _check_crossings(group, Dh, F, mask, "before", t, sign, n)
+    norms = np.sqrt(np.einsum("ij,ij->i", Dh, Dh))  # |Dh_k|, for both checks
+    _check_crossings(group, Dh, F, mask, "before", t, sign, n, norms, rate)
     if not system.has_resets:  # every event lands on the far side, and must move on
         new = mask ^ sum(1 << k for k in group)
-        _check_crossings(group, Dh, system.eval_field(x, new), new, "after", t, sign, n)
+        _check_crossings(group, Dh, system.eval_field(x, new), new, "after", t, sign, n,
+                         norms)
         return group, new, x
     x_after = apply_resets(system, group, mask, x, t, RESET_MISMATCH * float(err.max()))
     _check_jumps(sign * system.eval_events(x_after), group, window, t)
@@ -207,7 +209,7 @@ def landing(system, group, mask, x_after, window, t=None):
     """
     n = system.n_events
     new = mask ^ sum(1 << k for k in group)
-    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])
+    sign = orientation(int(mask), n)
     h = sign * system.eval_events(x_after)
     Dh = sign[:, None] * system.eval_event_jacobian(x_after)
     field = system.eval_field(x_after, new)
@@ -283,15 +285,15 @@ def _check_jumps(h, group, tol, t):
             )
 
 
-def _check_crossings(group, Dh, F, mask, when, t, sign, n):
+def _check_crossings(group, Dh, F, mask, when, t, sign, n, norms, rate=None):
     """Refuse a crossing of an event of ``group`` whose rate ``Dh_k . F`` in region ``mask``
     is not clearly positive (:func:`_clearly_positive`, every event at once): grazing, or
     pushed back (``when``: "before" or "after" switching the group; ``Dh`` and ``sign``:
-    the gradients and signs of the local orientation, all n events)."""
-    rows = Dh[group]
-    rate = rows @ F
-    clear = rate > GRAZING_RTOL * np.sqrt(np.einsum("ij,ij->i", rows, rows)) * np.sqrt(F @ F)
-    if clear.all():
+    the gradients and signs of the local orientation, all n events; ``norms`` their
+    lengths; ``rate``: ``Dh @ F`` when known, all n)."""
+    rate = (Dh[group] @ F if rate is None else rate[group]).tolist()
+    bound = GRAZING_RTOL * float(np.sqrt(F @ F))
+    if all(r > bound * norms[k] for r, k in zip(rate, group, strict=True)):
         return
     for k in group:  # one by one: the first refused is named
         _check_crossing(k, Dh[k], F, mask, f"{when} switching events {group}", t, sign[k], n)

@@ -27,10 +27,21 @@ point where ``h_k > 0``. With ``h`` sampled at the step ends and the midpoints o
    surface that rises above both ends of its bracket by more than ``tol_k`` cannot be
    decided at this accuracy (a grazing contact, where the flow has no B-derivative):
    refused. A peak at an end of the stretch is left to the switching rule
-   (:func:`bderiv.models.events.crossings.switch`).
-3. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
-   before the earliest lost crossing's bracket to its peak, where ``h_k > 0``: the sign
-   change is at the ends of a step now, and the crossing is located as any other.
+   (:func:`bderiv.models.events.crossings.switch`). A finer bracket at the end of the
+   stretch where ``h_k`` rises (its rate ``Dh_k . F > 0`` there), or at its start where
+   ``h_k`` falls, is not searched: with one maximum in the bracket (the search's own
+   assumption: bounded Brent finds the maximum of such a function only) it is that end.
+   These are the events about to cross just after a stop, or that crossed just before
+   it (feet landing apart): the search found the end and gave it up, at about 25
+   evaluations of the dense output and the events each (docs/mathematics.md, section 11).
+3. :func:`_return`: a sample below the surface (``h_k < 0``) before a sample across it
+   (``h_k > tol_k``, at no peak) is a return the integrator did not see: an event just
+   switched, left a rounding on the side it came from by its located crossing, that
+   comes back within the stretch's first step (both step ends read across).
+4. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
+   before the earliest lost crossing's bracket to its peak, where ``h_k > 0``, or, for a
+   return, to the lowest sample before it, and on from there: the sign change is at the
+   ends of a step now, and the crossing is located as any other.
 
 A step in which ``h_k`` rises and falls more than once is assumed to show one of its peaks
 among the samples; a step long against the time scale of the events needs ``max_step``.
@@ -41,23 +52,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from ..._limits import FINE_REACH, FINE_SAMPLES, PEAK_XTOL, REACH
 from ._peaks import peak_rows
 from .crossings import group_tolerance
+from .locate import StopCalls
 
 __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
-
-#: how far above the highest sample a peak may rise, in units of the samples' spread
-#: around it, for its bracket to be searched (a parabola rises at most by the spread).
-REACH = 10.0
-#: samples of a bracket, screened again (:func:`peak_brackets`) before a peak is searched:
-#: most brackets are dropped at this finer spacing, and the rest are eight times shorter.
-FINE_SAMPLES = 17
-#: the reach on those samples: a parabola through three equally spaced samples peaks
-#: above the highest by at most a quarter of its drop to the lower neighbour.
-FINE_REACH = 1.0
-#: time accuracy of a peak, relative to its bracket: ``h`` is flat at a peak, so its value
-#: is found to about the curvature times this squared (1e-14 of the bracket's scale).
-PEAK_XTOL = 1e-7
 
 
 def sample_times(ends: np.ndarray) -> np.ndarray:
@@ -177,14 +177,18 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
     head_t, head_y = [], []
     sol = solve(t0, y0, t_end)
     while True:
-        lost = _earliest_lost(system, sign, options, sol, events_at)
+        lost = _earliest_lost(system, mask, sign, options, sol, events_at)
         if lost is None:
             break
-        i, t_peak = lost
+        i, t_peak, through = lost
         head_t.append(sol.t[:i])
         head_y.append(sol.y[:, :i])
         sol = solve(float(sol.t[i]), sol.y[:, i], t_peak)  # checked on the next pass
-        if sol.status != 1:
+        if through and sol.status == 0:  # a step end below the surface: go on from it
+            head_t.append(sol.t[:-1])
+            head_y.append(sol.y[:, :-1])
+            sol = solve(float(sol.t[-1]), sol.y[:, -1], t_end)
+        elif sol.status != 1:
             raise RuntimeError(
                 f"a crossing inside a step near t={t_peak:.10g} was not located by the "
                 f"integration to its peak; pass a smaller max_step"
@@ -194,9 +198,10 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
     return sol
 
 
-def _earliest_lost(system, sign, options, sol, events_at):
-    """``(i, t_peak)`` of the earliest crossing inside a step of ``sol`` (i: the last step
-    end before its bracket), or None."""
+def _earliest_lost(system, mask, sign, options, sol, events_at):
+    """``(i, t, through)`` of the earliest crossing inside a step of ``sol``, or None: from
+    the step end ``i`` integrate to the peak ``t`` (``through`` False), or to the sample
+    ``t`` below the surface before a return across it (``through`` True: :func:`_return`)."""
     d = system.dim
     times = sample_times(sol.t)
     states = sol.sol(times)[:d].T
@@ -208,17 +213,26 @@ def _earliest_lost(system, sign, options, sol, events_at):
     # a peak at an end of the stretch is not an excursion: at the start the events were
     # just switched (one may sit a rounding across its surface), at the stop an event is
     # located, or across and switched with it (crossings.switch)
+    rates = _EndRates(system, sign, mask, sol.y[:d, 0], sol.y[:d, -1])
+    last = times.size - 1
+    dip = _return(h, tol)
     for k, lo, hi in peak_brackets(h, tol, stretch=True):
+        if dip is not None and times[lo] >= times[dip]:
+            break
 
         def value(t, k=k):
             return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
 
         fine = np.linspace(times[lo], times[hi], FINE_SAMPLES)
         v = sign[k] * events_at(sol.sol(fine)[:d].T)[:, k : k + 1]
-        sub = peak_brackets(v, tol[k : k + 1], reach=FINE_REACH)
+        # a bracket at an end of the stretch that the event leaves from, or rises into,
+        # peaks at that end, where the switching rule decides it (module docstring, 2)
+        sub = [(a, b) for _, a, b in peak_brackets(v, tol[k : k + 1], reach=FINE_REACH)
+               if not (lo == 0 and a == 0 and rates.start()[k] < 0.0)
+               and not (hi == last and b == FINE_SAMPLES - 1 and rates.end()[k] > 0.0)]
         if not sub:
             continue
-        t_peak, top = max((peak_of(value, fine[a], fine[b]) for _, a, b in sub),
+        t_peak, top = max((peak_of(value, fine[a], fine[b]) for a, b in sub),
                           key=lambda peak: peak[1])
         if not times[0] < t_peak < times[-1]:  # the ends were decided by the switching rule
             continue
@@ -226,7 +240,7 @@ def _earliest_lost(system, sign, options, sol, events_at):
         window = group_tolerance(system.eval_event_jacobian(x_peak)[k : k + 1], options,
                                  scale)[0]
         if top > window:
-            return int(np.searchsorted(sol.t, times[lo], side="right")) - 1, t_peak
+            return int(np.searchsorted(sol.t, times[lo], side="right")) - 1, t_peak, False
         if top >= -window and top > max(h[lo, k], h[hi, k]) + window:
             raise ValueError(
                 f"event {k} comes within the integration accuracy of its surface at "
@@ -235,4 +249,57 @@ def _earliest_lost(system, sign, options, sol, events_at):
                 f"where the flow has no B-derivative); tighten rtol and atol or move the "
                 f"start point"
             )
+    if dip is not None:
+        return int(np.searchsorted(sol.t, times[dip], side="left")) - 1, times[dip], True
     return None
+
+
+def _return(h, tol):
+    """The earliest sample (index >= 1) below the surface, ``h_k < 0``, of an event that is
+    across it, ``h_k > tol_k``, at a later sample; None if there is none.
+
+    A stretch's integrator stops at the first crossing it sees, so a sample across a
+    surface is one it did not see. Unless a peak between samples hides it, it is an event
+    that started the stretch a rounding across its surface (just switched: the located
+    crossing left it on the side it came from), left it and came back within the first
+    step: both step ends read across, no sign change. Integrated again to the lowest
+    sample before the return, the stretch has a step end below the surface there.
+    """
+    across = h[1:] > tol
+    first = None
+    for k in np.flatnonzero(across.any(axis=0)):  # none, on almost every stretch
+        j = 1 + int(np.argmax(across[:, k]))  # the first sample across
+        if j > 1 and h[1:j, k].min() < 0:
+            i = 1 + int(np.argmin(h[1:j, k]))
+            first = i if first is None else min(first, i)
+    return first
+
+
+class _EndRates:
+    """The events' rates ``Dh . F`` (local orientation) at the stretch's start and end,
+    each evaluated at its first use: ``start()``, ``end()``, shape (n,).
+
+    The end's gradients and field are those the switching rule asks for at the stop (kept
+    by :class:`~bderiv.models.events.locate.StopCalls`); the start's gradients are asked
+    of the model itself, so that they do not replace the end's among the kept ones.
+    """
+
+    def __init__(self, system, sign, mask, x_start, x_end):
+        self.system, self.sign, self.mask = system, sign, mask
+        self.x_start, self.x_end = x_start, x_end
+        self._start = self._end = None
+
+    def start(self):
+        if self._start is None:
+            stops = self.system
+            model = stops.system if isinstance(stops, StopCalls) else stops
+            self._start = self._rate(model, self.x_start)
+        return self._start
+
+    def end(self):
+        if self._end is None:
+            self._end = self._rate(self.system, self.x_end)
+        return self._end
+
+    def _rate(self, model, x):
+        return self.sign * (model.eval_event_jacobian(x) @ self.system.eval_field(x, self.mask))

@@ -23,29 +23,29 @@ clearly apart) or solve_ivp's floor is reached.
 
 from __future__ import annotations
 
+from functools import lru_cache
+from typing import NamedTuple
+
 import numpy as np
+
+from ..._limits import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
     "Classes",
+    "Settled",
+    "Stop",
     "StopCalls",
     "classify",
+    "examine",
     "local_view",
     "on_side_at_start",
+    "orientation",
     "settle",
     "state_error",
     "tightened",
     "windows",
 ]
-
-#: global over local error of the integrator: an adaptive Runge-Kutta method keeps each
-#: step's error below atol + rtol |x_i|; the error of the state at a stop, a sum of such
-#: step errors, is a modest multiple of it.
-GLOBAL_ERROR_FACTOR = 10.0
-#: each tighter integration of an undecided stretch divides rtol and atol by this.
-REFINE_FACTOR = 100.0
-#: the smallest rtol solve_ivp honours (``bderiv.models.integrate.run.MIN_RTOL``).
-FINEST_RTOL = 100 * np.finfo(np.float64).eps
 
 
 def state_error(atol, rtol, scale, carried=0.0) -> np.ndarray:
@@ -127,6 +127,22 @@ class Classes:
         self.group, self.near, self.undecided = group, near, undecided
 
 
+@lru_cache(maxsize=4096)
+def orientation(mask, n) -> np.ndarray:
+    """The signs of the events' local orientation in region ``mask``: shape (n,), -1.0
+    where bit k is set (event k is watched downward, its function negated), else 1.0.
+    Kept per ``(mask, n)``, so read-only.
+
+    Examples
+    --------
+    >>> orientation(0b10, 3)
+    array([ 1., -1.,  1.])
+    """
+    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])
+    sign.flags.writeable = False
+    return sign
+
+
 def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     """Sort the events at a stop (all arrays in the events' local orientation).
 
@@ -169,6 +185,38 @@ def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     return Classes(group, near, undecided)
 
 
+class Stop(NamedTuple):
+    """What the rules read at a stop ``x`` of region ``mask`` (:func:`examine`): made once,
+    read by :func:`settle` and :func:`bderiv.models.events.crossings.switch`.
+
+    Attributes
+    ----------
+    sign, h, Dh, F, rate
+        :func:`local_view` at ``x``.
+    window : ndarray, shape (n,)
+        :func:`windows`.
+    classes : Classes
+        :func:`classify`.
+    """
+
+    sign: np.ndarray
+    h: np.ndarray
+    Dh: np.ndarray
+    F: np.ndarray
+    rate: np.ndarray
+    window: np.ndarray
+    classes: Classes
+
+
+def examine(system, mask, x, err, fired, simultaneity_tol) -> Stop:
+    """The :class:`Stop` at ``x`` in region ``mask``: the local view, the windows from the
+    state's error bound ``err`` (d,) and the located events ``fired``, and the classes."""
+    sign, h, Dh, F, rate = local_view(system, mask, x)
+    window, _ = windows(Dh, rate, err, fired)
+    return Stop(sign, h, Dh, F, rate, window,
+                classify(h, rate, window, fired, simultaneity_tol))
+
+
 class StopCalls:
     """A model's checked evaluations at the stops of one run, each kept for the last state
     it was asked at (and mask, for the field).
@@ -176,8 +224,11 @@ class StopCalls:
     At a stop the excursion screen, :func:`settle`, :func:`.crossings.switch` and the
     final time look at the same state: the event Jacobian (numerical where not given: tens
     of calls of ``events``), the events and the region's field are evaluated there once.
-    The arrays given out are shared, so they are read-only. Everything else is the
-    model's own (``calls.dim``, ``calls.eval_reset``, ...).
+    With a compiled model (``system.compiled``) the events and the fields are its compiled
+    functions called and checked in compiled code (the same values), the events and the
+    region's field of :meth:`local_view` in one call. The arrays given out are shared, so
+    they are read-only. Everything else is the model's own (``calls.dim``,
+    ``calls.eval_reset``, ...).
 
     Parameters
     ----------
@@ -199,6 +250,10 @@ class StopCalls:
     def __init__(self, system):
         self.system = system
         self._kept = {}  # (name, mask) -> (the state's bytes, the value)
+        self._compiled = getattr(system, "compiled", None)
+        # read at every stop: plain attributes, not a __getattr__ each time
+        self.n_events, self.dim = system.n_events, system.dim
+        self.has_resets = getattr(system, "has_resets", False)
 
     def __getattr__(self, name):
         return getattr(self.system, name)
@@ -210,29 +265,46 @@ class StopCalls:
         if kept is not None and kept[0] == state:
             return kept[1]
         value = evaluate(x)
+        self._keep(key, state, value)
+        return value
+
+    def _keep(self, key, state, value):
         for a in value if isinstance(value, tuple) else (value,):
             if isinstance(a, np.ndarray):
                 a.flags.writeable = False  # shared by every caller at this stop
         self._kept[key] = (state, value)
-        return value
 
     def eval_events(self, x):
         """The checked event values at ``x``: shape (n,)."""
-        return self._kept_value("events", x, self.system.eval_events)
+        if self._compiled is None:
+            return self._kept_value("events", x, self.system.eval_events)
+        return self._kept_value("events", x, lambda y: self._compiled.events_rows(y[None])[0])
 
     def eval_event_jacobian(self, x):
         """The checked event Jacobian at ``x``: shape (n, d)."""
-        return self._kept_value("event_jacobian", x, self.system.eval_event_jacobian)
+        at = getattr(self.system, "event_jacobian_at", self.system.eval_event_jacobian)
+        return self._kept_value("event_jacobian", x, at)
 
     def eval_field(self, x, mask):
         """The checked field of region ``mask`` at ``x``: shape (d,)."""
-        return self._kept_value(("field", int(mask)), x,
-                                lambda y: self.system.eval_field(y, mask))
+        if self._compiled is None:
+            evaluate = lambda y: self.system.eval_field(y, mask)  # noqa: E731
+        else:
+            evaluate = lambda y: self._compiled.fields(y, [mask])[0]  # noqa: E731
+        return self._kept_value(("field", int(mask)), x, evaluate)
 
     def local_view(self, mask, x):
         """:func:`local_view` at ``x`` in region ``mask``, kept as the evaluations are."""
-        return self._kept_value(("view", int(mask)), x,
-                                lambda y: _local_view(self, mask, y))
+        return self._kept_value(("view", int(mask)), x, lambda y: self._view(mask, y))
+
+    def _view(self, mask, x):
+        if self._compiled is not None:  # the events and the field in one compiled call
+            state, kept = x.tobytes(), self._kept.get("events")
+            if kept is None or kept[0] != state:
+                h, F = self._compiled.events_and_field(x, mask)
+                self._keep("events", state, h)
+                self._keep(("field", int(mask)), state, F)
+        return _local_view(self, mask, x)
 
 
 def local_view(system, mask, x):
@@ -256,7 +328,7 @@ def local_view(system, mask, x):
 
 
 def _local_view(system, mask, x):
-    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(system.n_events)])
+    sign = orientation(int(mask), system.n_events)
     Dh = sign[:, None] * system.eval_event_jacobian(x)
     F = system.eval_field(x, mask)
     return sign, sign * system.eval_events(x), Dh, F, Dh @ F
@@ -264,19 +336,44 @@ def _local_view(system, mask, x):
 
 def tightened(options):
     """``options`` with rtol and atol divided by ``REFINE_FACTOR`` (rtol no lower than
-    ``FINEST_RTOL``), or None when rtol is already at that floor."""
-    if options.rtol <= FINEST_RTOL:
+    ``MIN_RTOL``), or None when rtol is already at that floor."""
+    if options.rtol <= MIN_RTOL:
         return None
-    return options.with_overrides(rtol=max(options.rtol / REFINE_FACTOR, FINEST_RTOL),
+    return options.with_overrides(rtol=max(options.rtol / REFINE_FACTOR, MIN_RTOL),
                                   atol=options.atol / REFINE_FACTOR)
 
 
-def settle(system, mask, sol, simultaneity_tol, options, scale, carried, integrate=None):
+class Settled(NamedTuple):
+    """What :func:`settle` returns.
+
+    Attributes
+    ----------
+    sol : OdeResult
+        The stretch (integrated again more tightly where that decided its events).
+    err : ndarray, shape (d,)
+        The state's error bound at its end (:func:`state_error`).
+    scale : ndarray, shape (d,)
+        The largest ``|x_i|`` of the run up to its end.
+    fired : list of int
+        The events located at its stop (none at the final time or the section).
+    stop : Stop or None
+        :func:`examine` at its stop, None when no event was located there.
+    """
+
+    sol: object
+    err: np.ndarray
+    scale: np.ndarray
+    fired: list
+    stop: Stop | None
+
+
+def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
+           integrate=None) -> Settled:
     """The stretch ``sol``, or the same stretch integrated more tightly when events at its
-    stop are undecided; and the state's error bound at the stop.
+    stop are undecided; with the state's error bound and the :class:`Stop` at its end.
 
     The state alone is integrated again, rtol and atol divided by ``REFINE_FACTOR`` each
-    time, until no event at the stop is undecided or rtol reaches ``FINEST_RTOL`` (events
+    time, until no event at the stop is undecided or rtol reaches ``MIN_RTOL`` (events
     still undecided there are grouped: the integrator cannot order them). When that
     decides the same group as ``sol`` (the common case: simultaneous events), ``sol`` is
     kept; otherwise the stretch is integrated once more at the deciding tolerances, with
@@ -303,32 +400,31 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried, integra
 
     Returns
     -------
-    sol : OdeResult
-    err : ndarray, shape (d,)
+    Settled
     """
-    d = system.dim
+    d, n = system.dim, system.n_events
 
     def decide(sol, options):
-        err = state_error(options.atol, options.rtol,
-                          np.maximum(scale, np.abs(sol.y[:d]).max(axis=1)), carried)
-        fired = [k for k in range(system.n_events) if sol.t_events[k].size]
+        grown = np.maximum(scale, np.abs(sol.y[:d]).max(axis=1))
+        err = state_error(options.atol, options.rtol, grown, carried)
+        fired = [k for k in range(n) if sol.t_events[k].size]
         if sol.status != 1 or not fired:
-            return err, None
-        _, h, Dh, _, rate = local_view(system, mask, sol.y[:d, -1])
-        window, _ = windows(Dh, rate, err, fired)
-        return err, classify(h, rate, window, fired, simultaneity_tol)
+            return Settled(sol, err, grown, fired, None)
+        stop = examine(system, mask, sol.y[:d, -1], err, fired, simultaneity_tol)
+        return Settled(sol, err, grown, fired, stop)
 
-    err, first = decide(sol, options)
-    if integrate is None or first is None or not first.undecided:
-        return sol, err
-    classes, finer = first, options
+    first = decide(sol, options)
+    if integrate is None or first.stop is None or not first.stop.classes.undecided:
+        return first
+    classes, finer = first.stop.classes, options
     while classes is not None and classes.undecided and tightened(finer) is not None:
         finer = tightened(finer)
-        classes = decide(integrate(finer, variational=False), finer)[1]
-    if classes is not None and (classes.group, classes.near) == (first.group, first.near):
-        return sol, err
-    sol = integrate(finer)
-    return sol, decide(sol, finer)[0]
+        stop = decide(integrate(finer, variational=False), finer).stop
+        classes = None if stop is None else stop.classes
+    decided = first.stop.classes
+    if classes is not None and (classes.group, classes.near) == (decided.group, decided.near):
+        return first
+    return decide(integrate(finer), finer)
 
 
 def on_side_at_start(funcs, t0, mask, n):

@@ -36,10 +36,20 @@ class DenseOutput:
 
     def __init__(self, steps, F, y_old):
         self.steps, self.F, self.y_old = steps, F, y_old
+        self._record = None  # the contiguous arrays dense_at takes, made at the first call
 
     def __call__(self, t):
-        y = dense_at(self.steps, self.F, self.y_old, np.atleast_1d(t))
+        if self._record is None:
+            self._record = (np.ascontiguousarray(self.steps[:, 0]),
+                            np.ascontiguousarray(self.steps[:, 1]), self.F,
+                            np.ascontiguousarray(self.y_old))
+        y = dense_at(*self._record, np.atleast_1d(t))
         return y[0] if np.ndim(t) == 0 else y.T
+
+
+#: the crossing times of an event that did not stop a stretch (shared: read-only)
+_NO_CROSSING = np.empty(0)
+_NO_CROSSING.flags.writeable = False
 
 
 class CompiledSolution:
@@ -50,9 +60,9 @@ class CompiledSolution:
     def __init__(self, out, d, watched):
         self.t, self.y = out.ts, out.ys.T
         self.status = 1 if out.status == EVENT else 0
-        self.t_events = [np.empty(0) for _ in range(watched)]
+        self.t_events = [_NO_CROSSING] * watched
         if self.status:  # as solve_ivp's terminal events: the first root, lowest index
-            first = int(np.flatnonzero(out.roots == out.t_end)[0])
+            first = out.roots.tolist().index(out.t_end)
             self.t_events[first] = np.array([out.t_end])
         self.sol = DenseOutput(out.steps, out.Fd, out.ys[:-1, :d])  # >= 1 step each
 

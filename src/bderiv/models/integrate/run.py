@@ -17,22 +17,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from dataclasses import field as dc_field
-from functools import partial
+from functools import lru_cache, partial
 
 import numpy as np
 from scipy.integrate import OdeSolver
 
+from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, GLOBAL_ERROR_FACTOR, MAX_GROUPS, MIN_RTOL
 from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
-from ..events.crossings import (
-    GLOBAL_ERROR_FACTOR,
-    EventGroup,
-    EventRecord,
-    group_tolerance,
-    switch,
-)
+from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
-from ..events.locate import StopCalls, settle
+from ..events.locate import StopCalls, orientation, settle
 from .compiled_path import CompiledStretches
 from .scipy_path import ScipyStretches
 
@@ -49,11 +44,6 @@ __all__ = [
 
 #: the methods of :func:`scipy.integrate.solve_ivp` by name.
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
-#: smallest rtol solve_ivp honours (it raises smaller ones to this, with a warning).
-MIN_RTOL = 100 * np.finfo(np.float64).eps
-#: default largest number of event groups of one run (a Zeno or chattering trajectory
-#: would otherwise never end): enough for hundreds of strides of a many-legged gait.
-MAX_GROUPS = 10_000
 
 @dataclass(frozen=True)
 class SolverOptions:
@@ -80,8 +70,8 @@ class SolverOptions:
     ValueError: atol must be a finite number > 0, got nan
     """
 
-    rtol: float = 1e-10
-    atol: float = 1e-12
+    rtol: float = DEFAULT_RTOL
+    atol: float = DEFAULT_ATOL
     method: object = "DOP853"
     max_step: float = np.inf
 
@@ -119,13 +109,19 @@ class SolverOptions:
         """
         if options is not None and not isinstance(options, cls):
             raise TypeError(f"options must be a SolverOptions, got {type(options).__name__}")
-        base = options if options is not None else (default or cls())
+        base = options if options is not None else (default or _defaults(cls))
         return base.with_overrides(**settings)
 
     def solve_ivp_kwargs(self) -> dict:
         """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
         return {"rtol": self.rtol, "atol": self.atol, "method": self.method,
                 "max_step": self.max_step}
+
+
+@lru_cache(maxsize=8)
+def _defaults(cls) -> SolverOptions:
+    """``cls()``, made once (frozen: shared by every run that passes no options)."""
+    return cls()
 
 
 @dataclass(frozen=True, eq=False)
@@ -270,20 +266,23 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     while True:
         sol = stretches(x, t, t_final, mask, options, variational)
         again = partial(stretches, x, t, t_final, mask, variational=variational)
-        sol, err = settle(stops, mask, sol, simultaneity_tol, options, scale, err,
-                          again if variational else None)
+        settled = settle(stops, mask, sol, simultaneity_tol, options, scale, err,
+                         again if variational else None)
+        sol, err, scale, fired = settled.sol, settled.err, settled.scale, settled.fired
         log.add_stretch(sol, mask, d, variational)
         t, x = float(sol.t[-1]), np.array(sol.y[:d, -1])
-        scale = np.maximum(scale, np.abs(sol.y[:d]).max(axis=1))
-        fired = [k for k in range(n) if sol.t_events[k].size]
         if section is not None and sol.t_events[n].size:
             _refuse_event_at_return(fired, t)
             break
         if sol.status == 0:
             break
-        group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, err)
+        group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, err,
+                                     settled.stop)
         log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
-        log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy()))
+        # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
+        jac = stops.eval_event_jacobian(x) if variational else None
+        log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy(),
+                                     jac))
         mask, x = new, x_after
         if len(log.groups) > max_groups:
             raise RuntimeError(
@@ -312,8 +311,9 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
 def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
     """The event group within ``simultaneity_tol`` of ``t_final`` and whether it is
     pending (after ``t_final``): ``(None, False)`` when there is none."""
-    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(system.n_events)])
-    rate = sign * (system.eval_event_jacobian(x) @ system.eval_field(x, mask))
+    sign = orientation(int(mask), system.n_events)
+    jac = system.eval_event_jacobian(x)
+    rate = sign * (jac @ system.eval_field(x, mask))
     pending = pending_at_final_time(sign * system.eval_events(x), rate, simultaneity_tol)
     last = groups[-1] if groups and t_final - groups[-1].time <= simultaneity_tol else None
     if last is not None and pending:
@@ -328,7 +328,8 @@ def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
         return last, False
     if pending:
         bits = sum(1 << k for k in pending)
-        return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy()), True
+        return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
+                          jac), True
     return None, False
 
 

@@ -1,0 +1,333 @@
+"""The tolerances, sizes and limits of bderiv, in one place, each with where it comes from.
+
+What is here: a number whose value is a choice someone may question or tune (a tolerance:
+an accepted error, a step, a margin; a size: rows, bytes or queries handled at a time; a
+limit: the most of something a call takes or makes), and any default used in more than one
+place. Each has a ``#:`` line saying what it is and where its value comes from: a
+measurement (which), a standard (which) or a judgement (why).
+
+What stays beside its code: a method's own data (the coefficients and step control of
+DOP853, the levels and order of the runs of ``_numdiff``'s extrapolation), the layout of
+one kernel (lanes, groups and lock widths: the code is written for them), codes, formats
+and signatures (status codes, file versions, field names), facts that are no choice (63
+events in an int64 mask, the smallest normal float64), the probe of a check whose outcome
+does not depend on it (``_cyclic.SHIFT``), and what one command or figure shows (rows
+listed, samples drawn, colours).
+
+This module imports nothing of bderiv: it is the bottom of the layers (docs/design.md), and
+every module, the kernels included, may import it. Compiled kernels keep the values they
+had when they were compiled, so the digests that name their disk caches cover this file
+(``_kernels._core.SOURCES``, ``models.compiled._cached``). To change a value, change it
+here: modules take the value when they import it, so assigning to this module at run time
+changes nothing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_EPS = float(np.finfo(np.float64).eps)
+
+# --- integration ------------------------------------------------------------------------
+
+#: default relative and absolute tolerance of the integrators (``SolverOptions``, the
+#: compiled ``integrate_stretch``): a judgement, about ten digits of the state, well
+#: above what the integrators can reach (MIN_RTOL) and cheap enough for the default.
+DEFAULT_RTOL = 1e-10
+DEFAULT_ATOL = 1e-12
+#: smallest rtol solve_ivp honours (it raises smaller ones to this, with a warning: scipy's
+#: ``100 * EPS``); both integrators refuse smaller ones, and the event location's tighter
+#: integrations stop at it.
+MIN_RTOL = 100 * _EPS
+#: default largest number of event groups of one run (a Zeno or chattering trajectory
+#: would otherwise never end): a judgement, enough for hundreds of strides of a
+#: many-legged gait.
+MAX_GROUPS = 10_000
+#: global over local error of the integrator: an adaptive Runge-Kutta method keeps each
+#: step's error below atol + rtol |x_i|; the error of the state at a stop, a sum of such
+#: step errors, is a modest multiple of it (a judgement).
+GLOBAL_ERROR_FACTOR = 10.0
+#: each tighter integration of an undecided stretch divides rtol and atol by this (a
+#: judgement: two digits per try reach MIN_RTOL from the default in two tries).
+REFINE_FACTOR = 100.0
+#: the compiled event root: scipy's tolerances of the event equation
+#: (``ivp.solve_event_equation``: 4 EPS absolute and relative) and brentq's default
+#: iteration cap, so that both integrators place an event alike.
+EVENT_XTOL = 4.0 * _EPS
+EVENT_RTOL = 4.0 * _EPS
+EVENT_MAX_ITER = 100
+#: the longest a slice of the compiled driver runs, in seconds, between which Ctrl-C and
+#: progress are seen (a judgement: an answer to Ctrl-C within a fifth of a second).
+SLICE_SECONDS = 0.2
+#: accepted steps of a slice before the model's cost per step is known (a judgement: few
+#: enough that the first slice stays short on a costly model).
+FIRST_SLICE = 256
+
+# --- events at a stop -------------------------------------------------------------------
+
+#: default ``simultaneity_tol`` of ``simulate`` and ``simulate_many``: events whose
+#: first-order time to crossing is at most this switch together at a stop (a judgement:
+#: only events all but at the stop together, so that a simulation keeps every order the
+#: integrator resolves; the B-derivatives group more widely, below).
+SIMULATION_SIMULTANEITY_TOL = 1e-12
+#: default ``simultaneity_tol`` of the B-derivatives along trajectories (flow maps, return
+#: maps, periodic orbits, ``bderiv.jax.flow``): a judgement, well above the event-location
+#: accuracy of the default tolerances, so that events that coincide in the model are one
+#: group (their points must also agree to within the integration accuracy).
+DERIVATIVE_SIMULTANEITY_TOL = 1e-7
+#: ``simultaneity_tol`` of the finite differences (``checks``): far below the event-time
+#: spread ``eps |v|`` of a perturbed start, so that the events of a perturbed trajectory
+#: switch one by one, in their true order.
+FD_SIMULTANEITY_TOL = 1e-13
+#: a crossing whose rate ``|Dh_k . F|`` is at most this times ``|Dh_k| |F|`` is grazing;
+#: the default ``transversality_tol`` of ``BDerivative`` (a judgement: far above the
+#: rounding of the product, about d EPS; a rate this small against its factors does not
+#: decide the order of the crossings).
+GRAZING_RTOL = 1e-9
+#: relative accuracy to which a model's resets are checked: with analytic Jacobians (event
+#: and reset; the default ``reset_tol`` of ``BDerivative``), and with numerical ones
+#: (accurate to ``ACCEPT_RTOL`` or refused, so checked at ten times it).
+RESET_TOL = 1e-9
+RESET_TOL_NUMERICAL = 1e-6
+#: resets of simultaneous events whose results differ by more than this times the
+#: accuracy of the state at the stop do not commute (a judgement: three orders above the
+#: accuracy, far below a real difference).
+RESET_MISMATCH = 1e3
+#: groups of up to this many events have their resets compared in every order (4! = 24
+#: orders; larger groups also in descending order only: a judgement of cost).
+ORDERS_CHECKED = 4
+#: largest accepted ``|events(rho)|`` at an event point (``HybridSystem.bderivative``) and
+#: ``|section(x0)|`` at a section point (``return_map``; the orbit's iterates): a
+#: judgement, far above the rounding of an event function at unit scale, far below a point
+#: visibly off the surface.
+ON_SURFACE_TOL = 1e-9
+
+# --- the excursion screen (surfaces crossed and crossed back inside a step) ------------
+
+#: how far above the highest sample a peak may rise, in units of the samples' spread
+#: around it, for its bracket to be searched (a parabola rises at most by the spread; the
+#: factor ten is a margin for higher-order terms, a judgement).
+REACH = 10.0
+#: samples of a bracket, screened again before a peak is searched: most brackets are
+#: dropped at this finer spacing, and the rest are eight times shorter.
+FINE_SAMPLES = 17
+#: the reach on those samples: a parabola through three equally spaced samples peaks
+#: above the highest by at most a quarter of its drop to the lower neighbour.
+FINE_REACH = 1.0
+#: time accuracy of a peak, relative to its bracket: ``h`` is flat at a peak, so its value
+#: is found to about the curvature times this squared (1e-14 of the bracket's scale).
+PEAK_XTOL = 1e-7
+
+# --- derivatives of user functions (``_numdiff``, the compiled Jacobians) ---------------
+
+#: the first step of an extrapolation run relative to the variable's scale (a judgement:
+#: large, the extrapolation removes the truncation; smaller steps follow).
+BASE_STEP = 2.0**-3
+#: variables smaller than this (not 0) take it as their scale (steps far below rounding);
+#: also the compiled central differences'.
+SCALE_FLOOR = 2.0**-20
+#: an extrapolation stops at this relative error (of the entry, or of the row); an entry
+#: above ACCEPT_RTOL is refused (a judgement: half the digits of float64 at worst).
+TARGET_RTOL = 1e-10
+ACCEPT_RTOL = 1e-7
+#: every entry is accurate to ACCEPT_RTOL relative to itself, or to this fraction of its
+#: row's largest entry, or to ROUND_FLOOR times the rounding of the function's value over
+#: the variable's scale (``eps |f_i(x)| / s_j``): an entry 0 at x is known to no better.
+ROW_FLOOR = 2.0**-40
+ROUND_FLOOR = 2.0**10
+#: a given Jacobian passes if ``|J v - D_v f|`` is within CHECK_RTOL relative to
+#: ``|J| |v|`` (plus CHECK_ERROR_FACTOR times the difference's error estimate): far above
+#: what rounding and the extrapolation leave (about 1e-10), far below a wrong term.
+CHECK_RTOL = 1e-6
+CHECK_ERROR_FACTOR = 8.0
+#: compiled complex step: the imaginary step relative to the coordinate's scale (no
+#: cancellation, so any tiny step is exact to rounding; this one keeps x + ih far from
+#: underflow)
+COMPLEX_STEP = 2.0**-60
+#: compiled central differences: the step relative to the coordinate's scale, about
+#: EPS^(1/3) (truncation h^2 against rounding EPS / h); a coordinate's scale is its
+#: magnitude, at least SCALE_FLOOR, and 1 for a coordinate at 0 (as ``_numdiff``)
+CENTRAL_STEP = 2.0**-17
+#: largest number of masks ``check_jacobians`` checks by default (all 2**n up to n = 8;
+#: a judgement of cost: each mask is a Jacobian by differences).
+DEFAULT_MASKS = 1 << 8
+
+# --- B-derivatives: tables, fast paths, scaling -----------------------------------------
+
+#: entries of a fast path that must agree may differ by this times their own rounding
+#: scale (rounding of a dot product of d terms is ~ d * 1.1e-16 of that scale).
+FAST_RTOL = 1e-12
+#: structured corners: transversality counts as proved when the lower bound on every rate
+#: exceeds this fraction of the sum of the magnitudes it adds up (the rates are updated
+#: along a chain by n + p additions, whose rounding is ~ (n + p) EPS of that sum, far below
+#: this).
+PROOF_MARGIN = 1e-9
+#: a rate whose factors multiply below 10**UNDERFLOW_LOG10 is lost to underflow (float64
+#: underflows below 1e-308; the margin leaves room for the products of a chain).
+UNDERFLOW_LOG10 = -290
+#: tables whose largest entry (of a row of Dh, or of F as a whole) is beyond
+#: 2**+-TABLE_BAND are scaled by a power of two at build; within it the products of the
+#: kernels stay far from both ends of the float64 range (2**+-1022), and nothing is copied.
+TABLE_BAND = 64
+#: a query whose nonzero entries are within 2**+-QUERY_BAND keeps the chain of tables
+#: scaled within 2**+-TABLE_BAND far from both ends of the float64 range; kernels may run
+#: such queries as given (what the scaled query gives, scaled).
+QUERY_BAND = 256
+#: the largest n for which a model's dense table (2**n rows) is built on request
+#: (``corner_points``, ``triangulation``, ``table``): 2**20 rows of F, 160 MiB at d = 20.
+MAX_TABLE_EVENTS = 20
+#: default cap on the number of pieces ``pieces()`` and ``triangulation()`` will build
+#: (8!: every order of 8 events).
+MAX_PIECES = 40320
+
+# --- kernels and threads ----------------------------------------------------------------
+
+#: queries per parallel task. Threads take tasks one at a time (dynamic schedule), so a
+#: thread that the OS delays does not hold the other back; at n = 8, 256 queries take
+#: about 90 us on one thread (measured), far above the start-up of the second.
+TASK_QUERIES = 256
+#: batches smaller than this run on one thread (thread start-up costs more than it saves).
+PARALLEL_MIN_QUERIES = 1024
+#: work per kernel launch, in units of n (n + d) (about a nanosecond each). Ctrl-C is seen
+#: between launches only, so a long batch is cut into launches of about 0.05 to 0.3 s;
+#: a launch wakes the threads, which costs more on a busy machine, so not shorter.
+LAUNCH_WORK = 1 << 25
+#: insertion sort up to this many events, merge sort above (fast-path orders; a
+#: judgement: insertion sort's n^2 / 4 moves are cheaper than merge sort's overhead for a
+#: few dozen events).
+INSERTION_SORT_MAX = 24
+#: row scaling: batches with fewer entries (rows x d) are scaled serially: measured (load 8
+#: on 2 cores) 0.7-1.8 ns per entry serially, a parallel launch 13-34 us when its threads
+#: get cores at once and 11-16 ms when they wait (318 launches on (200, 8) batches were 6 of
+#: the 7 s of a stability verdict); below 2**18 entries (about 0.3 ms of serial work)
+#: parallel saves at most half of that and risks 16 ms.
+SERIAL_ENTRIES = 1 << 18
+#: records larger than this are prefetched one step ahead by the lane kernels (about the
+#: size of the last-level cache share of a core; below it the hint costs more than it saves)
+FAR_BYTES = 4 << 20
+#: a default memory limit is not read for a need up to this many bytes (1 MiB): the limit
+#: guards against the 2**n rows of many events (or a huge file) exhausting the machine, and
+#: a process that got this far already holds over 100 MiB (numpy, numba and the compiled
+#: kernels), so 1 MiB more is never what runs it out. Reading /proc/meminfo costs tens of
+#: microseconds, a sizeable part of a small BDerivative's construction (two per build of a
+#: flow map with one event group); dense tables of d = 8 reach 1 MiB at n = 12.
+SMALL_NEED_BYTES = 1 << 20
+#: address space a kernel's compilation may take (LLVM; measured 50 to 70 MiB for the
+#: drivers of a small dense map), with a margin
+COMPILE_BYTES = 128 << 20
+#: address space a thread takes besides its stack (guard page, TLS, the runtime's own
+#: structures; glibc's malloc arena of a thread is reserved only when it fits)
+THREAD_EXTRA_BYTES = 2 << 20
+
+# --- blocks and chunks (memory at a time) -----------------------------------------------
+
+#: rows per chunk when chunking is implied (a ``progress`` callback or a memmap input) and
+#: no ``chunk_size`` is given: 2**16 rows of d = 128 are 64 MiB, and a chunk is long enough
+#: to keep two threads busy.
+DEFAULT_CHUNK_ROWS = 1 << 16
+#: rows per block when a table is built or scanned; 2**15 rows of 20 float64 are 5 MiB.
+BLOCK_ROWS = 1 << 15
+#: rows per BLAS call when the rates of the region records are built. Products this small
+#: run on one BLAS thread; one big call spreads over BLAS threads, which on a shared 2-core
+#: machine was measured 5x to 50x slower (n = d = 20: 0.09 s in blocks of 512 rows, 0.5 s
+#: to 5 s in one call or in blocks of 2**11..2**15 rows, depending on the other load).
+RATE_BLOCK_ROWS = 512
+#: bytes of the temporaries of one chunk of ``Linearisation.piece_matrices`` (each row is
+#: d queries: the repeated rows, the unit vectors and the columns, d * d floats each): a
+#: judgement, as CHAIN_BYTES.
+PIECE_CHUNK_BYTES = 64 << 20
+#: bytes of chain corners gathered at a time by the generic ``Engine.tangents`` (a
+#: judgement: large enough that the per-chunk overhead vanishes, small beside memory).
+CHAIN_BYTES = 64 << 20
+#: masks per block of the existence check of resets (each block holds a few (m, d, d)
+#: products; a judgement).
+CHECK_ROWS = 1 << 10
+#: queries per chunk of the NumPy baseline; its temporaries are a few (chunk, n) and
+#: (chunk, d) arrays, which then stay in L2. Measured best of 1024..65536 on 2 cores.
+NUMPY_CHUNK = 4096
+#: side of the square product whose rate ``measure_blas_rate`` measures (a judgement:
+#: large enough for BLAS to reach its blocked rate, small enough to take milliseconds).
+BLAS_SIZE = 512
+
+# --- periodic orbits and checks ---------------------------------------------------------
+
+#: default of ``periodic_orbit``: stop when ``max |P(x) - x| <= ORBIT_TOL * max(1, |x|)``,
+#: after at most ORBIT_MAX_ITER Newton iterations (a judgement: two orders above the
+#: integration accuracy of ``orbit.ORBIT_OPTIONS``, rtol 1e-12, which the residual cannot
+#: beat; Newton's method converges in a few steps where it converges at all).
+ORBIT_TOL = 1e-10
+ORBIT_MAX_ITER = 30
+#: longest wait for the return without a period guess (also ``return_map``'s default),
+#: and in multiples of the guess.
+DEFAULT_T_MAX = 100.0
+T_MAX_PER_PERIOD = 3.0
+#: halvings of a Newton step that does not reduce the residual before giving up (a
+#: judgement: a step shrunk by 2**-10 that still does not help is not worth taking).
+MAX_HALVINGS = 10
+#: a piece's solution lies in its piece when ``|A(delta) - A_piece delta|`` is below
+#: this times ``|A_piece| |delta|`` (ties between pieces give equal values).
+PIECE_RTOL = 1e-8
+#: pieces tried by one Newton step before it settles for a generalized Newton step.
+MAX_PIECE_SWITCHES = 32
+#: pieces whose Floquet multipliers ``stability()`` reports: the most visited.
+MULTIPLIER_PIECES = 12
+#: a shifted return that differs from the shifted original by more than this times
+#: ``max(1, |x|)`` shows that a coordinate is not cyclic (a judgement: well above the
+#: integration error of a return, far below a real dependence).
+INDEPENDENCE_RTOL = 1e-7
+#: strides a direction of ``decay_check`` needs in the linear regime for its rate to be
+#: fitted (a line through fewer points has no check of its own).
+MIN_FIT_STRIDES = 3
+#: the linear regime of ``decay_check``: deviations at most this fraction of |x0| (of
+#: 1 when x0 = 0), where the model's nonlinearity is still small
+LINEAR_STATE = 0.05
+#: worker processes of ``stability_map(client="local")`` (one per core of this project's
+#: machines)
+LOCAL_WORKERS = 2
+
+# --- contacts (``symbolic.contacts``) -------------------------------------------------
+
+#: a contact is on its surface when ``|phi| <= SURFACE_TOL * max(1, max |q|)`` (a
+#: judgement)
+SURFACE_TOL = 1e-6
+#: relative coupling ``|J_i M^-1 J_j^T| / sqrt(J_i M^-1 J_i^T J_j M^-1 J_j^T)`` accepted
+#: between simultaneous contacts (a judgement: orthogonal contacts give rounding only,
+#: about 1e-16; coupled ones give a number of order one)
+COUPLING_TOL = 1e-9
+
+# --- the command line ---------------------------------------------------------------------
+
+#: default steps of the finite differences (``checks.fd_check``, ``bderiv demo --eps``, the
+#: gait and landing summaries): three decades, so that the error's fall with the step is
+#: seen (first order), each far above EPS_RANGE's rounding floor
+FD_EPS = (1e-4, 1e-5, 1e-6)
+#: default tangent vectors of ``bderiv demo``'s timed batch, and of its finite-difference
+#: check (a judgement: a batch long enough to time both threads; a check of a few
+#: vectors, each a pair of simulations per step)
+DEMO_BATCH = 1_000_000
+DEMO_CHECK = 8
+#: default numbers of events, queries per batch and timed runs (the best kept) of
+#: ``bderiv bench`` (a judgement: a short sweep; the best of three runs tames the noise of
+#: a shared machine)
+BENCH_NS = (2, 4, 8, 12, 16)
+BENCH_BATCH = 100_000
+BENCH_REPEAT = 3
+
+#: finite-difference steps of ``--eps``: below 1e-12 rounding swamps the difference
+#: quotient, above 0.1 the step leaves the neighbourhood where the B-derivative describes
+#: the flow
+EPS_RANGE = (1e-12, 0.1)
+#: largest n of the scalable network family the CLI accepts (a judgement: its dense table
+#: has 2**n rows)
+NETWORK_MAX_N = 20
+#: random vectors on which every file ``export`` reads back is compared with the
+#: B-derivative (a judgement: a wrong entry shows on any random vector)
+CHECK_VECTORS = 200
+#: corner tables with more entries than this are left out of ``--full`` output (a
+#: judgement: longer tables are not read)
+FULL_TABLE_ENTRIES = 1 << 14
+#: Agg's bound on the pixels of a side of a raster image
+MAX_SIDE_PIXELS = 1 << 16
+#: the most pixels of a raster image that image libraries open without refusing it as a
+#: decompression bomb (Pillow's MAX_IMAGE_PIXELS, about 89 million)
+MAX_PIXELS = 89_478_485
