@@ -401,3 +401,22 @@ def test_commuting_resets_at_extreme_scales_with_numerical_jacobians(c):
     exact = np.array([ref.ref_reset_flow(np.eye(2, 3), F_SHEAR, R, v)[0] for v in V])
     np.testing.assert_allclose(system.bderivative(rho)(V), exact, rtol=1e-9,
                                atol=1e-9 * c)
+
+
+def test_a_correct_jacobian_is_not_refused_where_the_values_round_alike():
+    # f0 = 0.4 (1 + 0.1 y**2) at y = 2e-8: 0.1 y**2 is below half an ulp of 1, so the two
+    # values of a central difference are equal at all but the first steps and every
+    # estimate from there on is 0 with no disagreement; the derivative 0.08 y (1.7e-9) is
+    # known only to within their rounding. Was refused with a tolerance of 2e-22 (the
+    # estimates' error taken as 0): found on a located state of test_grouping's model.
+    from bderiv import _numdiff
+
+    x = np.array([-1.66533444e-17, 2.08184585e-08])
+
+    def f(x):
+        return np.array([0.4 * (1 + 0.1 * x[1] ** 2), 0.3 * (1 + 0.2 * np.sin(x[0]))])
+
+    J = np.array([[0.0, 0.08 * x[1]], [0.06 * np.cos(x[0]), 0.0]])
+    assert _numdiff.compare(f, x, J).passed
+    for wrong in ([[0.0, 1.0], [0.06, 0.0]], [[0.0, 0.08 * x[1]], [0.12, 0.0]]):
+        assert not _numdiff.compare(f, x, np.array(wrong)).passed  # still seen: 1e-7, 1e-8

@@ -72,7 +72,7 @@ def _run(fun, x, f0, v, first, needed_of):
     h, calls = first, 0
     prev = None
     best = err = None
-    flat = np.ones(f0.shape, dtype=bool)  # equal values at every step so far
+    equal_at = np.zeros(f0.shape)  # the largest step at which the two values were equal
     vv = float(v @ v)
     for level in range(LEVELS):
         xp, xm = x + h * v, x - h * v
@@ -83,7 +83,7 @@ def _run(fun, x, f0, v, first, needed_of):
         except (ValueError, ArithmeticError):  # no value there: steps too large here
             break
         calls += 2
-        flat &= fp == fm
+        equal_at = np.where((fp == fm) & (equal_at == 0.0), h, equal_at)
         row = [(fp - fm) / step]
         fac = 4.0
         for j in range(1, level + 1):
@@ -104,9 +104,12 @@ def _run(fun, x, f0, v, first, needed_of):
         h /= 2.0
     if best is None:
         return None, None, calls
-    # values equal at every step up to ``first``: the derivative is below their rounding
-    # over that step, not known to be 0 (``x2 + 1e16`` at small steps)
-    err = np.where(flat, np.maximum(err, np.spacing(np.abs(f0)) / first), err)
+    # values equal at a step h: the estimates from there on are their rounding over h, so
+    # the derivative is known only to within that rounding, not to be 0 (``x2 + 1e16`` at
+    # small steps; ``0.4 (1 + 0.1 y**2)`` at y = 2e-8, equal below the first step)
+    with np.errstate(divide="ignore"):
+        floor = np.where(equal_at > 0.0, np.spacing(np.abs(f0)) / equal_at, 0.0)
+    err = np.maximum(err, floor)
     return best, err, calls
 
 
