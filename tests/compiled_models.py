@@ -7,6 +7,12 @@ on both integrators. The fields take complex input (complex step) unless said ot
 
 from __future__ import annotations
 
+import _thread
+import contextlib
+import signal
+import threading
+import time
+
 import numba
 import numpy as np
 
@@ -136,3 +142,23 @@ def slow_rotation(x, mask):
 @numba.njit
 def far_event(x):
     return np.array([x[0] - 2.0])  # never reached
+
+
+#: a run of ``slow_rotation`` to this time at ``max_step=1e-3`` takes 1e7 steps: seconds,
+#: so that a Ctrl-C test whose interrupt never arrives fails instead of running for hours
+LONG_RUN = 1e4
+
+
+@contextlib.contextmanager
+def ctrl_c_after(seconds):
+    """Ctrl-C (SIGINT, delivered as Python delivers it) ``seconds`` into the block, which
+    gets the start time. SIGINT is taken as an interactive session takes it: a pytest-xdist
+    worker, like any background job, may ignore it, and then no KeyboardInterrupt comes."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(seconds, _thread.interrupt_main, args=(signal.SIGINT,))
+    try:
+        timer.start()
+        yield time.perf_counter()
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
