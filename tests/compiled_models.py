@@ -152,8 +152,9 @@ LONG_RUN = 1e4
 @contextlib.contextmanager
 def ctrl_c_after(seconds):
     """Ctrl-C (SIGINT, delivered as Python delivers it) ``seconds`` into the block, which
-    gets the start time. SIGINT is taken as an interactive session takes it: a pytest-xdist
-    worker, like any background job, may ignore it, and then no KeyboardInterrupt comes."""
+    gets the start time. SIGINT is taken as an interactive session takes it: a background
+    job (``pytest &`` from a script: bash starts it with SIGINT ignored, and Python then
+    installs no handler) would never see a KeyboardInterrupt."""
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(seconds, _thread.interrupt_main, args=(signal.SIGINT,))
     try:

@@ -342,10 +342,12 @@ def test_ctrl_c_during_a_long_call():
     within a second or two (the batch is cut into launches; the old code saw the
     interrupt only when the whole kernel ended)."""
     code = """
-        import os, subprocess, time
+        import os, signal, subprocess, time
         import numpy as np
         from bderiv import BDerivative, StructuredCorners
 
+        # as an interactive session: a background job (and its children) ignores SIGINT
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         rng = np.random.default_rng(1)
         n, d = 32, 8
         Dh = np.abs(rng.standard_normal((n, d))) + 0.5

@@ -107,8 +107,8 @@ def _run(fun, x, f0, v, first, needed_of):
     # values equal at a step h: the estimates from there on are their rounding over h, so
     # the derivative is known only to within that rounding, not to be 0 (``x2 + 1e16`` at
     # small steps; ``0.4 (1 + 0.1 y**2)`` at y = 2e-8, equal below the first step)
-    with np.errstate(divide="ignore"):
-        floor = np.where(equal_at > 0.0, np.spacing(np.abs(f0)) / equal_at, 0.0)
+    floor = np.divide(np.spacing(np.abs(f0)), equal_at, out=np.zeros(f0.shape),
+                      where=equal_at > 0.0)
     err = np.maximum(err, floor)
     return best, err, calls
 
