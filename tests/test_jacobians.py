@@ -18,7 +18,7 @@ import reference as ref
 from scipy.integrate import solve_ivp
 
 from bderiv import BDerivative, HybridSystem, check_jacobians, examples
-from bderiv.models.calls import Section
+from bderiv.models.section import Section
 
 # ----------------------------------------------------------------------------------
 # item 2: numerical Jacobians

@@ -19,7 +19,8 @@ import numpy as np
 from . import _numdiff as numdiff
 from ._format import format_mask
 from ._limits import DEFAULT_MASKS
-from .models.calls import Section, check_output
+from .models.calls import check_output
+from .models.section import Section
 
 __all__ = ["JacobianCheck", "JacobianReport", "check_jacobians"]
 

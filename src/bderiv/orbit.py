@@ -209,7 +209,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     system : HybridSystem
     x_guess : ndarray, shape (d,)
         Checked start; it is first moved onto the section along the section's gradient.
-    section : bderiv.models.calls.Section
+    section : bderiv.models.section.Section
     period_guess : float, optional
         Expected period; the return is awaited for ``3 * period_guess`` (default 100).
     tol : float

@@ -121,7 +121,7 @@ def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
     system : HybridSystem
     x0 : ndarray, shape (d,)
         Checked start point, with ``|section(x0)| <= tol``.
-    section : bderiv.models.calls.Section
+    section : bderiv.models.section.Section
         The checked section.
     t_max : float
         Longest time to wait for the return.

@@ -44,9 +44,10 @@ from .._validate import check_number
 from ..orbit import ORBIT_OPTIONS, periodic_orbit
 from ..returnmap import return_map
 from .assembly import flow_map_along, point_bderivative
-from .calls import ModelCalls, Section
+from .calls import ModelCalls
 from .integrate.many import Trajectories, check_states, run_many
 from .integrate.run import EventGroup, EventRecord, SolverOptions, Trajectory, run
+from .section import Section
 
 # EventGroup, EventRecord, Trajectory live in models.integrate.run: the types the methods
 # return, re-exported beside the model

@@ -235,7 +235,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     section : Section, optional
         Stop at the first upward crossing of ``section(x) = 0`` after time 0 (x0 is on
         the section, or below it); the trajectory ends there
-        (:class:`bderiv.models.calls.Section`: checked calls; numba-compiled with a compiled
+        (:class:`bderiv.models.section.Section`: checked calls; numba-compiled with a compiled
         model).
     max_groups : int
         Largest number of event groups (a Zeno or chattering trajectory is refused).
