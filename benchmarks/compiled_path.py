@@ -234,6 +234,21 @@ class _UnknownRates(excursions._EndRates):
 RULES = (("new", excursions._EndRates), ("old", _UnknownRates))
 
 
+def _alternated(rounds, compiled, python):
+    """``(path, system, rule)`` for each round, path and screen rule, alternated, with the
+    rule set and the garbage collector off while the caller times; both restored after."""
+    gc.disable()
+    try:
+        for _ in range(rounds):
+            for path, system in (("c", compiled), ("py", python)):
+                for rule, rates in RULES:
+                    excursions._EndRates = rates
+                    yield path, system, rule
+    finally:
+        gc.enable()
+        excursions._EndRates = RULES[0][1]
+
+
 def perturbed(sizes=(SIZES[0], SIZES[-1]), rounds=5):
     """Runs from perturbed starts against the run from the apex, both paths, the screen
     with its end rule (new) and without (old), alternated in one process; per start the
@@ -268,21 +283,13 @@ def perturbed(sizes=(SIZES[0], SIZES[-1]), rounds=5):
             times, counts = {}, {}
             for system in (compiled, python):  # compiled, the kernels loaded: not timed
                 system.simulate(starts[0], T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL)
-            gc.disable()
-            try:
-                for _ in range(rounds):
-                    for path, system in (("c", compiled), ("py", python)):
-                        for rule, rates in RULES:
-                            excursions._EndRates = rates
-                            for i, x in enumerate([x0, *starts]):
-                                searches[0] = stretches[0] = 0
-                                t, _ = best(lambda s=system, x=x: s.simulate(
-                                    x, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL), 1)
-                                times.setdefault((path, rule, i), []).append(t)
-                                counts[(path, rule, i)] = searches[0], stretches[0]
-            finally:
-                gc.enable()
-                excursions._EndRates = RULES[0][1]
+            for path, system, rule in _alternated(rounds, compiled, python):
+                for i, x in enumerate([x0, *starts]):
+                    searches[0] = stretches[0] = 0
+                    t, _ = best(lambda s=system, x=x: s.simulate(
+                        x, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL), 1)
+                    times.setdefault((path, rule, i), []).append(t)
+                    counts[(path, rule, i)] = searches[0], stretches[0]
             for path in ("c", "py"):
                 # the run from the apex searches nothing: the same work under both rules
                 apex = min(times[(path, "new", 0)] + times[(path, "old", 0)])
@@ -303,17 +310,9 @@ def perturbed(sizes=(SIZES[0], SIZES[-1]), rounds=5):
         fd = {}
         for system in (compiled, python):  # its first call compiles the batch: not timed
             system.flow_fd(x0, T_FINAL, np.eye(d)[:1], 1e-6)
-        gc.disable()
-        try:
-            for _ in range(rounds):
-                for path, system in (("c", compiled), ("py", python)):
-                    for rule, rates in RULES:
-                        excursions._EndRates = rates
-                        t, _ = best(lambda s=system: s.flow_fd(x0, T_FINAL, np.eye(d), 1e-6), 1)
-                        fd.setdefault((path, rule), []).append(t)
-        finally:
-            gc.enable()
-            excursions._EndRates = RULES[0][1]
+        for path, system, rule in _alternated(rounds, compiled, python):
+            t, _ = best(lambda s=system: s.flow_fd(x0, T_FINAL, np.eye(d), 1e-6), 1)
+            fd.setdefault((path, rule), []).append(t)
         for path in ("c", "py"):
             old, new = min(fd[(path, "old")]), min(fd[(path, "new")])
             print(f"  {path:>2}: old {old * 1e3:8.1f}  new {new * 1e3:8.1f}  old/new "
