@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import io
+import math
+import threading
 import time
 
+import numba
 import numpy as np
 import pytest
 from compiled_models import LONG_RUN, ctrl_c_after, far_event, pronking_pair, slow_rotation
 
 from bderiv import HybridSystem, _progress, examples
+from bderiv.models.compiled import HANDOFF, CompiledModel
+from bderiv.models.integrate import many
 
 
 def same_run(a, b):
@@ -112,6 +117,145 @@ def test_ctrl_c_stops_a_long_compiled_batch_within_a_second():
     with ctrl_c_after(0.3) as start, pytest.raises(KeyboardInterrupt):
         system.simulate_many(X0, LONG_RUN, max_step=1e-3)
     assert time.perf_counter() - start < 0.3 + 1.0
+
+
+# --- a compiled model's batch on threads ------------------------------------------------
+
+@pytest.fixture
+def three_threads(monkeypatch):
+    """Batches on three threads whatever the cores (threads also interleave on one core);
+    the names of the threads each run was made on are collected."""
+    monkeypatch.setattr(many, "worker_count", lambda m: max(1, min(m, 3)))
+    seen, real_run = [], many.run
+
+    def run(*args, **kwargs):
+        seen.append(threading.current_thread().name)
+        return real_run(*args, **kwargs)
+
+    monkeypatch.setattr(many, "run", run)
+    return seen
+
+
+def worker_threads():
+    return [t for t in threading.enumerate() if t.name.startswith("bderiv.simulate_many")]
+
+
+def mixed_starts(x0, m, seed=4):
+    """Pronking starts: the even ones tilted (the feet land apart: stops handed back to the
+    Python loop), the odd ones level (both feet together: decided in compiled code)."""
+    rng = np.random.default_rng(seed)
+    X0 = np.tile(x0, (m, 1))
+    X0[:, [0, 2]] += 1e-3 * rng.standard_normal((m, 2))
+    X0[::2, [1, 3]] += 1e-3 * rng.standard_normal(((m + 1) // 2, 2))
+    return X0
+
+
+def test_threaded_batch_is_a_loop_of_simulate_to_the_bit(three_threads, monkeypatch):
+    codes, real = [], CompiledModel.run_stretches
+
+    def counted(self, *args, **kwargs):
+        out = real(self, *args, **kwargs)
+        codes.append(None if out is None else int(out[0]))
+        return out
+
+    monkeypatch.setattr(CompiledModel, "run_stretches", counted)
+    ex, system = pronking_pair(2)  # a fresh model: its first run goes alone
+    X0 = mixed_starts(ex.x0, 24)
+    seen = []
+    runs = system.simulate_many(X0, ex.t_final, simultaneity_tol=1e-7,
+                                progress=lambda done, total: seen.append(
+                                    (done, total, threading.current_thread().name)))
+    assert HANDOFF in codes and codes.count(HANDOFF) < len(codes)  # both kinds of stop
+    assert three_threads[0] == "MainThread" and len(set(three_threads[1:])) > 1
+    assert seen == [(i, 24, "MainThread") for i in range(1, 25)]
+    assert not worker_threads()
+    for x0, traj in zip(X0, runs, strict=True):
+        alone = system.simulate(x0, ex.t_final, simultaneity_tol=1e-7)
+        same_run(traj, alone)
+        assert [g.events for g in traj.groups] == [g.events for g in alone.groups]
+    np.testing.assert_array_equal(runs.x_final, [traj.x_final for traj in runs])
+    assert {len(traj.groups) for traj in runs} == {1, 2}  # together, and apart
+
+
+def test_a_warm_model_runs_the_whole_batch_on_threads(three_threads):
+    ex, system = pronking_pair(2)
+    system.simulate(ex.x0, ex.t_final)  # its event Jacobian checked at the first stop
+    X0 = mixed_starts(ex.x0, 6, seed=5)
+    runs = system.simulate_many(X0, ex.t_final, simultaneity_tol=1e-7)
+    assert "MainThread" not in three_threads and len(three_threads) == 6
+    for x0, traj in zip(X0, runs, strict=True):
+        same_run(traj, system.simulate(x0, ex.t_final, simultaneity_tol=1e-7))
+
+
+def test_a_python_model_and_one_without_compiled_event_jacobian_stay_in_this_thread(
+        three_threads):
+    ex = examples.chair()
+    ex.system.simulate_many(starts(ex.x0, 3, 1e-3), ex.t_final)
+    ex2, twin = pronking_pair(2)
+    plain = HybridSystem(twin.compiled.named["field"], twin.compiled.named["events"],
+                         n_events=2, dim=4)
+    plain.simulate_many(starts(ex2.x0, 3, 1e-3), ex2.t_final)
+    assert three_threads == ["MainThread"] * 6
+
+
+@numba.njit
+def late_failure(x, mask):
+    """Moves along x[0]; raises past x[0] = 2.5 when the flag x[1] is set."""
+    if x[0] > 2.5 and x[1] > 0.5:
+        raise ZeroDivisionError("the model divides by zero here")
+    return np.array([1.0, 0.0])
+
+
+@numba.njit
+def stripes(x):
+    return np.array([math.sin(3.0 * x[0])])
+
+
+@numba.njit
+def stripes_jacobian(x):
+    J = np.zeros((1, 2))
+    J[0, 0] = 3.0 * math.cos(3.0 * x[0])
+    return J
+
+
+def test_a_threaded_batch_raises_the_first_failing_run_in_order(three_threads):
+    """Run 5 fails late (after three crossings), run 9 at once (it starts on the surface):
+    the error is run 5's, as the loop raises it, whichever thread failed first."""
+    system = HybridSystem(late_failure, stripes, n_events=1, dim=2,
+                          event_jacobian=stripes_jacobian)
+    X0 = np.column_stack((np.linspace(0.1, 0.2, 16), np.zeros(16)))
+    X0[5, 1] = 1.0
+    X0[9, 0] = 0.0  # sin(0) = 0: on the surface
+    system.simulate(X0[0], 3.0)
+    with pytest.raises(ValueError, match=r"the run from X0\[5\] = \[0\.1333.* 1\. *\]: a "
+                                         r"compiled function of the model raised "
+                                         r"ZeroDivisionError"):
+        system.simulate_many(X0, 3.0)
+    assert not worker_threads()
+    with pytest.raises(ValueError, match=r"the run from X0\[7\] = .*x0 lies on"):
+        system.simulate_many(np.delete(X0, 5, axis=0)[1:], 3.0)  # run 9 is now 7
+    assert not worker_threads()
+
+
+@numba.njit
+def far_event_jacobian(x):
+    return np.array([[1.0, 0.0]])
+
+
+def test_ctrl_c_stops_a_threaded_batch_and_its_runs_within_a_second(monkeypatch):
+    """Two threads: a run this long hands its stretch back to the Python loop after a
+    slice of steps, whose slices hold the GIL (the calling thread waits for them)."""
+    monkeypatch.setattr(many, "worker_count", lambda m: 2)
+    system = HybridSystem(slow_rotation, far_event, n_events=1, dim=2,
+                          event_jacobian=far_event_jacobian, check_jacobians=False)
+    system.simulate(np.array([1.0, 0.0]), 1.0)  # compiled and warm
+    X0 = np.tile([1.0, 0.0], (4, 1))  # each run: 1e7 steps
+    with ctrl_c_after(0.3) as start, pytest.raises(KeyboardInterrupt):
+        system.simulate_many(X0, LONG_RUN, max_step=1e-3)
+    assert time.perf_counter() - start < 0.3 + 1.0
+    while worker_threads() and time.perf_counter() - start < 0.3 + 2.0:
+        time.sleep(0.01)
+    assert not worker_threads()  # the runs stopped too, not only the wait
 
 
 def test_flow_fd_is_the_difference_of_simulations():

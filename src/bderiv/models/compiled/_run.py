@@ -103,7 +103,7 @@ def _plain_screen(model, sign, n, d, ts, ys, steps, Fd, J, atol, rtol):
     return return_sample(H, tol) < 0 and peak_rows(H, tol, True, REACH).shape[0] == 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_stretches(model, jac_mode, variational, with_section, n, d, t, x, mask, scale, err,
                   t_final, rtol, atol, max_step, simultaneity_tol, all_checked, checked,
                   groups_left, budget):

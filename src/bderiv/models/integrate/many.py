@@ -1,30 +1,68 @@
 """Many runs of one model: :func:`run_many` integrates a batch of start states, one run each.
 
-The runs are independent: :func:`~bderiv.models.integrate.run.run` from each start state,
-one after the other in this process. Each run is exactly the one ``simulate`` makes (the
-same trajectory, to the bit); what the batch adds is one validation of the settings, a
-progress bar of the runs done, and errors that name the start state they came from. The
-stop logic of a run is Python (one code path for both integrators), so the runs are not
-spread over threads: a compiled model's stretches run in compiled code, one run at a time.
-Ctrl-C stops the batch within the run it lands in (a compiled run returns to Python
-between slices of steps of about 0.2 s; a Python one at every field evaluation).
+The runs are independent: :func:`~bderiv.models.integrate.run.run` from each start state.
+Each run is exactly the one ``simulate`` makes (the same trajectory, to the bit); what the
+batch adds is one validation of the settings, a progress bar of the runs done, errors that
+name the start state they came from, and, on a compiled model whose stops are decided in
+compiled code (a compiled ``event_jacobian``, no resets: :func:`.run.compiled_stops`), runs
+side by side on threads.
+
+Why Python threads and not a numba ``prange``: a run's output has a size known only at its
+end (its samples, its event groups), and any stop the compiled run cannot decide (a peak to
+search, a return across a surface, a refusal to word) is handed back to the Python stop
+logic in the middle of the run. So each thread runs a whole ``run``; its compiled run
+(:func:`bderiv.models.compiled._run.run_stretches`, ``nogil``) releases the GIL, so that
+the threads' compiled stretches run on the cores at once, and they take the GIL only for
+the Python between them. A Python model, or a compiled one whose stops are all Python's
+(no compiled ``event_jacobian``, or resets), runs its batch one run after the other:
+threads would only take turns at the GIL.
+
+Thread safety. What a run shares with the others: the model's compiled functions and its
+struct and atol caches (``CompiledModel``: built once, then read; two threads building the
+same entry build equal ones), its set of checked Jacobians (``HybridSystem._checked``: a set,
+one ``add`` per check, the check itself is pure), the measured cost of a slice of steps
+(``_slices._cost``: a dict entry per model, it sets only where a run hands back, never its
+bits) and numba's dispatchers (their compilation holds numba's lock). A run's
+``StopCalls`` and its ``SimulationProgress`` are its own (the compiled path never draws the
+latter). The numerical-Jacobian cost counters are not touched: such a model's event
+Jacobian is compiled, and a field Jacobian is computed only with the variational equations,
+which ``simulate`` does not integrate. A model not yet used runs its first start state alone
+first (its functions compiled, its event Jacobian checked), then the rest in threads.
+The bar of runs done and ``progress(done, total)`` are drawn and called by the calling
+thread only, as runs finish.
+
+Errors: the error of the first failing run in the order of the start states, as the loop
+would raise it (runs are taken in that order: the earlier ones still running finish, the
+later ones stop). Ctrl-C stops the batch within a second: the calling thread waits in
+short slices, and each thread's run is stopped where it next returns to Python (a compiled
+run returns between slices of steps of about 0.2 s; a Python one at every field
+evaluation).
 """
 
 from __future__ import annotations
 
+import ctypes
+import queue
+import threading
+import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..._progress import SimulationProgress, resolve_progress
 from ..._validate import check_number, check_points, check_positive_int
-from .run import run
+from .run import compiled_stops, run
 
-__all__ = ["Trajectories", "check_states", "run_many"]
+__all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count"]
 
 #: the bar of a batch's runs (drawn as a simulation's: after a delay, on a terminal)
 _BAR_FORMAT = ("{desc}: {percentage:3.0f}%|{bar}| {n:.0f} of {total:.0f} runs "
                "[{elapsed}<{remaining}]")
+#: seconds the calling thread waits for a run at a time (it sees Ctrl-C in between)
+_POLL = 0.05
+#: seconds the calling thread waits for the threads' runs to stop after Ctrl-C
+_STOP_WAIT = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,9 +103,24 @@ def check_states(X0, dim: int) -> tuple[np.ndarray, tuple]:
     return check_points(X0, dim, "X0", meaning="start states of this system, one per row")
 
 
+def threaded(system, section=None) -> bool:
+    """Whether a batch of ``system`` runs on threads: a compiled model with a compiled
+    ``event_jacobian`` and no resets, whose runs spend their time in the compiled run,
+    which releases the GIL (a Python stop logic would hold it)."""
+    model = getattr(system, "compiled", None)
+    return model is not None and model.event_jacobian is not None and not system.has_resets
+
+
+def worker_count(m: int) -> int:
+    """Threads for ``m`` runs: ``numba.config.NUMBA_NUM_THREADS`` (the cores, or the
+    environment variable of that name), at most ``m``."""
+    return max(1, min(m, numba.config.NUMBA_NUM_THREADS))
+
+
 def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups,
              section=None, progress=None) -> Trajectories:
-    """:func:`~bderiv.models.integrate.run.run` from every row of ``X0``.
+    """:func:`~bderiv.models.integrate.run.run` from every row of ``X0``, on
+    :func:`worker_count` threads when :func:`threaded` (else one after the other).
 
     Parameters
     ----------
@@ -81,7 +134,7 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
     progress : None, bool or callable ``progress(done, total)``
         None: a bar of the runs done once the batch has lasted a few seconds (on a
         terminal, as a simulation's); False: none; True: a tqdm bar from the start; a
-        callable: called after each run.
+        callable: called after each run (in the calling thread, as runs finish).
 
     Returns
     -------
@@ -90,35 +143,35 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
     Raises
     ------
     ValueError, RuntimeError
-        As a run raises them, the message prefixed with the start state's index.
+        As a run raises them, the message prefixed with the start state's index (the
+        first failing run in the order of ``X0``).
     """
     t_final = check_number(t_final, "t_final")
     simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
     max_groups = check_positive_int(max_groups, "max_groups")
     m = X0.shape[0]
+
+    def one(i):
+        return run(system, X0[i].copy(), t_final, simultaneity_tol=simultaneity_tol,
+                   options=options, max_groups=max_groups, section=section)
+
     watch = None
     if progress is None:
         watch = SimulationProgress(m, desc="simulate_many", bar_format=_BAR_FORMAT)
-        report = None
+        report = watch
     else:
-        report = resolve_progress(progress, desc="simulate_many", unit="run")
-    trajectories = []
+        tell = resolve_progress(progress, desc="simulate_many", unit="run")
+        report = None if tell is None else (lambda done: tell(done, m))
+    trajectories = [None] * m
     try:
-        for i in range(m):
-            try:
-                traj = run(system, X0[i].copy(), t_final, simultaneity_tol=simultaneity_tol,
-                           options=options, max_groups=max_groups, section=section)
-            except (ValueError, RuntimeError) as exc:
-                if type(exc) not in (ValueError, RuntimeError):
-                    raise
-                where = ", ".join(str(int(j)) for j in np.unravel_index(i, lead)) if lead \
-                    else ""
-                raise type(exc)(f"the run from X0[{where}] = {X0[i]}: {exc}") from exc
-            trajectories.append(traj)
-            if watch is not None:
-                watch(i + 1)
-            elif report is not None:
-                report(i + 1, m)
+        parallel, first = threaded(system, section) and worker_count(m) > 1, 0
+        if parallel and not compiled_stops(system, section):  # not yet used: one run first
+            first = _serial(one, range(1), trajectories, report, X0, lead)
+        if parallel and worker_count(m - first) > 1:
+            _Workers(one, range(first, m), worker_count(m - first)).collect(
+                trajectories, report, X0, lead)
+        else:
+            _serial(one, range(first, m), trajectories, report, X0, lead)
     finally:
         if watch is not None:
             watch.close()
@@ -126,3 +179,137 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
     x_final = np.array([traj.x_final for traj in trajectories]).reshape(lead + (d,))
     masks = np.array([traj.mask_final for traj in trajectories], dtype=np.int64)
     return Trajectories(tuple(trajectories), x_final, masks.reshape(lead))
+
+
+def _named(exc, i, X0, lead):
+    """A run's ValueError or RuntimeError again, its message prefixed with the start state
+    (``exc`` itself for another exception)."""
+    if type(exc) not in (ValueError, RuntimeError):
+        return exc
+    where = ", ".join(str(int(j)) for j in np.unravel_index(i, lead)) if lead else ""
+    return type(exc)(f"the run from X0[{where}] = {X0[i]}: {exc}")
+
+
+def _raise(exc, i, X0, lead):
+    named = _named(exc, i, X0, lead)
+    if named is exc:
+        raise exc
+    raise named from exc
+
+
+def _serial(one, indices, trajectories, report, X0, lead) -> int:
+    """The runs of ``indices`` one after the other in this thread; the number done."""
+    for i in indices:
+        try:
+            trajectories[i] = one(i)
+        except (ValueError, RuntimeError) as exc:
+            _raise(exc, i, X0, lead)
+        if report is not None:
+            report(i + 1)
+    return len(indices)
+
+
+class _Stopped(BaseException):
+    """Raised in a thread's run to stop it (Ctrl-C, or an earlier run failed): a
+    BaseException, so that no ``except Exception`` of the run takes it for the run's."""
+
+
+class _Workers:
+    """The runs of ``indices``, taken in order by ``count`` threads.
+
+    Each thread takes the next index until none is left or the batch stops, and puts
+    ``(i, trajectory, exception)`` on a queue the calling thread reads
+    (:meth:`collect`).
+    """
+
+    def __init__(self, one, indices, count):
+        self.one, self.indices = one, indices
+        self.order = iter(indices)  # next() of a range iterator: atomic under the GIL
+        self.done = queue.SimpleQueue()
+        self.stop = threading.Event()
+        self.current = [None] * count  # the index each thread runs (None: none)
+        self.threads = [threading.Thread(target=self._work, args=(k,),
+                                         name=f"bderiv.simulate_many-{k}")
+                        for k in range(count)]
+
+    def _work(self, k):
+        try:
+            while not self.stop.is_set():
+                i = next(self.order, None)
+                if i is None:
+                    return
+                self.current[k] = i
+                try:
+                    traj, exc = self.one(i), None
+                except _Stopped:
+                    raise
+                except BaseException as error:  # noqa: BLE001 - the calling thread raises it
+                    traj, exc = None, error
+                finally:
+                    self.current[k] = None
+                self.done.put((i, traj, exc))
+                if exc is not None:
+                    return
+        except _Stopped:
+            return
+
+    def collect(self, trajectories, report, X0, lead) -> None:
+        """Run the threads, store their trajectories and call ``report(done)`` as they
+        finish; raise the first failing run's error (named), or what this thread meets
+        (Ctrl-C), after stopping the threads."""
+        done, total = len(trajectories) - len(self.indices), len(trajectories)
+        try:
+            for thread in self.threads:
+                thread.start()
+            failed = None
+            while done < total and failed is None:
+                try:
+                    i, traj, exc = self.done.get(timeout=_POLL)
+                except queue.Empty:
+                    continue
+                if exc is not None:
+                    failed = (i, exc)
+                    break
+                trajectories[i] = traj
+                done += 1
+                if report is not None:
+                    report(done)
+            if failed is not None:
+                failed = self._first_failure(*failed)
+                _raise(failed[1], failed[0], X0, lead)
+        except BaseException:
+            self._halt(after=-1)
+            self._join(time.monotonic() + _STOP_WAIT)
+            raise
+        self._join()
+
+    def _first_failure(self, i, exc):
+        """The failure of the lowest index: the runs after ``i`` stopped, those before it
+        (taken before it) run to their end."""
+        self._halt(after=i)
+        self._join()
+        while True:
+            try:
+                j, _, error = self.done.get_nowait()
+            except queue.Empty:
+                return i, exc
+            if error is not None and j < i:
+                i, exc = j, error
+
+    def _halt(self, after):
+        """No new runs; stop the threads' runs of an index above ``after``."""
+        self.stop.set()
+        for thread, i in zip(self.threads, list(self.current), strict=True):
+            if i is not None and i > after and thread.ident is not None:
+                # raised in the thread where its run next executes Python
+                ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread.ident),
+                                                           ctypes.py_object(_Stopped))
+
+    def _join(self, deadline=None):
+        """Wait for the threads (until ``deadline``, a ``time.monotonic()``), in short
+        waits: Ctrl-C is seen in between."""
+        for thread in self.threads:
+            while thread.is_alive():
+                if deadline is not None and time.monotonic() >= deadline:
+                    return
+                thread.join(_POLL)
