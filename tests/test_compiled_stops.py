@@ -28,6 +28,7 @@ from numpy.testing import assert_allclose
 from test_excursions import X0, C, T, closed_form
 
 from bderiv import HybridSystem
+from bderiv.models.compiled import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_NONE
 from bderiv.models.compiled import model as compiled_model
 from bderiv.models.integrate import run as run_module
 
@@ -140,13 +141,75 @@ def test_a_plain_run_is_one_compiled_call(monkeypatch):
     assert calls == {"compiled": 1, "python": 0}
 
 
-def test_a_model_without_compiled_event_jacobian_keeps_the_python_stops():
-    ex, system = pronking_pair(2)
-    field, events = system.compiled.named["field"], system.compiled.named["events"]
-    plain = HybridSystem(field, events, n_events=2, dim=4)
-    assert plain.compiled.event_jacobian is None
-    assert not run_module.compiled_stops(plain, None)
-    assert run_module.compiled_stops(system, None) == system.event_jacobian_checked()
+@numba.njit
+def tilted_events(x):
+    """Events written for any dtype (complex input: complex step)."""
+    out = np.empty(2, dtype=x.dtype)
+    out[0] = x[0] - 1.0 + 0.1 * np.sin(x[1])
+    out[1] = x[0] + 0.2 * x[1] ** 2 - 1.5
+    return out
+
+
+@numba.njit
+def tilted_event_jacobian(x):
+    return np.array([[1.0, 0.1 * np.cos(x[1]), 0.0], [1.0, 0.4 * x[1], 0.0]])
+
+
+@numba.njit
+def tilted_field(x, mask):
+    """Carried across both surfaces (x[0] grows), a region's rates its own."""
+    return np.array([1.0 + 0.2 * (mask & 1), 0.5 + 0.3 * (mask >> 1 & 1), -0.1 * x[0]])
+
+
+def test_without_a_given_event_jacobian_its_complex_step_is_compiled(monkeypatch):
+    """Events that compile for complex input and no ``event_jacobian``: the Jacobian is
+    their complex step in compiled code (the analytic one to rounding), checked once, and
+    the stops are compiled, with the Python loop's bits and the given Jacobian's map."""
+    given = HybridSystem(tilted_field, tilted_events, n_events=2, dim=3,
+                         event_jacobian=tilted_event_jacobian)
+    system = HybridSystem(tilted_field, tilted_events, n_events=2, dim=3)
+    assert system.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP
+    x = np.array([0.3, -0.7, 2.0])
+    assert_allclose(system.eval_event_jacobian(x), tilted_event_jacobian(x), rtol=1e-14,
+                    atol=1e-15)
+    assert system.event_jacobian_checked() and run_module.compiled_stops(system, None)
+    x0 = np.zeros(3)
+    fast, slow = both_ways(monkeypatch, system, lambda s: s.flow_bderivative(x0, 3.0))
+    assert fast.group_events == given.flow_bderivative(x0, 3.0).group_events
+    assert len(fast.group_events) == 2
+    V = np.random.default_rng(4).standard_normal((20, 3))
+    np.testing.assert_array_equal(fast(V), slow(V))
+    assert_allclose(fast(V), given.flow_bderivative(x0, 3.0)(V), rtol=1e-12, atol=1e-12)
+
+
+@numba.njit
+def kinked_events(x):
+    """Not complex-analytic: ``conj`` is the identity on reals, and its complex step -1."""
+    return np.array([np.conj(x[0]) - C])
+
+
+@numba.njit
+def python_event_jacobian_field(x, mask):
+    return np.array([x[1], -x[0], 1.0])
+
+
+def test_events_that_are_not_complex_analytic_keep_the_python_stops():
+    system = HybridSystem(oscillator_field, kinked_events, n_events=1, dim=3)
+    assert system.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP
+    J = system.eval_event_jacobian(np.array([0.5, 0.2, 0.0]))  # checked: wrong, numerical
+    assert_allclose(J, [[1.0, 0.0, 0.0]], atol=1e-8)
+    assert system.compiled.event_jac_mode == EVENT_JAC_NONE
+    assert not run_module.compiled_stops(system, None)
+    traj = system.simulate(X0, T)
+    x, log = closed_form(X0, T)
+    assert_allclose([r.time for r in traj.events], log, atol=1e-8)
+
+
+def test_a_python_event_jacobian_keeps_the_python_stops():
+    system = HybridSystem(python_event_jacobian_field, oscillator_events, n_events=1, dim=3,
+                          event_jacobian=lambda x: np.array([[1.0, 0.0, 0.0]]))
+    assert system.compiled.event_jac_mode == EVENT_JAC_NONE
+    assert not run_module.compiled_stops(system, None)
 
 
 def test_stops_handed_back_inside_a_run_against_the_closed_form(monkeypatch):

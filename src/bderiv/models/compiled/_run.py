@@ -19,10 +19,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..._limits import REACH
+from ..._limits import COMPLEX_STEP, REACH
 from ._dop853 import dense_rows
 from ._integrate import EVENT, FINISHED, N_STEPS, drive_stretch
-from ._rhs import OK, argument, call_events, events_rows
+from ._rhs import OK, argument, call_events, coordinate_scale, events_rows
 from .rules import (
     GROUP,
     NEAR,
@@ -41,6 +41,11 @@ from .rules import (
 #: the run ended (final time or the section) / the next stretch is the Python loop's
 ENDED = 0
 HANDOFF = 1
+#: how the event Jacobian is had in compiled code: the given ``event_jacobian``, complex step
+#: of ``events``; none (the Python loop's: a Python or numerical one)
+EVENT_JAC_GIVEN = 0
+EVENT_JAC_COMPLEX_STEP = 1
+EVENT_JAC_NONE = 2
 
 
 @njit(cache=True)
@@ -54,15 +59,31 @@ def _room(a, need):
 
 
 @njit(cache=True)
-def _event_jacobian(model, x, n, d):
-    """The model's event Jacobian at ``x``: ``(ok, J)``, J (n, d) checked (shape, finite)."""
-    J = model.event_jacobian(argument(model, x))
-    if J.shape[0] != n or J.shape[1] != d:
-        return False, np.zeros((n, d))
+def event_jacobian(model, mode, x, n, d):
+    """The event Jacobian at ``x`` by ``mode``: ``(ok, J)``, J (n, d) checked (shape,
+    finite). Complex step: column j is ``Im events(x + i h e_j) / h``, h as the field's."""
+    if mode == EVENT_JAC_GIVEN:
+        J = model.event_jacobian(argument(model, x))
+        if J.shape[0] != n or J.shape[1] != d:
+            return False, np.zeros((n, d))
+        J = np.ascontiguousarray(J).copy()
+    else:
+        base = argument(model, x)
+        z = np.empty(base.size, dtype=np.complex128)
+        J = np.empty((n, d))
+        for j in range(d):
+            h = COMPLEX_STEP * coordinate_scale(x[j])
+            z[:] = base
+            z[j] = complex(x[j], h)
+            v = model.cevents(z)
+            if v.size != n:
+                return False, J
+            for k in range(n):
+                J[k, j] = v[k].imag / h
     for v in J.ravel():
         if not np.isfinite(v):
             return False, J
-    return True, np.ascontiguousarray(J).copy()
+    return True, J
 
 
 @njit(cache=True)
@@ -104,10 +125,12 @@ def _plain_screen(model, sign, n, d, ts, ys, steps, Fd, J, atol, rtol):
 
 
 @njit(cache=True, nogil=True)
-def run_stretches(model, jac_mode, variational, with_section, n, d, t, x, mask, scale, err,
+def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, n, d, t, x,
+                  mask, scale, err,
                   t_final, rtol, atol, max_step, simultaneity_tol, all_checked, checked,
                   groups_left, budget):
-    """The run's stretches from ``(t, x)`` in region ``mask`` while the stops are plain.
+    """The run's stretches from ``(t, x)`` in region ``mask`` while the stops are plain
+    (the event Jacobian by ``event_jac_mode``, not ``EVENT_JAC_NONE``).
 
     ``scale``, ``err`` (d,): the largest ``|x_i|`` so far and the error bound carried into
     the stretch; ``atol`` (m,): the driver's, one per integrated component; ``checked``
@@ -168,7 +191,7 @@ def run_stretches(model, jac_mode, variational, with_section, n, d, t, x, mask, 
         if status != EVENT and status != FINISHED:
             break
         x_end = y_end[:d].copy()
-        ok, J = _event_jacobian(model, x_end, n, d)
+        ok, J = event_jacobian(model, event_jac_mode, x_end, n, d)
         if not ok or not _plain_screen(model, sign, n, d, ts, ys, steps_, Fd, J, atol[0],
                                        rtol):
             break

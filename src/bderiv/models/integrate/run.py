@@ -25,7 +25,7 @@ from scipy.integrate import OdeSolver
 from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, GLOBAL_ERROR_FACTOR, MAX_GROUPS, MIN_RTOL
 from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
-from ..compiled import ENDED
+from ..compiled import ENDED, EVENT_JAC_NONE
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
 from ..events.locate import StopCalls, orientation, settle
@@ -303,11 +303,13 @@ class _Now:
 
 
 def compiled_stops(system, section) -> bool:
-    """Whether the run's plain stops are decided in compiled code: a compiled model with a
-    compiled ``event_jacobian`` (checked once already, when it is checked), no resets, and
-    a compiled section if any (:meth:`bderiv.models.compiled.CompiledModel.run_stretches`)."""
+    """Whether the run's plain stops are decided in compiled code: a compiled model whose
+    event Jacobian is had in compiled code (given compiled, or by complex step; checked
+    once already, when it is checked), without resets
+    (:meth:`bderiv.models.compiled.CompiledModel.run_stretches`; a section is compiled
+    with a compiled model)."""
     model = getattr(system, "compiled", None)
-    if model is None or model.event_jacobian is None or system.has_resets:
+    if model is None or model.event_jac_mode == EVENT_JAC_NONE or system.has_resets:
         return False
     return system.event_jacobian_checked()
 
