@@ -4,39 +4,38 @@ The runs are independent: :func:`~bderiv.models.integrate.run.run` from each sta
 Each run is exactly the one ``simulate`` makes (the same trajectory, to the bit); what the
 batch adds is one validation of the settings, a progress bar of the runs done, errors that
 name the start state they came from, and, on a compiled model whose stops are decided in
-compiled code (a compiled ``event_jacobian``, no resets: :func:`.run.compiled_stops`), runs
-side by side on threads.
+compiled code (:func:`threaded`), runs side by side on threads.
 
 Why Python threads and not a numba ``prange``: a run's output has a size known only at its
-end (its samples, its event groups), and any stop the compiled run cannot decide (a peak to
+end (its samples, its event groups), and a stop the compiled run cannot decide (a peak to
 search, a return across a surface, a refusal to word) is handed back to the Python stop
-logic in the middle of the run. So each thread runs a whole ``run``; its compiled run
+logic in the middle of the run. So each thread makes whole runs; the compiled run
 (:func:`bderiv.models.compiled._run.run_stretches`, ``nogil``) releases the GIL, so that
-the threads' compiled stretches run on the cores at once, and they take the GIL only for
-the Python between them. A Python model, or a compiled one whose stops are all Python's
-(no compiled ``event_jacobian``, or resets), runs its batch one run after the other:
-threads would only take turns at the GIL.
+the threads' compiled stretches run on the cores at once, and takes it only for the Python
+around them. The Python parts (a run's set-up and records, the stops handed back, whose
+stretches' driver holds the GIL) run one at a time: the gain is the share of compiled time.
+A Python model, or a compiled one whose stops are all Python's (its event Jacobian not had
+in compiled code, or resets), runs its batch one run after the other: threads would only
+take turns at the GIL.
 
-Thread safety. What a run shares with the others: the model's compiled functions and its
-struct and atol caches (``CompiledModel``: built once, then read; two threads building the
-same entry build equal ones), its set of checked Jacobians (``HybridSystem._checked``: a set,
-one ``add`` per check, the check itself is pure), the measured cost of a slice of steps
-(``_slices._cost``: a dict entry per model, it sets only where a run hands back, never its
-bits) and numba's dispatchers (their compilation holds numba's lock). A run's
-``StopCalls`` and its ``SimulationProgress`` are its own (the compiled path never draws the
-latter). The numerical-Jacobian cost counters are not touched: such a model's event
-Jacobian is compiled, and a field Jacobian is computed only with the variational equations,
-which ``simulate`` does not integrate. A model not yet used runs its first start state alone
-first (its functions compiled, its event Jacobian checked), then the rest in threads.
-The bar of runs done and ``progress(done, total)`` are drawn and called by the calling
-thread only, as runs finish.
+Thread safety. The runs share the model's compiled functions, its struct and atol caches
+(``CompiledModel``: built once, then read; two threads building an entry build equal ones),
+its set of checked Jacobians (``HybridSystem._checked``: one ``add`` per check), the
+measured cost of a slice of steps (``_slices._cost``: it sets where a run hands back, never
+its bits) and numba's dispatchers (a compilation holds numba's lock). A run's ``StopCalls``
+and ``SimulationProgress`` are its own (the compiled path never draws the latter). The
+numerical-Jacobian cost counters are not touched: such a model's event Jacobian is had in
+compiled code, and a field Jacobian only with the variational equations, which ``simulate``
+does not integrate. The first runs go alone, until one has checked the event Jacobian (a
+complex step found wrong is replaced by a numerical one: the loop's first check decides),
+the rest on threads. The bar of runs done and ``progress(done, total)`` are drawn and
+called by the calling thread, as runs finish.
 
 Errors: the error of the first failing run in the order of the start states, as the loop
-would raise it (runs are taken in that order: the earlier ones still running finish, the
-later ones stop). Ctrl-C stops the batch within a second: the calling thread waits in
-short slices, and each thread's run is stopped where it next returns to Python (a compiled
-run returns between slices of steps of about 0.2 s; a Python one at every field
-evaluation).
+raises it (runs are taken in that order: the earlier ones still running finish, the later
+ones stop). Ctrl-C stops the batch within a second: the calling thread waits in short
+slices, and each thread's run is stopped where it next executes Python (a compiled run
+returns between slices of steps of about 0.2 s; a Python one at every field evaluation).
 """
 
 from __future__ import annotations
@@ -52,6 +51,7 @@ import numpy as np
 
 from ..._progress import SimulationProgress, resolve_progress
 from ..._validate import check_number, check_points, check_positive_int
+from ..compiled import EVENT_JAC_NONE
 from .run import compiled_stops, run
 
 __all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count"]
@@ -104,11 +104,13 @@ def check_states(X0, dim: int) -> tuple[np.ndarray, tuple]:
 
 
 def threaded(system, section=None) -> bool:
-    """Whether a batch of ``system`` runs on threads: a compiled model with a compiled
-    ``event_jacobian`` and no resets, whose runs spend their time in the compiled run,
-    which releases the GIL (a Python stop logic would hold it)."""
+    """Whether a batch of ``system`` runs on threads: a compiled model whose stops are
+    decided in compiled code (its event Jacobian had there: given compiled, or by complex
+    step; no resets), whose runs spend their time in the compiled run, which releases the
+    GIL (:func:`.run.compiled_stops` once the event Jacobian is checked)."""
     model = getattr(system, "compiled", None)
-    return model is not None and model.event_jacobian is not None and not system.has_resets
+    return model is not None and model.event_jac_mode != EVENT_JAC_NONE and \
+        not system.has_resets
 
 
 def worker_count(m: int) -> int:
@@ -163,11 +165,16 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
         tell = resolve_progress(progress, desc="simulate_many", unit="run")
         report = None if tell is None else (lambda done: tell(done, m))
     trajectories = [None] * m
+    def parallel(first):
+        return worker_count(m - first) > 1 and threaded(system, section)
+
     try:
-        parallel, first = threaded(system, section) and worker_count(m) > 1, 0
-        if parallel and not compiled_stops(system, section):  # not yet used: one run first
-            first = _serial(one, range(1), trajectories, report, X0, lead)
-        if parallel and worker_count(m - first) > 1:
+        first = 0
+        # runs alone until one has checked the event Jacobian (whose check may change how
+        # the model computes it): the order of the loop of simulate
+        while parallel(first) and not compiled_stops(system, section):
+            first += _serial(one, range(first, first + 1), trajectories, report, X0, lead)
+        if parallel(first):
             _Workers(one, range(first, m), worker_count(m - first)).collect(
                 trajectories, report, X0, lead)
         else:
