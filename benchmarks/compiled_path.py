@@ -19,7 +19,9 @@ and loading the driver; the library's own kernels are loaded before) is reported
 not charged. Printed: the times, the ratios, and
 the agreement of the two paths (end states, flow maps on random directions, event logs).
 ``--quick`` runs the smallest and largest model only; ``--many`` times ``simulate_many`` of
-64 starts against a loop of ``simulate`` on the compiled model (smallest and largest).
+64 starts against a loop of ``simulate`` on the compiled model (smallest and largest;
+perturbed starts, whose stops go back to Python, and level ones, all compiled), and
+``flow_fd`` at d = 8 with its batch on threads against one thread.
 ``--perturbed`` times runs from perturbed starts (the feet land apart) against the run from
 the apex, on both paths, with the excursion screen as it is and with its end rule off (every
 bracket at a stretch's end searched, as before: ``perturbed``), and ``flow_fd`` at d = 8.
@@ -38,6 +40,7 @@ from compiled_integrator import best  # min wall time of repeated calls (benchma
 from bderiv.checks import FD_SIMULTANEITY_TOL
 from bderiv.models.events import excursions
 from bderiv.models.integrate import compiled_path as compiled_stretches
+from bderiv.models.integrate import many as many_runs
 from bderiv.models.integrate import scipy_path
 from bderiv.models.system import HybridSystem
 
@@ -197,29 +200,62 @@ def main(sizes=SIZES):
 
 def many(sizes=(SIZES[0], SIZES[-1]), batch=64):
     """``simulate_many`` of ``batch`` starts near the apex against a loop of ``simulate``
-    on the compiled model (the same runs: the batch is a loop in this process); the feet
-    of a perturbed start land apart, so they switch one by one (``FD_SIMULTANEITY_TOL``)."""
-    print(f"simulate_many of {batch} starts against a loop of simulate (compiled model); "
-          f"min over {ROUNDS} alternated rounds; times in ms")
+    on the compiled model (the batch's runs on threads: ``integrate.many``); the feet of a
+    perturbed start land apart, so they switch one by one (``FD_SIMULTANEITY_TOL``), and
+    those stops are handed back to the Python loop; level starts (z and its rate perturbed)
+    keep the feet together, every stop in compiled code. Then ``flow_fd`` at d = 8, the
+    batch on threads against one thread. Wall and CPU (all threads) times, ms."""
+    print(f"simulate_many of {batch} starts against a loop of simulate (compiled model, "
+          f"{many_runs.worker_count(batch)} threads); min over {ROUNDS} alternated rounds; "
+          f"wall (CPU) ms")
     for k, p in sizes:
         compiled, _, x0 = systems(k, p)
-        X0 = x0 + 1e-4 * np.random.default_rng(1).standard_normal((batch, x0.size))
-        warm = X0[:2]  # compiled and warm
-        compiled.simulate_many(warm, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL)
-        runs = {"many": [], "loop": []}
-        gc.disable()
-        try:
-            for _ in range(ROUNDS):
-                runs["many"].append(best(lambda s=compiled, X=X0: s.simulate_many(
-                    X, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL), 1)[0])
-                runs["loop"].append(best(lambda s=compiled, X=X0: [s.simulate(
-                    x, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL) for x in X], 1)[0])
-        finally:
-            gc.enable()
-        t_many, t_loop = min(runs["many"]), min(runs["loop"])
-        print(f"k={k} p={p} d={x0.size}: simulate_many {t_many * 1e3:.1f} ms "
-              f"({t_many / batch * 1e3:.2f} per run), loop {t_loop * 1e3:.1f} ms: "
-              f"{t_loop / t_many:.2f}x", flush=True)
+        d = x0.size
+        level = np.tile(x0, (batch, 1))
+        level[:, [0, d // 2]] += 1e-4 * np.random.default_rng(1).standard_normal((batch, 2))
+        starts = {"perturbed": x0 + 1e-4 * np.random.default_rng(1).standard_normal(
+            (batch, d)), "level": level}
+        for name, X0 in starts.items():
+            compiled.simulate_many(X0[:2], T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL)
+            runs = {"many": [], "loop": []}
+            gc.disable()
+            try:
+                for _ in range(ROUNDS):
+                    runs["many"].append(_timed(lambda s=compiled, X=X0: s.simulate_many(
+                        X, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL)))
+                    runs["loop"].append(_timed(lambda s=compiled, X=X0: [s.simulate(
+                        x, T_FINAL, simultaneity_tol=FD_SIMULTANEITY_TOL) for x in X]))
+            finally:
+                gc.enable()
+            (w_many, c_many), (w_loop, c_loop) = (min(runs[key]) for key in ("many", "loop"))
+            print(f"k={k} p={p} d={d} {name:>9}: simulate_many {w_many * 1e3:.1f} "
+                  f"({c_many * 1e3:.1f}), loop {w_loop * 1e3:.1f} ({c_loop * 1e3:.1f}): "
+                  f"{w_loop / w_many:.2f}x", flush=True)
+    compiled, _, x0 = systems(*SIZES[0])
+    d = x0.size
+    compiled.flow_fd(x0, T_FINAL, np.eye(d)[:2], 1e-6)
+    fd, threads = {}, many_runs.worker_count
+    gc.disable()
+    try:
+        for _ in range(ROUNDS):
+            for name, count in (("threads", threads), ("one", lambda m: 1)):
+                many_runs.worker_count = count
+                fd.setdefault(name, []).append(_timed(
+                    lambda: compiled.flow_fd(x0, T_FINAL, np.eye(d), 1e-6)))
+    finally:
+        many_runs.worker_count = threads
+        gc.enable()
+    (w_t, c_t), (w_1, c_1) = min(fd["threads"]), min(fd["one"])
+    print(f"flow_fd(x0, {T_FINAL}, I, 1e-6) at d = {d} (1 + {d} runs): threads {w_t * 1e3:.1f} "
+          f"({c_t * 1e3:.1f}), one thread {w_1 * 1e3:.1f} ({c_1 * 1e3:.1f}): "
+          f"{w_1 / w_t:.2f}x", flush=True)
+
+
+def _timed(job):
+    """``(wall, CPU)`` seconds of ``job()`` (CPU of all the process's threads)."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    job()
+    return time.perf_counter() - wall, time.process_time() - cpu
 
 
 class _UnknownRates(excursions._EndRates):

@@ -262,9 +262,13 @@ class HybridSystem(ModelCalls):
         """:meth:`simulate` from every start state of a batch.
 
         Each run is the one :meth:`simulate` makes from that state (the same trajectory,
-        to the bit), one after the other in this process
-        (:mod:`bderiv.models.integrate.many`: the stop logic is Python, so the runs are not
-        spread over threads; a compiled model integrates each stretch in compiled code).
+        to the bit). On a compiled model whose stops are decided in compiled code (its
+        event Jacobian given compiled or had by complex step, no resets) the runs go on
+        ``numba.config.NUMBA_NUM_THREADS`` threads, whose compiled stretches run at once
+        (the compiled run releases the GIL; the Python parts of the runs take turns);
+        otherwise one after the other in this thread, where threads would only take turns
+        at the GIL (:mod:`bderiv.models.integrate.many`). Ctrl-C stops the batch within a
+        second.
 
         Parameters
         ----------
@@ -277,7 +281,7 @@ class HybridSystem(ModelCalls):
         progress : None, bool or callable ``progress(done, total)``, optional
             None: a bar of the runs done, drawn once the batch has lasted a few seconds
             (on a terminal); False: none; True: a tqdm bar from the start; a callable:
-            called after each run.
+            called after each run (in the calling thread, as runs finish).
 
         Returns
         -------
@@ -291,7 +295,8 @@ class HybridSystem(ModelCalls):
         TypeError, ValueError
             On a bad argument (named; ``X0`` of another shape than (..., d), or not
             finite: the row is named); a run's ValueError or RuntimeError with the index
-            and value of its start state before the message.
+            and value of its start state before the message (the first failing run in
+            the order of ``X0``, as a loop would raise it).
 
         Examples
         --------

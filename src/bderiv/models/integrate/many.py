@@ -32,18 +32,16 @@ the rest on threads. The bar of runs done and ``progress(done, total)`` are draw
 called by the calling thread, as runs finish.
 
 Errors: the error of the first failing run in the order of the start states, as the loop
-raises it (runs are taken in that order: the earlier ones still running finish, the later
-ones stop). Ctrl-C stops the batch within a second: the calling thread waits in short
-slices, and each thread's run is stopped where it next executes Python (a compiled run
-returns between slices of steps of about 0.2 s; a Python one at every field evaluation).
+raises it (runs are taken in that order: the earlier ones still going are waited for; no
+later one starts). Ctrl-C stops the batch within a second: the calling thread waits in
+short slices and raises, and no thread takes another run; a run going in a thread finishes
+there (a compiled run cannot be stopped from outside: :class:`_Workers`).
 """
 
 from __future__ import annotations
 
-import ctypes
 import queue
 import threading
-import time
 from dataclasses import dataclass
 
 import numba
@@ -61,8 +59,6 @@ _BAR_FORMAT = ("{desc}: {percentage:3.0f}%|{bar}| {n:.0f} of {total:.0f} runs "
                "[{elapsed}<{remaining}]")
 #: seconds the calling thread waits for a run at a time (it sees Ctrl-C in between)
 _POLL = 0.05
-#: seconds the calling thread waits for the threads' runs to stop after Ctrl-C
-_STOP_WAIT = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,17 +212,15 @@ def _serial(one, indices, trajectories, report, X0, lead) -> int:
     return len(indices)
 
 
-class _Stopped(BaseException):
-    """Raised in a thread's run to stop it (Ctrl-C, or an earlier run failed): a
-    BaseException, so that no ``except Exception`` of the run takes it for the run's."""
-
-
 class _Workers:
     """The runs of ``indices``, taken in order by ``count`` threads.
 
     Each thread takes the next index until none is left or the batch stops, and puts
-    ``(i, trajectory, exception)`` on a queue the calling thread reads
-    (:meth:`collect`).
+    ``(i, trajectory, exception)`` on a queue the calling thread reads (:meth:`collect`).
+    A run already going is not stopped from outside: compiled code does not see signals,
+    and an exception set in the thread (``PyThreadState_SetAsyncExc``) lands anywhere,
+    even between a lock's acquire and the ``try`` that releases it (numba's compiler lock:
+    seen deadlocking the next compilation).
     """
 
     def __init__(self, one, indices, count):
@@ -234,89 +228,54 @@ class _Workers:
         self.order = iter(indices)  # next() of a range iterator: atomic under the GIL
         self.done = queue.SimpleQueue()
         self.stop = threading.Event()
-        self.current = [None] * count  # the index each thread runs (None: none)
-        self.threads = [threading.Thread(target=self._work, args=(k,),
-                                         name=f"bderiv.simulate_many-{k}")
+        self.threads = [threading.Thread(target=self._work, name=f"bderiv.simulate_many-{k}")
                         for k in range(count)]
 
-    def _work(self, k):
-        try:
-            while not self.stop.is_set():
-                i = next(self.order, None)
-                if i is None:
-                    return
-                self.current[k] = i
-                try:
-                    traj, exc = self.one(i), None
-                except _Stopped:
-                    raise
-                except BaseException as error:  # noqa: BLE001 - the calling thread raises it
-                    traj, exc = None, error
-                finally:
-                    self.current[k] = None
-                self.done.put((i, traj, exc))
-                if exc is not None:
-                    return
-        except _Stopped:
-            return
+    def _work(self):
+        while not self.stop.is_set():
+            i = next(self.order, None)
+            if i is None:
+                return
+            try:
+                self.done.put((i, self.one(i), None))
+            except BaseException as exc:  # noqa: BLE001 - the calling thread raises it
+                self.done.put((i, None, exc))
+                return
 
     def collect(self, trajectories, report, X0, lead) -> None:
         """Run the threads, store their trajectories and call ``report(done)`` as they
-        finish; raise the first failing run's error (named), or what this thread meets
-        (Ctrl-C), after stopping the threads."""
-        done, total = len(trajectories) - len(self.indices), len(trajectories)
+        finish. Raise the first failing run's error in the order of the indices (named),
+        once every run before it has finished; or what this thread meets (Ctrl-C) at
+        once. Either way no thread takes another run; the runs going finish in their
+        threads."""
+        start = self.indices.start
+        reported = np.zeros(len(self.indices), dtype=bool)
+        low, failed = 0, None  # the first index not reported; (i, exc) of the first failure
+        done = start
         try:
             for thread in self.threads:
                 thread.start()
-            failed = None
-            while done < total and failed is None:
+            while low < reported.size and (failed is None or start + low < failed[0]):
                 try:
                     i, traj, exc = self.done.get(timeout=_POLL)
                 except queue.Empty:
                     continue
+                reported[i - start] = True
+                while low < reported.size and reported[low]:
+                    low += 1
                 if exc is not None:
-                    failed = (i, exc)
-                    break
+                    self.stop.set()
+                    if failed is None or i < failed[0]:
+                        failed = (i, exc)
+                    continue
                 trajectories[i] = traj
                 done += 1
                 if report is not None:
                     report(done)
-            if failed is not None:
-                failed = self._first_failure(*failed)
-                _raise(failed[1], failed[0], X0, lead)
-        except BaseException:
-            self._halt(after=-1)
-            self._join(time.monotonic() + _STOP_WAIT)
-            raise
-        self._join()
-
-    def _first_failure(self, i, exc):
-        """The failure of the lowest index: the runs after ``i`` stopped, those before it
-        (taken before it) run to their end."""
-        self._halt(after=i)
-        self._join()
-        while True:
-            try:
-                j, _, error = self.done.get_nowait()
-            except queue.Empty:
-                return i, exc
-            if error is not None and j < i:
-                i, exc = j, error
-
-    def _halt(self, after):
-        """No new runs; stop the threads' runs of an index above ``after``."""
-        self.stop.set()
-        for thread, i in zip(self.threads, list(self.current), strict=True):
-            if i is not None and i > after and thread.ident is not None:
-                # raised in the thread where its run next executes Python
-                ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread.ident),
-                                                           ctypes.py_object(_Stopped))
-
-    def _join(self, deadline=None):
-        """Wait for the threads (until ``deadline``, a ``time.monotonic()``), in short
-        waits: Ctrl-C is seen in between."""
-        for thread in self.threads:
+        finally:
+            self.stop.set()
+        if failed is not None:
+            _raise(failed[1], failed[0], X0, lead)
+        for thread in self.threads:  # each ends at its next index (none left)
             while thread.is_alive():
-                if deadline is not None and time.monotonic() >= deadline:
-                    return
                 thread.join(_POLL)
