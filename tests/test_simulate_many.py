@@ -110,7 +110,9 @@ def test_progress_callback_after_each_run_and_the_bar(monkeypatch):
     assert "simulate_many: " in buffer.getvalue() and "3 of 3 runs" in buffer.getvalue()
 
 
-def test_ctrl_c_stops_a_long_compiled_batch_within_a_second():
+def test_ctrl_c_stops_a_long_compiled_batch_within_a_second(monkeypatch):
+    """One thread: the run Ctrl-C lands in stops too (the threaded batch: further down)."""
+    monkeypatch.setattr(many, "worker_count", lambda m: 1)
     system = HybridSystem(slow_rotation, far_event, n_events=1, dim=2)
     system.simulate(np.array([1.0, 0.0]), 1.0)  # compiled and warm
     X0 = np.tile([1.0, 0.0], (3, 1))  # each run: 1e7 steps

@@ -228,8 +228,9 @@ class _Workers:
         self.order = iter(indices)  # next() of a range iterator: atomic under the GIL
         self.done = queue.SimpleQueue()
         self.stop = threading.Event()
-        self.threads = [threading.Thread(target=self._work, name=f"bderiv.simulate_many-{k}")
-                        for k in range(count)]
+        # daemons: after Ctrl-C the interpreter may exit without waiting for the runs going
+        self.threads = [threading.Thread(target=self._work, name=f"bderiv.simulate_many-{k}",
+                                         daemon=True) for k in range(count)]
 
     def _work(self):
         while not self.stop.is_set():
