@@ -10,21 +10,20 @@ check a run whose stops go back and forth between the two.
 
 from __future__ import annotations
 
-import time
-
 import numba
 import numpy as np
 import pytest
-from compiled_models import (
-    LONG_RUN,
-    apex_section,
-    chair_pair,
-    ctrl_c_after,
-    far_event,
-    pronking_pair,
-    slow_rotation,
-)
+from compiled_models import apex_section, chair_pair, pronking_pair
 from numpy.testing import assert_allclose
+from test_compiled_path import (  # test_excursions' oscillator, a bouncing ball
+    GRAVITY,
+    RESTITUTION,
+    ball_events,
+    ball_field,
+    ball_reset,
+    grazing_events,
+    grazing_field,
+)
 from test_excursions import X0, C, T, closed_form
 
 from bderiv import HybridSystem
@@ -64,17 +63,6 @@ def both_ways(monkeypatch, system, run):
         python_stops(m)
         slow = run(system)
     return fast, slow
-
-
-@numba.njit
-def oscillator_field(x, mask):
-    """test_excursions' oscillator (its excursions fall inside steps), the clock x[2]."""
-    return np.array([x[1], -x[0] - (2.0 if mask & 1 else 0.0), 1.0])
-
-
-@numba.njit
-def oscillator_events(x):
-    return np.array([x[0] - C])
 
 
 @numba.njit
@@ -194,7 +182,7 @@ def python_event_jacobian_field(x, mask):
 
 
 def test_events_that_are_not_complex_analytic_keep_the_python_stops():
-    system = HybridSystem(oscillator_field, kinked_events, n_events=1, dim=3)
+    system = HybridSystem(grazing_field, kinked_events, n_events=1, dim=3)
     assert system.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP
     J = system.eval_event_jacobian(np.array([0.5, 0.2, 0.0]))  # checked: wrong, numerical
     assert_allclose(J, [[1.0, 0.0, 0.0]], atol=1e-8)
@@ -206,7 +194,7 @@ def test_events_that_are_not_complex_analytic_keep_the_python_stops():
 
 
 def test_a_python_event_jacobian_keeps_the_python_stops():
-    system = HybridSystem(python_event_jacobian_field, oscillator_events, n_events=1, dim=3,
+    system = HybridSystem(python_event_jacobian_field, grazing_events, n_events=1, dim=3,
                           event_jacobian=lambda x: np.array([[1.0, 0.0, 0.0]]))
     assert system.compiled.event_jac_mode == EVENT_JAC_NONE
     assert not run_module.compiled_stops(system, None)
@@ -216,7 +204,7 @@ def test_stops_handed_back_inside_a_run_against_the_closed_form(monkeypatch):
     """test_excursions' oscillator: its first crossing, inside a step, is searched by the
     Python loop (handed back), the stops after it decided in compiled code; ten crossings
     at the closed form's times, and the same bits as the Python loop alone."""
-    system = HybridSystem(oscillator_field, oscillator_events, n_events=1, dim=3,
+    system = HybridSystem(grazing_field, grazing_events, n_events=1, dim=3,
                           event_jacobian=oscillator_event_jacobian)
     system.simulate(X0, 1.0)  # the event Jacobian checked
     with monkeypatch.context() as m:
@@ -266,40 +254,7 @@ def test_refusals_are_the_python_loops(monkeypatch, call):
     assert fast == slow
 
 
-@numba.njit
-def far_event_jacobian(x):
-    return np.array([[1.0, 0.0]])
-
-
-def test_ctrl_c_stops_a_long_run_of_compiled_stops_within_a_second():
-    system = HybridSystem(slow_rotation, far_event, n_events=1, dim=2,
-                          event_jacobian=far_event_jacobian)
-    system.simulate(np.array([1.0, 0.0]), 1.0)  # compiled and warm
-    assert run_module.compiled_stops(system, None)
-    with ctrl_c_after(0.3) as start, pytest.raises(KeyboardInterrupt):
-        system.simulate(np.array([1.0, 0.0]), LONG_RUN, max_step=1e-3)
-    assert time.perf_counter() - start < 0.3 + 1.0
-
-
 # --- resets in the compiled run --------------------------------------------------------
-
-GRAVITY, RESTITUTION = 9.81, 0.8
-
-
-@numba.njit
-def ball_field(x, mask):
-    return np.array([x[1], -GRAVITY + 0.0 * x[0]])
-
-
-@numba.njit
-def ball_events(x):
-    return np.array([-x[0]])
-
-
-@numba.njit
-def ball_reset(x, mask, k):
-    return np.array([x[0], -RESTITUTION * x[1]])
-
 
 def test_a_bouncing_ball_in_one_compiled_call(monkeypatch):
     """Each impact sends the ball back up (a bounce: the bit stays clear): the compiled
