@@ -135,7 +135,7 @@ def _plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J,
     tolerances(J, err, tol)
     if return_sample(H, tol) >= 0:
         return False
-    rows = peak_rows(H, tol, True, REACH)
+    rows = peak_rows(H, tol, np.bool_(True), REACH)
     if rows.shape[0] == 0:
         return True
     # the rates at the stretch's ends, where a bracket there that the event leaves from, or
@@ -165,7 +165,7 @@ def _plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J,
             return False
         for r in range(FINE_SAMPLES):
             V[r, 0] = sign[k] * G[r, k]
-        sub = peak_rows(V, tol[k:k + 1].copy(), False, FINE_REACH)
+        sub = peak_rows(V, tol[k:k + 1].copy(), np.bool_(False), FINE_REACH)
         for c in range(sub.shape[0]):
             a, z = max(sub[c, 1] - 1, 0), min(sub[c, 1] + 1, FINE_SAMPLES - 1)
             if not (lo == 0 and a == 0 and rate_start[k] < 0.0) and \
@@ -235,7 +235,7 @@ def _landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, 
     (:func:`bderiv.models.events.crossings.landing`, and its refusal of a jump across
     another surface); not ok for a refusal or a failed check."""
     h = np.empty(n)
-    if call_events(model, False, x_after, n, h, np.empty(d)) != OK:
+    if call_events(model, np.bool_(False), x_after, n, h, np.empty(d)) != OK:
         return False, new
     for k in range(n):
         h[k] *= sign[k]
@@ -325,10 +325,11 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
             for i in range(d):
                 y0[d + i * d + i] = 1.0
         forced = n if with_section and t == 0.0 else -1
+        # no literal arguments: a callee is compiled again for each literal type it meets
         status, t_end, y_end, ts, ys, steps_, Fd, active, roots, counts, _, _, _ = \
             drive_stretch(model, jac_mode, variational, with_section, n + with_section, mask,
-                          d, t, y0, t_final, rtol, atol, max_step, 0.0, forced,
-                          budget - steps, True)
+                          d, t, y0, t_final, rtol, atol, max_step, np.float64(0.0),
+                          forced, budget - steps, np.bool_(True))
         steps += counts[N_STEPS]
         if status != EVENT and status != FINISHED:
             break
@@ -353,7 +354,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         new, x_after, bits = mask, x_end, np.int64(0)
         if event:
             h = np.empty(n)
-            if call_events(model, False, x_end, n, h, np.empty(d)) != OK:
+            if call_events(model, np.bool_(False), x_end, n, h, np.empty(d)) != OK:
                 break
             ok, F = _field(model, x_end, mask, d)
             if not ok:
