@@ -4,14 +4,15 @@
 :func:`bderiv.models.integrate.run.run` does for each stretch of a compiled model: the
 driver integrates the region to the final time or the first crossing, the excursion
 screen samples the dense output, the stop is examined (state error, rates, windows,
-classes) and the group switched after its transversality checks, all by the rules of
-:mod:`.rules` that the Python stop logic calls too, on the same values, so the bits are
-the same. A stop that needs more is handed back: the function returns the run's state
-before that stretch, and the Python loop integrates the stretch and decides its stop (a
-peak to search inside a step, a return across a surface, undecided events of a
-derivative, a refusal to word, a model with resets, a region whose field Jacobian is not
-yet checked, a full step budget, a failed check of a user function). What this function
-records is then exactly what the Python loop would have.
+classes; undecided events of a derivative settled by integrating again, tighter, as
+:func:`bderiv.models.events.locate.settle` does) and the group switched after its
+transversality checks (compiled resets applied, where they land decided), all by the
+rules of :mod:`.rules` that the Python stop logic calls too, on the same values, so the
+bits are the same. A stop that needs more is handed back: the function returns the run's
+state before that stretch, and the Python loop integrates the stretch and decides its stop
+(a peak to search inside a step, a return across a surface, a refusal to word, a region
+whose field Jacobian is not yet checked, a full step budget, a failed check of a user
+function). What this function records is then exactly what the Python loop would have.
 """
 
 from __future__ import annotations
