@@ -90,7 +90,7 @@ def initial_step(model, jac_mode, variational, mask, d, t0, y0, f0, t_bound, max
     return OK, min(100.0 * h0, h1, interval, max_step)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _stage_point(y, K, row, s, h, out):
     """``out = y + h * (K[:s].T @ A[row, :s])`` (scipy's ``y + dot(K[:s].T, a[:s]) * h``).
 
@@ -129,7 +129,7 @@ def step(model, jac_mode, variational, mask, d, y, h, K, y_new, ys, bad):
     return rhs(model, jac_mode, variational, mask, d, y_new, K[N_STAGES], bad)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def error_norm(K, h, y, y_new, rtol, atol):
     """scipy's combined 5th / 3rd order error estimate of DOP853, scaled RMS norm."""
     m = y.size

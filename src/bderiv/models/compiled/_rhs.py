@@ -68,7 +68,7 @@ def all_finite(a):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def finite_vector(v):
     """True when every entry of the 1-D array ``v`` is finite (no view made: the hot path)."""
     for j in range(v.size):
@@ -84,7 +84,7 @@ def coordinate_scale(v):
     return max(s, SCALE_FLOOR) if s > 0.0 else 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def argument(model, y, d):
     """What the model's functions take at the state ``x = y[:d]``: a fresh copy of it,
     followed by the model's parameter values (none for a model without). Element loops,
@@ -142,7 +142,7 @@ def jacobian(model, mode, x, mask, d, J):
     return OK if all_finite(J) else JACOBIAN_NONFINITE
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rhs(model, mode, variational, mask, d, y, out, bad):
     """``out = f(y)``: the field at ``x = y[:d]``, and ``J(x) Phi`` when ``variational``
     (``out`` may be shorter than ``y``: the state's part only, for ``d`` entries).
