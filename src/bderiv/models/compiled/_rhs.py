@@ -102,9 +102,9 @@ def argument(model, y, d):
 def jacobian(model, mode, x, mask, d, J):
     """``J = d field(x, mask) / dx`` (d, d) by ``mode``; a status (checked: shape, finite).
 
-    The state is ``x[:d]`` (``x`` may be the integrated vector, state first). Complex step: column j is
-    ``Im field(x + i h e_j) / h``; central differences: ``(f(x + h e_j) - f(x - h e_j))
-    / (2 h)`` with the step as represented (``(x_j + h) - x_j``).
+    The state is ``x[:d]`` (``x`` may be the integrated vector, the state first). Complex
+    step: column j is ``Im field(x + i h e_j) / h``; central differences: ``(f(x + h e_j)
+    - f(x - h e_j)) / (2 h)`` with the step as represented (``(x_j + h) - x_j``).
     """
     if mode == JAC_GIVEN:
         given = model.jacobian(argument(model, x, d), mask)
