@@ -10,13 +10,28 @@ error that names the function, the region and the state.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..._format import MASK_MEANING, format_mask
-from ._checks import check_compiled, compiles_for_complex, format_state, raise_failed_run
+from ._checks import (
+    check_compiled,
+    compiles_as,
+    compiles_for_complex,
+    format_state,
+    is_compiled,
+    raise_failed_run,
+)
 from ._dop853 import dense_rows
 from ._integrate import EVENT, FINISHED
-from ._model import bound_model
+from ._model import (
+    COMPLEX_EVENTS_SIGNATURE,
+    EVENT_JACOBIAN_SIGNATURE,
+    bound_model,
+    no_complex_events,
+    no_event_jacobian,
+)
 from ._rhs import (
     JAC_CENTRAL,
     JAC_COMPLEX_STEP,
@@ -30,7 +45,14 @@ from ._rhs import (
     no_jacobian,
     no_section,
 )
-from ._slices import Driven, drive
+from ._run import (
+    EVENT_JAC_COMPLEX_STEP,
+    EVENT_JAC_GIVEN,
+    EVENT_JAC_NONE,
+    event_jacobian,
+    run_stretches,
+)
+from ._slices import Driven, _interrupted, drive, measured, slice_budget
 from .stretch import MAX_EVENTS
 
 #: how ``J`` is had, by the code of :mod:`._rhs`
@@ -48,6 +70,14 @@ class CompiledModel:
         (d, d)`` (optional: complex step where ``field`` compiles for complex input, else
         central differences).
     n_events, dim : int
+    event_jacobian : callable, optional
+        The model's ``event_jacobian(x) -> (n, d)``: a dispatcher compiled for
+        ``float64[::1]`` returning a C-contiguous float64 array is called in compiled
+        code; none given, the Jacobian is had by complex step where ``events`` compiles
+        for complex input (:meth:`event_jacobian_at`). Either way the run's plain stops
+        are decided in compiled code too (:meth:`run_stretches`); otherwise (a Python
+        ``event_jacobian``, or events that are not complex-analytic) every stop is the
+        Python loop's (``event_jac_mode`` ``EVENT_JAC_NONE``).
     params : array_like, shape (m,), optional
         Parameter values: the functions then take ``x`` of shape (d + m,), the state
         followed by ``params`` (the section takes the state alone), so that a model
@@ -64,7 +94,8 @@ class CompiledModel:
         More than ``MAX_EVENTS`` events (the region mask is an int64).
     """
 
-    def __init__(self, field, events, field_jacobian=None, *, n_events, dim, params=None):
+    def __init__(self, field, events, field_jacobian=None, *, n_events, dim, params=None,
+                 event_jacobian=None):
         if n_events > MAX_EVENTS:
             raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
                              f"bit each of an int64 region mask), got n_events={n_events}")
@@ -80,6 +111,15 @@ class CompiledModel:
         else:
             self.jac_mode = JAC_CENTRAL
         self.n_events, self.dim = n_events, dim
+        self.event_jacobian = self.cevents = None
+        if event_jacobian is None:
+            self.cevents = events if compiles_as(events, COMPLEX_EVENTS_SIGNATURE) else None
+        elif is_compiled(event_jacobian) and compiles_as(event_jacobian,
+                                                         EVENT_JACOBIAN_SIGNATURE):
+            self.event_jacobian = event_jacobian
+        self.event_jac_mode = (EVENT_JAC_GIVEN if self.event_jacobian is not None else
+                               EVENT_JAC_COMPLEX_STEP if self.cevents is not None else
+                               EVENT_JAC_NONE)
         self.params = None if params is None else np.array(params, dtype=np.float64).ravel()
         self._structs = {}
         self._atol = {}  # (length, atol) -> the driver's atol array
@@ -93,7 +133,8 @@ class CompiledModel:
             self._structs[key] = bound_model(
                 f["field"], f.get("field_jacobian", no_jacobian), f["events"],
                 f["field"] if self.jac_mode == JAC_COMPLEX_STEP else no_complex_field,
-                no_section if section is None else section, self.params)
+                no_section if section is None else section, self.params,
+                self.event_jacobian or no_event_jacobian, self.cevents or no_complex_events)
         return self._structs[key]
 
     def use_central_differences(self) -> None:
@@ -110,6 +151,27 @@ class CompiledModel:
             raise_failed_run(status, self.named, x, 0.0, mask, d, self.n_events,
                              self.jac_mode, self.params)
         return J
+
+    def event_jacobian_at(self, x) -> np.ndarray:
+        """The event Jacobian the compiled run uses at ``x`` (d,): shape (n, d) (not with
+        ``EVENT_JAC_NONE``). A failed check is a ValueError naming what came."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        ok, J = event_jacobian(self.struct(), self.event_jac_mode, x.copy(), self.n_events,
+                               self.dim)
+        if not ok:
+            how = ("event_jacobian(x)" if self.event_jac_mode == EVENT_JAC_GIVEN else
+                   "the complex step of events(x)")
+            shape = (self.n_events, self.dim)
+            what = "a non-finite entry" if J.shape == shape else f"shape {J.shape}"
+            raise ValueError(f"{how} must give a finite array of shape {shape}, got {what} at "
+                             f"x = {format_state(x)}")
+        return J
+
+    def use_python_event_jacobian(self) -> None:
+        """Leave the event Jacobian to the Python side from now on (its complex step was
+        found wrong: events that are not complex-analytic)."""
+        self.cevents = None
+        self.event_jac_mode = EVENT_JAC_NONE
 
     def events_rows(self, X) -> np.ndarray:
         """``events`` at every row of ``X`` (m, d): shape (m, n), checked."""
@@ -170,12 +232,7 @@ class CompiledModel:
         m = d * (d + 1) if variational else d
         y0 = np.ascontiguousarray(y0, dtype=np.float64)
         watched = n + (section is not None)
-        key = (m, float(atol))
-        atols = self._atol.get(key)
-        if atols is None:  # the same for every stretch of a run (the driver reads it only)
-            if len(self._atol) >= 16:
-                self._atol.clear()
-            atols = self._atol[key] = np.full(m, key[1])
+        atols = self._atols(m, atol)
         try:
             out = drive(self.struct(section), self.jac_mode, variational, section is not None,
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
@@ -191,6 +248,51 @@ class CompiledModel:
             raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n, self.jac_mode,
                              self.params)
         return out
+
+
+    def run_stretches(self, t, x, mask, scale, err, t_final, *, rtol, atol, max_step,
+                      simultaneity_tol, variational, all_checked, checked, groups_left,
+                      section=None):
+        """The run's stretches from ``(t, x)`` in region ``mask`` while their stops are plain
+        (:func:`._run.run_stretches`: its tuple, the first entry ``ENDED`` or ``HANDOFF``),
+        for about ``SLICE_SECONDS`` of steps; None when a user function raised (the Python
+        loop takes the stretch and says where). Needs ``event_jacobian``.
+
+        ``scale``, ``err`` (d,): the run's largest ``|x_i|`` and the error bound carried into
+        the stretch; ``checked``: the regions whose field Jacobian is checked (int64, with
+        ``variational``, unless ``all_checked``); ``groups_left``: the event groups the run
+        may still switch.
+        """
+        d, n = self.dim, self.n_events
+        m = d * (d + 1) if variational else d
+        model = self.struct(section)
+        key = (id(model), m)
+        start = time.perf_counter()
+        try:
+            out = run_stretches(model, self.jac_mode, self.event_jac_mode, variational,
+                                section is not None, n, d,
+                                float(t), np.ascontiguousarray(x, dtype=np.float64),
+                                int(mask), scale, err, float(t_final), float(rtol),
+                                self._atols(m, atol), float(max_step), float(simultaneity_tol),
+                                bool(all_checked), checked, int(groups_left),
+                                slice_budget(key))
+        except SystemError as exc:  # Ctrl-C seen while numba boxed the results
+            _interrupted(exc)
+            raise
+        except Exception:  # noqa: BLE001 - a user function raised: the Python loop words it
+            return None
+        measured(key, time.perf_counter() - start, out[-1])
+        return out
+
+    def _atols(self, m, atol):
+        """The driver's atol array (m,), the same for every stretch of a run (read only)."""
+        key = (m, float(atol))
+        atols = self._atol.get(key)
+        if atols is None:
+            if len(self._atol) >= 16:
+                self._atol.clear()
+            atols = self._atol[key] = np.full(m, key[1])
+        return atols
 
 
 def dense_at(t_old, h, F, y_old, T) -> np.ndarray:
