@@ -85,10 +85,10 @@ def coordinate_scale(v):
 
 
 @njit(cache=True, inline="always")
-def argument(model, y, d):
-    """What the model's functions take at the state ``x = y[:d]``: a fresh copy of it,
-    followed by the model's parameter values (none for a model without). Element loops,
-    no slice of ``y`` (a view costs two atomic reference counts, ~15 % of a small step)."""
+def state_argument(model, y, d):
+    """:func:`argument` at the state ``x = y[:d]`` (``y`` may be the integrated vector):
+    element loops, no slice of ``y`` (a view costs two atomic reference counts, ~15 % of a
+    small step)."""
     p = model.params
     a = np.empty(d + p.size)
     for j in range(d):
@@ -96,6 +96,13 @@ def argument(model, y, d):
     for j in range(p.size):
         a[d + j] = p[j]
     return a
+
+
+@njit(cache=True)
+def argument(model, x):
+    """What the model's functions take at the state ``x`` (d,): a fresh copy of it,
+    followed by the model's parameter values (none for a model without)."""
+    return state_argument(model, x, x.size)
 
 
 @njit(cache=True)
@@ -107,12 +114,12 @@ def jacobian(model, mode, x, mask, d, J):
     - f(x - h e_j)) / (2 h)`` with the step as represented (``(x_j + h) - x_j``).
     """
     if mode == JAC_GIVEN:
-        given = model.jacobian(argument(model, x, d), mask)
+        given = model.jacobian(state_argument(model, x, d), mask)
         if given.shape[0] != d or given.shape[1] != d:
             return JACOBIAN_SHAPE
         J[:, :] = given
     elif mode == JAC_COMPLEX_STEP:
-        base = argument(model, x, d)
+        base = state_argument(model, x, d)
         z = np.empty(base.size, dtype=np.complex128)
         for j in range(d):
             h = COMPLEX_STEP * coordinate_scale(x[j])
@@ -124,7 +131,7 @@ def jacobian(model, mode, x, mask, d, J):
             for i in range(d):
                 J[i, j] = f[i].imag / h
     else:
-        xs = argument(model, x, d)
+        xs = state_argument(model, x, d)
         for j in range(d):
             step = CENTRAL_STEP * coordinate_scale(x[j])
             for i in range(d):
@@ -151,7 +158,7 @@ def rhs(model, mode, variational, mask, d, y, out, bad):
     :func:`argument`). Returns
     ``OK`` or the code of the failed check, the state copied into ``bad``.
     """
-    f = model.field(argument(model, y, d), mask)
+    f = model.field(state_argument(model, y, d), mask)
     status = OK
     if f.size != d:
         status = FIELD_SHAPE
@@ -176,7 +183,7 @@ def call_events(model, with_section, x, n, g, bad):
     """``g = events(x)`` checked (shape, finite), and ``g[n - 1] = section(x)`` when
     ``with_section``; a status as :func:`rhs`."""
     m = n - 1 if with_section else n
-    value = model.events(argument(model, x, x.size))
+    value = model.events(argument(model, x))
     if value.size != m:
         bad[:] = x
         return EVENTS_SHAPE
@@ -210,7 +217,7 @@ def field_rows(model, x, masks, d, out):
     """``out[i] = field(x, masks[i])`` for every mask, checked: ``(status, i)`` (i: the
     failed mask's index)."""
     for i in range(masks.size):
-        f = model.field(argument(model, x, d), masks[i])
+        f = model.field(state_argument(model, x, d), masks[i])
         if f.size != d:
             return FIELD_SHAPE, i
         if not finite_vector(f):
@@ -226,7 +233,7 @@ def events_and_field(model, x, mask, n, d, h, F):
     status = call_events(model, False, x, n, h, np.empty(d))
     if status != OK:
         return status
-    f = model.field(argument(model, x, d), mask)
+    f = model.field(state_argument(model, x, d), mask)
     if f.size != d:
         return FIELD_SHAPE
     if not finite_vector(f):
