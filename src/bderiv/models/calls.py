@@ -180,7 +180,8 @@ class ModelCalls:
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
         self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
-        self._given_event_jacobian = event_jacobian  # the compiled path decides its use
+        # the compiled path decides their use
+        self._given_event_jacobian, self._given_reset = event_jacobian, reset
         self._compiled = None
         self._params = params = check_params(params)
         field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
@@ -209,7 +210,8 @@ class ModelCalls:
             field, events, jac = self._compiled_functions
             self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,
                                            dim=self.dim, params=self._params,
-                                           event_jacobian=self._given_event_jacobian)
+                                           event_jacobian=self._given_event_jacobian,
+                                           reset=self._given_reset)
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
                       "(once per model; field_jacobian: %s)", time.perf_counter() - start,
                       JACOBIAN_MODES[self._compiled.jac_mode])
