@@ -251,7 +251,7 @@ def _clearly_transversal(G, F, dh_big, tol, happened=None) -> bool:
     if happened is not None:
         ok |= happened
     ok &= np.abs(G) < np.inf
-    return bool(ok.all())
+    return np.count_nonzero(ok) == ok.size
 
 
 def corner_points(F: np.ndarray, Dh: np.ndarray, G: np.ndarray):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .. import _tables
@@ -49,7 +51,7 @@ class DenseEngine(Engine):
     @property
     def scaled(self) -> bool:
         """Whether the tables were scaled at build (then F, G differ from the caller's)."""
-        return bool(self.f_exp or self.dh_exps.any())
+        return bool(self.f_exp or np.count_nonzero(self.dh_exps))
 
     def caller_tables(self):
         """F (2**n, d) and G (2**n, n) in the caller's units: views of the records, or
@@ -101,11 +103,13 @@ class DenseEngine(Engine):
 
     @classmethod
     def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True,
-              scale: bool = True, pending_only: bool = False):
+              scale: bool = True, pending_only: bool = False, checked: bool = False):
         """Validate a user's table F for Dh (size before anything is allocated, shape,
         finiteness, transversality of every rate, or of the rates of pending events only
         when ``pending_only``: a table with resets) and build the engine on a copy, scaled
-        by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``."""
+        by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``.
+        ``checked``: F (2**n, d) float64 and finite and the tolerance a number >= 0 are
+        known (the caller made them), not checked again."""
         n, d = Dh.shape
         need = _tables.dense_table_bytes(n, d)
         limit = memory_limit_for(need, memory_limit)
@@ -116,16 +120,17 @@ class DenseEngine(Engine):
                 f"{_tables.human_bytes(limit)}; use fewer simultaneous events or a corner "
                 f"model that does not store 2**n rows"
             )
-        F = check_matrix(F, "F", (None, d), copy=False)
-        if F.shape[0] != 1 << n:
-            raise ValueError(
-                f"F must have 2**n = {1 << n} rows (one per mask of n={n} events, n from "
-                f"Dh's {n} rows), got {F.shape[0]} rows"
-            )
-        check_number(transversality_tol, "transversality_tol", strict=False)
+        if not checked:
+            F = check_matrix(F, "F", (None, d), copy=False)
+            if F.shape[0] != 1 << n:
+                raise ValueError(
+                    f"F must have 2**n = {1 << n} rows (one per mask of n={n} events, n "
+                    f"from Dh's {n} rows), got {F.shape[0]} rows"
+                )
+            check_number(transversality_tol, "transversality_tol", strict=False)
 
         dh_exps, f_exp = table_exponents(Dh, F) if scale else (np.zeros(n, np.int64), 0)
-        if dh_exps.any():
+        if np.count_nonzero(dh_exps):
             Dh = np.ldexp(Dh, -dh_exps[:, None])
         R = _tables.region_records(F, Dh, -f_exp)
         nc = _tables.record_layout(n, d)[0]
@@ -229,9 +234,8 @@ def table_exponents(Dh, F):
     unchanged by either scaling; mathematics.md "How the kernels round"); the event times are
     ``2**f_exp`` times the caller's.
     """
-    dh = np.frexp(np.abs(Dh).max(axis=1))[1].astype(np.int64)
-    big = max((float(np.abs(F[rows]).max()) for rows in _tables.blocks(F.shape[0])),
-              default=0.0)
-    f = int(np.frexp(big)[1])
-    dh[np.abs(dh) <= TABLE_BAND] = 0
-    return dh, (f if abs(f) > TABLE_BAND else 0)
+    dh = [math.frexp(v)[1] for v in np.abs(Dh).max(axis=1).tolist()]
+    big = max(float(np.abs(F[rows]).max()) for rows in _tables.blocks(F.shape[0]))
+    f = math.frexp(big)[1]
+    return (np.array([e if abs(e) > TABLE_BAND else 0 for e in dh], dtype=np.int64),
+            f if abs(f) > TABLE_BAND else 0)
