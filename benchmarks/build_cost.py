@@ -8,7 +8,8 @@ What is timed is what follows the integration in ``flow_bderivative`` at small n
 table at n = 2, d = 8, and tables of the three fast-path kinds), and
 ``models.assembly.flow_map_along`` on the trajectory of one stride of the d = 8 pronking
 body of ``benchmarks/compiled_path.py`` (two groups, touchdown and lift-off, n = 2 each),
-integrated once by each package. The other checkout is imported as ``bderiv_base``
+integrated once by each package, and the whole compiled ``flow_bderivative`` of that
+stride (the integration, then the assembly). The other checkout is imported as ``bderiv_base``
 (``benchmarks/ab.py``); both must give the same bits (checked first). Each round times
 ``repeats`` calls of each side, the sides alternated; printed: the median and the minimum
 of the rounds' per-call times after the first, and the ratios this / base (below 1: this
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import importlib
 import os
 import pathlib
 import statistics
@@ -78,9 +80,12 @@ def main(argv=None):
     parser.add_argument("base", type=pathlib.Path, help="the other checkout's src folder")
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--repeats", type=int, default=200, help="calls per round and side")
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="cpu: the process's CPU time (time.process_time), which time "
+                             "spent waiting for a core on a busy machine does not inflate")
     args = parser.parse_args(argv)
+    clock = time.process_time if args.clock == "cpu" else time.perf_counter
     base = base_package(args.base)
-    importlib = __import__("importlib")
     for name in ("models.assembly", "models.integrate.run"):
         importlib.import_module(f"bderiv_base.{name}")
     print(f"this: {pathlib.Path(bderiv.__file__).parent}\nbase: {args.base / 'bderiv'}")
@@ -96,13 +101,16 @@ def main(argv=None):
     jobs["flow_map_along pronking d=8"] = {
         who: (lambda pkg=pkg, r=runs[who]: pkg.models.assembly.flow_map_along(r[0], r[1]))
         for who, pkg in (("this", bderiv), ("base", base))}
+    x0 = runs["this"][1].x[0]
+    jobs["flow_bderivative pronking d=8"] = {  # the whole build: integration, then assembly
+        who: (lambda r=runs[who]: r[0].flow_bderivative(x0, T_FINAL)) for who in runs}
     for name, job in jobs.items():  # the same bits, or the timing means nothing
         if bits_of(job["this"]()) != bits_of(job["base"]()):
             raise SystemExit(f"{name}: the two checkouts give different bits")
     print(f"load average {os.getloadavg()[0]:.2f}; {args.rounds} rounds of {args.repeats} "
-          f"calls per side, alternated; per-call times in us, median and min of the rounds "
-          f"after the first")
-    print(f"{'job':>34} {'this':>8} {'base':>8} {'ratio':>6} {'this min':>9} {'base min':>9} "
+          f"calls per side, alternated; per-call {args.clock} times in us, median and min of "
+          f"the rounds after the first")
+    print(f"{'job':>35} {'this':>8} {'base':>8} {'ratio':>6} {'this min':>9} {'base min':>9} "
           f"{'ratio':>6}")
     gc.disable()
     try:
@@ -111,13 +119,13 @@ def main(argv=None):
             for r in range(args.rounds):
                 for who in ("this", "base") if r % 2 else ("base", "this"):
                     fn = job[who]
-                    t0 = time.perf_counter()
+                    t0 = clock()
                     for _ in range(args.repeats):
                         fn()
-                    times[who].append((time.perf_counter() - t0) / args.repeats * 1e6)
+                    times[who].append((clock() - t0) / args.repeats * 1e6)
             med = {w: statistics.median(t[1:]) for w, t in times.items()}
             low = {w: min(t[1:]) for w, t in times.items()}
-            print(f"{name:>34} {med['this']:8.1f} {med['base']:8.1f} "
+            print(f"{name:>35} {med['this']:8.1f} {med['base']:8.1f} "
                   f"{med['this'] / med['base']:6.3f} {low['this']:9.1f} {low['base']:9.1f} "
                   f"{low['this'] / low['base']:6.3f}", flush=True)
     finally:

@@ -113,7 +113,8 @@ def aligned_empty(shape: tuple[int, int]) -> np.ndarray:
 def padded(X, cols: int, fill: float = 0.0) -> np.ndarray:
     """X (rows, c) in a C-contiguous (rows, cols) float64 array, the extra columns ``fill``
     (the kernels read rows as whole vectors of a multiple of 8 entries)."""
-    out = np.full((X.shape[0], cols), fill)
+    shape = (X.shape[0], cols)
+    out = np.zeros(shape) if fill == 0 else np.full(shape, fill)  # zeros: 1/5 of full's cost
     out[:, : X.shape[1]] = X
     return out
 
@@ -175,7 +176,14 @@ def row_norms(A: np.ndarray) -> np.ndarray:
 TINY = np.finfo(np.float64).tiny
 
 
-def find_transversality_violation(G, F, Dh, tol, pending_only=False):
+def table_maxima(Dh, F) -> tuple[list, float]:
+    """(dh_big, f_big): the largest ``|Dh[k]|`` of each row (a list of n floats) and the
+    largest ``|F|`` of the table (read block by block)."""
+    return (np.abs(Dh).max(axis=1).tolist(),
+            max(float(np.abs(F[rows]).max()) for rows in blocks(F.shape[0])))
+
+
+def find_transversality_violation(G, F, Dh, tol, pending_only=False, maxima=None):
     """First (mask, k, kind, scale) with G[mask, k] <= tol * |F[mask]| |Dh[k]|, or None.
 
     With ``pending_only`` only the rates of events still pending in the region (bit k of
@@ -189,14 +197,15 @@ def find_transversality_violation(G, F, Dh, tol, pending_only=False):
     (the surfaces are then nearly tangent to the flow and the event times ill-conditioned).
 
     A block that :func:`_clearly_transversal` passes is not examined further (the common
-    case: no norm of a row is then taken).
+    case: no norm of a row is then taken). ``maxima``: :func:`table_maxima` of these F and
+    Dh when the caller has it.
     """
     n = G.shape[1]
-    dh_big = np.maximum(np.abs(Dh).max(axis=1), TINY).tolist()
+    dh_big, f_big = table_maxima(Dh, F) if maxima is None else maxima
     dh_norm = None
     for rows in blocks(G.shape[0]):
         happened = block_bits(rows, n) != 0 if pending_only else None
-        if _clearly_transversal(G[rows], F[rows], dh_big, tol, happened):
+        if _clearly_transversal(G[rows], F.shape[1], f_big, dh_big, tol, happened):
             continue
         if dh_norm is None:
             dh_norm = row_norms(Dh)
@@ -224,28 +233,29 @@ def find_transversality_violation(G, F, Dh, tol, pending_only=False):
     return None
 
 
-def _clearly_transversal(G, F, dh_big, tol, happened=None) -> bool:
-    """Whether every rate of a block of G (every pending one when ``happened``, the
-    (rows, n) flags of the events that happened, is given) passes the test of
-    :func:`find_transversality_violation`, decided without the norms of the rows.
+def _clearly_transversal(G, d, f_big, dh_big, tol, happened=None) -> bool:
+    """Whether every rate of a block of G (dimension d; every pending rate when
+    ``happened``, the (rows, n) flags of the events that happened, is given) passes the
+    test of :func:`find_transversality_violation`, decided without the norms of the rows.
 
     A sufficient test (False sends the block to the full one): ``G[mask, k] > tol * U[k]``
-    and ``TINY < G[mask, k] < inf``, with ``U[k] = 2 d b_F b_k`` (b_F: the block's largest
-    ``|F|``, b_k: ``Dh[k]``'s, each at least TINY; ``dh_big`` the b_k). ``row_norms``
-    gives at most ``b sqrt(d) (1 + eps)**(d/2 + 2)`` (its unit rows have entries <= 1), so
-    the computed scale is at most ``d b_F b_k (1 + eps)**(d + 3)``, below the real
-    product ``fl(2 d b_F) b_k``; rounding is monotone, so ``fl(tol * U[k])`` is at least
-    the full test's ``tol * scale[mask, k]``. ``U`` in Python floats: an overflow there
-    gives inf (no warning) and fails the test; tol = 0 and ``U = inf`` give NaN, for which
-    the bound is TINY (the full test then accepts every finite rate >= TINY).
+    and ``TINY < G[mask, k] < inf``, with ``U[k] = 2 d b_F b_k``, b_F the largest ``|F|``
+    (``f_big``), b_k the largest ``|Dh[k]|`` (``dh_big``), each raised to TINY if below,
+    as :func:`row_norms` does. ``row_norms`` gives at most ``b sqrt(d) (1 + eps)**(d/2 +
+    2)`` (its unit rows have entries <= 1), so the computed scale is at most ``d b_F b_k (1
+    + eps)**(d + 3)``, below the real product ``fl(2 d b_F) b_k``; rounding is monotone, so
+    ``fl(tol * U[k])`` is at least the full test's ``tol * scale[mask, k]``. ``U`` in
+    Python floats: an overflow there gives inf (no warning) and fails the test; tol = 0 and
+    ``U = inf`` give NaN, for which the bound is TINY (the full test then accepts every
+    finite rate >= TINY).
     """
     t = float(tol)
     if t != tol:  # a tolerance that is no float (a Fraction): the full test's arithmetic
         return False
-    big = max(float(np.abs(F).max()), TINY) * (2 * F.shape[1])
+    big = max(f_big, TINY) * (2 * d)
     low = []
     for b in dh_big:
-        bound = t * (big * b)
+        bound = t * (big * max(b, TINY))
         low.append(bound if bound > TINY else TINY)
     ok = G > np.array(low)
     if happened is not None:

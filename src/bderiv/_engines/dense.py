@@ -129,14 +129,16 @@ class DenseEngine(Engine):
                 )
             check_number(transversality_tol, "transversality_tol", strict=False)
 
-        dh_exps, f_exp = table_exponents(Dh, F) if scale else (np.zeros(n, np.int64), 0)
-        if np.count_nonzero(dh_exps):
+        maxima = _tables.table_maxima(Dh, F)
+        dh_exps, f_exp = table_exponents(*maxima) if scale else (np.zeros(n, np.int64), 0)
+        scaled = bool(f_exp or np.count_nonzero(dh_exps))
+        if scaled:
             Dh = np.ldexp(Dh, -dh_exps[:, None])
         R = _tables.region_records(F, Dh, -f_exp)
         nc = _tables.record_layout(n, d)[0]
         G, F = R[:, 8 * nc : 8 * nc + n], R[:, 16 * nc : 16 * nc + d]
         bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol,
-                                                    pending_only)
+                                                    pending_only, None if scaled else maxima)
         if bad is not None:
             mask, k, kind, scale = bad
             rate = np.ldexp(G[mask, k], f_exp + int(dh_exps[k]))  # in the caller's units
@@ -225,17 +227,17 @@ class DenseEngine(Engine):
         return self.F
 
 
-def table_exponents(Dh, F):
-    """(dh_exps (n,), f_exp): the binary exponents (``np.frexp``) of the largest entry of
-    each row of Dh and of F as a whole, each replaced by 0 within ``+-TABLE_BAND``.
+def table_exponents(dh_big, f_big):
+    """(dh_exps (n,), f_exp): the binary exponents (``math.frexp``) of the largest entry of
+    each row of Dh and of F as a whole (``dh_big``, ``f_big``: ``_tables.table_maxima``),
+    each replaced by 0 within ``+-TABLE_BAND``.
 
     The kernels run on ``2**-dh_exps[k] Dh[k]`` and ``2**-f_exp F``, which have the same
     B-derivative (each piece is a product of ``I + (F[a] - F[b]) Dh[k]^T / (Dh[k] . F[b])``,
     unchanged by either scaling; mathematics.md "How the kernels round"); the event times are
     ``2**f_exp`` times the caller's.
     """
-    dh = [math.frexp(v)[1] for v in np.abs(Dh).max(axis=1).tolist()]
-    big = max(float(np.abs(F[rows]).max()) for rows in _tables.blocks(F.shape[0]))
-    f = math.frexp(big)[1]
+    dh = [math.frexp(v)[1] for v in dh_big]
+    f = math.frexp(f_big)[1]
     return (np.array([e if abs(e) > TABLE_BAND else 0 for e in dh], dtype=np.int64),
             f if abs(f) > TABLE_BAND else 0)
