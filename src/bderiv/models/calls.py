@@ -180,6 +180,7 @@ class ModelCalls:
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
         self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
+        self._compiled_event_jacobian = event_jacobian if is_compiled(event_jacobian) else None
         self._compiled = None
         self._params = params = check_params(params)
         field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
@@ -207,7 +208,8 @@ class ModelCalls:
             start = time.perf_counter()
             field, events, jac = self._compiled_functions
             self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,
-                                           dim=self.dim, params=self._params)
+                                           dim=self.dim, params=self._params,
+                                           event_jacobian=self._compiled_event_jacobian)
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
                       "(once per model; field_jacobian: %s)", time.perf_counter() - start,
                       JACOBIAN_MODES[self._compiled.jac_mode])
@@ -239,6 +241,21 @@ class ModelCalls:
                       "are used", what)
             model.use_central_differences()
         self._checked.add(key)
+
+    def checked_compiled_jacobians(self):
+        """``(all, masks)``: whether the compiled ``J`` needs no check in any region (central
+        differences, or a given one with ``check_jacobians`` False), else the regions
+        (int64 masks) where :meth:`check_compiled_jacobian` has checked it."""
+        mode = JACOBIAN_MODES[self.compiled.jac_mode]
+        if mode == "central differences" or (mode == "given" and not self.check_jacobians):
+            return True, np.empty(0, dtype=np.int64)
+        masks = [key[1] for key in self._checked if key[0] == "compiled field_jacobian"]
+        return False, np.array(masks, dtype=np.int64)
+
+    def event_jacobian_checked(self) -> bool:
+        """Whether the given ``event_jacobian`` needs no more check (compared once already,
+        or ``check_jacobians`` False)."""
+        return not self.check_jacobians or ("event_jacobian",) in self._checked
 
     def _check_state(self, x, name="x"):
         arr = check_real_array(x, name)

@@ -16,10 +16,12 @@ from __future__ import annotations
 from ._cached import key_all_kernels
 from ._checks import check_compiled, is_compiled
 from ._integrate import EVENT
+from ._run import ENDED, HANDOFF
 from .model import JACOBIAN_MODES, CompiledModel, dense_at
 from .stretch import Stretch, integrate_stretch
 
 key_all_kernels()
 
-__all__ = ["EVENT", "JACOBIAN_MODES", "CompiledModel", "Stretch", "check_compiled",
+__all__ = ["ENDED", "EVENT", "HANDOFF", "JACOBIAN_MODES", "CompiledModel", "Stretch",
+           "check_compiled",
            "dense_at", "integrate_stretch", "is_compiled"]

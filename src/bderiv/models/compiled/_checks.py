@@ -107,16 +107,22 @@ def _check_types(fn, name: str) -> None:
 
 
 @lru_cache(maxsize=256)
+def compiles_as(fn, signature) -> bool:
+    """Whether the dispatcher ``fn`` compiles for ``signature``'s arguments and returns
+    its return type (quietly: False where it does not)."""
+    args = signature.args
+    if args not in fn.overloads:
+        try:
+            fn.compile(args)
+        except (NumbaError, RuntimeError, TypeError, ValueError):
+            return False
+    return fn.overloads[args].signature.return_type == signature.return_type
+
+
 def compiles_for_complex(field) -> bool:
     """Whether the dispatcher ``field`` compiles for ``(complex128[::1], int64)`` and
     returns a complex128 array (then its Jacobian is had by complex step)."""
-    args = COMPLEX_FIELD_SIGNATURE.args
-    if args not in field.overloads:
-        try:
-            field.compile(args)
-        except (NumbaError, RuntimeError, TypeError, ValueError):
-            return False
-    return field.overloads[args].signature.return_type == COMPLEX_FIELD_SIGNATURE.return_type
+    return compiles_as(field, COMPLEX_FIELD_SIGNATURE)
 
 
 def format_state(x) -> str:

@@ -5,7 +5,8 @@ does not recompile it. Passing dispatchers from Python as first-class functions 
 numba a compile-result lookup each, about 50 us per function per call (measured: 150 us of
 a 220 us stretch at d = 8); a struct holding the functions is passed for about 1 us.
 :func:`bound_model` builds that struct once per set of functions and keeps it. The struct
-also holds the model's parameter values (an empty array for a model without: :mod:`._rhs`).
+also holds the model's parameter values (an empty array for a model without: :mod:`._rhs`)
+and its event Jacobian, which the compiled run (:mod:`._run`) reads at the stops.
 """
 
 from __future__ import annotations
@@ -39,18 +40,30 @@ class _Model(structref.StructRefProxy):
     first-class functions, and its parameter values."""
 
 
-_MEMBERS = ("field", "jacobian", "events", "cfield", "section", "params")
+#: ``event_jacobian(x) -> (n, d)``, as the compiled run calls it
+EVENT_JACOBIAN_SIGNATURE = types.float64[:, ::1](types.float64[::1])
+EVENT_JACOBIAN_TYPE = types.FunctionType(EVENT_JACOBIAN_SIGNATURE)
+
+
+@eager(EVENT_JACOBIAN_SIGNATURE)
+def no_event_jacobian(x):  # pragma: no cover - passed, never called
+    """Stands for ``event_jacobian`` when the stops are not compiled (never called)."""
+    return np.empty((0, 0))
+
+
+_MEMBERS = ("field", "jacobian", "events", "cfield", "section", "params", "event_jacobian")
 structref.define_proxy(_Model, _ModelType, list(_MEMBERS))
 _TYPES = (FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, COMPLEX_FIELD_TYPE, SECTION_TYPE,
-          types.float64[::1])
+          types.float64[::1], EVENT_JACOBIAN_TYPE)
 MODEL_TYPE = _ModelType(list(zip(_MEMBERS, _TYPES, strict=True)))
 #: the parameters of a model without
 NO_PARAMS = np.empty(0)
 
 
 @eager(MODEL_TYPE(*_TYPES))
-def _bind(field, jacobian, events, cfield, section, params):
+def _bind(field, jacobian, events, cfield, section, params, event_jacobian):
     model = structref.new(MODEL_TYPE)
+    model.event_jacobian = event_jacobian
     model.field = field
     model.jacobian = jacobian
     model.events = events
@@ -61,14 +74,14 @@ def _bind(field, jacobian, events, cfield, section, params):
 
 
 @lru_cache(maxsize=64)
-def _bound(field, jacobian, events, cfield, section):
-    return _bind(field, jacobian, events, cfield, section, NO_PARAMS)
+def _bound(field, jacobian, events, cfield, section, event_jacobian):
+    return _bind(field, jacobian, events, cfield, section, NO_PARAMS, event_jacobian)
 
 
 def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_section,
-                params=None):
+                params=None, event_jacobian=no_event_jacobian):
     """The struct of checked dispatchers and parameter values ``params`` (C-contiguous
     float64; None: none). Without parameters it is kept for the 64 latest sets."""
     if params is None:
-        return _bound(field, jacobian, events, cfield, section)
-    return _bind(field, jacobian, events, cfield, section, params)
+        return _bound(field, jacobian, events, cfield, section, event_jacobian)
+    return _bind(field, jacobian, events, cfield, section, params, event_jacobian)

@@ -49,14 +49,26 @@ def _interrupted(exc) -> None:
         seen = seen.__cause__ or seen.__context__
 
 
+def slice_budget(key) -> int:
+    """The accepted steps of about ``SLICE_SECONDS`` for ``key`` (model id, length of the
+    integrated vector), as measured so far; ``FIRST_SLICE`` before any measurement."""
+    per_step = _cost.get(key)
+    return FIRST_SLICE if per_step is None else max(1, int(SLICE_SECONDS / per_step))
+
+
+def measured(key, elapsed, steps) -> None:
+    """Record that ``steps`` accepted steps took ``elapsed`` seconds for ``key``."""
+    if steps:
+        _cost[key] = elapsed / steps
+
+
 def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
           rtol, atol, max_step, first_step, forced, dense) -> Driven:
     """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
     key = (id(model), y0.size)
     parts, counts = [], None
     while True:
-        per_step = _cost.get(key)
-        budget = FIRST_SLICE if per_step is None else max(1, int(SLICE_SECONDS / per_step))
+        budget = slice_budget(key)
         start = time.perf_counter()
         try:
             out = drive_stretch(model, jac_mode, variational, with_section, n_events, mask,
@@ -67,8 +79,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
             raise
         elapsed = time.perf_counter() - start
         status, t_end, y_end, ts, ys, steps, Fd, active, roots, part, bad, t_bad, h = out
-        if part[N_STEPS]:
-            _cost[key] = elapsed / part[N_STEPS]
+        measured(key, elapsed, part[N_STEPS])
         counts = part if counts is None else counts + part
         parts.append((ts, ys, steps, Fd) if not parts else (ts[1:], ys[1:], steps, Fd))
         if status != PAUSED:

@@ -10,13 +10,21 @@ error that names the function, the region and the state.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..._format import MASK_MEANING, format_mask
-from ._checks import check_compiled, compiles_for_complex, format_state, raise_failed_run
+from ._checks import (
+    check_compiled,
+    compiles_as,
+    compiles_for_complex,
+    format_state,
+    raise_failed_run,
+)
 from ._dop853 import dense_rows
 from ._integrate import EVENT, FINISHED
-from ._model import bound_model
+from ._model import EVENT_JACOBIAN_SIGNATURE, bound_model, no_event_jacobian
 from ._rhs import (
     JAC_CENTRAL,
     JAC_COMPLEX_STEP,
@@ -30,7 +38,8 @@ from ._rhs import (
     no_jacobian,
     no_section,
 )
-from ._slices import Driven, drive
+from ._run import run_stretches
+from ._slices import Driven, _interrupted, drive, measured, slice_budget
 from .stretch import MAX_EVENTS
 
 #: how ``J`` is had, by the code of :mod:`._rhs`
@@ -48,6 +57,10 @@ class CompiledModel:
         (d, d)`` (optional: complex step where ``field`` compiles for complex input, else
         central differences).
     n_events, dim : int
+    event_jacobian : numba dispatcher, optional
+        ``event_jacobian(x) -> (n, d)``: with it (compiled for ``float64[::1]``, returning
+        a C-contiguous float64 array) the run's plain stops are decided in compiled code
+        too (:meth:`run_stretches`); without, every stop is the Python loop's.
     params : array_like, shape (m,), optional
         Parameter values: the functions then take ``x`` of shape (d + m,), the state
         followed by ``params`` (the section takes the state alone), so that a model
@@ -64,7 +77,8 @@ class CompiledModel:
         More than ``MAX_EVENTS`` events (the region mask is an int64).
     """
 
-    def __init__(self, field, events, field_jacobian=None, *, n_events, dim, params=None):
+    def __init__(self, field, events, field_jacobian=None, *, n_events, dim, params=None,
+                 event_jacobian=None):
         if n_events > MAX_EVENTS:
             raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
                              f"bit each of an int64 region mask), got n_events={n_events}")
@@ -80,6 +94,9 @@ class CompiledModel:
         else:
             self.jac_mode = JAC_CENTRAL
         self.n_events, self.dim = n_events, dim
+        self.event_jacobian = (event_jacobian if event_jacobian is not None
+                               and compiles_as(event_jacobian, EVENT_JACOBIAN_SIGNATURE)
+                               else None)
         self.params = None if params is None else np.array(params, dtype=np.float64).ravel()
         self._structs = {}
         self._atol = {}  # (length, atol) -> the driver's atol array
@@ -93,7 +110,8 @@ class CompiledModel:
             self._structs[key] = bound_model(
                 f["field"], f.get("field_jacobian", no_jacobian), f["events"],
                 f["field"] if self.jac_mode == JAC_COMPLEX_STEP else no_complex_field,
-                no_section if section is None else section, self.params)
+                no_section if section is None else section, self.params,
+                self.event_jacobian or no_event_jacobian)
         return self._structs[key]
 
     def use_central_differences(self) -> None:
@@ -170,12 +188,7 @@ class CompiledModel:
         m = d * (d + 1) if variational else d
         y0 = np.ascontiguousarray(y0, dtype=np.float64)
         watched = n + (section is not None)
-        key = (m, float(atol))
-        atols = self._atol.get(key)
-        if atols is None:  # the same for every stretch of a run (the driver reads it only)
-            if len(self._atol) >= 16:
-                self._atol.clear()
-            atols = self._atol[key] = np.full(m, key[1])
+        atols = self._atols(m, atol)
         try:
             out = drive(self.struct(section), self.jac_mode, variational, section is not None,
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
@@ -191,6 +204,50 @@ class CompiledModel:
             raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n, self.jac_mode,
                              self.params)
         return out
+
+
+    def run_stretches(self, t, x, mask, scale, err, t_final, *, rtol, atol, max_step,
+                      simultaneity_tol, variational, all_checked, checked, groups_left,
+                      section=None):
+        """The run's stretches from ``(t, x)`` in region ``mask`` while their stops are plain
+        (:func:`._run.run_stretches`: its tuple, the first entry ``ENDED`` or ``HANDOFF``),
+        for about ``SLICE_SECONDS`` of steps; None when a user function raised (the Python
+        loop takes the stretch and says where). Needs ``event_jacobian``.
+
+        ``scale``, ``err`` (d,): the run's largest ``|x_i|`` and the error bound carried into
+        the stretch; ``checked``: the regions whose field Jacobian is checked (int64, with
+        ``variational``, unless ``all_checked``); ``groups_left``: the event groups the run
+        may still switch.
+        """
+        d, n = self.dim, self.n_events
+        m = d * (d + 1) if variational else d
+        model = self.struct(section)
+        key = (id(model), m)
+        start = time.perf_counter()
+        try:
+            out = run_stretches(model, self.jac_mode, variational, section is not None, n, d,
+                                float(t), np.ascontiguousarray(x, dtype=np.float64),
+                                int(mask), scale, err, float(t_final), float(rtol),
+                                self._atols(m, atol), float(max_step), float(simultaneity_tol),
+                                bool(all_checked), checked, int(groups_left),
+                                slice_budget(key))
+        except SystemError as exc:  # Ctrl-C seen while numba boxed the results
+            _interrupted(exc)
+            raise
+        except Exception:  # noqa: BLE001 - a user function raised: the Python loop words it
+            return None
+        measured(key, time.perf_counter() - start, out[-1])
+        return out
+
+    def _atols(self, m, atol):
+        """The driver's atol array (m,), the same for every stretch of a run (read only)."""
+        key = (m, float(atol))
+        atols = self._atol.get(key)
+        if atols is None:
+            if len(self._atol) >= 16:
+                self._atol.clear()
+            atols = self._atol[key] = np.full(m, key[1])
+        return atols
 
 
 def dense_at(t_old, h, F, y_old, T) -> np.ndarray:

@@ -23,7 +23,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._format import format_mask, transversality_message
-from ..._limits import GLOBAL_ERROR_FACTOR, GRAZING_RTOL, ORDERS_CHECKED, RESET_MISMATCH
+from ..._limits import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
+from ..compiled import rules
 from .locate import examine, orientation, state_error
 
 __all__ = [
@@ -122,8 +123,12 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     >>> group_tolerance(np.array([[1.0, 0.0]]), SolverOptions(), np.array([1e-3, 500.0]))
     array([1.1e-11])
     """
-    err = state_error(options.atol, options.rtol, scale)
-    return np.abs(Dh) @ (err if err.shape == Dh.shape[1:] else np.full(Dh.shape[1], err))
+    Dh = np.ascontiguousarray(Dh, dtype=np.float64)
+    err = state_error(options.atol, options.rtol,
+                      np.broadcast_to(np.asarray(scale, dtype=np.float64), Dh.shape[1:]))
+    out = np.empty(Dh.shape[0])
+    rules.tolerances(Dh, err, out)
+    return out
 
 
 def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
@@ -176,12 +181,13 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
     # none is ever lost (bderiv.models.events.locate.classify)
     group = classes.group
     _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
-    norms = np.sqrt(np.einsum("ij,ij->i", Dh, Dh))  # |Dh_k|, for both checks
-    _check_crossings(group, Dh, F, mask, "before", t, sign, n, norms, rate)
+    flags = np.zeros(n, dtype=np.bool_)
+    flags[group] = True
+    _check_crossings(group, flags, Dh, F, mask, "before", t, sign, n)
     if not system.has_resets:  # every event lands on the far side, and must move on
         new = mask ^ sum(1 << k for k in group)
-        _check_crossings(group, Dh, system.eval_field(x, new), new, "after", t, sign, n,
-                         norms)
+        _check_crossings(group, flags, Dh, system.eval_field(x, new), new, "after", t, sign,
+                         n)
         return group, new, x
     x_after = apply_resets(system, group, mask, x, t, RESET_MISMATCH * float(err.max()))
     _check_jumps(sign * system.eval_events(x_after), group, window, t)
@@ -238,8 +244,10 @@ def landing(system, group, mask, x_after, window, t=None):
 
 
 def _clearly_positive(dh, F) -> bool:
-    """Whether the rate ``dh . F`` is positive beyond the grazing threshold."""
-    return float(dh @ F) > GRAZING_RTOL * np.linalg.norm(dh) * np.linalg.norm(F)
+    """Whether the rate ``dh . F`` is positive beyond the grazing threshold
+    (``GRAZING_RTOL |dh| |F|``: :func:`bderiv.models.compiled.rules.clearly_positive`)."""
+    return bool(rules.clearly_positive(np.ascontiguousarray(dh, dtype=np.float64),
+                                       np.ascontiguousarray(F, dtype=np.float64)))
 
 
 def apply_resets(system, group, mask, x, t, accuracy):
@@ -285,25 +293,19 @@ def _check_jumps(h, group, tol, t):
             )
 
 
-def _check_crossings(group, Dh, F, mask, when, t, sign, n, norms, rate=None):
-    """Refuse a crossing of an event of ``group`` whose rate ``Dh_k . F`` in region ``mask``
-    is not clearly positive (:func:`_clearly_positive`, every event at once): grazing, or
-    pushed back (``when``: "before" or "after" switching the group; ``Dh`` and ``sign``:
-    the gradients and signs of the local orientation, all n events; ``norms`` their
-    lengths; ``rate``: ``Dh @ F`` when known, all n)."""
-    rate = (Dh[group] @ F if rate is None else rate[group]).tolist()
-    bound = GRAZING_RTOL * float(np.sqrt(F @ F))
-    if all(r > bound * norms[k] for r, k in zip(rate, group, strict=True)):
-        return
-    for k in group:  # one by one: the first refused is named
-        _check_crossing(k, Dh[k], F, mask, f"{when} switching events {group}", t, sign[k], n)
+def _check_crossings(group, flags, Dh, F, mask, when, t, sign, n):
+    """Refuse a crossing of an event of ``group`` (``flags``: bool (n,)) whose rate
+    ``Dh_k . F`` in region ``mask`` is not clearly positive (:func:`_clearly_positive`):
+    grazing, or pushed back (``when``: "before" or "after" switching the group; ``Dh`` and
+    ``sign``: the gradients and signs of the local orientation, all n events)."""
+    k = rules.first_grazing(flags, Dh, np.ascontiguousarray(F, dtype=np.float64))
+    if k >= 0:
+        _refuse_crossing(k, Dh[k], F, mask, f"{when} switching events {group}", t, sign[k], n)
 
 
-def _check_crossing(k, dh, F, mask, when, t, sign, n):
-    """Refuse a crossing of event k (``dh``: its gradient in local orientation) whose rate
-    ``dh . F`` in region ``mask`` is not clearly positive: grazing, or pushed back."""
-    if _clearly_positive(dh, F):
-        return
+def _refuse_crossing(k, dh, F, mask, when, t, sign, n):
+    """Refuse the crossing of event k (``dh``: its gradient in local orientation), whose
+    rate ``dh . F`` in region ``mask`` is not clearly positive: grazing, or pushed back."""
     message = transversality_message(k, format_mask(mask, n), float(dh @ F),
                                      f"at t={t:.10g} {when}")
     message += " (the event would cross back)" if when.startswith("after") else (

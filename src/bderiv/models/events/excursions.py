@@ -53,7 +53,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..._limits import FINE_REACH, FINE_SAMPLES, PEAK_XTOL, REACH
-from ._peaks import peak_rows
+from ..compiled import rules
 from .crossings import group_tolerance
 from .locate import StopCalls
 
@@ -69,8 +69,7 @@ def sample_times(ends: np.ndarray) -> np.ndarray:
     array([0. , 0.5, 1. , 2. , 3. ])
     """
     out = np.empty(2 * ends.size - 1)
-    out[::2] = ends
-    out[1::2] = 0.5 * (ends[:-1] + ends[1:])
+    rules.sample_times(np.ascontiguousarray(ends, dtype=np.float64), out)
     return out
 
 
@@ -110,7 +109,7 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH)
     m = h.shape[0]
     if m < 2:
         return []
-    rows = peak_rows(np.ascontiguousarray(h, dtype=np.float64),
+    rows = rules.peak_rows(np.ascontiguousarray(h, dtype=np.float64),
                      np.ascontiguousarray(tol, dtype=np.float64), bool(stretch), float(reach))
     out = [(k, max(i - 1, 0), min(i + 1, m - 1)) for k, i in rows.tolist()]
     return sorted(out, key=lambda b: (b[1], b[0]))
@@ -265,14 +264,8 @@ def _return(h, tol):
     step: both step ends read across, no sign change. Integrated again to the lowest
     sample before the return, the stretch has a step end below the surface there.
     """
-    across = h[1:] > tol
-    first = None
-    for k in np.flatnonzero(across.any(axis=0)):  # none, on almost every stretch
-        j = 1 + int(np.argmax(across[:, k]))  # the first sample across
-        if j > 1 and h[1:j, k].min() < 0:
-            i = 1 + int(np.argmin(h[1:j, k]))
-            first = i if first is None else min(first, i)
-    return first
+    i = rules.return_sample(np.ascontiguousarray(h), np.ascontiguousarray(tol))
+    return None if i < 0 else int(i)
 
 
 class _EndRates:
@@ -302,4 +295,8 @@ class _EndRates:
         return self._end
 
     def _rate(self, model, x):
-        return self.sign * (model.eval_event_jacobian(x) @ self.system.eval_field(x, self.mask))
+        J = np.ascontiguousarray(model.eval_event_jacobian(x))
+        Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
+        rules.local_rates(self.sign, J, np.ascontiguousarray(self.system.eval_field(x, self.mask)),
+                          Dh, rate)
+        return rate

@@ -1,9 +1,10 @@
 """Event location at a stop of the integrator: how well each event is known, and when.
 
 The rules here are plain functions of arrays (the state's error bound, the event values,
-their gradients ``Dh`` and rates ``Dh . F``), written once for any integrator; only
-:func:`settle` and :func:`on_side_at_start` deal with :func:`scipy.integrate.solve_ivp`
-(docs/mathematics.md, section 11).
+their gradients ``Dh`` and rates ``Dh . F``), written once for any integrator: their
+arithmetic is :mod:`bderiv.models.compiled.rules`, which the compiled run calls too (the
+same bits on both paths); only :func:`settle` and :func:`on_side_at_start` deal with
+:func:`scipy.integrate.solve_ivp` (docs/mathematics.md, section 11).
 
 At a stop ``x`` (the located crossing of the events that ``fired``):
 
@@ -29,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._limits import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
+from ..compiled import rules
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -67,7 +69,11 @@ def state_error(atol, rtol, scale, carried=0.0) -> np.ndarray:
     >>> state_error(1e-12, 1e-10, np.array([500.0, 1e-3]))
     array([5.0001e-07, 1.1000e-11])
     """
-    return np.maximum(carried, GLOBAL_ERROR_FACTOR * (atol + rtol * np.asarray(scale)))
+    scale = np.ascontiguousarray(scale, dtype=np.float64)
+    carried = np.ascontiguousarray(np.broadcast_to(carried, scale.shape), dtype=np.float64)
+    out = np.empty(scale.shape)
+    rules.state_error(float(atol), float(rtol), scale, carried, out)
+    return out
 
 
 def windows(Dh, rate, err, fired):
@@ -101,10 +107,16 @@ def windows(Dh, rate, err, fired):
     >>> float(u), w.tolist()
     (1e-07, [1.01e-07, 2e-11])
     """
-    sigma = np.abs(Dh) @ err
-    located = [sigma[j] / rate[j] for j in fired if rate[j] > 0]
-    u = max(located, default=0.0)
-    return sigma + np.abs(rate) * u, float(u)
+    window = np.empty(rate.size)
+    u = rules.windows(Dh, rate, err, _flags(fired, rate.size), window)
+    return window, float(u)
+
+
+def _flags(events, n) -> np.ndarray:
+    """The bool flags (n,) of the event indices ``events``."""
+    flags = np.zeros(n, dtype=np.bool_)
+    flags[list(events)] = True
+    return flags
 
 
 class Classes:
@@ -125,6 +137,14 @@ class Classes:
 
     def __init__(self, group, near, undecided):
         self.group, self.near, self.undecided = group, near, undecided
+
+    @classmethod
+    def of(cls, codes):
+        """The classes of the codes (n,) of :func:`bderiv.models.compiled.rules.classify`."""
+        codes = codes.tolist()
+        return cls([k for k, c in enumerate(codes) if c & rules.GROUP],
+                   [k for k, c in enumerate(codes) if c & rules.NEAR],
+                   [k for k, c in enumerate(codes) if c & rules.UNDECIDED])
 
 
 @lru_cache(maxsize=4096)
@@ -169,20 +189,9 @@ def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     >>> classify(np.array([0.0, -1e-12]), np.ones(2), np.full(2, 1e-9), [0], 1e-10).undecided
     [1]
     """
-    group, near, undecided = [], [], []
-    for k in range(h.size):
-        if k in fired or h[k] > window[k]:
-            group.append(k)
-        elif not rate[k] > 0:
-            continue
-        elif abs(h[k]) <= window[k]:
-            group.append(k)
-            if window[k] / rate[k] > simultaneity_tol:
-                undecided.append(k)
-        elif -h[k] / rate[k] <= simultaneity_tol:
-            group.append(k)
-            near.append(k)
-    return Classes(group, near, undecided)
+    codes = np.empty(h.size, dtype=np.int64)
+    rules.classify(h, rate, window, _flags(fired, h.size), float(simultaneity_tol), codes)
+    return Classes.of(codes)
 
 
 class Stop(NamedTuple):
@@ -329,9 +338,11 @@ def local_view(system, mask, x):
 
 def _local_view(system, mask, x):
     sign = orientation(int(mask), system.n_events)
-    Dh = sign[:, None] * system.eval_event_jacobian(x)
+    J = system.eval_event_jacobian(x)
     F = system.eval_field(x, mask)
-    return sign, sign * system.eval_events(x), Dh, F, Dh @ F
+    Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
+    rules.local_rates(sign, np.ascontiguousarray(J), np.ascontiguousarray(F), Dh, rate)
+    return sign, sign * system.eval_events(x), Dh, F, rate
 
 
 def tightened(options):

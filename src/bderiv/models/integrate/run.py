@@ -25,6 +25,7 @@ from scipy.integrate import OdeSolver
 from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, GLOBAL_ERROR_FACTOR, MAX_GROUPS, MIN_RTOL
 from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
+from ..compiled import ENDED
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
 from ..events.locate import StopCalls, orientation, settle
@@ -257,42 +258,20 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
     max_groups = check_positive_int(max_groups, "max_groups")
     options = SolverOptions() if options is None else options
-    d, n = system.dim, system.n_events
+    d = system.dim
     mask = system.start_mask(x0)
     watch = SimulationProgress(t_final)  # a bar for long runs; Ctrl-C at each evaluation
     stops = StopCalls(system)  # the checked calls at a stop, made once for all its rules
     stretches, log = stretches_for(system, options, section, watch, stops), _Log()
-    t, x, scale, err = 0.0, x0, np.abs(x0), np.zeros(d)
-    while True:
-        sol = stretches(x, t, t_final, mask, options, variational)
-        again = partial(stretches, x, t, t_final, mask, variational=variational)
-        settled = settle(stops, mask, sol, simultaneity_tol, options, scale, err,
-                         again if variational else None)
-        sol, err, scale, fired = settled.sol, settled.err, settled.scale, settled.fired
-        log.add_stretch(sol, mask, d, variational)
-        t, x = float(sol.t[-1]), np.array(sol.y[:d, -1])
-        if section is not None and sol.t_events[n].size:
-            _refuse_event_at_return(fired, t)
-            break
-        if sol.status == 0:
-            break
-        group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, err,
-                                     settled.stop)
-        log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
-        # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
-        jac = stops.eval_event_jacobian(x) if variational else None
-        log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy(),
-                                     jac))
-        mask, x = new, x_after
-        if len(log.groups) > max_groups:
-            raise RuntimeError(
-                f"more than max_groups={max_groups} event groups before t={t:.10g}: the "
-                f"trajectory chatters (Zeno), or pass a larger max_groups for a long run"
-            )
-        if t >= t_final:
-            break
+    now = _Now(0.0, x0, mask, np.abs(x0), np.zeros(d))
+    settings = (t_final, simultaneity_tol, options, variational, section, max_groups)
+    while not now.ended:
+        if compiled_stops(system, section):  # as far as the stops are plain, in one call
+            _compiled_stretches(system, log, now, *settings)
+        if not now.ended:
+            _python_stretch(system, stops, stretches, log, now, *settings)
     watch.close()
-    if section is not None and not sol.t_events[n].size:
+    if section is not None and not now.returned:
         raise ValueError(
             f"the trajectory did not return to the section (upward) before t={t_final:g}; "
             f"pass a longer time to wait"
@@ -301,11 +280,106 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         log.linear.append(np.eye(d))
     final, pending = None, False
     if variational and section is None:
-        final, pending = _final_group(stops, log.groups, mask, x, t_final, simultaneity_tol)
+        final, pending = _final_group(stops, log.groups, now.mask, now.x, t_final,
+                                      simultaneity_tol)
     return Trajectory(t=np.concatenate(log.t), x=np.concatenate(log.x),
                       masks=np.concatenate(log.masks), events=tuple(log.records),
-                      groups=tuple(log.groups), x_final=x, mask_final=mask,
+                      groups=tuple(log.groups), x_final=now.x, mask_final=now.mask,
                       linear=tuple(log.linear), final_group=final, final_pending=pending)
+
+
+@dataclass
+class _Now:
+    """Where a run is: time, state, region, the largest ``|x_i|`` so far, the state's error
+    bound, and whether it ended (at the section: ``returned``)."""
+
+    t: float
+    x: np.ndarray
+    mask: int
+    scale: np.ndarray
+    err: np.ndarray
+    ended: bool = False
+    returned: bool = False
+
+
+def compiled_stops(system, section) -> bool:
+    """Whether the run's plain stops are decided in compiled code: a compiled model with a
+    compiled ``event_jacobian`` (checked once already, when it is checked), no resets, and
+    a compiled section if any (:meth:`bderiv.models.compiled.CompiledModel.run_stretches`)."""
+    model = getattr(system, "compiled", None)
+    if model is None or model.event_jacobian is None or system.has_resets:
+        return False
+    return system.event_jacobian_checked()
+
+
+def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, variational,
+                        section, max_groups):
+    """The stretches from ``now`` that the compiled run decides, recorded in ``log``;
+    ``now`` moved to their end."""
+    model, n = system.compiled, system.n_events
+    all_checked, checked = system.checked_compiled_jacobians()
+    out = model.run_stretches(
+        now.t, now.x, now.mask, now.scale, now.err, t_final, rtol=options.rtol,
+        atol=options.atol, max_step=options.max_step, simultaneity_tol=simultaneity_tol,
+        variational=variational, all_checked=all_checked, checked=checked,
+        groups_left=max_groups - len(log.groups),
+        section=None if section is None else section.compiled())
+    if out is None:  # a user function raised: the Python loop says where
+        return
+    code, returned, t, x, mask, scale, err, T, X, M, L, times, bits, before, after, states, \
+        jacobians, _ = out
+    if T.size:
+        log.t.append(T)
+        log.x.append(X)
+        log.masks.append(M)
+        log.linear.extend(L)
+    for i, (time, b, m0, m1) in enumerate(zip(times.tolist(), bits.tolist(), before.tolist(),
+                                              after.tolist(), strict=True)):
+        group = tuple(k for k in range(n) if b >> k & 1)
+        log.records.extend(EventRecord(time, k, m1, -1 if m0 >> k & 1 else 1) for k in group)
+        jac = None
+        if variational:
+            jac = jacobians[i]
+            jac.flags.writeable = False
+        log.groups.append(EventGroup(time, group, m0, m1, states[i].copy(), states[i].copy(),
+                                     jac))
+    now.t, now.x, now.mask, now.scale, now.err = t, x, mask, scale, err
+    now.ended, now.returned = code == ENDED, returned
+
+
+def _python_stretch(system, stops, stretches, log, now, t_final, simultaneity_tol, options,
+                    variational, section, max_groups):
+    """One stretch from ``now`` and its stop, in Python, recorded in ``log``; ``now`` moved
+    to its end (after the group's switch)."""
+    d, n = system.dim, system.n_events
+    sol = stretches(now.x, now.t, t_final, now.mask, options, variational)
+    again = partial(stretches, now.x, now.t, t_final, now.mask, variational=variational)
+    settled = settle(stops, now.mask, sol, simultaneity_tol, options, now.scale, now.err,
+                     again if variational else None)
+    sol, now.err, now.scale, fired = settled.sol, settled.err, settled.scale, settled.fired
+    log.add_stretch(sol, now.mask, d, variational)
+    now.t, now.x = float(sol.t[-1]), np.array(sol.y[:d, -1])
+    t, x, mask = now.t, now.x, now.mask
+    if section is not None and sol.t_events[n].size:
+        _refuse_event_at_return(fired, t)
+        now.ended = now.returned = True
+        return
+    if sol.status == 0:
+        now.ended = True
+        return
+    group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, now.err,
+                                 settled.stop)
+    log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
+    # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
+    jac = stops.eval_event_jacobian(x) if variational else None
+    log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy(), jac))
+    now.mask, now.x = new, x_after
+    if len(log.groups) > max_groups:
+        raise RuntimeError(
+            f"more than max_groups={max_groups} event groups before t={t:.10g}: the "
+            f"trajectory chatters (Zeno), or pass a larger max_groups for a long run"
+        )
+    now.ended = t >= t_final
 
 
 def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
