@@ -195,3 +195,21 @@ def test_corners_at_is_sample_corners_at_a_checked_state():
     np.testing.assert_array_equal(system.corners_at(x, masks), system.sample_corners(x, masks))
     np.testing.assert_array_equal(system.corners_at(x, masks),
                                   [x * (1.0 + m) for m in masks.tolist()])
+
+
+def test_a_map_on_a_fast_path_never_builds_the_selection_tables():
+    rng = np.random.default_rng(8)
+    Dh, F = random_system(rng, 3, 6)
+    P = np.linalg.pinv(Dh)
+    bits = _tables.mask_bits(np.arange(8), 3)
+    F = P @ np.ones(3) + bits @ (P * rng.uniform(0.5, 2.0, 3)).T
+    F += bits.prod(axis=1)[:, None] * ((np.eye(6) - P @ Dh) @ rng.standard_normal(6))
+    fast, slow = BDerivative(Dh, F), BDerivative(Dh, F, fast_paths=False)
+    assert fast.fast_path == "own-rates"
+    V = rng.standard_normal((16, 6))
+    np.testing.assert_allclose(fast(V), slow(V), rtol=1e-12, atol=1e-12)
+    fast.event_times(V), fast.inverse(V)
+    assert "_selection_tables" not in fast._engine.__dict__  # built for slow's queries only
+    assert "_selection_tables" in slow._engine.__dict__
+    again = pickle.loads(pickle.dumps(slow))
+    assert again(V).tobytes() == slow(V).tobytes()

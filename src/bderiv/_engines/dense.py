@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -45,7 +46,7 @@ class DenseEngine(Engine):
         """The own-rates fast path's tables, forwards and backwards (None without it)."""
         if self.fast is None or self.fast.kind != "own-rates":
             return None
-        return tuple(kernels.SortedTables(self._plain.DhT, self.F, rate)
+        return tuple(kernels.SortedTables(self.fast.DhT, self.F, rate)
                      for rate in (self.fast.rate0, self.fast.ratef))
 
     @property
@@ -72,23 +73,44 @@ class DenseEngine(Engine):
                          for P in _tables.corner_points(self.F, self.Dh, self.G))
 
     def _views(self) -> None:
-        """F, G and the kernels' tables, from Dh and R."""
+        """F and G, views of R; whether the records lie beyond the caches (the lane
+        kernels' prefetching variant)."""
+        nc = _tables.record_layout(self.n, self.d)[0]
+        self.G = self.R[:, 8 * nc : 8 * nc + self.n]
+        self.F = self.R[:, 16 * nc : 16 * nc + self.d]
+        self._far = int(self.R.nbytes > FAR_BYTES)
+
+    @functools.cached_property
+    def _selection_tables(self):
+        """(lane tables or None, lane kernels or None, plain tables): what the selection
+        kernels read, built on first use (a map on a fast path never runs them)."""
         n, d = self.n, self.d
         nc, dc, _ = _tables.record_layout(n, d)
-        self.G = self.R[:, 8 * nc : 8 * nc + n]
-        self.F = self.R[:, 16 * nc : 16 * nc + d]
-        self._lanes = self._lane_kernels = None
-        if not PLAIN and d <= lanes.MAX_D:
-            self._lanes = lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
-                                           _tables.padded(self.Dh, 8 * dc),
-                                           np.array([n, d, nc, dc], dtype=np.int64))
-            self._lane_kernels = lanes.kernels(8 * nc, 8 * dc, int(self.R.nbytes > FAR_BYTES))
-        self._plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G,
-                                          self.Dh)
+        plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G, self.Dh)
+        if PLAIN or d > lanes.MAX_D:
+            return None, None, plain
+        return (lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
+                                 _tables.padded(self.Dh, 8 * dc),
+                                 np.array([n, d, nc, dc], dtype=np.int64)),
+                lanes.kernels(8 * nc, 8 * dc, self._far), plain)
+
+    @property
+    def _lanes(self):
+        """The lane kernels' tables (None when the plain kernels run)."""
+        return self._selection_tables[0]
+
+    @property
+    def _lane_kernels(self):
+        return self._selection_tables[1]
+
+    @property
+    def _plain(self):
+        """The plain kernels' tables."""
+        return self._selection_tables[2]
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        for name in ("F", "G", "_lanes", "_lane_kernels", "_plain", "_sorted"):  # rebuilt
+        for name in ("F", "G", "_selection_tables", "_sorted"):  # rebuilt
             state.pop(name, None)
         return state
 
