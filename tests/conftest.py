@@ -80,14 +80,30 @@ def _warm_ups():
     bd = BDerivative(Dh, F)
     rng = np.random.default_rng(0)
     small, large = rng.standard_normal((3, 3)), rng.standard_normal((5000, 3))
-    # ordered for two workers (the tasks 0, 2 and 1, 3): about 11 and 15 s on a cold cache
+    # ordered for two workers (the tasks 0, 2 and 1, 3): about 11 and 15 s on a cold cache;
+    # then the compiled integrator and its compiled run (a minute or more on a cold cache)
     return [
         lambda: (bd(small), bd(large), bd.inverse(small), bd.inverse(large)),
         lambda: (bd.event_times(small), bd.event_times(large)),
         lambda: (bd.triangulation()(small), list(bd.pieces())),
         lambda: (bd.jvp(small, small), bd.vjp(small, small), bd.jvp(large, large),
                  bd.vjp(large, large)),
+        _compiled_run,
     ]
+
+
+def _compiled_run():
+    """A compiled model's run and flow map: the driver, the compiled run and its rules."""
+    import numba
+
+    from bderiv import HybridSystem
+
+    field = numba.njit(lambda x, mask: np.array([1.0 + 0.0 * x[0], 0.5 + 0.5 * mask]))
+    events = numba.njit(lambda x: np.array([x[0] - 1.0]))
+    event_jacobian = numba.njit(lambda x: np.array([[1.0, 0.0]]))
+    system = HybridSystem(field, events, n_events=1, dim=2, event_jacobian=event_jacobian)
+    system.simulate(np.zeros(2), 2.0)
+    system.flow_bderivative(np.zeros(2), 2.0)
 
 
 @contextlib.contextmanager

@@ -16,7 +16,7 @@ from .. import _numdiff as numdiff
 from .._format import format_mask
 from .._limits import ACCEPT_RTOL, RESET_TOL, RESET_TOL_NUMERICAL
 from .._validate import check_bool, check_finite, check_positive_int, check_real_array
-from .compiled import JACOBIAN_MODES, CompiledModel, is_compiled
+from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
 
 _log = logging.getLogger("bderiv")
 
@@ -180,7 +180,8 @@ class ModelCalls:
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
         self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
-        self._compiled_event_jacobian = event_jacobian if is_compiled(event_jacobian) else None
+        # the compiled path decides their use
+        self._given_event_jacobian, self._given_reset = event_jacobian, reset
         self._compiled = None
         self._params = params = check_params(params)
         field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
@@ -209,7 +210,8 @@ class ModelCalls:
             field, events, jac = self._compiled_functions
             self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,
                                            dim=self.dim, params=self._params,
-                                           event_jacobian=self._compiled_event_jacobian)
+                                           event_jacobian=self._given_event_jacobian,
+                                           reset=self._given_reset)
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
                       "(once per model; field_jacobian: %s)", time.perf_counter() - start,
                       JACOBIAN_MODES[self._compiled.jac_mode])
@@ -253,9 +255,11 @@ class ModelCalls:
         return False, np.array(masks, dtype=np.int64)
 
     def event_jacobian_checked(self) -> bool:
-        """Whether the given ``event_jacobian`` needs no more check (compared once already,
-        or ``check_jacobians`` False)."""
-        return not self.check_jacobians or ("event_jacobian",) in self._checked
+        """Whether the event Jacobian needs no more check: compared with a central
+        difference once already, or a given one with ``check_jacobians`` False (a complex
+        step is always compared once)."""
+        given_unchecked = self._event_jac is not None and not self.check_jacobians
+        return given_unchecked or ("event_jacobian",) in self._checked
 
     def _check_state(self, x, name="x"):
         arr = check_real_array(x, name)
@@ -332,9 +336,30 @@ class ModelCalls:
         """:meth:`eval_event_jacobian` at a state known to be one (float64, shape (d,),
         finite: the integrator's stop), not checked again; the function gets a copy."""
         x = np.array(x, dtype=np.float64)
+        if self._event_jac is None and self.compiled is not None and \
+                self.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP:
+            return self._complex_step_event_jacobian(x)
         given = None if self._event_jac is None else (lambda: self._event_jac(x))
         return self._jacobian(given, ("event_jacobian",), self.eval_events, x,
                               (self.n_events, self.dim), "events(x)", "event_jacobian")
+
+    def _complex_step_event_jacobian(self, x):
+        """The compiled complex step of ``events`` at ``x``: compared with a central
+        difference the first time; events that are not complex-analytic (``abs``, a
+        comparison of x) fail that, and the numerical Jacobian is used from then on."""
+        J = self.compiled.event_jacobian_at(x)
+        key = ("event_jacobian",)
+        if key not in self._checked:
+            try:
+                check_given_jacobian(self.eval_events, x, J, "events(x)", "event_jacobian")
+            except ValueError:
+                _log.info("the complex-step Jacobian of events(x) does not match its central "
+                          "differences (the events are not complex-analytic): a numerical "
+                          "one is used")
+                self.compiled.use_python_event_jacobian()
+                return self.event_jacobian_at(x)
+            self._checked.add(key)
+        return J
 
     def eval_field_jacobian(self, x, mask):
         """Jacobian of ``field(., mask)`` at ``x``, shape (d, d)."""

@@ -16,12 +16,19 @@ from __future__ import annotations
 from ._cached import key_all_kernels
 from ._checks import check_compiled, is_compiled
 from ._integrate import EVENT
-from ._run import ENDED, HANDOFF
+from ._run import (
+    ENDED,
+    EVENT_JAC_COMPLEX_STEP,
+    EVENT_JAC_GIVEN,
+    EVENT_JAC_NONE,
+    HANDOFF,
+)
 from .model import JACOBIAN_MODES, CompiledModel, dense_at
 from .stretch import Stretch, integrate_stretch
 
 key_all_kernels()
 
-__all__ = ["ENDED", "EVENT", "HANDOFF", "JACOBIAN_MODES", "CompiledModel", "Stretch",
+__all__ = ["ENDED", "EVENT", "EVENT_JAC_COMPLEX_STEP", "EVENT_JAC_GIVEN", "EVENT_JAC_NONE",
+           "HANDOFF", "JACOBIAN_MODES", "CompiledModel", "Stretch",
            "check_compiled",
            "dense_at", "integrate_stretch", "is_compiled"]

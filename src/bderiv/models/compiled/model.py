@@ -20,11 +20,20 @@ from ._checks import (
     compiles_as,
     compiles_for_complex,
     format_state,
+    is_compiled,
     raise_failed_run,
 )
 from ._dop853 import dense_rows
 from ._integrate import EVENT, FINISHED
-from ._model import EVENT_JACOBIAN_SIGNATURE, bound_model, no_event_jacobian
+from ._model import (
+    COMPLEX_EVENTS_SIGNATURE,
+    EVENT_JACOBIAN_SIGNATURE,
+    RESET_SIGNATURE,
+    bound_model,
+    no_complex_events,
+    no_event_jacobian,
+    no_reset,
+)
 from ._rhs import (
     JAC_CENTRAL,
     JAC_COMPLEX_STEP,
@@ -38,7 +47,13 @@ from ._rhs import (
     no_jacobian,
     no_section,
 )
-from ._run import run_stretches
+from ._run import (
+    EVENT_JAC_COMPLEX_STEP,
+    EVENT_JAC_GIVEN,
+    EVENT_JAC_NONE,
+    event_jacobian,
+    run_stretches,
+)
 from ._slices import Driven, _interrupted, drive, measured, slice_budget
 from .stretch import MAX_EVENTS
 
@@ -57,10 +72,19 @@ class CompiledModel:
         (d, d)`` (optional: complex step where ``field`` compiles for complex input, else
         central differences).
     n_events, dim : int
-    event_jacobian : numba dispatcher, optional
-        ``event_jacobian(x) -> (n, d)``: with it (compiled for ``float64[::1]``, returning
-        a C-contiguous float64 array) the run's plain stops are decided in compiled code
-        too (:meth:`run_stretches`); without, every stop is the Python loop's.
+    event_jacobian : callable, optional
+        The model's ``event_jacobian(x) -> (n, d)``: a dispatcher compiled for
+        ``float64[::1]`` returning a C-contiguous float64 array is called in compiled
+        code; none given, the Jacobian is had by complex step where ``events`` compiles
+        for complex input (:meth:`event_jacobian_at`). Either way the run's plain stops
+        are decided in compiled code too (:meth:`run_stretches`); otherwise (a Python
+        ``event_jacobian``, or events that are not complex-analytic) every stop is the
+        Python loop's (``event_jac_mode`` ``EVENT_JAC_NONE``).
+    reset : callable, optional
+        The model's ``reset(x, mask, k) -> (d,)``: a dispatcher compiled for
+        ``(float64[::1], int64, int64)`` returning a C-contiguous float64 array is called
+        in compiled code at the compiled run's stops (``self.reset``); a Python one
+        leaves every stop to the Python loop (``has_python_reset``).
     params : array_like, shape (m,), optional
         Parameter values: the functions then take ``x`` of shape (d + m,), the state
         followed by ``params`` (the section takes the state alone), so that a model
@@ -78,7 +102,7 @@ class CompiledModel:
     """
 
     def __init__(self, field, events, field_jacobian=None, *, n_events, dim, params=None,
-                 event_jacobian=None):
+                 event_jacobian=None, reset=None):
         if n_events > MAX_EVENTS:
             raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
                              f"bit each of an int64 region mask), got n_events={n_events}")
@@ -94,9 +118,18 @@ class CompiledModel:
         else:
             self.jac_mode = JAC_CENTRAL
         self.n_events, self.dim = n_events, dim
-        self.event_jacobian = (event_jacobian if event_jacobian is not None
-                               and compiles_as(event_jacobian, EVENT_JACOBIAN_SIGNATURE)
-                               else None)
+        self.event_jacobian = self.cevents = None
+        if event_jacobian is None:
+            self.cevents = events if compiles_as(events, COMPLEX_EVENTS_SIGNATURE) else None
+        elif is_compiled(event_jacobian) and compiles_as(event_jacobian,
+                                                         EVENT_JACOBIAN_SIGNATURE):
+            self.event_jacobian = event_jacobian
+        self.reset = (reset if is_compiled(reset) and compiles_as(reset, RESET_SIGNATURE)
+                      else None)
+        self.has_python_reset = reset is not None and self.reset is None
+        self.event_jac_mode = (EVENT_JAC_GIVEN if self.event_jacobian is not None else
+                               EVENT_JAC_COMPLEX_STEP if self.cevents is not None else
+                               EVENT_JAC_NONE)
         self.params = None if params is None else np.array(params, dtype=np.float64).ravel()
         self._structs = {}
         self._atol = {}  # (length, atol) -> the driver's atol array
@@ -111,7 +144,8 @@ class CompiledModel:
                 f["field"], f.get("field_jacobian", no_jacobian), f["events"],
                 f["field"] if self.jac_mode == JAC_COMPLEX_STEP else no_complex_field,
                 no_section if section is None else section, self.params,
-                self.event_jacobian or no_event_jacobian)
+                self.event_jacobian or no_event_jacobian, self.cevents or no_complex_events,
+                self.reset or no_reset)
         return self._structs[key]
 
     def use_central_differences(self) -> None:
@@ -128,6 +162,27 @@ class CompiledModel:
             raise_failed_run(status, self.named, x, 0.0, mask, d, self.n_events,
                              self.jac_mode, self.params)
         return J
+
+    def event_jacobian_at(self, x) -> np.ndarray:
+        """The event Jacobian the compiled run uses at ``x`` (d,): shape (n, d) (not with
+        ``EVENT_JAC_NONE``). A failed check is a ValueError naming what came."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        ok, J = event_jacobian(self.struct(), self.event_jac_mode, x.copy(), self.n_events,
+                               self.dim)
+        if not ok:
+            how = ("event_jacobian(x)" if self.event_jac_mode == EVENT_JAC_GIVEN else
+                   "the complex step of events(x)")
+            shape = (self.n_events, self.dim)
+            what = "a non-finite entry" if J.shape == shape else f"shape {J.shape}"
+            raise ValueError(f"{how} must give a finite array of shape {shape}, got {what} at "
+                             f"x = {format_state(x)}")
+        return J
+
+    def use_python_event_jacobian(self) -> None:
+        """Leave the event Jacobian to the Python side from now on (its complex step was
+        found wrong: events that are not complex-analytic)."""
+        self.cevents = None
+        self.event_jac_mode = EVENT_JAC_NONE
 
     def events_rows(self, X) -> np.ndarray:
         """``events`` at every row of ``X`` (m, d): shape (m, n), checked."""
@@ -225,7 +280,8 @@ class CompiledModel:
         key = (id(model), m)
         start = time.perf_counter()
         try:
-            out = run_stretches(model, self.jac_mode, variational, section is not None, n, d,
+            out = run_stretches(model, self.jac_mode, self.event_jac_mode, variational,
+                                section is not None, self.reset is not None, n, d,
                                 float(t), np.ascontiguousarray(x, dtype=np.float64),
                                 int(mask), scale, err, float(t_final), float(rtol),
                                 self._atols(m, atol), float(max_step), float(simultaneity_tol),
