@@ -29,7 +29,10 @@ from test_excursions import X0, C, T, closed_form
 from bderiv import HybridSystem
 from bderiv.models.compiled import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_NONE
 from bderiv.models.compiled import model as compiled_model
+from bderiv.models.events import locate
 from bderiv.models.integrate import run as run_module
+
+locate_tightened = locate.tightened
 
 
 def python_stops(monkeypatch):
@@ -218,6 +221,27 @@ def test_stops_handed_back_inside_a_run_against_the_closed_form(monkeypatch):
     x, log = closed_form(X0, T)
     assert_allclose([r.time for r in fast.events], log, atol=1e-8)
     assert_allclose(fast.x_final, x, atol=1e-8)
+
+
+def test_undecided_events_are_settled_in_compiled_code(monkeypatch):
+    """Both feet land at once, and with simultaneity_tol 0 the other foot's time at the stop
+    is known worse than the tolerance: the stretch is integrated again, tighter, until it
+    is decided (locate.settle), in compiled code; the Python loop's bits."""
+    ex, system = pronking_pair(2)
+    system.flow_bderivative(ex.x0, 0.9)  # checked Jacobians
+    with monkeypatch.context() as m:
+        calls = counting(m)
+        fast = system.flow_bderivative(ex.x0, 0.9, simultaneity_tol=0.0)
+    assert calls["python"] == 0
+    tightened = []
+    with monkeypatch.context() as m:
+        python_stops(m)
+        m.setattr(locate, "tightened", lambda o: tightened.append(o) or locate_tightened(o))
+        slow = system.flow_bderivative(ex.x0, 0.9, simultaneity_tol=0.0)
+    assert tightened  # the Python loop integrated a stretch again: the case is the test's
+    assert fast.group_events == slow.group_events
+    V = np.random.default_rng(7).standard_normal((20, 4))
+    np.testing.assert_array_equal(fast(V), slow(V))
 
 
 def test_the_return_map_and_orbit_with_compiled_stops(monkeypatch):

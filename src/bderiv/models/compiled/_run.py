@@ -4,14 +4,15 @@
 :func:`bderiv.models.integrate.run.run` does for each stretch of a compiled model: the
 driver integrates the region to the final time or the first crossing, the excursion
 screen samples the dense output, the stop is examined (state error, rates, windows,
-classes) and the group switched after its transversality checks, all by the rules of
-:mod:`.rules` that the Python stop logic calls too, on the same values, so the bits are
-the same. A stop that needs more is handed back: the function returns the run's state
-before that stretch, and the Python loop integrates the stretch and decides its stop (a
-peak to search inside a step, a return across a surface, undecided events of a
-derivative, a refusal to word, a model with resets, a region whose field Jacobian is not
-yet checked, a full step budget, a failed check of a user function). What this function
-records is then exactly what the Python loop would have.
+classes; undecided events of a derivative settled by integrating again, tighter, as
+:func:`bderiv.models.events.locate.settle` does) and the group switched after its
+transversality checks (compiled resets applied, where they land decided), all by the
+rules of :mod:`.rules` that the Python stop logic calls too, on the same values, so the
+bits are the same. A stop that needs more is handed back: the function returns the run's
+state before that stretch, and the Python loop integrates the stretch and decides its stop
+(a peak to search inside a step, a return across a surface, a refusal to word, a region
+whose field Jacobian is not yet checked, a full step budget, a failed check of a user
+function). What this function records is then exactly what the Python loop would have.
 """
 
 from __future__ import annotations
@@ -23,8 +24,10 @@ from ..._limits import (
     COMPLEX_STEP,
     FINE_REACH,
     FINE_SAMPLES,
+    MIN_RTOL,
     ORDERS_CHECKED,
     REACH,
+    REFINE_FACTOR,
     RESET_MISMATCH,
 )
 from ._dop853 import dense_rows
@@ -135,7 +138,7 @@ def _plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J,
     tolerances(J, err, tol)
     if return_sample(H, tol) >= 0:
         return False
-    rows = peak_rows(H, tol, True, REACH)
+    rows = peak_rows(H, tol, np.bool_(True), REACH)
     if rows.shape[0] == 0:
         return True
     # the rates at the stretch's ends, where a bracket there that the event leaves from, or
@@ -165,7 +168,7 @@ def _plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J,
             return False
         for r in range(FINE_SAMPLES):
             V[r, 0] = sign[k] * G[r, k]
-        sub = peak_rows(V, tol[k:k + 1].copy(), False, FINE_REACH)
+        sub = peak_rows(V, tol[k:k + 1].copy(), np.bool_(False), FINE_REACH)
         for c in range(sub.shape[0]):
             a, z = max(sub[c, 1] - 1, 0), min(sub[c, 1] + 1, FINE_SAMPLES - 1)
             if not (lo == 0 and a == 0 and rate_start[k] < 0.0) and \
@@ -235,7 +238,7 @@ def _landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, 
     (:func:`bderiv.models.events.crossings.landing`, and its refusal of a jump across
     another surface); not ok for a refusal or a failed check."""
     h = np.empty(n)
-    if call_events(model, False, x_after, n, h, np.empty(d)) != OK:
+    if call_events(model, np.bool_(False), x_after, n, h, np.empty(d)) != OK:
         return False, new
     for k in range(n):
         h[k] *= sign[k]
@@ -262,6 +265,65 @@ def _landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, 
                 return False, new
         kept |= np.int64(1) << k
     return True, new ^ kept
+
+
+@njit(cache=True)
+def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d, t, x, mask,
+                sign, scale, err, t_final, rtol, atol, max_step, simultaneity_tol, budget):
+    """A stretch from ``(t, x)`` in region ``mask`` at these tolerances (``atol`` (m,): the
+    driver's), screened, and its stop examined (:func:`bderiv.models.events.locate.settle`'s
+    ``decide``): ``(ok, status, steps, t_end, y_end, ts, ys, J, grown, err, first, h, F,
+    Dh, rate, window, codes)``, ``first`` the located crossing (the lowest index of the
+    earliest root; ``n`` the section, -1 none), the stop's values (local orientation) when
+    it is an event's. Not ok: the stretch is the Python loop's."""
+    m = d * (d + 1) if variational else d
+    h, F, rate, window = np.zeros(n), np.zeros(d), np.zeros(n), np.zeros(n)
+    Dh, codes = np.zeros((n, d)), np.zeros(n, dtype=np.int64)
+    y0 = np.zeros(m)
+    y0[:d] = x
+    if variational:
+        for i in range(d):
+            y0[d + i * d + i] = 1.0
+    forced = n if with_section and t == 0.0 else -1
+    # no literal arguments: a callee is compiled again for each literal type it meets
+    status, t_end, y_end, ts, ys, steps, Fd, _, roots, counts, _, _, _ = \
+        drive_stretch(model, jac_mode, variational, with_section, n + with_section, mask, d, t,
+                      y0, t_final, rtol, atol, max_step, np.float64(0.0), forced, budget,
+                      np.bool_(True))
+    grown, err_new, first = scale.copy(), np.empty(d), -1
+    fail = (False, status, counts[N_STEPS], t_end, y_end, ts, ys, Dh, grown, err_new, first,
+            h, F, Dh, rate, window, codes)
+    if status != EVENT and status != FINISHED:
+        return fail
+    x_end = y_end[:d].copy()
+    ok, J = event_jacobian(model, event_jac_mode, x_end, n, d)
+    if not ok or not _plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd,
+                                   J, atol[0], rtol):
+        return fail
+    for r in range(ts.size):
+        for i in range(d):
+            grown[i] = max(grown[i], abs(ys[r, i]))
+    state_error(atol[0], rtol, grown, err, err_new)
+    if status == EVENT:
+        for k in range(n + with_section):
+            if roots[k] == t_end:
+                first = k
+                break
+    if 0 <= first < n:
+        if call_events(model, np.bool_(False), x_end, n, h, np.empty(d)) != OK:
+            return fail
+        ok, F = _field(model, x_end, mask, d)
+        if not ok:
+            return fail
+        local_rates(sign, J, F, Dh, rate)
+        for k in range(n):
+            h[k] *= sign[k]
+        fired = np.zeros(n, dtype=np.bool_)
+        fired[first] = True
+        windows(Dh, rate, err_new, fired, window)
+        classify(h, rate, window, fired, simultaneity_tol, codes)
+    return (True, status, counts[N_STEPS], t_end, y_end, ts, ys, J, grown, err_new, first, h,
+            F, Dh, rate, window, codes)
 
 
 @njit(cache=True)
@@ -299,7 +361,6 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     steps : int
         Accepted steps taken, the stretch handed back included.
     """
-    m = d * (d + 1) if variational else d
     T = np.empty(64)
     X = np.empty((64, d))
     M = np.empty(64, dtype=np.int64)
@@ -319,55 +380,45 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
             break
         for k in range(n):
             sign[k] = -1.0 if mask >> k & 1 else 1.0
-        y0 = np.zeros(m)
-        y0[:d] = x
-        if variational:
-            for i in range(d):
-                y0[d + i * d + i] = 1.0
-        forced = n if with_section and t == 0.0 else -1
-        status, t_end, y_end, ts, ys, steps_, Fd, active, roots, counts, _, _, _ = \
-            drive_stretch(model, jac_mode, variational, with_section, n + with_section, mask,
-                          d, t, y0, t_final, rtol, atol, max_step, 0.0, forced,
-                          budget - steps, True)
-        steps += counts[N_STEPS]
-        if status != EVENT and status != FINISHED:
+        ok, status, taken, t_end, y_end, ts, ys, J, grown, err_new, first, h, F, Dh, rate, \
+            window, codes = _integrated(model, jac_mode, event_jac_mode, variational,
+                                        with_section, n, d, t, x, mask, sign, scale, err,
+                                        t_final, rtol, atol, max_step, simultaneity_tol,
+                                        budget - steps)
+        steps += taken
+        if not ok:
             break
-        x_end = y_end[:d].copy()
-        ok, J = event_jacobian(model, event_jac_mode, x_end, n, d)
-        if not ok or not _plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys,
-                                       steps_, Fd, J, atol[0], rtol):
-            break
-        grown = scale.copy()
-        for r in range(ts.size):
-            for i in range(d):
-                grown[i] = max(grown[i], abs(ys[r, i]))
-        err_new = np.empty(d)
-        state_error(atol[0], rtol, grown, err, err_new)
-        first = -1  # the located crossing: the lowest index of the earliest root
-        if status == EVENT:
-            for k in range(n + with_section):
-                if roots[k] == t_end:
-                    first = k
-                    break
         event = 0 <= first < n
-        new, x_after, bits = mask, x_end, np.int64(0)
-        if event:
-            h = np.empty(n)
-            if call_events(model, False, x_end, n, h, np.empty(d)) != OK:
-                break
-            ok, F = _field(model, x_end, mask, d)
+        if event and variational and (codes & UNDECIDED).any():
+            # locate.settle: the state alone integrated again, tighter, until the events
+            # at the stop are decided or rtol is at its floor; the stretch integrated once
+            # more at those tolerances when that changed the group
+            f_rtol, f_atol, decided, now = rtol, atol[0], True, codes
+            while ok and decided and (now & UNDECIDED).any() and f_rtol > MIN_RTOL:
+                f_rtol, f_atol = max(f_rtol / REFINE_FACTOR, MIN_RTOL), f_atol / REFINE_FACTOR
+                ok, _, taken, _, _, _, _, _, _, _, at, _, _, _, _, _, now = _integrated(
+                    model, jac_mode, event_jac_mode, np.bool_(False), with_section, n, d, t, x,
+                    mask, sign, scale, err, t_final, f_rtol, np.full(d, f_atol), max_step,
+                    simultaneity_tol, budget - steps)
+                steps += taken
+                decided = 0 <= at < n
             if not ok:
                 break
-            Dh, rate = np.empty((n, d)), np.empty(n)
-            local_rates(sign, J, F, Dh, rate)
-            for k in range(n):
-                h[k] *= sign[k]
-            fired = np.zeros(n, dtype=np.bool_)
-            fired[first] = True
-            window, codes = np.empty(n), np.empty(n, dtype=np.int64)
-            windows(Dh, rate, err_new, fired, window)
-            classify(h, rate, window, fired, simultaneity_tol, codes)
-            if (codes & NEAR).any() or (variational and (codes & UNDECIDED).any()):
+            kept = (GROUP | NEAR)
+            if not (decided and ((now & kept) == (codes & kept)).all()):
+                ok, status, taken, t_end, y_end, ts, ys, J, grown, err_new, first, h, F, Dh, \
+                    rate, window, codes = _integrated(
+                        model, jac_mode, event_jac_mode, variational, with_section, n, d, t, x,
+                        mask, sign, scale, err, t_final, f_rtol, np.full(atol.size, f_atol),
+                        max_step, simultaneity_tol, budget - steps)
+                steps += taken
+                if not ok:
+                    break
+                event = 0 <= first < n
+        x_end = y_end[:d].copy()
+        new, x_after, bits = mask, x_end, np.int64(0)
+        if event:
+            if (codes & NEAR).any():
                 break
             group = (codes & GROUP) != 0
             if first_grazing(group, Dh, F) >= 0:
