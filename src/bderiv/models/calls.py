@@ -109,7 +109,7 @@ def check_output(value, shape, what: str) -> np.ndarray:
     if arr.shape != shape:
         raise ValueError(f"{what} must return an array of shape {shape}, got shape {arr.shape}")
     arr = np.asarray(arr, dtype=np.float64)
-    if not np.isfinite(arr).all():
+    if np.count_nonzero(np.isfinite(arr)) != arr.size:
         idx = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
         raise ValueError(f"{what} returned a non-finite value: entry {list(idx)} = {arr[idx]}")
     return arr
@@ -448,13 +448,18 @@ class ModelCalls:
         F : ndarray, shape (m, d) (``(2**n, d)`` by default)
             ``F[i] = field(x, masks[i])``; taken from ``corner_field`` when given.
         """
-        x = self._check_state(x)
-        n, d = self.n_events, self.dim
+        n = self.n_events
         masks = (
             np.arange(1 << n, dtype=np.int64)
             if masks is None
             else np.asarray(masks, dtype=np.int64).reshape(-1)
         )
+        return self.corners_at(self._check_state(x), masks)
+
+    def corners_at(self, x, masks):
+        """:meth:`sample_corners` at a state known to be one (float64, shape (d,), finite:
+        an event point of a run, a checked rho) for int64 masks (m,), not checked again."""
+        n, d = self.n_events, self.dim
         if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
             table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
             return np.ascontiguousarray(table[masks])
