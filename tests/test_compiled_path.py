@@ -31,6 +31,7 @@ from bderiv import HybridSystem
 from bderiv.examples.gaits import apex_section as python_apex_section
 from bderiv.models.compiled import JACOBIAN_MODES
 from bderiv.models.compiled import _slices as slices
+from bderiv.models.integrate.run import compiled_stops
 
 
 def log_of(traj):
@@ -333,8 +334,12 @@ def test_a_stretch_in_slices_takes_the_same_steps(monkeypatch):
 
 
 def test_ctrl_c_stops_a_long_compiled_run_within_a_second():
+    """The run's stops in compiled code (the event Jacobian by complex step): the compiled
+    run hands the stretch back when its step budget is spent, and the Python loop's driver
+    calls (slices of steps) see the interrupt."""
     system = HybridSystem(slow_rotation, far_event, n_events=1, dim=2)
     system.simulate(np.array([1.0, 0.0]), 1.0)  # compiled and warm
+    assert compiled_stops(system, None)
     with ctrl_c_after(0.3) as start, pytest.raises(KeyboardInterrupt):
         system.simulate(np.array([1.0, 0.0]), LONG_RUN, max_step=1e-3)
     assert time.perf_counter() - start < 0.3 + 1.0

@@ -10,27 +10,29 @@ check a run whose stops go back and forth between the two.
 
 from __future__ import annotations
 
-import time
-
 import numba
 import numpy as np
 import pytest
-from compiled_models import (
-    LONG_RUN,
-    apex_section,
-    chair_pair,
-    ctrl_c_after,
-    far_event,
-    pronking_pair,
-    slow_rotation,
-)
+from compiled_models import apex_section, chair_pair, pronking_pair
 from numpy.testing import assert_allclose
+from test_compiled_path import (  # test_excursions' oscillator, a bouncing ball
+    GRAVITY,
+    RESTITUTION,
+    ball_events,
+    ball_field,
+    ball_reset,
+    grazing_events,
+    grazing_field,
+)
 from test_excursions import X0, C, T, closed_form
 
 from bderiv import HybridSystem
 from bderiv.models.compiled import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_NONE
 from bderiv.models.compiled import model as compiled_model
+from bderiv.models.events import locate
 from bderiv.models.integrate import run as run_module
+
+locate_tightened = locate.tightened
 
 
 def python_stops(monkeypatch):
@@ -64,17 +66,6 @@ def both_ways(monkeypatch, system, run):
         python_stops(m)
         slow = run(system)
     return fast, slow
-
-
-@numba.njit
-def oscillator_field(x, mask):
-    """test_excursions' oscillator (its excursions fall inside steps), the clock x[2]."""
-    return np.array([x[1], -x[0] - (2.0 if mask & 1 else 0.0), 1.0])
-
-
-@numba.njit
-def oscillator_events(x):
-    return np.array([x[0] - C])
 
 
 @numba.njit
@@ -194,7 +185,7 @@ def python_event_jacobian_field(x, mask):
 
 
 def test_events_that_are_not_complex_analytic_keep_the_python_stops():
-    system = HybridSystem(oscillator_field, kinked_events, n_events=1, dim=3)
+    system = HybridSystem(grazing_field, kinked_events, n_events=1, dim=3)
     assert system.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP
     J = system.eval_event_jacobian(np.array([0.5, 0.2, 0.0]))  # checked: wrong, numerical
     assert_allclose(J, [[1.0, 0.0, 0.0]], atol=1e-8)
@@ -206,7 +197,7 @@ def test_events_that_are_not_complex_analytic_keep_the_python_stops():
 
 
 def test_a_python_event_jacobian_keeps_the_python_stops():
-    system = HybridSystem(python_event_jacobian_field, oscillator_events, n_events=1, dim=3,
+    system = HybridSystem(python_event_jacobian_field, grazing_events, n_events=1, dim=3,
                           event_jacobian=lambda x: np.array([[1.0, 0.0, 0.0]]))
     assert system.compiled.event_jac_mode == EVENT_JAC_NONE
     assert not run_module.compiled_stops(system, None)
@@ -216,7 +207,7 @@ def test_stops_handed_back_inside_a_run_against_the_closed_form(monkeypatch):
     """test_excursions' oscillator: its first crossing, inside a step, is searched by the
     Python loop (handed back), the stops after it decided in compiled code; ten crossings
     at the closed form's times, and the same bits as the Python loop alone."""
-    system = HybridSystem(oscillator_field, oscillator_events, n_events=1, dim=3,
+    system = HybridSystem(grazing_field, grazing_events, n_events=1, dim=3,
                           event_jacobian=oscillator_event_jacobian)
     system.simulate(X0, 1.0)  # the event Jacobian checked
     with monkeypatch.context() as m:
@@ -230,6 +221,27 @@ def test_stops_handed_back_inside_a_run_against_the_closed_form(monkeypatch):
     x, log = closed_form(X0, T)
     assert_allclose([r.time for r in fast.events], log, atol=1e-8)
     assert_allclose(fast.x_final, x, atol=1e-8)
+
+
+def test_undecided_events_are_settled_in_compiled_code(monkeypatch):
+    """Both feet land at once, and with simultaneity_tol 0 the other foot's time at the stop
+    is known worse than the tolerance: the stretch is integrated again, tighter, until it
+    is decided (locate.settle), in compiled code; the Python loop's bits."""
+    ex, system = pronking_pair(2)
+    system.flow_bderivative(ex.x0, 0.9)  # checked Jacobians
+    with monkeypatch.context() as m:
+        calls = counting(m)
+        fast = system.flow_bderivative(ex.x0, 0.9, simultaneity_tol=0.0)
+    assert calls["python"] == 0
+    tightened = []
+    with monkeypatch.context() as m:
+        python_stops(m)
+        m.setattr(locate, "tightened", lambda o: tightened.append(o) or locate_tightened(o))
+        slow = system.flow_bderivative(ex.x0, 0.9, simultaneity_tol=0.0)
+    assert tightened  # the Python loop integrated a stretch again: the case is the test's
+    assert fast.group_events == slow.group_events
+    V = np.random.default_rng(7).standard_normal((20, 4))
+    np.testing.assert_array_equal(fast(V), slow(V))
 
 
 def test_the_return_map_and_orbit_with_compiled_stops(monkeypatch):
@@ -266,16 +278,77 @@ def test_refusals_are_the_python_loops(monkeypatch, call):
     assert fast == slow
 
 
-@numba.njit
-def far_event_jacobian(x):
-    return np.array([[1.0, 0.0]])
+# --- resets in the compiled run --------------------------------------------------------
 
-
-def test_ctrl_c_stops_a_long_run_of_compiled_stops_within_a_second():
-    system = HybridSystem(slow_rotation, far_event, n_events=1, dim=2,
-                          event_jacobian=far_event_jacobian)
-    system.simulate(np.array([1.0, 0.0]), 1.0)  # compiled and warm
+def test_a_bouncing_ball_in_one_compiled_call(monkeypatch):
+    """Each impact sends the ball back up (a bounce: the bit stays clear): the compiled
+    run applies the reset and decides where it lands, with the Python loop's bits and the
+    closed form's impact times (the first fall, then flights of 2 e^j v / g)."""
+    system = HybridSystem(ball_field, ball_events, n_events=1, dim=2, reset=ball_reset)
+    x0, t_final = np.array([1.0, 0.0]), 2.5
+    system.simulate(x0, t_final)  # the event Jacobian (complex step) checked
     assert run_module.compiled_stops(system, None)
-    with ctrl_c_after(0.3) as start, pytest.raises(KeyboardInterrupt):
-        system.simulate(np.array([1.0, 0.0]), LONG_RUN, max_step=1e-3)
-    assert time.perf_counter() - start < 0.3 + 1.0
+    with monkeypatch.context() as m:
+        calls = counting(m)
+        fast = system.simulate(x0, t_final)
+    assert calls == {"compiled": 1, "python": 0}
+    with monkeypatch.context() as m:
+        python_stops(m)
+        slow = system.simulate(x0, t_final)
+    same_trajectory(fast, slow)
+    assert all(g.bounced == (0,) for g in fast.groups)
+    v = np.sqrt(2.0 * GRAVITY)
+    times = [v / GRAVITY]
+    while times[-1] + 2 * RESTITUTION ** len(times) * v / GRAVITY < t_final:
+        times.append(times[-1] + 2 * RESTITUTION ** len(times) * v / GRAVITY)
+    assert len(fast.groups) == len(times) == 4
+    assert_allclose([e.time for e in fast.events], times, atol=1e-9)
+    fast_map, slow_map = both_ways(monkeypatch, system,
+                                   lambda s: s.flow_bderivative(x0, t_final))
+    V = np.random.default_rng(5).standard_normal((20, 2))
+    np.testing.assert_array_equal(fast_map(V), slow_map(V))
+
+
+def test_the_landing_with_resets_compiled(monkeypatch):
+    """examples.impacts.landing(compiled=True): two feet land together, their resets stop
+    the sliding (plastic); trajectory, groups and flow map as the Python loop's."""
+    from bderiv.examples.impacts import landing
+
+    ex = landing(compiled=True)
+    system = ex.system
+    assert system.compiled.reset is not None
+    system.simulate(ex.x0, ex.t_final)
+    assert run_module.compiled_stops(system, None)
+    fast, slow = both_ways(monkeypatch, system,
+                           lambda s: s.simulate(ex.x0, ex.t_final, simultaneity_tol=1e-7))
+    same_trajectory(fast, slow)
+    assert [g.events for g in fast.groups][:1] == [(0, 1)]
+    fast, slow = both_ways(monkeypatch, system, lambda s: s.flow_bderivative(ex.x0, ex.t_final))
+    V = np.random.default_rng(6).standard_normal((20, 10))
+    np.testing.assert_array_equal(fast(V), slow(V))
+
+
+@numba.njit
+def pair_field(x, mask):
+    return np.array([1.0 + 0.0 * x[0], 1.0 + 0.0 * x[0], 0.0 * x[0]])
+
+
+@numba.njit
+def pair_events(x):
+    return np.array([x[0] - 1.0, x[1] - 1.0])
+
+
+@numba.njit
+def clashing_reset(x, mask, k):
+    """Resets that do not commute: event 0 doubles x[2], event 1 adds one to it."""
+    y = x.copy()
+    y[2] = 2.0 * x[2] if k == 0 else x[2] + 1.0
+    return y
+
+
+def test_resets_that_do_not_commute_are_refused_as_by_the_python_loop(monkeypatch):
+    system = HybridSystem(pair_field, pair_events, n_events=2, dim=3, reset=clashing_reset)
+    system.simulate(np.array([0.0, 0.5, 1.0]), 0.9)  # the event Jacobian checked
+    call = lambda s: s.simulate(np.array([0.0, 0.0, 1.0]), 2.0, simultaneity_tol=1e-7)  # noqa: E731
+    fast, slow = both_ways(monkeypatch, system, lambda s: refusal(s, call))
+    assert fast == slow and "do not commute" in fast[1]

@@ -8,6 +8,7 @@ individual masks.
 
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -24,6 +25,26 @@ def blocks(n_rows: int, block: int = BLOCK_ROWS):
 def mask_bits(masks, n: int, dtype=np.float64) -> np.ndarray:
     """Bits of ``masks`` as a (len(masks), n) 0/1 matrix, column k = bit k."""
     return ((np.asarray(masks, dtype=np.int64)[:, None] >> np.arange(n)) & 1).astype(dtype)
+
+
+def block_bits(rows: slice, n: int) -> np.ndarray:
+    """:func:`mask_bits` of the masks ``rows.start .. rows.stop - 1`` of a block, (rows, n)
+    float 0/1. The whole table of n <= ``SHARED_BITS_N`` events is one block: its bits are
+    made once and shared, read-only."""
+    if rows.start == 0 and rows.stop == 1 << n and n <= SHARED_BITS_N:
+        return _table_bits(n)
+    return mask_bits(np.arange(rows.start, rows.stop, dtype=np.int64), n)
+
+
+#: the largest n whose (2**n, n) table of mask bits is kept (:func:`block_bits`): 80 KiB
+SHARED_BITS_N = 10
+
+
+@functools.cache
+def _table_bits(n: int) -> np.ndarray:
+    bits = mask_bits(np.arange(1 << n, dtype=np.int64), n)
+    bits.flags.writeable = False
+    return bits
 
 
 def happened_rows(masks, n: int) -> np.ndarray:
@@ -92,7 +113,8 @@ def aligned_empty(shape: tuple[int, int]) -> np.ndarray:
 def padded(X, cols: int, fill: float = 0.0) -> np.ndarray:
     """X (rows, c) in a C-contiguous (rows, cols) float64 array, the extra columns ``fill``
     (the kernels read rows as whole vectors of a multiple of 8 entries)."""
-    out = np.full((X.shape[0], cols), fill)
+    shape = (X.shape[0], cols)
+    out = np.zeros(shape) if fill == 0 else np.full(shape, fill)  # zeros: 1/5 of full's cost
     out[:, : X.shape[1]] = X
     return out
 
@@ -154,7 +176,14 @@ def row_norms(A: np.ndarray) -> np.ndarray:
 TINY = np.finfo(np.float64).tiny
 
 
-def find_transversality_violation(G, F, Dh, tol, pending_only=False):
+def table_maxima(Dh, F) -> tuple[list, float]:
+    """(dh_big, f_big): the largest ``|Dh[k]|`` of each row (a list of n floats) and the
+    largest ``|F|`` of the table (read block by block)."""
+    return (np.abs(Dh).max(axis=1).tolist(),
+            max(float(np.abs(F[rows]).max()) for rows in blocks(F.shape[0])))
+
+
+def find_transversality_violation(G, F, Dh, tol, pending_only=False, maxima=None):
     """First (mask, k, kind, scale) with G[mask, k] <= tol * |F[mask]| |Dh[k]|, or None.
 
     With ``pending_only`` only the rates of events still pending in the region (bit k of
@@ -166,16 +195,27 @@ def find_transversality_violation(G, F, Dh, tol, pending_only=False):
     (``scale`` is then log10 |F[mask]| |Dh[k]|), ``"violated"`` for a rate <= 0 and
     ``"grazing"`` for a positive rate that is tiny relative to the scale of the two vectors
     (the surfaces are then nearly tangent to the flow and the event times ill-conditioned).
+
+    A block that :func:`_clearly_transversal` passes is not examined further (the common
+    case: no norm of a row is then taken). ``maxima``: :func:`table_maxima` of these F and
+    Dh when the caller has it.
     """
-    dh_norm = row_norms(Dh)
+    n = G.shape[1]
+    dh_big, f_big = table_maxima(Dh, F) if maxima is None else maxima
+    dh_norm = None
     for rows in blocks(G.shape[0]):
+        happened = block_bits(rows, n) != 0 if pending_only else None
+        if _clearly_transversal(G[rows], F.shape[1], f_big, dh_big, tol, happened):
+            continue
+        if dh_norm is None:
+            dh_norm = row_norms(Dh)
         f_norm = row_norms(F[rows])
         with np.errstate(over="ignore"):
             scale = f_norm[:, None] * dh_norm
         # a subnormal rate (below finfo.tiny) has lost digits: never accepted
         bad = (G[rows] <= tol * scale) | (G[rows] < TINY)
         if pending_only:
-            bad &= mask_bits(np.arange(rows.start, rows.stop, dtype=np.int64), G.shape[1]) == 0
+            bad &= ~happened
         bad |= ~np.isfinite(G[rows])
         if bad.any():
             if not np.isfinite(G[rows]).all():
@@ -191,6 +231,37 @@ def find_transversality_violation(G, F, Dh, tol, pending_only=False):
                 return rows.start + int(i), int(k), "underflow", float(log_scale)
             return rows.start + int(i), int(k), kind, float(scale[i, k])
     return None
+
+
+def _clearly_transversal(G, d, f_big, dh_big, tol, happened=None) -> bool:
+    """Whether every rate of a block of G (dimension d; every pending rate when
+    ``happened``, the (rows, n) flags of the events that happened, is given) passes the
+    test of :func:`find_transversality_violation`, decided without the norms of the rows.
+
+    A sufficient test (False sends the block to the full one): ``G[mask, k] > tol * U[k]``
+    and ``TINY < G[mask, k] < inf``, with ``U[k] = 2 d b_F b_k``, b_F the largest ``|F|``
+    (``f_big``), b_k the largest ``|Dh[k]|`` (``dh_big``), each raised to TINY if below,
+    as :func:`row_norms` does. ``row_norms`` gives at most ``b sqrt(d) (1 + eps)**(d/2 +
+    2)`` (its unit rows have entries <= 1), so the computed scale is at most ``d b_F b_k (1
+    + eps)**(d + 3)``, below the real product ``fl(2 d b_F) b_k``; rounding is monotone, so
+    ``fl(tol * U[k])`` is at least the full test's ``tol * scale[mask, k]``. ``U`` in
+    Python floats: an overflow there gives inf (no warning) and fails the test; tol = 0 and
+    ``U = inf`` give NaN, for which the bound is TINY (the full test then accepts every
+    finite rate >= TINY).
+    """
+    t = float(tol)
+    if t != tol:  # a tolerance that is no float (a Fraction): the full test's arithmetic
+        return False
+    big = max(f_big, TINY) * (2 * d)
+    low = []
+    for b in dh_big:
+        bound = t * (big * max(b, TINY))
+        low.append(bound if bound > TINY else TINY)
+    ok = G > np.array(low)
+    if happened is not None:
+        ok |= happened
+    ok &= np.abs(G) < np.inf
+    return np.count_nonzero(ok) == ok.size
 
 
 def corner_points(F: np.ndarray, Dh: np.ndarray, G: np.ndarray):

@@ -179,6 +179,25 @@ class BDerivative(Linearisation, CornerGeometry):
             engine = FunctionEngine.from_model(Dh, F)
         self._adopt(Dh, engine, None if kind in ("dense", "resets") else F)
 
+    @classmethod
+    def _from_checked(cls, Dh, F, *, resets=None, reset_tol: float = RESET_TOL):
+        """The map ``BDerivative(Dh, F, resets=resets, reset_tol=reset_tol)`` gives, from
+        tables its caller made and checked (:func:`bderiv.models.assembly.group_bderivative`
+        samples them from a model's checked outputs): Dh (n, d), n and d >= 1, a
+        C-contiguous float64 array the map keeps (made read-only), F (2**n, d) float64,
+        both finite; resets (2**n, n, d, d) or None. Only the checks of these arguments are
+        skipped: the size, transversality, rate spread and reset checks of the tables run
+        as in ``__init__``."""
+        bd = cls.__new__(cls)
+        bd._fast_paths = True
+        if resets is None:
+            engine = DenseEngine.build(Dh, F, GRAZING_RTOL, None, checked=True)
+        else:
+            engine = ResetEngine.build(Dh, F, resets, GRAZING_RTOL, reset_tol, None,
+                                       checked=True)
+        bd._adopt(Dh, engine, None)
+        return bd
+
     def _adopt(self, Dh, engine, model) -> None:
         """The attributes of a map from its engine (``model``: None for a dense table)."""
         self.n_events, self.dim = Dh.shape

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import functools
+import math
+
 import numpy as np
 
 from .. import _tables
@@ -43,13 +46,13 @@ class DenseEngine(Engine):
         """The own-rates fast path's tables, forwards and backwards (None without it)."""
         if self.fast is None or self.fast.kind != "own-rates":
             return None
-        return tuple(kernels.SortedTables(self._plain.DhT, self.F, rate)
+        return tuple(kernels.SortedTables(self.fast.DhT, self.F, rate)
                      for rate in (self.fast.rate0, self.fast.ratef))
 
     @property
     def scaled(self) -> bool:
         """Whether the tables were scaled at build (then F, G differ from the caller's)."""
-        return bool(self.f_exp or self.dh_exps.any())
+        return bool(self.f_exp or np.count_nonzero(self.dh_exps))
 
     def caller_tables(self):
         """F (2**n, d) and G (2**n, n) in the caller's units: views of the records, or
@@ -70,23 +73,44 @@ class DenseEngine(Engine):
                          for P in _tables.corner_points(self.F, self.Dh, self.G))
 
     def _views(self) -> None:
-        """F, G and the kernels' tables, from Dh and R."""
+        """F and G, views of R; whether the records lie beyond the caches (the lane
+        kernels' prefetching variant)."""
+        nc = _tables.record_layout(self.n, self.d)[0]
+        self.G = self.R[:, 8 * nc : 8 * nc + self.n]
+        self.F = self.R[:, 16 * nc : 16 * nc + self.d]
+        self._far = int(self.R.nbytes > FAR_BYTES)
+
+    @functools.cached_property
+    def _selection_tables(self):
+        """(lane tables or None, lane kernels or None, plain tables): what the selection
+        kernels read, built on first use (a map on a fast path never runs them)."""
         n, d = self.n, self.d
         nc, dc, _ = _tables.record_layout(n, d)
-        self.G = self.R[:, 8 * nc : 8 * nc + n]
-        self.F = self.R[:, 16 * nc : 16 * nc + d]
-        self._lanes = self._lane_kernels = None
-        if not PLAIN and d <= lanes.MAX_D:
-            self._lanes = lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
-                                           _tables.padded(self.Dh, 8 * dc),
-                                           np.array([n, d, nc, dc], dtype=np.int64))
-            self._lane_kernels = lanes.kernels(8 * nc, 8 * dc, int(self.R.nbytes > FAR_BYTES))
-        self._plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G,
-                                          self.Dh)
+        plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G, self.Dh)
+        if PLAIN or d > lanes.MAX_D:
+            return None, None, plain
+        return (lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
+                                 _tables.padded(self.Dh, 8 * dc),
+                                 np.array([n, d, nc, dc], dtype=np.int64)),
+                lanes.kernels(8 * nc, 8 * dc, self._far), plain)
+
+    @property
+    def _lanes(self):
+        """The lane kernels' tables (None when the plain kernels run)."""
+        return self._selection_tables[0]
+
+    @property
+    def _lane_kernels(self):
+        return self._selection_tables[1]
+
+    @property
+    def _plain(self):
+        """The plain kernels' tables."""
+        return self._selection_tables[2]
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        for name in ("F", "G", "_lanes", "_lane_kernels", "_plain", "_sorted"):  # rebuilt
+        for name in ("F", "G", "_selection_tables", "_sorted"):  # rebuilt
             state.pop(name, None)
         return state
 
@@ -101,11 +125,13 @@ class DenseEngine(Engine):
 
     @classmethod
     def build(cls, Dh, F, transversality_tol, memory_limit, fast_paths: bool = True,
-              scale: bool = True, pending_only: bool = False):
+              scale: bool = True, pending_only: bool = False, checked: bool = False):
         """Validate a user's table F for Dh (size before anything is allocated, shape,
         finiteness, transversality of every rate, or of the rates of pending events only
         when ``pending_only``: a table with resets) and build the engine on a copy, scaled
-        by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``."""
+        by powers of two when ``scale`` and its entries are beyond ``TABLE_BAND``.
+        ``checked``: F (2**n, d) float64 and finite and the tolerance a number >= 0 are
+        known (the caller made them), not checked again."""
         n, d = Dh.shape
         need = _tables.dense_table_bytes(n, d)
         limit = memory_limit_for(need, memory_limit)
@@ -116,22 +142,25 @@ class DenseEngine(Engine):
                 f"{_tables.human_bytes(limit)}; use fewer simultaneous events or a corner "
                 f"model that does not store 2**n rows"
             )
-        F = check_matrix(F, "F", (None, d), copy=False)
-        if F.shape[0] != 1 << n:
-            raise ValueError(
-                f"F must have 2**n = {1 << n} rows (one per mask of n={n} events, n from "
-                f"Dh's {n} rows), got {F.shape[0]} rows"
-            )
-        check_number(transversality_tol, "transversality_tol", strict=False)
+        if not checked:
+            F = check_matrix(F, "F", (None, d), copy=False)
+            if F.shape[0] != 1 << n:
+                raise ValueError(
+                    f"F must have 2**n = {1 << n} rows (one per mask of n={n} events, n "
+                    f"from Dh's {n} rows), got {F.shape[0]} rows"
+                )
+            check_number(transversality_tol, "transversality_tol", strict=False)
 
-        dh_exps, f_exp = table_exponents(Dh, F) if scale else (np.zeros(n, np.int64), 0)
-        if dh_exps.any():
+        maxima = _tables.table_maxima(Dh, F)
+        dh_exps, f_exp = table_exponents(*maxima) if scale else (np.zeros(n, np.int64), 0)
+        scaled = bool(f_exp or np.count_nonzero(dh_exps))
+        if scaled:
             Dh = np.ldexp(Dh, -dh_exps[:, None])
         R = _tables.region_records(F, Dh, -f_exp)
         nc = _tables.record_layout(n, d)[0]
         G, F = R[:, 8 * nc : 8 * nc + n], R[:, 16 * nc : 16 * nc + d]
         bad = _tables.find_transversality_violation(G, F, Dh, transversality_tol,
-                                                    pending_only)
+                                                    pending_only, None if scaled else maxima)
         if bad is not None:
             mask, k, kind, scale = bad
             rate = np.ldexp(G[mask, k], f_exp + int(dh_exps[k]))  # in the caller's units
@@ -220,18 +249,17 @@ class DenseEngine(Engine):
         return self.F
 
 
-def table_exponents(Dh, F):
-    """(dh_exps (n,), f_exp): the binary exponents (``np.frexp``) of the largest entry of
-    each row of Dh and of F as a whole, each replaced by 0 within ``+-TABLE_BAND``.
+def table_exponents(dh_big, f_big):
+    """(dh_exps (n,), f_exp): the binary exponents (``math.frexp``) of the largest entry of
+    each row of Dh and of F as a whole (``dh_big``, ``f_big``: ``_tables.table_maxima``),
+    each replaced by 0 within ``+-TABLE_BAND``.
 
     The kernels run on ``2**-dh_exps[k] Dh[k]`` and ``2**-f_exp F``, which have the same
     B-derivative (each piece is a product of ``I + (F[a] - F[b]) Dh[k]^T / (Dh[k] . F[b])``,
     unchanged by either scaling; mathematics.md "How the kernels round"); the event times are
     ``2**f_exp`` times the caller's.
     """
-    dh = np.frexp(np.abs(Dh).max(axis=1))[1].astype(np.int64)
-    big = max((float(np.abs(F[rows]).max()) for rows in _tables.blocks(F.shape[0])),
-              default=0.0)
-    f = int(np.frexp(big)[1])
-    dh[np.abs(dh) <= TABLE_BAND] = 0
-    return dh, (f if abs(f) > TABLE_BAND else 0)
+    dh = [math.frexp(v)[1] for v in dh_big]
+    f = math.frexp(f_big)[1]
+    return (np.array([e if abs(e) > TABLE_BAND else 0 for e in dh], dtype=np.int64),
+            f if abs(f) > TABLE_BAND else 0)

@@ -61,17 +61,19 @@ def _dense(F, G, Dh, rtol):
     s0, sf = np.abs(F[0]) @ absDhT, np.abs(F[-1]) @ absDhT
     F0 = F[0].copy()
     A = F[1 << np.arange(n)] - F0
+    dg, ds = gf - g0, sf - s0
     additive = True
     for rows in _tables.blocks(G.shape[0]):
-        bits = _tables.mask_bits(np.arange(rows.start, rows.stop, dtype=np.int64), n)
+        bits = _tables.block_bits(rows, n)
+        absF = np.abs(F[rows])
         # G[mask, k] = F[mask] . Dh[k] is known to ~ |F[mask]| . |Dh[k]| * eps
-        scale = np.abs(F[rows]) @ absDhT + s0 + bits * (sf - s0)
-        if (np.abs(G[rows] - (g0 + bits * (gf - g0))) > rtol * scale).any():
+        scale = absF @ absDhT + s0 + bits * ds
+        if np.count_nonzero(np.abs(G[rows] - (g0 + bits * dg)) > rtol * scale):
             return None
         if additive:
             pred = F0 + bits @ A
-            size = np.abs(F[rows]) + np.abs(F0) + bits @ np.abs(A)
-            additive = not (np.abs(F[rows] - pred) > rtol * size).any()
+            size = absF + np.abs(F0) + bits @ np.abs(A)
+            additive = not np.count_nonzero(np.abs(F[rows] - pred) > rtol * size)
     return FastPath(Dh, g0, gf, A if additive else None)
 
 

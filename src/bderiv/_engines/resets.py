@@ -197,14 +197,16 @@ class ResetEngine(Engine):
                                    DhP, self.low)
 
     @classmethod
-    def build(cls, Dh, F, resets, transversality_tol, reset_tol, memory_limit):
-        """Validate F (as a dense table), the resets and the conditions of existence."""
+    def build(cls, Dh, F, resets, transversality_tol, reset_tol, memory_limit,
+              checked: bool = False):
+        """Validate F (as a dense table, ``checked`` as for :meth:`DenseEngine.build`), the
+        resets and the conditions of existence."""
         n, d = Dh.shape
         reset_tol = check_number(reset_tol, "reset_tol")
         P, Q, low = _check_resets(resets, n, d, memory_limit)
         # rates of events that happened may have either sign (a bounce: section 9)
         table = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths=False,
-                                  scale=False, pending_only=True)
+                                  scale=False, pending_only=True, checked=checked)
         check_existence(Dh, P, Q, low, reset_tol)
         for a in (P, Q):
             a.flags.writeable = False

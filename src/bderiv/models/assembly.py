@@ -15,6 +15,7 @@ import numpy as np
 
 from .._format import format_mask, transversality_message
 from .._limits import RESET_MISMATCH
+from .._tables import block_bits
 from ..bderivative import BDerivative
 from ..flowmap import FlowBDerivative
 from .events.crossings import apply_resets, landing
@@ -26,17 +27,17 @@ __all__ = ["flow_map_along", "group_bderivative", "point_bderivative", "spread_m
 def spread_masks(events, mask_before):
     """Global masks of all 2**g local masks of a group (bit j of local: event events[j]
     crossed, i.e. its bit of ``mask_before`` flipped, whichever the direction)."""
-    g = len(events)
-    local = np.arange(1 << g, dtype=np.int64)
-    glob = np.full(1 << g, int(mask_before), dtype=np.int64)
-    for j, k in enumerate(events):
-        glob ^= ((local >> j) & 1) << int(k)
+    glob = np.empty(1 << len(events), dtype=np.int64)
+    glob[0] = mask_before
+    for j, k in enumerate(events):  # the local masks with bit j set: those without, flipped
+        glob[1 << j : 2 << j] = glob[: 1 << j] ^ (np.int64(1) << np.int64(k))
     return glob
 
 
 def group_bderivative(system, x, events, mask_before, mask_after=None, *, where="at rho",
                       event_jacobian=None):
-    """BDerivative of the group ``events`` at ``x`` entered from region ``mask_before``.
+    """BDerivative of the group ``events`` at ``x`` (a checked state: float64, (d,),
+    finite) entered from region ``mask_before``.
 
     Built in the group's local orientation: the rows of ``Dh`` of the events crossed
     downward (bit set in ``mask_before``) are negated, and local mask bit j means
@@ -63,22 +64,23 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
         F = np.array([system.eval_field(b, int(m)) for b, m in zip(base, regions,
                                                                  strict=True)])
     else:
-        F = system.sample_corners(x, glob)
+        F = system.corners_at(x, glob)
     G = F @ Dh.T
-    pending = (np.arange(G.shape[0])[:, None] >> np.arange(len(events)) & 1) == 0
-    bad = np.argwhere(~(G > 0) & (pending | (not system.has_resets)))
-    if bad.size:
-        i, j = (int(v) for v in bad[0])
+    ok = G > 0
+    if system.has_resets:  # the rates of the events that happened may have either sign
+        ok |= block_bits(slice(0, G.shape[0]), len(events)) != 0
+    if np.count_nonzero(ok) != ok.size:
+        i, j = (int(v) for v in np.argwhere(~ok)[0])
         region = format_mask(int(glob[i]), system.n_events)
         if sign[j] < 0:
             where += f" (event {events[j]} crossed downward: the rate is that of -h)"
         raise ValueError(transversality_message(events[j], region, G[i, j], where))
     if system.has_resets:
         try:
-            return BDerivative(Dh, F, resets=R, reset_tol=system.reset_tol)
+            return BDerivative._from_checked(Dh, F, resets=R, reset_tol=system.reset_tol)
         except ValueError as exc:  # the existence check: say where
             raise ValueError(f"{where} (events {list(events)}): {exc}") from None
-    return BDerivative(Dh, F)
+    return BDerivative._from_checked(Dh, F)  # Dh, F: made here from checked samples
 
 
 def flow_map_along(system, traj):

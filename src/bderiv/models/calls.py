@@ -109,7 +109,7 @@ def check_output(value, shape, what: str) -> np.ndarray:
     if arr.shape != shape:
         raise ValueError(f"{what} must return an array of shape {shape}, got shape {arr.shape}")
     arr = np.asarray(arr, dtype=np.float64)
-    if not np.isfinite(arr).all():
+    if np.count_nonzero(np.isfinite(arr)) != arr.size:
         idx = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
         raise ValueError(f"{what} returned a non-finite value: entry {list(idx)} = {arr[idx]}")
     return arr
@@ -180,7 +180,8 @@ class ModelCalls:
         if reset is None and reset_jacobian is not None:
             raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
         self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
-        self._given_event_jacobian = event_jacobian  # the compiled path decides its use
+        # the compiled path decides their use
+        self._given_event_jacobian, self._given_reset = event_jacobian, reset
         self._compiled = None
         self._params = params = check_params(params)
         field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
@@ -209,7 +210,8 @@ class ModelCalls:
             field, events, jac = self._compiled_functions
             self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,
                                            dim=self.dim, params=self._params,
-                                           event_jacobian=self._given_event_jacobian)
+                                           event_jacobian=self._given_event_jacobian,
+                                           reset=self._given_reset)
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
                       "(once per model; field_jacobian: %s)", time.perf_counter() - start,
                       JACOBIAN_MODES[self._compiled.jac_mode])
@@ -446,13 +448,18 @@ class ModelCalls:
         F : ndarray, shape (m, d) (``(2**n, d)`` by default)
             ``F[i] = field(x, masks[i])``; taken from ``corner_field`` when given.
         """
-        x = self._check_state(x)
-        n, d = self.n_events, self.dim
+        n = self.n_events
         masks = (
             np.arange(1 << n, dtype=np.int64)
             if masks is None
             else np.asarray(masks, dtype=np.int64).reshape(-1)
         )
+        return self.corners_at(self._check_state(x), masks)
+
+    def corners_at(self, x, masks):
+        """:meth:`sample_corners` at a state known to be one (float64, shape (d,), finite:
+        an event point of a run, a checked rho) for int64 masks (m,), not checked again."""
+        n, d = self.n_events, self.dim
         if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
             table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
             return np.ascontiguousarray(table[masks])

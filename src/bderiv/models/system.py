@@ -263,7 +263,7 @@ class HybridSystem(ModelCalls):
 
         Each run is the one :meth:`simulate` makes from that state (the same trajectory,
         to the bit). On a compiled model whose stops are decided in compiled code (its
-        event Jacobian given compiled or had by complex step, no resets) the runs go on
+        event Jacobian given compiled or had by complex step, its resets compiled) the runs go on
         ``numba.config.NUMBA_NUM_THREADS`` threads, whose compiled stretches run at once
         (the compiled run releases the GIL; the Python parts of the runs take turns);
         otherwise one after the other in this thread, where threads would only take turns

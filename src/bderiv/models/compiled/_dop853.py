@@ -90,14 +90,22 @@ def initial_step(model, jac_mode, variational, mask, d, t0, y0, f0, t_bound, max
     return OK, min(100.0 * h0, h1, interval, max_step)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _stage_point(y, K, row, s, h, out):
-    """``out = y + h * (K[:s].T @ A[row, :s])`` (scipy's ``y + dot(K[:s].T, a[:s]) * h``)."""
-    for j in range(y.size):
-        acc = 0.0
-        for r in range(s):
-            acc += K[r, j] * A[row, r]
-        out[j] = y[j] + acc * h
+    """``out = y + h * (K[:s].T @ A[row, :s])`` (scipy's ``y + dot(K[:s].T, a[:s]) * h``).
+
+    Each component's sum is accumulated in ``out`` in the order r = 0, 1, ... (the same
+    roundings as one sum per component), the stages outer: the inner loop over components
+    is vectorized. ``out`` must not overlap ``y`` or ``K``."""
+    n = y.size
+    for j in range(n):
+        out[j] = 0.0
+    for r in range(s):
+        a = A[row, r]
+        for j in range(n):
+            out[j] += K[r, j] * a
+    for j in range(n):
+        out[j] = y[j] + out[j] * h
 
 
 @njit(cache=True)
@@ -109,15 +117,19 @@ def step(model, jac_mode, variational, mask, d, y, h, K, y_new, ys, bad):
         status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
         if status != OK:
             return status
-    for j in range(y.size):
-        acc = 0.0
-        for r in range(N_STAGES):
-            acc += K[r, j] * B[r]
-        y_new[j] = y[j] + h * acc
+    n = y.size
+    for j in range(n):  # y + h * (K[:12].T @ B), summed as _stage_point does
+        y_new[j] = 0.0
+    for r in range(N_STAGES):
+        b = B[r]
+        for j in range(n):
+            y_new[j] += K[r, j] * b
+    for j in range(n):
+        y_new[j] = y[j] + h * y_new[j]
     return rhs(model, jac_mode, variational, mask, d, y_new, K[N_STAGES], bad)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def error_norm(K, h, y, y_new, rtol, atol):
     """scipy's combined 5th / 3rd order error estimate of DOP853, scaled RMS norm."""
     m = y.size
@@ -158,17 +170,21 @@ def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K
         status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
         if status != OK:
             return status
-    f_old, f_new = K[0], K[N_STAGES]
-    for j in range(y_old.size):
+    n = y_old.size
+    for j in range(n):
         dy = y_new[j] - y_old[j]
         F[0, j] = dy
-        F[1, j] = h * f_old[j] - dy
-        F[2, j] = 2.0 * dy - h * (f_new[j] + f_old[j])
-        for i in range(D.shape[0]):
-            acc = 0.0
-            for r in range(N_STAGES_EXTENDED):
-                acc += D[i, r] * K[r, j]
-            F[3 + i, j] = h * acc
+        F[1, j] = h * K[0, j] - dy
+        F[2, j] = 2.0 * dy - h * (K[N_STAGES, j] + K[0, j])
+    for i in range(D.shape[0]):  # h * (D[i] @ K), each sum in the order r = 0, 1, ...
+        for j in range(n):
+            F[3 + i, j] = 0.0
+        for r in range(N_STAGES_EXTENDED):
+            c = D[i, r]
+            for j in range(n):
+                F[3 + i, j] += c * K[r, j]
+        for j in range(n):
+            F[3 + i, j] = h * F[3 + i, j]
     return OK
 
 

@@ -183,6 +183,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
                                         K, F, work[0], bad)
             counts[NFEV] += _DENSE_EXTRA
             counts[NJEV] += jev * _DENSE_EXTRA
+        elif dense and not variational:  # the integrated vector is the state
+            status = dense_coefficients(model, jac_mode, variational, mask, d, y, y_new, h, K,
+                                        F, work[0], bad)
+            counts[NFEV] += _DENSE_EXTRA
         elif dense:  # the state's only, for the search of crossings inside the step
             Kd[0] = K[0, :d]
             Kd[N_STAGES] = K[N_STAGES, :d]
@@ -198,7 +202,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             Fd = _grown(Fd, n_dense)
             steps[n_dense, 0] = t
             steps[n_dense, 1] = h
-            Fd[n_dense] = F[:, :d] if event else Fs
+            if event or not variational:  # F holds the state's coefficients
+                Fd[n_dense] = F[:, :d]
+            else:
+                Fd[n_dense] = Fs
             n_dense += 1
         ts = _grown(ts, count)
         ys = _grown(ys, count)

@@ -46,6 +46,9 @@ EVENT_JACOBIAN_SIGNATURE = types.float64[:, ::1](types.float64[::1])
 EVENT_JACOBIAN_TYPE = types.FunctionType(EVENT_JACOBIAN_SIGNATURE)
 COMPLEX_EVENTS_SIGNATURE = types.complex128[::1](types.complex128[::1])
 COMPLEX_EVENTS_TYPE = types.FunctionType(COMPLEX_EVENTS_SIGNATURE)
+#: ``reset(x, mask, k) -> (d,)``, as the compiled run calls it
+RESET_SIGNATURE = types.float64[::1](types.float64[::1], types.int64, types.int64)
+RESET_TYPE = types.FunctionType(RESET_SIGNATURE)
 
 
 @eager(EVENT_JACOBIAN_SIGNATURE)
@@ -60,21 +63,29 @@ def no_complex_events(x):  # pragma: no cover - passed, never called
     return np.empty(0, dtype=np.complex128)
 
 
+@eager(RESET_SIGNATURE)
+def no_reset(x, mask, k):  # pragma: no cover - passed, never called
+    """Stands for ``reset`` when the stops are not compiled or there is none (never
+    called)."""
+    return np.empty(0)
+
+
 _MEMBERS = ("field", "jacobian", "events", "cfield", "section", "params", "event_jacobian",
-            "cevents")
+            "cevents", "reset")
 structref.define_proxy(_Model, _ModelType, list(_MEMBERS))
 _TYPES = (FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, COMPLEX_FIELD_TYPE, SECTION_TYPE,
-          types.float64[::1], EVENT_JACOBIAN_TYPE, COMPLEX_EVENTS_TYPE)
+          types.float64[::1], EVENT_JACOBIAN_TYPE, COMPLEX_EVENTS_TYPE, RESET_TYPE)
 MODEL_TYPE = _ModelType(list(zip(_MEMBERS, _TYPES, strict=True)))
 #: the parameters of a model without
 NO_PARAMS = np.empty(0)
 
 
 @eager(MODEL_TYPE(*_TYPES))
-def _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents):
+def _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents, reset):
     model = structref.new(MODEL_TYPE)
     model.event_jacobian = event_jacobian
     model.cevents = cevents
+    model.reset = reset
     model.field = field
     model.jacobian = jacobian
     model.events = events
@@ -85,14 +96,17 @@ def _bind(field, jacobian, events, cfield, section, params, event_jacobian, ceve
 
 
 @lru_cache(maxsize=64)
-def _bound(field, jacobian, events, cfield, section, event_jacobian, cevents):
-    return _bind(field, jacobian, events, cfield, section, NO_PARAMS, event_jacobian, cevents)
+def _bound(field, jacobian, events, cfield, section, event_jacobian, cevents, reset):
+    return _bind(field, jacobian, events, cfield, section, NO_PARAMS, event_jacobian, cevents,
+                 reset)
 
 
 def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_section,
-                params=None, event_jacobian=no_event_jacobian, cevents=no_complex_events):
+                params=None, event_jacobian=no_event_jacobian, cevents=no_complex_events,
+                reset=no_reset):
     """The struct of checked dispatchers and parameter values ``params`` (C-contiguous
     float64; None: none). Without parameters it is kept for the 64 latest sets."""
     if params is None:
-        return _bound(field, jacobian, events, cfield, section, event_jacobian, cevents)
-    return _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents)
+        return _bound(field, jacobian, events, cfield, section, event_jacobian, cevents, reset)
+    return _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents,
+                 reset)

@@ -28,9 +28,11 @@ from ._integrate import EVENT, FINISHED
 from ._model import (
     COMPLEX_EVENTS_SIGNATURE,
     EVENT_JACOBIAN_SIGNATURE,
+    RESET_SIGNATURE,
     bound_model,
     no_complex_events,
     no_event_jacobian,
+    no_reset,
 )
 from ._rhs import (
     JAC_CENTRAL,
@@ -78,6 +80,11 @@ class CompiledModel:
         are decided in compiled code too (:meth:`run_stretches`); otherwise (a Python
         ``event_jacobian``, or events that are not complex-analytic) every stop is the
         Python loop's (``event_jac_mode`` ``EVENT_JAC_NONE``).
+    reset : callable, optional
+        The model's ``reset(x, mask, k) -> (d,)``: a dispatcher compiled for
+        ``(float64[::1], int64, int64)`` returning a C-contiguous float64 array is called
+        in compiled code at the compiled run's stops (``self.reset``); a Python one
+        leaves every stop to the Python loop (``has_python_reset``).
     params : array_like, shape (m,), optional
         Parameter values: the functions then take ``x`` of shape (d + m,), the state
         followed by ``params`` (the section takes the state alone), so that a model
@@ -95,7 +102,7 @@ class CompiledModel:
     """
 
     def __init__(self, field, events, field_jacobian=None, *, n_events, dim, params=None,
-                 event_jacobian=None):
+                 event_jacobian=None, reset=None):
         if n_events > MAX_EVENTS:
             raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
                              f"bit each of an int64 region mask), got n_events={n_events}")
@@ -117,6 +124,9 @@ class CompiledModel:
         elif is_compiled(event_jacobian) and compiles_as(event_jacobian,
                                                          EVENT_JACOBIAN_SIGNATURE):
             self.event_jacobian = event_jacobian
+        self.reset = (reset if is_compiled(reset) and compiles_as(reset, RESET_SIGNATURE)
+                      else None)
+        self.has_python_reset = reset is not None and self.reset is None
         self.event_jac_mode = (EVENT_JAC_GIVEN if self.event_jacobian is not None else
                                EVENT_JAC_COMPLEX_STEP if self.cevents is not None else
                                EVENT_JAC_NONE)
@@ -134,7 +144,8 @@ class CompiledModel:
                 f["field"], f.get("field_jacobian", no_jacobian), f["events"],
                 f["field"] if self.jac_mode == JAC_COMPLEX_STEP else no_complex_field,
                 no_section if section is None else section, self.params,
-                self.event_jacobian or no_event_jacobian, self.cevents or no_complex_events)
+                self.event_jacobian or no_event_jacobian, self.cevents or no_complex_events,
+                self.reset or no_reset)
         return self._structs[key]
 
     def use_central_differences(self) -> None:
@@ -270,7 +281,7 @@ class CompiledModel:
         start = time.perf_counter()
         try:
             out = run_stretches(model, self.jac_mode, self.event_jac_mode, variational,
-                                section is not None, n, d,
+                                section is not None, self.reset is not None, n, d,
                                 float(t), np.ascontiguousarray(x, dtype=np.float64),
                                 int(mask), scale, err, float(t_final), float(rtol),
                                 self._atols(m, atol), float(max_step), float(simultaneity_tol),

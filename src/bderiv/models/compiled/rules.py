@@ -146,6 +146,18 @@ def sample_times(ends, out):
 
 
 @njit(cache=True)
+def linspace(start, stop, out):
+    """``out`` (num >= 2,): ``num`` evenly spaced times from ``start`` to ``stop``, as
+    ``np.linspace`` computes them (``i * step + start``, the last ``stop``)."""
+    div = out.size - 1
+    delta = stop - start
+    step = delta / div
+    for i in range(out.size):
+        out[i] = (i / div * delta if step == 0.0 else i * step) + start
+    out[div] = stop
+
+
+@njit(cache=True)
 def peak_rows(h, tol, stretch, reach):
     """``(k, i)`` rows (B, 2) of the samples ``h[i, k]`` (m >= 2 samples, n events) not lower
     than their neighbours with ``h + reach (h - lower neighbour) >= -tol_k`` (with

@@ -222,7 +222,8 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
         def value(t, k=k):
             return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
 
-        fine = np.linspace(times[lo], times[hi], FINE_SAMPLES)
+        fine = np.empty(FINE_SAMPLES)
+        rules.linspace(float(times[lo]), float(times[hi]), fine)
         v = sign[k] * events_at(sol.sol(fine)[:d].T)[:, k : k + 1]
         # a bracket at an end of the stretch that the event leaves from, or rises into,
         # peaks at that end, where the switching rule decides it (module docstring, 2)

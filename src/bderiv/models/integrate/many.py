@@ -15,7 +15,7 @@ the threads' compiled stretches run on the cores at once, and takes it only for 
 around them. The Python parts (a run's set-up and records, the stops handed back, whose
 stretches' driver holds the GIL) run one at a time: the gain is the share of compiled time.
 A Python model, or a compiled one whose stops are all Python's (its event Jacobian not had
-in compiled code, or resets), runs its batch one run after the other: threads would only
+in compiled code, or a Python reset), runs its batch one run after the other: threads would only
 take turns at the GIL.
 
 Thread safety. The runs share the model's compiled functions, its struct and atol caches
@@ -102,11 +102,12 @@ def check_states(X0, dim: int) -> tuple[np.ndarray, tuple]:
 def threaded(system, section=None) -> bool:
     """Whether a batch of ``system`` runs on threads: a compiled model whose stops are
     decided in compiled code (its event Jacobian had there: given compiled, or by complex
-    step; no resets), whose runs spend their time in the compiled run, which releases the
-    GIL (:func:`.run.compiled_stops` once the event Jacobian is checked)."""
+    step; its resets, if any, compiled), whose runs spend their time in the compiled run,
+    which releases the GIL (:func:`.run.compiled_stops` once the event Jacobian is
+    checked)."""
     model = getattr(system, "compiled", None)
     return model is not None and model.event_jac_mode != EVENT_JAC_NONE and \
-        not system.has_resets
+        not model.has_python_reset
 
 
 def worker_count(m: int) -> int:

@@ -305,11 +305,11 @@ class _Now:
 def compiled_stops(system, section) -> bool:
     """Whether the run's plain stops are decided in compiled code: a compiled model whose
     event Jacobian is had in compiled code (given compiled, or by complex step; checked
-    once already, when it is checked), without resets
+    once already, when it is checked), and whose resets, if any, are compiled
     (:meth:`bderiv.models.compiled.CompiledModel.run_stretches`; a section is compiled
     with a compiled model)."""
     model = getattr(system, "compiled", None)
-    if model is None or model.event_jac_mode == EVENT_JAC_NONE or system.has_resets:
+    if model is None or model.event_jac_mode == EVENT_JAC_NONE or model.has_python_reset:
         return False
     return system.event_jacobian_checked()
 
@@ -329,7 +329,7 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
     if out is None:  # a user function raised: the Python loop says where
         return
     code, returned, t, x, mask, scale, err, T, X, M, L, times, bits, before, after, states, \
-        jacobians, _ = out
+        states_after, jacobians, _ = out
     if T.size:
         log.t.append(T)
         log.x.append(X)
@@ -343,8 +343,8 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
         if variational:
             jac = jacobians[i]
             jac.flags.writeable = False
-        log.groups.append(EventGroup(time, group, m0, m1, states[i].copy(), states[i].copy(),
-                                     jac))
+        log.groups.append(EventGroup(time, group, m0, m1, states[i].copy(),
+                                     states_after[i].copy(), jac))
     now.t, now.x, now.mask, now.scale, now.err = t, x, mask, scale, err
     now.ended, now.returned = code == ENDED, returned
 
