@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import itertools
 import math
 import threading
 import time
@@ -14,6 +15,7 @@ from compiled_models import LONG_RUN, ctrl_c_after, far_event, pronking_pair, sl
 
 from bderiv import HybridSystem, _progress, examples
 from bderiv.models.compiled import HANDOFF, CompiledModel
+from bderiv.models.compiled import model as compiled_model
 from bderiv.models.integrate import many
 
 
@@ -150,8 +152,8 @@ def wait_for_workers(seconds):
 
 
 def mixed_starts(x0, m, seed=4):
-    """Pronking starts: the even ones tilted (the feet land apart: stops handed back to the
-    Python loop), the odd ones level (both feet together: decided in compiled code)."""
+    """Pronking starts: the even ones tilted (the feet land apart), the odd ones level
+    (both feet together)."""
     rng = np.random.default_rng(seed)
     X0 = np.tile(x0, (m, 1))
     X0[:, [0, 2]] += 1e-3 * rng.standard_normal((m, 2))
@@ -168,6 +170,9 @@ def test_threaded_batch_is_a_loop_of_simulate_to_the_bit(three_threads, monkeypa
         return out
 
     monkeypatch.setattr(CompiledModel, "run_stretches", counted)
+    calls = itertools.count()  # every other compiled run hands its stretch back after 5 steps
+    monkeypatch.setattr(compiled_model, "slice_budget",
+                        lambda key: 5 if next(calls) % 2 else 10**6)
     ex, system = pronking_pair(2)  # a fresh model: its first run goes alone
     X0 = mixed_starts(ex.x0, 24)
     seen = []

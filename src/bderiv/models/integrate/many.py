@@ -15,8 +15,8 @@ the threads' compiled stretches run on the cores at once, and takes it only for 
 around them. The Python parts (a run's set-up and records, the stops handed back, whose
 stretches' driver holds the GIL) run one at a time: the gain is the share of compiled time.
 A Python model, or a compiled one whose stops are all Python's (its event Jacobian not had
-in compiled code, or a Python reset), runs its batch one run after the other: threads would only
-take turns at the GIL.
+in compiled code, or a Python reset), runs its batch one run after the other: threads would
+only take turns at the GIL.
 
 Thread safety. The runs share the model's compiled functions, its struct and atol caches
 (``CompiledModel``: built once, then read; two threads building an entry build equal ones),
