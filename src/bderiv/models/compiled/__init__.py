@@ -23,12 +23,13 @@ from ._run import (
     EVENT_JAC_NONE,
     HANDOFF,
 )
+from ._slices import Cancelled, cancel_point, stopped_by
 from .model import JACOBIAN_MODES, CompiledModel, dense_at
 from .stretch import Stretch, integrate_stretch
 
 key_all_kernels()
 
 __all__ = ["ENDED", "EVENT", "EVENT_JAC_COMPLEX_STEP", "EVENT_JAC_GIVEN", "EVENT_JAC_NONE",
-           "HANDOFF", "JACOBIAN_MODES", "CompiledModel", "Stretch",
-           "check_compiled",
-           "dense_at", "integrate_stretch", "is_compiled"]
+           "HANDOFF", "JACOBIAN_MODES", "Cancelled", "CompiledModel", "Stretch",
+           "cancel_point", "check_compiled", "dense_at", "integrate_stretch", "is_compiled",
+           "stopped_by"]

@@ -8,6 +8,8 @@ it paused with the step size it had: the same steps as one call.
 
 from __future__ import annotations
 
+import contextlib
+import threading
 import time
 from typing import NamedTuple
 
@@ -18,6 +20,31 @@ from ._integrate import N_STEPS, PAUSED, drive_stretch
 
 #: seconds per accepted step measured so far, per (model, length of the integrated vector)
 _cost: dict = {}
+#: the stop event of the batch whose run this thread makes (:func:`stopped_by`)
+_batch = threading.local()
+
+
+class Cancelled(Exception):
+    """A run of a batch stopped at a slice's end because its batch stopped (Ctrl-C in the
+    batch's calling thread, or a failed run)."""
+
+
+@contextlib.contextmanager
+def stopped_by(event):
+    """The runs this thread makes in the block stop (:class:`Cancelled`) at the first
+    :func:`cancel_point` after ``event`` is set: a thread of a batch cannot see Ctrl-C."""
+    _batch.stop = event
+    try:
+        yield
+    finally:
+        _batch.stop = None
+
+
+def cancel_point() -> None:
+    """Raise :class:`Cancelled` if this thread's batch has stopped (:func:`stopped_by`)."""
+    stop = getattr(_batch, "stop", None)
+    if stop is not None and stop.is_set():
+        raise Cancelled
 
 
 class Driven(NamedTuple):
@@ -84,6 +111,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         parts.append((ts, ys, steps, Fd) if not parts else (ts[1:], ys[1:], steps, Fd))
         if status != PAUSED:
             break
+        cancel_point()
         t0, y0, first_step, forced = t_end, y_end, h, -1
     if len(parts) == 1:
         ts, ys, steps, Fd = parts[0]

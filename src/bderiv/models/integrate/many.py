@@ -34,8 +34,8 @@ called by the calling thread, as runs finish.
 Errors: the error of the first failing run in the order of the start states, as the loop
 raises it (runs are taken in that order: the earlier ones still going are waited for; no
 later one starts). Ctrl-C stops the batch within a second: the calling thread waits in
-short slices and raises, and no thread takes another run; a run going in a thread finishes
-there (a compiled run cannot be stopped from outside: :class:`_Workers`).
+short slices and raises, no thread takes another run, and a run going in a thread stops at
+its next slice of steps or stretch (:class:`_Workers`).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ import numpy as np
 
 from ..._progress import SimulationProgress, resolve_progress
 from ..._validate import check_number, check_points, check_positive_int
-from ..compiled import EVENT_JAC_NONE
+from ..compiled import EVENT_JAC_NONE, Cancelled, stopped_by
 from .run import compiled_stops, run
 
 __all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count"]
@@ -218,10 +218,12 @@ class _Workers:
 
     Each thread takes the next index until none is left or the batch stops, and puts
     ``(i, trajectory, exception)`` on a queue the calling thread reads (:meth:`collect`).
-    A run already going is not stopped from outside: compiled code does not see signals,
-    and an exception set in the thread (``PyThreadState_SetAsyncExc``) lands anywhere,
-    even between a lock's acquire and the ``try`` that releases it (numba's compiler lock:
-    seen deadlocking the next compilation).
+    A run already going stops at its next slice of steps or stretch
+    (:func:`bderiv.models.compiled.stopped_by`: its thread reads the batch's stop event
+    there), within about ``SLICE_SECONDS``: compiled code does not see signals, and an
+    exception set in the thread from outside (``PyThreadState_SetAsyncExc``) lands
+    anywhere, even between a lock's acquire and the ``try`` that releases it (numba's
+    compiler lock: seen deadlocking the next compilation).
     """
 
     def __init__(self, one, indices, count):
@@ -234,22 +236,25 @@ class _Workers:
                                          daemon=True) for k in range(count)]
 
     def _work(self):
-        while not self.stop.is_set():
-            i = next(self.order, None)
-            if i is None:
-                return
-            try:
-                self.done.put((i, self.one(i), None))
-            except BaseException as exc:  # noqa: BLE001 - the calling thread raises it
-                self.done.put((i, None, exc))
-                return
+        with stopped_by(self.stop):  # a run going stops at its next slice or stretch
+            while not self.stop.is_set():
+                i = next(self.order, None)
+                if i is None:
+                    return
+                try:
+                    self.done.put((i, self.one(i), None))
+                except Cancelled:
+                    return
+                except BaseException as exc:  # noqa: BLE001 - the calling thread raises it
+                    self.done.put((i, None, exc))
+                    return
 
     def collect(self, trajectories, report, X0, lead) -> None:
         """Run the threads, store their trajectories and call ``report(done)`` as they
         finish. Raise the first failing run's error in the order of the indices (named),
         once every run before it has finished; or what this thread meets (Ctrl-C) at
-        once. Either way no thread takes another run; the runs going finish in their
-        threads."""
+        once. Either way no thread takes another run, and the runs going stop at their
+        next slice of steps."""
         start = self.indices.start
         reported = np.zeros(len(self.indices), dtype=bool)
         low, failed = 0, None  # the first index not reported; (i, exc) of the first failure

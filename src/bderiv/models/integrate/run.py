@@ -25,7 +25,7 @@ from scipy.integrate import OdeSolver
 from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, GLOBAL_ERROR_FACTOR, MAX_GROUPS, MIN_RTOL
 from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
-from ..compiled import ENDED, EVENT_JAC_NONE
+from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
 from ..events.locate import StopCalls, orientation, settle
@@ -266,6 +266,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     now = _Now(0.0, x0, mask, np.abs(x0), np.zeros(d))
     settings = (t_final, simultaneity_tol, options, variational, section, max_groups)
     while not now.ended:
+        cancel_point()  # a run of a batch on threads stops with its batch
         if compiled_stops(system, section):  # as far as the stops are plain, in one call
             _compiled_stretches(system, log, now, *settings)
         if not now.ended:
