@@ -45,12 +45,13 @@ _DENSE_EXTRA = N_STAGES_EXTENDED - N_STAGES - 1
 
 
 @njit(cache=True)
-def _grown(a, count):
-    """``a`` with its first axis doubled when ``count`` rows fill it."""
-    if count < a.shape[0]:
+def room(a, need):
+    """``a``, or a copy of it (its dtype) with room for ``need`` rows along its first axis:
+    at least twice as many."""
+    if need <= a.shape[0]:
         return a
-    b = np.empty((2 * a.shape[0],) + a.shape[1:])
-    b[:count] = a
+    b = np.empty((max(2 * a.shape[0], need),) + a.shape[1:], dtype=a.dtype)
+    b[:a.shape[0]] = a
     return b
 
 
@@ -122,7 +123,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     ts[0] = t0
     ys[0] = y
     # int64 values, never literals: a callee is compiled for each literal type it sees
-    # (_grown for 0 and 1 while the loop is typed, _stopped for each status code)
+    # (room for 0 and 1 while the loop is typed, _stopped for each status code)
     count, n_dense = np.int64(1), np.int64(0)
     jev = 1 if variational else 0
 
@@ -198,8 +199,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
                             roots, counts, bad, t_new, h_abs)
         if dense:
-            steps = _grown(steps, n_dense)
-            Fd = _grown(Fd, n_dense)
+            steps = room(steps, n_dense + 1)
+            Fd = room(Fd, n_dense + 1)
             steps[n_dense, 0] = t
             steps[n_dense, 1] = h
             if event or not variational:  # F holds the state's coefficients
@@ -207,8 +208,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             else:
                 Fd[n_dense] = Fs
             n_dense += 1
-        ts = _grown(ts, count)
-        ys = _grown(ys, count)
+        ts = room(ts, count + 1)
+        ys = room(ys, count + 1)
         if event:
             t_stop = t_new
             for k in range(n_events):

@@ -202,6 +202,18 @@ def call_events(model, with_section, x, n, g, bad):
 
 
 @njit(cache=True)
+def checked_field(model, x, mask, d):
+    """``(status, field(x, mask))`` at the state ``x`` (d,): ``OK`` or the failed check
+    (shape, finite)."""
+    f = model.field(state_argument(model, x, d), mask)
+    if f.size != d:
+        return FIELD_SHAPE, f
+    if not finite_vector(f):
+        return FIELD_NONFINITE, f
+    return OK, f
+
+
+@njit(cache=True)
 def events_rows(model, X, n, G, bad):
     """``G[i] = events(X[i])`` for every row of ``X`` (m, d), checked; a status (the
     failed row in ``bad``)."""
@@ -217,11 +229,9 @@ def field_rows(model, x, masks, d, out):
     """``out[i] = field(x, masks[i])`` for every mask, checked: ``(status, i)`` (i: the
     failed mask's index)."""
     for i in range(masks.size):
-        f = model.field(state_argument(model, x, d), masks[i])
-        if f.size != d:
-            return FIELD_SHAPE, i
-        if not finite_vector(f):
-            return FIELD_NONFINITE, i
+        status, f = checked_field(model, x, masks[i], d)
+        if status != OK:
+            return status, i
         out[i] = f
     return OK, 0
 
@@ -233,13 +243,10 @@ def events_and_field(model, x, mask, n, d, h, F):
     status = call_events(model, False, x, n, h, np.empty(d))
     if status != OK:
         return status
-    f = model.field(state_argument(model, x, d), mask)
-    if f.size != d:
-        return FIELD_SHAPE
-    if not finite_vector(f):
-        return FIELD_NONFINITE
-    F[:] = f
-    return OK
+    status, f = checked_field(model, x, mask, d)
+    if status == OK:
+        F[:] = f
+    return status
 
 
 @eager(JACOBIAN_SIGNATURE)

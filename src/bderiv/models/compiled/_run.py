@@ -31,8 +31,17 @@ from ..._limits import (
     RESET_MISMATCH,
 )
 from ._dop853 import dense_rows
-from ._integrate import EVENT, FINISHED, N_STEPS, drive_stretch
-from ._rhs import OK, argument, call_events, coordinate_scale, events_rows
+from ._integrate import EVENT, FINISHED, N_STEPS, drive_stretch, room
+from ._rhs import (
+    OK,
+    all_finite,
+    argument,
+    call_events,
+    checked_field,
+    coordinate_scale,
+    events_rows,
+    finite_vector,
+)
 from .rules import (
     GROUP,
     NEAR,
@@ -61,16 +70,6 @@ EVENT_JAC_NONE = 2
 
 
 @njit(cache=True)
-def _room(a, need):
-    """``a``, or a copy with room for ``need`` rows along its first axis (its dtype)."""
-    if need <= a.shape[0]:
-        return a
-    b = np.empty((max(2 * a.shape[0], need),) + a.shape[1:], dtype=a.dtype)
-    b[:a.shape[0]] = a
-    return b
-
-
-@njit(cache=True)
 def event_jacobian(model, mode, x, n, d):
     """The event Jacobian at ``x`` by ``mode``: ``(ok, J)``, J (n, d) checked (shape,
     finite). Complex step: column j is ``Im events(x + i h e_j) / h``, h as the field's."""
@@ -92,22 +91,7 @@ def event_jacobian(model, mode, x, n, d):
                 return False, J
             for k in range(n):
                 J[k, j] = v[k].imag / h
-    for v in J.ravel():
-        if not np.isfinite(v):
-            return False, J
-    return True, J
-
-
-@njit(cache=True)
-def _field(model, x, mask, d):
-    """``(ok, field(x, mask))``, checked (shape, finite)."""
-    f = model.field(argument(model, x), mask)
-    if f.size != d:
-        return False, f
-    for v in f:
-        if not np.isfinite(v):
-            return False, f
-    return True, f
+    return all_finite(J), J
 
 
 @njit(cache=True)
@@ -143,20 +127,15 @@ def _plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J,
         return True
     # the rates at the stretch's ends, where a bracket there that the event leaves from, or
     # rises into, peaks (excursions' end rule)
-    rate_start, rate_end = np.empty(n), np.empty(n)
-    Dh = np.empty((n, d))
-    for end in range(2):
-        x = ys[0, :d].copy() if end == 0 else ys[count - 1, :d].copy()
-        ok, F = _field(model, x, mask, d)
-        if not ok:
-            return False
-        if end == 0:
-            ok, J0 = event_jacobian(model, event_jac_mode, x, n, d)
-            if not ok:
-                return False
-            local_rates(sign, J0, F, Dh, rate_start)
-        else:
-            local_rates(sign, J, F, Dh, rate_end)
+    x_start, x_end = ys[0, :d].copy(), ys[count - 1, :d].copy()
+    ok, J_start = event_jacobian(model, event_jac_mode, x_start, n, d)
+    start_status, F_start = checked_field(model, x_start, mask, d)
+    end_status, F_end = checked_field(model, x_end, mask, d)
+    if not ok or start_status != OK or end_status != OK:
+        return False
+    rate_start, rate_end, Dh = np.empty(n), np.empty(n), np.empty((n, d))
+    local_rates(sign, J_start, F_start, Dh, rate_start)
+    local_rates(sign, J, F_end, Dh, rate_end)
     fine, X = np.empty(FINE_SAMPLES), np.empty((FINE_SAMPLES, d))
     V, G = np.empty((FINE_SAMPLES, 1)), np.empty((FINE_SAMPLES, n))
     for b in range(rows.shape[0]):
@@ -184,11 +163,8 @@ def _reset_in_order(model, order, mask, x, d):
     y, b = x, mask
     for k in order:
         y = model.reset(argument(model, y), b, k)
-        if y.size != d:
+        if y.size != d or not finite_vector(y):
             return False, x
-        for v in y:
-            if not np.isfinite(v):
-                return False, x
         y = np.ascontiguousarray(y).copy()
         b ^= np.int64(1) << k
     return True, y
@@ -247,8 +223,8 @@ def _landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, 
     ok, J = event_jacobian(model, event_jac_mode, x_after, n, d)
     if not ok:
         return False, new
-    ok, F = _field(model, x_after, new, d)
-    if not ok:
+    fs, F = checked_field(model, x_after, new, d)
+    if fs != OK:
         return False, new
     Dh, rate = np.empty((n, d)), np.empty(n)
     local_rates(sign, J, F, Dh, rate)
@@ -260,8 +236,8 @@ def _landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, 
         if h[k] >= -window[k]:  # on the surface: the flow after the reset decides
             if not clearly_positive(dh, F):
                 continue
-            ok, back = _field(model, x_after, new ^ (np.int64(1) << k), d)
-            if not ok or not clearly_positive(dh, back):
+            fs, back = checked_field(model, x_after, new ^ (np.int64(1) << k), d)
+            if fs != OK or not clearly_positive(dh, back):
                 return False, new
         kept |= np.int64(1) << k
     return True, new ^ kept
@@ -312,8 +288,8 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
     if 0 <= first < n:
         if call_events(model, np.bool_(False), x_end, n, h, np.empty(d)) != OK:
             return fail
-        ok, F = _field(model, x_end, mask, d)
-        if not ok:
+        fs, F = checked_field(model, x_end, mask, d)
+        if fs != OK:
             return fail
         local_rates(sign, J, F, Dh, rate)
         for k in range(n):
@@ -435,20 +411,20 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
                     ok, new = _landing(model, event_jac_mode, sign, group, mask, new,
                                        x_after, window, n, d)
             else:  # every event lands on the far side, and must move on
-                ok, F_new = _field(model, x_end, new, d)
-                ok = ok and first_grazing(group, Dh, F_new) < 0
+                fs, F_new = checked_field(model, x_end, new, d)
+                ok = fs == OK and first_grazing(group, Dh, F_new) < 0
             if not ok or groups >= groups_left:
                 break
         # the stretch is the Python loop's too: recorded
         need = count + ts.size
-        T, X, M = _room(T, need), _room(X, need), _room(M, need)
+        T, X, M = room(T, need), room(X, need), room(M, need)
         for r in range(ts.size):
             T[count + r] = ts[r]
             X[count + r] = ys[r, :d]
             M[count + r] = mask
         count += ts.size
         if variational:
-            L = _room(L, stretches + 1)
+            L = room(L, stretches + 1)
             L[stretches] = ys[-1, d:].reshape((d, d))
         stretches += 1
         t, x, scale, err = t_end, x_end, grown, err_new
@@ -458,14 +434,14 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         if not event:
             code = ENDED
             break
-        group_t, group_bits = _room(group_t, groups + 1), _room(group_bits, groups + 1)
-        mask_before, mask_after = _room(mask_before, groups + 1), _room(mask_after, groups + 1)
-        group_x, group_x_after = _room(group_x, groups + 1), _room(group_x_after, groups + 1)
+        group_t, group_bits = room(group_t, groups + 1), room(group_bits, groups + 1)
+        mask_before, mask_after = room(mask_before, groups + 1), room(mask_after, groups + 1)
+        group_x, group_x_after = room(group_x, groups + 1), room(group_x_after, groups + 1)
         group_t[groups], group_bits[groups] = t, bits
         mask_before[groups], mask_after[groups] = mask, new
         group_x[groups], group_x_after[groups] = x, x_after
         if variational:
-            group_J = _room(group_J, groups + 1)
+            group_J = room(group_J, groups + 1)
             group_J[groups] = J
         groups += 1
         mask, x = new, x_after

@@ -25,7 +25,7 @@ import numpy as np
 from ..._format import format_mask, transversality_message
 from ..._limits import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
 from ..compiled import rules
-from .locate import examine, orientation, state_error
+from .locate import examine, flags_of, orientation, state_error
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -181,8 +181,7 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
     # none is ever lost (bderiv.models.events.locate.classify)
     group = classes.group
     _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
-    flags = np.zeros(n, dtype=np.bool_)
-    flags[group] = True
+    flags = flags_of(group, n)
     _check_crossings(group, flags, Dh, F, mask, "before", t, sign, n)
     if not system.has_resets:  # every event lands on the far side, and must move on
         new = mask ^ sum(1 << k for k in group)

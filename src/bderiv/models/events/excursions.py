@@ -55,7 +55,7 @@ from scipy.optimize import minimize_scalar
 from ..._limits import FINE_REACH, FINE_SAMPLES, PEAK_XTOL, REACH
 from ..compiled import rules
 from .crossings import group_tolerance
-from .locate import StopCalls
+from .locate import StopCalls, local_rates
 
 __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
 
@@ -296,8 +296,5 @@ class _EndRates:
         return self._end
 
     def _rate(self, model, x):
-        J = np.ascontiguousarray(model.eval_event_jacobian(x))
-        Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
-        rules.local_rates(self.sign, J, np.ascontiguousarray(self.system.eval_field(x, self.mask)),
-                          Dh, rate)
-        return rate
+        return local_rates(self.sign, model.eval_event_jacobian(x),
+                           self.system.eval_field(x, self.mask))[1]

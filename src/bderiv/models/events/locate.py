@@ -40,6 +40,8 @@ __all__ = [
     "StopCalls",
     "classify",
     "examine",
+    "flags_of",
+    "local_rates",
     "local_view",
     "on_side_at_start",
     "orientation",
@@ -108,11 +110,11 @@ def windows(Dh, rate, err, fired):
     (1e-07, [1.01e-07, 2e-11])
     """
     window = np.empty(rate.size)
-    u = rules.windows(Dh, rate, err, _flags(fired, rate.size), window)
+    u = rules.windows(Dh, rate, err, flags_of(fired, rate.size), window)
     return window, float(u)
 
 
-def _flags(events, n) -> np.ndarray:
+def flags_of(events, n) -> np.ndarray:
     """The bool flags (n,) of the event indices ``events``."""
     flags = np.zeros(n, dtype=np.bool_)
     flags[list(events)] = True
@@ -190,7 +192,7 @@ def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     [1]
     """
     codes = np.empty(h.size, dtype=np.int64)
-    rules.classify(h, rate, window, _flags(fired, h.size), float(simultaneity_tol), codes)
+    rules.classify(h, rate, window, flags_of(fired, h.size), float(simultaneity_tol), codes)
     return Classes.of(codes)
 
 
@@ -338,11 +340,18 @@ def local_view(system, mask, x):
 
 def _local_view(system, mask, x):
     sign = orientation(int(mask), system.n_events)
-    J = system.eval_event_jacobian(x)
     F = system.eval_field(x, mask)
-    Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
-    rules.local_rates(sign, np.ascontiguousarray(J), np.ascontiguousarray(F), Dh, rate)
+    Dh, rate = local_rates(sign, system.eval_event_jacobian(x), F)
     return sign, sign * system.eval_events(x), Dh, F, rate
+
+
+def local_rates(sign, J, F):
+    """The gradients ``Dh = sign J`` (n, d) in the local orientation ``sign`` (n,) and the
+    rates ``Dh . F`` (n,) of the event Jacobian ``J`` (n, d) in the field ``F`` (d,)."""
+    J = np.ascontiguousarray(J, dtype=np.float64)
+    Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
+    rules.local_rates(sign, J, np.ascontiguousarray(F, dtype=np.float64), Dh, rate)
+    return Dh, rate
 
 
 def tightened(options):

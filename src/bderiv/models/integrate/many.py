@@ -49,8 +49,8 @@ import numpy as np
 
 from ..._progress import SimulationProgress, resolve_progress
 from ..._validate import check_number, check_points, check_positive_int
-from ..compiled import EVENT_JAC_NONE, Cancelled, stopped_by
-from .run import compiled_stops, run
+from ..compiled import Cancelled, stopped_by
+from .run import compiled_stops, run, stops_compile
 
 __all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count"]
 
@@ -100,14 +100,10 @@ def check_states(X0, dim: int) -> tuple[np.ndarray, tuple]:
 
 
 def threaded(system, section=None) -> bool:
-    """Whether a batch of ``system`` runs on threads: a compiled model whose stops are
-    decided in compiled code (its event Jacobian had there: given compiled, or by complex
-    step; its resets, if any, compiled), whose runs spend their time in the compiled run,
-    which releases the GIL (:func:`.run.compiled_stops` once the event Jacobian is
-    checked)."""
-    model = getattr(system, "compiled", None)
-    return model is not None and model.event_jac_mode != EVENT_JAC_NONE and \
-        not model.has_python_reset
+    """Whether a batch of ``system`` runs on threads: its stops are decided in compiled
+    code (:func:`.run.stops_compile`), so its runs spend their time in the compiled run,
+    which releases the GIL."""
+    return stops_compile(system)
 
 
 def worker_count(m: int) -> int:

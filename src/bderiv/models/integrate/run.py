@@ -289,6 +289,10 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
                       linear=tuple(log.linear), final_group=final, final_pending=pending)
 
 
+#: the regions of a run without sensitivity (no field Jacobian to check)
+_NO_MASKS = np.empty(0, dtype=np.int64)
+
+
 @dataclass
 class _Now:
     """Where a run is: time, state, region, the largest ``|x_i|`` so far, the state's error
@@ -303,16 +307,21 @@ class _Now:
     returned: bool = False
 
 
-def compiled_stops(system, section) -> bool:
-    """Whether the run's plain stops are decided in compiled code: a compiled model whose
-    event Jacobian is had in compiled code (given compiled, or by complex step; checked
-    once already, when it is checked), and whose resets, if any, are compiled
-    (:meth:`bderiv.models.compiled.CompiledModel.run_stretches`; a section is compiled
-    with a compiled model)."""
+def stops_compile(system) -> bool:
+    """Whether ``system``'s stops can be decided in compiled code: a compiled model whose
+    event Jacobian is had in compiled code (given compiled, or by complex step) and whose
+    resets, if any, are compiled
+    (:meth:`bderiv.models.compiled.CompiledModel.run_stretches`)."""
     model = getattr(system, "compiled", None)
-    if model is None or model.event_jac_mode == EVENT_JAC_NONE or model.has_python_reset:
-        return False
-    return system.event_jacobian_checked()
+    return model is not None and model.event_jac_mode != EVENT_JAC_NONE and \
+        not model.has_python_reset
+
+
+def compiled_stops(system, section) -> bool:
+    """Whether a run's plain stops are decided in compiled code now: :func:`stops_compile`,
+    and the event Jacobian checked once already where it is checked (a section is compiled
+    with a compiled model)."""
+    return stops_compile(system) and system.event_jacobian_checked()
 
 
 def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, variational,
@@ -320,7 +329,8 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
     """The stretches from ``now`` that the compiled run decides, recorded in ``log``;
     ``now`` moved to their end."""
     model, n = system.compiled, system.n_events
-    all_checked, checked = system.checked_compiled_jacobians()
+    all_checked, checked = (system.checked_compiled_jacobians() if variational
+                            else (True, _NO_MASKS))
     out = model.run_stretches(
         now.t, now.x, now.mask, now.scale, now.err, t_final, rtol=options.rtol,
         atol=options.atol, max_step=options.max_step, simultaneity_tol=simultaneity_tol,
