@@ -16,14 +16,9 @@ from __future__ import annotations
 from ._cached import key_all_kernels
 from ._checks import check_compiled, is_compiled
 from ._integrate import EVENT
-from ._run import (
-    ENDED,
-    EVENT_JAC_COMPLEX_STEP,
-    EVENT_JAC_GIVEN,
-    EVENT_JAC_NONE,
-    HANDOFF,
-)
+from ._run import ENDED, HANDOFF
 from ._slices import Cancelled, cancel_point, stopped_by
+from ._stops import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_GIVEN, EVENT_JAC_NONE
 from .model import JACOBIAN_MODES, CompiledModel, dense_at
 from .stretch import Stretch, integrate_stretch
 

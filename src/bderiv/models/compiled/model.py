@@ -47,14 +47,9 @@ from ._rhs import (
     no_jacobian,
     no_section,
 )
-from ._run import (
-    EVENT_JAC_COMPLEX_STEP,
-    EVENT_JAC_GIVEN,
-    EVENT_JAC_NONE,
-    event_jacobian,
-    run_stretches,
-)
+from ._run import run_stretches
 from ._slices import Driven, _interrupted, drive, measured, slice_budget
+from ._stops import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_GIVEN, EVENT_JAC_NONE, event_jacobian
 from .stretch import MAX_EVENTS
 
 #: how ``J`` is had, by the code of :mod:`._rhs`

@@ -1,0 +1,216 @@
+"""The compiled run's rules at a stop that need the model: the event Jacobian, the
+excursion screen, and the resets of a group with where they land.
+
+Each repeats a decision of the Python stop logic (named in its docstring) on values the
+model gives in compiled code, by the arithmetic of :mod:`.rules`; a decision it cannot
+make (a bracket to search, a refusal) is False, and the compiled run (:mod:`._run`) hands
+the stretch back to the Python loop.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..._limits import COMPLEX_STEP, FINE_REACH, FINE_SAMPLES, ORDERS_CHECKED, REACH
+from ._dop853 import dense_rows
+from ._rhs import (
+    OK,
+    all_finite,
+    argument,
+    call_events,
+    checked_field,
+    coordinate_scale,
+    events_rows,
+    finite_vector,
+)
+from .rules import (
+    clearly_positive,
+    linspace,
+    local_rates,
+    peak_rows,
+    return_sample,
+    sample_times,
+    state_error,
+    tolerances,
+)
+
+#: how the event Jacobian is had in compiled code: the given ``event_jacobian``, complex step
+#: of ``events``; none (the Python loop's: a Python or numerical one)
+EVENT_JAC_GIVEN = 0
+EVENT_JAC_COMPLEX_STEP = 1
+EVENT_JAC_NONE = 2
+
+
+@njit(cache=True)
+def event_jacobian(model, mode, x, n, d):
+    """The event Jacobian at ``x`` by ``mode``: ``(ok, J)``, J (n, d) checked (shape,
+    finite). Complex step: column j is ``Im events(x + i h e_j) / h``, h as the field's."""
+    if mode == EVENT_JAC_GIVEN:
+        J = model.event_jacobian(argument(model, x))
+        if J.shape[0] != n or J.shape[1] != d:
+            return False, np.zeros((n, d))
+        J = np.ascontiguousarray(J).copy()
+    else:
+        base = argument(model, x)
+        z = np.empty(base.size, dtype=np.complex128)
+        J = np.empty((n, d))
+        for j in range(d):
+            h = COMPLEX_STEP * coordinate_scale(x[j])
+            z[:] = base
+            z[j] = complex(x[j], h)
+            v = model.cevents(z)
+            if v.size != n:
+                return False, J
+            for k in range(n):
+                J[k, j] = v[k].imag / h
+    return all_finite(J), J
+
+
+@njit(cache=True)
+def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J, atol, rtol):
+    """Whether the excursion screen finds nothing to search on the stretch
+    (:func:`bderiv.models.events.excursions._earliest_lost` up to its search: no sampled
+    peak that could reach a surface once its bracket is sampled finer and its ends decided
+    by the rates there, no return across a surface); False also on a failed check."""
+    count, last = ts.size, 2 * ts.size - 2
+    times = np.empty(last + 1)
+    sample_times(ts, times)
+    t_old, h_step = np.ascontiguousarray(steps[:, 0]), np.ascontiguousarray(steps[:, 1])
+    y_old = np.ascontiguousarray(ys[:-1, :d])
+    states = np.empty((times.size, d))
+    dense_rows(t_old, h_step, Fd, y_old, times, states)
+    H = np.empty((times.size, n))
+    if events_rows(model, states, n, H, np.zeros(d)) != OK:
+        return False
+    scale = np.zeros(d)
+    for r in range(times.size):
+        for k in range(n):
+            H[r, k] *= sign[k]
+        for i in range(d):
+            scale[i] = max(scale[i], abs(states[r, i]))
+    err = np.empty(d)
+    state_error(atol, rtol, scale, np.zeros(d), err)
+    tol = np.empty(n)
+    tolerances(J, err, tol)
+    if return_sample(H, tol) >= 0:
+        return False
+    rows = peak_rows(H, tol, np.bool_(True), REACH)
+    if rows.shape[0] == 0:
+        return True
+    # the rates at the stretch's ends, where a bracket there that the event leaves from, or
+    # rises into, peaks (excursions' end rule)
+    x_start, x_end = ys[0, :d].copy(), ys[count - 1, :d].copy()
+    ok, J_start = event_jacobian(model, event_jac_mode, x_start, n, d)
+    start_status, F_start = checked_field(model, x_start, mask, d)
+    end_status, F_end = checked_field(model, x_end, mask, d)
+    if not ok or start_status != OK or end_status != OK:
+        return False
+    rate_start, rate_end, Dh = np.empty(n), np.empty(n), np.empty((n, d))
+    local_rates(sign, J_start, F_start, Dh, rate_start)
+    local_rates(sign, J, F_end, Dh, rate_end)
+    fine, X = np.empty(FINE_SAMPLES), np.empty((FINE_SAMPLES, d))
+    V, G = np.empty((FINE_SAMPLES, 1)), np.empty((FINE_SAMPLES, n))
+    for b in range(rows.shape[0]):
+        k, i = rows[b, 0], rows[b, 1]
+        lo, hi = max(i - 1, 0), min(i + 1, last)
+        linspace(times[lo], times[hi], fine)
+        dense_rows(t_old, h_step, Fd, y_old, fine, X)
+        if events_rows(model, X, n, G, np.zeros(d)) != OK:
+            return False
+        for r in range(FINE_SAMPLES):
+            V[r, 0] = sign[k] * G[r, k]
+        sub = peak_rows(V, tol[k:k + 1].copy(), np.bool_(False), FINE_REACH)
+        for c in range(sub.shape[0]):
+            a, z = max(sub[c, 1] - 1, 0), min(sub[c, 1] + 1, FINE_SAMPLES - 1)
+            if not (lo == 0 and a == 0 and rate_start[k] < 0.0) and \
+                    not (hi == last and z == FINE_SAMPLES - 1 and rate_end[k] > 0.0):
+                return False  # a bracket to search
+    return True
+
+
+@njit(cache=True)
+def _reset_in_order(model, order, mask, x, d):
+    """``(ok, y)``: ``x`` moved by the resets of the events ``order`` one after the other,
+    each called with the mask before its own crossing; checked (shape, finite)."""
+    y, b = x, mask
+    for k in order:
+        y = model.reset(argument(model, y), b, k)
+        if y.size != d or not finite_vector(y):
+            return False, x
+        y = np.ascontiguousarray(y).copy()
+        b ^= np.int64(1) << k
+    return True, y
+
+
+@njit(cache=True)
+def _next_order(a):
+    """The next permutation of ``a`` in lexicographic order, in place; False after the
+    last (``itertools.permutations``' order from ascending)."""
+    i = a.size - 2
+    while i >= 0 and a[i] >= a[i + 1]:
+        i -= 1
+    if i < 0:
+        return False
+    j = a.size - 1
+    while a[j] <= a[i]:
+        j -= 1
+    a[i], a[j] = a[j], a[i]
+    a[i + 1:] = a[i + 1:][::-1].copy()
+    return True
+
+
+@njit(cache=True)
+def after_resets(model, events, mask, x, d, accuracy):
+    """``(ok, x_after)``: the resets of ``events`` (ascending) from ``x``, and that every
+    order of them (groups of up to ``ORDERS_CHECKED``; else also descending) gives a
+    state within ``accuracy`` (max norm) of it
+    (:func:`bderiv.models.events.crossings.apply_resets`)."""
+    ok, first = _reset_in_order(model, events, mask, x, d)
+    if not ok:
+        return False, x
+    order = events.copy()
+    more = _next_order(order) if events.size <= ORDERS_CHECKED else events.size > 1
+    if events.size > ORDERS_CHECKED:
+        order = events[::-1].copy()
+    while more:
+        ok, y = _reset_in_order(model, order, mask, x, d)
+        if not ok or not np.abs(y - first).max() <= accuracy:
+            return False, x
+        more = events.size <= ORDERS_CHECKED and _next_order(order)
+    return True, first
+
+
+@njit(cache=True)
+def landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, d):
+    """``(ok, mask after)``: where the group's events landed after their resets
+    (:func:`bderiv.models.events.crossings.landing`, and its refusal of a jump across
+    another surface); not ok for a refusal or a failed check."""
+    h = np.empty(n)
+    if call_events(model, np.bool_(False), x_after, n, h, np.empty(d)) != OK:
+        return False, new
+    for k in range(n):
+        h[k] *= sign[k]
+        if not group[k] and h[k] > window[k]:
+            return False, new
+    ok, J = event_jacobian(model, event_jac_mode, x_after, n, d)
+    if not ok:
+        return False, new
+    fs, F = checked_field(model, x_after, new, d)
+    if fs != OK:
+        return False, new
+    Dh, rate = np.empty((n, d)), np.empty(n)
+    local_rates(sign, J, F, Dh, rate)
+    kept = np.int64(0)
+    for k in range(n):
+        if not group[k] or h[k] > window[k]:
+            continue
+        dh = -Dh[k]
+        if h[k] >= -window[k]:  # on the surface: the flow after the reset decides
+            if not clearly_positive(dh, F):
+                continue
+            fs, back = checked_field(model, x_after, new ^ (np.int64(1) << k), d)
+            if fs != OK or not clearly_positive(dh, back):
+                return False, new
+        kept |= np.int64(1) << k
+    return True, new ^ kept
