@@ -91,41 +91,69 @@ def initial_step(model, jac_mode, variational, mask, d, t0, y0, f0, t_bound, max
 
 
 @njit(cache=True, inline="always")
-def _stage_point(y, K, row, s, h, out):
-    """``out = y + h * (K[:s].T @ A[row, :s])`` (scipy's ``y + dot(K[:s].T, a[:s]) * h``).
+def _combination(y, K, s, h, n, out):
+    """``out[:n] = y[:n] + h * (K[:s, :n].T @ A[s, :s])``: stage s's point (scipy's
+    ``y + dot(K[:s].T, a[:s]) * h``), each component's sum in the order r = 0, 1, ...
 
-    Each component's sum is accumulated in ``out`` in the order r = 0, 1, ... (the same
-    roundings as one sum per component), the stages outer: the inner loop over components
-    is vectorized. ``out`` must not overlap ``y`` or ``K``."""
-    n = y.size
+    Called with a constant ``s`` (:func:`_stage_point`): LLVM unrolls the sum over the
+    rows, folds the coefficients in and vectorizes over the components. ``out`` must not
+    overlap ``y`` or ``K``."""
     for j in range(n):
-        out[j] = 0.0
-    for r in range(s):
-        a = A[row, r]
-        for j in range(n):
-            out[j] += K[r, j] * a
-    for j in range(n):
-        out[j] = y[j] + out[j] * h
+        acc = 0.0
+        for r in range(s):
+            acc += K[r, j] * A[s, r]
+        out[j] = y[j] + acc * h
+
+
+@njit(cache=True, inline="always")
+def _stage_point(y, K, s, h, n, out):
+    """:func:`_combination` for stage ``s`` (1 to 11, 13 to 15), one branch per stage: a
+    constant number of rows in each (6x faster at d = 8 than a sum over ``s`` rows)."""
+    if s == 1:
+        _combination(y, K, 1, h, n, out)
+    elif s == 2:
+        _combination(y, K, 2, h, n, out)
+    elif s == 3:
+        _combination(y, K, 3, h, n, out)
+    elif s == 4:
+        _combination(y, K, 4, h, n, out)
+    elif s == 5:
+        _combination(y, K, 5, h, n, out)
+    elif s == 6:
+        _combination(y, K, 6, h, n, out)
+    elif s == 7:
+        _combination(y, K, 7, h, n, out)
+    elif s == 8:
+        _combination(y, K, 8, h, n, out)
+    elif s == 9:
+        _combination(y, K, 9, h, n, out)
+    elif s == 10:
+        _combination(y, K, 10, h, n, out)
+    elif s == 11:
+        _combination(y, K, 11, h, n, out)
+    elif s == 13:
+        _combination(y, K, 13, h, n, out)
+    elif s == 14:
+        _combination(y, K, 14, h, n, out)
+    else:
+        _combination(y, K, 15, h, n, out)
 
 
 @njit(cache=True)
 def step(model, jac_mode, variational, mask, d, y, h, K, y_new, ys, bad):
     """One DOP853 step from ``y`` (``K[0]`` = f(y) on entry): stages into ``K[1:13]``,
     the 8th-order solution into ``y_new``, f(y_new) into ``K[12]``. Returns a status."""
+    n = y.size
     for s in range(1, N_STAGES):
-        _stage_point(y, K, s, s, h, ys)
+        _stage_point(y, K, s, h, n, ys)
         status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
         if status != OK:
             return status
-    n = y.size
-    for j in range(n):  # y + h * (K[:12].T @ B), summed as _stage_point does
-        y_new[j] = 0.0
-    for r in range(N_STAGES):
-        b = B[r]
-        for j in range(n):
-            y_new[j] += K[r, j] * b
-    for j in range(n):
-        y_new[j] = y[j] + h * y_new[j]
+    for j in range(n):  # y + h * (K[:12].T @ B), summed as _combination does
+        acc = 0.0
+        for r in range(N_STAGES):
+            acc += K[r, j] * B[r]
+        y_new[j] = y[j] + h * acc
     return rhs(model, jac_mode, variational, mask, d, y_new, K[N_STAGES], bad)
 
 
@@ -162,15 +190,16 @@ def step_factor(err, rejected):
 
 @njit(cache=True)
 def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K, F, ys, bad):
-    """The 7th-order dense output of the step ``y_old -> y_new`` of size ``h``: the three
-    extra stages into ``K[13:16]`` and the coefficients into ``F`` (7, m), as scipy's
-    ``DOP853._dense_output_impl``. Returns a status."""
+    """The 7th-order dense output of the step ``y_old -> y_new`` of size ``h``, of the
+    first n components (``F`` (7, n)): the three extra stages into ``K[13:16, :n]`` and the
+    coefficients into ``F``, as scipy's ``DOP853._dense_output_impl``. n is the vector's
+    length, or d with ``variational`` False (the state's output alone). Returns a status."""
+    n = F.shape[1]
     for s in range(N_STAGES + 1, N_STAGES_EXTENDED):
-        _stage_point(y_old, K, s, s, h, ys)
+        _stage_point(y_old, K, s, h, n, ys)
         status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
         if status != OK:
             return status
-    n = y_old.size
     for j in range(n):
         dy = y_new[j] - y_old[j]
         F[0, j] = dy
@@ -178,13 +207,10 @@ def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K
         F[2, j] = 2.0 * dy - h * (K[N_STAGES, j] + K[0, j])
     for i in range(D.shape[0]):  # h * (D[i] @ K), each sum in the order r = 0, 1, ...
         for j in range(n):
-            F[3 + i, j] = 0.0
-        for r in range(N_STAGES_EXTENDED):
-            c = D[i, r]
-            for j in range(n):
-                F[3 + i, j] += c * K[r, j]
-        for j in range(n):
-            F[3 + i, j] = h * F[3 + i, j]
+            acc = 0.0
+            for r in range(N_STAGES_EXTENDED):
+                acc += D[i, r] * K[r, j]
+            F[3 + i, j] = h * acc
     return OK
 
 

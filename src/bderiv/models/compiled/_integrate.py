@@ -108,8 +108,6 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     roots = np.full(n_events, np.nan)
     K = np.empty((N_STAGES_EXTENDED, m))
     F = np.empty((INTERPOLATOR_POWER, m))
-    Kd = np.empty((N_STAGES_EXTENDED, d))
-    Fs = np.empty((INTERPOLATOR_POWER, d))
     work = np.empty((3, m))
     y = y0.copy()
     y_new = np.empty(m)
@@ -179,48 +177,40 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
                             roots, counts, bad, t_new, h_abs)
         event = n_events > 0 and crossed(g, g_new, mask, active)
-        if event:  # the whole vector's dense output: the stop's state and sensitivity
-            status = dense_coefficients(model, jac_mode, variational, mask, d, y, y_new, h,
-                                        K, F, work[0], bad)
-            counts[NFEV] += _DENSE_EXTRA
-            counts[NJEV] += jev * _DENSE_EXTRA
-        elif dense and not variational:  # the integrated vector is the state
-            status = dense_coefficients(model, jac_mode, variational, mask, d, y, y_new, h, K,
-                                        F, work[0], bad)
-            counts[NFEV] += _DENSE_EXTRA
-        elif dense:  # the state's only, for the search of crossings inside the step
-            Kd[0] = K[0, :d]
-            Kd[N_STAGES] = K[N_STAGES, :d]
-            Kd[1:N_STAGES] = K[1:N_STAGES, :d]
-            status = dense_coefficients(model, jac_mode, np.bool_(False), mask, d, y[:d],
-                                        y_new[:d], h, Kd, Fs, work[0, :d], bad)
-            counts[NFEV] += _DENSE_EXTRA
-        if status != OK:
-            return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
-                            roots, counts, bad, t_new, h_abs)
+        # at a crossing the whole vector's dense output (the stop's state and sensitivity),
+        # else the state's, computed straight into the record when that is all it needs
+        whole = event and variational
         if dense:
             steps = room(steps, n_dense + 1)
             Fd = room(Fd, n_dense + 1)
             steps[n_dense, 0] = t
             steps[n_dense, 1] = h
-            if event or not variational:  # F holds the state's coefficients
-                Fd[n_dense] = F[:, :d]
-            else:
-                Fd[n_dense] = Fs
-            n_dense += 1
+        coef = F if whole or not dense else Fd[n_dense]
+        if event or dense:
+            status = dense_coefficients(model, jac_mode, whole, mask, d, y, y_new, h, K, coef,
+                                        work[0], bad)
+            counts[NFEV] += _DENSE_EXTRA
+            counts[NJEV] += _DENSE_EXTRA if whole else 0
+            if status != OK:
+                return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense,
+                                active, roots, counts, bad, t_new, h_abs)
+            if dense:
+                if whole:
+                    Fd[n_dense] = F[:, :d]
+                n_dense += 1
         ts = room(ts, count + 1)
         ys = room(ys, count + 1)
         if event:
             t_stop = t_new
             for k in range(n_events):
                 if active[k] and status == OK:
-                    status, roots[k] = locate(model, with_section, k, F, y, t, t_new, x,
+                    status, roots[k] = locate(model, with_section, k, coef, y, t, t_new, x,
                                               g_new, bad)
                     t_stop = min(t_stop, roots[k])
             if status != OK:
                 return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense,
                                 active, roots, counts, bad, t_new, h_abs)
-            dense_eval(F, y, t, h, t_stop, m, y_new)
+            dense_eval(coef, y, t, h, t_stop, m, y_new)
             ts[count] = t_stop
             ys[count] = y_new
             return _stopped(np.int64(EVENT), t_stop, y_new, ts, ys, count + 1, steps, Fd, n_dense,
