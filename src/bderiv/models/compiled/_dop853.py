@@ -158,11 +158,13 @@ def step(model, jac_mode, variational, mask, d, y, h, K, y_new, ys, bad):
 
 
 @njit(cache=True, inline="always")
-def error_norm(K, h, y, y_new, rtol, atol):
-    """scipy's combined 5th / 3rd order error estimate of DOP853, scaled RMS norm."""
+def error_norm(K, h, y, y_new, rtol, atol, work):
+    """scipy's combined 5th / 3rd order error estimate of DOP853, scaled RMS norm.
+
+    The scaled estimates go to ``work[1]`` and ``work[2]`` (``work`` (3, m)) in a loop over
+    the components (vectorized), their squares are then summed in the order j = 0, 1, ...:
+    the same roundings as one loop."""
     m = y.size
-    e5 = 0.0
-    e3 = 0.0
     for j in range(m):
         scale = atol[j] + max(abs(y[j]), abs(y_new[j])) * rtol
         a5 = 0.0
@@ -170,10 +172,13 @@ def error_norm(K, h, y, y_new, rtol, atol):
         for r in range(N_STAGES + 1):
             a5 += K[r, j] * E5[r]
             a3 += K[r, j] * E3[r]
-        a5 /= scale
-        a3 /= scale
-        e5 += a5 * a5
-        e3 += a3 * a3
+        work[1, j] = a5 / scale
+        work[2, j] = a3 / scale
+    e5 = 0.0
+    e3 = 0.0
+    for j in range(m):
+        e5 += work[1, j] * work[1, j]
+        e3 += work[2, j] * work[2, j]
     if e5 == 0.0 and e3 == 0.0:
         return 0.0
     return abs(h) * e5 / np.sqrt((e5 + 0.01 * e3) * m)

@@ -29,7 +29,7 @@ from ._dop853 import (
     step,
     step_factor,
 )
-from ._rhs import OK, call_events, rhs
+from ._rhs import OK, rhs, state_events
 from ._watch import crossed, locate
 
 #: the stretch reached ``t_final`` / stopped at an event crossing / the step size fell
@@ -44,7 +44,7 @@ NFEV, NJEV, N_STEPS, N_REJECTED = range(4)
 _DENSE_EXTRA = N_STAGES_EXTENDED - N_STAGES - 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def room(a, need):
     """``a``, or a copy of it (its dtype) with room for ``need`` rows along its first axis:
     at least twice as many."""
@@ -130,7 +130,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     counts[NFEV] += 1
     counts[NJEV] += jev
     if status == OK:
-        status = call_events(model, with_section, y[:d], n_events, g, bad)
+        status = state_events(model, with_section, y, d, n_events, g, bad)
     if status != OK:
         return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
                         counts, bad, t, 0.0)
@@ -165,14 +165,14 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             if status != OK:
                 return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active,
                                 roots, counts, bad, t, h_abs)
-            err = error_norm(K, h, y, y_new, rtol, atol)
+            err = error_norm(K, h, y, y_new, rtol, atol, work)
             h_abs *= step_factor(err, rejected)
             if err < 1.0:
                 break
             rejected = True
             counts[N_REJECTED] += 1
         counts[N_STEPS] += 1
-        status = call_events(model, with_section, y_new[:d], n_events, g_new, bad)
+        status = state_events(model, with_section, y_new, d, n_events, g_new, bad)
         if status != OK:
             return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
                             roots, counts, bad, t_new, h_abs)
@@ -216,11 +216,13 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             return _stopped(np.int64(EVENT), t_stop, y_new, ts, ys, count + 1, steps, Fd, n_dense,
                             active, roots, counts, bad, t_stop, h_abs)
         t = t_new
-        y[:] = y_new
-        K[0] = K[N_STAGES]
-        g[:] = g_new
+        for j in range(m):  # element loops: no views, no slice assignments
+            y[j] = y_new[j]
+            K[0, j] = K[N_STAGES, j]
+            ys[count, j] = y_new[j]
+        for k in range(n_events):
+            g[k] = g_new[k]
         ts[count] = t
-        ys[count] = y
         count += 1
         if t >= t_final:
             return _stopped(np.int64(FINISHED), t, y, ts, ys, count, steps, Fd, n_dense, active,

@@ -178,27 +178,40 @@ def rhs(model, mode, variational, mask, d, y, out, bad):
     return OK
 
 
+@njit(cache=True, inline="always")
+def state_events(model, with_section, y, d, n, g, bad):
+    """:func:`call_events` at the state ``x = y[:d]`` (``y`` may be the integrated vector;
+    no view of it: the driver's call at every step)."""
+    m = n - 1 if with_section else n
+    value = model.events(state_argument(model, y, d))
+    status = OK
+    if value.size != m:
+        status = EVENTS_SHAPE
+    elif not finite_vector(value):
+        status = EVENTS_NONFINITE
+    else:
+        for k in range(m):
+            g[k] = value[k]
+        if with_section:
+            x = np.empty(d)
+            for j in range(d):
+                x[j] = y[j]
+            s = model.section(x)
+            if np.isfinite(s):
+                g[m] = s
+            else:
+                status = SECTION_NONFINITE
+    if status != OK:
+        for j in range(d):
+            bad[j] = y[j]
+    return status
+
+
 @njit(cache=True)
 def call_events(model, with_section, x, n, g, bad):
     """``g = events(x)`` checked (shape, finite), and ``g[n - 1] = section(x)`` when
     ``with_section``; a status as :func:`rhs`."""
-    m = n - 1 if with_section else n
-    value = model.events(argument(model, x))
-    if value.size != m:
-        bad[:] = x
-        return EVENTS_SHAPE
-    if not finite_vector(value):
-        bad[:] = x
-        return EVENTS_NONFINITE
-    for k in range(m):
-        g[k] = value[k]
-    if with_section:
-        s = model.section(x.copy())
-        if not np.isfinite(s):
-            bad[:] = x
-            return SECTION_NONFINITE
-        g[m] = s
-    return OK
+    return state_events(model, with_section, x, x.size, n, g, bad)
 
 
 @njit(cache=True)

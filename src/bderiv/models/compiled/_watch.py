@@ -19,7 +19,7 @@ from ._dop853 import dense_eval
 from ._rhs import OK, call_events
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def crossed(g, g_new, mask, active):
     """``active[k]`` = event k crossed in the direction that flips bit k of ``mask``;
     returns whether any did."""
