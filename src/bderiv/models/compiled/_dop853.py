@@ -27,7 +27,7 @@ except ImportError as exc:  # pragma: no cover - depends on scipy's private layo
         "install a scipy that has it (1.15 to 1.17 do)"
     ) from exc
 
-from ._rhs import OK, rhs
+from ._rhs import OK, field_value, fill_argument, rhs, sensitivity_rate
 
 #: stages of a step (the 13th row of K holds f at the step's end, the FSAL value)
 N_STAGES = _tableau.N_STAGES
@@ -107,8 +107,9 @@ def _combination(y, K, s, h, n, out):
 
 @njit(cache=True, inline="always")
 def _stage_point(y, K, s, h, n, out):
-    """:func:`_combination` for stage ``s`` (1 to 11, 13 to 15), one branch per stage: a
-    constant number of rows in each (6x faster at d = 8 than a sum over ``s`` rows)."""
+    """:func:`_combination` for stage ``s`` (1 to 15; 12 is the step's 8th-order solution,
+    ``A[12, :12]`` being ``B``), one branch per stage: a constant number of rows in each
+    (6x faster at d = 8 than a sum over ``s`` rows)."""
     if s == 1:
         _combination(y, K, 1, h, n, out)
     elif s == 2:
@@ -131,6 +132,8 @@ def _stage_point(y, K, s, h, n, out):
         _combination(y, K, 10, h, n, out)
     elif s == 11:
         _combination(y, K, 11, h, n, out)
+    elif s == 12:
+        _combination(y, K, 12, h, n, out)
     elif s == 13:
         _combination(y, K, 13, h, n, out)
     elif s == 14:
@@ -139,22 +142,39 @@ def _stage_point(y, K, s, h, n, out):
         _combination(y, K, 15, h, n, out)
 
 
-@njit(cache=True)
-def step(model, jac_mode, variational, mask, d, y, h, K, y_new, ys, bad):
-    """One DOP853 step from ``y`` (``K[0]`` = f(y) on entry): stages into ``K[1:13]``,
-    the 8th-order solution into ``y_new``, f(y_new) into ``K[12]``. Returns a status."""
-    n = y.size
-    for s in range(1, N_STAGES):
-        _stage_point(y, K, s, h, n, ys)
-        status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
+@njit(cache=True, inline="always")
+def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, points, bad):
+    """Stages ``first`` to ``last - 1`` of the step of size ``h`` from ``y``: each one's
+    point (its first n components) into ``points``, the right-hand side there into
+    ``K[s]``. Returns a status (the failed point's state in ``bad``).
+
+    :func:`._rhs.rhs` written out: called per stage it would take the arrays as new
+    references, an atomic increment and decrement each that numba cannot prune around
+    the user's call (10 of the 22 reference counts of a field call at d = 8)."""
+    params = model.params
+    for s in range(first, last):
+        _stage_point(y, K, s, h, n, points)
+        a = np.empty(d + params.size)
+        fill_argument(a, points, params, d)
+        status, f = field_value(model, a, mask, d)
+        if status == OK and variational:
+            status = sensitivity_rate(model, jac_mode, mask, d, points, K[s])
         if status != OK:
+            for j in range(d):
+                bad[j] = points[j]
             return status
-    for j in range(n):  # y + h * (K[:12].T @ B), summed as _combination does
-        acc = 0.0
-        for r in range(N_STAGES):
-            acc += K[r, j] * B[r]
-        y_new[j] = y[j] + h * acc
-    return rhs(model, jac_mode, variational, mask, d, y_new, K[N_STAGES], bad)
+        for j in range(d):
+            K[s, j] = f[j]
+    return OK
+
+
+@njit(cache=True, inline="always")
+def step(model, jac_mode, variational, mask, d, y, h, K, y_new, bad):
+    """One DOP853 step from ``y`` (``K[0]`` = f(y) on entry): stages into ``K[1:12]``,
+    the 8th-order solution into ``y_new`` (each stage's point passes through it), f there
+    into ``K[12]``. Returns a status."""
+    return stages(model, jac_mode, variational, mask, d, y, K, 1, N_STAGES + 1, h, y.size,
+                  y_new, bad)
 
 
 @njit(cache=True, inline="always")
@@ -193,18 +213,17 @@ def step_factor(err, rejected):
     return max(MIN_FACTOR, SAFETY * err ** ERROR_EXPONENT)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K, F, ys, bad):
     """The 7th-order dense output of the step ``y_old -> y_new`` of size ``h``, of the
     first n components (``F`` (7, n)): the three extra stages into ``K[13:16, :n]`` and the
     coefficients into ``F``, as scipy's ``DOP853._dense_output_impl``. n is the vector's
     length, or d with ``variational`` False (the state's output alone). Returns a status."""
     n = F.shape[1]
-    for s in range(N_STAGES + 1, N_STAGES_EXTENDED):
-        _stage_point(y_old, K, s, h, n, ys)
-        status = rhs(model, jac_mode, variational, mask, d, ys, K[s], bad)
-        if status != OK:
-            return status
+    status = stages(model, jac_mode, variational, mask, d, y_old, K, N_STAGES + 1,
+                    N_STAGES_EXTENDED, h, n, ys, bad)
+    if status != OK:
+        return status
     for j in range(n):
         dy = y_new[j] - y_old[j]
         F[0, j] = dy

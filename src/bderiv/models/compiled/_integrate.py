@@ -158,8 +158,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             t_new = min(t + h_abs, t_final)
             h = t_new - t
             h_abs = abs(h)
-            status = step(model, jac_mode, variational, mask, d, y, h, K, y_new, work[0],
-                          bad)
+            status = step(model, jac_mode, variational, mask, d, y, h, K, y_new, bad)
             counts[NFEV] += N_STAGES
             counts[NJEV] += jev * N_STAGES
             if status != OK:

@@ -85,16 +85,21 @@ def coordinate_scale(v):
 
 
 @njit(cache=True, inline="always")
-def state_argument(model, y, d):
-    """:func:`argument` at the state ``x = y[:d]`` (``y`` may be the integrated vector):
-    element loops, no slice of ``y`` (a view costs two atomic reference counts, ~15 % of a
-    small step)."""
-    p = model.params
-    a = np.empty(d + p.size)
+def fill_argument(a, y, params, d):
+    """``a`` = the state ``y[:d]`` followed by ``params``: element loops, no slice of ``y``
+    (a view costs two atomic reference counts)."""
     for j in range(d):
         a[j] = y[j]
-    for j in range(p.size):
-        a[d + j] = p[j]
+    for j in range(params.size):
+        a[d + j] = params[j]
+
+
+@njit(cache=True, inline="always")
+def state_argument(model, y, d):
+    """:func:`argument` at the state ``x = y[:d]`` (``y`` may be the integrated vector)."""
+    p = model.params
+    a = np.empty(d + p.size)
+    fill_argument(a, y, p, d)
     return a
 
 
@@ -150,25 +155,41 @@ def jacobian(model, mode, x, mask, d, J):
 
 
 @njit(cache=True, inline="always")
+def field_value(model, a, mask, d):
+    """``(status, field(a, mask))`` at the argument ``a`` (fresh: :func:`state_argument`),
+    checked: ``OK`` or the failed check (shape, finite)."""
+    f = model.field(a, mask)
+    if f.size != d:
+        return FIELD_SHAPE, f
+    if not finite_vector(f):
+        return FIELD_NONFINITE, f
+    return OK, f
+
+
+@njit(cache=True)
+def sensitivity_rate(model, mode, mask, d, y, out):
+    """``out[d:] = J(x) Phi`` at ``y = (x, Phi)`` (Phi row-major, J by ``mode``): the
+    variational part of :func:`rhs`; a status (the checks of :func:`jacobian`)."""
+    J = np.empty((d, d))
+    status = jacobian(model, mode, y, mask, d, J)
+    if status == OK:  # BLAS for the product (d^3 of the work)
+        np.dot(J, y[d:].reshape((d, d)), out[d:].reshape((d, d)))
+    return status
+
+
+@njit(cache=True, inline="always")
 def rhs(model, mode, variational, mask, d, y, out, bad):
     """``out = f(y)``: the field at ``x = y[:d]``, and ``J(x) Phi`` when ``variational``
     (``out`` may be shorter than ``y``: the state's part only, for ``d`` entries).
 
     The user's functions get a fresh copy of ``x`` (they may keep or change it;
-    :func:`argument`). Returns
-    ``OK`` or the code of the failed check, the state copied into ``bad``.
+    :func:`argument`). Returns ``OK`` or the code of the failed check, the state copied
+    into ``bad``. (The integrator's stages write this out in their loop:
+    :func:`._dop853.stages`.)
     """
-    f = model.field(state_argument(model, y, d), mask)
-    status = OK
-    if f.size != d:
-        status = FIELD_SHAPE
-    elif not finite_vector(f):
-        status = FIELD_NONFINITE
-    elif variational:
-        J = np.empty((d, d))
-        status = jacobian(model, mode, y, mask, d, J)
-        if status == OK:  # Phi row-major in y[d:]; BLAS for the product (d^3 of the work)
-            out[d:] = np.dot(J, y[d:].reshape((d, d))).ravel()
+    status, f = field_value(model, state_argument(model, y, d), mask, d)
+    if status == OK and variational:
+        status = sensitivity_rate(model, mode, mask, d, y, out)
     if status != OK:
         for j in range(d):
             bad[j] = y[j]
@@ -218,12 +239,7 @@ def call_events(model, with_section, x, n, g, bad):
 def checked_field(model, x, mask, d):
     """``(status, field(x, mask))`` at the state ``x`` (d,): ``OK`` or the failed check
     (shape, finite)."""
-    f = model.field(state_argument(model, x, d), mask)
-    if f.size != d:
-        return FIELD_SHAPE, f
-    if not finite_vector(f):
-        return FIELD_NONFINITE, f
-    return OK, f
+    return field_value(model, state_argument(model, x, d), mask, d)
 
 
 @njit(cache=True)
