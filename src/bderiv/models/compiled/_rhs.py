@@ -58,21 +58,30 @@ EVENTS_TYPE = types.FunctionType(EVENTS_SIGNATURE)
 SECTION_TYPE = types.FunctionType(SECTION_SIGNATURE)
 
 
+@njit(cache=True, inline="always")
+def finite_vector(v):
+    """True when every entry of the 1-D array ``v`` is finite (no view made: the hot path).
+
+    ``v[j] * 0`` is zero for a finite entry and NaN otherwise; their sum, in four partial
+    sums, is zero exactly when all are finite (2x faster at d = 8 and 44 than a loop that
+    stops at the first bad entry: that one cannot overlap its iterations)."""
+    n = v.size
+    s0 = s1 = s2 = s3 = 0.0
+    for j in range(0, n - 3, 4):
+        s0 += v[j] * 0.0
+        s1 += v[j + 1] * 0.0
+        s2 += v[j + 2] * 0.0
+        s3 += v[j + 3] * 0.0
+    for j in range(n - n % 4, n):
+        s0 += v[j] * 0.0
+    return s0 + s1 + s2 + s3 == 0.0
+
+
 @njit(cache=True)
 def all_finite(a):
     """True when every entry of the 2-D array ``a`` is finite."""
     for i in range(a.shape[0]):
-        for j in range(a.shape[1]):
-            if not np.isfinite(a[i, j]):
-                return False
-    return True
-
-
-@njit(cache=True, inline="always")
-def finite_vector(v):
-    """True when every entry of the 1-D array ``v`` is finite (no view made: the hot path)."""
-    for j in range(v.size):
-        if not np.isfinite(v[j]):
+        if not finite_vector(a[i]):
             return False
     return True
 
@@ -161,7 +170,18 @@ def field_value(model, a, mask, d):
     f = model.field(a, mask)
     if f.size != d:
         return FIELD_SHAPE, f
-    if not finite_vector(f):
+    # finite_vector written out: inlined, it takes f as a new reference, whose count
+    # numba does not prune here (two atomic operations per field call)
+    n = f.size
+    s0 = s1 = s2 = s3 = 0.0
+    for j in range(0, n - 3, 4):
+        s0 += f[j] * 0.0
+        s1 += f[j + 1] * 0.0
+        s2 += f[j + 2] * 0.0
+        s3 += f[j + 3] * 0.0
+    for j in range(n - n % 4, n):
+        s0 += f[j] * 0.0
+    if s0 + s1 + s2 + s3 != 0.0:
         return FIELD_NONFINITE, f
     return OK, f
 
