@@ -105,6 +105,22 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
             F, Dh, rate, window, codes)
 
 
+@njit(cache=True)
+def start_region(model, x, n, d):
+    """The region of a run's start ``x``: bit k set where ``events(x)[k] > 0``; -1 when
+    ``x`` is on a surface or the events fail their check (the Python loop says which)."""
+    h = np.empty(n)
+    if call_events(model, np.bool_(False), x, n, h, np.empty(d)) != OK:
+        return np.int64(-1)
+    mask = np.int64(0)
+    for k in range(n):
+        if h[k] == 0.0:
+            return np.int64(-1)
+        if h[k] > 0.0:
+            mask |= np.int64(1) << k
+    return mask
+
+
 @njit(cache=True, nogil=True)
 def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, with_resets,
                   n, d, t, x, mask, scale, err,
@@ -113,6 +129,8 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     """The run's stretches from ``(t, x)`` in region ``mask`` while the stops are plain
     (the event Jacobian by ``event_jac_mode``, not ``EVENT_JAC_NONE``).
 
+    ``mask`` -1: the run's start, its region from the signs of the events
+    (:func:`start_region`; still -1 when the Python loop must say why not);
     ``scale``, ``err`` (d,): the largest ``|x_i|`` so far and the error bound carried into
     the stretch; ``atol`` (m,): the driver's, one per integrated component; ``checked``
     (int64 masks): the regions whose field Jacobian is checked (``variational``, unless
@@ -154,7 +172,9 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     count, stretches, groups, steps = np.int64(0), np.int64(0), np.int64(0), np.int64(0)
     sign = np.empty(n)
     code, returned = HANDOFF, False
-    while True:
+    if mask < 0:
+        mask = start_region(model, x, n, d)
+    while mask >= 0:
         if variational and not all_checked and not (checked == mask).any():
             break
         for k in range(n):
