@@ -15,7 +15,13 @@ import numpy as np
 from .. import _numdiff as numdiff
 from .._format import format_mask
 from .._limits import ACCEPT_RTOL, RESET_TOL, RESET_TOL_NUMERICAL
-from .._validate import check_bool, check_finite, check_positive_int, check_real_array
+from .._validate import (
+    all_finite,
+    check_bool,
+    check_finite,
+    check_positive_int,
+    check_real_array,
+)
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
 
 _log = logging.getLogger("bderiv")
@@ -269,7 +275,7 @@ class ModelCalls:
                 f"{arr.shape}"
             )
         arr = np.array(arr, dtype=np.float64)
-        if not np.isfinite(arr).all():
+        if not all_finite(arr):
             raise ValueError(f"{name} must be finite, got {arr}")
         return arr
 

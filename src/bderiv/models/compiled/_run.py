@@ -143,15 +143,19 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         ``ENDED`` or ``HANDOFF``.
     returned : bool
         The run ended at the section.
-    t, x, mask, scale, err
-        The run's state after the recorded stretches.
+    t, mask : float, int
+        The run's time and region after the recorded stretches.
+    now : ndarray, shape (3, d)
+        Its state, ``scale`` and ``err`` there.
     T, X, M : ndarray, shapes (N,), (N, d), (N,)
         Their samples and masks (as ``Trajectory``'s).
     L : ndarray, shape (S, d, d)
         Their sensitivities at their ends (``variational``).
-    group_t, group_bits, mask_before, mask_after : ndarray, shape (G,)
-        Their event groups: time, events (bits), masks.
-    group_x, group_x_after : ndarray, shape (G, d)
+    group_t : ndarray, shape (G,)
+        Their event groups' times.
+    group_masks : ndarray, shape (G, 3), int64
+        Each group's events (bits), mask before and mask after.
+    group_x : ndarray, shape (G, 2, d)
         Each group's state, and after its resets (``with_resets``: the model's ``reset``).
     group_J : ndarray, shape (G, n, d)
         The event Jacobian at each group's state (``variational``).
@@ -163,11 +167,8 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     M = np.empty(64, dtype=np.int64)
     L = np.empty((8 if variational else 0, d, d))
     group_t = np.empty(8)
-    group_bits = np.empty(8, dtype=np.int64)
-    mask_before = np.empty(8, dtype=np.int64)
-    mask_after = np.empty(8, dtype=np.int64)
-    group_x = np.empty((8, d))
-    group_x_after = np.empty((8, d))
+    group_masks = np.empty((8, 3), dtype=np.int64)
+    group_x = np.empty((8, 2, d))
     group_J = np.empty((8 if variational else 0, n, d))
     count, stretches, groups, steps = np.int64(0), np.int64(0), np.int64(0), np.int64(0)
     sign = np.empty(n)
@@ -257,12 +258,12 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         if not event:
             code = ENDED
             break
-        group_t, group_bits = room(group_t, groups + 1), room(group_bits, groups + 1)
-        mask_before, mask_after = room(mask_before, groups + 1), room(mask_after, groups + 1)
-        group_x, group_x_after = room(group_x, groups + 1), room(group_x_after, groups + 1)
-        group_t[groups], group_bits[groups] = t, bits
-        mask_before[groups], mask_after[groups] = mask, new
-        group_x[groups], group_x_after[groups] = x, x_after
+        group_t, group_masks = room(group_t, groups + 1), room(group_masks, groups + 1)
+        group_x = room(group_x, groups + 1)
+        group_t[groups] = t
+        group_masks[groups, 0], group_masks[groups, 1], group_masks[groups, 2] = \
+            bits, mask, new
+        group_x[groups, 0], group_x[groups, 1] = x, x_after
         if variational:
             group_J = room(group_J, groups + 1)
             group_J[groups] = J
@@ -271,7 +272,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         if t >= t_final:
             code = ENDED
             break
-    return (code, returned, t, x, mask, scale, err, T[:count], X[:count], M[:count],
-            L[:stretches], group_t[:groups], group_bits[:groups], mask_before[:groups],
-            mask_after[:groups], group_x[:groups], group_x_after[:groups], group_J[:groups],
-            steps)
+    now = np.empty((3, d))  # few arrays: boxing each costs Python about 0.6 us
+    now[0], now[1], now[2] = x, scale, err
+    return (code, returned, t, mask, now, T[:count], X[:count], M[:count], L[:stretches],
+            group_t[:groups], group_masks[:groups], group_x[:groups], group_J[:groups], steps)

@@ -364,8 +364,7 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
         section=None if section is None else section.compiled())
     if out is None:  # a user function raised: the Python loop says where
         return
-    code, returned, t, x, mask, scale, err, T, X, M, L, times, bits, before, after, states, \
-        states_after, jacobians, _ = out
+    code, returned, t, mask, state, T, X, M, L, times, masks, states, jacobians, _ = out
     if T.size:
         log.t.append(T)
         log.x.append(X)
@@ -373,8 +372,7 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
         if variational:
             log.linear.extend(L)
     records, groups = log.records, log.groups
-    for i, (time, b, m0, m1) in enumerate(zip(times.tolist(), bits.tolist(), before.tolist(),
-                                              after.tolist(), strict=True)):
+    for i, (time, (b, m0, m1)) in enumerate(zip(times.tolist(), masks.tolist(), strict=True)):
         group = _events_of(b)
         for k in group:
             records.append(EventRecord(time, k, m1, -1 if m0 >> k & 1 else 1))
@@ -383,8 +381,8 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
             jac = jacobians[i]
             jac.flags.writeable = False
         # rows of the arrays the compiled run made for this call: no one else's
-        groups.append(EventGroup(time, group, m0, m1, states[i], states_after[i], jac))
-    now.t, now.x, now.mask, now.scale, now.err = t, x, mask, scale, err
+        groups.append(EventGroup(time, group, m0, m1, states[i, 0], states[i, 1], jac))
+    now.t, now.mask, (now.x, now.scale, now.err) = t, mask, state
     now.ended, now.returned = code == ENDED, returned
 
 
