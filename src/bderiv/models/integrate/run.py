@@ -111,7 +111,10 @@ class SolverOptions:
         if options is not None and not isinstance(options, cls):
             raise TypeError(f"options must be a SolverOptions, got {type(options).__name__}")
         base = options if options is not None else (default or _defaults(cls))
-        return base.with_overrides(**settings)
+        for value in settings.values():
+            if value is not None:
+                return base.with_overrides(**settings)
+        return base
 
     def solve_ivp_kwargs(self) -> dict:
         """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
