@@ -24,7 +24,7 @@ from ._checks import (
     raise_failed_run,
 )
 from ._dop853 import dense_rows
-from ._integrate import EVENT, FINISHED
+from ._integrate import EVENT, FINISHED, drive_stretch
 from ._model import (
     COMPLEX_EVENTS_SIGNATURE,
     EVENT_JACOBIAN_SIGNATURE,
@@ -34,6 +34,7 @@ from ._model import (
     no_event_jacobian,
     no_reset,
 )
+from ._notice import notice_compilation
 from ._rhs import (
     JAC_CENTRAL,
     JAC_COMPLEX_STEP,
@@ -52,6 +53,8 @@ from ._slices import Driven, _interrupted, drive, measured, slice_budget
 from ._stops import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_GIVEN, EVENT_JAC_NONE, event_jacobian
 from .stretch import MAX_EVENTS
 
+#: the warning when the driver or the compiled run compiles (their first use on a machine)
+COMPILE_NOTICE = notice_compilation(drive_stretch, run_stretches)
 #: how ``J`` is had, by the code of :mod:`._rhs`
 JACOBIAN_MODES = {JAC_GIVEN: "given", JAC_COMPLEX_STEP: "complex step",
                   JAC_CENTRAL: "central differences"}
