@@ -426,3 +426,24 @@ def test_a_bouncing_ball_on_both_paths_and_against_its_closed_form():
     up, dt = RESTITUTION ** len(times) * v, t_final - times[-1]
     assert_allclose(tc.x_final, [up * dt - 0.5 * GRAVITY * dt**2, up - GRAVITY * dt],
                     atol=1e-9)
+
+
+def test_the_repr_of_a_compiled_model_says_how_it_runs():
+    """Before its first run the functions are not checked yet; after it, how J and the
+    event Jacobian are had and whether the stops are compiled (a Python event_jacobian
+    keeps them in Python, and says so)."""
+    compiled = HybridSystem(linear_field, linear_events, n_events=1, dim=2)
+    assert repr(compiled) == ("HybridSystem(n_events=1, dim=2, compiled: functions checked "
+                              "at the first use)")
+    compiled.simulate(np.array([0.0, 1.0]), 1.0)
+    # A[mask] @ x does not compile for a complex x: central differences
+    assert repr(compiled) == ("HybridSystem(n_events=1, dim=2, compiled: field_jacobian: "
+                              "central differences; event_jacobian: complex step; stops: "
+                              "compiled)")
+    python_jac = HybridSystem(linear_field, linear_events, n_events=1, dim=2,
+                              event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    python_jac.simulate(np.array([0.0, 1.0]), 1.0)
+    assert repr(python_jac).endswith("event_jacobian: Python; stops: in Python "
+                                     "(event_jacobian is not compiled for float64[::1] -> "
+                                     "float64[:, ::1], or events do not compile for complex "
+                                     "input))")

@@ -89,8 +89,8 @@ class ModelCalls:
                                            event_jacobian=self._given_event_jacobian,
                                            reset=self._given_reset)
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
-                      "(once per model; field_jacobian: %s)", time.perf_counter() - start,
-                      JACOBIAN_MODES[self._compiled.jac_mode])
+                      "(once per model; %s)", time.perf_counter() - start,
+                      self._compiled.describe())
         return self._compiled
 
     def check_compiled_jacobian(self, x, mask) -> None:

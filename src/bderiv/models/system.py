@@ -141,12 +141,19 @@ class HybridSystem(ModelCalls):
     """
 
     def __repr__(self):
+        head = f"HybridSystem(n_events={self.n_events}, dim={self.dim}"
+        reset_jac = [] if self._reset_jac is not None or not self.has_resets else \
+            ["reset_jacobian"]
+        if self._compiled_functions is not None:  # the compiled path says how it runs
+            how = ("functions checked at the first use" if self._compiled is None
+                   else self._compiled.describe())
+            numerical = f", numerical: {reset_jac[0]}" if reset_jac else ""
+            return f"{head}, compiled: {how}{numerical})"
         missing = [name for name, f in (("event_jacobian", self._event_jac),
-                                        ("field_jacobian", self._field_jac),
-                                        ("reset_jacobian", self._reset_jac
-                                         if self.has_resets else True)) if f is None]
+                                        ("field_jacobian", self._field_jac)) if f is None]
+        missing += reset_jac
         numerical = f", numerical: {', '.join(missing)}" if missing else ""
-        return f"HybridSystem(n_events={self.n_events}, dim={self.dim}{numerical})"
+        return f"{head}{numerical})"
 
     # ------------------------------------------------------------------------------
     # B-derivative at an event point

@@ -132,6 +132,22 @@ class CompiledModel:
         self._structs = {}
         self._atol = {}  # (length, atol) -> the driver's atol array
 
+    def describe(self) -> str:
+        """How the model runs on the compiled path, in words: how ``J`` and the event
+        Jacobian are had, and whether the stops are decided in compiled code (and why not)."""
+        event_jac = {EVENT_JAC_GIVEN: "given", EVENT_JAC_COMPLEX_STEP: "complex step",
+                     EVENT_JAC_NONE: "Python"}[self.event_jac_mode]
+        if self.event_jac_mode == EVENT_JAC_NONE:
+            stops = ("in Python (event_jacobian is not compiled for float64[::1] -> "
+                     "float64[:, ::1], or events do not compile for complex input)")
+        elif self.has_python_reset:
+            stops = ("in Python (reset is not compiled for (float64[::1], int64, int64) -> "
+                     "float64[::1])")
+        else:
+            stops = "compiled"
+        return (f"field_jacobian: {JACOBIAN_MODES[self.jac_mode]}; event_jacobian: "
+                f"{event_jac}; stops: {stops}")
+
     def struct(self, section=None):
         """The driver's struct of the functions (with ``section``, a checked dispatcher)
         and the parameters."""
