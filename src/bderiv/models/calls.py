@@ -97,9 +97,9 @@ class ModelCalls:
         """Before the compiled integrator carries the sensitivity in region ``mask``: the
         first time for each mask, compare its ``J`` at ``x`` with a central difference of
         the field (:func:`check_given_jacobian`): a given ``field_jacobian`` unless
-        ``check_jacobians`` is False, and always a complex-step one (a field that is not
-        complex-analytic, ``abs`` or a comparison of x, gives a wrong complex step: the
-        model then uses central differences)."""
+        ``check_jacobians`` is False, and always a complex-step one (a field that compiles for
+        complex input but is not complex-analytic, ``np.abs`` or ``x.real``, gives a wrong
+        complex step: the model then uses central differences)."""
         model, key = self.compiled, ("compiled field_jacobian", int(mask))
         mode = JACOBIAN_MODES[model.jac_mode]
         given = mode == "given"
