@@ -279,7 +279,23 @@ def typo(x, mask):
     return np.array([x[1], -x[0]]) + undefined_name  # noqa: F821
 
 
+def _closing_over(values):
+    return numba.njit(lambda x, mask: np.array([x[1], -x[0]]) * values[0])
+
+
+@numba.njit
+def int_field(x, mask):
+    return np.array([1, 2])
+
+
 @pytest.mark.parametrize("field, error, message", [
+    (_closing_over([2.0]), TypeError, r"field does not compile as field\(x, mask\) .*: it "
+                                      r"reads the closed-over values = \[2\.0\] \(.*\), a "
+                                      r"value numba cannot compile in: close over a NumPy "
+                                      r"array, a tuple or a number instead"),
+    (int_field, TypeError, r"field must return array\(float64, 1d, C\) \(a C-contiguous "
+                           r"float64 array; return a new float64 array .* but returns "
+                           r"array\(int64, 1d, C\)"),
     (nan_beyond, ValueError, r"field\(x, mask\) returned a non-finite value, entry \[1\] = "
                              r"nan in region mask 0b0 .* at x = \[0\.3"),
     (short_field, ValueError, r"field\(x, mask\) must return an array of shape \(2,\), got "
@@ -289,11 +305,37 @@ def typo(x, mask):
                           r"\[0\.0, 1\.0\]"),
     (typo, TypeError, r"field does not compile as field\(x, mask\) with x float64\[::1\], "
                       r"mask int64"),
-], ids=["nan", "shape", "raises", "typo"])
+], ids=["closed-over list", "int array", "nan", "shape", "raises", "typo"])
 def test_bad_compiled_functions_are_named(field, error, message):
     system = HybridSystem(field, linear_events, n_events=1, dim=2)
     with pytest.raises(error, match=message):
         system.simulate(np.array([0.0, 1.0]), 3.0)
+
+
+def test_the_integrators_compilation_is_announced_once(caplog):
+    """The driver's or the compiled run's compilation (a miss of the disk cache: numba's
+    compile event) logs one warning per process; another function's does not."""
+    from numba.core import event
+
+    from bderiv.models.compiled import model as compiled_model
+    from bderiv.models.compiled._integrate import drive_stretch
+    from bderiv.models.compiled._run import run_stretches
+
+    notice = compiled_model.COMPILE_NOTICE
+    said, notice.said = notice.said, False
+    try:
+        with caplog.at_level("WARNING", logger="bderiv"):
+            for dispatcher in (linear_field, run_stretches, drive_stretch):
+                data = {"dispatcher": dispatcher, "args": (), "return_type": None}
+                with event.trigger_event("numba:compile", data=data):
+                    pass
+    finally:
+        notice.said = said
+    notices = [r.getMessage() for r in caplog.records if "compiling the compiled" in
+               r.getMessage()]
+    assert notices == ["bderiv: compiling the compiled integrator for this machine (once: "
+                       "about one to two minutes; later runs load it from numba's disk "
+                       "cache)"]
 
 
 @numba.njit
@@ -384,3 +426,24 @@ def test_a_bouncing_ball_on_both_paths_and_against_its_closed_form():
     up, dt = RESTITUTION ** len(times) * v, t_final - times[-1]
     assert_allclose(tc.x_final, [up * dt - 0.5 * GRAVITY * dt**2, up - GRAVITY * dt],
                     atol=1e-9)
+
+
+def test_the_repr_of_a_compiled_model_says_how_it_runs():
+    """Before its first run the functions are not checked yet; after it, how J and the
+    event Jacobian are had and whether the stops are compiled (a Python event_jacobian
+    keeps them in Python, and says so)."""
+    compiled = HybridSystem(linear_field, linear_events, n_events=1, dim=2)
+    assert repr(compiled) == ("HybridSystem(n_events=1, dim=2, compiled: functions checked "
+                              "at the first use)")
+    compiled.simulate(np.array([0.0, 1.0]), 1.0)
+    # A[mask] @ x does not compile for a complex x: central differences
+    assert repr(compiled) == ("HybridSystem(n_events=1, dim=2, compiled: field_jacobian: "
+                              "central differences; event_jacobian: complex step; stops: "
+                              "compiled)")
+    python_jac = HybridSystem(linear_field, linear_events, n_events=1, dim=2,
+                              event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    python_jac.simulate(np.array([0.0, 1.0]), 1.0)
+    assert repr(python_jac).endswith("event_jacobian: Python; stops: in Python "
+                                     "(event_jacobian is not compiled for float64[::1] -> "
+                                     "float64[:, ::1], or events do not compile for complex "
+                                     "input))")

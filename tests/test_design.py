@@ -16,8 +16,8 @@ PKG = ROOT / "src" / "bderiv"
 LAYERS = [
     {"cli", "__main__"},
     {"plot", "examples", "_bench", "symbolic", "jax"},  # _bench: the sweep of `bderiv bench`
-    {"models", "models/system", "models/calls", "models/section", "orbit", "jacobians", "_numdiff",
-     "stability_map"},
+    {"models", "models/system", "models/calls", "models/user_functions", "models/section",
+     "orbit", "jacobians", "_numdiff", "stability_map"},
     {"checks", "models/assembly"},  # assembly: the model's B-derivatives, group by group
     {"models/integrate", "flowmap", "returnmap", "stability"},
     {"models/events"},  # the event logic at a stop, for both integrators

@@ -19,8 +19,8 @@ import numpy as np
 from . import _numdiff as numdiff
 from ._format import format_mask
 from ._limits import DEFAULT_MASKS
-from .models.calls import check_output
 from .models.section import Section
+from .models.user_functions import check_output
 
 __all__ = ["JacobianCheck", "JacobianReport", "check_jacobians"]
 

@@ -1,8 +1,9 @@
 """Checked calls of a user's model functions: outputs validated, numerical Jacobians.
 
 :class:`ModelCalls` holds a model's functions and evaluates them checked (the base of
-:class:`~bderiv.models.system.HybridSystem`); :class:`Section` does the same for a Poincare
-section.
+:class:`~bderiv.models.system.HybridSystem`), by the wrappers and checks of
+:mod:`.user_functions`; :class:`~bderiv.models.section.Section` does the same for a
+Poincare section.
 """
 
 from __future__ import annotations
@@ -12,147 +13,22 @@ import time
 
 import numpy as np
 
-from .. import _numdiff as numdiff
 from .._format import format_mask
-from .._limits import ACCEPT_RTOL, RESET_TOL, RESET_TOL_NUMERICAL
-from .._validate import check_bool, check_finite, check_positive_int, check_real_array
-from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
+from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
+from .._validate import all_finite, check_bool, check_positive_int, check_real_array
+from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel
+from .user_functions import (
+    _appending,
+    _contiguous_args,
+    check_callable,
+    check_given_jacobian,
+    check_output,
+    check_params,
+    compiled_or_refused,
+    numerical_jacobian,
+)
 
 _log = logging.getLogger("bderiv")
-
-
-def check_callable(f, name: str) -> None:
-    """Refuse a parameter that should be a function (None passes: optional)."""
-    if f is not None and not callable(f):
-        raise TypeError(f"{name} must be callable, got {type(f).__name__}")
-
-
-def _contiguous_args(fn):
-    """``fn`` itself, or for a numba dispatcher a function that passes it the types the
-    compiled path compiled it for (a C-contiguous float64 state, int masks and events): a
-    strided view or an int array would make numba compile another version of it."""
-    if not is_compiled(fn):
-        return fn
-
-    def call(x, *ints):
-        return fn(np.ascontiguousarray(x, dtype=np.float64), *(int(i) for i in ints))
-
-    call.__wrapped__ = fn
-    return call
-
-
-def _appending(fn, params):
-    """``fn`` itself without parameters, else a function of the state that calls ``fn``
-    on the state followed by ``params`` (the model's functions take both)."""
-    if fn is None or params is None:
-        return fn
-
-    def call(x, *rest):
-        return fn(np.concatenate((np.asarray(x), params)), *rest)
-
-    call.__wrapped__ = fn
-    return call
-
-
-def check_params(params):
-    """``params`` as a read-only float64 array, shape (m,), or None.
-
-    Raises
-    ------
-    TypeError
-        If it is not real (bool, complex, ...).
-    ValueError
-        If it is not 1-d or not finite.
-    """
-    if params is None:
-        return None
-    arr = check_real_array(params, "params")
-    if arr.ndim != 1:
-        raise ValueError(f"params must be a 1-d array of parameter values, got shape "
-                         f"{arr.shape}")
-    arr = np.array(arr, dtype=np.float64)
-    check_finite(arr, "params")
-    arr.flags.writeable = False
-    return arr
-
-
-def compiled_or_refused(field, events, field_jacobian):
-    """The compiled path's functions when ``field`` is a numba dispatcher, else None.
-
-    A compiled ``field`` takes a compiled ``events`` and ``field_jacobian`` (or none):
-    the integrator calls all three at every step. The functions called only at the stops
-    (event and reset Jacobians, resets, corner fields) may be either.
-
-    Raises
-    ------
-    TypeError
-        Naming the function that is not compiled.
-    """
-    if not is_compiled(field):
-        return None
-    for fn, name in ((events, "events"), (field_jacobian, "field_jacobian")):
-        if fn is not None and not is_compiled(fn):
-            raise TypeError(
-                f"field is numba-compiled, so {name} must be too (the compiled integrator "
-                f"calls it at every step), got the Python function {fn!r}; compile it with "
-                f"numba.njit, or pass field as a Python function"
-            )
-    return field, events, field_jacobian
-
-
-def check_output(value, shape, what: str) -> np.ndarray:
-    """Validate the output of a user function: real, of ``shape``, finite; float64 array."""
-    try:
-        arr = check_real_array(value, what)
-    except TypeError as exc:
-        raise TypeError(f"{what} must return real numbers: {exc}") from None
-    if arr.shape != shape:
-        raise ValueError(f"{what} must return an array of shape {shape}, got shape {arr.shape}")
-    arr = np.asarray(arr, dtype=np.float64)
-    if np.count_nonzero(np.isfinite(arr)) != arr.size:
-        idx = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise ValueError(f"{what} returned a non-finite value: entry {list(idx)} = {arr[idx]}")
-    return arr
-
-
-def numerical_jacobian(fun, x, what: str, jac_name: str) -> numdiff.Derivative:
-    """Jacobian of ``fun`` at ``x`` by :func:`bderiv._numdiff.jacobian`, refused where its
-    error estimate exceeds the accuracy the entry needs.
-
-    ``what`` names the function and its mask (and event) in the error, ``jac_name`` the
-    parameter that gives the Jacobian instead.
-    """
-    D = numdiff.jacobian(fun, x)
-    bad = np.argwhere(~(D.error <= D.needed))
-    if bad.size:
-        with np.errstate(divide="ignore", invalid="ignore"):  # an entry may need 0
-            worst = np.nan_to_num(D.error / D.needed, nan=np.inf)[tuple(bad.T)]
-        i, j = (int(k) for k in bad[np.argmax(worst)])
-        raise ValueError(
-            f"the numerical Jacobian of {what} at x = {x} is not accurate enough: entry "
-            f"[{i}, {j}] (output {i} by x_{j}) = {D.value[i, j]:.6g} has an estimated error "
-            f"{D.error[i, j]:.3g}, more than the {D.needed[i, j]:.3g} it needs "
-            f"({ACCEPT_RTOL:g} relative, or the rounding of its row); no "
-            f"finite-difference step resolves the function there (a kink or steep feature "
-            f"near x, or noise): pass {jac_name}"
-        )
-    return D
-
-
-def check_given_jacobian(fun, x, J, what: str, jac_name: str) -> None:
-    """Refuse a given Jacobian ``J`` of ``fun`` at ``x`` that does not match its
-    derivative along a random direction (:func:`bderiv._numdiff.compare`)."""
-    c = numdiff.compare(fun, x, J)
-    if c.passed:
-        return
-    i = c.component
-    raise ValueError(
-        f"{jac_name} does not match {what} at x = {x}: along a random direction v, "
-        f"component {i} of J v differs from the central difference of {what} by "
-        f"{c.mismatch[i]:.3g} (tolerance {c.tolerance[i]:.3g}; {c.relative:.3g} relative "
-        f"to |J| |v|). Correct {jac_name} (bderiv.check_jacobians lists every function and "
-        f"mask), or pass check_jacobians=False to skip this check"
-    )
 
 
 class ModelCalls:
@@ -213,17 +89,17 @@ class ModelCalls:
                                            event_jacobian=self._given_event_jacobian,
                                            reset=self._given_reset)
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
-                      "(once per model; field_jacobian: %s)", time.perf_counter() - start,
-                      JACOBIAN_MODES[self._compiled.jac_mode])
+                      "(once per model; %s)", time.perf_counter() - start,
+                      self._compiled.describe())
         return self._compiled
 
     def check_compiled_jacobian(self, x, mask) -> None:
         """Before the compiled integrator carries the sensitivity in region ``mask``: the
         first time for each mask, compare its ``J`` at ``x`` with a central difference of
         the field (:func:`check_given_jacobian`): a given ``field_jacobian`` unless
-        ``check_jacobians`` is False, and always a complex-step one (a field that is not
-        complex-analytic, ``abs`` or a comparison of x, gives a wrong complex step: the
-        model then uses central differences)."""
+        ``check_jacobians`` is False, and always a complex-step one (a field that compiles for
+        complex input but is not complex-analytic, ``np.abs`` or ``x.real``, gives a wrong
+        complex step: the model then uses central differences)."""
         model, key = self.compiled, ("compiled field_jacobian", int(mask))
         mode = JACOBIAN_MODES[model.jac_mode]
         given = mode == "given"
@@ -262,14 +138,17 @@ class ModelCalls:
         return given_unchecked or ("event_jacobian",) in self._checked
 
     def _check_state(self, x, name="x"):
-        arr = check_real_array(x, name)
-        if arr.shape != (self.dim,):
-            raise ValueError(
-                f"{name} must have shape ({self.dim},) (a state of this system), got shape "
-                f"{arr.shape}"
-            )
-        arr = np.array(arr, dtype=np.float64)
-        if not np.isfinite(arr).all():
+        if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (self.dim,):
+            arr = x.copy()  # the common case, checked in a third of the time
+        else:
+            arr = check_real_array(x, name)
+            if arr.shape != (self.dim,):
+                raise ValueError(
+                    f"{name} must have shape ({self.dim},) (a state of this system), got "
+                    f"shape {arr.shape}"
+                )
+            arr = np.array(arr, dtype=np.float64)
+        if not all_finite(arr):
             raise ValueError(f"{name} must be finite, got {arr}")
         return arr
 

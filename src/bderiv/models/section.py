@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .calls import (
+from .compiled import check_compiled, is_compiled
+from .user_functions import (
     _contiguous_args,
     check_callable,
     check_given_jacobian,
     check_output,
     numerical_jacobian,
 )
-from .compiled import check_compiled, is_compiled
 
 
 class Section:

@@ -21,8 +21,9 @@ else numerical). Its methods are thin:
   Newton's method with it, with its stability (:mod:`bderiv.orbit`).
 
 The checked evaluations of the user functions live in :class:`bderiv.models.calls.ModelCalls`.
-Missing Jacobians are computed with :func:`scipy.differentiate.jacobian` (adaptive step,
-error estimate); the user functions need not be vectorised, they are wrapped.
+Missing Jacobians are computed by central differences with Richardson extrapolation
+(:mod:`bderiv._numdiff`: adaptive step, error estimate), on a compiled model in compiled
+code; the user functions need not be vectorised, they are wrapped.
 """
 
 from __future__ import annotations
@@ -72,10 +73,12 @@ class HybridSystem(ModelCalls):
     dim : int
         State dimension d.
     event_jacobian : callable, optional
-        ``event_jacobian(x) -> (n, d)``. Default: :func:`scipy.differentiate.jacobian`.
+        ``event_jacobian(x) -> (n, d)``. Default: numerical (see Notes); on a compiled
+        model the complex step of ``events`` where they compile for complex input.
     field_jacobian : callable, optional
-        ``field_jacobian(x, mask) -> (d, d)``. Default: :func:`scipy.differentiate.jacobian`
-        (slow inside the variational equations; give it when you can).
+        ``field_jacobian(x, mask) -> (d, d)``. Default: numerical (slow inside the
+        variational equations of a Python model; give it when you can); on a compiled
+        model computed in compiled code (complex step, else central differences).
     corner_field : callable, optional
         ``corner_field(x) -> (2**n, d)``: all region fields at ``x`` at once, row ``mask``
         equal to ``field(x, mask)``. Used to sample the corner table without a Python loop
@@ -112,6 +115,15 @@ class HybridSystem(ModelCalls):
     Every output of the user functions is checked (shape and finiteness); errors say which
     function, which mask, the expected and the received shape.
 
+    Compiled models: when ``field`` is a ``numba.njit`` dispatcher, every run is
+    integrated by the compiled DOP853 (``method`` must be ``"DOP853"``); ``events`` and a
+    given ``field_jacobian`` must then be compiled too, and so must a Poincare section
+    (:meth:`return_map`, :meth:`periodic_orbit`). With ``event_jacobian`` compiled (or
+    none, and ``events`` compiling for complex input) and ``reset`` compiled if given, the
+    stops are decided in compiled code as well: a run is one compiled call. ``repr()``
+    says how a model runs after its first run; the tutorial (section 12) says how to write
+    one.
+
     A Jacobian not given is computed by central differences with Richardson extrapolation
     (:mod:`bderiv._numdiff`: steps from an eighth of each variable's magnitude, smaller
     and larger ones tried until each entry's error estimate is below 1e-7 of the entry)
@@ -141,12 +153,19 @@ class HybridSystem(ModelCalls):
     """
 
     def __repr__(self):
+        head = f"HybridSystem(n_events={self.n_events}, dim={self.dim}"
+        reset_jac = [] if self._reset_jac is not None or not self.has_resets else \
+            ["reset_jacobian"]
+        if self._compiled_functions is not None:  # the compiled path says how it runs
+            how = ("functions checked at the first use" if self._compiled is None
+                   else self._compiled.describe())
+            numerical = f", numerical: {reset_jac[0]}" if reset_jac else ""
+            return f"{head}, compiled: {how}{numerical})"
         missing = [name for name, f in (("event_jacobian", self._event_jac),
-                                        ("field_jacobian", self._field_jac),
-                                        ("reset_jacobian", self._reset_jac
-                                         if self.has_resets else True)) if f is None]
+                                        ("field_jacobian", self._field_jac)) if f is None]
+        missing += reset_jac
         numerical = f", numerical: {', '.join(missing)}" if missing else ""
-        return f"HybridSystem(n_events={self.n_events}, dim={self.dim}{numerical})"
+        return f"{head}{numerical})"
 
     # ------------------------------------------------------------------------------
     # B-derivative at an event point
@@ -224,7 +243,8 @@ class HybridSystem(ModelCalls):
             Integrator settings (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
             1e-12, no step limit).
         rtol, atol, method, max_step : optional
-            Override the settings of ``options`` (see :class:`SolverOptions`).
+            Override the settings of ``options`` (see :class:`SolverOptions`); a compiled
+            model takes ``method="DOP853"`` only (its compiled integrator).
         max_groups : int
             Largest number of event groups (default 10,000): a Zeno or chattering
             trajectory is refused with a RuntimeError.
@@ -378,7 +398,8 @@ class HybridSystem(ModelCalls):
             A point of the section: ``|section(x0)| <= tol``.
         section : callable
             ``section(x) -> float``; the flow must cross ``section = 0`` upward (from < 0
-            to > 0), transversally, at x0 and at the return.
+            to > 0), transversally, at x0 and at the return. A ``numba.njit`` dispatcher
+            on a compiled model (required there).
         section_gradient : callable, optional
             ``section_gradient(x) -> (d,)``; numerical by default.
         t_max : float

@@ -48,11 +48,31 @@ _FUNCTIONS = {
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
+#: numba's lowering of a closed-over value: ``freevar(name: value)`` and where
+_FREEVAR = re.compile(r'During: lowering ".*freevar\((\w+): (.*)\)" at (.*)$')
+
+
 def _typing_summary(exc: Exception) -> str:
-    """The first informative line of a numba typing error, without terminal colours."""
+    """The first informative line of a numba typing error, without terminal colours.
+
+    Where that line is only a repr of numba's internals (``<... object at 0x...>``), the
+    step that failed instead: a closed-over value numba cannot compile in is named, with
+    what to close over.
+    """
     lines = [ln.strip() for ln in _ANSI.sub("", str(exc)).splitlines() if ln.strip()]
     useful = [ln for ln in lines if not ln.startswith(("Failed in", "File", "During"))]
-    return (useful or lines or ["(no message)"])[0]
+    first = (useful or lines or ["(no message)"])[0]
+    if " object at 0x" not in first:
+        return first
+    for line in lines:
+        found = _FREEVAR.search(line)
+        if found:
+            name, value, where = found.groups()
+            return (f"it reads the closed-over {name} = {value} ({where}), a value numba "
+                    f"cannot compile in: close over a NumPy array, a tuple or a number "
+                    f"instead (not a list, dict or other object)")
+    steps = [ln for ln in lines if ln.startswith("During:") and "Pass " not in ln]
+    return steps[0] if steps else first
 
 
 def is_compiled(fn) -> bool:
@@ -99,7 +119,7 @@ def _check_types(fn, name: str) -> None:
     returned = fn.overloads[args].signature.return_type
     if returned != signature.return_type:
         hint = ("a float" if name == "section" else "a C-contiguous float64 array; return a "
-                "new array (e.g. np.ascontiguousarray(...))")
+                "new float64 array (e.g. np.ascontiguousarray(..., dtype=np.float64))")
         raise TypeError(
             f"{name} must return {signature.return_type} ({hint}) when called as "
             f"{expected}, but returns {returned}"

@@ -244,12 +244,16 @@ def dense_eval(F, y_old, t_old, h, t, count, out):
     (scipy's ``Dop853DenseOutput``: alternating factors x and 1 - x, x = (t - t_old) / h)."""
     x = (t - t_old) / h
     n_rows = F.shape[0]
+    # each component's sum and products in scipy's order; the rows outer, so that the
+    # inner loop runs over the components (2.5x at d = 44: the same bits)
     for j in range(count):
-        v = 0.0
-        for i in range(n_rows):
-            v += F[n_rows - 1 - i, j]
-            v *= x if i % 2 == 0 else 1.0 - x
-        out[j] = v + y_old[j]
+        out[j] = 0.0
+    for i in range(n_rows):
+        f = x if i % 2 == 0 else 1.0 - x
+        for j in range(count):
+            out[j] = (out[j] + F[n_rows - 1 - i, j]) * f
+    for j in range(count):
+        out[j] += y_old[j]
 
 
 @njit(cache=True)

@@ -267,7 +267,7 @@ def events_rows(model, X, n, G, bad):
     """``G[i] = events(X[i])`` for every row of ``X`` (m, d), checked; a status (the
     failed row in ``bad``)."""
     for i in range(X.shape[0]):
-        status = call_events(model, False, X[i].copy(), n, G[i], bad)
+        status = call_events(model, False, X[i], n, G[i], bad)  # argument() copies X[i]
         if status != OK:
             return status
     return OK

@@ -105,6 +105,22 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
             F, Dh, rate, window, codes)
 
 
+@njit(cache=True)
+def start_region(model, x, n, d):
+    """The region of a run's start ``x``: bit k set where ``events(x)[k] > 0``; -1 when
+    ``x`` is on a surface or the events fail their check (the Python loop says which)."""
+    h = np.empty(n)
+    if call_events(model, np.bool_(False), x, n, h, np.empty(d)) != OK:
+        return np.int64(-1)
+    mask = np.int64(0)
+    for k in range(n):
+        if h[k] == 0.0:
+            return np.int64(-1)
+        if h[k] > 0.0:
+            mask |= np.int64(1) << k
+    return mask
+
+
 @njit(cache=True, nogil=True)
 def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, with_resets,
                   n, d, t, x, mask, scale, err,
@@ -113,6 +129,8 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     """The run's stretches from ``(t, x)`` in region ``mask`` while the stops are plain
     (the event Jacobian by ``event_jac_mode``, not ``EVENT_JAC_NONE``).
 
+    ``mask`` -1: the run's start, its region from the signs of the events
+    (:func:`start_region`; still -1 when the Python loop must say why not);
     ``scale``, ``err`` (d,): the largest ``|x_i|`` so far and the error bound carried into
     the stretch; ``atol`` (m,): the driver's, one per integrated component; ``checked``
     (int64 masks): the regions whose field Jacobian is checked (``variational``, unless
@@ -125,15 +143,19 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         ``ENDED`` or ``HANDOFF``.
     returned : bool
         The run ended at the section.
-    t, x, mask, scale, err
-        The run's state after the recorded stretches.
+    t, mask : float, int
+        The run's time and region after the recorded stretches.
+    now : ndarray, shape (3, d)
+        Its state, ``scale`` and ``err`` there.
     T, X, M : ndarray, shapes (N,), (N, d), (N,)
         Their samples and masks (as ``Trajectory``'s).
     L : ndarray, shape (S, d, d)
         Their sensitivities at their ends (``variational``).
-    group_t, group_bits, mask_before, mask_after : ndarray, shape (G,)
-        Their event groups: time, events (bits), masks.
-    group_x, group_x_after : ndarray, shape (G, d)
+    group_t : ndarray, shape (G,)
+        Their event groups' times.
+    group_masks : ndarray, shape (G, 3), int64
+        Each group's events (bits), mask before and mask after.
+    group_x : ndarray, shape (G, 2, d)
         Each group's state, and after its resets (``with_resets``: the model's ``reset``).
     group_J : ndarray, shape (G, n, d)
         The event Jacobian at each group's state (``variational``).
@@ -145,16 +167,15 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     M = np.empty(64, dtype=np.int64)
     L = np.empty((8 if variational else 0, d, d))
     group_t = np.empty(8)
-    group_bits = np.empty(8, dtype=np.int64)
-    mask_before = np.empty(8, dtype=np.int64)
-    mask_after = np.empty(8, dtype=np.int64)
-    group_x = np.empty((8, d))
-    group_x_after = np.empty((8, d))
+    group_masks = np.empty((8, 3), dtype=np.int64)
+    group_x = np.empty((8, 2, d))
     group_J = np.empty((8 if variational else 0, n, d))
     count, stretches, groups, steps = np.int64(0), np.int64(0), np.int64(0), np.int64(0)
     sign = np.empty(n)
     code, returned = HANDOFF, False
-    while True:
+    if mask < 0:
+        mask = start_region(model, x, n, d)
+    while mask >= 0:
         if variational and not all_checked and not (checked == mask).any():
             break
         for k in range(n):
@@ -237,12 +258,12 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         if not event:
             code = ENDED
             break
-        group_t, group_bits = room(group_t, groups + 1), room(group_bits, groups + 1)
-        mask_before, mask_after = room(mask_before, groups + 1), room(mask_after, groups + 1)
-        group_x, group_x_after = room(group_x, groups + 1), room(group_x_after, groups + 1)
-        group_t[groups], group_bits[groups] = t, bits
-        mask_before[groups], mask_after[groups] = mask, new
-        group_x[groups], group_x_after[groups] = x, x_after
+        group_t, group_masks = room(group_t, groups + 1), room(group_masks, groups + 1)
+        group_x = room(group_x, groups + 1)
+        group_t[groups] = t
+        group_masks[groups, 0], group_masks[groups, 1], group_masks[groups, 2] = \
+            bits, mask, new
+        group_x[groups, 0], group_x[groups, 1] = x, x_after
         if variational:
             group_J = room(group_J, groups + 1)
             group_J[groups] = J
@@ -251,7 +272,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         if t >= t_final:
             code = ENDED
             break
-    return (code, returned, t, x, mask, scale, err, T[:count], X[:count], M[:count],
-            L[:stretches], group_t[:groups], group_bits[:groups], mask_before[:groups],
-            mask_after[:groups], group_x[:groups], group_x_after[:groups], group_J[:groups],
-            steps)
+    now = np.empty((3, d))  # few arrays: boxing each costs Python about 0.6 us
+    now[0], now[1], now[2] = x, scale, err
+    return (code, returned, t, mask, now, T[:count], X[:count], M[:count], L[:stretches],
+            group_t[:groups], group_masks[:groups], group_x[:groups], group_J[:groups], steps)

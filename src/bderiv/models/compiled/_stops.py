@@ -109,17 +109,28 @@ def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J, 
     rate_start, rate_end, Dh = np.empty(n), np.empty(n), np.empty((n, d))
     local_rates(sign, J_start, F_start, Dh, rate_start)
     local_rates(sign, J, F_end, Dh, rate_end)
+    # the events on a bracket's fine samples, once per bracket (the events peaking at the
+    # same sample share it)
+    slot = np.full(last + 1, -1)
+    brackets = 0
+    for b in range(rows.shape[0]):
+        if slot[rows[b, 1]] < 0:
+            slot[rows[b, 1]] = brackets
+            brackets += 1
     fine, X = np.empty(FINE_SAMPLES), np.empty((FINE_SAMPLES, d))
-    V, G = np.empty((FINE_SAMPLES, 1)), np.empty((FINE_SAMPLES, n))
+    V, G = np.empty((FINE_SAMPLES, 1)), np.empty((brackets, FINE_SAMPLES, n))
+    done = np.zeros(brackets, dtype=np.bool_)
     for b in range(rows.shape[0]):
         k, i = rows[b, 0], rows[b, 1]
         lo, hi = max(i - 1, 0), min(i + 1, last)
-        linspace(times[lo], times[hi], fine)
-        dense_rows(t_old, h_step, Fd, y_old, fine, X)
-        if events_rows(model, X, n, G, np.zeros(d)) != OK:
-            return False
+        if not done[slot[i]]:
+            linspace(times[lo], times[hi], fine)
+            dense_rows(t_old, h_step, Fd, y_old, fine, X)
+            if events_rows(model, X, n, G[slot[i]], np.zeros(d)) != OK:
+                return False
+            done[slot[i]] = True
         for r in range(FINE_SAMPLES):
-            V[r, 0] = sign[k] * G[r, k]
+            V[r, 0] = sign[k] * G[slot[i], r, k]
         sub = peak_rows(V, tol[k:k + 1].copy(), np.bool_(False), FINE_REACH)
         for c in range(sub.shape[0]):
             a, z = max(sub[c, 1] - 1, 0), min(sub[c, 1] + 1, FINE_SAMPLES - 1)

@@ -24,7 +24,7 @@ from ._checks import (
     raise_failed_run,
 )
 from ._dop853 import dense_rows
-from ._integrate import EVENT, FINISHED
+from ._integrate import EVENT, FINISHED, drive_stretch
 from ._model import (
     COMPLEX_EVENTS_SIGNATURE,
     EVENT_JACOBIAN_SIGNATURE,
@@ -34,6 +34,7 @@ from ._model import (
     no_event_jacobian,
     no_reset,
 )
+from ._notice import notice_compilation
 from ._rhs import (
     JAC_CENTRAL,
     JAC_COMPLEX_STEP,
@@ -52,6 +53,8 @@ from ._slices import Driven, _interrupted, drive, measured, slice_budget
 from ._stops import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_GIVEN, EVENT_JAC_NONE, event_jacobian
 from .stretch import MAX_EVENTS
 
+#: the warning when the driver or the compiled run compiles (their first use on a machine)
+COMPILE_NOTICE = notice_compilation(drive_stretch, run_stretches)
 #: how ``J`` is had, by the code of :mod:`._rhs`
 JACOBIAN_MODES = {JAC_GIVEN: "given", JAC_COMPLEX_STEP: "complex step",
                   JAC_CENTRAL: "central differences"}
@@ -128,6 +131,22 @@ class CompiledModel:
         self.params = None if params is None else np.array(params, dtype=np.float64).ravel()
         self._structs = {}
         self._atol = {}  # (length, atol) -> the driver's atol array
+
+    def describe(self) -> str:
+        """How the model runs on the compiled path, in words: how ``J`` and the event
+        Jacobian are had, and whether the stops are decided in compiled code (and why not)."""
+        event_jac = {EVENT_JAC_GIVEN: "given", EVENT_JAC_COMPLEX_STEP: "complex step",
+                     EVENT_JAC_NONE: "Python"}[self.event_jac_mode]
+        if self.event_jac_mode == EVENT_JAC_NONE:
+            stops = ("in Python (event_jacobian is not compiled for float64[::1] -> "
+                     "float64[:, ::1], or events do not compile for complex input)")
+        elif self.has_python_reset:
+            stops = ("in Python (reset is not compiled for (float64[::1], int64, int64) -> "
+                     "float64[::1])")
+        else:
+            stops = "compiled"
+        return (f"field_jacobian: {JACOBIAN_MODES[self.jac_mode]}; event_jacobian: "
+                f"{event_jac}; stops: {stops}")
 
     def struct(self, section=None):
         """The driver's struct of the functions (with ``section``, a checked dispatcher)

@@ -111,7 +111,10 @@ class SolverOptions:
         if options is not None and not isinstance(options, cls):
             raise TypeError(f"options must be a SolverOptions, got {type(options).__name__}")
         base = options if options is not None else (default or _defaults(cls))
-        return base.with_overrides(**settings)
+        for value in settings.values():
+            if value is not None:
+                return base.with_overrides(**settings)
+        return base
 
     def solve_ivp_kwargs(self) -> dict:
         """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
@@ -259,19 +262,21 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     max_groups = check_positive_int(max_groups, "max_groups")
     options = SolverOptions() if options is None else options
     d = system.dim
-    mask = system.start_mask(x0)
-    watch = SimulationProgress(t_final)  # a bar for long runs; Ctrl-C at each evaluation
-    stops = StopCalls(system)  # the checked calls at a stop, made once for all its rules
-    stretches, log = stretches_for(system, options, section, watch, stops), _Log()
-    now = _Now(0.0, x0, mask, np.abs(x0), np.zeros(d))
+    log, loop = _Log(), None  # the Python loop's own state: made for its first stretch
+    # the start's region (mask -1) from the signs of its events: by the compiled run, or
+    # by start_mask before the first stretch in Python (which refuses a start on a surface)
+    now = _Now(0.0, x0, -1, np.abs(x0), np.zeros(d))
     settings = (t_final, simultaneity_tol, options, variational, section, max_groups)
     while not now.ended:
         cancel_point()  # a run of a batch on threads stops with its batch
         if compiled_stops(system, section):  # as far as the stops are plain, in one call
             _compiled_stretches(system, log, now, *settings)
         if not now.ended:
-            _python_stretch(system, stops, stretches, log, now, *settings)
-    watch.close()
+            if loop is None:
+                loop = _PythonLoop(system, options, section, t_final)
+            _python_stretch(system, loop, log, now, *settings)
+    if loop is not None:
+        loop.watch.close()
     if section is not None and not now.returned:
         raise ValueError(
             f"the trajectory did not return to the section (upward) before t={t_final:g}; "
@@ -281,16 +286,39 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         log.linear.append(np.eye(d))
     final, pending = None, False
     if variational and section is None:
+        stops = StopCalls(system) if loop is None else loop.stops
         final, pending = _final_group(stops, log.groups, now.mask, now.x, t_final,
                                       simultaneity_tol)
-    return Trajectory(t=np.concatenate(log.t), x=np.concatenate(log.x),
-                      masks=np.concatenate(log.masks), events=tuple(log.records),
+    return Trajectory(t=_joined(log.t), x=_joined(log.x), masks=_joined(log.masks),
+                      events=tuple(log.records),
                       groups=tuple(log.groups), x_final=now.x, mask_final=now.mask,
                       linear=tuple(log.linear), final_group=final, final_pending=pending)
 
 
 #: the regions of a run without sensitivity (no field Jacobian to check)
 _NO_MASKS = np.empty(0, dtype=np.int64)
+
+
+def _joined(parts):
+    """The arrays ``parts`` joined along their first axis (the one part itself)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+class _PythonLoop:
+    """What the Python loop's stretches share in a run: the progress bar of long runs
+    (Ctrl-C at each evaluation), the checked calls at a stop (made once for all its rules),
+    and the stretches' integrator."""
+
+    def __init__(self, system, options, section, t_final):
+        self.watch = SimulationProgress(t_final)
+        self.stops = StopCalls(system)
+        self.stretches = stretches_for(system, options, section, self.watch, self.stops)
+
+
+@lru_cache(maxsize=1024)
+def _events_of(bits):
+    """The events (ascending) whose bits are set in ``bits``."""
+    return tuple(k for k in range(bits.bit_length()) if bits >> k & 1)
 
 
 @dataclass
@@ -328,7 +356,7 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
                         section, max_groups):
     """The stretches from ``now`` that the compiled run decides, recorded in ``log``;
     ``now`` moved to their end."""
-    model, n = system.compiled, system.n_events
+    model = system.compiled
     all_checked, checked = (system.checked_compiled_jacobians() if variational
                             else (True, _NO_MASKS))
     out = model.run_stretches(
@@ -339,32 +367,36 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
         section=None if section is None else section.compiled())
     if out is None:  # a user function raised: the Python loop says where
         return
-    code, returned, t, x, mask, scale, err, T, X, M, L, times, bits, before, after, states, \
-        states_after, jacobians, _ = out
+    code, returned, t, mask, state, T, X, M, L, times, masks, states, jacobians, _ = out
     if T.size:
         log.t.append(T)
         log.x.append(X)
         log.masks.append(M)
-        log.linear.extend(L)
-    for i, (time, b, m0, m1) in enumerate(zip(times.tolist(), bits.tolist(), before.tolist(),
-                                              after.tolist(), strict=True)):
-        group = tuple(k for k in range(n) if b >> k & 1)
-        log.records.extend(EventRecord(time, k, m1, -1 if m0 >> k & 1 else 1) for k in group)
+        if variational:
+            log.linear.extend(L)
+    records, groups = log.records, log.groups
+    for i, (time, (b, m0, m1)) in enumerate(zip(times.tolist(), masks.tolist(), strict=True)):
+        group = _events_of(b)
+        for k in group:
+            records.append(EventRecord(time, k, m1, -1 if m0 >> k & 1 else 1))
         jac = None
         if variational:
             jac = jacobians[i]
             jac.flags.writeable = False
-        log.groups.append(EventGroup(time, group, m0, m1, states[i].copy(),
-                                     states_after[i].copy(), jac))
-    now.t, now.x, now.mask, now.scale, now.err = t, x, mask, scale, err
+        # rows of the arrays the compiled run made for this call: no one else's
+        groups.append(EventGroup(time, group, m0, m1, states[i, 0], states[i, 1], jac))
+    now.t, now.mask, (now.x, now.scale, now.err) = t, mask, state
     now.ended, now.returned = code == ENDED, returned
 
 
-def _python_stretch(system, stops, stretches, log, now, t_final, simultaneity_tol, options,
+def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
                     variational, section, max_groups):
-    """One stretch from ``now`` and its stop, in Python, recorded in ``log``; ``now`` moved
-    to its end (after the group's switch)."""
+    """One stretch from ``now`` and its stop, in Python (``loop``: a :class:`_PythonLoop`),
+    recorded in ``log``; ``now`` moved to its end (after the group's switch)."""
     d, n = system.dim, system.n_events
+    stops, stretches = loop.stops, loop.stretches
+    if now.mask < 0:  # the run's start
+        now.mask = system.start_mask(now.x)
     sol = stretches(now.x, now.t, t_final, now.mask, options, variational)
     again = partial(stretches, now.x, now.t, t_final, now.mask, variational=variational)
     settled = settle(stops, now.mask, sol, simultaneity_tol, options, now.scale, now.err,
