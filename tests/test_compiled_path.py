@@ -300,9 +300,8 @@ def int_field(x, mask):
                              r"nan in region mask 0b0 .* at x = \[0\.3"),
     (short_field, ValueError, r"field\(x, mask\) must return an array of shape \(2,\), got "
                               r"shape \(1,\) in region mask 0b0"),
-    (raising, ValueError, r"raised ZeroDivisionError: the model divides by zero here; "
-                          r"while integrating region mask 0b0 .* from t = 0\.0, x = "
-                          r"\[0\.0, 1\.0\]"),
+    (raising, ValueError, r"field\(x, mask\) raised ZeroDivisionError: the model divides "
+                          r"by zero here; in region mask 0b0 .* at x = \[0\.3"),
     (typo, TypeError, r"field does not compile as field\(x, mask\) with x float64\[::1\], "
                       r"mask int64"),
 ], ids=["closed-over list", "int array", "nan", "shape", "raises", "typo"])
@@ -310,6 +309,41 @@ def test_bad_compiled_functions_are_named(field, error, message):
     system = HybridSystem(field, linear_events, n_events=1, dim=2)
     with pytest.raises(error, match=message):
         system.simulate(np.array([0.0, 1.0]), 3.0)
+
+
+@numba.njit
+def raising_events(x):
+    if x[0] > 0.2:
+        raise ValueError("no contact model beyond 0.2")
+    return np.array([x[0] - 0.4])
+
+
+@numba.njit
+def raising_jacobian(x, mask):
+    if x[0] > 0.2:
+        raise ValueError("no Jacobian beyond 0.2")
+    return A[mask].copy()
+
+
+@pytest.mark.parametrize("kind", ["events", "field_jacobian"])
+def test_a_compiled_function_that_raises_is_named_with_the_state(kind):
+    """An exception raised inside a compiled user function is caught in compiled code,
+    with the state: the error names the function, its exception, the region and a state
+    past the threshold at which it raised (the stretch started at x = [0, 1])."""
+    if kind == "events":
+        system = HybridSystem(linear_field, raising_events, n_events=1, dim=2)
+        run = system.simulate
+    else:
+        system = HybridSystem(linear_field, linear_events, n_events=1, dim=2,
+                              field_jacobian=raising_jacobian, check_jacobians=False)
+        run = system.flow_bderivative
+    call = "events\\(x\\)" if kind == "events" else "field_jacobian\\(x, mask\\)"
+    with pytest.raises(ValueError, match=rf"{call} raised ValueError: no .* beyond 0\.2; in "
+                                         rf"region mask 0b0 .* at x = \[") as info:
+        run(np.array([0.0, 1.0]), 3.0)
+    assert isinstance(info.value.__cause__, ValueError)
+    x0 = float(str(info.value).split("at x = [")[1].split(",")[0])
+    assert 0.2 < x0 < 0.4  # where it raised: past its threshold, before the event
 
 
 def test_the_integrators_compilation_is_announced_once(caplog):

@@ -20,30 +20,35 @@ from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
     COMPLEX_FIELD_SIGNATURE,
     EVENTS_NONFINITE,
+    EVENTS_RAISED,
     EVENTS_SHAPE,
     EVENTS_SIGNATURE,
     FIELD_NONFINITE,
+    FIELD_RAISED,
     FIELD_SHAPE,
     FIELD_SIGNATURE,
     JAC_COMPLEX_STEP,
     JAC_GIVEN,
     JACOBIAN_NONFINITE,
+    JACOBIAN_RAISED,
     JACOBIAN_SHAPE,
     JACOBIAN_SIGNATURE,
     SECTION_NONFINITE,
+    SECTION_RAISED,
     SECTION_SIGNATURE,
 )
 
 #: each user function: its signature, how its call is written, the shape it must return
-#: (from d, n), and the driver's codes of its two failed checks (shape, finite)
+#: (from d, n), and the driver's codes of its failed checks (shape, finite, raised)
 _FUNCTIONS = {
     "field": (FIELD_SIGNATURE, "field(x, mask)", lambda d, n: (d,), FIELD_SHAPE,
-              FIELD_NONFINITE),
+              FIELD_NONFINITE, FIELD_RAISED),
     "field_jacobian": (JACOBIAN_SIGNATURE, "field_jacobian(x, mask)", lambda d, n: (d, d),
-                       JACOBIAN_SHAPE, JACOBIAN_NONFINITE),
+                       JACOBIAN_SHAPE, JACOBIAN_NONFINITE, JACOBIAN_RAISED),
     "events": (EVENTS_SIGNATURE, "events(x)", lambda d, n: (n,), EVENTS_SHAPE,
-               EVENTS_NONFINITE),
-    "section": (SECTION_SIGNATURE, "section(x)", lambda d, n: (), None, SECTION_NONFINITE),
+               EVENTS_NONFINITE, EVENTS_RAISED),
+    "section": (SECTION_SIGNATURE, "section(x)", lambda d, n: (), None, SECTION_NONFINITE,
+                SECTION_RAISED),
 }
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
@@ -153,12 +158,20 @@ def format_state(x) -> str:
 def raise_failed_check(status, fn, name, x, mask, d, n, params=None) -> None:
     """Raise the ValueError of a failed output check of ``fn`` (``name``) at ``x`` (the
     model's ``params`` after it, but for the section)."""
-    _, call, shape_of, shape_code, _ = _FUNCTIONS[name]
+    _, call, shape_of, shape_code, _, raised_code = _FUNCTIONS[name]
     region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
     x = np.ascontiguousarray(x, dtype=np.float64)
     arg = x if params is None or name == "section" else np.concatenate((x, params))
-    value = np.asarray(fn(arg.copy(), mask) if "mask" in call else fn(arg.copy()))
     where = f"in {region} at x = {format_state(x)}"
+    try:  # called again from Python, it says what it raised (a deterministic function)
+        value = np.asarray(fn(arg.copy(), mask) if "mask" in call else fn(arg.copy()))
+    except Exception as exc:
+        raise ValueError(f"{call} raised {type(exc).__name__}: {exc}; {where}") from exc
+    if status == raised_code:
+        how = (" (on complex input, for the complex-step Jacobian, or at a nearby state "
+               "for central differences)" if name == "field" else "")
+        raise ValueError(f"{call} raised an exception in compiled code{how} {where}; "
+                         f"called again there from Python, it did not")
     if status == shape_code:
         raise ValueError(
             f"{call} must return an array of shape {shape_of(d, n)}, got shape "
@@ -182,11 +195,11 @@ def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
             f"step size underflow at t = {t!r} in {region}, x = {format_state(x)}: the step "
             f"the tolerances need is below 10 ulp of t (a singular or very stiff field?)"
         )
-    if status in (FIELD_SHAPE, FIELD_NONFINITE):
+    if status in (FIELD_SHAPE, FIELD_NONFINITE, FIELD_RAISED):
         name = "field"
-    elif status in (EVENTS_SHAPE, EVENTS_NONFINITE):
+    elif status in (EVENTS_SHAPE, EVENTS_NONFINITE, EVENTS_RAISED):
         name = "events"
-    elif status == SECTION_NONFINITE:
+    elif status in (SECTION_NONFINITE, SECTION_RAISED):
         name = "section"
     elif jac_mode == JAC_GIVEN:
         name = "field_jacobian"

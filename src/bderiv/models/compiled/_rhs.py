@@ -35,6 +35,12 @@ JACOBIAN_NONFINITE = 4
 EVENTS_SHAPE = 5
 EVENTS_NONFINITE = 6
 SECTION_NONFINITE = 7
+#: a user function raised (caught in compiled code: the state is kept, and the Python side
+#: calls the function again there to say what it raised)
+FIELD_RAISED = 8
+EVENTS_RAISED = 9
+JACOBIAN_RAISED = 10
+SECTION_RAISED = 11
 
 #: how J is had: the given ``field_jacobian``, complex step, central differences
 JAC_GIVEN = 0
@@ -128,7 +134,10 @@ def jacobian(model, mode, x, mask, d, J):
     - f(x - h e_j)) / (2 h)`` with the step as represented (``(x_j + h) - x_j``).
     """
     if mode == JAC_GIVEN:
-        given = model.jacobian(state_argument(model, x, d), mask)
+        try:
+            given = model.jacobian(state_argument(model, x, d), mask)
+        except Exception:  # noqa: BLE001 - whatever it raised: named from Python
+            return JACOBIAN_RAISED
         if given.shape[0] != d or given.shape[1] != d:
             return JACOBIAN_SHAPE
         J[:, :] = given
@@ -139,7 +148,10 @@ def jacobian(model, mode, x, mask, d, J):
             h = COMPLEX_STEP * coordinate_scale(x[j])
             z[:] = base
             z[j] = complex(x[j], h)
-            f = model.cfield(z, mask)
+            try:
+                f = model.cfield(z, mask)
+            except Exception:  # noqa: BLE001
+                return FIELD_RAISED
             if f.size != d:
                 return FIELD_SHAPE
             for i in range(d):
@@ -152,10 +164,13 @@ def jacobian(model, mode, x, mask, d, J):
                 xs[i] = x[i]
             xs[j] = x[j] + step
             up_step = xs[j] - x[j]
-            up = model.field(xs.copy(), mask)
-            xs[j] = x[j] - step
-            down_step = x[j] - xs[j]
-            down = model.field(xs.copy(), mask)
+            try:
+                up = model.field(xs.copy(), mask)
+                xs[j] = x[j] - step
+                down_step = x[j] - xs[j]
+                down = model.field(xs.copy(), mask)
+            except Exception:  # noqa: BLE001
+                return FIELD_RAISED
             if up.size != d or down.size != d:
                 return FIELD_SHAPE
             for i in range(d):
@@ -166,8 +181,11 @@ def jacobian(model, mode, x, mask, d, J):
 @njit(cache=True, inline="always")
 def field_value(model, a, mask, d):
     """``(status, field(a, mask))`` at the argument ``a`` (fresh: :func:`state_argument`),
-    checked: ``OK`` or the failed check (shape, finite)."""
-    f = model.field(a, mask)
+    checked: ``OK`` or the failed check (shape, finite, raised)."""
+    try:
+        f = model.field(a, mask)
+    except Exception:  # noqa: BLE001 - whatever it raised: named from Python
+        return FIELD_RAISED, np.empty(0)
     if f.size != d:
         return FIELD_SHAPE, f
     # finite_vector written out: inlined, it takes f as a new reference, whose count
@@ -224,9 +242,14 @@ def state_events(model, with_section, y, d, n, g, bad):
     """:func:`call_events` at the state ``x = y[:d]`` (``y`` may be the integrated vector;
     no view of it: the driver's call at every step)."""
     m = n - 1 if with_section else n
-    value = model.events(state_argument(model, y, d))
     status = OK
-    if value.size != m:
+    try:
+        value = model.events(state_argument(model, y, d))
+    except Exception:  # noqa: BLE001 - whatever it raised: named from Python
+        value, status = np.empty(0), EVENTS_RAISED
+    if status != OK:
+        pass
+    elif value.size != m:
         status = EVENTS_SHAPE
     elif not finite_vector(value):
         status = EVENTS_NONFINITE
@@ -237,8 +260,13 @@ def state_events(model, with_section, y, d, n, g, bad):
             x = np.empty(d)
             for j in range(d):
                 x[j] = y[j]
-            s = model.section(x)
-            if np.isfinite(s):
+            try:
+                s = model.section(x)
+            except Exception:  # noqa: BLE001
+                s, status = 0.0, SECTION_RAISED
+            if status != OK:
+                pass
+            elif np.isfinite(s):
                 g[m] = s
             else:
                 status = SECTION_NONFINITE

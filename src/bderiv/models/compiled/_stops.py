@@ -47,7 +47,10 @@ def event_jacobian(model, mode, x, n, d):
     """The event Jacobian at ``x`` by ``mode``: ``(ok, J)``, J (n, d) checked (shape,
     finite). Complex step: column j is ``Im events(x + i h e_j) / h``, h as the field's."""
     if mode == EVENT_JAC_GIVEN:
-        J = model.event_jacobian(argument(model, x))
+        try:
+            J = model.event_jacobian(argument(model, x))
+        except Exception:  # noqa: BLE001 - the Python loop calls it again and says what
+            return False, np.zeros((n, d))
         if J.shape[0] != n or J.shape[1] != d:
             return False, np.zeros((n, d))
         J = np.ascontiguousarray(J).copy()
@@ -59,7 +62,10 @@ def event_jacobian(model, mode, x, n, d):
             h = COMPLEX_STEP * coordinate_scale(x[j])
             z[:] = base
             z[j] = complex(x[j], h)
-            v = model.cevents(z)
+            try:
+                v = model.cevents(z)
+            except Exception:  # noqa: BLE001
+                return False, J
             if v.size != n:
                 return False, J
             for k in range(n):
@@ -77,7 +83,9 @@ def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J, 
     times = np.empty(last + 1)
     sample_times(ts, times)
     t_old, h_step = np.ascontiguousarray(steps[:, 0]), np.ascontiguousarray(steps[:, 1])
-    y_old = np.ascontiguousarray(ys[:-1, :d])
+    # the steps' start states: rows of the record as they are when it holds the state
+    # alone (no sensitivity), else copied out
+    y_old = ys[:-1] if ys.shape[1] == d else np.ascontiguousarray(ys[:-1, :d])
     states = np.empty((times.size, d))
     dense_rows(t_old, h_step, Fd, y_old, times, states)
     H = np.empty((times.size, n))
@@ -146,7 +154,10 @@ def _reset_in_order(model, order, mask, x, d):
     each called with the mask before its own crossing; checked (shape, finite)."""
     y, b = x, mask
     for k in order:
-        y = model.reset(argument(model, y), b, k)
+        try:
+            y = model.reset(argument(model, y), b, k)
+        except Exception:  # noqa: BLE001 - the Python loop calls it again and says what
+            return False, x
         if y.size != d or not finite_vector(y):
             return False, x
         y = np.ascontiguousarray(y).copy()
