@@ -56,11 +56,11 @@ def room(a, need):
 
 
 @njit(cache=True)
-def _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active, roots, counts, bad,
-             t_bad, h_abs):
+def _stopped(status, t, y, ts, ys, gs, count, steps, Fd, n_dense, active, roots, counts,
+             bad, t_bad, h_abs):
     """The driver's result tuple (records cut to their lengths)."""
     return (status, t, y, ts[:count], ys[:count], steps[:n_dense], Fd[:n_dense], active,
-            roots, counts, bad, t_bad, h_abs)
+            roots, counts, bad, t_bad, h_abs, gs[:count])
 
 
 @njit(cache=True)
@@ -100,6 +100,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         Its time.
     h_abs : float
         The size of the next step (to go on after ``PAUSED``).
+    gs : ndarray, shape (N, n_events)
+        The watched values at the record's states (the driver's own evaluations: the same
+        bits as a call at ``ys[i]``); NaN in the row of an event stop (not evaluated
+        there).
     """
     m = y0.size
     counts = np.zeros(4, dtype=np.int64)
@@ -116,6 +120,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     x = np.empty(d)
     ts = np.empty(64)
     ys = np.empty((64, m))
+    gs = np.full((64, n_events), np.nan)
     steps = np.empty((64 if dense else 0, 2))
     Fd = np.empty((64 if dense else 0, INTERPOLATOR_POWER, d))
     ts[0] = t0
@@ -132,8 +137,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     if status == OK:
         status = state_events(model, with_section, y, d, n_events, g, bad)
     if status != OK:
-        return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
+        return _stopped(status, t, y, ts, ys, gs, count, steps, Fd, n_dense, active, roots,
                         counts, bad, t, 0.0)
+    for k in range(n_events):
+        gs[0, k] = g[k]
     if forced >= 0:
         g[forced] = 1.0
     h_abs = first_step
@@ -143,7 +150,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         counts[NFEV] += 1
         counts[NJEV] += jev
         if status != OK:
-            return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active, roots,
+            return _stopped(status, t, y, ts, ys, gs, count, steps, Fd, n_dense, active, roots,
                             counts, bad, t, 0.0)
 
     while True:
@@ -153,7 +160,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         while True:  # scipy's RungeKutta._step_impl
             if h_abs < min_step:
                 bad[:] = y[:d]
-                return _stopped(np.int64(STEP_UNDERFLOW), t, y, ts, ys, count, steps, Fd, n_dense,
+                return _stopped(np.int64(STEP_UNDERFLOW), t, y, ts, ys, gs, count,
+                                steps, Fd, n_dense,
                                 active, roots, counts, bad, t, h_abs)
             t_new = min(t + h_abs, t_final)
             h = t_new - t
@@ -162,7 +170,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             counts[NFEV] += N_STAGES
             counts[NJEV] += jev * N_STAGES
             if status != OK:
-                return _stopped(status, t, y, ts, ys, count, steps, Fd, n_dense, active,
+                return _stopped(status, t, y, ts, ys, gs, count, steps, Fd, n_dense, active,
                                 roots, counts, bad, t, h_abs)
             err = error_norm(K, h, y, y_new, rtol, atol, work)
             h_abs *= step_factor(err, rejected)
@@ -173,7 +181,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         counts[N_STEPS] += 1
         status = state_events(model, with_section, y_new, d, n_events, g_new, bad)
         if status != OK:
-            return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense, active,
+            return _stopped(status, t_new, y_new, ts, ys, gs, count, steps, Fd, n_dense, active,
                             roots, counts, bad, t_new, h_abs)
         event = n_events > 0 and crossed(g, g_new, mask, active)
         # at a crossing the whole vector's dense output (the stop's state and sensitivity),
@@ -191,7 +199,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             counts[NFEV] += _DENSE_EXTRA
             counts[NJEV] += _DENSE_EXTRA if whole else 0
             if status != OK:
-                return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense,
+                return _stopped(status, t_new, y_new, ts, ys, gs, count, steps, Fd, n_dense,
                                 active, roots, counts, bad, t_new, h_abs)
             if dense:
                 if whole:
@@ -199,6 +207,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
                 n_dense += 1
         ts = room(ts, count + 1)
         ys = room(ys, count + 1)
+        gs = room(gs, count + 1)
         if event:
             t_stop = t_new
             for k in range(n_events):
@@ -207,12 +216,14 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
                                               g_new, bad)
                     t_stop = min(t_stop, roots[k])
             if status != OK:
-                return _stopped(status, t_new, y_new, ts, ys, count, steps, Fd, n_dense,
+                return _stopped(status, t_new, y_new, ts, ys, gs, count, steps, Fd, n_dense,
                                 active, roots, counts, bad, t_new, h_abs)
             dense_eval(coef, y, t, h, t_stop, m, y_new)
             ts[count] = t_stop
             ys[count] = y_new
-            return _stopped(np.int64(EVENT), t_stop, y_new, ts, ys, count + 1, steps, Fd, n_dense,
+            gs[count] = np.nan  # the stop's values are not evaluated
+            return _stopped(np.int64(EVENT), t_stop, y_new, ts, ys, gs, count + 1,
+                            steps, Fd, n_dense,
                             active, roots, counts, bad, t_stop, h_abs)
         t = t_new
         for j in range(m):  # element loops: no views, no slice assignments
@@ -221,11 +232,13 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             ys[count, j] = y_new[j]
         for k in range(n_events):
             g[k] = g_new[k]
+            gs[count, k] = g_new[k]
         ts[count] = t
         count += 1
         if t >= t_final:
-            return _stopped(np.int64(FINISHED), t, y, ts, ys, count, steps, Fd, n_dense, active,
+            return _stopped(np.int64(FINISHED), t, y, ts, ys, gs, count,
+                            steps, Fd, n_dense, active,
                             roots, counts, bad, t, h_abs)
         if counts[N_STEPS] >= max_steps:
-            return _stopped(np.int64(PAUSED), t, y, ts, ys, count, steps, Fd, n_dense, active,
+            return _stopped(np.int64(PAUSED), t, y, ts, ys, gs, count, steps, Fd, n_dense, active,
                             roots, counts, bad, t, h_abs)

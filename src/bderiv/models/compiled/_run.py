@@ -65,7 +65,7 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
             y0[d + i * d + i] = 1.0
     forced = n if with_section and t == 0.0 else -1
     # no literal arguments: a callee is compiled again for each literal type it meets
-    status, t_end, y_end, ts, ys, steps, Fd, _, roots, counts, _, _, _ = \
+    status, t_end, y_end, ts, ys, steps, Fd, _, roots, counts, _, _, _, gs = \
         drive_stretch(model, jac_mode, variational, with_section, n + with_section, mask, d, t,
                       y0, t_final, rtol, atol, max_step, np.float64(0.0), forced, budget,
                       np.bool_(True))
@@ -76,8 +76,8 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
         return fail
     x_end = y_end[:d].copy()
     ok, J = event_jacobian(model, event_jac_mode, x_end, n, d)
-    if not ok or not plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd,
-                                   J, atol[0], rtol):
+    if not ok or not plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, gs, steps,
+                                   Fd, J, atol[0], rtol):
         return fail
     for r in range(ts.size):
         for i in range(d):

@@ -105,7 +105,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
             _interrupted(exc)
             raise
         elapsed = time.perf_counter() - start
-        status, t_end, y_end, ts, ys, steps, Fd, active, roots, part, bad, t_bad, h = out
+        status, t_end, y_end, ts, ys, steps, Fd, active, roots, part, bad, t_bad, h, _ = out
         measured(key, elapsed, part[N_STEPS])
         counts = part if counts is None else counts + part
         parts.append((ts, ys, steps, Fd) if not parts else (ts[1:], ys[1:], steps, Fd))

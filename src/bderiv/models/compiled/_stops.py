@@ -74,11 +74,16 @@ def event_jacobian(model, mode, x, n, d):
 
 
 @njit(cache=True)
-def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J, atol, rtol):
+def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, gs, steps, Fd, J, atol,
+                 rtol):
     """Whether the excursion screen finds nothing to search on the stretch
     (:func:`bderiv.models.events.excursions._earliest_lost` up to its search: no sampled
     peak that could reach a surface once its bracket is sampled finer and its ends decided
-    by the rates there, no return across a surface); False also on a failed check."""
+    by the rates there, no return across a surface); False also on a failed check.
+
+    The samples at the step ends are the record's states ``ys``, and their events the
+    driver's own values ``gs`` (NaN at a stop inside a step: evaluated here), the same bits
+    as a call there; the midpoints' are evaluated on the dense output."""
     count, last = ts.size, 2 * ts.size - 2
     times = np.empty(last + 1)
     sample_times(ts, times)
@@ -86,11 +91,26 @@ def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, steps, Fd, J, 
     # the steps' start states: rows of the record as they are when it holds the state
     # alone (no sensitivity), else copied out
     y_old = ys[:-1] if ys.shape[1] == d else np.ascontiguousarray(ys[:-1, :d])
+    mids = np.empty(count - 1)
+    for i in range(count - 1):
+        mids[i] = times[2 * i + 1]
+    middle = np.empty((count - 1, d))
+    dense_rows(t_old, h_step, Fd, y_old, mids, middle)
     states = np.empty((times.size, d))
-    dense_rows(t_old, h_step, Fd, y_old, times, states)
+    for i in range(count):
+        for j in range(d):
+            states[2 * i, j] = ys[i, j]
+    for i in range(count - 1):
+        for j in range(d):
+            states[2 * i + 1, j] = middle[i, j]
     H = np.empty((times.size, n))
-    if events_rows(model, states, n, H, np.zeros(d)) != OK:
-        return False
+    bad = np.zeros(d)
+    for r in range(times.size):
+        if r % 2 == 0 and gs.shape[1] > 0 and not np.isnan(gs[r // 2, 0]):
+            for k in range(n):
+                H[r, k] = gs[r // 2, k]
+        elif call_events(model, np.bool_(False), states[r], n, H[r], bad) != OK:
+            return False
     scale = np.zeros(d)
     for r in range(times.size):
         for k in range(n):

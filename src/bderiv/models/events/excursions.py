@@ -11,8 +11,8 @@ the dense output, event values, their windows), written once for any integrator;
 
 Along a stretch in one region every event is pending in its local orientation (``h_k < 0``
 not yet crossed; the function negated for an event whose bit is set), so a crossing is a
-point where ``h_k > 0``. With ``h`` sampled at the step ends and the midpoints of the steps
-(:func:`sample_times`):
+point where ``h_k > 0``. With ``h`` sampled at the step ends (the integrator's own states)
+and the midpoints of the steps (its dense output; :func:`sample_times`):
 
 1. :func:`peak_brackets`: every sample that is a local maximum of ``h_k`` (not lower than
    its neighbours) and whose value could reach the surface,
@@ -203,7 +203,9 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
     ``t`` below the surface before a return across it (``through`` True: :func:`_return`)."""
     d = system.dim
     times = sample_times(sol.t)
-    states = sol.sol(times)[:d].T
+    states = np.empty((times.size, d))
+    states[0::2] = sol.y[:d].T  # the step ends: the integrator's own states
+    states[1::2] = sol.sol(times[1::2])[:d].T  # the midpoints, on the dense output
     h = sign * events_at(states)
     scale = np.abs(states).max(axis=0)  # per component: only those an event reads count
     # the gradients at the stretch's end, the point the switching rule looks at (one
