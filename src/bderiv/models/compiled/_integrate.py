@@ -63,7 +63,7 @@ def _stopped(status, t, y, ts, ys, gs, count, steps, Fd, n_dense, active, roots,
             roots, counts, bad, t_bad, h_abs, gs[:count])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
                   t_final, rtol, atol, max_step, first_step, forced, max_steps, dense):
     """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.

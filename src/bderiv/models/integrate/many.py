@@ -10,10 +10,11 @@ Why Python threads and not a numba ``prange``: a run's output has a size known o
 end (its samples, its event groups), and a stop the compiled run cannot decide (a peak to
 search, a return across a surface, a refusal to word) is handed back to the Python stop
 logic in the middle of the run. So each thread makes whole runs; the compiled run
-(:func:`bderiv.models.compiled._run.run_stretches`, ``nogil``) releases the GIL, so that
-the threads' compiled stretches run on the cores at once, and takes it only for the Python
-around them. The Python parts (a run's set-up and records, the stops handed back, whose
-stretches' driver holds the GIL) run one at a time: the gain is the share of compiled time.
+(:func:`bderiv.models.compiled._run.run_stretches`) and the driver of a stretch the Python
+loop takes (:func:`bderiv.models.compiled._integrate.drive_stretch`) are ``nogil``: the
+threads' compiled stretches run on the cores at once, and take the GIL only for the Python
+around them. The Python parts (a run's set-up and records, the stop logic of the stops
+handed back) run one at a time: the gain is the share of compiled time.
 A Python model, or a compiled one whose stops are all Python's (its event Jacobian not had
 in compiled code, or a Python reset), runs its batch one run after the other: threads would
 only take turns at the GIL.
