@@ -196,3 +196,75 @@ def test_chair_landing_at_the_final_time_converges():
     # the jump applied to every direction (the map before this fix) is far off
     applied = D.linear[1] @ D.jumps[0].group(W @ L0.T).T
     assert np.abs(applied.T - fd).max() / np.abs(fd).max() > 0.1
+
+
+# -- events apart from each other, each within simultaneity_tol of the final time ----------
+# (reliability, fourth pass, item 3: a run that ends just before a group and one that stops
+# on its first event must refuse alike; before, the pending group was accepted whole)
+
+_AFTER = np.array([1.0, 1.0 + 1e-8, 1.0 + 2e-8])  # events 1e-8 apart, event 0 at t = 1
+
+
+def _three_field(x, mask):
+    """Constant in each region: events 0 and 1 change the rates of the later components."""
+    b0, b1 = float(mask & 1), float(mask >> 1 & 1)
+    return np.array([1.0 + 0.5 * b1 + 0.0 * x[0], 1.0 + 0.3 * b0 + 0.0 * x[0],
+                     1.0 + 0.2 * b0 + 0.1 * b1 + 0.0 * x[0]])
+
+
+def _three_events(x):
+    return x - np.array([1.0, 1.0 + 1e-8, 1.0 + 2e-8])
+
+
+def _three_event_jacobian(x):
+    return np.eye(3)
+
+
+def _three_models():
+    """The model of ``_three_*`` on both integrators: Python functions (solve_ivp) and
+    numba-compiled ones (the compiled run)."""
+    import numba
+
+    python = HybridSystem(_three_field, _three_events, n_events=3, dim=3,
+                          field_jacobian=lambda x, m: np.zeros((3, 3)),
+                          event_jacobian=_three_event_jacobian)
+    compiled = HybridSystem(numba.njit(_three_field), numba.njit(_three_events),
+                            n_events=3, dim=3, event_jacobian=numba.njit(_three_event_jacobian))
+    return {"python": python, "compiled": compiled}
+
+
+@pytest.fixture(scope="module")
+def three_models():
+    return _three_models()
+
+
+@pytest.mark.parametrize("path", ["python", "compiled"])
+@pytest.mark.parametrize("T", [1.0, 1.0 - 1e-10, 1.0 - 5e-9], ids=["T=1", "T=1-1e-10", "T=1-5e-9"])
+def test_events_apart_within_the_window_of_the_final_time_are_refused(three_models, path, T):
+    """Events 0, 1, 2 cross 1e-8 apart, each within simultaneity_tol = 1e-7 of T, their
+    times known to ~2e-9: not one group, whether the run stops on event 0 or ends first."""
+    with pytest.raises(ValueError, match=r"events \[0, 1, 2\] were grouped at t=1 by "
+                                         r"simultaneity_tol=1e-07, but event 1 is not at that "
+                                         r"point: h_1 = -1e-08.*below 1e-08"):
+        three_models[path].flow_bderivative(np.zeros(3), T)
+
+
+def _three_exact(V, dt_event):
+    """The map of ``x -> Phi(T, x)`` with event 0 at the final time (``dt_event``: its time
+    after T, within the accuracy) and events 1, 2 after it: a perturbation v moves event 0
+    by ``-v_0``; crossed before T it switches the field of components 1 and 2 by
+    (0.3, 0.2) for the time ``v_0 - dt_event``, which is ``v_0`` to first order."""
+    V = np.atleast_2d(V)
+    return V + np.maximum(V[:, :1], 0.0) * np.array([0.0, 0.3, 0.2])
+
+
+@pytest.mark.parametrize("path", ["python", "compiled"])
+@pytest.mark.parametrize("T", [1.0, 1.0 - 1e-10], ids=["T=1", "T=1-1e-10"])
+def test_the_advised_tolerance_gives_the_group_of_the_final_time(three_models, path, T):
+    """With the simultaneity_tol the refusal advises, event 0 alone is the final group, and
+    the map is the closed form."""
+    D = three_models[path].flow_bderivative(np.zeros(3), T, simultaneity_tol=5e-9)
+    assert D.stops_at_group and D.jumps[-1].group.n_events == 1
+    rng = np.random.default_rng(5)
+    V = np.concatenate([rng.standard_normal((20, 3)), np.eye(3), -np.eye(3)])
+    np.testing.assert_allclose(D(V), _three_exact(V, 1.0 - T), atol=1e-8)

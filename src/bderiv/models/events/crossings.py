@@ -32,6 +32,7 @@ __all__ = [
     "EventGroup",
     "EventRecord",
     "apply_resets",
+    "check_near",
     "group_tolerance",
     "landing",
     "switch",
@@ -180,7 +181,7 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
     # crossed, located or not (two surfaces crossed in one step): always switched, so
     # none is ever lost (bderiv.models.events.locate.classify)
     group = classes.group
-    _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
+    check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
     flags = flags_of(group, n)
     _check_crossings(group, flags, Dh, F, mask, "before", t, sign, n)
     if not system.has_resets:  # every event lands on the far side, and must move on
@@ -313,9 +314,10 @@ def _refuse_crossing(k, dh, F, mask, when, t, sign, n):
     raise ValueError(f"{message}; event {k} crossed {direction_name(sign)}{downward}")
 
 
-def _check_near(near, h, rate, window, group, t, simultaneity_tol):
+def check_near(near, h, rate, window, group, t, simultaneity_tol):
     """Refuse events grouped by ``simultaneity_tol`` that are not at the stop: each is
-    further from its surface than its window, so its time is known better than its gap."""
+    further from its surface than its window, so its time is known better than its gap
+    (``near``: those events, none to accept; the arrays (n,) in the local orientation)."""
     if not near:
         return
     k = near[0]

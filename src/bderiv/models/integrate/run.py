@@ -27,8 +27,8 @@ from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
-from ..events.finaltime import pending_at_final_time
-from ..events.locate import StopCalls, orientation, settle
+from ..events.finaltime import check_pending, pending_at_final_time
+from ..events.locate import StopCalls, local_view, settle
 from .compiled_path import CompiledStretches
 from .scipy_path import ScipyStretches
 
@@ -287,7 +287,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     final, pending = None, False
     if variational and section is None:
         stops = StopCalls(system) if loop is None else loop.stops
-        final, pending = _final_group(stops, log.groups, now.mask, now.x, t_final,
+        final, pending = _final_group(stops, log.groups, now.mask, now.x, now.err, t_final,
                                       simultaneity_tol)
     return Trajectory(t=_joined(log.t), x=_joined(log.x), masks=_joined(log.masks),
                       events=tuple(log.records),
@@ -427,13 +427,12 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
     now.ended = t >= t_final
 
 
-def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
+def _final_group(system, groups, mask, x, err, t_final, simultaneity_tol):
     """The event group within ``simultaneity_tol`` of ``t_final`` and whether it is
-    pending (after ``t_final``): ``(None, False)`` when there is none."""
-    sign = orientation(int(mask), system.n_events)
-    jac = system.eval_event_jacobian(x)
-    rate = sign * (jac @ system.eval_field(x, mask))
-    pending = pending_at_final_time(sign * system.eval_events(x), rate, simultaneity_tol)
+    pending (after ``t_final``): ``(None, False)`` when there is none (``err``: the final
+    state's error bound)."""
+    _, h, Dh, _, rate = local_view(system, int(mask), x)
+    pending = pending_at_final_time(h, rate, simultaneity_tol)
     last = groups[-1] if groups and t_final - groups[-1].time <= simultaneity_tol else None
     if last is not None and pending:
         raise ValueError(
@@ -446,9 +445,10 @@ def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
     if last is not None:
         return last, False
     if pending:
+        check_pending(pending, h, Dh, rate, err, t_final, simultaneity_tol)
         bits = sum(1 << k for k in pending)
         return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
-                          jac), True
+                          system.eval_event_jacobian(x)), True
     return None, False
 
 
