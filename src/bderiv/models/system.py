@@ -231,14 +231,14 @@ class HybridSystem(ModelCalls):
         t_final : float
             Final time, > 0.
         simultaneity_tol : float
-            Events whose (first-order) time to crossing, counted from the integrator's stop
-            at an event, is at most this are switched together at the stop (one group),
-            provided they are at the stop to within the integration accuracy
-            (:func:`bderiv.models.integrate.run.group_tolerance`). Events that already crossed
-            inside
-            the step are always switched, so none is lost when two surfaces are crossed
-            inside one solver step, and so are events at the stop to within the accuracy
-            that are crossing (nothing orders them; :mod:`bderiv.models.events.locate`).
+            Events at the integrator's stop to within the integration accuracy that are
+            crossing are switched together at the stop (one group: nothing orders them;
+            :mod:`bderiv.models.events.locate`), and so are events that already crossed
+            inside the step, so none is lost when two surfaces are crossed inside one
+            solver step. Those whose time is known only to more than this are integrated
+            again more tightly where a derivative is computed. Events within this time of
+            crossing but measurably later are switched at their own time: the trajectory
+            is the true one (a flow map merges such groups: :meth:`flow_bderivative`).
         options : SolverOptions, optional
             Integrator settings (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
             1e-12, no step limit).
@@ -265,8 +265,7 @@ class HybridSystem(ModelCalls):
         TypeError, ValueError
             On a bad argument (named). ValueError also if ``x0`` lies on a surface, if a
             crossing is grazing (not transversal in the region before or after it: the
-            time, event and direction are named), or if an event grouped by
-            ``simultaneity_tol`` is not at the stop (a smaller tolerance is suggested).
+            time, event and direction are named).
         """
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
@@ -354,11 +353,15 @@ class HybridSystem(ModelCalls):
         t_final : float
         simultaneity_tol : float
             Time window within which events of the nominal trajectory count as
-            simultaneous (default 1e-7, well above the event-location accuracy; events in
-            the window must also be at the group's point to within the integration
-            accuracy, see :meth:`simulate`). A stretch whose events' times are known
-            less well than this is integrated again more tightly until they are decided
-            (docs/mathematics.md, section 11).
+            simultaneous (default 1e-7, well above the event-location accuracy). The run
+            switches each event at its own time (:meth:`simulate`); groups whose events
+            cross within this time of the first of them are merged into one, the group's
+            map at the nearby point where they are simultaneous, and
+            ``FlowBDerivative.group_spreads`` says how far apart they were (a smaller
+            tolerance gives the separated events' map: docs/mathematics.md, section 7,
+            "Events close together"). A stretch whose events' times are known less well
+            than this is integrated again more tightly until they are decided (section
+            11).
         options, rtol, atol, method, max_step
             Integrator settings, as for :meth:`simulate`.
 

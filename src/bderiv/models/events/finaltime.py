@@ -25,10 +25,8 @@ import numpy as np
 
 from ..._validate import check_bool, check_points
 from ...bderivative import BDerivative
-from .crossings import check_near
-from .locate import windows
 
-__all__ = ["FinalTimeMap", "check_pending", "pending_at_final_time"]
+__all__ = ["FinalTimeMap", "pending_at_final_time"]
 
 
 def pending_at_final_time(h, rate, simultaneity_tol) -> list:
@@ -53,55 +51,6 @@ def pending_at_final_time(h, rate, simultaneity_tol) -> list:
     [0]
     """
     return [k for k in range(h.size) if rate[k] > 0 and -h[k] <= simultaneity_tol * rate[k]]
-
-
-def check_pending(pending, h, Dh, rate, err, t_final, simultaneity_tol) -> None:
-    """Refuse pending events that are within ``simultaneity_tol`` of the final time but not
-    of each other: the rule of a stop (:func:`bderiv.models.events.crossings.check_near`)
-    applied where the integrator would have stopped, at the first of them.
-
-    A run that ends just before a group stops at ``t_final`` instead of at the group's
-    first event; one that ends on it stops there. Both must give the same answer, so the
-    pending events are judged at the point of the first one, ``dt = -h_f / rate_f`` after
-    the final time (first order: ``h + rate dt``), with the windows of a stop located at
-    that event (:func:`bderiv.models.events.locate.windows`): an event further from its
-    surface there than its window happens measurably later, and grouping it would switch it
-    early.
-
-    Parameters
-    ----------
-    pending : list of int
-        :func:`pending_at_final_time`, not empty.
-    h, rate : ndarray, shape (n,)
-        Event values and rates at the final point, in its region's local orientation.
-    Dh : ndarray, shape (n, d)
-        Event gradients there, in the same orientation.
-    err : ndarray, shape (d,)
-        The final state's error bound (:func:`bderiv.models.events.locate.state_error`).
-    t_final, simultaneity_tol : float
-
-    Raises
-    ------
-    ValueError
-        Naming the first pending event that is not at the group's point, its value there,
-        its window and the ``simultaneity_tol`` that would tell them apart.
-
-    Examples
-    --------
-    Two events 1e-10 and 1e-8 after the final time, known to 2e-12: apart.
-
-    >>> h, rate = np.array([-1e-10, -1e-8]), np.ones(2)
-    >>> check_pending([0, 1], h, np.eye(2), rate, np.full(2, 1e-12), 1.0, 1e-7)
-    Traceback (most recent call last):
-    ...
-    ValueError: events [0, 1] were grouped at t=1 by simultaneity_tol=1e-07, but event 1 ...
-    """
-    first = min(pending, key=lambda k: -h[k] / rate[k])
-    dt = max(-h[first] / rate[first], 0.0)
-    there = h + rate * dt
-    window, _ = windows(Dh, rate, err, [first])
-    near = [k for k in pending if -there[k] > window[k]]
-    check_near(near, there, rate, window, pending, t_final + dt, simultaneity_tol)
 
 
 class FinalTimeMap:

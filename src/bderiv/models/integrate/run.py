@@ -27,7 +27,7 @@ from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
-from ..events.finaltime import check_pending, pending_at_final_time
+from ..events.finaltime import pending_at_final_time
 from ..events.locate import StopCalls, local_view, settle
 from .compiled_path import CompiledStretches
 from .scipy_path import ScipyStretches
@@ -161,6 +161,11 @@ class Trajectory:
         ``mask_final`` is the mask before them.
     final_pending : bool
         Whether ``final_group`` lies just after ``t_final`` (not switched).
+    final_times : tuple of float
+        With ``final_pending``, the first-order time at which each event of
+        ``final_group`` crosses (``t_final - h_k / rate_k``); else empty.
+    simultaneity_tol : float
+        The tolerance of the run (the flow map merges groups within it).
     """
 
     t: np.ndarray
@@ -173,6 +178,8 @@ class Trajectory:
     linear: tuple = dc_field(default=(), repr=False)
     final_group: EventGroup | None = None
     final_pending: bool = False
+    final_times: tuple = ()
+    simultaneity_tol: float = 0.0
 
 
 @dataclass
@@ -284,15 +291,17 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         )
     if variational and len(log.linear) == len(log.groups):  # an event stopped it at t_final
         log.linear.append(np.eye(d))
-    final, pending = None, False
+    final, times = None, ()
     if variational and section is None:
         stops = StopCalls(system) if loop is None else loop.stops
-        final, pending = _final_group(stops, log.groups, now.mask, now.x, now.err, t_final,
-                                      simultaneity_tol)
+        final, times = _final_group(stops, log.groups, now.mask, now.x, t_final,
+                                    simultaneity_tol)
     return Trajectory(t=_joined(log.t), x=_joined(log.x), masks=_joined(log.masks),
                       events=tuple(log.records),
                       groups=tuple(log.groups), x_final=now.x, mask_final=now.mask,
-                      linear=tuple(log.linear), final_group=final, final_pending=pending)
+                      linear=tuple(log.linear), final_group=final,
+                      final_pending=bool(times), final_times=times,
+                      simultaneity_tol=simultaneity_tol)
 
 
 #: the regions of a run without sensitivity (no field Jacobian to check)
@@ -427,29 +436,22 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
     now.ended = t >= t_final
 
 
-def _final_group(system, groups, mask, x, err, t_final, simultaneity_tol):
-    """The event group within ``simultaneity_tol`` of ``t_final`` and whether it is
-    pending (after ``t_final``): ``(None, False)`` when there is none (``err``: the final
-    state's error bound)."""
-    _, h, Dh, _, rate = local_view(system, int(mask), x)
+def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
+    """The event group within ``simultaneity_tol`` of ``t_final`` and, when it is pending
+    (events about to cross after ``t_final``), the times at which its events cross (first
+    order); ``(None, ())`` when there is none. Pending events come before the last switched
+    group within the tolerance: the flow map merges the two
+    (:func:`bderiv.models.assembly.flow_map_along`)."""
+    _, h, _, _, rate = local_view(system, int(mask), x)
     pending = pending_at_final_time(h, rate, simultaneity_tol)
-    last = groups[-1] if groups and t_final - groups[-1].time <= simultaneity_tol else None
-    if last is not None and pending:
-        raise ValueError(
-            f"events {list(last.events)} at t={last.time:.10g} and events {pending} just "
-            f"after t_final={t_final:.10g} are all within simultaneity_tol="
-            f"{simultaneity_tol:g} of the final time, but not of each other: the flow map's "
-            f"B-derivative at that final time is not one event group; choose a final time "
-            f"away from them"
-        )
-    if last is not None:
-        return last, False
     if pending:
-        check_pending(pending, h, Dh, rate, err, t_final, simultaneity_tol)
         bits = sum(1 << k for k in pending)
-        return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
-                          system.eval_event_jacobian(x)), True
-    return None, False
+        group = EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
+                           system.eval_event_jacobian(x))
+        return group, tuple(t_final - float(h[k] / rate[k]) for k in pending)
+    if groups and t_final - groups[-1].time <= simultaneity_tol:
+        return groups[-1], ()
+    return None, ()
 
 
 def _refuse_event_at_return(fired, t):
