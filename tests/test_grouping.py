@@ -7,7 +7,6 @@ here with solve_ivp (no bderiv), whose convergence in O(eps) shows which answer 
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
