@@ -351,6 +351,9 @@ def test_the_report_names_the_wrong_jacobians():
     assert kinds == [("event_jacobian", None, False, True),
                      ("field_jacobian", 0, False, False), ("field_jacobian", 1, False, False),
                      ("section_gradient", None, True, True)]
+    # a numerical Jacobian with zero entries (events x_0 - 1: [1, 0]) is not 'error inf'
+    assert np.isfinite(report.rows[0].error) and report.rows[0].error < 1e-9
+    assert " inf " not in str(report)
 
 
 def test_check_jacobians_refuses_bad_arguments():

@@ -44,7 +44,8 @@ class JacobianCheck(NamedTuple):
         False: not given, the numerical Jacobian's own error estimate.
     error : float
         Given: the largest ``|J v - D_v f| / (|J| |v| + |D_v f|)`` over the outputs;
-        numerical: the largest estimated error relative to its entry.
+        numerical: the largest estimated error relative to the largest entry of its row
+        (of the whole Jacobian for a row of zeros; absolute for a Jacobian of zeros).
     passed : bool
         Given: the mismatch is within ``CHECK_RTOL`` (1e-6) relative plus 8 times the
         difference's error estimate; numerical: every entry reaches the accuracy it needs
@@ -112,8 +113,10 @@ def _given(function, mask, event, fun, x, J, seed) -> JacobianCheck:
 
 def _numerical(function, mask, event, fun, x) -> JacobianCheck:
     D = numdiff.jacobian(fun, x)
+    size = np.abs(D.value)
+    scale = np.maximum(size.max(axis=1, keepdims=True), size.max(initial=0.0))
+    ratio = D.error / np.where(scale > 0, scale, 1.0)  # an entry 0 is not infinitely wrong
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(D.error > 0, D.error / np.abs(D.value), 0.0)
         worst = np.where(D.error > 0, D.error / D.needed, 0.0)
     i, j = np.unravel_index(int(np.argmax(worst)), worst.shape)
     detail = (f"entry [{i}, {j}] = {D.value[i, j]:.6g}, estimated error {D.error[i, j]:.3g}"
