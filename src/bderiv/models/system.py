@@ -124,15 +124,20 @@ class HybridSystem(ModelCalls):
     says how a model runs after its first run; the tutorial (section 12) says how to write
     one.
 
-    A Jacobian not given is computed by central differences with Richardson extrapolation
-    (:mod:`bderiv._numdiff`: steps from an eighth of each variable's magnitude, smaller
-    and larger ones tried until each entry's error estimate is below 1e-7 of the entry)
-    and refused, naming the function, mask, entry and estimated error, where no step
-    reaches that. It costs 10 to 100 calls of the function per variable; inside the
-    variational equations of :meth:`flow_bderivative` that is one Jacobian per
-    right-hand side evaluation, typically 90 % of the time: pass ``field_jacobian``.
-    :attr:`numerical_jacobian_cost` says what they cost so far, and the first one of
-    each kind is logged (logger ``"bderiv"``, level INFO).
+    A Jacobian not given is computed by the complex step where the function takes complex
+    input (:func:`bderiv.complex_step_jacobian`: d calls, exact to rounding), held to a
+    central difference at its first use for each mask (and event): a function that is
+    not complex-analytic (``abs``, ``x.real``) fails that. Otherwise by central
+    differences with Richardson extrapolation (:mod:`bderiv._numdiff`: steps from an
+    eighth of each variable's magnitude, smaller and larger ones tried until each entry's
+    error estimate is below 1e-7 of the entry), refused, naming the function, mask, entry
+    and estimated error, where no step reaches that. These cost 10 to 100 calls of the
+    function per variable; inside the variational equations of :meth:`flow_bderivative`
+    that is one Jacobian per right-hand side evaluation, typically 90 % of the time: pass
+    ``field_jacobian``. :attr:`numerical_jacobian_cost` says what they cost so far, the
+    first one of each kind is logged (logger ``"bderiv"``, level INFO) with how it is
+    computed, and a build (flow map, return map, orbit) of over 2 s spent mostly in them
+    is reported at WARNING with their count, calls and time, once per model.
 
     Examples
     --------
@@ -377,9 +382,10 @@ class HybridSystem(ModelCalls):
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
-        traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
-                   variational=True)
-        return self.flow_map_along(traj)
+        with self.numerical_jacobian_watch("flow_bderivative"):
+            traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
+                       variational=True)
+            return self.flow_map_along(traj)
 
     def flow_map_along(self, traj):
         """The :class:`FlowBDerivative` along a trajectory integrated with its variational
@@ -424,10 +430,11 @@ class HybridSystem(ModelCalls):
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
         section = Section(section, self.dim, section_gradient, self.check_jacobians)
-        return return_map(self, x0, section,
-                          t_max=check_number(t_max, "t_max"),
-                          tol=check_number(tol, "tol", strict=False),
-                          simultaneity_tol=simultaneity_tol, options=options)[0]
+        with self.numerical_jacobian_watch("return_map"):
+            return return_map(self, x0, section,
+                              t_max=check_number(t_max, "t_max"),
+                              tol=check_number(tol, "tol", strict=False),
+                              simultaneity_tol=simultaneity_tol, options=options)[0]
 
     def periodic_orbit(self, x_guess, section, period_guess=None, *, section_gradient=None,
                        tol=ORBIT_TOL, max_iter=ORBIT_MAX_ITER,
@@ -467,10 +474,11 @@ class HybridSystem(ModelCalls):
         x_guess = self._check_state(x_guess, "x_guess")
         options = SolverOptions.resolve(options, ORBIT_OPTIONS)
         section = Section(section, self.dim, section_gradient, self.check_jacobians)
-        return periodic_orbit(self, x_guess, section,
-                              period_guess=period_guess, tol=tol, max_iter=max_iter,
-                              simultaneity_tol=simultaneity_tol, options=options,
-                              cyclic=cyclic)
+        with self.numerical_jacobian_watch("periodic_orbit"):
+            return periodic_orbit(self, x_guess, section,
+                                  period_guess=period_guess, tol=tol, max_iter=max_iter,
+                                  simultaneity_tol=simultaneity_tol, options=options,
+                                  cyclic=cyclic)
 
     def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
                 options=None, rtol=None, atol=None, method=None, max_step=None):
