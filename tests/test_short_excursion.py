@@ -101,16 +101,17 @@ def test_the_excursions_are_located_on_both_paths(system):
     x, log = closed_form(X0, T)
     traj = system.simulate(X0, T)
     assert [(r.event, r.direction) for r in traj.events] == [(0, 1), (0, -1)] * 2
-    # a crossing at rate 0.014 is known to the state's error over the rate
-    np.testing.assert_allclose([r.time for r in traj.events], log, atol=1e-9)
-    np.testing.assert_allclose(traj.x_final, x, atol=1e-9)
+    # a crossing at rate 0.014 is known to the state's error (rtol 1e-10, grown over the
+    # run) over the rate: measured 8.2e-10 at the third, 8.2e-11 at rtol 1e-12
+    np.testing.assert_allclose([r.time for r in traj.events], log, atol=5e-9)
+    np.testing.assert_allclose(traj.x_final, x, atol=5e-9)
 
 
 def test_the_flow_map_is_the_closed_form_jacobian_on_both_paths(system):
     D = system.flow_bderivative(X0, T)
     assert D.n_groups == 4
     _, log = closed_form(X0, T)
-    np.testing.assert_allclose(D.group_times, log, atol=1e-9)
+    np.testing.assert_allclose(D.group_times, log, atol=5e-9)
     # central differences of the exact flow, Richardson-extrapolated (error O(h^4))
     J = (4 * _central(1e-6) - _central(2e-6)) / 3
     np.testing.assert_allclose(D(np.eye(3)).T, J, rtol=0, atol=1e-6 * np.abs(J).max())
