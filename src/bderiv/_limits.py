@@ -11,7 +11,7 @@ DOP853, the levels and order of the runs of ``_numdiff``'s extrapolation), the l
 one kernel (lanes, groups and lock widths: the code is written for them), codes, formats
 and signatures (status codes, file versions, field names), facts that are no choice (63
 events in an int64 mask, the smallest normal float64), the probe of a check whose outcome
-does not depend on it (``_cyclic.SHIFT``), and what one command or figure shows (rows
+does not depend on it (``_cyclic.SHIFTS``), and what one command or figure shows (rows
 listed, samples drawn, colours).
 
 This module imports nothing of bderiv: it is the bottom of the layers (docs/design.md), and
@@ -275,6 +275,11 @@ MULTIPLIER_PIECES = 12
 #: ``max(1, |x|)`` shows that a coordinate is not cyclic (a judgement: well above the
 #: integration error of a return, far below a real dependence).
 INDEPENDENCE_RTOL = 1e-7
+#: the return map's derivative along a cyclic coordinate that differs from the identity
+#: by more than this times ``max(1, |image|)`` shows that it is not cyclic (a judgement:
+#: ten times the accepted error of a numerical Jacobian entry, ``ACCEPT_RTOL``; a model
+#: that does not read the coordinate gives exactly the identity).
+EQUIVARIANCE_RTOL = 1e-6
 #: strides a direction of ``decay_check`` needs in the linear regime for its rate to be
 #: fitted (a line through fewer points has no check of its own).
 MIN_FIT_STRIDES = 3

@@ -55,7 +55,8 @@ _NO_CROSSING.flags.writeable = False
 class CompiledSolution:
     """A compiled stretch with solve_ivp's fields: ``t`` (N,), ``y`` (m, N), ``t_events``
     (the earliest crossing's event; one list per watched value), ``status`` (1: stopped at
-    a crossing, 0: at the final time), ``sol`` (:class:`DenseOutput` of the state)."""
+    a crossing, 0: at the final time), ``sol`` (:class:`DenseOutput` of the state),
+    ``first_step_end`` (the end of the first step, beyond the stop when it is in it)."""
 
     def __init__(self, out, d, watched):
         self.t, self.y = out.ts, out.ys.T
@@ -65,6 +66,8 @@ class CompiledSolution:
             first = out.roots.tolist().index(out.t_end)
             self.t_events[first] = np.array([out.t_end])
         self.sol = DenseOutput(out.steps, out.Fd, out.ys[:-1, :d])  # >= 1 step each
+        # the end of the first step (beyond the stop when an event stopped it there)
+        self.first_step_end = float(out.steps[0, 0] + out.steps[0, 1])
 
 
 class CompiledStretches:

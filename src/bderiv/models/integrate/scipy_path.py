@@ -107,6 +107,8 @@ class ScipyStretches:
                             **options.solve_ivp_kwargs())
             if sol.status == -1:
                 raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
+            # the end of the first step (beyond the stop when an event stopped it there)
+            sol.first_step_end = float(sol.sol.interpolants[0].t)
             return sol
 
         # solve_ivp compares signs at step ends only: look inside the steps too
