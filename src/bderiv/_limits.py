@@ -145,8 +145,9 @@ CHECK_ERROR_FACTOR = 8.0
 #: underflow)
 COMPLEX_STEP = 2.0**-60
 #: compiled central differences: the step relative to the coordinate's scale, about
-#: EPS^(1/3) (truncation h^2 against rounding EPS / h); a coordinate's scale is its
-#: magnitude, at least SCALE_FLOOR, and 1 for a coordinate at 0 (as ``_numdiff``)
+#: EPS^(1/3) (truncation h^2 against rounding EPS / h); the scale is ``max(|x_j|, 1)``
+#: (scipy's ``approx_derivative``): the magnitude of a coordinate near 0 says nothing of
+#: the scale on which the field varies in it, and a step from it is all rounding
 CENTRAL_STEP = 2.0**-17
 #: largest number of masks ``check_jacobians`` checks by default (all 2**n up to n = 8;
 #: a judgement of cost: each mask is a Jacobian by differences).

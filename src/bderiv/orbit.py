@@ -58,7 +58,7 @@ from ._limits import (
     T_MAX_PER_PERIOD,
 )
 from ._validate import check_number, check_positive_int
-from .models.integrate.run import SolverOptions, run
+from .models.integrate.run import ENDS, SolverOptions, run
 from .returnmap import return_map
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
@@ -258,7 +258,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
         starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
         returned, *shifted = [run(system, start, t_max, simultaneity_tol=0.0, options=options,
-                                  section=section).x_final for start in starts]
+                                  section=section, record=ENDS).x_final for start in starts]
         check_independence(returned, x, shifted, cyclic)
     history, build_tol = [], 0.0
     for iteration in range(max_iter + 1):
@@ -407,7 +407,7 @@ def _damped(system, section, x, delta, res, t_max, options, keep):
         trial = _onto_section(section, x + delta)
         try:
             traj = run(system, trial, t_max, simultaneity_tol=0.0, options=options,
-                       section=section)
+                       section=section, record=ENDS)
         except ValueError as exc:  # no return, an event at the section ...: a shorter step
             failure = f"; the last trial point failed: {exc}"
             delta = delta / 2

@@ -47,7 +47,16 @@ from ..returnmap import return_map
 from .assembly import flow_map_along, point_bderivative
 from .calls import ModelCalls
 from .integrate.many import Trajectories, check_states, run_many
-from .integrate.run import EventGroup, EventRecord, SolverOptions, Trajectory, run
+from .integrate.run import (
+    ENDS,
+    STEPS,
+    EventGroup,
+    EventRecord,
+    SolverOptions,
+    Trajectory,
+    check_t_eval,
+    run,
+)
 from .section import Section
 
 # EventGroup, EventRecord, Trajectory live in models.integrate.run: the types the methods
@@ -226,7 +235,7 @@ class HybridSystem(ModelCalls):
     # ------------------------------------------------------------------------------
     def simulate(self, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
                  options=None, rtol=None, atol=None, method=None, max_step=None,
-                 max_groups=MAX_GROUPS, section=None):
+                 max_groups=MAX_GROUPS, section=None, t_eval=None):
         """Integrate from ``x0`` at time 0 to ``t_final`` with event detection.
 
         Parameters
@@ -257,6 +266,16 @@ class HybridSystem(ModelCalls):
             Stop at the first upward crossing of ``section(x) = 0`` after time 0 (the
             Poincare map: ``x_final`` is ``P(x0)``, ``t[-1]`` the return time);
             ``t_final`` is then the longest time to wait (ValueError if it passes).
+        t_eval : array_like, shape (k,), optional
+            Times at which to keep the state, ascending, in ``[0, t_final]`` (as
+            :func:`scipy.integrate.solve_ivp`'s): ``Trajectory.t, x, masks`` hold these
+            samples only (with a section, those up to the return), each on the dense output
+            of the stretch that holds it (at an event time, the state after the group).
+            ``t_eval=()`` keeps none: the final state and the events only. What the run
+            stores is then bounded by ``k`` and the number of events, whatever the span.
+            Default None: every accepted step, a record that grows with the span; before
+            it outgrows the memory the process may take (the memory available and
+            ``RLIMIT_AS``) the run is refused with a ValueError that names it.
 
         Returns
         -------
@@ -270,7 +289,20 @@ class HybridSystem(ModelCalls):
         TypeError, ValueError
             On a bad argument (named). ValueError also if ``x0`` lies on a surface, if a
             crossing is grazing (not transversal in the region before or after it: the
-            time, event and direction are named).
+            time, event and direction are named), or if a record of the run (every
+            step's samples; a stretch's steps, kept to search for crossings inside them)
+            would outgrow the memory the process may take (the record, its size and what to
+            pass instead are named).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from bderiv.models.system import HybridSystem
+        >>> s = HybridSystem(lambda x, mask: np.array([x[1], -x[0]]), lambda x: x[:1] - 2.0,
+        ...                  n_events=1, dim=2)
+        >>> traj = s.simulate([1.0, 0.0], 100.0, t_eval=np.linspace(0.0, 100.0, 5))
+        >>> traj.t.shape, traj.x.shape, bool(abs(traj.x_final[0] - np.cos(100.0)) < 1e-7)
+        ((5,), (5, 2), True)
         """
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
@@ -278,11 +310,18 @@ class HybridSystem(ModelCalls):
         if section is not None:
             section = Section(section, self.dim)
         return run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
-                   max_groups=max_groups, section=section)
+                   max_groups=max_groups, section=section,
+                   record=self._record(t_eval, t_final))
+
+    def _record(self, t_eval, t_final):
+        """``run``'s ``record`` for ``t_eval``: every step (None) or the checked times."""
+        if t_eval is None:
+            return STEPS
+        return check_t_eval(t_eval, check_number(t_final, "t_final"), self.dim)
 
     def simulate_many(self, X0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
                       options=None, rtol=None, atol=None, method=None, max_step=None,
-                      max_groups=MAX_GROUPS, section=None, progress=None):
+                      max_groups=MAX_GROUPS, section=None, progress=None, t_eval=None):
         """:meth:`simulate` from every start state of a batch.
 
         Each run is the one :meth:`simulate` makes from that state (the same trajectory,
@@ -306,6 +345,9 @@ class HybridSystem(ModelCalls):
             None: a bar of the runs done, drawn once the batch has lasted a few seconds
             (on a terminal); False: none; True: a tqdm bar from the start; a callable:
             called after each run (in the calling thread, as runs finish).
+        t_eval : array_like, shape (k,), optional
+            As for :meth:`simulate`: the times at which each run keeps its state
+            (``()``: none, the final states and the events only).
 
         Returns
         -------
@@ -339,7 +381,7 @@ class HybridSystem(ModelCalls):
             section = Section(section, self.dim)
         return run_many(self, X0, lead, t_final, simultaneity_tol=simultaneity_tol,
                         options=options, max_groups=max_groups, section=section,
-                        progress=progress)
+                        progress=progress, record=self._record(t_eval, t_final))
 
     def flow_bderivative(self, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
                          options=None, rtol=None, atol=None, method=None, max_step=None):
@@ -384,7 +426,7 @@ class HybridSystem(ModelCalls):
         x0 = self._check_state(x0, "x0")
         with self.numerical_jacobian_watch("flow_bderivative"):
             traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
-                       variational=True)
+                       variational=True, record=ENDS)
             return self.flow_map_along(traj)
 
     def flow_map_along(self, traj):
