@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 
+import numpy as np
 import pytest
 
 from bderiv._progress import TqdmCallback
@@ -46,3 +47,37 @@ def test_progress_counts_small_totals_plainly():
     bar = TqdmCallback("demo", file=out)
     bar(20_000, 20_000)
     assert "20.0k/20.0k" in out.getvalue()
+
+
+# -- periodic_orbit names the iterate that failed and the argument to change (item 4) ------
+
+
+def test_periodic_orbit_names_period_guess_when_the_return_is_not_awaited_long_enough():
+    from bderiv.examples import gaits
+
+    with pytest.raises(ValueError, match=r"periodic_orbit at the guess, x = \[.*\]: the "
+                                         r"trajectory did not return to the section .* waits 3 "
+                                         r"times period_guess for the return, 0.03 here: pass "
+                                         r"a larger period_guess"):
+        gaits.pronking_orbit(period_guess=0.01)
+
+
+def test_periodic_orbit_names_the_newton_iterate_that_failed(monkeypatch):
+    """A failure of the return map at a later iterate is said there, with its state (the
+    message before named only 'x0 (t=0)', which users read as their guess)."""
+    from bderiv import orbit
+    from bderiv.examples import gaits
+
+    real, calls = orbit.return_map, []
+
+    def failing_later(system, x, *args, **kwargs):
+        calls.append(x.copy())
+        if len(calls) == 2:
+            raise ValueError("at x0 (t=0) the rate of section(x) is -0.233")
+        return real(system, x, *args, **kwargs)
+
+    monkeypatch.setattr(orbit, "return_map", failing_later)
+    with pytest.raises(ValueError, match=r"periodic_orbit at Newton iterate 1, x = \[.*\]: at "
+                                         r"x0 \(t=0\) the rate of section\(x\) is -0.233") as info:
+        gaits.pronking_orbit()
+    assert np.array2string(calls[1], precision=6) in str(info.value)

@@ -58,7 +58,7 @@ from ._limits import (
     T_MAX_PER_PERIOD,
 )
 from ._validate import check_number, check_positive_int
-from .models.integrate.run import ENDS, SolverOptions, run
+from .models.integrate.run import ENDS, NoReturn, SolverOptions, run
 from .returnmap import return_map
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
@@ -257,12 +257,14 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     check_section_normal(section.gradient(x), cyclic, x)
     if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
         starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
-        returned, *shifted = [run(system, start, t_max, simultaneity_tol=0.0, options=options,
-                                  section=section, record=ENDS).x_final for start in starts]
+        returned, *shifted = [_at_iterate(0, start, t_max, lambda s=start: run(
+            system, s, t_max, simultaneity_tol=0.0, options=options, section=section,
+            record=ENDS)).x_final for start in starts]
         check_independence(returned, x, shifted, cyclic)
     history, build_tol = [], 0.0
     for iteration in range(max_iter + 1):
-        R, traj, built_with = _build(system, x, section, t_max, build_tol, options)
+        R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build_tol:
+                                          _build(system, x, section, t_max, b, options))
         check_equivariance(R, x, cyclic)
         r = R.x_final - x
         res = float(np.abs(r[keep]).max())
@@ -282,12 +284,29 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
             x[keep]).max())) else 0.0
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
     if built_with != simultaneity_tol:  # the map at x was built for the iteration only
-        R, traj = return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
-                             simultaneity_tol=simultaneity_tol, options=options)
+        R, traj = _at_iterate(iteration, x, t_max, lambda: return_map(
+            system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
+            simultaneity_tol=simultaneity_tol, options=options))
         check_equivariance(R, x, cyclic)
     r = R.x_final - x
     return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
                          cyclic, r[list(cyclic)])
+
+
+def _at_iterate(iteration, x, t_max, call):
+    """``call()``, its ValueError said at the Newton iterate it came from: the guess (0) or
+    iterate k, its state, and for no return the argument that sets the time waited."""
+    try:
+        return call()
+    except ValueError as exc:
+        where = "the guess" if iteration == 0 else f"Newton iterate {iteration}"
+        hint = ""
+        if isinstance(exc, NoReturn):
+            hint = (f" (periodic_orbit waits {T_MAX_PER_PERIOD:g} times period_guess for the "
+                    f"return, {t_max:g} here: pass a larger period_guess, or a guess nearer "
+                    f"the orbit)")
+        raise ValueError(f"periodic_orbit at {where}, x = {np.array2string(x, precision=6)}: "
+                         f"{exc}{hint}") from exc
 
 
 def _build(system, x, section, t_max, simultaneity_tol, options):

@@ -196,6 +196,11 @@ class Trajectory:
     simultaneity_tol: float = 0.0
 
 
+class NoReturn(ValueError):
+    """A run with a section that did not return to it in the time it waited: a caller
+    names its own argument for that time (``t_max``, ``period_guess``)."""
+
+
 def stretches_for(system, options, section=None, watch=None, stops=None):
     """The integrator of a run's stretches: compiled when the model's functions are numba
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
@@ -288,7 +293,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     if loop is not None:
         loop.watch.close()
     if section is not None and not now.returned:
-        raise ValueError(
+        raise NoReturn(
             f"the trajectory did not return to the section (upward) before t={t_final:g}; "
             f"pass a longer time to wait"
         )
