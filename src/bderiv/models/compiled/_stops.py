@@ -270,7 +270,7 @@ def landing(model, jac_mode, event_jac_mode, sign, group, mask, new, x_after, wi
 @njit(cache=True)
 def _held(model, jac_mode, x, far, near, F_far, F_near, d):
     """Whether region ``far`` holds a state ``x`` stopped on a surface
-    (:func:`bderiv.models.events.crossings._held`); False also on a failed check."""
+    (:func:`bderiv.models.events.crossings.holds`); False also on a failed check."""
     J_far, J_near = np.empty((d, d)), np.empty((d, d))
     if jacobian(model, jac_mode, x, far, d, J_far) != OK or \
             jacobian(model, jac_mode, x, near, d, J_near) != OK:

@@ -33,6 +33,7 @@ __all__ = [
     "EventRecord",
     "apply_resets",
     "group_tolerance",
+    "holds",
     "landing",
     "switch",
 ]
@@ -205,7 +206,7 @@ def landing(system, group, mask, x_after, window, t=None):
     contact); one too small to tell (a plastic impact that stops the state on the surface)
     flips it where that region holds the state, its field or field Jacobian there not the
     same as the region's with the bit kept (a compliant or constrained stance:
-    :func:`bderiv.models.compiled.rules.same_flow`); where the rate is clearly negative,
+    :func:`holds`); where the rate is clearly negative,
     one clearly negative in the region with the bit kept too keeps it (a bounce).
 
     Raises
@@ -232,7 +233,7 @@ def landing(system, group, mask, x_after, window, t=None):
                 continue
             back = system.eval_field(x_after, new ^ 1 << k)
             if not _clearly_positive(-Dh[k], field):  # stops on the surface (plastic)
-                if not _held(system, x_after, new, new ^ 1 << k, field, back):
+                if not holds(system, x_after, new, new ^ 1 << k, field, back):
                     _refuse_unheld(k, h[k], window[k], float(Dh[k] @ field), new, sign[k], n,
                                    t)
                 continue
@@ -252,10 +253,13 @@ def landing(system, group, mask, x_after, window, t=None):
     return new ^ kept
 
 
-def _held(system, x, far, near, F_far, F_near) -> bool:
-    """Whether region ``far`` holds a state ``x`` stopped on a surface: its field
-    ``F_far`` or field Jacobian at ``x`` not the same as region ``near``'s (the contact
-    has dynamics of its own), :func:`bderiv.models.compiled.rules.same_flow`."""
+def holds(system, x, far, near, F_far=None, F_near=None) -> bool:
+    """Whether region ``far`` holds a state ``x`` stopped on the surface between it and
+    region ``near``: its field (``F_far``, evaluated when not given) or field Jacobian at
+    ``x`` not the same as region ``near``'s (``F_near``), so the contact has dynamics of
+    its own (:func:`bderiv.models.compiled.rules.same_flow`)."""
+    F_far = system.eval_field(x, far) if F_far is None else F_far
+    F_near = system.eval_field(x, near) if F_near is None else F_near
     J_far, J_near = (np.ascontiguousarray(system.eval_field_jacobian(x, m), dtype=np.float64)
                      for m in (far, near))
     return not rules.same_flow(np.ascontiguousarray(F_near, dtype=np.float64),

@@ -12,14 +12,22 @@ so both refuse alike). For each event it keeps the times of its last ``ZENO_IMPA
 bounces (the event's bit kept: the state sent back, the surface met again in the same
 direction). When their intervals shrink as a geometric sequence to zero, the impacts
 accumulate at ``t + Delta r / (1 - r)`` (``Delta`` the last interval, ``r`` the last
-ratio); an accumulation time at or before the final time is refused, with that time.
+ratio). An accumulation at or before the final time is refused, with that time, where
+nothing holds the state on the surface after it: the region beyond the surface has the
+same flow as the one before it (:func:`bderiv.models.events.crossings.holds`: a ball whose
+ground is the same free fall). Where the region beyond holds it (a compliant or
+constrained contact), the bounces are followed to the end: just before the accumulation
+time a rebound is too small to tell (``GRAZING_RTOL``) and the state lands in that region
+(:func:`bderiv.models.events.crossings.landing`), which then holds it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..._format import format_mask
 from ..._limits import ZENO_IMPACTS, ZENO_LIMIT_RTOL
+from .crossings import holds
 
 __all__ = ["ImpactWatch", "accumulation_time"]
 
@@ -58,14 +66,16 @@ class ImpactWatch:
 
     Parameters
     ----------
-    n_events : int
+    system : HybridSystem
+        The model (its checked evaluations: ``eval_field``, ``eval_field_jacobian``).
     t_final : float
-        The run's final time: an accumulation at or before it is refused.
+        The run's final time: an accumulation at or before it is refused where nothing
+        holds the state on the surface.
     """
 
-    def __init__(self, n_events, t_final):
-        self.t_final = float(t_final)
-        self.times = [[] for _ in range(n_events)]
+    def __init__(self, system, t_final):
+        self.system, self.t_final = system, float(t_final)
+        self.times = [[] for _ in range(system.n_events)]
         self.seen = 0
 
     def see(self, groups):
@@ -85,13 +95,16 @@ class ImpactWatch:
                 if len(kept) > ZENO_IMPACTS:
                     del kept[0]
                 if len(kept) == ZENO_IMPACTS:
-                    self._check(k, kept)
+                    self._check(k, kept, group)
         self.seen = len(groups)
 
-    def _check(self, k, times):
+    def _check(self, k, times, group):
         t_acc = accumulation_time(times)
         if t_acc is None or t_acc > self.t_final:
             return
+        near = group.mask_after  # the bit of k as before the bounce
+        if holds(self.system, group.state_after, near ^ 1 << k, near):
+            return  # the contact region takes the state over at the end
         ratio = (times[-1] - times[-2]) / (times[-2] - times[-3])
         raise ValueError(
             f"the impacts of event {k} accumulate (a Zeno trajectory): its last "
@@ -99,7 +112,9 @@ class ImpactWatch:
             f"intervals that shrink geometrically to zero (ratio {ratio:.4g}), so infinitely "
             f"many more would come before about t={t_acc:.10g} (the accumulation time, "
             f"estimated by that geometric sequence), which is not after t_final="
-            f"{self.t_final:.10g}: the run cannot pass it. End the run before the "
+            f"{self.t_final:.10g}, and nothing holds the state on the surface after it (the "
+            f"field beyond it, of region {format_mask(near ^ 1 << k, self.system.n_events)}, "
+            f"is the same as before it): the run cannot pass it. End the run before the "
             f"accumulation time (t_final below {t_acc:.10g}), or model the resting contact "
             f"that follows it as a region whose field holds the body on the surface (a "
             f"compliant or constrained stance)"

@@ -270,7 +270,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     # by start_mask before the first stretch in Python (which refuses a start on a surface)
     now = _Now(0.0, x0, -1, np.abs(x0), np.zeros(d))
     settings = (t_final, simultaneity_tol, options, variational, section, max_groups)
-    impacts = ImpactWatch(system.n_events, t_final)  # bounces that accumulate: refused
+    impacts = ImpactWatch(system, t_final)  # bounces that accumulate: refused
     while not now.ended:
         cancel_point()  # a run of a batch on threads stops with its batch
         if compiled_stops(system, section):  # as far as the stops are plain, in one call
