@@ -130,11 +130,12 @@ def check_start(example, parameters, region=0):
     """``example`` itself when it starts where it says, else a ValueError naming
     ``parameters`` (dict, name -> value: those that placed the start).
 
-    Where it says: ``t_event`` finite and > 0, ``x0`` and ``rho`` finite, ``x0`` strictly
-    inside region ``region`` (every event's value of the sign its bit says: not on a
-    surface, nor beyond one) and every event at ``rho`` (``|events(rho)|`` at most
-    ``ON_SURFACE_TOL`` relative to ``rho``), so that the trajectory from ``x0`` can meet
-    them together there.
+    Where it says: ``t_event`` finite, > 0 and before ``t_final``, ``x0`` and ``rho``
+    finite, ``x0`` strictly inside region ``region`` (every event's value of the sign its
+    bit says: not on a surface, nor beyond one) and every event at ``rho``
+    (``|events(rho)|`` at most ``ON_SURFACE_TOL`` relative to ``rho``), so that the
+    trajectory from ``x0`` can meet them together there. (That it meets no surface on the
+    way is the example's own argument or construction.)
 
     Examples
     --------
@@ -145,12 +146,15 @@ def check_start(example, parameters, region=0):
     """
     named = ", ".join(f"{k}={v:g}" for k, v in parameters.items())
     where = f"{example.name} with {named}" if named else example.name
-    t_event, x0, rho = example.t_event, example.x0, example.rho
-    if not (np.isfinite(t_event) and t_event > 0 and np.isfinite(x0).all()
-            and np.isfinite(rho).all()):
-        raise ValueError(f"{where}: the start and event point it builds are not finite, or "
-                         f"the event time is not > 0 (t_event={t_event}, x0={x0}, rho={rho});"
-                         f" choose other parameters")
+    t_event, t_final, x0, rho = example.t_event, example.t_final, example.x0, example.rho
+    if not (np.isfinite(t_event) and t_event > 0 and t_final > t_event):
+        raise ValueError(f"{where}: the event time must be > 0 and before the final time, "
+                         f"got t_event={t_event:.6g}, t_final={t_final:.6g}; choose other "
+                         f"parameters")
+    if not (np.isfinite(x0).all() and np.isfinite(rho).all()):
+        raise ValueError(f"{where}: the start or the event point it builds is not finite "
+                         f"(x0 = {x0.tolist()}, rho = {rho.tolist()}); choose other "
+                         f"parameters")
     system = example.system
     h = system.eval_events(x0)
     side = np.array([1.0 if region >> k & 1 else -1.0 for k in range(h.size)])
