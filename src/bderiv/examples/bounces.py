@@ -14,6 +14,13 @@
   hitting both walls at once. At a right angle the two reflections act on orthogonal
   components, commute and leave each other's wall alone (the flow has a B-derivative
   there); at any other angle they do not commute and the model is refused at the corner.
+
+Both models' region beyond a wall is the same free flight: the surfaces carry nothing but
+the reset. With ``e < 1`` the bounces on the floor accumulate (a Zeno trajectory), and a
+run past their accumulation time is refused, naming it; ``e = 0`` stops the ball on the
+ground, where nothing holds it: refused at the impact (mathematics.md section 9, "Impacts
+that accumulate, and landings nothing holds"). Both models come compiled with numba
+(``compiled=True``: the compiled integrator) or as Python functions, the same equations.
 """
 
 from __future__ import annotations
@@ -72,7 +79,7 @@ def bouncing_ball(*, e=0.8, height=1.0, g=_G, t_after=0.1, compiled=False) -> Ex
         (1 - e))``: a run past it is refused at the bounce that shows it, naming it
         (:class:`bderiv.models.events.zeno.ImpactWatch`); ``e = 0`` stops the ball on the
         ground, where nothing holds it (the ground's region has the same free fall):
-        refused at the impact (mathematics.md section 9, "Impacts that accumulate").
+        refused at the impact (module docstring).
     height : float
         Height of the start point ``x0 = (height, 0)``, > 0.
     g : float

@@ -4,7 +4,8 @@ A ball dropped from height ``h`` with restitution ``e < 1`` hits the ground at `
 sqrt(2 h / g)`` and then at intervals ``2 e^k v_1 / g`` (``v_1 = g t_1``): infinitely many
 impacts before ``t_1 (1 + 2 e / (1 - e))``. A run past that time would need infinitely
 many stops; it would end on a rebound too small to follow, on the wrong side of the
-ground (mathematics.md section 9, "Impacts that accumulate").
+ground (mathematics.md section 9, "Impacts that accumulate, and landings nothing
+holds").
 
 :class:`ImpactWatch` is shown a run's event groups in order (by the run loop, after each
 stretch of the Python loop and after each call of the compiled run: the same groups,
