@@ -43,6 +43,14 @@ MIN_RTOL = 100 * _EPS
 #: would otherwise never end): a judgement, enough for hundreds of strides of a
 #: many-legged gait.
 MAX_GROUPS = 10_000
+#: impacts of one event looked at for an accumulation (Zeno, ``models/events/zeno.py``):
+#: their four intervals must shrink as a geometric sequence to zero (a judgement: two
+#: consecutive estimates of the limit of the intervals must agree with it).
+ZENO_IMPACTS = 5
+#: how close to zero the intervals' limit must be, relative to the last interval, for the
+#: impacts to accumulate (a judgement: a gait converging to its period has a limit near
+#: its step time; rounding of the event times is far below it).
+ZENO_LIMIT_RTOL = 0.1
 #: global over local error of the integrator: an adaptive Runge-Kutta method keeps each
 #: step's error below atol + rtol |x_i|; the error of the state at a stop, a sum of such
 #: step errors, is a modest multiple of it (a judgement).

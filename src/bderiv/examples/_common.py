@@ -19,12 +19,14 @@ from functools import cache
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from .._format import format_mask
 from .._kernels._cache import keyed, sources_digest
+from .._limits import ON_SURFACE_TOL
 from .._validate import check_bool
 from ..models.system import HybridSystem
 
-__all__ = ["Example", "compile_function", "compiled_once", "complex_step_jacobian",
-           "flow_back"]
+__all__ = ["Example", "check_start", "compile_function", "compiled_once",
+           "complex_step_jacobian", "flow_back"]
 
 #: the functions of a model that the compiled version compiles (corner_field stays Python:
 #: it is called at the event points only, with the whole table at once)
@@ -122,6 +124,57 @@ class Example:
                    t_final=float(f"{float(t_event) + float(t_after):.15g}"), name=name,
                    description=description + (", numba-compiled" if compiled else ""),
                    compiled=compiled)
+
+
+def check_start(example, parameters, region=0):
+    """``example`` itself when it starts where it says, else a ValueError naming
+    ``parameters`` (dict, name -> value: those that placed the start).
+
+    Where it says: ``t_event`` finite, > 0 and before ``t_final``, ``x0`` and ``rho``
+    finite, ``x0`` strictly inside region ``region`` (every event's value of the sign its
+    bit says: not on a surface, nor beyond one) and every event at ``rho``
+    (``|events(rho)|`` at most ``ON_SURFACE_TOL`` relative to ``rho``), so that the
+    trajectory from ``x0`` can meet them together there. (That it meets no surface on the
+    way is the example's own argument or construction.)
+
+    Examples
+    --------
+    >>> from bderiv.examples import bouncing_ball
+    >>> ex = bouncing_ball()
+    >>> check_start(ex, {}) is ex
+    True
+    """
+    named = ", ".join(f"{k}={v:g}" for k, v in parameters.items())
+    where = f"{example.name} with {named}" if named else example.name
+    t_event, t_final, x0, rho = example.t_event, example.t_final, example.x0, example.rho
+    if not (np.isfinite(t_event) and t_event > 0 and t_final > t_event):
+        raise ValueError(f"{where}: the event time must be > 0 and before the final time, "
+                         f"got t_event={t_event:.6g}, t_final={t_final:.6g}; choose other "
+                         f"parameters")
+    if not (np.isfinite(x0).all() and np.isfinite(rho).all()):
+        raise ValueError(f"{where}: the start or the event point it builds is not finite "
+                         f"(x0 = {x0.tolist()}, rho = {rho.tolist()}); choose other "
+                         f"parameters")
+    system = example.system
+    h = system.eval_events(x0)
+    side = np.array([1.0 if region >> k & 1 else -1.0 for k in range(h.size)])
+    wrong = np.flatnonzero(~(side * h > 0))
+    if wrong.size:
+        k = int(wrong[0])
+        raise ValueError(
+            f"{where}: the start it builds, x0 = {np.round(x0, 6).tolist()}, is not in "
+            f"region {format_mask(region, h.size)} where the example starts: event {k} has "
+            f"h_{k}(x0) = {h[k]:.6g} (on the surface or beyond it), so the trajectory from x0 "
+            f"does not meet the events together at t_event={t_event:.6g}; choose other "
+            f"parameters"
+        )
+    off = np.abs(system.eval_events(rho))
+    if not (off <= ON_SURFACE_TOL * max(1.0, float(np.abs(rho).max()))).all():
+        k = int(np.argmax(off))
+        raise ValueError(f"{where}: its event point rho = {np.round(rho, 6).tolist()} is "
+                         f"not on the surface of event {k} (|h_{k}(rho)| = {off[k]:.3g}); "
+                         f"choose other parameters")
+    return example
 
 
 @cache

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba.extending import register_jitable
 
-from ._common import Example
+from ._common import Example, check_start
 
 __all__ = ["chair"]
 
@@ -119,7 +119,7 @@ def chair(
     T = float(t_event)
     vz0 = vz + _G * T
     x0 = np.array([-vx * T, z - vz0 * T + 0.5 * _G * T**2, theta - om * T, vx, vz0, om])
-    return Example.from_functions(
+    ex = Example.from_functions(
         functions,
         compiled=compiled,
         n_events=2,
@@ -134,3 +134,4 @@ def chair(
             f"(d = 6, n = 2, mode_damping = {mode_damping})"
         ),
     )
+    return check_start(ex, {"t_event": T, "t_after": float(t_after)})

@@ -37,7 +37,7 @@ from numba.extending import register_jitable
 
 from .._limits import FD_EPS
 from .._validate import check_positive_int
-from ._common import Example, compile_function
+from ._common import Example, check_start, compile_function
 
 __all__ = [
     "APEX",
@@ -232,10 +232,16 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
     """
     p = body(stiffness=stiffness, damping=damping, gain=gain, v_ref=v_ref,
              coupling=coupling, half_base=half_base, leg=leg, inertia=inertia, legs=legs)
-    fall = float(np.sqrt(2.0 * (apex - leg) / _G))
-    rho = np.array([leg, 0.0, -_G * fall, 0.0])
+    apex = float(apex)
+    if not (np.isfinite(apex) and apex > p.leg):
+        raise ValueError(f"pronking with apex={apex:g}, leg={p.leg:g}: the start it builds, "
+                         f"x0 = (apex, 0, 0, 0), must be above the touchdown height (apex > "
+                         f"leg), or the body never falls onto its legs; choose other "
+                         f"parameters")
+    fall = float(np.sqrt(2.0 * (apex - p.leg) / _G))
+    rho = np.array([p.leg, 0.0, -_G * fall, 0.0])
     n = p.a.size
-    return Example.from_functions(
+    ex = Example.from_functions(
         {"field": field, "events": events, "event_jacobian": event_jacobian},
         params=p.values(), compiled=compiled, n_events=n, dim=4, rho=rho,
         x0=np.array([apex, 0.0, 0.0, 0.0]), t_event=fall, t_after=t_after, name="pronking",
@@ -243,6 +249,7 @@ def pronking(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5,
                      f"off together every stride (d = 4, n = {n}, coupling = "
                      f"{coupling})"),
     )
+    return check_start(ex, {"apex": apex, "leg": p.leg, "t_after": float(t_after)})
 
 
 def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwargs):

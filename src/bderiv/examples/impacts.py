@@ -29,7 +29,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from ._common import Example, flow_back
+from ._common import Example, check_start, flow_back
 
 __all__ = ["landing", "landing_summary", "summary_text"]
 
@@ -125,9 +125,10 @@ def landing(*, foot_mass=0.4, leg_stiffness=200.0, leg_damping=4.0, ground_stiff
                    f"stop of the sliding at touchdown (reset), compliant ground, legs push "
                    f"in double support (d = 10, n = 2"
                    + (f", horizontal impulses coupled by {coupling:g})" if coupling else ")"))
-    return Example.from_functions(functions, compiled=compiled, n_events=2, dim=10,
-                                  rho=rho, x0=x0, t_event=t_event, t_after=t_after,
-                                  name=name, description=description)
+    ex = Example.from_functions(functions, compiled=compiled, n_events=2, dim=10, rho=rho,
+                                x0=x0, t_event=t_event, t_after=t_after, name=name,
+                                description=description)
+    return check_start(ex, {"t_event": float(t_event), "t_after": float(t_after)})
 
 
 def landing_summary(*, n_check=8, eps=FD_EPS, seed=0, compiled=False):

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validate import check_bool
-from ._common import Example, flow_back
+from ._common import Example, check_start, flow_back
 
 __all__ = ["network"]
 
@@ -142,7 +142,7 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
     rho = np.zeros(d)
     field = functions["field"]
     x0 = flow_back(lambda x: field(x, 0), rho, t_event)
-    return Example.from_functions(
+    ex = Example.from_functions(
         functions,
         compiled=compiled,
         n_events=n,
@@ -157,3 +157,5 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
             "rates of the others, so perturbations change order"
         ),
     )
+    return check_start(ex, {"n": n, "seed": seed, "coupling": float(coupling),
+                            "t_event": float(t_event), "t_after": float(t_after)})

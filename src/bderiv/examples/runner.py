@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import Example, compile_function
+from ._common import Example, check_start, compile_function
 from .gaits import (
     FEET,
     INERTIA,
@@ -120,13 +120,14 @@ def running(*, v_target=1.0, traction=8.0, t_after=0.05, compiled=False, **param
     rho = np.array([v_target * base.t_event, base.rho[0], 0.0, v_target, base.rho[2], 0.0])
     n = p.a.size
     push = 2.0 / n * float(traction)  # shared by the legs like the other forces
-    return Example.from_functions(
+    ex = Example.from_functions(
         {"field": field, "events": events, "event_jacobian": event_jacobian},
         params=np.concatenate(([push, float(v_target)], p.values())), compiled=compiled,
         n_events=n, dim=6, rho=rho, x0=x0, t_event=base.t_event, t_after=t_after, name="running",
         description=(f"planar body running on {n} compliant legs at a target speed "
                      f"{v_target:g} (d = 6, n = {n}; the forward position is cyclic)"),
     )
+    return check_start(ex, {"v_target": float(v_target), "t_after": float(t_after)})
 
 
 def running_orbit(example=None, *, perturbation=(0.0, 0.02, 0.01, -0.3, 0.0, -0.05),

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import Example, complex_step_jacobian, flow_back
+from ._common import Example, check_start, complex_step_jacobian, flow_back
 
 __all__ = ["table"]
 
@@ -130,7 +130,7 @@ def table(
     rho = np.array([0.0, 0.0, leg, 0.0, 0.0, 0.3, 0.3, -0.2, -1.5, 0.2, -0.3, 0.5])
     T = float(t_event)
     x0 = flow_back(lambda x: model.field(x, 0), rho, T)
-    return Example.from_model(
+    ex = Example.from_model(
         model,
         n_events=4,
         dim=12,
@@ -144,3 +144,4 @@ def table(
             f"mode_damping = {mode_damping})"
         ),
     )
+    return check_start(ex, {"t_event": T, "t_after": float(t_after)})

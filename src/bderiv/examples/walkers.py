@@ -70,7 +70,7 @@ import numpy as np
 from scipy.integrate import quad, solve_ivp
 
 from ..models.system import HybridSystem
-from ._common import Example, complex_step_jacobian
+from ._common import Example, check_start, complex_step_jacobian
 
 __all__ = [
     "GARCIA_EIGENVALUES",
@@ -186,11 +186,12 @@ def rimless_wheel(*, alpha=np.pi / 8, slope=0.08, g=1.0, leg=1.0) -> Example:
                           event_jacobian=model.event_jacobian,
                           field_jacobian=model.field_jacobian, reset=model.reset,
                           reset_jacobian=model.reset_jacobian)
-    return Example(system=system, rho=np.array([alpha, speed(alpha)]),
-                   x0=np.array([0.0, speed(0.0)]), t_event=t_event,
-                   t_final=float(f"{t_event + 0.1 * t_event:.15g}"), name="rimless-wheel",
-                   description=f"rimless wheel, spokes {2 * alpha:.4g} rad apart, slope "
-                   f"{slope:g} rad: a leg swap every step (d = 2, n = 1)")
+    ex = Example(system=system, rho=np.array([alpha, speed(alpha)]),
+                 x0=np.array([0.0, speed(0.0)]), t_event=t_event,
+                 t_final=float(f"{t_event + 0.1 * t_event:.15g}"), name="rimless-wheel",
+                 description=f"rimless wheel, spokes {2 * alpha:.4g} rad apart, slope "
+                 f"{slope:g} rad: a leg swap every step (d = 2, n = 1)")
+    return check_start(ex, {"alpha": alpha, "slope": slope, "g": g, "leg": leg})
 
 
 def rimless_wheel_orbit(example=None, *, perturbation=(0.0, 0.05), **kwargs):
@@ -424,11 +425,12 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
         theta, rate = given
     start = np.array([theta, 2 * theta, rate, rate * (1.0 - np.cos(2.0 * theta))])
     x0, rho, t_event = _step_from(model, start)
-    return Example(system=system, rho=rho, x0=x0, t_event=t_event,
-                   t_final=float(f"{t_event + 0.1 * t_event:.15g}"), name="compass-gait",
-                   description=f"compass-gait walker, slope {slope:g} rad, leg/hip mass "
-                   f"{leg_mass / hip_mass:g}: a scuff and a heel strike every step (d = 4, "
-                   f"n = 1)")
+    ex = Example(system=system, rho=rho, x0=x0, t_event=t_event,
+                 t_final=float(f"{t_event + 0.1 * t_event:.15g}"), name="compass-gait",
+                 description=f"compass-gait walker, slope {slope:g} rad, leg/hip mass "
+                 f"{leg_mass / hip_mass:g}: a scuff and a heel strike every step (d = 4, "
+                 f"n = 1)")
+    return check_start(ex, {"slope": slope, "theta": float(theta), "theta'": float(rate)})
 
 
 def _step_from(model, start):

@@ -230,8 +230,8 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
                 ok, x_after = after_resets(model, events, mask, x_end, d,
                                             RESET_MISMATCH * err_new.max())
                 if ok:
-                    ok, new = landing(model, event_jac_mode, sign, group, mask, new,
-                                       x_after, window, n, d)
+                    ok, new = landing(model, jac_mode, event_jac_mode, sign, group, mask,
+                                      new, x_after, window, n, d)
             else:  # every event lands on the far side, and must move on
                 fs, F_new = checked_field(model, x_end, new, d)
                 ok = fs == OK and first_grazing(group, Dh, F_new) < 0

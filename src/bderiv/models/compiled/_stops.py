@@ -23,6 +23,7 @@ from ._rhs import (
     coordinate_scale,
     events_rows,
     finite_vector,
+    jacobian,
 )
 from .rules import (
     clearly_positive,
@@ -30,6 +31,7 @@ from .rules import (
     local_rates,
     peak_rows,
     return_sample,
+    same_flow,
     sample_times,
     state_error,
     tolerances,
@@ -224,10 +226,11 @@ def after_resets(model, events, mask, x, d, accuracy):
 
 
 @njit(cache=True)
-def landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, d):
+def landing(model, jac_mode, event_jac_mode, sign, group, mask, new, x_after, window, n, d):
     """``(ok, mask after)``: where the group's events landed after their resets
     (:func:`bderiv.models.events.crossings.landing`, and its refusal of a jump across
-    another surface); not ok for a refusal or a failed check."""
+    another surface); not ok for a refusal or a failed check (``jac_mode``: how the field
+    Jacobian is had, for a plastic landing's :func:`_held`)."""
     h = np.empty(n)
     if call_events(model, np.bool_(False), x_after, n, h, np.empty(d)) != OK:
         return False, new
@@ -247,12 +250,29 @@ def landing(model, event_jac_mode, sign, group, mask, new, x_after, window, n, d
     for k in range(n):
         if not group[k] or h[k] > window[k]:
             continue
-        dh = -Dh[k]
+        bit = np.int64(1) << k
         if h[k] >= -window[k]:  # on the surface: the flow after the reset decides
-            if not clearly_positive(dh, F):
+            if clearly_positive(Dh[k], F):  # moves on: contact continues
                 continue
-            fs, back = checked_field(model, x_after, new ^ (np.int64(1) << k), d)
-            if fs != OK or not clearly_positive(dh, back):
+            fs, back = checked_field(model, x_after, new ^ bit, d)
+            if fs != OK:
                 return False, new
-        kept |= np.int64(1) << k
+            if not clearly_positive(-Dh[k], F):  # stops on the surface (plastic)
+                if not _held(model, jac_mode, x_after, new, new ^ bit, F, back, d):
+                    return False, new
+                continue
+            if not clearly_positive(-Dh[k], back):
+                return False, new
+        kept |= bit
     return True, new ^ kept
+
+
+@njit(cache=True)
+def _held(model, jac_mode, x, far, near, F_far, F_near, d):
+    """Whether region ``far`` holds a state ``x`` stopped on a surface
+    (:func:`bderiv.models.events.crossings.holds`); False also on a failed check."""
+    J_far, J_near = np.empty((d, d)), np.empty((d, d))
+    if jacobian(model, jac_mode, x, far, d, J_far) != OK or \
+            jacobian(model, jac_mode, x, near, d, J_near) != OK:
+        return False
+    return not same_flow(F_near, F_far, J_near, J_far)

@@ -103,6 +103,25 @@ def clearly_positive(dh, F):
 
 
 @njit(cache=True)
+def same_flow(F0, F1, J0, J1):
+    """Whether two regions' fields at a state, ``F0``, ``F1`` (d,), and their Jacobians
+    there, ``J0``, ``J1`` (d, d), are the same to ``GRAZING_RTOL`` (a difference too small
+    to tell, relative to the largest entry; max norms): the flow is the same on both sides
+    of a surface near the state (:func:`bderiv.models.events.crossings.landing`)."""
+    return _close(F0.ravel(), F1.ravel()) and _close(J0.ravel(), J1.ravel())
+
+
+@njit(cache=True)
+def _close(a, b):
+    """Whether ``max |a - b| <= GRAZING_RTOL max(|a|, |b|)`` (1-d arrays; all zero: equal)."""
+    gap, size = 0.0, 0.0
+    for i in range(a.size):
+        gap = max(gap, abs(a[i] - b[i]))
+        size = max(size, abs(a[i]), abs(b[i]))
+    return gap <= GRAZING_RTOL * size
+
+
+@njit(cache=True)
 def first_grazing(group, Dh, F):
     """The first event of ``group`` (bool, (n,)) whose crossing is not clearly transversal
     in the field ``F`` (:func:`clearly_positive` of its row of ``Dh``); -1 if none."""

@@ -33,6 +33,7 @@ __all__ = [
     "EventRecord",
     "apply_resets",
     "group_tolerance",
+    "holds",
     "landing",
     "switch",
 ]
@@ -205,16 +206,21 @@ def landing(system, group, mask, x_after, window, t=None):
     the accuracy of the event values: an event that lands beyond its window on the far
     side has its bit flipped; one that lands beyond it on the side it came from (a leg
     swap) keeps its bit; on the surface, the flow decides: a rate in the region with the
-    bit flipped that is not clearly negative flips it (a crossing, an impact that stays in
-    contact, a plastic one that stops on the surface), and where that rate is clearly
-    negative, one clearly negative in the region with the bit kept too keeps it (a bounce).
+    bit flipped that is clearly positive flips it (a crossing, an impact that stays in
+    contact); one too small to tell (a plastic impact that stops the state on the surface)
+    flips it where that region holds the state, its field or field Jacobian there not the
+    same as the region's with the bit kept (a compliant or constrained stance:
+    :func:`holds`); where the rate is clearly negative,
+    one clearly negative in the region with the bit kept too keeps it (a bounce).
 
     Raises
     ------
     ValueError
         When the flow sends the state back in the region with the bit flipped and not in
         the region with it kept: it would slide along the surface (a Filippov sliding
-        mode), which is not an event.
+        mode), which is not an event; and when a plastic landing is not held: the flow is
+        the same on both sides of the surface, so the state would pass through it (the
+        time, the event, and what to do are named: :func:`_refuse_unheld`).
     """
     n = system.n_events
     new = mask ^ sum(1 << k for k in group)
@@ -227,9 +233,14 @@ def landing(system, group, mask, x_after, window, t=None):
         if h[k] > window[k]:
             continue
         if h[k] >= -window[k]:  # on the surface: the flow after the reset decides
-            if not _clearly_positive(-Dh[k], field):  # moves on, or stays (plastic)
+            if _clearly_positive(Dh[k], field):  # moves on: contact continues
                 continue
             back = system.eval_field(x_after, new ^ 1 << k)
+            if not _clearly_positive(-Dh[k], field):  # stops on the surface (plastic)
+                if not holds(system, x_after, new, new ^ 1 << k, field, back):
+                    _refuse_unheld(k, h[k], window[k], float(Dh[k] @ field), new, sign[k], n,
+                                   t)
+                continue
             if not _clearly_positive(-Dh[k], back):
                 at = "" if t is None else f" at t={t:.10g}"
                 raise ValueError(
@@ -244,6 +255,41 @@ def landing(system, group, mask, x_after, window, t=None):
                 )
         kept |= 1 << k
     return new ^ kept
+
+
+def holds(system, x, far, near, F_far=None, F_near=None) -> bool:
+    """Whether region ``far`` holds a state ``x`` stopped on the surface between it and
+    region ``near``: its field (``F_far``, evaluated when not given) or field Jacobian at
+    ``x`` not the same as region ``near``'s (``F_near``), so the contact has dynamics of
+    its own (:func:`bderiv.models.compiled.rules.same_flow`)."""
+    F_far = system.eval_field(x, far) if F_far is None else F_far
+    F_near = system.eval_field(x, near) if F_near is None else F_near
+    J_far, J_near = (np.ascontiguousarray(system.eval_field_jacobian(x, m), dtype=np.float64)
+                     for m in (far, near))
+    return not rules.same_flow(np.ascontiguousarray(F_near, dtype=np.float64),
+                               np.ascontiguousarray(F_far, dtype=np.float64), J_near, J_far)
+
+
+def _refuse_unheld(k, h, window, rate, far, sign, n, t):
+    """Refuse a plastic landing of event k that region ``far`` does not hold (its flow
+    the same as the region's on the near side): the state would pass through the surface
+    (the bit flipped) or cross it again at once (kept: resting contact)."""
+    at = "" if t is None else f" at t={t:.10g}"
+    near = far ^ 1 << k
+    until = "" if t is None else f" (t_final below {t:.10g})"
+    raise ValueError(
+        f"after the reset of event {k}{at} the state stops on its surface (h_{k} = {h:.3g}, "
+        f"within the accuracy {window:.3g}; the rate of h_{k} in the crossing's orientation "
+        f"is {rate:.3g}, too small to tell: a plastic impact, or a rebound too small to "
+        f"follow at the end of an accumulation of impacts), but nothing holds it there: the "
+        f"field of region {format_mask(far, n)} beyond the surface is the same as that of "
+        f"region {format_mask(near, n)} before it (values and Jacobian), so with the bit "
+        f"flipped the state would move on through the surface as if it were not there, and "
+        f"with the bit kept it would cross it again at once (resting contact). Model the "
+        f"contact as a region whose field holds the body on the surface (a compliant or "
+        f"constrained stance), or end the run before this time{until}; event {k} crossed "
+        f"{direction_name(sign)}"
+    )
 
 
 def _clearly_positive(dh, F) -> bool:

@@ -37,6 +37,7 @@ from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
 from ..events.locate import StopCalls, local_view, settle
+from ..events.zeno import ImpactWatch
 from .compiled_path import CompiledStretches
 from .record import ENDS, STEPS, RunLog, check_t_eval
 from .scipy_path import ScipyStretches
@@ -264,9 +265,11 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     Raises
     ------
     ValueError
-        From :func:`bderiv.models.events.crossings.switch`; with ``section``, when the trajectory
-        does
-        not return to it before ``t_final`` or an event crosses at the return.
+        From :func:`bderiv.models.events.crossings.switch`; bounces of an event that
+        accumulate at or before ``t_final`` (a Zeno trajectory:
+        :class:`bderiv.models.events.zeno.ImpactWatch`); with ``section``, when the
+        trajectory does not return to it before ``t_final`` or an event crosses at the
+        return.
     RuntimeError
         When the integrator fails or the run has more than ``max_groups`` event groups.
     """
@@ -282,14 +285,17 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     # by start_mask before the first stretch in Python (which refuses a start on a surface)
     now = _Now(0.0, x0, -1, np.abs(x0), np.zeros(d))
     settings = (t_final, simultaneity_tol, options, variational, section, max_groups)
+    impacts = ImpactWatch(system, t_final)  # bounces that accumulate: refused
     while not now.ended:
         cancel_point()  # a run of a batch on threads stops with its batch
         if not sampled and compiled_stops(system, section):  # the plain stops, in one call
             _compiled_stretches(system, log, now, *settings)
+            impacts.see(log.groups)
         if not now.ended:
             if loop is None:
                 loop = _PythonLoop(system, options, section, t_final)
             _python_stretch(system, loop, log, now, *settings)
+            impacts.see(log.groups)
     if loop is not None:
         loop.watch.close()
     if section is not None and not now.returned:
