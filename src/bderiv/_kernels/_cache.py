@@ -243,6 +243,34 @@ def hardened(dispatcher) -> bool:
                       CheckedCacheFile)
 
 
+def damaged_entry(dispatcher, signature) -> str | None:
+    """Why numba's disk cache of a user's ``dispatcher`` cannot be loaded for
+    ``signature`` (the argument types, as numba's ``compile`` takes them), or None.
+
+    A user's ``cache=True`` function reads numba's plain files (not bderiv's checked
+    ones): a damaged entry makes every compilation raise (``UnpicklingError``,
+    ``EOFError``, ...) in every later process. Called when a compilation failed, this
+    loads the entry again to tell such damage from a typing error, and names the folder,
+    the files and how to clear them.
+    """
+    cache = getattr(dispatcher, "_cache", None)
+    index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    if index is None:  # not cached (numba's NullCache)
+        return None
+    try:
+        cache.load_overload(signature, dispatcher.targetctx)
+    except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises
+        folder, name = os.path.split(index)
+        base = name[: -len(os.path.splitext(name)[1])]
+        data = os.path.splitext(name)[1].replace("i", "c")
+        return (f"its numba disk cache (cache=True) cannot be loaded "
+                f"({type(exc).__name__}: {exc}): its files in {folder} "
+                f"({name} and {base}.*{data}) are damaged; delete them (or that folder: "
+                f"NUMBA_CACHE_DIR, else the __pycache__ beside the function's source) and "
+                f"numba compiles the function again")
+    return None
+
+
 def harden_all() -> None:
     """:func:`harden` every kernel defined at the top level of an imported bderiv module.
 

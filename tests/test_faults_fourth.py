@@ -1,0 +1,189 @@
+"""Faults, fourth round (issue 27 items 9-12): every cache file bderiv loads is checked or
+named when damaged, ``export --format both`` is one unit, a garbled ``.npz`` header is the
+documented error, a killed save's temporary is removed by the next save, and Dask sends a
+map once per client."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import pathlib
+import re
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+# -- 9: damaged cache files: compiled again, or named -----------------------------------------
+
+
+def run_python(code, cache=None, timeout=600):
+    """``code`` in a fresh interpreter (``NUMBA_CACHE_DIR=cache`` if given); its result."""
+    env = dict(os.environ, **({} if cache is None else {"NUMBA_CACHE_DIR": str(cache)}))
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
+                          text=True, env=env, timeout=timeout)
+
+
+def flip_middle_bytes(files):
+    """Flip one bit in the middle of each of ``files``."""
+    for path in files:
+        data = bytearray(path.read_bytes())
+        data[len(data) // 2] ^= 0x10
+        path.write_bytes(bytes(data))
+
+
+_EAGER_MODULE = """
+from numba import types
+from bderiv.models.compiled._cached import eager
+
+
+@eager(types.float64[::1](types.float64[::1]))
+def double(x):
+    return 2.0 * x
+"""
+
+_EAGER_PROBE = """
+import sys
+import numpy as np
+sys.path.insert(0, {folder!r})
+import eagermod
+print(eagermod.double(np.arange(3.0)).tolist(), eagermod.double.stats.cache_path)
+"""
+
+
+def test_damaged_cache_of_an_eager_kernel_is_compiled_again(tmp_path):
+    """The kernels compiled at import (``models/compiled/_cached.eager``) read numba's plain
+    ``.nbc`` files: a flipped bit in their machine code aborted every later ``import
+    bderiv`` (SIGABRT, SIGSEGV, SIGILL). Now, a kernel made by ``eager`` in a fresh
+    process (bderiv's own kernels loaded from the warm cache, this one's cached beside
+    it) with a bit flipped in its data file: the process lives, computes, names the
+    folder and rewrites the entry."""
+    (tmp_path / "eagermod.py").write_text(_EAGER_MODULE)
+    probe = _EAGER_PROBE.format(folder=str(tmp_path))
+    out = run_python(probe)
+    assert out.returncode == 0, out.stderr[-2000:]
+    result, folder = out.stdout.rsplit(maxsplit=1)
+    assert result == "[0.0, 2.0, 4.0]"
+    files = sorted(p for p in pathlib.Path(folder).iterdir() if "eagermod.double" in p.name)
+    assert len(files) == 2  # an index and a data file
+    flip_middle_bytes(files[:1])  # the data file (.bdc; numba's .nbc on main)
+    damaged = files[0].read_bytes()
+    out = run_python(probe)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.rsplit(maxsplit=1)[0] == "[0.0, 2.0, 4.0]"
+    assert f"the compiled-kernel cache in {folder} is damaged" in out.stderr
+    assert "Traceback" not in out.stderr
+    assert damaged != files[0].read_bytes()  # the data file written again
+
+
+_USER_MODULE = """
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def field(x, mask):
+    out = np.empty_like(x)
+    out[0] = 1.0 + 0.0 * x[0]
+    out[1] = -1.0 if mask & 1 else 0.5
+    return out
+
+
+@numba.njit(cache=True)
+def events(x):
+    return np.array([x[0] - 1.0])
+"""
+
+
+def import_fresh(folder, name):
+    """Import ``folder/name.py`` anew (new dispatchers: numba reads its cache again)."""
+    sys.modules.pop(name, None)
+    sys.path.insert(0, str(folder))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(folder))
+        sys.modules.pop(name, None)
+
+
+def test_damaged_cache_of_a_users_function_is_named(tmp_path):
+    """A user's ``cache=True`` field whose numba cache is truncated: every later process
+    raised ``UnpicklingError`` (or "field was compiled for [] only") from the first
+    compilation, naming nothing. Now a RuntimeError names the function, the folder and
+    the files, on both integrators' first use of it, and deleting those files (as it
+    says) is enough."""
+    from bderiv import HybridSystem
+
+    name = f"usermodel_{tmp_path.name.replace('-', '_')}"
+    (tmp_path / f"{name}.py").write_text(_USER_MODULE)
+    mod = import_fresh(tmp_path, name)
+    system = HybridSystem(mod.field, mod.events, n_events=1, dim=2)
+    system.compiled.describe()
+    assert system.eval_field(np.array([0.5, 0.0]), 1)[1] == -1.0
+    folder = pathlib.Path(mod.field.stats.cache_path)
+    data = sorted(folder.glob(f"{name}.field-*.nbc"))
+    index, = folder.glob(f"{name}.field-*.nbi")
+    assert data
+    for path in data:
+        path.write_bytes(path.read_bytes()[:40])  # truncated
+    expected = (re.escape("field (field): its numba disk cache (cache=True) cannot be "
+                          "loaded (UnpicklingError: ") + ".*"
+                + re.escape(f"): its files in {folder} ({index.name} and ") + ".*"
+                + re.escape(") are damaged; delete them"))
+    mod = import_fresh(tmp_path, name)
+    system = HybridSystem(mod.field, mod.events, n_events=1, dim=2)
+    with pytest.raises(RuntimeError, match=expected):
+        system.compiled  # noqa: B018 - the compiled path's first use of the field
+    with pytest.raises(RuntimeError, match=expected):
+        system.eval_field(np.array([0.5, 0.0]), 1)  # the Python path's
+    for path in [index, *data]:
+        path.unlink()
+    mod = import_fresh(tmp_path, name)
+    system = HybridSystem(mod.field, mod.events, n_events=1, dim=2)
+    system.compiled.describe()
+    assert system.eval_field(np.array([0.5, 0.0]), 1)[1] == -1.0
+
+
+def test_damaged_symbolic_module_is_refused(tmp_path, caplog):
+    """A generated model module with one changed digit still parses and computes another
+    model; its digest line now refuses it (removed, warned, generated again), and a file
+    without the line is generated again too."""
+    from bderiv.symbolic import _cache
+
+    path = _cache.module_path(_cache.cache_folder(tmp_path), "k")
+    _cache.store(path, "VALUE = 0.25\n")
+    assert path.read_text().splitlines()[1:] == ["VALUE = 0.25"]
+    assert _cache.read(path) == "VALUE = 0.25\n"
+    path.write_bytes(path.read_bytes().replace(b"0.25", b"0.35"))
+    with caplog.at_level("WARNING", logger="bderiv"):
+        assert _cache.read(path) is None
+    assert f"the generated model module {path} is damaged" in caplog.text
+    assert not path.exists()
+    path.write_text("VALUE = 0.25\n")  # no digest line (an older bderiv's file)
+    assert _cache.read(path) is None and not path.exists()
+
+
+@pytest.mark.slow
+def test_damaged_symbolic_module_is_generated_again(tmp_path):
+    """End to end: a digit of a cached model's module changed (and its time moved, so that
+    Python and numba read it again) in a fresh process: the field is still the model's."""
+    code = f"""
+        import sympy as sp, numpy as np
+        from bderiv.symbolic import from_sympy
+        x, v, s = sp.symbols("x v s")
+        m = from_sympy([x, v], [s], [v, -0.75 * x + 2.5 * s], [x - 0.5],
+                       cache_dir={str(tmp_path)!r})
+        print(m.build.cached, m.functions.field(np.array([2.0, 0.0]), 1)[1])
+    """
+    out = run_python(code, tmp_path / "numba")
+    assert out.stdout.split() == ["False", "1.0"], out.stderr[-2000:]  # -0.75 * 2 + 2.5
+    path, = (tmp_path / "symbolic").glob("m_*.py")
+    text = path.read_text()
+    assert text.count("- 0.75*x_0") == 1  # the field's
+    path.write_text(text.replace("- 0.75*x_0", "- 0.25*x_0"))
+    os.utime(path, (path.stat().st_atime + 10, path.stat().st_mtime + 10))
+    out = run_python(code, tmp_path / "numba")
+    assert out.stdout.split() == ["False", "1.0"], out.stdout + out.stderr[-2000:]
+    assert "is damaged" in out.stderr
