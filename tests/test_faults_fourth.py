@@ -187,3 +187,154 @@ def test_damaged_symbolic_module_is_generated_again(tmp_path):
     out = run_python(code, tmp_path / "numba")
     assert out.stdout.split() == ["False", "1.0"], out.stdout + out.stderr[-2000:]
     assert "is damaged" in out.stderr
+
+
+# -- 10: export --format both: a kill between the two renames ----------------------------------
+
+class Killed(BaseException):
+    """The process killed at this point (nothing after it runs; not an Exception)."""
+
+
+def rename_then_die(monkeypatch, renames=1):
+    """``os.replace`` that does ``renames`` renames, then 'kills' the process."""
+    real, done = os.replace, []
+
+    def replace(src, dst):
+        if len(done) == renames:
+            raise Killed
+        done.append(dst)
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    return done
+
+
+@pytest.mark.parametrize("earlier", ["export", "single saves"])
+def test_export_killed_between_its_renames(tmp_path, monkeypatch, earlier):
+    """``bderiv export --format both`` killed after its first rename: the new .npz sits
+    beside the earlier .json. The .npz is refused (naming both files), the earlier .json
+    loads the earlier map; the next export makes a pair that loads."""
+    from bderiv import load_triangulation
+    from bderiv.cli.export import run_export
+
+    base = tmp_path / "tri"
+    npz, js = f"{base}.npz", f"{base}.json"
+    if earlier == "export":
+        run_export("corners", out=str(base), fmt="both")
+    else:
+        from bderiv.cli.systems import load_example
+
+        tri = load_example("corners", None, False)[1].triangulation()
+        tri.save(npz)
+        tri.save(js)
+    before = load_triangulation(js)
+    assert_same(load_triangulation(npz), before)
+    with monkeypatch.context() as m:
+        done = rename_then_die(m)
+        with pytest.raises(Killed):
+            run_export("planar", out=str(base), fmt="both")
+    assert done == [npz]  # the .npz renamed, the .json not
+    assert sorted(os.listdir(tmp_path)) == ["tri.json", "tri.npz"]
+    holds = "the token" if earlier == "export" else "no pair token"
+    with pytest.raises(ValueError, match=f"{re.escape(repr(npz))} was exported together with "
+                                         f"{re.escape(repr(js))} .* holds {holds}"):
+        load_triangulation(npz)
+    assert_same(load_triangulation(js), before)  # the earlier export, whole
+    run_export("planar", out=str(base), fmt="both")
+    after = load_triangulation(npz)
+    assert_same(load_triangulation(js), after)
+    assert not np.array_equal(after.pre, before.pre)
+
+
+def assert_same(a, b):
+    for name in ("pre", "post", "simplices", "kernel", "kernel_post"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+# -- 11: a garbled .npy header, a killed save's temporary --------------------------------------
+
+def garble_header(path, member):
+    """Rewrite the .npz at ``path`` with the ``}`` closing ``member``'s .npy header made a
+    space: ast cannot parse it, and numpy's Python-2 fallback tokenizes it (TokenError)."""
+    import zipfile
+
+    with zipfile.ZipFile(path) as zf:
+        members = {info.filename: zf.read(info) for info in zf.infolist()}
+    data = bytearray(members[f"{member}.npy"])
+    assert data[6:8] == b"\x01\x00"  # format 1.0: a 2-byte header length at 8
+    end = 10 + int.from_bytes(data[8:10], "little")
+    close = data.rindex(b"}", 10, end)
+    data[close] = ord(" ")
+    members[f"{member}.npy"] = bytes(data)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, content in members.items():
+            zf.writestr(name, content)
+
+
+@pytest.mark.parametrize("member", ["meta", "pre", "simplices"])
+def test_npz_header_that_does_not_parse_is_the_documented_error(tmp_path, member):
+    """A .npy header without its closing brace: numpy's header parser raised
+    tokenize.TokenError (before any CRC is checked); now the ValueError naming the file
+    and the member."""
+    import tokenize
+
+    from bderiv import BDerivative, load_triangulation
+
+    F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+    path = BDerivative(np.eye(2), F).triangulation().save(tmp_path / "tri.npz")
+    garble_header(path, member)
+    with pytest.raises(tokenize.TokenError):  # what numpy itself raises on it
+        np.load(path)[member]
+    with pytest.raises(ValueError, match=f"{re.escape(repr(path))}: field {member!r} cannot "
+                                         f"be read"):
+        load_triangulation(path)
+
+
+_KILLED_SAVE = """
+import os, signal
+from bderiv._safefiles import write_all
+
+def dying(fh):
+    fh.write(b"half a file")
+    fh.flush()
+    os.kill(os.getpid(), signal.SIGKILL)
+
+print(os.getpid(), flush=True)
+write_all({{{path!r}: (True, dying)}})
+"""
+
+
+def test_next_save_removes_a_killed_saves_temporary_only(tmp_path):
+    """A save killed midway leaves its hidden temporary; the next save of the same target
+    removes it, and only stale temporaries of that target: not a live writer's (this
+    process's), not another target's, not another host's younger than a day."""
+    import signal
+    import socket
+
+    from bderiv import BDerivative, load_triangulation
+    from bderiv._safefiles import create_temp
+
+    path = str(tmp_path / "tri.npz")
+    out = run_python(_KILLED_SAVE.format(path=path))
+    assert out.returncode == -signal.SIGKILL, out.stderr[-2000:]
+    dead = int(out.stdout.split()[0])
+    left, = os.listdir(tmp_path)
+    assert left.startswith(".tri.npz.") and left.endswith(".tmp")
+    host = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:40]
+    live, fd = create_temp(path)  # a concurrent writer in this process
+    os.close(fd)
+    keep = [os.path.basename(live),
+            f".tri.json.{dead}-{host}.0123456789abcdef.tmp",  # another target's
+            f".tri.npz.bak.{dead}-{host}.0123456789abcdef.tmp",  # another target's
+            f".tri.npz.{dead}-otherhost.0123456789abcdef.tmp"]  # another host's, young
+    old = [f".tri.npz.{dead}-otherhost.fedcba9876543210.tmp",  # another host's, 2 days
+           ".tri.npz.00112233445566aa.tmp"]  # an earlier bderiv's name, 2 days old
+    for name in keep[1:] + old:
+        (tmp_path / name).write_bytes(b"")
+    for name in old:
+        os.utime(tmp_path / name, (os.path.getmtime(tmp_path / name) - 2 * 86400,) * 2)
+    F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+    tri = BDerivative(np.eye(2), F).triangulation()
+    tri.save(path)
+    assert sorted(os.listdir(tmp_path)) == sorted(["tri.npz", *keep])
+    assert_same(load_triangulation(path), tri)
