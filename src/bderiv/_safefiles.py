@@ -7,11 +7,12 @@ on the open descriptor); :func:`write_all` writes every file to a temporary file
 its target, syncs it, and replaces the targets with ``os.replace`` only when all are
 written. Used by the triangulation files (:mod:`bderiv._triangulation_io`).
 
-A process killed while it writes leaves its temporary file (``.NAME.<pid>-<host>.<random>
-.tmp``, hidden, beside the target); the next write of the same target removes it
-(:func:`remove_stale_temps`): a temporary of that target whose process (pid, on this host)
-is gone, or, where that cannot be told (another host, a name without a pid), whose file
-is older than :data:`STALE_SECONDS`. A concurrent writer's live temporary is never removed.
+A process killed while it writes leaves its temporary file
+(``.NAME.<pid>-<host>.<random>.tmp``, hidden, beside the target); the next write of the
+same target removes it (:func:`remove_stale_temps`): a temporary of that target whose
+process (pid, on this host) is gone, or, where that cannot be told (another host, a name
+without a pid), whose file is older than :data:`STALE_SECONDS`. A concurrent writer's
+live temporary is never removed.
 """
 
 from __future__ import annotations
@@ -81,8 +82,9 @@ def write_all(targets: dict, check=None) -> None:
 
     Notes
     -----
-    Each file is written to a temporary file beside its target (``.NAME.<random>.tmp``,
-    with the target's permissions when it exists), flushed and ``fsync``-ed; only then are
+    Each file is written to a temporary file beside its target
+    (``.NAME.<pid>-<host>.<random>.tmp``, with the target's permissions when it exists),
+    flushed and ``fsync``-ed; only then are
     the targets replaced with ``os.replace``, which is atomic for each file, and the folders
     synced. Any failure before that (a full disk, an exception, Ctrl-C) removes the
     temporaries and leaves every target as it was; a process killed outright may leave a
