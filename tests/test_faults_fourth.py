@@ -58,8 +58,8 @@ def test_damaged_cache_of_an_eager_kernel_is_compiled_again(tmp_path):
     ``.nbc`` files: a flipped bit in their machine code aborted every later ``import
     bderiv`` (SIGABRT, SIGSEGV, SIGILL). Now, a kernel made by ``eager`` in a fresh
     process (bderiv's own kernels loaded from the warm cache, this one's cached beside
-    it) with a bit flipped in its data file: the process lives, computes, names the
-    folder and rewrites the entry."""
+    it) with a bit flipped in its index and in its data file: the process lives,
+    computes, names the folder and rewrites the entry."""
     (tmp_path / "eagermod.py").write_text(_EAGER_MODULE)
     probe = _EAGER_PROBE.format(folder=str(tmp_path))
     out = run_python(probe)
@@ -68,14 +68,14 @@ def test_damaged_cache_of_an_eager_kernel_is_compiled_again(tmp_path):
     assert result == "[0.0, 2.0, 4.0]"
     files = sorted(p for p in pathlib.Path(folder).iterdir() if "eagermod.double" in p.name)
     assert len(files) == 2  # an index and a data file
-    flip_middle_bytes(files[:1])  # the data file (.bdc; numba's .nbc on main)
-    damaged = files[0].read_bytes()
+    flip_middle_bytes(files)  # its index and data file (.bdi, .bdc; numba's .nbi, .nbc)
+    damaged = [path.read_bytes() for path in files]
     out = run_python(probe)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.rsplit(maxsplit=1)[0] == "[0.0, 2.0, 4.0]"
     assert f"the compiled-kernel cache in {folder} is damaged" in out.stderr
     assert "Traceback" not in out.stderr
-    assert damaged != files[0].read_bytes()  # the data file written again
+    assert damaged != [path.read_bytes() for path in files]  # written again
 
 
 _USER_MODULE = """
