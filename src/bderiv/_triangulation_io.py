@@ -20,6 +20,9 @@ Writing is all or nothing (:func:`write_files`, on :mod:`bderiv._safefiles`): ev
 goes to a temporary file in the target's folder, is flushed and synced, and replaces the
 target (``os.replace``) only when all of them are written; a failure (a full disk, an
 exception, Ctrl-C) leaves the previous files as they were and removes the temporaries.
+Only a kill between two renames can leave a new file beside an old one: files saved
+together carry one token (:data:`PAIR`), and :func:`check_pair` refuses the ``.npz`` of a
+pair whose ``.json`` holds another.
 
 Version 1 files hold maps that are the identity on the kernel (the B-derivative at an event
 point); version 2 adds ``kernel_post``, the images of the kernel basis (a flow map's
@@ -33,6 +36,8 @@ import functools
 import hashlib
 import json
 import os
+import re
+import tokenize
 import zipfile
 import zlib
 
@@ -50,13 +55,21 @@ FIELDS = ("pre", "post", "simplices", "kernel", "kernel_post")
 VERSION_FIELDS = {1: FIELDS[:4], 2: FIELDS}
 #: the header field holding the sha256 digest of a file's content
 DIGEST = "sha256"
+#: the header field of files saved together (``bderiv export --format both``): one random
+#: token (32 hex digits) in both, compared with the other file's when either is loaded
+PAIR = "pair"
+#: the first bytes of a pair's JSON file read for its token (its header comes first)
+PAIR_HEAD_BYTES = 4096
 #: what reading a damaged or hostile .npz can raise (BadZipFile for a truncated archive or
 #: a bad CRC, zlib.error for a corrupt member, ValueError for object arrays with
 #: allow_pickle=False, NotImplementedError for a compression method changed by a flipped
 #: bit, RuntimeError for a member flagged as encrypted, KeyError / IndexError /
-#: OverflowError for garbled zip records)
+#: OverflowError for garbled zip records, tokenize.TokenError for an .npy header that does
+#: not parse: numpy tokenizes it again, as a Python 2 header, before the member's CRC is
+#: checked)
 _NPZ_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error,
-               NotImplementedError, RuntimeError, KeyError, IndexError, OverflowError)
+               NotImplementedError, RuntimeError, KeyError, IndexError, OverflowError,
+               tokenize.TokenError)
 
 
 def check_data(data, source: str) -> dict:
@@ -259,6 +272,50 @@ def _promised_bytes(zf: zipfile.ZipFile, name: str) -> int:
         raise ValueError(f"its header promises {promised} bytes of shape {shape}, but the "
                          f"member holds {info.file_size - header_bytes}")
     return promised
+
+
+def check_pair(path: str, data, source: str) -> None:
+    """Refuse the ``.npz`` of a pair whose ``.json`` is not from the same save.
+
+    ``bderiv export --format both`` writes ``NAME.npz`` and ``NAME.json`` with one token
+    (:data:`PAIR`) and renames the ``.npz`` first: a kill between the two renames leaves
+    the new ``.npz`` beside the earlier ``.json``. Loading that ``.npz`` finds the
+    ``.json`` with another token, or none, and is refused. The ``.json`` of a pair is never
+    the newer file (it is renamed last), so it loads whatever the ``.npz`` holds: after
+    such a kill it is the earlier export, whole. No ``.json`` beside it: no pair to check.
+    """
+    token = data.get(PAIR) if isinstance(data, dict) else None
+    if token is None:
+        return
+    if not (isinstance(token, str) and re.fullmatch("[0-9a-f]{32}", token)):
+        raise ValueError(f"{source}: field {PAIR!r} must be 32 hex digits (a token of "
+                         f"bderiv export), got {str(token)[:64]!r}")
+    base, ext = os.path.splitext(path)
+    other = f"{base}.json"
+    if ext.lower() != ".npz" or not os.path.lexists(other):
+        return
+    found = _json_pair_token(other)
+    if found != token:
+        holds = "no pair token" if found is None else f"the token {found[:8]}..."
+        raise ValueError(
+            f"{source} was exported together with {other!r} (both carry the pair token "
+            f"{token[:8]}...), but {other!r} holds {holds}: the export was interrupted "
+            f"between its two renames (the .npz is renamed first), or the .json was "
+            f"replaced since. Export again, or move {other!r} away to read this file alone"
+        )
+
+
+def _json_pair_token(path: str):
+    """The :data:`PAIR` token of the triangulation JSON file ``path``, or None (none, or
+    unreadable), read from its first :data:`PAIR_HEAD_BYTES` (the header is written
+    first)."""
+    try:
+        with open_regular(path, path) as fh:
+            head = fh.read(PAIR_HEAD_BYTES)
+    except (OSError, ValueError):
+        return None
+    found = re.search(rb'"pair": "([0-9a-f]{32})"', head)
+    return found.group(1).decode() if found else None
 
 
 def file_format(path: str, format: str | None) -> str:

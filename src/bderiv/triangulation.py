@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import uuid
 from itertools import permutations
 
 import numpy as np
@@ -20,9 +21,11 @@ from ._batch import evaluate
 from ._triangulation_io import (
     FIELDS,
     FILE_FORMAT,
+    PAIR,
     VERSION_FIELDS,
     check_data,
     check_fields,
+    check_pair,
     file_format,
     read_json,
     read_npz,
@@ -368,7 +371,9 @@ class Triangulation:
             unknown version, or any field fails the checks of :class:`Triangulation` (the
             message names the file and the field). Nothing in the file is ever unpickled.
             A file without a digest (written by bderiv before digests, or by another
-            program) is read with the field checks alone.
+            program) is read with the field checks alone. The ``.npz`` of a pair written
+            by ``bderiv export --format both`` whose ``.json`` (same name) is from
+            another save (an export interrupted between its two renames) is refused too.
         OSError
             If the file cannot be opened.
 
@@ -386,7 +391,9 @@ class Triangulation:
         path = os.fspath(path)
         source = f"triangulation file {path!r}"
         read = read_json if file_format(path, format) == "json" else read_npz
-        return cls.from_dict(read(path, source, memory_limit), source)
+        data = read(path, source, memory_limit)
+        check_pair(path, data, source)
+        return cls.from_dict(data, source)
 
 
 def save_files(tri: Triangulation, paths: dict, check=None) -> None:
@@ -401,9 +408,19 @@ def save_files(tri: Triangulation, paths: dict, check=None) -> None:
         ``check({path: temporary path})`` once every file is written, before any replaces
         its target; if it raises, no target is touched (see
         :func:`bderiv._triangulation_io.write_files`).
+
+    Notes
+    -----
+    Several files (``NAME.npz`` and ``NAME.json``, renamed in that order) are a pair:
+    both carry one random token (header field ``pair``), so that the new ``.npz`` a kill
+    between the renames leaves beside the earlier ``.json`` is refused when it is loaded
+    (:func:`bderiv._triangulation_io.check_pair`).
     """
     header, arrays = tri._file_contents()
-    write_files({path: (fmt, header, arrays) for path, fmt in paths.items()}, check)
+    if len(paths) > 1:  # one token in both: a half-replaced pair is refused on load
+        header[PAIR] = uuid.uuid4().hex
+    order = sorted(paths, key=lambda path: paths[path] != "npz")  # renamed: .npz first
+    write_files({path: (paths[path], header, arrays) for path in order}, check)
 
 
 def load_triangulation(path, format: str | None = None, *,

@@ -19,15 +19,21 @@ inside the machine code may crash the process. :func:`harden` (every cached kern
 bderiv: :func:`keyed`, and :func:`harden_all` at import) gives a kernel's cache a
 :class:`CheckedCacheFile`: an entry that fails to load is a miss (compiled again, the entry
 rewritten; the logger ``bderiv`` warns once per folder, naming it and the first damaged
-entry), and data files carry the sha256 of their content, checked before anything is
-unpickled, so damaged machine code is never run (suffixes ``.bdi``/``.bdc``: plain numba
-never reads them). This is the one guarantee that needs numba internals: numba reads its
-files in ``numba.core.caching.IndexDataCacheFile``, with no public hook, so the checked
-file subclasses it (``_load_data``, ``_save_data``, ``load``, ``save``, ``_index_path``,
-``_data_name_pattern``) and is put in place as the ``_cache_file`` of the dispatcher's
-cache. If numba changes these, :func:`harden` leaves numba's own files (kernels still
-cache, without the check) and ``tests/test_faults.py`` fails; nothing else here depends on
-them.
+entry), and index and data files carry the sha256 of their content, checked before
+anything is unpickled, so damaged machine code is never run (suffixes ``.bdi``/``.bdc``:
+plain numba never reads them; an index without the digest, an earlier bderiv's, is a
+miss). This is the one guarantee that needs numba internals: numba reads its files in
+``numba.core.caching.IndexDataCacheFile``, with no public hook, so the checked file
+subclasses it (``_load_index``, ``_save_index``, ``_load_data``, ``_save_data``, ``load``,
+``save``, ``_index_path``, ``_data_name_pattern``, ``_version``, ``_source_stamp``) and is
+put in place as the ``_cache_file`` of the dispatcher's cache. If numba changes these,
+:func:`harden` leaves numba's own files (kernels still cache, without the check) and
+``tests/test_faults.py`` fails; nothing else here depends on them.
+
+A user's own ``cache=True`` functions keep numba's plain files (bderiv does not change how
+the user's dispatchers cache): when their compilation fails, :func:`damaged_entry` loads
+the entry again (numba's ``Cache.load_overload``) to tell a damaged file from a typing
+error, and the caller raises an error naming the folder and the files.
 
 Address space. A miss is followed by a compilation (LLVM), and the first parallel kernel
 starts the threads (OpenMP); both abort the process when memory runs out under
@@ -38,6 +44,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import logging
 import os
 import pathlib
@@ -140,6 +147,30 @@ class CheckedCacheFile(IndexDataCacheFile):
         except Exception as exc:  # noqa: BLE001 - a cache that cannot be written is no cache
             log.debug("bderiv: not cached (%s: %s)", type(exc).__name__, exc)
 
+    def _load_index(self):
+        try:
+            with open(self._index_path, "rb") as f:
+                data = f.read()
+        except FileNotFoundError:
+            return {}
+        if not data.startswith(INDEX_MAGIC):  # an earlier bderiv's index: a miss
+            return {}
+        payload = data[len(INDEX_MAGIC) + 32:]
+        if hashlib.sha256(payload).digest() != data[len(INDEX_MAGIC):len(INDEX_MAGIC) + 32]:
+            raise ValueError(f"{self._index_name} does not match the sha256 digest it was "
+                             f"written with")
+        stream = io.BytesIO(payload)  # numba's index: its version, then (stamp, overloads)
+        if pickle.load(stream) != self._version:
+            return {}
+        stamp, overloads = pickle.loads(stream.read())
+        return overloads if stamp == self._source_stamp else {}  # stale: compiled again
+
+    def _save_index(self, overloads):
+        payload = (pickle.dumps(self._version, protocol=-1)
+                   + self._dump((self._source_stamp, overloads)))
+        with self._open_for_write(self._index_path) as f:
+            f.write(INDEX_MAGIC + hashlib.sha256(payload).digest() + payload)
+
     def _load_data(self, name):
         with open(self._data_path(name), "rb") as f:
             data = f.read()
@@ -171,6 +202,9 @@ class CheckedCacheFile(IndexDataCacheFile):
             "delete that folder (NUMBA_CACHE_DIR, else __pycache__ beside the sources).",
             self._cache_path, what)
 
+
+#: how a checked index file starts; the sha256 of the rest follows, then numba's index
+INDEX_MAGIC = b"bderiv-index-sha256\n"
 
 #: cache folders already warned about in this process
 _WARNED: set = set()
@@ -241,6 +275,34 @@ def hardened(dispatcher) -> bool:
     """Whether ``dispatcher``'s cache reads and writes :class:`CheckedCacheFile` files."""
     return isinstance(getattr(getattr(dispatcher, "_cache", None), "_cache_file", None),
                       CheckedCacheFile)
+
+
+def damaged_entry(dispatcher, signature) -> str | None:
+    """Why numba's disk cache of a user's ``dispatcher`` cannot be loaded for
+    ``signature`` (the argument types, as numba's ``compile`` takes them), or None.
+
+    A user's ``cache=True`` function reads numba's plain files (not bderiv's checked
+    ones): a damaged entry makes every compilation raise (``UnpicklingError``,
+    ``EOFError``, ...) in every later process. Called when a compilation failed, this
+    loads the entry again to tell such damage from a typing error, and names the folder,
+    the files and how to clear them.
+    """
+    cache = getattr(dispatcher, "_cache", None)
+    index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    if index is None:  # not cached (numba's NullCache)
+        return None
+    try:
+        cache.load_overload(signature, dispatcher.targetctx)
+    except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises
+        folder, name = os.path.split(index)
+        base = name[: -len(os.path.splitext(name)[1])]
+        data = os.path.splitext(name)[1].replace("i", "c")
+        return (f"its numba disk cache (cache=True) cannot be loaded "
+                f"({type(exc).__name__}: {exc}): its files in {folder} "
+                f"({name} and {base}.*{data}) are damaged; delete them (or that folder: "
+                f"NUMBA_CACHE_DIR, else the __pycache__ beside the function's source) and "
+                f"numba compiles the function again")
+    return None
 
 
 def harden_all() -> None:

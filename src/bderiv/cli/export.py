@@ -2,8 +2,17 @@
 
 ``--map event`` (the default) saves the map at the event point, ``--map flow`` the flow map
 from ``x0`` over ``[0, t_final]``: the same fan with its vertices carried by the flow's
-linear stages. The files (``.npz``, ``.json`` or both) are written all or none: each is
-read back from its temporary file before any replaces an earlier export.
+linear stages.
+
+What a save guarantees. Each file is written to a temporary file beside it, synced and read
+back; only then are the earlier files replaced, by one rename each (``os.replace``,
+atomic). A failure before the renames (an error, a full disk, Ctrl-C, a file that does not
+read back) leaves the earlier files as they were. With ``--format both`` the two renames
+are two steps, the ``.npz`` first: a process killed between them leaves the new ``.npz``
+beside the earlier ``.json``, each file whole. The two files of one export carry one
+random token (header field ``pair``): loading an ``.npz`` whose ``.json`` (same name) does
+not share its token is a ValueError naming both, so after such a kill the new ``.npz`` is
+refused and the earlier ``.json`` loads (the earlier map), until the export is run again.
 """
 
 from __future__ import annotations
@@ -67,6 +76,12 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
         ``vertices``, ``simplices``, ``files`` (each ``path``, ``format``, ``bytes``,
         ``max_error_reloaded``, ``replaced``: whether it replaced an earlier file),
         ``check_vectors``, ``created`` (the topmost directory made for ``out``, or None).
+
+    Notes
+    -----
+    All or none as the module docstring says: a failure before the renames keeps the
+    earlier files; a kill between the two renames of ``fmt="both"`` leaves the new
+    ``.npz``, which loading refuses (the pair token), beside the earlier ``.json``.
     """
     base = _output_base(out)
     if example is None:

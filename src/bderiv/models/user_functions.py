@@ -10,12 +10,13 @@ or hold a given one to its function. :mod:`.calls` and :mod:`.section` are built
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .. import _numdiff as numdiff
 from .._limits import ACCEPT_RTOL
 from .._validate import check_finite, check_real_array
-from .compiled import is_compiled
+from .compiled import is_compiled, refuse_damaged_cache
 
 
 def check_callable(f, name: str) -> None:
@@ -27,12 +28,21 @@ def check_callable(f, name: str) -> None:
 def _contiguous_args(fn):
     """``fn`` itself, or for a numba dispatcher a function that passes it the types the
     compiled path compiled it for (a C-contiguous float64 state, int masks and events): a
-    strided view or an int array would make numba compile another version of it."""
+    strided view or an int array would make numba compile another version of it. A
+    compilation that fails on a damaged numba disk cache of ``fn`` raises the RuntimeError
+    naming its files (:func:`bderiv.models.compiled.refuse_damaged_cache`)."""
     if not is_compiled(fn):
         return fn
 
     def call(x, *ints):
-        return fn(np.ascontiguousarray(x, dtype=np.float64), *(int(i) for i in ints))
+        args = (np.ascontiguousarray(x, dtype=np.float64), *(int(i) for i in ints))
+        try:
+            return fn(*args)
+        except Exception:
+            types = tuple(map(numba.typeof, args))
+            if types not in fn.overloads:  # its compilation failed: a damaged disk cache?
+                refuse_damaged_cache(fn, fn.__name__, types)
+            raise
 
     call.__wrapped__ = fn
     return call

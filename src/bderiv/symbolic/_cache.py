@@ -7,19 +7,31 @@ re-derives nor recompiles. The folder is ``$BDERIV_CACHE_DIR/symbolic`` when tha
 is set, else ``$XDG_CACHE_HOME/bderiv/symbolic`` (default ``~/.cache/bderiv/symbolic``).
 A file is never rewritten: a model whose expressions change gets a new key. Deleting the
 folder is always safe.
+
+Damage. A module's first line is the sha256 of the rest (:func:`store`), checked by
+:func:`read` before the module is run: a damaged file (a flipped bit may still parse, and
+compute another model) is removed, with a warning naming it, and generated again; a file
+without that line (an older bderiv's) is generated again too. The module is run from the
+checked text (:func:`load`), so no ``.pyc`` of it is written or read; numba's cache of its
+kernels is bderiv's checked one (:func:`bderiv.symbolic._model.compile_kernels`).
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib.util
+import logging
 import os
 import pathlib
 import sys
 import tempfile
+import types
 
 #: environment variable that overrides the cache folder
 CACHE_ENV = "BDERIV_CACHE_DIR"
+#: how a generated module's first line starts: the sha256 (hex) of the rest follows
+DIGEST_LINE = "# bderiv sha256 "
+
+log = logging.getLogger("bderiv")
 
 
 def cache_folder(cache_dir=None) -> pathlib.Path:
@@ -68,16 +80,17 @@ def module_path(folder: pathlib.Path, key: str) -> pathlib.Path:
 
 
 def store(path: pathlib.Path, source: str) -> None:
-    """Write ``source`` to ``path`` atomically, unless it is there already.
+    """Write ``source`` to ``path`` atomically, led by its digest line, unless it is there.
 
     A concurrent reader sees all or nothing, and a file written meanwhile by another
     process (the same source: same key) is kept, so numba's cache of it stays valid (it
     is keyed by the file's modification time).
     """
+    digest = hashlib.sha256(source.encode("utf-8")).hexdigest()
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp_", suffix=".py")
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(source)
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
+            f.write(f"{DIGEST_LINE}{digest}\n{source}")
         try:
             os.link(tmp, path)  # fails if the file exists: the first writer wins
         except FileExistsError:
@@ -89,20 +102,43 @@ def store(path: pathlib.Path, source: str) -> None:
             os.unlink(tmp)
 
 
-def load(path: pathlib.Path, key: str):
-    """Import the generated module at ``path`` (once per process: later calls reuse it).
+def read(path: pathlib.Path) -> str | None:
+    """The source stored at ``path`` (without its digest line), or None: no file, or one
+    that fails its digest (removed, with a warning naming it) or has none (removed)."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    head, _, body = data.partition(b"\n")
+    text = head.decode("ascii", "replace")
+    if not text.startswith(DIGEST_LINE):
+        log.debug("bderiv: %s has no digest line (an older bderiv's): generated again", path)
+    elif hashlib.sha256(body).hexdigest() == text[len(DIGEST_LINE):]:
+        return body.decode("utf-8")  # the text store wrote
+    else:
+        log.warning("bderiv: the generated model module %s is damaged (its content does not "
+                    "match the sha256 digest it was written with): removed and generated "
+                    "again. If this repeats, check the disk or delete the folder %s",
+                    path, path.parent)
+    path.unlink(missing_ok=True)
+    return None
 
-    Importing defines the kernels; they are compiled (or loaded from the cache next to
+
+def load(path: pathlib.Path, key: str, source: str):
+    """Run ``source`` (the checked text of the module at ``path``, :func:`read`) as the
+    module of ``key``, once per process: later calls reuse it.
+
+    Running it defines the kernels; they are compiled (or loaded from the cache next to
     the file) by :func:`bderiv.symbolic._model.compile_kernels`.
     """
     name = f"bderiv_symbolic_{key}"
     if name in sys.modules:
         return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
+    module = types.ModuleType(name)
+    module.__file__ = str(path)  # numba's cache sits next to the file, stamped by it
     sys.modules[name] = module  # before running it, as an import does: numba's cache
     try:  # of corner_field refers to field through the module's name
-        spec.loader.exec_module(module)
+        exec(compile(source, str(path), "exec"), module.__dict__)
     except BaseException:
         del sys.modules[name]
         raise

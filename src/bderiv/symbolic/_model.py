@@ -361,7 +361,8 @@ def load_model(model, key_parts, generate, cache_dir, extra=None, *, started):
     """
     key = _cache.model_key(key_parts)
     path = _cache.module_path(_cache.cache_folder(cache_dir), key)
-    cached = path.exists()
+    source = _cache.read(path)  # None: missing, or damaged (removed)
+    cached = source is not None
     start = time.perf_counter()
     if not cached:
         source = generate(model, key)
@@ -372,7 +373,7 @@ def load_model(model, key_parts, generate, cache_dir, extra=None, *, started):
                           f"{_cache.CACHE_ENV} or pass cache_dir= a writable folder") from None
     derived = time.perf_counter()
     try:
-        module = _cache.load(path, key)
+        module = _cache.load(path, key, source)
         kernels = compile_kernels(model, module, path)
         for name, signature in (extra or {}).items():
             _compile_closed(getattr(module, name), signature)

@@ -18,19 +18,22 @@ from numba import njit
 from numba.core.dispatcher import Dispatcher
 
 from ... import _limits
-from ..._kernels._cache import rekey, sources_digest
+from ..._kernels._cache import harden, rekey, sources_digest
 
 
 def eager(signature):
-    """``njit(signature, cache=True)``, compiled at import, that survives a damaged cache:
-    a cache entry that cannot be loaded (truncated, garbled) is replaced by a compilation
-    in this process (numba raises at decoration, before any checked cache can step in)."""
+    """``njit(signature, cache=True)``, compiled at import, through bderiv's checked cache
+    files (:func:`bderiv._kernels._cache.harden`, given before the compilation: numba's
+    plain ``.nbi``/``.nbc`` files are never read, so a damaged entry is compiled again,
+    never run: a flipped bit in a plain ``.nbc`` aborted every later ``import bderiv``).
+    Its compilation is then closed (other argument types are refused), as with a
+    signature given to ``njit``."""
 
     def decorate(fn):
-        try:
-            return njit(signature, cache=True)(fn)
-        except Exception:  # noqa: BLE001 - whatever the damaged file raises (pickle, EOF, ...)
-            return njit(signature)(fn)
+        dispatcher = harden(njit(cache=True)(fn))
+        dispatcher.compile(signature)
+        dispatcher.disable_compile()
+        return dispatcher
 
     return decorate
 

@@ -16,6 +16,7 @@ from numba.core.dispatcher import Dispatcher
 from numba.core.errors import NumbaError
 
 from ..._format import MASK_MEANING, format_mask
+from ..._kernels._cache import damaged_entry
 from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
     COMPLEX_FIELD_SIGNATURE,
@@ -112,15 +113,19 @@ def _check_types(fn, name: str) -> None:
     if args not in fn.overloads:
         try:
             fn.compile(args)
-        except NumbaError as exc:
-            raise TypeError(
-                f"{name} does not compile as {expected}: {_typing_summary(exc)}"
-            ) from None
-        except RuntimeError as exc:  # "compilation disabled": explicit other signatures
-            raise TypeError(
-                f"{name} was compiled for {[str(s) for s in fn.signatures]} only ({exc}); "
-                f"the integrator calls {expected}: give that signature, or none"
-            ) from None
+        except Exception as exc:
+            refuse_damaged_cache(fn, name, args)
+            if isinstance(exc, NumbaError):
+                raise TypeError(
+                    f"{name} does not compile as {expected}: {_typing_summary(exc)}"
+                ) from None
+            if isinstance(exc, RuntimeError):  # "compilation disabled": other signatures
+                raise TypeError(
+                    f"{name} was compiled for {[str(s) for s in fn.signatures]} only "
+                    f"({exc}); the integrator calls {expected}: give that signature, or "
+                    f"none"
+                ) from None
+            raise
     returned = fn.overloads[args].signature.return_type
     if returned != signature.return_type:
         hint = ("a float" if name == "section" else "a C-contiguous float64 array; return a "
@@ -139,9 +144,20 @@ def compiles_as(fn, signature) -> bool:
     if args not in fn.overloads:
         try:
             fn.compile(args)
-        except (NumbaError, RuntimeError, TypeError, ValueError):
-            return False
+        except Exception as exc:
+            refuse_damaged_cache(fn, getattr(fn, "__name__", "a function"), args)
+            if isinstance(exc, NumbaError | RuntimeError | TypeError | ValueError):
+                return False
+            raise
     return fn.overloads[args].signature.return_type == signature.return_type
+
+
+def refuse_damaged_cache(fn, name: str, args) -> None:
+    """After a failed compilation of the user's ``fn`` for ``args``: raise the RuntimeError
+    naming the damaged disk cache when that is why (:func:`damaged_entry`), else return."""
+    why = damaged_entry(fn, args)
+    if why is not None:
+        raise RuntimeError(f"{name} ({fn.py_func.__qualname__}): {why}")
 
 
 def compiles_for_complex(field) -> bool:
