@@ -105,14 +105,19 @@ def test_resets_at_the_final_time_are_refused():
         model.flow_bderivative(np.zeros(2), 1.0)
 
 
+def _either_side(gap):
+    """Event 0 at 1 - gap, event 1 at 1 + gap from the origin; event 0 speeds x_0 up from
+    1 to 3, event 1 changes no field."""
+    return HybridSystem(lambda x, m: np.array([1.0 + 2.0 * (m & 1), 1.0]),
+                        lambda x: x - np.array([1 - gap, 1 + gap]),
+                        n_events=2, dim=2, field_jacobian=lambda x, m: np.zeros((2, 2)),
+                        event_jacobian=lambda x: np.eye(2))
+
+
 def test_groups_on_both_sides_of_the_final_time_further_apart_than_the_tolerance():
-    # event 0 at 1 - 6e-8, event 1 at 1 + 6e-8: each within 1e-7 of T = 1, 1.2e-7 apart
-    # (was refused): event 0 is switched before T, event 1 is the group at the final time
-    model = HybridSystem(lambda x, m: np.array([1.0 + 2.0 * (m & 1), 1.0]),
-                         lambda x: x - np.array([1 - 6e-8, 1 + 6e-8]),
-                         n_events=2, dim=2, field_jacobian=lambda x, m: np.zeros((2, 2)),
-                         event_jacobian=lambda x: np.eye(2))
-    D = model.flow_bderivative(np.zeros(2), 1.0, simultaneity_tol=1e-7)
+    # each within 1e-7 of T = 1, 1.2e-7 apart (was refused): event 0 is switched before T,
+    # event 1 is the group at the final time
+    D = _either_side(6e-8).flow_bderivative(np.zeros(2), 1.0, simultaneity_tol=1e-7)
     assert D.group_events == ((0,), (1,)) and D.stops_at_group
     assert D.group_spreads == (0.0, 0.0)
     # event 0 (x_0 = 1 - 6e-8) speeds x_0 up from 1 to 3: its saltation v_0 -> 3 v_0;
@@ -121,13 +126,9 @@ def test_groups_on_both_sides_of_the_final_time_further_apart_than_the_tolerance
 
 
 def test_groups_on_both_sides_of_the_final_time_within_the_tolerance_are_merged():
-    # event 0 at 1 - 3e-8, event 1 at 1 + 3e-8 (was refused): one group at the final time,
-    # its spread said; the map is that of the two events and the final time at one point
-    model = HybridSystem(lambda x, m: np.array([1.0 + 2.0 * (m & 1), 1.0]),
-                         lambda x: x - np.array([1 - 3e-8, 1 + 3e-8]),
-                         n_events=2, dim=2, field_jacobian=lambda x, m: np.zeros((2, 2)),
-                         event_jacobian=lambda x: np.eye(2))
-    D = model.flow_bderivative(np.zeros(2), 1.0, simultaneity_tol=1e-7)
+    # 6e-8 apart (was refused): one group at the final time, its spread said; the map is
+    # that of the two events and the final time at one point
+    D = _either_side(3e-8).flow_bderivative(np.zeros(2), 1.0, simultaneity_tol=1e-7)
     assert D.group_events == ((0, 1),) and D.stops_at_group
     np.testing.assert_allclose(D.group_spreads, [6e-8], rtol=1e-3)
     # closed form at the simultaneous point: event 0 before T (v_0 > 0) speeds x_0 up

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
+from test_grouping import simulate_ref
 
 from bderiv import examples
 
@@ -26,28 +26,9 @@ SHIFT = np.array([0.0, 0.0, 1e-8, 0.0, 0.0, 0.0])  # the body's angle moved by 1
 
 
 def reference(field, events, x0, T):
-    """``(Phi(T, x0), [(time, event), ...])`` by solve_ivp, a restart at every crossing."""
-    x, t = np.array(x0, float), 0.0
-    n = len(events(x))
-    mask = sum(1 << k for k in range(n) if events(x)[k] > 0)
-    log = []
-    while t < T:
-        funcs = []
-        for k in range(n):
-            def ev(_t, y, k=k):
-                return events(y)[k]
-            ev.terminal, ev.direction = True, -1 if mask >> k & 1 else 1
-            funcs.append(ev)
-        sol = solve_ivp(lambda _t, y, m=mask: field(y, m), (t, T), x, events=funcs,
-                        method="DOP853", rtol=1e-13, atol=1e-15)
-        t, x = float(sol.t[-1]), sol.y[:, -1]
-        if sol.status == 0:
-            break
-        for k in range(n):
-            if sol.t_events[k].size:
-                mask ^= 1 << k
-                log.append((t, k))
-    return x, log
+    """``(Phi(T, x0), [(time, event), ...])`` by test_grouping's event-detecting solve_ivp
+    run (a restart at every crossing), at tight tolerances."""
+    return simulate_ref(field, events, x0, T, rtol=1e-13, atol=1e-15)
 
 
 @pytest.fixture(scope="module", params=["python", "compiled"])
