@@ -81,3 +81,11 @@ def test_periodic_orbit_names_the_newton_iterate_that_failed(monkeypatch):
                                          r"x0 \(t=0\) the rate of section\(x\) is -0.233") as info:
         gaits.pronking_orbit()
     assert np.array2string(calls[1], precision=6) in str(info.value)
+
+
+def test_a_group_at_the_final_time_says_what_its_extra_event_is():
+    from bderiv import examples
+
+    ex = examples.chair()
+    D = ex.system.flow_bderivative(ex.x0, ex.t_event)  # t_final on the touchdown
+    assert "groups=[3] (the last with the final time as its event 2)" in repr(D)

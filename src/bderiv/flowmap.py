@@ -175,7 +175,10 @@ class FlowBDerivative(Linearisation):
         merged = ""
         if any(s > 0 for s in self.group_spreads):  # groups of events measurably apart
             merged = f", spreads={[float(f'{s:.3g}') for s in self.group_spreads]}"
-        return (f"FlowBDerivative(dim={self.dim}, groups={sizes}, t_final={self.t_final}"
+        last = ""
+        if self.stops_at_group:  # its size counts the final time, local event n_g - 1
+            last = f" (the last with the final time as its event {sizes[-1] - 1})"
+        return (f"FlowBDerivative(dim={self.dim}, groups={sizes}{last}, t_final={self.t_final}"
                 f"{merged})")
 
     def __setstate__(self, state):
@@ -409,7 +412,9 @@ class FlowBDerivative(Linearisation):
         """Local event order of each group for tangent vectors V: list of (..., n_g) int64.
 
         The ``order`` halves of :meth:`event_times`, given also where the times themselves
-        are beyond float64 (each stage's ``orders``: V of subnormal size).
+        are beyond float64 (each stage's ``orders``: V of subnormal size). A group at the
+        final time (``stops_at_group``) has one more local event, the last: the final time
+        itself, so the events after it in an order come after ``t_final`` (not applied).
         """
         flat, lead = check_points(V, self.dim)
         return [bd.orders(W).reshape(*lead, bd.n_events)
