@@ -35,7 +35,9 @@ kernels or before a release (README, "Set-up").
 from __future__ import annotations
 
 import contextlib
+import getpass
 import os
+import tempfile
 
 import numpy as np
 import pytest
@@ -60,6 +62,11 @@ settings.load_profile("bderiv")
 
 
 def pytest_configure(config):
+    # the generated modules of symbolic models go to a temporary folder of the test runs
+    # (kept between runs, so that they are not derived and compiled again each time), not
+    # to the user's cache; a BDERIV_CACHE_DIR set by the caller is kept
+    os.environ.setdefault("BDERIV_CACHE_DIR", os.path.join(
+        tempfile.gettempdir(), f"bderiv-tests-{getpass.getuser()}"))
     # pyproject turns warnings into errors; hypothesis' pytest plugin imports
     # mypy_extensions.TypedDict at report time on some installs, a DeprecationWarning that is
     # not ours and would abort the run with an INTERNALERROR

@@ -162,6 +162,19 @@ def test_reverse_mode_without_direction():
         jax.grad(lambda x: jnp.dot(w, phi(x)))(ex.x0)
 
 
+def test_a_refusal_is_not_logged_by_jax_first(touchdown, caplog):
+    """The refusal reaches the caller as the exception, and JAX's callback logger says
+    nothing (it printed an ERROR with a traceback before the refusal)."""
+    import logging
+
+    ex = touchdown
+    phi = flow(ex.system, ex.t_final, **TIGHT)
+    w = np.arange(6.0)
+    with caplog.at_level(logging.DEBUG), pytest.raises(REFUSED, match="pass direction="):
+        jax.grad(lambda x: jnp.dot(w, phi(x)))(ex.x0)
+    assert not [r for r in caplog.records if r.name.startswith("jax._src.callback")]
+
+
 def test_a_compiled_model_runs_on_the_compiled_path(touchdown):
     """A model of numba dispatchers (tests/compiled_models.py: the chair's twin) is
     simulated in compiled code through the same callbacks: values and tangents agree with

@@ -89,3 +89,18 @@ def test_a_group_at_the_final_time_says_what_its_extra_event_is():
     ex = examples.chair()
     D = ex.system.flow_bderivative(ex.x0, ex.t_event)  # t_final on the touchdown
     assert "groups=[3] (the last with the final time as its event 2)" in repr(D)
+
+
+def test_symbolic_models_follow_the_cache_variables(monkeypatch, tmp_path):
+    import os
+    import tempfile
+
+    from bderiv.symbolic._cache import cache_folder
+
+    # the test runs write to a temporary folder, never to the user's ~/.cache
+    assert os.environ["BDERIV_CACHE_DIR"].startswith(tempfile.gettempdir())
+    monkeypatch.delenv("BDERIV_CACHE_DIR")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+    assert cache_folder() == tmp_path / "numba" / "bderiv" / "symbolic"
+    monkeypatch.setenv("BDERIV_CACHE_DIR", str(tmp_path / "ours"))
+    assert cache_folder() == tmp_path / "ours" / "symbolic"

@@ -41,9 +41,12 @@ def _by_start(starts: np.ndarray):
 
 
 def _refused(exc: Exception, where: str) -> Exception:
-    """bderiv's refusal ``exc`` with the place in the batch said first (same base type)."""
+    """bderiv's refusal ``exc`` with the place in the batch said first (same base type),
+    marked as bderiv's (JAX does not log it: :mod:`bderiv.jax._primitive`)."""
     kind = next(k for k in _REFUSALS if isinstance(exc, k))
-    return kind(f"{where}: {exc}")
+    out = kind(f"{where}: {exc}")
+    out.bderiv_refusal = True
+    return out
 
 
 class FlowHost:

@@ -21,6 +21,7 @@ Derivatives of the primitive itself (second derivatives) are refused.
 from __future__ import annotations
 
 import functools
+import logging
 
 import numpy as np
 
@@ -40,6 +41,19 @@ def require_jax():
         raise ImportError("bderiv.jax needs jax: pip install 'bderiv[jax]' (or pip install "
                           "'jax[cpu]')") from None
     return jax
+
+
+class _OwnRefusals(logging.Filter):
+    """Drops JAX's log of a failed callback when the failure is bderiv's own refusal (marked
+    by :func:`bderiv.jax._host._refused`): the refusal reaches the caller as the exception
+    JAX re-raises; logged too, it printed first as an ERROR with a traceback."""
+
+    def filter(self, record):
+        exc = record.exc_info[1] if record.exc_info else None
+        return not getattr(exc, "bderiv_refusal", False)
+
+
+logging.getLogger("jax._src.callback").addFilter(_OwnRefusals())
 
 
 def host_call(fn, dtype, *args):

@@ -4,7 +4,8 @@ A symbolic model's kernels are written as a Python module ``m_<key>.py`` in the 
 folder, ``<key>`` a hash of the model's expressions (:func:`model_key`); numba caches the
 compiled kernels of that file next to it (``__pycache__``), so a second process neither
 re-derives nor recompiles. The folder is ``$BDERIV_CACHE_DIR/symbolic`` when that variable
-is set, else ``$XDG_CACHE_HOME/bderiv/symbolic`` (default ``~/.cache/bderiv/symbolic``).
+is set, else ``$NUMBA_CACHE_DIR/bderiv/symbolic`` when numba's is, else
+``$XDG_CACHE_HOME/bderiv/symbolic`` (default ``~/.cache/bderiv/symbolic``).
 A file is never rewritten: a model whose expressions change gets a new key. Deleting the
 folder is always safe.
 
@@ -40,7 +41,8 @@ def cache_folder(cache_dir=None) -> pathlib.Path:
     Parameters
     ----------
     cache_dir : str or os.PathLike, optional
-        Root folder; default ``$BDERIV_CACHE_DIR``, else ``$XDG_CACHE_HOME/bderiv``, else
+        Root folder; default ``$BDERIV_CACHE_DIR``, else ``$NUMBA_CACHE_DIR/bderiv`` (the
+        compiled kernels' cache the user chose), else ``$XDG_CACHE_HOME/bderiv``, else
         ``~/.cache/bderiv``.
 
     Returns
@@ -50,6 +52,8 @@ def cache_folder(cache_dir=None) -> pathlib.Path:
     """
     if cache_dir is None:
         cache_dir = os.environ.get(CACHE_ENV) or None
+    if cache_dir is None and os.environ.get("NUMBA_CACHE_DIR"):
+        cache_dir = pathlib.Path(os.environ["NUMBA_CACHE_DIR"]) / "bderiv"
     if cache_dir is None:
         base = os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache"
         cache_dir = pathlib.Path(base) / "bderiv"
