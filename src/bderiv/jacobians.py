@@ -217,7 +217,7 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
     return JacobianReport(rows, n)
 
 
-def complex_step_jacobian(fun, x):
+def complex_step_jacobian(fun, x, m=None):
     """The Jacobian of ``fun`` at ``x`` by the complex step: a model's Jacobian in one line.
 
     Column j is ``Im fun(x + i h e_j) / h`` with ``h = 1e-20 |x_j|`` (at least 1e-200):
@@ -240,6 +240,8 @@ def complex_step_jacobian(fun, x):
         with complex values (``np.zeros(d)``: use ``np.zeros(d, dtype=y.dtype)``) do not.
     x : array_like, shape (d,)
         A real, finite point.
+    m : int, optional
+        The size of ``fun``'s output, when known (else one real call finds it).
 
     Returns
     -------
@@ -265,16 +267,18 @@ def complex_step_jacobian(fun, x):
     if arr.ndim != 1 or not all_finite(arr):
         raise ValueError(f"x must be a finite 1-d array (a state), got {arr!r}")
     arr = np.array(arr, dtype=np.float64)
-    f0 = np.asarray(fun(arr))
-    if f0.ndim != 1:
-        raise ValueError(f"fun must return a 1-d array, got shape {f0.shape}")
-    J = numdiff.complex_step(fun, arr, f0.size)
+    if m is None:
+        f0 = np.asarray(fun(arr))
+        if f0.ndim != 1:
+            raise ValueError(f"fun must return a 1-d array, got shape {f0.shape}")
+        m = f0.size
+    J = numdiff.complex_step(fun, arr, m)
     if J is None:
         probe = arr.astype(np.complex128)
         try:
             out = np.asarray(fun(probe))
-            why = (f"it returned {out.dtype} of shape {out.shape}" if out.shape == f0.shape
-                   else f"it returned shape {out.shape} for a complex state")
+            why = (f"it returned {out.dtype} of shape {out.shape}" if out.shape == (m,)
+                   else f"it returned shape {out.shape} for a complex state, not ({m},)")
             why = why if np.isfinite(out).all() else "it returned a non-finite value"
         except Exception as exc:  # noqa: BLE001 - named in the message
             why = f"it raised {type(exc).__name__}: {exc}"

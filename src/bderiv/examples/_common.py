@@ -23,10 +23,10 @@ from .._format import format_mask
 from .._kernels._cache import keyed, sources_digest
 from .._limits import ON_SURFACE_TOL
 from .._validate import check_bool
+from ..jacobians import complex_step_jacobian
 from ..models.system import HybridSystem
 
-__all__ = ["Example", "check_start", "compile_function", "compiled_once",
-           "complex_step_jacobian", "flow_back"]
+__all__ = ["Example", "check_start", "compile_function", "compiled_once", "flow_back"]
 
 #: the functions of a model that the compiled version compiles (corner_field stays Python:
 #: it is called at the event points only, with the whole table at once)
@@ -201,24 +201,6 @@ def compiled_once(fn):
     built on it shares the dispatcher (its constants are parameters), so a second model
     compiles nothing."""
     return compile_function(fn)
-
-
-def complex_step_jacobian(fun, x, n_out):
-    """Jacobian of a complex-safe ``fun`` at real ``x`` by the complex step, (n_out, d).
-
-    Exact to rounding (no subtraction), d evaluations; used by examples whose formulas are
-    written with complex-safe numpy functions.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    d = x.size
-    h = 1e-30
-    J = np.empty((n_out, d))
-    xc = x.astype(np.complex128)
-    for j in range(d):
-        xc[j] += 1j * h
-        J[:, j] = np.imag(fun(xc)) / h
-        xc[j] = x[j]
-    return J
 
 
 def flow_back(field0, rho, t_event, rtol=1e-13, atol=1e-14):

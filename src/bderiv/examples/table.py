@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import Example, check_start, complex_step_jacobian, flow_back
+from ..jacobians import complex_step_jacobian
+from ._common import Example, check_start, flow_back
 
 __all__ = ["table"]
 

@@ -69,8 +69,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import quad, solve_ivp
 
+from ..jacobians import complex_step_jacobian
 from ..models.system import HybridSystem
-from ._common import Example, check_start, complex_step_jacobian
+from ._common import Example, check_start
 
 __all__ = [
     "GARCIA_EIGENVALUES",
