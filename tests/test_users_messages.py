@@ -111,3 +111,15 @@ def test_the_compass_gait_demo_says_why_its_eigenvalues_differ_from_the_publishe
 
     text = summary_text(walker_summary("compass-gait"))
     assert "note: the eigenvalues differ from the published ones by 1.7e-3" in text
+
+
+def test_export_refuses_too_many_pieces_before_building_the_example(monkeypatch, capsys):
+    from bderiv.cli import export
+
+    def never(*args):
+        raise AssertionError("the example was built before the refusal")
+
+    monkeypatch.setattr(export, "load_example", never)
+    assert main(["export", "--example", "network", "--n", "20"]) == 2
+    assert "20 events give 2 * 20! simplices, more than 2 * --max-pieces=40320" in \
+        capsys.readouterr().err

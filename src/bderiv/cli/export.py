@@ -86,6 +86,8 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
     base = _output_base(out)
     if example is None:
         example = "network" if n is not None or extended else "chair"
+    if n is not None:  # the pieces known before the example's tables are built
+        _refuse_pieces(n, max_pieces)
     ex, bd = load_example(example, n, extended)
     n, d = bd.n_events, bd.dim
     if not bd.full_rank:
@@ -95,10 +97,7 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
             f"BDerivative)"
         )
     refuse_without_triangulation(example, bd)  # resets that forget a direction
-    if math.factorial(n) > max_pieces:
-        raise UsageError(
-            f"{n} events give 2 * {n}! simplices, more than 2 * --max-pieces={max_pieces}"
-        )
+    _refuse_pieces(n, max_pieces)
     require_memory(triangulation_bytes(n, d), f"the triangulation of {n} events in R^{d}")
     if which == "event":
         fmap, described = bd, "the B-derivative at the event point"
@@ -167,3 +166,11 @@ def _output_base(out: str) -> str:
         )
     check_output_directory(os.path.dirname(os.path.abspath(base)), "--out")
     return base
+
+
+def _refuse_pieces(n, max_pieces):
+    """Refuse ``n`` events whose ``n!`` event orders exceed ``max_pieces``."""
+    if math.factorial(n) > max_pieces:
+        raise UsageError(
+            f"{n} events give 2 * {n}! simplices, more than 2 * --max-pieces={max_pieces}"
+        )
