@@ -123,3 +123,17 @@ def test_export_refuses_too_many_pieces_before_building_the_example(monkeypatch,
     assert main(["export", "--example", "network", "--n", "20"]) == 2
     assert "20 events give 2 * 20! simplices, more than 2 * --max-pieces=40320" in \
         capsys.readouterr().err
+
+
+def test_a_trajectory_says_its_start_region_and_groups():
+    """(item 5) events written with the other sign start the model in another region: the
+    repr says which, and the groups met, instead of every sample."""
+    from bderiv import examples
+
+    ex = examples.chair()
+    traj = ex.system.simulate(ex.x0, ex.t_final)
+    text = repr(traj)
+    assert text.startswith("Trajectory(t 0 to 0.15, ") and len(text) < 300
+    assert "start region 0b0, 1 event groups [t=0.1: [0, 1] 0b0 -> 0b11], final region 0b11" \
+        in text
+    assert traj.mask_start == 0

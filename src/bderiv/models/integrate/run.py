@@ -196,6 +196,23 @@ class Trajectory:
     final_times: tuple = ()
     simultaneity_tol: float = 0.0
 
+    @property
+    def mask_start(self) -> int:
+        """Region mask of the start point (bit k set: ``h_k(x0) > 0``, event k counted as
+        happened): the first sample's, else the first group's before it, else the final."""
+        if self.masks.size:
+            return int(self.masks[0])
+        return self.groups[0].mask_before if self.groups else self.mask_final
+
+    def __repr__(self):
+        shown = ", ".join(f"t={g.time:.6g}: {list(g.events)} {g.mask_before:#b} -> "
+                          f"{g.mask_after:#b}" for g in self.groups[:3])
+        more = f", ... ({len(self.groups) - 3} more)" if len(self.groups) > 3 else ""
+        span = (f"t {self.t[0]:.6g} to {self.t[-1]:.6g}, " if self.t.size else "")
+        return (f"Trajectory({span}{self.t.size} samples, d={self.x_final.size}, start "
+                f"region {self.mask_start:#b}, {len(self.groups)} event groups [{shown}{more}]"
+                f", final region {self.mask_final:#b})")
+
 
 class NoReturn(ValueError):
     """A run with a section that did not return to it in the time it waited: a caller
