@@ -152,8 +152,8 @@ def merge_groups(groups, linear, times, tol):
     >>> b = EventGroup(1.0 + 5e-8, (1,), 0b01, 0b11, np.ones(2))
     >>> merged, stages, spreads = merge_groups([a, b], [np.eye(2)] * 3,
     ...                                        [(1.0, 1.0), (1.0 + 5e-8, 1.0 + 5e-8)], 1e-7)
-    >>> merged[0].events, merged[0].mask_after, len(stages), spreads
-    ((0, 1), 3, 2, [5.000000002919336e-08])
+    >>> merged[0].events, merged[0].mask_after, len(stages), [round(s, 12) for s in spreads]
+    ((0, 1), 3, 2, [5e-08])
     """
     out, stages, spreads = [], [linear[0]], []
     first = 0.0
