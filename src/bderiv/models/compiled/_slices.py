@@ -90,8 +90,9 @@ def measured(key, elapsed, steps) -> None:
 
 
 def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
-          rtol, atol, max_step, first_step, forced, dense) -> Driven:
-    """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
+          rtol, atol, max_step, first_step, forced, on_side, dense) -> Driven:
+    """``drive_stretch`` with these arguments, in slices of steps (no validation; a slice
+    goes on from a step end, where no event is on the wrong side of its bit)."""
     key = (id(model), y0.size)
     parts, counts = [], None
     while True:
@@ -100,7 +101,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         try:
             out = drive_stretch(model, jac_mode, variational, with_section, n_events, mask,
                                 d, t0, y0, t_final, rtol, atol, max_step, first_step, forced,
-                                budget, dense)
+                                on_side, budget, dense)
         except SystemError as exc:  # Ctrl-C seen while numba boxed the results
             _interrupted(exc)
             raise

@@ -232,7 +232,9 @@ class CompiledModel:
 
     def stretch(self, y0, t0, t_final, mask, *, rtol, atol, max_step, variational,
                 section=None, forced=False, dense=True) -> Driven:
-        """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
+        """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing;
+        each event reads at ``t0`` on the side its bit of ``mask`` says (a run's stretch
+        starts at a stop: :func:`bderiv.models.events.locate.on_side_at_start`).
 
         Parameters
         ----------
@@ -261,7 +263,7 @@ class CompiledModel:
         try:
             out = drive(self.struct(section), self.jac_mode, variational, section is not None,
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
-                        atols, float(max_step), 0.0, n if forced else -1, dense)
+                        atols, float(max_step), 0.0, n if forced else -1, True, dense)
         except Exception as exc:  # raised inside a user function: say where
             raise ValueError(
                 f"a compiled function of the model raised {type(exc).__name__}: {exc}; while "

@@ -112,6 +112,19 @@ def first_grazing(group, Dh, F):
 
 
 @njit(cache=True)
+def wrong_side(h, mask, window):
+    """The first event k whose value ``h[k]`` (n,) is not on the side of its surface that
+    bit k of ``mask`` says (set: ``h_k > 0``; clear: ``h_k < 0``) and is further from it
+    than ``window[k]``; -1 if none: the invariant of the region after every stop
+    (:func:`bderiv.models.events.locate.check_sides`)."""
+    for k in range(h.size):
+        side = 1.0 if mask >> k & 1 else -1.0
+        if not side * h[k] > 0.0 and not abs(h[k]) <= window[k]:
+            return k
+    return -1
+
+
+@njit(cache=True)
 def return_sample(h, tol):
     """The earliest sample ``i >= 1`` with ``h[i, k] < 0`` of an event across its surface,
     ``h[j, k] > tol_k``, at a later sample j (the first such j), the lowest of those

@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._format import format_mask
 from ..._limits import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
 from ..compiled import rules
 
@@ -38,6 +39,7 @@ __all__ = [
     "Settled",
     "Stop",
     "StopCalls",
+    "check_sides",
     "classify",
     "examine",
     "flags_of",
@@ -448,12 +450,18 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
 
 
 def on_side_at_start(funcs, t0, mask, n):
-    """solve_ivp event functions for a stretch from ``t0`` that read an event exactly on
-    its surface at ``t0`` on the side its bit of ``mask`` says.
+    """solve_ivp event functions for a stretch from ``t0`` that read each event at ``t0``
+    on the side its bit of ``mask`` says.
 
-    solve_ivp takes a value 0 at a step's start as the end of a crossing, and places the
-    root there: a stretch that starts exactly on a surface (a located stop can land with
-    ``h_k == 0.0``) would otherwise stop at once, crossing nothing.
+    A located stop can land exactly on a surface (``h_k == 0.0``), or a rounding on the
+    side the switched event came from (within its window: :func:`check_sides`). solve_ivp
+    takes a value 0 at a step's start as the end of a crossing and places the root there:
+    the stretch would stop at once, crossing nothing. A value a rounding across reads as
+    already crossed: when the event leaves its surface and comes back within the first
+    step, both ends of that step read across, and the crossing is lost. Read on its side,
+    ``+-tiny``, the first step sees the return as a sign change (docs/mathematics.md,
+    section 11; the compiled driver does the same: ``on_side`` of
+    :func:`bderiv.models.compiled._integrate.drive_stretch`).
 
     Parameters
     ----------
@@ -474,15 +482,15 @@ def on_side_at_start(funcs, t0, mask, n):
     >>> def f(t, y):
     ...     return y[0]
     >>> g, = on_side_at_start([f], 1.0, 0b0, 1)
-    >>> float(g(1.0, [0.0])) < 0.0, float(g(1.5, [0.0]))
-    (True, 0.0)
+    >>> float(g(1.0, [0.0])) < 0.0, float(g(1.0, [1e-19])) < 0.0, float(g(1.5, [1e-19]))
+    (True, True, 1e-19)
     """
     tiny = np.finfo(np.float64).tiny
 
     def on_side(func, side):
         def ev(t, y):
             value = func(t, y)
-            return side * tiny if t == t0 and value == 0.0 else value
+            return side * tiny if t == t0 and not side * value > 0.0 else value
 
         ev.terminal = getattr(func, "terminal", False)
         ev.direction = getattr(func, "direction", 0)
@@ -490,3 +498,39 @@ def on_side_at_start(funcs, t0, mask, n):
 
     return ([on_side(f, 1.0 if mask >> k & 1 else -1.0) for k, f in enumerate(funcs[:n])]
             + list(funcs[n:]))
+
+
+def check_sides(h, mask, window, t):
+    """Refuse a region ``mask`` that disagrees with the event values ``h`` (n,) after the
+    stop at ``t`` (its group switched, its resets applied): every event must be on the
+    side its bit says (set: ``h_k > 0``), or within its ``window`` (n,) of the surface (a
+    stop's rounding, which the next stretch reads on its side: :func:`on_side_at_start`).
+
+    Raises
+    ------
+    ValueError
+        Naming the time, the event, its value, its window and the mask.
+
+    Examples
+    --------
+    >>> check_sides(np.array([-1.0, 1e-19]), 0b00, np.array([1e-9, 1e-9]), 0.5)
+    >>> check_sides(np.array([-1.0, 1e-3]), 0b00, np.array([1e-9, 1e-9]), 0.5)
+    Traceback (most recent call last):
+    ...
+    ValueError: after the stop at t=0.5 event 1 is on the wrong side of its surface:
+    h_1 = 0.001, beyond its window 1e-09 (the accuracy of the stop), where region mask 0b00
+    (bit k set: h_k > 0) says h_1 < 0; the run lost track of a crossing (an internal error:
+    please report it with the model)
+    """
+    h = np.ascontiguousarray(h, dtype=np.float64)
+    k = rules.wrong_side(h, int(mask), np.ascontiguousarray(window, dtype=np.float64))
+    if k < 0:
+        return
+    says = ">" if mask >> k & 1 else "<"
+    raise ValueError(
+        f"after the stop at t={t:.10g} event {k} is on the wrong side of its surface: "
+        f"h_{k} = {h[k]:.3g}, beyond its window {window[k]:.3g} (the accuracy of the stop), "
+        f"where region mask {format_mask(int(mask), h.size)} (bit k set: h_k > 0) says "
+        f"h_{k} {says} 0; the run lost track of a crossing (an internal error: please "
+        f"report it with the model)"
+    )
