@@ -5,9 +5,9 @@ A located crossing can leave the switched event a rounding on the side it came f
 sign, the next stretch started "across": when the event left its surface and came back
 within the first step, no step end was below it, and the crossing was lost (three in
 1.3 ms, the tip ending inside the ground with no contact force; a ball's last eight
-impacts before its Zeno point). Each stretch now reads its events at the start on the side
-their bits say, on both integrators, and after every stop the run checks that every event
-is on that side or within its window of the surface.
+impacts before its Zeno point). The excursion screen now searches the steps from such a
+start for that return, on both integrators, and after every stop the run checks that
+every event is on the side its bit says or within its window of the surface.
 
 The oracles are independent of bderiv: an event-detecting simulation written here
 (solve_ivp, tight tolerances, a restart at every event with the event read on its side
@@ -26,7 +26,7 @@ from scipy.integrate import solve_ivp
 
 from bderiv import HybridSystem
 from bderiv.models.compiled import rules
-from bderiv.models.events import locate
+from bderiv.models.events import excursions
 from bderiv.models.integrate import run as run_module
 
 # ------------------------------------------------------------------------------------------
@@ -316,17 +316,18 @@ def test_a_stop_that_breaks_the_invariant_is_refused(monkeypatch, path):
         bar(path).simulate(X_LIFTOFF, 1.3e-3)
 
 
-def test_a_start_across_by_a_rounding_reads_on_its_side():
-    """solve_ivp with the stretch's event functions: h = t (t - 1) + 1e-19 from bit clear,
-    a rounding across at the start, below between, across again at t = 1 within one step."""
-    def h(t, y):
-        return y[0]
-
-    h.terminal, h.direction = True, 1
-    funcs = locate.on_side_at_start([h], 0.0, 0b0, 1)
-    sol = solve_ivp(lambda t, y: [2.0 * t - 1.0], (0.0, 10.0), [1e-19], first_step=2.0,
-                    events=funcs, method="DOP853")
-    assert sol.t_events[0] == pytest.approx([1.0], abs=1e-12)
-    plain = solve_ivp(lambda t, y: [2.0 * t - 1.0], (0.0, 10.0), [1e-19], first_step=2.0,
-                      events=[h], method="DOP853")
-    assert plain.t_events[0].size == 0  # read by its sign: lost
+def test_the_screen_searches_a_step_rising_from_a_start_across():
+    """h = t (t - 1) + 1e-19 sampled at 0, 1, 2 (one step: start, midpoint, end): a
+    rounding across at the start, across at both samples after it, below in between; an
+    event still on its way to its side (falling) is not searched."""
+    times = np.array([0.0, 1.0, 2.0])
+    h = (times * (times - 1.0) + 1e-19)[:, None]
+    assert rules.start_dip_steps(h).tolist() == [[0, 0]]
+    j, t = excursions._start_dip(h, np.array([1e-12]), times,
+                                 lambda s, k: s * (s - 1.0) + 1e-19)
+    assert j == 0 and t == pytest.approx(0.5, abs=1e-6)
+    assert excursions._start_dip(h, np.array([1.0]), times,  # within tol: not a return
+                                 lambda s, k: s * (s - 1.0) + 1e-19) is None
+    falling = np.array([[1e-11], [0.6e-11], [0.2e-11], [-0.2e-11], [-0.6e-11]])
+    assert rules.start_dip_steps(falling).size == 0
+    assert rules.start_dip_steps(-h).size == 0  # below at the start: the integrator sees it

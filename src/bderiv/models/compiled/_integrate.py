@@ -42,7 +42,7 @@ PAUSED = -4
 #: entries of the returned counters
 NFEV, NJEV, N_STEPS, N_REJECTED = range(4)
 _DENSE_EXTRA = N_STAGES_EXTENDED - N_STAGES - 1
-#: the value an event on the wrong side of its bit reads at a stretch's start (``on_side``)
+#: the value of an event at 0 at a run's stretch's start, on its side (``on_side``)
 _TINY = np.finfo(np.float64).tiny
 
 
@@ -77,10 +77,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     events, and its section last when ``with_section`` (upward: its bit of ``mask`` is
     clear); the value of event ``forced`` (-1: none) reads 1 at the start (a run that
     starts on its section counts only a return from below). With ``on_side`` (a run's
-    stretch after a stop), a model event whose value at ``t0`` is not on the side its bit
-    of ``mask`` says (0, or a stop's rounding across) reads ``+-tiny`` on that side there,
-    as :func:`bderiv.models.events.locate.on_side_at_start` makes solve_ivp read it: the
-    first step then sees a return across the surface. No validation.
+    stretch), a model event whose value at ``t0`` is 0 reads ``+-tiny`` on the side its
+    bit of ``mask`` says there, as :func:`bderiv.models.events.locate.on_side_at_start`
+    makes solve_ivp read it (else a value leaving 0 counts as a crossing at ``t0``). No
+    validation.
 
     Returns
     -------
@@ -150,9 +150,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         gs[0, k] = g[k]
     if on_side:
         for k in range(n_events - with_section):
-            side = 1.0 if mask >> k & 1 else -1.0
-            if not side * g[k] > 0.0:
-                g[k] = side * _TINY
+            if g[k] == 0.0:
+                g[k] = _TINY if mask >> k & 1 else -_TINY
     if forced >= 0:
         g[forced] = 1.0
     h_abs = first_step

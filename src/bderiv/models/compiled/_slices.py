@@ -91,8 +91,7 @@ def measured(key, elapsed, steps) -> None:
 
 def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
           rtol, atol, max_step, first_step, forced, on_side, dense) -> Driven:
-    """``drive_stretch`` with these arguments, in slices of steps (no validation; a slice
-    goes on from a step end, where no event is on the wrong side of its bit)."""
+    """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
     key = (id(model), y0.size)
     parts, counts = [], None
     while True:
@@ -113,7 +112,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         if status != PAUSED:
             break
         cancel_point()
-        t0, y0, first_step, forced = t_end, y_end, h, -1
+        t0, y0, first_step, forced, on_side = t_end, y_end, h, -1, False
     if len(parts) == 1:
         ts, ys, steps, Fd = parts[0]
     else:

@@ -231,10 +231,8 @@ class CompiledModel:
         return out
 
     def stretch(self, y0, t0, t_final, mask, *, rtol, atol, max_step, variational,
-                section=None, forced=False, dense=True) -> Driven:
-        """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing;
-        each event reads at ``t0`` on the side its bit of ``mask`` says (a run's stretch
-        starts at a stop: :func:`bderiv.models.events.locate.on_side_at_start`).
+                section=None, forced=False, on_side=False, dense=True) -> Driven:
+        """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
 
         Parameters
         ----------
@@ -247,6 +245,9 @@ class CompiledModel:
             ``section(x) -> float``: watched upward after the events (event ``n``).
         forced : bool
             The section reads 1 at ``t0`` (a run that starts on it).
+        on_side : bool
+            An event at 0 at ``t0`` reads on the side its bit of ``mask`` says (a run's
+            stretch: :func:`bderiv.models.events.locate.on_side_at_start`).
         dense : bool
             Record the state's dense output of every step.
 
@@ -263,7 +264,8 @@ class CompiledModel:
         try:
             out = drive(self.struct(section), self.jac_mode, variational, section is not None,
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
-                        atols, float(max_step), 0.0, n if forced else -1, True, dense)
+                        atols, float(max_step), 0.0, n if forced else -1, bool(on_side),
+                        dense)
         except Exception as exc:  # raised inside a user function: say where
             raise ValueError(
                 f"a compiled function of the model raised {type(exc).__name__}: {exc}; while "

@@ -149,6 +149,32 @@ def return_sample(h, tol):
 
 
 @njit(cache=True)
+def start_dip_steps(h):
+    """``(k, j)`` rows (B, 2): event k is across its surface at the first sample
+    (``h[0, k] > 0``: a located crossing's rounding, or an event switched with it on its
+    way to its side) and at every sample up to step j (samples ``2 j .. 2 j + 2``), where
+    it first rises above the step's start value: it may have gone below the surface and
+    come back inside that step, unseen (the first such step of each event;
+    :func:`bderiv.models.events.excursions._start_dip`)."""
+    m, n = h.shape
+    out = np.empty((n, 2), dtype=np.int64)
+    count = 0
+    for k in range(n):
+        if not h[0, k] > 0.0:
+            continue
+        for j in range((m - 1) // 2):
+            start, middle, end = h[2 * j, k], h[2 * j + 1, k], h[2 * j + 2, k]
+            if not (middle > 0.0 and end > 0.0):
+                break
+            if middle > start or end > start:
+                out[count, 0] = k
+                out[count, 1] = j
+                count += 1
+                break
+    return out[:count]
+
+
+@njit(cache=True)
 def sample_times(ends, out):
     """``out`` (2 m - 1,): the step ends (m,) and the midpoint of every step, in order."""
     m = ends.size

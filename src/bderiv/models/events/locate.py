@@ -450,18 +450,12 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
 
 
 def on_side_at_start(funcs, t0, mask, n):
-    """solve_ivp event functions for a stretch from ``t0`` that read each event at ``t0``
-    on the side its bit of ``mask`` says.
+    """solve_ivp event functions for a stretch from ``t0`` that read an event exactly on
+    its surface at ``t0`` on the side its bit of ``mask`` says.
 
-    A located stop can land exactly on a surface (``h_k == 0.0``), or a rounding on the
-    side the switched event came from (within its window: :func:`check_sides`). solve_ivp
-    takes a value 0 at a step's start as the end of a crossing and places the root there:
-    the stretch would stop at once, crossing nothing. A value a rounding across reads as
-    already crossed: when the event leaves its surface and comes back within the first
-    step, both ends of that step read across, and the crossing is lost. Read on its side,
-    ``+-tiny``, the first step sees the return as a sign change (docs/mathematics.md,
-    section 11; the compiled driver does the same: ``on_side`` of
-    :func:`bderiv.models.compiled._integrate.drive_stretch`).
+    solve_ivp takes a value 0 at a step's start as the end of a crossing, and places the
+    root there: a stretch that starts exactly on a surface (a located stop can land with
+    ``h_k == 0.0``) would otherwise stop at once, crossing nothing.
 
     Parameters
     ----------
@@ -482,15 +476,15 @@ def on_side_at_start(funcs, t0, mask, n):
     >>> def f(t, y):
     ...     return y[0]
     >>> g, = on_side_at_start([f], 1.0, 0b0, 1)
-    >>> float(g(1.0, [0.0])) < 0.0, float(g(1.0, [1e-19])) < 0.0, float(g(1.5, [1e-19]))
-    (True, True, 1e-19)
+    >>> float(g(1.0, [0.0])) < 0.0, float(g(1.5, [0.0]))
+    (True, 0.0)
     """
     tiny = np.finfo(np.float64).tiny
 
     def on_side(func, side):
         def ev(t, y):
             value = func(t, y)
-            return side * tiny if t == t0 and not side * value > 0.0 else value
+            return side * tiny if t == t0 and value == 0.0 else value
 
         ev.terminal = getattr(func, "terminal", False)
         ev.direction = getattr(func, "direction", 0)
@@ -504,7 +498,9 @@ def check_sides(h, mask, window, t):
     """Refuse a region ``mask`` that disagrees with the event values ``h`` (n,) after the
     stop at ``t`` (its group switched, its resets applied): every event must be on the
     side its bit says (set: ``h_k > 0``), or within its ``window`` (n,) of the surface (a
-    stop's rounding, which the next stretch reads on its side: :func:`on_side_at_start`).
+    located event a rounding across it, an event switched with it on its way there: the
+    excursion screen looks for a return inside the steps from such a start,
+    :mod:`bderiv.models.events.excursions`).
 
     Raises
     ------

@@ -102,7 +102,7 @@ class CompiledStretches:
             out = self.model.stretch(
                 y_start, start, stop, mask, rtol=options.rtol, atol=options.atol,
                 max_step=options.max_step, variational=variational, section=self.section,
-                forced=self.section is not None and start == 0.0)
+                forced=self.section is not None and start == 0.0, on_side=start == t)
             return CompiledSolution(out, d, watched)
 
         return without_lost_crossings(self.stops, mask, options, solve, t, y0, t_final,

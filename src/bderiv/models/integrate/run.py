@@ -414,7 +414,7 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
         return
     group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, now.err,
                                  settled.stop)
-    # the next stretch reads each event on the side its bit says: right within the window
+    # every event on the side its bit says, or within its window of the surface
     check_sides(stops.eval_events(x_after), new, settled.stop.window, t)
     log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
     # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
