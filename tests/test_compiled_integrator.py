@@ -108,9 +108,13 @@ def test_same_steps_and_end_state_as_solve_ivp(name, tolerances):
     # rounds differently: seen once in a few hundred runs, one rejection = 12 evaluations)
     assert abs(s.n_steps - (sol.t.size - 1)) <= 1 and abs(s.nfev - sol.nfev) <= 12
     assert s.t[-1] == t_final and s.t_end == t_final and not s.event
+    # the step sizes follow the error norm, a difference of large terms whose rounding
+    # differs with the field's (numba's sin against NumPy's, FMA contraction: seen 2e-4 on
+    # an AMD EPYC at the loose tolerances), so the steps agree to 2e-3, the end states to
+    # 1e-11 of the solution's size (5e-12 seen after 20 time units of van der Pol)
     if s.t.size == sol.t.size:
-        assert_allclose(s.t, sol.t, rtol=1e-4)
-    assert_allclose(s.x_end, sol.y[:, -1], rtol=1e-12, atol=1e-12 * np.abs(sol.y).max())
+        assert_allclose(s.t, sol.t, rtol=2e-3)
+    assert_allclose(s.x_end, sol.y[:, -1], rtol=1e-11, atol=1e-11 * np.abs(sol.y).max())
 
 
 def test_oscillator_against_closed_form():

@@ -105,14 +105,35 @@ def test_resets_at_the_final_time_are_refused():
         model.flow_bderivative(np.zeros(2), 1.0)
 
 
-def test_groups_on_both_sides_of_the_final_time_are_refused():
+def test_groups_on_both_sides_of_the_final_time_further_apart_than_the_tolerance():
     # event 0 at 1 - 6e-8, event 1 at 1 + 6e-8: each within 1e-7 of T = 1, 1.2e-7 apart
-    model = HybridSystem(lambda x, m: np.ones(2), lambda x: x - np.array([1 - 6e-8, 1 + 6e-8]),
+    # (was refused): event 0 is switched before T, event 1 is the group at the final time
+    model = HybridSystem(lambda x, m: np.array([1.0 + 2.0 * (m & 1), 1.0]),
+                         lambda x: x - np.array([1 - 6e-8, 1 + 6e-8]),
                          n_events=2, dim=2, field_jacobian=lambda x, m: np.zeros((2, 2)),
                          event_jacobian=lambda x: np.eye(2))
-    with pytest.raises(ValueError, match=r"events \[0\] at t=0.99999994 and events \[1\] just "
-                                         r"after t_final=1 .* not one event group"):
-        model.flow_bderivative(np.zeros(2), 1.0, simultaneity_tol=1e-7)
+    D = model.flow_bderivative(np.zeros(2), 1.0, simultaneity_tol=1e-7)
+    assert D.group_events == ((0,), (1,)) and D.stops_at_group
+    assert D.group_spreads == (0.0, 0.0)
+    # event 0 (x_0 = 1 - 6e-8) speeds x_0 up from 1 to 3: its saltation v_0 -> 3 v_0;
+    # event 1 (x_1 = 1 + 6e-8) at the final time changes no field
+    np.testing.assert_allclose(D(V), np.column_stack((3.0 * V[:, 0], V[:, 1])), atol=1e-6)
+
+
+def test_groups_on_both_sides_of_the_final_time_within_the_tolerance_are_merged():
+    # event 0 at 1 - 3e-8, event 1 at 1 + 3e-8 (was refused): one group at the final time,
+    # its spread said; the map is that of the two events and the final time at one point
+    model = HybridSystem(lambda x, m: np.array([1.0 + 2.0 * (m & 1), 1.0]),
+                         lambda x: x - np.array([1 - 3e-8, 1 + 3e-8]),
+                         n_events=2, dim=2, field_jacobian=lambda x, m: np.zeros((2, 2)),
+                         event_jacobian=lambda x: np.eye(2))
+    D = model.flow_bderivative(np.zeros(2), 1.0, simultaneity_tol=1e-7)
+    assert D.group_events == ((0, 1),) and D.stops_at_group
+    np.testing.assert_allclose(D.group_spreads, [6e-8], rtol=1e-3)
+    # closed form at the simultaneous point: event 0 before T (v_0 > 0) speeds x_0 up
+    # from 1 to 3 for the time v_0 (event 1 changes no field)
+    np.testing.assert_allclose(D(V), np.column_stack((V[:, 0] + 2.0 * np.maximum(V[:, 0], 0.0),
+                                                      V[:, 1])), atol=1e-6)
 
 
 def test_final_time_map_validation():
@@ -196,3 +217,86 @@ def test_chair_landing_at_the_final_time_converges():
     # the jump applied to every direction (the map before this fix) is far off
     applied = D.linear[1] @ D.jumps[0].group(W @ L0.T).T
     assert np.abs(applied.T - fd).max() / np.abs(fd).max() > 0.1
+
+
+# -- events apart from each other, each within simultaneity_tol of the final time ----------
+# (reliability, fourth pass, items 3 and 6: a run that ends just before a group and one that
+# stops on its first event must answer alike; before, one refused and the other grouped
+# them silently)
+
+
+def _three_field(x, mask):
+    """Constant in each region: events 0 and 1 change the rates of the later components."""
+    b0, b1 = float(mask & 1), float(mask >> 1 & 1)
+    return np.array([1.0 + 0.5 * b1 + 0.0 * x[0], 1.0 + 0.3 * b0 + 0.0 * x[0],
+                     1.0 + 0.2 * b0 + 0.1 * b1 + 0.0 * x[0]])
+
+
+def _three_events(x):  # events 0, 1, 2 cross 1e-8 apart from the origin, event 0 at t = 1
+    return x - np.array([1.0, 1.0 + 1e-8, 1.0 + 2e-8])
+
+
+def _three_event_jacobian(x):
+    return np.eye(3)
+
+
+@pytest.fixture(scope="module")
+def three_models():
+    """The model on both integrators: Python functions (solve_ivp) and the same functions
+    compiled with numba (the compiled run)."""
+    import numba
+
+    python = HybridSystem(_three_field, _three_events, n_events=3, dim=3,
+                          field_jacobian=lambda x, m: np.zeros((3, 3)),
+                          event_jacobian=_three_event_jacobian)
+    compiled = HybridSystem(numba.njit(_three_field), numba.njit(_three_events),
+                            n_events=3, dim=3, event_jacobian=numba.njit(_three_event_jacobian))
+    return {"python": python, "compiled": compiled}
+
+
+def _three_exact(V, eps=1e-3):
+    """The PL map at the point where the three events cross at once (T = 1), by an exact
+    event-driven run of the piecewise-constant field (straight lines between events) from
+    ``eps v``, minus the run from 0, over eps: exact for a PL flow."""
+    def end(x):
+        x, t, mask = np.array(x, float), 0.0, 0
+        while True:
+            F = _three_field(x, mask)
+            left = [((1.0 - x[k]) / F[k], k) for k in range(3) if not mask >> k & 1]
+            dt, k = min(left) if left else (np.inf, -1)
+            if t + dt >= 1.0:
+                return x + (1.0 - t) * F
+            x, t, mask = x + dt * F, t + dt, mask | 1 << k
+    base = end(np.zeros(3))
+    return np.array([(end(eps * v) - base) / eps for v in V])
+
+
+@pytest.mark.parametrize("path", ["python", "compiled"])
+@pytest.mark.parametrize("T", [1.0, 1.0 - 1e-10, 1.0 - 5e-9], ids=["T=1", "T=1-1e-10", "T=1-5e-9"])
+def test_events_apart_within_the_tolerance_of_the_final_time_are_one_group(three_models, path,
+                                                                           T):
+    """Events 0, 1, 2 cross 1e-8 apart, each within simultaneity_tol = 1e-7 of T: one group
+    at the final time, on both integrators and whether the run stops on event 0 (T = 1) or
+    ends just before it; the spread is said and the map is the group's at the point where
+    the three are simultaneous (to the first order of the spread)."""
+    D = three_models[path].flow_bderivative(np.zeros(3), T)
+    assert D.stops_at_group and D.group_events[-1] == (0, 1, 2)
+    # from T = 1 on, after event 0, events 1 and 2 come at the rates 1.3 and 1.2
+    np.testing.assert_allclose(D.group_spreads[-1], 2e-8 / 1.2 if T == 1.0 else 2e-8, rtol=1e-3)
+    rng = np.random.default_rng(5)
+    V = np.concatenate([rng.standard_normal((20, 3)), np.eye(3), -np.eye(3)])
+    np.testing.assert_allclose(D(V), _three_exact(V), atol=1e-6)
+
+
+@pytest.mark.parametrize("path", ["python", "compiled"])
+@pytest.mark.parametrize("T", [1.0, 1.0 - 1e-10], ids=["T=1", "T=1-1e-10"])
+def test_a_tolerance_below_the_spread_leaves_event_0_alone_at_the_final_time(three_models,
+                                                                              path, T):
+    """Below the spread, event 0 alone is the group at the final time: the map moves the
+    later components by (0.3, 0.2) v_0 where event 0 comes before T (closed form)."""
+    D = three_models[path].flow_bderivative(np.zeros(3), T, simultaneity_tol=5e-9)
+    assert D.stops_at_group and D.group_events[-1] == (0,) and D.group_spreads == (0.0,)
+    rng = np.random.default_rng(5)
+    V = np.concatenate([rng.standard_normal((20, 3)), np.eye(3), -np.eye(3)])
+    exact = V + np.maximum(V[:, :1], 0.0) * np.array([0.0, 0.3, 0.2])
+    np.testing.assert_allclose(D(V), exact, atol=1e-8)

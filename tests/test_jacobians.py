@@ -57,8 +57,9 @@ def test_numerical_reset_jacobian_of_a_large_shear_is_the_closed_form(c, x2):
 
 
 def test_a_numerical_jacobian_no_step_resolves_is_refused_with_its_entry():
-    # a switch of width 1e-20: every step the ladder tries sees a jump
-    field = lambda x, mask: np.array([x[1], np.tanh(x[0] / 1e-20)])  # noqa: E731
+    # a switch of width 1e-20: every step the ladder tries sees a jump (the complex step,
+    # exact there, is had where the field takes complex input: float() here does not)
+    field = lambda x, mask: np.array([x[1], np.tanh(float(x[0]) / 1e-20)])  # noqa: E731
     system = HybridSystem(field, lambda x: x[:1] - 1.0, n_events=1, dim=2)
     with pytest.raises(ValueError, match=r"numerical Jacobian of field\(x, mask=0b1\) at x = "
                                          r".*entry \[1, 0\] .*estimated error .*pass "
@@ -71,7 +72,8 @@ def test_a_numerical_jacobian_no_step_resolves_is_refused_with_its_entry():
         system.eval_field_jacobian(np.zeros(2), 0)
     # a reset with a steep step 1e-14 from the point (at large steps it looks like the
     # identity, which larger steps must not claim): named with its mask and event
-    reset = lambda x, mask, k: x + np.array([0.0, 1e-3 * float(x[1] > 1e-14)])  # noqa: E731
+    # (float() of the state: no complex step, which would give the local derivative)
+    reset = lambda x, mask, k: x + np.array([0.0, 1e-3 * (float(x[1]) > 1e-14)])  # noqa: E731
     system = HybridSystem(lambda x, mask: np.ones(2), lambda x: x[:1] - 1.0, n_events=1,
                           dim=2, reset=reset)
     with pytest.raises(ValueError, match=r"numerical Jacobian of reset\(x, mask=0b0, k=0\) "
@@ -183,11 +185,33 @@ def _bar_start():
 
 def test_the_hertz_bar_without_jacobians_is_refused_at_its_touchdown():
     # the contact force is max(h, 0)**1.5 at h ~ 1e-19 just after touchdown: no step
-    # resolves its curvature there, and the numerical field Jacobian says so
-    bare = HybridSystem(_bar_field, _bar_events, n_events=2, dim=4)
+    # resolves its curvature there, and the central differences say so (a field that
+    # does not take complex input: its values through float())
+    def float_field(x, mask):
+        return _bar_field(np.array(x, dtype=float), mask)
+
+    bare = HybridSystem(float_field, _bar_events, n_events=2, dim=4)
     with pytest.raises(ValueError, match=r"numerical Jacobian of field\(x, mask=0b11\).*"
                                          r"pass field_jacobian"):
         bare.flow_bderivative(_bar_start(), 1.1e-3)
+
+
+def test_the_hertz_bar_without_jacobians_is_exact_by_the_complex_step():
+    # the same bar written with NumPy, which a complex state flows through: its missing
+    # Jacobians by the complex step, exact where no finite difference resolves them
+    x0, T = _bar_start(), 1.1e-3
+    bare = HybridSystem(_bar_field, _bar_events, n_events=2, dim=4)
+    D = bare.flow_bderivative(x0, T)
+    assert bare.numerical_jacobian_cost["field_jacobian"][1] < 20 * 4 * \
+        bare.numerical_jacobian_cost["field_jacobian"][0]  # mostly 4 calls a Jacobian
+    V = np.random.default_rng(0).standard_normal((3, 4)) * np.array([1e-3, 1e-2, 1.0, 30.0])
+    base = _simulate(_bar_field, _bar_events, x0, T)
+    errors = []
+    for eps in (1e-5, 1e-6):  # one-sided differences of the reference simulation
+        fd = np.array([(_simulate(_bar_field, _bar_events, x0 + eps * v, T) - base) / eps
+                       for v in V])
+        errors.append(np.abs(fd - D(V)).max(axis=0) / np.abs(D(V)).max(axis=0))
+    assert errors[1].max() < 0.2 * errors[0].max() and errors[1].max() < 3e-3
 
 
 def test_the_hertz_bar_with_jacobians_matches_finite_differences_of_a_simulation():
@@ -327,6 +351,9 @@ def test_the_report_names_the_wrong_jacobians():
     assert kinds == [("event_jacobian", None, False, True),
                      ("field_jacobian", 0, False, False), ("field_jacobian", 1, False, False),
                      ("section_gradient", None, True, True)]
+    # a numerical Jacobian with zero entries (events x_0 - 1: [1, 0]) is not 'error inf'
+    assert np.isfinite(report.rows[0].error) and report.rows[0].error < 1e-9
+    assert " inf " not in str(report)
 
 
 def test_check_jacobians_refuses_bad_arguments():

@@ -8,7 +8,7 @@ from ._kernels._cache import harden_all as _harden_all
 from .bderivative import BDerivative, LowRankResets
 from .corners import CornerFunction, CornerModel, StructuredCorners
 from .flowmap import FlowBDerivative
-from .jacobians import check_jacobians
+from .jacobians import check_jacobians, complex_step_jacobian
 from .models.integrate.run import SolverOptions
 from .models.system import HybridSystem
 from .triangulation import Triangulation, load_triangulation
@@ -33,5 +33,6 @@ __all__ = [
     "Triangulation",
     "__version__",
     "check_jacobians",
+    "complex_step_jacobian",
     "load_triangulation",
 ]

@@ -7,8 +7,8 @@ and test systems (:mod:`bderiv._baselines`):
 - ``bderiv``: :meth:`BDerivative.__call__` on the batch (the compiled kernels);
 - ``numpy``: mathematics.md section 3 in batched NumPy (:func:`~bderiv._baselines.numpy_apply`);
 - ``blas``: the time a BLAS matrix product would take for the flop count of the useful
-  work, ``m (n**2 + 2 n d)``, at the rate of a 512 x 512 product measured once per sweep:
-  a yardstick of the machine's peak.
+  work, ``m (n**2 + 2 n d)``, at the rate of a 512 x 512 product measured beside each n
+  (so that a load that comes and goes moves both): a yardstick of the machine's peak.
 
 The systems are :func:`~bderiv._baselines.benchmark_system` (rates change after every
 event, so no fast path applies). Each time is the best of ``repeat`` runs after one
@@ -61,8 +61,8 @@ def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: i
     rows = []
     ns = list(ns)
     rng = np.random.default_rng(seed)
-    blas_rate = measure_blas_rate(rng)
     for i, n in enumerate(ns):
+        blas_rate = measure_blas_rate(rng)
         d = d_factor * n
         Dh, F = benchmark_system(n, d, seed)
         bd = BDerivative(Dh, F)  # untimed: the first build compiles or loads its kernels

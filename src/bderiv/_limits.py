@@ -11,7 +11,7 @@ DOP853, the levels and order of the runs of ``_numdiff``'s extrapolation), the l
 one kernel (lanes, groups and lock widths: the code is written for them), codes, formats
 and signatures (status codes, file versions, field names), facts that are no choice (63
 events in an int64 mask, the smallest normal float64), the probe of a check whose outcome
-does not depend on it (``_cyclic.SHIFT``), and what one command or figure shows (rows
+does not depend on it (``_cyclic.SHIFTS``), and what one command or figure shows (rows
 listed, samples drawn, colours).
 
 This module imports nothing of bderiv: it is the bottom of the layers (docs/design.md), and
@@ -145,8 +145,9 @@ CHECK_ERROR_FACTOR = 8.0
 #: underflow)
 COMPLEX_STEP = 2.0**-60
 #: compiled central differences: the step relative to the coordinate's scale, about
-#: EPS^(1/3) (truncation h^2 against rounding EPS / h); a coordinate's scale is its
-#: magnitude, at least SCALE_FLOOR, and 1 for a coordinate at 0 (as ``_numdiff``)
+#: EPS^(1/3) (truncation h^2 against rounding EPS / h); the scale is ``max(|x_j|, 1)``
+#: (scipy's ``approx_derivative``): the magnitude of a coordinate near 0 says nothing of
+#: the scale on which the field varies in it, and a step from it is all rounding
 CENTRAL_STEP = 2.0**-17
 #: largest number of masks ``check_jacobians`` checks by default (all 2**n up to n = 8;
 #: a judgement of cost: each mask is a Jacobian by differences).
@@ -275,6 +276,11 @@ MULTIPLIER_PIECES = 12
 #: ``max(1, |x|)`` shows that a coordinate is not cyclic (a judgement: well above the
 #: integration error of a return, far below a real dependence).
 INDEPENDENCE_RTOL = 1e-7
+#: the return map's derivative along a cyclic coordinate that differs from the identity
+#: by more than this times ``max(1, |image|)`` shows that it is not cyclic (a judgement:
+#: ten times the accepted error of a numerical Jacobian entry, ``ACCEPT_RTOL``; a model
+#: that does not read the coordinate gives exactly the identity).
+EQUIVARIANCE_RTOL = 1e-6
 #: strides a direction of ``decay_check`` needs in the linear regime for its rate to be
 #: fitted (a line through fewer points has no check of its own).
 MIN_FIT_STRIDES = 3

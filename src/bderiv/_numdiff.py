@@ -17,6 +17,7 @@ points evaluated, so rounding of ``x_j +- h`` does not bias the quotient.
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -154,6 +155,51 @@ def jacobian(fun, x) -> Derivative:
     error = np.stack([c.error for c in columns], axis=1)
     needed = _needed(value, np.abs(value).max(axis=1, keepdims=True), f0[:, None], s)
     return Derivative(value, error, needed, calls)
+
+
+#: the complex step of coordinate j: ``COMPLEX_STEP * |x_j|``, at least ``COMPLEX_FLOOR``
+#: (no difference is taken, so a step far below rounding costs nothing; the floor keeps it
+#: a normal number whose quotient is exact)
+COMPLEX_STEP, COMPLEX_FLOOR = 1e-20, 1e-200
+
+
+def complex_step(fun, x, m):
+    """The Jacobian (m, d) of ``fun`` at ``x`` (d,) by the complex step, or None.
+
+    Column j is ``Im fun(x + i h_j e_j) / h_j``: exact to rounding for a complex-analytic
+    function (no difference of two values is taken), in d calls. A function that does not
+    take complex input (it raises, returns another shape or a non-finite value, or NumPy
+    discards an imaginary part: ``float(y[0])``, a float array filled with complex values)
+    gives None. One that takes it but is not complex-analytic (``abs``, ``y.real``) gives a
+    wrong answer silently: hold the result to a central difference once (:func:`compare`)
+    before trusting it. NumPy's other warnings while it runs are not raised.
+
+    Examples
+    --------
+    >>> complex_step(lambda y: np.array([y[0] * np.sin(y[1])]), np.array([2.0, 0.0]), 1)
+    array([[0., 2.]])
+    >>> import math
+    >>> complex_step(lambda y: np.array([math.sin(y[0])]), np.array([2.0]), 1) is None
+    True
+    """
+    d = x.shape[0]
+    h = np.maximum(COMPLEX_STEP * np.abs(x), COMPLEX_FLOOR)
+    J = np.empty((m, d))
+    for j in range(d):
+        y = x.astype(np.complex128)
+        y[j] += 1j * h[j]
+        try:
+            with warnings.catch_warnings():  # an imaginary part discarded: not usable
+                warnings.simplefilter("ignore")
+                warnings.simplefilter("error", np.exceptions.ComplexWarning)
+                out = np.asarray(fun(y))
+        except Exception:  # noqa: BLE001 - any refusal of complex input: not usable
+            return None
+        if out.shape != (m,) or not np.issubdtype(out.dtype, np.number) or \
+                not np.isfinite(out).all():
+            return None
+        J[:, j] = np.imag(out) / h[j]
+    return J
 
 
 def directional(fun, x, v, scale=1.0) -> Derivative:

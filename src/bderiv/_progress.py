@@ -103,13 +103,14 @@ class TqdmCallback:
         except ImportError as exc:  # pragma: no cover - exercised without tqdm only
             raise ImportError(_TQDM_HINT) from exc
         self._tqdm = tqdm
-        self._kwargs = dict(desc=desc, unit=unit, unit_scale=True, dynamic_ncols=True, **kwargs)
+        self._kwargs = dict(desc=desc, unit=unit, dynamic_ncols=True, **kwargs)
         self._bar = None
         self.done = 0
 
     def __call__(self, done: int, total: int) -> None:
-        if self._bar is None:
-            self._bar = self._tqdm(total=int(total), **self._kwargs)
+        if self._bar is None:  # counts scaled (1.2k) from a thousand on, else plain: 3/3
+            kwargs = {"unit_scale": int(total) >= 1000, **self._kwargs}
+            self._bar = self._tqdm(total=int(total), **kwargs)
         step = int(done) - self.done
         if step > 0:
             self._bar.update(step)

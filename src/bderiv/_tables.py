@@ -11,6 +11,11 @@ from __future__ import annotations
 import functools
 import os
 
+try:
+    import resource
+except ImportError:  # pragma: no cover - not on Windows
+    resource = None
+
 import numpy as np
 
 from ._limits import BLOCK_ROWS, RATE_BLOCK_ROWS, UNDERFLOW_LOG10
@@ -86,6 +91,24 @@ def available_memory() -> int:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
         return 8 << 30
+
+
+def memory_headroom() -> int:
+    """Bytes this process may still take: the memory available (:func:`available_memory`)
+    and, under an address-space limit (``RLIMIT_AS``, ``ulimit -v``), what the limit leaves
+    of the address space in use (``/proc/self/statm``), whichever is less."""
+    room = available_memory()
+    if resource is None:
+        return room
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit in (resource.RLIM_INFINITY, -1):
+        return room
+    try:
+        with open("/proc/self/statm") as fh:
+            used = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return room
+    return max(min(room, limit - used), 0)
 
 
 def record_layout(n: int, d: int) -> tuple[int, int, int]:

@@ -14,7 +14,7 @@ import numpy as np
 
 from ._errors import QUERY, QueryError
 from ._limits import SMALL_NEED_BYTES
-from ._tables import available_memory, human_bytes
+from ._tables import available_memory, human_bytes, memory_headroom
 
 _KIND_NAMES = {
     "b": "bool",
@@ -212,6 +212,27 @@ def check_memory(need: int, memory_limit, what: str) -> None:
         raise ValueError(
             f"{what} take {human_bytes(need)}, more than the memory limit of "
             f"{human_bytes(limit)}"
+        )
+
+
+class RecordTooLarge(ValueError):
+    """A record of a run (its samples, a stretch's steps) would grow past the memory the
+    process may still take: refused before it grows (:func:`check_record`)."""
+
+
+def check_record(held: int, more: int, what: str, instead: str) -> None:
+    """Refuse a record that holds ``held`` bytes and is about to take ``more``, when the
+    process may not take them (:func:`bderiv._tables.memory_headroom`): a
+    :class:`RecordTooLarge` naming the record (``what``), the sizes and what to pass
+    ``instead``. A need up to ``SMALL_NEED_BYTES`` is not checked."""
+    if more <= SMALL_NEED_BYTES:
+        return
+    room = memory_headroom()
+    if more > room:
+        raise RecordTooLarge(
+            f"{what} holds {human_bytes(held)} and going on needs about {human_bytes(more)} "
+            f"more, but the process may take only {human_bytes(room)} (the memory available "
+            f"and the address-space limit RLIMIT_AS): {instead}"
         )
 
 

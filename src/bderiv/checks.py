@@ -80,10 +80,12 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
     eps = check_number(eps, "eps")
     flat, lead = check_points(V, system.dim, "V")
 
-    settings = {"simultaneity_tol": simultaneity_tol, "options": options, "section": section}
+    # the final states only: a bounded record (t_eval=()), whatever the span
+    settings = {"simultaneity_tol": simultaneity_tol, "options": options, "section": section,
+                "t_eval": ()}
     progress = resolve_progress(progress, desc="finite differences")
-    base = system.simulate(x0, t_final, **settings)
-    start = base.x[0]  # x0, checked
+    start = system._check_state(x0, "x0")
+    base = system.simulate(start, t_final, **settings)
     # the perturbed runs as one batch (its bar, or the callback after each run)
     runs = system.simulate_many(start + eps * flat, t_final, progress=progress, **settings)
     return ((runs.x_final - base.x_final) / eps).reshape(*lead, system.dim)
@@ -277,7 +279,8 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     X = x0 + eps * V
     for k in range(strides + 1):  # stride by stride, every vector's run in one batch
         if k:
-            X = system.simulate_many(X, t_max, section=section, **simulate_options).x_final
+            X = system.simulate_many(X, t_max, section=section, t_eval=(),
+                                     **simulate_options).x_final
         for i, x in enumerate(X):
             dev[i, k] = np.linalg.norm((x - x0)[keep])
     return _fit_decay(dev, floor, ceiling, eps)

@@ -64,6 +64,13 @@ class FlowBDerivative(Linearisation):
     group_masks : sequence of (int, int), optional
         Region masks before and after each group (information only; after an impact that
         sends the state back, a bounce's bit is the same in both).
+    group_spreads : sequence of float, optional
+        Time from the first to the last crossing of each group's events (information
+        only; default 0). Above 0 where events that crossed measurably apart, within
+        ``simultaneity_tol``, were merged into one group: the group's map is then its
+        B-derivative at the nearby point where they are simultaneous, met by perturbations
+        larger than the spread (:func:`bderiv.models.assembly.flow_map_along`); a
+        ``simultaneity_tol`` below it gives the map of the separated events.
     x0, x_final : array_like, shape (d,), optional
         Start and final point of the nominal trajectory (information only).
     t_final : float, optional
@@ -84,6 +91,7 @@ class FlowBDerivative(Linearisation):
         group_times=None,
         group_events=None,
         group_masks=None,
+        group_spreads=None,
         x0=None,
         x_final=None,
         t_final=None,
@@ -129,6 +137,7 @@ class FlowBDerivative(Linearisation):
                 f"{len(jumps)} jumps"
             )
         self.group_masks = tuple((int(b), int(a)) for b, a in (group_masks or ()))
+        self.group_spreads = tuple(float(s) for s in (group_spreads or [0.0] * len(jumps)))
         self.x0 = None if x0 is None else _read_only(x0)
         self.x_final = None if x_final is None else _read_only(x_final)
         self.t_final = None if t_final is None else float(t_final)
@@ -163,10 +172,16 @@ class FlowBDerivative(Linearisation):
 
     def __repr__(self):
         sizes = [bd.n_events for bd in self._jumps]
-        return f"FlowBDerivative(dim={self.dim}, groups={sizes}, t_final={self.t_final})"
+        merged = ""
+        if any(s > 0 for s in self.group_spreads):  # groups of events measurably apart
+            merged = f", spreads={[float(f'{s:.3g}') for s in self.group_spreads]}"
+        return (f"FlowBDerivative(dim={self.dim}, groups={sizes}, t_final={self.t_final}"
+                f"{merged})")
 
     def __setstate__(self, state):
-        # unpickled arrays come back writeable; keep the stages read-only as built
+        # unpickled arrays come back writeable; keep the stages read-only as built (a map
+        # pickled before group_spreads existed: its groups were each at one point)
+        state.setdefault("group_spreads", (0.0,) * len(state["_jumps"]))
         self.__dict__.update(state)
         for arr in (*self._linear, self.final_field, self.x0, self.x_final):
             if arr is not None:

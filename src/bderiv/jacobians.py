@@ -1,4 +1,5 @@
-"""Check a model's Jacobians at a point: :func:`check_jacobians`.
+"""Check a model's Jacobians at a point (:func:`check_jacobians`), and write one by the
+complex step (:func:`complex_step_jacobian`).
 
 For a user writing ``field_jacobian``, ``event_jacobian`` or ``reset_jacobian`` by hand,
 in the spirit of :func:`scipy.optimize.check_grad` and ``jax.test_util.check_grads``:
@@ -19,10 +20,11 @@ import numpy as np
 from . import _numdiff as numdiff
 from ._format import format_mask
 from ._limits import DEFAULT_MASKS
+from ._validate import all_finite, check_real_array
 from .models.section import Section
 from .models.user_functions import check_output
 
-__all__ = ["JacobianCheck", "JacobianReport", "check_jacobians"]
+__all__ = ["JacobianCheck", "JacobianReport", "check_jacobians", "complex_step_jacobian"]
 
 
 class JacobianCheck(NamedTuple):
@@ -42,7 +44,8 @@ class JacobianCheck(NamedTuple):
         False: not given, the numerical Jacobian's own error estimate.
     error : float
         Given: the largest ``|J v - D_v f| / (|J| |v| + |D_v f|)`` over the outputs;
-        numerical: the largest estimated error relative to its entry.
+        numerical: the largest estimated error relative to the largest entry of its row
+        (of the whole Jacobian for a row of zeros; absolute for a Jacobian of zeros).
     passed : bool
         Given: the mismatch is within ``CHECK_RTOL`` (1e-6) relative plus 8 times the
         difference's error estimate; numerical: every entry reaches the accuracy it needs
@@ -110,8 +113,10 @@ def _given(function, mask, event, fun, x, J, seed) -> JacobianCheck:
 
 def _numerical(function, mask, event, fun, x) -> JacobianCheck:
     D = numdiff.jacobian(fun, x)
+    size = np.abs(D.value)
+    scale = np.maximum(size.max(axis=1, keepdims=True), size.max(initial=0.0))
+    ratio = D.error / np.where(scale > 0, scale, 1.0)  # an entry 0 is not infinitely wrong
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(D.error > 0, D.error / np.abs(D.value), 0.0)
         worst = np.where(D.error > 0, D.error / D.needed, 0.0)
     i, j = np.unravel_index(int(np.argmax(worst)), worst.shape)
     detail = (f"entry [{i}, {j}] = {D.value[i, j]:.6g}, estimated error {D.error[i, j]:.3g}"
@@ -210,3 +215,72 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
         add("section_gradient", None, None, sg and (lambda: sg()[None]),
             lambda y: np.array([sec(y)]))
     return JacobianReport(rows, n)
+
+
+def complex_step_jacobian(fun, x):
+    """The Jacobian of ``fun`` at ``x`` by the complex step: a model's Jacobian in one line.
+
+    Column j is ``Im fun(x + i h e_j) / h`` with ``h = 1e-20 |x_j|`` (at least 1e-200):
+    exact to rounding for a complex-analytic function, in d calls, with no step to choose
+    (no difference of two values is taken). ``HybridSystem`` uses it by itself for a
+    Python model's missing Jacobians where it matches a central difference; write one with
+    it where you want it explicitly, or for a function of your own::
+
+        field_jacobian=lambda x, mask: complex_step_jacobian(lambda y: field(y, mask), x)
+
+    (the model then compares it with a central difference at its first use per mask, as it
+    does every given Jacobian).
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(y) -> array_like, shape (m,)``, written so that a complex ``y`` flows through
+        it: ``np.sin``, ``**``, arithmetic and ``np.array([...])`` of such terms do;
+        ``abs``, ``.real``, ``float(...)``, comparisons of ``y`` and a float array filled
+        with complex values (``np.zeros(d)``: use ``np.zeros(d, dtype=y.dtype)``) do not.
+    x : array_like, shape (d,)
+        A real, finite point.
+
+    Returns
+    -------
+    ndarray, shape (m, d)
+
+    Raises
+    ------
+    TypeError
+        If ``fun`` does not take complex input (what it raised or returned is said).
+    ValueError
+        If ``x`` is not a finite 1-d array.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bderiv import complex_step_jacobian
+    >>> complex_step_jacobian(lambda y: np.array([y[0] * np.sin(y[1]), y[0] ** 2]),
+    ...                       [2.0, 0.0])
+    array([[0., 2.],
+           [4., 0.]])
+    """
+    arr = check_real_array(x, "x")
+    if arr.ndim != 1 or not all_finite(arr):
+        raise ValueError(f"x must be a finite 1-d array (a state), got {arr!r}")
+    arr = np.array(arr, dtype=np.float64)
+    f0 = np.asarray(fun(arr))
+    if f0.ndim != 1:
+        raise ValueError(f"fun must return a 1-d array, got shape {f0.shape}")
+    J = numdiff.complex_step(fun, arr, f0.size)
+    if J is None:
+        probe = arr.astype(np.complex128)
+        try:
+            out = np.asarray(fun(probe))
+            why = (f"it returned {out.dtype} of shape {out.shape}" if out.shape == f0.shape
+                   else f"it returned shape {out.shape} for a complex state")
+            why = why if np.isfinite(out).all() else "it returned a non-finite value"
+        except Exception as exc:  # noqa: BLE001 - named in the message
+            why = f"it raised {type(exc).__name__}: {exc}"
+        raise TypeError(
+            f"fun does not take complex input ({why}); write it so that a complex state "
+            f"flows through it (no float(), abs or comparisons of the state; "
+            f"np.zeros(d, dtype=y.dtype)), or pass the Jacobian written out"
+        )
+    return J

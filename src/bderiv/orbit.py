@@ -37,8 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._cyclic import (
-    SHIFT,
+    SHIFTS,
     check_cyclic,
+    check_equivariance,
     check_independence,
     check_section_normal,
     kept,
@@ -57,7 +58,7 @@ from ._limits import (
     T_MAX_PER_PERIOD,
 )
 from ._validate import check_number, check_positive_int
-from .models.integrate.run import SolverOptions, run
+from .models.integrate.run import ENDS, SolverOptions, run
 from .returnmap import return_map
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
@@ -224,8 +225,10 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         Coordinates the model and the section do not depend on (a forward position, a
         heading): left out of ``P(x) = x`` (they advance every stride) and of the
         stability; ``PeriodicOrbit.advance`` says by how much. Their independence is
-        checked at the start (a shift by :data:`bderiv._cyclic.SHIFT` must shift the
-        return by the same and change nothing else).
+        checked at the start (a shift by each of :data:`bderiv._cyclic.SHIFTS` must shift
+        the return by the same and change nothing else) and at every iterate and the
+        orbit (the return map's derivative along each must be the identity:
+        :func:`bderiv._cyclic.check_equivariance`).
 
     Returns
     -------
@@ -240,7 +243,8 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         From the orbit's return map (:func:`bderiv.returnmap.return_map`), for example
         when two events of the orbit are closer than ``simultaneity_tol`` in time but
         not at one point to within the integration accuracy (the message suggests a
-        smaller ``simultaneity_tol``).
+        smaller ``simultaneity_tol``); and for a coordinate of ``cyclic`` that the model
+        or the section depends on (named, with the measured dependence).
     """
     tol = check_number(tol, "tol")
     max_iter = check_positive_int(max_iter, "max_iter")
@@ -251,14 +255,15 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     cyclic = check_cyclic(cyclic, x.size)
     keep = kept(cyclic, x.size)
     check_section_normal(section.gradient(x), cyclic, x)
-    if cyclic:  # checked first: Newton's method fails, unexplained, on a wrong choice
-        starts = [x, *(x + SHIFT * np.eye(x.size)[i] for i in cyclic)]
+    if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
+        starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
         returned, *shifted = [run(system, start, t_max, simultaneity_tol=0.0, options=options,
-                                  section=section).x_final for start in starts]
+                                  section=section, record=ENDS).x_final for start in starts]
         check_independence(returned, x, shifted, cyclic)
     history, build_tol = [], 0.0
     for iteration in range(max_iter + 1):
         R, traj, built_with = _build(system, x, section, t_max, build_tol, options)
+        check_equivariance(R, x, cyclic)
         r = R.x_final - x
         res = float(np.abs(r[keep]).max())
         if res <= tol * max(1.0, float(np.abs(x[keep]).max())):
@@ -279,6 +284,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     if built_with != simultaneity_tol:  # the map at x was built for the iteration only
         R, traj = return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
                              simultaneity_tol=simultaneity_tol, options=options)
+        check_equivariance(R, x, cyclic)
     r = R.x_final - x
     return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
                          cyclic, r[list(cyclic)])
@@ -401,7 +407,7 @@ def _damped(system, section, x, delta, res, t_max, options, keep):
         trial = _onto_section(section, x + delta)
         try:
             traj = run(system, trial, t_max, simultaneity_tol=0.0, options=options,
-                       section=section)
+                       section=section, record=ENDS)
         except ValueError as exc:  # no return, an event at the section ...: a shorter step
             failure = f"; the last trial point failed: {exc}"
             delta = delta / 2

@@ -23,7 +23,7 @@ import numpy as np
 
 from ._limits import GRAZING_RTOL
 from .flowmap import FlowBDerivative, _read_only
-from .models.integrate.run import run
+from .models.integrate.run import ENDS, run
 
 __all__ = ["ReturnMap", "flow_projection", "return_map"]
 
@@ -151,7 +151,7 @@ def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
     F0 = system.eval_field(x0, system.start_mask(x0))
     _check_section_crossing(n0, F0, "x0", 0.0)
     traj = run(system, x0, t_max, simultaneity_tol=simultaneity_tol, options=options,
-               variational=True, section=section)
+               variational=True, section=section, record=ENDS)
     period = float(traj.t[-1])
     for g in traj.groups:
         if min(g.time, period - g.time) <= simultaneity_tol:

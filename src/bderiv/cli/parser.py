@@ -210,6 +210,10 @@ def _demo(args) -> str | None:
     example = args.example
     if example is None:
         example = "network" if args.n is not None or args.extended else "chair"
+    if args.python and example not in COMPILED_EXAMPLES:
+        raise UsageError(f"--python chooses the Python functions of an example that has "
+                         f"numba-compiled ones ({', '.join(COMPILED_EXAMPLES)}); {example} "
+                         f"has no compiled version, so it means nothing there")
 
     if example in GAIT_EXAMPLES:
         return _gait_demo(args)
@@ -251,7 +255,7 @@ def _gait_demo(args) -> str:
 
 
 def _bench(args) -> str:
-    progress = None if args.no_progress else render.progress_bar("bench")
+    progress = None if args.no_progress else render.progress_bar("bench", unit="size")
     result = run_bench(args.n, d_factor=args.d_factor, batch=args.batch, repeat=args.repeat,
                        plot=args.plot, progress=progress)
     if args.json:

@@ -22,13 +22,14 @@ def to_json(data, indent=None) -> str:
     return json.dumps(data, indent=indent)
 
 
-def progress_bar(desc: str):
-    """A ``progress(done, total)`` tqdm bar on stderr (terminals only); None without tqdm."""
+def progress_bar(desc: str, unit: str = "vec"):
+    """A ``progress(done, total)`` tqdm bar on stderr (terminals only) counting ``unit``;
+    None without tqdm."""
     if importlib.util.find_spec("tqdm") is None:
         return None  # the bar is a nicety in the CLI; without tqdm run silently
     from .._progress import TqdmCallback
 
-    return TqdmCallback(desc, leave=False, disable=None, file=sys.stderr)
+    return TqdmCallback(desc, unit=unit, leave=False, disable=None, file=sys.stderr)
 
 
 # -- demo -------------------------------------------------------------------------------------
@@ -236,11 +237,22 @@ def bench_text(result: dict) -> str:
              "speed-up = numpy / bderiv; % of BLAS = useful work rate (n^2 + 2 n d flops per "
              "query) over a matrix product of the same flop count",
              f"measured on {describe(result['machine'])}"]
+    if any(r["method"] == "bderiv" and r["gflops"] > _blas_gflops(result["rows"], r)
+           for r in result["rows"]):
+        lines.append("note: above 100 % of BLAS, the yardstick product ran slower than the "
+                     "kernels could: other work on the cores in this run (compare on a quiet "
+                     "machine)")
     if "plot" in result:
         plot = result["plot"]
         lines += _made(plot["created"])
         lines.append(f"plot written to {plot['path']}{_replaced(plot['replaced'])}")
     return "\n".join(lines) + "\n"
+
+
+def _blas_gflops(rows, row) -> float:
+    """The BLAS yardstick's rate of the sweep row of ``row``'s size (inf without one)."""
+    return next((r["gflops"] for r in rows if r["method"] == "blas" and
+                 (r["n"], r["d"], r["m"]) == (row["n"], row["d"], row["m"])), float("inf"))
 
 
 def _made(directory, indent="") -> list:

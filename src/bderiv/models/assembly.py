@@ -21,7 +21,8 @@ from ..flowmap import FlowBDerivative
 from .events.crossings import apply_resets, landing
 from .events.finaltime import FinalTimeMap
 
-__all__ = ["flow_map_along", "group_bderivative", "point_bderivative", "spread_masks"]
+__all__ = ["flow_map_along", "group_bderivative", "merge_groups", "point_bderivative",
+           "spread_masks"]
 
 
 def spread_masks(events, mask_before):
@@ -85,13 +86,25 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
 
 def flow_map_along(system, traj):
     """The :class:`FlowBDerivative` along a trajectory integrated with its variational
-    equations (``run(..., variational=True)``): one BDerivative per event group."""
+    equations (``run(..., variational=True)``): one BDerivative per event group.
+
+    Groups switched within the run's ``simultaneity_tol`` of the first of them, with no
+    event in two of them, are merged into one (:func:`merge_groups`): the run switched
+    each at its own time, so its state is the true one, and the map is the group's
+    B-derivative at the nearby point where they are simultaneous (its entries off by the
+    first order of the gap), which a perturbation larger than the gap meets.
+    ``FlowBDerivative.group_spreads`` says how far apart each group's events were; a
+    ``simultaneity_tol`` below the gap gives the map of the separated events instead.
+    """
     groups, linear = list(traj.groups), list(traj.linear)
+    times = [(g.time, g.time) for g in groups]
     final_field = system.eval_field(traj.x_final, traj.mask_final)
     if traj.final_pending:  # a group just after t_final: its map is stopped there too
         groups.append(traj.final_group)
         linear.append(np.eye(system.dim))
+        times.append((min(traj.final_times), max(traj.final_times)))
         final_field = system.eval_field(traj.x_final, traj.final_group.mask_after)
+    groups, linear, spreads = merge_groups(groups, linear, times, traj.simultaneity_tol)
     jumps = [
         group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
                           where=f"at the event point at t={g.time:.10g}",
@@ -103,9 +116,60 @@ def flow_map_along(system, traj):
     return FlowBDerivative(
         linear, jumps, final_field=final_field,
         group_times=[g.time for g in groups], group_events=[g.events for g in groups],
-        group_masks=[(g.mask_before, g.mask_after) for g in groups],
+        group_masks=[(g.mask_before, g.mask_after) for g in groups], group_spreads=spreads,
         x0=traj.x[0], x_final=traj.x_final, t_final=float(traj.t[-1]),
     )
+
+
+def merge_groups(groups, linear, times, tol):
+    """Consecutive event groups within ``tol`` of the first of them merged into one.
+
+    Parameters
+    ----------
+    groups : list of EventGroup
+        In time order.
+    linear : list of ndarray (d, d)
+        The stages around them: ``len(groups) + 1``.
+    times : list of (float, float)
+        The first and last crossing time of each group's events.
+    tol : float
+        A group joins the one before when its last event crosses within ``tol`` of the
+        first event of that one and none of its events is in it (an event crossed and
+        crossed back is two crossings, never one group).
+
+    Returns
+    -------
+    groups, linear, spreads
+        The merged groups (each at the state, time and event Jacobian of its first, with
+        the masks before the first and after the last), their stages (the stages between
+        merged groups dropped: the identity to the first order of the gap), and each
+        group's spread: its last crossing time less its first.
+
+    Examples
+    --------
+    >>> from bderiv.models.events.crossings import EventGroup
+    >>> a = EventGroup(1.0, (0,), 0b00, 0b01, np.zeros(2))
+    >>> b = EventGroup(1.0 + 5e-8, (1,), 0b01, 0b11, np.ones(2))
+    >>> merged, stages, spreads = merge_groups([a, b], [np.eye(2)] * 3,
+    ...                                        [(1.0, 1.0), (1.0 + 5e-8, 1.0 + 5e-8)], 1e-7)
+    >>> merged[0].events, merged[0].mask_after, len(stages), spreads
+    ((0, 1), 3, 2, [5.000000002919336e-08])
+    """
+    out, stages, spreads = [], [linear[0]], []
+    first = 0.0
+    for g, (start, end), after in zip(groups, times, linear[1:], strict=True):
+        if out and end - first <= tol and not set(g.events) & set(out[-1].events):
+            head = out[-1]
+            out[-1] = head._replace(events=tuple(sorted(head.events + g.events)),
+                                    mask_after=g.mask_after, state_after=g.state_after)
+            stages[-1] = after
+            spreads[-1] = max(spreads[-1], end - first)
+            continue
+        out.append(g)
+        stages.append(after)
+        first = start
+        spreads.append(end - start)
+    return out, stages, spreads
 
 
 def point_bderivative(system, rho, tol):

@@ -8,11 +8,13 @@ Poincare section.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 
 import numpy as np
 
+from .. import _numdiff as numdiff
 from .._format import format_mask
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
 from .._validate import all_finite, check_bool, check_positive_int, check_real_array
@@ -29,6 +31,24 @@ from .user_functions import (
 )
 
 _log = logging.getLogger("bderiv")
+
+#: how a Jacobian not given is computed (the first use of each function and mask decides)
+_COMPLEX, _CENTRAL = "complex step", "central differences"
+#: a build (flow map, return map) longer than this, most of it in numerical Jacobians, is
+#: reported at WARNING (a judgement: a pause a user notices; here, not in ``_limits``, whose
+#: numbers are compiled into the kernels)
+SLOW_BUILD_SECONDS = 2.0
+
+
+def _matches(fun, x, J) -> bool:
+    """Whether ``J`` matches a central difference of ``fun`` at ``x`` along a random
+    direction (:func:`check_given_jacobian`'s test): a complex step is trusted only then."""
+    try:
+        with np.errstate(all="ignore"):  # a scale beyond float64's square root: not trusted
+            check_given_jacobian(fun, x, J, "", "")
+    except ValueError:
+        return False
+    return True
 
 
 class ModelCalls:
@@ -75,6 +95,8 @@ class ModelCalls:
         self.check_jacobians = check_bool(check_jacobians, "check_jacobians")
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
         self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
+        self._how = {}  # key -> how its numerical Jacobian is computed (_COMPLEX, _CENTRAL)
+        self._warned = set()  # the builds whose numerical Jacobians were warned about
 
     @property
     def compiled(self) -> CompiledModel | None:
@@ -170,10 +192,12 @@ class ModelCalls:
         """The checked event values at ``x``: shape (n,)."""
         return check_output(self._events(x), (self.n_events,), "events(x)")
 
-    def _jacobian(self, given, key, fun, x, shape, what, jac_name):
+    def _jacobian(self, given, key, fun, raw, x, shape, what, jac_name):
         """A Jacobian of ``fun`` at ``x``: the ``given`` one's output (checked the first
-        time for ``key``, ``key[1:]`` its mask and event), else the numerical one (cost
-        counted)."""
+        time for ``key``, ``key[1:]`` its mask and event), else a numerical one (cost
+        counted): the complex step of ``raw`` (the user's function, unchecked) where it
+        matched a central difference of ``fun`` the first time for ``key``, else central
+        differences."""
         if given is not None:
             args = "".join(f", {a}={b}" for a, b in zip(("mask", "k"), key[1:], strict=False))
             J = check_output(given(), shape, f"{jac_name}(x{args})")
@@ -182,16 +206,57 @@ class ModelCalls:
                 self._checked.add(key)
             return J
         start = time.perf_counter()
-        D = numerical_jacobian(fun, x, what, jac_name)
+        how = self._how.get(key)
+        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0])
+        calls = 0 if how == _CENTRAL else x.size
+        if how is None:  # the first time for this key: held to a central difference once
+            how = _COMPLEX if J is not None and _matches(fun, x, J) else _CENTRAL
+            self._how[key] = how
+            if jac_name not in self._cost:
+                _log.info("%s not given: computing it by %s (%s); pass %s to save that time",
+                          jac_name, how, "d calls of the function per Jacobian"
+                          if how == _COMPLEX else "the function does not take complex input "
+                          "or is not complex-analytic: 10 to 100 calls per variable",
+                          jac_name)
+        if how == _CENTRAL:
+            D = numerical_jacobian(fun, x, what, jac_name)
+            J, calls = D.value, calls + D.calls
         cost = self._cost.setdefault(jac_name, [0, 0, 0.0])
-        if not cost[0]:
-            _log.info("%s not given: computing it numerically (%d calls of %s here); "
-                      "pass %s to save most of that time", jac_name, D.calls,
-                      what[:what.index("(")], jac_name)
         cost[0] += 1
-        cost[1] += D.calls
+        cost[1] += calls
         cost[2] += time.perf_counter() - start
-        return D.value
+        return J
+
+    @contextlib.contextmanager
+    def numerical_jacobian_watch(self, what):
+        """Around a build (``what``: the method's name): when it took over
+        ``SLOW_BUILD_SECONDS``, most of it in numerical Jacobians, say so at WARNING (logger
+        ``"bderiv"``) with their count, calls and time, once per model and method."""
+        before = {name: tuple(c) for name, c in self._cost.items()}
+        start = time.perf_counter()
+        yield
+        took = time.perf_counter() - start
+        spent = {name: (c[0] - before.get(name, (0, 0, 0.0))[0],
+                        c[1] - before.get(name, (0, 0, 0.0))[1],
+                        c[2] - before.get(name, (0, 0, 0.0))[2])
+                 for name, c in self._cost.items()}
+        seconds = sum(s[2] for s in spent.values())
+        if took < SLOW_BUILD_SECONDS or seconds < 0.5 * took or what in self._warned:
+            return
+        self._warned.add(what)
+        parts = ", ".join(f"{name}: {n:,} Jacobians, {calls:,} calls, {sec:.2f} s "
+                          f"({self._how_of(name)})" for name, (n, calls, sec) in spent.items()
+                          if n)
+        _log.warning("%s took %.2f s, %.2f s of it (%.0f %%) in numerical Jacobians (%s): "
+                     "pass them to the model (HybridSystem's field_jacobian, event_jacobian, "
+                     "reset_jacobian; bderiv.complex_step_jacobian writes one from a "
+                     "function that takes complex input)", what, took, seconds,
+                     100 * seconds / took, parts)
+
+    def _how_of(self, jac_name) -> str:
+        """How the numerical ``jac_name`` was computed: by which of the two, or both."""
+        hows = {how for key, how in self._how.items() if key[0] == jac_name}
+        return " and ".join(sorted(hows))
 
     @property
     def numerical_jacobian_cost(self) -> dict:
@@ -219,7 +284,7 @@ class ModelCalls:
                 self.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP:
             return self._complex_step_event_jacobian(x)
         given = None if self._event_jac is None else (lambda: self._event_jac(x))
-        return self._jacobian(given, ("event_jacobian",), self.eval_events, x,
+        return self._jacobian(given, ("event_jacobian",), self.eval_events, self._events, x,
                               (self.n_events, self.dim), "events(x)", "event_jacobian")
 
     def _complex_step_event_jacobian(self, x):
@@ -246,7 +311,8 @@ class ModelCalls:
         mask = self._check_mask(mask)
         given = None if self._field_jac is None else (lambda: self._field_jac(x, mask))
         return self._jacobian(given, ("field_jacobian", mask),
-                              lambda y: self.eval_field(y, mask), x, (self.dim, self.dim),
+                              lambda y: self.eval_field(y, mask),
+                              lambda y: self._field(y, mask), x, (self.dim, self.dim),
                               f"field(x, mask={self._mask_name(mask)})", "field_jacobian")
 
     @property
@@ -267,7 +333,8 @@ class ModelCalls:
         x = self._check_state(x)
         given = None if self._reset_jac is None else (lambda: self._reset_jac(x, mask, k))
         return self._jacobian(given, ("reset_jacobian", int(mask), int(k)),
-                              lambda y: self.eval_reset(y, mask, k), x, (self.dim, self.dim),
+                              lambda y: self.eval_reset(y, mask, k),
+                              lambda y: self._reset(y, mask, k), x, (self.dim, self.dim),
                               f"reset(x, mask={self._mask_name(mask)}, k={k})",
                               "reset_jacobian")
 

@@ -47,7 +47,16 @@ from ..returnmap import return_map
 from .assembly import flow_map_along, point_bderivative
 from .calls import ModelCalls
 from .integrate.many import Trajectories, check_states, run_many
-from .integrate.run import EventGroup, EventRecord, SolverOptions, Trajectory, run
+from .integrate.run import (
+    ENDS,
+    STEPS,
+    EventGroup,
+    EventRecord,
+    SolverOptions,
+    Trajectory,
+    check_t_eval,
+    run,
+)
 from .section import Section
 
 # EventGroup, EventRecord, Trajectory live in models.integrate.run: the types the methods
@@ -124,15 +133,20 @@ class HybridSystem(ModelCalls):
     says how a model runs after its first run; the tutorial (section 12) says how to write
     one.
 
-    A Jacobian not given is computed by central differences with Richardson extrapolation
-    (:mod:`bderiv._numdiff`: steps from an eighth of each variable's magnitude, smaller
-    and larger ones tried until each entry's error estimate is below 1e-7 of the entry)
-    and refused, naming the function, mask, entry and estimated error, where no step
-    reaches that. It costs 10 to 100 calls of the function per variable; inside the
-    variational equations of :meth:`flow_bderivative` that is one Jacobian per
-    right-hand side evaluation, typically 90 % of the time: pass ``field_jacobian``.
-    :attr:`numerical_jacobian_cost` says what they cost so far, and the first one of
-    each kind is logged (logger ``"bderiv"``, level INFO).
+    A Jacobian not given is computed by the complex step where the function takes complex
+    input (:func:`bderiv.complex_step_jacobian`: d calls, exact to rounding), held to a
+    central difference at its first use for each mask (and event): a function that is
+    not complex-analytic (``abs``, ``x.real``) fails that. Otherwise by central
+    differences with Richardson extrapolation (:mod:`bderiv._numdiff`: steps from an
+    eighth of each variable's magnitude, smaller and larger ones tried until each entry's
+    error estimate is below 1e-7 of the entry), refused, naming the function, mask, entry
+    and estimated error, where no step reaches that. These cost 10 to 100 calls of the
+    function per variable; inside the variational equations of :meth:`flow_bderivative`
+    that is one Jacobian per right-hand side evaluation, typically 90 % of the time: pass
+    ``field_jacobian``. :attr:`numerical_jacobian_cost` says what they cost so far, the
+    first one of each kind is logged (logger ``"bderiv"``, level INFO) with how it is
+    computed, and a build (flow map, return map, orbit) of over 2 s spent mostly in them
+    is reported at WARNING with their count, calls and time, once per model.
 
     Examples
     --------
@@ -221,7 +235,7 @@ class HybridSystem(ModelCalls):
     # ------------------------------------------------------------------------------
     def simulate(self, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
                  options=None, rtol=None, atol=None, method=None, max_step=None,
-                 max_groups=MAX_GROUPS, section=None):
+                 max_groups=MAX_GROUPS, section=None, t_eval=None):
         """Integrate from ``x0`` at time 0 to ``t_final`` with event detection.
 
         Parameters
@@ -231,14 +245,14 @@ class HybridSystem(ModelCalls):
         t_final : float
             Final time, > 0.
         simultaneity_tol : float
-            Events whose (first-order) time to crossing, counted from the integrator's stop
-            at an event, is at most this are switched together at the stop (one group),
-            provided they are at the stop to within the integration accuracy
-            (:func:`bderiv.models.integrate.run.group_tolerance`). Events that already crossed
-            inside
-            the step are always switched, so none is lost when two surfaces are crossed
-            inside one solver step, and so are events at the stop to within the accuracy
-            that are crossing (nothing orders them; :mod:`bderiv.models.events.locate`).
+            Events at the integrator's stop to within the integration accuracy that are
+            crossing are switched together at the stop (one group: nothing orders them;
+            :mod:`bderiv.models.events.locate`), and so are events that already crossed
+            inside the step, so none is lost when two surfaces are crossed inside one
+            solver step. Those whose time is known only to more than this are integrated
+            again more tightly where a derivative is computed. Events within this time of
+            crossing but measurably later are switched at their own time: the trajectory
+            is the true one (a flow map merges such groups: :meth:`flow_bderivative`).
         options : SolverOptions, optional
             Integrator settings (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
             1e-12, no step limit).
@@ -252,6 +266,16 @@ class HybridSystem(ModelCalls):
             Stop at the first upward crossing of ``section(x) = 0`` after time 0 (the
             Poincare map: ``x_final`` is ``P(x0)``, ``t[-1]`` the return time);
             ``t_final`` is then the longest time to wait (ValueError if it passes).
+        t_eval : array_like, shape (k,), optional
+            Times at which to keep the state, ascending, in ``[0, t_final]`` (as
+            :func:`scipy.integrate.solve_ivp`'s): ``Trajectory.t, x, masks`` hold these
+            samples only (with a section, those up to the return), each on the dense output
+            of the stretch that holds it (at an event time, the state after the group).
+            ``t_eval=()`` keeps none: the final state and the events only. What the run
+            stores is then bounded by ``k`` and the number of events, whatever the span.
+            Default None: every accepted step, a record that grows with the span; before
+            it outgrows the memory the process may take (the memory available and
+            ``RLIMIT_AS``) the run is refused with a ValueError that names it.
 
         Returns
         -------
@@ -265,8 +289,20 @@ class HybridSystem(ModelCalls):
         TypeError, ValueError
             On a bad argument (named). ValueError also if ``x0`` lies on a surface, if a
             crossing is grazing (not transversal in the region before or after it: the
-            time, event and direction are named), or if an event grouped by
-            ``simultaneity_tol`` is not at the stop (a smaller tolerance is suggested).
+            time, event and direction are named), or if a record of the run (every
+            step's samples; a stretch's steps, kept to search for crossings inside them)
+            would outgrow the memory the process may take (the record, its size and what to
+            pass instead are named).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from bderiv.models.system import HybridSystem
+        >>> s = HybridSystem(lambda x, mask: np.array([x[1], -x[0]]), lambda x: x[:1] - 2.0,
+        ...                  n_events=1, dim=2)
+        >>> traj = s.simulate([1.0, 0.0], 100.0, t_eval=np.linspace(0.0, 100.0, 5))
+        >>> traj.t.shape, traj.x.shape, bool(abs(traj.x_final[0] - np.cos(100.0)) < 1e-7)
+        ((5,), (5, 2), True)
         """
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
@@ -274,11 +310,18 @@ class HybridSystem(ModelCalls):
         if section is not None:
             section = Section(section, self.dim)
         return run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
-                   max_groups=max_groups, section=section)
+                   max_groups=max_groups, section=section,
+                   record=self._record(t_eval, t_final))
+
+    def _record(self, t_eval, t_final):
+        """``run``'s ``record`` for ``t_eval``: every step (None) or the checked times."""
+        if t_eval is None:
+            return STEPS
+        return check_t_eval(t_eval, check_number(t_final, "t_final"), self.dim)
 
     def simulate_many(self, X0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
                       options=None, rtol=None, atol=None, method=None, max_step=None,
-                      max_groups=MAX_GROUPS, section=None, progress=None):
+                      max_groups=MAX_GROUPS, section=None, progress=None, t_eval=None):
         """:meth:`simulate` from every start state of a batch.
 
         Each run is the one :meth:`simulate` makes from that state (the same trajectory,
@@ -302,6 +345,9 @@ class HybridSystem(ModelCalls):
             None: a bar of the runs done, drawn once the batch has lasted a few seconds
             (on a terminal); False: none; True: a tqdm bar from the start; a callable:
             called after each run (in the calling thread, as runs finish).
+        t_eval : array_like, shape (k,), optional
+            As for :meth:`simulate`: the times at which each run keeps its state
+            (``()``: none, the final states and the events only).
 
         Returns
         -------
@@ -335,7 +381,7 @@ class HybridSystem(ModelCalls):
             section = Section(section, self.dim)
         return run_many(self, X0, lead, t_final, simultaneity_tol=simultaneity_tol,
                         options=options, max_groups=max_groups, section=section,
-                        progress=progress)
+                        progress=progress, record=self._record(t_eval, t_final))
 
     def flow_bderivative(self, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
                          options=None, rtol=None, atol=None, method=None, max_step=None):
@@ -354,11 +400,15 @@ class HybridSystem(ModelCalls):
         t_final : float
         simultaneity_tol : float
             Time window within which events of the nominal trajectory count as
-            simultaneous (default 1e-7, well above the event-location accuracy; events in
-            the window must also be at the group's point to within the integration
-            accuracy, see :meth:`simulate`). A stretch whose events' times are known
-            less well than this is integrated again more tightly until they are decided
-            (docs/mathematics.md, section 11).
+            simultaneous (default 1e-7, well above the event-location accuracy). The run
+            switches each event at its own time (:meth:`simulate`); groups whose events
+            cross within this time of the first of them are merged into one, the group's
+            map at the nearby point where they are simultaneous, and
+            ``FlowBDerivative.group_spreads`` says how far apart they were (a smaller
+            tolerance gives the separated events' map: docs/mathematics.md, section 7,
+            "Events close together"). A stretch whose events' times are known less well
+            than this is integrated again more tightly until they are decided (section
+            11).
         options, rtol, atol, method, max_step
             Integrator settings, as for :meth:`simulate`.
 
@@ -374,9 +424,10 @@ class HybridSystem(ModelCalls):
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
-        traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
-                   variational=True)
-        return self.flow_map_along(traj)
+        with self.numerical_jacobian_watch("flow_bderivative"):
+            traj = run(self, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
+                       variational=True, record=ENDS)
+            return self.flow_map_along(traj)
 
     def flow_map_along(self, traj):
         """The :class:`FlowBDerivative` along a trajectory integrated with its variational
@@ -421,10 +472,11 @@ class HybridSystem(ModelCalls):
                                         max_step=max_step)
         x0 = self._check_state(x0, "x0")
         section = Section(section, self.dim, section_gradient, self.check_jacobians)
-        return return_map(self, x0, section,
-                          t_max=check_number(t_max, "t_max"),
-                          tol=check_number(tol, "tol", strict=False),
-                          simultaneity_tol=simultaneity_tol, options=options)[0]
+        with self.numerical_jacobian_watch("return_map"):
+            return return_map(self, x0, section,
+                              t_max=check_number(t_max, "t_max"),
+                              tol=check_number(tol, "tol", strict=False),
+                              simultaneity_tol=simultaneity_tol, options=options)[0]
 
     def periodic_orbit(self, x_guess, section, period_guess=None, *, section_gradient=None,
                        tol=ORBIT_TOL, max_iter=ORBIT_MAX_ITER,
@@ -464,10 +516,11 @@ class HybridSystem(ModelCalls):
         x_guess = self._check_state(x_guess, "x_guess")
         options = SolverOptions.resolve(options, ORBIT_OPTIONS)
         section = Section(section, self.dim, section_gradient, self.check_jacobians)
-        return periodic_orbit(self, x_guess, section,
-                              period_guess=period_guess, tol=tol, max_iter=max_iter,
-                              simultaneity_tol=simultaneity_tol, options=options,
-                              cyclic=cyclic)
+        with self.numerical_jacobian_watch("periodic_orbit"):
+            return periodic_orbit(self, x_guess, section,
+                                  period_guess=period_guess, tol=tol, max_iter=max_iter,
+                                  simultaneity_tol=simultaneity_tol, options=options,
+                                  cyclic=cyclic)
 
     def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
                 options=None, rtol=None, atol=None, method=None, max_step=None):

@@ -7,7 +7,7 @@ The integrated vector is ``y = x`` (length d), or with the variational equations
 
 Without a ``field_jacobian``, ``J`` is computed here (:func:`jacobian`): by complex step
 when the field compiles for complex input (exact to rounding: no difference is taken), else
-by central differences, each coordinate with a step from its own magnitude.
+by central differences, each coordinate with a step from its magnitude, at least 1.
 
 A model with parameters (:class:`~bderiv.models.compiled.CompiledModel`'s ``params``, m values)
 has functions that take ``x`` of length d + m, the state followed by the parameter values
@@ -131,7 +131,8 @@ def jacobian(model, mode, x, mask, d, J):
 
     The state is ``x[:d]`` (``x`` may be the integrated vector, the state first). Complex
     step: column j is ``Im field(x + i h e_j) / h``; central differences: ``(f(x + h e_j)
-    - f(x - h e_j)) / (2 h)`` with the step as represented (``(x_j + h) - x_j``).
+    - f(x - h e_j)) / (2 h)`` with the step as represented (``(x_j + h) - x_j``), h =
+    ``CENTRAL_STEP * max(|x_j|, 1)``.
     """
     if mode == JAC_GIVEN:
         try:
@@ -159,7 +160,11 @@ def jacobian(model, mode, x, mask, d, J):
     else:
         xs = state_argument(model, x, d)
         for j in range(d):
-            step = CENTRAL_STEP * coordinate_scale(x[j])
+            # the step from max(|x_j|, 1), not from |x_j|: a coordinate near 0 (a pitch at
+            # 1e-31 on a symmetric gait) does not vary the field on a scale of its size, and
+            # a step of 2^-17 |x_j| there is all rounding (J off by 1e-2: the variational
+            # equations' error estimate sees it, and their steps shrank to 1e-9)
+            step = CENTRAL_STEP * max(abs(x[j]), 1.0)
             for i in range(d):
                 xs[i] = x[i]
             xs[j] = x[j] + step

@@ -219,8 +219,6 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         x_end = y_end[:d].copy()
         new, x_after, bits = mask, x_end, np.int64(0)
         if event:
-            if (codes & NEAR).any():
-                break
             group = (codes & GROUP) != 0
             if first_grazing(group, Dh, F) >= 0:
                 break

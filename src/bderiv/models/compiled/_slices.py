@@ -15,7 +15,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._format import MASK_MEANING, format_mask
 from ..._limits import FIRST_SLICE, SLICE_SECONDS
+from ..._validate import check_record
 from ._integrate import N_STEPS, PAUSED, drive_stretch
 
 #: seconds per accepted step measured so far, per (model, length of the integrated vector)
@@ -91,9 +93,14 @@ def measured(key, elapsed, steps) -> None:
 
 def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
           rtol, atol, max_step, first_step, forced, on_side, dense) -> Driven:
-    """``drive_stretch`` with these arguments, in slices of steps (no validation)."""
+    """``drive_stretch`` with these arguments, in slices of steps (no validation).
+
+    The stretch's record (every accepted step's time and integrated vector, and with
+    ``dense`` its dense output) grows with its steps: before each slice its projected size
+    is held to what the process may still take (:func:`bderiv._validate.check_record`:
+    a ValueError naming the record, never the model's MemoryError)."""
     key = (id(model), y0.size)
-    parts, counts = [], None
+    parts, counts, held, start_t = [], None, 0, t0
     while True:
         budget = slice_budget(key)
         start = time.perf_counter()
@@ -112,9 +119,25 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         if status != PAUSED:
             break
         cancel_point()
+        # the next slice (about as many steps as this one; the driver's arrays double as
+        # they fill) and the parts joined into one record at the end
+        grown = sum(a.nbytes for a in parts[-1])
+        held += grown
+        check_record(held, held + 4 * grown, _stretch_record(mask, n_events, start_t, t_end,
+                                                             counts[N_STEPS]),
+                     "pass a shorter t_final and go on from the run's x_final, or a larger "
+                     "rtol and atol (fewer steps)")
         t0, y0, first_step, forced, on_side = t_end, y_end, h, -1, False
     if len(parts) == 1:
         ts, ys, steps, Fd = parts[0]
     else:
         ts, ys, steps, Fd = (np.concatenate(p) for p in zip(*parts, strict=True))
     return Driven(status, t_end, y_end, ts, ys, steps, Fd, active, roots, counts, bad, t_bad)
+
+
+def _stretch_record(mask, n, t0, t, steps) -> str:
+    """The words naming a stretch's record in a refusal."""
+    return (f"the record of the stretch of region mask {format_mask(mask, n)} "
+            f"({MASK_MEANING}) from t = {t0!r} (every accepted step's state and dense "
+            f"output, kept to search for crossings inside the steps), {int(steps)} steps to "
+            f"t = {t!r},")

@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from ..._format import MASK_MEANING, format_mask
+from ..._validate import RecordTooLarge
 from ._checks import (
     check_compiled,
     compiles_as,
@@ -266,6 +267,15 @@ class CompiledModel:
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
                         atols, float(max_step), 0.0, n if forced else -1, bool(on_side),
                         dense)
+        except RecordTooLarge:  # the stretch's record, refused before it grew: named
+            raise
+        except MemoryError as exc:  # an allocation of the driver's record failed
+            raise RecordTooLarge(
+                f"the record of the stretch of region mask {format_mask(mask, n)} "
+                f"({MASK_MEANING}) from t = {t0!r} (every accepted step's state and dense "
+                f"output) did not fit in memory: pass a shorter t_final and go on from the "
+                f"run's x_final, or a larger rtol and atol (fewer steps)"
+            ) from exc
         except Exception as exc:  # raised inside a user function: say where
             raise ValueError(
                 f"a compiled function of the model raised {type(exc).__name__}: {exc}; while "

@@ -21,8 +21,9 @@ from numba import njit
 
 from ..._limits import GLOBAL_ERROR_FACTOR, GRAZING_RTOL
 
-#: the codes of :func:`classify`: switched with the group; grouped by ``simultaneity_tol``
-#: but not at the stop (refused); at the stop with a time known worse than the tolerance
+#: the codes of :func:`classify`: switched with the group; within ``simultaneity_tol`` of
+#: crossing but not at the stop (switched at its own time, later); at the stop with a time
+#: known worse than the tolerance
 GROUP, NEAR, UNDECIDED = 1, 2, 4
 
 
@@ -86,7 +87,7 @@ def classify(h, rate, window, fired, simultaneity_tol, out):
             if window[k] / rate[k] > simultaneity_tol:
                 code |= UNDECIDED
         elif -h[k] / rate[k] <= simultaneity_tol:
-            code = GROUP | NEAR
+            code = NEAR
         out[k] = code
 
 

@@ -144,8 +144,12 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
     x : ndarray, shape (d,)
     t : float
     simultaneity_tol : float
-        Events within this time (first order) of crossing are switched too; they must be
-        at ``x`` to within their window (:func:`bderiv.models.events.locate.windows`).
+        Events at ``x`` to within their window (:func:`bderiv.models.events.locate.windows`)
+        are switched with the located ones; those whose time is known only to more than
+        this were settled before (:func:`bderiv.models.events.locate.settle`). Events
+        within this time of crossing but measurably later are not switched: each stops the
+        integrator at its own time, so the state is the true one (a flow map merges such
+        groups: :func:`bderiv.models.assembly.flow_map_along`).
     err : ndarray, shape (d,)
         Bound on the error of ``x``, per component
         (:func:`bderiv.models.events.locate.state_error`).
@@ -169,7 +173,7 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
     ValueError
         On a grazing crossing (a rate that is not clearly of the crossing's sign before
         it, or after it where the state stays on the surface: the time, event and
-        direction are named), on a grouped event that is not at ``x``, and on resets that
+        direction are named), and on resets that
         disagree, jump across another surface or leave the state on a surface it neither
         leaves nor crosses.
     """
@@ -178,9 +182,9 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
         stop = examine(system, mask, x, err, fired, simultaneity_tol)
     sign, h, Dh, F, rate, window, classes = stop
     # crossed, located or not (two surfaces crossed in one step): always switched, so
-    # none is ever lost (bderiv.models.events.locate.classify)
+    # none is ever lost (bderiv.models.events.locate.classify); events within
+    # simultaneity_tol but measurably later are switched at their own time
     group = classes.group
-    _check_near(classes.near, h, rate, window, group, t, simultaneity_tol)
     flags = flags_of(group, n)
     _check_crossings(group, flags, Dh, F, mask, "before", t, sign, n)
     if not system.has_resets:  # every event lands on the far side, and must move on
@@ -312,18 +316,3 @@ def _refuse_crossing(k, dh, F, mask, when, t, sign, n):
     downward = f" (the rate is that of -h_{k}, which crosses upward)" if sign < 0 else ""
     raise ValueError(f"{message}; event {k} crossed {direction_name(sign)}{downward}")
 
-
-def _check_near(near, h, rate, window, group, t, simultaneity_tol):
-    """Refuse events grouped by ``simultaneity_tol`` that are not at the stop: each is
-    further from its surface than its window, so its time is known better than its gap."""
-    if not near:
-        return
-    k = near[0]
-    gap, known = -h[k] / rate[k], window[k] / rate[k]
-    raise ValueError(
-        f"events {group} were grouped at t={t:.10g} by simultaneity_tol={simultaneity_tol:g}, "
-        f"but event {k} is not at that point: h_{k} = {h[k]:.3g}, beyond the integration "
-        f"accuracy {window[k]:.3g}; it happens about {gap:.3g} later (its time is known to "
-        f"{known:.3g}). Switching it early would give a wrong state: pass a simultaneity_tol "
-        f"below {gap:.3g} (and above {known:.3g}) to switch it on its own"
-    )

@@ -41,10 +41,16 @@ and the midpoints of the steps (its dense output; :func:`sample_times`):
    :func:`_start_dip`: such an event whose samples all read across until it rises in a
    step (both ends and the midpoint) is searched for its lowest value in that step; more
    than ``tol_k`` below the surface, it is a return the samples did not see either.
-4. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
+4. :func:`_back_in_first_step`: a stretch that stops within its first step at an event
+   that started it at its surface, leaving it, with a rate at the stop not clearly that
+   of a crossing, has a return inside that step that the integrator's root search placed
+   at the start, where the sides cannot be told apart: the return is searched from the
+   deepest point of that excursion (bounded Brent on the step's dense output).
+5. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
    before the earliest lost crossing's bracket to its peak, where ``h_k > 0``, or, for a
-   return, to the lowest sample or point before it, and on from there: the sign change
-   is at the ends of a step now, and the crossing is located as any other.
+   return, to the lowest sample (the deepest point: 3, 4) before it, and on from there:
+   the sign change is at the ends of a step now, and the crossing is located as any
+   other, its rate judged at its own point.
 
 A step in which ``h_k`` rises and falls more than once is assumed to show one of its peaks
 among the samples; a step long against the time scale of the events needs ``max_step``.
@@ -219,6 +225,9 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
     # just switched (one may sit a rounding across its surface), at the stop an event is
     # located, or across and switched with it (crossings.switch)
     rates = _EndRates(system, sign, mask, sol.y[:d, 0], sol.y[:d, -1])
+    back = _back_in_first_step(system, mask, sign, sol, h, tol)
+    if back is not None:
+        return 0, back, True
     last = times.size - 1
 
     def value(t, k):
@@ -264,6 +273,42 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
             )
     if through is not None:
         return (*through, True)
+    return None
+
+
+def _back_in_first_step(system, mask, sign, sol, h, tol):
+    """A time inside the first step of ``sol`` where an event is clearly below its
+    surface, when ``sol`` stopped within that step at a crossing of that event that is
+    not clearly transversal, and the event started the stretch at its surface (just
+    switched, leaving it); else None (module docstring, 4).
+
+    The event then left its surface and came back across within the first step (a short
+    excursion: an oscillator pushed back out of a region 9e-3 after entering it at rate
+    0.014, in a step of 0.012). The integrator's event function reads the start on the
+    side it leaves (:func:`bderiv.models.events.locate.on_side_at_start`) and the step's
+    end across, and its root search settles within a rounding of the start, where the
+    dense output cannot tell the sides apart and the rate is that of leaving: not a
+    crossing. The deepest point of the excursion (bounded Brent on the step's dense
+    output) is below the surface by the excursion's depth; integrated to it, the stretch
+    has a step end on the side it left, and the return is located as any crossing, with
+    its own rate.
+    """
+    if sol.status != 1 or sol.t.size != 2:
+        return None
+    d, x_stop = system.dim, sol.y[:system.dim, -1]
+    Dh = sign[:, None] * system.eval_event_jacobian(x_stop)
+    F = np.ascontiguousarray(system.eval_field(x_stop, mask), dtype=np.float64)
+    for k in range(sign.size):
+        if not (sol.t_events[k].size and abs(h[0, k]) <= tol[k]) or rules.clearly_positive(
+                np.ascontiguousarray(Dh[k]), F):
+            continue
+
+        def below(t, k=k):
+            return -sign[k] * system.eval_events(sol.sol(t)[:d])[k]
+
+        t_low, depth = peak_of(below, float(sol.t[0]), sol.first_step_end)
+        if depth > tol[k]:
+            return t_low
     return None
 
 

@@ -130,10 +130,11 @@ class Classes:
     ----------
     group : list of int
         Switched at the stop: fired, crossed (``h_k > window_k``), or at the stop and
-        crossing within ``simultaneity_tol``.
+        crossing (``|h_k| <= window_k``).
     near : list of int
-        Within ``simultaneity_tol`` of crossing but not at the stop: grouping them would
-        switch them early (refused).
+        Within ``simultaneity_tol`` of crossing but not at the stop: switching them here
+        would switch them early, so each stops the integrator at its own time (a flow map
+        merges the groups: :func:`bderiv.models.assembly.flow_map_along`).
     undecided : list of int
         At the stop and crossing, with a time uncertainty ``window_k / rate_k`` above
         ``simultaneity_tol``: whether they belong to the group is not known.
@@ -189,7 +190,7 @@ def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     --------
     >>> c = classify(np.array([0.0, -1e-12, -1e-8]), np.ones(3), np.full(3, 1e-9), [0], 1e-7)
     >>> c.group, c.near, c.undecided
-    ([0, 1, 2], [2], [])
+    ([0, 1], [2], [])
     >>> classify(np.array([0.0, -1e-12]), np.ones(2), np.full(2, 1e-9), [0], 1e-10).undecided
     [1]
     """

@@ -5,7 +5,8 @@ for a
 model whose ``field``, ``events`` (and ``field_jacobian``, and the section) are numba
 dispatchers: the stretch runs in :mod:`bderiv.models.compiled`'s driver (scipy's DOP853, no Python
 call per step) and comes back with solve_ivp's fields (``t``, ``y``, ``t_events``,
-``status``, and ``sol``, the state's dense output), so that everything at a stop (location,
+``status``, and ``sol``, the state's dense output; ``pieces``, the dense output of each
+integration of the stretch), so that everything at a stop (location,
 grouping, crossings inside a step, the final time) is the same code for both integrators:
 :func:`bderiv.models.integrate.run.run`, :mod:`bderiv.models.events.locate`,
 :mod:`bderiv.models.events.crossings`,
@@ -55,7 +56,8 @@ _NO_CROSSING.flags.writeable = False
 class CompiledSolution:
     """A compiled stretch with solve_ivp's fields: ``t`` (N,), ``y`` (m, N), ``t_events``
     (the earliest crossing's event; one list per watched value), ``status`` (1: stopped at
-    a crossing, 0: at the final time), ``sol`` (:class:`DenseOutput` of the state)."""
+    a crossing, 0: at the final time), ``sol`` (:class:`DenseOutput` of the state),
+    ``first_step_end`` (the end of the first step, beyond the stop when it is in it)."""
 
     def __init__(self, out, d, watched):
         self.t, self.y = out.ts, out.ys.T
@@ -65,6 +67,8 @@ class CompiledSolution:
             first = out.roots.tolist().index(out.t_end)
             self.t_events[first] = np.array([out.t_end])
         self.sol = DenseOutput(out.steps, out.Fd, out.ys[:-1, :d])  # >= 1 step each
+        # the end of the first step (beyond the stop when an event stopped it there)
+        self.first_step_end = float(out.steps[0, 0] + out.steps[0, 1])
 
 
 class CompiledStretches:
@@ -98,12 +102,18 @@ class CompiledStretches:
         else:
             y0 = x
 
+        pieces = []  # each integration's start and dense output (record.dense_state)
+
         def solve(start, y_start, stop):
             out = self.model.stretch(
                 y_start, start, stop, mask, rtol=options.rtol, atol=options.atol,
                 max_step=options.max_step, variational=variational, section=self.section,
                 forced=self.section is not None and start == 0.0, on_side=start == t)
-            return CompiledSolution(out, d, watched)
+            sol = CompiledSolution(out, d, watched)
+            pieces.append((start, sol.sol))
+            return sol
 
-        return without_lost_crossings(self.stops, mask, options, solve, t, y0, t_final,
-                                      events_at=self.model.events_rows)
+        sol = without_lost_crossings(self.stops, mask, options, solve, t, y0, t_final,
+                                     events_at=self.model.events_rows)
+        sol.pieces = pieces
+        return sol

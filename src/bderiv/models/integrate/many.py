@@ -51,7 +51,7 @@ import numpy as np
 from ..._progress import SimulationProgress, resolve_progress
 from ..._validate import check_number, check_points, check_positive_int
 from ..compiled import Cancelled, stopped_by
-from .run import compiled_stops, run, stops_compile
+from .run import STEPS, compiled_stops, run, stops_compile
 
 __all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count"]
 
@@ -114,7 +114,7 @@ def worker_count(m: int) -> int:
 
 
 def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups,
-             section=None, progress=None) -> Trajectories:
+             section=None, progress=None, record=STEPS) -> Trajectories:
     """:func:`~bderiv.models.integrate.run.run` from every row of ``X0``, on
     :func:`worker_count` threads when :func:`threaded` (else one after the other).
 
@@ -125,8 +125,9 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
         Checked start states (:func:`check_states`).
     lead : tuple
         The leading shape the results take (``m`` = its product).
-    t_final, simultaneity_tol, options, max_groups, section
-        As for :func:`~bderiv.models.integrate.run.run` (checked here once).
+    t_final, simultaneity_tol, options, max_groups, section, record
+        As for :func:`~bderiv.models.integrate.run.run` (checked here once; ``record``
+        by the caller).
     progress : None, bool or callable ``progress(done, total)``
         None: a bar of the runs done once the batch has lasted a few seconds (on a
         terminal, as a simulation's); False: none; True: a tqdm bar from the start; a
@@ -149,7 +150,7 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
 
     def one(i):
         return run(system, X0[i].copy(), t_final, simultaneity_tol=simultaneity_tol,
-                   options=options, max_groups=max_groups, section=section)
+                   options=options, max_groups=max_groups, section=section, record=record)
 
     watch = None
     if progress is None:

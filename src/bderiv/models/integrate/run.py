@@ -11,6 +11,14 @@ switch together as one :class:`~bderiv.models.events.crossings.EventGroup`
 checks each crossing and that every event of a group is at the stop). With ``section``
 the run ends at the first upward crossing of a Poincare section after the start.
 :class:`SolverOptions` holds the integrator settings with their one set of defaults.
+
+What a run records is asked for (``record``): every accepted step (``STEPS``, what
+``simulate`` gives by default), its start and end only (``ENDS``: what the flow map, the
+return map and the finite differences read; bounded, whatever the span), or the states at
+given times (``t_eval``, on each stretch's dense output). The event log, the groups and
+(with ``variational``) one (d, d) matrix per stretch are always kept. A record that grows
+with the steps is held to the memory the process may still take before it grows
+(:func:`bderiv._validate.check_record`): a ValueError that names it, not a MemoryError.
 """
 
 from __future__ import annotations
@@ -28,8 +36,9 @@ from ..._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
-from ..events.locate import StopCalls, check_sides, orientation, settle
+from ..events.locate import StopCalls, check_sides, local_view, settle
 from .compiled_path import CompiledStretches
+from .record import ENDS, STEPS, RunLog, check_t_eval
 from .scipy_path import ScipyStretches
 
 __all__ = [
@@ -38,6 +47,9 @@ __all__ = [
     "EventRecord",
     "SolverOptions",
     "Trajectory",
+    "ENDS",
+    "STEPS",
+    "check_t_eval",
     "group_tolerance",
     "run",
     "stretches_for",
@@ -135,8 +147,10 @@ class Trajectory:
     Attributes
     ----------
     t : ndarray, shape (N,)
-        Output times, ascending, from 0 to ``t_final``; an event time appears twice (end of
-        one stretch, start of the next).
+        Output times, ascending. By default every accepted step, from 0 to ``t_final``;
+        an event time appears twice (end of one stretch, start of the next). With
+        ``t_eval``: those times (up to the return, with a section), each state on the
+        dense output of the stretch that holds it (at an event time, the one after it).
     x : ndarray, shape (N, d)
         States at ``t``.
     masks : ndarray, shape (N,), int64
@@ -161,6 +175,11 @@ class Trajectory:
         ``mask_final`` is the mask before them.
     final_pending : bool
         Whether ``final_group`` lies just after ``t_final`` (not switched).
+    final_times : tuple of float
+        With ``final_pending``, the first-order time at which each event of
+        ``final_group`` crosses (``t_final - h_k / rate_k``); else empty.
+    simultaneity_tol : float
+        The tolerance of the run (the flow map merges groups within it).
     """
 
     t: np.ndarray
@@ -173,25 +192,8 @@ class Trajectory:
     linear: tuple = dc_field(default=(), repr=False)
     final_group: EventGroup | None = None
     final_pending: bool = False
-
-
-@dataclass
-class _Log:
-    """What :func:`run` accumulates, stretch by stretch."""
-
-    t: list = dc_field(default_factory=list)
-    x: list = dc_field(default_factory=list)
-    masks: list = dc_field(default_factory=list)
-    records: list = dc_field(default_factory=list)
-    groups: list = dc_field(default_factory=list)
-    linear: list = dc_field(default_factory=list)
-
-    def add_stretch(self, sol, mask, d, variational):
-        self.t.append(sol.t)
-        self.x.append(sol.y[:d].T)
-        self.masks.append(np.full(sol.t.size, mask, dtype=np.int64))
-        if variational:
-            self.linear.append(np.array(sol.y[d:, -1].reshape(d, d)))
+    final_times: tuple = ()
+    simultaneity_tol: float = 0.0
 
 
 def stretches_for(system, options, section=None, watch=None, stops=None):
@@ -220,7 +222,7 @@ def stretches_for(system, options, section=None, watch=None, stops=None):
 
 
 def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=False,
-        section=None, max_groups=MAX_GROUPS):
+        section=None, max_groups=MAX_GROUPS, record=STEPS):
     """Integrate ``system`` from ``x0`` at time 0 to ``t_final`` with event detection.
 
     Parameters
@@ -243,6 +245,12 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         model).
     max_groups : int
         Largest number of event groups (a Zeno or chattering trajectory is refused).
+    record : ``STEPS``, ``ENDS`` or ndarray, shape (k,)
+        The samples kept in ``Trajectory.t, x, masks``: every accepted step (held to
+        the memory the process may take: ValueError before it grows past it), the start
+        and the end only (the time and state at 0 and at the run's end), or the states at
+        these times (checked by :func:`check_t_eval`; those after a return to the
+        section are not sampled).
 
     Returns
     -------
@@ -262,14 +270,16 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     max_groups = check_positive_int(max_groups, "max_groups")
     options = SolverOptions() if options is None else options
     d = system.dim
-    log, loop = _Log(), None  # the Python loop's own state: made for its first stretch
+    log, loop = RunLog(record), None  # the Python loop's own state: made for its first stretch
+    # samples at given times are taken on the dense output of the Python loop's stretches
+    sampled = isinstance(record, np.ndarray)
     # the start's region (mask -1) from the signs of its events: by the compiled run, or
     # by start_mask before the first stretch in Python (which refuses a start on a surface)
     now = _Now(0.0, x0, -1, np.abs(x0), np.zeros(d))
     settings = (t_final, simultaneity_tol, options, variational, section, max_groups)
     while not now.ended:
         cancel_point()  # a run of a batch on threads stops with its batch
-        if compiled_stops(system, section):  # as far as the stops are plain, in one call
+        if not sampled and compiled_stops(system, section):  # the plain stops, in one call
             _compiled_stretches(system, log, now, *settings)
         if not now.ended:
             if loop is None:
@@ -284,24 +294,21 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         )
     if variational and len(log.linear) == len(log.groups):  # an event stopped it at t_final
         log.linear.append(np.eye(d))
-    final, pending = None, False
+    final, times = None, ()
     if variational and section is None:
         stops = StopCalls(system) if loop is None else loop.stops
-        final, pending = _final_group(stops, log.groups, now.mask, now.x, t_final,
-                                      simultaneity_tol)
-    return Trajectory(t=_joined(log.t), x=_joined(log.x), masks=_joined(log.masks),
-                      events=tuple(log.records),
+        final, times = _final_group(stops, log.groups, now.mask, now.x, t_final,
+                                    simultaneity_tol)
+    t, x, masks = log.finish(x0, now)
+    return Trajectory(t=t, x=x, masks=masks, events=tuple(log.records),
                       groups=tuple(log.groups), x_final=now.x, mask_final=now.mask,
-                      linear=tuple(log.linear), final_group=final, final_pending=pending)
+                      linear=tuple(log.linear), final_group=final,
+                      final_pending=bool(times), final_times=times,
+                      simultaneity_tol=simultaneity_tol)
 
 
 #: the regions of a run without sensitivity (no field Jacobian to check)
 _NO_MASKS = np.empty(0, dtype=np.int64)
-
-
-def _joined(parts):
-    """The arrays ``parts`` joined along their first axis (the one part itself)."""
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 class _PythonLoop:
@@ -369,9 +376,7 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
         return
     code, returned, t, mask, state, T, X, M, L, times, masks, states, jacobians, _ = out
     if T.size:
-        log.t.append(T)
-        log.x.append(X)
-        log.masks.append(M)
+        log.add_steps(T, X, M)
         if variational:
             log.linear.extend(L)
     records, groups = log.records, log.groups
@@ -402,10 +407,11 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
     settled = settle(stops, now.mask, sol, simultaneity_tol, options, now.scale, now.err,
                      again if variational else None)
     sol, now.err, now.scale, fired = settled.sol, settled.err, settled.scale, settled.fired
-    log.add_stretch(sol, now.mask, d, variational)
+    returned = section is not None and sol.t_events[n].size
+    log.add_stretch(sol, now.mask, d, variational, last=returned or sol.status == 0)
     now.t, now.x = float(sol.t[-1]), np.array(sol.y[:d, -1])
     t, x, mask = now.t, now.x, now.mask
-    if section is not None and sol.t_events[n].size:
+    if returned:
         _refuse_event_at_return(fired, t)
         now.ended = now.returned = True
         return
@@ -430,28 +436,21 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
 
 
 def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
-    """The event group within ``simultaneity_tol`` of ``t_final`` and whether it is
-    pending (after ``t_final``): ``(None, False)`` when there is none."""
-    sign = orientation(int(mask), system.n_events)
-    jac = system.eval_event_jacobian(x)
-    rate = sign * (jac @ system.eval_field(x, mask))
-    pending = pending_at_final_time(sign * system.eval_events(x), rate, simultaneity_tol)
-    last = groups[-1] if groups and t_final - groups[-1].time <= simultaneity_tol else None
-    if last is not None and pending:
-        raise ValueError(
-            f"events {list(last.events)} at t={last.time:.10g} and events {pending} just "
-            f"after t_final={t_final:.10g} are all within simultaneity_tol="
-            f"{simultaneity_tol:g} of the final time, but not of each other: the flow map's "
-            f"B-derivative at that final time is not one event group; choose a final time "
-            f"away from them"
-        )
-    if last is not None:
-        return last, False
+    """The event group within ``simultaneity_tol`` of ``t_final`` and, when it is pending
+    (events about to cross after ``t_final``), the times at which its events cross (first
+    order); ``(None, ())`` when there is none. Pending events come before the last switched
+    group within the tolerance: the flow map merges the two
+    (:func:`bderiv.models.assembly.flow_map_along`)."""
+    _, h, _, _, rate = local_view(system, int(mask), x)
+    pending = pending_at_final_time(h, rate, simultaneity_tol)
     if pending:
         bits = sum(1 << k for k in pending)
-        return EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
-                          jac), True
-    return None, False
+        group = EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
+                           system.eval_event_jacobian(x))
+        return group, tuple(t_final - float(h[k] / rate[k]) for k in pending)
+    if groups and t_final - groups[-1].time <= simultaneity_tol:
+        return groups[-1], ()
+    return None, ()
 
 
 def _refuse_event_at_return(fired, t):

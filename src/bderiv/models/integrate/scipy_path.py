@@ -14,8 +14,19 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from ..._format import MASK_MEANING, format_mask
+from ..._validate import check_record
 from ..events.excursions import without_lost_crossings
 from ..events.locate import on_side_at_start
+
+#: evaluations of the right-hand side per accepted step of the explicit methods (DOP853:
+#: 12, and 3 more for its dense output); an implicit method's steps are counted as one
+#: evaluation each (an over-count: refused early rather than late)
+EVALUATIONS_PER_STEP = {"DOP853": 15, "RK45": 6, "RK23": 3}
+#: bytes solve_ivp keeps per accepted step besides 80 per component of the integrated
+#: vector (its time and state, the dense output's coefficients and objects: measured on
+#: DOP853 with dense output, 595 B at m = 2, 1.9 KiB at m = 20, 30 KiB at m = 420)
+SOLVE_IVP_STEP_BYTES = 600
 
 
 class _EventValues:
@@ -99,15 +110,49 @@ class ScipyStretches:
 
             y0 = x
         funcs = on_side_at_start(self.events.terminal_events(mask), t, mask, system.n_events)
-
-        field = rhs if self.watch is None else self.watch.wrap(rhs)
+        pieces = []  # each integration's start and dense output (record.dense_state)
 
         def solve(start, y_start, stop):
+            counted = _Counted(rhs, y_start.size, options.method, mask, system.n_events,
+                               start)
+            field = counted if self.watch is None else self.watch.wrap(counted)
             sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
                             **options.solve_ivp_kwargs())
             if sol.status == -1:
                 raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
+            # the end of the first step (beyond the stop when an event stopped it there)
+            sol.first_step_end = float(sol.sol.interpolants[0].t)
+            pieces.append((start, sol.sol))
             return sol
 
         # solve_ivp compares signs at step ends only: look inside the steps too
-        return without_lost_crossings(self.stops, mask, options, solve, t, y0, t_final)
+        sol = without_lost_crossings(self.stops, mask, options, solve, t, y0, t_final)
+        sol.pieces = pieces
+        return sol
+
+
+class _Counted:
+    """The right-hand side of one solve_ivp call, counting its evaluations: solve_ivp keeps
+    every step (its time, its vector and its dense output), so the record it grows is held
+    to what the process may still take (:func:`bderiv._validate.check_record`), its size
+    estimated from the evaluations (``EVALUATIONS_PER_STEP`` of the method, at least one)
+    and ``SOLVE_IVP_STEP_BYTES`` per step; checked each time it has doubled."""
+
+    def __init__(self, rhs, m, method, mask, n, start):
+        self.rhs, self.calls, self.next_check = rhs, 0, 1 << 12
+        self.per_call = (SOLVE_IVP_STEP_BYTES + 80 * m) / EVALUATIONS_PER_STEP.get(method, 1)
+        self.mask, self.n, self.start = mask, n, start
+
+    def __call__(self, t, y):
+        self.calls += 1
+        if self.calls >= self.next_check:
+            self.next_check *= 2
+            held = int(self.calls * self.per_call)
+            check_record(held, 2 * held,
+                         f"solve_ivp's record of the stretch of region mask "
+                         f"{format_mask(self.mask, self.n)} ({MASK_MEANING}) from t = "
+                         f"{self.start!r} (every accepted step's state and dense output, "
+                         f"about {self.calls} evaluations to t = {t!r})",
+                         "pass a shorter t_final and go on from the run's x_final, or a "
+                         "larger rtol and atol (fewer steps)")
+        return self.rhs(t, y)

@@ -1,0 +1,147 @@
+"""What a run records: the samples it is asked for, its events, groups and sensitivities.
+
+:class:`RunLog` is what :func:`bderiv.models.integrate.run.run` accumulates stretch by
+stretch. The samples are what the caller asks for (``record``): every accepted step
+(``STEPS``, ``simulate``'s default: a record that grows with the steps, held to the memory
+the process may still take before it grows, :func:`bderiv._validate.check_record`), the
+start and the end only (``ENDS``: what the flow map, the return map and the finite
+differences read; two samples whatever the span), or the states at given times
+(``t_eval``, :func:`check_t_eval`), each on the dense output of the stretch that holds it
+(:func:`dense_state`). The event log, the groups and the stretches' (d, d) sensitivities
+are always kept (their number is bounded by ``max_groups``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+
+import numpy as np
+
+from ..._tables import human_bytes
+from ..._validate import check_real_array, check_record
+
+__all__ = ["ENDS", "STEPS", "RunLog", "check_t_eval", "dense_state"]
+
+#: what a run records (``run``'s ``record``, besides an array of times): every accepted
+#: step, or the start and the end only
+STEPS, ENDS = "steps", "ends"
+#: the words of a refusal of the record of every step: what to pass instead
+_INSTEAD = ("pass t_eval (the times to sample: a bounded record), t_eval=() for the final "
+            "state and the events only, or a shorter t_final")
+
+@dataclass
+class RunLog:
+    """What :func:`~bderiv.models.integrate.run.run` accumulates, stretch by stretch: the
+    samples ``record`` asks for (``STEPS``, ``ENDS`` or the sorted times ``t_eval``, of
+    which ``taken`` are sampled), the events, the groups and the stretches' sensitivities."""
+
+    record: object = STEPS
+    t: list = dc_field(default_factory=list)
+    x: list = dc_field(default_factory=list)
+    masks: list = dc_field(default_factory=list)
+    records: list = dc_field(default_factory=list)
+    groups: list = dc_field(default_factory=list)
+    linear: list = dc_field(default_factory=list)
+    first_mask: int = -1
+    taken: int = 0
+    held: int = 0
+    next_check: int = 0
+
+    def add_steps(self, T, X, M):
+        """The samples of recorded stretches: times (N,), states (N, d), masks (N,); kept
+        with ``STEPS`` (held to the memory the process may take), else only the first
+        mask (the start's region)."""
+        if self.first_mask < 0 and M.size:
+            self.first_mask = int(M[0])
+        if self.record is not STEPS:
+            return
+        self.t.append(T)
+        self.x.append(X)
+        self.masks.append(M)
+        self.held += T.nbytes + X.nbytes + M.nbytes
+        if self.held >= self.next_check:
+            # checked again when it has grown by half; joined at the end: one more copy
+            self.next_check = self.held + self.held // 2
+            count = sum(part.size for part in self.t)
+            check_record(self.held, 2 * self.held,
+                         f"the trajectory's record of every accepted step (Trajectory.t, "
+                         f"x, masks: {count} samples to t = {float(T[-1])!r})", _INSTEAD)
+
+    def add_stretch(self, sol, mask, d, variational, last):
+        """A stretch of the Python loop (solve_ivp's fields; ``last``: the run ends with
+        it): its samples as ``record`` asks, and its sensitivity at its end."""
+        if isinstance(self.record, np.ndarray):
+            if self.first_mask < 0:
+                self.first_mask = mask
+            self.sample(sol, mask, d, last)
+        else:
+            self.add_steps(sol.t, sol.y[:d].T, np.full(sol.t.size, mask, dtype=np.int64))
+        if variational:
+            self.linear.append(np.array(sol.y[d:, -1].reshape(d, d)))
+
+    def sample(self, sol, mask, d, last):
+        """The times of ``t_eval`` on this stretch (before its end; up to it when ``last``),
+        on its dense output."""
+        times, end = self.record, float(sol.t[-1])
+        stop = int(np.searchsorted(times, end, side="right" if last else "left"))
+        if stop > self.taken:
+            here = times[self.taken:stop]
+            self.t.append(here)
+            self.x.append(dense_state(sol, here, d))
+            self.masks.append(np.full(here.size, mask, dtype=np.int64))
+            self.taken = stop
+
+    def finish(self, x0, now):
+        """``(t, x, masks)`` of the Trajectory."""
+        if self.record is ENDS:
+            return (np.array([0.0, now.t]), np.array([x0, now.x]),
+                    np.array([self.first_mask, now.mask], dtype=np.int64))
+        if isinstance(self.record, np.ndarray):  # times at the end after the last stretch
+            stop = int(np.searchsorted(self.record, now.t, side="right"))
+            if stop > self.taken:
+                here = self.record[self.taken:stop]
+                self.t.append(here)
+                self.x.append(np.tile(now.x, (here.size, 1)))
+                self.masks.append(np.full(here.size, now.mask, dtype=np.int64))
+            if not self.t:
+                return np.empty(0), np.empty((0, x0.size)), np.empty(0, dtype=np.int64)
+        return _joined(self.t), _joined(self.x), _joined(self.masks)
+
+
+def dense_state(sol, times, d):
+    """The states (len(times), d) at ``times`` on a stretch's dense output: each on the
+    last integration of the stretch that starts at or before it (``sol.pieces``: a stretch
+    integrated again from a step end to find a crossing inside a step is several)."""
+    pieces = getattr(sol, "pieces", None) or [(float(sol.t[0]), sol.sol)]
+    starts = np.array([start for start, _ in pieces])
+    which = np.maximum(np.searchsorted(starts, times, side="right") - 1, 0)
+    out = np.empty((times.size, d))
+    for j in np.unique(which):
+        at = which == j
+        out[at] = np.asarray(pieces[j][1](times[at]))[:d].T
+    return out
+
+
+def check_t_eval(t_eval, t_final, d):
+    """``t_eval`` checked: a 1-D array of finite times, ascending, in ``[0, t_final]``
+    (the samples' memory held to what the process may take); float64."""
+    times = check_real_array(t_eval, "t_eval").astype(np.float64).ravel()
+    if np.ndim(t_eval) > 1:
+        raise ValueError(f"t_eval must be 1-D, got shape {np.shape(t_eval)}")
+    if not np.isfinite(times).all():
+        raise ValueError(f"t_eval must be finite, got {times[~np.isfinite(times)][:3]}")
+    if times.size and (times[0] < 0.0 or times[-1] > t_final):
+        raise ValueError(f"t_eval must lie in [0, t_final={t_final!r}], got times from "
+                         f"{times[0]!r} to {times[-1]!r}")
+    if (np.diff(times) < 0).any():
+        raise ValueError("t_eval must be ascending")
+    need = times.size * (16 + 8 * d)
+    check_record(0, 2 * need, f"t_eval's {times.size} samples ({human_bytes(need)})",
+                 "pass fewer times")
+    return times
+
+
+def _joined(parts):
+    """The arrays ``parts`` joined along their first axis (the one part itself)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)

@@ -1,0 +1,110 @@
+"""A Python model without Jacobians is not silently slow (users' fourth pass, item 1).
+
+A missing Jacobian is had by the complex step where the user's function takes complex input
+and the step matches a central difference at its first use (per function and mask), else
+by central differences; a build that spends most of its time in numerical Jacobians says
+so at WARNING with their real count and time. Oracles: the chair's Jacobians written out
+by hand (its example), closed forms.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pytest
+
+from bderiv import HybridSystem, complex_step_jacobian, examples
+from bderiv.models import calls as calls_module
+
+
+@pytest.fixture(scope="module")
+def chair():
+    return examples.chair()
+
+
+def bare(system, field=None, events=None):
+    """The model's own Python functions, no Jacobians given."""
+    return HybridSystem(field or system._field, events or system._events, n_events=2, dim=6)
+
+
+def test_a_complex_analytic_field_gets_its_jacobian_by_the_complex_step(chair):
+    model = bare(chair.system)
+    D = model.flow_bderivative(chair.x0, chair.t_final)
+    jacobians, calls, _ = model.numerical_jacobian_cost["field_jacobian"]
+    # d = 6 calls a Jacobian, and one check by central differences per region (2 here)
+    assert calls <= 6 * jacobians + 2 * 120, (jacobians, calls)
+    exact = chair.system.flow_bderivative(chair.x0, chair.t_final)  # hand-written Jacobians
+    V = np.random.default_rng(0).standard_normal((16, 6))
+    np.testing.assert_allclose(D(V), exact(V), rtol=1e-10, atol=1e-10 * np.abs(exact(V)).max())
+
+
+def _float_only(field):
+    """``field`` written into a float array: it does not take complex input."""
+    def out(x, mask):
+        y = np.zeros(6)
+        y[:] = field(x, mask)
+        return y
+    return out
+
+
+def _not_analytic(field):
+    """``field`` of the real part of the state: takes complex input, wrong complex step."""
+    return lambda x, mask: field(np.real(x), mask)
+
+
+@pytest.mark.parametrize("wrap", [_float_only, _not_analytic], ids=["float-only", "not-analytic"])
+def test_a_field_without_a_usable_complex_step_gets_central_differences(chair, wrap, caplog):
+    model = bare(chair.system, field=wrap(chair.system._field))
+    with caplog.at_level(logging.INFO, logger="bderiv"):
+        D = model.flow_bderivative(chair.x0, chair.t_final)
+    jacobians, calls, _ = model.numerical_jacobian_cost["field_jacobian"]
+    assert calls >= 4 * 6 * jacobians  # 4 or more calls per variable: central differences
+    assert any("field_jacobian not given: computing it by central differences" in r.message
+               for r in caplog.records)
+    exact = chair.system.flow_bderivative(chair.x0, chair.t_final)
+    V = np.random.default_rng(1).standard_normal((16, 6))
+    np.testing.assert_allclose(D(V), exact(V), rtol=1e-6, atol=1e-6 * np.abs(exact(V)).max())
+
+
+def test_a_build_mostly_in_numerical_jacobians_says_so_once(chair, caplog, monkeypatch):
+    monkeypatch.setattr(calls_module, "SLOW_BUILD_SECONDS", 0.0)  # every build counts
+    model = bare(chair.system, field=_float_only(chair.system._field))
+    with caplog.at_level(logging.WARNING, logger="bderiv"):
+        model.flow_bderivative(chair.x0, chair.t_final)
+        jacobians, calls, _ = model.numerical_jacobian_cost["field_jacobian"]
+        model.flow_bderivative(chair.x0, chair.t_final)
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warned) == 1, warned  # once per model and method
+    # the real count of the build (the cost counted)
+    assert f"field_jacobian: {jacobians:,} Jacobians, {calls:,} calls" in warned[0]
+    assert "flow_bderivative took" in warned[0] and "central differences" in warned[0]
+    assert "bderiv.complex_step_jacobian" in warned[0]
+    quick = bare(chair.system)  # the complex step: the build is no longer mostly Jacobians
+    monkeypatch.setattr(calls_module, "SLOW_BUILD_SECONDS", 1e9)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="bderiv"):
+        quick.flow_bderivative(chair.x0, chair.t_final)
+    assert not caplog.records
+
+
+def test_complex_step_jacobian_closed_form():
+    J = complex_step_jacobian(lambda y: np.array([y[0] * np.sin(y[1]), np.exp(y[0] * y[1]),
+                                                  y[1] ** 3]), [2.0, 0.5])
+    expected = [[np.sin(0.5), 2.0 * np.cos(0.5)], [0.5 * np.exp(1.0), 2.0 * np.exp(1.0)],
+                [0.0, 0.75]]
+    np.testing.assert_allclose(J, expected, rtol=1e-15)
+    # tiny and huge coordinates: the step follows |x_j|
+    J = complex_step_jacobian(lambda y: np.array([y[0] ** 2 + 3.0 * y[1]]), [1e-100, 1e100])
+    np.testing.assert_allclose(J, [[2e-100, 3.0]], rtol=1e-15)
+
+
+def test_complex_step_jacobian_refuses_a_function_without_complex_input():
+    with pytest.raises(TypeError, match=r"fun does not take complex input \(it raised "
+                                        r"(ComplexWarning|TypeError)"):
+        complex_step_jacobian(lambda y: np.array([math.sin(y[0])]), [1.0])
+    with pytest.raises(ValueError, match=r"x must be a finite 1-d array"):
+        complex_step_jacobian(lambda y: y, [np.nan])
+    with pytest.raises(ValueError, match=r"fun must return a 1-d array, got shape \(\)"):
+        complex_step_jacobian(lambda y: y[0], [1.0])
