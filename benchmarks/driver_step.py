@@ -119,8 +119,8 @@ def driver_stride(model, jac_mode, n, masks, y0s, t0s, t1s, dense):
     atol = np.full(d, ATOL)
     for i in range(t0s.size):
         out = drive_stretch(model, jac_mode, False, False, n, masks[i], d, t0s[i], y0s[i],
-                            t1s[i], RTOL, atol, np.inf, 1e-3, np.int64(-1), np.int64(10**9),
-                            dense)
+                            t1s[i], RTOL, atol, np.inf, 1e-3, np.int64(-1), np.bool_(False),
+                            np.int64(10**9), dense)
         steps += out[9][N_STEPS]
         ends[i] = out[1]
     return steps, ends

@@ -42,6 +42,8 @@ PAUSED = -4
 #: entries of the returned counters
 NFEV, NJEV, N_STEPS, N_REJECTED = range(4)
 _DENSE_EXTRA = N_STAGES_EXTENDED - N_STAGES - 1
+#: the value of an event at 0 at a run's stretch's start, on its side (``on_side``)
+_TINY = np.finfo(np.float64).tiny
 
 
 @njit(cache=True, inline="always")
@@ -65,7 +67,8 @@ def _stopped(status, t, y, ts, ys, gs, count, steps, Fd, n_dense, active, roots,
 
 @njit(cache=True, nogil=True)
 def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
-                  t_final, rtol, atol, max_step, first_step, forced, max_steps, dense):
+                  t_final, rtol, atol, max_step, first_step, forced, on_side, max_steps,
+                  dense):
     """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
 
     ``y0`` is the state (length d) or the state and the sensitivity (length d + d * d,
@@ -73,7 +76,11 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     ``first_step`` 0 selects it as scipy does. ``n_events`` values are watched: the model's
     events, and its section last when ``with_section`` (upward: its bit of ``mask`` is
     clear); the value of event ``forced`` (-1: none) reads 1 at the start (a run that
-    starts on its section counts only a return from below). No validation.
+    starts on its section counts only a return from below). With ``on_side`` (a run's
+    stretch), a model event whose value at ``t0`` is 0 reads ``+-tiny`` on the side its
+    bit of ``mask`` says there, as :func:`bderiv.models.events.locate.on_side_at_start`
+    makes solve_ivp read it (else a value leaving 0 counts as a crossing at ``t0``). No
+    validation.
 
     Returns
     -------
@@ -141,6 +148,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
                         counts, bad, t, 0.0)
     for k in range(n_events):
         gs[0, k] = g[k]
+    if on_side:
+        for k in range(n_events - with_section):
+            if g[k] == 0.0:
+                g[k] = _TINY if mask >> k & 1 else -_TINY
     if forced >= 0:
         g[forced] = 1.0
     h_abs = first_step
@@ -212,8 +223,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             t_stop = t_new
             for k in range(n_events):
                 if active[k] and status == OK:
-                    status, roots[k] = locate(model, with_section, k, coef, y, t, t_new, x,
-                                              g_new, bad)
+                    status, roots[k] = locate(model, with_section, k, g[k], coef, y, t,
+                                              t_new, x, g_new, bad)
                     t_stop = min(t_stop, roots[k])
             if status != OK:
                 return _stopped(status, t_new, y_new, ts, ys, gs, count, steps, Fd, n_dense,

@@ -41,6 +41,7 @@ from .rules import (
     local_rates,
     state_error,
     windows,
+    wrong_side,
 )
 
 #: the run ended (final time or the section) / the next stretch is the Python loop's
@@ -67,8 +68,8 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
     # no literal arguments: a callee is compiled again for each literal type it meets
     status, t_end, y_end, ts, ys, steps, Fd, _, roots, counts, _, _, _, gs = \
         drive_stretch(model, jac_mode, variational, with_section, n + with_section, mask, d, t,
-                      y0, t_final, rtol, atol, max_step, np.float64(0.0), forced, budget,
-                      np.bool_(True))
+                      y0, t_final, rtol, atol, max_step, np.float64(0.0), forced,
+                      np.bool_(True), budget, np.bool_(True))
     grown, err_new, first = scale.copy(), np.empty(d), -1
     fail = (False, status, counts[N_STEPS], t_end, y_end, ts, ys, Dh, grown, err_new, first,
             h, F, Dh, rate, window, codes)
@@ -236,6 +237,17 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
                 fs, F_new = checked_field(model, x_end, new, d)
                 ok = fs == OK and first_grazing(group, Dh, F_new) < 0
             if not ok or groups >= groups_left:
+                break
+            # every event on the side its bit says, or within its window of the surface
+            # (locate.check_sides): else the Python loop words the broken invariant
+            h_after = np.empty(n)
+            if with_resets:
+                ok = call_events(model, np.bool_(False), x_after, n, h_after,
+                                 np.empty(d)) == OK
+            else:
+                for k in range(n):
+                    h_after[k] = sign[k] * h[k]  # exact: the values at x_end
+            if not ok or wrong_side(h_after, new, window) >= 0:
                 break
         # the stretch is the Python loop's too: recorded
         need = count + ts.size

@@ -92,7 +92,7 @@ def measured(key, elapsed, steps) -> None:
 
 
 def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
-          rtol, atol, max_step, first_step, forced, dense) -> Driven:
+          rtol, atol, max_step, first_step, forced, on_side, dense) -> Driven:
     """``drive_stretch`` with these arguments, in slices of steps (no validation).
 
     The stretch's record (every accepted step's time and integrated vector, and with
@@ -107,7 +107,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         try:
             out = drive_stretch(model, jac_mode, variational, with_section, n_events, mask,
                                 d, t0, y0, t_final, rtol, atol, max_step, first_step, forced,
-                                budget, dense)
+                                on_side, budget, dense)
         except SystemError as exc:  # Ctrl-C seen while numba boxed the results
             _interrupted(exc)
             raise
@@ -127,7 +127,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
                                                              counts[N_STEPS]),
                      "pass a shorter t_final and go on from the run's x_final, or a larger "
                      "rtol and atol (fewer steps)")
-        t0, y0, first_step, forced = t_end, y_end, h, -1
+        t0, y0, first_step, forced, on_side = t_end, y_end, h, -1, False
     if len(parts) == 1:
         ts, ys, steps, Fd = parts[0]
     else:

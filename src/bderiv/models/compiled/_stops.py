@@ -33,6 +33,7 @@ from .rules import (
     return_sample,
     same_flow,
     sample_times,
+    start_dip_steps,
     state_error,
     tolerances,
 )
@@ -81,7 +82,8 @@ def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, gs, steps, Fd,
     """Whether the excursion screen finds nothing to search on the stretch
     (:func:`bderiv.models.events.excursions._earliest_lost` up to its search: no sampled
     peak that could reach a surface once its bracket is sampled finer and its ends decided
-    by the rates there, no return across a surface); False also on a failed check.
+    by the rates there, no return across a surface, no step to search for one from a start
+    across); False also on a failed check.
 
     The samples at the step ends are the record's states ``ys``, and their events the
     driver's own values ``gs`` (NaN at a stop inside a step: evaluated here), the same bits
@@ -123,8 +125,8 @@ def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, gs, steps, Fd,
     state_error(atol, rtol, scale, np.zeros(d), err)
     tol = np.empty(n)
     tolerances(J, err, tol)
-    if return_sample(H, tol) >= 0:
-        return False
+    if return_sample(H, tol) >= 0 or start_dip_steps(H).shape[0] > 0:
+        return False  # a return across a surface, or a step to search for one
     rows = peak_rows(H, tol, np.bool_(True), REACH)
     if rows.shape[0] == 0:
         return True

@@ -43,18 +43,19 @@ def _event_at(model, with_section, k, F, y_old, t_old, h, t, x, g, bad):
 
 
 @njit(cache=True)
-def locate(model, with_section, k, F, y_old, t_old, t_new, x, g, bad):
-    """``(status, t)``: the root of event k in ``[t_old, t_new]`` on the dense output.
+def locate(model, with_section, k, g_old, F, y_old, t_old, t_new, x, g, bad):
+    """``(status, t)``: the root of event k in ``[t_old, t_new]`` on the dense output,
+    ``g_old`` its watched value at ``t_old``: the event at ``y_old`` (which the dense output
+    gives at ``t_old`` exactly), or at a run's stretch's start the side a 0 reads
+    (``on_side`` of :func:`._integrate.drive_stretch`), as solve_ivp's ``brentq`` reads
+    the event function there.
 
     scipy's ``brentq`` (``Zeros/brentq.c``): inverse quadratic interpolation or secant
     steps kept inside the bracket, bisection otherwise, to ``xtol + rtol |t|``. The ends
     must bracket a root (``crossed`` guarantees a sign change or a zero end).
     """
     h = t_new - t_old
-    xpre, xcur = t_old, t_new
-    status, fpre = _event_at(model, with_section, k, F, y_old, t_old, h, xpre, x, g, bad)
-    if status != OK:
-        return status, xpre
+    xpre, xcur, fpre = t_old, t_new, g_old
     status, fcur = _event_at(model, with_section, k, F, y_old, t_old, h, xcur, x, g, bad)
     if status != OK:
         return status, xcur

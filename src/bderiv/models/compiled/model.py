@@ -232,7 +232,7 @@ class CompiledModel:
         return out
 
     def stretch(self, y0, t0, t_final, mask, *, rtol, atol, max_step, variational,
-                section=None, forced=False, dense=True) -> Driven:
+                section=None, forced=False, on_side=False, dense=True) -> Driven:
         """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
 
         Parameters
@@ -246,6 +246,9 @@ class CompiledModel:
             ``section(x) -> float``: watched upward after the events (event ``n``).
         forced : bool
             The section reads 1 at ``t0`` (a run that starts on it).
+        on_side : bool
+            An event at 0 at ``t0`` reads on the side its bit of ``mask`` says (a run's
+            stretch: :func:`bderiv.models.events.locate.on_side_at_start`).
         dense : bool
             Record the state's dense output of every step.
 
@@ -262,7 +265,8 @@ class CompiledModel:
         try:
             out = drive(self.struct(section), self.jac_mode, variational, section is not None,
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
-                        atols, float(max_step), 0.0, n if forced else -1, dense)
+                        atols, float(max_step), 0.0, n if forced else -1, bool(on_side),
+                        dense)
         except RecordTooLarge:  # the stretch's record, refused before it grew: named
             raise
         except MemoryError as exc:  # an allocation of the driver's record failed

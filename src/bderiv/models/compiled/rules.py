@@ -132,6 +132,19 @@ def first_grazing(group, Dh, F):
 
 
 @njit(cache=True)
+def wrong_side(h, mask, window):
+    """The first event k whose value ``h[k]`` (n,) is not on the side of its surface that
+    bit k of ``mask`` says (set: ``h_k > 0``; clear: ``h_k < 0``) and is further from it
+    than ``window[k]``; -1 if none: the invariant of the region after every stop
+    (:func:`bderiv.models.events.locate.check_sides`)."""
+    for k in range(h.size):
+        side = 1.0 if mask >> k & 1 else -1.0
+        if not side * h[k] > 0.0 and not abs(h[k]) <= window[k]:
+            return k
+    return -1
+
+
+@njit(cache=True)
 def return_sample(h, tol):
     """The earliest sample ``i >= 1`` with ``h[i, k] < 0`` of an event across its surface,
     ``h[j, k] > tol_k``, at a later sample j (the first such j), the lowest of those
@@ -153,6 +166,32 @@ def return_sample(h, tol):
         if low < 0.0 and (first < 0 or i_low < first):
             first = i_low
     return first
+
+
+@njit(cache=True)
+def start_dip_steps(h):
+    """``(k, j)`` rows (B, 2): event k is across its surface at the first sample
+    (``h[0, k] > 0``: a located crossing's rounding, or an event switched with it on its
+    way to its side) and at every sample up to step j (samples ``2 j .. 2 j + 2``), where
+    it first rises above the step's start value: it may have gone below the surface and
+    come back inside that step, unseen (the first such step of each event;
+    :func:`bderiv.models.events.excursions._start_dip`)."""
+    m, n = h.shape
+    out = np.empty((n, 2), dtype=np.int64)
+    count = 0
+    for k in range(n):
+        if not h[0, k] > 0.0:
+            continue
+        for j in range((m - 1) // 2):
+            start, middle, end = h[2 * j, k], h[2 * j + 1, k], h[2 * j + 2, k]
+            if not (middle > 0.0 and end > 0.0):
+                break
+            if middle > start or end > start:
+                out[count, 0] = k
+                out[count, 1] = j
+                count += 1
+                break
+    return out[:count]
 
 
 @njit(cache=True)

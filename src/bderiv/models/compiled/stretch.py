@@ -190,7 +190,7 @@ def integrate_stretch(field, x0, t_final, *, mask=0, t0=0.0, events=None,
     y0 = np.concatenate((x0, np.eye(d).ravel())) if variational else x0
     model = bound_model(field, field_jacobian if variational else no_jacobian, events_fn)
     out = drive(model, JAC_GIVEN, variational, False, n, mask, d, t0, y0, t_final, rtol,
-                atol, max_step, first_step, -1, False)
+                atol, max_step, first_step, -1, False, False)
     if out.status not in (FINISHED, EVENT):
         raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n)
     counts = out.counts

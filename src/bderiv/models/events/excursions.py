@@ -38,6 +38,9 @@ and the midpoints of the steps (its dense output; :func:`sample_times`):
    (``h_k > tol_k``, at no peak) is a return the integrator did not see: an event just
    switched, left a rounding on the side it came from by its located crossing, that
    comes back within the stretch's first step (both step ends read across).
+   :func:`_start_dip`: such an event whose samples all read across until it rises in a
+   step (both ends and the midpoint) is searched for its lowest value in that step; more
+   than ``tol_k`` below the surface, it is a return the samples did not see either.
 4. :func:`_back_in_first_step`: a stretch that stops within its first step at an event
    that started it at its surface, leaving it, with a rate at the stop not clearly that
    of a crossing, has a return inside that step that the integrator's root search placed
@@ -45,9 +48,9 @@ and the midpoints of the steps (its dense output; :func:`sample_times`):
    deepest point of that excursion (bounded Brent on the step's dense output).
 5. :func:`without_lost_crossings`: the stretch is integrated again from the last step end
    before the earliest lost crossing's bracket to its peak, where ``h_k > 0``, or, for a
-   return, to the lowest sample (the deepest point, 4) before it, and on from there: the
-   sign change is at the ends of a step now, and the crossing is located as any other,
-   its rate judged at its own point.
+   return, to the lowest sample (the deepest point: 3, 4) before it, and on from there:
+   the sign change is at the ends of a step now, and the crossing is located as any
+   other, its rate judged at its own point.
 
 A step in which ``h_k`` rises and falls more than once is assumed to show one of its peaks
 among the samples; a step long against the time scale of the events needs ``max_step``.
@@ -205,8 +208,9 @@ def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_a
 
 def _earliest_lost(system, mask, sign, options, sol, events_at):
     """``(i, t, through)`` of the earliest crossing inside a step of ``sol``, or None: from
-    the step end ``i`` integrate to the peak ``t`` (``through`` False), or to the sample
-    ``t`` below the surface before a return across it (``through`` True: :func:`_return`)."""
+    the step end ``i`` integrate to the peak ``t`` (``through`` False), or to the time
+    ``t`` below the surface before a return across it (``through`` True: :func:`_return`,
+    :func:`_start_dip`)."""
     d = system.dim
     times = sample_times(sol.t)
     states = np.empty((times.size, d))
@@ -225,13 +229,20 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
     if back is not None:
         return 0, back, True
     last = times.size - 1
-    dip = _return(h, tol)
-    for k, lo, hi in peak_brackets(h, tol, stretch=True):
-        if dip is not None and times[lo] >= times[dip]:
-            break
 
-        def value(t, k=k):
-            return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
+    def value(t, k):
+        return sign[k] * system.eval_events(sol.sol(t)[:d])[k]
+
+    # a return the integrator did not see: (step end to integrate again from, time below)
+    dip = _return(h, tol)
+    through = None if dip is None else \
+        (int(np.searchsorted(sol.t, times[dip], side="left")) - 1, float(times[dip]))
+    start = _start_dip(h, tol, times, value)
+    if start is not None and (through is None or start[1] < through[1]):
+        through = start
+    for k, lo, hi in peak_brackets(h, tol, stretch=True):
+        if through is not None and times[lo] >= through[1]:
+            break
 
         fine = np.empty(FINE_SAMPLES)
         rules.linspace(float(times[lo]), float(times[hi]), fine)
@@ -243,8 +254,8 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
                and not (hi == last and b == FINE_SAMPLES - 1 and rates.end()[k] > 0.0)]
         if not sub:
             continue
-        t_peak, top = max((peak_of(value, fine[a], fine[b]) for a, b in sub),
-                          key=lambda peak: peak[1])
+        t_peak, top = max((peak_of(lambda t, k=k: value(t, k), fine[a], fine[b])
+                           for a, b in sub), key=lambda peak: peak[1])
         if not times[0] < t_peak < times[-1]:  # the ends were decided by the switching rule
             continue
         x_peak = sol.sol(t_peak)[:d]
@@ -260,8 +271,8 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
                 f"where the flow has no B-derivative); tighten rtol and atol or move the "
                 f"start point"
             )
-    if dip is not None:
-        return int(np.searchsorted(sol.t, times[dip], side="left")) - 1, times[dip], True
+    if through is not None:
+        return (*through, True)
     return None
 
 
@@ -314,6 +325,32 @@ def _return(h, tol):
     """
     i = rules.return_sample(np.ascontiguousarray(h), np.ascontiguousarray(tol))
     return None if i < 0 else int(i)
+
+
+def _start_dip(h, tol, times, value):
+    """``(j, t)``: the earliest time t, inside step j, where an event that starts the
+    stretch across its surface goes below it by more than its ``tol`` and comes back
+    within the step, unseen; None if there is none (``value(t, k)``: event k on the dense
+    output, local orientation).
+
+    A located crossing can leave the switched event a rounding on the side it came from
+    (its bit flipped, or kept by a bounce), so the next stretch starts with the event
+    across: when it leaves its surface and comes back within a step, both ends of the
+    step and its midpoint can read across, and the crossing is lost (the 1 g bar's
+    liftoff leaving ``h_1 = +4e-22``: three crossings in 1.3 ms; docs/design.md,
+    "Excursions inside a step"). Each step of the leading run of samples across in which
+    the event rises above the step's start value (:func:`rules.start_dip_steps`; an event
+    still on its way to its side falls) is searched for its lowest value along the dense
+    output (bounded Brent, as a peak).
+    """
+    found = None
+    for k, j in rules.start_dip_steps(np.ascontiguousarray(h)).tolist():
+        if found is not None and times[2 * j] >= found[1]:
+            continue
+        t_low, low = peak_of(lambda t, k=k: -value(t, k), times[2 * j], times[2 * j + 2])
+        if -low < -tol[k]:
+            found = (j, t_low)
+    return found
 
 
 class _EndRates:

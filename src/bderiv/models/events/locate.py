@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._format import format_mask
 from ..._limits import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
 from ..compiled import rules
 
@@ -38,6 +39,7 @@ __all__ = [
     "Settled",
     "Stop",
     "StopCalls",
+    "check_sides",
     "classify",
     "examine",
     "flags_of",
@@ -491,3 +493,41 @@ def on_side_at_start(funcs, t0, mask, n):
 
     return ([on_side(f, 1.0 if mask >> k & 1 else -1.0) for k, f in enumerate(funcs[:n])]
             + list(funcs[n:]))
+
+
+def check_sides(h, mask, window, t):
+    """Refuse a region ``mask`` that disagrees with the event values ``h`` (n,) after the
+    stop at ``t`` (its group switched, its resets applied): every event must be on the
+    side its bit says (set: ``h_k > 0``), or within its ``window`` (n,) of the surface (a
+    located event a rounding across it, an event switched with it on its way there: the
+    excursion screen looks for a return inside the steps from such a start,
+    :mod:`bderiv.models.events.excursions`).
+
+    Raises
+    ------
+    ValueError
+        Naming the time, the event, its value, its window and the mask.
+
+    Examples
+    --------
+    >>> check_sides(np.array([-1.0, 1e-19]), 0b00, np.array([1e-9, 1e-9]), 0.5)
+    >>> check_sides(np.array([-1.0, 1e-3]), 0b00, np.array([1e-9, 1e-9]), 0.5)
+    Traceback (most recent call last):
+    ...
+    ValueError: after the stop at t=0.5 event 1 is on the wrong side of its surface:
+    h_1 = 0.001, beyond its window 1e-09 (the accuracy of the stop), where region mask 0b00
+    (bit k set: h_k > 0) says h_1 < 0; the run lost track of a crossing (an internal error:
+    please report it with the model)
+    """
+    h = np.ascontiguousarray(h, dtype=np.float64)
+    k = rules.wrong_side(h, int(mask), np.ascontiguousarray(window, dtype=np.float64))
+    if k < 0:
+        return
+    says = ">" if mask >> k & 1 else "<"
+    raise ValueError(
+        f"after the stop at t={t:.10g} event {k} is on the wrong side of its surface: "
+        f"h_{k} = {h[k]:.3g}, beyond its window {window[k]:.3g} (the accuracy of the stop), "
+        f"where region mask {format_mask(int(mask), h.size)} (bit k set: h_k > 0) says "
+        f"h_{k} {says} 0; the run lost track of a crossing (an internal error: please "
+        f"report it with the model)"
+    )

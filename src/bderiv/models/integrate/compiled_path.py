@@ -108,7 +108,7 @@ class CompiledStretches:
             out = self.model.stretch(
                 y_start, start, stop, mask, rtol=options.rtol, atol=options.atol,
                 max_step=options.max_step, variational=variational, section=self.section,
-                forced=self.section is not None and start == 0.0)
+                forced=self.section is not None and start == 0.0, on_side=start == t)
             sol = CompiledSolution(out, d, watched)
             pieces.append((start, sol.sol))
             return sol
