@@ -163,16 +163,17 @@ def jacobian(fun, x) -> Derivative:
 COMPLEX_STEP, COMPLEX_FLOOR = 1e-20, 1e-200
 
 
-def complex_step(fun, x, m):
+def complex_step(fun, x, m, strict=True):
     """The Jacobian (m, d) of ``fun`` at ``x`` (d,) by the complex step, or None.
 
     Column j is ``Im fun(x + i h_j e_j) / h_j``: exact to rounding for a complex-analytic
     function (no difference of two values is taken), in d calls. A function that does not
-    take complex input (it raises, returns another shape or a non-finite value, or NumPy
-    discards an imaginary part: ``float(y[0])``, a float array filled with complex values)
-    gives None. One that takes it but is not complex-analytic (``abs``, ``y.real``) gives a
-    wrong answer silently: hold the result to a central difference once (:func:`compare`)
-    before trusting it. NumPy's other warnings while it runs are not raised.
+    take complex input (it raises, returns another shape or a non-finite value, or, with
+    ``strict``, NumPy discards an imaginary part: ``float(y[0])``, a float array filled
+    with complex values) gives None. One that takes it but is not complex-analytic
+    (``abs``, ``y.real``) gives a wrong answer silently: hold the result to a central
+    difference once (:func:`compare`) before trusting it. ``strict`` costs a warnings
+    context per call: a caller that has checked the function once may leave it off.
 
     Examples
     --------
@@ -182,24 +183,30 @@ def complex_step(fun, x, m):
     >>> complex_step(lambda y: np.array([math.sin(y[0])]), np.array([2.0]), 1) is None
     True
     """
-    d = x.shape[0]
     h = np.maximum(COMPLEX_STEP * np.abs(x), COMPLEX_FLOOR)
-    J = np.empty((m, d))
-    for j in range(d):
-        y = x.astype(np.complex128)
-        y[j] += 1j * h[j]
-        try:
-            with warnings.catch_warnings():  # an imaginary part discarded: not usable
-                warnings.simplefilter("ignore")
-                warnings.simplefilter("error", np.exceptions.ComplexWarning)
-                out = np.asarray(fun(y))
-        except Exception:  # noqa: BLE001 - any refusal of complex input: not usable
-            return None
-        if out.shape != (m,) or not np.issubdtype(out.dtype, np.number) or \
-                not np.isfinite(out).all():
-            return None
-        J[:, j] = np.imag(out) / h[j]
-    return J
+    if not strict:
+        return _complex_columns(fun, x, h, m)
+    with warnings.catch_warnings():  # an imaginary part discarded: not usable
+        warnings.simplefilter("ignore")
+        warnings.simplefilter("error", np.exceptions.ComplexWarning)
+        return _complex_columns(fun, x, h, m)
+
+
+def _complex_columns(fun, x, h, m):
+    """The columns of :func:`complex_step` (None where ``fun`` fails on complex input)."""
+    J = np.empty((m, x.shape[0]))
+    y = x.astype(np.complex128)
+    try:
+        for j in range(x.shape[0]):
+            y[j] = complex(x[j], h[j])
+            out = fun(y.copy())
+            y[j] = x[j]
+            if np.shape(out) != (m,):
+                return None
+            J[:, j] = np.imag(out) / h[j]
+    except Exception:  # noqa: BLE001 - any refusal of complex input: not usable
+        return None
+    return J if np.isfinite(J).all() else None
 
 
 def directional(fun, x, v, scale=1.0) -> Derivative:

@@ -22,8 +22,8 @@ from scipy.integrate import solve_ivp
 from .._format import format_mask
 from .._kernels._cache import keyed, sources_digest
 from .._limits import ON_SURFACE_TOL
+from .._numdiff import complex_step
 from .._validate import check_bool
-from ..jacobians import complex_step_jacobian
 from ..models.system import HybridSystem
 
 __all__ = ["Example", "check_start", "compile_function", "compiled_once", "flow_back"]
@@ -115,8 +115,8 @@ class Example:
         elif "field_jacobian" not in fns:
             field = fns["field"]
             # by the state (the first dim entries), the parameters held
-            fns["field_jacobian"] = lambda x, mask: complex_step_jacobian(
-                lambda y: field(np.concatenate((y, x[dim:])), mask), x[:dim], dim)
+            fns["field_jacobian"] = lambda x, mask: complex_step(
+                lambda y: field(np.concatenate((y, x[dim:])), mask), x[:dim], dim, strict=False)
         system = HybridSystem(fns.pop("field"), fns.pop("events"), n_events=n_events,
                               dim=dim, params=params, **fns)
         return cls(system=system, rho=np.asarray(rho, dtype=np.float64),

@@ -207,7 +207,10 @@ class ModelCalls:
             return J
         start = time.perf_counter()
         how = self._how.get(key)
-        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0])
+        # the first time with NumPy's discarded imaginary parts refused; once the step has
+        # matched a central difference, without that check's warnings context
+        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0],
+                                                              strict=how is None)
         calls = 0 if how == _CENTRAL else x.size
         if how is None:  # the first time for this key: held to a central difference once
             how = _COMPLEX if J is not None and _matches(fun, x, J) else _CENTRAL
