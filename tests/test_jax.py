@@ -167,7 +167,7 @@ def test_a_refusal_is_not_logged_by_jax_first(touchdown, caplog):
     nothing (it printed an ERROR with a traceback before the refusal)."""
     import logging
 
-    ex = touchdown
+    ex = touchdown[0]
     phi = flow(ex.system, ex.t_final, **TIGHT)
     w = np.arange(6.0)
     with caplog.at_level(logging.DEBUG), pytest.raises(REFUSED, match="pass direction="):

@@ -27,6 +27,7 @@ from ._rhs import (
 )
 from .rules import (
     clearly_positive,
+    first_sent_back,
     linspace,
     local_rates,
     peak_rows,
@@ -266,6 +267,10 @@ def landing(model, jac_mode, event_jac_mode, sign, group, mask, new, x_after, wi
             if not clearly_positive(-Dh[k], back):
                 return False, new
         kept |= bit
+    if kept:  # some bounced: checked in the region the state goes on in
+        fs, F = checked_field(model, x_after, new ^ kept, d)
+        if fs != OK or first_sent_back(group, h, window, kept, Dh, F) >= 0:
+            return False, new  # handed back: the Python loop words the refusal
     return True, new ^ kept
 
 

@@ -145,6 +145,24 @@ def wrong_side(h, mask, window):
 
 
 @njit(cache=True)
+def first_sent_back(group, h, window, kept, Dh, F):
+    """After a group's resets, the first event of ``group`` (bool, (n,)) on its surface
+    (``|h_k| <= window_k``, local orientation) that the field ``F`` of the region the state
+    goes on in sends back across: a flipped one whose rate ``Dh_k . F`` is clearly
+    negative, a kept one (``kept``: the bits of the bounced events) whose rate is clearly
+    positive; -1 if none."""
+    for k in range(h.size):
+        if not group[k] or abs(h[k]) > window[k]:
+            continue
+        if (kept >> k) & 1:
+            if clearly_positive(Dh[k], F):
+                return k
+        elif clearly_positive(-Dh[k], F):
+            return k
+    return -1
+
+
+@njit(cache=True)
 def return_sample(h, tol):
     """The earliest sample ``i >= 1`` with ``h[i, k] < 0`` of an event across its surface,
     ``h[j, k] > tol_k``, at a later sample j (the first such j), the lowest of those

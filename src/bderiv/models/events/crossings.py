@@ -254,6 +254,24 @@ def landing(system, group, mask, x_after, window, t=None):
                     f"not an event; event {k} crossed {direction_name(sign[k])}"
                 )
         kept |= 1 << k
+    if kept:  # some bounced: the rates in the region the state goes on in (the decisions
+        # above read the region with every bit flipped)
+        after = new ^ kept
+        F = np.ascontiguousarray(system.eval_field(x_after, after), dtype=np.float64)
+        k = rules.first_sent_back(flags_of(group, n), np.ascontiguousarray(h),
+                                  np.ascontiguousarray(window, dtype=np.float64),
+                                  np.int64(kept), np.ascontiguousarray(Dh), F)
+        if k >= 0:
+            way = "bounced: the bit kept" if kept >> k & 1 else "crossed: the bit flipped"
+            at = "" if t is None else f" at t={t:.10g}"
+            raise ValueError(
+                f"after the resets of events {list(group)}{at} event {k} is on its surface "
+                f"(h_{k} = {h[k]:.3g}, within the accuracy {window[k]:.3g}; {way}) and the "
+                f"region the state goes on in, {format_mask(after, n)}, sends it straight "
+                f"back across (rate {float(Dh[k] @ F):.3g} of h_{k} in the crossing's "
+                f"orientation): the group's landing is not an event; event {k} crossed "
+                f"{direction_name(sign[k])}"
+            )
     return new ^ kept
 
 
