@@ -8,6 +8,8 @@ followed by the parameters, whose last two entries are n and d). The same functi
 - ``python``: as Python functions (``HybridSystem`` on scipy's ``solve_ivp``, DOP853);
 - ``compiled``: ``numba.njit`` of them (the compiled DOP853 and the compiled run of the
   stops), compiled once per process whatever the model (the coefficients are ``params``);
+  in about a third of the models without the field's or the events' Jacobian, which the
+  compiled path then takes by complex step (exact to rounding, as the given ones);
 - ``compiled-python-stops``: the compiled model with ``run.compiled_stops`` off, so that
   the Python loop decides every stop on the same compiled stretches.
 
@@ -183,15 +185,20 @@ class Model:
         self.x0, self.t_final, self.resets = x0, t_final, resets
         self.gaps, self.window_time = gaps, window_time
         self.V = rng.standard_normal((0, d))
+        self.complex_step = (False, False)
 
     def systems(self):
-        """``(python, compiled)`` HybridSystems of the model (fresh: nothing checked)."""
+        """``(python, compiled)`` HybridSystems of the model (fresh: nothing checked); the
+        compiled one without the field's or the events' Jacobian where ``complex_step``
+        says (its complex step then: exact to rounding, as the given ones)."""
         out = []
-        for fns in (FUNCTIONS, compiled()):
+        for fns, drop in ((FUNCTIONS, (False, False)), (compiled(), self.complex_step)):
             f, fj, ev, ej, r, rj = fns
             kw = dict(reset=r, reset_jacobian=rj) if self.resets else {}
-            out.append(HybridSystem(f, ev, n_events=self.n, dim=self.d, field_jacobian=fj,
-                                    event_jacobian=ej, params=self.p, **kw))
+            out.append(HybridSystem(f, ev, n_events=self.n, dim=self.d,
+                                    field_jacobian=None if drop[0] else fj,
+                                    event_jacobian=None if drop[1] else ej, params=self.p,
+                                    **kw))
         return out
 
     def borderline(self, tol) -> bool:
@@ -311,6 +318,7 @@ def draw(rng, family, m):
                   np.abs(gaps - gaps.min()), window, rng,
                   np.abs(t_final - t_star - gaps) if final else ())
     model.V = rng.standard_normal((m, d))
+    model.complex_step = tuple(rng.random(2) < 0.3)
     return model
 
 
@@ -427,8 +435,11 @@ class _Note:
         if (self.borderline if borderline is None else borderline):
             tag = "borderline: "
         self.tally.disagreed[fam][f"{tag}{self.what}: {how}"] += 1
+        line = f"{self.what}: {how}: {detail} [model seed {self.model.seed}]"
         if not tag:
-            self.tally.bad(fam, f"{self.what}: {how}: {detail} [model seed {self.model.seed}]")
+            self.tally.bad(fam, line)
+        elif len(self.tally.examples[fam]) < 6:  # a few, to look at
+            self.tally.examples[fam].append(f"[{fam}] {tag}{line}")
 
 
 def _same_bits(note, what, c, cp, V) -> None:
@@ -502,7 +513,8 @@ def repro(family, seed, m=8) -> None:
     """Print the three arms' outcomes of one model (``python tools/fuzz_models.py FAMILY
     SEED``)."""
     model = draw(np.random.default_rng(seed), family, m)
-    print(f"n={model.n} d={model.d} x0={model.x0.tolist()} t_final={model.t_final!r}\n"
+    print(f"n={model.n} d={model.d} x0={model.x0.tolist()} t_final={model.t_final!r}, "
+          f"complex step (field, events): {model.complex_step}\n"
           f"gaps={model.gaps.tolist()} window_time={model.window_time.tolist()}")
     P, C = model.systems()
     for what in ("simulate", "flow_bderivative"):
