@@ -16,9 +16,11 @@ followed by the parameters, whose last two entries are n and d). The same functi
 and must give the same answer or the same refusal: ``compiled`` and
 ``compiled-python-stops`` to the bit (docs/design.md, the compiled run), and ``python``
 against ``compiled`` within the integration accuracy (``STATE_RTOL``, ``FLOW_RTOL``).
-What is compared: ``simulate`` (the event log: events, directions, masks after; the group
-times and the final state) and ``flow_bderivative`` at the run's end applied to random
-directions (their event orders per group too, away from ties), or the refusal's kind
+What is compared: ``simulate`` (``run``; the event log: events, directions, masks after; the group
+times and the final state; and in each arm, every sample on its mask's side of every
+surface) and ``flow_bderivative`` at the run's end applied to random
+directions (its two steps: ``run`` with the variational equations, ``flow_map_along``; the
+maps' event orders per group too, away from ties), or the refusal's kind
 (``kind``: the first line's cause).
 
 Families (keys of ``FAMILIES``): ``models-plain`` (fields ``A_mask x + b_mask + c_mask
@@ -49,6 +51,7 @@ from bderiv.models.integrate import run as run_module
 #: both integrators run with these (the defaults): DOP853's step control keeps each step's
 #: error below ``ATOL + RTOL |x|``
 RTOL, ATOL = 1e-10, 1e-12
+OPTIONS = run_module.SolverOptions(rtol=RTOL, atol=ATOL)
 #: python against compiled: states and group times within ``STATE_RTOL (1 + |x|)`` (or
 #: ``(1 + t)``). Each integrator's global error is at most its steps' errors carried along,
 #: about ``steps * (ATOL + RTOL |x|) * exp(L T)``: under 100 steps and ``L T <= 2`` here,
@@ -66,9 +69,7 @@ KINDS = (("do not commute", "do not commute"), ("not at that point", "not at tha
          ("at the final time", "final time with resets"),
          ("slide along", "sliding"), ("carry the state across", "jump across"),
          ("cannot be decided", "grazing peak"), ("not located", "inside a step"),
-         ("would cross back", "transversality: cross back"),
-         ("grazing crossing", "transversality: grazing"),
-         ("transversality violated", "transversality"), ("Zeno", "Zeno"),
+         ("transversality violated", "transversality violated"), ("Zeno", "Zeno"),
          ("x0 lies on", "start on a surface"), ("on a surface", "start on a surface"))
 
 
@@ -379,6 +380,19 @@ def log_of(traj):
     return [(r.event, r.direction, r.mask) for r in traj.events]
 
 
+def lost_crossing(traj, p) -> str | None:
+    """The first sample of ``traj`` that lies across a surface, by more than ``STATE_RTOL
+    (1 + |x|)``, from the side its region's mask says (a crossing lost), or None: an
+    invariant of each run, whatever the other arm does."""
+    for t, x, mask in zip(traj.t, traj.x, traj.masks, strict=True):
+        h = events(np.concatenate((x, p)))
+        side = (mask >> np.arange(h.size)) & 1
+        across = np.where(side == 1, -h, h) > STATE_RTOL * (1 + np.abs(x).max())
+        if across.any():
+            return f"t={t:.17g}, mask {mask:#b}, h={h.tolist()}"
+    return None
+
+
 def state_excess(p, c) -> float:
     """The largest ratio of python's and compiled's differences (group times, group
     states, final state) to their tolerance (``STATE_RTOL``); the logs are equal."""
@@ -414,9 +428,10 @@ def check_model(model, tally) -> None:
     P, C = model.systems()
     for what, tol in (("simulate", SIMULATION_SIMULTANEITY_TOL),
                       ("flow", DERIVATIVE_SIMULTANEITY_TOL)):
-        def call(s, what=what):
-            method = s.simulate if what == "simulate" else s.flow_bderivative
-            return method(model.x0, model.t_final, rtol=RTOL, atol=ATOL)
+        def call(s, what=what, tol=tol):  # flow_bderivative's two steps, the run kept
+            traj = run_module.run(s, model.x0, model.t_final, simultaneity_tol=tol,
+                                  options=OPTIONS, variational=what == "flow")
+            return traj if what == "simulate" else (traj, s.flow_map_along(traj))
         c, cp, p = _outcome(call, C), _outcome(call, C, True), _outcome(call, P)
         note = _Note(tally, model, what, model.borderline(tol))
         _same_bits(note, what, c, cp, model.V)
@@ -455,8 +470,10 @@ def _same_bits(note, what, c, cp, V) -> None:
             how, detail = "other refusal", f"compiled: {ec}; python stops: {ecp}"
     elif what == "simulate" and bit_difference(c, cp):
         how, detail = "other bits", bit_difference(c, cp)
-    elif what == "flow" and (c.group_events != cp.group_events
-                             or not np.array_equal(c(V), cp(V))):
+    elif what == "flow" and bit_difference(c[0], cp[0]):
+        how, detail = "other bits", bit_difference(c[0], cp[0])
+    elif what == "flow" and (c[1].group_events != cp[1].group_events
+                             or not np.array_equal(c[1](V), cp[1](V))):
         how, detail = "other bits", "flow map"
     if how:
         note(f"compiled run vs Python stops: {how}", detail, borderline=False)
@@ -476,6 +493,13 @@ def _same_answer(note, what, p, c, V) -> None:
         else:
             note(f"other refusals ({kind(ep)} / {kind(ec)})", f"python: {ep}; compiled: {ec}")
         return
+    if what == "flow":
+        (p_traj, p), (c_traj, c) = p, c
+    for who, traj in (("python", p_traj if what == "flow" else p),
+                      ("compiled", c_traj if what == "flow" else c)):
+        lost = lost_crossing(traj, note.model.p)
+        if lost:
+            note(f"{who}: a sample across a surface its mask does not say", lost)
     if what == "simulate":
         groups = ([g.events for g in p.groups], [g.events for g in c.groups])
         if log_of(p) != log_of(c):
