@@ -35,8 +35,12 @@ def fm(fuzz):
 #: per family, seeds of models (``fuzz_models.draw`` from ``default_rng(seed)``)
 SEEDS = {family: range(4) for family in ("models-plain", "models-sim", "models-near",
                                          "models-graze", "models-resets", "models-final")}
-#: seeds whose disagreement is a known bug being fixed elsewhere: {(family, seed): reason}
-KNOWN = {}
+#: seeds whose disagreement is a known bug, not fixed yet: {(family, seed): reason}
+KNOWN = {("models-resets", 3397828890274385335): (
+    "the compiled stretches lose the crossings after a group whose events all bounce back "
+    "into a region that sends the state across both surfaces again: the Python model "
+    "refuses (Zeno), the compiled one goes on with its samples across the surfaces")}
+SEEDS["models-resets"] = [*SEEDS["models-resets"], 3397828890274385335]
 
 
 def _cases():
