@@ -170,9 +170,10 @@ _COMPILED = []
 
 
 def compiled():
-    """The njit of the six functions, made once per process (compiled at the first run)."""
+    """The njit of the six functions, made once per process (compiled at the first run,
+    cached on disk beside this file)."""
     if not _COMPILED:
-        _COMPILED.extend(numba.njit(f) for f in FUNCTIONS)
+        _COMPILED.extend(numba.njit(f, cache=True) for f in FUNCTIONS)
     return tuple(_COMPILED)
 
 
