@@ -1,10 +1,12 @@
-"""The ``models`` families of ``tools/fuzz.py`` (``tools/fuzz_models.py``): seeded random
+"""The ``models`` families of ``tools/fuzz.py`` (``tools/fuzz_models.py``, compared by
+``tools/fuzz_twins.py``): seeded random
 hybrid models written once as plain functions, run as Python functions on scipy's
 ``solve_ivp`` and as ``numba.njit`` of the same functions on the compiled integrator (with
 the compiled run of the stops, and with the Python loop deciding them), must give the same
 answer or the same refusal. The oracle of each arm is the other arms: the compiled run and
 the Python loop on the same compiled stretches to the bit; scipy's DOP853 and the compiled
-one within the integration accuracy (the tool's ``STATE_RTOL``, ``FLOW_RTOL``).
+one within the integration accuracy (``fuzz_twins.STATE_RTOL``, ``FLOW_RTOL``); every
+sample of each arm's run on its mask's side of every surface.
 """
 
 from __future__ import annotations
@@ -32,6 +34,11 @@ def fm(fuzz):
     return sys.modules["fuzz_models"]
 
 
+@pytest.fixture(scope="module")
+def twins(fuzz):
+    return sys.modules["fuzz_twins"]
+
+
 #: per family, seeds of models (``fuzz_models.draw`` from ``default_rng(seed)``)
 SEEDS = {family: range(4) for family in ("models-plain", "models-sim", "models-near",
                                          "models-graze", "models-resets", "models-final")}
@@ -55,16 +62,16 @@ def _cases():
 
 
 @pytest.mark.parametrize("family, seed", list(_cases()))
-def test_the_twins_agree(fuzz, fm, family, seed):
+def test_the_twins_agree(fuzz, fm, twins, family, seed):
     model = fm.draw(np.random.default_rng(seed), family, 12)
     model.seed = seed
     tally = fuzz.Tally()
-    fm.check_model(model, tally)
+    twins.check_model(model, tally)
     assert tally.evaluations[family] >= 4, tally.report()
     assert tally.wrong[family] == 0, tally.report()
 
 
-def test_a_wrong_twin_is_found(fuzz, fm):
+def test_a_wrong_twin_is_found(fuzz, fm, twins):
     """The tolerance has teeth: the compiled twin given the constant term b_0 of every
     region's field 1e-5 off (a model that is not the same) is out of it, in the states
     or the flow map."""
@@ -83,7 +90,7 @@ def test_a_wrong_twin_is_found(fuzz, fm):
 
     model.systems = off
     tally = fuzz.Tally()
-    fm.check_model(model, tally)
+    twins.check_model(model, tally)
     assert tally.wrong["models-plain"] > 0, tally.report()
     assert any("apart" in k for k in tally.disagreed["models-plain"]), tally.report()
 
@@ -97,9 +104,9 @@ def test_the_tool_runs_the_models_families(fuzz, capsys):
     assert report.rstrip().splitlines()[-1].endswith(" 0 wrong") or " 0 wrong" in report
 
 
-def test_refusal_kinds(fm):
-    assert fm.kind(ValueError("the resets of events [0, 1], simultaneous at t=1, do not "
+def test_refusal_kinds(twins):
+    assert twins.kind(ValueError("the resets of events [0, 1], simultaneous at t=1, do not "
                               "commute: ...")) == "do not commute"
-    assert fm.kind(ValueError("events [0, 1] were grouped at t=1 by simultaneity_tol=1e-07, "
+    assert twins.kind(ValueError("events [0, 1] were grouped at t=1 by simultaneity_tol=1e-07, "
                               "but event 1 is not at that point: ...")) == "not at that point"
-    assert fm.kind(RuntimeError("something new\nmore")).startswith("RuntimeError: something")
+    assert twins.kind(RuntimeError("something new\nmore")).startswith("RuntimeError: something")

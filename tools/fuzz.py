@@ -38,8 +38,10 @@ Systems refused when built are counted apart, by kind: ``transversality``, ``gra
 at it on purpose), ``rate beyond float64`` a table whose rates span more than the float64
 range even after scaling. Exit status 1 when any answer is wrong.
 
-The ``models`` families (``--families models``, or one of them: ``models-plain``,
-``-sim``, ``-near``, ``-graze``, ``-resets``, ``-final``; ``tools/fuzz_models.py``) draw
+The ``models`` families (``--families models``, or ``all`` with the others, or one of
+them: ``models-plain``,
+``-sim``, ``-near``, ``-graze``, ``-resets``, ``-final``; ``tools/fuzz_models.py``,
+compared by ``tools/fuzz_twins.py``) draw
 seeded hybrid models instead, written once as plain functions, and require the Python
 model (scipy's solve_ivp), the compiled one (numba.njit of the same functions) and the
 compiled one with its stops decided by the Python loop to give the same answer or the same
@@ -61,6 +63,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
 import fuzz_models  # noqa: E402  (tools/: the models families)
+import fuzz_twins  # noqa: E402
 from chain_tolerance import RTOL, chain_scale, excess, oracle  # noqa: E402
 from fuzz_families import (  # noqa: E402
     FAMILIES,
@@ -140,10 +143,10 @@ def fam_resets(rng, m):
 
 ALL = {f.__name__[4:].replace("_", "-"): f for f in
        FAMILIES + (fam_function, fam_scales, fam_scales_structured, fam_resets)}
-#: compiled models against their Python twins (tools/fuzz_models.py); "models": all of them
-MODELS = {name: (lambda rng, m, name=name: fuzz_models.draw_seeded(rng, name, m))
+#: compiled models against their Python twins (tools/fuzz_models.py, fuzz_twins.py);
+#: "models": all of them
+MODELS = {name: (lambda rng, m, name=name: fuzz_twins.draw_seeded(rng, name, m))
           for name in fuzz_models.FAMILIES}
-ALL.update(MODELS)
 
 
 # -- the tally --------------------------------------------------------------------------
@@ -173,12 +176,12 @@ class Tally:
             kinds.update({f"system: {k}": v for k, v in self.refused_systems[fam].items()})
             lines.append(f"{fam:<18}{self.systems[fam]:>8}{self.evaluations[fam]:>13}"
                          f"{self.wrong[fam]:>7}  {kinds or ''}")
-            if fam in MODELS:
-                lines.append(f"{'':<18}worst/tol {self.worst[fam]:.3g}, orders met "
-                             f"{self.orders[fam]}, disagreements "
-                             f"{dict(self.disagreed[fam]) or 0}")
         lines.append(f"total: {sum(self.evaluations.values())} evaluations, "
                      f"{sum(self.wrong.values())} wrong")
+        for fam in sorted(set(self.systems) & set(MODELS)):
+            lines.append(f"{fam}: worst python/compiled difference {self.worst[fam]:.3g} x "
+                         f"the tolerance, event orders met {self.orders[fam]}, "
+                         f"disagreements {dict(self.disagreed[fam]) or 0}")
         lines += [line for fam in sorted(self.examples) for line in self.examples[fam]]
         return "\n".join(lines)
 
@@ -426,20 +429,20 @@ def main(argv=None) -> int:
     ap.add_argument("--evaluations", type=lambda s: int(s.replace("_", "")), default=100_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rows", type=int, default=64, help="queries per system")
-    ap.add_argument("--families", nargs="+", choices=sorted(ALL) + ["models"],
-                    default=sorted(ALL))
+    ap.add_argument("--families", nargs="+",
+                    choices=sorted(ALL) + sorted(MODELS) + ["models", "all"], default=sorted(ALL))
     ap.add_argument("--report-every", type=float, default=600.0, help="seconds")
     args = ap.parse_args(argv)
-    families = [f for name in args.families
-                for f in (sorted(MODELS) if name == "models" else [name])]
+    families = [f for name in args.families for f in
+                {"models": sorted(MODELS), "all": sorted(ALL) + sorted(MODELS)}.get(name, [name])]
     rng = np.random.default_rng(args.seed)
     tally, start, last = Tally(), time.time(), time.time()
     while sum(tally.evaluations.values()) < args.evaluations:
         for name in families:
-            case = ALL[name](rng, args.rows)
             if name in MODELS:
-                fuzz_models.check_model(case, tally)
+                fuzz_twins.check_model(MODELS[name](rng, args.rows), tally)
                 continue
+            case = ALL[name](rng, args.rows)
             try:
                 check(case, tally, rng)
             except AssertionError as exc:  # the families' own bitwise checks (fam_mixed)
