@@ -85,7 +85,7 @@ def _outcome(call, system, python_stops=False):
             with _PythonStops():
                 return call(system), None
         return call(system), None
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001  (anything but a refusal is counted wrong)
         return None, exc
 
 
@@ -218,6 +218,12 @@ def _same_answer(note, what, p, c, V) -> None:
     (p, ep), (c, ec) = p, c
     fam, tally = note.model.family, note.tally
     tally.evaluations[fam] += 1
+    crashed = [(who, e) for who, e in (("python", ep), ("compiled", ec))
+               if e is not None and not isinstance(e, (ValueError, RuntimeError))]
+    if crashed:  # not a refusal: a TypeError, an IndexError, ...
+        note(f"{crashed[0][0]} raised {type(crashed[0][1]).__name__}", repr(crashed[0][1]),
+             borderline=False)
+        return
     if ep is not None or ec is not None:
         if ep is None or ec is None:
             who, exc = ("python", ep) if ep is not None else ("compiled", ec)
