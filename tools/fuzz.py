@@ -163,6 +163,7 @@ class Tally:
         self.disagreed = defaultdict(Counter)  # models: family -> kind -> count
         self.worst = defaultdict(float)  # models: the largest ratio to the tolerance
         self.orders = Counter()  # models: distinct event orders met (per group, summed)
+        self.seeds = defaultdict(list)  # models: the seeds of the wrong ones (20 at most)
 
     def bad(self, fam: str, what: str) -> None:
         self.wrong[fam] += 1
@@ -181,7 +182,8 @@ class Tally:
         for fam in sorted(set(self.systems) & set(MODELS)):
             lines.append(f"{fam}: worst python/compiled difference {self.worst[fam]:.3g} x "
                          f"the tolerance, event orders met {self.orders[fam]}, "
-                         f"disagreements {dict(self.disagreed[fam]) or 0}")
+                         f"disagreements {dict(self.disagreed[fam]) or 0}"
+                         + (f", seeds {sorted(set(self.seeds[fam]))}" if self.seeds[fam] else ""))
         lines += [line for fam in sorted(self.examples) for line in self.examples[fam]]
         return "\n".join(lines)
 

@@ -40,7 +40,10 @@ MAX_GROUPS = 200
 #: ``(1 + t)``). Each integrator's global error is at most its steps' errors carried along,
 #: about ``steps * (ATOL + RTOL |x|) * exp(L T)``: under 100 steps and ``L T <= 2`` here,
 #: at most ~1e3 RTOL; the two runs stop at event times located by different root finders, so
-#: their errors are independent. Measured: see the report of the tool's long run.
+#: their errors are independent. Measured over 29,040 models (``fuzz.py --families models
+#: --evaluations 800000 --seed 2026``, 2026-11-28): at most 0.09 of it on grazing models
+#: (a crossing at a small rate moves in time by the state's error over the rate), 4e-5 of
+#: it on the others, where the two integrators agree to about 1e-12.
 STATE_RTOL = 1e-7
 #: flow maps: ``FLOW_RTOL`` of ``|v| max |piece|`` per direction. The variational equations
 #: are integrated with the state under the same error control (``STATE_RTOL``), and a
@@ -184,6 +187,8 @@ class _Note:
         if (self.borderline if borderline is None else borderline):
             tag = "borderline: "
         self.tally.disagreed[fam][f"{tag}{self.what}: {how}"] += 1
+        if not tag and len(self.tally.seeds[fam]) < 20:  # every wrong model's seed, to rerun
+            self.tally.seeds[fam].append(self.model.seed)
         line = f"{self.what}: {how}: {detail} [model seed {self.model.seed}]"
         if not tag:
             self.tally.bad(fam, line)
