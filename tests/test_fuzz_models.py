@@ -56,6 +56,9 @@ KNOWN = {("models-resets", 3397828890274385335): LANDING.format(
          ("models-resets", 2838364480737254932): LANDING.format(
              "by python; the compiled stretches see it and refuse: sliding"),
          ("models-plain", 1091442821039362419): RETURN.format("both integrators"),
+         ("models-sim", 1635481354732627137): RETURN.format(
+             "the compiled stretches in simulate, both in flow_bderivative's run; python's "
+             "simulate sees it and refuses: transversality after"),
          ("models-graze", 2444480689758357945): RETURN.format(
              "python in simulate, compiled in flow_bderivative's run; the other refuses: "
              "transversality after the late crossing")}
