@@ -37,6 +37,16 @@ Systems refused when built are counted apart, by kind: ``transversality``, ``gra
 ``ill-conditioned`` are the documented ``transversality_tol`` contract (the families aim
 at it on purpose), ``rate beyond float64`` a table whose rates span more than the float64
 range even after scaling. Exit status 1 when any answer is wrong.
+
+The ``models`` families (``--families models``, or ``all`` with the others, or one of
+them: ``models-plain``,
+``-sim``, ``-near``, ``-graze``, ``-resets``, ``-final``; ``tools/fuzz_models.py``,
+compared by ``tools/fuzz_twins.py``) draw
+seeded hybrid models instead, written once as plain functions, and require the Python
+model (scipy's solve_ivp), the compiled one (numba.njit of the same functions) and the
+compiled one with its stops decided by the Python loop to give the same answer or the same
+refusal (the last two to the bit); a disagreement is counted as a wrong answer, by kind,
+or as ``borderline`` where the model puts a decision at the edge of the accuracy.
 """
 
 from __future__ import annotations
@@ -50,7 +60,10 @@ from collections import Counter, defaultdict
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
+import fuzz_models  # noqa: E402  (tools/: the models families)
+import fuzz_twins  # noqa: E402
 from chain_tolerance import RTOL, chain_scale, excess, oracle  # noqa: E402
 from fuzz_families import (  # noqa: E402
     FAMILIES,
@@ -130,6 +143,10 @@ def fam_resets(rng, m):
 
 ALL = {f.__name__[4:].replace("_", "-"): f for f in
        FAMILIES + (fam_function, fam_scales, fam_scales_structured, fam_resets)}
+#: compiled models against their Python twins (tools/fuzz_models.py, fuzz_twins.py);
+#: "models": all of them
+MODELS = {name: (lambda rng, m, name=name: fuzz_twins.draw_seeded(rng, name, m))
+          for name in fuzz_models.FAMILIES}
 
 
 # -- the tally --------------------------------------------------------------------------
@@ -143,6 +160,10 @@ class Tally:
         self.refused = defaultdict(Counter)  # family -> kind -> rows
         self.refused_systems = defaultdict(Counter)
         self.examples = defaultdict(list)  # the first wrong answers of each family
+        self.disagreed = defaultdict(Counter)  # models: family -> kind -> count
+        self.worst = defaultdict(float)  # models: the largest ratio to the tolerance
+        self.orders = Counter()  # models: distinct event orders met (per group, summed)
+        self.seeds = defaultdict(list)  # models: the seeds of the wrong ones (20 at most)
 
     def bad(self, fam: str, what: str) -> None:
         self.wrong[fam] += 1
@@ -158,6 +179,11 @@ class Tally:
                          f"{self.wrong[fam]:>7}  {kinds or ''}")
         lines.append(f"total: {sum(self.evaluations.values())} evaluations, "
                      f"{sum(self.wrong.values())} wrong")
+        for fam in sorted(set(self.systems) & set(MODELS)):
+            lines.append(f"{fam}: worst python/compiled difference {self.worst[fam]:.3g} x "
+                         f"the tolerance, event orders met {self.orders[fam]}, "
+                         f"disagreements {dict(self.disagreed[fam]) or 0}"
+                         + (f", seeds {sorted(set(self.seeds[fam]))}" if self.seeds[fam] else ""))
         lines += [line for fam in sorted(self.examples) for line in self.examples[fam]]
         return "\n".join(lines)
 
@@ -405,13 +431,19 @@ def main(argv=None) -> int:
     ap.add_argument("--evaluations", type=lambda s: int(s.replace("_", "")), default=100_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rows", type=int, default=64, help="queries per system")
-    ap.add_argument("--families", nargs="+", choices=sorted(ALL), default=sorted(ALL))
+    ap.add_argument("--families", nargs="+",
+                    choices=sorted(ALL) + sorted(MODELS) + ["models", "all"], default=sorted(ALL))
     ap.add_argument("--report-every", type=float, default=600.0, help="seconds")
     args = ap.parse_args(argv)
+    families = [f for name in args.families for f in
+                {"models": sorted(MODELS), "all": sorted(ALL) + sorted(MODELS)}.get(name, [name])]
     rng = np.random.default_rng(args.seed)
     tally, start, last = Tally(), time.time(), time.time()
     while sum(tally.evaluations.values()) < args.evaluations:
-        for name in args.families:
+        for name in families:
+            if name in MODELS:
+                fuzz_twins.check_model(MODELS[name](rng, args.rows), tally)
+                continue
             case = ALL[name](rng, args.rows)
             try:
                 check(case, tally, rng)

@@ -1,0 +1,129 @@
+"""The ``models`` families of ``tools/fuzz.py`` (``tools/fuzz_models.py``, compared by
+``tools/fuzz_twins.py``): seeded random
+hybrid models written once as plain functions, run as Python functions on scipy's
+``solve_ivp`` and as ``numba.njit`` of the same functions on the compiled integrator (with
+the compiled run of the stops, and with the Python loop deciding them), must give the same
+answer or the same refusal. The oracle of each arm is the other arms: the compiled run and
+the Python loop on the same compiled stretches to the bit; scipy's DOP853 and the compiled
+one within the integration accuracy (``fuzz_twins.STATE_RTOL``, ``FLOW_RTOL``); every
+sample of each arm's run on its mask's side of every surface.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+
+TOOLS = pathlib.Path(__file__).resolve().parents[1] / "tools"
+
+
+@pytest.fixture(scope="module")
+def fuzz():
+    spec = importlib.util.spec_from_file_location("bderiv_fuzz_tool", TOOLS / "fuzz.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # puts tools/ on sys.path: fuzz_models imports
+    return module
+
+
+@pytest.fixture(scope="module")
+def fm(fuzz):
+    return sys.modules["fuzz_models"]
+
+
+@pytest.fixture(scope="module")
+def twins(fuzz):
+    return sys.modules["fuzz_twins"]
+
+
+#: per family, seeds of models (``fuzz_models.draw`` from ``default_rng(seed)``)
+SEEDS = {family: list(range(4)) for family in ("models-plain", "models-sim", "models-near",
+                                         "models-graze", "models-resets", "models-final")}
+#: seeds whose disagreement is a known bug, not fixed yet: {(family, seed): reason}
+LANDING = ("crossings.landing decides an event left on its surface by its reset in the "
+           "region with every event of the group flipped; when another one bounces, the "
+           "state goes on in another region, whose field sends it straight back across: "
+           "that re-crossing is lost ({})")
+RETURN = ("an event that crosses and comes back across within the first step after its "
+          "stop, no sample on the side it went to, is lost and switched late at the next stop "
+          "as already across ({})")
+KNOWN = {("models-resets", 3397828890274385335): LANDING.format(
+             "by the compiled stretches of flow_bderivative's run; python: Zeno"),
+         ("models-resets", 2092657018377387946): LANDING.format("on both integrators"),
+         ("models-resets", 2838364480737254932): LANDING.format(
+             "by python; the compiled stretches see it and refuse: sliding"),
+         ("models-plain", 1091442821039362419): RETURN.format("both integrators"),
+         ("models-resets", 77373933576014767): RETURN.format(
+             "after a reset, both in simulate; in flow_bderivative's run one of them, which "
+             "then refuses a group with resets at the final time: the lost event, already "
+             "across, counted as pending there"),
+         ("models-sim", 1635481354732627137): RETURN.format(
+             "the compiled stretches in simulate, both in flow_bderivative's run; python's "
+             "simulate sees it and refuses: transversality after"),
+         ("models-graze", 2444480689758357945): RETURN.format(
+             "python in simulate, compiled in flow_bderivative's run; the other refuses: "
+             "transversality after the late crossing")}
+for _family, _seed in KNOWN:
+    SEEDS[_family] = [*SEEDS[_family], _seed]
+
+
+def _cases():
+    for family, seeds in SEEDS.items():
+        for seed in seeds:
+            reason = KNOWN.get((family, seed))
+            marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+            yield pytest.param(family, seed, marks=marks, id=f"{family}-{seed}")
+
+
+@pytest.mark.parametrize("family, seed", list(_cases()))
+def test_the_twins_agree(fuzz, fm, twins, family, seed):
+    model = fm.draw(np.random.default_rng(seed), family, 12)
+    model.seed = seed
+    tally = fuzz.Tally()
+    twins.check_model(model, tally)
+    assert tally.evaluations[family] >= 4, tally.report()
+    assert tally.wrong[family] == 0, tally.report()
+
+
+def test_a_wrong_twin_is_found(fuzz, fm, twins):
+    """The tolerance has teeth: the compiled twin given the constant term b_0 of every
+    region's field 1e-5 off (a model that is not the same) is out of it, in the states
+    or the flow map."""
+    model = fm.draw(np.random.default_rng(0), "models-plain", 12)
+    model.seed = 0
+    systems = model.systems
+
+    def off():
+        python, compiled = systems()
+        p = model.p.copy()
+        block = model.d * model.d + 2 * model.d  # a region's A, b, c
+        p[model.d * model.d:block * 2**model.n:block] += 1e-5  # params start at x[d]
+        other = fm.Model(model.family, model.n, model.d, p, model.x0, model.t_final,
+                         False, model.gaps, model.window_time, np.random.default_rng(0))
+        return python, other.systems()[1]
+
+    model.systems = off
+    tally = fuzz.Tally()
+    twins.check_model(model, tally)
+    assert tally.wrong["models-plain"] > 0, tally.report()
+    assert any("apart" in k for k in tally.disagreed["models-plain"]), tally.report()
+
+
+def test_the_tool_runs_the_models_families(fuzz, capsys):
+    assert fuzz.main(["--families", "models", "--evaluations", "200", "--rows", "4",
+                      "--seed", "5"]) == 0
+    report = capsys.readouterr().out
+    for family in SEEDS:
+        assert family in report, report
+    assert report.rstrip().splitlines()[-1].endswith(" 0 wrong") or " 0 wrong" in report
+
+
+def test_refusal_kinds(twins):
+    assert twins.kind(ValueError("the resets of events [0, 1], simultaneous at t=1, do not "
+                              "commute: ...")) == "do not commute"
+    assert twins.kind(ValueError("events [0, 1] were grouped at t=1 by simultaneity_tol=1e-07, "
+                              "but event 1 is not at that point: ...")) == "not at that point"
+    assert twins.kind(RuntimeError("something new\nmore")).startswith("RuntimeError: something")
