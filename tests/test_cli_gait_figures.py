@@ -28,6 +28,9 @@ def test_all_figures_of_pronking(capsys, tmp_path):
                           "--out", str(tmp_path)], capsys)
     assert code == 0, err
     assert out.startswith("bderiv plot: pronking (n = 2, d = 4)")
+    # the seconds of work are announced as they start (users' fourth pass, item 2)
+    assert "bderiv plot: finding the pronking orbit by Newton's method" in err
+    assert "bderiv plot: simulating 40 strides from 4 perturbed starts" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["growth.png", "orbit.png"]
     for name in ("orbit", "growth"):
         assert f"wrote {tmp_path / name}.png" in out

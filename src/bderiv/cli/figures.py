@@ -37,7 +37,7 @@ DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-3
 
 
 def run_figures(example=None, n=None, extended=False, figures=None, out=None,
-                fmt="png", dpi=120, bench_json=None) -> dict:
+                fmt="png", dpi=120, bench_json=None, report=None) -> dict:
     """Write the figures asked for; return what was drawn and the files written.
 
     Parameters
@@ -57,6 +57,9 @@ def run_figures(example=None, n=None, extended=False, figures=None, out=None,
     dpi : int
     bench_json : str, optional
         The output of ``bderiv bench --json``, for the scaling figure.
+    report : callable ``report(text)``, optional
+        Told what takes seconds before it starts (finding a gait's orbit, simulating its
+        strides), so that no minute passes silent.
 
     Returns
     -------
@@ -99,10 +102,17 @@ def run_figures(example=None, n=None, extended=False, figures=None, out=None,
         refused = _not_applicable(wanted, example, *sizes)
         if refused:
             raise UsageError(_refusal(*next(iter(refused.items())), example, *sizes))
+    say = report or (lambda text: None)
     if example in ORBIT_EXAMPLES and set(wanted) - {"scaling"}:
+        say(f"finding the {example} orbit by Newton's method (a few seconds)")
         _, subject = load_orbit(example, model=model)
-    figs = {name: plot.scaling(bench["rows"], machine=bench["machine"]) if name == "scaling"
-            else _draw(plot, name, example, subject) for name in wanted}
+    figs = {}
+    for name in wanted:
+        if name == "growth":
+            say(f"simulating {DECAY_STRIDES} strides from {DECAY_DIRECTIONS} perturbed starts "
+                f"for the growth figure (a few seconds)")
+        figs[name] = (plot.scaling(bench["rows"], machine=bench["machine"])
+                      if name == "scaling" else _draw(plot, name, example, subject))
     for name, fig in figs.items():  # refuse a --dpi before writing anything
         check_raster(fig, dpi, name)
     written = [os.path.join(out, f"{name}.{fmt}") for name in figs]

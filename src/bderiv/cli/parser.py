@@ -264,8 +264,11 @@ def _bench(args) -> str:
 
 
 def _plot(args) -> str:
+    def say(text):  # on stderr: stdout is the summary (or its JSON)
+        print(f"bderiv plot: {text}", file=sys.stderr, flush=True)
+
     summary = run_figures(args.example, args.n, args.extended, args.figure, args.out,
-                          args.format, args.dpi, args.bench_json)
+                          args.format, args.dpi, args.bench_json, report=say)
     return render.to_json(summary) if args.json else render.figures_text(summary)
 
 
