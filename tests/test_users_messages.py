@@ -137,3 +137,24 @@ def test_a_trajectory_says_its_start_region_and_groups():
     assert "start region 0b0, 1 event groups [t=0.1: [0, 1] 0b0 -> 0b11], final region 0b11" \
         in text
     assert traj.mask_start == 0
+
+
+def test_the_first_run_says_its_start_region(caplog):
+    """(item 5) events written as heights (the other sign) start the chair in region 0b11,
+    'both feet touching', in the air: the first run of the model says so at INFO."""
+    import logging
+
+    from bderiv import HybridSystem, examples
+
+    ex = examples.chair()
+    s = ex.system
+    flipped = HybridSystem(s._field, lambda x: -s._events(x), n_events=2, dim=6)
+    with caplog.at_level(logging.INFO, logger="bderiv"):
+        traj = flipped.simulate(ex.x0, 0.05)
+        flipped.simulate(ex.x0, 0.05)
+    told = [r.getMessage() for r in caplog.records if "the run starts in region" in
+            r.getMessage()]
+    assert told == ["the run starts in region 0b11: events [0, 1] counted as happened "
+                    "(h_k(x0) > 0); events written with the other sign start it elsewhere "
+                    "than meant"]  # once per model
+    assert "start region 0b11" in repr(traj)

@@ -23,6 +23,8 @@ with the steps is held to the memory the process may still take before it grows
 
 from __future__ import annotations
 
+import logging
+import weakref
 from dataclasses import dataclass, replace
 from dataclasses import field as dc_field
 from functools import lru_cache, partial
@@ -30,6 +32,7 @@ from functools import lru_cache, partial
 import numpy as np
 from scipy.integrate import OdeSolver
 
+from ..._format import format_mask
 from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, GLOBAL_ERROR_FACTOR, MAX_GROUPS, MIN_RTOL
 from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
@@ -41,6 +44,8 @@ from ..events.zeno import ImpactWatch
 from .compiled_path import CompiledStretches
 from .record import ENDS, STEPS, RunLog, check_t_eval
 from .scipy_path import ScipyStretches
+
+_log = logging.getLogger("bderiv")
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -214,6 +219,24 @@ class Trajectory:
                 f", final region {self.mask_final:#b})")
 
 
+#: the models whose first run's start region was logged
+_TOLD = weakref.WeakSet()
+
+
+def _tell_start(system, x0):
+    """Log once per model, at INFO (logger ``bderiv``), the region its first run starts
+    in and the events counted as happened there: events written with the other sign (a
+    height where the model wants a penetration) start it in another region than meant."""
+    if system in _TOLD or not _log.isEnabledFor(logging.INFO):
+        return
+    _TOLD.add(system)
+    h, n = system.eval_events(x0), system.n_events
+    happened = [k for k in range(n) if h[k] > 0]
+    _log.info("the run starts in region %s: events %s counted as happened (h_k(x0) > 0); "
+              "events written with the other sign start it elsewhere than meant",
+              format_mask(sum(1 << k for k in happened), n), happened)
+
+
 class NoReturn(ValueError):
     """A run with a section that did not return to it in the time it waited: a caller
     names its own argument for that time (``t_max``, ``period_guess``)."""
@@ -290,6 +313,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     RuntimeError
         When the integrator fails or the run has more than ``max_groups`` event groups.
     """
+    _tell_start(system, x0)
     t_final = check_number(t_final, "t_final")
     simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
     max_groups = check_positive_int(max_groups, "max_groups")
