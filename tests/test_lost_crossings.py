@@ -22,7 +22,7 @@ from functools import cache
 import numba
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
+from test_grouping import simulate_ref as grouping_ref
 
 from bderiv import HybridSystem
 from bderiv.models.compiled import rules
@@ -110,35 +110,10 @@ X_DROP = np.array([1e-3, 0.0, 0.0, 0.0])
 # the independent reference: restart at every event, each event read on its side there
 # ------------------------------------------------------------------------------------------
 def simulate_ref(x0, T, *, rtol=1e-13, atol=REF_ATOL / 10):
-    """Final state and event log ``[(t, k), ...]`` of the bar from ``x0`` to ``T``
-    (solve_ivp DOP853; the mask from the signs of the events; at each stop the bits of the
-    events located, or found across, flipped)."""
-    field, events = bar_field.py_func, bar_events.py_func
-    x, t = np.array(x0, dtype=float), 0.0
-    mask = sum(1 << k for k in range(2) if events(x)[k] > 0)
-    log = []
-    while t < T:
-        funcs = []
-        for k in range(2):
-            side = 1.0 if mask >> k & 1 else -1.0
-
-            def ev(tt, y, k=k, t0=t, side=side):
-                return side if tt == t0 else events(y)[k]
-
-            ev.terminal, ev.direction = True, -side
-            funcs.append(ev)
-        sol = solve_ivp(lambda _t, y, m=mask: field(y, m), (t, T), x, events=funcs,
-                        rtol=rtol, atol=atol, method="DOP853")
-        assert sol.status != -1, sol.message
-        t, x = float(sol.t[-1]), sol.y[:, -1].copy()
-        if sol.status == 0:
-            break
-        h = events(x)
-        for k in range(2):
-            if sol.t_events[k].size or (h[k] > 0) != bool(mask >> k & 1):
-                mask ^= 1 << k
-                log.append((t, k))
-    return x, log
+    """Final state and event log ``[(t, k), ...]`` of the bar from ``x0`` to ``T`` by
+    test_grouping's reference (solve_ivp DOP853, a restart at every event, each event read
+    on its side there)."""
+    return grouping_ref(bar_field.py_func, bar_events.py_func, x0, T, rtol=rtol, atol=atol)
 
 
 #: directions of the flow maps' checks, in the components' magnitudes
