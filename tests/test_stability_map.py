@@ -12,7 +12,7 @@ import functools
 import numpy as np
 import pytest
 
-from bderiv.examples._common import complex_step_jacobian
+from bderiv import complex_step_jacobian
 from bderiv.models.system import HybridSystem
 from bderiv.stability_map import StabilityMap, stability_map
 
