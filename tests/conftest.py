@@ -67,6 +67,9 @@ def pytest_configure(config):
     # to the user's cache; a BDERIV_CACHE_DIR set by the caller is kept
     os.environ.setdefault("BDERIV_CACHE_DIR", os.path.join(
         tempfile.gettempdir(), f"bderiv-tests-{getpass.getuser()}"))
+    # the tests of compiled models run on the compiled integrator from their first call
+    # (waiting for its compilation, once for all workers); test_readiness tests the rest
+    os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")
     # pyproject turns warnings into errors; hypothesis' pytest plugin imports
     # mypy_extensions.TypedDict at report time on some installs, a DeprecationWarning that is
     # not ours and would abort the run with an INTERNALERROR

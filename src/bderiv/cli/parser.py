@@ -22,6 +22,7 @@ from .._limits import (
     EPS_RANGE,
     FD_EPS,
 )
+from ..warmup import FAMILIES, compile_family, warm_up
 from . import render
 from .bench import run_bench
 from .demo import run_demo
@@ -125,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
         "`python -m bderiv`.",
     )
     parser.add_argument("--version", action="version", version=f"bderiv {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="{demo,bench,plot,export}")
+    sub = parser.add_subparsers(dest="command", metavar="{demo,bench,plot,export,compile}")
 
     p = sub.add_parser("demo", help="the B-derivative of a built-in model, checked against "
                        "simulation (default command)")
@@ -202,6 +203,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-pieces", type=_positive_int, default=40320,
                    help="refuse more than this many event orders (default 8! = 40320)")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p = sub.add_parser("compile", help="compile the kernels into numba's disk cache ahead "
+                       "of their first use (a Docker image, CI, a new Dask worker)")
+    p.add_argument("families", nargs="*", default=[], metavar="FAMILY",
+                   help=f"some of {', '.join(FAMILIES)} (default: all)")
+    p.add_argument("--processes", type=_positive_int, default=None,
+                   help="families compiled at once (default: the cores this process may use)")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    p.add_argument("--here", action="store_true", help=argparse.SUPPRESS)  # one family, here
+
     parser.commands = sub.choices  # each command's parser, for its own error messages
     return parser
 
@@ -278,8 +288,26 @@ def _export(args) -> str:
     return render.to_json(summary) if args.json else render.export_text(summary)
 
 
+def _compile(args) -> str:
+    unknown = [name for name in args.families if name not in FAMILIES]
+    if unknown:
+        raise UsageError(f"unknown family {unknown[0]!r}: the families are "
+                         f"{', '.join(FAMILIES)}")
+    if args.here:  # the process of one family (warmup.warm_up starts it)
+        for name in args.families:
+            compile_family(name)
+        return ""
+    def say(text):  # on stderr: stdout is the summary
+        print(f"bderiv compile: {text}", file=sys.stderr, flush=True)
+
+    seconds = warm_up(args.families or FAMILIES, args.processes,
+                      None if args.no_progress else say)
+    return "".join(f"{name:<12} {t:7.1f} s\n" for name, t in seconds.items())
+
+
 #: each command: ``args -> text to print`` (None when the text was streamed already)
-_COMMANDS = {"demo": _demo, "bench": _bench, "plot": _plot, "export": _export}
+_COMMANDS = {"demo": _demo, "bench": _bench, "plot": _plot, "export": _export,
+             "compile": _compile}
 
 
 def _refuse_negative_eps(argv, parser) -> None:

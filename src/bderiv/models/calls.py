@@ -19,6 +19,7 @@ from .._format import format_mask
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
 from .._validate import all_finite, check_bool, check_positive_int, check_real_array
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel
+from .readiness import ready_now
 from .user_functions import (
     _appending,
     _contiguous_args,
@@ -99,11 +100,19 @@ class ModelCalls:
         self._warned = set()  # the builds whose numerical Jacobians were warned about
 
     @property
+    def on_compiled_path(self) -> bool:
+        """Whether the model's functions are numba dispatchers: its runs go on the compiled
+        integrator (on scipy while that compiles: :attr:`compiled`)."""
+        return self._compiled_functions is not None
+
+    @property
     def compiled(self) -> CompiledModel | None:
         """The compiled path's model when ``field`` is a numba dispatcher (its functions
         checked and compiled for the integrator's types at the first use; the time that
-        took is logged once, logger ``"bderiv"``, level INFO), else None."""
-        if self._compiled is None and self._compiled_functions is not None:
+        took is logged once, logger ``"bderiv"``, level INFO), else None; None also while
+        the compiled integrator is compiled in a background process
+        (:mod:`bderiv.models.readiness`: the model's runs then go on scipy)."""
+        if self._compiled is None and self._compiled_functions is not None and ready_now():
             start = time.perf_counter()
             field, events, jac = self._compiled_functions
             self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models.compiled import CompiledModel
+from ..models.readiness import ready_now
 from ..models.system import HybridSystem
 from . import _cache, _codegen
 from ._inputs import check_model, check_value, require_sympy
@@ -159,10 +160,17 @@ class SymbolicSystem(HybridSystem):
                          check_jacobians=False)
 
     @property
+    def on_compiled_path(self) -> bool:
+        """Whether the runs go on the compiled integrator (False: :meth:`scipy_path`)."""
+        return self._on_compiled_path
+
+    @property
     def compiled(self) -> CompiledModel | None:
         """The compiled integrator's model: the kernels ``field``, ``events`` and
-        ``field_jacobian`` with this system's parameter values (None on the scipy path)."""
-        if self._compiled is None and self._on_compiled_path:
+        ``field_jacobian`` with this system's parameter values (None on the scipy path,
+        and while the compiled integrator compiles in the background:
+        :mod:`bderiv.models.readiness`)."""
+        if self._compiled is None and self._on_compiled_path and ready_now():
             k = self.kernels
             self._compiled = CompiledModel(k.field, k.events, k.field_jacobian,
                                            n_events=k.n_events, dim=k.dim,

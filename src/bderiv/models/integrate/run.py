@@ -41,6 +41,7 @@ from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
 from ..events.locate import StopCalls, check_sides, local_view, settle
 from ..events.zeno import ImpactWatch
+from ..readiness import integrator_ready
 from .compiled_path import CompiledStretches
 from .record import ENDS, STEPS, RunLog, check_t_eval
 from .scipy_path import ScipyStretches
@@ -256,15 +257,17 @@ def stretches_for(system, options, section=None, watch=None, stops=None):
     ValueError
         A compiled model with another method than DOP853 (the compiled integrator's).
     """
-    if getattr(system, "compiled", None) is None:
+    if not getattr(system, "on_compiled_path", False):
         return ScipyStretches(system, section, watch, stops)
     if options.method != "DOP853":
         raise ValueError(
             f"the model's functions are numba-compiled: they are integrated by the compiled "
             f"DOP853, so method must be 'DOP853', got {options.method!r}"
         )
-    return CompiledStretches(system, None if section is None else section.compiled(),
-                             stops)
+    compiled_section = None if section is None else section.compiled()
+    if system.compiled is None:  # the integrator compiles in the background: scipy's DOP853
+        return ScipyStretches(system, section, watch, stops)
+    return CompiledStretches(system, compiled_section, stops)
 
 
 def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=False,
@@ -314,6 +317,8 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         When the integrator fails or the run has more than ``max_groups`` event groups.
     """
     _tell_start(system, x0)
+    if getattr(system, "on_compiled_path", False):
+        integrator_ready()  # the compiled integrator, or scipy while it compiles
     t_final = check_number(t_final, "t_final")
     simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
     max_groups = check_positive_int(max_groups, "max_groups")

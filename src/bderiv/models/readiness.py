@@ -1,0 +1,246 @@
+"""Whether the compiled integrator is ready on this machine, and its compilation meanwhile.
+
+The compiled integrator (the driver :func:`._integrate.drive_stretch` and the compiled run
+:func:`._run.run_stretches`) takes about a minute or two of one core to compile, once per
+machine and bderiv version; later processes load it from numba's disk cache in a fraction
+of a second. A compiled model does not need it to get its answers: the Python loop on
+scipy's ``solve_ivp`` runs the same method (DOP853, the same tableau and step control), the
+same event location and the same stop rules, calling the model's numba functions from
+Python (slower per run, never different in what it decides: both paths are held to each
+other by the tests). So a process that finds the integrator neither compiled in it nor in
+the disk cache does one of three things, chosen by the environment variable
+``BDERIV_INTEGRATOR``:
+
+- ``auto`` (the default): it starts ``python -m bderiv compile integrator`` in a
+  background process (once per machine at a time: a lock file in the cache folder) and
+  runs compiled models on scipy until the disk cache holds the integrator; from the
+  next run after that, on the compiled integrator. The first answer comes in seconds; the
+  runs become fast when the compilation ends (the logger ``bderiv`` says both).
+- ``compiled``: it waits for the integrator (compiling it, or waiting for the process that
+  does), then runs compiled. For benchmarks and for work that must run on one integrator
+  from its first call.
+- ``scipy``: compiled models run on scipy (a check of the compiled path, or a machine
+  that must not compile).
+
+The variable is read when a model's compiled functions are first needed (a model that
+runs compiled keeps doing so).
+
+The lock (``fcntl.flock`` on a file beside the driver's cache index) makes one process
+compile while the others wait or go on with scipy; the compiling process checks the cache
+again once it holds the lock. Where ``fcntl`` is missing (Windows) or a background process
+cannot be started, the integrator is compiled in the process that needs it, as numba
+does by itself.
+
+Only :func:`integrator_ready` is called on the run's path (through ``ModelCalls.compiled``):
+while the integrator is not ready it looks at the disk at most every
+:data:`POLL_SECONDS`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+try:
+    import fcntl
+except ImportError:  # Windows: no lock, the integrator compiles where it is needed
+    fcntl = None
+
+from .compiled._integrate import drive_stretch
+from .compiled._run import run_stretches
+
+_log = logging.getLogger("bderiv")
+
+#: the environment variable that chooses what a process does while the integrator is not
+#: compiled, and its values (see the module docstring)
+POLICY_VARIABLE = "BDERIV_INTEGRATOR"
+POLICIES = ("auto", "compiled", "scipy")
+#: seconds between two looks at the disk cache while the integrator is not ready
+POLL_SECONDS = 1.0
+#: the dispatchers that make up the integrator (the others are small and compile in
+#: seconds wherever they are first called)
+DISPATCHERS = (drive_stretch, run_stretches)
+
+_state = {"ready": False, "checked": -float("inf"), "child": None, "said": False}
+
+
+def policy() -> str:
+    """``BDERIV_INTEGRATOR``, checked: ``auto`` (unset), ``compiled`` or ``scipy``."""
+    value = os.environ.get(POLICY_VARIABLE, "auto").strip().lower() or "auto"
+    if value not in POLICIES:
+        raise ValueError(f"the environment variable {POLICY_VARIABLE} must be one of "
+                         f"{', '.join(POLICIES)}, got {value!r}")
+    return value
+
+
+def _machine_has(dispatcher) -> bool:
+    """Whether ``dispatcher`` is compiled in this process or its disk cache holds an entry
+    for this machine (numba's codegen magic tuple: the CPU and its features)."""
+    if dispatcher.signatures:
+        return True
+    try:
+        index = dispatcher._cache._cache_file._load_index()
+        magic = dispatcher.targetctx.codegen().magic_tuple()
+    except Exception:  # noqa: BLE001 - uncached, another numba, a damaged index: not there
+        return False
+    return any(key[1] == magic for key in index)
+
+
+def integrator_cached() -> bool:
+    """Whether every part of the integrator is compiled here or in the disk cache."""
+    return all(_machine_has(d) for d in DISPATCHERS)
+
+
+def lock_path() -> pathlib.Path | None:
+    """The lock file of the integrator's compilation, beside the driver's cache index
+    (the folder numba caches it in: ``NUMBA_CACHE_DIR``, or ``__pycache__`` beside the
+    sources); None where it cannot be had."""
+    try:
+        folder = pathlib.Path(drive_stretch._cache._cache_file._cache_path)
+        folder.mkdir(parents=True, exist_ok=True)
+    except (AttributeError, OSError):
+        return None
+    return folder / "bderiv-integrator.lock"
+
+
+@contextlib.contextmanager
+def compile_lock(wait: bool = True):
+    """Hold the compilation lock (``wait``: until it is free); yields whether it is held
+    (False: another process holds it, ``wait`` False; also where no lock can be had)."""
+    path = lock_path()
+    if fcntl is None or path is None:
+        yield False
+        return
+    with open(path, "a+b") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def compile_command() -> list[str]:
+    """The command that compiles the integrator: this interpreter, ``-m bderiv compile
+    integrator`` (in that process itself: ``--here``)."""
+    return [sys.executable, "-m", "bderiv", "compile", "integrator", "--here"]
+
+
+def child_environment() -> dict:
+    """This process's environment, with the folder holding this bderiv first on
+    ``PYTHONPATH`` (the child must compile the same sources)."""
+    env = dict(os.environ)
+    root = str(pathlib.Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+    return env
+
+
+def _start_background() -> bool | None:
+    """Start the compiling process unless another process holds the lock: True when
+    started, None when another compiles, False when no process could be started."""
+    with compile_lock(wait=False) as free:
+        if not free and fcntl is not None and lock_path() is not None:
+            return None
+    try:
+        log = tempfile.TemporaryFile()  # its error output, read if it fails
+        child = subprocess.Popen(compile_command(), env=child_environment(),
+                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                 stderr=log, start_new_session=True)
+        child.log = log
+    except OSError as exc:
+        _log.info("bderiv: no background process for the compiled integrator (%s)", exc)
+        return False
+    _state["child"] = child
+    return True
+
+
+def compiling_here() -> None:
+    """Mark the integrator ready in this process: the process that compiles it
+    (``python -m bderiv compile integrator``, holding the lock) runs it compiled."""
+    _state["ready"] = True
+
+
+def ready_now() -> bool:
+    """Whether compiled models run compiled now, without looking at the disk (the first
+    call of a process looks: :func:`integrator_ready`); runs look when they start."""
+    if _state["checked"] == -float("inf"):
+        return integrator_ready()
+    return _state["ready"] and policy() != "scipy"
+
+
+def _wait_for_integrator() -> None:
+    """Compile the integrator in the foreground (policy ``compiled``), or wait for the
+    process that compiles it; a compilation that fails there is left to numba here."""
+    with compile_lock(wait=True) as held:
+        if not held or integrator_cached():
+            return
+        _log.warning("bderiv: compiling the compiled integrator for this machine (once: "
+                     "about one to two minutes; later runs load it from numba's disk cache)")
+        subprocess.run(compile_command(), env=child_environment(), check=False,
+                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+
+
+def _child_ended() -> bool:
+    """Whether the background process ended without the integrator in the cache (warned,
+    with the end of its error output): it is then compiled in this process."""
+    child = _state["child"]
+    if child is None or child.poll() is None:
+        return False
+    child.log.seek(0)
+    tail = child.log.read().decode(errors="replace")[-1500:]
+    child.log.close()
+    _state["child"] = None
+    _log.warning("bderiv: the background compilation of the compiled integrator ended "
+                 "(exit status %d) without putting it in numba's disk cache; it is compiled "
+                 "in this process at its first use.%s", child.returncode,
+                 f"\n{tail}" if tail else "")
+    return True
+
+
+def integrator_ready() -> bool:
+    """Whether compiled models run on the compiled integrator now (see the module
+    docstring for the policies); the first call that finds it missing starts its
+    compilation (``auto``) or waits for it (``compiled``)."""
+    chosen = policy()
+    if chosen == "scipy":
+        return False
+    if _state["ready"]:
+        return True
+    now = time.monotonic()
+    if now - _state["checked"] < POLL_SECONDS:
+        return False
+    _state["checked"] = now
+    if integrator_cached():
+        _state["ready"] = True
+        if _state["child"] is not None:  # its error output is not needed (it is kept:
+            _state["child"].log.close()  # still ending, it is not waited for here)
+        if _state["said"]:
+            _log.warning("bderiv: the compiled integrator is ready; compiled models run on it "
+                         "from the next run on")
+        return True
+    if chosen == "compiled" or fcntl is None:
+        _wait_for_integrator()
+        _state["ready"] = True  # compiled now, or compiled by numba at the first call
+        return True
+    if _child_ended() or (_state["child"] is None and _start_background() is False):
+        _state["ready"] = True  # numba compiles it here, at the first call
+        return True
+    if not _state["said"]:
+        _state["said"] = True
+        _log.warning(
+            "bderiv: the compiled integrator is not compiled on this machine yet; it is "
+            "being compiled in a background process (about one to two minutes of one core, "
+            "once per machine). Until it is ready, compiled models run on scipy's solve_ivp "
+            "(the same method and stop rules, slower per run). `python -m bderiv compile` "
+            "compiles everything and waits; %s=compiled waits in this process.",
+            POLICY_VARIABLE)
+    return False

@@ -1,0 +1,145 @@
+"""The compiled integrator's readiness: compiled models run on scipy while it compiles in a
+background process, wait for it, or never use it (``BDERIV_INTEGRATOR``).
+
+The integrator itself takes a minute or two to compile, so the protocol is tested with a
+stand-in: a small cached numba function in a module of a temporary folder, compiled by a
+child process that the test's compile command starts, its cache index read as
+:func:`bderiv.models.readiness.integrator_cached` reads the integrator's.
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from bderiv import examples
+from bderiv.models import readiness
+
+STAND_IN = """
+import numba
+
+@numba.njit(cache=True)
+def part(x):
+    return 2.0 * x
+"""
+
+
+@pytest.fixture
+def stand_in(tmp_path, monkeypatch):
+    """The readiness module on a stand-in integrator: its dispatcher, lock and command."""
+    module = f"stand_in_{tmp_path.name.replace('-', '_')}"
+    (tmp_path / f"{module}.py").write_text(STAND_IN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    mod = __import__(module)
+    monkeypatch.setattr(readiness, "DISPATCHERS", (mod.part,))
+    monkeypatch.setattr(readiness, "lock_path", lambda: tmp_path / "integrator.lock")
+    monkeypatch.setattr(readiness, "_state", {"ready": False, "checked": -float("inf"),
+                                              "child": None, "said": False})
+    monkeypatch.setattr(readiness, "POLL_SECONDS", 0.0)
+    monkeypatch.delenv(readiness.POLICY_VARIABLE, raising=False)
+    command = [sys.executable, "-c", f"import {module}; {module}.part(1.0)"]
+    monkeypatch.setattr(readiness, "compile_command", lambda: command)
+    return mod
+
+
+def _wait_child(timeout=120.0):
+    child = readiness._state["child"]
+    assert child is not None, "no background process was started"
+    child.wait(timeout)
+
+
+def test_auto_runs_on_scipy_until_the_background_process_has_compiled(stand_in, caplog):
+    caplog.set_level(logging.WARNING, logger="bderiv")
+    assert not readiness.integrator_cached()
+    assert readiness.integrator_ready() is False
+    assert "being compiled in a background process" in caplog.text
+    assert not stand_in.part.signatures  # not compiled in this process
+    _wait_child()
+    assert readiness.integrator_ready() is True
+    assert "is ready" in caplog.text
+    assert not stand_in.part.signatures  # the child compiled it; here it only loads
+
+
+def test_no_second_process_while_another_holds_the_lock(stand_in):
+    with readiness.compile_lock(wait=False) as held:
+        assert held
+        assert readiness.integrator_ready() is False
+        assert readiness._state["child"] is None  # the holder compiles: none started
+
+
+def test_compiled_policy_waits_for_the_compilation(stand_in, monkeypatch):
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "compiled")
+    assert readiness.integrator_ready() is True
+    assert readiness.integrator_cached()
+    assert readiness._state["child"] is None
+
+
+def test_a_failed_background_process_is_named_and_the_integrator_compiles_here(
+        stand_in, monkeypatch, caplog):
+    monkeypatch.setattr(readiness, "compile_command", lambda: [
+        sys.executable, "-c", "import sys; sys.exit('no compiler here')"])
+    caplog.set_level(logging.WARNING, logger="bderiv")
+    assert readiness.integrator_ready() is False
+    _wait_child()
+    assert readiness.integrator_ready() is True
+    assert "exit status 1" in caplog.text and "no compiler here" in caplog.text
+
+
+def test_scipy_policy_and_a_bad_value(stand_in, monkeypatch):
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "scipy")
+    assert readiness.integrator_ready() is False
+    assert readiness._state["child"] is None
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "fast")
+    with pytest.raises(ValueError, match="BDERIV_INTEGRATOR must be one of auto, compiled, "
+                       "scipy, got 'fast'"):
+        readiness.integrator_ready()
+
+
+def test_a_compiled_model_on_scipy_gives_the_compiled_paths_answer(monkeypatch):
+    """The chair's compiled model with the integrator withheld (``scipy``) and on it: the
+    same event groups, flow map and final state to the integration tolerance."""
+    ex = examples.chair(compiled=True)
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "scipy")
+    scipy_model = examples.chair(compiled=True).system
+    assert scipy_model.compiled is None and scipy_model.on_compiled_path
+    on_scipy = scipy_model.flow_bderivative(ex.x0, ex.t_final)
+    traj_scipy = scipy_model.simulate(ex.x0, ex.t_final)
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "compiled")
+    assert ex.system.compiled is not None
+    compiled = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    traj = ex.system.simulate(ex.x0, ex.t_final)
+    assert [g.events for g in traj.groups] == [g.events for g in traj_scipy.groups]
+    np.testing.assert_allclose(traj.x_final, traj_scipy.x_final, rtol=1e-8, atol=1e-10)
+    V = np.random.default_rng(0).standard_normal((50, ex.system.dim))
+    np.testing.assert_allclose(on_scipy(V), compiled(V), rtol=1e-7, atol=1e-9)
+
+
+def test_a_fresh_process_answers_before_the_integrator_is_compiled(tmp_path):
+    """A process with an empty cache: its first flow map comes from scipy with the
+    background compilation announced (the child is stopped before it ends)."""
+    code = textwrap.dedent("""
+        import logging, os, signal
+        logging.basicConfig(level=logging.WARNING)
+        from bderiv import examples
+        from bderiv.models import readiness
+        ex = examples.chair(compiled=True)
+        D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+        child = readiness._state["child"]
+        print("compiled" if ex.system.compiled is not None else "scipy", child is not None)
+        if child is not None:
+            os.killpg(child.pid, signal.SIGKILL)
+    """)
+    env = {**readiness.child_environment(), "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+           "BDERIV_CACHE_DIR": str(tmp_path / "bderiv")}
+    env.pop(readiness.POLICY_VARIABLE, None)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["scipy", "True"], (out.stdout, out.stderr[-2000:])
+    assert "being compiled in a background process" in out.stderr
