@@ -15,11 +15,12 @@ PKG = ROOT / "src" / "bderiv"
 #: layers below, never one above.
 LAYERS = [
     {"cli", "__main__"},
-    {"plot", "examples", "_bench", "symbolic", "jax"},  # _bench: the sweep of `bderiv bench`
+    {"plot", "examples", "_bench", "symbolic", "jax", "warmup"},  # _bench: `bderiv bench`'s
+    # sweep; warmup: `bderiv compile`
     {"models", "models/system", "models/calls", "models/user_functions", "models/section",
      "orbit", "jacobians", "_numdiff", "stability_map"},
     {"checks", "models/assembly"},  # assembly: the model's B-derivatives, group by group
-    {"models/integrate", "flowmap", "returnmap", "stability"},
+    {"models/integrate", "models/readiness", "flowmap", "returnmap", "stability"},
     {"models/events"},  # the event logic at a stop, for both integrators
     {"models/compiled"},  # the compiled integrator
     {"bderivative", "_geometry", "triangulation", "_triangulation_io"},

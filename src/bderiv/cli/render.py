@@ -65,7 +65,12 @@ def _matrix(name, rows, indent="    ") -> list:
 
 def _model(res):
     text = f"bderiv demo: {res['example']}\n  {res['description']}\n"
-    if res.get("compiled"):
+    if res.get("waiting"):
+        text += ("  its field, events and Jacobians are numba-compiled functions; the compiled "
+                 "integrator is being compiled in a background process (once per machine): "
+                 "until it is ready, the simulations run on scipy's solve_ivp (the same "
+                 "method and stops, slower per run)\n")
+    elif res.get("compiled"):
         text += ("  its field, events and Jacobians are numba-compiled functions: every "
                  "simulation runs on the compiled integrator (--python: the same equations "
                  "as Python functions on scipy's solve_ivp)\n")
