@@ -211,6 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="families compiled at once (default: the cores this process may use)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.add_argument("--here", action="store_true", help=argparse.SUPPRESS)  # one family, here
+    p.add_argument("--nice", action="store_true", help=argparse.SUPPRESS)  # in the background
 
     parser.commands = sub.choices  # each command's parser, for its own error messages
     return parser
@@ -293,6 +294,8 @@ def _compile(args) -> str:
     if unknown:
         raise UsageError(f"unknown family {unknown[0]!r}: the families are "
                          f"{', '.join(FAMILIES)}")
+    if args.nice and hasattr(os, "nice"):  # a background compilation yields to the work
+        os.nice(10)
     if args.here:  # the process of one family (warmup.warm_up starts it)
         for name in args.families:
             compile_family(name)

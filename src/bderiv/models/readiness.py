@@ -152,7 +152,7 @@ def _start_background() -> bool | None:
             return None
     try:
         log = tempfile.TemporaryFile()  # its error output, read if it fails
-        child = subprocess.Popen(compile_command(), env=child_environment(),
+        child = subprocess.Popen([*compile_command(), "--nice"], env=child_environment(),
                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                  stderr=log, start_new_session=True)
         child.log = log
