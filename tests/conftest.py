@@ -70,6 +70,11 @@ def pytest_configure(config):
     # the tests of compiled models run on the compiled integrator from their first call
     # (waiting for its compilation, once for all workers); test_readiness tests the rest
     os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")
+    if not hasattr(config, "workerinput"):  # the main process: the integrator compiles
+        from bderiv.models import readiness  # meanwhile, while the workers start
+
+        if not readiness.integrator_cached():
+            readiness.start_background(nice=False)
     # pyproject turns warnings into errors; hypothesis' pytest plugin imports
     # mypy_extensions.TypedDict at report time on some installs, a DeprecationWarning that is
     # not ours and would abort the run with an INTERNALERROR

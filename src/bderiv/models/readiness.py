@@ -144,15 +144,17 @@ def child_environment() -> dict:
     return env
 
 
-def _start_background() -> bool | None:
-    """Start the compiling process unless another process holds the lock: True when
-    started, None when another compiles, False when no process could be started."""
+def start_background(nice: bool = True) -> bool | None:
+    """Start the compiling process unless another process holds the lock (``nice``: at a
+    lower priority than this one): True when started, None when another compiles, False
+    when no process could be started."""
     with compile_lock(wait=False) as free:
         if not free and fcntl is not None and lock_path() is not None:
             return None
     try:
         log = tempfile.TemporaryFile()  # its error output, read if it fails
-        child = subprocess.Popen([*compile_command(), "--nice"], env=child_environment(),
+        child = subprocess.Popen([*compile_command(), *(["--nice"] if nice else [])],
+                                 env=child_environment(),
                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                  stderr=log, start_new_session=True)
         child.log = log
@@ -231,7 +233,7 @@ def integrator_ready() -> bool:
         _wait_for_integrator()
         _state["ready"] = True  # compiled now, or compiled by numba at the first call
         return True
-    if _child_ended() or (_state["child"] is None and _start_background() is False):
+    if _child_ended() or (_state["child"] is None and start_background() is False):
         _state["ready"] = True  # numba compiles it here, at the first call
         return True
     if not _state["said"]:
