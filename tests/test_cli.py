@@ -62,9 +62,10 @@ def test_demo_json_and_fd_convergence(capsys):
     assert '"t_final": 0.15,' in out  # 0.1 + 0.05 as asked for, not 0.15000000000000002
     res = json.loads(out)
     assert set(res) == {"example", "description", "dim", "n_events", "x0", "t_final",
-                        "compiled", "build_seconds", "groups", "pieces", "batch", "check",
-                        "total_seconds", "phases"}
+                        "compiled", "integrator", "build_seconds", "groups", "pieces", "batch",
+                        "check", "total_seconds", "phases"}
     assert res["compiled"] is True  # the chair's compiled version is the default
+    assert res["integrator"] == "compiled"  # the tests wait for it (BDERIV_INTEGRATOR)
     # the phases account for the total; compilation is counted apart, not in the timings
     phases = res["phases"]
     assert list(phases) == ["loading the example", "flow map", "pieces", "batch", "check"]

@@ -113,7 +113,7 @@ def compile_family(name: str) -> None:
 def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
     """Compile ``families`` (each in its own process, ``processes`` at a time: default
     the cores this process may use) into numba's disk cache; returns each family's wall
-    seconds.
+    seconds, in the order of ``families``.
 
     Parameters
     ----------
@@ -168,7 +168,7 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
         for _, proc in running.values():
             proc.kill()
             proc.wait()
-    return seconds
+    return {name: seconds[name] for name in families}  # in the order asked
 
 
 def _start(name: str) -> subprocess.Popen:

@@ -97,8 +97,8 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     system = ex.system
     res.update(description=ex.description, dim=system.dim, n_events=system.n_events,
                x0=ex.x0.tolist(), t_final=ex.t_final, compiled=ex.compiled,
-               # a compiled model on scipy while the integrator compiles in the background
-               waiting=bool(ex.compiled) and system.compiled is None)
+               # scipy also for a compiled model while the integrator compiles elsewhere
+               integrator="scipy" if system.compiled is None else "compiled")
     report("model", res)
     with phases("flow map"):
         fb = system.flow_bderivative(ex.x0, ex.t_final)

@@ -65,7 +65,7 @@ def _matrix(name, rows, indent="    ") -> list:
 
 def _model(res):
     text = f"bderiv demo: {res['example']}\n  {res['description']}\n"
-    if res.get("waiting"):
+    if res.get("compiled") and res.get("integrator") == "scipy":
         text += ("  its field, events and Jacobians are numba-compiled functions; the compiled "
                  "integrator is being compiled in a background process (once per machine): "
                  "until it is ready, the simulations run on scipy's solve_ivp (the same "
