@@ -39,6 +39,16 @@ def test_demo_text(capsys):
         assert text in out, text
 
 
+def test_demo_says_when_the_compiled_model_ran_on_scipy(capsys, monkeypatch):
+    monkeypatch.setenv("BDERIV_INTEGRATOR", "scipy")
+    code, out, err = run(["demo", *SMALL, "--check", "1", "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["integrator"] == "scipy"
+    code, out, err = run(["demo", *SMALL, "--check", "1"], capsys)
+    assert "the compiled integrator is not ready on this machine" in out
+    assert "every simulation runs on the compiled" not in out
+
+
 def test_demo_python_model_agrees_with_the_compiled_default(capsys):
     """--python: the chair's Python functions on solve_ivp; the same pieces as the compiled
     default (the same equations on the other integrator), and each says which it ran."""

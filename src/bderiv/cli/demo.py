@@ -96,12 +96,12 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     """The demo of a model: trajectory, pieces, timed batch, finite-difference check."""
     system = ex.system
     res.update(description=ex.description, dim=system.dim, n_events=system.n_events,
-               x0=ex.x0.tolist(), t_final=ex.t_final, compiled=ex.compiled,
-               # scipy also for a compiled model while the integrator compiles elsewhere
-               integrator="scipy" if system.compiled is None else "compiled")
+               x0=ex.x0.tolist(), t_final=ex.t_final, compiled=ex.compiled)
     report("model", res)
     with phases("flow map"):
         fb = system.flow_bderivative(ex.x0, ex.t_final)
+    # scipy also for a compiled model while the integrator compiles elsewhere
+    res["integrator"] = "scipy" if system.compiled is None else "compiled"
     res["build_seconds"] = phases.without_compiling("flow map")
     res["groups"] = _groups(fb, full)
     if full:

@@ -64,22 +64,28 @@ def _matrix(name, rows, indent="    ") -> list:
 
 
 def _model(res):
-    text = f"bderiv demo: {res['example']}\n  {res['description']}\n"
-    if res.get("compiled") and res.get("integrator") == "scipy":
-        text += ("  its field, events and Jacobians are numba-compiled functions; the compiled "
-                 "integrator is being compiled in a background process (once per machine): "
-                 "until it is ready, the simulations run on scipy's solve_ivp (the same "
-                 "method and stops, slower per run)\n")
-    elif res.get("compiled"):
-        text += ("  its field, events and Jacobians are numba-compiled functions: every "
-                 "simulation runs on the compiled integrator (--python: the same equations "
-                 "as Python functions on scipy's solve_ivp)\n")
-    return text
+    return f"bderiv demo: {res['example']}\n  {res['description']}\n"
+
+
+def _integrator(res):
+    """Which integrator the simulations ran on (a compiled model's, or scipy)."""
+    if not res.get("compiled"):
+        return ""
+    if res.get("integrator") == "scipy":
+        return ("  its field, events and Jacobians are numba-compiled functions; the compiled "
+                "integrator is not ready on this machine (being compiled in a background "
+                "process, once per machine; or withheld: BDERIV_INTEGRATOR=scipy): the "
+                "simulations run on scipy's solve_ivp until it is (the same method and "
+                "stops, slower per run)\n")
+    return ("  its field, events and Jacobians are numba-compiled functions: every "
+            "simulation runs on the compiled integrator (--python: the same equations "
+            "as Python functions on scipy's solve_ivp)\n")
 
 
 def _trajectory(res):
     groups, n, tf = res["groups"], res["n_events"], res["t_final"]
-    lines = [f"trajectory from x0 over [0, {tf:g}]: {len(groups)} event group(s)"]
+    lines = [*_integrator(res).splitlines(),
+             f"trajectory from x0 over [0, {tf:g}]: {len(groups)} event group(s)"]
     for i, g in enumerate(groups):
         kind = "simultaneous" if len(g["events"]) > 1 else "single"
         lines.append(
