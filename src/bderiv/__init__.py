@@ -1,19 +1,38 @@
 """bderiv: exact, fast Bouligand derivatives of piecewise-differentiable flows at points
 where several events happen at once."""
 
+import importlib as _importlib
 from importlib import metadata as _metadata
 
-from . import examples
-from ._kernels._cache import harden_all as _harden_all
-from .bderivative import BDerivative, LowRankResets
-from .corners import CornerFunction, CornerModel, StructuredCorners
-from .flowmap import FlowBDerivative
-from .jacobians import check_jacobians, complex_step_jacobian
-from .models.integrate.run import SolverOptions
-from .models.system import HybridSystem
-from .triangulation import Triangulation, load_triangulation
+#: the public names and the modules that hold them, imported at their first use (PEP 562):
+#: ``import bderiv`` alone costs a few milliseconds, so that ``python -m bderiv`` says what
+#: it does before numba, scipy and the kernels load
+_WHERE = {
+    "BDerivative": "bderivative", "LowRankResets": "bderivative",
+    "CornerFunction": "corners", "CornerModel": "corners", "StructuredCorners": "corners",
+    "FlowBDerivative": "flowmap", "check_jacobians": "jacobians",
+    "complex_step_jacobian": "jacobians", "SolverOptions": "models.integrate.run",
+    "HybridSystem": "models.system", "Triangulation": "triangulation",
+    "load_triangulation": "triangulation",
+}
 
-_harden_all()  # every cached kernel: a damaged cache file is compiled again, never raised
+
+def __getattr__(name):
+    if name in _WHERE:
+        value = getattr(_importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    elif name == "examples":
+        value = _importlib.import_module(".examples", __name__)
+    else:
+        raise AttributeError(f"module 'bderiv' has no attribute {name!r}")
+    # every cached kernel imported so far: a damaged cache file is compiled again, never
+    # raised (kernels imported later are hardened when their drivers are made)
+    _importlib.import_module("._kernels._cache", __name__).harden_all()
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted([*globals(), *_WHERE, "examples"])
 
 try:
     __version__ = _metadata.version("bderiv")

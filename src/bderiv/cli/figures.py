@@ -12,6 +12,15 @@ import numpy as np
 
 from .._limits import MAX_PIXELS, MAX_SIDE_PIXELS
 from .machine import describe
+from .names import (  # noqa: E402, F401  (the figures' names live in .names)
+    DECAY_DIRECTIONS,
+    DECAY_EPS,
+    DECAY_STRIDES,
+    DEFAULT_OUT,
+    FIGURES,
+    FIGURES_2D,
+    GAIT_FIGURES,
+)
 from .systems import ORBIT_EXAMPLES, load_example, load_gait, load_orbit
 from .usage import (
     UsageError,
@@ -21,19 +30,6 @@ from .usage import (
     require_memory,
     require_module,
 )
-
-#: figures that draw the plane (need d = 2); ``note`` also needs n = 2
-FIGURES_2D = ("field", "triangulation", "circle", "note")
-#: figures of a gait's periodic orbit (the examples of :data:`ORBIT_EXAMPLES`)
-GAIT_FIGURES = ("orbit", "growth")
-#: every figure, by its file name
-FIGURES = (*FIGURES_2D, "pieces", "scaling", *GAIT_FIGURES)
-#: the default output directory: one folder per example inside it, so that the figures of
-#: one example do not replace another's
-DEFAULT_OUT = "bderiv-figures"
-#: simulated strides of the growth figure's decay check (the iterations it shows), and the
-#: directions and size of its perturbations
-DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-3
 
 
 def run_figures(example=None, n=None, extended=False, figures=None, out=None,

@@ -21,23 +21,26 @@ from .._limits import (
     DEMO_CHECK,
     EPS_RANGE,
     FD_EPS,
+    NETWORK_MAX_N,
 )
-from ..warmup import FAMILIES, compile_family, warm_up
+from ..warmup import FAMILIES
 from . import render
-from .bench import run_bench
-from .demo import run_demo
-from .export import run_export
-from .figures import DECAY_STRIDES, DEFAULT_OUT, FIGURES, GAIT_FIGURES, run_figures
-from .systems import (
+from .names import (
     COMPILED_EXAMPLES,
+    DECAY_STRIDES,
+    DEFAULT_OUT,
+    FIGURES,
     GAIT_EXAMPLES,
+    GAIT_FIGURES,
     IMPACT_EXAMPLES,
     MODEL_EXAMPLES,
-    NETWORK_MAX_N,
     ORBIT_EXAMPLES,
     TABLE_EXAMPLES,
 )
 from .usage import UsageError
+
+# the commands' computations (numba, scipy, the kernels) are imported by the command that
+# runs, so that the parser, --help and the demo's first line come before them
 
 
 class _Parser(argparse.ArgumentParser):
@@ -232,7 +235,11 @@ def _demo(args) -> str | None:
     def show(section, res):  # the text streams while the demo runs
         print(render.demo_section(section, res), end="", flush=True)
 
+    if example in MODEL_EXAMPLES and not args.json:  # before the computations load
+        print(f"bderiv demo: {example}", flush=True)
     progress = None if args.no_progress else render.progress_bar("finite differences")
+    from .demo import run_demo
+
     res = run_demo(example, args.n, args.extended, args.batch, args.check, tuple(args.eps),
                    args.seed, args.full, progress=progress,
                    report=show if not args.json else None, compiled=not args.python)
@@ -267,6 +274,8 @@ def _gait_demo(args) -> str:
 
 def _bench(args) -> str:
     progress = None if args.no_progress else render.progress_bar("bench", unit="size")
+    from .bench import run_bench
+
     result = run_bench(args.n, d_factor=args.d_factor, batch=args.batch, repeat=args.repeat,
                        plot=args.plot, progress=progress)
     if args.json:
@@ -278,12 +287,16 @@ def _plot(args) -> str:
     def say(text):  # on stderr: stdout is the summary (or its JSON)
         print(f"bderiv plot: {text}", file=sys.stderr, flush=True)
 
+    from .figures import run_figures
+
     summary = run_figures(args.example, args.n, args.extended, args.figure, args.out,
                           args.format, args.dpi, args.bench_json, report=say)
     return render.to_json(summary) if args.json else render.figures_text(summary)
 
 
 def _export(args) -> str:
+    from .export import run_export
+
     summary = run_export(args.example, args.n, args.extended, args.out, args.format,
                          args.max_pieces, args.map)
     return render.to_json(summary) if args.json else render.export_text(summary)
@@ -296,6 +309,8 @@ def _compile(args) -> str:
                          f"{', '.join(FAMILIES)}")
     if args.nice and hasattr(os, "nice"):  # a background compilation yields to the work
         os.nice(10)
+    from ..warmup import compile_family, warm_up
+
     if args.here:  # the process of one family (warmup.warm_up starts it)
         for name in args.families:
             compile_family(name)

@@ -12,7 +12,6 @@ import sys
 
 import numpy as np
 
-from .._bench import format_table
 from .._format import format_mask, format_order
 from .machine import describe
 
@@ -63,8 +62,8 @@ def _matrix(name, rows, indent="    ") -> list:
     return [f"{indent[:-2]}{name}:", *(indent + numbers(r) for r in rows)]
 
 
-def _model(res):
-    return f"bderiv demo: {res['example']}\n  {res['description']}\n"
+def _model(res):  # the line "bderiv demo: <example>" came first, before the imports
+    return f"  {res['description']}\n"
 
 
 def _integrator(res):
@@ -240,6 +239,8 @@ _DEMO_SECTIONS = {"model": _model, "trajectory": _trajectory, "pieces": _pieces,
 def bench_text(result: dict) -> str:
     """The text of ``bderiv bench``: a header, the sweep table, what its columns mean, the
     machine it ran on, and the plot written."""
+    from .._bench import format_table  # the sweep's module: loaded by `bench` only
+
     k = result["d_factor"]
     dim = "d = n" if k == 1 else f"d = {k}n"
     lines = [f"bderiv bench: {dim}, batch m = {result['batch']:,}, best of "

@@ -7,31 +7,15 @@ import numpy as np
 from .. import examples
 from .._limits import NETWORK_MAX_N
 from ..bderivative import BDerivative
+from .names import (  # noqa: F401  (re-exported: the commands' names live in .names)
+    COMPILED_EXAMPLES,
+    GAIT_EXAMPLES,
+    IMPACT_EXAMPLES,
+    MODEL_EXAMPLES,
+    ORBIT_EXAMPLES,
+    TABLE_EXAMPLES,
+)
 from .usage import UsageError
-
-#: examples that need no model (corner tables only)
-TABLE_EXAMPLES = ("corners", "planar")
-#: examples from :mod:`bderiv.examples` (nonlinear models)
-MODEL_EXAMPLES = ("chair", "network", "table")
-#: examples whose demo is a summary of their own (``demo`` only): a gait's periodic orbit
-#: and stability verdict, an impact with resets checked against simulation, a passive
-#: walker's gait through leg swaps beside its reference numbers
-GAIT_EXAMPLES = ("pronking", "landing", "rimless-wheel", "compass-gait", "quadruped")
-#: gait examples with a periodic orbit (``plot``'s figures orbit and growth), with what
-#: the orbit figure names: the state components and time with their units, the phases
-#: (regions by mask)
-ORBIT_EXAMPLES = {"pronking": {
-    "labels": ("height $z$ (m)", "pitch $\\theta$ (rad)", "vertical velocity $v_z$ (m/s)",
-               "pitch rate $\\omega$ (rad/s)"),
-    "time_label": "time (s)",
-    "phases": {3: "stance: both feet on the ground"},
-}}
-#: impact examples (models with resets) whose B-derivative at the event point ``plot`` and
-#: ``export`` take as they take the models'
-IMPACT_EXAMPLES = ("landing", "ball-in-corner")
-#: examples with a compiled version (``compiled=True``: numba functions on the compiled
-#: integrator, the same equations as the Python version)
-COMPILED_EXAMPLES = ("chair", "network", "pronking", "landing")
 
 
 def _network_options_only(name: str, n: int | None, extended: bool) -> None:
