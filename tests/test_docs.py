@@ -6,6 +6,7 @@ blocks), in a temporary directory; a failure points at the line in the markdown 
 
 from __future__ import annotations
 
+import argparse
 import pathlib
 import re
 
@@ -75,7 +76,7 @@ def test_modules_import_without_extras():
 
 
 #: a command line in the docs: ``bderiv <command> ...`` or ``python -m bderiv <command> ...``
-COMMAND_LINE = re.compile(r"(?:python -m )?bderiv (demo|bench|plot|export)\b([^`\n]*)")
+COMMAND_LINE = re.compile(r"(?:python -m )?bderiv (demo|bench|plot|export|compile)\b([^`\n]*)")
 #: the files whose command lines are checked
 CLI_DOCS = [ROOT / "README.md", ROOT / "docs" / "tutorial.md"]
 
@@ -117,7 +118,8 @@ def test_every_command_and_option_in_the_docs_exists(path):
                     assert typed in action.choices, f"{command} {option} {choice}"
     if path.name == "README.md":  # the README's table names every option of every command
         for command, sub in parser.commands.items():
-            options = {o for a in sub._actions for o in a.option_strings if o.startswith("--")}
+            options = {o for a in sub._actions for o in a.option_strings
+                       if o.startswith("--") and a.help != argparse.SUPPRESS}  # not internal
             missing = options - {"--help"} - {o for c, o in named if c == command}
             assert not missing, f"README does not name {sorted(missing)} of bderiv {command}"
 

@@ -6,6 +6,9 @@ load none of them (``python -m bderiv`` answers before numba and the kernels loa
 
 from __future__ import annotations
 
+from .._limits import NETWORK_MAX_N
+from .usage import UsageError
+
 #: examples that need no model (corner tables only)
 TABLE_EXAMPLES = ("corners", "planar")
 #: examples from :mod:`bderiv.examples` (nonlinear models)
@@ -42,3 +45,14 @@ DEFAULT_OUT = "bderiv-figures"
 #: simulated strides of the growth figure's decay check (the iterations it shows), and the
 #: directions and size of its perturbations
 DECAY_STRIDES, DECAY_DIRECTIONS, DECAY_EPS = 40, 4, 1e-3
+
+
+def check_example_options(name: str, n: int | None, extended: bool) -> None:
+    """Refuse ``--n`` and ``--extended`` for an example other than ``network``, and an
+    ``--n`` out of its range (before anything is loaded)."""
+    if n is not None and name != "network":
+        raise UsageError(f"--n applies to --example network only, not to {name!r}")
+    if extended and name != "network":
+        raise UsageError(f"--extended applies to --example network only, not to {name!r}")
+    if n is not None and not 1 <= n <= NETWORK_MAX_N:
+        raise UsageError(f"--n must be between 1 and {NETWORK_MAX_N}, got {n}")

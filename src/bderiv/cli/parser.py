@@ -36,6 +36,7 @@ from .names import (
     MODEL_EXAMPLES,
     ORBIT_EXAMPLES,
     TABLE_EXAMPLES,
+    check_example_options,
 )
 from .usage import UsageError
 
@@ -235,6 +236,7 @@ def _demo(args) -> str | None:
     def show(section, res):  # the text streams while the demo runs
         print(render.demo_section(section, res), end="", flush=True)
 
+    check_example_options(example, args.n, args.extended)
     if example in MODEL_EXAMPLES and not args.json:  # before the computations load
         print(f"bderiv demo: {example}", flush=True)
     progress = None if args.no_progress else render.progress_bar("finite differences")

@@ -5,25 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from .. import examples
-from .._limits import NETWORK_MAX_N
 from ..bderivative import BDerivative
-from .names import (  # noqa: F401  (re-exported: the commands' names live in .names)
+from .names import (
     COMPILED_EXAMPLES,
-    GAIT_EXAMPLES,
-    IMPACT_EXAMPLES,
-    MODEL_EXAMPLES,
     ORBIT_EXAMPLES,
-    TABLE_EXAMPLES,
+    check_example_options,  # noqa: F401  (re-exported: the commands' names live in .names)
 )
 from .usage import UsageError
-
-
-def _network_options_only(name: str, n: int | None, extended: bool) -> None:
-    """Refuse ``--n`` and ``--extended`` for an example other than ``network``."""
-    if n is not None and name != "network":
-        raise UsageError(f"--n applies to --example network only, not to {name!r}")
-    if extended and name != "network":
-        raise UsageError(f"--extended applies to --example network only, not to {name!r}")
 
 
 def load_example(name: str, n: int | None = None, extended: bool = False,
@@ -54,7 +42,7 @@ def load_example(name: str, n: int | None = None, extended: bool = False,
     >>> ex is None, bd.n_events, bd.dim
     (True, 3, 3)
     """
-    _network_options_only(name, n, extended)
+    check_example_options(name, n, extended)
     if name == "corners":
         return None, BDerivative(*examples.three_event_table())
     if name == "planar":
@@ -69,10 +57,7 @@ def load_example(name: str, n: int | None = None, extended: bool = False,
     elif name == "ball-in-corner":
         ex = examples.ball_in_corner()
     else:
-        n = 3 if n is None else n
-        if not 1 <= n <= NETWORK_MAX_N:
-            raise UsageError(f"--n must be between 1 and {NETWORK_MAX_N}, got {n}")
-        ex = examples.network(n, extended=extended, compiled=compiled)
+        ex = examples.network(3 if n is None else n, extended=extended, compiled=compiled)
     return ex, ex.system.bderivative(ex.rho)
 
 
@@ -122,7 +107,7 @@ def load_gait(name: str, n: int | None = None, extended: bool = False):
     >>> ex.system.n_events, ex.system.dim
     (2, 4)
     """
-    _network_options_only(name, n, extended)
+    check_example_options(name, n, extended)
     if name not in ORBIT_EXAMPLES:
         raise UsageError(f"{name!r} has no periodic orbit; the gaits are "
                          f"{', '.join(ORBIT_EXAMPLES)}")
