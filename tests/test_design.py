@@ -29,7 +29,7 @@ LAYERS = [
 ]
 #: helpers any layer may use; they import only each other and the foundation.
 HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
-           "_cyclic", "_safefiles", "_errors"}
+           "_cyclic", "_safefiles", "_errors", "_compiling"}
 #: the numbers (tolerances, sizes, limits): every module may import it, the kernels and the
 #: helpers included; it imports nothing of the package.
 FOUNDATION = {"_limits"}

@@ -25,8 +25,10 @@ def __getattr__(name):
     else:
         raise AttributeError(f"module 'bderiv' has no attribute {name!r}")
     # every cached kernel imported so far: a damaged cache file is compiled again, never
-    # raised (kernels imported later are hardened when their drivers are made)
+    # raised (kernels imported later are hardened when their drivers are made); and a
+    # first compilation is announced (_compiling)
     _importlib.import_module("._kernels._cache", __name__).harden_all()
+    _importlib.import_module("._compiling", __name__)
     globals()[name] = value
     return value
 

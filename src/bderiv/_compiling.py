@@ -1,0 +1,58 @@
+"""Says what compiles, once per family and process: no silent minute on a fresh machine.
+
+A kernel's first call on a machine compiles it (seconds; the integrator a minute or two),
+later processes load it from numba's disk cache. Without a word such a call looks hung.
+Numba's compile event (``numba:compile``, which a cache hit does not fire) for a
+function of bderiv called from Python (not one compiled into another) logs one warning on
+the logger ``bderiv.compiling`` per family below, naming the family, about how long it
+takes, and how to compile ahead (``python -m bderiv compile``). The compiled integrator
+says so itself (:mod:`bderiv.models.readiness`: it compiles in a background process).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+from numba.core import event
+
+log = logging.getLogger("bderiv.compiling")
+
+#: (module prefix, what compiles, how long it takes on two cores), the first match counts
+FAMILIES = (
+    ("bderiv._kernels", "the B-derivative kernels this call needs", "seconds to a minute"),
+    ("bderiv.models.compiled.rules", "the stop rules' arithmetic", "a few seconds"),
+    ("bderiv.symbolic", "a model's generated kernels", "seconds"),
+)
+
+
+class _Notice(event.Listener):
+    """Logs the first top-level compilation of each family of :data:`FAMILIES`."""
+
+    def __init__(self):
+        self.said, self.depth = set(), threading.local()
+
+    def on_start(self, ev):
+        depth = getattr(self.depth, "n", 0)
+        self.depth.n = depth + 1
+        dispatcher = (ev.data or {}).get("dispatcher")
+        module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
+        if depth:  # compiled into a function that compiles already
+            return
+        for prefix, what, how_long in FAMILIES:
+            if module.startswith(prefix):
+                if prefix not in self.said:
+                    self.said.add(prefix)
+                    log.warning("bderiv: compiling %s for this machine (their first use here, "
+                                "%s; numba keeps them on disk for later processes; "
+                                "`python -m bderiv compile` compiles them ahead)", what,
+                                how_long)
+                return
+
+    def on_end(self, ev):
+        self.depth.n = getattr(self.depth, "n", 1) - 1
+
+
+#: the listener, registered once when the package's kernels are imported
+NOTICE = _Notice()
+event.register("numba:compile", NOTICE)
