@@ -57,6 +57,7 @@ KINDS = (("do not commute", "do not commute"), ("not at that point", "not at tha
          ("slide along", "sliding"), ("carry the state across", "jump across"),
          ("landing is not an event", "sent straight back"),
          ("cannot be decided", "grazing peak"), ("not located", "inside a step"),
+         ("crosses at once", "crossing at once"),
          ("transversality violated", "transversality violated"), ("Zeno", "Zeno"),
          ("x0 lies on", "start on a surface"), ("on a surface", "start on a surface"))
 
