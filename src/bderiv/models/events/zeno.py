@@ -1,4 +1,4 @@
-"""Impacts or crossings that accumulate (a Zeno trajectory): refused, with the time.
+"""Impacts that accumulate (a Zeno trajectory): refused, with the accumulation time.
 
 A ball dropped from height ``h`` with restitution ``e < 1`` hits the ground at ``t_1 =
 sqrt(2 h / g)`` and then at intervals ``2 e^k v_1 / g`` (``v_1 = g t_1``): infinitely many
@@ -9,25 +9,24 @@ holds").
 
 :class:`ImpactWatch` is shown a run's event groups in order (by the run loop, after each
 stretch of the Python loop and after each call of the compiled run: the same groups,
-so both refuse alike). For each event and direction it keeps the times of its last
-``ZENO_IMPACTS`` bounces (the event's bit kept: the state sent back, the surface met
-again in the same direction), and apart from them of its last ``ZENO_IMPACTS``
-crossings (the bit flipped). When their intervals shrink as a geometric sequence to
-zero, they accumulate at ``t + Delta r / (1 - r)`` (``Delta`` the last interval, ``r``
-the last ratio). An accumulation at or before the final time is refused, with that time:
+so both refuse alike). For each event it keeps the times of its last ``ZENO_IMPACTS``
+bounces (the event's bit kept: the state sent back, the surface met again in the same
+direction). When their intervals shrink as a geometric sequence to zero, the impacts
+accumulate at ``t + Delta r / (1 - r)`` (``Delta`` the last interval, ``r`` the last
+ratio). An accumulation at or before the final time is refused, with that time, where
+nothing holds the state on the surface after it: the region beyond the surface has the
+same flow as the one before it (:func:`bderiv.models.events.crossings.holds`: a ball whose
+ground is the same free fall). Where the region beyond holds it (a compliant or
+constrained contact), the bounces are followed to the end: just before the accumulation
+time a rebound is too small to tell (``GRAZING_RTOL``) and the state lands in that region
+(:func:`bderiv.models.events.crossings.landing`), which then holds it.
 
-- bounces, where nothing holds the state on the surface after them: the region beyond
-  the surface has the same flow as the one before it
-  (:func:`bderiv.models.events.crossings.holds`: a ball whose ground is the same free
-  fall). Where the region beyond holds it (a compliant or constrained contact), the
-  bounces are followed to the end: just before the accumulation time a rebound is too
-  small to tell (``GRAZING_RTOL``) and the state lands in that region
-  (:func:`bderiv.models.events.crossings.landing`), which then holds it;
-- crossings, always: the trajectory turns around the intersection of two or more
-  surfaces and spirals into it in finite time, every crossing transversal (mathematics.md
-  section 9). Past the accumulation no region's flow is the motion, and a run that goes
-  on loses a crossing once the turns are below the integration accuracy (the state left
-  a rounding across a surface, carried further across unseen).
+Crossings (the bit flipped) that come around again at one instant are refused too: an
+event crossed twice in the same direction within ``AT_ONCE`` units of rounding of the time
+crossed back in between, at that instant. That is where a trajectory that spirals into
+the intersection of surfaces (events crossing in turn, each region's field carrying it to
+the next) ends once its turns are below the integration accuracy: stops a rounding apart,
+in a cycle that never ends (mathematics.md section 9).
 """
 
 from __future__ import annotations
@@ -39,6 +38,11 @@ from ..._limits import ZENO_IMPACTS, ZENO_LIMIT_RTOL
 from .crossings import holds
 
 __all__ = ["ImpactWatch", "accumulation_time"]
+
+#: crossings of one event in one direction this many units of rounding of the time apart
+#: are at one instant (a judgement: a stop is placed to a few units; a cycle of four
+#: crossings at rounding level was seen to move the time by about 13)
+AT_ONCE = 64
 
 
 def accumulation_time(times):
@@ -71,20 +75,21 @@ def accumulation_time(times):
 
 
 class ImpactWatch:
-    """Watches a run's event groups for bounces, or crossings, of one event that accumulate.
+    """Watches a run's event groups for bounces of one event that accumulate.
 
     Parameters
     ----------
     system : HybridSystem
         The model (its checked evaluations: ``eval_field``, ``eval_field_jacobian``).
     t_final : float
-        The run's final time: an accumulation at or before it is refused (bounces where
-        nothing holds the state on the surface; crossings always).
+        The run's final time: an accumulation at or before it is refused where nothing
+        holds the state on the surface.
     """
 
     def __init__(self, system, t_final):
         self.system, self.t_final = system, float(t_final)
-        self.times = {}  # (event, direction, bounced) -> its last times, ascending
+        self.times = [[] for _ in range(system.n_events)]
+        self.crossed = {}  # (event, direction) -> the time of its last crossing
         self.seen = 0
 
     def see(self, groups):
@@ -93,71 +98,60 @@ class ImpactWatch:
         Raises
         ------
         ValueError
-            At the first bounce or crossing that makes an accumulation at or before the
-            final time: the event, its last impacts or crossings, the ratio of their
-            intervals, the accumulation time and what to do.
+            At the first bounce that makes an accumulation at or before the final time:
+            the event, its last impacts, the ratio of their intervals, the accumulation
+            time and what to do.
         """
-        for i in range(self.seen, len(groups)):
-            group = groups[i]
-            bounced = group.bounced
-            for k, direction in zip(group.events, group.directions, strict=True):
-                key = (k, direction, k in bounced)
-                kept = self.times.setdefault(key, [])
+        for group in groups[self.seen:]:
+            self._at_once(group)
+            for k in group.bounced:
+                kept = self.times[k]
                 kept.append(group.time)
                 if len(kept) > ZENO_IMPACTS:
                     del kept[0]
                 if len(kept) == ZENO_IMPACTS:
-                    self._check(key, kept, groups, i)
+                    self._check(k, kept, group)
         self.seen = len(groups)
 
-    def _check(self, key, times, groups, i):
+    def _at_once(self, group):
+        """Refuse a crossing of ``group`` that the same event made in the same direction
+        at the same time before (a cycle of crossings at one point)."""
+        bounced = group.bounced
+        for k, direction in zip(group.events, group.directions, strict=True):
+            if k in bounced:
+                continue
+            last = self.crossed.get((k, direction))
+            if last is not None and group.time - last <= AT_ONCE * np.spacing(group.time):
+                way = "upward" if direction > 0 else "downward"
+                raise ValueError(
+                    f"event {k} crosses {way} twice at t={group.time:.10g} (to rounding): it "
+                    f"crosses at once again after crossing back at the same instant, a cycle of "
+                    f"crossings at one point that the integrator cannot order (the end of a "
+                    f"trajectory that spirals into the intersection of surfaces, a Zeno "
+                    f"accumulation, its turns below the integration accuracy; or a corner "
+                    f"met within it); end the run before t={group.time:.10g}, or tighten "
+                    f"rtol and atol"
+                )
+            self.crossed[(k, direction)] = group.time
+
+    def _check(self, k, times, group):
         t_acc = accumulation_time(times)
         if t_acc is None or t_acc > self.t_final:
             return
-        k, direction, bounced = key
-        if not bounced:
-            _refuse_crossings(k, direction, times, groups, i, t_acc, self.t_final)
-        group = groups[i]
         near = group.mask_after  # the bit of k as before the bounce
         if holds(self.system, group.state_after, near ^ 1 << k, near):
             return  # the contact region takes the state over at the end
+        ratio = (times[-1] - times[-2]) / (times[-2] - times[-3])
         raise ValueError(
             f"the impacts of event {k} accumulate (a Zeno trajectory): its last "
-            f"{len(times)} bounces, at t={_times(times)}, come at intervals that shrink "
-            f"geometrically to zero (ratio {_ratio(times):.4g}), so infinitely many more "
-            f"would come before about t={t_acc:.10g} (the accumulation time, estimated by "
-            f"that geometric sequence), which is not after t_final={self.t_final:.10g}, and "
-            f"nothing holds the state on the surface after it (the field beyond it, of "
-            f"region {format_mask(near ^ 1 << k, self.system.n_events)}, is the same as "
-            f"before it): the run cannot pass it. End the run before the accumulation time "
-            f"(t_final below {t_acc:.10g}), or model the resting contact that follows it as "
-            f"a region whose field holds the body on the surface (a compliant or "
-            f"constrained stance)"
+            f"{len(times)} bounces, at t={', '.join(f'{t:.10g}' for t in times)}, come at "
+            f"intervals that shrink geometrically to zero (ratio {ratio:.4g}), so infinitely "
+            f"many more would come before about t={t_acc:.10g} (the accumulation time, "
+            f"estimated by that geometric sequence), which is not after t_final="
+            f"{self.t_final:.10g}, and nothing holds the state on the surface after it (the "
+            f"field beyond it, of region {format_mask(near ^ 1 << k, self.system.n_events)}, "
+            f"is the same as before it): the run cannot pass it. End the run before the "
+            f"accumulation time (t_final below {t_acc:.10g}), or model the resting contact "
+            f"that follows it as a region whose field holds the body on the surface (a "
+            f"compliant or constrained stance)"
         )
-
-
-def _refuse_crossings(k, direction, times, groups, i, t_acc, t_final):
-    """Refuse crossings of event k in ``direction`` at ``times`` (the last at group ``i``
-    of ``groups``) that accumulate at ``t_acc``: name the events crossed in turn since
-    the first of them."""
-    turn = sorted({j for g in groups[: i + 1] if g.time >= times[0] for j in g.events})
-    way = "upward" if direction > 0 else "downward"
-    raise ValueError(
-        f"the crossings of event {k} accumulate (a Zeno trajectory): its last "
-        f"{len(times)} {way} crossings, at t={_times(times)}, come at intervals that shrink "
-        f"geometrically to zero (ratio {_ratio(times):.4g}), events {turn} crossing in "
-        f"turn, so infinitely many more would come before about t={t_acc:.10g} (the "
-        f"accumulation time, estimated by that geometric sequence), which is not after "
-        f"t_final={t_final:.10g}: the trajectory spirals into the intersection of their "
-        f"surfaces in finite time, and no region's flow is the motion after it. End the "
-        f"run before the accumulation time (t_final below {t_acc:.10g})"
-    )
-
-
-def _times(times):
-    return ", ".join(f"{t:.10g}" for t in times)
-
-
-def _ratio(times):
-    """The ratio of the last two intervals of ``times``."""
-    return (times[-1] - times[-2]) / (times[-2] - times[-3])
