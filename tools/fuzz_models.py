@@ -139,6 +139,8 @@ class Model:
         self.gaps, self.window_time = gaps, window_time
         self.V = rng.standard_normal((0, d))
         self.complex_step = (False, False)
+        #: ``-graze``: (the grazing event, its designed peak, how well its value is known)
+        self.graze = None
 
     def systems(self):
         """``(python, compiled)`` HybridSystems of the model (fresh: nothing checked); the
@@ -272,6 +274,8 @@ def draw(rng, family, m):
                   np.abs(t_final - t_star - gaps) if final else ())
     model.V = rng.standard_normal((m, d))
     model.complex_step = tuple(rng.random(2) < 0.3)
+    if family == "models-graze":
+        model.graze = (int(S[0]), float(e[S[0]]), float(np.abs(D[S[0]]) @ err))
     return model
 
 

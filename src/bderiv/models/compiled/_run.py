@@ -36,9 +36,11 @@ from .rules import (
     GROUP,
     NEAR,
     UNDECIDED,
+    carried_across,
     classify,
     first_grazing,
     local_rates,
+    reads_across,
     state_error,
     windows,
     wrong_side,
@@ -120,6 +122,15 @@ def start_region(model, x, n, d):
         if h[k] > 0.0:
             mask |= np.int64(1) << k
     return mask
+
+
+@njit(cache=True)
+def _carried(model, event_jac_mode, x, mask, h, window, skip, n, d):
+    """Whether :func:`.rules.carried_across` finds an event at ``x`` in region ``mask`` (or
+    a call fails: the Python loop says why)."""
+    ok, J = event_jacobian(model, event_jac_mode, x, n, d)
+    status, F = checked_field(model, x, mask, d)
+    return not ok or status != OK or carried_across(h, mask, window, skip, J, F) >= 0
 
 
 @njit(cache=True, nogil=True)
@@ -248,6 +259,11 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
                 for k in range(n):
                     h_after[k] = sign[k] * h[k]  # exact: the values at x_end
             if not ok or wrong_side(h_after, new, window) >= 0:
+                break
+            # an event a rounding across, carried further across at once: the Python loop
+            # refuses it (locate.check_carried)
+            if reads_across(h_after, new, window, bits) and _carried(
+                    model, event_jac_mode, x_after, new, h_after, window, bits, n, d):
                 break
         # the stretch is the Python loop's too: recorded
         need = count + ts.size

@@ -145,6 +145,33 @@ def wrong_side(h, mask, window):
 
 
 @njit(cache=True)
+def reads_across(h, mask, window, skip):
+    """Whether an event not in ``skip`` (bits) reads a rounding across its surface after a
+    stop: ``h[k]`` (n,) strictly on the other side than bit k of ``mask`` says, within
+    ``window[k]`` (:func:`carried_across` then looks at its rate)."""
+    for k in range(h.size):
+        side = 1.0 if mask >> k & 1 else -1.0
+        if not (skip >> k) & 1 and side * h[k] < 0.0 and abs(h[k]) <= window[k]:
+            return True
+    return False
+
+
+@njit(cache=True)
+def carried_across(h, mask, window, skip, J, F):
+    """The first event k of :func:`reads_across` that the field ``F`` (d,) of region
+    ``mask`` carries further across (``J[k] . F``, J (n, d) the event Jacobian, clearly of
+    that side); -1 if none. Its crossing is at once and unseen: the integrator reads it
+    across at both ends of every step (:func:`bderiv.models.events.locate.check_carried`)."""
+    for k in range(h.size):
+        side = 1.0 if mask >> k & 1 else -1.0
+        if (skip >> k) & 1 or not side * h[k] < 0.0 or abs(h[k]) > window[k]:
+            continue
+        if clearly_positive(-side * J[k], F):
+            return k
+    return -1
+
+
+@njit(cache=True)
 def first_sent_back(group, h, window, kept, Dh, F):
     """After a group's resets, the first event of ``group`` (bool, (n,)) on its surface
     (``|h_k| <= window_k``, local orientation) that the field ``F`` of the region the state

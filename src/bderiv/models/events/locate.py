@@ -39,6 +39,7 @@ __all__ = [
     "Settled",
     "Stop",
     "StopCalls",
+    "check_carried",
     "check_sides",
     "classify",
     "examine",
@@ -530,4 +531,44 @@ def check_sides(h, mask, window, t):
         f"where region mask {format_mask(int(mask), h.size)} (bit k set: h_k > 0) says "
         f"h_{k} {says} 0; the run lost track of a crossing (an internal error: please "
         f"report it with the model)"
+    )
+
+
+def check_carried(system, h, mask, window, group, x, t):
+    """Refuse an event that reads a rounding across its surface after the stop at ``t``
+    (``h`` (n,) at the state ``x`` after the group ``group``, within its ``window``: what
+    :func:`check_sides` lets pass) and that the field of region ``mask`` carries further
+    across (:func:`bderiv.models.compiled.rules.carried_across`; both paths).
+
+    Its crossing is at once, at the stop's point, and the integrator reads the event across
+    at both ends of every step: it would be lost, the run going on in a region the state
+    has left. It comes where events cross in turn at one point: the end of a trajectory
+    that spirals into the intersection of their surfaces faster than the crossings can be
+    counted (:mod:`bderiv.models.events.zeno`), or a corner met within the accuracy.
+
+    Raises
+    ------
+    ValueError
+        Naming the time, the event, its value, its window, its rate and the region.
+    """
+    h = np.ascontiguousarray(h, dtype=np.float64)
+    window = np.ascontiguousarray(window, dtype=np.float64)
+    skip = sum(1 << k for k in group)
+    if not rules.reads_across(h, int(mask), window, skip):
+        return
+    J = np.ascontiguousarray(system.eval_event_jacobian(x), dtype=np.float64)
+    F = np.ascontiguousarray(system.eval_field(x, mask), dtype=np.float64)
+    k = rules.carried_across(h, int(mask), window, skip, J, F)
+    if k < 0:
+        return
+    says = ">" if mask >> k & 1 else "<"
+    raise ValueError(
+        f"after the events {list(group)} at t={t:.10g} event {k} is a rounding across its "
+        f"surface (h_{k} = {h[k]:.3g}, within its window {window[k]:.3g}, where region mask "
+        f"{format_mask(int(mask), h.size)} says h_{k} {says} 0) and the field of that "
+        f"region carries it further across (dh_{k}/dt = {float(J[k] @ F):.3g}): it crosses "
+        f"at once, at the same point, and the integrator cannot locate that crossing "
+        f"(events crossing in turn at one point: a trajectory that spirals into the "
+        f"intersection of their surfaces, a Zeno accumulation, or a corner met within the "
+        f"integration accuracy); end the run before t={t:.10g}, or tighten rtol and atol"
     )

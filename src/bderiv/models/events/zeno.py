@@ -20,6 +20,13 @@ ground is the same free fall). Where the region beyond holds it (a compliant or
 constrained contact), the bounces are followed to the end: just before the accumulation
 time a rebound is too small to tell (``GRAZING_RTOL``) and the state lands in that region
 (:func:`bderiv.models.events.crossings.landing`), which then holds it.
+
+Crossings (the bit flipped) that come around again at one instant are refused too: an
+event crossed twice in the same direction within ``AT_ONCE`` units of rounding of the time
+crossed back in between, at that instant. That is where a trajectory that spirals into
+the intersection of surfaces (events crossing in turn, each region's field carrying it to
+the next) ends once its turns are below the integration accuracy: stops a rounding apart,
+in a cycle that never ends (mathematics.md section 9).
 """
 
 from __future__ import annotations
@@ -31,6 +38,11 @@ from ..._limits import ZENO_IMPACTS, ZENO_LIMIT_RTOL
 from .crossings import holds
 
 __all__ = ["ImpactWatch", "accumulation_time"]
+
+#: crossings of one event in one direction this many units of rounding of the time apart
+#: are at one instant (a judgement: a stop is placed to a few units; a cycle of four
+#: crossings at rounding level was seen to move the time by about 13)
+AT_ONCE = 64
 
 
 def accumulation_time(times):
@@ -77,6 +89,7 @@ class ImpactWatch:
     def __init__(self, system, t_final):
         self.system, self.t_final = system, float(t_final)
         self.times = [[] for _ in range(system.n_events)]
+        self.crossed = {}  # (event, direction) -> the time of its last crossing
         self.seen = 0
 
     def see(self, groups):
@@ -90,6 +103,7 @@ class ImpactWatch:
             time and what to do.
         """
         for group in groups[self.seen:]:
+            self._at_once(group)
             for k in group.bounced:
                 kept = self.times[k]
                 kept.append(group.time)
@@ -98,6 +112,27 @@ class ImpactWatch:
                 if len(kept) == ZENO_IMPACTS:
                     self._check(k, kept, group)
         self.seen = len(groups)
+
+    def _at_once(self, group):
+        """Refuse a crossing of ``group`` that the same event made in the same direction
+        at the same time before (a cycle of crossings at one point)."""
+        bounced = group.bounced
+        for k, direction in zip(group.events, group.directions, strict=True):
+            if k in bounced:
+                continue
+            last = self.crossed.get((k, direction))
+            if last is not None and group.time - last <= AT_ONCE * np.spacing(group.time):
+                way = "upward" if direction > 0 else "downward"
+                raise ValueError(
+                    f"event {k} crosses {way} twice at t={group.time:.10g} (to rounding): it "
+                    f"crosses at once again after crossing back at the same instant, a cycle of "
+                    f"crossings at one point that the integrator cannot order (the end of a "
+                    f"trajectory that spirals into the intersection of surfaces, a Zeno "
+                    f"accumulation, its turns below the integration accuracy; or a corner "
+                    f"met within it); end the run before t={group.time:.10g}, or tighten "
+                    f"rtol and atol"
+                )
+            self.crossed[(k, direction)] = group.time
 
     def _check(self, k, times, group):
         t_acc = accumulation_time(times)

@@ -39,7 +39,7 @@ from ..._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
-from ..events.locate import StopCalls, check_sides, local_view, settle
+from ..events.locate import StopCalls, check_carried, check_sides, local_view, settle
 from ..events.zeno import ImpactWatch
 from ..readiness import integrator_ready
 from .compiled_path import CompiledStretches
@@ -478,7 +478,10 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
     group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, now.err,
                                  settled.stop)
     # every event on the side its bit says, or within its window of the surface
-    check_sides(stops.eval_events(x_after), new, settled.stop.window, t)
+    h_after = stops.eval_events(x_after)
+    check_sides(h_after, new, settled.stop.window, t)
+    # and none a rounding across that the region's flow carries further across, unseen
+    check_carried(stops, h_after, new, settled.stop.window, group, x_after, t)
     log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
     # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
     jac = stops.eval_event_jacobian(x) if variational else None
