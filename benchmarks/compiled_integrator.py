@@ -15,6 +15,7 @@ sensitivity, in the d x d products, BLAS in both), so the ratio follows the fiel
 
 from __future__ import annotations
 
+import os
 import time
 from functools import partial
 
@@ -23,6 +24,8 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from bderiv.models.compiled import integrate_stretch
+
+os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
 
 RTOL, ATOL = 1e-10, 1e-12
 DIMS = (8, 20, 40)

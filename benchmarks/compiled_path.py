@@ -30,6 +30,7 @@ bracket at a stretch's end searched, as before: ``perturbed``), and ``flow_fd`` 
 from __future__ import annotations
 
 import gc
+import os
 import sys
 import time
 
@@ -43,6 +44,8 @@ from bderiv.models.integrate import compiled_path as compiled_stretches
 from bderiv.models.integrate import many as many_runs
 from bderiv.models.integrate import scipy_path
 from bderiv.models.system import HybridSystem
+
+os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
 
 G = 9.81
 T_FINAL = 0.5

@@ -20,6 +20,7 @@ model's struct.
 from __future__ import annotations
 
 import gc
+import os
 import time
 
 import numpy as np
@@ -35,6 +36,8 @@ from bderiv.models.compiled._dop853 import (
     step_factor,
 )
 from bderiv.models.compiled._integrate import N_STEPS, drive_stretch
+
+os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
 
 ROUNDS = 30
 RTOL, ATOL = 1e-10, 1e-12

@@ -36,6 +36,8 @@ from compiled_path import SIZES, systems  # the k-leg model (benchmarks/)
 
 from bderiv._kernels import scaling
 
+os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
+
 ROUNDS = 3
 COMPILED_PER_ROUND = 3
 VERDICT = {"n_directions": 200, "iterations": 200}

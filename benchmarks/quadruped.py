@@ -50,6 +50,8 @@ t1 = now()
 import sympy
 t2 = now()
 import bderiv.symbolic
+
+os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
 marks = {}
 contact_system = bderiv.symbolic.contact_system
 def timed(*args, **kwargs):  # the user's expressions end where contact_system starts

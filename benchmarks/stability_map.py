@@ -28,6 +28,8 @@ import numpy as np
 from bderiv.examples import gaits
 from bderiv.stability_map import LOCAL_WORKERS, stability_map
 
+os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
+
 #: each point's stability verdict (the rate to about 1e-3 here, enough for a map)
 VERDICT = {"n_directions": 100, "iterations": 200}
 #: the figure's axes (gaits.pronking's parameters)

@@ -52,6 +52,7 @@ or as ``borderline`` where the model puts a decision at the edge of the accuracy
 from __future__ import annotations
 
 import argparse
+import os
 import pathlib
 import sys
 import time
@@ -77,6 +78,8 @@ from fuzz_families import (  # noqa: E402
 from reference import random_reset_system, random_system, ref_reset_flow, relabel  # noqa: E402
 
 from bderiv import BDerivative, StructuredCorners  # noqa: E402
+
+os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
 
 #: a normal float64 is at least this in magnitude (below: subnormal, fewer digits)
 TINY = np.finfo(np.float64).tiny
