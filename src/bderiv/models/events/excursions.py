@@ -348,7 +348,9 @@ def _start_dip(h, tol, times, value):
         if found is not None and times[2 * j] >= found[1]:
             continue
         t_low, low = peak_of(lambda t, k=k: -value(t, k), times[2 * j], times[2 * j + 2])
-        if -low < -tol[k]:
+        # within its tol below the surface, a dip is a return when the event is clearly
+        # across later (the sample would be kept across the surface its bit does not say)
+        if -low < -tol[k] or (-low < 0.0 and h[2 * j + 1:, k].max() > tol[k]):
             found = (j, t_low)
     return found
 
