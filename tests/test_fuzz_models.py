@@ -49,10 +49,13 @@ SEEDS = {family: list(range(4)) for family in ("models-plain", "models-sim", "mo
 #: spiralling into the intersection of two surfaces in finite time, followed past it with
 #: a crossing lost (crossings that accumulate: zeno.ImpactWatch); an exact tangency that
 #: one integrator locates as a crossing sent back, the other screens as a grazing peak
-#: (both refuse: fuzz_twins._graze_seen_apart)
+#: (both refuse: fuzz_twins._graze_seen_apart); a group's member leaving at a small rate
+#: and back across within the first step, its dip shallower than its tolerance, lost
+#: (excursions._start_dip)
 FOUND = {"models-resets": [3397828890274385335, 2092657018377387946, 2838364480737254932,
                            77373933576014767],
-         "models-plain": [1091442821039362419], "models-sim": [1635481354732627137],
+         "models-plain": [1091442821039362419],
+         "models-sim": [1635481354732627137, 3684918118149487902],
          "models-graze": [2444480689758357945, 149951279942737962,
                           2352292564369576528]}
 for _family, _seeds in FOUND.items():

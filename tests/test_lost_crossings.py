@@ -301,7 +301,11 @@ def test_the_screen_searches_a_step_rising_from_a_start_across():
     j, t = excursions._start_dip(h, np.array([1e-12]), times,
                                  lambda s, k: s * (s - 1.0) + 1e-19)
     assert j == 0 and t == pytest.approx(0.5, abs=1e-6)
-    assert excursions._start_dip(h, np.array([1.0]), times,  # within tol: not a return
+    # within tol: a return when a later sample is clearly across (h(2) = 2 > tol), else not
+    j, t = excursions._start_dip(h, np.array([1.0]), times,
+                                 lambda s, k: s * (s - 1.0) + 1e-19)
+    assert j == 0 and t == pytest.approx(0.5, abs=1e-6)
+    assert excursions._start_dip(h, np.array([3.0]), times,
                                  lambda s, k: s * (s - 1.0) + 1e-19) is None
     falling = np.array([[1e-11], [0.6e-11], [0.2e-11], [-0.2e-11], [-0.6e-11]])
     assert rules.start_dip_steps(falling).size == 0

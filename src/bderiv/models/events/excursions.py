@@ -40,7 +40,8 @@ and the midpoints of the steps (its dense output; :func:`sample_times`):
    comes back within the stretch's first step (both step ends read across).
    :func:`_start_dip`: such an event whose samples all read across until it rises in a
    step (both ends and the midpoint) is searched for its lowest value in that step; more
-   than ``tol_k`` below the surface, it is a return the samples did not see either.
+   than ``tol_k`` below the surface, or below it at all when a later sample reads the
+   event clearly across (``h_k > tol_k``), it is a return the samples did not see either.
 4. :func:`_back_in_first_step`: a stretch that stops within its first step at an event
    that started it at its surface, leaving it, with a rate at the stop not clearly that
    of a crossing, has a return inside that step that the integrator's root search placed
@@ -341,14 +342,18 @@ def _start_dip(h, tol, times, value):
     "Excursions inside a step"). Each step of the leading run of samples across in which
     the event rises above the step's start value (:func:`rules.start_dip_steps`; an event
     still on its way to its side falls) is searched for its lowest value along the dense
-    output (bounded Brent, as a peak).
+    output (bounded Brent, as a peak). A minimum below the surface by less than ``tol_k``
+    counts too when a later sample reads the event clearly across: the dip of a group's
+    member leaving at a small rate (-8.8e-5, back 5.7e-5 later, 1.2e-9 deep), else lost.
     """
     found = None
     for k, j in rules.start_dip_steps(np.ascontiguousarray(h)).tolist():
         if found is not None and times[2 * j] >= found[1]:
             continue
         t_low, low = peak_of(lambda t, k=k: -value(t, k), times[2 * j], times[2 * j + 2])
-        if -low < -tol[k]:
+        # within its tol below the surface, a dip is a return when the event is clearly
+        # across later (the sample would be kept across the surface its bit does not say)
+        if -low < -tol[k] or (-low < 0.0 and h[2 * j + 1:, k].max() > tol[k]):
             found = (j, t_low)
     return found
 

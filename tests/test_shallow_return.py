@@ -1,0 +1,84 @@
+"""A switched event that dips below its surface by less than its tolerance and comes back
+across within the first step after the group (fuzz seed 3684918118149487902, both paths).
+
+The model: state ``(x, y, z)``, events ``h_0 = y``, ``h_1 = z``; from ``(0, c, -c)`` in
+region 0b01 (field ``(1, -1, 1)``) both cross at ``t = c`` together into region 0b10,
+whose field ``(1, -EPS + A (x - c), 1)`` takes ``y`` down at the small rate ``EPS`` and
+back up ``2 EPS / A`` later, ``EPS^2 / (2 A) = 5e-11`` below the surface: less than its
+tolerance (about ``RTOL max |y|`` = 1e-10), and the first step after the group holds the
+whole dip. Then region 0b11, field ``(1, 1, 1)``. The located group leaves ``y`` a
+rounding across (``+3e-16`` for ``c = 0.7``): the step ends and midpoint all read across,
+and the return was lost, the run going on in region 0b10 with ``y`` up to 1 across the
+surface its bit says (both paths: the compiled run hands the stretch to the Python rule,
+``excursions._start_dip``). Oracle: the closed form (the fields are polynomial).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from bderiv import HybridSystem
+
+EPS, A = 1e-5, 1.0
+
+
+def field(x, mask):
+    out = np.ones(3)
+    if mask == 2:
+        out[1] = -x[3] + x[4] * (x[0] - x[5])
+    elif mask == 1:
+        out[1] = -1.0
+    return out
+
+
+def field_jacobian(x, mask):
+    J = np.zeros((3, 3))
+    if mask == 2:
+        J[1, 0] = x[4]
+    return J
+
+
+def events(x):
+    return x[1:3].copy()
+
+
+def event_jacobian(x):
+    J = np.zeros((2, 3))
+    J[0, 1] = 1.0
+    J[1, 2] = 1.0
+    return J
+
+
+def model(path, c):
+    fns = (field, field_jacobian, events, event_jacobian)
+    if path == "compiled":
+        fns = tuple(numba.njit(f) for f in fns)
+    f, fj, ev, ej = fns
+    system = HybridSystem(f, ev, n_events=2, dim=3, field_jacobian=fj, event_jacobian=ej,
+                          params=np.array([EPS, A, c]))
+    assert (system.compiled is not None) == (path == "compiled")
+    return system
+
+
+def closed_form(c, T):
+    """The groups ``(time, events, mask after)`` and the state at ``T`` (after both)."""
+    back = c + 2.0 * EPS / A
+    return [(c, (0, 1), 2), (back, (0,), 3)], np.array([T, T - back, T - c])
+
+
+@pytest.mark.parametrize("path", ["python", "compiled"])
+@pytest.mark.parametrize("c", [0.7, 0.1, 0.61])  # y left +3e-16, +3e-18, +1e-16 across
+def test_a_return_shallower_than_its_tolerance_is_located(path, c):
+    T = c + 1.0
+    traj = model(path, c).simulate(np.array([0.0, c, -c]), T)
+    groups, x_final = closed_form(c, T)
+    assert [(g.events, g.mask_after) for g in traj.groups] == [g[1:] for g in groups]
+    np.testing.assert_allclose([g.time for g in traj.groups], [g[0] for g in groups],
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(traj.x_final, x_final, rtol=0, atol=1e-9)
+    # every kept sample on the side of each surface its mask says (to a rounding)
+    for x, mask in zip(traj.x, traj.masks, strict=True):
+        side = np.where((mask >> np.arange(2)) & 1, 1.0, -1.0)
+        assert (side * x[1:3] >= -1e-12).all(), (x, bin(mask))
