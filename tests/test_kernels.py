@@ -123,6 +123,18 @@ def test_launch_sizes():
     assert _core.launch_queries(1, 1) == 1 << 20  # ceiling
 
 
+@pytest.mark.parametrize("n", [0, 1, 2, 23, 24, 25, 47, 48, 49, 97, 128, 1000])
+def test_stable_order_is_numpys_stable_argsort(n):
+    """The own-rates fast paths' orders: insertion sort up to 24 events, merged runs above
+    (oracle: NumPy's stable argsort), with ties broken by the smaller event."""
+    rng = np.random.default_rng(n)
+    order = np.empty(n, dtype=np.int64)
+    for t in (rng.standard_normal(n), rng.integers(0, max(n // 4, 1), n).astype(float),
+              np.zeros(n), np.arange(n, 0, -1.0)):
+        _core.stable_order(t, order)
+        np.testing.assert_array_equal(order, np.argsort(t, kind="stable"))
+
+
 #: the tests of the plain kernels' files that reach another engine (corner functions,
 #: structured models, simulations of the flow), left out of the default run's subprocess
 NOT_DENSE = ("not function and not structured and not terminal_cost and not flow_jvp")

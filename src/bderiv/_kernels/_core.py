@@ -274,11 +274,14 @@ def own_rate_times(DhT, rate, u, tev):
 
 @njit(**JIT)
 def stable_order(t, order):
-    """order = stable argsort of t (ties keep the smaller event first)."""
+    """order = stable argsort of t (ties keep the smaller event first): insertion sort up
+    to ``INSERTION_SORT_MAX`` events, :func:`_merge_runs` above."""
     n = t.shape[0]
     if n <= INSERTION_SORT_MAX:
         for k in range(n):
             order[k] = k
+        # this branch first, and the bound i >= 0 (LLVM then drops the negative-index
+        # test of order[i]): either way round cost 5-20 % at n = 2..16
         for j in range(1, n):
             k = order[j]
             v = t[k]
@@ -288,7 +291,46 @@ def stable_order(t, order):
                 i -= 1
             order[i + 1] = k
     else:
-        order[:] = np.argsort(t, kind="mergesort")
+        _merge_runs(t, order)
+
+
+@njit(**JIT)
+def _merge_runs(t, order):
+    """order = stable argsort of t for n > INSERTION_SORT_MAX: runs
+    of INSERTION_SORT_MAX by insertion, then merged pairwise, bottom up (``np.argsort``'s
+    merge sort compiled into the kernels cost seconds of compile time each)."""
+    n = t.shape[0]
+    for k in range(n):
+        order[k] = k
+    run = INSERTION_SORT_MAX
+    for lo in range(0, n, run):
+        for j in range(lo + 1, min(lo + run, n)):
+            k = order[j]
+            v = t[k]
+            i = j - 1
+            while i >= lo and t[order[i]] > v:
+                order[i + 1] = order[i]
+                i -= 1
+            order[i + 1] = k
+    src, dst = order, np.empty(n, dtype=np.int64)
+    moved = False
+    while run < n:
+        for lo in range(0, n, 2 * run):
+            mid, hi = min(lo + run, n), min(lo + 2 * run, n)
+            i, j = lo, mid
+            for o in range(lo, hi):  # the left run first on ties: stable
+                if j >= hi or (i < mid and not t[src[i]] > t[src[j]]):
+                    dst[o] = src[i]
+                    i += 1
+                else:
+                    dst[o] = src[j]
+                    j += 1
+        src, dst = dst, src
+        moved = not moved
+        run *= 2
+    if moved:  # the last pass wrote the scratch
+        for k in range(n):
+            order[k] = src[k]
 
 
 class OwnRateTables(NamedTuple):
