@@ -273,32 +273,30 @@ def own_rate_times(DhT, rate, u, tev):
 
 
 @njit(**JIT)
-def stable_order(t, order):
-    """order = stable argsort of t (ties keep the smaller event first): insertion sort up
-    to ``INSERTION_SORT_MAX`` events, :func:`_merge_runs` above."""
+def insertion_order(t, order):
+    """order = stable argsort of t (ties keep the smaller event first), by insertion: the
+    order of up to a few dozen events (:data:`INSERTION_SORT_MAX`; a dense table's n <= 40)."""
     n = t.shape[0]
-    if n <= INSERTION_SORT_MAX:
-        for k in range(n):
-            order[k] = k
-        # this branch first, and the bound i >= 0 (LLVM then drops the negative-index
-        # test of order[i]): either way round cost 5-20 % at n = 2..16
-        for j in range(1, n):
-            k = order[j]
-            v = t[k]
-            i = j - 1
-            while i >= 0 and t[order[i]] > v:
-                order[i + 1] = order[i]
-                i -= 1
-            order[i + 1] = k
-    else:
-        _merge_runs(t, order)
+    for k in range(n):
+        order[k] = k
+    # the bound i >= 0 lets LLVM drop the negative-index test of order[i] (a bound passed
+    # in, as merge_order's runs have, cost 10-20 % at n = 2..16)
+    for j in range(1, n):
+        k = order[j]
+        v = t[k]
+        i = j - 1
+        while i >= 0 and t[order[i]] > v:
+            order[i + 1] = order[i]
+            i -= 1
+        order[i + 1] = k
 
 
 @njit(**JIT)
-def _merge_runs(t, order):
-    """order = stable argsort of t for n > INSERTION_SORT_MAX: runs
-    of INSERTION_SORT_MAX by insertion, then merged pairwise, bottom up (``np.argsort``'s
-    merge sort compiled into the kernels cost seconds of compile time each)."""
+def merge_order(t, order):
+    """order = stable argsort of t (ties keep the smaller event first) for more than
+    :data:`INSERTION_SORT_MAX` events: runs of that length by insertion, merged pairwise,
+    bottom up (``np.argsort``'s merge sort compiled into the kernels cost seconds of
+    compile time each)."""
     n = t.shape[0]
     for k in range(n):
         order[k] = k
@@ -364,11 +362,22 @@ class ChainCornerTables(NamedTuple):
 
 @njit(**JIT)
 def _own_times_block(tables, V, outs, start, stop, inverse):
-    """Event times and orders from own rates (any representation's own-rates fast path)."""
+    """Event times and orders from own rates (any representation's own-rates fast path),
+    for up to :data:`INSERTION_SORT_MAX` events."""
     times, orders = outs
     for q in range(start, stop):
         own_rate_times(tables.DhT, tables.rate, V[q], times[q])
-        stable_order(times[q], orders[q])
+        insertion_order(times[q], orders[q])
+
+
+@njit(**JIT)
+def _own_times_many_block(tables, V, outs, start, stop, inverse):
+    """:func:`_own_times_block` for more events (a kernel of its own: the merge sort is
+    compiled only where it runs)."""
+    times, orders = outs
+    for q in range(start, stop):
+        own_rate_times(tables.DhT, tables.rate, V[q], times[q])
+        merge_order(times[q], orders[q])
 
 
 @njit(**JIT)
@@ -405,8 +414,11 @@ def write_times(order, times, q0, pn, order_out, times_out):
 
 
 
-#: times and orders of an own-rates fast path: :class:`OwnRateTables`, outs (times, orders).
+#: times and orders of an own-rates fast path: :class:`OwnRateTables`, outs (times,
+#: orders); ``own_times`` for up to :data:`INSERTION_SORT_MAX` events, ``own_times_many``
+#: above (the engine picks by n).
 own_times = batch(_own_times_block)
+own_times_many = batch(_own_times_many_block)
 #: the linear fast path: :class:`LinearTables`, outs (out,).
 linear = batch(_linear_block)
 
