@@ -123,6 +123,45 @@ def test_launch_sizes():
     assert _core.launch_queries(1, 1) == 1 << 20  # ceiling
 
 
+@pytest.mark.parametrize("n", [0, 1, 2, 23, 24, 25, 40, 47, 48, 49, 97, 128, 1000])
+def test_the_orders_are_numpys_stable_argsort(n):
+    """The own-rates fast paths' orders: insertion sort (dense tables, n <= 40, and any
+    table up to 24 events), merged insertion runs above (oracle: NumPy's stable
+    argsort), with ties broken by the smaller event."""
+    rng = np.random.default_rng(n)
+    order = np.empty(n, dtype=np.int64)
+    sorts = [_core.merge_order] + ([_core.insertion_order] if n <= 40 else [])
+    for t in (rng.standard_normal(n), rng.integers(0, max(n // 4, 1), n).astype(float),
+              np.zeros(n), np.arange(n, 0, -1.0)):
+        for sort in sorts:
+            sort(t, order)
+            np.testing.assert_array_equal(order, np.argsort(t, kind="stable"))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 6])
+def test_the_rate_spread_of_small_tables_is_the_kernels(n):
+    """A table of one block gets its rate spread from NumPy, larger ones from the kernel:
+    both the spread of a plain scan (the first slowest and fastest pending region of each
+    event, the first event of the largest ratio), ties and the rates of events that
+    happened (negative with resets: never read) included."""
+    from bderiv._engines.dense import rate_spread
+    from bderiv._kernels.dense import widest_rate_spread
+
+    rng = np.random.default_rng(n)
+    for G in (rng.uniform(0.5, 2.0, (2**n, n)), rng.integers(1, 4, (2**n, n)).astype(float)):
+        masks = np.arange(2**n)
+        G[(masks[:, None] >> np.arange(n)) & 1 == 1] *= -1.0
+        best = (0.0, 0, 0, 0)
+        for k in range(n):
+            rows = [B for B in range(2**n) if not (B >> k) & 1]
+            slow = min(rows, key=lambda B: (G[B, k], B))
+            fast = min(rows, key=lambda B: (-G[B, k], B))
+            if G[fast, k] / G[slow, k] > best[0]:
+                best = (G[fast, k] / G[slow, k], k, slow, fast)
+        assert rate_spread(G, n) == best
+        assert tuple(widest_rate_spread(G)) == best
+
+
 #: the tests of the plain kernels' files that reach another engine (corner functions,
 #: structured models, simulations of the flow), left out of the default run's subprocess
 NOT_DENSE = ("not function and not structured and not terminal_cost and not flow_jvp")

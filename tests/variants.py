@@ -131,7 +131,7 @@ REPRESENTATIONS = {
                             {"dense8": (8, 8, 10**6), "dense16": (16, 16, 10**6),
                              "dense20": (20, 20, 2 * 10**5)}),
     "plain": Representation(dense, ((3, 66),), {"plain8": (8, 72, 2 * 10**5)}),
-    "own-rates": Representation(own_rates, ((4, 5),), {"own8": (8, 8, 10**6)}),
+    "own-rates": Representation(own_rates, ((4, 5),), {"own8": (8, 9, 10**6)}),
     "linear": Representation(linear, ((4, 5),), {"linear8": (8, 8, 10**6)}),
     "structured": Representation(structured, ((4, 6), (7, 9)),
                                  {"structured128": (128, 128, 1 << 15)}),

@@ -12,7 +12,7 @@ from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
 from .._kernels import lanes, scaling
 from .._kernels._core import PLAIN
-from .._limits import FAR_BYTES, TABLE_BAND
+from .._limits import BLOCK_ROWS, FAR_BYTES, TABLE_BAND
 from .._validate import check_matrix, check_number, memory_limit_for
 from . import fastpath
 from .base import Engine, unit_rows
@@ -195,7 +195,8 @@ class DenseEngine(Engine):
     def _check_spread(G, n, tol) -> float:
         """Refuse an event whose rate varies by more than ``1 / tol`` over the regions
         where it is pending; returns the largest such ratio (the documented bound)."""
-        ratio, k, slow, fast = kernels.widest_rate_spread(G)
+        ratio, k, slow, fast = (rate_spread(G, n) if G.shape[0] <= BLOCK_ROWS
+                                else kernels.widest_rate_spread(G))
         if tol > 0 and not ratio * tol <= 1.0:
             raise ValueError(
                 f"ill-conditioned event times: the rate of event {k} is "
@@ -263,3 +264,17 @@ def table_exponents(dh_big, f_big):
     f = math.frexp(f_big)[1]
     return (np.array([e if abs(e) > TABLE_BAND else 0 for e in dh], dtype=np.int64),
             f if abs(f) > TABLE_BAND else 0)
+
+
+def rate_spread(G, n):
+    """:func:`bderiv._kernels.dense.widest_rate_spread` of a table of one block, in NumPy
+    (the same ratio, event and masks: first minimum and maximum of each event's pending
+    rates, the first event of the largest ratio): a small table's first build compiles
+    no kernel for it."""
+    pending = _tables.block_bits(slice(0, G.shape[0]), n) == 0
+    slow = np.argmin(np.where(pending, G, np.inf), axis=0)
+    fast = np.argmax(np.where(pending, G, 0.0), axis=0)  # rates of pending events are > 0
+    events = np.arange(n)
+    ratios = G[fast, events] / G[slow, events]
+    k = int(np.argmax(ratios))
+    return float(ratios[k]), k, int(slow[k]), int(fast[k])

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import _tables
 from .._kernels import _core
-from .._limits import FAST_RTOL
+from .._limits import FAST_RTOL, INSERTION_SORT_MAX
 
 
 class FastPath:
@@ -45,7 +45,9 @@ class FastPath:
         return _core.linear(self._linear, V, (out,), inverse, launch)
 
     def event_times(self, V, times, orders, launch: int) -> int:
-        return _core.own_times(self._own, V, (times, orders), False, launch)
+        few = self.DhT.shape[1] <= INSERTION_SORT_MAX  # the merge sort compiled only for many
+        kernel = _core.own_times if few else _core.own_times_many
+        return kernel(self._own, V, (times, orders), False, launch)
 
 
 def dense(F, G, Dh, rtol: float = FAST_RTOL):

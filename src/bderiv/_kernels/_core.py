@@ -273,22 +273,62 @@ def own_rate_times(DhT, rate, u, tev):
 
 
 @njit(**JIT)
-def stable_order(t, order):
-    """order = stable argsort of t (ties keep the smaller event first)."""
+def insertion_order(t, order):
+    """order = stable argsort of t (ties keep the smaller event first), by insertion: the
+    order of up to a few dozen events (:data:`INSERTION_SORT_MAX`; a dense table's n <= 40)."""
     n = t.shape[0]
-    if n <= INSERTION_SORT_MAX:
-        for k in range(n):
-            order[k] = k
-        for j in range(1, n):
+    for k in range(n):
+        order[k] = k
+    # the bound i >= 0 lets LLVM drop the negative-index test of order[i] (a bound passed
+    # in, as merge_order's runs have, cost 10-20 % at n = 2..16)
+    for j in range(1, n):
+        k = order[j]
+        v = t[k]
+        i = j - 1
+        while i >= 0 and t[order[i]] > v:
+            order[i + 1] = order[i]
+            i -= 1
+        order[i + 1] = k
+
+
+@njit(**JIT)
+def merge_order(t, order):
+    """order = stable argsort of t (ties keep the smaller event first) for more than
+    :data:`INSERTION_SORT_MAX` events: runs of that length by insertion, merged pairwise,
+    bottom up (``np.argsort``'s merge sort compiled into the kernels cost seconds of
+    compile time each)."""
+    n = t.shape[0]
+    for k in range(n):
+        order[k] = k
+    run = INSERTION_SORT_MAX
+    for lo in range(0, n, run):
+        for j in range(lo + 1, min(lo + run, n)):
             k = order[j]
             v = t[k]
             i = j - 1
-            while i >= 0 and t[order[i]] > v:
+            while i >= lo and t[order[i]] > v:
                 order[i + 1] = order[i]
                 i -= 1
             order[i + 1] = k
-    else:
-        order[:] = np.argsort(t, kind="mergesort")
+    src, dst = order, np.empty(n, dtype=np.int64)
+    moved = False
+    while run < n:
+        for lo in range(0, n, 2 * run):
+            mid, hi = min(lo + run, n), min(lo + 2 * run, n)
+            i, j = lo, mid
+            for o in range(lo, hi):  # the left run first on ties: stable
+                if j >= hi or (i < mid and not t[src[i]] > t[src[j]]):
+                    dst[o] = src[i]
+                    i += 1
+                else:
+                    dst[o] = src[j]
+                    j += 1
+        src, dst = dst, src
+        moved = not moved
+        run *= 2
+    if moved:  # the last pass wrote the scratch
+        for k in range(n):
+            order[k] = src[k]
 
 
 class OwnRateTables(NamedTuple):
@@ -322,11 +362,22 @@ class ChainCornerTables(NamedTuple):
 
 @njit(**JIT)
 def _own_times_block(tables, V, outs, start, stop, inverse):
-    """Event times and orders from own rates (any representation's own-rates fast path)."""
+    """Event times and orders from own rates (any representation's own-rates fast path),
+    for up to :data:`INSERTION_SORT_MAX` events."""
     times, orders = outs
     for q in range(start, stop):
         own_rate_times(tables.DhT, tables.rate, V[q], times[q])
-        stable_order(times[q], orders[q])
+        insertion_order(times[q], orders[q])
+
+
+@njit(**JIT)
+def _own_times_many_block(tables, V, outs, start, stop, inverse):
+    """:func:`_own_times_block` for more events (a kernel of its own: the merge sort is
+    compiled only where it runs)."""
+    times, orders = outs
+    for q in range(start, stop):
+        own_rate_times(tables.DhT, tables.rate, V[q], times[q])
+        merge_order(times[q], orders[q])
 
 
 @njit(**JIT)
@@ -363,8 +414,11 @@ def write_times(order, times, q0, pn, order_out, times_out):
 
 
 
-#: times and orders of an own-rates fast path: :class:`OwnRateTables`, outs (times, orders).
+#: times and orders of an own-rates fast path: :class:`OwnRateTables`, outs (times,
+#: orders); ``own_times`` for up to :data:`INSERTION_SORT_MAX` events, ``own_times_many``
+#: above (the engine picks by n).
 own_times = batch(_own_times_block)
+own_times_many = batch(_own_times_many_block)
 #: the linear fast path: :class:`LinearTables`, outs (out,).
 linear = batch(_linear_block)
 

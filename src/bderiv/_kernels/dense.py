@@ -18,10 +18,10 @@ from ._core import (
     batch,
     cached,
     factors,
+    insertion_order,
     own_rate_times,
     query_exponent,
     saltation_step,
-    stable_order,
     write_times,
 )
 from .selection import advance, earliest, pending_times, retire
@@ -177,7 +177,7 @@ def _sorted_block(tables, V, outs, start, stop, inverse):
         for i in range(d):
             u[i] = V[q, i] * a * b
         own_rate_times(DhT, rate, u, tev)
-        stable_order(tev, order)
+        insertion_order(tev, order)  # n <= 40: a dense table
         # x = u -+ sum_j t_j (F[B_j] - F[B_{j-1}])
         for i in range(d):
             out[q, i] = u[i]
