@@ -148,8 +148,10 @@ def test_the_compiled_running_gait_takes_its_speed_at_run_time():
 def test_the_integrator_compiles_each_kernel_once():
     """The chair's first flow map compiles every kernel of the integrator and the compiled
     run for one set of argument types (a second, for a literal or another array type, is a
-    second compilation: seconds of a cold start), and the compiled run calls the driver by
-    its address (the model's struct), with the driver's own types."""
+    second compilation: seconds of a cold start; this bites where the kernels compile in
+    this process, an empty cache: a cached caller is loaded whole, its callees not asked),
+    and the driver is compiled for the types the compiled run calls it with through its
+    address (the model's struct) and Python calls it with: once."""
     import sys
 
     from numba.core.dispatcher import Dispatcher
