@@ -142,7 +142,7 @@ def _stage_point(y, K, s, h, n, out):
         _combination(y, K, 15, h, n, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, points, bad):
     """Stages ``first`` to ``last - 1`` of the step of size ``h`` from ``y``: each one's
     point (its first n components) into ``points``, the right-hand side there into
@@ -150,9 +150,11 @@ def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, point
 
     :func:`._rhs.rhs` written out: called per stage it would take the arrays as new
     references, an atomic increment and decrement each that numba cannot prune around
-    the user's call (10 of the 22 reference counts of a field call at d = 8). Not inlined
-    into the step and the dense output: compiled once, not twice (with its 15 stage
-    branches, the largest code of the driver)."""
+    the user's call (10 of the 22 reference counts of a field call at d = 8). Inlined into
+    the step and the dense output, though it is then compiled twice (its 15 stage branches
+    are the largest code of the driver): a call of it costs its arguments' counts, those
+    around the field's calls too (the driver 6 % slower per step at d = 8), and so does a
+    call of :func:`_stage_point` per stage (15 %: measured)."""
     params = model.params
     for s in range(first, last):
         _stage_point(y, K, s, h, n, points)
@@ -175,8 +177,8 @@ def step(model, jac_mode, variational, mask, d, y, h, K, y_new, bad):
     """One DOP853 step from ``y`` (``K[0]`` = f(y) on entry): stages into ``K[1:12]``,
     the 8th-order solution into ``y_new`` (each stage's point passes through it), f there
     into ``K[12]``. Returns a status."""
-    return stages(model, jac_mode, variational, mask, d, y, K, np.int64(1),
-                  np.int64(N_STAGES + 1), h, y.size, y_new, bad)
+    return stages(model, jac_mode, variational, mask, d, y, K, 1, N_STAGES + 1, h, y.size,
+                  y_new, bad)
 
 
 @njit(cache=True, inline="always")
@@ -222,8 +224,8 @@ def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K
     coefficients into ``F``, as scipy's ``DOP853._dense_output_impl``. n is the vector's
     length, or d with ``variational`` False (the state's output alone). Returns a status."""
     n = F.shape[1]
-    status = stages(model, jac_mode, variational, mask, d, y_old, K, np.int64(N_STAGES + 1),
-                    np.int64(N_STAGES_EXTENDED), h, n, ys, bad)
+    status = stages(model, jac_mode, variational, mask, d, y_old, K, N_STAGES + 1,
+                    N_STAGES_EXTENDED, h, n, ys, bad)
     if status != OK:
         return status
     for j in range(n):
