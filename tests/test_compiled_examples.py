@@ -143,3 +143,28 @@ def test_the_compiled_running_gait_takes_its_speed_at_run_time():
     x = b.x0 + 0.01
     np.testing.assert_array_equal(b.system.eval_field(x, 3)[3],
                                   2 * 8.0 * (1.5 - x[3]))  # traction 8 shared by 2 legs
+
+
+def test_the_integrator_compiles_each_kernel_once():
+    """The chair's first flow map compiles every kernel of the integrator and the compiled
+    run for one set of argument types (a second, for a literal or another array type, is a
+    second compilation: seconds of a cold start; this bites where the kernels compile in
+    this process, an empty cache: a cached caller is loaded whole, its callees not asked),
+    and the driver is compiled for the types the compiled run calls it with through its
+    address (the model's struct) and Python calls it with: once."""
+    import sys
+
+    from numba.core.dispatcher import Dispatcher
+
+    from bderiv.models.compiled import _integrate, _model
+
+    ex = examples.chair(compiled=True)
+    ex.system.flow_bderivative(ex.x0, ex.t_final)
+    prefix = "bderiv.models.compiled._"  # the private kernels (rules: Python's too)
+    kernels = {f"{name}.{key}": len(value.signatures)
+               for name, module in list(sys.modules.items()) if name.startswith(prefix)
+               for key, value in vars(module).items()
+               if isinstance(value, Dispatcher) and value.py_func.__module__ == name}
+    assert kernels["bderiv.models.compiled._run.run_stretches"] == 1
+    assert {k: n for k, n in kernels.items() if n > 1} == {}
+    assert _integrate.drive_stretch.signatures == [_model.DRIVER_ARGS]

@@ -29,7 +29,7 @@ from ._dop853 import (
     step,
     step_factor,
 )
-from ._rhs import OK, rhs, state_events
+from ._rhs import OK, call_events, rhs, state_events
 from ._watch import crossed, locate
 
 #: the stretch reached ``t_final`` / stopped at an event crossing / the step size fell
@@ -53,7 +53,12 @@ def room(a, need):
     if need <= a.shape[0]:
         return a
     b = np.empty((max(2 * a.shape[0], need),) + a.shape[1:], dtype=a.dtype)
-    b[:a.shape[0]] = a
+    flat, old = b.ravel(), a.ravel()
+    # element loops here and in the compiled run, no slice assignment of an array: numba
+    # compiles that one's shape-mismatch error (its message formats the shapes: str of
+    # ints, join) for each pair of dimensions, about a second of CPU each
+    for i in range(old.size):
+        flat[i] = old[i]
     return b
 
 
@@ -131,7 +136,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     steps = np.empty((64 if dense else 0, 2))
     Fd = np.empty((64 if dense else 0, INTERPOLATOR_POWER, d))
     ts[0] = t0
-    ys[0] = y
+    for j in range(m):
+        ys[0, j] = y[j]
     # int64 values, never literals: a callee is compiled for each literal type it sees
     # (room for 0 and 1 while the loop is typed, _stopped for each status code)
     count, n_dense = np.int64(1), np.int64(0)
@@ -141,8 +147,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     status = rhs(model, jac_mode, variational, mask, d, y, K[0], bad)
     counts[NFEV] += 1
     counts[NJEV] += jev
-    if status == OK:
-        status = state_events(model, with_section, y, d, n_events, g, bad)
+    if status == OK:  # not inlined (the step's call is): once per stretch
+        status = call_events(model, with_section, y[:d], n_events, g, bad)
     if status != OK:
         return _stopped(status, t, y, ts, ys, gs, count, steps, Fd, n_dense, active, roots,
                         counts, bad, t, 0.0)
@@ -170,7 +176,8 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         rejected = False
         while True:  # scipy's RungeKutta._step_impl
             if h_abs < min_step:
-                bad[:] = y[:d]
+                for j in range(d):
+                    bad[j] = y[j]
                 return _stopped(np.int64(STEP_UNDERFLOW), t, y, ts, ys, gs, count,
                                 steps, Fd, n_dense,
                                 active, roots, counts, bad, t, h_abs)
@@ -214,7 +221,9 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
                                 active, roots, counts, bad, t_new, h_abs)
             if dense:
                 if whole:
-                    Fd[n_dense] = F[:, :d]
+                    for i in range(INTERPOLATOR_POWER):
+                        for j in range(d):
+                            Fd[n_dense, i, j] = F[i, j]
                 n_dense += 1
         ts = room(ts, count + 1)
         ys = room(ys, count + 1)
@@ -231,8 +240,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
                                 active, roots, counts, bad, t_new, h_abs)
             dense_eval(coef, y, t, h, t_stop, m, y_new)
             ts[count] = t_stop
-            ys[count] = y_new
-            gs[count] = np.nan  # the stop's values are not evaluated
+            for j in range(m):
+                ys[count, j] = y_new[j]
+            for k in range(n_events):
+                gs[count, k] = np.nan  # the stop's values are not evaluated
             return _stopped(np.int64(EVENT), t_stop, y_new, ts, ys, gs, count + 1,
                             steps, Fd, n_dense,
                             active, roots, counts, bad, t_stop, h_abs)

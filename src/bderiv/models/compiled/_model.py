@@ -7,6 +7,12 @@ a 220 us stretch at d = 8); a struct holding the functions is passed for about 1
 :func:`bound_model` builds that struct once per set of functions and keeps it. The struct
 also holds the model's parameter values (an empty array for a model without: :mod:`._rhs`)
 and its event Jacobian, which the compiled run (:mod:`._run`) reads at the stops.
+
+It holds the driver's address too (:func:`drive_at`): the compiled run calls the driver
+through it, so that the run's compilation does not link the driver's code in. Numba links
+a called function's machine-code module into its caller's and optimizes and generates the
+whole again there; the driver's would be generated three times (its own, the stretch's
+examination, the run), about a third of the integrator's compile time.
 """
 
 from __future__ import annotations
@@ -15,9 +21,12 @@ from functools import lru_cache
 
 import numpy as np
 from numba import types
+from numba.core import cgutils, errors
 from numba.experimental import structref
+from numba.extending import intrinsic
 
 from ._cached import eager
+from ._integrate import drive_stretch
 from ._rhs import (
     COMPLEX_FIELD_TYPE,
     EVENTS_TYPE,
@@ -71,18 +80,62 @@ def no_reset(x, mask, k):  # pragma: no cover - passed, never called
 
 
 _MEMBERS = ("field", "jacobian", "events", "cfield", "section", "params", "event_jacobian",
-            "cevents", "reset")
+            "cevents", "reset", "driver")
 structref.define_proxy(_Model, _ModelType, list(_MEMBERS))
 _TYPES = (FIELD_TYPE, JACOBIAN_TYPE, EVENTS_TYPE, COMPLEX_FIELD_TYPE, SECTION_TYPE,
-          types.float64[::1], EVENT_JACOBIAN_TYPE, COMPLEX_EVENTS_TYPE, RESET_TYPE)
+          types.float64[::1], EVENT_JACOBIAN_TYPE, COMPLEX_EVENTS_TYPE, RESET_TYPE, types.int64)
 MODEL_TYPE = _ModelType(list(zip(_MEMBERS, _TYPES, strict=True)))
 #: the parameters of a model without
 NO_PARAMS = np.empty(0)
+#: the argument types the driver is compiled for, once: as Python calls it
+#: (:mod:`._slices`) and as the compiled run does (:func:`drive_at`)
+_VECTOR = types.float64[::1]
+DRIVER_ARGS = (MODEL_TYPE, types.int64, types.boolean, types.boolean, types.int64,
+               types.int64, types.int64, types.float64, _VECTOR, types.float64, types.float64,
+               _VECTOR, types.float64, types.float64, types.int64, types.boolean, types.int64,
+               types.boolean)
+_driver = {}
+
+
+def _driver_address():
+    """The address of the driver compiled for ``DRIVER_ARGS`` (compiled, or loaded from the
+    cache, at the first call)."""
+    if not _driver:
+        drive_stretch.compile(DRIVER_ARGS)
+        compiled = drive_stretch.overloads[DRIVER_ARGS]
+        _driver["address"] = compiled.library.get_pointer_to_function(
+            compiled.fndesc.llvm_func_name)
+    return _driver["address"]
+
+
+@intrinsic
+def drive_at(typingctx, address, args):
+    """``drive_stretch(*args)`` called at ``address`` (the struct's ``driver``), ``args``
+    of the types ``DRIVER_ARGS`` (else a TypingError): numba's call of a compiled function
+    (its exceptions propagate), through a pointer."""
+    if not isinstance(args, types.BaseTuple) or tuple(args.types) != DRIVER_ARGS:
+        raise errors.TypingError(f"drive_at: the driver takes {DRIVER_ARGS}, got {args}")
+    drive_stretch.compile(DRIVER_ARGS)  # for its return type
+    signature = drive_stretch.overloads[DRIVER_ARGS].signature
+
+    def codegen(context, builder, sig, llargs):
+        values = cgutils.unpack_tuple(builder, llargs[1], len(DRIVER_ARGS))
+        function = context.call_conv.get_function_type(signature.return_type, DRIVER_ARGS)
+        pointer = builder.inttoptr(llargs[0], function.as_pointer())
+        status, result = context.call_conv.call_function(
+            builder, pointer, signature.return_type, DRIVER_ARGS, values)
+        with cgutils.if_unlikely(builder, status.is_error):
+            context.call_conv.return_status_propagate(builder, status)
+        return result
+
+    return signature.return_type(address, args), codegen
 
 
 @eager(MODEL_TYPE(*_TYPES))
-def _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents, reset):
+def _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents, reset,
+          driver):
     model = structref.new(MODEL_TYPE)
+    model.driver = driver
     model.event_jacobian = event_jacobian
     model.cevents = cevents
     model.reset = reset
@@ -98,7 +151,7 @@ def _bind(field, jacobian, events, cfield, section, params, event_jacobian, ceve
 @lru_cache(maxsize=64)
 def _bound(field, jacobian, events, cfield, section, event_jacobian, cevents, reset):
     return _bind(field, jacobian, events, cfield, section, NO_PARAMS, event_jacobian, cevents,
-                 reset)
+                 reset, _driver_address())
 
 
 def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_section,
@@ -109,4 +162,4 @@ def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_sec
     if params is None:
         return _bound(field, jacobian, events, cfield, section, event_jacobian, cevents, reset)
     return _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents,
-                 reset)
+                 reset, _driver_address())

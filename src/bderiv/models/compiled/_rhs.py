@@ -141,13 +141,16 @@ def jacobian(model, mode, x, mask, d, J):
             return JACOBIAN_RAISED
         if given.shape[0] != d or given.shape[1] != d:
             return JACOBIAN_SHAPE
-        J[:, :] = given
+        for i in range(d):
+            for j in range(d):
+                J[i, j] = given[i, j]
     elif mode == JAC_COMPLEX_STEP:
         base = state_argument(model, x, d)
         z = np.empty(base.size, dtype=np.complex128)
         for j in range(d):
             h = COMPLEX_STEP * coordinate_scale(x[j])
-            z[:] = base
+            for i in range(base.size):
+                z[i] = base[i]
             z[j] = complex(x[j], h)
             try:
                 f = model.cfield(z, mask)
@@ -220,7 +223,7 @@ def sensitivity_rate(model, mode, mask, d, y, out):
     return status
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def rhs(model, mode, variational, mask, d, y, out, bad):
     """``out = f(y)``: the field at ``x = y[:d]``, and ``J(x) Phi`` when ``variational``
     (``out`` may be shorter than ``y``: the state's part only, for ``d`` entries).
@@ -228,7 +231,7 @@ def rhs(model, mode, variational, mask, d, y, out, bad):
     The user's functions get a fresh copy of ``x`` (they may keep or change it;
     :func:`argument`). Returns ``OK`` or the code of the failed check, the state copied
     into ``bad``. (The integrator's stages write this out in their loop:
-    :func:`._dop853.stages`.)
+    :func:`._dop853.stages`; the driver calls this once per stretch, not inlined.)
     """
     status, f = field_value(model, state_argument(model, y, d), mask, d)
     if status == OK and variational:
@@ -300,7 +303,7 @@ def events_rows(model, X, n, G, bad):
     """``G[i] = events(X[i])`` for every row of ``X`` (m, d), checked; a status (the
     failed row in ``bad``)."""
     for i in range(X.shape[0]):
-        status = call_events(model, False, X[i], n, G[i], bad)  # argument() copies X[i]
+        status = call_events(model, np.bool_(False), X[i], n, G[i], bad)  # argument() copies X[i]
         if status != OK:
             return status
     return OK
@@ -314,7 +317,8 @@ def field_rows(model, x, masks, d, out):
         status, f = checked_field(model, x, masks[i], d)
         if status != OK:
             return status, i
-        out[i] = f
+        for j in range(d):
+            out[i, j] = f[j]
     return OK, 0
 
 
@@ -322,12 +326,13 @@ def field_rows(model, x, masks, d, out):
 def events_and_field(model, x, mask, n, d, h, F):
     """``h = events(x)`` and ``F = field(x, mask)``, checked (what a stop reads first, in
     one call); a status as :func:`rhs`."""
-    status = call_events(model, False, x, n, h, np.empty(d))
+    status = call_events(model, np.bool_(False), x, n, h, np.empty(d))
     if status != OK:
         return status
     status, f = checked_field(model, x, mask, d)
     if status == OK:
-        F[:] = f
+        for i in range(d):
+            F[i] = f[i]
     return status
 
 

@@ -25,7 +25,8 @@ from ..._limits import (
     REFINE_FACTOR,
     RESET_MISMATCH,
 )
-from ._integrate import EVENT, FINISHED, N_STEPS, drive_stretch, room
+from ._integrate import EVENT, FINISHED, N_STEPS, room
+from ._model import drive_at
 from ._rhs import (
     OK,
     call_events,
@@ -62,16 +63,18 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
     h, F, rate, window = np.zeros(n), np.zeros(d), np.zeros(n), np.zeros(n)
     Dh, codes = np.zeros((n, d)), np.zeros(n, dtype=np.int64)
     y0 = np.zeros(m)
-    y0[:d] = x
+    for i in range(d):
+        y0[i] = x[i]
     if variational:
         for i in range(d):
             y0[d + i * d + i] = 1.0
     forced = n if with_section and t == 0.0 else -1
-    # no literal arguments: a callee is compiled again for each literal type it meets
-    status, t_end, y_end, ts, ys, steps, Fd, _, roots, counts, _, _, _, gs = \
-        drive_stretch(model, jac_mode, variational, with_section, n + with_section, mask, d, t,
-                      y0, t_final, rtol, atol, max_step, np.float64(0.0), forced,
-                      np.bool_(True), budget, np.bool_(True))
+    # the driver through its address (:func:`._model.drive_at`: its code not linked in
+    # here), with the types it is compiled for from Python
+    status, t_end, y_end, ts, ys, steps, Fd, _, roots, counts, _, _, _, gs = drive_at(
+        model.driver, (model, jac_mode, variational, with_section, n + with_section, mask, d,
+                       t, y0, t_final, rtol, atol, max_step, np.float64(0.0), forced,
+                       np.bool_(True), budget, np.bool_(True)))
     grown, err_new, first = scale.copy(), np.empty(d), -1
     fail = (False, status, counts[N_STEPS], t_end, y_end, ts, ys, Dh, grown, err_new, first,
             h, F, Dh, rate, window, codes)
@@ -106,6 +109,26 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
         classify(h, rate, window, fired, simultaneity_tol, codes)
     return (True, status, counts[N_STEPS], t_end, y_end, ts, ys, J, grown, err_new, first, h,
             F, Dh, rate, window, codes)
+
+
+@njit(cache=True)
+def _differ(a, b, bits):
+    """Whether some entries of ``a`` and ``b`` (int64 codes) differ in a bit of ``bits``
+    (``b`` = 0: some entry of ``a`` has one set). Element loops in the compiled run: each
+    array expression compiles a kernel of its own."""
+    for k in range(a.size):
+        if (a[k] ^ b[k]) & bits:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _holds(masks, mask):
+    """Whether ``mask`` is one of ``masks``."""
+    for k in range(masks.size):
+        if masks[k] == mask:
+            return True
+    return False
 
 
 @njit(cache=True)
@@ -183,12 +206,12 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     group_x = np.empty((8, 2, d))
     group_J = np.empty((8 if variational else 0, n, d))
     count, stretches, groups, steps = np.int64(0), np.int64(0), np.int64(0), np.int64(0)
-    sign = np.empty(n)
+    sign, none = np.empty(n), np.zeros(n, dtype=np.int64)
     code, returned = HANDOFF, False
     if mask < 0:
         mask = start_region(model, x, n, d)
     while mask >= 0:
-        if variational and not all_checked and not (checked == mask).any():
+        if variational and not all_checked and not _holds(checked, mask):
             break
         for k in range(n):
             sign[k] = -1.0 if mask >> k & 1 else 1.0
@@ -201,12 +224,13 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         if not ok:
             break
         event = 0 <= first < n
-        if event and variational and (codes & UNDECIDED).any():
+        if event and variational and _differ(codes, none, np.int64(UNDECIDED)):
             # locate.settle: the state alone integrated again, tighter, until the events
             # at the stop are decided or rtol is at its floor; the stretch integrated once
             # more at those tolerances when that changed the group
             f_rtol, f_atol, decided, now = rtol, atol[0], True, codes
-            while ok and decided and (now & UNDECIDED).any() and f_rtol > MIN_RTOL:
+            while ok and decided and _differ(now, none, np.int64(UNDECIDED)) and \
+                    f_rtol > MIN_RTOL:
                 f_rtol, f_atol = max(f_rtol / REFINE_FACTOR, MIN_RTOL), f_atol / REFINE_FACTOR
                 ok, _, taken, _, _, _, _, _, _, _, at, _, _, _, _, _, now = _integrated(
                     model, jac_mode, event_jac_mode, np.bool_(False), with_section, n, d, t, x,
@@ -216,8 +240,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
                 decided = 0 <= at < n
             if not ok:
                 break
-            kept = (GROUP | NEAR)
-            if not (decided and ((now & kept) == (codes & kept)).all()):
+            if not (decided and not _differ(now, codes, np.int64(GROUP | NEAR))):
                 ok, status, taken, t_end, y_end, ts, ys, J, grown, err_new, first, h, F, Dh, \
                     rate, window, codes = _integrated(
                         model, jac_mode, event_jac_mode, variational, with_section, n, d, t, x,
@@ -230,17 +253,21 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         x_end = y_end[:d].copy()
         new, x_after, bits = mask, x_end, np.int64(0)
         if event:
-            group = (codes & GROUP) != 0
+            group, events, size = np.zeros(n, dtype=np.bool_), np.empty(n, dtype=np.int64), 0
+            for k in range(n):  # the group's flags, bits and events (ascending)
+                if codes[k] & GROUP:
+                    group[k], events[size] = True, k
+                    bits |= np.int64(1) << k
+                    size += 1
             if first_grazing(group, Dh, F) >= 0:
                 break
-            for k in range(n):
-                if group[k]:
-                    bits |= np.int64(1) << k
             new, x_after = mask ^ bits, x_end
             if with_resets:
-                events = np.flatnonzero(group)
-                ok, x_after = after_resets(model, events, mask, x_end, d,
-                                            RESET_MISMATCH * err_new.max())
+                largest = err_new[0]
+                for i in range(d):
+                    largest = max(largest, err_new[i])
+                ok, x_after = after_resets(model, events[:size], mask, x_end, d,
+                                            RESET_MISMATCH * largest)
                 if ok:
                     ok, new = landing(model, jac_mode, event_jac_mode, sign, group, mask,
                                       new, x_after, window, n, d)
@@ -270,12 +297,15 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         T, X, M = room(T, need), room(X, need), room(M, need)
         for r in range(ts.size):
             T[count + r] = ts[r]
-            X[count + r] = ys[r, :d]
+            for i in range(d):
+                X[count + r, i] = ys[r, i]
             M[count + r] = mask
         count += ts.size
         if variational:
             L = room(L, stretches + 1)
-            L[stretches] = ys[-1, d:].reshape((d, d))
+            for i in range(d):
+                for j in range(d):
+                    L[stretches, i, j] = ys[ts.size - 1, d + i * d + j]
         stretches += 1
         t, x, scale, err = t_end, x_end, grown, err_new
         if status == EVENT and first == n:  # the return to the section
@@ -289,16 +319,20 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         group_t[groups] = t
         group_masks[groups, 0], group_masks[groups, 1], group_masks[groups, 2] = \
             bits, mask, new
-        group_x[groups, 0], group_x[groups, 1] = x, x_after
+        for i in range(d):
+            group_x[groups, 0, i], group_x[groups, 1, i] = x[i], x_after[i]
         if variational:
             group_J = room(group_J, groups + 1)
-            group_J[groups] = J
+            for k in range(n):
+                for i in range(d):
+                    group_J[groups, k, i] = J[k, i]
         groups += 1
         mask, x = new, x_after
         if t >= t_final:
             code = ENDED
             break
     now = np.empty((3, d))  # few arrays: boxing each costs Python about 0.6 us
-    now[0], now[1], now[2] = x, scale, err
+    for i in range(d):
+        now[0, i], now[1, i], now[2, i] = x[i], scale[i], err[i]
     return (code, returned, t, mask, now, T[:count], X[:count], M[:count], L[:stretches],
             group_t[:groups], group_masks[:groups], group_x[:groups], group_J[:groups], steps)

@@ -64,7 +64,8 @@ def event_jacobian(model, mode, x, n, d):
         J = np.empty((n, d))
         for j in range(d):
             h = COMPLEX_STEP * coordinate_scale(x[j])
-            z[:] = base
+            for i in range(base.size):
+                z[i] = base[i]
             z[j] = complex(x[j], h)
             try:
                 v = model.cevents(z)
@@ -203,7 +204,10 @@ def _next_order(a):
     while a[j] <= a[i]:
         j -= 1
     a[i], a[j] = a[j], a[i]
-    a[i + 1:] = a[i + 1:][::-1].copy()
+    lo, hi = i + 1, a.size - 1
+    while lo < hi:  # a[i + 1:] reversed
+        a[lo], a[hi] = a[hi], a[lo]
+        lo, hi = lo + 1, hi - 1
     return True
 
 
@@ -222,7 +226,12 @@ def after_resets(model, events, mask, x, d, accuracy):
         order = events[::-1].copy()
     while more:
         ok, y = _reset_in_order(model, order, mask, x, d)
-        if not ok or not np.abs(y - first).max() <= accuracy:
+        if not ok:
+            return False, x
+        gap = 0.0  # max |y - first| (both finite: checked)
+        for i in range(d):
+            gap = max(gap, abs(y[i] - first[i]))
+        if not gap <= accuracy:
             return False, x
         more = events.size <= ORDERS_CHECKED and _next_order(order)
     return True, first
