@@ -8,7 +8,6 @@ import numba
 import numpy as np
 from numba.core import event
 
-import bderiv  # its first public name registers the notice
 from bderiv import _compiling
 from bderiv._kernels import dense
 

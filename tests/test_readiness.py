@@ -43,7 +43,11 @@ def stand_in(tmp_path, monkeypatch):
                                               "child": None, "said": False})
     monkeypatch.setattr(readiness, "POLL_SECONDS", 0.0)
     monkeypatch.delenv(readiness.POLICY_VARIABLE, raising=False)
-    command = [sys.executable, "-c", f"import {module}; {module}.part(1.0)"]
+    # the compiling process takes the lock, as `bderiv compile integrator` does (at once:
+    # a caller holding it while it runs would wait forever)
+    command = [sys.executable, "-c", f"import fcntl, {module}; fh = open("
+               f"{str(tmp_path / 'integrator.lock')!r}, 'a+b'); fcntl.flock(fh, "
+               f"fcntl.LOCK_EX | fcntl.LOCK_NB); {module}.part(1.0)"]
     monkeypatch.setattr(readiness, "compile_command", lambda: command)
     return mod
 

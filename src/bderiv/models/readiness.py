@@ -181,14 +181,16 @@ def ready_now() -> bool:
 
 def _wait_for_integrator() -> None:
     """Compile the integrator in the foreground (policy ``compiled``), or wait for the
-    process that compiles it; a compilation that fails there is left to numba here."""
-    with compile_lock(wait=True) as held:
-        if not held or integrator_cached():
-            return
-        _log.warning("bderiv: compiling the compiled integrator for this machine (once: "
-                     "about one to two minutes; later runs load it from numba's disk cache)")
-        subprocess.run(compile_command(), env=child_environment(), check=False,
-                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+    process that compiles it; a compilation that fails there is left to numba here. The
+    compiling process takes the lock itself: it is not held here meanwhile."""
+    with compile_lock(wait=True):  # another process compiling: its end
+        pass
+    if integrator_cached():
+        return
+    _log.warning("bderiv: compiling the compiled integrator for this machine (once: "
+                 "about one to two minutes; later runs load it from numba's disk cache)")
+    subprocess.run(compile_command(), env=child_environment(), check=False,
+                   stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
 
 
 def _child_ended() -> bool:
