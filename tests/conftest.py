@@ -127,7 +127,12 @@ def pytest_sessionfinish(session, exitstatus):
     spec = importlib.util.spec_from_file_location("bderiv_specializations", tool)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    module.write(folder)
+    try:
+        module.write(folder)
+    except Exception as exc:  # noqa: BLE001 - said in the folder, not lost in a worker
+        os.makedirs(folder, exist_ok=True)
+        with open(os.path.join(folder, f"error-{os.getpid()}.txt"), "w") as fh:
+            fh.write(f"{type(exc).__name__}: {exc}\n")
 
 
 @contextlib.contextmanager

@@ -62,7 +62,8 @@ def collect() -> dict:
 
     table: dict = {}
     for obj in gc.get_objects():
-        if not isinstance(obj, Dispatcher):
+        # type(), not isinstance: a dead weak proxy among the objects raises on __class__
+        if not issubclass(type(obj), Dispatcher):
             continue
         module = getattr(obj.py_func, "__module__", None) or ""
         if module != "bderiv" and not module.startswith("bderiv."):
