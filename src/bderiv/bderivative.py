@@ -17,8 +17,9 @@ from ._geometry import (  # noqa: F401 (re-exported)
     dh_rank,
 )
 from ._kernels import scaling
-from ._limits import GRAZING_RTOL, MAX_PIECES, RESET_TOL
+from ._limits import MAX_PIECES, RESET_TOL
 from ._linearise import Linearisation, unit_scale
+from ._numerics import GRAZING_RTOL
 from ._validate import (
     check_bool,
     check_finite_result,

@@ -29,14 +29,9 @@ import numba
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from .. import _limits
-from .._limits import (
-    INSERTION_SORT_MAX,
-    LAUNCH_WORK,
-    PARALLEL_MIN_QUERIES,
-    QUERY_BAND,
-    TASK_QUERIES,
-)
+from .. import _numerics
+from .._limits import LAUNCH_WORK, PARALLEL_MIN_QUERIES
+from .._numerics import INSERTION_SORT_MAX, QUERY_BAND, TASK_QUERIES
 from ._cache import harden_all, keyed, sources_digest
 from ._simd import bits_float, float_bits
 
@@ -48,8 +43,8 @@ from ._simd import bits_float, float_bits
 JIT = {"error_model": "numpy"}
 
 #: the digest of this package's sources and of the numbers compiled into them
-#: (``bderiv._limits``) that names every cached kernel (``_cache.keyed``)
-SOURCES = sources_digest(pathlib.Path(__file__).parent, _limits.__file__)
+#: (``bderiv._numerics``) that names every cached kernel (``_cache.keyed``)
+SOURCES = sources_digest(pathlib.Path(__file__).parent, _numerics.__file__)
 
 
 def cached(fn=None, *, parallel: bool = False):

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 from numba import njit, prange
 
-from .._limits import QUERY_BAND, SERIAL_ENTRIES
+from .._limits import SERIAL_ENTRIES
+from .._numerics import QUERY_BAND
 from ._core import JIT, cached, factors, row_exponent, serialised
 
 

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._format import format_mask, transversality_message
-from ..._limits import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
+from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
 from ..compiled import rules
 from .locate import examine, flags_of, orientation, state_error
 

@@ -61,7 +61,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from ..._limits import FINE_REACH, FINE_SAMPLES, PEAK_XTOL, REACH
+from ..._limits import PEAK_XTOL
+from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
 from ..compiled import rules
 from .crossings import group_tolerance
 from .locate import StopCalls, local_rates

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._format import format_mask
-from ..._limits import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
+from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
 from ..compiled import rules
 
 __all__ = [
