@@ -125,6 +125,28 @@ def _compiled_run():
     system.flow_bderivative(np.zeros(2), 2.0)
 
 
+def pytest_sessionfinish(session, exitstatus):
+    """With ``BDERIV_SPECIALIZATIONS=<folder>`` set, write this process's table of compiled
+    signatures of bderiv's dispatchers there (``tools/specializations.py``, issue 36: one
+    file per pytest-xdist worker, merged by the tool). Unset: nothing is done."""
+    folder = os.environ.get("BDERIV_SPECIALIZATIONS")
+    if not folder:
+        return
+    import importlib.util
+    import pathlib
+
+    tool = pathlib.Path(__file__).resolve().parents[1] / "tools" / "specializations.py"
+    spec = importlib.util.spec_from_file_location("bderiv_specializations", tool)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    try:
+        module.write(folder)
+    except Exception as exc:  # noqa: BLE001 - said in the folder, not lost in a worker
+        os.makedirs(folder, exist_ok=True)
+        with open(os.path.join(folder, f"error-{os.getpid()}.txt"), "w") as fh:
+            fh.write(f"{type(exc).__name__}: {exc}\n")
+
+
 @contextlib.contextmanager
 def _held(path):
     """An exclusive lock on the file ``path`` for the duration (none without fcntl)."""

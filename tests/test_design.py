@@ -30,9 +30,10 @@ LAYERS = [
 #: helpers any layer may use; they import only each other and the foundation.
 HELPERS = {"_batch", "_validate", "_format", "_tables", "_dask", "_progress", "_baselines",
            "_cyclic", "_safefiles", "_errors", "_compiling"}
-#: the numbers (tolerances, sizes, limits): every module may import it, the kernels and the
-#: helpers included; it imports nothing of the package.
-FOUNDATION = {"_limits"}
+#: the numbers (tolerances, sizes, limits): every module may import them, the kernels and
+#: the helpers included; they import nothing of the package but each other (``_numerics``:
+#: those compiled into kernels, nothing; ``_limits``: the Python-only ones, ``_numerics``).
+FOUNDATION = {"_limits", "_numerics"}
 
 
 def _unit(parts) -> str:
@@ -115,19 +116,21 @@ def test_kernels_import_nothing_of_the_package():
         assert not others, f"{path.name} imports {others}"
 
 
+def test_the_foundation_imports_nothing_of_the_package():
+    assert not set(_imported_units(PKG / "_numerics.py"))
+    assert set(_imported_units(PKG / "_limits.py")) == {"_numerics"}
+
+
 @pytest.mark.parametrize("unit", sorted(FOUNDATION))
-def test_the_foundation_imports_nothing_of_the_package(unit):
-    assert not set(_imported_units(PKG / f"{unit}.py")), unit
-
-
-def test_every_number_is_explained_and_used():
-    """Each name of ``_limits`` has its own ``#:`` line above it (or shares the block of the
-    names defined with it) and is imported by some module of the package."""
-    lines = (PKG / "_limits.py").read_text().splitlines()
+def test_every_number_is_explained_and_used(unit):
+    """Each name of ``_limits`` and ``_numerics`` has its own ``#:`` line above it (or
+    shares the block of the names defined with it) and is imported by some module of the
+    package."""
+    lines = (PKG / f"{unit}.py").read_text().splitlines()
     names = [(i, line.split("=")[0].strip()) for i, line in enumerate(lines)
              if line[:1].isupper() and "=" in line]
     assert names
-    sources = [p.read_text() for p in MODULES if p.name != "_limits.py"]
+    sources = [p.read_text() for p in MODULES if p.name not in ("_limits.py", "_numerics.py")]
     for i, name in names:
         j = i - 1
         while j >= 0 and lines[j][:1].isupper() and "=" in lines[j]:

@@ -84,15 +84,15 @@ def test_the_sources_digest_follows_every_file(tmp_path):
 
 
 def test_the_kernels_digest_covers_the_numbers_compiled_in(tmp_path):
-    """The kernels compile values of ``bderiv._limits`` in (``QUERY_BAND``, ``TASK_QUERIES``):
-    its file is part of the digest that names their cache files."""
+    """The kernels compile values of ``bderiv._numerics`` in (``QUERY_BAND``,
+    ``TASK_QUERIES``): its file is part of the digest that names their cache files."""
     import pathlib
 
-    from bderiv import _limits
+    from bderiv import _numerics
     from bderiv._kernels._cache import sources_digest
 
     folder = pathlib.Path(_core.__file__).parent
-    assert _core.SOURCES == sources_digest(folder, _limits.__file__) != sources_digest(folder)
+    assert _core.SOURCES == sources_digest(folder, _numerics.__file__) != sources_digest(folder)
     (tmp_path / "a.py").write_text("x = 1\n")
     numbers = tmp_path / "numbers.py"
     numbers.write_text("BAND = 256\n")

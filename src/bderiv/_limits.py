@@ -1,4 +1,5 @@
-"""The tolerances, sizes and limits of bderiv, in one place, each with where it comes from.
+"""The tolerances, sizes and limits of bderiv that Python code reads, each with where it
+comes from.
 
 What is here: a number whose value is a choice someone may question or tune (a tolerance:
 an accepted error, a step, a margin; a size: rows, bytes or queries handled at a time; a
@@ -14,19 +15,39 @@ events in an int64 mask, the smallest normal float64), the probe of a check whos
 does not depend on it (``_cyclic.SHIFTS``), and what one command or figure shows (rows
 listed, samples drawn, colours).
 
-This module imports nothing of bderiv: it is the bottom of the layers (docs/design.md), and
-every module, the kernels included, may import it. Compiled kernels keep the values they
-had when they were compiled, so the digests that name their disk caches cover this file
-(``_kernels._core.SOURCES``, ``models.compiled._cached``). To change a value, change it
-here: modules take the value when they import it, so assigning to this module at run time
-changes nothing.
+The numbers that njit code reads are in ``bderiv._numerics``: numba compiles them in, so
+that file keys the kernels' disk caches; this one keys none (editing a default here
+compiles nothing again). No njit function may read a value of this module
+(``tests/test_numerics.py``). The names imported below are ``_numerics``'s, kept
+importable from here for the integrator's kernel modules that still import them from
+``_limits`` (``models/compiled/_rhs.py``, ``_run.py``, ``_stops.py``, ``_watch.py``,
+``rules.py``): their values are ``_numerics``'s, so its digest covers them.
+
+This module imports nothing of bderiv but ``_numerics``: with it, the bottom of the layers
+(docs/design.md); every module, the kernels included, may import both. To change a value,
+change it here: modules take the value when they import it, so assigning to this module at
+run time changes nothing.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-_EPS = float(np.finfo(np.float64).eps)
+from ._numerics import (  # noqa: F401 - see the docstring
+    CENTRAL_STEP,
+    COMPLEX_STEP,
+    EVENT_MAX_ITER,
+    EVENT_RTOL,
+    EVENT_XTOL,
+    FINE_REACH,
+    FINE_SAMPLES,
+    GLOBAL_ERROR_FACTOR,
+    GRAZING_RTOL,
+    MIN_RTOL,
+    ORDERS_CHECKED,
+    REACH,
+    REFINE_FACTOR,
+    RESET_MISMATCH,
+    SCALE_FLOOR,
+)
 
 # --- integration ------------------------------------------------------------------------
 
@@ -35,10 +56,6 @@ _EPS = float(np.finfo(np.float64).eps)
 #: above what the integrators can reach (MIN_RTOL) and cheap enough for the default.
 DEFAULT_RTOL = 1e-10
 DEFAULT_ATOL = 1e-12
-#: smallest rtol solve_ivp honours (it raises smaller ones to this, with a warning: scipy's
-#: ``100 * EPS``); both integrators refuse smaller ones, and the event location's tighter
-#: integrations stop at it.
-MIN_RTOL = 100 * _EPS
 #: default largest number of event groups of one run (a Zeno or chattering trajectory
 #: would otherwise never end): a judgement, enough for hundreds of strides of a
 #: many-legged gait.
@@ -51,19 +68,6 @@ ZENO_IMPACTS = 5
 #: impacts to accumulate (a judgement: a gait converging to its period has a limit near
 #: its step time; rounding of the event times is far below it).
 ZENO_LIMIT_RTOL = 0.1
-#: global over local error of the integrator: an adaptive Runge-Kutta method keeps each
-#: step's error below atol + rtol |x_i|; the error of the state at a stop, a sum of such
-#: step errors, is a modest multiple of it (a judgement).
-GLOBAL_ERROR_FACTOR = 10.0
-#: each tighter integration of an undecided stretch divides rtol and atol by this (a
-#: judgement: two digits per try reach MIN_RTOL from the default in two tries).
-REFINE_FACTOR = 100.0
-#: the compiled event root: scipy's tolerances of the event equation
-#: (``ivp.solve_event_equation``: 4 EPS absolute and relative) and brentq's default
-#: iteration cap, so that both integrators place an event alike.
-EVENT_XTOL = 4.0 * _EPS
-EVENT_RTOL = 4.0 * _EPS
-EVENT_MAX_ITER = 100
 #: the longest a slice of the compiled driver runs, in seconds, between which Ctrl-C and
 #: progress are seen (a judgement: an answer to Ctrl-C within a fifth of a second).
 SLICE_SECONDS = 0.2
@@ -87,23 +91,11 @@ DERIVATIVE_SIMULTANEITY_TOL = 1e-7
 #: spread ``eps |v|`` of a perturbed start, so that the events of a perturbed trajectory
 #: switch one by one, in their true order.
 FD_SIMULTANEITY_TOL = 1e-13
-#: a crossing whose rate ``|Dh_k . F|`` is at most this times ``|Dh_k| |F|`` is grazing;
-#: the default ``transversality_tol`` of ``BDerivative`` (a judgement: far above the
-#: rounding of the product, about d EPS; a rate this small against its factors does not
-#: decide the order of the crossings).
-GRAZING_RTOL = 1e-9
 #: relative accuracy to which a model's resets are checked: with analytic Jacobians (event
 #: and reset; the default ``reset_tol`` of ``BDerivative``), and with numerical ones
 #: (accurate to ``ACCEPT_RTOL`` or refused, so checked at ten times it).
 RESET_TOL = 1e-9
 RESET_TOL_NUMERICAL = 1e-6
-#: resets of simultaneous events whose results differ by more than this times the
-#: accuracy of the state at the stop do not commute (a judgement: three orders above the
-#: accuracy, far below a real difference).
-RESET_MISMATCH = 1e3
-#: groups of up to this many events have their resets compared in every order (4! = 24
-#: orders; larger groups also in descending order only: a judgement of cost).
-ORDERS_CHECKED = 4
 #: largest accepted ``|events(rho)|`` at an event point (``HybridSystem.bderivative``) and
 #: ``|section(x0)|`` at a section point (``return_map``; the orbit's iterates): a
 #: judgement, far above the rounding of an event function at unit scale, far below a point
@@ -112,16 +104,6 @@ ON_SURFACE_TOL = 1e-9
 
 # --- the excursion screen (surfaces crossed and crossed back inside a step) ------------
 
-#: how far above the highest sample a peak may rise, in units of the samples' spread
-#: around it, for its bracket to be searched (a parabola rises at most by the spread; the
-#: factor ten is a margin for higher-order terms, a judgement).
-REACH = 10.0
-#: samples of a bracket, screened again before a peak is searched: most brackets are
-#: dropped at this finer spacing, and the rest are eight times shorter.
-FINE_SAMPLES = 17
-#: the reach on those samples: a parabola through three equally spaced samples peaks
-#: above the highest by at most a quarter of its drop to the lower neighbour.
-FINE_REACH = 1.0
 #: time accuracy of a peak, relative to its bracket: ``h`` is flat at a peak, so its value
 #: is found to about the curvature times this squared (1e-14 of the bracket's scale).
 PEAK_XTOL = 1e-7
@@ -131,9 +113,6 @@ PEAK_XTOL = 1e-7
 #: the first step of an extrapolation run relative to the variable's scale (a judgement:
 #: large, the extrapolation removes the truncation; smaller steps follow).
 BASE_STEP = 2.0**-3
-#: variables smaller than this (not 0) take it as their scale (steps far below rounding);
-#: also the compiled central differences'.
-SCALE_FLOOR = 2.0**-20
 #: an extrapolation stops at this relative error (of the entry, or of the row); an entry
 #: above ACCEPT_RTOL is refused (a judgement: half the digits of float64 at worst).
 TARGET_RTOL = 1e-10
@@ -148,15 +127,9 @@ ROUND_FLOOR = 2.0**10
 #: what rounding and the extrapolation leave (about 1e-10), far below a wrong term.
 CHECK_RTOL = 1e-6
 CHECK_ERROR_FACTOR = 8.0
-#: compiled complex step: the imaginary step relative to the coordinate's scale (no
-#: cancellation, so any tiny step is exact to rounding; this one keeps x + ih far from
-#: underflow)
-COMPLEX_STEP = 2.0**-60
-#: compiled central differences: the step relative to the coordinate's scale, about
-#: EPS^(1/3) (truncation h^2 against rounding EPS / h); the scale is ``max(|x_j|, 1)``
-#: (scipy's ``approx_derivative``): the magnitude of a coordinate near 0 says nothing of
-#: the scale on which the field varies in it, and a step from it is all rounding
-CENTRAL_STEP = 2.0**-17
+#: a build (flow map, return map) longer than this, most of it in numerical Jacobians, is
+#: reported at WARNING (``models.calls``; a judgement: a pause a user notices)
+SLOW_BUILD_SECONDS = 2.0
 #: largest number of masks ``check_jacobians`` checks by default (all 2**n up to n = 8;
 #: a judgement of cost: each mask is a Jacobian by differences).
 DEFAULT_MASKS = 1 << 8
@@ -178,10 +151,6 @@ UNDERFLOW_LOG10 = -290
 #: 2**+-TABLE_BAND are scaled by a power of two at build; within it the products of the
 #: kernels stay far from both ends of the float64 range (2**+-1022), and nothing is copied.
 TABLE_BAND = 64
-#: a query whose nonzero entries are within 2**+-QUERY_BAND keeps the chain of tables
-#: scaled within 2**+-TABLE_BAND far from both ends of the float64 range; kernels may run
-#: such queries as given (what the scaled query gives, scaled).
-QUERY_BAND = 256
 #: the largest n for which a model's dense table (2**n rows) is built on request
 #: (``corner_points``, ``triangulation``, ``table``): 2**20 rows of F, 160 MiB at d = 20.
 MAX_TABLE_EVENTS = 20
@@ -191,20 +160,12 @@ MAX_PIECES = 40320
 
 # --- kernels and threads ----------------------------------------------------------------
 
-#: queries per parallel task. Threads take tasks one at a time (dynamic schedule), so a
-#: thread that the OS delays does not hold the other back; at n = 8, 256 queries take
-#: about 90 us on one thread (measured), far above the start-up of the second.
-TASK_QUERIES = 256
 #: batches smaller than this run on one thread (thread start-up costs more than it saves).
 PARALLEL_MIN_QUERIES = 1024
 #: work per kernel launch, in units of n (n + d) (about a nanosecond each). Ctrl-C is seen
 #: between launches only, so a long batch is cut into launches of about 0.05 to 0.3 s;
 #: a launch wakes the threads, which costs more on a busy machine, so not shorter.
 LAUNCH_WORK = 1 << 25
-#: insertion sort up to this many events, merge sort above (fast-path orders; a
-#: judgement: insertion sort's n^2 / 4 moves are cheaper than merge sort's overhead for a
-#: few dozen events).
-INSERTION_SORT_MAX = 24
 #: row scaling: batches with fewer entries (rows x d) are scaled serially: measured (load 8
 #: on 2 cores) 0.7-1.8 ns per entry serially, a parallel launch 13-34 us when its threads
 #: get cores at once and 11-16 ms when they wait (318 launches on (200, 8) batches were 6 of

@@ -29,9 +29,9 @@ from ._limits import (
     CHECK_RTOL,
     ROUND_FLOOR,
     ROW_FLOOR,
-    SCALE_FLOOR,
     TARGET_RTOL,
 )
+from ._numerics import SCALE_FLOOR
 
 #: levels of one run (steps H .. H / 2**(LEVELS - 1)), each two calls of the function.
 LEVELS = 8

@@ -134,6 +134,22 @@ def check_points(V, dim: int, name: str = "V", *, index_shape=None, offset: int 
     return flat, lead
 
 
+def frozen(a, dtype=np.float64) -> np.ndarray:
+    """``a`` in the one form a compiled kernel takes an array it only reads: C-contiguous,
+    of ``dtype``, read-only (a view; a copy only to change the dtype or the layout).
+
+    A read-only and a writeable array are two numba types, so a kernel given both compiles
+    twice (one to two seconds on a cold cache, issue 36); read-only, not writeable, because
+    many arrays of the package are read-only by design and a view is free where a
+    writeable copy is not.
+    """
+    arr = np.ascontiguousarray(a, dtype=dtype)
+    if arr.flags.writeable:
+        arr = arr.view()
+        arr.flags.writeable = False
+    return arr
+
+
 def check_out(out, shape: tuple[int, ...], name: str = "out") -> np.ndarray:
     """Check a user ``out`` array: float64, C-contiguous, writeable, of the given shape."""
     if not isinstance(out, np.ndarray):

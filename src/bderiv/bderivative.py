@@ -17,8 +17,10 @@ from ._geometry import (  # noqa: F401 (re-exported)
     dh_rank,
 )
 from ._kernels import scaling
-from ._limits import GRAZING_RTOL, MAX_PIECES, RESET_TOL
+from ._kernels._core import read_only
+from ._limits import MAX_PIECES, RESET_TOL
 from ._linearise import Linearisation, unit_scale
+from ._numerics import GRAZING_RTOL
 from ._validate import (
     check_bool,
     check_finite_result,
@@ -360,10 +362,10 @@ class BDerivative(Linearisation, CornerGeometry):
         only where the result does (a read-only pass otherwise: scaling every batch cost
         jvp 1.2x)."""
         exps = np.empty(T.shape[0], dtype=np.int64)
-        if not scaling.outside_band(T, exps):
-            bad = self._engine.tangents(V, T, res, transpose, offset)
+        if not scaling.outside_band(T, exps):  # T read-only, as kernels take what they read
+            bad = self._engine.tangents(V, read_only(T), res, transpose, offset)
         else:
-            self._engine.tangents(V, unit_scale(T, exps), res, transpose, offset)
+            self._engine.tangents(V, read_only(unit_scale(T, exps)), res, transpose, offset)
             bad = scaling.unscale_rows(res, exps, 0)
         if bad:
             check_finite_result(res, name, offset)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._limits import GRAZING_RTOL
+from ._numerics import GRAZING_RTOL
 from .flowmap import FlowBDerivative, _read_only
 from .models.integrate.run import ENDS, run
 

@@ -125,7 +125,8 @@ class Engine:
             raise ValueError(transversality_message(int(order[j]), format_happened(regions[j]),
                                                     float(rates[j]), where))
         out = np.empty((self.d, self.d))
-        _core.piece_from_corners(self.Dh, Fc, np.asarray(order, dtype=np.int64), out)
+        _core.piece_from_corners(_core.read_only(self.Dh), _core.read_only(Fc),
+                                 _core.read_only(np.asarray(order, dtype=np.int64)), out)
         return out
 
     def dense_table(self) -> np.ndarray:
@@ -148,7 +149,7 @@ class Engine:
         q = int(bad[0])
         hap = np.empty(self.n, dtype=np.uint8)
         r = np.empty(self.n)
-        k = int(self._diagnose(V[q], inverse, hap, r))
+        k = int(self._diagnose(_core.read_only(V[q]), inverse, hap, r))
         stop = (ChainStop("corner", q, -1, format_happened(hap), np.nan) if k < 0 else
                 ChainStop("rate", q, k, format_happened(hap), float(r[k])))
         raise refusal(stop, name, offset, inverse)

@@ -11,7 +11,7 @@ from .. import _tables
 from .._format import MASK_MEANING, format_mask
 from .._kernels import dense as kernels
 from .._kernels import lanes, scaling
-from .._kernels._core import PLAIN
+from .._kernels._core import PLAIN, frozen_tables
 from .._limits import BLOCK_ROWS, FAR_BYTES, TABLE_BAND
 from .._validate import check_matrix, check_number, memory_limit_for
 from . import fastpath
@@ -46,7 +46,7 @@ class DenseEngine(Engine):
         """The own-rates fast path's tables, forwards and backwards (None without it)."""
         if self.fast is None or self.fast.kind != "own-rates":
             return None
-        return tuple(kernels.SortedTables(self.fast.DhT, self.F, rate)
+        return tuple(frozen_tables(kernels.SortedTables(self.fast.DhT, self.F, rate))
                      for rate in (self.fast.rate0, self.fast.ratef))
 
     @property
@@ -86,12 +86,13 @@ class DenseEngine(Engine):
         kernels read, built on first use (a map on a fast path never runs them)."""
         n, d = self.n, self.d
         nc, dc, _ = _tables.record_layout(n, d)
-        plain = kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G, self.Dh)
+        plain = frozen_tables(kernels.DenseTables(np.ascontiguousarray(self.Dh.T), self.F, self.G,
+                                           self.Dh))
         if PLAIN or d > lanes.MAX_D:
             return None, None, plain
-        return (lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
-                                 _tables.padded(self.Dh, 8 * dc),
-                                 np.array([n, d, nc, dc], dtype=np.int64)),
+        return (frozen_tables(lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
+                                        _tables.padded(self.Dh, 8 * dc),
+                                        np.array([n, d, nc, dc], dtype=np.int64))),
                 lanes.kernels(8 * nc, 8 * dc, self._far), plain)
 
     @property

@@ -37,9 +37,9 @@ class FastPath:
             eye = np.eye(Dh.shape[1])
             self.M = eye + A.T @ (Dh / rate0[:, None])
             self.Minv = eye - A.T @ (Dh / ratef[:, None])
-            self._linear = _core.LinearTables(np.ascontiguousarray(self.M.T),
-                                              np.ascontiguousarray(self.Minv.T))
-        self._own = _core.OwnRateTables(self.DhT, self.rate0)
+            self._linear = _core.frozen_tables(_core.LinearTables(np.ascontiguousarray(self.M.T),
+                                                           np.ascontiguousarray(self.Minv.T)))
+        self._own = _core.frozen_tables(_core.OwnRateTables(self.DhT, self.rate0))
 
     def apply_linear(self, V, out, inverse: bool, launch: int) -> int:
         return _core.linear(self._linear, V, (out,), inverse, launch)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._kernels import function as kernels
+from .._kernels._core import frozen_tables
 from .base import Engine
 
 
@@ -17,7 +18,7 @@ class FunctionEngine(Engine):
     def __init__(self, Dh, func):
         self.Dh, self.func = Dh, func
         self.n, self.d = Dh.shape
-        self._tables = kernels.FunctionTables(np.ascontiguousarray(Dh.T))
+        self._tables = frozen_tables(kernels.FunctionTables(np.ascontiguousarray(Dh.T)))
         self._apply_batch, self._times_batch = kernels.batches(func)
 
     @classmethod

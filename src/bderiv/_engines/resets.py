@@ -17,6 +17,7 @@ import scipy.linalg
 
 from .._format import MASK_MEANING, format_mask
 from .._kernels import resets as kernels
+from .._kernels._core import frozen_tables
 from .._limits import CHECK_ROWS
 from .._tables import blocks, dense_table_bytes
 from .._validate import check_finite, check_memory, check_number, check_real_array
@@ -193,8 +194,8 @@ class ResetEngine(Engine):
         """The tables of ``_kernels/resets`` for resets P, Q in this engine's form."""
         DhP = (np.ascontiguousarray(_transposed(self.Dh @ P)) if self.low
                else np.zeros((1, 1, 1, 1)))
-        return kernels.ResetTables(self._DhT, self._F, self._G, _transposed(P), _transposed(Q),
-                                   DhP, self.low)
+        return frozen_tables(kernels.ResetTables(self._DhT, self._F, self._G, _transposed(P),
+                                          _transposed(Q), DhP, self.low))
 
     @classmethod
     def build(cls, Dh, F, resets, transversality_tol, reset_tol, memory_limit,

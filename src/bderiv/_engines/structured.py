@@ -6,6 +6,7 @@ import numpy as np
 
 from .._format import format_happened
 from .._kernels import structured as kernels
+from .._kernels._core import frozen_tables
 from .._limits import PROOF_MARGIN
 from .._tables import padded
 from . import fastpath
@@ -36,7 +37,7 @@ class StructuredEngine(Engine):
         self.fast = fastpath.structured(Dh, g0, a, bDh, A, B) if fast_paths else None
         self._own = None  # the own-rates fast path's tables, forwards and backwards
         if self.fast is not None and self.fast.kind == "own-rates":
-            self._own = tuple(kernels.StructuredOwnTables(DhT, rate, pairs, A, B)
+            self._own = tuple(frozen_tables(kernels.StructuredOwnTables(DhT, rate, pairs, A, B))
                               for rate in (self.fast.rate0, self.fast.ratef))
 
     def _check_transversal(self, g0, gfull, a, bDh, n_pairs) -> bool:
@@ -93,10 +94,10 @@ def _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B, check):
     counts = np.bincount(ev, minlength=n)
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=ptr[1:])
-    return kernels.StructuredTables(
+    return frozen_tables(kernels.StructuredTables(
         padded(DhT, 8 * nc), padded(np.stack([g0, gfull]), 8 * nc, 1.0),
         padded(a, 8 * nc), padded(bDh, 8 * nc), ptr,
         np.ascontiguousarray(partner[srt], dtype=np.int64),
         np.ascontiguousarray(pid[srt], dtype=np.int64),
         padded(np.vstack([A, B]), 8 * dc), padded(np.arange(n)[None], 8 * nc, np.inf),
-        n, d, nc, dc, p, int(counts.max(initial=0)), int(check))
+        n, d, nc, dc, p, int(counts.max(initial=0)), int(check)))

@@ -73,7 +73,7 @@ KEY_DIGITS = 16
 def sources_digest(folder, *files) -> str:
     """The first :data:`KEY_DIGITS` hex digits of the sha256 of the ``*.py`` files of
     ``folder`` (names and contents, in name order), then of ``files`` (the modules outside
-    ``folder`` whose values are compiled in: ``bderiv._limits``)."""
+    ``folder`` whose values are compiled in: ``bderiv._numerics``)."""
     h = hashlib.sha256()
     for path in [*sorted(pathlib.Path(folder).glob("*.py")), *map(pathlib.Path, files)]:
         h.update(path.name.encode() + b"\0" + path.read_bytes())

@@ -12,7 +12,10 @@ a later one as a second per-query input (the tangent vectors of jvp/vjp).
 it. Every query is computed by the same serial code whatever the driver, the thread count
 or the split into tasks and launches, so results are bitwise independent of all three.
 
-No validation here: callers pass C-contiguous arrays of consistent shapes.
+No validation here: callers pass C-contiguous arrays of consistent shapes. What a kernel
+only reads (queries, tables, tangents) it gets read-only (:func:`read_only`,
+:func:`frozen_tables`, applied by :class:`Batch` and the Python wrappers): a writeable and a
+read-only array are two numba types, and each would compile the kernel once more.
 """
 
 from __future__ import annotations
@@ -29,14 +32,9 @@ import numba
 import numpy as np
 from numba import njit, parallel_chunksize, prange
 
-from .. import _limits
-from .._limits import (
-    INSERTION_SORT_MAX,
-    LAUNCH_WORK,
-    PARALLEL_MIN_QUERIES,
-    QUERY_BAND,
-    TASK_QUERIES,
-)
+from .. import _numerics
+from .._limits import LAUNCH_WORK, PARALLEL_MIN_QUERIES
+from .._numerics import INSERTION_SORT_MAX, QUERY_BAND, TASK_QUERIES
 from ._cache import harden_all, keyed, sources_digest
 from ._simd import bits_float, float_bits
 
@@ -48,8 +46,8 @@ from ._simd import bits_float, float_bits
 JIT = {"error_model": "numpy"}
 
 #: the digest of this package's sources and of the numbers compiled into them
-#: (``bderiv._limits``) that names every cached kernel (``_cache.keyed``)
-SOURCES = sources_digest(pathlib.Path(__file__).parent, _limits.__file__)
+#: (``bderiv._numerics``) that names every cached kernel (``_cache.keyed``)
+SOURCES = sources_digest(pathlib.Path(__file__).parent, _numerics.__file__)
 
 
 def cached(fn=None, *, parallel: bool = False):
@@ -66,6 +64,22 @@ PLAIN = _KERNELS == "plain"
 if _KERNELS not in ("", "plain", "simd"):
     warnings.warn(f"BDERIV_KERNELS={_KERNELS!r} is not 'plain' or 'simd'; using the "
                   f"default (simd) kernels", RuntimeWarning, stacklevel=1)
+
+
+def read_only(a: np.ndarray) -> np.ndarray:
+    """``a`` read-only (a view when it is writeable): the one form in which kernels get the
+    arrays they only read, so that each compiles once, not once per writeability."""
+    if a.flags.writeable:
+        a = a.view()
+        a.flags.writeable = False
+    return a
+
+
+def frozen_tables(tables):
+    """A named tuple of tables with every array :func:`read_only` (itself when it is)."""
+    if not any(isinstance(x, np.ndarray) and x.flags.writeable for x in tables):
+        return tables
+    return type(tables)(*(read_only(x) if isinstance(x, np.ndarray) else x for x in tables))
 
 
 def launch_queries(n: int, d: int) -> int:
@@ -164,8 +178,10 @@ class Batch:
         """Run the block on every row of ``V``; ``launch``: queries per kernel launch.
 
         Returns the number of rows of ``outs[0]`` with a non-finite entry (an overflow, or a
-        query that a model's kernel stopped and left unwritten).
+        query that a model's kernel stopped and left unwritten). ``tables`` and ``V`` are
+        run read-only (:func:`frozen_tables`, :func:`read_only`).
         """
+        tables, V = frozen_tables(tables), read_only(V)
         m = V.shape[0]
         if m < PARALLEL_MIN_QUERIES:
             return self.serial(tables, V, outs, inverse)

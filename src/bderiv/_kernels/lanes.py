@@ -47,7 +47,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._limits import QUERY_BAND
+from .._numerics import QUERY_BAND
 from . import _simd as vec
 from ._core import JIT, batch, write_times
 

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 from numba import njit, prange
 
-from .._limits import QUERY_BAND, SERIAL_ENTRIES
-from ._core import JIT, cached, factors, row_exponent, serialised
+from .._limits import SERIAL_ENTRIES
+from .._numerics import QUERY_BAND
+from ._core import JIT, cached, factors, read_only, row_exponent, serialised
 
 
 def _small(A):
@@ -30,6 +31,7 @@ def _small(A):
 def scale_rows(V, out, exps):
     """``out[q] = 2**-e V[q]`` and ``exps[q] = e`` (:func:`row_exponent`), on all threads
     (serially for a small batch)."""
+    V = read_only(V)
     if _small(V):
         return _scale_rows_serial(V, out, exps)
     return serialised(_scale_rows, V, out, exps)
@@ -46,6 +48,7 @@ def unscale_rows(out, exps, shift):
 def outside_band(V, exps):
     """``exps[q]``: the :func:`row_exponent` of each row (read only); returns how many
     rows are beyond ``_core.QUERY_BAND`` (those need :func:`scale_rows`)."""
+    V = read_only(V)
     if _small(V):
         return _outside_band_serial(V, exps)
     return serialised(_outside_band, V, exps)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._format import format_mask, transversality_message
-from .._limits import RESET_MISMATCH
+from .._numerics import RESET_MISMATCH
 from .._tables import block_bits
 from ..bderivative import BDerivative
 from ..flowmap import FlowBDerivative

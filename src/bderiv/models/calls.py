@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import _numdiff as numdiff
 from .._format import format_mask
-from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
+from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
 from .._validate import all_finite, check_bool, check_positive_int, check_real_array
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel
 from .readiness import ready_now
@@ -35,10 +35,6 @@ _log = logging.getLogger("bderiv")
 
 #: how a Jacobian not given is computed (the first use of each function and mask decides)
 _COMPLEX, _CENTRAL = "complex step", "central differences"
-#: a build (flow map, return map) longer than this, most of it in numerical Jacobians, is
-#: reported at WARNING (a judgement: a pause a user notices; here, not in ``_limits``, whose
-#: numbers are compiled into the kernels)
-SLOW_BUILD_SECONDS = 2.0
 
 
 def _matches(fun, x, J) -> bool:

@@ -4,7 +4,8 @@ Numba invalidates a cached function when its own file changes, not when a functi
 calls (and compiled into it) does: after an edit of ``_rhs.py`` the driver and the steps
 would load the old right-hand side from the cache. Every kernel here is therefore cached
 under a name that ends with a digest of all of ``compiled/``'s sources and of
-``bderiv._limits`` (whose numbers are compiled in), by numba's own cache, in bderiv's
+``bderiv._numerics`` (whose numbers are compiled in; ``bderiv._limits``, Python-only
+defaults, keys nothing), by numba's own cache, in bderiv's
 checked cache files (:func:`bderiv._kernels._cache.rekey`: a damaged entry is compiled
 again, never run).
 """
@@ -17,7 +18,7 @@ import sys
 from numba import njit
 from numba.core.dispatcher import Dispatcher
 
-from ... import _limits
+from ... import _numerics
 from ..._kernels._cache import harden, rekey, sources_digest
 
 
@@ -38,13 +39,18 @@ def eager(signature):
     return decorate
 
 
+def sources_key() -> str:
+    """The digest of ``compiled/``'s sources and of ``bderiv._numerics``."""
+    return sources_digest(pathlib.Path(__file__).parent, _numerics.__file__)
+
+
 def key_all_kernels() -> None:
     """Give every lazily compiled, cached kernel of ``bderiv.models.compiled`` the sources key.
 
     (The few kernels with an explicit signature compile at import, before this runs: they
     call nothing of the package.)
     """
-    digest = sources_digest(pathlib.Path(__file__).parent, _limits.__file__)
+    digest = sources_key()
     for name, module in list(sys.modules.items()):
         if not name.startswith(__package__ + ".") or module is None:
             continue

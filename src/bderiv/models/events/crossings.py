@@ -23,7 +23,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._format import format_mask, transversality_message
-from ..._limits import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
+from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
+from ..._validate import frozen
 from ..compiled import rules
 from .locate import examine, flags_of, orientation, state_error
 
@@ -124,11 +125,11 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     >>> group_tolerance(np.array([[1.0, 0.0]]), SolverOptions(), np.array([1e-3, 500.0]))
     array([1.1e-11])
     """
-    Dh = np.ascontiguousarray(Dh, dtype=np.float64)
+    Dh = frozen(Dh)
     err = state_error(options.atol, options.rtol,
                       np.broadcast_to(np.asarray(scale, dtype=np.float64), Dh.shape[1:]))
     out = np.empty(Dh.shape[0])
-    rules.tolerances(Dh, err, out)
+    rules.tolerances(Dh, frozen(err), out)
     return out
 
 
@@ -257,10 +258,9 @@ def landing(system, group, mask, x_after, window, t=None):
     if kept:  # some bounced: the rates in the region the state goes on in (the decisions
         # above read the region with every bit flipped)
         after = new ^ kept
-        F = np.ascontiguousarray(system.eval_field(x_after, after), dtype=np.float64)
-        k = rules.first_sent_back(flags_of(group, n), np.ascontiguousarray(h),
-                                  np.ascontiguousarray(window, dtype=np.float64),
-                                  np.int64(kept), np.ascontiguousarray(Dh), F)
+        F = frozen(system.eval_field(x_after, after))
+        k = rules.first_sent_back(flags_of(group, n), frozen(h), frozen(window),
+                                  np.int64(kept), frozen(Dh), F)
         if k >= 0:
             way = "bounced: the bit kept" if kept >> k & 1 else "crossed: the bit flipped"
             at = "" if t is None else f" at t={t:.10g}"
@@ -282,10 +282,8 @@ def holds(system, x, far, near, F_far=None, F_near=None) -> bool:
     its own (:func:`bderiv.models.compiled.rules.same_flow`)."""
     F_far = system.eval_field(x, far) if F_far is None else F_far
     F_near = system.eval_field(x, near) if F_near is None else F_near
-    J_far, J_near = (np.ascontiguousarray(system.eval_field_jacobian(x, m), dtype=np.float64)
-                     for m in (far, near))
-    return not rules.same_flow(np.ascontiguousarray(F_near, dtype=np.float64),
-                               np.ascontiguousarray(F_far, dtype=np.float64), J_near, J_far)
+    J_far, J_near = (frozen(system.eval_field_jacobian(x, m)) for m in (far, near))
+    return not rules.same_flow(frozen(F_near), frozen(F_far), J_near, J_far)
 
 
 def _refuse_unheld(k, h, window, rate, far, sign, n, t):
@@ -313,8 +311,7 @@ def _refuse_unheld(k, h, window, rate, far, sign, n, t):
 def _clearly_positive(dh, F) -> bool:
     """Whether the rate ``dh . F`` is positive beyond the grazing threshold
     (``GRAZING_RTOL |dh| |F|``: :func:`bderiv.models.compiled.rules.clearly_positive`)."""
-    return bool(rules.clearly_positive(np.ascontiguousarray(dh, dtype=np.float64),
-                                       np.ascontiguousarray(F, dtype=np.float64)))
+    return bool(rules.clearly_positive(frozen(dh), frozen(F)))
 
 
 def apply_resets(system, group, mask, x, t, accuracy):
@@ -365,7 +362,7 @@ def _check_crossings(group, flags, Dh, F, mask, when, t, sign, n):
     ``Dh_k . F`` in region ``mask`` is not clearly positive (:func:`_clearly_positive`):
     grazing, or pushed back (``when``: "before" or "after" switching the group; ``Dh`` and
     ``sign``: the gradients and signs of the local orientation, all n events)."""
-    k = rules.first_grazing(flags, Dh, np.ascontiguousarray(F, dtype=np.float64))
+    k = rules.first_grazing(flags, frozen(Dh), frozen(F))
     if k >= 0:
         _refuse_crossing(k, Dh[k], F, mask, f"{when} switching events {group}", t, sign[k], n)
 

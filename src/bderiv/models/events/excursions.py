@@ -62,7 +62,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from ..._limits import FINE_REACH, FINE_SAMPLES, PEAK_XTOL, REACH
+from ..._limits import PEAK_XTOL
+from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
+from ..._validate import frozen
 from ..compiled import rules
 from .crossings import group_tolerance
 from .locate import StopCalls, local_rates
@@ -79,7 +81,7 @@ def sample_times(ends: np.ndarray) -> np.ndarray:
     array([0. , 0.5, 1. , 2. , 3. ])
     """
     out = np.empty(2 * ends.size - 1)
-    rules.sample_times(np.ascontiguousarray(ends, dtype=np.float64), out)
+    rules.sample_times(frozen(ends), out)
     return out
 
 
@@ -119,8 +121,7 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH)
     m = h.shape[0]
     if m < 2:
         return []
-    rows = rules.peak_rows(np.ascontiguousarray(h, dtype=np.float64),
-                     np.ascontiguousarray(tol, dtype=np.float64), bool(stretch), float(reach))
+    rows = rules.peak_rows(frozen(h), frozen(tol), bool(stretch), float(reach))
     out = [(k, max(i - 1, 0), min(i + 1, m - 1)) for k, i in rows.tolist()]
     return sorted(out, key=lambda b: (b[1], b[0]))
 
@@ -298,10 +299,10 @@ def _back_in_first_step(system, mask, sign, sol, h, tol):
         return None
     d, x_stop = system.dim, sol.y[:system.dim, -1]
     Dh = sign[:, None] * system.eval_event_jacobian(x_stop)
-    F = np.ascontiguousarray(system.eval_field(x_stop, mask), dtype=np.float64)
+    F = frozen(system.eval_field(x_stop, mask))
     for k in range(sign.size):
         if not (sol.t_events[k].size and abs(h[0, k]) <= tol[k]) or rules.clearly_positive(
-                np.ascontiguousarray(Dh[k]), F):
+                frozen(Dh[k]), F):
             continue
 
         def below(t, k=k):
@@ -324,7 +325,7 @@ def _return(h, tol):
     step: both step ends read across, no sign change. Integrated again to the lowest
     sample before the return, the stretch has a step end below the surface there.
     """
-    i = rules.return_sample(np.ascontiguousarray(h), np.ascontiguousarray(tol))
+    i = rules.return_sample(frozen(h), frozen(tol))
     return None if i < 0 else int(i)
 
 
@@ -347,7 +348,7 @@ def _start_dip(h, tol, times, value):
     member leaving at a small rate (-8.8e-5, back 5.7e-5 later, 1.2e-9 deep), else lost.
     """
     found = None
-    for k, j in rules.start_dip_steps(np.ascontiguousarray(h)).tolist():
+    for k, j in rules.start_dip_steps(frozen(h)).tolist():
         if found is not None and times[2 * j] >= found[1]:
             continue
         t_low, low = peak_of(lambda t, k=k: -value(t, k), times[2 * j], times[2 * j + 2])

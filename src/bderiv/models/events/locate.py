@@ -30,7 +30,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._format import format_mask
-from ..._limits import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
+from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
+from ..._validate import frozen
 from ..compiled import rules
 
 __all__ = [
@@ -74,8 +75,8 @@ def state_error(atol, rtol, scale, carried=0.0) -> np.ndarray:
     >>> state_error(1e-12, 1e-10, np.array([500.0, 1e-3]))
     array([5.0001e-07, 1.1000e-11])
     """
-    scale = np.ascontiguousarray(scale, dtype=np.float64)
-    carried = np.ascontiguousarray(np.broadcast_to(carried, scale.shape), dtype=np.float64)
+    scale = frozen(scale)
+    carried = frozen(np.broadcast_to(carried, scale.shape))
     out = np.empty(scale.shape)
     rules.state_error(float(atol), float(rtol), scale, carried, out)
     return out
@@ -113,7 +114,7 @@ def windows(Dh, rate, err, fired):
     (1e-07, [1.01e-07, 2e-11])
     """
     window = np.empty(rate.size)
-    u = rules.windows(Dh, rate, err, flags_of(fired, rate.size), window)
+    u = rules.windows(frozen(Dh), frozen(rate), frozen(err), flags_of(fired, rate.size), window)
     return window, float(u)
 
 
@@ -196,7 +197,8 @@ def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     [1]
     """
     codes = np.empty(h.size, dtype=np.int64)
-    rules.classify(h, rate, window, flags_of(fired, h.size), float(simultaneity_tol), codes)
+    rules.classify(frozen(h), frozen(rate), frozen(window), flags_of(fired, h.size),
+                   float(simultaneity_tol), codes)
     return Classes.of(codes)
 
 
@@ -352,9 +354,9 @@ def _local_view(system, mask, x):
 def local_rates(sign, J, F):
     """The gradients ``Dh = sign J`` (n, d) in the local orientation ``sign`` (n,) and the
     rates ``Dh . F`` (n,) of the event Jacobian ``J`` (n, d) in the field ``F`` (d,)."""
-    J = np.ascontiguousarray(J, dtype=np.float64)
+    J = frozen(J)
     Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
-    rules.local_rates(sign, J, np.ascontiguousarray(F, dtype=np.float64), Dh, rate)
+    rules.local_rates(frozen(sign), J, frozen(F), Dh, rate)
     return Dh, rate
 
 
@@ -520,8 +522,8 @@ def check_sides(h, mask, window, t):
     (bit k set: h_k > 0) says h_1 < 0; the run lost track of a crossing (an internal error:
     please report it with the model)
     """
-    h = np.ascontiguousarray(h, dtype=np.float64)
-    k = rules.wrong_side(h, int(mask), np.ascontiguousarray(window, dtype=np.float64))
+    h = frozen(h)
+    k = rules.wrong_side(h, int(mask), frozen(window))
     if k < 0:
         return
     says = ">" if mask >> k & 1 else "<"

@@ -1,0 +1,92 @@
+"""Each kernel compiles once per genuinely different need (issue 36): writeable and read-only
+inputs reach the kernels in one form (read-only), and ``tools/specializations.py`` counts
+the signatures.
+
+The workload runs in a fresh process: the signatures a dispatcher holds are those of every
+call in its process, and other tests call kernels directly with arrays of their own.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+#: every entry point below called with writeable and with read-only arrays
+WORKLOAD = r"""
+import importlib.util, json, sys
+from types import SimpleNamespace
+import numpy as np
+from bderiv import BDerivative
+from bderiv.models.events import crossings, locate
+
+spec = importlib.util.spec_from_file_location("spec_tool", sys.argv[1])
+tool = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(tool)
+
+def both(a):
+    r = np.array(a, dtype=np.float64)
+    r.flags.writeable = False
+    return np.array(a, dtype=np.float64), r
+
+Dh = np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]])
+F = np.array([[1.0, 1.0, 0.5], [0.8, 1.2, 0.4], [1.1, 0.7, 0.6], [0.9, 0.9, 0.3]])
+V = np.random.default_rng(0).standard_normal((5, 3))
+for bd in (BDerivative(Dh, F), BDerivative(*both(Dh)[1:], *both(F)[1:])):
+    for X in both(V):
+        bd(X), bd.inverse(X), bd.event_times(X), bd.jvp(X, X), bd.vjp(X, X)
+        bd.piece(np.array([1, 0]))
+for scale in both([500.0, 1e-3]):
+    for carried in both([0.0, 1e-9]):
+        locate.state_error(1e-12, 1e-10, scale, carried)
+for D in both(Dh):
+    for rate in both([1.0, 1e-4]):
+        locate.windows(D, rate, np.array([1e-9, 1e-11]), [1])
+        locate.classify(np.array([0.0, -1e-12]), rate, np.full(2, 1e-9), [0], 1e-10)
+    crossings.group_tolerance(D, SimpleNamespace(atol=1e-12, rtol=1e-10), 1.0)
+print("JSON" + json.dumps(tool.collect()))
+"""
+
+
+def _signatures():
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    env.pop("BDERIV_SPECIALIZATIONS", None)
+    out = subprocess.run([sys.executable, "-c", WORKLOAD, str(ROOT / "tools" /
+                                                             "specializations.py")],
+                         capture_output=True, text=True, env=env, timeout=600, check=True)
+    return json.loads(out.stdout.split("JSON", 1)[1])
+
+
+def test_writeable_and_read_only_inputs_compile_each_kernel_once():
+    table = _signatures()
+    more = {name: e["signatures"] for name, e in table.items()
+            if e["cached"] and len(e["signatures"]) > 1}
+    assert not more, more
+    # the workload reached the kernels it is about
+    names = {name for name, e in table.items() if e["signatures"]}
+    for kernel in ("rules:state_error", "rules:windows", "rules:classify", "rules:tolerances",
+                   "_core:piece_from_corners", "scaling:_scale_rows_serial"):
+        assert any(name.endswith(kernel) for name in names), kernel
+
+
+def test_the_tool_merges_the_tables_of_processes(tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("spec_tool", ROOT / "tools" /
+                                                  "specializations.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    a = {"m:f": {"signatures": ["(int64,)"], "instances": 1, "cached": True}}
+    b = {"m:f": {"signatures": ["(float64,)", "(int64,)"], "instances": 2, "cached": True},
+         "m:g": {"signatures": [], "instances": 1, "cached": False}}
+    for name, t in (("gw0-1.json", a), ("gw1-2.json", b)):
+        (tmp_path / name).write_text(json.dumps(t))
+    merged = tool.merge(sorted(tmp_path.glob("*.json")))
+    assert merged["m:f"] == {"signatures": ["(float64,)", "(int64,)"], "instances": 2,
+                             "cached": True}
+    assert "| `m:f` | yes | 2 | 2 |" in tool.render(merged)
+    assert "2 dispatchers, 2 signatures" in tool.render(merged)
