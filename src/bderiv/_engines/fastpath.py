@@ -19,7 +19,8 @@ import numpy as np
 
 from .. import _tables
 from .._kernels import _core
-from .._limits import FAST_RTOL, INSERTION_SORT_MAX
+from .._limits import FAST_RTOL
+from .._numerics import INSERTION_SORT_MAX
 
 
 class FastPath:
