@@ -163,3 +163,16 @@ def ctrl_c_after(seconds):
     finally:
         timer.cancel()
         signal.signal(signal.SIGINT, previous)
+
+
+def on_path(path, field, field_jacobian, events, event_jacobian, *, n_events, dim, params):
+    """A model of four Python functions on ``path``: ``"compiled"`` (their ``numba.njit``
+    twins, on the compiled integrator) or ``"python"`` (scipy's ``solve_ivp``)."""
+    fns = (field, field_jacobian, events, event_jacobian)
+    if path == "compiled":
+        fns = tuple(numba.njit(f) for f in fns)
+    f, fj, ev, ej = fns
+    system = HybridSystem(f, ev, n_events=n_events, dim=dim, field_jacobian=fj,
+                          event_jacobian=ej, params=params)
+    assert (system.compiled is not None) == (path == "compiled")
+    return system

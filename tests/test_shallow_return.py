@@ -15,11 +15,9 @@ surface its bit says (both paths: the compiled run hands the stretch to the Pyth
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
-
-from bderiv import HybridSystem
+from compiled_models import on_path
 
 EPS, A = 1e-5, 1.0
 
@@ -52,14 +50,8 @@ def event_jacobian(x):
 
 
 def model(path, c):
-    fns = (field, field_jacobian, events, event_jacobian)
-    if path == "compiled":
-        fns = tuple(numba.njit(f) for f in fns)
-    f, fj, ev, ej = fns
-    system = HybridSystem(f, ev, n_events=2, dim=3, field_jacobian=fj, event_jacobian=ej,
-                          params=np.array([EPS, A, c]))
-    assert (system.compiled is not None) == (path == "compiled")
-    return system
+    return on_path(path, field, field_jacobian, events, event_jacobian, n_events=2, dim=3,
+                   params=np.array([EPS, A, c]))
 
 
 def closed_form(c, T):

@@ -13,11 +13,9 @@ from __future__ import annotations
 
 import re
 
-import numba
 import numpy as np
 import pytest
-
-from bderiv import HybridSystem
+from compiled_models import on_path
 
 X0 = np.array([1.0, 1e-3])
 #: the field of each quadrant's mask (bit 0: x > 0, bit 1: y > 0) in units (1, K)
@@ -52,14 +50,8 @@ def event_jacobian(x):
 
 
 def spiral(path, K):
-    fns = (field, field_jacobian, events, event_jacobian)
-    if path == "compiled":
-        fns = tuple(numba.njit(f) for f in fns)
-    f, fj, ev, ej = fns
-    system = HybridSystem(f, ev, n_events=2, dim=2, field_jacobian=fj, event_jacobian=ej,
-                          params=np.array([K]))
-    assert (system.compiled is not None) == (path == "compiled")
-    return system
+    return on_path(path, field, field_jacobian, events, event_jacobian, n_events=2, dim=2,
+                   params=np.array([K]))
 
 
 def closed_form(K, T):
