@@ -44,7 +44,7 @@ def _assigned(tree) -> set:
     return names
 
 
-#: the names ``_limits`` defines itself (its re-exports of ``_numerics`` are not its own)
+#: the names ``_limits`` defines
 PYTHON_ONLY = _assigned(ast.parse(pathlib.Path(_limits.__file__).read_text()))
 
 

@@ -18,36 +18,15 @@ listed, samples drawn, colours).
 The numbers that njit code reads are in ``bderiv._numerics``: numba compiles them in, so
 that file keys the kernels' disk caches; this one keys none (editing a default here
 compiles nothing again). No njit function may read a value of this module
-(``tests/test_numerics.py``). The names imported below are ``_numerics``'s, kept
-importable from here for the integrator's kernel modules that still import them from
-``_limits`` (``models/compiled/_rhs.py``, ``_run.py``, ``_stops.py``, ``_watch.py``,
-``rules.py``): their values are ``_numerics``'s, so its digest covers them.
+(``tests/test_numerics.py``).
 
-This module imports nothing of bderiv but ``_numerics``: with it, the bottom of the layers
+This module imports nothing of bderiv: with ``_numerics``, the bottom of the layers
 (docs/design.md); every module, the kernels included, may import both. To change a value,
 change it here: modules take the value when they import it, so assigning to this module at
 run time changes nothing.
 """
 
 from __future__ import annotations
-
-from ._numerics import (  # noqa: F401 - see the docstring
-    CENTRAL_STEP,
-    COMPLEX_STEP,
-    EVENT_MAX_ITER,
-    EVENT_RTOL,
-    EVENT_XTOL,
-    FINE_REACH,
-    FINE_SAMPLES,
-    GLOBAL_ERROR_FACTOR,
-    GRAZING_RTOL,
-    MIN_RTOL,
-    ORDERS_CHECKED,
-    REACH,
-    REFINE_FACTOR,
-    RESET_MISMATCH,
-    SCALE_FLOOR,
-)
 
 # --- integration ------------------------------------------------------------------------
 

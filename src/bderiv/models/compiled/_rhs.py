@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, types
 
-from ..._limits import CENTRAL_STEP, COMPLEX_STEP, SCALE_FLOOR
+from ..._numerics import CENTRAL_STEP, COMPLEX_STEP, SCALE_FLOOR
 from ._cached import eager
 
 OK = 0

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..._limits import (
+from ..._numerics import (
     MIN_RTOL,
     REFINE_FACTOR,
     RESET_MISMATCH,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..._limits import COMPLEX_STEP, FINE_REACH, FINE_SAMPLES, ORDERS_CHECKED, REACH
+from ..._numerics import COMPLEX_STEP, FINE_REACH, FINE_SAMPLES, ORDERS_CHECKED, REACH
 from ._dop853 import dense_rows
 from ._rhs import (
     OK,

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..._limits import EVENT_MAX_ITER, EVENT_RTOL, EVENT_XTOL
+from ..._numerics import EVENT_MAX_ITER, EVENT_RTOL, EVENT_XTOL
 from ._dop853 import dense_eval
 from ._rhs import OK, call_events
 

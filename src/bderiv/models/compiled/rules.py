@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..._limits import GLOBAL_ERROR_FACTOR, GRAZING_RTOL
+from ..._numerics import GLOBAL_ERROR_FACTOR, GRAZING_RTOL
 
 #: the codes of :func:`classify`: switched with the group; within ``simultaneity_tol`` of
 #: crossing but not at the stop (switched at its own time, later); at the stop with a time

@@ -33,7 +33,8 @@ import numpy as np
 from scipy.integrate import OdeSolver
 
 from ..._format import format_mask
-from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, GLOBAL_ERROR_FACTOR, MAX_GROUPS, MIN_RTOL
+from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, MAX_GROUPS
+from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL
 from ..._progress import SimulationProgress
 from ..._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
