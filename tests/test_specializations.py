@@ -22,7 +22,8 @@ import importlib.util, json, sys
 from types import SimpleNamespace
 import numpy as np
 from bderiv import BDerivative
-from bderiv.models.events import crossings, locate
+from bderiv.models.compiled import rules
+from bderiv.models.events import crossings, excursions, locate
 
 spec = importlib.util.spec_from_file_location("spec_tool", sys.argv[1])
 tool = importlib.util.module_from_spec(spec)
@@ -48,6 +49,15 @@ for D in both(Dh):
         locate.windows(D, rate, np.array([1e-9, 1e-11]), [1])
         locate.classify(np.array([0.0, -1e-12]), rate, np.full(2, 1e-9), [0], 1e-10)
     crossings.group_tolerance(D, SimpleNamespace(atol=1e-12, rtol=1e-10), 1.0)
+# the stop rules the compiled run calls too, on its writeable scratch (_validate.scratch)
+for h in both([[1e-16, -1.0], [2e-16, -0.5], [3e-16, -0.2]]):
+    excursions._start_dip(h, np.full(2, 1e-9), np.array([0.0, 0.5, 1.0]), lambda t, k: 1.0)
+    locate.check_sides(h[0], 0b00, both([1e-9, 1e-9])[1], 0.5)
+    crossings._clearly_positive(h[1], h[2])
+# ... as the compiled run's own calls type them (writeable, C-contiguous; from njit code)
+H = np.array([[1e-16, -1.0], [2e-16, -0.5], [3e-16, -0.2]])
+rules.start_dip_steps(H), rules.wrong_side(H[0], 0, np.full(2, 1e-9))
+rules.clearly_positive(H[1], H[2])
 print("JSON" + json.dumps(tool.collect()))
 """
 
@@ -69,6 +79,7 @@ def test_writeable_and_read_only_inputs_compile_each_kernel_once():
     # the workload reached the kernels it is about
     names = {name for name, e in table.items() if e["signatures"]}
     for kernel in ("rules:state_error", "rules:windows", "rules:classify", "rules:tolerances",
+                   "rules:start_dip_steps", "rules:wrong_side", "rules:clearly_positive",
                    "_core:piece_from_corners", "scaling:_scale_rows_serial"):
         assert any(name.endswith(kernel) for name in names), kernel
 

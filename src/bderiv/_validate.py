@@ -150,6 +150,17 @@ def frozen(a, dtype=np.float64) -> np.ndarray:
     return arr
 
 
+def scratch(a, dtype=np.float64) -> np.ndarray:
+    """``a`` in the form the compiled run passes its own arrays to the stop rules it shares
+    with the Python loop (``rules.clearly_positive``, ``wrong_side``, ``start_dip_steps``):
+    C-contiguous, of ``dtype``, writeable (``a`` itself when it is; a copy otherwise).
+
+    The compiled run can only pass writeable arrays, so the Python loop passes those
+    rules the same type, and each compiles once (:func:`frozen` is the form of the rest).
+    """
+    return np.require(a, dtype=dtype, requirements=["C", "W"])
+
+
 def check_out(out, shape: tuple[int, ...], name: str = "out") -> np.ndarray:
     """Check a user ``out`` array: float64, C-contiguous, writeable, of the given shape."""
     if not isinstance(out, np.ndarray):

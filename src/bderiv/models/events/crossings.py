@@ -24,7 +24,7 @@ import numpy as np
 
 from ..._format import format_mask, transversality_message
 from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
-from ..._validate import frozen
+from ..._validate import frozen, scratch
 from ..compiled import rules
 from .locate import examine, flags_of, orientation, state_error
 
@@ -311,7 +311,7 @@ def _refuse_unheld(k, h, window, rate, far, sign, n, t):
 def _clearly_positive(dh, F) -> bool:
     """Whether the rate ``dh . F`` is positive beyond the grazing threshold
     (``GRAZING_RTOL |dh| |F|``: :func:`bderiv.models.compiled.rules.clearly_positive`)."""
-    return bool(rules.clearly_positive(frozen(dh), frozen(F)))
+    return bool(rules.clearly_positive(scratch(dh), scratch(F)))
 
 
 def apply_resets(system, group, mask, x, t, accuracy):

@@ -64,7 +64,7 @@ from scipy.optimize import minimize_scalar
 
 from ..._limits import PEAK_XTOL
 from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
-from ..._validate import frozen
+from ..._validate import frozen, scratch
 from ..compiled import rules
 from .crossings import group_tolerance
 from .locate import StopCalls, local_rates
@@ -299,10 +299,10 @@ def _back_in_first_step(system, mask, sign, sol, h, tol):
         return None
     d, x_stop = system.dim, sol.y[:system.dim, -1]
     Dh = sign[:, None] * system.eval_event_jacobian(x_stop)
-    F = frozen(system.eval_field(x_stop, mask))
+    F = scratch(system.eval_field(x_stop, mask))
     for k in range(sign.size):
         if not (sol.t_events[k].size and abs(h[0, k]) <= tol[k]) or rules.clearly_positive(
-                frozen(Dh[k]), F):
+                scratch(Dh[k]), F):
             continue
 
         def below(t, k=k):
@@ -348,14 +348,27 @@ def _start_dip(h, tol, times, value):
     member leaving at a small rate (-8.8e-5, back 5.7e-5 later, 1.2e-9 deep), else lost.
     """
     found = None
-    for k, j in rules.start_dip_steps(frozen(h)).tolist():
+    for k, j in rules.start_dip_steps(scratch(h)).tolist():
         if found is not None and times[2 * j] >= found[1]:
             continue
         t_low, low = peak_of(lambda t, k=k: -value(t, k), times[2 * j], times[2 * j + 2])
         # within its tol below the surface, a dip is a return when the event is clearly
         # across later (the sample would be kept across the surface its bit does not say)
-        if -low < -tol[k] or (-low < 0.0 and h[2 * j + 1:, k].max() > tol[k]):
+        later = 2 * j + 1 + int(np.argmax(h[2 * j + 1:, k]))
+        if -low < -tol[k] or (-low < 0.0 and h[later, k] > tol[k]):
             found = (j, t_low)
+        elif h[later, k] > tol[k]:
+            # never below the surface, yet clearly across later: a return deeper than
+            # nothing the dense output can show (a rate in the new region near the
+            # grazing threshold), or no crossing at all; neither can be located
+            raise ValueError(
+                f"event {k}, switched by the stop at t={times[0]:.10g}, never reads below "
+                f"its surface after it (its lowest value {-low:.3g} at t={t_low:.10g}) yet "
+                f"reads {h[later, k]:.3g} across it at t={times[later]:.10g}, beyond its "
+                f"accuracy {tol[k]:.3g}: the state went back across within a rounding of "
+                f"the surface, so whether and when it crossed cannot be decided (a grazing "
+                f"contact: the rate of event {k} in the region after the stop is near "
+                f"zero); tighten rtol and atol or move the start point")
     return found
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..._format import format_mask
 from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
-from ..._validate import frozen
+from ..._validate import frozen, scratch
 from ..compiled import rules
 
 __all__ = [
@@ -522,8 +522,8 @@ def check_sides(h, mask, window, t):
     (bit k set: h_k > 0) says h_1 < 0; the run lost track of a crossing (an internal error:
     please report it with the model)
     """
-    h = frozen(h)
-    k = rules.wrong_side(h, int(mask), frozen(window))
+    h = scratch(h)
+    k = rules.wrong_side(h, int(mask), scratch(window))
     if k < 0:
         return
     says = ">" if mask >> k & 1 else "<"
