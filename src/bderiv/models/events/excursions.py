@@ -41,7 +41,9 @@ and the midpoints of the steps (its dense output; :func:`sample_times`):
    :func:`_start_dip`: such an event whose samples all read across until it rises in a
    step (both ends and the midpoint) is searched for its lowest value in that step; more
    than ``tol_k`` below the surface, or below it at all when a later sample reads the
-   event clearly across (``h_k > tol_k``), it is a return the samples did not see either.
+   event clearly across (``h_k > tol_k``), it is a return the samples did not see either;
+   never below it at all but clearly across later, it is refused (a return within a
+   rounding of the surface, or none: undecidable).
 4. :func:`_back_in_first_step`: a stretch that stops within its first step at an event
    that started it at its surface, leaving it, with a rate at the stop not clearly that
    of a crossing, has a return inside that step that the integrator's root search placed
