@@ -1,9 +1,9 @@
 """Shared test set-up: hypothesis settings, a session fixture that warms the JIT, and the
 session fixtures of objects that take seconds to make (each made once per process).
 
-Rules for new tests (README, "Tests"): a case that takes more than a few seconds on a warm
-cache is marked ``slow`` and keeps a smaller case of the same check in the default run; an
-object that takes seconds and several files need is a session fixture here, never a
+Rules for new tests (docs/setup.md, "The tests"): a case that takes more than a few seconds
+on a warm cache is marked ``slow`` and keeps a smaller case of the same check in the default
+run; an object that takes seconds and several files need is a session fixture here, never a
 module-level computation (collection runs in every pytest-xdist worker); a nested pytest
 run passes ``-n 0``; timings live in benchmarks/ and run with ``-n 0``.
 
@@ -29,7 +29,7 @@ repeats a check at a size that only costs time; each keeps a smaller case in the
 
 CI runs the default run only (the slow set holds a timing that fails on a loaded machine
 and a compile of every lane kernel for another CPU); ``-m slow`` is for a change of the
-kernels or before a release (README, "Set-up").
+kernels or before a release (docs/setup.md, "The tests").
 """
 
 from __future__ import annotations

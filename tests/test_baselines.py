@@ -23,7 +23,7 @@ SIZES = [(1, 1), (2, 3), (3, 3), (4, 2), (5, 8)]
 
 
 def test_benchmark_system_is_the_one_the_suite_measured():
-    """The dense suite drew its systems from default_rng(1000 n + d) (README's table)."""
+    """The dense suite drew its systems from default_rng(1000 n + d) (docs/benchmarks.md)."""
     for n, d in [(2, 2), (4, 8), (8, 8)]:
         for got, want in zip(benchmark_system(n, d),
                              reference.random_system(np.random.default_rng(1000 * n + d), n, d),

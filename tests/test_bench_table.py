@@ -1,5 +1,5 @@
 """``tools/bench_table.py``: the time-per-query table it prints reads back into the same
-numbers (so README's figure is remade from README's table), and README's table does."""
+numbers (so the figure of docs/benchmarks.md is remade from its table), and that table does."""
 
 from __future__ import annotations
 
@@ -42,9 +42,9 @@ def test_the_printed_table_reads_back(tool, tmp_path):
                                    "work), min over rounds; BLAS: b"
 
 
-def test_readme_table_redraws_the_figure(tool, tmp_path):
+def test_benchmarks_page_table_redraws_the_figure(tool, tmp_path):
     pytest.importorskip("matplotlib")
-    evals, info = tool.load_markdown(str(ROOT / "README.md"))
+    evals, info = tool.load_markdown(str(ROOT / "docs" / "benchmarks.md"))
     assert evals[(8, 8, 10**6)][tool.APPLY] > 0 and "machine" in info
-    tool.main([str(ROOT / "README.md"), "--plot", str(tmp_path / "bench.png")])
+    tool.main([str(ROOT / "docs" / "benchmarks.md"), "--plot", str(tmp_path / "bench.png")])
     assert (tmp_path / "bench.png").stat().st_size > 10_000

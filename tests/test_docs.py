@@ -1,5 +1,7 @@
 """The documentation's code runs: the python blocks of README.md and docs/*.md.
 
+README.md is the front door (one example); the manual is the pages of docs/.
+
 The blocks of one file run in order in one namespace (the tutorial builds on earlier
 blocks), in a temporary directory; a failure points at the line in the markdown file.
 """
@@ -27,8 +29,8 @@ def blocks(path):
 
 def test_docs_are_there():
     names = {p.name for p in DOCS}
-    assert {"README.md", "tutorial.md", "mathematics.md"} <= names
-    assert len(blocks(ROOT / "README.md")) >= 3
+    assert {"README.md", "tutorial.md", "mathematics.md", "cli.md", "benchmarks.md"} <= names
+    assert len(blocks(ROOT / "README.md")) >= 1
 
 
 @pytest.mark.parametrize("path", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
@@ -77,8 +79,10 @@ def test_modules_import_without_extras():
 
 #: a command line in the docs: ``bderiv <command> ...`` or ``python -m bderiv <command> ...``
 COMMAND_LINE = re.compile(r"(?:python -m )?bderiv (demo|bench|plot|export|compile)\b([^`\n]*)")
-#: the files whose command lines are checked
-CLI_DOCS = [ROOT / "README.md", ROOT / "docs" / "tutorial.md"]
+#: the files whose command lines are checked: every page that names a command
+CLI_DOCS = [p for p in DOCS if COMMAND_LINE.search(p.read_text(encoding="utf-8"))]
+#: the page whose table names every option of every command
+CLI_PAGE = ROOT / "docs" / "cli.md"
 
 
 def command_lines(path):
@@ -98,7 +102,7 @@ def command_lines(path):
 
 @pytest.mark.parametrize("path", CLI_DOCS, ids=lambda p: p.name)
 def test_every_command_and_option_in_the_docs_exists(path):
-    """README and the tutorial name only commands, options and choices that the parser has
+    """The docs name only commands, options and choices that the parser has
     (and the parser reads the command lines of the bash blocks without error)."""
     from bderiv.cli.parser import build_parser
 
@@ -116,12 +120,12 @@ def test_every_command_and_option_in_the_docs_exists(path):
                 for choice in value.split("|"):  # a table's list of choices: a|b|c
                     typed = action.type(choice) if action.type else choice
                     assert typed in action.choices, f"{command} {option} {choice}"
-    if path.name == "README.md":  # the README's table names every option of every command
+    if path == CLI_PAGE:  # the command line's page names every option of every command
         for command, sub in parser.commands.items():
             options = {o for a in sub._actions for o in a.option_strings
                        if o.startswith("--") and a.help != argparse.SUPPRESS}  # not internal
             missing = options - {"--help"} - {o for c, o in named if c == command}
-            assert not missing, f"README does not name {sorted(missing)} of bderiv {command}"
+            assert not missing, f"cli.md does not name {sorted(missing)} of bderiv {command}"
 
 
 def test_bash_blocks_parse():

@@ -1,4 +1,4 @@
-"""Turn the JSON of ``benchmarks/test_bench_dense.py`` into README's Markdown tables and a plot.
+"""Turn the JSON of ``benchmarks/test_bench_dense.py`` into docs/benchmarks.md's tables and a plot.
 
 Usage::
 
@@ -12,12 +12,12 @@ and 4 with the measured value. Ratios are always between entries of one run.
 
 ``--plot`` writes the log-log figure of time per query against n (d = n, largest batch)
 of ``bderiv.plot.scaling``, the one of ``bderiv bench --plot`` (needs matplotlib), with
-the machine in small print. Given a Markdown file instead of the JSON (README.md), the
-tool reads back the time-per-query table it printed there and only redraws the figure:
-the figure of README's run is remade from README alone (3 significant digits; the BLAS
+the machine in small print. Given a Markdown file instead of the JSON (docs/benchmarks.md),
+the tool reads back the time-per-query table it printed there and only redraws the figure:
+the figure of the recorded run is remade from that page alone (3 significant digits; the BLAS
 time per query from the "% of BLAS" column, 2 digits)::
 
-    python tools/bench_table.py README.md --plot docs/bench_dense.png
+    python tools/bench_table.py docs/benchmarks.md --plot docs/bench_dense.png
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def load(path: str, stat: str = "min"):
 
 
 def load_markdown(path: str):
-    """(evals, info) read back from the Markdown of :func:`markdown` (in README.md): the
+    """(evals, info) read back from the Markdown of :func:`markdown` (in docs/benchmarks.md): the
     time per query of each contender by (n, d, m), the BLAS product's from the apply
     time and its percentage of the BLAS rate, and the "Measured ..." line's machine."""
     units = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -252,7 +252,8 @@ def machine_note(info, stat: str) -> str:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("json", help="pytest-benchmark JSON (--benchmark-json), or a Markdown "
-                   "file with the table this tool printed (README.md: redraw --plot only)")
+                   "file with the table this tool printed (docs/benchmarks.md: redraw --plot "
+                   "only)")
     p.add_argument("--plot", help="write a log-log PNG of time per query against n")
     p.add_argument("--stat", default="min", choices=("min", "median", "mean"),
                    help="statistic of the rounds (default min: least disturbed by other load)")

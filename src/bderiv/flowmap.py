@@ -488,7 +488,8 @@ def _stage(L, X, transpose: bool = False) -> np.ndarray:
 
     A numba kernel of the package (parallel over rows, in tasks) rather than BLAS: these
     products are thin, (m, d) x (d, d), and BLAS's own threads, on a machine whose cores
-    are busy, made their time swing 5x and more (README, issue 10); overflow gives inf.
+    are busy, made their time swing 5x and more (docs/concepts.md, "Gotchas"; issue 10);
+    overflow gives inf.
     """
     M = np.ascontiguousarray(L if transpose else L.T)  # the kernel combines rows of M
     out = np.empty((X.shape[0], M.shape[1]))

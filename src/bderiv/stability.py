@@ -5,7 +5,7 @@ map at a fixed point) is stable when ``|A^k v|`` decays for every direction v. T
 eigenvalues of its pieces do not decide this: a direction may visit several pieces in
 turn, and the product of pieces that it meets can grow while every piece is a
 contraction, or decay while a piece it visits has an eigenvalue above 1 in modulus. What
-decides is the **growth rate**
+decides is the **growth rate**::
 
     lambda = sup_v  lim_k |A^k v|^(1/k),
 

@@ -11,14 +11,8 @@ caches: see :func:`_step`), ``carry`` (1: the chain carries the position, see
 see :func:`_lane_apply_block`). A query is one row of ``V`` (m, d).
 
 The sizes are an int64 array, ``LaneTables.dims``, not four int fields: on two threads
-at n = d = 20 the int fields cost 6-14 % (``benchmarks/ab.py <src> --cases dense20 --ops
-apply,inverse --clock cpu --queries 200000``, CPU time, medians of 11 alternated rounds,
-two runs: apply 0.94 and 0.86, inverse 0.92 and 0.89 of their time with the array), the
-slowdown the named tables had shown against the positional ones before them (apply
-1.06-1.19, inverse 1.03-1.12 in three runs). On one thread the two ran alike (apply
-1.008, inverse 0.964), with the same vector code (at wh = wx = 24, the same count of
-every vector instruction): the cost comes with the parallel driver (how numba's parallel
-loop passes a tuple's ints is the likely place; not traced further).
+the int fields were slower (measured: docs/benchmarks.md, "Kernel design choices,
+measured").
 
 The lanes select with arithmetic of their own, not the scalar chain's (:mod:`.selection`,
 run by :mod:`.dense`): actual coordinates (h = Dh x(t), one record row read per step), a
@@ -26,12 +20,8 @@ stored ``-1 / G`` (a multiplication on each step's critical path, not a division
 updates and tree sums. A prototype with the scalar chain's arithmetic in the same vectors
 (virtual g, ``-g / G[B]`` by division, ``g += t (G[B] - G[B'])`` and the position
 likewise by products and sums, the tangents' dot products summed in order) gave the plain
-kernels' bits for apply, times, jvp and vjp, and cost (``benchmarks/ab.py <src> --cases
-dense8,dense16,dense20 --ops apply,inverse,times,jvp --clock cpu --rounds 9 --unequal``,
-two threads, CPU time, medians of 8 alternated rounds (minima), load 8-11 on two cores):
-n = 8 apply 0.99 (1.27), inverse 1.31 (1.60), times 0.83 (1.13), jvp 1.52 (1.49);
-n = 16 apply 1.69 (1.65), inverse 1.53 (1.25), times 1.47 (1.59), jvp 1.63 (1.66);
-n = 20 apply 1.36 (1.17). Far beyond the 5 % the issue allowed, so the lanes keep their
+kernels' bits for apply, times, jvp and vjp, and cost far beyond the 5 % the issue
+allowed (docs/benchmarks.md, "Kernel design choices, measured"), so the lanes keep their
 arithmetic. ``tests/test_lanes.py`` holds them to the scalar chain on the same tables: the
 same orders exactly, apply, inverse and times within 4 n eps of their chains' scales,
 jvp and vjp within 4 n (d + 2) eps of the sizes their factors sum; at an exact tie of

@@ -15,11 +15,10 @@ Used by the plain dense chains (:mod:`.dense`, four queries in lockstep), the co
 functions' chain (:mod:`.function`) and the chain with resets (:mod:`.resets`). Not by
 two specialisations, for which these steps were measured slower, beyond the 5 % issue 26
 allowed, so each keeps a selection of its own: the lanes (:mod:`.lanes`: actual
-coordinates in vector registers, a stored ``-1 / G``; with this arithmetic in the same
-vectors 1.2x to 1.7x slower at n = 16 and 20) and structured corners (:mod:`.structured`:
-division-free comparisons ``g_k r_b > g_b r_k`` in 8-wide vectors fused into the update
-of g and r; over these steps 1.15x to 1.18x slower at n = 128). The commands and the
-numbers are in their docstrings. The lanes are tested against the chain of :mod:`.dense`
+coordinates in vector registers, a stored ``-1 / G``) and structured corners
+(:mod:`.structured`: division-free comparisons ``g_k r_b > g_b r_k`` in 8-wide vectors
+fused into the update of g and r). The commands and the numbers are in docs/benchmarks.md,
+"Kernel design choices, measured". The lanes are tested against the chain of :mod:`.dense`
 on the same tables (``tests/test_lanes.py``), both against ``tests/reference.py``.
 """
 

@@ -21,22 +21,16 @@ The chains select with their own arithmetic, not :mod:`.selection`'s steps: the 
 the next event (k beats b iff ``g_k r_b > g_b r_k``, no division) runs in 8-wide vectors
 inside the pass that updates g and r. The nearest chain over the shared steps (the same
 vector update, then ``pending_times``, ``earliest`` and ``retire`` on each lane's rows;
-the same bits on the benchmark's queries) was measured against it (``benchmarks/ab.py
-<src> --cases structured128,structured:32:32:131072 --ops apply,inverse --clock cpu
---rounds 15``, two threads, CPU time, medians of 14 alternated rounds (minima), load 10-11
-on two cores): n = d = 128 apply 1.18 (1.11), inverse 1.15 (1.13), slower (a second run
-of 9 rounds: 1.16, 1.05); n = d = 32 apply 0.81 (0.78), inverse 0.79 (0.81), faster
-(9 rounds: 0.85, 0.90). At n = 128 each step's 128 scalar divisions and the serial scan
-cost more than the fused vector pass, beyond the 5 % issue 26 allowed, so the vector
-selection stays. (At small n the shared steps were faster; a switch by size would compare
-quotients where this compares products, which can order near ties differently, so the
-results would no longer be the same bits: not done.)
+the same bits on the benchmark's queries) was measured against it (docs/benchmarks.md,
+"Kernel design choices, measured"): slower at n = 128, faster at n = 32. At n = 128 each
+step's 128 scalar divisions and the serial scan cost more than the fused vector pass,
+beyond the 5 % issue 26 allowed, so the vector selection stays. (At small n the shared
+steps were faster; a switch by size would compare quotients where this compares products,
+which can order near ties differently, so the results would no longer be the same bits:
+not done.)
 
-The sizes stay int fields: unlike ``lanes.LaneTables`` (where int fields cost 6-14 % on
-two threads), an int64 array of them measured no difference beyond the noise (the
-command above against the fields, array / fields: n = 128 apply 0.99 and 1.02, inverse
-0.95 and 1.05; n = 32 apply 0.98 and 0.94, inverse 0.98 and 0.96; runs of 11 and 15
-rounds, load 5-11 on two cores).
+The sizes stay int fields: unlike ``lanes.LaneTables``, an int64 array of them measured
+no difference beyond the noise (docs/benchmarks.md, "Kernel design choices, measured").
 """
 
 from __future__ import annotations

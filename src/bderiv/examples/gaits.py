@@ -304,7 +304,7 @@ def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
     dict
         JSON-friendly: ``orbit`` (x0, period, residual, Newton residuals), ``groups``
         (time, events, directions), ``stability`` (growth rate, spread, stable, pieces
-        with visits and |multipliers|), ``fd`` (eps, max errors, ratios), ``decay``
+        with visits and ``|multipliers|``), ``fd`` (eps, max errors, ratios), ``decay``
         (simulated rate per direction, the largest, the window).
     """
     from ..checks import decay_check, fd_check  # the checks simulate: only here

@@ -161,7 +161,7 @@ def quadruped_summary(*, seed=0, n_directions=200, iterations=200, figure=None):
         ``orbit`` (x0, period, Newton residuals, seconds), ``groups`` (time, events,
         directions, the largest relative coupling of the contacts there), ``coupling``
         (the same at a pitched touchdown, for contrast), ``stability`` (growth rate,
-        stable, pieces met, |multipliers| of the most visited, seconds).
+        stable, pieces met, ``|multipliers|`` of the most visited, seconds).
     """
     start = time.perf_counter()
     system = quadruped()
