@@ -116,9 +116,12 @@ class HybridKalmanFilter:
         dt = check_time(dt)
         d = self.model.dim
         Q = None if Q is None else check_covariance(Q, "Q", d)
-        traj = self.model.simulate(self.mean, dt, t_eval=(), **self.solver)
         D = self.model.flow_bderivative(self.mean, dt, simultaneity_tol=self.window,
                                         **self.solver)
+        # the run switches each event at its own time: D.x_final is the simulated mean;
+        # a merged group needs the states of its crossings (group_offsets)
+        traj = (self.model.simulate(self.mean, dt, t_eval=(), **self.solver)
+                if any(s > 0 for s in D.group_spreads) else None)
         local = LocalMap(D, group_offsets(self.model, D, traj))
         if self.method == "sigma":
             push = push_sigma(local, self.cov)
@@ -126,7 +129,7 @@ class HybridKalmanFilter:
             push = push_mixture(local, self.cov)
         else:
             push = push_piece(local, self.cov, self.priority)
-        mean = traj.x_final + (push.mean if self.mean_correction else 0.0)
+        mean = D.x_final + (push.mean if self.mean_correction else 0.0)
         cov = push.cov if Q is None else push.cov + Q
         self.mean, self.cov = mean, 0.5 * (cov + cov.T)
         groups = [(t, ev, probs) for t, ev, probs in

@@ -105,8 +105,9 @@ def group_offsets(model, D, traj):
     model : HybridSystem
     D : FlowBDerivative
         The flow map at the mean, its groups merged within the filter's window.
-    traj : Trajectory
-        The mean's trajectory over the same span (its groups each at its own stop).
+    traj : Trajectory or None
+        The mean's trajectory over the same span (its groups each at its own stop); only
+        read for a group with a spread (None will do when there is none).
 
     Raises
     ------
