@@ -1,0 +1,180 @@
+"""The hybrid Kalman filter: mean by simulation, covariance through the flow's
+B-derivative, every event order of the prior taken into account.
+
+Away from simultaneous events the flow's B-derivative is one linear map, the product of
+the fundamental matrices and saltation matrices along the mean's trajectory, and the
+filter is the salted Kalman filter. Where the mean's trajectory meets events within the
+filter's ``window`` of each other, the prior's perturbations take different event orders,
+each through its own piece, and the covariance is pushed through the piecewise-linear
+map (:mod:`bderiv.estimate.pushforward`); docs/estimation.md gives the assumptions.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ._checks import check_covariance, check_time, check_vector, measurement_model
+from .localmap import LocalMap, group_offsets
+from .pushforward import METHODS, push_mixture, push_piece, push_sigma
+
+#: default window (time) within which the mean's events count as one group
+DEFAULT_WINDOW = 1e-7
+
+
+class ModeEstimate(NamedTuple):
+    """The discrete state of the estimate after a step.
+
+    Attributes
+    ----------
+    mask : int
+        Region mask of the mean (bit k set: ``h_k > 0``; after a bounce a bit stays clear).
+    groups : list of tuple
+        Per event group of the last predict step: ``(time, events, order_probabilities)``,
+        ``time`` from the step's start, ``events`` the global event indices (tuple),
+        ``order_probabilities`` a dict local order (tuple) -> probability.
+    """
+
+    mask: int
+    groups: list
+
+
+class HybridKalmanFilter:
+    """A Kalman filter over a bderiv model, through simultaneous events.
+
+    Parameters
+    ----------
+    model : HybridSystem
+        Any bderiv model (Python, compiled, symbolic), dimension d.
+    mean : array_like, shape (d,)
+        Initial mean; not on an event surface (its region comes from the event signs).
+    cov : array_like, shape (d, d)
+        Initial covariance, symmetric positive semi-definite.
+    method : {"sigma", "mixture", "piece"}
+        How the covariance crosses a group of events (:mod:`.pushforward`): sigma
+        directions through the map, the exact mixture of the two pieces of one group, or
+        one piece (the salted filter; ``priority`` fixes which).
+    window : float
+        Time within which events of the mean's trajectory form one group (the flow map's
+        ``simultaneity_tol``): wide enough to hold the spread of the event times under the
+        prior (a few of their standard deviations), small against the time between
+        unrelated events.
+    priority : sequence of int, optional
+        With ``method="piece"``: the global event indices in the order assumed whenever
+        several cross in one group (a salted filter that assumes which contact comes
+        first); default the order of the mean's own trajectory.
+    mean_correction : bool
+        Add the mean of the pushed perturbation, ``E[M(delta)]``, to the simulated mean
+        (default True; off: the mean is ``Phi(dt, m)`` as in a salted filter).
+    **solver
+        Integrator settings passed to ``simulate`` and ``flow_bderivative`` (``rtol``,
+        ``atol``, ``options``, ...).
+
+    Attributes
+    ----------
+    mean : ndarray (d,), cov : ndarray (d, d), time : float, mode : ModeEstimate
+    """
+
+    def __init__(self, model, mean, cov, *, method="sigma", window=DEFAULT_WINDOW,
+                 priority=None, mean_correction=True, **solver):
+        if not (hasattr(model, "flow_bderivative") and hasattr(model, "dim")):
+            raise TypeError(f"model must be a bderiv HybridSystem, got {type(model).__name__}")
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        if priority is not None and method != "piece":
+            raise ValueError(f"priority fixes the piece of method='piece', got "
+                             f"method={method!r}")
+        if priority is not None:
+            priority = tuple(int(k) for k in priority)
+        self.model, self.method, self.priority = model, method, priority
+        self.window = check_time(window, "window")
+        self.mean_correction = bool(mean_correction)
+        self.solver = solver
+        d = model.dim
+        self.mean = check_vector(mean, "mean", d)
+        self.cov = check_covariance(cov, "cov", d)
+        self.time = 0.0
+        self.mode = ModeEstimate(model.start_mask(self.mean), [])
+
+    def predict(self, dt, Q=None):
+        """Propagate over ``dt``: the mean by simulation, the covariance through the flow.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+        Q : array_like, shape (d, d), optional
+            Process noise covariance added at the end of the step (symmetric positive
+            semi-definite).
+
+        Returns
+        -------
+        mean : ndarray, shape (d,)
+        cov : ndarray, shape (d, d)
+        """
+        dt = check_time(dt)
+        d = self.model.dim
+        Q = None if Q is None else check_covariance(Q, "Q", d)
+        D = self.model.flow_bderivative(self.mean, dt, simultaneity_tol=self.window,
+                                        **self.solver)
+        # the run switches each event at its own time: D.x_final is the simulated mean;
+        # a merged group needs the states of its crossings (group_offsets)
+        traj = (self.model.simulate(self.mean, dt, t_eval=(), **self.solver)
+                if any(s > 0 for s in D.group_spreads) else None)
+        local = LocalMap(D, group_offsets(self.model, D, traj))
+        if self.method == "sigma":
+            push = push_sigma(local, self.cov)
+        elif self.method == "mixture":
+            push = push_mixture(local, self.cov)
+        else:
+            push = push_piece(local, self.cov, self.priority)
+        mean = D.x_final + (push.mean if self.mean_correction else 0.0)
+        cov = push.cov if Q is None else push.cov + Q
+        self.mean, self.cov = mean, 0.5 * (cov + cov.T)
+        groups = [(t, ev, probs) for t, ev, probs in
+                  zip(D.group_times, D.group_events, push.order_probabilities, strict=True)]
+        self.time += dt
+        self.mode = ModeEstimate(self.model.start_mask(self.mean), groups)
+        return self.mean.copy(), self.cov.copy()
+
+    def update(self, z, R, *, H, h=None):
+        """The measurement update ``z = h(x) + v``, ``v ~ N(0, R)``.
+
+        Parameters
+        ----------
+        z : array_like, shape (p,)
+            The measurement.
+        R : array_like, shape (p, p)
+            Measurement noise covariance, positive definite.
+        H : array_like (p, d), or callable ``H(x) -> (p, d)``
+            The measurement matrix, or the Jacobian of ``h``.
+        h : callable ``h(x) -> (p,)``, optional
+            The measurement function (default: ``H x``, a linear measurement).
+
+        Returns
+        -------
+        mean : ndarray, shape (d,)
+        cov : ndarray, shape (d, d)
+            Joseph form, symmetric.
+        """
+        d = self.model.dim
+        hx, Hx = measurement_model(h, H, self.mean, d)
+        p = hx.shape[0]
+        z = check_vector(z, "z", p)
+        R = check_covariance(R, "R", p, definite=True)
+        S = Hx @ self.cov @ Hx.T + R
+        K = np.linalg.solve(S, Hx @ self.cov).T  # P H^T S^-1 (S, P symmetric)
+        mean = self.mean + K @ (z - hx)
+        IKH = np.eye(d) - K @ Hx
+        cov = IKH @ self.cov @ IKH.T + K @ R @ K.T
+        self.mean, self.cov = mean, 0.5 * (cov + cov.T)
+        self.mode = ModeEstimate(self.model.start_mask(self.mean), self.mode.groups)
+        return self.mean.copy(), self.cov.copy()
+
+    def nees(self, x_true):
+        """Normalised estimation error squared ``(x - m)^T P^-1 (x - m)`` of a true state
+        (d,): chi-square with d degrees of freedom for a consistent filter."""
+        x_true = check_vector(x_true, "x_true", self.model.dim)
+        e = x_true - self.mean
+        return float(e @ np.linalg.solve(self.cov, e))

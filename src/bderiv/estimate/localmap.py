@@ -1,0 +1,137 @@
+"""The flow's piecewise-linear map around a filter's mean, event groups off-centre.
+
+A predict step integrates the mean ``m`` over ``[0, dt]`` and takes the flow's
+B-derivative ``D`` there with a wide ``simultaneity_tol`` (the filter's ``window``): events
+of the mean's trajectory that cross within the window of each other are one group, whose
+map is built at the state ``rho_1`` of its first crossing, as if they were simultaneous
+there (docs/mathematics.md, section 7, "Events close together"). The mean itself is off
+that simultaneous point: at ``rho_1`` the group's other events are still ahead, by their
+values ``h_k(rho_1) < 0``. To first order the true local map around the mean is the
+group's map moved to the offset ``c`` with ``Dh c = h(rho_1)`` (local orientation):
+
+    u  ->  J(u + c) - J(c)
+
+(``J`` the group's map, ``u`` the perturbation entering it), which selects the order the
+mean's own trajectory takes for perturbations smaller than the gap and both orders for
+larger ones. :class:`LocalMap` composes the linear stages of ``D`` with its groups so
+moved. A group at exactly one stop has ``c = 0``: ``LocalMap`` is then ``D``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..models.events.finaltime import FinalTimeMap
+
+
+class LocalMap:
+    """``delta -> Phi(T, m + delta) - Phi(T, m)`` to first order: ``D`` with off-centre
+    groups.
+
+    Parameters
+    ----------
+    D : FlowBDerivative
+        The flow's B-derivative at the mean (dimension d).
+    offsets : sequence of (ndarray (d,) or None)
+        One per event group of ``D``: the offset ``c`` of the group's map (None: 0).
+
+    Attributes
+    ----------
+    D, offsets, dim
+    """
+
+    def __init__(self, D, offsets):
+        self.D, self.dim = D, D.dim
+        self.offsets = tuple(None if c is None else np.asarray(c, float) for c in offsets)
+        if len(self.offsets) != D.n_groups:
+            raise ValueError(f"need one offset per event group ({D.n_groups}), got "
+                             f"{len(self.offsets)}")
+
+    def stage_inputs(self, V):
+        """The rows entering each group (with their offsets added) and the images:
+        ``(list of (m, d) arrays, (m, d) array)`` for rows ``V`` (m, d)."""
+        W = V @ self.D.linear[0].T
+        inputs = []
+        for J, c, L in zip(self.D.jumps, self.offsets, self.D.linear[1:], strict=True):
+            if c is None:
+                inputs.append(W)
+                W = J.apply(W)
+            else:
+                inputs.append(W + c)
+                W = J.apply(W + c) - J.apply(c[None, :])
+            W = W @ L.T
+        return inputs, W
+
+    def __call__(self, V):
+        """The local map of rows ``V`` (m, d): (m, d)."""
+        return self.stage_inputs(np.atleast_2d(np.asarray(V, float)))[1]
+
+    def orders(self, V):
+        """Local event order of each group for rows ``V`` (m, d): list of (m, n_g) int64."""
+        inputs, _ = self.stage_inputs(np.atleast_2d(np.asarray(V, float)))
+        return [J.orders(W) for J, W in zip(self.D.jumps, inputs, strict=True)]
+
+    def piece_of(self, i, order):
+        """Group i's linear piece (d, d) for a local event order."""
+        return np.array(self.D.jumps[i].piece(list(order)))
+
+    def boundary(self, i):
+        """Group i's tie of its two local events: ``a`` (d,) such that a vector ``u``
+        entering the group (offset included) takes the order (0, 1) iff ``a . u > 0``.
+
+        At a tie both events cross together from the region before the group, at the
+        first-order times ``t_k(u) = -Dh_k u / G[0, k]``: order (0, 1) iff
+        ``t_0 < t_1``. Only for groups of two local events (a final-time group: one event
+        and the final time).
+        """
+        J = self.D.jumps[i]
+        if J.n_events != 2:
+            raise ValueError(f"group {i} has {J.n_events} local events; the boundary of "
+                             f"two pieces needs 2")
+        B = J.augmented if isinstance(J, FinalTimeMap) else J
+        if B.rates is None:
+            raise ValueError(f"group {i}'s map has no corner table (a corner model): its "
+                             f"boundary is not available")
+        a = B.Dh[0] / B.rates[0, 0] - B.Dh[1] / B.rates[0, 1]
+        return np.array(a[: self.dim])
+
+
+def group_offsets(model, D, traj):
+    """The offset ``c`` (d,) of each event group of ``D`` (None where the group crossed
+    at one stop): ``Dh c = h(rho_1)`` in the group's local orientation, least squares.
+
+    Parameters
+    ----------
+    model : HybridSystem
+    D : FlowBDerivative
+        The flow map at the mean, its groups merged within the filter's window.
+    traj : Trajectory or None
+        The mean's trajectory over the same span (its groups each at its own stop); only
+        read for a group with a spread (None will do when there is none).
+
+    Raises
+    ------
+    ValueError
+        For a merged group at the final time (events about to cross after the step's end
+        within the window): shorten the window or move the step's end.
+    """
+    offsets = []
+    for i, (J, spread) in enumerate(zip(D.jumps, D.group_spreads, strict=True)):
+        if spread == 0.0:
+            offsets.append(None)
+            continue
+        if isinstance(J, FinalTimeMap):
+            raise ValueError(
+                f"event group {i} ({D.group_events[i]}) lies within the window of the "
+                f"step's end, its events {spread:.3g} apart: the filter does not offset a "
+                f"group at the final time; choose dt so that the step does not end within "
+                f"the window of an event of the mean's trajectory, or a smaller window")
+        t = D.group_times[i]
+        first = min(traj.groups, key=lambda g: abs(g.time - t))
+        mask_before = D.group_masks[i][0] if D.group_masks else first.mask_before
+        events = D.group_events[i]
+        h = model.eval_events(first.state)
+        sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
+        c, *_ = np.linalg.lstsq(J.Dh, sign * h[list(events)], rcond=None)
+        offsets.append(c)
+    return offsets

@@ -1,0 +1,351 @@
+"""The hybrid Kalman filter (bderiv.estimate, issue 40).
+
+- Side by side with hybrid-tools' salted Kalman filter (``SKF``) on its own bouncing balls
+  (1-D and 2-D, one guard), the same model written in bderiv and the same measurements.
+  Its ``predict`` integrates a step ``dt`` with ``solve_ivp`` and guards that are not
+  terminal, so at a step with a guard it propagates the prior covariance over the whole
+  step before the saltation matrix (``sol.t[-1] - sol.t[0]`` is ``dt``, not the time to
+  the guard) and adds the process noise of the whole step and again of the rest; it also
+  switches mode at every apex (a guard ``qdot = 0`` with the identity saltation). So:
+  (a) as shipped, step by step from the same prior: equal to rounding on the steps
+  without a guard; on a guard step hybrid-tools' covariance is that convention written
+  out and ours the salted covariance written out (saltation formula, fundamental
+  matrices of the free flight); (b) with its guards terminal and no process noise (its
+  predict is then the salted filter), whole runs over several bounces are equal to
+  rounding. Both integrators are exact for the ball's quadratic motion, so rounding is
+  what is left.
+- Where it cannot: the chair's two-foot landing. Monte Carlo with a prior wide enough that
+  both feet land first; our filter's NEES is within the chi-square band where a salted
+  filter that assumes either order is overconfident.
+- Refusals of bad input.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from bderiv import HybridSystem, examples
+from bderiv.estimate import HybridKalmanFilter
+
+G = 9.81
+
+
+def _ht():
+    return pytest.importorskip("hybrid_tools")
+
+
+# ----------------------------------------------------------------------------------
+# the balls in bderiv, as hybrid-tools writes them
+# ----------------------------------------------------------------------------------
+def _ball_2d(e, g, floor):
+    """hybrid-tools' 2-D ball: (qx, qy, vx, vy), the floor at ``qy = floor``."""
+
+    def field(x, mask):
+        return np.array([x[2], x[3], 0.0, -g])
+
+    def field_jacobian(x, mask):
+        J = np.zeros((4, 4))
+        J[0, 2] = J[1, 3] = 1.0
+        return J
+
+    def events(x):
+        return np.array([floor - x[1]])
+
+    def event_jacobian(x):
+        return np.array([[0.0, -1.0, 0.0, 0.0]])
+
+    def reset(x, mask, k):
+        return np.array([x[0], x[1], x[2], -e * x[3]])
+
+    def reset_jacobian(x, mask, k):
+        return np.diag([1.0, 1.0, 1.0, -e])
+
+    return HybridSystem(field, events, n_events=1, dim=4, field_jacobian=field_jacobian,
+                        event_jacobian=event_jacobian, reset=reset,
+                        reset_jacobian=reset_jacobian)
+
+
+def _case(dim):
+    """(bderiv model, hybrid-tools system, its parameters, start, height coordinate)."""
+    ht = _ht()
+    from hybrid_tools.basic_hybrid_systems import bouncing_ball, bouncing_ball_2d
+
+    e = 0.7
+    if dim == 2:
+        return (examples.bouncing_ball(e=e, g=G).system, bouncing_ball(),
+                np.array([e, G]), np.array([1.0, 0.0]), 0, ht)
+    floor = 0.25
+    return (_ball_2d(e, G, floor), bouncing_ball_2d(), np.array([e, G, floor]),
+            np.array([0.0, 1.2, 0.4, 0.0]), 1, ht)
+
+
+def _noises(system, W, V):
+    from hybrid_tools import ModeNoise
+
+    system.noises = {m: ModeNoise(W=W * np.eye(n.W.shape[0]), V=V * np.eye(n.V.shape[0]))
+                     for m, n in system.noises.items()}
+
+
+def _flight(d, s):
+    """Fundamental matrix of the free flight over s: positions += s velocities."""
+    A = np.eye(d)
+    A[: d // 2, d // 2:] = s * np.eye(d // 2)
+    return A
+
+
+def _noise(d, s, W):
+    """hybrid-tools' process noise over s: B W B^T, B = d(x + f dt)/du = s on the
+    velocities (Euler)."""
+    Q = np.zeros((d, d))
+    Q[d // 2:, d // 2:] = W * s * s * np.eye(d // 2)
+    return Q
+
+
+def _measurements(model, x0, dt, steps, r, seed):
+    """The true states at the step ends (bderiv's simulation) and noisy measurements of
+    the whole state."""
+    rng = np.random.default_rng(seed)
+    xs, x = [], x0
+    for _ in range(steps):
+        x = model.simulate(x, dt, t_eval=()).x_final
+        xs.append(x)
+    X = np.array(xs)
+    return X, X + np.sqrt(r) * rng.standard_normal(X.shape)
+
+
+def _mode(v):
+    return "I" if v <= 0 else "J"  # hybrid-tools: I falling (guard q), J rising (guard v)
+
+
+@pytest.mark.parametrize("dim", [2, 4], ids=["1-D ball", "2-D ball"])
+def test_side_by_side_with_hybrid_tools_skf_as_shipped(dim):
+    """Step by step from the same prior: equal to rounding without a guard; at a guard,
+    each equals its own covariance formula written out here."""
+    model, system, params, x0, iq, ht = _case(dim)
+    W, r, dt = 0.01, 1e-4, 0.05
+    _noises(system, W, r)
+    d = dim
+    R = r * np.eye(d)
+    _, Z = _measurements(model, x0, dt, 24, r, seed=3)
+    m, P = x0.copy(), 1e-4 * np.eye(d)
+    e, iv = params[0], iq + d // 2
+    guards = plain = 0
+    for k, z in enumerate(Z):
+        ours = HybridKalmanFilter(model, m, P)
+        skf = ht.SKF(m.copy(), _mode(m[iv]), P.copy(), dt, params, system)
+        t = k * dt
+        mp, Pp = ours.predict(dt, Q=_noise(d, dt, W))
+        mode_before = skf.current_mode
+        hm, hP = skf.predict(t, np.zeros(d // 2))
+        assert np.allclose(mp, hm, rtol=0, atol=1e-12), (k, mp, hm)
+        q, v = m[iq] - params[2] if d == 4 else m[iq], m[iv]
+        hit = (v + np.sqrt(v * v + 2 * G * q)) / G  # time to the floor
+        apex = v / G if v > 0 else np.inf
+        if skf.current_mode == mode_before and min(hit, apex) > dt:
+            plain += 1
+            assert np.allclose(Pp, hP, rtol=1e-12, atol=1e-15), (k, Pp, hP)
+        else:
+            guards += 1
+            tau = min(hit, apex)
+            S = np.eye(d)
+            if hit < apex:  # the saltation matrix written out: R + (f+ - R f-) G^T / (G f-)
+                Rj = np.eye(d)
+                Rj[iv, iv] = -e
+                vel = m[d // 2:].copy()
+                vel[iv - d // 2] = v - G * tau  # velocities at the impact
+                acc = np.zeros(d // 2)
+                acc[iv - d // 2] = -G
+                f_pre = np.concatenate([vel, acc])  # the field before and after the reset
+                f_post = np.concatenate([Rj[d // 2:, d // 2:] @ vel, acc])
+                Gr = np.zeros(d)
+                Gr[iq] = 1.0
+                S = Rj + np.outer(f_post - Rj @ f_pre, Gr) / (Gr @ f_pre)
+            A1, A2 = _flight(d, tau), _flight(d, dt - tau)
+            salted = A2 @ S @ A1 @ P @ A1.T @ S.T @ A2.T + _noise(d, dt, W)
+            Ad = _flight(d, dt)
+            convention = (A2 @ S @ (Ad @ P @ Ad.T + _noise(d, dt, W)) @ S.T @ A2.T
+                          + _noise(d, dt - tau, W))
+            assert np.allclose(Pp, salted, rtol=1e-12, atol=1e-15), k
+            assert np.allclose(hP, convention, rtol=1e-12, atol=1e-15), k
+        m_u, P_u = ours.update(z, R, H=np.eye(d))
+        same_prior = HybridKalmanFilter(model, hm, hP)  # its prior (differs at a guard)
+        mine = same_prior.update(z, R, H=np.eye(d))
+        hm_u, hP_u = skf.update(t + dt, np.zeros(d // 2), z)
+        assert np.allclose(mine[0], hm_u, rtol=0, atol=1e-12), k
+        assert np.allclose(mine[1], hP_u, rtol=1e-10, atol=1e-16), k
+        m, P = m_u, P_u
+    assert guards >= 2 and plain >= 10  # bounces and apexes both met
+
+
+@pytest.mark.parametrize("dim", [2, 4], ids=["1-D ball", "2-D ball"])
+def test_whole_runs_equal_hybrid_tools_skf_with_terminal_guards(dim, monkeypatch):
+    """With its guards terminal and no process noise, hybrid-tools' SKF is the salted
+    filter: ours equals it over whole runs (several bounces), means and covariances."""
+    model, system, params, x0, iq, ht = _case(dim)
+    import hybrid_tools.skf as skf_module
+
+    original = skf_module.solve_ivp_guard_funcs
+
+    def terminal(*args, **kwargs):
+        guards, modes = original(*args, **kwargs)
+        for g in guards:
+            g.terminal = True
+        return guards, modes
+
+    monkeypatch.setattr(skf_module, "solve_ivp_guard_funcs", terminal)
+    r, dt = 1e-4, 0.05
+    _noises(system, 0.0, r)
+    d = dim
+    X, Z = _measurements(model, x0, dt, 40, r, seed=5)
+    ours = HybridKalmanFilter(model, x0, 1e-4 * np.eye(d))
+    skf = ht.SKF(x0.copy(), "I", 1e-4 * np.eye(d), dt, params, system)
+    bounces = 0
+    for k, z in enumerate(Z):
+        mp, Pp = ours.predict(dt)
+        hm, hP = skf.predict(k * dt, np.zeros(d // 2))
+        bounces += len(ours.mode.groups)
+        assert np.allclose(mp, hm, rtol=0, atol=1e-11), k
+        assert np.allclose(Pp, hP, rtol=1e-10, atol=1e-15), k
+        mode = skf.current_mode
+        m_u, P_u = ours.update(z, r * np.eye(d), H=np.eye(d))
+        hm_u, hP_u = skf.update((k + 1) * dt, np.zeros(d // 2), z)
+        assert skf.current_mode == mode  # no posterior reset: the estimates stay comparable
+        assert np.allclose(m_u, hm_u, rtol=0, atol=1e-11), k
+        assert np.allclose(P_u, hP_u, rtol=1e-10, atol=1e-16), k
+    assert bounces >= 3
+
+
+# ----------------------------------------------------------------------------------
+# where one guard at a time cannot: the chair's two-foot landing
+# ----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def chair():
+    return examples.chair(compiled=True)
+
+
+def test_chair_monte_carlo_nees_consistent_where_salted_filters_are_overconfident(chair):
+    """200 runs (benchmarks/kalman_consistency.py runs 1,000): the truth is simulated from
+    each sampled start, both feet land first in some runs; the mean NEES of the mixture
+    and sigma filters is in the 95 % chi-square band, a salted filter that assumes either
+    order is far above it."""
+    from bderiv.estimate.consistency import consistency
+
+    c = consistency(chair, 200, seed=0)
+    first = np.mean(c.orders[:, 0] == 0)
+    assert 0.3 < first < 0.7  # both orders happen
+    lo, hi = c.band
+    assert np.allclose(c.band, chi2.ppf([0.025, 0.975], 1200) / 200)
+    for name in ("mixture", "sigma"):
+        assert lo <= c.nees[name].mean() <= hi, (name, c.table())
+    for name in ("salted, order (0, 1)", "salted, order (1, 0)"):
+        assert c.nees[name].mean() > 2 * hi, (name, c.table())
+
+
+def test_mixture_moments_equal_a_sample_of_the_local_map(chair):
+    """The mixture's closed-form moments (the prior cut by the orders' hyperplane) equal
+    the moments of 200,000 samples pushed through the flow's B-derivative one by one,
+    with the mean off the simultaneous trajectory (an offset group); and the order
+    probabilities equal the samples' frequencies."""
+    from bderiv.estimate import LocalMap, group_offsets, push_mixture
+
+    model = chair.system
+    start = chair.x0 + np.array([0.0, 0.0, 2e-5, 0.0, 0.0, 0.0])  # the feet apart
+    T = chair.t_final
+    D = model.flow_bderivative(start, T, simultaneity_tol=1e-3)
+    assert D.group_spreads[0] > 1e-6
+    local = LocalMap(D, group_offsets(model, D, model.simulate(start, T)))
+    P = (3e-5) ** 2 * np.eye(6)
+    push = push_mixture(local, P)
+    V = np.random.default_rng(2).multivariate_normal(np.zeros(6), P, size=200_000)
+    Y = local(V)
+    sd = Y.std(axis=0)
+    assert np.abs(push.mean - Y.mean(axis=0)).max() < 0.01 * sd.max()
+    assert np.allclose(push.cov, np.cov(Y.T), rtol=0.02, atol=0.02 * sd.max() ** 2)
+    freq = np.mean(local.orders(V)[0][:, 0] == 0)
+    assert abs(push.order_probabilities[0][(0, 1)] - freq) < 0.005
+    assert 0.05 < freq < 0.95 and abs(freq - 0.5) > 0.1  # the offset moves the odds
+    # the odds of the simulated flow: which foot lands first from 2,000 sampled starts
+    runs = model.simulate_many(start + V[:2000], T, progress=False)
+    first = np.array([run.groups[0].events[0] for run in runs])
+    assert abs(np.mean(first == 0) - push.order_probabilities[0][(0, 1)]) < 0.035
+    # and the local map is the flow: one-sided differences of the simulation
+    eps = 1e-3
+    W = V[:5] * eps / 3e-5
+    fd = np.array([model.simulate(start + w, T).x_final for w in W]) - D.x_final
+    assert np.allclose(local(W), fd, rtol=0, atol=0.05 * np.abs(fd).max())
+
+
+def test_sigma_directions_each_take_their_own_piece(chair):
+    """The sigma method's mean and covariance are those of the 2 d directions pushed
+    one by one through D (each by its own piece, D.jvp(v, v) = D(v))."""
+    from bderiv.estimate import LocalMap, push_sigma
+    from bderiv.estimate.pushforward import sqrt_psd
+
+    D = chair.system.flow_bderivative(chair.x0, chair.t_final)
+    P = np.diag([1.0, 2.0, 0.5, 1.0, 3.0, 1.0]) * 1e-8
+    push = push_sigma(LocalMap(D, [None]), P)
+    S = np.sqrt(6) * sqrt_psd(P)
+    V = np.concatenate([S.T, -S.T])
+    Y = D.jvp(V, V)
+    assert len({tuple(o) for o in D.orders(V)[0]}) == 2
+    assert np.allclose(push.mean, Y.mean(axis=0), atol=1e-15)
+    assert np.allclose(push.cov, (Y - Y.mean(0)).T @ (Y - Y.mean(0)) / 12, atol=1e-18)
+
+
+# ----------------------------------------------------------------------------------
+# refusals
+# ----------------------------------------------------------------------------------
+def test_bad_inputs_are_refused_by_name():
+    model = examples.bouncing_ball().system
+    x, P = np.array([1.0, 0.0]), 1e-4 * np.eye(2)
+    cases = [
+        (lambda: HybridKalmanFilter(model, [1.0, 0.0, 0.0], P), ValueError, "mean must"),
+        (lambda: HybridKalmanFilter(model, x, np.eye(3)), ValueError, "cov must have shape"),
+        (lambda: HybridKalmanFilter(model, x, [[1.0, 0.5], [0.0, 1.0]]), ValueError,
+         "symmetric"),
+        (lambda: HybridKalmanFilter(model, x, [[1.0, 0.0], [0.0, -1.0]]), ValueError,
+         "positive semi-definite"),
+        (lambda: HybridKalmanFilter(model, x, [[np.nan, 0], [0, 1]]), ValueError, "finite"),
+        (lambda: HybridKalmanFilter(model, x, P, method="ukf"), ValueError, "method must"),
+        (lambda: HybridKalmanFilter(model, x, P, priority=(0,)), ValueError, "priority"),
+        (lambda: HybridKalmanFilter(model, x, P, window=0.0), ValueError, "window"),
+        (lambda: HybridKalmanFilter("ball", x, P), TypeError, "model must"),
+        (lambda: HybridKalmanFilter(model, "x", P), TypeError, "mean must"),
+    ]
+    f = HybridKalmanFilter(model, x, P)
+    cases += [
+        (lambda: f.predict(-0.1), ValueError, "dt must"),
+        (lambda: f.predict(0.1, Q=np.ones((2, 2)) * [[1, 2], [2, 1]]), ValueError,
+         "Q must be positive semi-definite"),
+        (lambda: f.update([1.0], np.eye(2), H=np.eye(2)), ValueError, "z must have shape"),
+        (lambda: f.update([1.0, 0.0], np.zeros((2, 2)), H=np.eye(2)), ValueError,
+         "R must be positive definite"),
+        (lambda: f.update([1.0, 0.0], [[1.0]], H=np.eye(2)), ValueError, "R must have shape"),
+        (lambda: f.update([1.0], [[1.0]], H=[[1.0, 0.0, 0.0]]), ValueError,
+         "H must have shape"),
+        (lambda: f.update([1.0], [[1.0]], H=[[1.0, 0.0]], h=lambda x: x), ValueError,
+         "h(x) has 2 entries"),
+        (lambda: f.update([1.0], [[1.0]], H=None), TypeError, "H must be given"),
+        (lambda: f.nees([1.0]), ValueError, "x_true must have shape"),
+    ]
+    for call, kind, words in cases:
+        with pytest.raises(kind, match=words.replace("(", r"\(").replace(")", r"\)")):
+            call()
+    assert np.array_equal(f.mean, x) and np.array_equal(f.cov, P)  # nothing half done
+
+
+def test_nonlinear_measurement_update_is_the_extended_kalman_update():
+    """A range measurement h(x) = sqrt(q^2 + 1) with its Jacobian: the update written out."""
+    model = examples.bouncing_ball().system
+    m, P = np.array([1.0, -0.5]), np.array([[0.04, 0.01], [0.01, 0.09]])
+    f = HybridKalmanFilter(model, m, P)
+    h = lambda x: np.array([np.hypot(x[0], 1.0)])  # noqa: E731
+    H = lambda x: np.array([[x[0] / np.hypot(x[0], 1.0), 0.0]])  # noqa: E731
+    mu, Pu = f.update([1.5], [[0.01]], H=H, h=h)
+    Hm = H(m)
+    K = P @ Hm.T / (Hm @ P @ Hm.T + 0.01)
+    assert np.allclose(mu, m + (K * (1.5 - h(m))).ravel(), atol=1e-15)
+    assert np.allclose(Pu, P - K @ Hm @ P, atol=1e-15)
+    assert f.mode.mask == 0
