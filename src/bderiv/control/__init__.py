@@ -1,0 +1,1 @@
+"""Trajectory optimisation through contact on the flow's B-derivative (placeholder)."""
