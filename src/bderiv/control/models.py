@@ -42,9 +42,12 @@ def _ball_functions(d, vertical, ground):
         out[half + vertical] = out[half + vertical] - z[d + half + 1]
         return out
 
-    def events(z):
-        h = z[ground] if ground >= 0 else 0.0 * z[0]
-        return np.array([h - z[vertical]])
+    if ground >= 0:
+        def events(z):
+            return np.array([z[ground] - z[vertical]])
+    else:
+        def events(z):
+            return np.array([-z[vertical]])
 
     def reset(z, mask, k):
         out = z.copy()

@@ -158,7 +158,7 @@ def nominal_orders(D, events, t_final):
     for i, (glob, t0) in enumerate(zip(D.group_events, D.group_times, strict=True)):
         span = D.group_spreads[i] + max(1e-9, 1e-9 * abs(t0))
         times = []
-        for k, e in enumerate(glob):
+        for e in glob:
             hits = [r.time for r in events if r.event == e and -span <= r.time - t0 <= span]
             times.append(min(hits, key=lambda t, t0=t0: abs(t - t0)) if hits else np.inf)
         final = D.stops_at_group and i == D.n_groups - 1

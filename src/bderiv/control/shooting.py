@@ -12,7 +12,8 @@ coordinates of the final state ``Phi_p(T, x0)`` match a target: the residual
    group); one flow map per iteration, exact (no time-step approximation of the event);
 3. solves ``(J^T J + lambda diag(J^T J)) s = J^T r`` and tries ``w - s``: accepted when
    ``|r|`` decreases (lambda divided by 10), else lambda multiplied by 10 and the step
-   halved, up to ``line_search_max_iters`` times (else ``w`` kept);
+   halved, up to ``line_search_max_iters`` times (else ``w`` kept); a trial point whose
+   simulation is refused (a Zeno trajectory, say) is a failed trial;
 4. stops when the accepted change of ``w`` is below ``input_state_tol`` (after the first
    iteration).
 
@@ -67,6 +68,8 @@ class ShootingResult:
         ``|r|`` at each iteration's nominal.
     simulations : int
         Simulations run (nominal and trial points).
+    refusals : list of str
+        Trial points whose simulation was refused (counted as failed trials), with why.
     """
 
     decision: np.ndarray
@@ -75,6 +78,7 @@ class ShootingResult:
     iterations: int
     errors: list = field(default_factory=list)
     simulations: int = 0
+    refusals: list = field(default_factory=list)
 
 
 def _indices(idx, size, name):
@@ -143,13 +147,13 @@ def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
         sims += 1
         return flow.final(z[:d], z[d:], t_final)[out] - target, z
 
-    lam, errors = config.initial_lambda, []
+    lam, errors, refusals = config.initial_lambda, [], []
     for i in range(config.max_iters):
         r, z = residual(w)
         err = float(np.linalg.norm(r))
         errors.append(err)
         if err < config.error_tol:
-            return ShootingResult(w, r + target, True, i, errors, sims)
+            return ShootingResult(w, r + target, True, i, errors, sims, refusals)
         step = flow.step(z[:d], z[d:], t_final)
         P = step.D.piece(step.orders) if step.D.n_groups else step.D.piece()
         J = P[np.ix_(out, cols)]
@@ -159,21 +163,32 @@ def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
             s = np.linalg.solve(JtJ + lam * Dm, J.T @ r)
         except np.linalg.LinAlgError:
             s = np.linalg.pinv(JtJ + lam * Dm) @ (J.T @ r)
-        w_new, lam = _adaptive(residual, w, s, err, lam, config)
+        w_new, lam = _adaptive(residual, w, s, err, lam, config, refusals)
         if np.linalg.norm(w_new - w) < config.input_state_tol and i > 0:
-            return ShootingResult(w_new, r + target, err < config.error_tol, i, errors, sims)
+            return ShootingResult(w_new, r + target, err < config.error_tol, i, errors, sims,
+                                  refusals)
         w = w_new
-    return ShootingResult(w, r + target, False, config.max_iters, errors, sims)
+    return ShootingResult(w, r + target, False, config.max_iters, errors, sims, refusals)
 
 
-def _adaptive(residual, w, s, err, lam, config):
+def _adaptive(residual, w, s, err, lam, config, refusals):
     """hybrid-tools' step rule: the full step if it lowers ``|r|``, else halved steps
-    with lambda growing; ``w`` kept when none does."""
-    if np.linalg.norm(residual(w - s)[0]) < err:
+    with lambda growing; ``w`` kept when none does. A trial point whose simulation bderiv
+    refuses (a ValueError: a Zeno trajectory, a grazing contact) is a failed trial, its
+    message appended to ``refusals``."""
+
+    def trial(wv):
+        try:
+            return float(np.linalg.norm(residual(wv)[0]))
+        except ValueError as exc:
+            refusals.append(f"at {wv.tolist()}: {exc}")
+            return np.inf
+
+    if trial(w - s) < err:
         return w - s, max(lam * config.lambda_decrease, config.min_lambda)
     for _ in range(config.line_search_max_iters):
         lam = min(lam * config.lambda_increase, config.max_lambda)
         s = s * config.line_search_backoff
-        if np.linalg.norm(residual(w - s)[0]) < err:
+        if trial(w - s) < err:
             return w - s, lam
     return w, lam
