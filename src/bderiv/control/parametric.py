@@ -191,6 +191,15 @@ class ParametricFlow:
         form one group, whose piece is chosen by the order the nominal trajectory took.
     options : SolverOptions, optional
         Integrator settings of every run.
+
+    Attributes
+    ----------
+    dim, n_params : int
+        d and m.
+    defaults : ndarray, shape (m,), or None
+        Parameter values a model builder suggests (:mod:`.models`).
+    x0 : ndarray, shape (d,), or None
+        A start state a model builder suggests.
     """
 
     def __init__(self, system, n_params, *, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
@@ -205,6 +214,7 @@ class ParametricFlow:
         self.system, self.n_params, self.dim = system, m, system.dim - m
         self.simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol")
         self.options = options
+        self.defaults = self.x0 = None
 
     def _z(self, x, p):
         x = check_real_array(x, "x").astype(np.float64)
@@ -241,9 +251,10 @@ class ParametricFlow:
         x : array_like, shape (d,)
         p : array_like, shape (m,)
         dt : float
-        orders : "nominal" or a callable, optional
-            How each group's piece is chosen: the nominal trajectory's order (default), or
-            ``orders(group_events) -> local order`` (a fixed order, for comparisons).
+        orders : callable, optional
+            How each group's piece is chosen: None for the nominal trajectory's order
+            (default), or ``orders(group_events, at_final_time) -> local order`` (a fixed
+            order, for comparisons; ``Step.orders`` still reports the nominal's).
 
         Returns
         -------
