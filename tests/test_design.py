@@ -15,6 +15,7 @@ PKG = ROOT / "src" / "bderiv"
 #: layers below, never one above.
 LAYERS = [
     {"cli", "__main__"},
+    {"control"},  # trajectory optimisation through contact, on examples and the models
     {"plot", "examples", "_bench", "symbolic", "jax", "warmup", "estimate"},  # _bench:
     # `bderiv bench`'s sweep; warmup: `bderiv compile`; estimate: the Kalman filter
     {"models", "models/system", "models/calls", "models/user_functions", "models/section",

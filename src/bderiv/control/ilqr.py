@@ -1,0 +1,295 @@
+"""iLQR through contact: the backward pass on the pieces of each step's B-derivative.
+
+Problem. Piecewise-constant inputs ``u_0 .. u_{N-1}`` (each (m,): the parameters of a
+:class:`~bderiv.control.parametric.ParametricFlow`, held over one step of length ``dt``),
+``x_{k+1} = Phi(dt, x_k; u_k)`` (the simulated hybrid flow, events and resets included),
+and the cost ::
+
+    J(U) = sum_k 1/2 u_k^T R u_k + 1/2 (x_N - x*)^T Qf (x_N - x*).
+
+Linearisation. At each iteration the nominal ``(X, U)`` is simulated step by step and each
+step's flow map is linearised by its B-derivative ``D_k`` over ``z = (x, u)``
+(dimension d + m). Where ``D_k`` has event groups with several events (simultaneous, or
+within the window ``flow.simultaneity_tol``), ``D_k`` is piecewise linear: the backward
+pass takes the piece ``P_k`` of the order in which the nominal trajectory crossed those
+events (:func:`~bderiv.control.parametric.nominal_orders`), ``A_k = P_k[:d, :d]``,
+``B_k = P_k[:d, d:]``: the exact derivative on the side of the kink where the nominal is.
+No average of pieces is ever formed.
+
+Backward pass (Gauss-Newton iLQR, regularised by ``mu`` on ``Q_uu``)::
+
+    V_x = Qf (x_N - x*),  V_xx = Qf
+    Q_u = R u_k + B^T V_x,  Q_uu = R + B^T V_xx B + mu I,  Q_ux = B^T V_xx A
+    k_k = -Q_uu^-1 Q_u,  K_k = -Q_uu^-1 Q_ux
+    V_x = A^T V_x + K^T Q_uu k + K^T Q_u + Q_ux^T k,  V_xx = A^T V_xx A + K^T Q_uu K + ...
+
+Forward pass: ``u_k = u_k + alpha k_k + K_k (x_k' - x_k)`` simulated, ``alpha`` halved
+from 1 until the cost falls by at least 1e-4 of the predicted decrease (else ``mu`` grows
+tenfold and the backward pass is redone).
+
+A switch of order. A new nominal may cross a group's events in another order than the
+last one (it moved across the kink). That is detected (each step's orders compared,
+by global event index, with the previous nominal's), reported in
+:attr:`Iteration.switches`, and handled by re-linearising: the next backward pass uses the
+new order's piece. Events that leave or join a step or a group are reported as
+``"regrouped"``.
+
+Assumptions: the cost's Hessian is Gauss-Newton's (no second derivative of the flow: the
+pieces are linear); each step's flow is piecewise smooth with transversal events (bderiv
+refuses grazing and names it); the nominal order picks the piece valid on the nominal's
+side, so a step that crosses the kink is only first-order right until re-linearised.
+
+The comparison (``linearisation=(e_0, e_1, ...)``): every group's piece taken in that fixed
+priority order of the events, whatever the nominal did: a single-order linearisation,
+what a method that processes one guard at a time in a fixed sequence computes at a
+simultaneous touchdown.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import check_number, check_positive_int, check_real_array
+from .parametric import ParametricFlow
+
+__all__ = ["ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]
+
+
+@dataclass
+class Iteration:
+    """One iteration: the nominal's cost, what was accepted, what changed.
+
+    ``orders[k]``: per group of step k, its events (global indices) in the order the
+    nominal crossed them. ``switches``: ``(step, events, old order, new order)`` where the
+    order changed from the previous nominal; ``regrouped``: steps whose groups changed.
+    """
+
+    cost: float
+    alpha: float
+    mu: float
+    orders: tuple
+    switches: list = field(default_factory=list)
+    regrouped: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+@dataclass
+class ILQRResult:
+    """``U`` (N, m) and ``X`` (N + 1, d) of the last nominal, its ``cost``; ``history``:
+    one :class:`Iteration` per linearisation (``history[0]`` the start); ``converged``
+    when the relative decrease fell below ``tol`` or the cost below ``cost_tol``;
+    ``stalled`` when no step decreased the cost at the largest ``mu``."""
+
+    U: np.ndarray
+    X: np.ndarray
+    cost: float
+    converged: bool
+    stalled: bool
+    history: list
+
+    @property
+    def costs(self):
+        """The nominal cost at each iteration: list of float."""
+        return [it.cost for it in self.history]
+
+
+def _cost(X, U, target, Qf, R):
+    e = X[-1] - target
+    return float(0.5 * np.einsum("ki,ij,kj->", U, R, U) + 0.5 * e @ Qf @ e)
+
+
+def rollout(flow, x0, U, dt):
+    """The states ``X`` (N + 1, d) from ``x0`` under the inputs ``U`` (N, m)."""
+    X = np.empty((len(U) + 1, flow.dim))
+    X[0] = x0
+    for k, u in enumerate(U):
+        X[k + 1] = flow.final(X[k], u, dt)
+    return X
+
+
+def _order_fn(linearisation):
+    """None (the nominal's orders) or a callable choosing a fixed priority order."""
+    if isinstance(linearisation, str):
+        if linearisation != "nominal":
+            raise ValueError(f"linearisation must be 'nominal' or a sequence of event "
+                             f"indices (a fixed order), got {linearisation!r}")
+        return None
+    prio = [int(e) for e in linearisation]
+    if len(set(prio)) != len(prio):
+        raise ValueError(f"a fixed order lists each event once, got {prio}")
+
+    def fixed(glob, final):
+        missing = [e for e in glob if e not in prio]
+        if missing:
+            raise ValueError(f"the fixed order {prio} does not place events {missing}")
+        order = sorted(range(len(glob)), key=lambda k: prio.index(glob[k]))
+        return order + [len(glob)] if final else order
+
+    return fixed
+
+
+def _linearise(flow, X, U, dt, fixed):
+    steps = [flow.step(X[k], U[k], dt, orders=fixed) for k in range(len(U))]
+    orders = tuple(tuple(tuple(g[j] for j in o if j < len(g))
+                         for g, o in zip(s.groups, s.orders, strict=True)) for s in steps)
+    return steps, orders
+
+
+def _changes(old, new):
+    switches, regrouped = [], []
+    for k, (a, b) in enumerate(zip(old, new, strict=True)):
+        if [sorted(g) for g in a] != [sorted(g) for g in b]:
+            regrouped.append(k)
+            continue
+        switches += [(k, tuple(sorted(g)), g, h) for g, h in zip(a, b, strict=True) if g != h]
+    return switches, regrouped
+
+
+def cost_gradient(flow, x0, U, dt, target, Qf, R, *, linearisation="nominal"):
+    """``dJ / dU`` (N, m) by the adjoint on the pieces the nominal selects.
+
+    ``lambda_N = Qf (x_N - x*)``, ``lambda_k = A_k^T lambda_{k+1}``,
+    ``dJ/du_k = R u_k + B_k^T lambda_{k+1}`` (the transposed pieces: the vjp of each step).
+    """
+    x0, U, target, Qf, R = _checked(flow, x0, U, dt, target, Qf, R)
+    X = rollout(flow, x0, U, dt)
+    steps, _ = _linearise(flow, X, U, dt, _order_fn(linearisation))
+    lam, G = Qf @ (X[-1] - target), np.empty_like(U)
+    for k in range(len(U) - 1, -1, -1):
+        G[k] = R @ U[k] + steps[k].B.T @ lam
+        lam = steps[k].A.T @ lam
+    return G
+
+
+def _checked(flow, x0, U, dt, target, Qf, R):
+    if not isinstance(flow, ParametricFlow):
+        raise TypeError(f"flow must be a ParametricFlow, got {type(flow).__name__}")
+    d, m = flow.dim, flow.n_params
+    check_number(dt, "dt")
+    x0 = check_real_array(x0, "x0").astype(np.float64)
+    U = check_real_array(U, "U").astype(np.float64)
+    target = check_real_array(target, "target").astype(np.float64)
+    Qf = check_real_array(Qf, "Qf").astype(np.float64)
+    R = check_real_array(R, "R").astype(np.float64)
+    for a, name, shape in ((x0, "x0", (d,)), (target, "target", (d,)), (Qf, "Qf", (d, d)),
+                           (R, "R", (m, m))):
+        if a.shape != shape or not np.isfinite(a).all():
+            raise ValueError(f"{name} must be finite of shape {shape}, got shape {a.shape}")
+    if U.ndim != 2 or U.shape[1] != m or not len(U) or not np.isfinite(U).all():
+        raise ValueError(f"U must be finite of shape (N, {m}), N >= 1, got shape {U.shape}")
+    for a, name in ((Qf, "Qf"), (R, "R")):
+        if not np.allclose(a, a.T) or np.linalg.eigvalsh(a).min() < 0:
+            raise ValueError(f"{name} must be symmetric positive semi-definite")
+    return x0, U, target, Qf, R
+
+
+def _backward(steps, U, X, target, Qf, R, mu):
+    """Gains ``k`` (N, m), ``K`` (N, m, d) and the predicted decrease terms, or None when
+    ``Q_uu`` is not positive definite."""
+    N, m = U.shape
+    Vx, Vxx = Qf @ (X[-1] - target), Qf.copy()
+    k_ff, K, d1, d2 = np.empty((N, m)), np.empty((N, m, X.shape[1])), 0.0, 0.0
+    for k in range(N - 1, -1, -1):
+        A, B = steps[k].A, steps[k].B
+        Qu = R @ U[k] + B.T @ Vx
+        Quu = R + B.T @ Vxx @ B + mu * np.eye(m)
+        Qux = B.T @ Vxx @ A
+        try:
+            L = np.linalg.cholesky(0.5 * (Quu + Quu.T))
+        except np.linalg.LinAlgError:
+            return None
+        sol = np.linalg.solve(L.T, np.linalg.solve(L, np.column_stack((Qu, Qux))))
+        k_ff[k], K[k] = -sol[:, 0], -sol[:, 1:]
+        d1 += k_ff[k] @ Qu
+        d2 += 0.5 * k_ff[k] @ Quu @ k_ff[k]
+        Vx = A.T @ Vx + K[k].T @ Quu @ k_ff[k] + K[k].T @ Qu + Qux.T @ k_ff[k]
+        Vxx = A.T @ Vxx @ A + K[k].T @ Quu @ K[k] + K[k].T @ Qux + Qux.T @ K[k]
+        Vxx = 0.5 * (Vxx + Vxx.T)
+    return k_ff, K, d1, d2
+
+
+def _forward(flow, X, U, dt, k_ff, K, alpha):
+    Xn, Un = np.empty_like(X), np.empty_like(U)
+    Xn[0] = X[0]
+    for k in range(len(U)):
+        Un[k] = U[k] + alpha * k_ff[k] + K[k] @ (Xn[k] - X[k])
+        Xn[k + 1] = flow.final(Xn[k], Un[k], dt)
+    return Xn, Un
+
+
+def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=30,
+         tol=1e-10, cost_tol=0.0, mu0=1e-6, mu_max=1e8, line_search=12):
+    """iLQR with piecewise-constant inputs on a :class:`ParametricFlow` (module docstring).
+
+    Parameters
+    ----------
+    flow : ParametricFlow
+        Its m parameters are the inputs.
+    x0 : array_like, shape (d,)
+    U0 : array_like, shape (N, m)
+        The first nominal inputs, one row per step.
+    dt : float
+        Step length (the horizon is ``N dt``).
+    target : array_like, shape (d,)
+    Qf : array_like, shape (d, d)
+    R : array_like, shape (m, m)
+        Positive semi-definite weights (symmetric).
+    linearisation : "nominal" or sequence of int
+        ``"nominal"``: each group's piece by the nominal's order; a sequence of event
+        indices: the fixed-order piece (a single-order linearisation, for comparison).
+    max_iters : int
+    tol : float
+        Stop when an accepted step lowers the cost by less than ``tol`` times it.
+    cost_tol : float
+        Stop when the cost is below it.
+    mu0, mu_max : float
+        First and largest regularisation of ``Q_uu``.
+    line_search : int
+        Halvings of ``alpha`` tried before ``mu`` grows.
+
+    Returns
+    -------
+    ILQRResult
+    """
+    x0, U, target, Qf, R = _checked(flow, x0, U0, dt, target, Qf, R)
+    fixed = _order_fn(linearisation)
+    check_positive_int(max_iters, "max_iters")
+    mu, history = check_number(mu0, "mu0"), []
+    X = rollout(flow, x0, U, dt)
+    cost = _cost(X, U, target, Qf, R)
+    start = time.perf_counter()
+    steps, orders = _linearise(flow, X, U, dt, fixed)
+    history.append(Iteration(cost, 0.0, mu, orders, seconds=time.perf_counter() - start))
+    converged = stalled = False
+    while len(history) <= max_iters and not converged:
+        start, accepted = time.perf_counter(), None
+        while accepted is None and mu <= mu_max:
+            back = _backward(steps, U, X, target, Qf, R, mu)
+            if back is not None:
+                k_ff, K, d1, d2 = back
+                alpha = 1.0
+                for _ in range(line_search):
+                    Xn, Un = _forward(flow, X, U, dt, k_ff, K, alpha)
+                    new = _cost(Xn, Un, target, Qf, R)
+                    expected = -(alpha * d1 + alpha**2 * d2)
+                    if new < cost and cost - new >= 1e-4 * expected:
+                        accepted = (Xn, Un, new, alpha)
+                        break
+                    alpha *= 0.5
+            if accepted is None:
+                mu *= 10.0
+        if accepted is None:
+            stalled = True
+            break
+        X, U, new, alpha = accepted
+        converged = cost - new < tol * cost or new <= cost_tol
+        cost, mu = new, max(mu / 10.0, 1e-12)
+        steps, new_orders = _linearise(flow, X, U, dt, fixed)
+        switches, regrouped = _changes(orders, new_orders)
+        orders = new_orders
+        history.append(Iteration(cost, alpha, mu, orders, switches, regrouped,
+                                 time.perf_counter() - start))
+    return ILQRResult(U, X, cost, converged, stalled, history)

@@ -1,0 +1,141 @@
+"""Models with inputs, written over the augmented state ``z = (x, p)`` (``p' = 0``).
+
+Each returns a :class:`~bderiv.control.parametric.ParametricFlow`: the functions take
+``z`` of length d + m and the field's last m entries are 0 (:mod:`.parametric` says why
+a parameter is a state that does not move). Compiled with numba by default and kept in
+numba's disk cache (:func:`bderiv.examples._common.compile_function`).
+
+- :func:`ball_1d`: hybrid-tools' 1-D bouncing ball, ``x = (q, q')``,
+  ``p = (u, e, g)``: ``q'' = -g + u``, at ``q = 0`` (falling) ``q' -> -e q'``.
+- :func:`ball_2d`: its 2-D ball, ``x = (qx, qy, qx', qy')``, ``p = (ux, uy, e, g, h)``:
+  ``qx'' = ux``, ``qy'' = -g + uy``, at ``qy = h`` (falling) ``qy' -> -e qy'``.
+- :func:`controlled_chair`: the chair of :func:`bderiv.examples.chair` (d = 6, two legs
+  on compliant ground, ``mode_damping`` making the two touchdown orders differ) with two
+  inputs ``p = (a_z, a_theta)``: a vertical acceleration and an angular acceleration of
+  the body (thrusters), held over each control step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..examples._common import compile_function
+from ..examples.chair import _offset, chair
+from ..models.system import HybridSystem
+from .parametric import ParametricFlow
+
+__all__ = ["ball_1d", "ball_2d", "controlled_chair"]
+
+_G = 9.81
+
+
+def _ball_functions(d, vertical, ground):
+    """Free flight ``x'' = u (+ gravity on the vertical)``; ``p = (u_0 .. u_{d/2-1}, e, g
+    [, h])``; the event: the ball below ``h`` (``ground``: index of h in z, or -1: 0)."""
+    half = d // 2
+
+    def field(z, mask):
+        out = np.zeros_like(z)
+        for i in range(half):
+            out[i] = z[half + i]
+            out[half + i] = z[d + i]
+        out[half + vertical] = out[half + vertical] - z[d + half + 1]
+        return out
+
+    if ground >= 0:
+        def events(z):
+            return np.array([z[ground] - z[vertical]])
+    else:
+        def events(z):
+            return np.array([-z[vertical]])
+
+    def reset(z, mask, k):
+        out = z.copy()
+        out[half + vertical] = -z[d + half] * z[half + vertical]
+        return out
+
+    return field, events, reset
+
+
+def _ball(d, vertical, ground, p, compiled, simultaneity_tol):
+    fns = _ball_functions(d, vertical, ground)
+    if compiled:
+        fns = [compile_function(f) for f in fns]
+    field, events, reset = fns
+    system = HybridSystem(field, events, n_events=1, dim=d + len(p), reset=reset)
+    flow = ParametricFlow(system, len(p), simultaneity_tol=simultaneity_tol)
+    flow.defaults = np.array(p, dtype=np.float64)
+    return flow
+
+
+def ball_1d(*, e=0.8, g=_G, compiled=True, simultaneity_tol=1e-7) -> ParametricFlow:
+    """hybrid-tools' 1-D bouncing ball (``bouncing_ball``): ``x = (q, q')``,
+    ``p = (u, e, g)``; ``flow.defaults`` = ``(0, e, g)``."""
+    return _ball(2, 0, -1, (0.0, e, g), compiled, simultaneity_tol)
+
+
+def ball_2d(*, e=0.8, g=_G, h=0.0, compiled=True, simultaneity_tol=1e-7) -> ParametricFlow:
+    """hybrid-tools' 2-D bouncing ball (``bouncing_ball_2d``): ``x = (qx, qy, qx', qy')``,
+    ``p = (ux, uy, e, g, h)``; ``flow.defaults`` = ``(0, 0, e, g, h)``."""
+    return _ball(4, 1, 8, (0.0, 0.0, e, g, h), compiled, simultaneity_tol)
+
+
+def _chair_functions(K, C, kappa, Ct, inertia, legs):
+    """The chair's field (``bderiv.examples.chair``) plus the inputs, over z (8,)."""
+
+    def field(z, mask):
+        c_leg = C * (1.0 + kappa) if (mask & 3) == 3 else C
+        out = np.zeros_like(z)
+        out[0], out[1], out[2] = z[3], z[4], z[5]
+        ax, az, alpha = 0.0 * z[0], -_G + z[6], z[7]
+        for k in range(2):
+            if mask >> k & 1:
+                rx, rz = _offset(legs[k, 0], legs[k, 1], z[2])
+                fz = -K * (z[1] + rz) - c_leg * (z[4] + z[5] * rx)
+                fx = -Ct * (z[3] - z[5] * rz)
+                ax = ax + fx
+                az = az + fz
+                alpha = alpha + (rx * fz - rz * fx) / inertia
+        out[3], out[4], out[5] = ax, az, alpha
+        return out
+
+    def events(z):
+        out = np.empty(2, dtype=z.dtype)
+        for k in range(2):
+            out[k] = -(z[1] + _offset(legs[k, 0], legs[k, 1], z[2])[1])
+        return out
+
+    return field, events
+
+
+def controlled_chair(*, mode_damping=5.0, stiffness=400.0, damping=4.0, friction=1.0,
+                     inertia=0.1, compiled=True, simultaneity_tol=1e-7):
+    """The chair with a vertical and an angular acceleration as inputs.
+
+    Parameters
+    ----------
+    mode_damping, stiffness, damping, friction, inertia : float
+        As :func:`bderiv.examples.chair` (``mode_damping`` 5 by default: the two
+        touchdown orders' pieces then differ by about half their norm).
+    compiled : bool
+    simultaneity_tol : float
+        The window of the steps' B-derivatives (:class:`ParametricFlow`).
+
+    Returns
+    -------
+    flow : ParametricFlow
+        d = 6, m = 2; ``flow.x0`` the chair's start (both feet land together at
+        ``t = 0.1`` without input), ``flow.defaults`` = (0, 0).
+    """
+    ex = chair(mode_damping=mode_damping, stiffness=stiffness, damping=damping,
+               friction=friction, inertia=inertia)
+    theta, a0, b0, a1 = 0.1, -0.5, -0.4, 0.6
+    legs = np.array([[a0, b0], [a1, b0 + (a0 - a1) * np.tan(theta)]])  # as chair()
+    fns = _chair_functions(float(stiffness), float(damping), float(mode_damping),
+                           float(friction), float(inertia), legs)
+    if compiled:
+        fns = [compile_function(f) for f in fns]
+    system = HybridSystem(fns[0], fns[1], n_events=2, dim=8)
+    flow = ParametricFlow(system, 2, simultaneity_tol=simultaneity_tol)
+    flow.x0, flow.defaults = ex.x0.copy(), np.zeros(2)
+    return flow

@@ -1,0 +1,194 @@
+"""Single shooting by Levenberg-Marquardt steps, Jacobians from the flow's B-derivative.
+
+The problem (hybrid-tools' ``ShootingMethodOptimizer``): choose some coordinates of the
+start state and/or some parameters ``w`` (the decision, shape (q,)) so that chosen
+coordinates of the final state ``Phi_p(T, x0)`` match a target: the residual
+``r(w) = Phi(T, x0(w))[out] - target`` (shape (o,)). Each iteration
+
+1. simulates from the current ``w`` and stops when ``|r| < error_tol``;
+2. takes the Jacobian ``J = dr / dw`` (o, q): the rows ``out`` and the decision columns
+   of the piece of the flow's B-derivative ``D`` (dimension d + m, parameters included:
+   :mod:`.parametric`) that the nominal trajectory selects (its event order in each
+   group); one flow map per iteration, exact (no time-step approximation of the event);
+3. solves ``(J^T J + lambda diag(J^T J)) s = J^T r`` and tries ``w - s``: accepted when
+   ``|r|`` decreases (lambda divided by 10), else lambda multiplied by 10 and the step
+   halved, up to ``line_search_max_iters`` times (else ``w`` kept); a trial point whose
+   simulation is refused (a Zeno trajectory, say) is a failed trial;
+4. stops when the accepted change of ``w`` is below ``input_state_tol`` (after the first
+   iteration).
+
+Steps 1, 3 and 4 are hybrid-tools' rules and constants (:class:`ShootingConfig` has its
+defaults), so a comparison differs in the Jacobian alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import check_number, check_positive_int, check_real_array
+from .parametric import ParametricFlow
+
+__all__ = ["ShootingConfig", "ShootingResult", "shoot"]
+
+
+@dataclass(frozen=True)
+class ShootingConfig:
+    """Stopping rule and Levenberg-Marquardt constants (hybrid-tools' defaults)."""
+
+    max_iters: int = 50
+    error_tol: float = 0.05
+    input_state_tol: float = 1e-3
+    initial_lambda: float = 1e-4
+    lambda_increase: float = 10.0
+    lambda_decrease: float = 0.1
+    min_lambda: float = 1e-10
+    max_lambda: float = 1e6
+    line_search_max_iters: int = 15
+    line_search_backoff: float = 0.5
+
+
+@dataclass
+class ShootingResult:
+    """What :func:`shoot` found.
+
+    Attributes
+    ----------
+    decision : ndarray, shape (q,)
+        The final decision (start-state coordinates, then parameters, as asked).
+    x_final : ndarray, shape (d,)
+        The final state of the last simulated iterate.
+    converged : bool
+        ``|r| < error_tol``.
+    iterations : int
+        Levenberg-Marquardt steps taken (hybrid-tools' count: the index of the iteration
+        that stopped).
+    errors : list of float
+        ``|r|`` at each iteration's nominal.
+    simulations : int
+        Simulations run (nominal and trial points).
+    refusals : list of str
+        Trial points whose simulation was refused (counted as failed trials), with why.
+    """
+
+    decision: np.ndarray
+    x_final: np.ndarray
+    converged: bool
+    iterations: int
+    errors: list = field(default_factory=list)
+    simulations: int = 0
+    refusals: list = field(default_factory=list)
+
+
+def _indices(idx, size, name):
+    arr = check_real_array(np.asarray(idx) if len(idx) else np.zeros(0, np.int64), name)
+    if arr.ndim != 1 or arr.dtype.kind not in "iu":
+        raise TypeError(f"{name} must be a 1-D sequence of integers, got {arr!r}")
+    if arr.size and (arr.min() < 0 or arr.max() >= size or len(set(arr.tolist())) < arr.size):
+        raise ValueError(f"{name} must be distinct indices in [0, {size}), got {arr.tolist()}")
+    return arr.astype(np.int64)
+
+
+def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
+          param_indices=(), initial_guess=None, config=None):
+    """Levenberg-Marquardt shooting on a :class:`ParametricFlow`.
+
+    Parameters
+    ----------
+    flow : ParametricFlow
+    x0 : array_like, shape (d,)
+        The start state (its ``state_indices`` entries replaced by the decision).
+    p : array_like, shape (m,)
+        The parameters (their ``param_indices`` entries replaced by the decision).
+    t_final : float
+    target : array_like, shape (o,)
+        Wanted values of the final state at ``output_indices``.
+    output_indices : sequence of int, length o
+    state_indices, param_indices : sequence of int
+        The decision: these coordinates of x0, then these parameters (q in all, >= 1).
+    initial_guess : array_like, shape (q,), optional
+        Default: the values in ``x0`` and ``p``.
+    config : ShootingConfig, optional
+
+    Returns
+    -------
+    ShootingResult
+    """
+    if not isinstance(flow, ParametricFlow):
+        raise TypeError(f"flow must be a ParametricFlow, got {type(flow).__name__}")
+    config = ShootingConfig() if config is None else config
+    if not isinstance(config, ShootingConfig):
+        raise TypeError(f"config must be a ShootingConfig, got {type(config).__name__}")
+    check_positive_int(config.max_iters, "config.max_iters")
+    d, m = flow.dim, flow.n_params
+    z0 = flow._z(x0, p)
+    t_final = check_number(t_final, "t_final")
+    out = _indices(output_indices, d, "output_indices")
+    cols = np.concatenate((_indices(state_indices, d, "state_indices"),
+                           d + _indices(param_indices, m, "param_indices")))
+    if not cols.size or not out.size:
+        raise ValueError("give at least one decision index (state_indices, param_indices) "
+                         "and one output index")
+    target = check_real_array(target, "target").astype(np.float64)
+    if target.shape != out.shape or not np.isfinite(target).all():
+        raise ValueError(f"target must be {out.size} finite values (one per output index),"
+                         f" got {target}")
+    w = z0[cols].copy() if initial_guess is None else \
+        check_real_array(initial_guess, "initial_guess").astype(np.float64)
+    if w.shape != cols.shape or not np.isfinite(w).all():
+        raise ValueError(f"initial_guess must be {cols.size} finite values, got {w}")
+    sims = 0
+
+    def residual(wv):
+        nonlocal sims
+        z = z0.copy()
+        z[cols] = wv
+        sims += 1
+        return flow.final(z[:d], z[d:], t_final)[out] - target, z
+
+    lam, errors, refusals = config.initial_lambda, [], []
+    for i in range(config.max_iters):
+        r, z = residual(w)
+        err = float(np.linalg.norm(r))
+        errors.append(err)
+        if err < config.error_tol:
+            return ShootingResult(w, r + target, True, i, errors, sims, refusals)
+        step = flow.step(z[:d], z[d:], t_final)
+        P = step.D.piece(step.orders) if step.D.n_groups else step.D.piece()
+        J = P[np.ix_(out, cols)]
+        JtJ = J.T @ J
+        Dm = np.diag(np.maximum(np.diag(JtJ), 1e-10))
+        try:
+            s = np.linalg.solve(JtJ + lam * Dm, J.T @ r)
+        except np.linalg.LinAlgError:
+            s = np.linalg.pinv(JtJ + lam * Dm) @ (J.T @ r)
+        w_new, lam = _adaptive(residual, w, s, err, lam, config, refusals)
+        if np.linalg.norm(w_new - w) < config.input_state_tol and i > 0:
+            return ShootingResult(w_new, r + target, err < config.error_tol, i, errors, sims,
+                                  refusals)
+        w = w_new
+    return ShootingResult(w, r + target, False, config.max_iters, errors, sims, refusals)
+
+
+def _adaptive(residual, w, s, err, lam, config, refusals):
+    """hybrid-tools' step rule: the full step if it lowers ``|r|``, else halved steps
+    with lambda growing; ``w`` kept when none does. A trial point whose simulation bderiv
+    refuses (a ValueError: a Zeno trajectory, a grazing contact) is a failed trial, its
+    message appended to ``refusals``."""
+
+    def trial(wv):
+        try:
+            return float(np.linalg.norm(residual(wv)[0]))
+        except ValueError as exc:
+            refusals.append(f"at {wv.tolist()}: {exc}")
+            return np.inf
+
+    if trial(w - s) < err:
+        return w - s, max(lam * config.lambda_decrease, config.min_lambda)
+    for _ in range(config.line_search_max_iters):
+        lam = min(lam * config.lambda_increase, config.max_lambda)
+        s = s * config.line_search_backoff
+        if trial(w - s) < err:
+            return w - s, lam
+    return w, lam

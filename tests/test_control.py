@@ -1,0 +1,209 @@
+"""bderiv.control: shooting against hybrid-tools, parameter derivatives against finite
+differences of an independent simulation, iLQR through the chair's simultaneous touchdown."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from bderiv import HybridSystem
+from bderiv.control import (
+    ParametricFlow,
+    ShootingConfig,
+    augment,
+    ball_1d,
+    ball_2d,
+    controlled_chair,
+    cost_gradient,
+    ilqr,
+    rollout,
+    shoot,
+)
+
+#: hybrid-tools' example settings (its shooting script: error_tol 0.005, input_state_tol
+#: 1e-5, the rest its defaults), for both optimisers
+TOLS = {"max_iters": 50, "error_tol": 0.005, "input_state_tol": 1e-5}
+
+
+def _theirs(system, params, T, x0, controls, guess, target, outputs):
+    ht = pytest.importorskip("hybrid_tools.shooting_method_optimizer")
+    for mode in system.noises:  # its simulator draws process noise on the inputs: none
+        system.noises[mode].W *= 0
+    opt = ht.ShootingMethodOptimizer(system, "I", np.array(params), dt=0.005, T=T)
+    return opt.optimize(np.array(x0, float), controls, np.array(guess, float),
+                        np.array(target, float), outputs, np.zeros(len(x0) // 2),
+                        ht.ShootingMethodOptimizerConfig(verbose=False, **TOLS))
+
+
+@pytest.mark.parametrize("guess", [8.0, 10.0])
+def test_shooting_2d_ball_against_hybrid_tools(guess):
+    """Its own 2-D example: from (0, 1) at rest, the start velocity that puts the ball at
+    (4, 1) at T = 5 s (several bounces, e = 0.8). Same start, cost, rules: we need no
+    more iterations and reach the same optimum."""
+    boxes = pytest.importorskip("hybrid_tools.basic_hybrid_systems")
+    x0, target = [0.0, 1.0, 0.0, 0.0], [4.0, 1.0]
+    theirs = _theirs(boxes.bouncing_ball_2d(), [0.8, 9.81, 0.0], 5.0, x0, [2, 3],
+                     [0.8, guess], target, [0, 1])
+    flow = ball_2d()
+    ours = shoot(flow, x0, flow.defaults, 5.0, target, output_indices=[0, 1],
+                 state_indices=[2, 3], initial_guess=[0.8, guess],
+                 config=ShootingConfig(**TOLS))
+    assert theirs.converged and ours.converged
+    assert ours.iterations <= theirs.iterations
+    assert np.allclose(ours.decision, theirs.optimal_controls, rtol=0, atol=2e-3)
+    assert np.abs(ours.x_final - target).max() < TOLS["error_tol"]
+
+
+def test_shooting_1d_ball_against_hybrid_tools():
+    """The 1-D ball from q = 1: the start velocity that puts it at q = 0.5 at T = 2 s
+    (two bounces)."""
+    boxes = pytest.importorskip("hybrid_tools.basic_hybrid_systems")
+    theirs = _theirs(boxes.bouncing_ball(), [0.8, 9.81], 2.0, [1.0, 0.0], [1], [3.0],
+                     [0.5], [0])
+    flow = ball_1d()
+    ours = shoot(flow, [1.0, 0.0], flow.defaults, 2.0, [0.5], output_indices=[0],
+                 state_indices=[1], initial_guess=[3.0], config=ShootingConfig(**TOLS))
+    assert theirs.converged and ours.converged
+    assert ours.iterations <= theirs.iterations
+    assert abs(ours.decision[0] - theirs.optimal_controls[0]) < 2e-3
+
+
+def _ball_scipy(x, p, T):
+    """The 1-D ball by solve_ivp with its own event logic: q'' = -g + u, bounce at q = 0
+    falling, q' -> -e q'."""
+    u, e, g = p
+    t, y = 0.0, np.array(x, float)
+
+    def hit(_t, s):
+        return s[0]
+
+    hit.terminal, hit.direction = True, -1
+    while t < T:
+        sol = solve_ivp(lambda _t, s: [s[1], -g + u], (t, T), y, events=hit,
+                        rtol=1e-12, atol=1e-13)
+        t, y = sol.t[-1], sol.y[:, -1].copy()
+        if sol.status == 1:
+            y = np.array([0.0, -e * y[1]])
+    return y
+
+
+def test_parameter_derivatives_against_finite_differences():
+    """B = dx(T)/dp (input, restitution, gravity) through two bounces, against one-sided
+    differences of an independent simulation (scipy, events in the test)."""
+    flow = ball_1d()
+    x, p, T = np.array([1.0, 0.5]), np.array([0.7, 0.8, 9.81]), 1.6
+    step = flow.step(x, p, T)
+    assert len(step.groups) == 2
+    eps = 1e-6
+    base = _ball_scipy(x, p, T)
+    assert np.allclose(step.x_next, base, atol=1e-8)
+    for j in range(3):
+        fd = (_ball_scipy(x, p + eps * np.eye(3)[j], T) - base) / eps
+        assert np.allclose(step.B[:, j], fd, rtol=1e-4, atol=1e-4 * np.abs(fd).max())
+    fd_x = np.column_stack([(_ball_scipy(x + eps * np.eye(2)[i], p, T) - base) / eps
+                            for i in range(2)])
+    assert np.allclose(step.A, fd_x, rtol=1e-4, atol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def chair_flow():
+    return controlled_chair(mode_damping=60.0, simultaneity_tol=5e-3)
+
+
+def test_cost_gradient_against_finite_differences(chair_flow):
+    """dJ/dU by the adjoint on the pieces, against one-sided differences of the cost,
+    with the touchdowns apart (the cost differentiable there)."""
+    flow = controlled_chair(mode_damping=60.0)  # window 1e-7: each touchdown its own
+    N, dt = 5, 0.03
+    U = np.zeros((N, 2))
+    target = rollout(flow, flow.x0, U, dt)[-1] + 0.01
+    U[:, 1] = 2.0
+    Qf, R = np.eye(6), 1e-2 * np.eye(2)
+    G = cost_gradient(flow, flow.x0, U, dt, target, Qf, R)
+
+    def cost(V):
+        e = rollout(flow, flow.x0, V, dt)[-1] - target
+        return 0.5 * np.sum(V * (V @ R)) + 0.5 * e @ Qf @ e
+
+    eps, c0 = 1e-6, cost(U)
+    fd = np.array([[(cost(U + eps * np.eye(N * 2)[2 * k + j].reshape(N, 2)) - c0) / eps
+                    for j in range(2)] for k in range(N)])
+    assert np.allclose(G, fd, rtol=1e-3, atol=1e-4 * np.abs(fd).max())
+
+
+def _chair_runs(flow, torque=4.0):
+    N, dt = 5, 0.03
+    U0 = np.zeros((N, 2))
+    target = rollout(flow, flow.x0, U0, dt)[-1]  # reached by landing flat: both feet at once
+    U0[:, 1] = torque
+    out = {}
+    for lin in ("nominal", (0, 1), (1, 0)):
+        res = ilqr(flow, flow.x0, U0, dt, target, Qf=np.eye(6), R=1e-6 * np.eye(2),
+                   linearisation=lin, max_iters=12, tol=0.0)
+        costs = np.array(res.costs)
+        hit = np.flatnonzero(costs < 1e-14 * costs[0])
+        out[lin] = (int(hit[0]) if hit.size else None, res)
+    return out
+
+
+def test_ilqr_through_the_simultaneous_touchdown(chair_flow):
+    """The chair driven to the state it reaches by landing on both feet at once, from a
+    torque that lands one foot first: our iLQR (the nominal's piece) gets the cost below
+    1e-14 of its start in 4 iterations and reports the switch of order it goes through;
+    each single-order linearisation (one fixed piece) needs at least twice as many."""
+    runs = _chair_runs(chair_flow)
+    ours, res = runs["nominal"]
+    assert ours is not None and ours <= 5
+    switches = [s for it in res.history for s in it.switches]
+    assert switches and all(s[1] == (0, 1) for s in switches)
+    for lin in ((0, 1), (1, 0)):
+        theirs = runs[lin][0]
+        assert theirs is None or theirs >= 2 * ours, (lin, theirs, ours)
+
+
+def test_augment_is_the_params_model():
+    """augment() of a params model's functions: the same trajectory as
+    HybridSystem(..., params=p), and parameters that do not move."""
+
+    def field(z, mask):
+        a = z[2] if mask & 0b10 else 1.0
+        b = z[3] if mask & 0b01 else 1.0
+        return np.array([a * (1 + 0.1 * z[1] ** 2), b * (1 + 0.2 * np.sin(z[0]))])
+
+    def events(z):
+        return np.array([z[0] + 0.1 * z[1] ** 2, z[1]])
+
+    p = np.array([0.4, 0.3])
+    plain = HybridSystem(field, events, n_events=2, dim=2, params=p)
+    flow = ParametricFlow(augment(field, events, n_events=2, dim=2, n_params=2), 2)
+    x0 = np.array([-0.9, -0.8])
+    flow.rate_check(x0, p)
+    assert np.allclose(flow.final(x0, p, 1.5), plain.simulate(x0, 1.5).x_final,
+                       rtol=0, atol=1e-9)
+
+
+def test_refusals():
+    flow = ball_1d()
+    with pytest.raises(TypeError, match="ParametricFlow"):
+        shoot(object(), [1, 0], [0, 0.8, 9.81], 1.0, [0.5], output_indices=[0],
+              state_indices=[1])
+    with pytest.raises(ValueError, match="state_indices"):
+        shoot(flow, [1, 0], flow.defaults, 1.0, [0.5], output_indices=[0],
+              state_indices=[2])
+    with pytest.raises(ValueError, match="target"):
+        shoot(flow, [1, 0], flow.defaults, 1.0, [0.5, 1.0], output_indices=[0],
+              state_indices=[1])
+    with pytest.raises(ValueError, match="x must have shape"):
+        flow.step([1.0], flow.defaults, 1.0)
+    with pytest.raises(ValueError, match=r"U must be finite of shape \(N, 3\)"):
+        ilqr(flow, [1, 0], np.zeros((4, 2)), 0.1, [0, 0], Qf=np.eye(2), R=np.eye(3))
+    with pytest.raises(ValueError, match="R must be symmetric"):
+        ilqr(flow, [1, 0], np.zeros((4, 3)), 0.1, [0, 0], Qf=np.eye(2), R=-np.eye(3))
+    with pytest.raises(ValueError, match="linearisation"):
+        ilqr(flow, [1, 0], np.zeros((4, 3)), 0.1, [0, 0], Qf=np.eye(2), R=np.eye(3),
+             linearisation="average")
+    with pytest.raises(TypeError, match="HybridSystem"):
+        ParametricFlow(object(), 1)
+    with pytest.raises(ValueError, match="n_params"):
+        ParametricFlow(flow.system, 5)
