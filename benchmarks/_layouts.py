@@ -34,6 +34,16 @@ class Column:
         return self.fmt.format(value * self.scale if self.scale != 1.0 else value)
 
 
+ALIGN = {"r": "---:", "l": "---", "c": ":---:"}
+
+
+def markdown_table(columns: list[Column], rows: list[dict]) -> list[str]:
+    """The lines of the Markdown table of ``rows`` in the layout ``columns``."""
+    lines = ["| " + " | ".join(c.head for c in columns) + " |",
+             "|" + "|".join(ALIGN[c.align] for c in columns) + "|"]
+    return lines + ["| " + " | ".join(c.cell(row) for c in columns) + " |" for row in rows]
+
+
 def time_unit(seconds: float, row=None) -> str:
     """3 significant digits in s, ms, us or ns (``tools/bench_table.py``'s cells)."""
     for unit, scale in (("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9)):

@@ -16,7 +16,8 @@ With the default ``--benchmark-disable`` every case up to n = 8 runs once as a s
 
     python -m pytest benchmarks/test_bench_dense.py -n 0 -m "slow or not slow" \\
         --benchmark-enable --benchmark-json=bench.json
-    python tools/bench_table.py bench.json --plot bench.png
+    python tools/bench_table.py bench.json --record --plot bench.png
+    python tools/render_benchmarks.py   # docs/benchmarks.md from benchmarks/results/dense.json
 
 Plain tests at the end check the construction targets (n = 20 built in < 1 s, peak memory
 at most 1.25x the tables) and that the contenders agree with the baselines.

@@ -31,23 +31,16 @@ import sys
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BLOCK = re.compile(r"(<!-- results: (?P<name>[\w.-]+)(?: (?P<table>[\w.-]+))? -->\n)"
                    r"(?P<body>.*?)(<!-- /results -->)", re.DOTALL)
-ALIGN = {"r": "---:", "l": "---", "c": ":---:"}
 
 
-def layouts(root: pathlib.Path = ROOT) -> dict:
+def layouts(root: pathlib.Path = ROOT):
+    """``benchmarks/_layouts.py`` of the checkout ``root``, as a module."""
     spec = importlib.util.spec_from_file_location("bderiv_bench_layouts",
                                                   root / "benchmarks" / "_layouts.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
-    return module.LAYOUTS
-
-
-def table(columns, rows) -> list[str]:
-    lines = ["| " + " | ".join(c.head for c in columns) + " |",
-             "|" + "|".join(ALIGN[c.align] for c in columns) + "|"]
-    lines += ["| " + " | ".join(c.cell(row) for c in columns) + " |" for row in rows]
-    return lines
+    return module
 
 
 def caption(meta: dict, file: str) -> str:
@@ -69,7 +62,7 @@ def caption(meta: dict, file: str) -> str:
     return f"*Measured {'; '.join(p for p in parts if p)}.*"
 
 
-def render_block(name: str, table_name: str | None, results: pathlib.Path, all_layouts) -> str:
+def render_block(name: str, table_name: str | None, results: pathlib.Path, spec) -> str:
     path = results / f"{name}.json"
     data = json.loads(path.read_text(encoding="utf-8"))
     tables = data["tables"]
@@ -80,15 +73,16 @@ def render_block(name: str, table_name: str | None, results: pathlib.Path, all_l
         (table_name,) = tables
     if table_name not in tables:
         raise ValueError(f"{path}: no table {table_name!r} (has {sorted(tables)})")
-    columns = all_layouts[data["benchmark"]][table_name]
-    lines = ["", *table(columns, tables[table_name]), "",
+    columns = spec.LAYOUTS[data["benchmark"]][table_name]
+    lines = ["", *spec.markdown_table(columns, tables[table_name]), "",
              caption(data["meta"], f"benchmarks/results/{name}.json"), ""]
     return "\n".join(lines) + "\n"
 
 
-def render_page(text: str, results: pathlib.Path, all_layouts) -> str:
+def render_page(text: str, results: pathlib.Path, spec) -> str:
+    """``text`` with every block between markers rendered from ``results``."""
     def fill(m):
-        return m.group(1) + render_block(m["name"], m["table"], results, all_layouts) + m.group(5)
+        return m.group(1) + render_block(m["name"], m["table"], results, spec) + m.group(5)
     return BLOCK.sub(fill, text)
 
 
@@ -100,13 +94,13 @@ def main(argv=None) -> int:
                    help="the checkout (docs/, benchmarks/results/); default this one")
     args = p.parse_args(argv)
     results = args.root / "benchmarks" / "results"
-    all_layouts = layouts(args.root)
+    spec = layouts(args.root)
     stale = []
     for page in sorted((args.root / "docs").glob("*.md")) + [args.root / "README.md"]:
         if not page.exists():
             continue
         text = page.read_text(encoding="utf-8")
-        new = render_page(text, results, all_layouts)
+        new = render_page(text, results, spec)
         if new == text:
             continue
         stale.append(page)
