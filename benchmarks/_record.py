@@ -31,7 +31,13 @@ RESULTS = HERE / "results"
 sys.path.insert(0, str(HERE))
 from _layouts import LAYOUTS  # noqa: E402
 
-_LOAD_AT_START = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+
+def load_average() -> list[float] | None:
+    """The 1, 5 and 15 minute load averages (None where the OS has none)."""
+    return [round(v, 2) for v in os.getloadavg()] if hasattr(os, "getloadavg") else None
+
+
+_LOAD_AT_START = load_average()
 FIELDS = ("command", "date", "machine", "load", "versions", "commit")
 
 
@@ -77,12 +83,11 @@ def metadata_now(argv: list[str] | None = None) -> dict:
         script = script.resolve().relative_to(HERE.parent)
     except ValueError:
         pass
-    load_now = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
     return {
         "command": " ".join(["python", str(script), *argv[1:]]),
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count()},
-        "load": {"start": _LOAD_AT_START, "end": load_now},
+        "load": {"start": _LOAD_AT_START, "end": load_average()},
         "versions": {"python": platform.python_version(), "numpy": _version("numpy"),
                      "numba": _version("numba")},
         "commit": git_commit(),
@@ -119,14 +124,18 @@ def record(benchmark: str, tables: dict, *, path=None, meta: dict | None = None,
 
 
 def dumps(data: dict) -> str:
-    """The record as JSON text, one row per line (diffs of a new run stay readable)."""
-    tables = ",\n".join(
-        f"  {json.dumps(name)}: [\n" + ",\n".join(
-            "   " + json.dumps(row, ensure_ascii=False) for row in rows) + "\n  ]"
-        for name, rows in data["tables"].items())
-    head = {k: v for k, v in data.items() if k != "tables"}
-    text = json.dumps(head, indent=1, ensure_ascii=False)[:-2]
-    return text + ',\n "tables": {\n' + tables + "\n }\n}\n"
+    """The record as JSON text: a line per metadata field and per row (diffs of a new run
+    stay readable)."""
+    def block(items, indent):
+        pad = " " * indent
+        return ",\n".join(f"{pad}{json.dumps(k)}: {v}" for k, v in items)
+
+    meta = block(((k, json.dumps(v, ensure_ascii=False)) for k, v in data["meta"].items()), 2)
+    tables = block(((name, "[\n" + ",\n".join(
+        "   " + json.dumps(row, ensure_ascii=False) for row in rows) + "\n  ]")
+        for name, rows in data["tables"].items()), 2)
+    return (f'{{\n "benchmark": {json.dumps(data["benchmark"])},\n "meta": {{\n{meta}\n }},\n'
+            f' "tables": {{\n{tables}\n }}\n}}\n')
 
 
 def add_argument(parser, benchmark: str) -> None:

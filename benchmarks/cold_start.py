@@ -26,6 +26,8 @@ symbolic cache beside it), and reports wall seconds as each child measures them:
 A benchmark, not a test: cold runs take minutes on two cores, and their times move with the
 machine's load, so the rows are read side by side (same run, same load), and the load is
 printed.
+``--record`` writes the
+rows of docs/design.md's table to ``benchmarks/results/cold_start.json`` (``_record.py``).
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+import _record
 
 CHAIR = """
 import json, time
@@ -224,6 +228,7 @@ def main(argv=None):
     parser.add_argument("--demo", action="store_true", help="also the demo, cache empty")
     parser.add_argument("--no-diffrax", action="store_true", help="skip diffrax's case")
     parser.add_argument("--timeout", type=float, default=1800.0)
+    _record.add_argument(parser, "cold_start")
     args = parser.parse_args(argv)
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -255,7 +260,42 @@ def main(argv=None):
         parts = ", ".join(f"{k} {v:.3g} s" if isinstance(v, float) else f"{k} {v}"
                           for k, v in row.items() if v is not None)
         print(f"{name:<{width}}  {parts}")
+    if args.record:
+        _record.record("cold_start", {"main": doc_rows(rows)}, path=args.record, meta={
+            "note": "each case in a fresh process, numba's cache in a temporary folder"})
     return rows
+
+
+def doc_rows(rows: dict) -> list[dict]:
+    """The rows of docs/design.md's cold-start table (``_layouts.py``) from :func:`main`'s."""
+    def case(label, r, second=True):
+        return dict(case=label, seconds=r["first"], second=r["second"] if second else None,
+                    **{"import": r["import"]})
+    out = []
+    if "diffrax: first Jacobian (trace, compile, run)" in rows:
+        out.append(case("diffrax: first Jacobian of the chair's event-switching flow (trace, "
+                        "compile, run)", rows["diffrax: first Jacobian (trace, compile, run)"],
+                        second=False))
+    empty = rows["bderiv: chair, cache empty"]
+    out.append(case("bderiv: the chair's first flow B-derivative, cache empty" + (
+        " (on scipy; the integrator compiling in the background)"
+        if empty["on"] == "scipy" else ""), empty))
+    if "ready" in empty:
+        out.append({"case": "... the integrator ready (from the first call) / the first flow "
+                    "map on it / the next", "seconds": [empty["ready"], empty["switch"],
+                                                      empty["compiled"]],
+                    "import": None, "second": None})
+    out.append(case("bderiv: the same, cache warm", rows["bderiv: chair, cache warm"]))
+    out.append(case("bderiv: cache empty, `BDERIV_INTEGRATOR=compiled` (waiting for the "
+                    "integrator)", rows["bderiv: chair, cache empty, BDERIV_INTEGRATOR=compiled"],
+                    second=False))
+    out.append(case("bderiv: a new model (source never seen), the library's cache warm",
+                    rows["bderiv: a new model, library warm"], second=False))
+    if "bderiv demo, cache empty" in rows:
+        r = rows["bderiv demo, cache empty"]
+        out.append({"case": "`python -m bderiv demo`, cache empty: first line / total",
+                    "seconds": [r["first_line"], r["wall"]], "import": None, "second": None})
+    return out
 
 
 if __name__ == "__main__":

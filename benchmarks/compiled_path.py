@@ -18,6 +18,8 @@ is what it costs. The first call of each compiled model (compiling its functions
 and loading the driver; the library's own kernels are loaded before) is reported apart,
 not charged. Printed: the times, the ratios, and
 the agreement of the two paths (end states, flow maps on random directions, event logs).
+``--record`` writes the table's rows (docs/benchmarks.md) to
+``benchmarks/results/compiled_path.json`` (``_record.py``).
 ``--quick`` runs the smallest and largest model only; ``--many`` times ``simulate_many`` of
 64 starts against a loop of ``simulate`` on the compiled model (smallest and largest;
 perturbed starts, whose stops go back to Python, and level ones, all compiled), and
@@ -34,6 +36,7 @@ import os
 import sys
 import time
 
+import _record
 import numba
 import numpy as np
 from compiled_integrator import best  # min wall time of repeated calls (benchmarks/)
@@ -160,13 +163,14 @@ def log_of(traj):
     return [(e.event, e.mask, e.direction) for e in traj.events]
 
 
-def main(sizes=SIZES):
+def main(sizes=SIZES, record=False):
     print(f"one stride (apex to t = {T_FINAL}), rtol 1e-10, atol 1e-12; min over {ROUNDS} "
           f"alternated rounds ({COMPILED_PER_ROUND} compiled runs, 1 Python run each); "
           f"times in ms")
     print(f"{'k':>2} {'p':>2} {'d':>3} {'1st call':>8} | {'sim c':>6} {'sim py':>7} "
           f"{'ratio':>6} | {'build c':>7} {'build py':>8} {'ratio':>6} | {'FD py':>7} "
           f"{'ratio':>6} | {'x rel':>7} {'map rel':>7} {'log':>4}")
+    rows = []
     for k, p in sizes:
         compiled, python, x0 = systems(k, p)
         d = x0.size
@@ -199,6 +203,11 @@ def main(sizes=SIZES):
               f"{sp / sc:>5.0f}x | {bc * 1e3:>7.2f} {bp * 1e3:>8.1f} {bp / bc:>5.0f}x | "
               f"{t_fd * 1e3:>7.0f} {t_fd / bc:>5.0f}x | {x_rel:>7.1e} {map_rel:>7.1e} "
               f"{'same' if same else 'DIFF':>4}", flush=True)
+        rows.append(dict(k=k, p=p, d=d, sim_c=sc, sim_py=sp, sim_ratio=sp / sc, build_c=bc,
+                         build_py=bp, build_ratio=bp / bc, fd_py=t_fd, fd_ratio=t_fd / bc))
+    if record:  # docs/benchmarks.md's table, from benchmarks/results/compiled_path.json
+        _record.record("compiled_path", {"main": rows}, meta={
+            "note": f"one process, {ROUNDS} alternated rounds, minima; times in ms"})
 
 
 def many(sizes=(SIZES[0], SIZES[-1]), batch=64):
@@ -368,4 +377,5 @@ if __name__ == "__main__":
     elif "--perturbed" in sys.argv:
         perturbed()
     else:
-        main(SIZES[:: len(SIZES) - 1] if "--quick" in sys.argv else SIZES)
+        main(SIZES[:: len(SIZES) - 1] if "--quick" in sys.argv else SIZES,
+             record="--record" in sys.argv)

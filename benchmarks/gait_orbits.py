@@ -19,7 +19,8 @@ the parallel kernels (``SERIAL_ENTRIES = 0``, the behaviour before), alternated.
 ``gaits.pronking(legs=8, compiled=True)`` where bderiv has it) against 1 s, wall time and
 the process's CPU time (what the job costs when other jobs share the cores).
 ``--quick``: the smallest and largest model only; ``--sizes 8:0,2:0``: these (k, p);
-``--rounds N``: N rounds.
+``--rounds N``: N rounds. ``--record``: the comparison's rows (docs/benchmarks.md's table) to
+``benchmarks/results/gait_orbits.json`` (``_record.py``).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import os
 import sys
 import time
 
+import _record
 import numba
 import numpy as np
 from compiled_integrator import best  # min wall time of repeated calls (benchmarks/)
@@ -76,13 +78,14 @@ def jobs(k, p):
             (lambda: gait(python, x0, section.py_func, gradient.py_func)), x0.size)
 
 
-def compare(sizes):
+def compare(sizes, record=False):
     print(f"periodic orbit (symmetric apex guess) + stability({VERDICT}); min over {ROUNDS} "
           f"alternated rounds ({COMPILED_PER_ROUND} compiled runs, 1 Python run each); "
           f"times in s; load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     print(f"{'k':>2} {'p':>2} {'d':>3} {'1st':>6} | {'orbit c':>7} {'stab c':>6} "
           f"{'total c':>7} | {'orbit py':>8} {'stab py':>7} {'total py':>8} | {'ratio':>6} | "
           f"{'Newton':>6} {'x0 diff':>7} {'T diff':>7} {'growth c':>8} {'growth py':>9}")
+    rows = []
     for k, p in sizes:
         job_c, job_py, d = jobs(k, p)
         start = time.perf_counter()
@@ -107,6 +110,13 @@ def compare(sizes):
               f"{len(orb_c.history) - 1:>3}/{len(orb_p.history) - 1:<2} {x_diff:>7.1e} "
               f"{t_diff:>7.1e} {st_c.growth_rate:>8.5f} {st_p.growth_rate:>9.5f}{target}",
               flush=True)
+        rows.append(dict(k=k, p=p, d=d, orbit_c=oc, verdict_c=sc, total_c=oc + sc, orbit_py=op,
+                         verdict_py=sp, total_py=op + sp, ratio=(op + sp) / (oc + sc),
+                         newton=len(orb_c.history) - 1, growth=st_c.growth_rate))
+    if record:  # docs/benchmarks.md's table, from benchmarks/results/gait_orbits.json
+        _record.record("gait_orbits", {"main": rows}, meta={
+            "note": f"one process, {ROUNDS} alternated rounds ({COMPILED_PER_ROUND} compiled "
+                    "runs, 1 Python run each), minima; seconds"})
 
 
 def eight_legs(sizes):
@@ -181,4 +191,7 @@ if __name__ == "__main__":
     if "--eight" in sys.argv:
         eight_legs([kp for kp in chosen if kp[0] == 8])
     else:
-        (scaling_paths if "--scaling" in sys.argv else compare)(chosen)
+        if "--scaling" in sys.argv:
+            scaling_paths(chosen)
+        else:
+            compare(chosen, record="--record" in sys.argv)

@@ -14,7 +14,10 @@ the same window (``--window``: touchdowns closer in time form one group):
 Prints, for each, the cost per iteration, the iterations to reach 1e-14 of the first cost,
 the switches of order met and the time per iteration; ``--figure`` draws the costs.
 
-    python benchmarks/ilqr.py --figure docs/control_ilqr.png
+    python benchmarks/ilqr.py --figure docs/control_ilqr.png [--record]
+
+``--record`` writes the table's rows (docs/control.md) to ``benchmarks/results/ilqr.json``
+(``_record.py``).
 """
 
 from __future__ import annotations
@@ -22,11 +25,14 @@ from __future__ import annotations
 import argparse
 import time
 
+import _record
 import numpy as np
 
 from bderiv.control import controlled_chair, ilqr, rollout
 
 METHODS = {"nominal": "nominal", "order (0, 1)": (0, 1), "order (1, 0)": (1, 0)}
+LABELS = {"nominal": "nominal order", "order (0, 1)": "fixed order (0, 1)",
+          "order (1, 0)": "fixed order (1, 0)"}  # the rows of docs/control.md
 
 
 def run(mode_damping, torque, window, iters):
@@ -52,6 +58,7 @@ def main(argv=None):
     ap.add_argument("--window", type=float, default=5e-3)
     ap.add_argument("--iters", type=int, default=12)
     ap.add_argument("--figure", default=None)
+    _record.add_argument(ap, "ilqr")
     args = ap.parse_args(argv)
     out = run(args.mode_damping, args.torque, args.window, args.iters)
     print(f"chair, mode_damping={args.mode_damping:g}, first guess a_theta={args.torque:g}, "
@@ -59,6 +66,7 @@ def main(argv=None):
     print("| linearisation | iterations to 1e-14 | switches | time per iteration | "
           "cost at iterations 0, 1, 2, ... |")
     print("|---|---:|---:|---:|---|")
+    rows = []
     for name, (res, per) in out.items():
         c = np.array(res.costs)
         hit = np.flatnonzero(c < 1e-14 * c[0])
@@ -67,6 +75,12 @@ def main(argv=None):
               f"{len(sw)} | {per * 1e3:.0f} ms | {' '.join(f'{x:.1e}' for x in c)} |")
         for i, k, a, b in sw:
             print(f"|   | iteration {i}: step {k}, order {a} -> {b} | | | |")
+        rows.append(dict(linearisation=LABELS[name],
+                         iterations=int(hit[0]) if hit.size else f"not in {len(c) - 1}",
+                         switches=[[int(i), int(k), list(a), list(b)] for i, k, a, b in sw],
+                         seconds=per, costs=[float(x) for x in c]))
+    if args.record:
+        _record.record("ilqr", {"main": rows}, path=args.record)
     if args.figure:
         import matplotlib
 

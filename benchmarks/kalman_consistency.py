@@ -10,6 +10,9 @@
 2. Monte Carlo through the chair's two-foot landing (and the ball in a corner): the mean
    NEES of each filter against the 95 % chi-square band (bderiv.estimate.consistency).
 3. The figure: covariance ellipses through the chair's touchdown.
+
+``--record`` writes the chair's rows of 2. (docs/estimation.md's table) to
+``benchmarks/results/kalman_consistency.json`` (``_record.py``).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import _record
 import numpy as np
 
 from bderiv import HybridSystem, examples
@@ -140,6 +144,7 @@ def main():
     ap.add_argument("--runs", type=int, default=1000)
     ap.add_argument("--figure", default=None, help="write the ellipse figure here (PNG)")
     ap.add_argument("--figure-only", action="store_true")
+    _record.add_argument(ap, "kalman_consistency")
     args = ap.parse_args()
     if args.figure_only:
         figure(args.figure or "estimation.png")
@@ -156,6 +161,15 @@ def main():
         c = consistency(ex, args.runs, prior_sd=sd, seed=1)
         print(f"\n2. {ex.name}, prior sd {sd:g} ({time.perf_counter() - t0:.1f} s)")
         print(c.table())
+        if args.record and ex.name == "chair":  # docs/estimation.md's table
+            lo, hi = c.band
+            rows = [dict(filter=name, mean_nees=float(np.mean(v)), band=[lo, hi],
+                         verdict="consistent" if lo <= np.mean(v) <= hi else
+                         "overconfident" if np.mean(v) > hi else "underconfident")
+                    for name, v in c.nees.items()]
+            _record.record("kalman_consistency", {"main": rows}, path=args.record, meta={
+                "note": f"{args.runs} runs, d = {c.dim}, "
+                        f"{time.perf_counter() - t0:.0f} s for the chair"})
     if args.figure:
         figure(args.figure)
         print(f"\nwrote {args.figure}")

@@ -8,13 +8,18 @@ with the same Levenberg-Marquardt rules and stopping rule (error_tol 0.005, inpu
 steps of 5 ms with the saltation matrix at the step that holds the impact). hybrid-tools'
 process noise is set to 0 (its simulator draws it on the inputs).
 
-    python benchmarks/shooting.py
+    python benchmarks/shooting.py [--record]
+
+``--record`` writes the two tables' rows (docs/control.md) to
+``benchmarks/results/shooting.json`` (``_record.py``).
 """
 
 from __future__ import annotations
 
+import sys
 import time
 
+import _record
 import numpy as np
 
 from bderiv.control import ShootingConfig, ball_1d, ball_2d, shoot
@@ -35,7 +40,7 @@ def theirs(system, params, T, x0, controls, guess, target, outputs):
                         ShootingMethodOptimizerConfig(verbose=False, **TOLS))
 
 
-def main():
+def main(record=False):
     from hybrid_tools.basic_hybrid_systems import bouncing_ball, bouncing_ball_2d
 
     cases = [("2-D", ball_2d(), bouncing_ball_2d, [0.8, 9.81, 0.0], 5.0,
@@ -46,6 +51,7 @@ def main():
     print("| ball | guess | hybrid-tools: iterations | optimum | s | bderiv: iterations | "
           "optimum | s | same optimum |")
     print("|---|---|---:|---|---:|---:|---|---:|:---:|")
+    tables = {}
     for name, flow, make, params, T, x0, ctrl, outs, target, guesses in cases:
         for guess in guesses:
             t = time.perf_counter()
@@ -62,7 +68,16 @@ def main():
                   f" | {fmt(r.optimal_controls)} | {t_theirs:.2f} | {o.iterations}"
                   f"{'' if o.converged else no} | {fmt(o.decision)} | "
                   f"{t_ours:.2f} | {'yes' if same else 'no'} |", flush=True)
+            tables.setdefault(name, []).append(dict(
+                ball=name, guess=guess[-1], theirs_iterations=int(r.iterations),
+                theirs_converged=bool(r.converged),
+                theirs_optimum=[float(v) for v in r.optimal_controls], theirs_s=t_theirs,
+                ours_iterations=int(o.iterations), ours_converged=bool(o.converged),
+                ours_optimum=[float(v) for v in o.decision], ours_s=t_ours,
+                same="yes" if same else "no"))
+    if record:
+        _record.record("shooting", tables)
 
 
 if __name__ == "__main__":
-    main()
+    main(record="--record" in sys.argv)

@@ -18,13 +18,16 @@ or, for the table of time per query up to n = 256 and the growth exponent from n
 128 (the issue 4 targets: exponent <= 2.2, n = 128 at >= 1e5 queries/s on 2 cores; issue
 10: n = 128 at >= 1.2e5 queries/s)::
 
-    python benchmarks/test_bench_corners.py [--queries 100000]
+    python benchmarks/test_bench_corners.py [--queries 100000] [--record]
+
+(``--record``: the rows of docs/benchmarks.md's table to ``benchmarks/results/corners.json``.)
 """
 
 from __future__ import annotations
 
 import argparse
 
+import _record
 import numpy as np
 import pytest
 from numba import get_num_threads
@@ -144,6 +147,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=50_000)
     parser.add_argument("--ns", type=int, nargs="+", default=[16, 32, 64, 128, 256])
+    _record.add_argument(parser, "corners")
     args = parser.parse_args(argv)
     print(f"structured corners, d = n, {args.queries} queries, {get_num_threads()} threads")
     print("| n | us/query (wall) | queries/s | CPU us/query |")
@@ -158,6 +162,10 @@ def main(argv=None):
         for i, what in ((0, "wall"), (1, "CPU")):
             k = np.log(res[hi][i] / res[lo][i]) / np.log(hi / lo)
             print(f"growth exponent n={lo}..{hi} ({what} time): {k:.2f} (target <= 2.2)")
+    if args.record:
+        rows = [dict(n=n, wall=wall, rate=1 / wall, cpu=cpu) for n, (wall, cpu) in res.items()]
+        _record.record("corners", {"main": rows}, path=args.record, meta={
+            "note": f"d = n, {args.queries} queries, {get_num_threads()} threads"})
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ Two ways to run it:
   eps = 1e-3, 1e-4, 1e-5 (max relative error over random vectors), the time of one
   ``flow_bderivative`` construction, of the map per vector (batch of 1000 and one vector
   at a time) and of one ``flow_fd`` per vector, all in the same run; prints a markdown
-  table (the numbers of the issue 3 closing note);
+  table (the numbers of the issue 3 closing note); ``--record`` writes the rows of
+  docs/benchmarks.md's table to ``benchmarks/results/flow.json`` (``_record.py``);
 - with pytest-benchmark (``pytest benchmarks/test_bench_flow.py -n 0 --benchmark-enable``): the
   same contenders, grouped per example so that the ratio can be read; with the default
   ``--benchmark-disable`` they run once as smoke tests.
@@ -19,6 +20,7 @@ import argparse
 import json
 import time
 
+import _record
 import numpy as np
 import pytest
 
@@ -39,6 +41,10 @@ CASES = {
     "network-n20": lambda: examples.network(20),
 }
 QUICK = ("chair", "table", "network-n3")
+LABELS = {"chair": "chair", "chair-additive": "chair, additive",
+          "table": "table (n > rank Dh)", "network-n3": "network n = 3",
+          "network-n3-d6": "network n = 3, d = 6", "network-n8": "network n = 8",
+          "network-n16": "network n = 16", "network-n20": "network n = 20"}
 
 
 def measure(name, n_vectors=10, seed=0):
@@ -127,6 +133,7 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
     parser.add_argument("--only", nargs="+", choices=tuple(CASES), help="these examples")
     parser.add_argument("--vectors", type=int, default=10, help="vectors for the FD errors")
+    _record.add_argument(parser, "flow")
     args = parser.parse_args(argv)
     names = args.only or (QUICK if args.quick else tuple(CASES))
     rows = []
@@ -137,6 +144,17 @@ def main(argv=None):
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)
+    if args.record:
+        _record.record("flow", {"main": [record_row(r) for r in rows]}, path=args.record)
+
+
+def record_row(r: dict) -> dict:
+    """A row of :func:`measure` in the keys of the docs' table (``_layouts.py``)."""
+    errors = dict(zip(("fd_1e-3", "fd_1e-4", "fd_1e-5"), r["fd_error"].values(), strict=True))
+    return dict(example=LABELS[r["example"]], n=r["n"], d=r["d"],
+                orders_seen=r["orders_seen"], **errors, build=r["t_build_s"],
+                batch=r["t_apply_batch_per_vector_s"], single=r["t_apply_single_per_vector_s"],
+                flow_fd=r["t_flow_fd_per_vector_s"], speedup=r["speedup_batch"])
 
 
 if __name__ == "__main__":
