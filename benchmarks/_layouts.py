@@ -178,5 +178,5 @@ LAYOUTS: dict[str, dict[str, list[Column]]] = {
     # benchmarks/jax_overhead.py
     "jax_overhead": {"main": [
         C("case", "case", align="l"), C("JAX route", "jax", time_unit),
-        C("bderiv's own calls", "numpy", time_unit), C("ratio", "ratio", "{:.3f}")]},
+        C("bderiv's own calls", "numpy", time_unit)]},
 }

@@ -10,7 +10,9 @@ times, back to back, the same work both ways, and each keeps its minimum over th
   (a new start each round, so that the B-derivative is built, not taken from the cache);
 - vmap: ``jax.vmap(phi)`` over m starts against a loop of ``simulate``.
 
-Prints the seconds of each and the ratio JAX / NumPy (1.0: nothing added).
+Prints the seconds of each and the ratio JAX / NumPy (1.0: nothing added); ``--record``
+writes the rows of docs/jax.md's table to ``benchmarks/results/jax_overhead.json``
+(``_record.py``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import _record
 import numpy as np
 
 from bderiv.examples import chair
@@ -64,6 +67,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--m", type=int, default=50)
     ap.add_argument("--rounds", type=int, default=5)
+    _record.add_argument(ap, "jax_overhead")
     args = ap.parse_args(argv)
     best = measure(args.m, args.rounds)
     print(f"chair, m = {args.m}, min of {args.rounds} interleaved rounds")
@@ -71,6 +75,18 @@ def main(argv=None) -> None:
     for case in ("value", "jvp", "vmap"):
         a, b = best[case, "jax"], best[case, "numpy"]
         print(f"| {case} | {a * 1e3:.2f} ms | {b * 1e3:.2f} ms | {a / b:.3f} |")
+    if args.record:
+        rows = [dict(case=label, jax=best[case, "jax"], numpy=best[case, "numpy"])
+                for case, label in labels(args.m).items()]
+        _record.record("jax_overhead", {"main": rows}, path=args.record, meta={
+            "note": f"the chair, minima of {args.rounds} interleaved rounds"})
+
+
+def labels(m: int) -> dict:
+    """The rows of docs/jax.md's table."""
+    return {"value": "a value, against `simulate`",
+            "jvp": "a jvp, against `simulate` plus `flow_bderivative(x0, t_final)(t)`",
+            "vmap": f"`vmap` over {m} starts, against a loop of `simulate`"}
 
 
 if __name__ == "__main__":
