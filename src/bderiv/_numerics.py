@@ -92,8 +92,9 @@ QUERY_BAND = 256
 # --- kernels and threads ----------------------------------------------------------------
 
 #: queries per parallel task. Threads take tasks one at a time (dynamic schedule), so a
-#: thread that the OS delays does not hold the other back; at n = 8, 256 queries take
-#: about 90 us on one thread (measured), far above the start-up of the second.
+#: thread that the OS delays does not hold the other back; 256 queries take far longer
+#: than the start-up of the second thread (docs/benchmarks.md, "Kernel design choices,
+#: measured").
 TASK_QUERIES = 256
 #: insertion sort up to this many events, merge sort above (fast-path orders; a
 #: judgement: insertion sort's n^2 / 4 moves are cheaper than merge sort's overhead for a

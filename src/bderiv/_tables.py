@@ -189,7 +189,8 @@ def human_bytes(nbytes: float) -> str:
 def row_norms(A: np.ndarray) -> np.ndarray:
     """Euclidean norms of the rows of A, without overflow or underflow for entries near the
     ends of the float64 range (rows divided by their largest entry first; einsum: no
-    temporary of A's size, 6x faster than np.linalg.norm)."""
+    temporary of A's size, faster than np.linalg.norm: docs/benchmarks.md, "Kernel design
+    choices, measured")."""
     big = np.maximum(np.abs(A).max(axis=1), np.finfo(float).tiny)
     unit = A / big[:, None]
     return big * np.sqrt(np.einsum("ij,ij->i", unit, unit))

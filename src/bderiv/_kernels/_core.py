@@ -152,8 +152,8 @@ class Batch:
     ``statics``: a named tuple of ``_simd.static`` values compiled into the drivers; the
     block then gets ``(tables, statics)`` in place of ``tables``. They are constants of
     the drivers, not arguments: numba's parallel loops take no nested tuples, and a type
-    of our own in an argument would send every call through Python's typeof (35 us per
-    call).
+    of our own in an argument would send every call through Python's typeof
+    (docs/benchmarks.md, "Kernel design choices, measured").
 
     The drivers are cached on disk (``cache=True``) under the block's qualified name, the
     statics' sizes and :data:`SOURCES`; ``cache=False`` for blocks that call a user's

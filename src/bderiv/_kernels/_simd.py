@@ -36,7 +36,8 @@ def static(value: int) -> tuple:
     the type and numba compiles one specialisation per value, as it does per dtype. Pass it
     inside a kernel's tables; :func:`value` reads it as a constant (loops over it unroll).
     (A tuple and not a type of our own: numba's dispatcher recognises tuples in C, and a
-    new type would send every call through Python's typeof, about 35 us.)"""
+    new type would send every call through Python's typeof: docs/benchmarks.md, "Kernel
+    design choices, measured".)"""
     if isinstance(value, bool) or int(value) != value or value < 0:
         raise ValueError(f"a static value must be a non-negative int, got {value!r}")
     return (0,) * int(value)

@@ -29,9 +29,9 @@ from .selection import advance, earliest, pending_times, retire
 #: queries evaluated in lockstep by one thread. Each query is a chain of n dependent steps
 #: (rates of the region reached -> event times -> next event -> next region), so one query
 #: alone leaves the core waiting on latencies (division, table loads); interleaving GROUP
-#: independent chains lets the out-of-order core overlap them. Measured on this project's
-#: machine (n = d = 8, 16, 20): 1 -> 4 queries per group is 1.6x to 2.3x faster per
-#: query; 8 or 16 gain nothing more.
+#: independent chains lets the out-of-order core overlap them: 4 per group is faster per
+#: query than 1, and 8 or 16 gain nothing more (docs/benchmarks.md, "Kernel design
+#: choices, measured").
 GROUP = 4
 
 

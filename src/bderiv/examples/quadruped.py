@@ -52,8 +52,8 @@ def quadruped(**values):
     ContactSystem
         State ``(x, z, theta, l_0..l_3, vx, vz, omega, l_0'..l_3')``; event k is foot
         k's penetration of the ground (0, 1 hind, 2, 3 front). The first build derives
-        and compiles (measured 2.5 s and 31 s on an idle 2-core machine); later ones load
-        the cached kernels.
+        and compiles (timed by ``benchmarks/quadruped.py``: docs/benchmarks.md, "Kernel
+        design choices, measured"); later ones load the cached kernels.
     """
     import sympy as sp
 

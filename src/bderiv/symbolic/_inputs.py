@@ -85,9 +85,9 @@ class Model:
 def tree_text(e, memo: dict) -> str:
     """The expression tree of ``e`` as text: each node's class and its arguments' texts,
     the leaves (symbols with their assumptions, numbers with every bit) by
-    :func:`sympy.srepr`. The information of ``srepr(e)`` at a fraction of its cost (its
-    printer took 0.2-0.3 s for the quadruped's expressions, this 1 ms), a subtree met
-    again taken from ``memo`` (keyed by class too: ``Float(1.0) == 1`` may hold)."""
+    :func:`sympy.srepr`. The information of ``srepr(e)`` at a fraction of its cost
+    (docs/benchmarks.md, "Kernel design choices, measured"), a subtree met again taken
+    from ``memo`` (keyed by class too: ``Float(1.0) == 1`` may hold)."""
     key = (type(e), e)
     text = memo.get(key)
     if text is None:

@@ -109,7 +109,8 @@ def _combination(y, K, s, h, n, out):
 def _stage_point(y, K, s, h, n, out):
     """:func:`_combination` for stage ``s`` (1 to 15; 12 is the step's 8th-order solution,
     ``A[12, :12]`` being ``B``), one branch per stage: a constant number of rows in each
-    (6x faster at d = 8 than a sum over ``s`` rows)."""
+    (faster than a sum over ``s`` rows: docs/benchmarks.md, "Kernel design choices,
+    measured")."""
     if s == 1:
         _combination(y, K, 1, h, n, out)
     elif s == 2:
@@ -153,8 +154,9 @@ def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, point
     the user's call (10 of the 22 reference counts of a field call at d = 8). Inlined into
     the step and the dense output, though it is then compiled twice (its 15 stage branches
     are the largest code of the driver): a call of it costs its arguments' counts, those
-    around the field's calls too (the driver 6 % slower per step at d = 8), and so does a
-    call of :func:`_stage_point` per stage (15 %: measured)."""
+    around the field's calls too (the driver slower per step), and so does a call of
+    :func:`_stage_point` per stage (docs/design.md, "What the integrator compiles,
+    measured")."""
     params = model.params
     for s in range(first, last):
         _stage_point(y, K, s, h, n, points)

@@ -2,8 +2,9 @@
 
 The driver is compiled once for first-class function types (:mod:`._rhs`), so a new model
 does not recompile it. Passing dispatchers from Python as first-class functions costs
-numba a compile-result lookup each, about 50 us per function per call (measured: 150 us of
-a 220 us stretch at d = 8); a struct holding the functions is passed for about 1 us.
+numba a compile-result lookup per function per call, most of a short stretch's time; a
+struct holding the functions passes at a small fraction of that (docs/benchmarks.md,
+"Kernel design choices, measured").
 :func:`bound_model` builds that struct once per set of functions and keeps it. The struct
 also holds the model's parameter values (an empty array for a model without: :mod:`._rhs`)
 and its event Jacobian, which the compiled run (:mod:`._run`) reads at the stops.
