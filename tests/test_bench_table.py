@@ -57,3 +57,30 @@ def test_the_record_redraws_the_figure(tool, tmp_path):
     assert evals[(8, 8, 10**6)][tool.APPLY] > 0 and "AMD EPYC" in machine
     tool.main([str(RECORD), "--plot", str(tmp_path / "bench.png")])
     assert (tmp_path / "bench.png").stat().st_size > 10_000
+
+
+def test_a_pytest_benchmark_run_is_recorded_with_its_machine(tool, tmp_path, capsys):
+    def bench(group, t, **extra):
+        return {"group": group, "stats": {"min": t, "median": t}, "extra_info": extra}
+
+    run = {"datetime": "2026-11-28T23:00:00.123", "benchmarks": [
+        bench("eval n=8", 2e-5, n=8, d=8, m=1000, queries=1000, contender=tool.APPLY),
+        bench("eval n=8", 6e-4, n=8, d=8, m=1000, queries=1000, contender=tool.NUMPY),
+        bench("eval n=8", 5e-6, n=8, d=8, m=1000, queries=1000, contender=tool.BLAS,
+              blas_flops=1e6, blas="openblas"),
+        bench("build n=8", 1.5e-4, n=8, d=8, table_bytes=2**20),
+        bench("threads n=8", 6e-2, n=8, d=8, m=10**6, queries=10**6, threads=1),
+        bench("threads n=8", 3e-2, n=8, d=8, m=10**6, queries=10**6, threads=2)],
+        "machine_info": {"cpu": {"brand_raw": "CPU X", "count": 2},
+                         "load": {"start": [1.0, 1.0, 1.0], "end": [2.0, 1.5, 1.0]}}}
+    path = tmp_path / "bench.json"
+    path.write_text(json.dumps(run))
+    tool.main([str(path), "--record", str(tmp_path / "dense.json")])
+    assert "| 8 | 8 | 1e3 | 20 ns | - | 600 ns | - | 30x | - |" in capsys.readouterr().out
+    data = json.loads((tmp_path / "dense.json").read_text())
+    meta = data["meta"]
+    assert meta["date"] == "2026-11-28 23:00 UTC" and meta["machine"] == {"cpu": "CPU X",
+                                                                          "cores": 2}
+    assert meta["load"] == run["machine_info"]["load"] and "BLAS: openblas" in meta["note"]
+    assert data["tables"]["threads"] == [dict(n=8, d=8, m=10**6, t1=6e-8, t2=3e-8,
+                                              speedup=2.0)]
