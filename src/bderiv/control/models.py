@@ -18,9 +18,11 @@ numba's disk cache (:func:`bderiv.examples._common.compile_function`).
 from __future__ import annotations
 
 import numpy as np
+from numba.extending import register_jitable
 
 from ..examples._common import compile_function
-from ..examples.chair import _offset, chair
+from ..examples.chair import _functions as chair_functions
+from ..examples.chair import chair
 from ..models.system import HybridSystem
 from .parametric import ParametricFlow
 
@@ -80,32 +82,41 @@ def ball_2d(*, e=0.8, g=_G, h=0.0, compiled=True, simultaneity_tol=1e-7) -> Para
     return _ball(4, 1, 8, (0.0, 0.0, e, g, h), compiled, simultaneity_tol)
 
 
+def _chair_legs(ex):
+    """The chair's legs ``(a_k, b_k)`` (2, 2), read off its model: at its event point
+    ``rho`` both feet are on the ground (height ``z + a sin + b cos = 0``) and the event
+    Jacobian's pitch column is ``-(a cos - b sin)``."""
+    z, theta = ex.rho[1], ex.rho[2]
+    c, s = np.cos(theta), np.sin(theta)
+    rx, rz = -np.asarray(ex.system.eval_event_jacobian(ex.rho))[:, 2], -z
+    return np.column_stack((rx * c + rz * s, rz * c - rx * s))
+
+
 def _chair_functions(K, C, kappa, Ct, inertia, legs):
-    """The chair's field (``bderiv.examples.chair``) plus the inputs, over z (8,)."""
+    """The chair's own field, events and event Jacobian (``bderiv.examples.chair``) over
+    ``z = (x, a_z, a_theta)`` (8,): the inputs added to the vertical and the angular
+    acceleration."""
+    base = {k: register_jitable(f) for k, f in
+            chair_functions(K, C, kappa, Ct, inertia, legs).items()}
+    base_field, base_events, base_jacobian = (base["field"], base["events"],
+                                              base["event_jacobian"])
 
     def field(z, mask):
-        c_leg = C * (1.0 + kappa) if (mask & 3) == 3 else C
         out = np.zeros_like(z)
-        out[0], out[1], out[2] = z[3], z[4], z[5]
-        ax, az, alpha = 0.0 * z[0], -_G + z[6], z[7]
-        for k in range(2):
-            if mask >> k & 1:
-                rx, rz = _offset(legs[k, 0], legs[k, 1], z[2])
-                fz = -K * (z[1] + rz) - c_leg * (z[4] + z[5] * rx)
-                fx = -Ct * (z[3] - z[5] * rz)
-                ax = ax + fx
-                az = az + fz
-                alpha = alpha + (rx * fz - rz * fx) / inertia
-        out[3], out[4], out[5] = ax, az, alpha
+        out[:6] = base_field(z[:6], mask)
+        out[4] = out[4] + z[6]
+        out[5] = out[5] + z[7]
         return out
 
     def events(z):
-        out = np.empty(2, dtype=z.dtype)
-        for k in range(2):
-            out[k] = -(z[1] + _offset(legs[k, 0], legs[k, 1], z[2])[1])
+        return base_events(z[:6])
+
+    def event_jacobian(z):
+        out = np.zeros((2, 8))
+        out[:, :6] = base_jacobian(z[:6])
         return out
 
-    return field, events
+    return field, events, event_jacobian
 
 
 def controlled_chair(*, mode_damping=5.0, stiffness=400.0, damping=4.0, friction=1.0,
@@ -129,13 +140,11 @@ def controlled_chair(*, mode_damping=5.0, stiffness=400.0, damping=4.0, friction
     """
     ex = chair(mode_damping=mode_damping, stiffness=stiffness, damping=damping,
                friction=friction, inertia=inertia)
-    theta, a0, b0, a1 = 0.1, -0.5, -0.4, 0.6
-    legs = np.array([[a0, b0], [a1, b0 + (a0 - a1) * np.tan(theta)]])  # as chair()
     fns = _chair_functions(float(stiffness), float(damping), float(mode_damping),
-                           float(friction), float(inertia), legs)
+                           float(friction), float(inertia), _chair_legs(ex))
     if compiled:
         fns = [compile_function(f) for f in fns]
-    system = HybridSystem(fns[0], fns[1], n_events=2, dim=8)
+    system = HybridSystem(fns[0], fns[1], n_events=2, dim=8, event_jacobian=fns[2])
     flow = ParametricFlow(system, 2, simultaneity_tol=simultaneity_tol)
     flow.x0, flow.defaults = ex.x0.copy(), np.zeros(2)
     return flow

@@ -33,16 +33,23 @@ __all__ = ["ParametricFlow", "Step", "augment", "nominal_orders"]
 def _augmented_functions(field, events, reset, d, m):
     """Python functions of the augmented model from functions of ``z = (x, p)``."""
 
+    def sized(value, name):
+        value = np.asarray(value)
+        if value.shape != (d,):
+            raise ValueError(f"{name} must return shape ({d},) (the state, dim = {d}), got "
+                             f"shape {value.shape}")
+        return value
+
     def aug_field(z, mask):
         out = np.zeros(d + m, dtype=np.result_type(z, np.float64))
-        out[:d] = field(z, mask)
+        out[:d] = sized(field(z, mask), "field(z, mask)")
         return out
 
     aug_reset = None
     if reset is not None:
         def aug_reset(z, mask, k):
             out = np.array(z, dtype=np.float64)
-            out[:d] = reset(z, mask, k)
+            out[:d] = sized(reset(z, mask, k), "reset(z, mask, k)")
             return out
 
     return aug_field, events, aug_reset
@@ -55,16 +62,22 @@ def _compiled_augmented(field, events, reset, d, m):
 
     @numba.njit
     def aug_field(z, mask):
+        value = field(z, mask)
+        if value.shape[0] != d:
+            raise ValueError("field(z, mask) must return the state's dim entries")
         out = np.zeros_like(z)
-        out[:d] = field(z, mask)
+        out[:d] = value
         return out
 
     aug_reset = None
     if reset is not None:
         @numba.njit
         def aug_reset(z, mask, k):
+            value = reset(z, mask, k)
+            if value.shape[0] != d:
+                raise ValueError("reset(z, mask, k) must return the state's dim entries")
             out = z.copy()
-            out[:d] = reset(z, mask, k)
+            out[:d] = value
             return out
 
     return aug_field, events, aug_reset
@@ -89,8 +102,12 @@ def augment(field, events, *, n_events, dim, n_params, reset=None) -> HybridSyst
     -------
     HybridSystem
         Of dimension ``dim + n_params``; Jacobians numerical (complex step in compiled
-        code for numba functions). Numba dispatchers give a compiled model (its wrappers
-        compile at the first run of each process).
+        code for numba functions). Numba dispatchers give a compiled model whose wrappers
+        close over them: numba cannot keep such closures in its disk cache, so they
+        compile again in every process (seconds, at the first run). For a compiled model
+        used in many processes, write the augmented functions directly, the field's last
+        ``n_params`` entries 0, with ``numba.njit(cache=True)``, and pass them to
+        :class:`~bderiv.models.system.HybridSystem` (as :mod:`.models` does).
     """
     d, m = check_positive_int(dim, "dim"), check_positive_int(n_params, "n_params")
     compiled = all(hasattr(f, "py_func") for f in (field, events))
@@ -106,7 +123,8 @@ class Step:
     Attributes
     ----------
     x_next : ndarray, shape (d,)
-        The state at the end of the step (simulated).
+        The state at the end of the step (the flow map's run: each event switched at its
+        own time).
     D : FlowBDerivative or None
         The B-derivative of ``(x, p) -> (x_next, p)``, dimension d + m.
     orders : list of list of int
@@ -229,16 +247,21 @@ class ParametricFlow:
 
     def rate_check(self, x, p):
         """Refuse a model whose parameters move: the field's last m entries at ``(x, p)``
-        must be 0 (ValueError naming them)."""
+        (in the region of the start) must be 0 (ValueError naming them); returns the
+        checked ``z = (x, p)``."""
         z = self._z(x, p)
-        rate = self.system.eval_field(z, 0)[self.dim:]
+        mask = self.system.start_mask(z)
+        rate = np.asarray(self.system.eval_field(z, mask))[self.dim:]
         if np.any(rate != 0):
-            raise ValueError(f"the parameters must not move (field(z, mask)[{self.dim}:] = 0"
-                             f" in the augmented model), got {rate} at mask 0")
+            raise ValueError(f"the parameters must not move: the augmented model's "
+                             f"field(z, mask)[{self.dim}:] must be 0 (the last n_params = "
+                             f"{self.n_params} coordinates of z are the parameters), got "
+                             f"{rate} at z = {z}, mask {mask}")
+        return z
 
     def final(self, x, p, dt):
         """The state at ``dt`` from ``x`` under parameters ``p``: shape (d,)."""
-        z = self._z(x, p)
+        z = self.rate_check(x, p)
         traj = self.system.simulate(z, check_number(dt, "dt"), options=self.options,
                                     t_eval=())
         return traj.x_final[:self.dim].copy()
@@ -260,15 +283,20 @@ class ParametricFlow:
         -------
         Step
         """
-        z, dt = self._z(x, p), check_number(dt, "dt")
-        traj = self.system.simulate(z, dt, options=self.options, t_eval=())
+        z, dt = self.rate_check(x, p), check_number(dt, "dt")
         D = self.system.flow_bderivative(z, dt, simultaneity_tol=self.simultaneity_tol,
                                          options=self.options)
-        nominal, ties = nominal_orders(D, traj.events, dt)
+        if any(s > 0 for s in D.group_spreads) or D.stops_at_group:
+            # the crossing times within a merged group: the run's own event log
+            events = self.system.simulate(z, dt, options=self.options, t_eval=()).events
+            nominal, ties = nominal_orders(D, events, dt)
+        else:  # every group crossed at one stop: no order measurable, ascending
+            nominal = [list(range(J.n_events)) for J in D.jumps]
+            ties = tuple(i for i, J in enumerate(D.jumps) if J.n_events > 1)
         chosen = nominal if orders is None else [list(orders(g, D.stops_at_group and
                                                              i == D.n_groups - 1))
                                                  for i, g in enumerate(D.group_events)]
         P = D.piece(chosen) if D.n_groups else D.piece()
         d = self.dim
-        return Step(x_next=traj.x_final[:d].copy(), D=D, orders=nominal, ties=ties,
+        return Step(x_next=D.x_final[:d].copy(), D=D, orders=nominal, ties=ties,
                     A=P[:d, :d], B=P[:d, d:], groups=D.group_events)

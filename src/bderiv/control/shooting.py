@@ -5,7 +5,8 @@ start state and/or some parameters ``w`` (the decision, shape (q,)) so that chos
 coordinates of the final state ``Phi_p(T, x0)`` match a target: the residual
 ``r(w) = Phi(T, x0(w))[out] - target`` (shape (o,)). Each iteration
 
-1. simulates from the current ``w`` and stops when ``|r| < error_tol``;
+1. stops when ``|r| < error_tol`` at the current ``w`` (simulated once: its residual
+   comes from the trial that accepted it);
 2. takes the Jacobian ``J = dr / dw`` (o, q): the rows ``out`` and the decision columns
    of the piece of the flow's B-derivative ``D`` (dimension d + m, parameters included:
    :mod:`.parametric`) that the nominal trajectory selects (its event order in each
@@ -57,10 +58,10 @@ class ShootingResult:
     ----------
     decision : ndarray, shape (q,)
         The final decision (start-state coordinates, then parameters, as asked).
-    x_final : ndarray, shape (d,)
-        The final state of the last simulated iterate.
+    x_final : ndarray, shape (o,)
+        The output coordinates of the final state reached from ``decision``.
     converged : bool
-        ``|r| < error_tol``.
+        ``|r| < error_tol`` at ``decision``.
     iterations : int
         Levenberg-Marquardt steps taken (hybrid-tools' count: the index of the iteration
         that stopped).
@@ -148,8 +149,8 @@ def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
         return flow.final(z[:d], z[d:], t_final)[out] - target, z
 
     lam, errors, refusals = config.initial_lambda, [], []
+    r, z = residual(w)
     for i in range(config.max_iters):
-        r, z = residual(w)
         err = float(np.linalg.norm(r))
         errors.append(err)
         if err < config.error_tol:
@@ -163,32 +164,40 @@ def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
             s = np.linalg.solve(JtJ + lam * Dm, J.T @ r)
         except np.linalg.LinAlgError:
             s = np.linalg.pinv(JtJ + lam * Dm) @ (J.T @ r)
-        w_new, lam = _adaptive(residual, w, s, err, lam, config, refusals)
+        w_new, r_new, lam = _adaptive(residual, w, s, r, lam, config, refusals)
         if np.linalg.norm(w_new - w) < config.input_state_tol and i > 0:
-            return ShootingResult(w_new, r + target, err < config.error_tol, i, errors, sims,
-                                  refusals)
-        w = w_new
-    return ShootingResult(w, r + target, False, config.max_iters, errors, sims, refusals)
+            # the decision returned is the accepted one, with its own final state
+            return ShootingResult(w_new, r_new + target,
+                                  float(np.linalg.norm(r_new)) < config.error_tol, i, errors,
+                                  sims, refusals)
+        w, r = w_new, r_new  # the accepted trial's residual: not simulated again
+        z[cols] = w
+    return ShootingResult(w, r + target, float(np.linalg.norm(r)) < config.error_tol,
+                          config.max_iters, errors, sims, refusals)
 
 
-def _adaptive(residual, w, s, err, lam, config, refusals):
+def _adaptive(residual, w, s, r, lam, config, refusals):
     """hybrid-tools' step rule: the full step if it lowers ``|r|``, else halved steps
-    with lambda growing; ``w`` kept when none does. A trial point whose simulation bderiv
-    refuses (a ValueError: a Zeno trajectory, a grazing contact) is a failed trial, its
-    message appended to ``refusals``."""
+    with lambda growing; ``w`` (and its residual ``r``) kept when none does. A trial point
+    whose simulation bderiv refuses (a ValueError: a Zeno trajectory, a grazing contact)
+    is a failed trial, its message appended to ``refusals``. Returns ``(w, r, lambda)``
+    of the point kept."""
+    err = float(np.linalg.norm(r))
 
     def trial(wv):
         try:
-            return float(np.linalg.norm(residual(wv)[0]))
+            return residual(wv)[0]
         except ValueError as exc:
             refusals.append(f"at {wv.tolist()}: {exc}")
-            return np.inf
+            return None
 
-    if trial(w - s) < err:
-        return w - s, max(lam * config.lambda_decrease, config.min_lambda)
+    r_try = trial(w - s)
+    if r_try is not None and np.linalg.norm(r_try) < err:
+        return w - s, r_try, max(lam * config.lambda_decrease, config.min_lambda)
     for _ in range(config.line_search_max_iters):
         lam = min(lam * config.lambda_increase, config.max_lambda)
         s = s * config.line_search_backoff
-        if trial(w - s) < err:
-            return w - s, lam
-    return w, lam
+        r_try = trial(w - s)
+        if r_try is not None and np.linalg.norm(r_try) < err:
+            return w - s, r_try, lam
+    return w, r, lam

@@ -15,12 +15,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import check_covariance, check_time, check_vector, measurement_model
-from .localmap import LocalMap, group_offsets
-from .pushforward import METHODS, push_mixture, push_piece, push_sigma
+from ._checks import PSD_RTOL, check_covariance, check_time, check_vector, measurement_model
+from .localmap import LocalMap, derived_window, end_gap, group_offsets
+from .pushforward import METHODS, push_auto, push_mixture, push_piece, push_sigma
 
-#: default window (time) within which the mean's events count as one group
-DEFAULT_WINDOW = 1e-7
+#: the integrator settings a filter passes on to ``simulate`` and ``flow_bderivative``
+SOLVER_KEYWORDS = ("options", "rtol", "atol", "max_step")
 
 
 class ModeEstimate(NamedTuple):
@@ -34,10 +34,17 @@ class ModeEstimate(NamedTuple):
         Per event group of the last predict step: ``(time, events, order_probabilities)``,
         ``time`` from the step's start, ``events`` the global event indices (tuple),
         ``order_probabilities`` a dict local order (tuple) -> probability.
+    window : float or None
+        The window of the last predict step (derived from the prior, or given, and shrunk
+        where the step ended within it of an event); None before the first.
+    method : str or None
+        The method the last predict step used (``"auto"`` resolved).
     """
 
     mask: int
     groups: list
+    window: float | None = None
+    method: str | None = None
 
 
 class HybridKalmanFilter:
@@ -51,15 +58,20 @@ class HybridKalmanFilter:
         Initial mean; not on an event surface (its region comes from the event signs).
     cov : array_like, shape (d, d)
         Initial covariance, symmetric positive semi-definite.
-    method : {"sigma", "mixture", "piece"}
-        How the covariance crosses a group of events (:mod:`.pushforward`): sigma
-        directions through the map, the exact mixture of the two pieces of one group, or
-        one piece (the salted filter; ``priority`` fixes which).
-    window : float
+    method : {"auto", "mixture", "sigma", "piece"}
+        How the covariance crosses a group of events (:mod:`.pushforward`): the exact
+        mixture of the two pieces of one group, sigma directions through the map, or one
+        piece (the salted filter; ``priority`` fixes which). ``"auto"`` (default): the
+        mixture where it applies (at most one group of two pieces per step), else sigma.
+    window : float, optional
         Time within which events of the mean's trajectory form one group (the flow map's
-        ``simultaneity_tol``): wide enough to hold the spread of the event times under the
-        prior (a few of their standard deviations), small against the time between
-        unrelated events.
+        ``simultaneity_tol``). Default: derived at each step from the prior,
+        :data:`~bderiv.estimate.localmap.WINDOW_SDS` (5) times the largest standard
+        deviation of the step's event times under it (first order). A given window should
+        hold that spread and be small against the time between unrelated events. Either
+        way, a step that ends within the window of an event of the mean's trajectory
+        takes that event on the mean's side (the window shrunk to half their distance for
+        the step; ``mode.window`` reports it).
     priority : sequence of int, optional
         With ``method="piece"``: the global event indices in the order assumed whenever
         several cross in one group (a salted filter that assumes which contact comes
@@ -68,15 +80,15 @@ class HybridKalmanFilter:
         Add the mean of the pushed perturbation, ``E[M(delta)]``, to the simulated mean
         (default True; off: the mean is ``Phi(dt, m)`` as in a salted filter).
     **solver
-        Integrator settings passed to ``simulate`` and ``flow_bderivative`` (``rtol``,
-        ``atol``, ``options``, ...).
+        Integrator settings passed to ``simulate`` and ``flow_bderivative``: ``options``,
+        ``rtol``, ``atol``, ``max_step`` (the integration method through ``options``).
 
     Attributes
     ----------
     mean : ndarray (d,), cov : ndarray (d, d), time : float, mode : ModeEstimate
     """
 
-    def __init__(self, model, mean, cov, *, method="sigma", window=DEFAULT_WINDOW,
+    def __init__(self, model, mean, cov, *, method="auto", window=None,
                  priority=None, mean_correction=True, **solver):
         if not (hasattr(model, "flow_bderivative") and hasattr(model, "dim")):
             raise TypeError(f"model must be a bderiv HybridSystem, got {type(model).__name__}")
@@ -88,8 +100,12 @@ class HybridKalmanFilter:
         if priority is not None:
             priority = tuple(int(k) for k in priority)
         self.model, self.method, self.priority = model, method, priority
-        self.window = check_time(window, "window")
+        self.window = None if window is None else check_time(window, "window")
         self.mean_correction = bool(mean_correction)
+        unknown = sorted(set(solver) - set(SOLVER_KEYWORDS))
+        if unknown:
+            raise TypeError(f"unexpected keyword(s) {unknown}: the integrator settings "
+                            f"are {SOLVER_KEYWORDS}")
         self.solver = solver
         d = model.dim
         self.mean = check_vector(mean, "mean", d)
@@ -116,27 +132,57 @@ class HybridKalmanFilter:
         dt = check_time(dt)
         d = self.model.dim
         Q = None if Q is None else check_covariance(Q, "Q", d)
-        D = self.model.flow_bderivative(self.mean, dt, simultaneity_tol=self.window,
-                                        **self.solver)
+        D, window = self._flow_map(dt)
         # the run switches each event at its own time: D.x_final is the simulated mean;
         # a merged group needs the states of its crossings (group_offsets)
         traj = (self.model.simulate(self.mean, dt, t_eval=(), **self.solver)
                 if any(s > 0 for s in D.group_spreads) else None)
         local = LocalMap(D, group_offsets(self.model, D, traj))
-        if self.method == "sigma":
-            push = push_sigma(local, self.cov)
-        elif self.method == "mixture":
-            push = push_mixture(local, self.cov)
-        else:
-            push = push_piece(local, self.cov, self.priority)
+        push = {"auto": push_auto, "sigma": push_sigma, "mixture": push_mixture,
+                "piece": lambda m, P: push_piece(m, P, self.priority)}[self.method](
+                    local, self.cov)
         mean = D.x_final + (push.mean if self.mean_correction else 0.0)
         cov = push.cov if Q is None else push.cov + Q
         self.mean, self.cov = mean, 0.5 * (cov + cov.T)
         groups = [(t, ev, probs) for t, ev, probs in
                   zip(D.group_times, D.group_events, push.order_probabilities, strict=True)]
         self.time += dt
-        self.mode = ModeEstimate(self.model.start_mask(self.mean), groups)
+        self.mode = ModeEstimate(self.model.start_mask(self.mean), groups, window,
+                                 push.method)
         return self.mean.copy(), self.cov.copy()
+
+    def _flow_map(self, dt):
+        """The step's B-derivative at the mean and its window (class docstring).
+
+        Derived window: the flow map with each event its own group gives the event times'
+        spread; it is the step's map unless two events lie within the window of each
+        other. Either window: an event within it of the step's end would form a group
+        at the final time, which has no offset (and, with resets, no B-derivative), so
+        the window shrinks to half the event's distance from the end.
+        """
+        model, m, kw = self.model, self.mean, self.solver
+        base = None
+        if self.window is None:
+            base = model.flow_bderivative(m, dt, **kw)  # each event its own group
+            window = min(derived_window(base, self.cov), 0.5 * end_gap(model, base, dt))
+            if not np.any(np.diff(base.group_times) < window):
+                return base, window
+        else:
+            window = self.window
+        try:
+            D = model.flow_bderivative(m, dt, simultaneity_tol=window, **kw)
+            if not (D.stops_at_group and D.group_spreads[-1] > 0):
+                return D, window
+            refused = None
+        except ValueError as exc:  # an event group with resets at the final time
+            refused = exc
+        base = model.flow_bderivative(m, dt, **kw) if base is None else base
+        half = 0.5 * end_gap(model, base, dt)
+        if not half < window:
+            if refused is not None:
+                raise refused
+            return D, window  # group_offsets names the group
+        return model.flow_bderivative(m, dt, simultaneity_tol=half, **kw), half
 
     def update(self, z, R, *, H, h=None):
         """The measurement update ``z = h(x) + v``, ``v ~ N(0, R)``.
@@ -169,12 +215,17 @@ class HybridKalmanFilter:
         IKH = np.eye(d) - K @ Hx
         cov = IKH @ self.cov @ IKH.T + K @ R @ K.T
         self.mean, self.cov = mean, 0.5 * (cov + cov.T)
-        self.mode = ModeEstimate(self.model.start_mask(self.mean), self.mode.groups)
+        self.mode = self.mode._replace(mask=self.model.start_mask(self.mean))
         return self.mean.copy(), self.cov.copy()
 
     def nees(self, x_true):
         """Normalised estimation error squared ``(x - m)^T P^-1 (x - m)`` of a true state
         (d,): chi-square with d degrees of freedom for a consistent filter."""
         x_true = check_vector(x_true, "x_true", self.model.dim)
+        w = np.linalg.eigvalsh(self.cov)
+        if not w[0] > PSD_RTOL * w[-1]:
+            raise ValueError(f"the filter's covariance is singular (smallest eigenvalue "
+                             f"{w[0]:.3g}, largest {w[-1]:.3g}): the NEES needs it positive "
+                             f"definite")
         e = x_true - self.mean
         return float(e @ np.linalg.solve(self.cov, e))

@@ -15,6 +15,11 @@ group's map moved to the offset ``c`` with ``Dh c = h(rho_1)`` (local orientatio
 mean's own trajectory takes for perturbations smaller than the gap and both orders for
 larger ones. :class:`LocalMap` composes the linear stages of ``D`` with its groups so
 moved. A group at exactly one stop has ``c = 0``: ``LocalMap`` is then ``D``.
+
+The window itself comes from the prior (:func:`derived_window`): a few standard
+deviations of the event times of the mean's trajectory under the prior, first order; and
+a step that ends within the window of an event keeps that event on the mean's side
+(:func:`end_gap`: the window is shrunk below the distance to the step's end).
 """
 
 from __future__ import annotations
@@ -22,6 +27,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..models.events.finaltime import FinalTimeMap
+
+#: event-time standard deviations that the derived window spans: two events of the mean's
+#: trajectory further apart than it reorder with probability below 1e-3 under the prior
+WINDOW_SDS = 5.0
 
 
 class LocalMap:
@@ -135,3 +144,46 @@ def group_offsets(model, D, traj):
         c, *_ = np.linalg.lstsq(J.Dh, sign * h[list(events)], rcond=None)
         offsets.append(c)
     return offsets
+
+
+def event_time_sds(D, P):
+    """The standard deviation (first order) of the time of each event of ``D`` under the
+    prior ``N(0, P)`` (d, d) of the start: an array (n_events,), in the order of
+    ``D.group_events`` flattened (a group at the final time: its events, not the final
+    time).
+
+    Each square-root direction ``s_j`` of P (and ``-s_j``) enters each group through the
+    stages before it; the group's event times of those vectors (``event_times``, linear
+    in the vector within a piece) give the variance ``sum_j t_k(s_j)^2``.
+    """
+    w, U = np.linalg.eigh(P)
+    S = (U * np.sqrt(np.clip(w, 0.0, None))).T  # rows: a square root of P
+    inputs, _ = LocalMap(D, [None] * D.n_groups).stage_inputs(np.concatenate([S, -S]))
+    sds = []
+    for J, W in zip(D.jumps, inputs, strict=True):
+        n = J.n_events - 1 if isinstance(J, FinalTimeMap) else J.n_events
+        times = J.event_times(W)[0][:, :n]
+        sds.append(np.sqrt(0.5 * np.sum(times * times, axis=0)))
+    return np.concatenate(sds) if sds else np.zeros(0)
+
+
+def derived_window(D, P):
+    """``WINDOW_SDS`` times the largest event-time standard deviation of ``D``'s events
+    under the prior P (:func:`event_time_sds`); 0 without events."""
+    sds = event_time_sds(D, P)
+    return WINDOW_SDS * float(sds.max()) if sds.size else 0.0
+
+
+def end_gap(model, D, dt):
+    """The time between the step's end ``dt`` and the nearest event of the mean's
+    trajectory: those ``D`` holds (crossed before ``dt``) and those about to cross after
+    it (first order at ``D.x_final``: ``-h_k / (Dh_k f)`` where positive). ``inf`` when
+    there is none."""
+    gaps = [dt - t for t in D.group_times]
+    x = np.asarray(D.x_final)
+    h = np.asarray(model.eval_events(x), float)
+    rate = np.asarray(model.eval_event_jacobian(x), float) @ np.asarray(D.final_field)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ahead = -h / rate
+    gaps += [float(t) for t in ahead[np.isfinite(ahead) & (ahead >= 0)]]
+    return min(gaps, default=np.inf)

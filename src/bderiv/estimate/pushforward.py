@@ -21,6 +21,8 @@ its mean is not 0. Three ways to give its first two moments:
   Refused for flows with more pieces (use ``"sigma"``).
 - ``"piece"``: one piece for all (a salted filter): ``M_s P M_s^T``, mean shift 0, ``s``
   the mean's own event orders, or those of a given priority of the events.
+- ``"auto"``: ``"mixture"`` where it applies (:func:`mixture_refusal` says why not),
+  else ``"sigma"``.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from scipy.special import ndtr
 
 from ..models.events.finaltime import FinalTimeMap
 
-METHODS = ("sigma", "mixture", "piece")
+METHODS = ("auto", "mixture", "sigma", "piece")
 
 
 class PushForward(NamedTuple):
@@ -46,13 +48,16 @@ class PushForward(NamedTuple):
         ``Cov[M(delta)]``.
     order_probabilities : list of dict
         One per event group: local event order (tuple) -> probability under the prior
-        (``"mixture"``: exact; ``"sigma"``: the weights of the sigma directions taking it;
-        ``"piece"``: 1 for the piece used).
+        (``"mixture"``: exact; ``"sigma"``: the weights of the sigma directions taking it,
+        multiples of ``1 / (2 d)``, coarse; ``"piece"``: 1 for the piece used).
+    method : str
+        The method that gave them (``"auto"`` resolved).
     """
 
     mean: np.ndarray
     cov: np.ndarray
     order_probabilities: list
+    method: str = ""
 
 
 def sqrt_psd(P):
@@ -75,7 +80,12 @@ def push_sigma(local, P) -> PushForward:
         found, counts = np.unique(J.orders(W), axis=0, return_counts=True)
         probs.append({tuple(int(k) for k in o): c / len(X) for o, c in
                       zip(found, counts, strict=True)})
-    return PushForward(mean, 0.5 * (cov + cov.T), probs)
+    return PushForward(mean, 0.5 * (cov + cov.T), probs, "sigma")
+
+
+def push_auto(local, P) -> PushForward:
+    """``push_mixture`` where it applies, else ``push_sigma``."""
+    return push_sigma(local, P) if mixture_refusal(local) else push_mixture(local, P)
 
 
 def push_piece(local, P, priority=None) -> PushForward:
@@ -102,7 +112,7 @@ def push_piece(local, P, priority=None) -> PushForward:
     M = D.piece([list(o) for o in orders])
     cov = M @ P @ M.T
     return PushForward(np.zeros(local.dim), 0.5 * (cov + cov.T),
-                       [{o: 1.0} for o in orders])
+                       [{o: 1.0} for o in orders], "piece")
 
 
 def _cut_moments(mu, Sig, a, side):
@@ -131,14 +141,12 @@ def push_mixture(local, P) -> PushForward:
     """The exact moments of ``local(delta)``, ``delta ~ N(0, P)``, for a flow with one
     group of two pieces (module docstring)."""
     D, d = local.D, local.dim
+    refusal = mixture_refusal(local)
+    if refusal:
+        raise ValueError(refusal)
     multi = [i for i, J in enumerate(D.jumps) if J.n_events > 1]
-    if len(multi) > 1 or any(D.jumps[i].n_events > 2 for i in multi):
-        raise ValueError(
-            f"method='mixture' is exact for one event group of two pieces; this step "
-            f"meets groups {[D.group_events[i] for i in multi]} (their pieces multiply): "
-            f"use method='sigma'")
     if not multi:
-        return push_piece(local, P)
+        return push_piece(local, P)._replace(method="mixture")
     (g,) = multi
     A = _before(local, g)
     B = _after(local, g)
@@ -160,7 +168,25 @@ def push_mixture(local, P) -> PushForward:
     cov_y = second - np.outer(mean_u, mean_u)
     cov = B @ cov_y @ B.T
     result = [{(0,): 1.0} if i != g else probs for i in range(D.n_groups)]
-    return PushForward(B @ mean_y, 0.5 * (cov + cov.T), result)
+    return PushForward(B @ mean_y, 0.5 * (cov + cov.T), result, "mixture")
+
+
+def mixture_refusal(local):
+    """Why ``push_mixture`` does not apply to ``local`` (a message), or None: it needs at
+    most one group of several events, that group of two local events, with a corner
+    table (a boundary)."""
+    D = local.D
+    multi = [i for i, J in enumerate(D.jumps) if J.n_events > 1]
+    if len(multi) > 1 or any(D.jumps[i].n_events > 2 for i in multi):
+        return (f"method='mixture' is exact for one event group of two pieces; this step "
+                f"meets groups {[D.group_events[i] for i in multi]} (their pieces "
+                f"multiply): use method='sigma'")
+    for i in multi:
+        J = D.jumps[i]
+        if (J.augmented if isinstance(J, FinalTimeMap) else J).rates is None:
+            return (f"method='mixture' needs the corner table of group {i}, a corner "
+                    f"model has none: use method='sigma'")
+    return None
 
 
 def _before(local, g):
