@@ -1,0 +1,93 @@
+"""The free-flying base's tangent coordinates: ``d e / dt`` from the body velocity, exactly.
+
+A robot's configuration is ``q = integrate(q_ref, e)`` (``pinocchio.integrate``): for the
+free-flyer ``M = M_ref exp6(e_base)`` on SE(3), the joints ``q_j = q_ref_j + e_j``. The
+state of bderiv holds ``e`` (nv numbers, no quaternion, no constraint), so ``de/dt`` is
+the body velocity ``nu`` (Pinocchio's free-flyer velocity, in the base frame) through
+the inverse right Jacobian of SE(3): ``de/dt = Jr(e)^-1 nu`` (Pinocchio's
+``Jlog6(exp6(e))``, or the inverse of ``dIntegrate(q_ref, e, ARG1)``'s base block).
+
+Why our own formula: the field's Jacobian needs ``d/de (Jr(e)^-1 nu)``, a second
+derivative of the exponential that Pinocchio does not give on SE(3). The closed form of
+Barfoot's ``J_l^-1`` (State Estimation for Robotics, 2017, eqs. 7.86, 7.87, with
+``J_r(xi) = J_l(-xi)``), written here in cross products for any dtype, is evaluated at
+``e + i h u`` (complex step: exact to rounding, not a finite difference) for its
+derivative, and at small angles by its Taylor series (where the closed form cancels).
+``tests/test_robots.py`` holds it to Pinocchio's ``Jlog6`` and to ``dIntegrate``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: below this squared angle the coefficients come from their Taylor series (the closed
+#: forms lose up to 1e-16 / theta^4 relative there: 1e-12 at theta = 0.1)
+SERIES_THETA2 = 1e-2
+#: the complex step's size (any tiny number: no subtraction, exact to rounding)
+STEP = 1e-30
+
+
+def _skew(w):
+    """The 3 x 3 matrix of ``w x`` (real or complex)."""
+    z = np.zeros_like(w[0])
+    return np.array([[z, -w[2], w[1]], [w[2], z, -w[0]], [-w[1], w[0], z]])
+
+
+def _coefficients(t2):
+    """``a, b, c`` of Q and ``g`` of ``J_l3^-1`` as functions of theta^2 (module
+    docstring): a = (t - sin t)/t^3, b = (t^2 + 2 cos t - 2)/(2 t^4),
+    c = (2t - 3 sin t + t cos t)/(2 t^5), g = 1/t^2 - (1 + cos t)/(2 t sin t)."""
+    if np.real(t2) < SERIES_THETA2:
+        a = 1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880
+        b = 1 / 24 - t2 / 720 + t2**2 / 40320 - t2**3 / 3628800
+        c = 1 / 120 - t2 / 2520 + t2**2 / 120960 - t2**3 / 6652800
+        g = 1 / 12 + t2 / 720 + t2**2 / 30240 + t2**3 / 1209600
+        return a, b, c, g
+    t = np.sqrt(t2)
+    s, co = np.sin(t), np.cos(t)
+    return ((t - s) / t**3, (t2 + 2 * co - 2) / (2 * t2**2),
+            (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
+
+
+def se3_rate_matrix(xi) -> np.ndarray:
+    """``Jr(xi)^-1`` (6, 6): the rate of the SE(3) tangent coordinates ``xi`` (6,), linear
+    then angular as Pinocchio orders them, is ``Jr(xi)^-1 nu`` under the body velocity
+    ``nu``. Real or complex ``xi``.
+    """
+    rho, phi = -xi[:3], -xi[3:]  # J_r(xi) = J_l(-xi)
+    a, b, c, g = _coefficients(phi @ phi)
+    P, R = _skew(phi), _skew(rho)
+    PP = P @ P
+    PR, RP = P @ R, R @ P
+    PRP = PR @ P
+    Q = (R / 2 + a * (PR + RP + PRP) + b * (P @ PR + RP @ P - 3 * PRP)
+         + c * (PRP @ P + P @ PRP))  # Barfoot's eq. 7.86
+    inv3 = np.eye(3) - P / 2 + g * PP  # J_l3(phi)^-1
+    out = np.zeros((6, 6), dtype=np.result_type(xi, np.float64))
+    out[:3, :3] = out[3:, 3:] = inv3
+    out[:3, 3:] = -inv3 @ Q @ inv3
+    return out
+
+
+def se3_rate_jacobians(xi, nu):
+    """The rate ``Jr(xi)^-1 nu`` (6,), its Jacobian in ``nu`` (6, 6) (the matrix
+    ``Jr(xi)^-1``) and in ``xi`` (6, 6), the latter by the complex step.
+
+    Parameters
+    ----------
+    xi, nu : ndarray, (6,), float
+
+    Returns
+    -------
+    rate : ndarray, (6,)
+    d_nu : ndarray, (6, 6)
+    d_xi : ndarray, (6, 6)
+    """
+    xi = np.asarray(xi, dtype=np.float64)
+    d_nu = se3_rate_matrix(xi)
+    d_xi = np.empty((6, 6))
+    for j in range(6):  # one complex evaluation per direction of xi
+        z = xi.astype(np.complex128)
+        z[j] += 1j * STEP
+        d_xi[:, j] = (se3_rate_matrix(z) @ nu).imag / STEP
+    return d_nu @ nu, d_nu, d_xi
