@@ -15,7 +15,7 @@ PKG = ROOT / "src" / "bderiv"
 #: layers below, never one above.
 LAYERS = [
     {"cli", "__main__"},
-    {"plot", "examples", "_bench", "symbolic", "jax", "warmup"},  # _bench: `bderiv bench`'s
+    {"plot", "examples", "_bench", "symbolic", "jax", "warmup", "robots"},  # _bench: `bderiv bench`'s
     # sweep; warmup: `bderiv compile`
     {"models", "models/system", "models/calls", "models/user_functions", "models/section",
      "orbit", "jacobians", "_numdiff", "stability_map"},

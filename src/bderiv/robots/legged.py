@@ -41,7 +41,7 @@ import numpy as np
 
 from ..models.system import HybridSystem
 from ._files import require_pinocchio, robot_file
-from ._lie import se3_rate_jacobians, se3_rate_matrix
+from ._lie import base_configuration, se3_rate_jacobians, se3_rate_matrix
 
 __all__ = ["CONTACT", "LeggedRobot", "legged_robot"]
 
@@ -60,6 +60,11 @@ def _load(source, pin):
         raise ValueError("the model must have a free-flying base as its first joint "
                          "(buildModelFromUrdf(path, pinocchio.JointModelFreeFlyer())), got "
                          f"{model.joints[1].shortname() if model.njoints > 1 else 'no joint'}")
+    other = [(model.names[j], model.joints[j].shortname()) for j in range(2, model.njoints)
+             if model.joints[j].nq != 1 or model.joints[j].nv != 1]
+    if other:
+        raise ValueError(f"the joints after the base must each have one coordinate "
+                         f"(revolute or prismatic: q = q_ref + e), got {other}")
     return model
 
 
@@ -114,7 +119,16 @@ class LeggedRobot:
     def configuration(self, x):
         """``(q, v)`` of the state ``x``: ``q = integrate(q_ref, e)``."""
         x = np.asarray(x, dtype=np.float64)
-        return self.pin.integrate(self.model, self.q_ref, x[:self.nv]), x[self.nv:]
+        q = np.empty(self.model.nq)
+        q[:7] = base_configuration(self.q_ref[:7], x[:6])  # pinocchio.integrate's, smooth
+        q[7:] = self.q_ref[7:] + x[6:self.nv]
+        return q, x[self.nv:]
+
+    def _dintegrate(self, x):
+        """``dIntegrate(q_ref, e, ARG1)`` (nv, nv): ``Jr(e_base)``, then the identity."""
+        out = np.eye(self.nv)
+        out[:6, :6] = np.linalg.inv(se3_rate_matrix(x[:6]))
+        return out
 
     def foot_positions(self, x) -> np.ndarray:
         """(n, 3): the feet's positions in the world."""
@@ -133,7 +147,7 @@ class LeggedRobot:
         q, _ = self.configuration(x)
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
-        Jq = pin.dIntegrate(model, self.q_ref, x[:self.nv], pin.ARG1)
+        Jq = self._dintegrate(x)
         out = np.zeros((len(self.feet), 2 * self.nv))
         for k, fid in enumerate(self.frame_ids):
             J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
@@ -193,7 +207,7 @@ class LeggedRobot:
         da_dq, da_dv, Minv = np.array(da_dq), np.array(da_dv), np.array(Minv)
         Minv = np.triu(Minv) + np.triu(Minv, 1).T  # Pinocchio fills the upper triangle
         dtau_dq, dtau_dv = np.zeros((nv, nv)), np.zeros((nv, nv))
-        for k, (f, g, r) in forces.items():
+        for k, (_, g, r) in forces.items():
             fid, jid = self.frame_ids[k], self.joint_ids[k]
             J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
             # the foot's world velocity R_f w (w: LOCAL): d(R_f w) = R_f (dw - [w]x dtheta_f)
@@ -213,7 +227,7 @@ class LeggedRobot:
             Ji = pin.getJointJacobian(model, data, jid, pin.LOCAL)
             G = _skew(g)
             dtau_dq += Ji.T @ np.vstack((G, _skew(r) @ G)) @ Ji[3:]
-        Jq = pin.dIntegrate(model, self.q_ref, x[:nv], pin.ARG1)
+        Jq = self._dintegrate(x)
         out = np.zeros((2 * nv, 2 * nv))
         _, d_nu, d_xi = se3_rate_jacobians(x[:6], v[:6])
         out[:6, :6] = d_xi
