@@ -35,16 +35,18 @@ STEP = 1e-30
 
 
 def _skew(w):
-    """The 3 x 3 matrix of ``w x`` (real or complex)."""
-    z = np.zeros_like(w[0])
-    return np.array([[z, -w[2], w[1]], [w[2], z, -w[0]], [-w[1], w[0], z]])
+    """The 3 x 3 matrices of ``w x`` (..., 3, 3) for ``w`` (..., 3), real or complex."""
+    out = np.zeros((*w.shape[:-1], 3, 3), dtype=w.dtype)
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    return out
 
 
 def _coefficients(t2):
     """``a, b, c`` of Q and ``g`` of ``J_l3^-1`` as functions of theta^2 (module
     docstring): a = (t - sin t)/t^3, b = (t^2 + 2 cos t - 2)/(2 t^4),
     c = (2t - 3 sin t + t cos t)/(2 t^5), g = 1/t^2 - (1 + cos t)/(2 t sin t)."""
-    if np.real(t2) < SERIES_THETA2:
+    if np.real(np.ravel(t2)[0]) < SERIES_THETA2:  # a batch: equal real parts
         a = 1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880
         b = 1 / 24 - t2 / 720 + t2**2 / 40320 - t2**3 / 3628800
         c = 1 / 120 - t2 / 2520 + t2**2 / 120960 - t2**3 / 6652800
@@ -94,10 +96,12 @@ def _rotation(quat):
 def se3_rate_matrix(xi) -> np.ndarray:
     """``Jr(xi)^-1`` (6, 6): the rate of the SE(3) tangent coordinates ``xi`` (6,), linear
     then angular as Pinocchio orders them, is ``Jr(xi)^-1 nu`` under the body velocity
-    ``nu``. Real or complex ``xi``.
+    ``nu``. Real or complex ``xi``, or a batch (m, 6) of them whose angles are equal
+    in their real parts (the complex step's): (m, 6, 6).
     """
-    rho, phi = -xi[:3], -xi[3:]  # J_r(xi) = J_l(-xi)
-    a, b, c, g = _coefficients(phi @ phi)
+    rho, phi = -xi[..., :3], -xi[..., 3:]  # J_r(xi) = J_l(-xi)
+    a, b, c, g = (np.asarray(k)[..., None, None]
+                  for k in _coefficients(np.einsum("...i,...i", phi, phi)))
     P, R = _skew(phi), _skew(rho)
     PP = P @ P
     PR, RP = P @ R, R @ P
@@ -105,9 +109,9 @@ def se3_rate_matrix(xi) -> np.ndarray:
     Q = (R / 2 + a * (PR + RP + PRP) + b * (P @ PR + RP @ P - 3 * PRP)
          + c * (PRP @ P + P @ PRP))  # Barfoot's eq. 7.86
     inv3 = np.eye(3) - P / 2 + g * PP  # J_l3(phi)^-1
-    out = np.zeros((6, 6), dtype=np.result_type(xi, np.float64))
-    out[:3, :3] = out[3:, 3:] = inv3
-    out[:3, 3:] = -inv3 @ Q @ inv3
+    out = np.zeros((*xi.shape[:-1], 6, 6), dtype=np.result_type(xi, np.float64))
+    out[..., :3, :3] = out[..., 3:, 3:] = inv3
+    out[..., :3, 3:] = -inv3 @ Q @ inv3
     return out
 
 
@@ -127,9 +131,6 @@ def se3_rate_jacobians(xi, nu):
     """
     xi = np.asarray(xi, dtype=np.float64)
     d_nu = se3_rate_matrix(xi)
-    d_xi = np.empty((6, 6))
-    for j in range(6):  # one complex evaluation per direction of xi
-        z = xi.astype(np.complex128)
-        z[j] += 1j * STEP
-        d_xi[:, j] = (se3_rate_matrix(z) @ nu).imag / STEP
+    z = xi + 1j * STEP * np.eye(6)  # the six complex steps as one batch
+    d_xi = (se3_rate_matrix(z) @ nu).imag.T / STEP
     return d_nu @ nu, d_nu, d_xi

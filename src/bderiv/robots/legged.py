@@ -124,10 +124,11 @@ class LeggedRobot:
         q[7:] = self.q_ref[7:] + x[6:self.nv]
         return q, x[self.nv:]
 
-    def _dintegrate(self, x):
-        """``dIntegrate(q_ref, e, ARG1)`` (nv, nv): ``Jr(e_base)``, then the identity."""
+    def _dintegrate(self, x, rate=None):
+        """``dIntegrate(q_ref, e, ARG1)`` (nv, nv): ``Jr(e_base)`` (the inverse of
+        ``rate``, the base's ``Jr^-1``, if given), then the identity."""
         out = np.eye(self.nv)
-        out[:6, :6] = np.linalg.inv(se3_rate_matrix(x[:6]))
+        out[:6, :6] = np.linalg.inv(se3_rate_matrix(x[:6]) if rate is None else rate)
         return out
 
     def foot_positions(self, x) -> np.ndarray:
@@ -172,7 +173,7 @@ class LeggedRobot:
             oMi = data.oMi[jid]
             g = oMi.rotation.T @ f
             r = oMi.rotation.T @ (p - oMi.translation)
-            fext[jid] = fext[jid] + pin.Force(g, np.cross(r, g))
+            fext[jid] = fext[jid] + pin.Force(g, _skew(r) @ g)
             forces[k] = (f, g, r)
         return fext, forces
 
@@ -227,9 +228,9 @@ class LeggedRobot:
             Ji = pin.getJointJacobian(model, data, jid, pin.LOCAL)
             G = _skew(g)
             dtau_dq += Ji.T @ np.vstack((G, _skew(r) @ G)) @ Ji[3:]
-        Jq = self._dintegrate(x)
-        out = np.zeros((2 * nv, 2 * nv))
         _, d_nu, d_xi = se3_rate_jacobians(x[:6], v[:6])
+        Jq = self._dintegrate(x, d_nu)
+        out = np.zeros((2 * nv, 2 * nv))
         out[:6, :6] = d_xi
         out[:6, nv:nv + 6] = d_nu
         out[6:nv, nv + 6:] = np.eye(nv - 6)
