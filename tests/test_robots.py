@@ -186,3 +186,14 @@ def test_the_package_imports_without_pinocchio():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert "pip install 'bderiv[robots]'" in out
+
+
+@pytest.mark.slow
+def test_the_demo_from_the_command_line(capsys):
+    """``bderiv demo --example solo12`` (a minute on a loaded machine: its check runs
+    seven simulations)."""
+    from bderiv.cli import main
+
+    assert main(["demo", "--example", "solo12", "--json"]) == 0
+    out = capsys.readouterr().out
+    assert '"orders_met": 24' in out and '"FL_FOOT"' in out
