@@ -15,8 +15,8 @@ PKG = ROOT / "src" / "bderiv"
 #: layers below, never one above.
 LAYERS = [
     {"cli", "__main__"},
-    {"plot", "examples", "_bench", "symbolic", "jax", "warmup", "robots"},  # _bench: `bderiv bench`'s
-    # sweep; warmup: `bderiv compile`
+    {"plot", "examples", "_bench", "symbolic", "jax", "warmup", "robots"},
+    # _bench: `bderiv bench`'s sweep; warmup: `bderiv compile`; robots: models from URDFs
     {"models", "models/system", "models/calls", "models/user_functions", "models/section",
      "orbit", "jacobians", "_numdiff", "stability_map"},
     {"checks", "models/assembly"},  # assembly: the model's B-derivatives, group by group
