@@ -13,6 +13,9 @@ Barfoot's ``J_l^-1`` (State Estimation for Robotics, 2017, eqs. 7.86, 7.87, with
 ``J_r(xi) = J_l(-xi)``), written here in cross products for any dtype, is evaluated at
 ``e + i h u`` (complex step: exact to rounding, not a finite difference) for its
 derivative, and at small angles by its Taylor series (where the closed form cancels).
+The matrix and its complex steps are compiled (numba, cached on disk: about 20 us a
+Jacobian against 300 us in NumPy's small-array calls, which were the model's largest
+cost in ``benchmarks/robots.py``).
 ``tests/test_robots.py`` holds it to Pinocchio's ``Jlog6`` and to ``dIntegrate``.
 
 Why our own exponential too (:func:`base_configuration`, equal to ``pinocchio.integrate``
@@ -25,6 +28,7 @@ harmless to a simulation but stalls the variational equation's step control (ste
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 #: below this squared angle the coefficients come from their Taylor series (the closed
@@ -93,26 +97,86 @@ def _rotation(quat):
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
+@numba.njit(cache=True)
+def _coefficients_one(t2):
+    """:func:`_coefficients` of one real or complex theta^2, compiled."""
+    if t2.real < SERIES_THETA2:
+        return (1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880,
+                1 / 24 - t2 / 720 + t2**2 / 40320 - t2**3 / 3628800,
+                1 / 120 - t2 / 2520 + t2**2 / 120960 - t2**3 / 6652800,
+                1 / 12 + t2 / 720 + t2**2 / 30240 + t2**3 / 1209600)
+    t = np.sqrt(t2)
+    s, co = np.sin(t), np.cos(t)
+    return ((t - s) / t**3, (t2 + 2 * co - 2) / (2 * t2**2),
+            (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
+
+
+@numba.njit(cache=True)
+def _skew_one(w):
+    out = np.zeros((3, 3), dtype=w.dtype)
+    out[0, 1], out[0, 2], out[1, 2] = -w[2], w[1], -w[0]
+    out[1, 0], out[2, 0], out[2, 1] = w[2], -w[1], w[0]
+    return out
+
+
+@numba.njit(cache=True)
+def _mm(A, B):
+    """A 3 x 3 product by loops (numba's ``@`` of complex matrices goes to BLAS)."""
+    out = np.zeros((3, 3), dtype=A.dtype)
+    for i in range(3):
+        for j in range(3):
+            acc = A[i, 0] * B[0, j]
+            for k in range(1, 3):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+    return out
+
+
+@numba.njit(cache=True)
+def _rate_matrix(xi):
+    """:func:`se3_rate_matrix`, compiled for float64 and complex128 ``xi`` (6,)."""
+    rho, phi = -xi[:3], -xi[3:]  # J_r(xi) = J_l(-xi)
+    a, b, c, g = _coefficients_one(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+    P, R = _skew_one(phi), _skew_one(rho)
+    PP = _mm(P, P)
+    PR, RP = _mm(P, R), _mm(R, P)
+    PRP = _mm(PR, P)
+    Q = (R / 2 + a * (PR + RP + PRP) + b * (_mm(P, PR) + _mm(RP, P) - 3 * PRP)
+         + c * (_mm(PRP, P) + _mm(P, PRP)))  # Barfoot's eq. 7.86
+    inv3 = -P / 2 + g * PP  # J_l3(phi)^-1 - I
+    for i in range(3):
+        inv3[i, i] += 1
+    out = np.zeros((6, 6), dtype=xi.dtype)
+    out[:3, :3] = inv3
+    out[3:, 3:] = inv3
+    out[:3, 3:] = -_mm(_mm(inv3, Q), inv3)
+    return out
+
+
+@numba.njit(cache=True)
+def _rate_jacobian_xi(xi, nu):
+    """d(Jr(xi)^-1 nu)/dxi (6, 6) by six complex steps."""
+    out = np.empty((6, 6))
+    for j in range(6):
+        z = xi.astype(np.complex128)
+        z[j] += 1j * STEP
+        M = _rate_matrix(z)
+        for i in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += (M[i, k] * nu[k]).imag
+            out[i, j] = acc / STEP
+    return out
+
+
 def se3_rate_matrix(xi) -> np.ndarray:
     """``Jr(xi)^-1`` (6, 6): the rate of the SE(3) tangent coordinates ``xi`` (6,), linear
     then angular as Pinocchio orders them, is ``Jr(xi)^-1 nu`` under the body velocity
-    ``nu``. Real or complex ``xi``, or a batch (m, 6) of them whose angles are equal
-    in their real parts (the complex step's): (m, 6, 6).
+    ``nu``. Real or complex ``xi`` (compiled, numba).
     """
-    rho, phi = -xi[..., :3], -xi[..., 3:]  # J_r(xi) = J_l(-xi)
-    a, b, c, g = (np.asarray(k)[..., None, None]
-                  for k in _coefficients(np.einsum("...i,...i", phi, phi)))
-    P, R = _skew(phi), _skew(rho)
-    PP = P @ P
-    PR, RP = P @ R, R @ P
-    PRP = PR @ P
-    Q = (R / 2 + a * (PR + RP + PRP) + b * (P @ PR + RP @ P - 3 * PRP)
-         + c * (PRP @ P + P @ PRP))  # Barfoot's eq. 7.86
-    inv3 = np.eye(3) - P / 2 + g * PP  # J_l3(phi)^-1
-    out = np.zeros((*xi.shape[:-1], 6, 6), dtype=np.result_type(xi, np.float64))
-    out[..., :3, :3] = out[..., 3:, 3:] = inv3
-    out[..., :3, 3:] = -inv3 @ Q @ inv3
-    return out
+    xi = np.asarray(xi)
+    return _rate_matrix(np.ascontiguousarray(
+        xi, dtype=np.complex128 if np.iscomplexobj(xi) else np.float64))
 
 
 def se3_rate_jacobians(xi, nu):
@@ -129,8 +193,7 @@ def se3_rate_jacobians(xi, nu):
     d_nu : ndarray, (6, 6)
     d_xi : ndarray, (6, 6)
     """
-    xi = np.asarray(xi, dtype=np.float64)
-    d_nu = se3_rate_matrix(xi)
-    z = xi + 1j * STEP * np.eye(6)  # the six complex steps as one batch
-    d_xi = (se3_rate_matrix(z) @ nu).imag.T / STEP
-    return d_nu @ nu, d_nu, d_xi
+    xi = np.ascontiguousarray(xi, dtype=np.float64)
+    nu = np.ascontiguousarray(nu, dtype=np.float64)
+    d_nu = _rate_matrix(xi)
+    return d_nu @ nu, d_nu, _rate_jacobian_xi(xi, nu)
