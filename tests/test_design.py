@@ -16,8 +16,9 @@ PKG = ROOT / "src" / "bderiv"
 LAYERS = [
     {"cli", "__main__"},
     {"control"},  # trajectory optimisation through contact, on examples and the models
-    {"plot", "examples", "_bench", "symbolic", "jax", "warmup", "estimate"},  # _bench:
-    # `bderiv bench`'s sweep; warmup: `bderiv compile`; estimate: the Kalman filter
+    {"plot", "examples", "_bench", "symbolic", "jax", "warmup", "estimate", "robots"},
+    # _bench: `bderiv bench`'s sweep; warmup: `bderiv compile`; estimate: the Kalman
+    # filter; robots: models from URDFs
     {"models", "models/system", "models/calls", "models/user_functions", "models/section",
      "orbit", "jacobians", "_numdiff", "stability_map"},
     {"checks", "models/assembly"},  # assembly: the model's B-derivatives, group by group

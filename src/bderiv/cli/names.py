@@ -16,7 +16,8 @@ MODEL_EXAMPLES = ("chair", "network", "table")
 #: examples whose demo is a summary of their own (``demo`` only): a gait's periodic orbit
 #: and stability verdict, an impact with resets checked against simulation, a passive
 #: walker's gait through leg swaps beside its reference numbers
-GAIT_EXAMPLES = ("pronking", "landing", "rimless-wheel", "compass-gait", "quadruped")
+GAIT_EXAMPLES = ("pronking", "landing", "rimless-wheel", "compass-gait", "quadruped",
+                 "solo12")
 #: gait examples with a periodic orbit (``plot``'s figures orbit and growth), with what
 #: the orbit figure names: the state components and time with their units, the phases
 #: (regions by mask)

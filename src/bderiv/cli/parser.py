@@ -92,7 +92,9 @@ _GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability
               "ball-in-corner": "a ball bouncing off two walls at once (resets that send "
                                 "the state back)",
               "quadruped": "a planar quadruped pronking, built from its equations "
-                           "(bderiv.symbolic.contact_system; sympy)"}
+                           "(bderiv.symbolic.contact_system; sympy)",
+              "solo12": "Solo12's four-foot touchdown from its URDF (bderiv.robots; "
+                        "Pinocchio)"}
 
 
 def _add_example_args(p, default_help, gaits=()):
@@ -254,12 +256,18 @@ def _gait_demo(args) -> str:
     simultaneous impact with resets (:func:`bderiv.examples.impacts.landing_summary`);
     ``--example rimless-wheel`` or ``compass-gait``: a walker's gait through leg swaps
     (:func:`bderiv.examples.walker_report.walker_summary`); ``--example quadruped``: a model from
-    equations to its stability verdict (:func:`bderiv.examples.quadruped.quadruped_summary`)."""
+    equations to its stability verdict (:func:`bderiv.examples.quadruped.quadruped_summary`);
+    ``--example solo12``: a robot from its URDF (:func:`bderiv.robots.demo.solo12_summary`)."""
     if args.n is not None or args.extended:
         raise UsageError(f"--n and --extended are options of --example network, not "
                          f"{args.example}")
     from ..examples import gaits, impacts, walker_report
 
+    if args.example == "solo12":
+        from ..robots import demo
+
+        res = demo.solo12_summary(seed=args.seed)
+        return render.to_json(res, indent=1) if args.json else demo.summary_text(res)
     if args.example == "quadruped":
         from ..examples import quadruped
 

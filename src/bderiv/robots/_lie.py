@@ -1,0 +1,199 @@
+"""The free-flying base's tangent coordinates: ``d e / dt`` from the body velocity, exactly.
+
+A robot's configuration is ``q = integrate(q_ref, e)`` (``pinocchio.integrate``): for the
+free-flyer ``M = M_ref exp6(e_base)`` on SE(3), the joints ``q_j = q_ref_j + e_j``. The
+state of bderiv holds ``e`` (nv numbers, no quaternion, no constraint), so ``de/dt`` is
+the body velocity ``nu`` (Pinocchio's free-flyer velocity, in the base frame) through
+the inverse right Jacobian of SE(3): ``de/dt = Jr(e)^-1 nu`` (Pinocchio's
+``Jlog6(exp6(e))``, or the inverse of ``dIntegrate(q_ref, e, ARG1)``'s base block).
+
+Why our own formula: the field's Jacobian needs ``d/de (Jr(e)^-1 nu)``, a second
+derivative of the exponential that Pinocchio does not give on SE(3). The closed form of
+Barfoot's ``J_l^-1`` (State Estimation for Robotics, 2017, eqs. 7.86, 7.87, with
+``J_r(xi) = J_l(-xi)``), written here in cross products for any dtype, is evaluated at
+``e + i h u`` (complex step: exact to rounding, not a finite difference) for its
+derivative, and at small angles by its Taylor series (where the closed form cancels).
+The matrix and its complex steps are compiled (numba, cached on disk: about 20 us a
+Jacobian against 300 us in NumPy's small-array calls, which were the model's largest
+cost in ``benchmarks/robots.py``).
+``tests/test_robots.py`` holds it to Pinocchio's ``Jlog6`` and to ``dIntegrate``.
+
+Why our own exponential too (:func:`base_configuration`, equal to ``pinocchio.integrate``
+to rounding): Pinocchio's ``integrate`` and ``dIntegrate`` of the free-flyer are rough at
+small angles (measured on Go1 in stance, |e_base| angle 1.2e-4: ``dIntegrate`` moved by
+4.6e-6 and jumped by 2.7e-5 between states 5e-12 s apart on the trajectory), which is
+harmless to a simulation but stalls the variational equation's step control (steps of
+1e-12 s). The series below keep every coefficient smooth to rounding.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: below this squared angle the coefficients come from their Taylor series (the closed
+#: forms lose up to 1e-16 / theta^4 relative there: 1e-12 at theta = 0.1)
+SERIES_THETA2 = 1e-2
+#: the complex step's size (any tiny number: no subtraction, exact to rounding)
+STEP = 1e-30
+
+
+def _skew(w):
+    """The 3 x 3 matrices of ``w x`` (..., 3, 3) for ``w`` (..., 3), real or complex."""
+    out = np.zeros((*w.shape[:-1], 3, 3), dtype=w.dtype)
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    return out
+
+
+def _coefficients(t2):
+    """``a, b, c`` of Q and ``g`` of ``J_l3^-1`` as functions of theta^2 (module
+    docstring): a = (t - sin t)/t^3, b = (t^2 + 2 cos t - 2)/(2 t^4),
+    c = (2t - 3 sin t + t cos t)/(2 t^5), g = 1/t^2 - (1 + cos t)/(2 t sin t)."""
+    if np.real(np.ravel(t2)[0]) < SERIES_THETA2:  # a batch: equal real parts
+        a = 1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880
+        b = 1 / 24 - t2 / 720 + t2**2 / 40320 - t2**3 / 3628800
+        c = 1 / 120 - t2 / 2520 + t2**2 / 120960 - t2**3 / 6652800
+        g = 1 / 12 + t2 / 720 + t2**2 / 30240 + t2**3 / 1209600
+        return a, b, c, g
+    t = np.sqrt(t2)
+    s, co = np.sin(t), np.cos(t)
+    return ((t - s) / t**3, (t2 + 2 * co - 2) / (2 * t2**2),
+            (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
+
+
+def base_configuration(q_ref, xi) -> np.ndarray:
+    """The free-flyer's configuration ``(p, quaternion x y z w)`` (7,) of
+    ``M_ref exp6(xi)``, ``M_ref`` given as such a 7-vector ``q_ref``: Pinocchio's
+    ``integrate`` of the base (module docstring)."""
+    rho, phi = xi[:3], xi[3:]
+    t2 = phi @ phi
+    a, _, _, _ = _coefficients(t2)  # (t - sin t) / t^3
+    if t2 < SERIES_THETA2:
+        half = 0.5 - t2 / 48 + t2**2 / 3840 - t2**3 / 645120  # sin(t/2) / t
+        cos_half = 1 - t2 / 8 + t2**2 / 384 - t2**3 / 46080
+        v1 = 0.5 - t2 / 24 + t2**2 / 720 - t2**3 / 40320  # (1 - cos t) / t^2
+    else:
+        t = np.sqrt(t2)
+        half, cos_half, v1 = np.sin(t / 2) / t, np.cos(t / 2), (1 - np.cos(t)) / t2
+    P = _skew(phi)
+    step = rho + v1 * (P @ rho) + a * (P @ (P @ rho))  # J_l3(phi) rho
+    x0, y0, z0, w0 = q_ref[3:7]
+    x1, y1, z1 = half * phi
+    w1 = cos_half
+    quat = np.array([w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
+                     w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1,
+                     w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1,
+                     w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1])
+    R0 = _rotation(q_ref[3:7])
+    return np.concatenate((q_ref[:3] + R0 @ step, quat))
+
+
+def _rotation(quat):
+    """The rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = quat
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@numba.njit(cache=True)
+def _coefficients_one(t2):
+    """:func:`_coefficients` of one real or complex theta^2, compiled."""
+    if t2.real < SERIES_THETA2:
+        return (1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880,
+                1 / 24 - t2 / 720 + t2**2 / 40320 - t2**3 / 3628800,
+                1 / 120 - t2 / 2520 + t2**2 / 120960 - t2**3 / 6652800,
+                1 / 12 + t2 / 720 + t2**2 / 30240 + t2**3 / 1209600)
+    t = np.sqrt(t2)
+    s, co = np.sin(t), np.cos(t)
+    return ((t - s) / t**3, (t2 + 2 * co - 2) / (2 * t2**2),
+            (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
+
+
+@numba.njit(cache=True)
+def _skew_one(w):
+    out = np.zeros((3, 3), dtype=w.dtype)
+    out[0, 1], out[0, 2], out[1, 2] = -w[2], w[1], -w[0]
+    out[1, 0], out[2, 0], out[2, 1] = w[2], -w[1], w[0]
+    return out
+
+
+@numba.njit(cache=True)
+def _mm(A, B):
+    """A 3 x 3 product by loops (numba's ``@`` of complex matrices goes to BLAS)."""
+    out = np.zeros((3, 3), dtype=A.dtype)
+    for i in range(3):
+        for j in range(3):
+            acc = A[i, 0] * B[0, j]
+            for k in range(1, 3):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+    return out
+
+
+@numba.njit(cache=True)
+def _rate_matrix(xi):
+    """:func:`se3_rate_matrix`, compiled for float64 and complex128 ``xi`` (6,)."""
+    rho, phi = -xi[:3], -xi[3:]  # J_r(xi) = J_l(-xi)
+    a, b, c, g = _coefficients_one(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+    P, R = _skew_one(phi), _skew_one(rho)
+    PP = _mm(P, P)
+    PR, RP = _mm(P, R), _mm(R, P)
+    PRP = _mm(PR, P)
+    Q = (R / 2 + a * (PR + RP + PRP) + b * (_mm(P, PR) + _mm(RP, P) - 3 * PRP)
+         + c * (_mm(PRP, P) + _mm(P, PRP)))  # Barfoot's eq. 7.86
+    inv3 = -P / 2 + g * PP  # J_l3(phi)^-1 - I
+    for i in range(3):
+        inv3[i, i] += 1
+    out = np.zeros((6, 6), dtype=xi.dtype)
+    out[:3, :3] = inv3
+    out[3:, 3:] = inv3
+    out[:3, 3:] = -_mm(_mm(inv3, Q), inv3)
+    return out
+
+
+@numba.njit(cache=True)
+def _rate_jacobian_xi(xi, nu):
+    """d(Jr(xi)^-1 nu)/dxi (6, 6) by six complex steps."""
+    out = np.empty((6, 6))
+    for j in range(6):
+        z = xi.astype(np.complex128)
+        z[j] += 1j * STEP
+        M = _rate_matrix(z)
+        for i in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += (M[i, k] * nu[k]).imag
+            out[i, j] = acc / STEP
+    return out
+
+
+def se3_rate_matrix(xi) -> np.ndarray:
+    """``Jr(xi)^-1`` (6, 6): the rate of the SE(3) tangent coordinates ``xi`` (6,), linear
+    then angular as Pinocchio orders them, is ``Jr(xi)^-1 nu`` under the body velocity
+    ``nu``. Real or complex ``xi`` (compiled, numba).
+    """
+    xi = np.asarray(xi)
+    return _rate_matrix(np.ascontiguousarray(
+        xi, dtype=np.complex128 if np.iscomplexobj(xi) else np.float64))
+
+
+def se3_rate_jacobians(xi, nu):
+    """The rate ``Jr(xi)^-1 nu`` (6,), its Jacobian in ``nu`` (6, 6) (the matrix
+    ``Jr(xi)^-1``) and in ``xi`` (6, 6), the latter by the complex step.
+
+    Parameters
+    ----------
+    xi, nu : ndarray, (6,), float
+
+    Returns
+    -------
+    rate : ndarray, (6,)
+    d_nu : ndarray, (6, 6)
+    d_xi : ndarray, (6, 6)
+    """
+    xi = np.ascontiguousarray(xi, dtype=np.float64)
+    nu = np.ascontiguousarray(nu, dtype=np.float64)
+    d_nu = _rate_matrix(xi)
+    return d_nu @ nu, d_nu, _rate_jacobian_xi(xi, nu)

@@ -1,0 +1,142 @@
+"""Quadrupeds of example-robot-data, ready: their files, feet and standing postures.
+
+Each entry is what a robot needs from its description file (the rest is
+:func:`~bderiv.robots.legged.legged_robot`): the URDF's path in example-robot-data, the
+foot frames in the order of the events, and a standing posture of the joints (the PD's
+reference and the tangent coordinates' origin). Another robot is another entry, or a
+direct call of ``legged_robot`` with its file. :func:`drop_state` places a robot level
+above the ground with its feet at a given height, for a touchdown of several feet at once;
+:func:`touchdown_figure` draws it (docs/robots.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .legged import LeggedRobot, legged_robot
+
+__all__ = ["ROBOTS", "drop_state", "quadruped", "touchdown_figure"]
+
+#: file, feet (event order) and standing joint posture of the bundled quadrupeds; the
+#: postures are the files' "standing" states with the hip abduction at 0 (Solo12:
+#: solo.srdf's ``straight_standing``), mirrored front to hind so that the four feet are
+#: at one height
+ROBOTS = {
+    "solo12": {"file": "solo_description/robots/solo12.urdf",
+               "feet": ("FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT"),
+               "joints": (0.0, 0.8, -1.6, 0.0, 0.8, -1.6, 0.0, -0.8, 1.6, 0.0, -0.8, 1.6)},
+    "go1": {"file": "go1_description/urdf/go1.urdf",
+            "feet": ("FL_foot", "FR_foot", "RL_foot", "RR_foot"),
+            "joints": (0.0, 0.9, -1.8) * 4},
+    "anymal": {"file": "anymal_b_simple_description/robots/anymal.urdf",
+               "feet": ("LF_FOOT", "LH_FOOT", "RF_FOOT", "RH_FOOT"),
+               "joints": (0.0, 0.6, -1.2, 0.0, -0.6, 1.2, 0.0, 0.6, -1.2, 0.0, -0.6, 1.2)},
+}
+
+
+def quadruped(name="solo12", *, joints=None, **law) -> LeggedRobot:
+    """A bundled quadruped (:data:`ROBOTS`) as a :class:`~bderiv.robots.legged.LeggedRobot`.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`ROBOTS`.
+    joints : array_like, (nv - 6,), optional
+        Another standing posture.
+    **law
+        Contact and posture parameters (:data:`bderiv.robots.legged.CONTACT`); defaults
+        scaled to the robot's mass (stiffness and damping in proportion to Solo12's
+        2.5 kg, the PD gains too), unless given.
+    """
+    if name not in ROBOTS:
+        raise ValueError(f"name must be one of {', '.join(ROBOTS)}, got {name!r}")
+    entry = ROBOTS[name]
+    from ._files import require_pinocchio, robot_file
+    from .legged import CONTACT
+
+    pin = require_pinocchio()
+    model = pin.buildModelFromUrdf(str(robot_file(entry["file"])), pin.JointModelFreeFlyer())
+    q_ref = pin.neutral(model)
+    q_ref[7:] = entry["joints"] if joints is None else joints
+    scale = pin.computeTotalMass(model) / 2.5
+    law = {**{k: v * scale if k != "ground" else v for k, v in CONTACT.items()}, **law}
+    return legged_robot(model, entry["feet"], q_ref, **law)
+
+
+def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarray:
+    """The state of ``robot`` in its reference posture, level, its lowest foot ``height``
+    above the ground and falling at ``vz`` (m/s, < 0 down); ``velocity`` (nv,) adds to
+    the velocity.
+
+    Returns
+    -------
+    ndarray, (2 nv,)
+    """
+    x = np.zeros(2 * robot.nv)
+    low = robot.foot_positions(x)[:, 2].min()
+    x[2] = robot.law["ground"] + height - low  # the base's height offset (level: e_z = dz)
+    x[robot.nv + 2] = vz
+    if velocity is not None:
+        x[robot.nv:] += np.asarray(velocity, dtype=np.float64)
+    return x
+
+
+def touchdown_figure(robot: LeggedRobot, x0, t_final, *, direction=None, eps=2e-3,
+                     samples=600):
+    """The feet's heights against time through a touchdown (needs matplotlib).
+
+    Left: the run from ``x0`` over ``[0, t_final]``, its event groups marked. Right, near
+    the first group: the same run and, dashed, the run from ``x0 + eps * direction`` (a
+    perturbation that orders the feet), with the order in which its feet land: the piece
+    of the flow's B-derivative that the perturbation meets.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib.pyplot as plt
+
+    system = robot.system
+    t = np.linspace(0.0, t_final, samples)
+    nominal = system.simulate(x0, t_final, t_eval=t)
+    fig, (ax, zoom) = plt.subplots(1, 2, figsize=(10.5, 4.0), constrained_layout=True)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+    def heights(xs):
+        return 1e3 * np.array([robot.law["ground"] - robot.events(x) for x in xs])
+
+    h = heights(nominal.x)
+    for k, foot in enumerate(robot.feet):
+        ax.plot(1e3 * t, h[:, k], color=colors[k], label=foot, lw=1.5)
+    for g in nominal.groups:
+        ax.axvline(1e3 * g.time, color="0.5", ls=":", lw=1)
+        ax.annotate(f"feet {', '.join(robot.feet[k] for k in g.events)}\nat once",
+                    (1e3 * g.time, h.max() * 0.6),
+                    xytext=(6, 0), textcoords="offset points", fontsize=8, color="0.3")
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xlabel("time (ms)")
+    ax.set_ylabel("foot height above the ground (mm)")
+    ax.set_title(f"the {len(robot.feet)} feet's heights (a level drop: the curves "
+                 "coincide)", fontsize=10)
+    ax.legend(fontsize=8, loc="upper right")
+
+    t0 = nominal.groups[0].time if nominal.groups else 0.5 * t_final
+    window = np.linspace(max(0.0, t0 - 0.004), min(t_final, t0 + 0.004), samples)
+    near = system.simulate(x0, window[-1], t_eval=window)
+    hn = heights(near.x)
+    if direction is None:
+        direction = np.zeros_like(x0)
+        direction[3], direction[4] = 1.0, 0.6  # roll and pitch: the feet land one by one
+    moved = system.simulate(x0 + eps * np.asarray(direction), window[-1], t_eval=window)
+    hm = heights(moved.x)
+    for k in range(len(robot.feet)):
+        zoom.plot(1e3 * window, hn[:, k], color=colors[k], lw=1.5)
+        zoom.plot(1e3 * window, hm[:, k], color=colors[k], lw=1.2, ls="--")
+    order = [robot.feet[rec.event] for rec in moved.events if rec.direction > 0]
+    zoom.axhline(0.0, color="k", lw=0.8)
+    zoom.set_xlabel("time (ms)")
+    zoom.set_title("near touchdown: solid as dropped, dashed perturbed", fontsize=10)
+    zoom.text(0.98, 0.97, "perturbed run lands " + " < ".join(order) + "\n(one of the "
+              f"{np.prod(range(1, len(robot.feet) + 1))} pieces of the B-derivative)",
+              transform=zoom.transAxes, fontsize=8, ha="right", va="top")
+    return fig

@@ -1,0 +1,83 @@
+"""An independent simulation of a legged robot on a flat ground, with Pinocchio directly.
+
+The oracle of tests/test_robots.py: its own state (the configuration q with the base's
+quaternion, and v), its own kinematics (the quaternion's rate written out), its own
+contact forces (``J^T f`` added to the torques, not external forces in the joints'
+frames), scipy's DOP853 with scipy's event location (one terminal event per foot, the
+contact set switched at each one; feet within ``touch_tol`` of the ground switch
+together). Nothing of bderiv.robots is used; the law is written out from its docstring.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+from scipy.integrate import solve_ivp
+
+
+class GroundSim:
+    def __init__(self, model, feet, q_ref, law):
+        self.model, self.data = model, model.createData()
+        self.fids = [model.getFrameId(f) for f in feet]
+        self.q_ref, self.law = np.asarray(q_ref, dtype=float), law
+        self.nq, self.nv = model.nq, model.nv
+
+    def _q(self, y):
+        q = y[:self.nq].copy()
+        q[3:7] /= np.linalg.norm(q[3:7])
+        return q
+
+    def heights(self, y):
+        pin.framesForwardKinematics(self.model, self.data, self._q(y))
+        return np.array([self.data.oMf[f].translation[2] for f in self.fids]) - self.law["ground"]
+
+    def rhs(self, t, y, contact):
+        m, d, law = self.model, self.data, self.law
+        q, v = self._q(y), y[self.nq:]
+        tau = np.zeros(self.nv)
+        tau[6:] = -law["kp"] * (q[7:] - self.q_ref[7:]) - law["kd"] * v[6:]
+        pin.computeJointJacobians(m, d, q)
+        pin.framesForwardKinematics(m, d, q)
+        for k in contact:
+            J = pin.getFrameJacobian(m, d, self.fids[k], pin.LOCAL_WORLD_ALIGNED)[:3]
+            vel = J @ v
+            z = d.oMf[self.fids[k]].translation[2] - law["ground"]
+            f = np.array([-law["friction"] * vel[0], -law["friction"] * vel[1],
+                          -law["stiffness"] * z - law["damping"] * vel[2]])
+            tau += J.T @ f
+        a = pin.aba(m, d, q, v, tau)
+        R = pin.Quaternion(q[6], q[3], q[4], q[5]).toRotationMatrix()
+        w = v[3:6]
+        qv, qw = y[3:6], y[6]
+        dq = np.empty(self.nq)
+        dq[:3] = R @ v[:3]
+        dq[3:6] = 0.5 * (qw * w + np.cross(qv, w))
+        dq[6] = -0.5 * qv @ w
+        dq[7:] = v[6:]
+        return np.concatenate((dq, a))
+
+    def run(self, q0, v0, T, rtol=1e-12, atol=1e-13, touch_tol=1e-9):
+        """The state (q, v) at T and the touchdowns [(time, foot)] in order."""
+        y = np.concatenate((q0, v0))
+        t, contact, log = 0.0, set(np.flatnonzero(self.heights(y) < 0)), []
+        while t < T:
+            evs = []
+            for k in range(len(self.fids)):
+                def ev(t, y, _contact, k=k):
+                    return self.heights(y)[k]
+                ev.terminal, ev.direction = True, (1.0 if k in contact else -1.0)
+                evs.append(ev)
+            sol = solve_ivp(self.rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol,
+                            events=evs, args=(frozenset(contact),))
+            y, t = sol.y[:, -1], sol.t[-1]
+            if sol.status != 1:
+                break
+            h = self.heights(y)
+            for k in range(len(self.fids)):
+                if k not in contact and h[k] <= touch_tol:
+                    contact.add(k)
+                    log.append((t, k))
+                elif k in contact and h[k] >= -touch_tol and sol.t_events[k].size:
+                    contact.discard(k)
+        q = self._q(y)
+        return q, y[self.nq:], log

@@ -1,0 +1,199 @@
+"""bderiv.robots: Solo12's touchdowns from its URDF against an independent simulation.
+
+The oracle is tests/robot_sim.py: Pinocchio called directly on its own state (q with
+the base's quaternion), its own kinematics and contact forces, scipy's DOP853 with its own
+event logic. The flow's B-derivative is piecewise linear, so each direction is checked
+inside its own foot order's cone by one-sided differences, whose error must fall as
+O(eps). The agreement per order is printed (``pytest -s``).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pin = pytest.importorskip("pinocchio")
+
+from bderiv.robots import _files  # noqa: E402
+
+try:
+    _files.example_robot_data()
+except ImportError:  # pragma: no cover - the extra installs both
+    pytest.skip("example-robot-data is not installed", allow_module_level=True)
+
+from robot_sim import GroundSim  # noqa: E402
+
+from bderiv.robots import drop_state, legged_robot, quadruped  # noqa: E402
+from bderiv.robots._lie import (  # noqa: E402
+    base_configuration,
+    se3_rate_jacobians,
+    se3_rate_matrix,
+)  # noqa: E402
+
+STANCE = 0.05  # seconds of stance after the touchdown
+EPS = (1e-5, 1e-6)
+TOUCHDOWN = 0.017123551038388  # a drop from 1 cm at 0.5 m/s: (sqrt(v^2 + 2 g h) - v) / g
+
+
+def _independent(robot, sim, x, T):
+    """The flow map in the robot's coordinates by the independent simulation, and the
+    order of the touchdowns it met."""
+    q, v = robot.configuration(x)
+    qT, vT, log = sim.run(q, v.copy(), T)
+    return np.concatenate((pin.difference(robot.model, robot.q_ref, qT), vT)), log
+
+
+def _agreement(robot, x0, T, n_orders, seed):
+    """Directions in ``n_orders`` distinct foot orders (of the flow map's first group):
+    for each, the relative error of one-sided differences of the independent simulation
+    against ``D(u)`` at each eps, and the order the simulation met."""
+    D = robot.system.flow_bderivative(x0, T)
+    sim = GroundSim(robot.model, robot.feet, robot.q_ref, robot.law)
+    base, log = _independent(robot, sim, x0, T)
+    U = np.random.default_rng(seed).standard_normal((400, 2 * robot.nv))
+    picked = {}
+    for u, order in zip(U, D.orders(U)[0], strict=True):
+        # orders are local to the group: its events by position
+        picked.setdefault(tuple(D.group_events[0][k] for k in order), u)
+    rows = []
+    for order, u in list(picked.items())[:n_orders]:
+        Du = D(u)
+        errs, met = [], None
+        for eps in EPS:
+            xe, met = _independent(robot, sim, x0 + eps * u, T)
+            errs.append(np.linalg.norm((xe - base) / eps - Du) / np.linalg.norm(Du))
+        rows.append((order, tuple(k for _, k in met), errs))
+        print(f"order {order}: relative error {errs[0]:.2e} at eps {EPS[0]:g}, "
+              f"{errs[1]:.2e} at eps {EPS[1]:g}")
+    return D, base, log, rows
+
+
+@pytest.fixture(scope="module")
+def solo():
+    return quadruped("solo12")
+
+
+def test_the_base_rate_is_pinocchios_and_its_derivative_exact():
+    rng = np.random.default_rng(0)
+    model = pin.buildModelFromUrdf(str(_files.robot_file(
+        "solo_description/robots/solo12.urdf")), pin.JointModelFreeFlyer())
+    q_ref = pin.neutral(model)
+    for scale in (0.0, 1e-4, 0.09, 0.11, 0.7):  # both sides of the series' switch
+        xi, nu = scale * rng.standard_normal(6), rng.standard_normal(6)
+        q_base = pin.randomConfiguration(model, -np.ones(model.nq), np.ones(model.nq))[:7]
+        assert np.abs(base_configuration(q_base, xi) - pin.integrate(
+            model, np.concatenate((q_base, q_ref[7:])), np.concatenate(
+                (xi, np.zeros(model.nv - 6))))[:7]).max() < 1e-14
+        assert np.abs(se3_rate_matrix(xi) - pin.Jlog6(pin.exp6(xi))).max() < 1e-13
+        e = np.concatenate((xi, np.zeros(model.nv - 6)))
+        Jq = pin.dIntegrate(model, q_ref, e, pin.ARG1)[:6, :6]
+        assert np.abs(se3_rate_matrix(xi) @ Jq - np.eye(6)).max() < 1e-9  # Pinocchio's
+        # dIntegrate is off by 3e-10 at angles near 1e-4 (bderiv.robots._lie)
+        _, _, d_xi = se3_rate_jacobians(xi, nu)
+        h = 1e-6
+        central = np.array([(se3_rate_matrix(xi + h * s) - se3_rate_matrix(xi - h * s)) @ nu
+                            / (2 * h) for s in np.eye(6)]).T
+        assert np.abs(d_xi - central).max() < 1e-8
+
+
+def test_the_jacobians_are_the_fields(solo):
+    """The analytical Jacobians against central differences, in flight and in stance
+    (a state with the feet deep in the ground, spinning and sliding)."""
+    x = 0.1 * np.random.default_rng(1).standard_normal(2 * solo.nv)
+    x[2] = -0.075  # every foot below the ground
+    h = 1e-6
+    for mask in (0b0000, 0b0101, 0b1111):
+        J = solo.field_jacobian(x, mask)
+        central = np.array([(solo.field(x + h * s, mask) - solo.field(x - h * s, mask))
+                            / (2 * h) for s in np.eye(2 * solo.nv)]).T
+        assert np.abs(J - central).max() < 1e-8 * np.abs(central).max(), mask
+    central = np.array([(solo.events(x + h * s) - solo.events(x - h * s)) / (2 * h)
+                        for s in np.eye(2 * solo.nv)]).T
+    assert np.abs(solo.event_jacobian(x) - central).max() < 1e-8
+
+
+def test_four_feet_touch_down_at_once_and_the_flow_map_is_the_simulations(solo):
+    x0 = drop_state(solo, 0.01, -0.5)
+    T = TOUCHDOWN + STANCE
+    D, base, log, rows = _agreement(solo, x0, T, n_orders=4, seed=1)
+    assert D.group_events == ((0, 1, 2, 3),)
+    assert abs(D.group_times[0] - TOUCHDOWN) < 1e-12
+    assert sorted(k for _, k in log) == [0, 1, 2, 3] and len({t for t, _ in log}) == 1
+    assert np.abs(solo.system.simulate(x0, T).x_final - base).max() < 1e-9
+    assert len({order for order, _, _ in rows}) >= 3
+    for order, met, (coarse, fine) in rows:
+        assert met == order  # the simulation's own touchdown order
+        assert fine < 1e-4 and fine < 0.2 * coarse, (order, coarse, fine)
+
+
+def test_a_trot_two_diagonal_feet_at_once():
+    """FR and HL tucked up: FL and HR touch together, the others stay in the air."""
+    trot = quadruped("solo12", joints=(0.0, 0.8, -1.6, 0.0, 1.1, -2.2,
+                                       0.0, -1.1, 2.2, 0.0, -0.8, 1.6))
+    x0 = drop_state(trot, 0.01, -0.5)
+    D, _, log, rows = _agreement(trot, x0, TOUCHDOWN + STANCE, n_orders=2, seed=2)
+    assert D.group_events == ((0, 3),) and sorted(k for _, k in log) == [0, 3]
+    assert {order for order, _, _ in rows} == {(0, 3), (3, 0)}
+    for order, met, (coarse, fine) in rows:
+        assert met == order
+        assert fine < 1e-4 and fine < 0.2 * coarse, (order, coarse, fine)
+
+
+def test_a_second_robot_by_its_file_name():
+    """Go1: another file, its feet and posture; simulated through its four-foot touchdown
+    as the independent simulation does it."""
+    model = pin.buildModelFromUrdf(str(_files.robot_file("go1_description/urdf/go1.urdf")),
+                                   pin.JointModelFreeFlyer())
+    q_ref = pin.neutral(model)
+    q_ref[7:] = (0.0, 0.9, -1.8) * 4
+    go1 = legged_robot("go1_description/urdf/go1.urdf",
+                       ["FL_foot", "FR_foot", "RL_foot", "RR_foot"], q_ref,
+                       stiffness=2.5e4, damping=250.0, friction=250.0, kp=25.0, kd=0.5)
+    x0 = drop_state(go1, 0.01, -0.5)
+    T = TOUCHDOWN + 0.02
+    traj = go1.system.simulate(x0, T)
+    assert [g.events for g in traj.groups] == [(0, 1, 2, 3)]
+    sim = GroundSim(go1.model, go1.feet, go1.q_ref, go1.law)
+    assert np.abs(traj.x_final - _independent(go1, sim, x0, T)[0]).max() < 1e-9
+
+
+def test_bad_input_is_refused_by_name(solo):
+    with pytest.raises(ValueError, match="feet must name frames.*FL_TOE"):
+        legged_robot(solo.model, ["FL_TOE"], solo.q_ref)
+    with pytest.raises(FileNotFoundError, match="solo13.urdf.*solo12.urdf"):
+        _files.robot_file("solo_description/robots/solo13.urdf")
+    with pytest.raises(ValueError, match="stiffnes"):
+        legged_robot(solo.model, solo.feet, solo.q_ref, stiffnes=1.0)
+    with pytest.raises(ValueError, match="damping must be a finite number >= 0"):
+        legged_robot(solo.model, solo.feet, solo.q_ref, damping=-1.0)
+    with pytest.raises(ValueError, match="q_ref must have shape"):
+        legged_robot(solo.model, solo.feet, solo.q_ref[:7])
+    fixed = pin.buildModelFromUrdf(str(_files.robot_file(
+        "solo_description/robots/solo12.urdf")))
+    with pytest.raises(ValueError, match="free-flying base"):
+        legged_robot(fixed, ["FL_FOOT"])
+    with pytest.raises(ValueError, match="name must be one of"):
+        quadruped("solo13")
+
+
+def test_the_package_imports_without_pinocchio():
+    code = ("import sys; sys.modules['pinocchio'] = None\n"
+            "import bderiv.robots as r\n"
+            "try:\n    r.quadruped()\nexcept ImportError as err:\n    print(err)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert "pip install 'bderiv[robots]'" in out
+
+
+@pytest.mark.slow
+def test_the_demo_from_the_command_line(capsys):
+    """``bderiv demo --example solo12`` (a minute on a loaded machine: its check runs
+    seven simulations)."""
+    from bderiv.cli import main
+
+    assert main(["demo", "--example", "solo12", "--json"]) == 0
+    out = capsys.readouterr().out
+    assert '"orders_met": 24' in out and '"FL_FOOT"' in out
