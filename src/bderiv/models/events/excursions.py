@@ -360,17 +360,18 @@ def _start_dip(h, tol, times, value):
         if -low < -tol[k] or (-low < 0.0 and h[later, k] > tol[k]):
             found = (j, t_low)
         elif h[later, k] > tol[k]:
-            # never below the surface, yet clearly across later: a return deeper than
-            # nothing the dense output can show (a rate in the new region near the
-            # grazing threshold), or no crossing at all; neither can be located
+            # never below the surface, yet clearly across later: a return that the
+            # dense output cannot show (a rebound or a leaving rate too small to follow),
+            # or no crossing at all; neither can be located
             raise ValueError(
-                f"event {k}, switched by the stop at t={times[0]:.10g}, never reads below "
-                f"its surface after it (its lowest value {-low:.3g} at t={t_low:.10g}) yet "
+                f"event {k}, met by the stop at t={times[0]:.10g}, never reads below its "
+                f"surface after it (its lowest value {-low:.3g} at t={t_low:.10g}) yet "
                 f"reads {h[later, k]:.3g} across it at t={times[later]:.10g}, beyond its "
                 f"accuracy {tol[k]:.3g}: the state went back across within a rounding of "
-                f"the surface, so whether and when it crossed cannot be decided (a grazing "
-                f"contact: the rate of event {k} in the region after the stop is near "
-                f"zero); tighten rtol and atol or move the start point")
+                f"the surface (a rebound too small to follow, as where impacts "
+                f"accumulate, or a grazing contact), so whether and when it crossed cannot "
+                f"be decided; end the run before t={times[0]:.10g}, tighten rtol and atol "
+                f"or move the start point")
     return found
 
 
