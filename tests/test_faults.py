@@ -421,7 +421,7 @@ def test_dask_keys_of_a_map_without_a_name_do_not_collide():
     da = pytest.importorskip("dask.array")
     import functools
 
-    from bderiv._dask import map_blocks
+    from bderiv._support._dask import map_blocks
 
     Dh, F = random_system(np.random.default_rng(9), 2, 3)
     bd = BDerivative(Dh, F)

@@ -179,7 +179,8 @@ def test_orbit_stability_sized_before_its_directions(pronking_gait):
 
 
 def test_default_memory_limit_read_only_for_tables_above_the_small_size(monkeypatch):
-    from bderiv import _limits, _tables, _validate
+    from bderiv import _limits
+    from bderiv._support import _tables, _validate
 
     reads = []
 

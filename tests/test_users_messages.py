@@ -7,7 +7,7 @@ import io
 import numpy as np
 import pytest
 
-from bderiv._progress import TqdmCallback
+from bderiv._support._progress import TqdmCallback
 from bderiv.cli import main
 from bderiv.cli.render import bench_text
 

@@ -28,7 +28,7 @@ def __getattr__(name):
     # raised (kernels imported later are hardened when their drivers are made); and a
     # first compilation is announced (_compiling)
     _importlib.import_module("._kernels._cache", __name__).harden_all()
-    _importlib.import_module("._compiling", __name__)
+    _importlib.import_module("._support._compiling", __name__)
     globals()[name] = value
     return value
 

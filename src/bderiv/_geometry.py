@@ -11,10 +11,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import _tables
-from ._format import MASK_MEANING, format_mask
 from ._limits import MAX_PIECES
-from ._validate import check_memory, check_pieces
+from ._support import _tables
+from ._support._format import MASK_MEANING, format_mask
+from ._support._validate import check_memory, check_pieces
 from .corners import check_table_size
 
 

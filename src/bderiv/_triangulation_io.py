@@ -16,7 +16,7 @@ fields: a changed digit is refused, never read as another map. Files without a d
 (written before the digest existed, or by another program) are still read, checked field
 by field only.
 
-Writing is all or nothing (:func:`write_files`, on :mod:`bderiv._safefiles`): every file
+Writing is all or nothing (:func:`write_files`, on :mod:`bderiv._support._safefiles`): every file
 goes to a temporary file in the target's folder, is flushed and synced, and replaces the
 target (``os.replace``) only when all of them are written; a failure (a full disk, an
 exception, Ctrl-C) leaves the previous files as they were and removes the temporaries.
@@ -43,8 +43,8 @@ import zlib
 
 import numpy as np
 
-from ._safefiles import open_regular, read_regular, write_all
-from ._validate import check_memory
+from ._support._safefiles import open_regular, read_regular, write_all
+from ._support._validate import check_memory
 
 #: tag written into every saved file, checked on load
 FILE_FORMAT = "bderiv.triangulation"
@@ -331,7 +331,8 @@ def file_format(path: str, format: str | None) -> str:
 
 
 def write_files(targets: dict, check=None) -> None:
-    """Write several triangulation files, all or none (:func:`bderiv._safefiles.write_all`).
+    """Write several triangulation files, all or none
+    (:func:`bderiv._support._safefiles.write_all`).
 
     Parameters
     ----------

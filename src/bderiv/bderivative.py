@@ -7,10 +7,8 @@ from functools import cached_property
 
 import numpy as np
 
-from ._batch import evaluate
 from ._engines import DenseEngine, FunctionEngine, StructuredEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
-from ._errors import QueryError
 from ._geometry import (  # noqa: F401 (re-exported)
     CornerGeometry,
     CornerPoints,
@@ -21,7 +19,9 @@ from ._kernels._core import read_only
 from ._limits import MAX_PIECES, RESET_TOL
 from ._linearise import Linearisation, unit_scale
 from ._numerics import GRAZING_RTOL
-from ._validate import (
+from ._support._batch import evaluate
+from ._support._errors import QueryError
+from ._support._validate import (
     check_bool,
     check_finite_result,
     check_matrix,

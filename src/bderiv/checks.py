@@ -19,8 +19,8 @@ import numpy as np
 
 from ._cyclic import check_cyclic, kept
 from ._limits import FD_EPS, FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
-from ._progress import resolve_progress
-from ._validate import check_matrix, check_number, check_points, check_positive_int
+from ._support._progress import resolve_progress
+from ._support._validate import check_matrix, check_number, check_points, check_positive_int
 from .models.integrate.run import SolverOptions
 
 __all__ = [

@@ -34,9 +34,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from . import _tables
 from ._limits import MAX_TABLE_EVENTS
-from ._validate import check_finite, check_matrix, check_real_array
+from ._support import _tables
+from ._support._validate import check_finite, check_matrix, check_real_array
 
 __all__ = ["CornerFunction", "CornerModel", "StructuredCorners"]
 
@@ -267,7 +267,7 @@ class CornerFunction(_Tabulated):
     def __init__(self, func, *, n_events=None, dim=None):
         from numba.core.registry import CPUDispatcher
 
-        from ._validate import check_positive_int
+        from ._support._validate import check_positive_int
 
         if not callable(func):
             raise TypeError(f"func must be a function func(happened, out), got {func!r}")

@@ -19,12 +19,12 @@ import functools
 
 import numpy as np
 
-from ._batch import evaluate, is_dask_array
-from ._errors import QueryError
 from ._kernels import _core
 from ._limits import MAX_PIECES
 from ._linearise import Linearisation
-from ._validate import (
+from ._support._batch import evaluate, is_dask_array
+from ._support._errors import QueryError
+from ._support._validate import (
     all_finite,
     check_bool,
     check_finite_result,
@@ -501,7 +501,7 @@ def _stage(L, X, transpose: bool = False) -> np.ndarray:
 def _in_group(exc: ValueError, group: int, offset: int, name: str | None = None
               ) -> ValueError:
     """An error of event group ``group``'s map, said of the flow map's batch: a refusal of
-    one row (:class:`~bderiv._errors.QueryError`) numbered as the caller's row ``offset +
+    one row (:class:`~bderiv._support._errors.QueryError`) numbered as the caller's row ``offset +
     row`` (of the batch ``name``, else the name it had)."""
     where = f"in event group {group} of the flow map, for the vectors entering it: "
     if isinstance(exc, QueryError):

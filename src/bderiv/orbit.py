@@ -57,7 +57,7 @@ from ._limits import (
     PIECE_RTOL,
     T_MAX_PER_PERIOD,
 )
-from ._validate import check_number, check_positive_int
+from ._support._validate import check_number, check_positive_int
 from .models.integrate.run import ENDS, NoReturn, SolverOptions, run
 from .returnmap import return_map
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers

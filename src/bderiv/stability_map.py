@@ -44,8 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._limits import LOCAL_WORKERS
-from ._progress import resolve_progress
-from ._validate import check_positive_int
+from ._support._progress import resolve_progress
+from ._support._validate import check_positive_int
 
 __all__ = ["StabilityMap", "stability_map"]
 

@@ -17,7 +17,14 @@ from itertools import permutations
 import numpy as np
 import scipy.linalg
 
-from ._batch import evaluate
+from ._support._batch import evaluate
+from ._support._validate import (
+    all_finite,
+    check_finite_result,
+    check_matrix,
+    check_positive_int,
+    singular_condition,
+)
 from ._triangulation_io import (
     FIELDS,
     FILE_FORMAT,
@@ -30,13 +37,6 @@ from ._triangulation_io import (
     read_json,
     read_npz,
     write_files,
-)
-from ._validate import (
-    all_finite,
-    check_finite_result,
-    check_matrix,
-    check_positive_int,
-    singular_condition,
 )
 
 

@@ -6,11 +6,11 @@ import functools
 
 import numpy as np
 
-from .._errors import ChainStop, refusal
-from .._format import format_happened, format_order, transversality_message
 from .._kernels import _core, scaling
 from .._limits import CHAIN_BYTES
-from .._tables import chain_regions, tabulate
+from .._support._errors import ChainStop, refusal
+from .._support._format import format_happened, format_order, transversality_message
+from .._support._tables import chain_regions, tabulate
 
 
 class Engine:

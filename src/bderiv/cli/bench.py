@@ -6,7 +6,7 @@ import os
 
 from .. import _bench
 from .._limits import BENCH_BATCH, BENCH_REPEAT
-from .._tables import dense_table_bytes
+from .._support._tables import dense_table_bytes
 from .figures import save_figure
 from .machine import describe, machine_info
 from .usage import check_figure_path, make_output_directory, require_memory, require_module

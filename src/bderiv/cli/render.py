@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from .._format import format_mask, format_order
+from .._support._format import format_mask, format_order
 from .machine import describe
 
 
@@ -26,7 +26,7 @@ def progress_bar(desc: str, unit: str = "vec"):
     None without tqdm."""
     if importlib.util.find_spec("tqdm") is None:
         return None  # the bar is a nicety in the CLI; without tqdm run silently
-    from .._progress import TqdmCallback
+    from .._support._progress import TqdmCallback
 
     return TqdmCallback(desc, unit=unit, leave=False, disable=None, file=sys.stderr)
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._limits import DERIVATIVE_SIMULTANEITY_TOL
-from .._validate import check_number, check_positive_int, check_real_array
+from .._support._validate import check_number, check_positive_int, check_real_array
 from ..models.system import HybridSystem
 
 __all__ = ["ParametricFlow", "Step", "augment", "nominal_orders"]

@@ -19,11 +19,11 @@ from functools import cache
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .._format import format_mask
 from .._kernels._cache import keyed, sources_digest
 from .._limits import ON_SURFACE_TOL
-from .._numdiff import complex_step
-from .._validate import check_bool
+from .._support._format import format_mask
+from .._support._numdiff import complex_step
+from .._support._validate import check_bool
 from ..models.system import HybridSystem
 
 __all__ = ["Example", "check_start", "compile_function", "compiled_once", "flow_back"]

@@ -36,7 +36,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from .._validate import check_positive_int
+from .._support._validate import check_positive_int
 from ._common import Example, check_start, compile_function
 
 __all__ = [

@@ -69,7 +69,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import quad, solve_ivp
 
-from .._numdiff import complex_step
+from .._support._numdiff import complex_step
 from ..models.system import HybridSystem
 from ._common import Example, check_start
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._limits import DERIVATIVE_SIMULTANEITY_TOL
-from .._validate import check_number, check_positive_int
+from .._support._validate import check_number, check_positive_int
 from ..models.integrate.run import SolverOptions
 from ..models.system import HybridSystem
 from ._host import FlowHost

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._format import format_mask, transversality_message
 from .._numerics import RESET_MISMATCH
-from .._tables import block_bits
+from .._support._format import format_mask, transversality_message
+from .._support._tables import block_bits
 from ..bderivative import BDerivative
 from ..flowmap import FlowBDerivative
 from .events.crossings import apply_resets, landing

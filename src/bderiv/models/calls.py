@@ -14,10 +14,10 @@ import time
 
 import numpy as np
 
-from .. import _numdiff as numdiff
-from .._format import format_mask
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
-from .._validate import all_finite, check_bool, check_positive_int, check_real_array
+from .._support import _numdiff as numdiff
+from .._support._format import format_mask
+from .._support._validate import all_finite, check_bool, check_positive_int, check_real_array
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel
 from .readiness import ready_now
 from .user_functions import (

@@ -22,7 +22,7 @@ else numerical). Its methods are thin:
 
 The checked evaluations of the user functions live in :class:`bderiv.models.calls.ModelCalls`.
 Missing Jacobians are computed by central differences with Richardson extrapolation
-(:mod:`bderiv._numdiff`: adaptive step, error estimate), on a compiled model in compiled
+(:mod:`bderiv._support._numdiff`: adaptive step, error estimate), on a compiled model in compiled
 code; the user functions need not be vectorised, they are wrapped.
 """
 
@@ -41,7 +41,7 @@ from .._limits import (
     ORBIT_TOL,
     SIMULATION_SIMULTANEITY_TOL,
 )
-from .._validate import check_number
+from .._support._validate import check_number
 from ..orbit import ORBIT_OPTIONS, periodic_orbit
 from ..returnmap import return_map
 from .assembly import flow_map_along, point_bderivative
@@ -137,7 +137,7 @@ class HybridSystem(ModelCalls):
     input (:func:`bderiv.complex_step_jacobian`: d calls, exact to rounding), held to a
     central difference at its first use for each mask (and event): a function that is
     not complex-analytic (``abs``, ``x.real``) fails that. Otherwise by central
-    differences with Richardson extrapolation (:mod:`bderiv._numdiff`: steps from an
+    differences with Richardson extrapolation (:mod:`bderiv._support._numdiff`: steps from an
     eighth of each variable's magnitude, smaller and larger ones tried until each entry's
     error estimate is below 1e-7 of the entry), refused, naming the function, mask, entry
     and estimated error, where no step reaches that. These cost 10 to 100 calls of the

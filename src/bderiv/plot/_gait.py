@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._format import format_mask
+from .._support._format import format_mask
 from ..stability import log_growth
 from ._axes import PALETTE, figure_axes, new_figure
 

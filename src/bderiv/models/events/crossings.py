@@ -22,9 +22,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._format import format_mask, transversality_message
 from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
-from ..._validate import frozen, scratch
+from ..._support._format import format_mask, transversality_message
+from ..._support._validate import frozen, scratch
 from ..compiled import rules
 from .locate import examine, flags_of, orientation, state_error
 

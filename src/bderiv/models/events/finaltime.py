@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._validate import check_bool, check_points
+from ..._support._validate import check_bool, check_points
 from ...bderivative import BDerivative
 
 __all__ = ["FinalTimeMap", "pending_at_final_time"]

@@ -29,9 +29,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._format import format_mask
 from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
-from ..._validate import frozen, scratch
+from ..._support._format import format_mask
+from ..._support._validate import frozen, scratch
 from ..compiled import rules
 
 __all__ = [

@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..._progress import SimulationProgress, resolve_progress
-from ..._validate import check_number, check_points, check_positive_int
+from ..._support._progress import SimulationProgress, resolve_progress
+from ..._support._validate import check_number, check_points, check_positive_int
 from ..compiled import Cancelled, stopped_by
 from .run import STEPS, compiled_stops, run, stops_compile
 

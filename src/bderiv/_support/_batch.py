@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._limits import DEFAULT_CHUNK_ROWS
 from ._errors import QueryError
-from ._limits import DEFAULT_CHUNK_ROWS
 from ._validate import check_out, check_points, check_positive_int
 
 

@@ -18,7 +18,7 @@ except ImportError:  # pragma: no cover - not on Windows
 
 import numpy as np
 
-from ._limits import BLOCK_ROWS, RATE_BLOCK_ROWS, UNDERFLOW_LOG10
+from .._limits import BLOCK_ROWS, RATE_BLOCK_ROWS, UNDERFLOW_LOG10
 
 
 def blocks(n_rows: int, block: int = BLOCK_ROWS):

@@ -47,7 +47,7 @@ class GuardedCallback:
     >>> guarded(20, 30)
     Traceback (most recent call last):
     ...
-    bderiv._progress.ProgressCallbackError: the progress callback stop raised
+    bderiv._support._progress.ProgressCallbackError: the progress callback stop raised
     KeyError('enough') at progress(20, 30), after 20 of 30 vectors: the work stopped there
     (the callback's exception is the cause)
     """

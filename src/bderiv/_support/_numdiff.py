@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._limits import (
+from .._limits import (
     ACCEPT_RTOL,
     BASE_STEP,
     CHECK_ERROR_FACTOR,
@@ -31,7 +31,7 @@ from ._limits import (
     ROW_FLOOR,
     TARGET_RTOL,
 )
-from ._numerics import SCALE_FLOOR
+from .._numerics import SCALE_FLOOR
 
 #: levels of one run (steps H .. H / 2**(LEVELS - 1)), each two calls of the function.
 LEVELS = 8

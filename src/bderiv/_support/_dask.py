@@ -1,6 +1,6 @@
 """Lazy, block-wise evaluation of a map on dask arrays.
 
-Imported by :func:`bderiv._batch.evaluate` only when a query is a dask array
+Imported by :func:`bderiv._support._batch.evaluate` only when a query is a dask array
 (``_batch.is_dask_array`` decides that from the type's module, without importing dask).
 Each block of the dask array is evaluated by the ordinary NumPy path of the map, in
 whatever process or machine the scheduler runs it. It must pickle (``BDerivative``,

@@ -12,8 +12,8 @@ import numbers
 
 import numpy as np
 
+from .._limits import SMALL_NEED_BYTES
 from ._errors import QUERY, QueryError
-from ._limits import SMALL_NEED_BYTES
 from ._tables import available_memory, human_bytes, memory_headroom
 
 _KIND_NAMES = {
@@ -222,7 +222,7 @@ def check_bool(value, name: str) -> bool:
 
 def check_finite_result(res, name: str, offset: int, what: str = "result") -> None:
     """Refuse a result that overflowed (finite inputs near the float64 range): a
-    :class:`~bderiv._errors.QueryError` naming the row, ``offset`` its batch's first."""
+    :class:`~bderiv._support._errors.QueryError` naming the row, ``offset`` its batch's first."""
     if not all_finite(res):
         q = int(np.flatnonzero(~np.isfinite(res).all(axis=1))[0])
         raise QueryError(
@@ -249,7 +249,7 @@ class RecordTooLarge(ValueError):
 
 def check_record(held: int, more: int, what: str, instead: str) -> None:
     """Refuse a record that holds ``held`` bytes and is about to take ``more``, when the
-    process may not take them (:func:`bderiv._tables.memory_headroom`): a
+    process may not take them (:func:`bderiv._support._tables.memory_headroom`): a
     :class:`RecordTooLarge` naming the record (``what``), the sizes and what to pass
     ``instead``. A need up to ``SMALL_NEED_BYTES`` is not checked."""
     if more <= SMALL_NEED_BYTES:
