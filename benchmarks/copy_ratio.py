@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from bderiv import BDerivative
-from bderiv._baselines import benchmark_system, copy_yardstick
+from bderiv.engine._baselines import benchmark_system, copy_yardstick
 
 
 def _seconds(fn) -> float:

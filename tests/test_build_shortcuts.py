@@ -16,9 +16,9 @@ import pytest
 from reference import random_reset_system, random_system
 
 from bderiv import BDerivative
-from bderiv._engines.dense import table_exponents
 from bderiv._limits import TABLE_BAND
 from bderiv._support import _tables
+from bderiv.engine._engines.dense import table_exponents
 from bderiv.models.assembly import spread_masks
 from bderiv.models.system import HybridSystem
 

@@ -16,8 +16,8 @@ from reference import ref_apply
 from scipy.integrate import solve_ivp
 from test_recurring import square_spiral
 
-from bderiv.bderivative import BDerivative
 from bderiv.checks import decay_check, fd_check
+from bderiv.engine.bderivative import BDerivative
 from bderiv.examples import gaits
 from bderiv.flowmap import FlowBDerivative
 from bderiv.models.system import HybridSystem

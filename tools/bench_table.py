@@ -27,7 +27,7 @@ import json
 import sys
 from collections import defaultdict
 
-from bderiv._baselines import useful_flops
+from bderiv.engine._baselines import useful_flops
 
 CONTENDERS = APPLY, INVERSE, NUMPY, REF, BLAS, COPY = (
     "bderiv apply", "bderiv inverse", "numpy batched", "reference per-query", "BLAS matmul",

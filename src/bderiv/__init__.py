@@ -8,12 +8,13 @@ from importlib import metadata as _metadata
 #: ``import bderiv`` alone costs a few milliseconds, so that ``python -m bderiv`` says what
 #: it does before numba, scipy and the kernels load
 _WHERE = {
-    "BDerivative": "bderivative", "LowRankResets": "bderivative",
-    "CornerFunction": "corners", "CornerModel": "corners", "StructuredCorners": "corners",
+    "BDerivative": "engine.bderivative", "LowRankResets": "engine.bderivative",
+    "CornerFunction": "geometry.corners", "CornerModel": "geometry.corners",
+    "StructuredCorners": "geometry.corners",
     "FlowBDerivative": "flowmap", "check_jacobians": "jacobians",
     "complex_step_jacobian": "jacobians", "SolverOptions": "models.integrate.run",
-    "HybridSystem": "models.system", "Triangulation": "triangulation",
-    "load_triangulation": "triangulation",
+    "HybridSystem": "models.system", "Triangulation": "geometry.triangulation",
+    "load_triangulation": "geometry.triangulation",
 }
 
 

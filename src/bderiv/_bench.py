@@ -2,15 +2,16 @@
 
 The full benchmark suite lives in the repository's ``benchmarks/`` (pytest-benchmark);
 this module is the part an installed package can run on its own, with the same baselines
-and test systems (:mod:`bderiv._baselines`):
+and test systems (:mod:`bderiv.engine._baselines`):
 
 - ``bderiv``: :meth:`BDerivative.__call__` on the batch (the compiled kernels);
-- ``numpy``: mathematics.md section 3 in batched NumPy (:func:`~bderiv._baselines.numpy_apply`);
+- ``numpy``: mathematics.md section 3 in batched NumPy
+  (:func:`~bderiv.engine._baselines.numpy_apply`);
 - ``blas``: the time a BLAS matrix product would take for the flop count of the useful
   work, ``m (n**2 + 2 n d)``, at the rate of a 512 x 512 product measured beside each n
   (so that a load that comes and goes moves both): a yardstick of the machine's peak.
 
-The systems are :func:`~bderiv._baselines.benchmark_system` (rates change after every
+The systems are :func:`~bderiv.engine._baselines.benchmark_system` (rates change after every
 event, so no fast path applies). Each time is the best of ``repeat`` runs after one
 warm-up run; construction (building the tables) is timed apart, the same way.
 """
@@ -19,9 +20,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._baselines import benchmark_system, best_time, measure_blas_rate, numpy_apply, useful_flops
 from ._limits import BENCH_BATCH, BENCH_NS, BENCH_REPEAT
-from .bderivative import BDerivative
+from .engine._baselines import (
+    benchmark_system,
+    best_time,
+    measure_blas_rate,
+    numpy_apply,
+    useful_flops,
+)
+from .engine.bderivative import BDerivative
 
 
 def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: int = BENCH_REPEAT,
@@ -41,7 +48,7 @@ def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: i
     numpy_max_n : int
         Skip the NumPy baseline above this n.
     seed : int
-        Seeds the systems (:func:`~bderiv._baselines.benchmark_system`) and the queries.
+        Seeds the systems (:func:`~bderiv.engine._baselines.benchmark_system`) and the queries.
     progress : callable, optional
         ``progress(done, total)`` after each n.
 

@@ -21,7 +21,6 @@ import numpy as np
 
 from ._kernels import _core
 from ._limits import MAX_PIECES
-from ._linearise import Linearisation
 from ._support._batch import evaluate, is_dask_array
 from ._support._errors import QueryError
 from ._support._validate import (
@@ -33,7 +32,8 @@ from ._support._validate import (
     check_real_array,
     singular_condition,
 )
-from .bderivative import BDerivative
+from .engine._linearise import Linearisation
+from .engine.bderivative import BDerivative
 from .models.events.finaltime import FinalTimeMap
 
 __all__ = ["FlowBDerivative"]

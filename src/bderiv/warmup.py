@@ -64,7 +64,7 @@ def _queries(bd, d, rng) -> None:
 
 
 def _dense() -> None:
-    from .bderivative import BDerivative
+    from .engine.bderivative import BDerivative
 
     rng = np.random.default_rng(0)
     for n, d in ((2, 6), (3, 4), (8, 8), (3, 66)):  # lanes (d <= 64) and plain blocks
@@ -75,8 +75,8 @@ def _dense() -> None:
 
 
 def _structured() -> None:
-    from .bderivative import BDerivative
-    from .corners import StructuredCorners
+    from .engine.bderivative import BDerivative
+    from .geometry.corners import StructuredCorners
 
     rng = np.random.default_rng(1)
     for n in (4, 40):  # corners like a multi-contact system, two pairs per event

@@ -5,7 +5,7 @@ before reading it, so these few functions do: :func:`read_regular` reads a regul
 whose size the memory limit allows (``/dev/zero``, a FIFO or a folder is refused, checked
 on the open descriptor); :func:`write_all` writes every file to a temporary file beside
 its target, syncs it, and replaces the targets with ``os.replace`` only when all are
-written. Used by the triangulation files (:mod:`bderiv._triangulation_io`).
+written. Used by the triangulation files (:mod:`bderiv.geometry._triangulation_io`).
 
 A process killed while it writes leaves its temporary file
 (``.NAME.<pid>-<host>.<random>.tmp``, hidden, beside the target); the next write of the

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..bderivative import BDerivative
+from ..engine.bderivative import BDerivative
 from ..flowmap import FlowBDerivative
 from ._host import MapHost
 from ._primitive import pl_function

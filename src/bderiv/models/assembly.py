@@ -2,7 +2,7 @@
 
 :func:`group_bderivative` samples a model at a group's event point (event Jacobian rows,
 region fields where the state lands, resets and their Jacobians) and builds the group's
-:class:`~bderiv.bderivative.BDerivative` in the group's local orientation;
+:class:`~bderiv.engine.bderivative.BDerivative` in the group's local orientation;
 :func:`flow_map_along` composes one per group of a trajectory integrated with its
 variational equations into a :class:`~bderiv.flowmap.FlowBDerivative` (mathematics.md
 sections 2, 7 and 9). Here rather than in :mod:`bderiv.flowmap`, which only composes given
@@ -16,7 +16,7 @@ import numpy as np
 from .._numerics import RESET_MISMATCH
 from .._support._format import format_mask, transversality_message
 from .._support._tables import block_bits
-from ..bderivative import BDerivative
+from ..engine.bderivative import BDerivative
 from ..flowmap import FlowBDerivative
 from .events.crossings import apply_resets, landing
 from .events.finaltime import FinalTimeMap

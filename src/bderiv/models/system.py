@@ -8,7 +8,7 @@ orientation (:mod:`bderiv.models.events.crossings`). :class:`HybridSystem`
 checks every call of the user functions and gives their Jacobians (analytic when given,
 else numerical). Its methods are thin:
 
-- :meth:`HybridSystem.bderivative`: the :class:`~bderiv.bderivative.BDerivative` at an
+- :meth:`HybridSystem.bderivative`: the :class:`~bderiv.engine.bderivative.BDerivative` at an
   event point, its corner table sampled from the model (:mod:`bderiv.models.assembly`);
 - :meth:`HybridSystem.simulate`: event-detecting integration (:mod:`bderiv.models.integrate.run`);
 - :meth:`HybridSystem.flow_bderivative`: the flow map's B-derivative, assembled from a

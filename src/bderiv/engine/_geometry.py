@@ -11,11 +11,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._limits import MAX_PIECES
-from ._support import _tables
-from ._support._format import MASK_MEANING, format_mask
-from ._support._validate import check_memory, check_pieces
-from .corners import check_table_size
+from .._limits import MAX_PIECES
+from .._support import _tables
+from .._support._format import MASK_MEANING, format_mask
+from .._support._validate import check_memory, check_pieces
+from ..geometry.corners import check_table_size
 
 
 def dh_rank(Dh) -> int:
@@ -78,7 +78,7 @@ class CornerGeometry:
             If Dh is not of full row rank, n! exceeds ``max_pieces`` (checked before
             anything is built), or a reset is singular (no homeomorphism).
         """
-        from .triangulation import Triangulation
+        from ..geometry.triangulation import Triangulation
 
         self._require_full_rank("the triangulation")
         if self.resets is not None:  # a PL homeomorphism: refuses singular resets

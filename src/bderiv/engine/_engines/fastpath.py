@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._kernels import _core
-from .._limits import FAST_RTOL
-from .._numerics import INSERTION_SORT_MAX
-from .._support import _tables
+from ..._kernels import _core
+from ..._limits import FAST_RTOL
+from ..._numerics import INSERTION_SORT_MAX
+from ..._support import _tables
 
 
 class FastPath:

@@ -17,8 +17,8 @@ from itertools import permutations
 import numpy as np
 import scipy.linalg
 
-from ._support._batch import evaluate
-from ._support._validate import (
+from .._support._batch import evaluate
+from .._support._validate import (
     all_finite,
     check_finite_result,
     check_matrix,
@@ -407,14 +407,14 @@ def save_files(tri: Triangulation, paths: dict, check=None) -> None:
     check : callable, optional
         ``check({path: temporary path})`` once every file is written, before any replaces
         its target; if it raises, no target is touched (see
-        :func:`bderiv._triangulation_io.write_files`).
+        :func:`bderiv.geometry._triangulation_io.write_files`).
 
     Notes
     -----
     Several files (``NAME.npz`` and ``NAME.json``, renamed in that order) are a pair:
     both carry one random token (header field ``pair``), so that the new ``.npz`` a kill
     between the renames leaves beside the earlier ``.json`` is refused when it is loaded
-    (:func:`bderiv._triangulation_io.check_pair`).
+    (:func:`bderiv.geometry._triangulation_io.check_pair`).
     """
     header, arrays = tri._file_contents()
     if len(paths) > 1:  # one token in both: a half-replaced pair is refused on load

@@ -25,11 +25,11 @@ import math
 
 import numpy as np
 
-from ._kernels import scaling
-from ._limits import PIECE_CHUNK_BYTES
-from ._support._batch import evaluate, is_dask_array
-from ._support._errors import QueryError
-from ._support._validate import check_memory, check_points, check_real_array
+from .._kernels import scaling
+from .._limits import PIECE_CHUNK_BYTES
+from .._support._batch import evaluate, is_dask_array
+from .._support._errors import QueryError
+from .._support._validate import check_memory, check_points, check_real_array
 
 
 def unit_scale(rows: np.ndarray, exps=None) -> np.ndarray:

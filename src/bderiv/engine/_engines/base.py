@@ -6,17 +6,17 @@ import functools
 
 import numpy as np
 
-from .._kernels import _core, scaling
-from .._limits import CHAIN_BYTES
-from .._support._errors import ChainStop, refusal
-from .._support._format import format_happened, format_order, transversality_message
-from .._support._tables import chain_regions, tabulate
+from ..._kernels import _core, scaling
+from ..._limits import CHAIN_BYTES
+from ..._support._errors import ChainStop, refusal
+from ..._support._format import format_happened, format_order, transversality_message
+from ..._support._tables import chain_regions, tabulate
 
 
 class Engine:
     """One corner representation's tables and kernels, behind the interface that
     ``BDerivative`` uses. Subclasses set ``Dh``, ``n``, ``d``, ``fast`` (a
-    :class:`~bderiv._engines.fastpath.FastPath` or None) and implement ``_apply``,
+    :class:`~bderiv.engine._engines.fastpath.FastPath` or None) and implement ``_apply``,
     ``_apply_own_rates``, ``_event_times`` and ``corners``; model engines also
     ``_diagnose``.
 

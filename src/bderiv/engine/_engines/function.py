@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._kernels import function as kernels
-from .._kernels._core import frozen_tables
+from ..._kernels import function as kernels
+from ..._kernels._core import frozen_tables
 from .base import Engine
 
 

@@ -15,12 +15,12 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
-from .._kernels import resets as kernels
-from .._kernels._core import frozen_tables
-from .._limits import CHECK_ROWS
-from .._support._format import MASK_MEANING, format_mask
-from .._support._tables import blocks, dense_table_bytes
-from .._support._validate import check_finite, check_memory, check_number, check_real_array
+from ..._kernels import resets as kernels
+from ..._kernels._core import frozen_tables
+from ..._limits import CHECK_ROWS
+from ..._support._format import MASK_MEANING, format_mask
+from ..._support._tables import blocks, dense_table_bytes
+from ..._support._validate import check_finite, check_memory, check_number, check_real_array
 from .base import Engine
 from .dense import DenseEngine
 

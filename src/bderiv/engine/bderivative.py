@@ -7,21 +7,13 @@ from functools import cached_property
 
 import numpy as np
 
-from ._engines import DenseEngine, FunctionEngine, StructuredEngine
-from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
-from ._geometry import (  # noqa: F401 (re-exported)
-    CornerGeometry,
-    CornerPoints,
-    dh_rank,
-)
-from ._kernels import scaling
-from ._kernels._core import read_only
-from ._limits import MAX_PIECES, RESET_TOL
-from ._linearise import Linearisation, unit_scale
-from ._numerics import GRAZING_RTOL
-from ._support._batch import evaluate
-from ._support._errors import QueryError
-from ._support._validate import (
+from .._kernels import scaling
+from .._kernels._core import read_only
+from .._limits import MAX_PIECES, RESET_TOL
+from .._numerics import GRAZING_RTOL
+from .._support._batch import evaluate
+from .._support._errors import QueryError
+from .._support._validate import (
     check_bool,
     check_finite_result,
     check_matrix,
@@ -29,7 +21,15 @@ from ._support._validate import (
     check_pieces,
     check_points,
 )
-from .corners import CornerModel, StructuredCorners
+from ..geometry.corners import CornerModel, StructuredCorners
+from ._engines import DenseEngine, FunctionEngine, StructuredEngine
+from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
+from ._geometry import (  # noqa: F401 (re-exported)
+    CornerGeometry,
+    CornerPoints,
+    dh_rank,
+)
+from ._linearise import Linearisation, unit_scale
 
 #: the types of a table given as an array: the common case, told apart without the
 #: typing-Protocol ``isinstance`` (which looks up each member of the protocol by name).
@@ -49,7 +49,7 @@ def _representation(Dh, F, resets) -> str:
             raise TypeError(
                 f"F = {F!r} looks like a corner model but lacks part of the protocol: it "
                 f"needs n_events, dim, corners(happened) and corner_function() (see "
-                f"bderiv.corners.CornerModel)"
+                f"bderiv.geometry.corners.CornerModel)"
             )
         return "dense" if resets is None else "resets"
     n, d = Dh.shape
@@ -79,14 +79,14 @@ class BDerivative(Linearisation, CornerGeometry):
         events whose bits are set in ``mask`` have happened (bit k set = event k happened).
         Or a :class:`~bderiv.StructuredCorners` / :class:`~bderiv.CornerFunction` model
         that gives the corners without storing 2**n rows (any n; transversality is then
-        checked as described in :mod:`bderiv.corners`).
+        checked as described in :mod:`bderiv.geometry.corners`).
     transversality_tol : float, optional
         Default 1e-9 (0: no test). A dense table is refused when a rate
         ``G[mask, k] = F[mask] . Dh[k]`` is at most ``tol * |F[mask]| |Dh[k]|`` (grazing),
         or when one event's rates over the regions where it is pending differ by more than
         ``1 / tol`` (ill-conditioned). Accepted tables give M(u) to about
         ``n * eps * rate_spread`` of its scale, ties included (docs/mathematics.md,
-        "Conditioning"). Corner models: rates > 0 only (see :mod:`bderiv.corners`).
+        "Conditioning"). Corner models: rates > 0 only (see :mod:`bderiv.geometry.corners`).
     memory_limit : int, optional
         Bytes the dense tables may take; default: the memory currently available (dense
         tables only).
@@ -95,7 +95,7 @@ class BDerivative(Linearisation, CornerGeometry):
     resets : array_like of shape (2**n, n, d, d), or LowRankResets, optional
         Reset Jacobians at the events (impacts; dense tables only; mathematics.md section 9):
         ``resets[mask, k]`` for event k crossed from region ``mask``, or ``I + U V^T``
-        (:class:`~bderiv._engines.resets.LowRankResets`). Refused (ValueError naming the
+        (:class:`~bderiv.engine._engines.resets.LowRankResets`). Refused (ValueError naming the
         region and the events) when the flow has no B-derivative with them.
     reset_tol : float, optional
         Relative tolerance of that check, and ``1 / reset_tol`` the largest condition
@@ -355,7 +355,7 @@ class BDerivative(Linearisation, CornerGeometry):
         return times.reshape(lead + (n,)), order.reshape(lead + (n,))
 
     def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:
-        """The kernel of ``jvp``/``vjp`` (:class:`~bderiv._linearise.Linearisation`);
+        """The kernel of ``jvp``/``vjp`` (:class:`~bderiv.engine._linearise.Linearisation`);
         ``name``: T's in the caller's errors. The piece is linear: when a row of T is
         beyond ``_core.QUERY_BAND``, the rows run scaled by powers of two, as the queries
         of :meth:`apply` do, so that their products along the chain under- or overflow

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._limits import BLAS_SIZE, NUMPY_CHUNK
+from .._limits import BLAS_SIZE, NUMPY_CHUNK
 
 
 def useful_flops(n: int, d: int) -> int:

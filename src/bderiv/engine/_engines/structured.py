@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._kernels import structured as kernels
-from .._kernels._core import frozen_tables
-from .._limits import PROOF_MARGIN
-from .._support._format import format_happened
-from .._support._tables import padded
+from ..._kernels import structured as kernels
+from ..._kernels._core import frozen_tables
+from ..._limits import PROOF_MARGIN
+from ..._support._format import format_happened
+from ..._support._tables import padded
 from . import fastpath
 from .base import Engine
 

@@ -34,9 +34,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ._limits import MAX_TABLE_EVENTS
-from ._support import _tables
-from ._support._validate import check_finite, check_matrix, check_real_array
+from .._limits import MAX_TABLE_EVENTS
+from .._support import _tables
+from .._support._validate import check_finite, check_matrix, check_real_array
 
 __all__ = ["CornerFunction", "CornerModel", "StructuredCorners"]
 
@@ -218,7 +218,7 @@ class StructuredCorners(_Tabulated):
 
     def corner_function(self):
         """``func(happened, out)`` computing :meth:`corners` of one region (compiled)."""
-        from ._kernels.structured import corner_function
+        from .._kernels.structured import corner_function
 
         return corner_function(self.F0, self.A, self.pairs, self.B)
 
@@ -267,7 +267,7 @@ class CornerFunction(_Tabulated):
     def __init__(self, func, *, n_events=None, dim=None):
         from numba.core.registry import CPUDispatcher
 
-        from ._support._validate import check_positive_int
+        from .._support._validate import check_positive_int
 
         if not callable(func):
             raise TypeError(f"func must be a function func(happened, out), got {func!r}")
@@ -288,7 +288,7 @@ class CornerFunction(_Tabulated):
 
     def corners(self, happened) -> np.ndarray:
         """``F`` on the regions ``happened`` (shape (..., n), 0/1), shape (..., d)."""
-        from ._kernels.function import corners
+        from .._kernels.function import corners
 
         n, d = self._sizes("corners")
         h = np.asarray(happened)

@@ -43,8 +43,8 @@ import zlib
 
 import numpy as np
 
-from ._support._safefiles import open_regular, read_regular, write_all
-from ._support._validate import check_memory
+from .._support._safefiles import open_regular, read_regular, write_all
+from .._support._validate import check_memory
 
 #: tag written into every saved file, checked on load
 FILE_FORMAT = "bderiv.triangulation"

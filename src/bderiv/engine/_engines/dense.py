@@ -7,13 +7,13 @@ import math
 
 import numpy as np
 
-from .._kernels import dense as kernels
-from .._kernels import lanes, scaling
-from .._kernels._core import PLAIN, frozen_tables
-from .._limits import BLOCK_ROWS, FAR_BYTES, TABLE_BAND
-from .._support import _tables
-from .._support._format import MASK_MEANING, format_mask
-from .._support._validate import check_matrix, check_number, memory_limit_for
+from ..._kernels import dense as kernels
+from ..._kernels import lanes, scaling
+from ..._kernels._core import PLAIN, frozen_tables
+from ..._limits import BLOCK_ROWS, FAR_BYTES, TABLE_BAND
+from ..._support import _tables
+from ..._support._format import MASK_MEANING, format_mask
+from ..._support._validate import check_matrix, check_number, memory_limit_for
 from . import fastpath
 from .base import Engine, unit_rows
 
