@@ -73,7 +73,7 @@ def bits_of(result):
 
 def main(argv=None):
     import bderiv
-    import bderiv.models.assembly
+    import bderiv.analysis.assembly
     import bderiv.models.integrate.run  # noqa: F401 (pronking reads it as an attribute)
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

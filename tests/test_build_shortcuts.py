@@ -18,9 +18,9 @@ from reference import random_reset_system, random_system
 from bderiv import BDerivative
 from bderiv._limits import TABLE_BAND
 from bderiv._support import _tables
+from bderiv.analysis.assembly import spread_masks
+from bderiv.analysis.system import HybridSystem
 from bderiv.engine._engines.dense import table_exponents
-from bderiv.models.assembly import spread_masks
-from bderiv.models.system import HybridSystem
 
 TINY = np.finfo(np.float64).tiny
 

@@ -99,7 +99,7 @@ def test_callback_error_in_nested_progress_is_said_once():
 
     from bderiv import examples
     from bderiv._support._progress import ProgressCallbackError
-    from bderiv.checks import fd_check
+    from bderiv.analysis.checks import fd_check
 
     ex = examples.chair()
     V = np.random.default_rng(0).standard_normal((2, ex.system.dim))

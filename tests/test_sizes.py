@@ -13,8 +13,8 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from bderiv import BDerivative, load_triangulation
+from bderiv.analysis.stability import check_growth_memory, growth_rate
 from bderiv.geometry._triangulation_io import json_parse_bytes
-from bderiv.stability import check_growth_memory, growth_rate
 
 MEMORY = r"take [\d.]+ [KMGTP]?i?B, more than the memory limit of"
 

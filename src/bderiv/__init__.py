@@ -11,9 +11,9 @@ _WHERE = {
     "BDerivative": "engine.bderivative", "LowRankResets": "engine.bderivative",
     "CornerFunction": "geometry.corners", "CornerModel": "geometry.corners",
     "StructuredCorners": "geometry.corners",
-    "FlowBDerivative": "flowmap", "check_jacobians": "jacobians",
-    "complex_step_jacobian": "jacobians", "SolverOptions": "models.integrate.run",
-    "HybridSystem": "models.system", "Triangulation": "geometry.triangulation",
+    "FlowBDerivative": "analysis.flowmap", "check_jacobians": "analysis.jacobians",
+    "complex_step_jacobian": "analysis.jacobians", "SolverOptions": "models.integrate.run",
+    "HybridSystem": "analysis.system", "Triangulation": "geometry.triangulation",
     "load_triangulation": "geometry.triangulation",
 }
 

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..analysis.system import HybridSystem
 from ..examples._common import compile_function
 from ..examples.chair import _offset, chair
-from ..models.system import HybridSystem
 from .parametric import ParametricFlow
 
 __all__ = ["ball_1d", "ball_2d", "controlled_chair"]

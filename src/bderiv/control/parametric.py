@@ -1,6 +1,6 @@
 """Flows in the state and the parameters: a parameter is a state that does not move.
 
-A model written with ``params`` (:class:`~bderiv.models.system.HybridSystem`: every
+A model written with ``params`` (:class:`~bderiv.analysis.system.HybridSystem`: every
 function takes ``z = (x, p)``, the state followed by the m parameter values) has, over the
 augmented state ``z`` with ``p' = 0``, the flow ``(x, p) -> (Phi_p(t, x), p)``. Its
 B-derivative at ``(x0, p)`` is the B-derivative of ``Phi`` in the state *and* the
@@ -25,7 +25,7 @@ import numpy as np
 
 from .._limits import DERIVATIVE_SIMULTANEITY_TOL
 from .._support._validate import check_number, check_positive_int, check_real_array
-from ..models.system import HybridSystem
+from ..analysis.system import HybridSystem
 
 __all__ = ["ParametricFlow", "Step", "augment", "nominal_orders"]
 

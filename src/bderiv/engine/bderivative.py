@@ -184,7 +184,7 @@ class BDerivative(Linearisation, CornerGeometry):
     @classmethod
     def _from_checked(cls, Dh, F, *, resets=None, reset_tol: float = RESET_TOL):
         """The map ``BDerivative(Dh, F, resets=resets, reset_tol=reset_tol)`` gives, from
-        tables its caller made and checked (:func:`bderiv.models.assembly.group_bderivative`
+        tables its caller made and checked (:func:`bderiv.analysis.assembly.group_bderivative`
         samples them from a model's checked outputs): Dh (n, d), n and d >= 1, a
         C-contiguous float64 array the map keeps (made read-only), F (2**n, d) float64,
         both finite; resets (2**n, n, d, d) or None. Only the checks of these arguments are

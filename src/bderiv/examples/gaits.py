@@ -263,7 +263,7 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
         Added to ``example.x0`` for the guess (it breaks the symmetry on purpose).
     **kwargs
         Passed to :meth:`HybridSystem.periodic_orbit
-        <bderiv.models.system.HybridSystem.periodic_orbit>`.
+        <bderiv.analysis.system.HybridSystem.periodic_orbit>`.
 
     Returns
     -------
@@ -307,7 +307,7 @@ def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
         with visits and ``|multipliers|``), ``fd`` (eps, max errors, ratios), ``decay``
         (simulated rate per direction, the largest, the window).
     """
-    from ..checks import decay_check, fd_check  # the checks simulate: only here
+    from ..analysis.checks import decay_check, fd_check  # the checks simulate: only here
 
     ex = pronking(compiled=compiled)
     section = compiled_apex_section if compiled else apex_section

@@ -65,7 +65,7 @@ _POLL = 0.05
 @dataclass(frozen=True, eq=False)
 class Trajectories:
     """Result of :meth:`HybridSystem.simulate_many
-    <bderiv.models.system.HybridSystem.simulate_many>`: one trajectory per start state.
+    <bderiv.analysis.system.HybridSystem.simulate_many>`: one trajectory per start state.
 
     Attributes
     ----------

@@ -1,7 +1,7 @@
 """Event-detecting integration of a hybrid model: trajectory, event log, solver options.
 
 :func:`run` integrates a model (any object with the checked evaluations of
-:class:`~bderiv.models.system.HybridSystem`: ``eval_field``, ``eval_events``,
+:class:`~bderiv.analysis.system.HybridSystem`: ``eval_field``, ``eval_events``,
 ``eval_event_jacobian``, ``eval_field_jacobian``, ``start_mask``, ``n_events``, ``dim``)
 from region to region with :func:`scipy.integrate.solve_ivp`. Each stretch stops at the
 first event crossing, upward or downward (a surface may be crossed any number of times);
@@ -150,7 +150,7 @@ def _defaults(cls) -> SolverOptions:
 
 @dataclass(frozen=True, eq=False)
 class Trajectory:
-    """Result of :meth:`HybridSystem.simulate <bderiv.models.system.HybridSystem.simulate>`.
+    """Result of :meth:`HybridSystem.simulate <bderiv.analysis.system.HybridSystem.simulate>`.
 
     Attributes
     ----------
@@ -501,7 +501,7 @@ def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
     (events about to cross after ``t_final``), the times at which its events cross (first
     order); ``(None, ())`` when there is none. Pending events come before the last switched
     group within the tolerance: the flow map merges the two
-    (:func:`bderiv.models.assembly.flow_map_along`)."""
+    (:func:`bderiv.analysis.assembly.flow_map_along`)."""
     _, h, _, _, rate = local_view(system, int(mask), x)
     pending = pending_at_final_time(h, rate, simultaneity_tol)
     if pending:

@@ -9,16 +9,16 @@ checks every call of the user functions and gives their Jacobians (analytic when
 else numerical). Its methods are thin:
 
 - :meth:`HybridSystem.bderivative`: the :class:`~bderiv.engine.bderivative.BDerivative` at an
-  event point, its corner table sampled from the model (:mod:`bderiv.models.assembly`);
+  event point, its corner table sampled from the model (:mod:`bderiv.analysis.assembly`);
 - :meth:`HybridSystem.simulate`: event-detecting integration (:mod:`bderiv.models.integrate.run`);
 - :meth:`HybridSystem.flow_bderivative`: the flow map's B-derivative, assembled from a
   trajectory integrated with its variational equations and one ``BDerivative`` per event
-  group (:mod:`bderiv.models.assembly`);
+  group (:mod:`bderiv.analysis.assembly`);
 - :meth:`HybridSystem.flow_fd`: forward differences of the simulated flow
-  (:mod:`bderiv.checks`);
+  (:mod:`bderiv.analysis.checks`);
 - :meth:`HybridSystem.return_map`: the B-derivative of a Poincare map
-  (:mod:`bderiv.returnmap`), and :meth:`HybridSystem.periodic_orbit`: a gait found by
-  Newton's method with it, with its stability (:mod:`bderiv.orbit`).
+  (:mod:`bderiv.analysis.returnmap`), and :meth:`HybridSystem.periodic_orbit`: a gait found by
+  Newton's method with it, with its stability (:mod:`bderiv.analysis.orbit`).
 
 The checked evaluations of the user functions live in :class:`bderiv.models.calls.ModelCalls`.
 Missing Jacobians are computed by central differences with Richardson extrapolation
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import checks
 from .._limits import (
     DEFAULT_T_MAX,
     DERIVATIVE_SIMULTANEITY_TOL,
@@ -42,12 +41,9 @@ from .._limits import (
     SIMULATION_SIMULTANEITY_TOL,
 )
 from .._support._validate import check_number
-from ..orbit import ORBIT_OPTIONS, periodic_orbit
-from ..returnmap import return_map
-from .assembly import flow_map_along, point_bderivative
-from .calls import ModelCalls
-from .integrate.many import Trajectories, check_states, run_many
-from .integrate.run import (
+from ..models.calls import ModelCalls
+from ..models.integrate.many import Trajectories, check_states, run_many
+from ..models.integrate.run import (
     ENDS,
     STEPS,
     EventGroup,
@@ -57,7 +53,11 @@ from .integrate.run import (
     check_t_eval,
     run,
 )
-from .section import Section
+from ..models.section import Section
+from . import checks
+from .assembly import flow_map_along, point_bderivative
+from .orbit import ORBIT_OPTIONS, periodic_orbit
+from .returnmap import return_map
 
 # EventGroup, EventRecord, Trajectory live in models.integrate.run: the types the methods
 # return, re-exported beside the model
@@ -153,7 +153,7 @@ class HybridSystem(ModelCalls):
     Two events of a constant field that both happen at t = 1 from the origin:
 
     >>> import numpy as np
-    >>> from bderiv.models.system import HybridSystem
+    >>> from bderiv.analysis.system import HybridSystem
     >>> F = np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [1.5, 1.5]])
     >>> sys = HybridSystem(lambda x, mask: F[mask], lambda x: x - 1.0, n_events=2, dim=2)
     >>> sys.bderivative(np.ones(2))(np.array([-1.0, -2.0]))
@@ -297,7 +297,7 @@ class HybridSystem(ModelCalls):
         Examples
         --------
         >>> import numpy as np
-        >>> from bderiv.models.system import HybridSystem
+        >>> from bderiv.analysis.system import HybridSystem
         >>> s = HybridSystem(lambda x, mask: np.array([x[1], -x[0]]), lambda x: x[:1] - 2.0,
         ...                  n_events=1, dim=2)
         >>> traj = s.simulate([1.0, 0.0], 100.0, t_eval=np.linspace(0.0, 100.0, 5))
@@ -367,7 +367,7 @@ class HybridSystem(ModelCalls):
         Examples
         --------
         >>> import numpy as np
-        >>> from bderiv.models.system import HybridSystem
+        >>> from bderiv.analysis.system import HybridSystem
         >>> s = HybridSystem(lambda x, mask: np.array([1.0, -x[0]]), lambda x: x[:1] - 1.0,
         ...                  n_events=1, dim=2)
         >>> runs = s.simulate_many(np.array([[0.0, 0.0], [0.5, 0.0]]), 2.0)
@@ -432,7 +432,7 @@ class HybridSystem(ModelCalls):
     def flow_map_along(self, traj):
         """The :class:`FlowBDerivative` along a trajectory integrated with its variational
         equations (``run(..., variational=True)``):
-        :func:`bderiv.models.assembly.flow_map_along`."""
+        :func:`bderiv.analysis.assembly.flow_map_along`."""
         return flow_map_along(self, traj)
 
     # ------------------------------------------------------------------------------
@@ -466,7 +466,7 @@ class HybridSystem(ModelCalls):
             A :class:`FlowBDerivative` (``__call__``, ``event_times``, ``orders``,
             ``piece``) mapping tangent vectors ``(..., d)`` at x0 to tangent vectors at
             ``P(x0)``, with the correction for the change in return time
-            (:mod:`bderiv.returnmap`); ``period`` is the return time.
+            (:mod:`bderiv.analysis.returnmap`); ``period`` is the return time.
         """
         options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
                                         max_step=max_step)
@@ -484,7 +484,7 @@ class HybridSystem(ModelCalls):
         """A periodic orbit through the section ``section(x) = 0``: ``P(x) = x``.
 
         Newton's method with the return map's B-derivative, the piecewise-linear Newton
-        equation solved exactly (:mod:`bderiv.orbit` says how and why).
+        equation solved exactly (:mod:`bderiv.analysis.orbit` says how and why).
 
         Parameters
         ----------
@@ -505,7 +505,8 @@ class HybridSystem(ModelCalls):
         cyclic : sequence of int
             Coordinates the model and the section do not depend on (a forward position,
             a heading): left out of ``P(x) = x`` and of the stability, their advance per
-            period in ``PeriodicOrbit.advance`` (checked: :func:`bderiv.orbit.periodic_orbit`).
+            period in ``PeriodicOrbit.advance`` (checked:
+            :func:`bderiv.analysis.orbit.periodic_orbit`).
 
         Returns
         -------
@@ -527,7 +528,7 @@ class HybridSystem(ModelCalls):
         """Forward (one-sided) finite differences of the simulated flow.
 
         ``(Phi(t_final, x0 + eps v) - Phi(t_final, x0)) / eps`` for every vector v; see
-        :func:`bderiv.checks.forward_differences` (which this calls) for why one-sided and
+        :func:`bderiv.analysis.checks.forward_differences` (which this calls) for why one-sided and
         why the integrator settings default to the tight ``checks.FD_OPTIONS``.
 
         Parameters

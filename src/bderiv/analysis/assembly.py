@@ -4,8 +4,8 @@
 region fields where the state lands, resets and their Jacobians) and builds the group's
 :class:`~bderiv.engine.bderivative.BDerivative` in the group's local orientation;
 :func:`flow_map_along` composes one per group of a trajectory integrated with its
-variational equations into a :class:`~bderiv.flowmap.FlowBDerivative` (mathematics.md
-sections 2, 7 and 9). Here rather than in :mod:`bderiv.flowmap`, which only composes given
+variational equations into a :class:`~bderiv.analysis.flowmap.FlowBDerivative` (mathematics.md
+sections 2, 7 and 9). Here rather than in :mod:`bderiv.analysis.flowmap`, which only composes given
 stages: the assembly needs the model, and the map should not import the model side.
 """
 
@@ -17,9 +17,9 @@ from .._numerics import RESET_MISMATCH
 from .._support._format import format_mask, transversality_message
 from .._support._tables import block_bits
 from ..engine.bderivative import BDerivative
-from ..flowmap import FlowBDerivative
-from .events.crossings import apply_resets, landing
-from .events.finaltime import FinalTimeMap
+from ..models.events.crossings import apply_resets, landing
+from ..models.events.finaltime import FinalTimeMap
+from .flowmap import FlowBDerivative
 
 __all__ = ["flow_map_along", "group_bderivative", "merge_groups", "point_bderivative",
            "spread_masks"]
@@ -175,7 +175,7 @@ def merge_groups(groups, linear, times, tol):
 def point_bderivative(system, rho, tol):
     """The BDerivative of all n events at ``rho`` (checked: every event value within
     ``tol``), entered from region 0: :meth:`HybridSystem.bderivative
-    <bderiv.models.system.HybridSystem.bderivative>`. With resets, where each event lands is
+    <bderiv.analysis.system.HybridSystem.bderivative>`. With resets, where each event lands is
     decided by :func:`bderiv.models.events.crossings.landing` as in a simulation, and the resets
     must
     commute as maps (:func:`bderiv.models.events.crossings.apply_resets`), rho taken to be

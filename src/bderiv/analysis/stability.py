@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._support._validate import check_matrix, check_memory, check_positive_int
+from .._support._validate import check_matrix, check_memory, check_positive_int
 
 __all__ = ["Stability", "growth_rate", "log_growth", "piece_multipliers"]
 

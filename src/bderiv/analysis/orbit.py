@@ -1,7 +1,7 @@
 """Periodic orbits of a hybrid system: Newton's method with the B-derivative, and the orbit.
 
 :func:`periodic_orbit` solves ``P(x) = x`` on a Poincare section (``P`` the return map of
-:mod:`bderiv.returnmap`). At an iterate x the return map's B-derivative ``A = DP(x)`` is
+:mod:`bderiv.analysis.returnmap`). At an iterate x the return map's B-derivative ``A = DP(x)`` is
 piecewise linear, and the Newton step solves the **piecewise-linear Newton equation
 exactly** (the B-derivative Newton method of Pang, 1990):
 
@@ -36,16 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._cyclic import (
-    SHIFTS,
-    check_cyclic,
-    check_equivariance,
-    check_independence,
-    check_section_normal,
-    kept,
-    reduced_basis,
-)
-from ._limits import (
+from .._limits import (
     DEFAULT_T_MAX,
     DERIVATIVE_SIMULTANEITY_TOL,
     MAX_HALVINGS,
@@ -57,8 +48,17 @@ from ._limits import (
     PIECE_RTOL,
     T_MAX_PER_PERIOD,
 )
-from ._support._validate import check_number, check_positive_int
-from .models.integrate.run import ENDS, NoReturn, SolverOptions, run
+from .._support._validate import check_number, check_positive_int
+from ..models.integrate.run import ENDS, NoReturn, SolverOptions, run
+from ._cyclic import (
+    SHIFTS,
+    check_cyclic,
+    check_equivariance,
+    check_independence,
+    check_section_normal,
+    kept,
+    reduced_basis,
+)
 from .returnmap import return_map
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
@@ -161,11 +161,11 @@ class PeriodicOrbit:
         """The stability of the orbit, from the piecewise-linear return map.
 
         Iterates the return map's B-derivative on ``n_directions`` random directions
-        tangent to the section (:func:`bderiv.stability.growth_rate`) and reports the
+        tangent to the section (:func:`bderiv.analysis.stability.growth_rate`) and reports the
         Floquet multipliers of the pieces met most often (at most
         :data:`MULTIPLIER_PIECES`; every piece met is counted in ``visits``). The work
         grows with the directions and iterations, not with the number of pieces. See
-        :mod:`bderiv.stability` for the method and its limits.
+        :mod:`bderiv.analysis.stability` for the method and its limits.
 
         Parameters
         ----------
@@ -225,10 +225,10 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         Coordinates the model and the section do not depend on (a forward position, a
         heading): left out of ``P(x) = x`` (they advance every stride) and of the
         stability; ``PeriodicOrbit.advance`` says by how much. Their independence is
-        checked at the start (a shift by each of :data:`bderiv._cyclic.SHIFTS` must shift
+        checked at the start (a shift by each of :data:`bderiv.analysis._cyclic.SHIFTS` must shift
         the return by the same and change nothing else) and at every iterate and the
         orbit (the return map's derivative along each must be the identity:
-        :func:`bderiv._cyclic.check_equivariance`).
+        :func:`bderiv.analysis._cyclic.check_equivariance`).
 
     Returns
     -------
@@ -240,7 +240,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         When Newton's method does not converge in ``max_iter`` iterations, or a step
         cannot reduce the residual (the last iterate and residual are named).
     ValueError
-        From the orbit's return map (:func:`bderiv.returnmap.return_map`), for example
+        From the orbit's return map (:func:`bderiv.analysis.returnmap.return_map`), for example
         when two events of the orbit are closer than ``simultaneity_tol`` in time but
         not at one point to within the integration accuracy (the message suggests a
         smaller ``simultaneity_tol``); and for a coordinate of ``cyclic`` that the model

@@ -1,9 +1,10 @@
 """Stability maps: a gait's periodic orbit and its growth rate over a grid of parameters.
 
 The classic gait-design picture: for every point of a grid of model parameters, find the
-periodic orbit (Newton's method with the B-derivative, :func:`bderiv.orbit.periodic_orbit`)
-and decide its stability from the piecewise-linear return map
-(:meth:`PeriodicOrbit.stability <bderiv.orbit.PeriodicOrbit.stability>`).
+periodic orbit (Newton's method with the B-derivative,
+:func:`bderiv.analysis.orbit.periodic_orbit`) and decide its stability from the
+piecewise-linear return map
+(:meth:`PeriodicOrbit.stability <bderiv.analysis.orbit.PeriodicOrbit.stability>`).
 
 **Continuation.** Orbits move continuously with the parameters, so each point starts
 Newton's method from the orbit of a neighbour already solved: the grid is swept in
@@ -43,9 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._limits import LOCAL_WORKERS
-from ._support._progress import resolve_progress
-from ._support._validate import check_positive_int
+from .._limits import LOCAL_WORKERS
+from .._support._progress import resolve_progress
+from .._support._validate import check_positive_int
 
 __all__ = ["StabilityMap", "stability_map"]
 
@@ -121,14 +122,14 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     section : callable
         ``section(x) -> float``, crossed upward once per stride (must pickle with Dask).
     period_guess : float, optional
-        Passed to :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
+        Passed to :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
     accept : callable, optional
         ``accept(orbit) -> bool``: the orbits wanted (default: every orbit found); a
         point whose orbit from its neighbour is refused is solved again from
         ``x_guess``, and recorded as a failure if that one is refused too. Must pickle
         with Dask.
     n_directions, iterations : int
-        Of each orbit's :meth:`~bderiv.orbit.PeriodicOrbit.stability`.
+        Of each orbit's :meth:`~bderiv.analysis.orbit.PeriodicOrbit.stability`.
     client : None, "local" or distributed.Client
         None: serially in this process; "local": a LocalCluster for this call; a Client:
         its cluster.

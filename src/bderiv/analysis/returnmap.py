@@ -3,7 +3,7 @@
 For a section ``s(x) = 0`` crossed upward and a start point x0 on it, the return map
 ``P(x) = Phi(T(x), x)`` follows the flow to the next upward crossing, at the return time
 ``T(x)``. Its B-derivative is the flow map's, ``D = L_m . M_m . ... . M_1 . L_0`` (see
-:mod:`bderiv.flowmap`), followed by the correction for the change in return time: a
+:mod:`bderiv.analysis.flowmap`), followed by the correction for the change in return time: a
 perturbation w of the final state moves the crossing by ``dT = -(n . w) / (n . F)``
 (n the section's gradient, F the field at ``P(x0)``), so
 
@@ -11,7 +11,7 @@ perturbation w of the final state moves the crossing by ``dT = -(n . w) / (n . F
 
 (the projection along the flow onto the section's tangent space at ``P(x0)``). Folding
 ``Pi`` into the last linear stage makes :class:`ReturnMap` a
-:class:`~bderiv.flowmap.FlowBDerivative`: evaluation, event times, orders and pieces come
+:class:`~bderiv.analysis.flowmap.FlowBDerivative`: evaluation, event times, orders and pieces come
 with it. ``Pi`` is singular (it kills the flow direction), so the inverse is the section's
 one: ``Pi_0 . D^-1`` with ``Pi_0`` the projection at x0 (``D^-1`` maps ``F(P(x0))`` to
 ``F(x0)``: a shift in time, exact for the piecewise-linear maps too).
@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numerics import GRAZING_RTOL
+from .._numerics import GRAZING_RTOL
+from ..models.integrate.run import ENDS, run
 from .flowmap import FlowBDerivative, _read_only
-from .models.integrate.run import ENDS, run
 
 __all__ = ["ReturnMap", "flow_projection", "return_map"]
 
@@ -40,7 +40,7 @@ class ReturnMap(FlowBDerivative):
 
     Maps tangent vectors ``(..., d)`` at x0 to tangent vectors at ``P(x0)`` (on the
     section's tangent space there). Built by :meth:`HybridSystem.return_map
-    <bderiv.models.system.HybridSystem.return_map>`.
+    <bderiv.analysis.system.HybridSystem.return_map>`.
 
     Parameters
     ----------

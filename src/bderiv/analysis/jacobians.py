@@ -7,7 +7,7 @@ every given Jacobian, for every mask (and event), is compared with a central dif
 of its function along a random direction (Richardson-extrapolated, with an error
 estimate: :mod:`bderiv._support._numdiff`); a Jacobian not given is computed numerically and its
 estimated accuracy reported, so that the report also says where the numerical one would
-be refused. :class:`~bderiv.models.system.HybridSystem` runs the same comparison once per mask
+be refused. :class:`~bderiv.analysis.system.HybridSystem` runs the same comparison once per mask
 at the first use of each given Jacobian (``check_jacobians=True``).
 """
 
@@ -17,12 +17,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._limits import DEFAULT_MASKS
-from ._support import _numdiff as numdiff
-from ._support._format import format_mask
-from ._support._validate import all_finite, check_real_array
-from .models.section import Section
-from .models.user_functions import check_output
+from .._limits import DEFAULT_MASKS
+from .._support import _numdiff as numdiff
+from .._support._format import format_mask
+from .._support._validate import all_finite, check_real_array
+from ..models.section import Section
+from ..models.user_functions import check_output
 
 __all__ = ["JacobianCheck", "JacobianReport", "check_jacobians", "complex_step_jacobian"]
 

@@ -19,11 +19,11 @@ import functools
 
 import numpy as np
 
-from ._kernels import _core
-from ._limits import MAX_PIECES
-from ._support._batch import evaluate, is_dask_array
-from ._support._errors import QueryError
-from ._support._validate import (
+from .._kernels import _core
+from .._limits import MAX_PIECES
+from .._support._batch import evaluate, is_dask_array
+from .._support._errors import QueryError
+from .._support._validate import (
     all_finite,
     check_bool,
     check_finite_result,
@@ -32,9 +32,9 @@ from ._support._validate import (
     check_real_array,
     singular_condition,
 )
-from .engine._linearise import Linearisation
-from .engine.bderivative import BDerivative
-from .models.events.finaltime import FinalTimeMap
+from ..engine._linearise import Linearisation
+from ..engine.bderivative import BDerivative
+from ..models.events.finaltime import FinalTimeMap
 
 __all__ = ["FlowBDerivative"]
 
@@ -69,7 +69,7 @@ class FlowBDerivative(Linearisation):
         only; default 0). Above 0 where events that crossed measurably apart, within
         ``simultaneity_tol``, were merged into one group: the group's map is then its
         B-derivative at the nearby point where they are simultaneous, met by perturbations
-        larger than the spread (:func:`bderiv.models.assembly.flow_map_along`); a
+        larger than the spread (:func:`bderiv.analysis.assembly.flow_map_along`); a
         ``simultaneity_tol`` below it gives the map of the separated events.
     x0, x_final : array_like, shape (d,), optional
         Start and final point of the nominal trajectory (information only).
@@ -423,7 +423,7 @@ class FlowBDerivative(Linearisation):
     def apply_orders(self, V):
         """``(self(V), self.orders(V))`` from one pass through the stages (for a (m, d)
         batch): what an iteration of the map that counts its pieces needs
-        (:func:`bderiv.stability.growth_rate`), at the cost of :meth:`orders` alone.
+        (:func:`bderiv.analysis.stability.growth_rate`), at the cost of :meth:`orders` alone.
 
         Parameters
         ----------

@@ -1,7 +1,7 @@
 """Checks of a B-derivative against finite differences of the event-detecting simulation.
 
 One routine for the CLI, the tests and the benchmarks: :func:`forward_differences` (also
-:meth:`HybridSystem.flow_fd <bderiv.models.system.HybridSystem.flow_fd>`) and :func:`fd_check`,
+:meth:`HybridSystem.flow_fd <bderiv.analysis.system.HybridSystem.flow_fd>`) and :func:`fd_check`,
 which runs it for several steps and measures the errors. The differences are one-sided on
 purpose: the flow is only piecewise differentiable, so a central quotient converges to
 ``(D(v) - D(-v)) / 2``, not to ``D(v)``. With a Poincare section they difference the
@@ -17,11 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._limits import FD_EPS, FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
+from .._support._progress import resolve_progress
+from .._support._validate import check_matrix, check_number, check_points, check_positive_int
+from ..models.integrate.run import SolverOptions
 from ._cyclic import check_cyclic, kept
-from ._limits import FD_EPS, FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
-from ._support._progress import resolve_progress
-from ._support._validate import check_matrix, check_number, check_points, check_positive_int
-from .models.integrate.run import SolverOptions
 
 __all__ = [
     "FD_OPTIONS",
@@ -49,7 +49,7 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
     integration error divided by eps. With ``section`` the differences are those of the
     Poincare map: ``(P(x0 + eps v) - P(x0)) / eps`` (the state at the next upward
     crossing of the section; ``t_final`` is the longest wait), the oracle of
-    :meth:`HybridSystem.return_map <bderiv.models.system.HybridSystem.return_map>`.
+    :meth:`HybridSystem.return_map <bderiv.analysis.system.HybridSystem.return_map>`.
 
     Parameters
     ----------
@@ -213,7 +213,7 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     """Measure how perturbations of a periodic orbit decay in long simulations.
 
     An independent check of a predicted growth rate
-    (:meth:`PeriodicOrbit.stability <bderiv.orbit.PeriodicOrbit.stability>`): the
+    (:meth:`PeriodicOrbit.stability <bderiv.analysis.orbit.PeriodicOrbit.stability>`): the
     nonlinear system is simulated from ``x0 + eps v`` through ``strides`` returns to the
     section, and the per-stride factor by which the deviation from ``x0`` shrinks is
     fitted, for each vector over the strides where the deviation is in the **linear

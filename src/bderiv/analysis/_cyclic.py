@@ -27,7 +27,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-from ._limits import EQUIVARIANCE_RTOL, INDEPENDENCE_RTOL
+from .._limits import EQUIVARIANCE_RTOL, INDEPENDENCE_RTOL
 
 #: shifts applied to a cyclic coordinate to check that the model does not depend on it:
 #: of both signs, of irrational ratio (sqrt 2 and the golden ratio's inverse), so that no
@@ -88,7 +88,7 @@ def check_independence(returned, x, shifted_returns, cyclic) -> None:
 
 def check_equivariance(R, x, cyclic) -> None:
     """Refuse cyclic coordinates along which the return map's B-derivative ``R`` at ``x``
-    (a :class:`~bderiv.returnmap.ReturnMap`) is not the identity: ``R(e_i) = e_i`` and
+    (a :class:`~bderiv.analysis.returnmap.ReturnMap`) is not the identity: ``R(e_i) = e_i`` and
     ``R(-e_i) = -e_i`` to within ``EQUIVARIANCE_RTOL`` times ``max(1, |R(+-e_i)|)``.
     The refusal names the coordinate, the measured dependence (how far the return moves
     per unit shift beyond the shift) and the coordinate it moves most."""
