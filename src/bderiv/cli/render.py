@@ -239,7 +239,7 @@ _DEMO_SECTIONS = {"model": _model, "trajectory": _trajectory, "pieces": _pieces,
 def bench_text(result: dict) -> str:
     """The text of ``bderiv bench``: a header, the sweep table, what its columns mean, the
     machine it ran on, and the plot written."""
-    from .._bench import format_table  # the sweep's module: loaded by `bench` only
+    from .sweep import format_table  # the sweep's module: loaded by `bench` only
 
     k = result["d_factor"]
     dim = "d = n" if k == 1 else f"d = {k}n"

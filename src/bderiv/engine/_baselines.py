@@ -1,6 +1,6 @@
 """What every benchmark measures bderiv against, in one place.
 
-Used by ``bderiv bench`` (:mod:`bderiv._bench`), the pytest-benchmark suite in
+Used by ``bderiv bench`` (:mod:`bderiv.cli.sweep`), the pytest-benchmark suite in
 ``benchmarks/`` and ``tools/bench_table.py``:
 
 - :func:`random_system`: the random transversal test systems (also those of the tests),

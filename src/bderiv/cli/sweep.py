@@ -20,15 +20,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._limits import BENCH_BATCH, BENCH_NS, BENCH_REPEAT
-from .engine._baselines import (
+from .._limits import BENCH_BATCH, BENCH_NS, BENCH_REPEAT
+from ..engine._baselines import (
     benchmark_system,
     best_time,
     measure_blas_rate,
     numpy_apply,
     useful_flops,
 )
-from .engine.bderivative import BDerivative
+from ..engine.bderivative import BDerivative
 
 
 def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: int = BENCH_REPEAT,

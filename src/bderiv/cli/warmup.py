@@ -38,8 +38,8 @@ FAMILIES = ("integrator", "dense", "structured", "resets")
 
 
 def _integrator() -> None:
-    from . import examples
-    from .models import readiness
+    from .. import examples
+    from ..models import readiness
 
     with readiness.compile_lock(wait=True):
         if readiness.integrator_cached():
@@ -64,7 +64,7 @@ def _queries(bd, d, rng) -> None:
 
 
 def _dense() -> None:
-    from .engine.bderivative import BDerivative
+    from ..engine.bderivative import BDerivative
 
     rng = np.random.default_rng(0)
     for n, d in ((2, 6), (3, 4), (8, 8), (3, 66)):  # lanes (d <= 64) and plain blocks
@@ -75,8 +75,8 @@ def _dense() -> None:
 
 
 def _structured() -> None:
-    from .engine.bderivative import BDerivative
-    from .geometry.corners import StructuredCorners
+    from ..engine.bderivative import BDerivative
+    from ..geometry.corners import StructuredCorners
 
     rng = np.random.default_rng(1)
     for n in (4, 40):  # corners like a multi-contact system, two pairs per event
@@ -89,7 +89,7 @@ def _structured() -> None:
 
 
 def _resets() -> None:
-    from . import examples
+    from .. import examples
 
     rng = np.random.default_rng(2)
     ex = examples.ball_in_corner()
@@ -174,7 +174,7 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
 def _start(name: str) -> subprocess.Popen:
     """The process that compiles family ``name`` (this bderiv: its folder first on
     ``PYTHONPATH``)."""
-    from .models.readiness import child_environment
+    from ..models.readiness import child_environment
 
     proc = subprocess.Popen([sys.executable, "-m", "bderiv", "compile", name, "--here"],
                             env=child_environment(), stdin=subprocess.DEVNULL,
