@@ -107,9 +107,9 @@ def main(argv=None):
     jobs["BDerivative pronking n=2 d=8"] = {
         who: (lambda pkg=pkg, t=runs["this"][2]: pkg.BDerivative(*t))
         for who, pkg in (("this", bderiv), ("base", base))}
+    along = {who: assembly(pkg).flow_map_along for who, pkg in (("this", bderiv), ("base", base))}
     jobs["flow_map_along pronking d=8"] = {
-        who: (lambda a=assembly(pkg), r=runs[who]: a.flow_map_along(r[0], r[1]))
-        for who, pkg in (("this", bderiv), ("base", base))}
+        who: (lambda f=along[who], r=runs[who]: f(r[0], r[1])) for who in runs}
     x0 = runs["this"][1].x[0]
     jobs["flow_bderivative pronking d=8"] = {  # the whole build: integration, then assembly
         who: (lambda r=runs[who]: r[0].flow_bderivative(x0, T_FINAL)) for who in runs}
