@@ -281,8 +281,8 @@ def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
                      compiled=False):
     """The gait from model to stability verdict, with its checks against simulation.
 
-    Finds the orbit (:func:`orbit`), its event groups, the return map's pieces met by a
-    batch with their Floquet multipliers, the growth rate, and two checks against
+    Finds the orbit (:func:`pronking_orbit`), its event groups, the return map's pieces met
+    by a batch with their Floquet multipliers, the growth rate, and two checks against
     simulation: finite differences of the simulated Poincare map against the return map
     (one direction in each piece, several steps), and the decay of perturbations over
     ``strides`` simulated strides against the predicted growth rate.
