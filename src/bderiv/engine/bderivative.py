@@ -49,7 +49,7 @@ def _representation(Dh, F, resets) -> str:
             raise TypeError(
                 f"F = {F!r} looks like a corner model but lacks part of the protocol: it "
                 f"needs n_events, dim, corners(happened) and corner_function() (see "
-                f"bderiv.geometry.corners.CornerModel)"
+                f"bderiv.CornerModel)"
             )
         return "dense" if resets is None else "resets"
     n, d = Dh.shape
