@@ -1,7 +1,7 @@
 """The per-query oracle of ``tests/reference.py`` as a benchmark baseline.
 
 The other baselines (batched NumPy, the BLAS yardstick), the flop count, the timer and the
-test systems are shared with ``bderiv bench`` and ``tools/`` in ``bderiv._baselines``;
+test systems are shared with ``bderiv bench`` and ``tools/`` in ``bderiv.engine._baselines``;
 this one stays here because it runs the test suite's oracle, which is not part of the
 package.
 

@@ -6,7 +6,7 @@ What is timed is what follows the integration in ``flow_bderivative`` at small n
 (issue 19: a compiled build takes milliseconds, so a NumPy call on a 4-row table counts):
 ``BDerivative(Dh, F)`` on dense tables of n = 1 to 4 events (the pronking body's own
 table at n = 2, d = 8, and tables of the three fast-path kinds), and
-``models.assembly.flow_map_along`` on the trajectory of one stride of the d = 8 pronking
+``analysis.assembly.flow_map_along`` on the trajectory of one stride of the d = 8 pronking
 body of ``benchmarks/compiled_path.py`` (two groups, touchdown and lift-off, n = 2 each),
 integrated once by each package, and the whole compiled ``flow_bderivative`` of that
 stride (the integration, then the assembly). The other checkout is imported as ``bderiv_base``
@@ -48,6 +48,17 @@ def tables(rng):
     return out
 
 
+def assembly(pkg):
+    """The module of ``flow_map_along`` in ``pkg``: ``analysis.assembly`` (in a checkout
+    from before the layers were folders, ``models.assembly``)."""
+    for name in ("analysis.assembly", "models.assembly"):
+        try:
+            return importlib.import_module(f"{pkg.__name__}.{name}")
+        except ModuleNotFoundError:
+            continue
+    raise SystemExit(f"{pkg.__name__} has no flow_map_along")
+
+
 def pronking(pkg):
     """The d = 8 pronking body's system in ``pkg``, its trajectory with the variational
     equations, and the BDerivative table (Dh, F) of its touchdown group."""
@@ -58,7 +69,7 @@ def pronking(pkg):
     run = pkg.models.integrate.run
     traj = run.run(system, x0, T_FINAL, simultaneity_tol=1e-7,
                    options=run.SolverOptions.resolve(None), variational=True)
-    jump = pkg.models.assembly.flow_map_along(system, traj).jumps[0]
+    jump = assembly(pkg).flow_map_along(system, traj).jumps[0]
     return system, traj, (np.array(jump.Dh), np.array(jump.F))
 
 
@@ -73,7 +84,6 @@ def bits_of(result):
 
 def main(argv=None):
     import bderiv
-    import bderiv.models.assembly
     import bderiv.models.integrate.run  # noqa: F401 (pronking reads it as an attribute)
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -86,8 +96,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     clock = time.process_time if args.clock == "cpu" else time.perf_counter
     base = base_package(args.base)
-    for name in ("models.assembly", "models.integrate.run"):
-        importlib.import_module(f"bderiv_base.{name}")
+    importlib.import_module("bderiv_base.models.integrate.run")
     print(f"this: {pathlib.Path(bderiv.__file__).parent}\nbase: {args.base / 'bderiv'}")
     jobs = {}
     for name, (Dh, F) in tables(np.random.default_rng(0)).items():
@@ -98,9 +107,9 @@ def main(argv=None):
     jobs["BDerivative pronking n=2 d=8"] = {
         who: (lambda pkg=pkg, t=runs["this"][2]: pkg.BDerivative(*t))
         for who, pkg in (("this", bderiv), ("base", base))}
+    along = {who: assembly(pkg).flow_map_along for who, pkg in (("this", bderiv), ("base", base))}
     jobs["flow_map_along pronking d=8"] = {
-        who: (lambda pkg=pkg, r=runs[who]: pkg.models.assembly.flow_map_along(r[0], r[1]))
-        for who, pkg in (("this", bderiv), ("base", base))}
+        who: (lambda f=along[who], r=runs[who]: f(r[0], r[1])) for who in runs}
     x0 = runs["this"][1].x[0]
     jobs["flow_bderivative pronking d=8"] = {  # the whole build: integration, then assembly
         who: (lambda r=runs[who]: r[0].flow_bderivative(x0, T_FINAL)) for who in runs}

@@ -41,12 +41,12 @@ import numba
 import numpy as np
 from compiled_integrator import best  # min wall time of repeated calls (benchmarks/)
 
-from bderiv.checks import FD_SIMULTANEITY_TOL
+from bderiv.analysis.checks import FD_SIMULTANEITY_TOL
+from bderiv.analysis.system import HybridSystem
 from bderiv.models.events import excursions
 from bderiv.models.integrate import compiled_path as compiled_stretches
 from bderiv.models.integrate import many as many_runs
 from bderiv.models.integrate import scipy_path
-from bderiv.models.system import HybridSystem
 
 os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
 

@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from bderiv import BDerivative
-from bderiv._baselines import benchmark_system, copy_yardstick
+from bderiv.engine._baselines import benchmark_system, copy_yardstick
 
 TARGETS = {8: 5, 16: 20, 20: 40}  # issue 10: apply within this many copies
 

@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
+from bderiv.analysis.stability_map import LOCAL_WORKERS, stability_map
 from bderiv.examples import gaits
-from bderiv.stability_map import LOCAL_WORKERS, stability_map
 
 os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")  # compiled from the first run
 

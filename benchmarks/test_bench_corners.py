@@ -33,8 +33,8 @@ import pytest
 from numba import get_num_threads
 
 from bderiv import BDerivative
-from bderiv._baselines import best_time, blas_operands, blas_yardstick
-from bderiv.corners import StructuredCorners
+from bderiv.engine._baselines import best_time, blas_operands, blas_yardstick
+from bderiv.geometry.corners import StructuredCorners
 
 NS_SMOKE = (16, 128)
 NS_SLOW = (32, 64)

@@ -3,11 +3,12 @@
 Groups (pytest-benchmark ``group``):
 
 - ``eval n=.. d=.. m=..``: ``bd(V)`` and ``bd.inverse(W)`` (the contenders), the batched
-  NumPy baseline (``bderiv._baselines``), the per-query oracle of ``tests/reference.py``
+  NumPy baseline (``bderiv.engine._baselines``), the per-query oracle of ``tests/reference.py``
   (``baselines.py``; timed on a subset of the queries: ``extra_info["queries"]`` says how
   many), a BLAS matrix product of the same flop count and a parallel copy of V into W
   (``_baselines.copy_yardstick``: the streaming limit). Every entry records ``queries``
-  so that time per query can be read. The systems are ``bderiv._baselines.benchmark_system``.
+  so that time per query can be read. The systems are
+  ``bderiv.engine._baselines.benchmark_system``.
 - ``build n=.. d=..``: the constructor (tables, checks), timed apart from evaluation.
 - ``threads n=.. d=.. m=..``: ``bd(V)`` on 1 and on 2 numba threads.
 
@@ -35,7 +36,7 @@ import numpy as np
 import pytest
 
 from bderiv import BDerivative
-from bderiv._baselines import (
+from bderiv.engine._baselines import (
     benchmark_system,
     blas_operands,
     blas_setting,

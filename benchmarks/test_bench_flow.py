@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 
 from bderiv import examples
-from bderiv._baselines import best_time
-from bderiv.checks import fd_check
+from bderiv.analysis.checks import fd_check
+from bderiv.engine._baselines import best_time
 
 EPS = (1e-3, 1e-4, 1e-5)
 

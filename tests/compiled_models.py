@@ -16,8 +16,8 @@ import time
 import numba
 import numpy as np
 
+from bderiv.analysis.system import HybridSystem
 from bderiv.examples import chair, pronking
-from bderiv.models.system import HybridSystem
 
 G = 9.81
 

@@ -71,7 +71,7 @@ def pytest_configure(config):
     # the tests of compiled models run on the compiled integrator from their first call
     # (waiting for its compilation, once for all workers); test_readiness tests the rest
     os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")
-    # the notices of first compilations (bderiv._compiling) depend on which test runs
+    # the notices of first compilations (bderiv._support._compiling) depend on which test runs
     # first on a fresh cache: kept out of the tests' logs (test_compiling turns them on)
     logging.getLogger("bderiv.compiling").setLevel(logging.ERROR)
     if not hasattr(config, "workerinput"):  # the main process: the integrator compiles

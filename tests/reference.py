@@ -10,7 +10,7 @@ a function of the 0/1 flags of a region (then any n works: masks are Python inte
 - ``ref_piece`` / ``ref_det``: section 4 (product of saltation matrices, its determinant),
 - ``ref_corner_points`` / ``ref_qp_apply``: section 5 (corner points, M_sigma = Q P^-1).
 
-It also gives test systems: ``random_system`` (from ``bderiv._baselines``: transversal
+It also gives test systems: ``random_system`` (from ``bderiv.engine._baselines``: transversal
 tables whose event order changes after events) and ``overtaking_system`` (the mathematics.md
 section 3 example, where the order of the first-order impact times is not the true order).
 """
@@ -22,7 +22,7 @@ import itertools
 import numpy as np
 import scipy.linalg
 
-from bderiv._baselines import random_system  # noqa: F401  (the test systems' generator)
+from bderiv.engine._baselines import random_system  # noqa: F401  (the test systems' generator)
 
 
 def rates(Dh, F):
@@ -420,7 +420,7 @@ def random_reset_system(rng, n, d, *, compatible=True, moving=False):
     (mathematics.md section 9); dense random D_j do not commute (``compatible=False``), and
     ``moving=True`` adds h_l += r_0 for l != j, so that a reset moves the other surfaces.
     """
-    from bderiv._baselines import random_system as _random_system
+    from bderiv.engine._baselines import random_system as _random_system
 
     Dh, F = _random_system(rng, n, d)
     extra = rng.standard_normal((d - n, d))

@@ -214,7 +214,7 @@ def test_an_overflowing_tangent_names_the_tangent_row():
 def test_unit_scale_is_ldexp_of_the_row_exponent():
     """The directions' scaling (one compiled pass) is exactly NumPy's frexp/ldexp, down into
     the subnormals and up from them."""
-    from bderiv._linearise import unit_scale
+    from bderiv.engine._linearise import unit_scale
 
     rng = np.random.default_rng(9)
     R = (rng.standard_normal((20000, 5)) * 10.0 ** rng.integers(-290, 300, (20000, 1))

@@ -1,4 +1,4 @@
-"""The shared benchmark baselines (``bderiv._baselines``) against the oracle and by hand."""
+"""The shared benchmark baselines (``bderiv.engine._baselines``) against the oracle and by hand."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import reference
 
-from bderiv import _baselines
-from bderiv._baselines import (
+from bderiv.engine import _baselines
+from bderiv.engine._baselines import (
     benchmark_system,
     best_time,
     blas_operands,

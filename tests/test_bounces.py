@@ -272,7 +272,7 @@ def test_compass_gait_matches_garcia_fixed_point(compass_orbit):
 
 def test_compass_gait_eigenvalues_match_garcia_and_finite_differences(compass_orbit):
     R = compass_orbit.return_map
-    from bderiv.stability import piece_multipliers
+    from bderiv.analysis.stability import piece_multipliers
 
     mult = piece_multipliers(R.piece([[0], [0]]), R.tangent_basis)
     assert abs(mult[2]) < 1e-9  # the leg swap forgets a direction: rank 2 on the section

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 from reference import random_reset_system, random_system
 
-from bderiv import BDerivative, _tables
-from bderiv._engines.dense import table_exponents
+from bderiv import BDerivative
 from bderiv._limits import TABLE_BAND
-from bderiv.models.assembly import spread_masks
-from bderiv.models.system import HybridSystem
+from bderiv._support import _tables
+from bderiv.analysis.assembly import spread_masks
+from bderiv.analysis.system import HybridSystem
+from bderiv.engine._engines.dense import table_exponents
 
 TINY = np.finfo(np.float64).tiny
 

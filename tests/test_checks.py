@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg
 
 from bderiv import HybridSystem, examples
-from bderiv.checks import FD_OPTIONS, FDCheck, fd_check, forward_differences
+from bderiv.analysis.checks import FD_OPTIONS, FDCheck, fd_check, forward_differences
 from bderiv.models.integrate.run import SolverOptions
 
 # x' = A x + b, no event on the way: the flow is affine, Phi(T, x) = e^{AT} x + c, so every

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from bderiv import examples
+from bderiv.analysis.system import HybridSystem
 from bderiv.examples import gaits, runner
-from bderiv.models.system import HybridSystem
 
 #: (name, factory of the example given compiled=...)
 CASES = {

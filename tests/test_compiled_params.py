@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from bderiv.analysis.system import HybridSystem
 from bderiv.models.compiled import CompiledModel
-from bderiv.models.system import HybridSystem
 
 
 @numba.njit

@@ -1,4 +1,4 @@
-"""The notice of a first compilation (:mod:`bderiv._compiling`): once per family."""
+"""The notice of a first compilation (:mod:`bderiv._support._compiling`): once per family."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numba
 import numpy as np
 from numba.core import event
 
-from bderiv import _compiling
 from bderiv._kernels import dense
+from bderiv._support import _compiling
 
 
 @numba.njit

@@ -310,7 +310,7 @@ def test_quadruped_pronking_orbit_is_found_and_stable(quadruped_system):
     # the return map against the simulation: one stride's differences
     V = np.zeros((2, 14))
     V[0, 1], V[1, 3:7] = 1.0, 1.0
-    from bderiv.checks import fd_check
+    from bderiv.analysis.checks import fd_check
     from bderiv.examples.quadruped import apex_section
 
     fd = fd_check(quadruped_system, orb.x0, 2.0, V, orb.return_map(V), eps=(1e-5, 1e-6),

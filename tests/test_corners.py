@@ -18,7 +18,7 @@ from reference import (
 )
 
 from bderiv import BDerivative
-from bderiv.corners import CornerFunction, StructuredCorners
+from bderiv.geometry.corners import CornerFunction, StructuredCorners
 
 
 def structured_system(rng, n, d=None, n_pairs=0, coupling=0.4, proved=True):
@@ -446,7 +446,7 @@ class CountCorners:
 
 
 def test_user_corner_model_follows_the_protocol():
-    from bderiv.corners import CornerModel
+    from bderiv.geometry.corners import CornerModel
 
     rng = np.random.default_rng(21)
     n, d = 5, 6

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bderiv.checks import decay_check
+from bderiv.analysis.checks import decay_check
 from bderiv.examples import gaits, runner
 
 

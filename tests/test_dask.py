@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-import bderiv._dask
+import bderiv._support._dask
 from bderiv import BDerivative
-from bderiv._batch import is_dask_array
+from bderiv._support._batch import is_dask_array
 
 da = pytest.importorskip("dask.array")
 dask = pytest.importorskip("dask")
@@ -42,7 +42,7 @@ def test_detection_without_importing_dask(X):
     assert not is_dask_array(X)
     assert not is_dask_array([1.0, 2.0])
     assert is_dask_array(da.from_array(X))
-    assert not hasattr(bderiv._dask, "is_dask_array")  # one check, in _batch
+    assert not hasattr(bderiv._support._dask, "is_dask_array")  # one check, in _batch
 
 
 def test_lazy_and_identical(bd, X):

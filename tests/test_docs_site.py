@@ -38,7 +38,7 @@ def test_a_broken_reference_fails_the_build(tmp_path):
         "nitpicky = True\nnumpydoc_show_class_members = False\n")
     (src / "index.rst").write_text(
         "Probe\n=====\n\n"
-        "A name that exists, by another path: :func:`bderiv.bderivative.BDerivative`.\n\n"
+        "A name that exists, by another path: :func:`bderiv.engine.bderivative.BDerivative`.\n\n"
         "One that does not: :func:`bderiv.no_such_function`.\n")
     command = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-E", "-q", "-b", "html",
                str(src), str(tmp_path / "html")]

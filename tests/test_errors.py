@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bderiv import BDerivative, FlowBDerivative, StructuredCorners
-from bderiv._errors import ChainStop, QueryError, refusal
+from bderiv._support._errors import ChainStop, QueryError, refusal
 
 
 @pytest.fixture(scope="module")

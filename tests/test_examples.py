@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from bderiv import examples
-from bderiv.checks import fd_check
-from bderiv.flowmap import FlowBDerivative
-from bderiv.models.system import HybridSystem
+from bderiv.analysis.checks import fd_check
+from bderiv.analysis.flowmap import FlowBDerivative
+from bderiv.analysis.system import HybridSystem
 
 EPS = (1e-3, 1e-4, 1e-5)
 

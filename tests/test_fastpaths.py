@@ -17,7 +17,7 @@ from reference import (
 )
 
 from bderiv import BDerivative
-from bderiv.corners import StructuredCorners
+from bderiv.geometry.corners import StructuredCorners
 
 
 def own_rate_table(rng, n, d, additive=False):

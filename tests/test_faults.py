@@ -17,7 +17,7 @@ import pytest
 from numpy.testing import assert_array_equal
 from reference import random_system, ref_apply
 
-import bderiv._triangulation_io as tio
+import bderiv.geometry._triangulation_io as tio
 from bderiv import BDerivative, load_triangulation
 from bderiv.cli.export import run_export
 from bderiv.cli.usage import UsageError
@@ -105,7 +105,7 @@ def test_save_killed_midway_keeps_the_previous_file(tmp_path, fmt):
         import os, signal, sys
         sys.path.insert(0, {os.path.dirname(__file__)!r})
         import numpy as np
-        import bderiv._triangulation_io as tio
+        import bderiv.geometry._triangulation_io as tio
         from reference import random_system, ref_apply
         from bderiv import BDerivative
         real = tio.WRITERS[{fmt!r}]
@@ -421,7 +421,7 @@ def test_dask_keys_of_a_map_without_a_name_do_not_collide():
     da = pytest.importorskip("dask.array")
     import functools
 
-    from bderiv._dask import map_blocks
+    from bderiv._support._dask import map_blocks
 
     Dh, F = random_system(np.random.default_rng(9), 2, 3)
     bd = BDerivative(Dh, F)

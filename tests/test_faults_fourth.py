@@ -292,7 +292,7 @@ def test_npz_header_that_does_not_parse_is_the_documented_error(tmp_path, member
 
 _KILLED_SAVE = """
 import os, signal
-from bderiv._safefiles import write_all
+from bderiv._support._safefiles import write_all
 
 def dying(fh):
     fh.write(b"half a file")
@@ -312,7 +312,7 @@ def test_next_save_removes_a_killed_saves_temporary_only(tmp_path):
     import socket
 
     from bderiv import BDerivative, load_triangulation
-    from bderiv._safefiles import create_temp
+    from bderiv._support._safefiles import create_temp
 
     path = str(tmp_path / "tri.npz")
     out = run_python(_KILLED_SAVE.format(path=path))
@@ -371,7 +371,7 @@ def test_dask_sends_the_map_once_per_client():
     da = pytest.importorskip("dask.array")
     import pickle
 
-    from bderiv._dask import map_blocks
+    from bderiv._support._dask import map_blocks
 
     X = np.random.default_rng(1).standard_normal((400, 3))
     V = da.from_array(X, chunks=(100, 3))

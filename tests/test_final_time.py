@@ -146,7 +146,7 @@ def test_final_time_map_validation():
     resets = np.broadcast_to(np.eye(1), (2, 1, 1, 1)).copy()
     with pytest.raises(ValueError, match="resets at the final time"):
         FinalTimeMap(BDerivative(np.eye(1), np.array([[1.0], [2.0]]), resets=resets))
-    from bderiv.flowmap import FlowBDerivative
+    from bderiv.analysis.flowmap import FlowBDerivative
 
     with pytest.raises(TypeError, match=r"jumps\[0\] must be a BDerivative, got FinalTimeMap "
                                         r"\(only the last jump may be one\)"):

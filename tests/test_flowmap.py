@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given
 
 from bderiv import BDerivative, examples
-from bderiv.flowmap import FlowBDerivative
+from bderiv.analysis.flowmap import FlowBDerivative
 
 
 def random_bd(rng, n, d):

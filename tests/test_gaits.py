@@ -16,14 +16,14 @@ from reference import ref_apply
 from scipy.integrate import solve_ivp
 from test_recurring import square_spiral
 
-from bderiv.bderivative import BDerivative
-from bderiv.checks import decay_check, fd_check
+from bderiv.analysis.checks import decay_check, fd_check
+from bderiv.analysis.flowmap import FlowBDerivative
+from bderiv.analysis.orbit import MAX_PIECE_SWITCHES, PeriodicOrbit, newton_step
+from bderiv.analysis.returnmap import ReturnMap
+from bderiv.analysis.stability import Stability, growth_rate, piece_multipliers
+from bderiv.analysis.system import HybridSystem
+from bderiv.engine.bderivative import BDerivative
 from bderiv.examples import gaits
-from bderiv.flowmap import FlowBDerivative
-from bderiv.models.system import HybridSystem
-from bderiv.orbit import MAX_PIECE_SWITCHES, PeriodicOrbit, newton_step
-from bderiv.returnmap import ReturnMap
-from bderiv.stability import Stability, growth_rate, piece_multipliers
 
 
 def diagonal(x):
@@ -150,7 +150,7 @@ def test_visits_count_every_piece_of_the_batch(sizes):
     they are coded as one int64 a row or sorted as rows (beyond 2**62 codes)."""
     from collections import Counter
 
-    from bderiv.stability import _Visits
+    from bderiv.analysis.stability import _Visits
 
     rng = np.random.default_rng(sum(sizes))
     orders = [np.argsort(rng.integers(0, 2, (500, n)), axis=1, kind="stable")
@@ -470,7 +470,7 @@ def test_the_orbit_map_is_built_once_at_the_orbit(monkeypatch, name):
     # built again; it is the map a fresh build at the orbit gives, bit for bit (on the
     # running gait the iterates' tolerance 0 splits the feet's touchdown in two groups
     # 1e-12 apart: the orbit's map must group them, as 1e-7 does)
-    import bderiv.orbit as orbit_module
+    import bderiv.analysis.orbit as orbit_module
     from bderiv.examples import runner
 
     real, built = orbit_module.return_map, []

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from bderiv.analysis.system import HybridSystem
 from bderiv.models.events.crossings import group_tolerance
 from bderiv.models.events.locate import (
     GLOBAL_ERROR_FACTOR,
@@ -20,7 +21,6 @@ from bderiv.models.events.locate import (
     windows,
 )
 from bderiv.models.integrate.run import SolverOptions
-from bderiv.models.system import HybridSystem
 
 
 # ------------------------------------------------------------------------------------------

@@ -10,8 +10,8 @@ import pytest
 import scipy.linalg
 
 from bderiv import BDerivative, examples
-from bderiv.checks import fd_check
-from bderiv.models.system import HybridSystem
+from bderiv.analysis.checks import fd_check
+from bderiv.analysis.system import HybridSystem
 
 EPS = (1e-3, 1e-4, 1e-5)
 
@@ -326,7 +326,7 @@ def test_groups_keep_the_stops_event_jacobian_and_the_map_is_the_same():
     state; the assembly's map from it is the map of a Jacobian evaluated again."""
     import dataclasses
 
-    from bderiv.models.assembly import flow_map_along
+    from bderiv.analysis.assembly import flow_map_along
     from bderiv.models.integrate.run import run
 
     ex = examples.network(2, seed=1)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from bderiv import HybridSystem
+from bderiv.analysis.assembly import group_bderivative
 from bderiv.examples.impacts import (
     _FOOT,
     _functions,
@@ -18,7 +19,6 @@ from bderiv.examples.impacts import (
     landing_summary,
     summary_text,
 )
-from bderiv.models.assembly import group_bderivative
 
 U0, U1 = _FOOT[0][2], _FOOT[1][2]
 P1 = _FOOT[1][1]

@@ -436,7 +436,7 @@ def test_a_correct_jacobian_is_not_refused_where_the_values_round_alike():
     # estimate from there on is 0 with no disagreement; the derivative 0.08 y (1.7e-9) is
     # known only to within their rounding. Was refused with a tolerance of 2e-22 (the
     # estimates' error taken as 0): found on a located state of test_grouping's model.
-    from bderiv import _numdiff
+    from bderiv._support import _numdiff
 
     x = np.array([-1.66533444e-17, 2.08184585e-08])
 

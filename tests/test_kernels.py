@@ -144,8 +144,8 @@ def test_the_rate_spread_of_small_tables_is_the_kernels(n):
     both the spread of a plain scan (the first slowest and fastest pending region of each
     event, the first event of the largest ratio), ties and the rates of events that
     happened (negative with resets: never read) included."""
-    from bderiv._engines.dense import rate_spread
     from bderiv._kernels.dense import widest_rate_spread
+    from bderiv.engine._engines.dense import rate_spread
 
     rng = np.random.default_rng(n)
     for G in (rng.uniform(0.5, 2.0, (2**n, n)), rng.integers(1, 4, (2**n, n)).astype(float)):

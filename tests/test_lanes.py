@@ -55,7 +55,7 @@ def test_the_prefetching_variant_gives_the_same_bits(monkeypatch):
     rng = np.random.default_rng(7)
     Dh, F = random_system(rng, 6, 10)
     near = BDerivative(Dh, F, fast_paths=False)
-    monkeypatch.setattr("bderiv._engines.dense.FAR_BYTES", 0)
+    monkeypatch.setattr("bderiv.engine._engines.dense.FAR_BYTES", 0)
     far = BDerivative(Dh, F, fast_paths=False)
     assert near._engine._lane_kernels == lanes.kernels(8, 16, 0)
     assert far._engine._lane_kernels == lanes.kernels(8, 16, 1)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bderiv import BDerivative, CornerFunction, StructuredCorners, plot
-from bderiv._format import format_order
+from bderiv._support._format import format_order
 from bderiv.examples import planar_table, three_event_table
 
 matplotlib = pytest.importorskip("matplotlib")

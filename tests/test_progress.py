@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from bderiv._progress import TqdmCallback, resolve_progress
+from bderiv._support._progress import TqdmCallback, resolve_progress
 
 
 def test_none_false_and_callables():
@@ -78,7 +78,7 @@ def test_callback_that_raises_mid_batch_says_how_far_the_work_got():
     import numpy as np
 
     from bderiv import BDerivative
-    from bderiv._progress import ProgressCallbackError
+    from bderiv._support._progress import ProgressCallbackError
 
     bd = BDerivative(np.eye(2), np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]]))
     V = np.random.default_rng(0).standard_normal((10_000, 2))
@@ -98,8 +98,8 @@ def test_callback_error_in_nested_progress_is_said_once():
     import numpy as np
 
     from bderiv import examples
-    from bderiv._progress import ProgressCallbackError
-    from bderiv.checks import fd_check
+    from bderiv._support._progress import ProgressCallbackError
+    from bderiv.analysis.checks import fd_check
 
     ex = examples.chair()
     V = np.random.default_rng(0).standard_normal((2, ex.system.dim))
@@ -121,7 +121,8 @@ def test_long_simulation_shows_progress_and_stops_on_ctrl_c(monkeypatch):
     import threading
     import time
 
-    from bderiv import _progress, examples
+    from bderiv import examples
+    from bderiv._support import _progress
 
     pytest.importorskip("tqdm")
     buffer = io.StringIO()
@@ -150,7 +151,8 @@ def test_long_simulation_shows_progress_and_stops_on_ctrl_c(monkeypatch):
 
 def test_short_simulations_draw_no_bar(monkeypatch):
     """The bar waits for SIMULATION_BAR_DELAY: a run shorter than that draws nothing."""
-    from bderiv import _progress, examples
+    from bderiv import examples
+    from bderiv._support import _progress
 
     buffer = io.StringIO()
     monkeypatch.setattr(_progress, "SIMULATION_BAR",

@@ -16,8 +16,8 @@ from scipy.integrate import solve_ivp
 from test_hybrid import assert_shrinks, fd_rel_errors
 
 from bderiv import examples
-from bderiv.models.assembly import group_bderivative
-from bderiv.models.system import HybridSystem
+from bderiv.analysis.assembly import group_bderivative
+from bderiv.analysis.system import HybridSystem
 
 
 def square_spiral(a):

@@ -11,7 +11,7 @@ import pytest
 import reference as ref
 
 from bderiv import BDerivative
-from bderiv._engines.resets import LowRankResets
+from bderiv.engine._engines.resets import LowRankResets
 
 SIZES = [(1, 1), (1, 3), (2, 2), (2, 4), (3, 3), (3, 5), (4, 6)]
 

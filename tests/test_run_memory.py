@@ -28,7 +28,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import bderiv
-from bderiv.models.system import HybridSystem
+from bderiv.analysis.system import HybridSystem
 
 _SRC = str(pathlib.Path(bderiv.__file__).resolve().parents[1])
 _TESTS = str(pathlib.Path(__file__).resolve().parent)
@@ -113,7 +113,7 @@ _LIMITED = """
     import os, resource
     import numpy as np
     import test_run_memory as t
-    from bderiv.models.system import HybridSystem
+    from bderiv.analysis.system import HybridSystem
     compiled = {compiled}
     fns = (t.compiled_rotate, t.compiled_far_wall) if compiled else (t.rotate, t.far_wall)
     system = HybridSystem(*fns, n_events=1, dim=2)
@@ -227,7 +227,7 @@ _PRONKING = """
     import numpy as np
     import resource
     import test_run_memory as t
-    from bderiv.models.system import HybridSystem
+    from bderiv.analysis.system import HybridSystem
     resource.setrlimit(resource.RLIMIT_AS, (3 << 30, resource.RLIM_INFINITY))
     field, events, x0, t_final = t.pronking_body({k})
     system = HybridSystem(numba.njit(field), numba.njit(events), n_events={k}, dim=x0.size)

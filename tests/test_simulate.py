@@ -8,13 +8,13 @@ from scipy.integrate import RK23
 from test_hybrid import constant_system
 
 from bderiv import examples
+from bderiv.analysis.system import HybridSystem
 from bderiv.models.integrate.run import (
     GLOBAL_ERROR_FACTOR,
     SolverOptions,
     Trajectory,
     group_tolerance,
 )
-from bderiv.models.system import HybridSystem
 
 
 # ------------------------------------------------------------------------------------------

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from compiled_models import LONG_RUN, ctrl_c_after, far_event, pronking_pair, slow_rotation
 
-from bderiv import HybridSystem, _progress, examples
+from bderiv import HybridSystem, examples
+from bderiv._support import _progress
 from bderiv.models.compiled import HANDOFF, CompiledModel
 from bderiv.models.compiled import model as compiled_model
 from bderiv.models.integrate import many

@@ -13,8 +13,8 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from bderiv import BDerivative, load_triangulation
-from bderiv._triangulation_io import json_parse_bytes
-from bderiv.stability import check_growth_memory, growth_rate
+from bderiv.analysis.stability import check_growth_memory, growth_rate
+from bderiv.geometry._triangulation_io import json_parse_bytes
 
 MEMORY = r"take [\d.]+ [KMGTP]?i?B, more than the memory limit of"
 
@@ -179,7 +179,8 @@ def test_orbit_stability_sized_before_its_directions(pronking_gait):
 
 
 def test_default_memory_limit_read_only_for_tables_above_the_small_size(monkeypatch):
-    from bderiv import _limits, _tables, _validate
+    from bderiv import _limits
+    from bderiv._support import _tables, _validate
 
     reads = []
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from bderiv import complex_step_jacobian
-from bderiv.models.system import HybridSystem
-from bderiv.stability_map import StabilityMap, stability_map
+from bderiv.analysis.stability_map import StabilityMap, stability_map
+from bderiv.analysis.system import HybridSystem
 
 
 def cycle(multiplier, turns):

@@ -11,7 +11,7 @@ from test_corners import structured_system
 
 from bderiv import BDerivative
 from bderiv._kernels.structured import GROUP, LOCK
-from bderiv.corners import StructuredCorners
+from bderiv.geometry.corners import StructuredCorners
 
 #: 11 events and 13 coordinates: both axes padded inside the kernel
 N, D = 11, 13

@@ -21,9 +21,9 @@ from numpy.testing import assert_allclose
 
 sp = pytest.importorskip("sympy")
 
+from bderiv.analysis.system import HybridSystem  # noqa: E402
 from bderiv.examples.chair import chair  # noqa: E402
 from bderiv.examples.impacts import landing  # noqa: E402
-from bderiv.models.system import HybridSystem  # noqa: E402
 from bderiv.symbolic import SymbolicSystem, from_sympy  # noqa: E402
 
 PARAMS = {"a": 1.3, "b": 0.7, "c": 2.1}

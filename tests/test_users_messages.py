@@ -7,7 +7,7 @@ import io
 import numpy as np
 import pytest
 
-from bderiv._progress import TqdmCallback
+from bderiv._support._progress import TqdmCallback
 from bderiv.cli import main
 from bderiv.cli.render import bench_text
 
@@ -65,7 +65,7 @@ def test_periodic_orbit_names_period_guess_when_the_return_is_not_awaited_long_e
 def test_periodic_orbit_names_the_newton_iterate_that_failed(monkeypatch):
     """A failure of the return map at a later iterate is said there, with its state (the
     message before named only 'x0 (t=0)', which users read as their guess)."""
-    from bderiv import orbit
+    from bderiv.analysis import orbit
     from bderiv.examples import gaits
 
     real, calls = orbit.return_map, []

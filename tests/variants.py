@@ -30,7 +30,7 @@ from reference import (
     ref_reset_piece,
 )
 
-from bderiv._baselines import benchmark_system
+from bderiv.engine._baselines import benchmark_system
 
 
 class System(NamedTuple):

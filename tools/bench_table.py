@@ -30,7 +30,7 @@ import pathlib
 import sys
 from collections import defaultdict
 
-from bderiv._baselines import useful_flops
+from bderiv.engine._baselines import useful_flops
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
 import _layouts  # noqa: E402

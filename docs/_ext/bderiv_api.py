@@ -167,8 +167,8 @@ def resolve(app, env, node, contnode):
         candidates.append(f"{module}.{klass}.{target}")
     if module:
         candidates.append(f"{module}.{target}")
-    # the scope the docstring is written in: "docstring of bderiv.models.system.X.f" looks
-    # in X, then in bderiv.models.system, ... (a name imported or defined there)
+    # the scope the docstring is written in: "docstring of bderiv.analysis.system.X.f" looks
+    # in X, then in bderiv.analysis.system, ... (a name imported or defined there)
     _, _, owner = (node.source or "").partition("docstring of ")
     parts = owner.split(".") if owner else []
     candidates += [".".join([*parts[:cut], target]) for cut in range(len(parts), 0, -1)]

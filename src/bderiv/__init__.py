@@ -8,12 +8,13 @@ from importlib import metadata as _metadata
 #: ``import bderiv`` alone costs a few milliseconds, so that ``python -m bderiv`` says what
 #: it does before numba, scipy and the kernels load
 _WHERE = {
-    "BDerivative": "bderivative", "LowRankResets": "bderivative",
-    "CornerFunction": "corners", "CornerModel": "corners", "StructuredCorners": "corners",
-    "FlowBDerivative": "flowmap", "check_jacobians": "jacobians",
-    "complex_step_jacobian": "jacobians", "SolverOptions": "models.integrate.run",
-    "HybridSystem": "models.system", "Triangulation": "triangulation",
-    "load_triangulation": "triangulation",
+    "BDerivative": "engine.bderivative", "LowRankResets": "engine.bderivative",
+    "CornerFunction": "geometry.corners", "CornerModel": "geometry.corners",
+    "StructuredCorners": "geometry.corners",
+    "FlowBDerivative": "analysis.flowmap", "check_jacobians": "analysis.jacobians",
+    "complex_step_jacobian": "analysis.jacobians", "SolverOptions": "models.integrate.run",
+    "HybridSystem": "analysis.system", "Triangulation": "geometry.triangulation",
+    "load_triangulation": "geometry.triangulation",
 }
 
 
@@ -28,7 +29,7 @@ def __getattr__(name):
     # raised (kernels imported later are hardened when their drivers are made); and a
     # first compilation is announced (_compiling)
     _importlib.import_module("._kernels._cache", __name__).harden_all()
-    _importlib.import_module("._compiling", __name__)
+    _importlib.import_module("._support._compiling", __name__)
     globals()[name] = value
     return value
 

@@ -1,12 +1,12 @@
-"""``bderiv bench``: the dimension sweep of :func:`bderiv._bench.sweep`, sized first."""
+"""``bderiv bench``: the dimension sweep of :func:`bderiv.cli.sweep.sweep`, sized first."""
 
 from __future__ import annotations
 
 import os
 
-from .. import _bench
 from .._limits import BENCH_BATCH, BENCH_REPEAT
-from .._tables import dense_table_bytes
+from .._support._tables import dense_table_bytes
+from . import sweep
 from .figures import save_figure
 from .machine import describe, machine_info
 from .usage import check_figure_path, make_output_directory, require_memory, require_module
@@ -46,7 +46,7 @@ def run_bench(ns, *, d_factor=1, batch=BENCH_BATCH, repeat=BENCH_REPEAT, plot=No
     -------
     dict
         ``d_factor``, ``batch``, ``repeat``, ``machine`` (:func:`~bderiv.cli.machine.
-        machine_info`) and ``rows`` (those of :func:`bderiv._bench.sweep`): the JSON of
+        machine_info`) and ``rows`` (those of :func:`bderiv.cli.sweep.sweep`): the JSON of
         ``bderiv bench --json``, which ``bderiv plot --bench-json`` reads; with ``plot``
         also ``plot`` (``path``, ``replaced``: whether it replaced an earlier file,
         ``created``: the topmost directory made, or None).
@@ -57,7 +57,7 @@ def run_bench(ns, *, d_factor=1, batch=BENCH_BATCH, repeat=BENCH_REPEAT, plot=No
     for n in ns:
         d = d_factor * n
         require_memory(sweep_bytes(n, d, batch), f"--n {n} (d = {d}) with --batch {batch}")
-    rows = _bench.sweep(tuple(ns), d_factor=d_factor, batch=batch, repeat=repeat,
+    rows = sweep.sweep(tuple(ns), d_factor=d_factor, batch=batch, repeat=repeat,
                         progress=progress)
     result = {"d_factor": d_factor, "batch": batch, "repeat": repeat,
               "machine": machine_info(), "rows": rows}

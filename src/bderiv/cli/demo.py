@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from .._limits import DEMO_BATCH, DEMO_CHECK, FD_EPS
-from ..checks import fd_check
+from ..analysis.checks import fd_check
 from .machine import machine_info
 from .pieces import distinct_pieces, group_tables, piece_summary
 from .systems import load_example

@@ -23,8 +23,8 @@ import os
 import numpy as np
 
 from .._limits import CHECK_VECTORS, MAX_PIECES
-from .._tables import corner_point_bytes
-from ..triangulation import load_triangulation, save_files
+from .._support._tables import corner_point_bytes
+from ..geometry.triangulation import load_triangulation, save_files
 from .systems import load_example, refuse_without_triangulation
 from .usage import (
     UsageError,

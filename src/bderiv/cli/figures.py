@@ -134,7 +134,7 @@ def _draw(plot, name, example, subject):
 def _decay(orbit):
     """Simulated decay of perturbations of ``orbit`` along random unit directions tangent
     to its section: the growth figure's check against the nonlinear system."""
-    from ..checks import decay_check  # simulates: only here
+    from ..analysis.checks import decay_check  # simulates: only here
 
     R = orbit.return_map
     D = np.random.default_rng(0).standard_normal((DECAY_DIRECTIONS, R.tangent_basis.shape[1]))

@@ -23,7 +23,6 @@ from .._limits import (
     FD_EPS,
     NETWORK_MAX_N,
 )
-from ..warmup import FAMILIES
 from . import render
 from .names import (
     COMPILED_EXAMPLES,
@@ -39,6 +38,7 @@ from .names import (
     check_example_options,
 )
 from .usage import UsageError
+from .warmup import FAMILIES
 
 # the commands' computations (numba, scipy, the kernels) are imported by the command that
 # runs, so that the parser, --help and the demo's first line come before them
@@ -319,7 +319,7 @@ def _compile(args) -> str:
                          f"{', '.join(FAMILIES)}")
     if args.nice and hasattr(os, "nice"):  # a background compilation yields to the work
         os.nice(10)
-    from ..warmup import compile_family, warm_up
+    from .warmup import compile_family, warm_up
 
     if args.here:  # the process of one family (warmup.warm_up starts it)
         for name in args.families:

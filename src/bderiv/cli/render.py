@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from .._format import format_mask, format_order
+from .._support._format import format_mask, format_order
 from .machine import describe
 
 
@@ -26,7 +26,7 @@ def progress_bar(desc: str, unit: str = "vec"):
     None without tqdm."""
     if importlib.util.find_spec("tqdm") is None:
         return None  # the bar is a nicety in the CLI; without tqdm run silently
-    from .._progress import TqdmCallback
+    from .._support._progress import TqdmCallback
 
     return TqdmCallback(desc, unit=unit, leave=False, disable=None, file=sys.stderr)
 
@@ -239,7 +239,7 @@ _DEMO_SECTIONS = {"model": _model, "trajectory": _trajectory, "pieces": _pieces,
 def bench_text(result: dict) -> str:
     """The text of ``bderiv bench``: a header, the sweep table, what its columns mean, the
     machine it ran on, and the plot written."""
-    from .._bench import format_table  # the sweep's module: loaded by `bench` only
+    from .sweep import format_table  # the sweep's module: loaded by `bench` only
 
     k = result["d_factor"]
     dim = "d = n" if k == 1 else f"d = {k}n"

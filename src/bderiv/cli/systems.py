@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import examples
-from ..bderivative import BDerivative
+from ..engine.bderivative import BDerivative
 from .names import (
     COMPILED_EXAMPLES,
     ORBIT_EXAMPLES,

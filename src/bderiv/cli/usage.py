@@ -11,7 +11,7 @@ import importlib.util
 import os
 import tempfile
 
-from .._tables import available_memory, human_bytes
+from .._support._tables import available_memory, human_bytes
 
 #: the extra of ``pip install 'bderiv[...]'`` that brings each optional module
 EXTRAS = {"matplotlib": "plot"}

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import check_number, check_positive_int, check_real_array
+from .._support._validate import check_number, check_positive_int, check_real_array
 from .parametric import ParametricFlow
 
 __all__ = ["ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]

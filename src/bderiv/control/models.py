@@ -20,10 +20,10 @@ from __future__ import annotations
 import numpy as np
 from numba.extending import register_jitable
 
+from ..analysis.system import HybridSystem
 from ..examples._common import compile_function
 from ..examples.chair import _functions as chair_functions
 from ..examples.chair import chair
-from ..models.system import HybridSystem
 from .parametric import ParametricFlow
 
 __all__ = ["ball_1d", "ball_2d", "controlled_chair"]

@@ -1,6 +1,6 @@
 """Flows in the state and the parameters: a parameter is a state that does not move.
 
-A model written with ``params`` (:class:`~bderiv.models.system.HybridSystem`: every
+A model written with ``params`` (:class:`~bderiv.analysis.system.HybridSystem`: every
 function takes ``z = (x, p)``, the state followed by the m parameter values) has, over the
 augmented state ``z`` with ``p' = 0``, the flow ``(x, p) -> (Phi_p(t, x), p)``. Its
 B-derivative at ``(x0, p)`` is the B-derivative of ``Phi`` in the state *and* the
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._limits import DERIVATIVE_SIMULTANEITY_TOL
-from .._validate import check_number, check_positive_int, check_real_array
-from ..models.system import HybridSystem
+from .._support._validate import check_number, check_positive_int, check_real_array
+from ..analysis.system import HybridSystem
 
 __all__ = ["ParametricFlow", "Step", "augment", "nominal_orders"]
 
@@ -107,7 +107,7 @@ def augment(field, events, *, n_events, dim, n_params, reset=None) -> HybridSyst
         compile again in every process (seconds, at the first run). For a compiled model
         used in many processes, write the augmented functions directly, the field's last
         ``n_params`` entries 0, with ``numba.njit(cache=True)``, and pass them to
-        :class:`~bderiv.models.system.HybridSystem` (as :mod:`.models` does).
+        :class:`~bderiv.analysis.system.HybridSystem` (as :mod:`.models` does).
     """
     d, m = check_positive_int(dim, "dim"), check_positive_int(n_params, "n_params")
     compiled = all(hasattr(f, "py_func") for f in (field, events))

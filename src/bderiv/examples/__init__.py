@@ -1,6 +1,6 @@
 """Ready-made event-selected systems with a simultaneous-event point.
 
-Each function returns an :class:`Example`: the :class:`~bderiv.models.system.HybridSystem`, the
+Each function returns an :class:`Example`: the :class:`~bderiv.analysis.system.HybridSystem`, the
 event point ``rho`` where all its events happen at once, a start point ``x0`` that reaches
 ``rho`` at time ``t_event`` (all events simultaneously) and a final time ``t_final`` after it.
 

@@ -2,7 +2,7 @@
 
 Models with a compiled version write their equations once, as plain functions that numba
 compiles (loop style, no Python objects): :meth:`Example.from_functions` passes them to
-:class:`~bderiv.models.system.HybridSystem` as they are (the Python version) or each
+:class:`~bderiv.analysis.system.HybridSystem` as they are (the Python version) or each
 compiled by :func:`compile_function` (the compiled version, ``compiled=True``): one code
 path for both. Their constants are either closed over (numbers and arrays: a compilation
 per set of values) or, for the models that are swept over parameters (the gaits), read
@@ -19,12 +19,12 @@ from functools import cache
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .._format import format_mask
 from .._kernels._cache import keyed, sources_digest
 from .._limits import ON_SURFACE_TOL
-from .._numdiff import complex_step
-from .._validate import check_bool
-from ..models.system import HybridSystem
+from .._support._format import format_mask
+from .._support._numdiff import complex_step
+from .._support._validate import check_bool
+from ..analysis.system import HybridSystem
 
 __all__ = ["Example", "check_start", "compile_function", "compiled_once", "flow_back"]
 
@@ -102,7 +102,7 @@ class Example:
             integrator. Without ``field_jacobian`` the Jacobian is taken by complex step
             in either version (in compiled code when compiled).
         params : array_like, shape (m,), optional
-            The system's parameter values (:class:`~bderiv.models.system.HybridSystem`):
+            The system's parameter values (:class:`~bderiv.analysis.system.HybridSystem`):
             the functions take the state followed by them. The functions are then
             module-level ones holding no constants, compiled once per process
             (:func:`compiled_once`).

@@ -36,7 +36,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from .._validate import check_positive_int
+from .._support._validate import check_positive_int
 from ._common import Example, check_start, compile_function
 
 __all__ = [
@@ -263,7 +263,7 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
         Added to ``example.x0`` for the guess (it breaks the symmetry on purpose).
     **kwargs
         Passed to :meth:`HybridSystem.periodic_orbit
-        <bderiv.models.system.HybridSystem.periodic_orbit>`.
+        <bderiv.analysis.system.HybridSystem.periodic_orbit>`.
 
     Returns
     -------
@@ -281,8 +281,8 @@ def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
                      compiled=False):
     """The gait from model to stability verdict, with its checks against simulation.
 
-    Finds the orbit (:func:`orbit`), its event groups, the return map's pieces met by a
-    batch with their Floquet multipliers, the growth rate, and two checks against
+    Finds the orbit (:func:`pronking_orbit`), its event groups, the return map's pieces met
+    by a batch with their Floquet multipliers, the growth rate, and two checks against
     simulation: finite differences of the simulated Poincare map against the return map
     (one direction in each piece, several steps), and the decay of perturbations over
     ``strides`` simulated strides against the predicted growth rate.
@@ -307,7 +307,7 @@ def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
         with visits and ``|multipliers|``), ``fd`` (eps, max errors, ratios), ``decay``
         (simulated rate per direction, the largest, the window).
     """
-    from ..checks import decay_check, fd_check  # the checks simulate: only here
+    from ..analysis.checks import decay_check, fd_check  # the checks simulate: only here
 
     ex = pronking(compiled=compiled)
     section = compiled_apex_section if compiled else apex_section

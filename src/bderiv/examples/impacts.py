@@ -147,7 +147,7 @@ def landing_summary(*, n_check=8, eps=FD_EPS, seed=0, compiled=False):
         (orders, share of a batch, rank and the norm of their difference), ``fd`` (eps,
         max errors, ratios), ``refused`` (the library's message for the coupled feet).
     """
-    from ..checks import fd_check  # simulates: only here
+    from ..analysis.checks import fd_check  # simulates: only here
 
     ex = landing(compiled=compiled)
     system = ex.system

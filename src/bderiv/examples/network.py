@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import check_bool
+from .._support._validate import check_bool
 from ._common import Example, check_start, flow_back
 
 __all__ = ["network"]

@@ -150,7 +150,7 @@ def quadruped_summary(*, seed=0, n_directions=200, iterations=200, figure=None):
     Parameters
     ----------
     seed, n_directions, iterations
-        Of :meth:`~bderiv.orbit.PeriodicOrbit.stability`.
+        Of :meth:`~bderiv.analysis.orbit.PeriodicOrbit.stability`.
     figure : str or os.PathLike, optional
         Where to save :func:`quadruped_figure` (needs matplotlib).
 

@@ -142,7 +142,7 @@ def running_orbit(example=None, *, perturbation=(0.0, 0.02, 0.01, -0.3, 0.0, -0.
         Added to ``example.x0`` for the guess (a wrong speed, tilted, pitching).
     **kwargs
         Passed to :meth:`HybridSystem.periodic_orbit
-        <bderiv.models.system.HybridSystem.periodic_orbit>` (``cyclic=[0]`` by default).
+        <bderiv.analysis.system.HybridSystem.periodic_orbit>` (``cyclic=[0]`` by default).
 
     Returns
     -------

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._numdiff import complex_step
+from .._support._numdiff import complex_step
 from ._common import Example, check_start, flow_back
 
 __all__ = ["table"]

@@ -69,8 +69,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import quad, solve_ivp
 
-from .._numdiff import complex_step
-from ..models.system import HybridSystem
+from .._support._numdiff import complex_step
+from ..analysis.system import HybridSystem
 from ._common import Example, check_start
 
 __all__ = [
@@ -155,7 +155,7 @@ def rimless_wheel(*, alpha=np.pi / 8, slope=0.08, g=1.0, leg=1.0) -> Example:
         d = 2, n = 1. ``x0 = (0, omega_0)`` the gait's state at mid-stance and ``rho =
         (alpha, omega_-)`` the impact that ends the step, at ``t_event`` (both in closed
         form from the energy balance; the time by quadrature). :func:`rimless_wheel_orbit`
-        finds the gait with :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
+        finds the gait with :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
 
     Examples
     --------
@@ -205,7 +205,7 @@ def rimless_wheel_orbit(example=None, *, perturbation=(0.0, 0.05), **kwargs):
     perturbation : array_like, shape (2,)
         Added to ``example.x0`` for the guess.
     **kwargs
-        Passed to :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
+        Passed to :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
 
     Returns
     -------
@@ -469,7 +469,7 @@ def compass_gait_orbit(example=None, *, perturbation=(0.0, 0.01, -0.01, 0.005), 
     perturbation : array_like, shape (4,)
         Added to ``example.x0`` for the guess.
     **kwargs
-        Passed to :meth:`~bderiv.models.system.HybridSystem.periodic_orbit`.
+        Passed to :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
 
     Returns
     -------

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from ..bderivative import BDerivative
-from ..flowmap import FlowBDerivative
+from ..analysis.flowmap import FlowBDerivative
+from ..engine.bderivative import BDerivative
 from ._host import MapHost
 from ._primitive import pl_function
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._limits import DERIVATIVE_SIMULTANEITY_TOL
-from .._validate import check_number, check_positive_int
+from .._support._validate import check_number, check_positive_int
+from ..analysis.system import HybridSystem
 from ..models.integrate.run import SolverOptions
-from ..models.system import HybridSystem
 from ._host import FlowHost
 from ._primitive import pl_function
 

@@ -5,7 +5,7 @@ an argument that is not batched comes with axes of size 1 there). Each function 
 takes such arrays, broadcasts them to one leading shape, works on the rows and returns
 float64 results of that leading shape. Nothing here imports jax.
 
-- :class:`FlowHost`: the flow map of a :class:`~bderiv.models.system.HybridSystem` at
+- :class:`FlowHost`: the flow map of a :class:`~bderiv.analysis.system.HybridSystem` at
   ``t_final``, its B-derivative (built once per distinct start and kept in a small cache),
   the B-derivative applied to tangents and the transpose of one piece applied to
   co-tangents;
@@ -59,8 +59,8 @@ class FlowHost:
     options : SolverOptions
         Integrator settings of the simulations (primal and derivative).
     simultaneity_tol : float
-        For the B-derivative (:meth:`~bderiv.models.system.HybridSystem.flow_bderivative`); the
-        primal is :meth:`~bderiv.models.system.HybridSystem.simulate` with its own default.
+        For the B-derivative (:meth:`~bderiv.analysis.system.HybridSystem.flow_bderivative`); the
+        primal is :meth:`~bderiv.analysis.system.HybridSystem.simulate` with its own default.
     direction : ndarray, shape (d,), or None
         The tangent whose piece reverse mode transposes (None: only where the
         B-derivative has a single piece).

@@ -1,10 +1,9 @@
-"""The model side: a hybrid system, its integration, its events and its flow map's assembly.
+"""The model side: what a run needs, its integration and its events.
 
-- :mod:`~bderiv.models.system`: :class:`~bderiv.models.system.HybridSystem`, the model
-  (field, events, Jacobians, resets) and its methods;
-- :mod:`~bderiv.models.calls`: checked calls of the user's functions, numerical Jacobians;
-- :mod:`~bderiv.models.assembly`: the B-derivatives the model gives, at a group of events,
-  at a point and along a trajectory;
+- :mod:`~bderiv.models.calls`: :class:`~bderiv.models.calls.ModelCalls`, checked calls of
+  the user's functions (field, events, Jacobians, resets), numerical Jacobians, corner
+  sampling; :mod:`~bderiv.models.user_functions` wraps each function and checks its
+  outputs; :mod:`~bderiv.models.section`: the Poincare section's checked calls;
 - :mod:`~bderiv.models.integrate`: the run from region to region (``run``) over one
   interface with two integrators, :func:`scipy.integrate.solve_ivp` for Python callables
   (``scipy_path``) and the compiled DOP853 for numba functions (``compiled_path``);
@@ -13,5 +12,8 @@
   crossings inside a step (``excursions``) and a group at the final time (``finaltime``);
 - :mod:`~bderiv.models.compiled`: the compiled integrator and the compiled model calls.
 
-See ``docs/design.md``, "The model side".
+The user's class, :class:`~bderiv.analysis.system.HybridSystem`, is
+:class:`~bderiv.models.calls.ModelCalls` with the analyses as its methods; it lives in the
+analysis layer above (:mod:`bderiv.analysis`), so that imports point one way. See
+``docs/design.md``, "Layers, top to bottom".
 """

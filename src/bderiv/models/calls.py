@@ -1,7 +1,7 @@
 """Checked calls of a user's model functions: outputs validated, numerical Jacobians.
 
 :class:`ModelCalls` holds a model's functions and evaluates them checked (the base of
-:class:`~bderiv.models.system.HybridSystem`), by the wrappers and checks of
+:class:`~bderiv.analysis.system.HybridSystem`), by the wrappers and checks of
 :mod:`.user_functions`; :class:`~bderiv.models.section.Section` does the same for a
 Poincare section.
 """
@@ -14,10 +14,10 @@ import time
 
 import numpy as np
 
-from .. import _numdiff as numdiff
-from .._format import format_mask
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
-from .._validate import all_finite, check_bool, check_positive_int, check_real_array
+from .._support import _numdiff as numdiff
+from .._support._format import format_mask
+from .._support._validate import all_finite, check_bool, check_positive_int, check_real_array
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel
 from .readiness import ready_now
 from .user_functions import (
@@ -51,7 +51,7 @@ def _matches(fun, x, J) -> bool:
 class ModelCalls:
     """A model's user functions, evaluated with every output checked.
 
-    The parameters are those of :class:`~bderiv.models.system.HybridSystem`, which documents
+    The parameters are those of :class:`~bderiv.analysis.system.HybridSystem`, which documents
     them. Every output is checked (shape and finiteness); errors say which function,
     which mask, the expected and the received shape. A given Jacobian is compared with a
     central difference the first time it is used for each mask (and event), unless

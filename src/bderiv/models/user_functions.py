@@ -13,9 +13,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .. import _numdiff as numdiff
 from .._limits import ACCEPT_RTOL
-from .._validate import check_finite, check_real_array
+from .._support import _numdiff as numdiff
+from .._support._validate import check_finite, check_real_array
 from .compiled import is_compiled, refuse_damaged_cache
 
 
@@ -123,7 +123,7 @@ def check_output(value, shape, what: str) -> np.ndarray:
 
 
 def numerical_jacobian(fun, x, what: str, jac_name: str) -> numdiff.Derivative:
-    """Jacobian of ``fun`` at ``x`` by :func:`bderiv._numdiff.jacobian`, refused where its
+    """Jacobian of ``fun`` at ``x`` by :func:`bderiv._support._numdiff.jacobian`, refused where its
     error estimate exceeds the accuracy the entry needs.
 
     ``what`` names the function and its mask (and event) in the error, ``jac_name`` the
@@ -148,7 +148,7 @@ def numerical_jacobian(fun, x, what: str, jac_name: str) -> numdiff.Derivative:
 
 def check_given_jacobian(fun, x, J, what: str, jac_name: str) -> None:
     """Refuse a given Jacobian ``J`` of ``fun`` at ``x`` that does not match its
-    derivative along a random direction (:func:`bderiv._numdiff.compare`)."""
+    derivative along a random direction (:func:`bderiv._support._numdiff.compare`)."""
     c = numdiff.compare(fun, x, J)
     if c.passed:
         return

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._format import format_mask
+from .._support._format import format_mask
 from ._axes import PALETTE, REGION_GREYS, SIMPLEX_ALPHA, figure_axes
 from ._planar import _event_lines, _order_handles, _region_masks
 

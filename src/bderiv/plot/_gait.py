@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._format import format_mask
-from ..stability import log_growth
+from .._support._format import format_mask
+from ..analysis.stability import log_growth
 from ._axes import PALETTE, figure_axes, new_figure
 
 #: marker of an event group by its directions: all upward, all downward, mixed.
@@ -136,7 +136,7 @@ def gait_growth(orbit, ax=None, *, n_directions=200, iterations=40, stability=No
 
     Thin lines: ``|A^k v| / |v|`` for ``n_directions`` random directions tangent to the
     section (A the return map's B-derivative). The dashed line is the growth rate
-    ``lambda^k``; with ``decay`` (a :class:`~bderiv.checks.DecayCheck`) the simulated
+    ``lambda^k``; with ``decay`` (a :class:`~bderiv.analysis.checks.DecayCheck`) the simulated
     deviations of the nonlinear system, ``|P^k(x0 + eps v) - x0| / eps``, are dots.
 
     Parameters

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .._format import format_order
+from .._support._format import format_order
 from ._axes import BAR_COLOR, figure_axes
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._format import format_mask, format_order
+from .._support._format import format_mask, format_order
 from ._axes import PALETTE, SIMPLEX_ALPHA, figure_axes
 
 

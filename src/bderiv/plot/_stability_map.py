@@ -21,7 +21,7 @@ def stability_map(smap, ax=None, labels=None):
     Parameters
     ----------
     smap : StabilityMap
-        Of two parameters (:func:`bderiv.stability_map.stability_map`).
+        Of two parameters (:func:`bderiv.analysis.stability_map.stability_map`).
     ax : matplotlib Axes, optional
     labels : (str, str), optional
         The axes' labels (default: the parameters' names).

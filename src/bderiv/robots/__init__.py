@@ -3,7 +3,7 @@ example-robot-data): a legged robot's model whose events are its feet touching t
 
 Why a sub-package: it is the one place that imports Pinocchio (inside its functions, so
 ``import bderiv.robots`` works without it and says what to install at the first call),
-and it builds ordinary :class:`~bderiv.models.system.HybridSystem` models on top of the
+and it builds ordinary :class:`~bderiv.analysis.system.HybridSystem` models on top of the
 package, as :mod:`bderiv.symbolic` does from equations. docs/robots.md is its guide.
 
 - :mod:`~bderiv.robots.legged`: :func:`legged_robot` (a Pinocchio model or URDF and the

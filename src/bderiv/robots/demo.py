@@ -4,7 +4,7 @@ B-derivative, its pieces, and a check against finite differences of the simulati
 Kept apart from the model (:mod:`bderiv.robots.quadrupeds`) as the gait examples keep
 their summaries: it times the steps a user takes (load the URDF, simulate, the
 B-derivative) and says what the map is (its group, its 24 pieces, the orders a batch of
-directions meets). The check is bderiv's own :func:`~bderiv.checks.fd_check` (the
+directions meets). The check is bderiv's own :func:`~bderiv.analysis.checks.fd_check` (the
 independent simulation is in the tests).
 """
 
@@ -24,7 +24,7 @@ def solo12_summary(*, seed=0, n_check=3, figure=None) -> dict:
     """The demo's numbers (JSON-friendly): build, simulate and B-derivative times, the
     group, the orders met by 2000 random directions, and ``fd_check`` on ``n_check`` of
     them (relative errors at eps 1e-5 and 1e-6)."""
-    from ..checks import fd_check
+    from ..analysis.checks import fd_check
     from .quadrupeds import drop_state, quadruped, touchdown_figure
 
     t0 = time.perf_counter()

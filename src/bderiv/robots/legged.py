@@ -2,7 +2,7 @@
 
 :func:`legged_robot` takes a Pinocchio model with a free-flying base (or a URDF file, one of
 example-robot-data's or your own) and the names of its foot frames, and builds the
-:class:`~bderiv.models.system.HybridSystem` whose event k is foot k's penetration of the
+:class:`~bderiv.analysis.system.HybridSystem` whose event k is foot k's penetration of the
 ground ``z = ground``, ``h_k = ground - z_k(q)`` (touchdown: an upward crossing, bit k
 set in stance; lift-off: downward). It is a Python model: each call goes into Pinocchio
 (``aba``, ``computeABADerivatives``, frame Jacobians), integrated by scipy's
@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models.system import HybridSystem
+from ..analysis.system import HybridSystem
 from ._files import require_pinocchio, robot_file
 from ._lie import base_configuration, se3_rate_jacobians, se3_rate_matrix
 
@@ -261,7 +261,7 @@ def legged_robot(source, feet, q_ref=None, **law) -> LeggedRobot:
     Returns
     -------
     LeggedRobot
-        Its ``system`` is the :class:`~bderiv.models.system.HybridSystem`.
+        Its ``system`` is the :class:`~bderiv.analysis.system.HybridSystem`.
     """
     pin = require_pinocchio()
     model = _load(source, pin)

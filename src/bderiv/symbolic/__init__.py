@@ -1,4 +1,4 @@
-"""Models from equations: a :class:`~bderiv.models.system.HybridSystem` from sympy expressions.
+"""Models from equations: a :class:`~bderiv.analysis.system.HybridSystem` from sympy expressions.
 
 :func:`from_sympy` takes the state, one flag per event, the vector field, the events, the
 resets and the parameters as sympy expressions, derives every Jacobian symbolically,

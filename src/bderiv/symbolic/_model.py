@@ -1,4 +1,4 @@
-"""``from_sympy``: a :class:`~bderiv.models.system.HybridSystem` from sympy expressions.
+"""``from_sympy``: a :class:`~bderiv.analysis.system.HybridSystem` from sympy expressions.
 
 The compiled kernels (:mod:`bderiv.symbolic._codegen` lists them) live in a generated
 module in the cache folder (:mod:`bderiv.symbolic._cache`); :class:`Kernels` holds them,
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..analysis.system import HybridSystem
 from ..models.compiled import CompiledModel
 from ..models.readiness import ready_now
-from ..models.system import HybridSystem
 from . import _cache, _codegen
 from ._inputs import check_model, check_value, require_sympy
 
@@ -81,7 +81,7 @@ class BuildInfo:
 
 
 class ModelFunctions:
-    """The kernels with the Python signatures of :class:`~bderiv.models.system.HybridSystem`.
+    """The kernels with the Python signatures of :class:`~bderiv.analysis.system.HybridSystem`.
 
     Each method checks the state (converted to float64; shapes other than (d,) are
     refused: the kernels do not check bounds) and calls its kernel on the state followed
@@ -128,7 +128,7 @@ class ModelFunctions:
 
 
 class SymbolicSystem(HybridSystem):
-    """A :class:`~bderiv.models.system.HybridSystem` built by :func:`from_sympy`.
+    """A :class:`~bderiv.analysis.system.HybridSystem` built by :func:`from_sympy`.
 
     Every method of ``HybridSystem`` applies. Its functions are :attr:`functions`
     (:class:`ModelFunctions`, Python signatures) over the compiled :attr:`kernels`
@@ -293,7 +293,7 @@ def compile_kernels(model, module, path) -> Kernels:
 
 
 def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_dir=None):
-    """A :class:`~bderiv.models.system.HybridSystem` from sympy expressions, compiled with numba.
+    """A :class:`~bderiv.analysis.system.HybridSystem` from sympy expressions, compiled with numba.
 
     One expression covers all 2**n regions through the flags: flag k is 1 where event k
     has happened (bit k of the region's mask), 0 before. The Jacobians are derived

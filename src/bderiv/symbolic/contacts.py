@@ -2,7 +2,7 @@
 
 :func:`contact_system` takes generalized coordinates ``q`` (m), the mass matrix ``M(q)``,
 the generalized forces and the contacts' gap functions ``phi_k(q)`` (>= 0 apart) and
-builds the :class:`~bderiv.models.system.HybridSystem` of state ``x = (q, q')`` (d = 2m) with
+builds the :class:`~bderiv.analysis.system.HybridSystem` of state ``x = (q, q')`` (d = 2m) with
 one event per contact, the penetration ``h_k = -phi_k(q)`` (touchdown: an upward crossing;
 lift-off: downward):
 

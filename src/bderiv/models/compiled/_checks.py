@@ -15,8 +15,8 @@ import numpy as np
 from numba.core.dispatcher import Dispatcher
 from numba.core.errors import NumbaError
 
-from ..._format import MASK_MEANING, format_mask
 from ..._kernels._cache import damaged_entry
+from ..._support._format import MASK_MEANING, format_mask
 from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
     COMPLEX_FIELD_SIGNATURE,

@@ -15,9 +15,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._format import MASK_MEANING, format_mask
 from ..._limits import FIRST_SLICE, SLICE_SECONDS
-from ..._validate import check_record
+from ..._support._format import MASK_MEANING, format_mask
+from ..._support._validate import check_record
 from ._integrate import N_STEPS, PAUSED, drive_stretch
 
 #: seconds per accepted step measured so far, per (model, length of the integrated vector)
@@ -97,7 +97,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
 
     The stretch's record (every accepted step's time and integrated vector, and with
     ``dense`` its dense output) grows with its steps: before each slice its projected size
-    is held to what the process may still take (:func:`bderiv._validate.check_record`:
+    is held to what the process may still take (:func:`bderiv._support._validate.check_record`:
     a ValueError naming the record, never the model's MemoryError)."""
     key = (id(model), y0.size)
     parts, counts, held, start_t = [], None, 0, t0

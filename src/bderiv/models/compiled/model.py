@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from ..._format import MASK_MEANING, format_mask
-from ..._validate import RecordTooLarge
+from ..._support._format import MASK_MEANING, format_mask
+from ..._support._validate import RecordTooLarge
 from ._checks import (
     check_compiled,
     compiles_as,

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL
 from ..._numerics import MIN_RTOL
-from ..._validate import check_number, check_real_array
+from ..._support._validate import check_number, check_real_array
 from ._checks import check_compiled, raise_failed_run
 from ._integrate import EVENT, FINISHED, N_REJECTED, N_STEPS, NFEV, NJEV
 from ._model import bound_model

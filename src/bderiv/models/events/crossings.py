@@ -22,9 +22,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._format import format_mask, transversality_message
 from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
-from ..._validate import frozen, scratch
+from ..._support._format import format_mask, transversality_message
+from ..._support._validate import frozen, scratch
 from ..compiled import rules
 from .locate import examine, flags_of, orientation, state_error
 
@@ -151,7 +151,7 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
         this were settled before (:func:`bderiv.models.events.locate.settle`). Events
         within this time of crossing but measurably later are not switched: each stops the
         integrator at its own time, so the state is the true one (a flow map merges such
-        groups: :func:`bderiv.models.assembly.flow_map_along`).
+        groups: :func:`bderiv.analysis.assembly.flow_map_along`).
     err : ndarray, shape (d,)
         Bound on the error of ``x``, per component
         (:func:`bderiv.models.events.locate.state_error`).

@@ -66,7 +66,7 @@ from scipy.optimize import minimize_scalar
 
 from ..._limits import PEAK_XTOL
 from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
-from ..._validate import frozen, scratch
+from ..._support._validate import frozen, scratch
 from ..compiled import rules
 from .crossings import group_tolerance
 from .locate import StopCalls, local_rates

@@ -11,7 +11,7 @@ of the group: ``h_T = s (t - t_final)`` in the state augmented by the time, with
 - regions after it (time bit set): ``(F[full], s)`` in every one of them, so that the
   events still pending at ``t_final`` move nothing (their jumps ``F[B] - F[B']`` vanish).
 
-The augmented :class:`~bderiv.bderivative.BDerivative` applied to ``(u, -s dt)`` puts the
+The augmented :class:`~bderiv.engine.bderivative.BDerivative` applied to ``(u, -s dt)`` puts the
 final-time event at virtual time ``dt`` (the time coordinate stays ``-s dt``: every
 region's time rate is ``s``); the first d coordinates of its result plus ``dt F[full]``
 are the position at ``t_final + dt``, and for ``dt = 0`` they are the group's map stopped
@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._validate import check_bool, check_points
-from ...bderivative import BDerivative
+from ..._support._validate import check_bool, check_points
+from ...engine.bderivative import BDerivative
 
 __all__ = ["FinalTimeMap", "pending_at_final_time"]
 

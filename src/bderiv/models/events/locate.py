@@ -29,9 +29,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._format import format_mask
 from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
-from ..._validate import frozen, scratch
+from ..._support._format import format_mask
+from ..._support._validate import frozen, scratch
 from ..compiled import rules
 
 __all__ = [
@@ -136,7 +136,7 @@ class Classes:
     near : list of int
         Within ``simultaneity_tol`` of crossing but not at the stop: switching them here
         would switch them early, so each stops the integrator at its own time (a flow map
-        merges the groups: :func:`bderiv.models.assembly.flow_map_along`).
+        merges the groups: :func:`bderiv.analysis.assembly.flow_map_along`).
     undecided : list of int
         At the stop and crossing, with a time uncertainty ``window_k / rate_k`` above
         ``simultaneity_tol``: whether they belong to the group is not known.
@@ -254,7 +254,7 @@ class StopCalls:
 
     Examples
     --------
-    >>> from bderiv.models.system import HybridSystem
+    >>> from bderiv.analysis.system import HybridSystem
     >>> seen = []
     >>> s = HybridSystem(lambda x, mask: -x, lambda x: seen.append(1) or x[:1], n_events=1,
     ...                  dim=2)

@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._format import format_mask
 from ..._limits import ZENO_IMPACTS, ZENO_LIMIT_RTOL
+from ..._support._format import format_mask
 from .crossings import holds
 
 __all__ = ["ImpactWatch", "accumulation_time"]

@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..._progress import SimulationProgress, resolve_progress
-from ..._validate import check_number, check_points, check_positive_int
+from ..._support._progress import SimulationProgress, resolve_progress
+from ..._support._validate import check_number, check_points, check_positive_int
 from ..compiled import Cancelled, stopped_by
 from .run import STEPS, compiled_stops, run, stops_compile
 
@@ -65,7 +65,7 @@ _POLL = 0.05
 @dataclass(frozen=True, eq=False)
 class Trajectories:
     """Result of :meth:`HybridSystem.simulate_many
-    <bderiv.models.system.HybridSystem.simulate_many>`: one trajectory per start state.
+    <bderiv.analysis.system.HybridSystem.simulate_many>`: one trajectory per start state.
 
     Attributes
     ----------

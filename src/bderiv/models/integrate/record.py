@@ -3,7 +3,7 @@
 :class:`RunLog` is what :func:`bderiv.models.integrate.run.run` accumulates stretch by
 stretch. The samples are what the caller asks for (``record``): every accepted step
 (``STEPS``, ``simulate``'s default: a record that grows with the steps, held to the memory
-the process may still take before it grows, :func:`bderiv._validate.check_record`), the
+the process may still take before it grows, :func:`bderiv._support._validate.check_record`), the
 start and the end only (``ENDS``: what the flow map, the return map and the finite
 differences read; two samples whatever the span), or the states at given times
 (``t_eval``, :func:`check_t_eval`), each on the dense output of the stretch that holds it
@@ -18,8 +18,8 @@ from dataclasses import field as dc_field
 
 import numpy as np
 
-from ..._tables import human_bytes
-from ..._validate import check_real_array, check_record
+from ..._support._tables import human_bytes
+from ..._support._validate import check_real_array, check_record
 
 __all__ = ["ENDS", "STEPS", "RunLog", "check_t_eval", "dense_state"]
 

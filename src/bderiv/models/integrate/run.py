@@ -1,7 +1,7 @@
 """Event-detecting integration of a hybrid model: trajectory, event log, solver options.
 
 :func:`run` integrates a model (any object with the checked evaluations of
-:class:`~bderiv.models.system.HybridSystem`: ``eval_field``, ``eval_events``,
+:class:`~bderiv.analysis.system.HybridSystem`: ``eval_field``, ``eval_events``,
 ``eval_event_jacobian``, ``eval_field_jacobian``, ``start_mask``, ``n_events``, ``dim``)
 from region to region with :func:`scipy.integrate.solve_ivp`. Each stretch stops at the
 first event crossing, upward or downward (a surface may be crossed any number of times);
@@ -18,7 +18,7 @@ return map and the finite differences read; bounded, whatever the span), or the 
 given times (``t_eval``, on each stretch's dense output). The event log, the groups and
 (with ``variational``) one (d, d) matrix per stretch are always kept. A record that grows
 with the steps is held to the memory the process may still take before it grows
-(:func:`bderiv._validate.check_record`): a ValueError that names it, not a MemoryError.
+(:func:`bderiv._support._validate.check_record`): a ValueError that names it, not a MemoryError.
 """
 
 from __future__ import annotations
@@ -32,11 +32,11 @@ from functools import lru_cache, partial
 import numpy as np
 from scipy.integrate import OdeSolver
 
-from ..._format import format_mask
 from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, MAX_GROUPS
 from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL
-from ..._progress import SimulationProgress
-from ..._validate import check_number, check_positive_int
+from ..._support._format import format_mask
+from ..._support._progress import SimulationProgress
+from ..._support._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
@@ -150,7 +150,7 @@ def _defaults(cls) -> SolverOptions:
 
 @dataclass(frozen=True, eq=False)
 class Trajectory:
-    """Result of :meth:`HybridSystem.simulate <bderiv.models.system.HybridSystem.simulate>`.
+    """Result of :meth:`HybridSystem.simulate <bderiv.analysis.system.HybridSystem.simulate>`.
 
     Attributes
     ----------
@@ -247,9 +247,9 @@ class NoReturn(ValueError):
 def stretches_for(system, options, section=None, watch=None, stops=None):
     """The integrator of a run's stretches: compiled when the model's functions are numba
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
-    (``watch``: a :class:`~bderiv._progress.SimulationProgress` told each evaluation's time;
-    the compiled driver returns to Python between slices of steps instead; ``stops``: the
-    run's :class:`~bderiv.models.events.locate.StopCalls`).
+    (``watch``: a :class:`~bderiv._support._progress.SimulationProgress` told each
+    evaluation's time; the compiled driver returns to Python between slices of steps
+    instead; ``stops``: the run's :class:`~bderiv.models.events.locate.StopCalls`).
 
     Raises
     ------
@@ -501,7 +501,7 @@ def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
     (events about to cross after ``t_final``), the times at which its events cross (first
     order); ``(None, ())`` when there is none. Pending events come before the last switched
     group within the tolerance: the flow map merges the two
-    (:func:`bderiv.models.assembly.flow_map_along`)."""
+    (:func:`bderiv.analysis.assembly.flow_map_along`)."""
     _, h, _, _, rate = local_view(system, int(mask), x)
     pending = pending_at_final_time(h, rate, simultaneity_tol)
     if pending:

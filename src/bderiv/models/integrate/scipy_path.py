@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ..._format import MASK_MEANING, format_mask
-from ..._validate import check_record
+from ..._support._format import MASK_MEANING, format_mask
+from ..._support._validate import check_record
 from ..events.excursions import without_lost_crossings
 from ..events.locate import on_side_at_start
 
@@ -134,7 +134,7 @@ class ScipyStretches:
 class _Counted:
     """The right-hand side of one solve_ivp call, counting its evaluations: solve_ivp keeps
     every step (its time, its vector and its dense output), so the record it grows is held
-    to what the process may still take (:func:`bderiv._validate.check_record`), its size
+    to what the process may still take (:func:`bderiv._support._validate.check_record`), its size
     estimated from the evaluations (``EVALUATIONS_PER_STEP`` of the method, at least one)
     and ``SOLVE_IVP_STEP_BYTES`` per step; checked each time it has doubled."""
 

@@ -1,0 +1,131 @@
+"""Lazy, block-wise evaluation of a map on dask arrays.
+
+Imported by :func:`bderiv._support._batch.evaluate` only when a query is a dask array
+(``_batch.is_dask_array`` decides that from the type's module, without importing dask).
+Each block of the dask array is evaluated by the ordinary NumPy path of the map, in
+whatever process or machine the scheduler runs it. It must pickle (``BDerivative``,
+``FlowBDerivative`` and ``Triangulation`` do: they hold only NumPy arrays and plain
+values).
+
+How the map travels. Built while a ``dask.distributed`` client is the default one (a
+``Client(...)`` made in this process, :func:`distributed.default_client`), the graph
+refers to the map scattered to that client's workers once (``client.scatter(...,
+broadcast=True)``), kept for the map's lifetime and reused by every later graph of the
+same map on the same client: a ``.compute()`` then sends a key, not the map (the map in the
+graph went with every compute, 576 MiB at n = d = 20, and the client warned "Sending
+large graph"). Such a graph is for that client: compute it there. Without a client the map
+is one key of the graph (a ``dask.delayed`` value) on which every block's task depends,
+so any scheduler pickles it once per compute, however many blocks there are (in a task
+of its own it was pickled with every task).
+"""
+
+from __future__ import annotations
+
+import inspect
+import sys
+import uuid
+import weakref
+
+import numpy as np
+
+from ._validate import check_real_array
+
+
+def map_blocks(fn, V, dim: int, name: str = "V", out=None):
+    """Apply ``fn`` ((m, dim) ndarray -> (m, dim) ndarray) lazily to a dask array.
+
+    Parameters
+    ----------
+    fn : callable
+        Picklable function of one ndarray block of shape ``(..., dim)``, returning an array
+        of the same shape, for example a bound ``BDerivative.apply``.
+    V : dask.array.Array, shape (..., dim)
+        The queries. Any chunking of the leading axes; the last axis is merged into one
+        chunk (each vector must sit whole in one block).
+    dim : int
+        Vector dimension d.
+    name : str
+        Name of the argument, for error messages.
+    out : None
+        Must be None: a lazy result has no output buffer.
+
+    Returns
+    -------
+    dask.array.Array, shape (..., dim), float64
+        Lazy; nothing is computed until ``.compute()`` (or ``dask.compute``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import dask.array as da
+    >>> from bderiv import BDerivative
+    >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+    >>> bd = BDerivative(np.eye(2), F)
+    >>> V = da.from_array(np.array([[-1.0, -2.0], [-3.0, -1.0]]), chunks=(1, 2))
+    >>> W = bd(V)                # lazy dask array
+    >>> W.compute()
+    array([[-2., -2.],
+           [-6., -1.]])
+    """
+    if out is not None:
+        raise ValueError(
+            f"out cannot be used when {name} is a dask array (the result is lazy); call "
+            f".compute() on the result, or da.store it"
+        )
+    if V.ndim == 0 or V.shape[-1] != dim:
+        got = "a scalar" if V.ndim == 0 else f"shape {V.shape}"
+        raise ValueError(
+            f"{name} must have shape (..., {dim}) (vectors of dimension {dim}, the dimension "
+            f"of this map), got {got}"
+        )
+    check_real_array(np.empty(0, V.dtype), name)  # the message of a NumPy query
+    if len(V.chunks[-1]) != 1:
+        V = V.rechunk({V.ndim - 1: dim})
+    # fresh keys: naming them by a hash of the map would pickle all of it to hash it
+    token = uuid.uuid4().hex
+    what = getattr(fn, "__name__", "map")
+    # a bound method travels as its object (the map) and its name: apply and inverse of
+    # one map share what is scattered
+    owner, method = (fn.__self__, fn.__name__) if inspect.ismethod(fn) else (fn, None)
+    shipped = _scattered(owner)
+    if shipped is None:
+        import dask
+
+        shipped = dask.delayed(owner, pure=True, name=f"bderiv-shipped-{token}")
+    return V.map_blocks(_apply, shipped, method, dtype=np.float64,
+                        meta=np.empty((0,) * V.ndim), name=f"bderiv-{what}-{token}")
+
+
+#: (id of the map, client id) -> (weak reference to the map, its scattered future)
+_SCATTERED: dict = {}
+
+
+def _scattered(owner):
+    """The future of ``owner`` scattered to the default distributed client (once per map
+    and client, while the map lives), or None: no client, or a map that cannot be held
+    by a weak reference (it then goes in the graph)."""
+    distributed = sys.modules.get("distributed")  # not imported: no client
+    if distributed is None:
+        return None
+    try:
+        client = distributed.default_client()
+    except ValueError:  # no client
+        return None
+    key = (id(owner), client.id)
+    found = _SCATTERED.get(key)
+    if found is not None and found[0]() is owner and found[1].status == "finished":
+        return found[1]
+    try:
+        ref = weakref.ref(owner, lambda _, key=key: _SCATTERED.pop(key, None))
+    except TypeError:
+        return None
+    future = client.scatter(owner, broadcast=True, hash=False)
+    _SCATTERED[key] = (ref, future)
+    return future
+
+
+def _apply(block, owner, method):
+    """One block's task: the map's ``method`` (or ``owner`` itself when None) on the
+    block, as a float64 ndarray."""
+    fn = owner if method is None else getattr(owner, method)
+    return np.asarray(fn(np.asarray(block)), dtype=np.float64)

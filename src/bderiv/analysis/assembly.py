@@ -1,0 +1,202 @@
+"""The B-derivatives a model gives: at one group of events, and along a trajectory.
+
+:func:`group_bderivative` samples a model at a group's event point (event Jacobian rows,
+region fields where the state lands, resets and their Jacobians) and builds the group's
+:class:`~bderiv.engine.bderivative.BDerivative` in the group's local orientation;
+:func:`flow_map_along` composes one per group of a trajectory integrated with its
+variational equations into a :class:`~bderiv.analysis.flowmap.FlowBDerivative` (mathematics.md
+sections 2, 7 and 9). Here rather than in :mod:`bderiv.analysis.flowmap`, which only composes given
+stages: the assembly needs the model, and the map should not import the model side.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._numerics import RESET_MISMATCH
+from .._support._format import format_mask, transversality_message
+from .._support._tables import block_bits
+from ..engine.bderivative import BDerivative
+from ..models.events.crossings import apply_resets, landing
+from ..models.events.finaltime import FinalTimeMap
+from .flowmap import FlowBDerivative
+
+__all__ = ["flow_map_along", "group_bderivative", "merge_groups", "point_bderivative",
+           "spread_masks"]
+
+
+def spread_masks(events, mask_before):
+    """Global masks of all 2**g local masks of a group (bit j of local: event events[j]
+    crossed, i.e. its bit of ``mask_before`` flipped, whichever the direction)."""
+    glob = np.empty(1 << len(events), dtype=np.int64)
+    glob[0] = mask_before
+    for j, k in enumerate(events):  # the local masks with bit j set: those without, flipped
+        glob[1 << j : 2 << j] = glob[: 1 << j] ^ (np.int64(1) << np.int64(k))
+    return glob
+
+
+def group_bderivative(system, x, events, mask_before, mask_after=None, *, where="at rho",
+                      event_jacobian=None):
+    """BDerivative of the group ``events`` at ``x`` (a checked state: float64, (d,),
+    finite) entered from region ``mask_before``.
+
+    Built in the group's local orientation: the rows of ``Dh`` of the events crossed
+    downward (bit set in ``mask_before``) are negated, and local mask bit j means
+    "event ``events[j]`` happened". Its global bit is flipped, except for the events
+    whose bits ``mask_after`` (default: all flipped) keeps: a reset sent the state back
+    (a bounce, a leg swap), and the field after it is that of the region it came from
+    (mathematics.md section 9). Only the rates of pending events must be positive.
+    ``event_jacobian`` (n, d): the checked event Jacobian at ``x`` when the caller has it
+    (the stop's, :class:`~bderiv.models.events.crossings.EventGroup`), else evaluated.
+    """
+    events = tuple(int(k) for k in events)
+    sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
+    if event_jacobian is None:
+        event_jacobian = system.eval_event_jacobian(x)
+    Dh = sign[:, None] * event_jacobian[list(events)]
+    glob = spread_masks(events, mask_before)  # every event's bit flipped
+    if system.has_resets:
+        base, R = system.sample_resets(x, events, glob, Dh, sign, where)
+        lands = (1 << len(events)) - 1  # local bits of the events whose bit flips
+        if mask_after is not None:
+            lands = sum(1 << j for j, k in enumerate(events)
+                        if (mask_before ^ mask_after) >> k & 1)
+        regions = glob[np.arange(glob.size) & lands]  # the bits of bounces kept
+        F = np.array([system.eval_field(b, int(m)) for b, m in zip(base, regions,
+                                                                 strict=True)])
+    else:
+        F = system.corners_at(x, glob)
+    G = F @ Dh.T
+    ok = G > 0
+    if system.has_resets:  # the rates of the events that happened may have either sign
+        ok |= block_bits(slice(0, G.shape[0]), len(events)) != 0
+    if np.count_nonzero(ok) != ok.size:
+        i, j = (int(v) for v in np.argwhere(~ok)[0])
+        region = format_mask(int(glob[i]), system.n_events)
+        if sign[j] < 0:
+            where += f" (event {events[j]} crossed downward: the rate is that of -h)"
+        raise ValueError(transversality_message(events[j], region, G[i, j], where))
+    if system.has_resets:
+        try:
+            return BDerivative._from_checked(Dh, F, resets=R, reset_tol=system.reset_tol)
+        except ValueError as exc:  # the existence check: say where
+            raise ValueError(f"{where} (events {list(events)}): {exc}") from None
+    return BDerivative._from_checked(Dh, F)  # Dh, F: made here from checked samples
+
+
+def flow_map_along(system, traj):
+    """The :class:`FlowBDerivative` along a trajectory integrated with its variational
+    equations (``run(..., variational=True)``): one BDerivative per event group.
+
+    Groups switched within the run's ``simultaneity_tol`` of the first of them, with no
+    event in two of them, are merged into one (:func:`merge_groups`): the run switched
+    each at its own time, so its state is the true one, and the map is the group's
+    B-derivative at the nearby point where they are simultaneous (its entries off by the
+    first order of the gap), which a perturbation larger than the gap meets.
+    ``FlowBDerivative.group_spreads`` says how far apart each group's events were; a
+    ``simultaneity_tol`` below the gap gives the map of the separated events instead.
+    """
+    groups, linear = list(traj.groups), list(traj.linear)
+    times = [(g.time, g.time) for g in groups]
+    final_field = system.eval_field(traj.x_final, traj.mask_final)
+    if traj.final_pending:  # a group just after t_final: its map is stopped there too
+        groups.append(traj.final_group)
+        linear.append(np.eye(system.dim))
+        times.append((min(traj.final_times), max(traj.final_times)))
+        final_field = system.eval_field(traj.x_final, traj.final_group.mask_after)
+    groups, linear, spreads = merge_groups(groups, linear, times, traj.simultaneity_tol)
+    jumps = [
+        group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
+                          where=f"at the event point at t={g.time:.10g}",
+                          event_jacobian=g.event_jacobian)
+        for g in groups
+    ]
+    if traj.final_group is not None:  # the final time is one more event of the group
+        jumps[-1] = FinalTimeMap(jumps[-1])
+    return FlowBDerivative(
+        linear, jumps, final_field=final_field,
+        group_times=[g.time for g in groups], group_events=[g.events for g in groups],
+        group_masks=[(g.mask_before, g.mask_after) for g in groups], group_spreads=spreads,
+        x0=traj.x[0], x_final=traj.x_final, t_final=float(traj.t[-1]),
+    )
+
+
+def merge_groups(groups, linear, times, tol):
+    """Consecutive event groups within ``tol`` of the first of them merged into one.
+
+    Parameters
+    ----------
+    groups : list of EventGroup
+        In time order.
+    linear : list of ndarray (d, d)
+        The stages around them: ``len(groups) + 1``.
+    times : list of (float, float)
+        The first and last crossing time of each group's events.
+    tol : float
+        A group joins the one before when its last event crosses within ``tol`` of the
+        first event of that one and none of its events is in it (an event crossed and
+        crossed back is two crossings, never one group).
+
+    Returns
+    -------
+    groups, linear, spreads
+        The merged groups (each at the state, time and event Jacobian of its first, with
+        the masks before the first and after the last), their stages (the stages between
+        merged groups dropped: the identity to the first order of the gap), and each
+        group's spread: its last crossing time less its first.
+
+    Examples
+    --------
+    >>> from bderiv.models.events.crossings import EventGroup
+    >>> a = EventGroup(1.0, (0,), 0b00, 0b01, np.zeros(2))
+    >>> b = EventGroup(1.0 + 5e-8, (1,), 0b01, 0b11, np.ones(2))
+    >>> merged, stages, spreads = merge_groups([a, b], [np.eye(2)] * 3,
+    ...                                        [(1.0, 1.0), (1.0 + 5e-8, 1.0 + 5e-8)], 1e-7)
+    >>> merged[0].events, merged[0].mask_after, len(stages), [round(s, 12) for s in spreads]
+    ((0, 1), 3, 2, [5e-08])
+    """
+    out, stages, spreads = [], [linear[0]], []
+    first = 0.0
+    for g, (start, end), after in zip(groups, times, linear[1:], strict=True):
+        if out and end - first <= tol and not set(g.events) & set(out[-1].events):
+            head = out[-1]
+            out[-1] = head._replace(events=tuple(sorted(head.events + g.events)),
+                                    mask_after=g.mask_after, state_after=g.state_after)
+            stages[-1] = after
+            spreads[-1] = max(spreads[-1], end - first)
+            continue
+        out.append(g)
+        stages.append(after)
+        first = start
+        spreads.append(end - start)
+    return out, stages, spreads
+
+
+def point_bderivative(system, rho, tol):
+    """The BDerivative of all n events at ``rho`` (checked: every event value within
+    ``tol``), entered from region 0: :meth:`HybridSystem.bderivative
+    <bderiv.analysis.system.HybridSystem.bderivative>`. With resets, where each event lands is
+    decided by :func:`bderiv.models.events.crossings.landing` as in a simulation, and the resets
+    must
+    commute as maps (:func:`bderiv.models.events.crossings.apply_resets`), rho taken to be
+    accurate to
+    ``reset_tol`` relative (of ``max(1, max |rho|)``).
+    """
+    if not system.has_resets:
+        return group_bderivative(system, rho, range(system.n_events), 0)
+    events, accuracy = list(range(system.n_events)), system.reset_tol * max(
+        1.0, float(np.abs(rho).max()))
+    context = (f"at rho (taken as t=0, its integration accuracy as reset_tol="
+               f"{system.reset_tol:g} relative)")
+    after = apply_resets(system, events, 0, rho, 0.0, np.inf)  # orders compared below
+    window = np.maximum(accuracy * np.abs(system.eval_event_jacobian(after)).sum(axis=1), tol)
+    try:
+        mask_after = landing(system, events, 0, after, window)
+    except ValueError as exc:
+        raise ValueError(f"{context}: {exc}") from None
+    bd = group_bderivative(system, rho, events, 0, mask_after)
+    try:
+        apply_resets(system, events, 0, rho, 0.0, RESET_MISMATCH * accuracy)
+    except ValueError as exc:
+        raise ValueError(f"{context}: {exc}") from None
+    return bd

@@ -1,0 +1,516 @@
+"""FlowBDerivative: the B-derivative of a flow map along a trajectory with event groups.
+
+Along a trajectory that meets event groups at times t_1 < ... < t_m the B-derivative of
+``x -> Phi(T, x)`` is the composition (mathematics.md section 2)
+
+    D = L_m . M_m . L_{m-1} . ... . M_1 . L_0
+
+where ``L_i`` (d, d) is the classical derivative of the smooth stretch between groups i and
+i + 1 (from the variational equations) and ``M_i`` the :class:`BDerivative` of group i at its
+event point. Evaluating a batch is m + 1 matrix products and m kernel calls; no ODE is
+solved per vector. Every stage is invertible (the linear ones are fundamental matrices of
+the variational equations, the jumps PL homeomorphisms), and so is D:
+``D^-1 = L_0^-1 . M_1^-1 . ... . M_m^-1 . L_m^-1``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from .._kernels import _core
+from .._limits import MAX_PIECES
+from .._support._batch import evaluate, is_dask_array
+from .._support._errors import QueryError
+from .._support._validate import (
+    all_finite,
+    check_bool,
+    check_finite_result,
+    check_matrix,
+    check_points,
+    check_real_array,
+    singular_condition,
+)
+from ..engine._linearise import Linearisation
+from ..engine.bderivative import BDerivative
+from ..models.events.finaltime import FinalTimeMap
+
+__all__ = ["FlowBDerivative"]
+
+
+class FlowBDerivative(Linearisation):
+    """The composed piecewise-linear B-derivative of a flow map.
+
+    Parameters
+    ----------
+    linear : sequence of array_like, each (d, d)
+        Classical derivatives of the smooth stretches, ``len(jumps) + 1`` of them, in time
+        order: before the first group, between groups, after the last group.
+    jumps : sequence of BDerivative
+        One per event group, in time order, each of dimension d; the last may be a
+        :class:`~bderiv.models.events.finaltime.FinalTimeMap` (a group at the final time, whose
+        local
+        event ``n_g`` is the final time; ``linear[-1]`` then follows it).
+    final_field : array_like, shape (d,), optional
+        Vector field at the final point: the derivative in the final time (with a group
+        at the final time, the field after it: ``dt`` also decides which of its events
+        come before the final time).
+    group_times : sequence of float, optional
+        Time of each group (information only).
+    group_events : sequence of tuple of int, optional
+        Global event indices of each group (information only; the local event k of
+        ``jumps[i]`` is global event ``group_events[i][k]``).
+    group_masks : sequence of (int, int), optional
+        Region masks before and after each group (information only; after an impact that
+        sends the state back, a bounce's bit is the same in both).
+    group_spreads : sequence of float, optional
+        Time from the first to the last crossing of each group's events (information
+        only; default 0). Above 0 where events that crossed measurably apart, within
+        ``simultaneity_tol``, were merged into one group: the group's map is then its
+        B-derivative at the nearby point where they are simultaneous, met by perturbations
+        larger than the spread (:func:`bderiv.analysis.assembly.flow_map_along`); a
+        ``simultaneity_tol`` below it gives the map of the separated events.
+    x0, x_final : array_like, shape (d,), optional
+        Start and final point of the nominal trajectory (information only).
+    t_final : float, optional
+        Final time (information only).
+
+    Notes
+    -----
+    Continuous, piecewise linear and positively homogeneous; its pieces are indexed by one
+    event order per group (see :meth:`piece`). Pickles with its stages.
+    """
+
+    def __init__(
+        self,
+        linear,
+        jumps,
+        *,
+        final_field=None,
+        group_times=None,
+        group_events=None,
+        group_masks=None,
+        group_spreads=None,
+        x0=None,
+        x_final=None,
+        t_final=None,
+    ):
+        jumps = list(jumps)
+        for i, bd in enumerate(jumps):
+            last = i == len(jumps) - 1
+            if not isinstance(bd, BDerivative) and not (last and isinstance(bd, FinalTimeMap)):
+                where = " (only the last jump may be one)" if isinstance(bd, FinalTimeMap) else ""
+                raise TypeError(
+                    f"jumps[{i}] must be a BDerivative, got {type(bd).__name__}{where}"
+                )
+        linear = list(linear)
+        if len(linear) != len(jumps) + 1:
+            raise ValueError(
+                f"need len(jumps) + 1 = {len(jumps) + 1} linear stages, got {len(linear)}"
+            )
+        first = np.asarray(linear[0])
+        if first.ndim != 2:
+            raise ValueError(f"linear[0] must be a (d, d) matrix, got shape {first.shape}")
+        d = first.shape[0]
+        self._linear = tuple(check_matrix(L, f"linear[{i}]", (d, d)) for i, L in enumerate(linear))
+        for L in self._linear:
+            L.setflags(write=False)
+        for i, bd in enumerate(jumps):
+            if bd.dim != d:
+                raise ValueError(f"jumps[{i}] has dimension {bd.dim} but the stages have {d}")
+        self._jumps = tuple(jumps)
+        self.dim = d
+        if final_field is None:
+            self.final_field = None
+        else:
+            ff = check_matrix(np.reshape(final_field, (1, -1)), "final_field", (1, d))[0]
+            ff.setflags(write=False)
+            self.final_field = ff
+        self.group_times = tuple(float(t) for t in (group_times or ()))
+        if group_events is None:
+            group_events = [tuple(range(bd.n_events)) for bd in jumps]
+        self.group_events = tuple(tuple(int(k) for k in g) for g in group_events)
+        if len(self.group_events) != len(jumps):
+            raise ValueError(
+                f"group_events has {len(self.group_events)} groups but there are "
+                f"{len(jumps)} jumps"
+            )
+        self.group_masks = tuple((int(b), int(a)) for b, a in (group_masks or ()))
+        self.group_spreads = tuple(float(s) for s in (group_spreads or [0.0] * len(jumps)))
+        self.x0 = None if x0 is None else _read_only(x0)
+        self.x_final = None if x_final is None else _read_only(x_final)
+        self.t_final = None if t_final is None else float(t_final)
+
+    # ------------------------------------------------------------------------------
+    @property
+    def linear(self):
+        """The classical stage derivatives, tuple of read-only (d, d) arrays."""
+        return self._linear
+
+    @property
+    def jumps(self):
+        """The event-group B-derivatives, tuple of BDerivative."""
+        return self._jumps
+
+    @property
+    def n_groups(self):
+        """Number of event groups."""
+        return len(self._jumps)
+
+    @property
+    def stops_at_group(self):
+        """True when the last event group lies at the final time (a
+        :class:`~bderiv.models.events.finaltime.FinalTimeMap`: its last local event is the final
+        time)."""
+        return bool(self._jumps) and isinstance(self._jumps[-1], FinalTimeMap)
+
+    @property
+    def is_linear(self):
+        """True when no event group lies on the trajectory (a classical derivative)."""
+        return not self._jumps
+
+    def __repr__(self):
+        sizes = [bd.n_events for bd in self._jumps]
+        merged = ""
+        if any(s > 0 for s in self.group_spreads):  # groups of events measurably apart
+            merged = f", spreads={[float(f'{s:.3g}') for s in self.group_spreads]}"
+        last = ""
+        if self.stops_at_group:  # its size counts the final time, local event n_g - 1
+            last = f" (the last with the final time as its event {sizes[-1] - 1})"
+        return (f"FlowBDerivative(dim={self.dim}, groups={sizes}{last}, t_final={self.t_final}"
+                f"{merged})")
+
+    def __setstate__(self, state):
+        # unpickled arrays come back writeable; keep the stages read-only as built (a map
+        # pickled before group_spreads existed: its groups were each at one point)
+        state.setdefault("group_spreads", (0.0,) * len(state["_jumps"]))
+        self.__dict__.update(state)
+        for arr in (*self._linear, self.final_field, self.x0, self.x_final):
+            if arr is not None:
+                arr.setflags(write=False)
+
+    # ------------------------------------------------------------------------------
+    def _stage_inputs(self, flat, name="V", offset=0, dt=None):
+        """The vectors entering each jump, then the final result: a list of (m, d) arrays.
+
+        Errors name the row of the caller's batch (``offset`` is the first row's index) and
+        the group; a stage whose result overflows is refused, not passed on. ``dt`` (m,):
+        the final-time perturbations of the rows, for a group at the final time.
+        """
+        out = []
+        W = flat
+        for i, L in enumerate(self._linear):
+            W = _stage(L, W)
+            if not all_finite(W):
+                check_finite_result(W, name, offset, f"result of linear stage linear[{i}]")
+            out.append(W)
+            if i < len(self._jumps):
+                jump = self._jumps[i]
+                try:
+                    W = jump(W, dt) if isinstance(jump, FinalTimeMap) else jump(W)
+                except ValueError as exc:
+                    raise _in_group(exc, i, offset, name) from None
+        return out
+
+    def apply(self, V, out=None, *, dt=None, chunk_size=None, progress=None):
+        """Apply the B-derivative to tangent vectors.
+
+        Parameters
+        ----------
+        V : array_like, shape (..., d), or a dask array
+            Perturbations of the start point.
+        out : ndarray, shape (..., d), optional
+            Writeable C-contiguous float64 array for the result (may be ``V`` itself).
+        dt : array_like, shape (...) or scalar, optional
+            Perturbations of the final time, finite; adds ``dt * final_field``. A scalar
+            when ``V`` is a dask array.
+        chunk_size : int, optional
+            Vectors per chunk (results do not depend on it); default: all at once, or
+            chunks when ``V`` is a memmap or ``progress`` is given.
+        progress : callable ``progress(done, total)``, or True, optional
+            Called after each chunk; ``True`` draws a tqdm bar.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            (A lazy dask array, computed block-wise, when V is a dask array.)
+        """
+        if dt is None:
+            return evaluate(self._forward, V, self.dim, out=out, chunk_size=chunk_size,
+                            progress=progress, desc="FlowBDerivative", method=self.apply)
+        if self.final_field is None:
+            raise ValueError("this map has no final_field, so dt cannot be used")
+        if is_dask_array(V):
+            if np.ndim(dt) != 0:
+                raise ValueError(f"dt must be a scalar when V is a dask array, got shape "
+                                 f"{np.shape(dt)}")
+            method = functools.partial(self.apply, dt=self._check_dt(dt, ()).item())
+            return evaluate(None, V, self.dim, out=out, method=method)
+        dt = self._check_dt(dt, np.shape(V)[:-1])
+        return evaluate(functools.partial(self._forward, dt=dt), V, self.dim, out=out,
+                        chunk_size=chunk_size, progress=progress, desc="FlowBDerivative")
+
+    __call__ = apply
+
+    @staticmethod
+    def _check_dt(dt, lead):
+        """``dt`` as a flat float64 array of the batch's rows (broadcast to ``lead``)."""
+        arr = check_real_array(dt, "dt")
+        try:
+            arr = np.broadcast_to(arr, lead)
+        except ValueError:
+            raise ValueError(
+                f"dt must be a scalar or have a shape that broadcasts to the leading shape "
+                f"{lead} of V, got shape {arr.shape}"
+            ) from None
+        arr = arr.astype(np.float64).reshape(-1)
+        if not np.isfinite(arr).all():
+            raise ValueError(f"dt must be finite, got {arr[~np.isfinite(arr)][0]}")
+        return arr
+
+    def _forward(self, rows, res, offset, dt=None):
+        """The kernel of :meth:`apply`: ``res = D(rows) (+ dt * final_field)``."""
+        if dt is not None:
+            dt = dt[offset : offset + len(rows)]
+        *_, W = self._stage_inputs(rows, "V", offset, dt)
+        if dt is not None:
+            with np.errstate(over="ignore", invalid="ignore"):
+                W += dt[:, None] * self.final_field
+        res[...] = W
+        if not all_finite(res):
+            check_finite_result(res, "V", offset)
+
+    def inverse(self, W, out=None, *, chunk_size=None, progress=None):
+        """The inverse map: final-point perturbations to start-point perturbations.
+
+        Parameters
+        ----------
+        W : array_like, shape (..., d), or a dask array
+        out, chunk_size, progress : optional
+            As for :meth:`apply`.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            ``V`` with ``self(V) == W`` up to rounding.
+
+        Raises
+        ------
+        ValueError
+            If a linear stage is singular to working precision (naming it).
+        """
+        return evaluate(self._backward, W, self.dim, name="W", out=out, chunk_size=chunk_size,
+                        progress=progress, desc="FlowBDerivative.inverse",
+                        method=self.inverse)
+
+    def _backward(self, rows, res, offset):
+        """The kernel of :meth:`inverse`: the stages' inverses in reverse order."""
+        inverses = self._stage_inverses
+        V = _stage(inverses[-1], rows)
+        for i in reversed(range(len(self._jumps))):
+            try:
+                V = self._jumps[i].inverse(V)
+            except ValueError as exc:
+                raise _in_group(exc, i, offset, "W") from None
+            V = _stage(inverses[i], V)
+        res[...] = V
+        if not all_finite(res):
+            check_finite_result(res, "W", offset)
+
+    @functools.cached_property
+    def _stage_inverses(self):
+        """Inverses of the linear stages, (d, d) each, computed once (on the first inverse).
+
+        Explicit inverses (NumPy's LU-based ``inv``) applied as thin products like the
+        forward stages, rather than ``scipy.linalg.lu_solve`` per batch: SciPy's LAPACK
+        calls corrupted memory when threads (dask's default scheduler) shared the factors.
+        """
+        inverses = []
+        for i, L in enumerate(self._linear):
+            cond = singular_condition(L)
+            if cond is not None:
+                raise ValueError(
+                    f"the flow map is not invertible: its linear stage linear[{i}] is "
+                    f"singular to working precision (condition number {cond:.3g}); inverse "
+                    f"needs every linear stage invertible"
+                )
+            inv = np.linalg.inv(L)
+            inv.setflags(write=False)
+            inverses.append(inv)
+        return tuple(inverses)
+
+    def event_times(self, V):
+        """Event times and orders of every group for tangent vectors V.
+
+        Parameters
+        ----------
+        V : array_like, shape (..., d)
+
+        Returns
+        -------
+        list of (times, order)
+            One pair per group, each as returned by :meth:`BDerivative.event_times` for
+            the vectors entering that group: ``times`` (..., n_g) the first-order time
+            shifts of the group's events (local index), ``order`` (..., n_g) int64 the
+            local event order. An empty list when there is no group.
+        """
+        flat, lead = check_points(V, self.dim)
+        res = []
+        for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False):
+            times, order = bd.event_times(W)
+            n_g = bd.n_events
+            res.append((times.reshape(*lead, n_g), order.reshape(*lead, n_g)))
+        return res
+
+    def triangulation(self, max_pieces: int = MAX_PIECES):
+        """The map as vertices and simplices: the fan of its one event group's map carried
+        by the linear stages (:meth:`Triangulation.composed`), pre-event vertices pulled
+        back to x0 (by ``linear[0]``), post-event vertices pushed to t_final (``linear[1]``).
+
+        Raises
+        ------
+        ValueError
+            Unless the trajectory meets exactly one event group (several groups' pieces
+            are not one fan; with none the map is linear, ``linear[0]``); as for
+            :meth:`BDerivative.triangulation`; or for a singular stage.
+        """
+        if self.n_groups != 1:
+            raise ValueError(
+                f"the flow map meets {self.n_groups} event groups; a triangulation (one fan "
+                f"of simplices) exists for exactly one group"
+            )
+        if self.stops_at_group:
+            raise ValueError(
+                "the flow map's event group lies at the final time (its map is stopped "
+                "there); no triangulation is offered for it: choose a final time after the "
+                "group"
+            )
+        (L0, L1), (M,) = self._linear, self._jumps
+        return M.triangulation(max_pieces).composed(L0, L1)
+
+    def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:
+        """The kernel of ``jvp``/``vjp``: group i's piece is the one that the vector
+        entering it (row v of ``V`` through the earlier stages) selects. Forwards
+        ``L_m J_m ... J_1 L_0 t``; the transpose ``L_0^T J_1^T ... J_m^T L_m^T w``."""
+        m = len(self._jumps)
+        inputs = self._stage_inputs(V, "V", offset)
+        Y = T
+        Y = _stage(self._linear[m], Y, transpose) if transpose else _stage(self._linear[0], Y)
+        for i in reversed(range(m)) if transpose else range(m):
+            Z = np.empty_like(Y)
+            try:
+                self._jumps[i]._tangent_rows(inputs[i], Y, Z, transpose, 0, name)
+            except ValueError as exc:
+                raise _in_group(exc, i, offset) from None
+            Y = _stage(self._linear[i], Z, True) if transpose else _stage(self._linear[i + 1], Z)
+        res[...] = Y
+        if not all_finite(res):
+            check_finite_result(res, name, offset)
+
+    def orders(self, V):
+        """Local event order of each group for tangent vectors V: list of (..., n_g) int64.
+
+        The ``order`` halves of :meth:`event_times`, given also where the times themselves
+        are beyond float64 (each stage's ``orders``: V of subnormal size). A group at the
+        final time (``stops_at_group``) has one more local event, the last: the final time
+        itself, so the events after it in an order come after ``t_final`` (not applied).
+        """
+        flat, lead = check_points(V, self.dim)
+        return [bd.orders(W).reshape(*lead, bd.n_events)
+                for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False)]
+
+    def apply_orders(self, V):
+        """``(self(V), self.orders(V))`` from one pass through the stages (for a (m, d)
+        batch): what an iteration of the map that counts its pieces needs
+        (:func:`bderiv.analysis.stability.growth_rate`), at the cost of :meth:`orders` alone.
+
+        Parameters
+        ----------
+        V : array_like, shape (m, d)
+
+        Returns
+        -------
+        W : ndarray, shape (m, d)
+            The images, the same bits as :meth:`apply`.
+        orders : list of ndarray, shape (m, n_g), int64
+            As :meth:`orders`.
+        """
+        inputs = self._stage_inputs(check_matrix(V, "V", (None, self.dim)))
+        return inputs[-1], [bd.orders(X) for bd, X in zip(self._jumps, inputs, strict=False)]
+
+    def piece(self, orders=None, *, with_time=False):
+        """The linear piece for one event order per group.
+
+        Parameters
+        ----------
+        orders : sequence of sequences of int, optional
+            ``orders[i]`` is a permutation of ``0..n_g - 1`` (local indices of group i;
+            a group at the final time has the final time as one more local event, the
+            last). May be omitted when every group has a single event (or there is none).
+        with_time : bool
+            Append the final-time derivative as column d.
+
+        Returns
+        -------
+        ndarray, shape (d, d) or (d, d + 1)
+        """
+        if orders is None:
+            if any(bd.n_events > 1 for bd in self._jumps):
+                raise ValueError(
+                    "orders must be given: groups "
+                    f"{[i for i, bd in enumerate(self._jumps) if bd.n_events > 1]} have "
+                    "several events"
+                )
+            orders = [[0]] * len(self._jumps)
+        orders = list(orders)
+        if len(orders) != len(self._jumps):
+            raise ValueError(
+                f"need one event order per group ({len(self._jumps)} groups), got {len(orders)}"
+            )
+        if check_bool(with_time, "with_time") and self.final_field is None:
+            raise ValueError("this map has no final_field, so with_time cannot be used")
+        M, shift = self._linear[0], 0.0
+        for i, (bd, order) in enumerate(zip(self._jumps, orders, strict=True)):
+            if isinstance(bd, FinalTimeMap):  # the final time is one of its events
+                P = bd.piece(order, with_time=True)
+                M, shift = P[:, :-1] @ M, self._linear[i + 1] @ P[:, -1]
+            else:
+                M = bd.piece(order) @ M
+            M = self._linear[i + 1] @ M
+        if with_time:
+            M = np.column_stack((M, self.final_field + shift))
+        return np.array(M)
+
+
+def _stage(L, X, transpose: bool = False) -> np.ndarray:
+    """Rows of X through a linear stage: ``X @ L.T`` (``X @ L`` when ``transpose``).
+
+    A numba kernel of the package (parallel over rows, in tasks) rather than BLAS: these
+    products are thin, (m, d) x (d, d), and BLAS's own threads, on a machine whose cores
+    are busy, made their time swing 5x and more (docs/concepts.md, "Gotchas"; issue 10);
+    overflow gives inf.
+    """
+    M = np.ascontiguousarray(L if transpose else L.T)  # the kernel combines rows of M
+    out = np.empty((X.shape[0], M.shape[1]))
+    _core.linear(_core.LinearTables(M, M), np.ascontiguousarray(X), (out,), False,
+                 launch=_core.launch_queries(1, X.shape[1]))
+    return out
+
+
+def _in_group(exc: ValueError, group: int, offset: int, name: str | None = None
+              ) -> ValueError:
+    """An error of event group ``group``'s map, said of the flow map's batch: a refusal of
+    one row (:class:`~bderiv._support._errors.QueryError`) numbered as the caller's row ``offset +
+    row`` (of the batch ``name``, else the name it had)."""
+    where = f"in event group {group} of the flow map, for the vectors entering it: "
+    if isinstance(exc, QueryError):
+        return exc.at(row=exc.row + offset, name=name, shape=(), prefix=where)
+    return ValueError(where + str(exc))
+
+
+def _read_only(a) -> np.ndarray:
+    """A read-only float64 copy."""
+    arr = np.array(a, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr

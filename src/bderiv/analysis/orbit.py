@@ -1,0 +1,441 @@
+"""Periodic orbits of a hybrid system: Newton's method with the B-derivative, and the orbit.
+
+:func:`periodic_orbit` solves ``P(x) = x`` on a Poincare section (``P`` the return map of
+:mod:`bderiv.analysis.returnmap`). At an iterate x the return map's B-derivative ``A = DP(x)`` is
+piecewise linear, and the Newton step solves the **piecewise-linear Newton equation
+exactly** (the B-derivative Newton method of Pang, 1990):
+
+    find delta with   (P(x) - x) + A(delta) - delta = 0,   grad s(x) . delta = -s(x),
+
+by moving between pieces: solve the linear system of one piece (one event order per
+group), read the piece that its solution selects, and repeat until the solution lies in
+its own piece (``A(delta) = A_piece delta``), at most :data:`MAX_PIECE_SWITCHES` times;
+the work does not grow with the number of pieces (a product of n! orders per group, 1.6e9
+for two groups of eight feet), which are never listed (docs/mathematics.md section 10
+says what is guaranteed). Why exactly and not "the piece at x": near
+an orbit through a simultaneous-event point the iterates move between pieces, and the
+solution of the true PL equation is the step that makes the first-order model of P vanish,
+whichever piece it lands in; with the piece of x the step can point the wrong way and
+cycle. When the events at an iterate are not simultaneous, A is a single linear piece
+(the classical Jacobian of the side the iterate is on), and Newton's method converges
+quadratically there as well: each smooth piece of P passes through the fixed point
+(Kojima & Shindo, 1986). A step that does not reduce ``|P(x) - x|`` is halved.
+
+The iterates use ``simultaneity_tol = 0`` (events are grouped only when the integrator
+cannot tell them apart), so an iterate whose events are close but not simultaneous is
+never refused; the orbit's return map is built with the caller's tolerance. When the run
+that accepted a Newton step already returns within the tolerance, the map at the new
+iterate is built with the caller's tolerance: it is then both the convergence test and
+the orbit's map, built once (a map built twice at the orbit was about a sixth of the
+search). Convergence is judged on the map returned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._limits import (
+    DEFAULT_T_MAX,
+    DERIVATIVE_SIMULTANEITY_TOL,
+    MAX_HALVINGS,
+    MAX_PIECE_SWITCHES,
+    MULTIPLIER_PIECES,
+    ON_SURFACE_TOL,
+    ORBIT_MAX_ITER,
+    ORBIT_TOL,
+    PIECE_RTOL,
+    T_MAX_PER_PERIOD,
+)
+from .._support._validate import check_number, check_positive_int
+from ..models.integrate.run import ENDS, NoReturn, SolverOptions, run
+from ._cyclic import (
+    SHIFTS,
+    check_cyclic,
+    check_equivariance,
+    check_independence,
+    check_section_normal,
+    kept,
+    reduced_basis,
+)
+from .returnmap import return_map
+from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
+
+__all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
+
+#: integrator settings of the orbit search: the residual is only as good as the
+#: integration, and Newton's method converges to within it.
+ORBIT_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13)
+
+
+@dataclass(frozen=True)
+class NewtonIterate:
+    """One Newton iteration.
+
+    Attributes
+    ----------
+    x : ndarray, shape (d,)
+        The iterate.
+    residual : float
+        ``max |P(x) - x|`` there.
+    step : float
+        ``max |x_next - x|`` of the step taken (0 for the last iterate).
+    piece : tuple
+        The piece of the return map's B-derivative whose linear system gave the step: one
+        event order per event group of the stride, each a tuple of the group's local event
+        indices in the order they happen (``((0,), (0,))``: two groups of one event each,
+        so a single linear piece). Empty for the last iterate, where no step was taken.
+    switches : int
+        Pieces tried before the step's piece (0: the first one was consistent).
+    """
+
+    x: np.ndarray
+    residual: float
+    step: float
+    piece: tuple
+    switches: int = 0
+
+    def __str__(self):
+        if not self.piece:
+            return f"residual {self.residual:.3g} (converged: no step)"
+        groups = ", ".join(f"group {i}: {' -> '.join(map(str, order))}"
+                           for i, order in enumerate(self.piece))
+        return (f"residual {self.residual:.3g}, step {self.step:.3g}, event orders "
+                f"[{groups}] ({self.switches} piece switches)")
+
+
+class PeriodicOrbit:
+    """A periodic orbit found by :func:`periodic_orbit`.
+
+    Attributes
+    ----------
+    system : HybridSystem
+    section : callable
+        The checked section (``section(x)`` and ``section.gradient(x)``).
+    x0 : ndarray, shape (d,)
+        The fixed point of the return map on the section.
+    period : float
+        Return time.
+    trajectory : Trajectory
+        One period from ``x0`` (its event groups with their directions).
+    return_map : ReturnMap
+        The B-derivative of the return map at ``x0``.
+    residual : float
+        ``max |P(x0) - x0|`` over the coordinates that are not cyclic (simulated).
+    history : tuple of NewtonIterate
+        The Newton iterations.
+    cyclic : tuple of int
+        The cyclic coordinates (left out of the fixed-point equation and the stability).
+    advance : ndarray, shape (len(cyclic),)
+        How far each cyclic coordinate advances per period, ``P(x0)_i - x0_i``.
+    """
+
+    def __init__(self, system, section, x0, trajectory, return_map, residual, history,
+                 cyclic=(), advance=()):
+        self.system, self.section = system, section
+        self.x0 = x0
+        self.trajectory = trajectory
+        self.return_map = return_map
+        self.period = return_map.period
+        self.residual = float(residual)
+        self.history = tuple(history)
+        self.cyclic = tuple(cyclic)
+        self.advance = np.asarray(advance, dtype=np.float64)
+
+    def __repr__(self):
+        groups = [(round(g.time, 6), g.events, g.directions) for g in self.trajectory.groups]
+        return (f"PeriodicOrbit(period={self.period:.10g}, residual={self.residual:.3g}, "
+                f"groups={groups})")
+
+    def sample(self, n_points=400):
+        """One period simulated again with at most ``period / n_points`` per step (for
+        figures: the solver's own steps can be few): a Trajectory."""
+        n_points = check_positive_int(n_points, "n_points")
+        return self.system.simulate(self.x0, T_MAX_PER_PERIOD * self.period,
+                                    section=self.section, max_step=self.period / n_points,
+                                    simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                                    options=ORBIT_OPTIONS)
+
+    def stability(self, n_directions=1000, iterations=1000, burn_in=None, seed=0) -> Stability:
+        """The stability of the orbit, from the piecewise-linear return map.
+
+        Iterates the return map's B-derivative on ``n_directions`` random directions
+        tangent to the section (:func:`bderiv.analysis.stability.growth_rate`) and reports the
+        Floquet multipliers of the pieces met most often (at most
+        :data:`MULTIPLIER_PIECES`; every piece met is counted in ``visits``). The work
+        grows with the directions and iterations, not with the number of pieces. See
+        :mod:`bderiv.analysis.stability` for the method and its limits.
+
+        Parameters
+        ----------
+        n_directions : int
+            Directions in the batch.
+        iterations : int
+            Iterations of the map (>= 2).
+        burn_in : int, optional
+            Iterations not averaged (default ``iterations // 4``).
+        seed : int
+            Seed of the random directions.
+
+        Returns
+        -------
+        Stability
+        """
+        n_directions = check_positive_int(n_directions, "n_directions")
+        R = self.return_map
+        fmap, fmap_orders, basis = R, R.apply_orders, R.tangent_basis
+        check_growth_memory(n_directions, basis.shape[0], iterations)  # before V0 exists
+        if self.cyclic:  # the map on the other coordinates: a cyclic shift is neutral
+            basis = reduced_basis(self.section.gradient(self.x0), self.cyclic, R.dim)
+            fmap, fmap_orders = _without(R, list(self.cyclic))
+        V0 = np.random.default_rng(seed).standard_normal((n_directions, basis.shape[1]))
+        rates, spread, visits = growth_rate(fmap, V0 @ basis.T, iterations, burn_in,
+                                            fmap_orders=fmap_orders)
+        most = sorted(visits, key=visits.get, reverse=True)[:MULTIPLIER_PIECES]
+        multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in most}
+        i = int(np.argmax(rates))
+        burn_in = iterations // 4 if burn_in is None else int(burn_in)
+        return Stability(float(rates[i]), bool(rates[i] < 1.0), rates, float(spread[i]),
+                         multipliers, visits, int(iterations), burn_in)
+
+
+def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL,
+                   max_iter=ORBIT_MAX_ITER, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                   options=None, cyclic=()):
+    """Solve ``P(x) = x`` on the section by Newton's method with the B-derivative.
+
+    Parameters
+    ----------
+    system : HybridSystem
+    x_guess : ndarray, shape (d,)
+        Checked start; it is first moved onto the section along the section's gradient.
+    section : bderiv.models.section.Section
+    period_guess : float, optional
+        Expected period; the return is awaited for ``3 * period_guess`` (default 100).
+    tol : float
+        Stop when ``max |P(x) - x| <= tol * max(1, max |x|)``.
+    max_iter : int
+        Largest number of Newton iterations.
+    simultaneity_tol : float
+        For the orbit's return map (the iterates use 0).
+    options : SolverOptions, optional
+        Default :data:`ORBIT_OPTIONS`.
+    cyclic : sequence of int
+        Coordinates the model and the section do not depend on (a forward position, a
+        heading): left out of ``P(x) = x`` (they advance every stride) and of the
+        stability; ``PeriodicOrbit.advance`` says by how much. Their independence is
+        checked at the start (a shift by each of :data:`bderiv.analysis._cyclic.SHIFTS` must shift
+        the return by the same and change nothing else) and at every iterate and the
+        orbit (the return map's derivative along each must be the identity:
+        :func:`bderiv.analysis._cyclic.check_equivariance`).
+
+    Returns
+    -------
+    PeriodicOrbit
+
+    Raises
+    ------
+    RuntimeError
+        When Newton's method does not converge in ``max_iter`` iterations, or a step
+        cannot reduce the residual (the last iterate and residual are named).
+    ValueError
+        From the orbit's return map (:func:`bderiv.analysis.returnmap.return_map`), for example
+        when two events of the orbit are closer than ``simultaneity_tol`` in time but
+        not at one point to within the integration accuracy (the message suggests a
+        smaller ``simultaneity_tol``); and for a coordinate of ``cyclic`` that the model
+        or the section depends on (named, with the measured dependence).
+    """
+    tol = check_number(tol, "tol")
+    max_iter = check_positive_int(max_iter, "max_iter")
+    t_max = (DEFAULT_T_MAX if period_guess is None
+             else T_MAX_PER_PERIOD * check_number(period_guess, "period_guess"))
+    options = ORBIT_OPTIONS if options is None else options
+    x = _onto_section(section, x_guess)
+    cyclic = check_cyclic(cyclic, x.size)
+    keep = kept(cyclic, x.size)
+    check_section_normal(section.gradient(x), cyclic, x)
+    if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
+        starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
+        returned, *shifted = [_at_iterate(0, start, t_max, lambda s=start: run(
+            system, s, t_max, simultaneity_tol=0.0, options=options, section=section,
+            record=ENDS)).x_final for start in starts]
+        check_independence(returned, x, shifted, cyclic)
+    history, build_tol = [], 0.0
+    for iteration in range(max_iter + 1):
+        R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build_tol:
+                                          _build(system, x, section, t_max, b, options))
+        check_equivariance(R, x, cyclic)
+        r = R.x_final - x
+        res = float(np.abs(r[keep]).max())
+        if res <= tol * max(1.0, float(np.abs(x[keep]).max())):
+            break
+        if iteration == max_iter:
+            raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
+                               f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
+        delta, piece, switches = newton_step(R, r, section.gradient(x), section(x), keep=keep)
+        x_new, returned = _damped(system, section, x, delta, res, t_max, options, keep)
+        history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece,
+                                     switches))
+        x = x_new
+        # converged already by the damped step's run: the next map is likely the orbit's,
+        # so it is built with the caller's tolerance (and kept if the test passes on it)
+        build_tol = simultaneity_tol if returned <= tol * max(1.0, float(np.abs(
+            x[keep]).max())) else 0.0
+    history.append(NewtonIterate(x.copy(), res, 0.0, ()))
+    if built_with != simultaneity_tol:  # the map at x was built for the iteration only
+        R, traj = _at_iterate(iteration, x, t_max, lambda: return_map(
+            system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
+            simultaneity_tol=simultaneity_tol, options=options))
+        check_equivariance(R, x, cyclic)
+    r = R.x_final - x
+    return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
+                         cyclic, r[list(cyclic)])
+
+
+def _at_iterate(iteration, x, t_max, call):
+    """``call()``, its ValueError said at the Newton iterate it came from: the guess (0) or
+    iterate k, its state, and for no return the argument that sets the time waited."""
+    try:
+        return call()
+    except ValueError as exc:
+        where = "the guess" if iteration == 0 else f"Newton iterate {iteration}"
+        hint = ""
+        if isinstance(exc, NoReturn):
+            hint = (f" (periodic_orbit waits {T_MAX_PER_PERIOD:g} times period_guess for the "
+                    f"return, {t_max:g} here: pass a larger period_guess, or a guess nearer "
+                    f"the orbit)")
+        raise ValueError(f"periodic_orbit at {where}, x = {np.array2string(x, precision=6)}: "
+                         f"{exc}{hint}") from exc
+
+
+def _build(system, x, section, t_max, simultaneity_tol, options):
+    """``(R, trajectory, tolerance)``: the return map at x with ``simultaneity_tol``, else
+    with 0 where that refuses (two events of an iterate close in time but not at one
+    point)."""
+    if simultaneity_tol != 0.0:
+        try:
+            return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
+                                simultaneity_tol=simultaneity_tol, options=options),
+                    simultaneity_tol)
+        except ValueError:
+            pass
+    return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL, simultaneity_tol=0.0,
+                        options=options), 0.0)
+
+
+def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None):
+    """Solve the PL Newton equation ``r + R(delta) - delta = 0``, ``normal . delta =
+    -value`` by moving between pieces, never listing them.
+
+    Starting from the piece that ``-r`` selects, solve that piece's linear system, and
+    move to the piece its solution selects until the solution lies in its own piece (then
+    it solves the PL equation exactly), a piece comes back (a cycle) or ``max_switches``
+    pieces were tried; then the solution with the smallest PL residual
+    ``|r + R(delta) - delta|`` among those tried is taken: a generalized Newton step with
+    that piece (docs/mathematics.md section 10).
+
+    Parameters
+    ----------
+    R : FlowBDerivative
+        The return map's B-derivative A (``R(V)``, ``R.orders``, ``R.piece``).
+    r : ndarray, shape (d,)
+        ``P(x) - x``.
+    normal : ndarray, shape (d,)
+        The section's gradient at x.
+    value : float
+        The section's value at x.
+    max_switches : int
+    keep : ndarray of int, optional
+        The coordinates in the equation (default all): the others (cyclic) are left out
+        of ``r + R(delta) - delta = 0`` and held, ``delta_i = 0``.
+
+    Returns
+    -------
+    delta : ndarray, shape (d,)
+    piece : tuple of tuples
+        The piece of ``delta`` (one event order per group).
+    switches : int
+        Pieces tried before ``piece``.
+    """
+    d = R.dim
+    keep = np.arange(d) if keep is None else np.asarray(keep)
+    system = np.vstack((np.zeros((keep.size, keep.size)), normal[keep]))
+    rhs = np.concatenate((-r[keep], [-value]))
+    start = np.zeros(d)
+    start[keep] = -r[keep]
+    piece, tried, best = _piece_of(R, start), set(), None
+    for switches in range(max_switches):
+        A = R.piece(list(piece))
+        system[:-1] = (A - np.eye(d))[np.ix_(keep, keep)]
+        delta = np.zeros(d)
+        delta[keep] = np.linalg.lstsq(system, rhs, rcond=None)[0]
+        image = R(delta)
+        if np.abs(image - A @ delta).max() <= PIECE_RTOL * np.abs(A).max() * np.abs(
+                delta).max():
+            return delta, piece, switches
+        miss = np.abs((r + image - delta)[keep]).max()
+        if best is None or miss < best[0]:
+            best = (miss, delta, piece, switches)
+        tried.add(piece)
+        piece = _piece_of(R, delta)
+        if piece in tried:
+            break
+    return best[1], best[2], best[3]
+
+
+def _without(R, cyclic):
+    """``V -> R(V)`` with the cyclic components of the images set to 0, and the same with
+    the orders (``R.apply_orders``)."""
+
+    def fmap(V):
+        W = R(V)
+        W[:, cyclic] = 0.0
+        return W
+
+    def fmap_orders(V):
+        W, orders = R.apply_orders(V)
+        W[:, cyclic] = 0.0
+        return W, orders
+
+    return fmap, fmap_orders
+
+
+def _piece_of(R, v):
+    """The piece (one event order per group, tuples of local indices) that v selects."""
+    return tuple(tuple(int(k) for k in order[0]) for order in R.orders(v[None]))
+
+
+def _onto_section(section, x, steps=20):
+    """Move x onto ``section = 0`` along the gradient (Newton's method on s)."""
+    x = np.array(x, dtype=np.float64)
+    for _ in range(steps):
+        value = section(x)
+        if abs(value) <= 1e-13 * max(1.0, float(np.abs(x).max())):
+            break
+        g = section.gradient(x)
+        x = x - value * g / (g @ g)
+    return x
+
+
+def _damped(system, section, x, delta, res, t_max, options, keep):
+    """``x + delta`` (on the section), halved until ``max |P - x|`` (over the coordinates
+    ``keep``) falls below ``res``; and that ``max |P - x|`` at it."""
+    failure = ""
+    for _ in range(MAX_HALVINGS + 1):
+        trial = _onto_section(section, x + delta)
+        try:
+            traj = run(system, trial, t_max, simultaneity_tol=0.0, options=options,
+                       section=section, record=ENDS)
+        except ValueError as exc:  # no return, an event at the section ...: a shorter step
+            failure = f"; the last trial point failed: {exc}"
+            delta = delta / 2
+            continue
+        returned = float(np.abs((traj.x_final - trial)[keep]).max())
+        if returned < res:
+            return trial, returned
+        delta = delta / 2
+    raise RuntimeError(f"a Newton step from x = {x} could not reduce max |P(x) - x| = "
+                       f"{res:.3g} in {MAX_HALVINGS} halvings: the guess is too far from "
+                       f"a periodic orbit, or the orbit is degenerate (a multiplier 1)"
+                       f"{failure}")

@@ -1,0 +1,289 @@
+"""Stability maps: a gait's periodic orbit and its growth rate over a grid of parameters.
+
+The classic gait-design picture: for every point of a grid of model parameters, find the
+periodic orbit (Newton's method with the B-derivative,
+:func:`bderiv.analysis.orbit.periodic_orbit`) and decide its stability from the
+piecewise-linear return map
+(:meth:`PeriodicOrbit.stability <bderiv.analysis.orbit.PeriodicOrbit.stability>`).
+
+**Continuation.** Orbits move continuously with the parameters, so each point starts
+Newton's method from the orbit of a neighbour already solved: the grid is swept in
+**waves** (anti-diagonals ``i + j = w`` of a two-parameter grid; one index of a
+one-parameter grid), every point of a wave starting from its neighbour in the previous
+wave (``(i - 1, j)``, else ``(i, j - 1)``; the first point, or one whose neighbours all
+failed, from ``x_guess``). The points of one wave are independent of each other.
+
+Continuation follows a **branch**, and a branch can be the wrong one: where a hopping
+gait does not exist, Newton's method finds the body standing still (an equilibrium on
+the section is a fixed point of P too), and continuing from there follows the standing
+branch into the region where the gait exists again. ``accept(orbit) -> bool`` says which
+orbits are the ones wanted (for a hopping gait: one with event groups); a point whose
+orbit from the neighbour is not accepted, or not found, is solved again from
+``x_guess``.
+
+**Where it runs.** Serially in this process, or on a Dask cluster (``dask.distributed``):
+``client="local"`` starts a :class:`~distributed.LocalCluster` for the call and closes it
+afterwards, a :class:`~distributed.Client` is used as it is. Each wave's points are
+submitted at once, so a cluster runs up to one wave at a time in parallel. The model is
+made on the workers from ``make_system`` and the point's parameters, so
+``make_system`` must pickle (a module-level function, or a :func:`functools.partial` of
+one). A compiled model should take the swept values at run time
+(``HybridSystem(..., params=p)``, as the bundled gaits do): its functions then compile
+once per process (the workers load them from numba's disk cache), not once per point.
+Dask is used because a parameter sweep is the job that outgrows one machine; the waves are
+this module's own because Dask schedules independent tasks, not continuation.
+
+A point whose orbit is not found (Newton's method fails, the model refuses) is recorded
+with its message, not raised: a map has unstable and degenerate regions by nature.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._limits import LOCAL_WORKERS
+from .._support._progress import resolve_progress
+from .._support._validate import check_positive_int
+
+__all__ = ["StabilityMap", "stability_map"]
+
+
+@dataclass(frozen=True, eq=False)
+class StabilityMap:
+    """Orbits and growth rates over a grid of parameters.
+
+    Attributes
+    ----------
+    names : tuple of str
+        The parameters (one or two).
+    values : tuple of ndarray
+        The grid's values of each parameter, shapes ``(g_0,)`` (and ``(g_1,)``).
+    growth_rate : ndarray, shape (g_0[, g_1])
+        The orbit's growth rate (< 1: stable); NaN where no orbit was found.
+    period : ndarray, shape (g_0[, g_1])
+        The orbit's period; NaN where no orbit was found.
+    x0 : ndarray, shape (g_0[, g_1], d)
+        The orbit's fixed point on the section; NaN where no orbit was found.
+    failures : dict
+        ``{grid index (tuple): message}`` for the points without an orbit.
+    """
+
+    names: tuple
+    values: tuple
+    growth_rate: np.ndarray
+    period: np.ndarray
+    x0: np.ndarray
+    failures: dict
+
+    @property
+    def stable(self) -> np.ndarray:
+        """``growth_rate < 1`` (False where no orbit was found), shape of the grid."""
+        with np.errstate(invalid="ignore"):
+            return self.growth_rate < 1.0
+
+    def summary(self) -> str:
+        """A few lines: the grid, how many orbits are stable, unstable or not found."""
+        found = np.isfinite(self.growth_rate)
+        grid = " x ".join(f"{name} in [{v[0]:g}, {v[-1]:g}] ({v.size})"
+                          for name, v in zip(self.names, self.values, strict=True))
+        lines = [f"stability map over {grid}: {int(self.stable.sum())} stable, "
+                 f"{int((found & ~self.stable).sum())} unstable, "
+                 f"{int((~found).sum())} without an orbit"]
+        if found.any():
+            lines.append(f"  growth rate {np.nanmin(self.growth_rate):.4g} .. "
+                         f"{np.nanmax(self.growth_rate):.4g}")
+        for index, message in list(self.failures.items())[:3]:
+            lines.append(f"  no orbit at {self._point(index)}: {message}")
+        return "\n".join(lines)
+
+    def _point(self, index) -> str:
+        return ", ".join(f"{name}={v[i]:g}"
+                         for name, v, i in zip(self.names, self.values, index, strict=True))
+
+
+def stability_map(make_system, grid, x_guess, section, *, period_guess=None, accept=None,
+                  n_directions=200, iterations=300, client=None, progress=None,
+                  **orbit_options) -> StabilityMap:
+    """Find the periodic orbit and its growth rate at every point of a parameter grid.
+
+    Parameters
+    ----------
+    make_system : callable
+        ``make_system(**params) -> HybridSystem`` (an object with a ``system`` attribute,
+        such as an :class:`~bderiv.examples.Example`, is accepted too). Must pickle when a
+        Dask ``client`` is used.
+    grid : dict
+        ``{name: values}`` for one or two parameters, each a 1-d sequence of numbers.
+    x_guess : array_like, shape (d,)
+        Start of Newton's method at the first point (and where no neighbour has an orbit).
+    section : callable
+        ``section(x) -> float``, crossed upward once per stride (must pickle with Dask).
+    period_guess : float, optional
+        Passed to :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
+    accept : callable, optional
+        ``accept(orbit) -> bool``: the orbits wanted (default: every orbit found); a
+        point whose orbit from its neighbour is refused is solved again from
+        ``x_guess``, and recorded as a failure if that one is refused too. Must pickle
+        with Dask.
+    n_directions, iterations : int
+        Of each orbit's :meth:`~bderiv.analysis.orbit.PeriodicOrbit.stability`.
+    client : None, "local" or distributed.Client
+        None: serially in this process; "local": a LocalCluster for this call; a Client:
+        its cluster.
+    progress : None, bool or callable
+        ``progress(done, total)`` after each point (True: a tqdm bar).
+    **orbit_options
+        Passed to ``periodic_orbit`` (``tol``, ``max_iter``, ``simultaneity_tol``, ...).
+
+    Returns
+    -------
+    StabilityMap
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bderiv.examples import gaits
+    >>> smap = stability_map(gaits.pronking, {"gain": [3.0, 4.0]}, gaits.pronking().x0,
+    ...                      gaits.apex_section, period_guess=0.5, n_directions=50,
+    ...                      iterations=100)
+    >>> smap.stable.tolist(), np.round(smap.growth_rate, 2).tolist()  # doctest: +SKIP
+    ([True, True], [0.86, 0.78])
+    """
+    names, axes = _check_grid(grid)
+    x_guess = np.array(x_guess, dtype=np.float64)
+    n_directions = check_positive_int(n_directions, "n_directions")
+    iterations = check_positive_int(iterations, "iterations")
+    shape = tuple(a.size for a in axes)
+    task = _Task(make_system, names, section, period_guess, accept, n_directions, iterations,
+                 orbit_options, x_guess)
+    run, close = _runner(client)
+    progress = resolve_progress(progress, desc="stability map", unit="point")
+    results, done, total = {}, 0, math.prod(shape)
+    try:
+        for wave in _waves(shape):
+            starts = [_start(results, index, x_guess) for index in wave]
+            params = [{n: float(a[i]) for n, a, i in zip(names, axes, index, strict=True)}
+                      for index in wave]
+            for index, result in zip(wave, run(task, params, starts), strict=True):
+                results[index] = result
+                done += 1
+                if progress is not None:
+                    progress(done, total)
+    finally:
+        close()
+    return _collect(names, axes, shape, x_guess.size, results)
+
+
+def _check_grid(grid):
+    """(names, axes) of a grid of one or two parameters, each axis a finite 1-d array."""
+    if not isinstance(grid, dict) or not 1 <= len(grid) <= 2:
+        raise TypeError(f"grid must be a dict of one or two parameters {{name: values}}, got "
+                        f"{type(grid).__name__}" + (f" of {len(grid)}" if isinstance(
+                            grid, dict) else ""))
+    axes = []
+    for name, values in grid.items():
+        a = np.asarray(values, dtype=np.float64)
+        if a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)):
+            raise ValueError(f"grid[{name!r}] must be a non-empty 1-d sequence of finite "
+                             f"numbers, got shape {a.shape}")
+        axes.append(a)
+    return tuple(grid), tuple(axes)
+
+
+def _waves(shape):
+    """Grid indices by wave: anti-diagonals ``sum(index) = w``, w ascending."""
+    indices = sorted(np.ndindex(*shape), key=lambda index: (sum(index), index))
+    waves = {}
+    for index in indices:
+        waves.setdefault(sum(index), []).append(index)
+    return list(waves.values())
+
+
+def _start(results, index, x_guess):
+    """The fixed point of a solved neighbour in the previous wave, else ``x_guess``."""
+    for axis in range(len(index)):
+        prev = index[:axis] + (index[axis] - 1,) + index[axis + 1:]
+        found = results.get(prev)
+        if found is not None and found[0] is not None:
+            return found[0]
+    return x_guess
+
+
+class _Task:
+    """One point: its orbit and growth rate, or the message of the failure (picklable)."""
+
+    def __init__(self, make_system, names, section, period_guess, accept, n_directions,
+                 iterations, orbit_options, x_guess):
+        self.make_system, self.names, self.section = make_system, names, section
+        self.period_guess, self.accept, self.orbit_options = period_guess, accept, orbit_options
+        self.n_directions, self.iterations, self.x_guess = n_directions, iterations, x_guess
+
+    def __call__(self, params, start):
+        """(x0, period, growth rate) of the orbit, or (None, message, None)."""
+        system = self.make_system(**params)
+        system = getattr(system, "system", system)  # an Example carries its system
+        starts = [start] if np.array_equal(start, self.x_guess) else [start, self.x_guess]
+        for x in starts:
+            try:
+                orbit = system.periodic_orbit(x, self.section, period_guess=self.period_guess,
+                                              **self.orbit_options)
+            except (ValueError, RuntimeError) as exc:  # no orbit here: recorded, not raised
+                failure = f"{type(exc).__name__}: {exc}"
+                continue
+            if self.accept is None or self.accept(orbit):
+                st = orbit.stability(n_directions=self.n_directions, iterations=self.iterations)
+                return orbit.x0, orbit.period, st.growth_rate
+            failure = f"the orbit found (x0 = {orbit.x0}) is not accepted"
+        return None, failure, None
+
+
+def _runner(client):
+    """``(run(task, params, starts) -> results, close())`` for the chosen scheduler."""
+    if client is None:
+        return (lambda task, params, starts: [task(p, s) for p, s in zip(params, starts,
+                                                                          strict=True)],
+                lambda: None)
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:
+        raise ImportError("client= needs the optional dependency distributed: install "
+                          "`pip install 'bderiv[dask]'`, or pass client=None") from exc
+    own = isinstance(client, str)
+    if own:
+        if client != "local":
+            raise ValueError(f'client must be None, "local" or a distributed.Client, got '
+                             f"{client!r}")
+        cluster = LocalCluster(n_workers=LOCAL_WORKERS, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    elif not isinstance(client, Client):
+        raise TypeError(f'client must be None, "local" or a distributed.Client, got '
+                        f"{type(client).__name__}")
+
+    def run(task, params, starts):
+        futures = client.map(task, params, starts, pure=False)
+        try:
+            return client.gather(futures)
+        except BaseException:  # Ctrl-C: the wave's tasks are cancelled, not left running
+            client.cancel(futures)
+            raise
+
+    def close():
+        client.close()
+        cluster.close()
+
+    return run, (close if own else (lambda: None))
+
+
+def _collect(names, axes, shape, d, results) -> StabilityMap:
+    growth, period = np.full(shape, np.nan), np.full(shape, np.nan)
+    x0, failures = np.full((*shape, d), np.nan), {}
+    for index, (x, p, rate) in results.items():
+        if x is None:
+            failures[index] = p
+        else:
+            x0[index], period[index], growth[index] = x, p, rate
+    return StabilityMap(names, axes, growth, period, x0, failures)

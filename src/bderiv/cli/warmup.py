@@ -1,0 +1,183 @@
+"""Compile bderiv's kernels ahead of their first use: ``python -m bderiv compile``.
+
+A fresh machine (a Docker image being built, a CI job, a new Dask worker, an upgrade of
+numba or bderiv) compiles each kernel at its first use and keeps it in numba's disk cache
+(``NUMBA_CACHE_DIR``, else ``__pycache__`` beside the sources) for every later process.
+:func:`warm_up` does that compiling ahead of time, each family of kernels in its own
+process, as many at once as there are cores, so that the machine's first real call only
+loads. Each family is a small workload of the public API that reaches its kernels with the
+argument types real calls give them:
+
+- ``integrator``: the compiled integrator of compiled models (the driver and the compiled
+  run; about one to two minutes of one core, most of the total). Its process holds the
+  lock of :mod:`bderiv.models.readiness`, so a process that needs it meanwhile
+  waits for it or runs on scipy instead of compiling it a second time.
+- ``dense``: the kernels of a B-derivative from a dense corner table (a model's event
+  point, as the chair's): single vectors, batches, transposes, pieces.
+- ``structured``: those of corner models and structured corners (n up to 128).
+- ``resets``: those of B-derivatives with resets (impacts, bounces).
+
+Each family's process writes its own cache entries; two families that compile the same
+small helper both write the same entry (numba writes a file whole, under a temporary name
+first), so the processes need no further order. A user's own model functions are not
+here: they compile at the model's first use (seconds), or from its own ``cache=True``.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+#: the families, in the order they are started (the longest first)
+FAMILIES = ("integrator", "dense", "structured", "resets")
+
+
+def _integrator() -> None:
+    from .. import examples
+    from ..models import readiness
+
+    with readiness.compile_lock(wait=True):
+        if readiness.integrator_cached():
+            return
+        readiness.compiling_here()
+        ex = examples.chair(compiled=True)
+        s = ex.system
+        s.simulate(ex.x0, ex.t_final)  # the compiled run decides the stops
+        s.simulate(ex.x0, ex.t_final, t_eval=np.linspace(0.0, ex.t_final, 3))  # the driver
+        s.flow_bderivative(ex.x0, ex.t_final)  # with the variational equations
+
+
+def _queries(bd, d, rng) -> None:
+    """Every operation of ``bd`` on one vector and on a batch (the parallel kernels)."""
+    for V in (rng.standard_normal(d), rng.standard_normal((20_000, d))):
+        T = rng.standard_normal(V.shape)
+        bd(V)
+        bd.inverse(V)
+        bd.event_times(V)
+        bd.jvp(V, T)
+        bd.vjp(V, T)
+
+
+def _dense() -> None:
+    from ..engine.bderivative import BDerivative
+
+    rng = np.random.default_rng(0)
+    for n, d in ((2, 6), (3, 4), (8, 8), (3, 66)):  # lanes (d <= 64) and plain blocks
+        Dh = np.eye(n, d) + 0.3 / n * rng.uniform(-1, 1, (n, d))
+        F = np.linalg.lstsq(Dh, np.ones(n), rcond=None)[0] + \
+            0.1 * rng.uniform(-1, 1, (2**n, d))
+        _queries(BDerivative(Dh, F), d, rng)
+
+
+def _structured() -> None:
+    from ..engine.bderivative import BDerivative
+    from ..geometry.corners import StructuredCorners
+
+    rng = np.random.default_rng(1)
+    for n in (4, 40):  # corners like a multi-contact system, two pairs per event
+        Dh = np.eye(n) + 0.3 / n * rng.uniform(-1, 1, (n, n))
+        F0 = np.linalg.lstsq(Dh, np.ones(n), rcond=None)[0]
+        A = 0.4 / n * rng.uniform(-1, 1, (n, n))
+        pairs = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
+        B = 0.2 / n * rng.uniform(-1, 1, (n, n))
+        _queries(BDerivative(Dh, StructuredCorners(F0, A, pairs, B)), n, rng)
+
+
+def _resets() -> None:
+    from .. import examples
+
+    rng = np.random.default_rng(2)
+    ex = examples.ball_in_corner()
+    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    V = rng.standard_normal((20_000, D.dim))
+    D(V)
+    D.vjp(V, V)
+
+
+_WORK = {"integrator": _integrator, "dense": _dense, "structured": _structured,
+         "resets": _resets}
+
+
+def compile_family(name: str) -> None:
+    """Compile family ``name`` in this process (its workload; see the module docstring)."""
+    if name not in _WORK:
+        raise ValueError(f"family must be one of {', '.join(FAMILIES)}, got {name!r}")
+    _WORK[name]()
+
+
+def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
+    """Compile ``families`` (each in its own process, ``processes`` at a time: default
+    the cores this process may use) into numba's disk cache; returns each family's wall
+    seconds, in the order of ``families``.
+
+    Parameters
+    ----------
+    families : sequence of str
+        Some of :data:`FAMILIES`.
+    processes : int, optional
+        Families compiled at once (default ``len(os.sched_getaffinity(0))``).
+    progress : callable ``progress(message)``, optional
+        Told when a family starts and ends (its name, seconds, what is left).
+
+    Raises
+    ------
+    ValueError
+        An unknown family or ``processes`` below 1 (named).
+    RuntimeError
+        A family's process failed (its name and the end of its error output).
+    KeyboardInterrupt
+        Ctrl-C: the families' processes are stopped first.
+    """
+    families = list(families)
+    for name in families:
+        if name not in _WORK:
+            raise ValueError(f"families must be among {', '.join(FAMILIES)}, got {name!r}")
+    if processes is None:
+        processes = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+            (os.cpu_count() or 1)
+    if isinstance(processes, bool) or not isinstance(processes, int) or processes < 1:
+        raise ValueError(f"processes must be an integer >= 1, got {processes!r}")
+    say = progress or (lambda message: None)
+    waiting, running, seconds = list(families), {}, {}
+    try:
+        while waiting or running:
+            while waiting and len(running) < processes:
+                name = waiting.pop(0)
+                running[name] = (time.perf_counter(), _start(name))
+                say(f"compiling {name} ({len(seconds) + len(running)} of {len(families)})")
+            time.sleep(0.05)
+            for name, (start, proc) in list(running.items()):
+                if proc.poll() is None:
+                    continue
+                del running[name]
+                proc.log.seek(0)
+                err = proc.log.read().decode(errors="replace")
+                proc.log.close()
+                if proc.returncode != 0:
+                    raise RuntimeError(f"compiling the family {name} failed (exit status "
+                                       f"{proc.returncode}):\n{err[-2000:]}")
+                seconds[name] = time.perf_counter() - start
+                say(f"{name} compiled in {seconds[name]:.1f} s ({len(seconds)} of "
+                    f"{len(families)} done)")
+    finally:
+        for _, proc in running.values():
+            proc.kill()
+            proc.wait()
+    return {name: seconds[name] for name in families}  # in the order asked
+
+
+def _start(name: str) -> subprocess.Popen:
+    """The process that compiles family ``name`` (this bderiv: its folder first on
+    ``PYTHONPATH``)."""
+    from ..models.readiness import child_environment
+
+    proc = subprocess.Popen([sys.executable, "-m", "bderiv", "compile", name, "--here"],
+                            env=child_environment(), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=(log := tempfile.TemporaryFile()))
+    proc.log = log  # its error output, read when it fails
+    return proc

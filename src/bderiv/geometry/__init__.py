@@ -1,0 +1,4 @@
+"""Geometry of corners and pieces: the corner models (:mod:`~bderiv.geometry.corners`:
+the protocol and the built-in models) and a B-derivative as a piecewise-linear
+homeomorphism (:mod:`~bderiv.geometry.triangulation`, its files in
+``_triangulation_io``)."""

@@ -1,0 +1,463 @@
+"""``Triangulation``: the B-derivative as a PL homeomorphism given by vertices and simplices.
+
+This is the representation of the source note (mathematics.md section 5): pre-event vertices
+``pre``, their post-event images ``post``, and the simplicial cones of the fan around
+F[0]. It holds everything needed to rebuild the map (and its inverse) elsewhere, without
+the event machinery. Files and direct construction alike are checked completely by
+``_triangulation_io`` before anything is trusted.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import uuid
+from itertools import permutations
+
+import numpy as np
+import scipy.linalg
+
+from .._support._batch import evaluate
+from .._support._validate import (
+    all_finite,
+    check_finite_result,
+    check_matrix,
+    check_positive_int,
+    singular_condition,
+)
+from ._triangulation_io import (
+    FIELDS,
+    FILE_FORMAT,
+    PAIR,
+    VERSION_FIELDS,
+    check_data,
+    check_fields,
+    check_pair,
+    file_format,
+    read_json,
+    read_npz,
+    write_files,
+)
+
+
+class Triangulation:
+    """A continuous piecewise-linear map given by a fan of simplicial cones.
+
+    Parameters
+    ----------
+    pre : array_like, shape (n_vertices, d)
+        Pre-event vertices. Vertex 0 is the origin (the apex of every cone).
+    post : array_like, shape (n_vertices, d)
+        Their images under the map (``post[0]`` is the origin too).
+    simplices : array_like of int, shape (n_simplices, n + 1)
+        Vertex indices, 1 <= n <= d; column 0 is the apex 0. The cone of a simplex is
+        spanned by its other n vertices (non-negative weights) plus the kernel basis (any
+        weights). Every vertex is used.
+    kernel : array_like, shape (d, d - n)
+        Basis of the subspace (ker Dh) that no event sees (empty when d = n; orthonormal
+        when built by :meth:`from_bderivative`).
+    kernel_post : array_like, shape (d, d - n), optional
+        Images of the ``kernel`` columns under the map; default ``kernel`` (the map at an
+        event point is the identity there). The cones of ``post`` are spanned with it.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, a non-finite entry, an index out of range, an unused vertex or a
+        degenerate simplex (its cone, before or after the map, does not span R^d).
+    TypeError
+        On a non-real dtype, or simplices that are not integers.
+
+    Notes
+    -----
+    Built by :meth:`BDerivative.triangulation`: vertices ``0 .. 2**n - 1`` are the corner
+    points ``pre[mask] -> post[mask]`` of :meth:`BDerivative.corner_points` and vertex
+    ``2**n`` is ``-F[0] -> -F[full]``. The order sigma with chain ``B_0 = 0, ..., B_n =
+    full`` owns two simplices, ``[0, B_1, ..., B_{n-1}, full]`` and ``[0, B_1, ...,
+    B_{n-1}, 2**n]``, the halves of its cone before and after the flow direction.
+
+    The map is a homeomorphism: the ``post`` cones are a fan too, so :meth:`inverse` is the
+    same evaluation with ``pre``, ``kernel`` and ``post``, ``kernel_post`` swapped (mathematics.md
+    section 6). :meth:`composed` carries the fan through linear maps before and after (the
+    triangulation of a flow map with one event group). Evaluation is brute force over all
+    simplices: meant for checking, and for small n.
+
+    Save it with :meth:`save` (``.npz`` or ``.json``) and read it back with :meth:`load`
+    (or :func:`bderiv.load_triangulation`): the file holds the whole map. The arrays are
+    read-only.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bderiv import BDerivative
+    >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+    >>> tri = BDerivative(np.eye(2), F).triangulation()
+    >>> tri
+    Triangulation(n_events=2, dim=2, vertices=5, simplices=4)
+    >>> tri([-1.0, -2.0])
+    array([-2., -2.])
+    >>> tri.inverse([-2.0, -2.0])
+    array([-1., -2.])
+    """
+
+    def __init__(self, pre, post, simplices, kernel, kernel_post=None):
+        fields = dict(pre=pre, post=post, simplices=simplices, kernel=kernel,
+                      kernel_post=kernel_post)
+        self._set(check_fields(fields, "Triangulation"))
+
+    def _set(self, fields: dict) -> None:
+        for name in FIELDS:
+            fields[name].flags.writeable = False
+            setattr(self, name, fields[name])
+        self.dim = self.pre.shape[1]
+        self.n_events = self.simplices.shape[1] - 1
+
+    def __setstate__(self, state: dict) -> None:
+        # unpickled arrays come back writeable; keep them read-only as validated
+        self.__dict__.update(state)
+        if "kernel_post" not in state:  # pickled before kernel_post existed: the identity
+            self.kernel_post = self.kernel.copy()
+        for name in FIELDS:
+            getattr(self, name).flags.writeable = False
+
+    @classmethod
+    def from_bderivative(cls, bd, max_pieces: int) -> Triangulation:
+        """Build the fan of ``bd`` (2 n! simplices); refuses when n! > ``max_pieces``."""
+        check_positive_int(max_pieces, "max_pieces")
+        n = bd.n_events
+        if math.factorial(n) > max_pieces:
+            raise ValueError(
+                f"the triangulation of {n} events has 2 * {n}! = {2 * math.factorial(n)} "
+                f"simplices, more than 2 * max_pieces={max_pieces}; pass a larger max_pieces"
+            )
+        pre, post = bd.corner_points()
+        full = (1 << n) - 1
+        pre = np.vstack([pre, -bd.F[0]])
+        post = np.vstack([post, -bd.F[full]])
+        orders = np.array(list(permutations(range(n))), dtype=np.int64).reshape(-1, n)
+        # chain[:, j] = mask after j events; cumulative OR of the order's bits
+        chain = np.cumsum(1 << orders, axis=1)
+        inner = chain[:, :-1]
+        apex = np.zeros((len(orders), 1), dtype=np.int64)
+        plus = np.hstack([apex, inner, np.full((len(orders), 1), full)])
+        minus = np.hstack([apex, inner, np.full((len(orders), 1), full + 1)])
+        simplices = np.stack([plus, minus], axis=1).reshape(-1, n + 1)
+        kernel = scipy.linalg.null_space(bd.Dh).reshape(bd.dim, bd.dim - n)
+        # with resets M moves ker Dh (by the product of the resets, mathematics.md section 9)
+        moved = getattr(bd, "resets", None) is not None and kernel.shape[1]
+        return cls(pre, post, simplices, kernel, bd(kernel.T).T if moved else None)
+
+    def composed(self, before, after) -> Triangulation:
+        """The triangulation of ``v -> after @ self(before @ v)``, same simplices.
+
+        The pre-event vertices and the kernel basis are pulled back by ``before``, the
+        post-event vertices and the kernel images pushed forward by ``after``: for a flow
+        map ``L_1 . M . L_0`` with one event group of map ``M``, ``before = L_0`` carries the
+        fan's pre-event points back to the start point and ``after = L_1`` its post-event
+        points to the final time.
+
+        Parameters
+        ----------
+        before, after : array_like, shape (d, d)
+            Invertible real matrices.
+
+        Returns
+        -------
+        Triangulation
+
+        Raises
+        ------
+        ValueError
+            On a wrong shape, a non-finite entry, or a matrix singular to working
+            precision (naming it).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from bderiv import BDerivative
+        >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+        >>> tri = BDerivative(np.eye(2), F).triangulation()
+        >>> A, B = np.diag([2.0, 1.0]), np.diag([1.0, 3.0])
+        >>> tri.composed(A, B)([-0.5, -2.0])     # B @ tri(A @ v) = B @ [-2, -2]
+        array([-2., -6.])
+        """
+        d = self.dim
+        mats = {}
+        for name, value in (("before", before), ("after", after)):
+            mat = check_matrix(value, name, (d, d))
+            cond = singular_condition(mat)
+            if cond is not None:
+                raise ValueError(
+                    f"{name} must be invertible, but it is singular to working precision "
+                    f"(condition number {cond:.3g})"
+                )
+            mats[name] = mat
+        pulled = np.linalg.solve(mats["before"], np.hstack([self.pre.T, self.kernel]))
+        n_vertices = self.pre.shape[0]
+        return Triangulation(pulled[:, :n_vertices].T, self.post @ mats["after"].T,
+                             self.simplices, pulled[:, n_vertices:],
+                             mats["after"] @ self.kernel_post)
+
+    def __repr__(self) -> str:
+        return (
+            f"Triangulation(n_events={self.n_events}, dim={self.dim}, "
+            f"vertices={self.pre.shape[0]}, simplices={self.simplices.shape[0]})"
+        )
+
+    def apply(self, V, out=None, *, chunk_size=None, progress=None) -> np.ndarray:
+        """Evaluate the map by locating each vector in its cone (barycentric weights).
+
+        Parameters
+        ----------
+        V : array_like, shape (..., d), or a dask array
+            Pre-event vectors (a dask array gives a lazy dask array).
+        out : ndarray, shape (..., d), optional
+            C-contiguous float64 array to write the result into (may be ``V`` itself).
+        chunk_size : int, optional
+            Evaluate ``chunk_size`` vectors at a time (results do not depend on it).
+        progress : callable ``progress(done, total)``, or True, optional
+            Called after each chunk; ``True`` draws a tqdm bar.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            Post-event vectors.
+
+        Raises
+        ------
+        ValueError, TypeError
+            On a wrong shape, dtype or non-finite vector (the messages of
+            :meth:`BDerivative.apply`).
+        """
+        return evaluate(self._forward, V, self.dim, name="V", out=out, chunk_size=chunk_size,
+                        progress=progress, desc="Triangulation", method=self.apply)
+
+    __call__ = apply
+
+    def inverse(self, W, out=None, *, chunk_size=None, progress=None) -> np.ndarray:
+        """Evaluate the exact inverse map: locate each vector in a ``post`` cone.
+
+        Parameters
+        ----------
+        W : array_like, shape (..., d), or a dask array
+            Post-event vectors.
+        out, chunk_size, progress : optional
+            As for :meth:`apply`.
+
+        Returns
+        -------
+        ndarray, shape (..., d)
+            ``V`` with ``self(V) == W`` up to rounding.
+        """
+        return evaluate(self._backward, W, self.dim, name="W", out=out, chunk_size=chunk_size,
+                        progress=progress, desc="Triangulation.inverse", method=self.inverse)
+
+    def _forward(self, rows, res, offset) -> None:
+        _fan_map(self.pre, self.post, self.simplices, self.kernel, self.kernel_post, rows,
+                 res)
+        if not all_finite(res):
+            check_finite_result(res, "V", offset)
+
+    def _backward(self, rows, res, offset) -> None:
+        _fan_map(self.post, self.pre, self.simplices, self.kernel_post, self.kernel, rows,
+                 res)
+        if not all_finite(res):
+            check_finite_result(res, "W", offset)
+
+    # -- files ----------------------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        """Plain-Python description (lists of floats and ints), as written to JSON.
+
+        Returns
+        -------
+        dict
+            Keys ``format``, ``version``, ``n_events``, ``dim`` and the arrays ``pre``
+            (n_vertices, d), ``post`` (n_vertices, d), ``simplices`` (n_simplices, n + 1)
+            and ``kernel`` (d, d - n) as nested lists; version 2 (a map that is not the
+            identity on the kernel) also ``kernel_post`` (d, d - n). A saved file holds
+            these and the digest ``sha256`` of them.
+        """
+        header, arrays = self._file_contents()
+        return {**header, **{name: arr.tolist() for name, arr in arrays.items()}}
+
+    def _file_version(self) -> int:
+        """1 when the map is the identity on the kernel (readable by older bderiv), else 2."""
+        return 1 if np.array_equal(self.kernel, self.kernel_post) else 2
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "triangulation data") -> Triangulation:
+        """Rebuild from :meth:`to_dict` output, checked completely.
+
+        Parameters
+        ----------
+        data : dict
+            As written by :meth:`to_dict` (the arrays as nested lists or ndarrays).
+        source : str
+            What ``data`` came from, named in error messages (a file, when loading).
+
+        Raises
+        ------
+        ValueError
+            On a wrong format tag or version, a missing field, a value of the wrong type,
+            shape or range, or a degenerate simplex; the message names ``source`` and the
+            field.
+        """
+        fields = check_data(data, source)
+        tri = cls.__new__(cls)
+        tri._set(fields)
+        return tri
+
+    def save(self, path, format: str | None = None) -> str:
+        """Write the triangulation to ``path`` as ``.npz`` (binary) or ``.json`` (text).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Destination; its suffix picks the format unless ``format`` is given.
+        format : {"npz", "json"}, optional
+
+        Returns
+        -------
+        str
+            The path written.
+
+        Notes
+        -----
+        Both formats round-trip exactly (JSON writes floats with all their digits). The
+        ``.npz`` holds the arrays ``pre``, ``post``, ``simplices``, ``kernel`` and a JSON
+        header ``meta``; it loads with ``numpy.load(path)`` alone. Both carry a sha256
+        digest of their content (field ``sha256``), which :meth:`load` checks.
+
+        The save is atomic: the file is written to a temporary file in the same folder,
+        synced, and then replaces ``path``; a failure midway (a full disk, an exception,
+        a kill) leaves a previous file at ``path`` intact.
+        """
+        path = os.fspath(path)
+        save_files(self, {path: file_format(path, format)})
+        return path
+
+    def _file_contents(self) -> tuple[dict, dict]:
+        """The header (format, version, sizes) and the arrays a file of this map holds."""
+        version = self._file_version()
+        header = {"format": FILE_FORMAT, "version": version, "n_events": self.n_events,
+                  "dim": self.dim}
+        return header, {name: getattr(self, name) for name in VERSION_FIELDS[version]}
+
+    @classmethod
+    def load(cls, path, format: str | None = None, *, memory_limit=None) -> Triangulation:
+        """Read a triangulation written by :meth:`save`, checking it completely.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A ``.npz`` or ``.json`` file; its suffix picks the format unless ``format``
+            is given.
+        format : {"npz", "json"}, optional
+        memory_limit : int, optional
+            Bytes reading may take (the file, its parse, the arrays its headers promise);
+            default: the memory currently available. Checked before anything is read.
+
+        Returns
+        -------
+        Triangulation
+
+        Raises
+        ------
+        ValueError
+            If the path is not a regular file (a device, a pipe, a folder), reading it
+            would take more than ``memory_limit``, it cannot be parsed, its content does
+            not match the digest stored in it, it is not a bderiv triangulation, has an
+            unknown version, or any field fails the checks of :class:`Triangulation` (the
+            message names the file and the field). Nothing in the file is ever unpickled.
+            A file without a digest (written by bderiv before digests, or by another
+            program) is read with the field checks alone. The ``.npz`` of a pair written
+            by ``bderiv export --format both`` whose ``.json`` (same name) is from
+            another save (an export interrupted between its two renames) is refused too.
+        OSError
+            If the file cannot be opened.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from bderiv import BDerivative, Triangulation
+        >>> F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
+        >>> tri = BDerivative(np.eye(2), F).triangulation()
+        >>> path = tri.save(os.path.join(tempfile.mkdtemp(), "tri.json"))
+        >>> Triangulation.load(path)([-1.0, -2.0])
+        array([-2., -2.])
+        """
+        path = os.fspath(path)
+        source = f"triangulation file {path!r}"
+        read = read_json if file_format(path, format) == "json" else read_npz
+        data = read(path, source, memory_limit)
+        check_pair(path, data, source)
+        return cls.from_dict(data, source)
+
+
+def save_files(tri: Triangulation, paths: dict, check=None) -> None:
+    """Save ``tri`` to several files at once, all or none (``bderiv export``).
+
+    Parameters
+    ----------
+    tri : Triangulation
+    paths : dict
+        ``{path: format}``, format ``"npz"`` or ``"json"``.
+    check : callable, optional
+        ``check({path: temporary path})`` once every file is written, before any replaces
+        its target; if it raises, no target is touched (see
+        :func:`bderiv.geometry._triangulation_io.write_files`).
+
+    Notes
+    -----
+    Several files (``NAME.npz`` and ``NAME.json``, renamed in that order) are a pair:
+    both carry one random token (header field ``pair``), so that the new ``.npz`` a kill
+    between the renames leaves beside the earlier ``.json`` is refused when it is loaded
+    (:func:`bderiv.geometry._triangulation_io.check_pair`).
+    """
+    header, arrays = tri._file_contents()
+    if len(paths) > 1:  # one token in both: a half-replaced pair is refused on load
+        header[PAIR] = uuid.uuid4().hex
+    order = sorted(paths, key=lambda path: paths[path] != "npz")  # renamed: .npz first
+    write_files({path: (paths[path], header, arrays) for path in order}, check)
+
+
+def load_triangulation(path, format: str | None = None, *,
+                       memory_limit=None) -> Triangulation:
+    """Read a triangulation saved by :meth:`Triangulation.save` or ``bderiv export``.
+
+    Same as :meth:`Triangulation.load` (the file is checked completely, its size before
+    it is read, its digest before its fields); the result is callable, ``tri(V)`` with V
+    of shape ``(..., d)``, and has ``tri.inverse(W)``.
+    """
+    return Triangulation.load(path, format, memory_limit=memory_limit)
+
+
+# -- evaluation -------------------------------------------------------------------------------
+
+
+def _fan_map(src, dst, simplices, ksrc, kdst, rows, res) -> None:
+    """Write into ``res`` (m, d) the PL map of ``rows`` (m, d) from ``src`` to ``dst`` cones.
+
+    Each row is located in the cone of ``src`` (with the kernel basis ``ksrc``) whose
+    barycentric weights are least negative (relative to their size: robust on shared
+    faces) and rebuilt from ``dst`` (with ``kdst``) with the same weights. ``pre, post,
+    kernel, kernel_post`` is the map, ``post, pre, kernel_post, kernel`` its inverse. Row
+    by row the arithmetic does not depend on the other rows (an explicit inverse and
+    einsum, where a multi-right-hand-side solve would not be), so results are independent
+    of chunking.
+    """
+    n = simplices.shape[1] - 1
+    best_weight = np.full(rows.shape[0], -np.inf)
+    res.fill(np.nan)  # a row no cone takes (weights overflowing) stays NaN, never garbage
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow: refused by the caller
+        for simplex in simplices:
+            P = np.hstack([src[simplex[1:]].T, ksrc])
+            Q = np.hstack([dst[simplex[1:]].T, kdst])
+            weights = np.einsum("ij,mj->mi", np.linalg.inv(P), rows)  # (m, d)
+            lam = weights[:, :n]
+            min_weight = lam.min(axis=1) / (np.abs(lam).max(axis=1) + 1e-300)
+            better = min_weight > best_weight
+            best_weight[better] = min_weight[better]
+            res[better] = np.einsum("ij,mj->mi", Q, weights[better])
