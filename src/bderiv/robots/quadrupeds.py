@@ -34,7 +34,8 @@ ROBOTS = {
 }
 
 
-def quadruped(name="solo12", *, joints=None, **law) -> LeggedRobot:
+def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
+              **law) -> LeggedRobot:
     """A bundled quadruped (:data:`ROBOTS`) as a :class:`~bderiv.robots.legged.LeggedRobot`.
 
     Parameters
@@ -43,6 +44,8 @@ def quadruped(name="solo12", *, joints=None, **law) -> LeggedRobot:
         A key of :data:`ROBOTS`.
     joints : array_like, (nv - 6,), optional
         Another standing posture.
+    contact, sticking
+        As :func:`~bderiv.robots.legged.legged_robot`'s.
     **law
         Contact and posture parameters (:data:`bderiv.robots.legged.CONTACT`); defaults
         scaled to the robot's mass (stiffness and damping in proportion to Solo12's
@@ -60,7 +63,8 @@ def quadruped(name="solo12", *, joints=None, **law) -> LeggedRobot:
     q_ref[7:] = entry["joints"] if joints is None else joints
     scale = pin.computeTotalMass(model) / 2.5
     law = {**{k: v * scale if k != "ground" else v for k, v in CONTACT.items()}, **law}
-    return legged_robot(model, entry["feet"], q_ref, **law)
+    return legged_robot(model, entry["feet"], q_ref, contact=contact, sticking=sticking,
+                        **law)
 
 
 def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarray:
@@ -70,14 +74,14 @@ def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarr
 
     Returns
     -------
-    ndarray, (2 nv,)
+    ndarray, (robot.system.dim,)
     """
-    x = np.zeros(2 * robot.nv)
+    x = np.zeros(robot.system.dim)  # a rigid robot's contact latches (0: in the air)
     low = robot.foot_positions(x)[:, 2].min()
     x[2] = robot.law["ground"] + height - low  # the base's height offset (level: e_z = dz)
     x[robot.nv + 2] = vz
     if velocity is not None:
-        x[robot.nv:] += np.asarray(velocity, dtype=np.float64)
+        x[robot.nv:2 * robot.nv] += np.asarray(velocity, dtype=np.float64)
     return x
 
 
