@@ -262,7 +262,7 @@ class RigidLeggedRobot(LeggedRobot):
                 raise ValueError(
                     f"feet {a} ({self.feet[a]}) and {b} ({self.feet[b]}) touch down at the "
                     f"same instant and are coupled through the inverse mass matrix: "
-                    f"J_{a} M^-1 J_{b}^T = {np.array2string(Cab, precision=4)} (their "
+                    f"J_{a} M^-1 J_{b}^T = {np.round(Cab, 6).tolist()} (their "
                     f"{what}; norm {rel:.3g} relative to J_{a} M^-1 J_{a}^T and J_{b} M^-1 "
                     f"J_{b}^T), so the impulse at one changes the other's velocity: the "
                     f"impacts do not commute, on a ground that can only push the state "
