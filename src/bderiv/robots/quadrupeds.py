@@ -15,7 +15,7 @@ import numpy as np
 
 from .legged import LeggedRobot, legged_robot
 
-__all__ = ["ROBOTS", "drop_state", "quadruped", "touchdown_figure"]
+__all__ = ["ROBOTS", "SOLO12_PACE", "drop_state", "quadruped", "touchdown_figure"]
 
 #: file, feet (event order) and standing joint posture of the bundled quadrupeds; the
 #: postures are the files' "standing" states with the hip abduction at 0 (Solo12:
@@ -32,6 +32,14 @@ ROBOTS = {
                "feet": ("LF_FOOT", "LH_FOOT", "RF_FOOT", "RH_FOOT"),
                "joints": (0.0, 0.6, -1.2, 0.0, -0.6, 1.2, 0.0, 0.6, -1.2, 0.0, -0.6, 1.2)},
 }
+
+#: Solo12's joints pacing (FR and HR tucked up, FL and HL to land together) at the hip
+#: flexion t = 0.8729206446683678 (knee -2 t, hind legs mirrored) where FL's and HL's
+#: normal rows are mass-orthogonal, ``J_FL M^-1 J_HL^T = 0`` (a root found by brentq):
+#: with rigid frictionless feet (``sticking=False``) their impacts commute
+#: (docs/robots.md, "Rigid contacts")
+SOLO12_PACE = (0.0, 0.8729206446683678, -1.7458412893367356, 0.0, 1.1, -2.2,
+               0.0, -0.8729206446683678, 1.7458412893367356, 0.0, -1.1, 2.2)
 
 
 def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
