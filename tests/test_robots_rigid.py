@@ -175,3 +175,30 @@ def test_a_mass_orthogonal_pair_lands_at_once_and_the_flow_map_is_the_simulation
         print(f"order {order}: relative error {errs[0]:.2e} at eps {EPS[0]:g}, "
               f"{errs[1]:.2e} at eps {EPS[1]:g}")
         assert errs[1] < 1e-4 and errs[1] < 0.2 * errs[0], (order, errs)
+
+
+def test_sticking_feet_landing_one_after_the_other_against_the_simulation():
+    """Trot posture (FR and HL tucked up), sticking feet, a pitch rate so that FL lands
+    before HR: two groups of one foot each (no commutation needed), the flow's derivative
+    against the independent simulation's differences."""
+    robot = quadruped("solo12", joints=(0.0, 0.8, -1.6, 0.0, 1.1, -2.2,
+                                        0.0, -1.1, 2.2, 0.0, -0.8, 1.6), contact="rigid")
+    velocity = np.zeros(robot.nv)
+    velocity[4] = 0.5  # pitch, rad/s: the nose goes down
+    x0 = drop_state(robot, 0.01, -0.5, velocity=velocity)
+    T = TOUCHDOWN + STANCE
+    D = robot.system.flow_bderivative(x0, T)
+    assert D.group_events == ((0,), (3,))
+    sim = RigidSim(robot.model, robot.feet, robot.q_ref, robot.law)
+    base, log = _independent(robot, sim, x0, T)
+    assert [k for _, k in log] == [0, 3]
+    assert np.abs(np.array([t for t, _ in log]) - D.group_times).max() < 1e-9
+    assert np.abs(robot.system.simulate(x0, T).x_final - base).max() < 1e-9
+    u = np.random.default_rng(6).standard_normal(robot.system.dim)
+    u[2 * robot.nv:] = 0.0
+    Du = D(u)
+    errs = [np.linalg.norm((_independent(robot, sim, x0 + eps * u, T)[0] - base) / eps - Du)
+            / np.linalg.norm(Du) for eps in EPS]
+    print(f"sticking, FL then HR: relative error {errs[0]:.2e} at eps {EPS[0]:g}, "
+          f"{errs[1]:.2e} at eps {EPS[1]:g}")
+    assert errs[1] < 1e-4 and errs[1] < 0.2 * errs[0], errs
