@@ -115,7 +115,8 @@ def touchdown_figure(robot: LeggedRobot, x0, t_final, *, direction=None, eps=2e-
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
     def heights(xs):
-        return 1e3 * np.array([robot.law["ground"] - robot.events(x) for x in xs])
+        return 1e3 * np.array([robot.foot_positions(x)[:, 2] - robot.law["ground"]
+                               for x in xs])
 
     h = heights(nominal.x)
     for k, foot in enumerate(robot.feet):
@@ -148,7 +149,8 @@ def touchdown_figure(robot: LeggedRobot, x0, t_final, *, direction=None, eps=2e-
     zoom.axhline(0.0, color="k", lw=0.8)
     zoom.set_xlabel("time (ms)")
     zoom.set_title("near touchdown: solid as dropped, dashed perturbed", fontsize=10)
+    landing = nominal.groups[0].events if nominal.groups else robot.feet
     zoom.text(0.98, 0.97, "perturbed run lands " + " < ".join(order) + "\n(one of the "
-              f"{np.prod(range(1, len(robot.feet) + 1))} pieces of the B-derivative)",
+              f"{np.prod(range(1, len(landing) + 1))} pieces of the B-derivative)",
               transform=zoom.transAxes, fontsize=8, ha="right", va="top")
     return fig
