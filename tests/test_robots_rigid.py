@@ -202,3 +202,16 @@ def test_sticking_feet_landing_one_after_the_other_against_the_simulation():
     print(f"sticking, FL then HR: relative error {errs[0]:.2e} at eps {EPS[0]:g}, "
           f"{errs[1]:.2e} at eps {EPS[1]:g}")
     assert errs[1] < 1e-4 and errs[1] < 0.2 * errs[0], errs
+
+
+def test_the_held_feet_push_and_bad_contact_is_refused():
+    """Over the pace's stance the ground pushes the held feet (the model holds them
+    without a lift-off: docs/robots.md), and a contact that is neither is refused."""
+    robot = _pace()
+    x0 = drop_state(robot, 0.01, -0.5)
+    traj = robot.system.simulate(x0, TOUCHDOWN + STANCE,
+                                 t_eval=np.linspace(TOUCHDOWN + 1e-4, TOUCHDOWN + STANCE, 6))
+    normal = np.array([robot.contact_forces(x, 0b0101)[:, 2] for x in traj.x])
+    assert normal.min() > 0.0, normal
+    with pytest.raises(ValueError, match="contact must be 'compliant' or 'rigid', got 'hard'"):
+        quadruped("solo12", contact="hard")

@@ -6,7 +6,8 @@ example-robot-data's or your own) and the names of its foot frames, and builds t
 ground ``z = ground``, ``h_k = ground - z_k(q)`` (touchdown: an upward crossing, bit k
 set in stance; lift-off: downward). It is a Python model: each call goes into Pinocchio
 (``aba``, ``computeABADerivatives``, frame Jacobians), integrated by scipy's
-``solve_ivp``.
+``solve_ivp``. ``contact="rigid"`` gives rigid feet instead (a plastic impact, the feet
+then held: :mod:`bderiv.robots.rigid`); the rest of this docstring is the compliant law.
 
 **Coordinates.** The state is ``x = (e, v)``, d = 2 nv: ``q = pinocchio.integrate(q_ref,
 e)`` (the base ``M_ref exp6(e_base)`` on SE(3), the joints ``q_ref_j + e_j``) and
