@@ -13,8 +13,12 @@ minimum of ``--repeat`` runs, wall and CPU seconds):
   with ``--fd`` (about 2 d times ``simulate``), else estimated as 2 d times the measured
   ``simulate`` (the line says which);
 
-and, with ``--profile``, the B-derivative's time by function (cProfile): the Pinocchio
-calls, the model's Python around them, bderiv's integrator and scipy. The machine's load
+with ``--rigid``, the same for rigid frictionless feet on the pacing posture whose two
+left feet land at once and commute (``SOLO12_PACE``; the four-foot drop of rigid feet is
+refused: docs/robots.md), the differences over the 2 nv = 36 coordinates of ``(e, v)``
+(not the feet's latches); and, with ``--profile``, the B-derivative's time by function
+(cProfile): the Pinocchio calls, the model's Python around them, bderiv's integrator and
+scipy. The machine's load
 is printed with the date (timings on a shared machine: compare minima).
 """
 
@@ -119,21 +123,24 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--fd", action="store_true", help="measure the 2 d simulations")
     parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--rigid", action="store_true", help="rigid feet, the pacing pair")
     args = parser.parse_args(argv)
 
-    from bderiv.robots import drop_state, quadruped
+    from bderiv.robots import SOLO12_PACE, drop_state, quadruped
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, load "
           f"{load:.1f} on {os.cpu_count()} CPUs")
-    robot = quadruped("solo12")
+    robot = (quadruped("solo12", joints=SOLO12_PACE, contact="rigid", sticking=False)
+             if args.rigid else quadruped("solo12"))
     x0 = drop_state(robot, 0.01, -0.5)
     T = 0.017123551038388 + 0.05
-    d = robot.system.dim
+    d = 2 * robot.nv  # the directions of (e, v)
     robot.system.flow_bderivative(x0, T)  # the first: Jacobians checked once per region
     (sim_w, sim_c), traj = _timed(lambda: robot.system.simulate(x0, T), args.repeat)
     (flow_w, flow_c), D = _timed(lambda: robot.system.flow_bderivative(x0, T), args.repeat)
-    print(f"Solo12 (d = {d}, n = 4), touchdown of {traj.groups[0].events} at "
+    print(f"Solo12 ({'rigid' if args.rigid else 'compliant'} feet, d = {robot.system.dim}, "
+          f"n = 4), touchdown of {traj.groups[0].events} at "
           f"t = {traj.groups[0].time:.6f} s, then {T - traj.groups[0].time:.3f} s of stance; "
           f"{len(traj.t)} steps")
     print(f"  simulate          {sim_w * 1e3:8.1f} ms wall {sim_c * 1e3:8.1f} ms CPU")
@@ -144,7 +151,7 @@ def main(argv=None):
         def central():
             return np.array([(robot.system.simulate(x0 + h * s, T).x_final
                               - robot.system.simulate(x0 - h * s, T).x_final) / (2 * h)
-                             for s in np.eye(d)]).T
+                             for s in np.eye(robot.system.dim)[:d]]).T
 
         (fd_w, fd_c), _ = _timed(central, 1)
         how = "measured"

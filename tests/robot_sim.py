@@ -81,3 +81,83 @@ class GroundSim:
                     contact.discard(k)
         q = self._q(y)
         return q, y[self.nq:], log
+
+
+class RigidSim(GroundSim):
+    """Rigid feet, independently (the oracle of tests/test_robots_rigid.py): at a
+    touchdown the feet landing (within ``touch_tol``) and those down take one plastic
+    impulse, ``v+ = v - M^-1 J^T (J M^-1 J^T)^-1 J v`` (M from ``crba``, J the feet's
+    world rows from their LOCAL Jacobians rotated); in stance the KKT system written out
+    (the drift from the LOCAL spatial velocity and acceleration); the feet stay down.
+    ``rows``: (0, 1, 2) sticking feet, (2,) the normal alone."""
+
+    def __init__(self, model, feet, q_ref, law, rows=(0, 1, 2)):
+        super().__init__(model, feet, q_ref, law)
+        self.rows = list(rows)
+
+    def _world(self, q, v, contact):
+        """J (r, nv) and the drift (r,) of the feet ``contact`` (world rows)."""
+        m, d = self.model, self.data
+        pin.forwardKinematics(m, d, q, v, np.zeros(self.nv))
+        pin.computeJointJacobians(m, d, q)
+        pin.updateFramePlacements(m, d)
+        Js, drift = [np.zeros((0, self.nv))], [np.zeros(0)]
+        for k in sorted(contact):
+            fid = self.fids[k]
+            R = d.oMf[fid].rotation
+            Js.append((R @ pin.getFrameJacobian(m, d, fid, pin.LOCAL)[:3])[self.rows])
+            vel = pin.getFrameVelocity(m, d, fid, pin.LOCAL)
+            acc = pin.getFrameAcceleration(m, d, fid, pin.LOCAL)
+            drift.append((R @ (acc.linear + np.cross(vel.angular, vel.linear)))[self.rows])
+        return np.vstack(Js), np.concatenate(drift)
+
+    def impact(self, q, v, contact):
+        J, _ = self._world(q, v, contact)
+        M = pin.crba(self.model, self.data, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        MJ = np.linalg.solve(M, J.T)
+        return v - MJ @ np.linalg.solve(J @ MJ, J @ v)
+
+    def rhs(self, t, y, contact):
+        m, d, law = self.model, self.data, self.law
+        q, v = self._q(y), y[self.nq:]
+        tau = np.zeros(self.nv)
+        tau[6:] = -law["kp"] * (q[7:] - self.q_ref[7:]) - law["kd"] * v[6:]
+        J, drift = self._world(q, v, contact)
+        M = pin.crba(m, d, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        b = pin.rnea(m, d, q, v, np.zeros(self.nv))
+        r = J.shape[0]
+        a = np.linalg.solve(np.block([[M, J.T], [J, np.zeros((r, r))]]),
+                            np.concatenate((tau - b, -drift)))[:self.nv]
+        R = pin.Quaternion(q[6], q[3], q[4], q[5]).toRotationMatrix()
+        w, qv, qw = v[3:6], y[3:6], y[6]
+        dq = np.concatenate((R @ v[:3], 0.5 * (qw * w + np.cross(qv, w)), [-0.5 * qv @ w],
+                             v[6:]))
+        return np.concatenate((dq, a))
+
+    def run(self, q0, v0, T, rtol=1e-12, atol=1e-13, touch_tol=1e-9):
+        """The state (q, v) at T, the touchdowns [(time, foot)] in order and the feet
+        down at T."""
+        y = np.concatenate((q0, v0))
+        t, contact, log = 0.0, set(), []
+        while t < T:
+            flying = [k for k in range(len(self.fids)) if k not in contact]
+            evs = []
+            for k in flying:
+                def ev(t, y, _contact, k=k):
+                    return self.heights(y)[k]
+                ev.terminal, ev.direction = True, -1.0
+                evs.append(ev)
+            sol = solve_ivp(self.rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol,
+                            events=evs or None, args=(frozenset(contact),))
+            y, t = sol.y[:, -1], sol.t[-1]
+            if sol.status != 1:
+                break
+            h = self.heights(y)
+            for k in flying:
+                if h[k] <= touch_tol:
+                    contact.add(k)
+                    log.append((t, k))
+            y[self.nq:] = self.impact(self._q(y), y[self.nq:], contact)
+        return self._q(y), y[self.nq:], log, contact

@@ -8,6 +8,8 @@ package, as :mod:`bderiv.symbolic` does from equations. docs/robots.md is its gu
 
 - :mod:`~bderiv.robots.legged`: :func:`legged_robot` (a Pinocchio model or URDF and the
   foot frames), the contact law, the tangent coordinates of the free-flying base;
+- :mod:`~bderiv.robots.rigid`: rigid feet (``contact="rigid"``): the plastic impact, the
+  constrained stance, the refusal of simultaneous impacts that do not commute;
 - :mod:`~bderiv.robots.quadrupeds`: Solo12, Go1, ANYmal from example-robot-data
   (:func:`quadruped`), :func:`drop_state` and :func:`touchdown_figure`;
 - :mod:`~bderiv.robots._lie`: the base's coordinate rate on SE(3) and its derivative;
@@ -15,7 +17,8 @@ package, as :mod:`bderiv.symbolic` does from equations. docs/robots.md is its gu
 """
 
 from .legged import CONTACT, LeggedRobot, legged_robot
-from .quadrupeds import ROBOTS, drop_state, quadruped, touchdown_figure
+from .quadrupeds import ROBOTS, SOLO12_PACE, drop_state, quadruped, touchdown_figure
+from .rigid import RigidLeggedRobot
 
-__all__ = ["CONTACT", "ROBOTS", "LeggedRobot", "drop_state", "legged_robot", "quadruped",
-           "touchdown_figure"]
+__all__ = ["CONTACT", "ROBOTS", "SOLO12_PACE", "LeggedRobot", "RigidLeggedRobot",
+           "drop_state", "legged_robot", "quadruped", "touchdown_figure"]

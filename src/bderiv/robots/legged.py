@@ -6,7 +6,8 @@ example-robot-data's or your own) and the names of its foot frames, and builds t
 ground ``z = ground``, ``h_k = ground - z_k(q)`` (touchdown: an upward crossing, bit k
 set in stance; lift-off: downward). It is a Python model: each call goes into Pinocchio
 (``aba``, ``computeABADerivatives``, frame Jacobians), integrated by scipy's
-``solve_ivp``.
+``solve_ivp``. ``contact="rigid"`` gives rigid feet instead (a plastic impact, the feet
+then held: :mod:`bderiv.robots.rigid`); the rest of this docstring is the compliant law.
 
 **Coordinates.** The state is ``x = (e, v)``, d = 2 nv: ``q = pinocchio.integrate(q_ref,
 e)`` (the base ``M_ref exp6(e_base)`` on SE(3), the joints ``q_ref_j + e_j``) and
@@ -105,10 +106,12 @@ class LeggedRobot:
         self.q_ref = np.array(q_ref, dtype=np.float64)
         if self.q_ref.shape != (model.nq,):
             raise ValueError(f"q_ref must have shape ({model.nq},), got {self.q_ref.shape}")
-        n = len(self.feet)
-        self.system = HybridSystem(self.field, self.events, n_events=n, dim=2 * self.nv,
-                                   field_jacobian=self.field_jacobian,
-                                   event_jacobian=self.event_jacobian)
+        self.system = self._build_system()
+
+    def _build_system(self) -> HybridSystem:
+        return HybridSystem(self.field, self.events, n_events=len(self.feet),
+                            dim=2 * self.nv, field_jacobian=self.field_jacobian,
+                            event_jacobian=self.event_jacobian)
 
     # ------------------------------------------------------------------ coordinates
     def state(self, q, v) -> np.ndarray:
@@ -122,7 +125,7 @@ class LeggedRobot:
         q = np.empty(self.model.nq)
         q[:7] = base_configuration(self.q_ref[:7], x[:6])  # pinocchio.integrate's, smooth
         q[7:] = self.q_ref[7:] + x[6:self.nv]
-        return q, x[self.nv:]
+        return q, x[self.nv:2 * self.nv]
 
     def _dintegrate(self, x, rate=None):
         """``dIntegrate(q_ref, e, ARG1)`` (nv, nv): ``Jr(e_base)`` (the inverse of
@@ -179,7 +182,7 @@ class LeggedRobot:
 
     def _torque(self, x):
         tau = np.zeros(self.nv)
-        tau[6:] = -self.law["kp"] * x[6:self.nv] - self.law["kd"] * x[self.nv + 6:]
+        tau[6:] = -self.law["kp"] * x[6:self.nv] - self.law["kd"] * x[self.nv + 6:2 * self.nv]
         return tau
 
     def field(self, x, mask) -> np.ndarray:
@@ -242,7 +245,8 @@ class LeggedRobot:
         return out
 
 
-def legged_robot(source, feet, q_ref=None, **law) -> LeggedRobot:
+def legged_robot(source, feet, q_ref=None, *, contact="compliant", sticking=True,
+                 **law) -> LeggedRobot:
     """A legged robot as a hybrid system (module docstring).
 
     Parameters
@@ -255,14 +259,24 @@ def legged_robot(source, feet, q_ref=None, **law) -> LeggedRobot:
     q_ref : array_like, (nq,), optional
         The reference configuration (tangent coordinates, PD posture); default the
         model's neutral configuration.
+    contact : {"compliant", "rigid"}
+        Compliant feet (the spring-damper of the module docstring), or rigid: a plastic
+        impact at touchdown and the feet then held (:mod:`bderiv.robots.rigid`).
+    sticking : bool
+        Rigid feet only: hold a landed foot's 3-D velocity (True) or its normal velocity
+        alone (False, a frictionless ground).
     **law
-        Contact and posture parameters, :data:`CONTACT` by default.
+        Contact and posture parameters, :data:`CONTACT` by default (rigid feet use
+        ``kp``, ``kd``, ``ground``).
 
     Returns
     -------
     LeggedRobot
-        Its ``system`` is the :class:`~bderiv.analysis.system.HybridSystem`.
+        Its ``system`` is the :class:`~bderiv.analysis.system.HybridSystem`; a
+        :class:`~bderiv.robots.rigid.RigidLeggedRobot` for rigid feet.
     """
+    if contact not in ("compliant", "rigid"):
+        raise ValueError(f"contact must be 'compliant' or 'rigid', got {contact!r}")
     pin = require_pinocchio()
     model = _load(source, pin)
     unknown = set(law) - set(CONTACT)
@@ -273,5 +287,9 @@ def legged_robot(source, feet, q_ref=None, **law) -> LeggedRobot:
         if not np.isfinite(value) or (name != "ground" and value < 0):
             raise ValueError(f"{name} must be a finite number"
                              f"{'' if name == 'ground' else ' >= 0'}, got {value!r}")
-    return LeggedRobot(model, feet, pin.neutral(model) if q_ref is None else q_ref,
-                       {**CONTACT, **law})
+    q_ref = pin.neutral(model) if q_ref is None else q_ref
+    if contact == "rigid":
+        from .rigid import RigidLeggedRobot  # it builds on LeggedRobot
+
+        return RigidLeggedRobot(model, feet, q_ref, {**CONTACT, **law}, sticking)
+    return LeggedRobot(model, feet, q_ref, {**CONTACT, **law})

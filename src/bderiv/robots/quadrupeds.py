@@ -15,7 +15,7 @@ import numpy as np
 
 from .legged import LeggedRobot, legged_robot
 
-__all__ = ["ROBOTS", "drop_state", "quadruped", "touchdown_figure"]
+__all__ = ["ROBOTS", "SOLO12_PACE", "drop_state", "quadruped", "touchdown_figure"]
 
 #: file, feet (event order) and standing joint posture of the bundled quadrupeds; the
 #: postures are the files' "standing" states with the hip abduction at 0 (Solo12:
@@ -33,8 +33,17 @@ ROBOTS = {
                "joints": (0.0, 0.6, -1.2, 0.0, -0.6, 1.2, 0.0, 0.6, -1.2, 0.0, -0.6, 1.2)},
 }
 
+#: Solo12's joints pacing (FR and HR tucked up, FL and HL to land together) at the hip
+#: flexion t = 0.8729206446683678 (knee -2 t, hind legs mirrored) where FL's and HL's
+#: normal rows are mass-orthogonal, ``J_FL M^-1 J_HL^T = 0`` (a root found by brentq):
+#: with rigid frictionless feet (``sticking=False``) their impacts commute
+#: (docs/robots.md, "Rigid contacts")
+SOLO12_PACE = (0.0, 0.8729206446683678, -1.7458412893367356, 0.0, 1.1, -2.2,
+               0.0, -0.8729206446683678, 1.7458412893367356, 0.0, -1.1, 2.2)
 
-def quadruped(name="solo12", *, joints=None, **law) -> LeggedRobot:
+
+def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
+              **law) -> LeggedRobot:
     """A bundled quadruped (:data:`ROBOTS`) as a :class:`~bderiv.robots.legged.LeggedRobot`.
 
     Parameters
@@ -43,6 +52,8 @@ def quadruped(name="solo12", *, joints=None, **law) -> LeggedRobot:
         A key of :data:`ROBOTS`.
     joints : array_like, (nv - 6,), optional
         Another standing posture.
+    contact, sticking
+        As :func:`~bderiv.robots.legged.legged_robot`'s.
     **law
         Contact and posture parameters (:data:`bderiv.robots.legged.CONTACT`); defaults
         scaled to the robot's mass (stiffness and damping in proportion to Solo12's
@@ -60,7 +71,8 @@ def quadruped(name="solo12", *, joints=None, **law) -> LeggedRobot:
     q_ref[7:] = entry["joints"] if joints is None else joints
     scale = pin.computeTotalMass(model) / 2.5
     law = {**{k: v * scale if k != "ground" else v for k, v in CONTACT.items()}, **law}
-    return legged_robot(model, entry["feet"], q_ref, **law)
+    return legged_robot(model, entry["feet"], q_ref, contact=contact, sticking=sticking,
+                        **law)
 
 
 def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarray:
@@ -70,14 +82,14 @@ def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarr
 
     Returns
     -------
-    ndarray, (2 nv,)
+    ndarray, (robot.system.dim,)
     """
-    x = np.zeros(2 * robot.nv)
+    x = np.zeros(robot.system.dim)  # a rigid robot's contact latches (0: in the air)
     low = robot.foot_positions(x)[:, 2].min()
     x[2] = robot.law["ground"] + height - low  # the base's height offset (level: e_z = dz)
     x[robot.nv + 2] = vz
     if velocity is not None:
-        x[robot.nv:] += np.asarray(velocity, dtype=np.float64)
+        x[robot.nv:2 * robot.nv] += np.asarray(velocity, dtype=np.float64)
     return x
 
 
@@ -103,7 +115,8 @@ def touchdown_figure(robot: LeggedRobot, x0, t_final, *, direction=None, eps=2e-
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
     def heights(xs):
-        return 1e3 * np.array([robot.law["ground"] - robot.events(x) for x in xs])
+        return 1e3 * np.array([robot.foot_positions(x)[:, 2] - robot.law["ground"]
+                               for x in xs])
 
     h = heights(nominal.x)
     for k, foot in enumerate(robot.feet):
@@ -136,7 +149,8 @@ def touchdown_figure(robot: LeggedRobot, x0, t_final, *, direction=None, eps=2e-
     zoom.axhline(0.0, color="k", lw=0.8)
     zoom.set_xlabel("time (ms)")
     zoom.set_title("near touchdown: solid as dropped, dashed perturbed", fontsize=10)
+    landing = nominal.groups[0].events if nominal.groups else robot.feet
     zoom.text(0.98, 0.97, "perturbed run lands " + " < ".join(order) + "\n(one of the "
-              f"{np.prod(range(1, len(robot.feet) + 1))} pieces of the B-derivative)",
+              f"{np.prod(range(1, len(landing) + 1))} pieces of the B-derivative)",
               transform=zoom.transAxes, fontsize=8, ha="right", va="top")
     return fig

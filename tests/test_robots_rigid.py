@@ -1,0 +1,217 @@
+"""bderiv.robots with rigid feet: the plastic impact, the stance, the refusal of
+simultaneous impacts that do not commute, and a mass-orthogonal pair against an
+independent simulation.
+
+Oracles: the impact's projection and the constrained dynamics written here with Pinocchio
+directly (``crba``, frame Jacobians, ``constraintDynamics``); tests/robot_sim.py's
+``RigidSim`` (its own state with the quaternion, its own KKT system and impulse, scipy's
+DOP853 with its own event logic) for the flow map. The agreement per foot order is
+printed (``pytest -s``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pin = pytest.importorskip("pinocchio")
+
+from bderiv.robots import _files  # noqa: E402
+
+try:
+    _files.example_robot_data()
+except ImportError:  # pragma: no cover - the extra installs both
+    pytest.skip("example-robot-data is not installed", allow_module_level=True)
+
+from robot_sim import RigidSim  # noqa: E402
+
+from bderiv.robots import SOLO12_PACE, drop_state, quadruped  # noqa: E402
+
+TOUCHDOWN = 0.017123551038388  # a drop from 1 cm at 0.5 m/s: (sqrt(v^2 + 2 g h) - v) / g
+STANCE = 0.05
+EPS = (1e-5, 1e-6)
+
+
+def _pace():
+    """Solo12 pacing: FL and HL land together, their normal rows mass-orthogonal."""
+    return quadruped("solo12", joints=SOLO12_PACE, contact="rigid", sticking=False)
+
+
+@pytest.fixture(scope="module")
+def solo():
+    return quadruped("solo12", contact="rigid")
+
+
+def _mass_and_jacobian(robot, q, feet, rows):
+    model, data = robot.model, robot.model.createData()
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    J = np.vstack([pin.getFrameJacobian(model, data, model.getFrameId(robot.feet[k]),
+                                        pin.LOCAL_WORLD_ALIGNED)[rows] for k in feet])
+    return M, J
+
+
+@pytest.mark.parametrize("sticking", [True, False])
+def test_the_plastic_impact_is_the_projection_written_out(sticking):
+    robot = quadruped("solo12", contact="rigid", sticking=sticking)
+    rows = [0, 1, 2] if sticking else [2]
+    x = 0.1 * np.random.default_rng(4).standard_normal(robot.system.dim)
+    x[2 * robot.nv:] = (0.0, 0.0, 1.0, 0.0)  # HL down, FL lands
+    q, v = robot.configuration(x)
+    M, J = _mass_and_jacobian(robot, q, (0, 2), rows)
+    Minv = np.linalg.inv(M)
+    expected = v - Minv @ J.T @ np.linalg.solve(J @ Minv @ J.T, J @ v)
+    after = robot.reset(x, 0b0100, 0)
+    err = np.abs(after[robot.nv:2 * robot.nv] - expected).max()
+    print(f"sticking={sticking}: impact against the projection {err:.2e}")
+    assert err < 1e-12 * np.abs(v).max()
+    assert np.abs(J @ after[robot.nv:2 * robot.nv]).max() < 1e-12
+    assert np.array_equal(after[:robot.nv], x[:robot.nv])
+    assert tuple(after[2 * robot.nv:]) == (1.0, 0.0, 1.0, 0.0)
+    h = 1e-6
+    central = np.array([(robot.reset(x + h * s, 0b0100, 0) - robot.reset(x - h * s, 0b0100, 0))
+                        / (2 * h) for s in np.eye(robot.system.dim)]).T
+    assert np.abs(robot.reset_jacobian(x, 0b0100, 0) - central).max() < 1e-8
+
+
+def test_the_stance_is_pinocchios_constrained_dynamics(solo):
+    x = 0.1 * np.random.default_rng(3).standard_normal(solo.system.dim)
+    q, v = solo.configuration(x)
+    model = solo.model
+    data = model.createData()
+    models, datas = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
+    for foot in (solo.feet[0], solo.feet[3]):
+        frame = model.frames[model.getFrameId(foot)]
+        c = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, model, frame.parentJoint,
+                                     frame.placement, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        models.append(c)
+        datas.append(c.createData())
+    pin.initConstraintDynamics(model, data, models, datas)
+    tau = np.zeros(solo.nv)
+    tau[6:] = -solo.law["kp"] * x[6:solo.nv] - solo.law["kd"] * v[6:]
+    a = pin.constraintDynamics(model, data, q, v, tau, models, datas)
+    assert np.abs(solo.field(x, 0b1001)[solo.nv:2 * solo.nv] - a).max() < 1e-10
+    assert np.abs(solo.contact_forces(x, 0b1001).ravel() - data.lambda_c).max() < 1e-10
+
+
+@pytest.mark.parametrize("sticking", [True, False])
+def test_the_jacobians_are_the_fields(sticking):
+    robot = quadruped("solo12", contact="rigid", sticking=sticking)
+    x = 0.1 * np.random.default_rng(1).standard_normal(robot.system.dim)
+    h = 1e-6
+    for mask in (0b0000, 0b0110, 0b1111):
+        J = robot.field_jacobian(x, mask)
+        central = np.array([(robot.field(x + h * s, mask) - robot.field(x - h * s, mask))
+                            / (2 * h) for s in np.eye(robot.system.dim)]).T
+        assert np.abs(J - central).max() < 1e-8 * np.abs(central).max(), mask
+    central = np.array([(robot.events(x + h * s) - robot.events(x - h * s)) / (2 * h)
+                        for s in np.eye(robot.system.dim)]).T
+    assert np.abs(robot.event_jacobian(x) - central).max() < 1e-8
+
+
+@pytest.mark.parametrize("sticking", [True, False])
+def test_solo12s_four_feet_landing_at_once_do_not_commute_and_are_refused(sticking):
+    """The four-foot level drop of Solo12 has no B-derivative with rigid feet: its feet
+    are coupled through the inverse mass matrix (the legs are light, the base is not)."""
+    robot = quadruped("solo12", contact="rigid", sticking=sticking)
+    x0 = drop_state(robot, 0.01, -0.5)
+    w = 3 if sticking else 1
+    C = robot.coupling(drop_state(robot, 0.0))
+    for i in range(4):
+        for j in range(i + 1, 4):
+            block = C[w * i:w * (i + 1), w * j:w * (j + 1)]
+            rel = np.linalg.norm(block, 2) / np.sqrt(
+                np.linalg.norm(C[w * i:w * (i + 1), w * i:w * (i + 1)], 2)
+                * np.linalg.norm(C[w * j:w * (j + 1), w * j:w * (j + 1)], 2))
+            print(f"sticking={sticking} {robot.feet[i]}-{robot.feet[j]}: |J_i M^-1 J_j^T| "
+                  f"= {np.linalg.norm(block, 2):.4g} ({rel:.3g} relative)")
+            assert rel > 1e-5  # COUPLING_TOL is 1e-9
+    with pytest.raises(ValueError, match=r"feet 0 \(FL_FOOT\) and 1 \(FR_FOOT\) touch down "
+                       r"at the same instant.*do not commute.*no B-derivative") as err:
+        robot.system.simulate(x0, TOUCHDOWN + STANCE)
+    print(err.value)
+    with pytest.raises(ValueError, match="do not commute"):
+        robot.system.flow_bderivative(x0, TOUCHDOWN + STANCE)
+
+
+def _independent(robot, sim, x, T):
+    q, v = robot.configuration(x)
+    qT, vT, log, down = sim.run(q, v.copy(), T)
+    return robot.state(qT, vT, sorted(down)), log
+
+
+def test_a_mass_orthogonal_pair_lands_at_once_and_the_flow_map_is_the_simulations():
+    """Solo12 pacing (FL and HL land together, FR and HR tucked up), frictionless feet at
+    the posture where the two are mass-orthogonal: the impacts commute, the flow's
+    B-derivative exists and is the independent simulation's in both foot orders."""
+    robot = _pace()
+    x0 = drop_state(robot, 0.01, -0.5)
+    M, J = _mass_and_jacobian(robot, robot.configuration(x0)[0], (0, 2), [2])
+    C = J @ np.linalg.solve(M, J.T)
+    print(f"pace: J_FL M^-1 J_HL^T = {C[0, 1]:.3g} (J_FL M^-1 J_FL^T = {C[0, 0]:.4g})")
+    assert abs(C[0, 1]) < 1e-14 * C[0, 0]
+    T = TOUCHDOWN + STANCE
+    D = robot.system.flow_bderivative(x0, T)
+    assert D.group_events == ((0, 2),) and abs(D.group_times[0] - TOUCHDOWN) < 1e-12
+    sim = RigidSim(robot.model, robot.feet, robot.q_ref, robot.law, rows=(2,))
+    base, log = _independent(robot, sim, x0, T)
+    assert sorted(k for _, k in log) == [0, 2] and len({t for t, _ in log}) == 1
+    assert np.abs(robot.system.simulate(x0, T).x_final - base).max() < 1e-9
+    U = np.random.default_rng(5).standard_normal((200, robot.system.dim))
+    U[:, 2 * robot.nv:] = 0.0  # the latches are 0 in the air
+    picked = {}
+    for u, order in zip(U, D.orders(U)[0], strict=True):
+        picked.setdefault(tuple(D.group_events[0][k] for k in order), u)
+    assert set(picked) == {(0, 2), (2, 0)}
+    for order, u in picked.items():
+        Du = D(u)
+        errs = []
+        for eps in EPS:
+            xe, met = _independent(robot, sim, x0 + eps * u, T)
+            assert tuple(k for _, k in met) == order
+            errs.append(np.linalg.norm((xe - base) / eps - Du) / np.linalg.norm(Du))
+        print(f"order {order}: relative error {errs[0]:.2e} at eps {EPS[0]:g}, "
+              f"{errs[1]:.2e} at eps {EPS[1]:g}")
+        assert errs[1] < 1e-4 and errs[1] < 0.2 * errs[0], (order, errs)
+
+
+def test_sticking_feet_landing_one_after_the_other_against_the_simulation():
+    """Trot posture (FR and HL tucked up), sticking feet, a pitch rate so that FL lands
+    before HR: two groups of one foot each (no commutation needed), the flow's derivative
+    against the independent simulation's differences."""
+    robot = quadruped("solo12", joints=(0.0, 0.8, -1.6, 0.0, 1.1, -2.2,
+                                        0.0, -1.1, 2.2, 0.0, -0.8, 1.6), contact="rigid")
+    velocity = np.zeros(robot.nv)
+    velocity[4] = 0.5  # pitch, rad/s: the nose goes down
+    x0 = drop_state(robot, 0.01, -0.5, velocity=velocity)
+    T = TOUCHDOWN + STANCE
+    D = robot.system.flow_bderivative(x0, T)
+    assert D.group_events == ((0,), (3,))
+    sim = RigidSim(robot.model, robot.feet, robot.q_ref, robot.law)
+    base, log = _independent(robot, sim, x0, T)
+    assert [k for _, k in log] == [0, 3]
+    assert np.abs(np.array([t for t, _ in log]) - D.group_times).max() < 1e-9
+    assert np.abs(robot.system.simulate(x0, T).x_final - base).max() < 1e-9
+    u = np.random.default_rng(6).standard_normal(robot.system.dim)
+    u[2 * robot.nv:] = 0.0
+    Du = D(u)
+    errs = [np.linalg.norm((_independent(robot, sim, x0 + eps * u, T)[0] - base) / eps - Du)
+            / np.linalg.norm(Du) for eps in EPS]
+    print(f"sticking, FL then HR: relative error {errs[0]:.2e} at eps {EPS[0]:g}, "
+          f"{errs[1]:.2e} at eps {EPS[1]:g}")
+    assert errs[1] < 1e-4 and errs[1] < 0.2 * errs[0], errs
+
+
+def test_the_held_feet_push_and_bad_contact_is_refused():
+    """Over the pace's stance the ground pushes the held feet (the model holds them
+    without a lift-off: docs/robots.md), and a contact that is neither is refused."""
+    robot = _pace()
+    x0 = drop_state(robot, 0.01, -0.5)
+    traj = robot.system.simulate(x0, TOUCHDOWN + STANCE,
+                                 t_eval=np.linspace(TOUCHDOWN + 1e-4, TOUCHDOWN + STANCE, 6))
+    normal = np.array([robot.contact_forces(x, 0b0101)[:, 2] for x in traj.x])
+    assert normal.min() > 0.0, normal
+    with pytest.raises(ValueError, match="contact must be 'compliant' or 'rigid', got 'hard'"):
+        quadruped("solo12", contact="hard")
