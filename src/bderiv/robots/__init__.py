@@ -6,8 +6,10 @@ Why a sub-package: it is the one place that imports Pinocchio (inside its functi
 and it builds ordinary :class:`~bderiv.analysis.system.HybridSystem` models on top of the
 package, as :mod:`bderiv.symbolic` does from equations. docs/robots.md is its guide.
 
-- :mod:`~bderiv.robots.legged`: :func:`legged_robot` (a Pinocchio model or URDF and the
-  foot frames), the contact law, the tangent coordinates of the free-flying base;
+- :mod:`~bderiv.robots.build`: :func:`legged_robot` (a Pinocchio model or URDF and the
+  foot frames);
+- :mod:`~bderiv.robots.legged`: compliant feet: the contact law, the tangent coordinates
+  of the free-flying base;
 - :mod:`~bderiv.robots.rigid`: rigid feet (``contact="rigid"``): the plastic impact, the
   constrained stance, the refusal of simultaneous impacts that do not commute;
 - :mod:`~bderiv.robots.quadrupeds`: Solo12, Go1, ANYmal from example-robot-data
@@ -16,7 +18,8 @@ package, as :mod:`bderiv.symbolic` does from equations. docs/robots.md is its gu
 - :mod:`~bderiv.robots._files`: the description files found, Pinocchio required.
 """
 
-from .legged import CONTACT, LeggedRobot, legged_robot
+from .build import legged_robot
+from .legged import CONTACT, LeggedRobot
 from .quadrupeds import ROBOTS, SOLO12_PACE, drop_state, quadruped, touchdown_figure
 from .rigid import RigidLeggedRobot
 

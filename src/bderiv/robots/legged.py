@@ -41,32 +41,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..analysis.system import HybridSystem
-from ._files import require_pinocchio, robot_file
+from ._files import require_pinocchio
 from ._lie import base_configuration, se3_rate_jacobians, se3_rate_matrix
 
-__all__ = ["CONTACT", "LeggedRobot", "legged_robot"]
+__all__ = ["CONTACT", "LeggedRobot"]
 
 #: the contact and posture law's defaults (module docstring): N/m, N s/m, N s/m, N m/rad,
 #: N m s/rad; Solo12 (2.5 kg) sinks about 1.2 mm per foot standing on four feet
 CONTACT = {"stiffness": 5.0e3, "damping": 50.0, "friction": 50.0, "kp": 5.0, "kd": 0.1,
            "ground": 0.0}
-
-
-def _load(source, pin):
-    if isinstance(source, pin.Model):
-        model = source
-    else:
-        model = pin.buildModelFromUrdf(str(robot_file(source)), pin.JointModelFreeFlyer())
-    if model.njoints < 2 or model.joints[1].shortname() != "JointModelFreeFlyer":
-        raise ValueError("the model must have a free-flying base as its first joint "
-                         "(buildModelFromUrdf(path, pinocchio.JointModelFreeFlyer())), got "
-                         f"{model.joints[1].shortname() if model.njoints > 1 else 'no joint'}")
-    other = [(model.names[j], model.joints[j].shortname()) for j in range(2, model.njoints)
-             if model.joints[j].nq != 1 or model.joints[j].nv != 1]
-    if other:
-        raise ValueError(f"the joints after the base must each have one coordinate "
-                         f"(revolute or prismatic: q = q_ref + e), got {other}")
-    return model
 
 
 def _skew(w):
@@ -243,53 +226,3 @@ class LeggedRobot:
         out[nv:, 6:nv] -= law["kp"] * Minv[:, 6:]
         out[nv:, nv + 6:] -= law["kd"] * Minv[:, 6:]
         return out
-
-
-def legged_robot(source, feet, q_ref=None, *, contact="compliant", sticking=True,
-                 **law) -> LeggedRobot:
-    """A legged robot as a hybrid system (module docstring).
-
-    Parameters
-    ----------
-    source : pinocchio.Model, str or os.PathLike
-        A model with a free-flying base, or a URDF: a path, or a file of example-robot-data
-        such as ``"solo_description/robots/solo12.urdf"`` (loaded with a free-flyer).
-    feet : sequence of str
-        The foot frames; event k is foot k's touchdown.
-    q_ref : array_like, (nq,), optional
-        The reference configuration (tangent coordinates, PD posture); default the
-        model's neutral configuration.
-    contact : {"compliant", "rigid"}
-        Compliant feet (the spring-damper of the module docstring), or rigid: a plastic
-        impact at touchdown and the feet then held (:mod:`bderiv.robots.rigid`).
-    sticking : bool
-        Rigid feet only: hold a landed foot's 3-D velocity (True) or its normal velocity
-        alone (False, a frictionless ground).
-    **law
-        Contact and posture parameters, :data:`CONTACT` by default (rigid feet use
-        ``kp``, ``kd``, ``ground``).
-
-    Returns
-    -------
-    LeggedRobot
-        Its ``system`` is the :class:`~bderiv.analysis.system.HybridSystem`; a
-        :class:`~bderiv.robots.rigid.RigidLeggedRobot` for rigid feet.
-    """
-    if contact not in ("compliant", "rigid"):
-        raise ValueError(f"contact must be 'compliant' or 'rigid', got {contact!r}")
-    pin = require_pinocchio()
-    model = _load(source, pin)
-    unknown = set(law) - set(CONTACT)
-    if unknown:
-        raise ValueError(f"{sorted(unknown)} are not parameters of the contact law (its "
-                         f"parameters: {', '.join(CONTACT)})")
-    for name, value in law.items():
-        if not np.isfinite(value) or (name != "ground" and value < 0):
-            raise ValueError(f"{name} must be a finite number"
-                             f"{'' if name == 'ground' else ' >= 0'}, got {value!r}")
-    q_ref = pin.neutral(model) if q_ref is None else q_ref
-    if contact == "rigid":
-        from .rigid import RigidLeggedRobot  # it builds on LeggedRobot
-
-        return RigidLeggedRobot(model, feet, q_ref, {**CONTACT, **law}, sticking)
-    return LeggedRobot(model, feet, q_ref, {**CONTACT, **law})

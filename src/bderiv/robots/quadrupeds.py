@@ -1,7 +1,7 @@
 """Quadrupeds of example-robot-data, ready: their files, feet and standing postures.
 
 Each entry is what a robot needs from its description file (the rest is
-:func:`~bderiv.robots.legged.legged_robot`): the URDF's path in example-robot-data, the
+:func:`~bderiv.robots.build.legged_robot`): the URDF's path in example-robot-data, the
 foot frames in the order of the events, and a standing posture of the joints (the PD's
 reference and the tangent coordinates' origin). Another robot is another entry, or a
 direct call of ``legged_robot`` with its file. :func:`drop_state` places a robot level
@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .legged import LeggedRobot, legged_robot
+from .build import legged_robot
+from .legged import LeggedRobot
 
 __all__ = ["ROBOTS", "SOLO12_PACE", "drop_state", "quadruped", "touchdown_figure"]
 
@@ -53,7 +54,7 @@ def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
     joints : array_like, (nv - 6,), optional
         Another standing posture.
     contact, sticking
-        As :func:`~bderiv.robots.legged.legged_robot`'s.
+        As :func:`~bderiv.robots.build.legged_robot`'s.
     **law
         Contact and posture parameters (:data:`bderiv.robots.legged.CONTACT`); defaults
         scaled to the robot's mass (stiffness and damping in proportion to Solo12's
