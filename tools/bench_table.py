@@ -72,7 +72,7 @@ def load(path: str, stat: str = "min"):
     info["cpu"] = machine.get("cpu", {}).get("brand_raw", "?")
     info["cores"] = machine.get("cpu", {}).get("count", "?")
     info["datetime"] = data.get("datetime", "?")
-    info["load"] = machine.get("load")  # benchmarks/conftest.py: at start and end
+    info["load"] = machine.get("load")  # conftest.py (the root): at start and end
     return evals, builds, threads, info
 
 

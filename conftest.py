@@ -1,5 +1,8 @@
 """The load average at the start and end of a benchmark session, in pytest-benchmark's
-``machine_info`` (``--benchmark-json``), for ``tools/bench_table.py --record``."""
+``machine_info`` (``--benchmark-json``), for ``tools/bench_table.py --record``.
+
+At the repository's root, not in benchmarks/: two ``conftest.py`` of folders that are not
+packages, both collected by ``--doctest-modules``, collide as one module name."""
 
 from __future__ import annotations
 
