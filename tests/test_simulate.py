@@ -270,7 +270,7 @@ def test_options_object_and_keywords_agree():
 
 def test_one_event_jacobian_per_stop():
     """The excursion screen, settle and switch look at a stop's state through one set of
-    evaluations (locate.StopCalls): one event Jacobian per stretch end, on both paths."""
+    evaluations (stopcalls.StopCalls): one event Jacobian per stretch end, on both paths."""
     ex = examples.chair()
     s = ex.system
     calls = []

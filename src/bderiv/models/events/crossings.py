@@ -26,7 +26,8 @@ from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
 from ..._support._format import format_mask, transversality_message
 from ..._support._validate import frozen, scratch
 from ..compiled import rules
-from .locate import examine, flags_of, orientation, state_error
+from .locate import examine, flags_of, state_error
+from .stopcalls import orientation
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",

@@ -40,7 +40,9 @@ from ..._support._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
-from ..events.locate import StopCalls, check_carried, check_sides, local_view, settle
+from ..events.locate import settle
+from ..events.sides import check_carried, check_sides
+from ..events.stopcalls import StopCalls, local_view
 from ..events.zeno import ImpactWatch
 from ..readiness import integrator_ready
 from .compiled_path import CompiledStretches
@@ -249,7 +251,7 @@ def stretches_for(system, options, section=None, watch=None, stops=None):
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
     (``watch``: a :class:`~bderiv._support._progress.SimulationProgress` told each
     evaluation's time; the compiled driver returns to Python between slices of steps
-    instead; ``stops``: the run's :class:`~bderiv.models.events.locate.StopCalls`).
+    instead; ``stops``: the run's :class:`~bderiv.models.events.stopcalls.StopCalls`).
 
     Raises
     ------
