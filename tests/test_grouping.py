@@ -20,7 +20,7 @@ from bderiv.models.events.locate import (
     windows,
 )
 from bderiv.models.events.sides import on_side_at_start
-from bderiv.models.integrate.run import SolverOptions
+from bderiv.models.integrate.options import SolverOptions
 
 
 # ------------------------------------------------------------------------------------------

@@ -9,12 +9,9 @@ from test_hybrid import constant_system
 
 from bderiv import examples
 from bderiv.analysis.system import HybridSystem
-from bderiv.models.integrate.run import (
-    GLOBAL_ERROR_FACTOR,
-    SolverOptions,
-    Trajectory,
-    group_tolerance,
-)
+from bderiv.models.integrate.options import SolverOptions
+from bderiv.models.integrate.run import GLOBAL_ERROR_FACTOR, group_tolerance
+from bderiv.models.integrate.trajectory import Trajectory
 
 
 # ------------------------------------------------------------------------------------------

@@ -47,7 +47,8 @@ from .._limits import (
     T_MAX_PER_PERIOD,
 )
 from .._support._validate import check_number, check_positive_int
-from ..models.integrate.run import ENDS, NoReturn, SolverOptions, run
+from ..models.integrate.options import SolverOptions
+from ..models.integrate.run import ENDS, NoReturn, run
 from ._cyclic import (
     SHIFTS,
     check_cyclic,

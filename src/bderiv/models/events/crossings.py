@@ -122,7 +122,7 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     --------
     An event that does not depend on a large coordinate is not widened by it:
 
-    >>> from bderiv.models.integrate.run import SolverOptions
+    >>> from bderiv.models.integrate.options import SolverOptions
     >>> group_tolerance(np.array([[1.0, 0.0]]), SolverOptions(), np.array([1e-3, 500.0]))
     array([1.1e-11])
     """
