@@ -68,7 +68,7 @@ def pronking(pkg):
     x0[0] = APEX
     run = pkg.models.integrate.run
     traj = run.run(system, x0, T_FINAL, simultaneity_tol=1e-7,
-                   options=run.SolverOptions.resolve(None), variational=True)
+                   options=pkg.SolverOptions.resolve(None), variational=True)
     jump = assembly(pkg).flow_map_along(system, traj).jumps[0]
     return system, traj, (np.array(jump.Dh), np.array(jump.F))
 

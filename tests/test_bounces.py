@@ -11,6 +11,7 @@ from scipy.integrate import quad, solve_ivp
 
 from bderiv import HybridSystem
 from bderiv.examples import bounces, walkers
+from bderiv.examples.walkers._compass import _Compass
 
 G = 9.81
 
@@ -342,7 +343,7 @@ def test_compass_heel_strike_is_the_rigid_impact_of_the_floating_walker(leg_mass
     J q'+ = 0 (no impulse on the old stance foot, which lifts off). Legs with mass (the
     massless limit is checked against Garcia et al.'s gait above)."""
     hip_mass, leg = 10.0, 1.2
-    model = walkers._Compass(hip_mass, leg_mass, leg, leg_com, 0.05, 9.81)
+    model = _Compass(hip_mass, leg_mass, leg, leg_com, 0.05, 9.81)
     b = leg_com * leg  # the leg mass from the hip
 
     def u(a):

@@ -8,7 +8,7 @@ import scipy.linalg
 
 from bderiv import HybridSystem, examples
 from bderiv.analysis.checks import FD_OPTIONS, FDCheck, fd_check, forward_differences
-from bderiv.models.integrate.run import SolverOptions
+from bderiv.models.integrate.options import SolverOptions
 
 # x' = A x + b, no event on the way: the flow is affine, Phi(T, x) = e^{AT} x + c, so every
 # forward difference equals e^{AT} v up to the integration error over eps

@@ -18,7 +18,8 @@ from test_recurring import square_spiral
 
 from bderiv.analysis.checks import decay_check, fd_check
 from bderiv.analysis.flowmap import FlowBDerivative
-from bderiv.analysis.orbit import MAX_PIECE_SWITCHES, PeriodicOrbit, newton_step
+from bderiv.analysis.newton import MAX_PIECE_SWITCHES, newton_step
+from bderiv.analysis.orbit import PeriodicOrbit
 from bderiv.analysis.returnmap import ReturnMap
 from bderiv.analysis.stability import Stability, growth_rate, piece_multipliers
 from bderiv.analysis.system import HybridSystem

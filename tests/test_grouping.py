@@ -16,11 +16,11 @@ from bderiv.models.events.crossings import group_tolerance
 from bderiv.models.events.locate import (
     GLOBAL_ERROR_FACTOR,
     classify,
-    on_side_at_start,
     state_error,
     windows,
 )
-from bderiv.models.integrate.run import SolverOptions
+from bderiv.models.events.sides import on_side_at_start
+from bderiv.models.integrate.options import SolverOptions
 
 
 # ------------------------------------------------------------------------------------------

@@ -9,12 +9,9 @@ from test_hybrid import constant_system
 
 from bderiv import examples
 from bderiv.analysis.system import HybridSystem
-from bderiv.models.integrate.run import (
-    GLOBAL_ERROR_FACTOR,
-    SolverOptions,
-    Trajectory,
-    group_tolerance,
-)
+from bderiv.models.integrate.options import SolverOptions
+from bderiv.models.integrate.run import GLOBAL_ERROR_FACTOR, group_tolerance
+from bderiv.models.integrate.trajectory import Trajectory
 
 
 # ------------------------------------------------------------------------------------------
@@ -270,7 +267,7 @@ def test_options_object_and_keywords_agree():
 
 def test_one_event_jacobian_per_stop():
     """The excursion screen, settle and switch look at a stop's state through one set of
-    evaluations (locate.StopCalls): one event Jacobian per stretch end, on both paths."""
+    evaluations (stopcalls.StopCalls): one event Jacobian per stretch end, on both paths."""
     ex = examples.chair()
     s = ex.system
     calls = []

@@ -23,7 +23,7 @@ from types import SimpleNamespace
 import numpy as np
 from bderiv import BDerivative
 from bderiv.models.compiled import rules
-from bderiv.models.events import crossings, excursions, locate
+from bderiv.models.events import crossings, excursions, locate, sides
 
 spec = importlib.util.spec_from_file_location("spec_tool", sys.argv[1])
 tool = importlib.util.module_from_spec(spec)
@@ -52,7 +52,7 @@ for D in both(Dh):
 # the stop rules the compiled run calls too, on its writeable scratch (_validate.scratch)
 for h in both([[1e-16, -1.0], [2e-16, -0.5], [3e-16, -0.2]]):
     excursions._start_dip(h, np.full(2, 1e-9), np.array([0.0, 0.5, 1.0]), lambda t, k: 1.0)
-    locate.check_sides(h[0], 0b00, both([1e-9, 1e-9])[1], 0.5)
+    sides.check_sides(h[0], 0b00, both([1e-9, 1e-9])[1], 0.5)
     crossings._clearly_positive(h[1], h[2])
 # ... as the compiled run's own calls type them (writeable, C-contiguous; from njit code)
 H = np.array([[1e-16, -1.0], [2e-16, -0.5], [3e-16, -0.2]])

@@ -6,7 +6,7 @@ in the first, ``(-K, -1)`` in the second, ``(1, -K)`` in the third, ``(K, 1)`` i
 fourth. From ``(x0, y0)`` in the first quadrant the crossings of the axes come at
 ``x0``, then at intervals ``(y0 + K x0) K^j`` (``j = 0, 1, ...``): they accumulate at
 ``x0 + (y0 + K x0) / (1 - K)``, every crossing transversal. Oracle: that closed form.
-A run past it is refused at it (locate.check_carried, zeno.ImpactWatch).
+A run past it is refused at it (sides.check_carried, zeno.ImpactWatch).
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def test_a_run_past_the_accumulation_is_refused_at_it_not_followed_across_a_surf
         path, K, what):
     """Near the accumulation the turns fall below the integration accuracy: the state is
     left a rounding across a surface that the next region's field carries further across
-    (locate.check_carried), or the crossings come around at one instant
+    (sides.check_carried), or the crossings come around at one instant
     (zeno.ImpactWatch). Followed (main), every later sample was across a surface."""
     system = spiral(path, K)
     with pytest.raises(ValueError, match=r"crosses at once") as info:

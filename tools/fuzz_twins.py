@@ -31,8 +31,9 @@ from fuzz_models import ATOL, RTOL, draw, events
 
 from bderiv._limits import DERIVATIVE_SIMULTANEITY_TOL, SIMULATION_SIMULTANEITY_TOL
 from bderiv.models.integrate import run as run_module
+from bderiv.models.integrate.options import SolverOptions
 
-OPTIONS = run_module.SolverOptions(rtol=RTOL, atol=ATOL)
+OPTIONS = SolverOptions(rtol=RTOL, atol=ATOL)
 #: a run of more groups is refused (Zeno): the models meet a few; a chattering one would
 #: cost minutes at the default 10,000 (the Python loop, group by group)
 MAX_GROUPS = 200

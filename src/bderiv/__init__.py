@@ -12,7 +12,7 @@ _WHERE = {
     "CornerFunction": "geometry.corners", "CornerModel": "geometry.corners",
     "StructuredCorners": "geometry.corners",
     "FlowBDerivative": "analysis.flowmap", "check_jacobians": "analysis.jacobians",
-    "complex_step_jacobian": "analysis.jacobians", "SolverOptions": "models.integrate.run",
+    "complex_step_jacobian": "analysis.jacobians", "SolverOptions": "models.integrate.options",
     "HybridSystem": "analysis.system", "Triangulation": "geometry.triangulation",
     "load_triangulation": "geometry.triangulation",
 }

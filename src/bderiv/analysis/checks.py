@@ -20,7 +20,7 @@ import numpy as np
 from .._limits import FD_EPS, FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
 from .._support._progress import resolve_progress
 from .._support._validate import check_matrix, check_number, check_points, check_positive_int
-from ..models.integrate.run import SolverOptions
+from ..models.integrate.options import SolverOptions
 from ._cyclic import check_cyclic, kept
 
 __all__ = [

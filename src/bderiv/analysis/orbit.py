@@ -9,7 +9,8 @@ exactly** (the B-derivative Newton method of Pang, 1990):
 
 by moving between pieces: solve the linear system of one piece (one event order per
 group), read the piece that its solution selects, and repeat until the solution lies in
-its own piece (``A(delta) = A_piece delta``), at most :data:`MAX_PIECE_SWITCHES` times;
+its own piece (``A(delta) = A_piece delta``), at most
+:data:`~bderiv._limits.MAX_PIECE_SWITCHES` times (:mod:`bderiv.analysis.newton`);
 the work does not grow with the number of pieces (a product of n! orders per group, 1.6e9
 for two groups of eight feet), which are never listed (docs/mathematics.md section 10
 says what is guaranteed). Why exactly and not "the piece at x": near
@@ -39,17 +40,15 @@ import numpy as np
 from .._limits import (
     DEFAULT_T_MAX,
     DERIVATIVE_SIMULTANEITY_TOL,
-    MAX_HALVINGS,
-    MAX_PIECE_SWITCHES,
     MULTIPLIER_PIECES,
     ON_SURFACE_TOL,
     ORBIT_MAX_ITER,
     ORBIT_TOL,
-    PIECE_RTOL,
     T_MAX_PER_PERIOD,
 )
 from .._support._validate import check_number, check_positive_int
-from ..models.integrate.run import ENDS, NoReturn, SolverOptions, run
+from ..models.integrate.options import SolverOptions
+from ..models.integrate.run import ENDS, NoReturn, run
 from ._cyclic import (
     SHIFTS,
     check_cyclic,
@@ -59,6 +58,7 @@ from ._cyclic import (
     kept,
     reduced_basis,
 )
+from .newton import damped_step, newton_step, onto_section
 from .returnmap import return_map
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
@@ -251,7 +251,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     t_max = (DEFAULT_T_MAX if period_guess is None
              else T_MAX_PER_PERIOD * check_number(period_guess, "period_guess"))
     options = ORBIT_OPTIONS if options is None else options
-    x = _onto_section(section, x_guess)
+    x = onto_section(section, x_guess)
     cyclic = check_cyclic(cyclic, x.size)
     keep = kept(cyclic, x.size)
     check_section_normal(section.gradient(x), cyclic, x)
@@ -274,7 +274,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
             raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
                                f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
         delta, piece, switches = newton_step(R, r, section.gradient(x), section(x), keep=keep)
-        x_new, returned = _damped(system, section, x, delta, res, t_max, options, keep)
+        x_new, returned = damped_step(system, section, x, delta, res, t_max, options, keep)
         history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece,
                                      switches))
         x = x_new
@@ -324,66 +324,6 @@ def _build(system, x, section, t_max, simultaneity_tol, options):
                         options=options), 0.0)
 
 
-def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None):
-    """Solve the PL Newton equation ``r + R(delta) - delta = 0``, ``normal . delta =
-    -value`` by moving between pieces, never listing them.
-
-    Starting from the piece that ``-r`` selects, solve that piece's linear system, and
-    move to the piece its solution selects until the solution lies in its own piece (then
-    it solves the PL equation exactly), a piece comes back (a cycle) or ``max_switches``
-    pieces were tried; then the solution with the smallest PL residual
-    ``|r + R(delta) - delta|`` among those tried is taken: a generalized Newton step with
-    that piece (docs/mathematics.md section 10).
-
-    Parameters
-    ----------
-    R : FlowBDerivative
-        The return map's B-derivative A (``R(V)``, ``R.orders``, ``R.piece``).
-    r : ndarray, shape (d,)
-        ``P(x) - x``.
-    normal : ndarray, shape (d,)
-        The section's gradient at x.
-    value : float
-        The section's value at x.
-    max_switches : int
-    keep : ndarray of int, optional
-        The coordinates in the equation (default all): the others (cyclic) are left out
-        of ``r + R(delta) - delta = 0`` and held, ``delta_i = 0``.
-
-    Returns
-    -------
-    delta : ndarray, shape (d,)
-    piece : tuple of tuples
-        The piece of ``delta`` (one event order per group).
-    switches : int
-        Pieces tried before ``piece``.
-    """
-    d = R.dim
-    keep = np.arange(d) if keep is None else np.asarray(keep)
-    system = np.vstack((np.zeros((keep.size, keep.size)), normal[keep]))
-    rhs = np.concatenate((-r[keep], [-value]))
-    start = np.zeros(d)
-    start[keep] = -r[keep]
-    piece, tried, best = _piece_of(R, start), set(), None
-    for switches in range(max_switches):
-        A = R.piece(list(piece))
-        system[:-1] = (A - np.eye(d))[np.ix_(keep, keep)]
-        delta = np.zeros(d)
-        delta[keep] = np.linalg.lstsq(system, rhs, rcond=None)[0]
-        image = R(delta)
-        if np.abs(image - A @ delta).max() <= PIECE_RTOL * np.abs(A).max() * np.abs(
-                delta).max():
-            return delta, piece, switches
-        miss = np.abs((r + image - delta)[keep]).max()
-        if best is None or miss < best[0]:
-            best = (miss, delta, piece, switches)
-        tried.add(piece)
-        piece = _piece_of(R, delta)
-        if piece in tried:
-            break
-    return best[1], best[2], best[3]
-
-
 def _without(R, cyclic):
     """``V -> R(V)`` with the cyclic components of the images set to 0, and the same with
     the orders (``R.apply_orders``)."""
@@ -399,43 +339,3 @@ def _without(R, cyclic):
         return W, orders
 
     return fmap, fmap_orders
-
-
-def _piece_of(R, v):
-    """The piece (one event order per group, tuples of local indices) that v selects."""
-    return tuple(tuple(int(k) for k in order[0]) for order in R.orders(v[None]))
-
-
-def _onto_section(section, x, steps=20):
-    """Move x onto ``section = 0`` along the gradient (Newton's method on s)."""
-    x = np.array(x, dtype=np.float64)
-    for _ in range(steps):
-        value = section(x)
-        if abs(value) <= 1e-13 * max(1.0, float(np.abs(x).max())):
-            break
-        g = section.gradient(x)
-        x = x - value * g / (g @ g)
-    return x
-
-
-def _damped(system, section, x, delta, res, t_max, options, keep):
-    """``x + delta`` (on the section), halved until ``max |P - x|`` (over the coordinates
-    ``keep``) falls below ``res``; and that ``max |P - x|`` at it."""
-    failure = ""
-    for _ in range(MAX_HALVINGS + 1):
-        trial = _onto_section(section, x + delta)
-        try:
-            traj = run(system, trial, t_max, simultaneity_tol=0.0, options=options,
-                       section=section, record=ENDS)
-        except ValueError as exc:  # no return, an event at the section ...: a shorter step
-            failure = f"; the last trial point failed: {exc}"
-            delta = delta / 2
-            continue
-        returned = float(np.abs((traj.x_final - trial)[keep]).max())
-        if returned < res:
-            return trial, returned
-        delta = delta / 2
-    raise RuntimeError(f"a Newton step from x = {x} could not reduce max |P(x) - x| = "
-                       f"{res:.3g} in {MAX_HALVINGS} halvings: the guess is too far from "
-                       f"a periodic orbit, or the orbit is degenerate (a multiplier 1)"
-                       f"{failure}")

@@ -43,16 +43,16 @@ from .._limits import (
 from .._support._validate import check_number
 from ..models.calls import ModelCalls
 from ..models.integrate.many import Trajectories, check_states, run_many
+from ..models.integrate.options import SolverOptions
 from ..models.integrate.run import (
     ENDS,
     STEPS,
     EventGroup,
     EventRecord,
-    SolverOptions,
-    Trajectory,
     check_t_eval,
     run,
 )
+from ..models.integrate.trajectory import Trajectory
 from ..models.section import Section
 from . import checks
 from .assembly import flow_map_along, point_bderivative

@@ -3,8 +3,8 @@
 This is the representation of the source note (mathematics.md section 5): pre-event vertices
 ``pre``, their post-event images ``post``, and the simplicial cones of the fan around
 F[0]. It holds everything needed to rebuild the map (and its inverse) elsewhere, without
-the event machinery. Files and direct construction alike are checked completely by
-``_triangulation_io`` before anything is trusted.
+the event machinery. Files (parsed by ``_triangulation_io``) and direct construction alike
+are checked completely by ``_triangulation_fields`` before anything is trusted.
 """
 
 from __future__ import annotations
@@ -25,13 +25,12 @@ from .._support._validate import (
     check_positive_int,
     singular_condition,
 )
+from ._triangulation_fields import FIELDS, check_fields
 from ._triangulation_io import (
-    FIELDS,
     FILE_FORMAT,
     PAIR,
     VERSION_FIELDS,
     check_data,
-    check_fields,
     check_pair,
     file_format,
     read_json,

@@ -7,7 +7,7 @@ import numpy as np
 from .._limits import DERIVATIVE_SIMULTANEITY_TOL
 from .._support._validate import check_number, check_positive_int
 from ..analysis.system import HybridSystem
-from ..models.integrate.run import SolverOptions
+from ..models.integrate.options import SolverOptions
 from ._host import FlowHost
 from ._primitive import pl_function
 

@@ -70,7 +70,7 @@ class FlowHost:
     Examples
     --------
     >>> from bderiv.examples import chair
-    >>> from bderiv.models.integrate.run import SolverOptions
+    >>> from bderiv.models.integrate.options import SolverOptions
     >>> ex = chair()
     >>> host = FlowHost(ex.system, ex.t_final, options=SolverOptions(), simultaneity_tol=1e-7,
     ...                 direction=None, cache_size=8)

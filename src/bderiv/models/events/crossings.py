@@ -26,7 +26,8 @@ from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
 from ..._support._format import format_mask, transversality_message
 from ..._support._validate import frozen, scratch
 from ..compiled import rules
-from .locate import examine, flags_of, orientation, state_error
+from .locate import examine, flags_of, state_error
+from .stopcalls import orientation
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
@@ -121,7 +122,7 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     --------
     An event that does not depend on a large coordinate is not widened by it:
 
-    >>> from bderiv.models.integrate.run import SolverOptions
+    >>> from bderiv.models.integrate.options import SolverOptions
     >>> group_tolerance(np.array([[1.0, 0.0]]), SolverOptions(), np.array([1e-3, 500.0]))
     array([1.1e-11])
     """

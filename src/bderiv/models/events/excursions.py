@@ -69,7 +69,7 @@ from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
 from ..._support._validate import frozen, scratch
 from ..compiled import rules
 from .crossings import group_tolerance
-from .locate import StopCalls, local_rates
+from .stopcalls import StopCalls, local_rates
 
 __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
 
@@ -223,7 +223,7 @@ def _earliest_lost(system, mask, sign, options, sol, events_at):
     h = sign * events_at(states)
     scale = np.abs(states).max(axis=0)  # per component: only those an event reads count
     # the gradients at the stretch's end, the point the switching rule looks at (one
-    # evaluation for both where the run keeps them: locate.StopCalls)
+    # evaluation for both where the run keeps them: stopcalls.StopCalls)
     tol = group_tolerance(system.eval_event_jacobian(sol.y[:d, -1]), options, scale)
     # a peak at an end of the stretch is not an excursion: at the start the events were
     # just switched (one may sit a rounding across its surface), at the stop an event is
@@ -289,7 +289,7 @@ def _back_in_first_step(system, mask, sign, sol, h, tol):
     The event then left its surface and came back across within the first step (a short
     excursion: an oscillator pushed back out of a region 9e-3 after entering it at rate
     0.014, in a step of 0.012). The integrator's event function reads the start on the
-    side it leaves (:func:`bderiv.models.events.locate.on_side_at_start`) and the step's
+    side it leaves (:func:`bderiv.models.events.sides.on_side_at_start`) and the step's
     end across, and its root search settles within a rounding of the start, where the
     dense output cannot tell the sides apart and the rate is that of leaving: not a
     crossing. The deepest point of the excursion (bounded Brent on the step's dense
@@ -380,7 +380,7 @@ class _EndRates:
     each evaluated at its first use: ``start()``, ``end()``, shape (n,).
 
     The end's gradients and field are those the switching rule asks for at the stop (kept
-    by :class:`~bderiv.models.events.locate.StopCalls`); the start's gradients are asked
+    by :class:`~bderiv.models.events.stopcalls.StopCalls`); the start's gradients are asked
     of the model itself, so that they do not replace the end's among the kept ones.
     """
 

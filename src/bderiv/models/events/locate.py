@@ -3,8 +3,10 @@
 The rules here are plain functions of arrays (the state's error bound, the event values,
 their gradients ``Dh`` and rates ``Dh . F``), written once for any integrator: their
 arithmetic is :mod:`bderiv.models.compiled.rules`, which the compiled run calls too (the
-same bits on both paths); only :func:`settle` and :func:`on_side_at_start` deal with
-:func:`scipy.integrate.solve_ivp` (docs/mathematics.md, section 11).
+same bits on both paths); only :func:`settle` deals with
+:func:`scipy.integrate.solve_ivp` (docs/mathematics.md, section 11). The model's values at
+the stop come from :mod:`bderiv.models.events.stopcalls`; the sides of the surfaces after
+it are checked by :mod:`bderiv.models.events.sides`.
 
 At a stop ``x`` (the located crossing of the events that ``fired``):
 
@@ -24,31 +26,23 @@ clearly apart) or solve_ivp's floor is reached.
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
 
 from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
-from ..._support._format import format_mask
-from ..._support._validate import frozen, scratch
+from ..._support._validate import frozen
 from ..compiled import rules
+from .stopcalls import local_view
 
 __all__ = [
     "GLOBAL_ERROR_FACTOR",
     "Classes",
     "Settled",
     "Stop",
-    "StopCalls",
-    "check_carried",
-    "check_sides",
     "classify",
     "examine",
     "flags_of",
-    "local_rates",
-    "local_view",
-    "on_side_at_start",
-    "orientation",
     "settle",
     "state_error",
     "tightened",
@@ -154,22 +148,6 @@ class Classes:
                    [k for k, c in enumerate(codes) if c & rules.UNDECIDED])
 
 
-@lru_cache(maxsize=4096)
-def orientation(mask, n) -> np.ndarray:
-    """The signs of the events' local orientation in region ``mask``: shape (n,), -1.0
-    where bit k is set (event k is watched downward, its function negated), else 1.0.
-    Kept per ``(mask, n)``, so read-only.
-
-    Examples
-    --------
-    >>> orientation(0b10, 3)
-    array([ 1., -1.,  1.])
-    """
-    sign = np.array([-1.0 if mask >> k & 1 else 1.0 for k in range(n)])
-    sign.flags.writeable = False
-    return sign
-
-
 def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     """Sort the events at a stop (all arrays in the events' local orientation).
 
@@ -209,7 +187,7 @@ class Stop(NamedTuple):
     Attributes
     ----------
     sign, h, Dh, F, rate
-        :func:`local_view` at ``x``.
+        :func:`~bderiv.models.events.stopcalls.local_view` at ``x``.
     window : ndarray, shape (n,)
         :func:`windows`.
     classes : Classes
@@ -232,132 +210,6 @@ def examine(system, mask, x, err, fired, simultaneity_tol) -> Stop:
     window, _ = windows(Dh, rate, err, fired)
     return Stop(sign, h, Dh, F, rate, window,
                 classify(h, rate, window, fired, simultaneity_tol))
-
-
-class StopCalls:
-    """A model's checked evaluations at the stops of one run, each kept for the last state
-    it was asked at (and mask, for the field).
-
-    At a stop the excursion screen, :func:`settle`, :func:`.crossings.switch` and the
-    final time look at the same state: the event Jacobian (numerical where not given: tens
-    of calls of ``events``), the events and the region's field are evaluated there once.
-    With a compiled model (``system.compiled``) the events and the fields are its compiled
-    functions called and checked in compiled code (the same values), the events and the
-    region's field of :meth:`local_view` in one call. The arrays given out are shared, so
-    they are read-only. Everything else is the model's own (``calls.dim``,
-    ``calls.eval_reset``, ...).
-
-    Parameters
-    ----------
-    system : HybridSystem
-        The model (any object with the checked evaluations).
-
-    Examples
-    --------
-    >>> from bderiv.analysis.system import HybridSystem
-    >>> seen = []
-    >>> s = HybridSystem(lambda x, mask: -x, lambda x: seen.append(1) or x[:1], n_events=1,
-    ...                  dim=2)
-    >>> calls = StopCalls(s)
-    >>> a = calls.eval_events(np.ones(2)); b = calls.eval_events(np.ones(2))
-    >>> a is b, len(seen), calls.dim
-    (True, 1, 2)
-    """
-
-    def __init__(self, system):
-        self.system = system
-        self._kept = {}  # (name, mask) -> (the state's bytes, the value)
-        self._compiled = getattr(system, "compiled", None)
-        # read at every stop: plain attributes, not a __getattr__ each time
-        self.n_events, self.dim = system.n_events, system.dim
-        self.has_resets = getattr(system, "has_resets", False)
-
-    def __getattr__(self, name):
-        return getattr(self.system, name)
-
-    def _kept_value(self, name, x, evaluate):
-        x = np.asarray(x, dtype=np.float64)
-        key, state = name, x.tobytes()
-        kept = self._kept.get(key)
-        if kept is not None and kept[0] == state:
-            return kept[1]
-        value = evaluate(x)
-        self._keep(key, state, value)
-        return value
-
-    def _keep(self, key, state, value):
-        for a in value if isinstance(value, tuple) else (value,):
-            if isinstance(a, np.ndarray):
-                a.flags.writeable = False  # shared by every caller at this stop
-        self._kept[key] = (state, value)
-
-    def eval_events(self, x):
-        """The checked event values at ``x``: shape (n,)."""
-        if self._compiled is None:
-            return self._kept_value("events", x, self.system.eval_events)
-        return self._kept_value("events", x, lambda y: self._compiled.events_rows(y[None])[0])
-
-    def eval_event_jacobian(self, x):
-        """The checked event Jacobian at ``x``: shape (n, d)."""
-        at = getattr(self.system, "event_jacobian_at", self.system.eval_event_jacobian)
-        return self._kept_value("event_jacobian", x, at)
-
-    def eval_field(self, x, mask):
-        """The checked field of region ``mask`` at ``x``: shape (d,)."""
-        if self._compiled is None:
-            evaluate = lambda y: self.system.eval_field(y, mask)  # noqa: E731
-        else:
-            evaluate = lambda y: self._compiled.fields(y, [mask])[0]  # noqa: E731
-        return self._kept_value(("field", int(mask)), x, evaluate)
-
-    def local_view(self, mask, x):
-        """:func:`local_view` at ``x`` in region ``mask``, kept as the evaluations are."""
-        return self._kept_value(("view", int(mask)), x, lambda y: self._view(mask, y))
-
-    def _view(self, mask, x):
-        if self._compiled is not None:  # the events and the field in one compiled call
-            state, kept = x.tobytes(), self._kept.get("events")
-            if kept is None or kept[0] != state:
-                h, F = self._compiled.events_and_field(x, mask)
-                self._keep("events", state, h)
-                self._keep(("field", int(mask)), state, F)
-        return _local_view(self, mask, x)
-
-
-def local_view(system, mask, x):
-    """Event values, gradients, field and rates at ``x`` in the local orientation of
-    region ``mask`` (an event whose bit is set has its function negated); through
-    ``system``'s own ``local_view`` when it keeps them (:class:`StopCalls`).
-
-    Returns
-    -------
-    sign : ndarray, shape (n,)
-    h : ndarray, shape (n,)
-    Dh : ndarray, shape (n, d)
-    F : ndarray, shape (d,)
-        The field of region ``mask``.
-    rate : ndarray, shape (n,)
-        ``Dh @ F``.
-    """
-    if isinstance(system, StopCalls):
-        return system.local_view(mask, x)
-    return _local_view(system, mask, x)
-
-
-def _local_view(system, mask, x):
-    sign = orientation(int(mask), system.n_events)
-    F = system.eval_field(x, mask)
-    Dh, rate = local_rates(sign, system.eval_event_jacobian(x), F)
-    return sign, sign * system.eval_events(x), Dh, F, rate
-
-
-def local_rates(sign, J, F):
-    """The gradients ``Dh = sign J`` (n, d) in the local orientation ``sign`` (n,) and the
-    rates ``Dh . F`` (n,) of the event Jacobian ``J`` (n, d) in the field ``F`` (d,)."""
-    J = frozen(J)
-    Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
-    rules.local_rates(frozen(sign), J, frozen(F), Dh, rate)
-    return Dh, rate
 
 
 def tightened(options):
@@ -451,126 +303,3 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
     if classes is not None and (classes.group, classes.near) == (decided.group, decided.near):
         return first
     return decide(integrate(finer), finer)
-
-
-def on_side_at_start(funcs, t0, mask, n):
-    """solve_ivp event functions for a stretch from ``t0`` that read an event exactly on
-    its surface at ``t0`` on the side its bit of ``mask`` says.
-
-    solve_ivp takes a value 0 at a step's start as the end of a crossing, and places the
-    root there: a stretch that starts exactly on a surface (a located stop can land with
-    ``h_k == 0.0``) would otherwise stop at once, crossing nothing.
-
-    Parameters
-    ----------
-    funcs : list of callables ``f(t, y)``
-        The terminal event functions, the first ``n`` for the events in order (further
-        ones, a section, are kept as they are).
-    t0 : float
-    mask : int
-    n : int
-
-    Returns
-    -------
-    list of callables
-        With the ``terminal`` and ``direction`` attributes of ``funcs``.
-
-    Examples
-    --------
-    >>> def f(t, y):
-    ...     return y[0]
-    >>> g, = on_side_at_start([f], 1.0, 0b0, 1)
-    >>> float(g(1.0, [0.0])) < 0.0, float(g(1.5, [0.0]))
-    (True, 0.0)
-    """
-    tiny = np.finfo(np.float64).tiny
-
-    def on_side(func, side):
-        def ev(t, y):
-            value = func(t, y)
-            return side * tiny if t == t0 and value == 0.0 else value
-
-        ev.terminal = getattr(func, "terminal", False)
-        ev.direction = getattr(func, "direction", 0)
-        return ev
-
-    return ([on_side(f, 1.0 if mask >> k & 1 else -1.0) for k, f in enumerate(funcs[:n])]
-            + list(funcs[n:]))
-
-
-def check_sides(h, mask, window, t):
-    """Refuse a region ``mask`` that disagrees with the event values ``h`` (n,) after the
-    stop at ``t`` (its group switched, its resets applied): every event must be on the
-    side its bit says (set: ``h_k > 0``), or within its ``window`` (n,) of the surface (a
-    located event a rounding across it, an event switched with it on its way there: the
-    excursion screen looks for a return inside the steps from such a start,
-    :mod:`bderiv.models.events.excursions`).
-
-    Raises
-    ------
-    ValueError
-        Naming the time, the event, its value, its window and the mask.
-
-    Examples
-    --------
-    >>> check_sides(np.array([-1.0, 1e-19]), 0b00, np.array([1e-9, 1e-9]), 0.5)
-    >>> check_sides(np.array([-1.0, 1e-3]), 0b00, np.array([1e-9, 1e-9]), 0.5)
-    Traceback (most recent call last):
-    ...
-    ValueError: after the stop at t=0.5 event 1 is on the wrong side of its surface:
-    h_1 = 0.001, beyond its window 1e-09 (the accuracy of the stop), where region mask 0b00
-    (bit k set: h_k > 0) says h_1 < 0; the run lost track of a crossing (an internal error:
-    please report it with the model)
-    """
-    h = scratch(h)
-    k = rules.wrong_side(h, int(mask), scratch(window))
-    if k < 0:
-        return
-    says = ">" if mask >> k & 1 else "<"
-    raise ValueError(
-        f"after the stop at t={t:.10g} event {k} is on the wrong side of its surface: "
-        f"h_{k} = {h[k]:.3g}, beyond its window {window[k]:.3g} (the accuracy of the stop), "
-        f"where region mask {format_mask(int(mask), h.size)} (bit k set: h_k > 0) says "
-        f"h_{k} {says} 0; the run lost track of a crossing (an internal error: please "
-        f"report it with the model)"
-    )
-
-
-def check_carried(system, h, mask, window, group, x, t):
-    """Refuse an event that reads a rounding across its surface after the stop at ``t``
-    (``h`` (n,) at the state ``x`` after the group ``group``, within its ``window``: what
-    :func:`check_sides` lets pass) and that the field of region ``mask`` carries further
-    across (:func:`bderiv.models.compiled.rules.carried_across`; both paths).
-
-    Its crossing is at once, at the stop's point, and the integrator reads the event across
-    at both ends of every step: it would be lost, the run going on in a region the state
-    has left. It comes where events cross in turn at one point: the end of a trajectory
-    that spirals into the intersection of their surfaces faster than the crossings can be
-    counted (:mod:`bderiv.models.events.zeno`), or a corner met within the accuracy.
-
-    Raises
-    ------
-    ValueError
-        Naming the time, the event, its value, its window, its rate and the region.
-    """
-    h = np.ascontiguousarray(h, dtype=np.float64)
-    window = np.ascontiguousarray(window, dtype=np.float64)
-    skip = sum(1 << k for k in group)
-    if not rules.reads_across(h, int(mask), window, skip):
-        return
-    J = np.ascontiguousarray(system.eval_event_jacobian(x), dtype=np.float64)
-    F = np.ascontiguousarray(system.eval_field(x, mask), dtype=np.float64)
-    k = rules.carried_across(h, int(mask), window, skip, J, F)
-    if k < 0:
-        return
-    says = ">" if mask >> k & 1 else "<"
-    raise ValueError(
-        f"after the events {list(group)} at t={t:.10g} event {k} is a rounding across its "
-        f"surface (h_{k} = {h[k]:.3g}, within its window {window[k]:.3g}, where region mask "
-        f"{format_mask(int(mask), h.size)} says h_{k} {says} 0) and the field of that "
-        f"region carries it further across (dh_{k}/dt = {float(J[k] @ F):.3g}): it crosses "
-        f"at once, at the same point, and the integrator cannot locate that crossing "
-        f"(events crossing in turn at one point: a trajectory that spirals into the "
-        f"intersection of their surfaces, a Zeno accumulation, or a corner met within the "
-        f"integration accuracy); end the run before t={t:.10g}, or tighten rtol and atol"
-    )

@@ -83,7 +83,7 @@ class CompiledStretches:
         ``section(x) -> float``: watched upward after the events.
     stops : StopCalls, optional
         The run's evaluations at the stops
-        (:class:`bderiv.models.events.locate.StopCalls`), for the search of crossings
+        (:class:`bderiv.models.events.stopcalls.StopCalls`), for the search of crossings
         inside the steps; default ``system``.
     """
 

@@ -1,4 +1,4 @@
-"""Event-detecting integration of a hybrid model: trajectory, event log, solver options.
+"""Event-detecting integration of a hybrid model: the loop over stretches and stops.
 
 :func:`run` integrates a model (any object with the checked evaluations of
 :class:`~bderiv.analysis.system.HybridSystem`: ``eval_field``, ``eval_events``,
@@ -10,7 +10,9 @@ switch together as one :class:`~bderiv.models.events.crossings.EventGroup`
 (:func:`bderiv.models.events.crossings.switch`
 checks each crossing and that every event of a group is at the stop). With ``section``
 the run ends at the first upward crossing of a Poincare section after the start.
-:class:`SolverOptions` holds the integrator settings with their one set of defaults.
+:class:`~bderiv.models.integrate.options.SolverOptions` holds the integrator settings with
+their one set of defaults; a run's result is a
+:class:`~bderiv.models.integrate.trajectory.Trajectory`.
 
 What a run records is asked for (``record``): every accepted step (``STEPS``, what
 ``simulate`` gives by default), its start and end only (``ENDS``: what the flow map, the
@@ -25,27 +27,29 @@ from __future__ import annotations
 
 import logging
 import weakref
-from dataclasses import dataclass, replace
-from dataclasses import field as dc_field
+from dataclasses import dataclass
 from functools import lru_cache, partial
 
 import numpy as np
-from scipy.integrate import OdeSolver
 
-from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL, MAX_GROUPS
-from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL
+from ..._limits import MAX_GROUPS
+from ..._numerics import GLOBAL_ERROR_FACTOR
 from ..._support._format import format_mask
 from ..._support._progress import SimulationProgress
 from ..._support._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
 from ..events.crossings import EventGroup, EventRecord, group_tolerance, switch
 from ..events.finaltime import pending_at_final_time
-from ..events.locate import StopCalls, check_carried, check_sides, local_view, settle
+from ..events.locate import settle
+from ..events.sides import check_carried, check_sides
+from ..events.stopcalls import StopCalls, local_view
 from ..events.zeno import ImpactWatch
 from ..readiness import integrator_ready
 from .compiled_path import CompiledStretches
+from .options import SolverOptions
 from .record import ENDS, STEPS, RunLog, check_t_eval
 from .scipy_path import ScipyStretches
+from .trajectory import Trajectory
 
 _log = logging.getLogger("bderiv")
 
@@ -53,8 +57,6 @@ __all__ = [
     "GLOBAL_ERROR_FACTOR",
     "EventGroup",
     "EventRecord",
-    "SolverOptions",
-    "Trajectory",
     "ENDS",
     "STEPS",
     "check_t_eval",
@@ -62,164 +64,6 @@ __all__ = [
     "run",
     "stretches_for",
 ]
-
-#: the methods of :func:`scipy.integrate.solve_ivp` by name.
-SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Settings of :func:`scipy.integrate.solve_ivp`, validated, with one set of defaults.
-
-    Parameters
-    ----------
-    rtol : float
-        Relative tolerance, in ``[MIN_RTOL, 1)`` (about 2.2e-14: solve_ivp's floor).
-    atol : float
-        Absolute tolerance, finite, > 0.
-    method : str or OdeSolver subclass
-        A solve_ivp method name (``SOLVE_IVP_METHODS``) or an ``OdeSolver`` subclass.
-    max_step : float
-        Largest step, > 0 (``inf``: no limit).
-
-    Examples
-    --------
-    >>> SolverOptions().with_overrides(rtol=1e-12).rtol
-    1e-12
-    >>> SolverOptions(atol=float("nan"))
-    Traceback (most recent call last):
-    ...
-    ValueError: atol must be a finite number > 0, got nan
-    """
-
-    rtol: float = DEFAULT_RTOL
-    atol: float = DEFAULT_ATOL
-    method: object = "DOP853"
-    max_step: float = np.inf
-
-    def __post_init__(self):
-        rtol = check_number(self.rtol, "rtol")
-        if not rtol < 1.0 or rtol < MIN_RTOL:
-            raise ValueError(
-                f"rtol must be in [{MIN_RTOL:.3g}, 1) (solve_ivp cannot honour a smaller "
-                f"relative tolerance), got {rtol!r}"
-            )
-        object.__setattr__(self, "rtol", rtol)
-        object.__setattr__(self, "atol", check_number(self.atol, "atol"))
-        object.__setattr__(
-            self, "max_step", check_number(self.max_step, "max_step", allow_inf=True)
-        )
-        method = self.method
-        known = isinstance(method, str) and method in SOLVE_IVP_METHODS
-        if not known and not (isinstance(method, type) and issubclass(method, OdeSolver)):
-            raise ValueError(
-                f"method must be one of {', '.join(SOLVE_IVP_METHODS)} or an OdeSolver "
-                f"subclass, got {method!r}"
-            )
-
-    def with_overrides(self, **settings) -> SolverOptions:
-        """A copy with the settings that are not None replaced (checked again)."""
-        given = {key: value for key, value in settings.items() if value is not None}
-        return replace(self, **given) if given else self
-
-    @classmethod
-    def resolve(cls, options=None, default=None, **settings) -> SolverOptions:
-        """``options`` (or ``default``, or the defaults) with keyword ``settings`` applied.
-
-        The public methods take both an ``options`` object and the keywords ``rtol``,
-        ``atol``, ``method``, ``max_step``; a keyword that is not None wins.
-        """
-        if options is not None and not isinstance(options, cls):
-            raise TypeError(f"options must be a SolverOptions, got {type(options).__name__}")
-        base = options if options is not None else (default or _defaults(cls))
-        for value in settings.values():
-            if value is not None:
-                return base.with_overrides(**settings)
-        return base
-
-    def solve_ivp_kwargs(self) -> dict:
-        """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
-        return {"rtol": self.rtol, "atol": self.atol, "method": self.method,
-                "max_step": self.max_step}
-
-
-@lru_cache(maxsize=8)
-def _defaults(cls) -> SolverOptions:
-    """``cls()``, made once (frozen: shared by every run that passes no options)."""
-    return cls()
-
-
-@dataclass(frozen=True, eq=False)
-class Trajectory:
-    """Result of :meth:`HybridSystem.simulate <bderiv.analysis.system.HybridSystem.simulate>`.
-
-    Attributes
-    ----------
-    t : ndarray, shape (N,)
-        Output times, ascending. By default every accepted step, from 0 to ``t_final``;
-        an event time appears twice (end of one stretch, start of the next). With
-        ``t_eval``: those times (up to the return, with a section), each state on the
-        dense output of the stretch that holds it (at an event time, the one after it).
-    x : ndarray, shape (N, d)
-        States at ``t``.
-    masks : ndarray, shape (N,), int64
-        Region mask in effect on the stretch each sample belongs to.
-    events : tuple of EventRecord
-        The event log ``(time, event, mask after)`` in order of switching.
-    groups : tuple of EventGroup
-        The same events grouped by the integrator stop at which they switched.
-    x_final : ndarray, shape (d,)
-        State at ``t_final``.
-    mask_final : int
-        Region mask at ``t_final``.
-    linear : tuple of ndarray, each (d, d)
-        Classical derivatives of the smooth stretches (variational equations); filled only
-        when integrated with ``variational=True`` (for the flow's B-derivative).
-    final_group : EventGroup or None
-        The event group within ``simultaneity_tol`` of ``t_final`` (either side), whose
-        map the flow's B-derivative stops at the final time (mathematics.md section 7); filled
-        only with ``variational=True``. Either the last of ``groups`` (switched at or
-        just before ``t_final``) or, when ``final_pending``, events about to cross just
-        after it: not switched, so in neither ``groups`` nor ``events``, and
-        ``mask_final`` is the mask before them.
-    final_pending : bool
-        Whether ``final_group`` lies just after ``t_final`` (not switched).
-    final_times : tuple of float
-        With ``final_pending``, the first-order time at which each event of
-        ``final_group`` crosses (``t_final - h_k / rate_k``); else empty.
-    simultaneity_tol : float
-        The tolerance of the run (the flow map merges groups within it).
-    """
-
-    t: np.ndarray
-    x: np.ndarray
-    masks: np.ndarray
-    events: tuple
-    groups: tuple
-    x_final: np.ndarray
-    mask_final: int
-    linear: tuple = dc_field(default=(), repr=False)
-    final_group: EventGroup | None = None
-    final_pending: bool = False
-    final_times: tuple = ()
-    simultaneity_tol: float = 0.0
-
-    @property
-    def mask_start(self) -> int:
-        """Region mask of the start point (bit k set: ``h_k(x0) > 0``, event k counted as
-        happened): the first sample's, else the first group's before it, else the final."""
-        if self.masks.size:
-            return int(self.masks[0])
-        return self.groups[0].mask_before if self.groups else self.mask_final
-
-    def __repr__(self):
-        shown = ", ".join(f"t={g.time:.6g}: {list(g.events)} {g.mask_before:#b} -> "
-                          f"{g.mask_after:#b}" for g in self.groups[:3])
-        more = f", ... ({len(self.groups) - 3} more)" if len(self.groups) > 3 else ""
-        span = (f"t {self.t[0]:.6g} to {self.t[-1]:.6g}, " if self.t.size else "")
-        return (f"Trajectory({span}{self.t.size} samples, d={self.x_final.size}, start "
-                f"region {self.mask_start:#b}, {len(self.groups)} event groups [{shown}{more}]"
-                f", final region {self.mask_final:#b})")
-
 
 #: the models whose first run's start region was logged
 _TOLD = weakref.WeakSet()
@@ -249,7 +93,7 @@ def stretches_for(system, options, section=None, watch=None, stops=None):
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
     (``watch``: a :class:`~bderiv._support._progress.SimulationProgress` told each
     evaluation's time; the compiled driver returns to Python between slices of steps
-    instead; ``stops``: the run's :class:`~bderiv.models.events.locate.StopCalls`).
+    instead; ``stops``: the run's :class:`~bderiv.models.events.stopcalls.StopCalls`).
 
     Raises
     ------

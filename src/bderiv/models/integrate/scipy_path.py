@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 from ..._support._format import MASK_MEANING, format_mask
 from ..._support._validate import check_record
 from ..events.excursions import without_lost_crossings
-from ..events.locate import on_side_at_start
+from ..events.sides import on_side_at_start
 
 #: evaluations of the right-hand side per accepted step of the explicit methods (DOP853:
 #: 12, and 3 more for its dense output); an implicit method's steps are counted as one
@@ -83,7 +83,7 @@ class ScipyStretches:
         there).
     stops : StopCalls, optional
         The run's evaluations at the stops
-        (:class:`bderiv.models.events.locate.StopCalls`), for the search of crossings
+        (:class:`bderiv.models.events.stopcalls.StopCalls`), for the search of crossings
         inside the steps; default ``system``.
     """
 

@@ -1,77 +1,15 @@
-"""Passive walkers down a slope: the rimless wheel and the compass gait (leg swaps as resets).
-
-Both walk down a slope of angle ``slope`` under gravity alone; each step ends with an
-impact at which the legs exchange their roles. The impact is a reset that relabels the
-legs (and changes the velocities by the conservation of angular momentum), so the state
-lands back on the side of the event surface it came from or on the surface with the flow
-leaving it: a leg swap (mathematics.md section 9, "Where a reset lands"). Units are the
-walkers' own: lengths in leg lengths and time in ``sqrt(leg / g)`` when ``g = leg = 1``
-(the defaults, as in the publications).
-
-**Rimless wheel** (McGeer 1990; Coleman, Chatterjee & Ruina 1997): spokes of length
-``leg`` at angles ``2 alpha`` apart around a point mass at the hub. State ``(theta,
-omega)``: the stance spoke's angle from the slope's normal, positive downhill (the walking
-direction), and its rate; in stance the hub is an inverted pendulum,
-``theta'' = (g / leg) sin(theta + slope)``. The next spoke hits the ground when
-``theta = alpha``: event ``h = theta - alpha``. The impact conserves the angular momentum
-about the new contact point: ``omega -> cos(2 alpha) omega``, and the new stance spoke is
-the one at ``theta - 2 alpha`` (``-alpha`` on the surface): the reset
-``(theta, omega) -> (theta - 2 alpha, cos(2 alpha) omega)`` lands at ``h = -2 alpha``,
-back where the step began, so the event's bit stays clear and every step ends with an
-upward crossing of the same surface. The section of the gait is mid-stance,
-``theta = 0`` (:func:`wheel_section`). Closed forms (energy balance from ``-alpha`` to
-``alpha``): the map on ``u = omega^2`` after the impact is ``u -> c^2 (u + K)``, ``c =
-cos(2 alpha)``, ``K = 4 (g / leg) sin(alpha) sin(slope)``; its fixed point is
-``u* = c^2 K / (1 - c^2)`` and the multiplier of the gait is ``c^2 = cos(2 alpha)^2``.
-The model does not describe a wheel too slow to roll over the top of a spoke (``omega``
-reaching 0 before the vertical; the trailing spoke is no event).
-
-**Compass gait** (McGeer 1990; Goswami, Thuilot & Espiau 1998; Garcia, Chatterjee, Ruina &
-Coleman 1998): two straight legs of length ``leg`` with point feet, a point mass
-``hip_mass`` at the hip and ``leg_mass`` on each leg at ``leg_com`` (as a fraction of the
-leg, from the hip: 1 puts it at the foot, as in Garcia et al.; 0.5 in the middle, as in
-Goswami et al.). The coordinates are Garcia et al.'s: state ``(theta, phi, theta', phi')``,
-``theta`` the stance leg's angle from the slope's normal (positive uphill: a step runs from
-``theta > 0`` to ``theta < 0``), ``phi`` the angle from the stance leg to the swing leg
-(the swing leg's angle from the normal is ``theta - phi``). The swing foot is on the
-ground when ``phi = 0`` or ``phi = 2 theta``; event ``h = phi - 2 theta``. The heel strike
-is its upward crossing with the swing leg ahead (``phi < 0``); the reset swaps the legs,
-``theta -> theta - phi`` and ``phi -> -phi`` (``-theta`` and ``-2 theta`` on the surface),
-and gives the velocities from the conservation of the angular momentum of the whole walker
-about the new stance foot and of the new swing leg about the hip. Just after the heel
-strike the state is on the surface again, moving into ``h > 0``: the bit is set (flipped).
-**Scuffing**: with point feet on a straight slope the swing foot dips under the ground near
-mid-stance, where the legs pass each other. As in the literature (Garcia et al., McGeer),
-that contact is ignored: the surface ``h = 0`` is crossed downward there (the bit is
-cleared, no reset: the fields of the two regions are the same), and only the next upward
-crossing, once the swing leg is past the stance leg, is the heel strike (the reset refuses
-an upward crossing with ``phi >= 0``). Each step thus has two events of the same index:
-the scuff (downward, no jump) and the heel strike (upward, leg swap). The section of the
-gait is mid-stance, ``theta = 0`` crossed downward (:func:`compass_section`).
-
-**Published numbers** compared in the tests: Garcia, Chatterjee, Ruina & Coleman, "The
-simplest walking model: stability, complexity, and scaling", ASME J. Biomech. Eng. 120(2),
-281-288 (1998), the limit ``leg_mass / hip_mass -> 0`` (``leg_mass = 0`` here), slope
-0.009, ``g = leg = 1``: the stable (long-period) gait just after heel strike has
-``theta* = 0.20031090049483``, ``theta'* = -0.19983247291764``, and its stride map's
-nonzero eigenvalues are ``-0.19120868949940 +- 0.55633363687106 i`` (the digits of the
-simulation code published with the paper, M. Garcia 1998, integrated to 1e-10:
-:data:`GARCIA_FIXED_POINT`, :data:`GARCIA_EIGENVALUES`). The fixed point agrees to 1e-10;
-the eigenvalues to 1.7e-3 only: the return map's B-derivative gives ``-0.1900998 +-
-0.5575988 i`` (modulus 0.58911, Garcia's 0.58827), and so do central differences of the
-stride map of Garcia's equations integrated by scipy at rtol 1e-13 (tests/test_bounces.py),
-to 1e-8. The two computations here agree with each other, not with the code's comment
-beyond the second decimal (whose integration and differencing steps the code does not say).
-"""
+"""The compass gait (the package's docstring gives the model, the scuffing and the published
+numbers compared in the tests)."""
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import quad, solve_ivp
+from scipy.integrate import solve_ivp
 
-from .._support._numdiff import complex_step
-from ..analysis.system import HybridSystem
-from ._common import Example, check_start
+from ..._support._numdiff import complex_step
+from ...analysis.system import HybridSystem
+from .._common import Example, check_start
+from ._shared import _orbit, _positive
 
 __all__ = [
     "GARCIA_EIGENVALUES",
@@ -80,10 +18,6 @@ __all__ = [
     "compass_gait_orbit",
     "compass_section",
     "compass_section_gradient",
-    "rimless_wheel",
-    "rimless_wheel_orbit",
-    "wheel_section",
-    "wheel_section_gradient",
 ]
 
 #: Garcia et al. (1998), slope 0.009, leg_mass = 0: (theta, theta') just after heel strike
@@ -93,140 +27,6 @@ GARCIA_EIGENVALUES = (complex(-0.19120868949940, 0.55633363687106),
                       complex(-0.19120868949940, -0.55633363687106))
 
 
-def _positive(**values):
-    for name, v in values.items():
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be a finite number > 0, got {v}")
-
-
-# ----------------------------------------------------------------------------------
-# rimless wheel
-# ----------------------------------------------------------------------------------
-class _Wheel:
-    def __init__(self, alpha, slope, g, leg):
-        self.alpha, self.slope, self.rate = alpha, slope, g / leg
-        self.c = np.cos(2.0 * alpha)
-
-    def field(self, x, mask):
-        return np.array([x[1], self.rate * np.sin(x[0] + self.slope)])
-
-    def field_jacobian(self, x, mask):
-        return np.array([[0.0, 1.0], [self.rate * np.cos(x[0] + self.slope), 0.0]])
-
-    def events(self, x):
-        return np.array([x[0] - self.alpha])
-
-    def event_jacobian(self, x):
-        return np.array([[1.0, 0.0]])
-
-    def reset(self, x, mask, k):
-        return np.array([x[0] - 2.0 * self.alpha, self.c * x[1]])
-
-    def reset_jacobian(self, x, mask, k):
-        return np.diag([1.0, self.c])
-
-
-def wheel_section(x):
-    """The rimless wheel's section: mid-stance ``theta = 0``, crossed as theta grows."""
-    return x[0]
-
-
-def wheel_section_gradient(x):
-    """Gradient of :func:`wheel_section`: ``(1, 0)``."""
-    return np.array([1.0, 0.0])
-
-
-def rimless_wheel(*, alpha=np.pi / 8, slope=0.08, g=1.0, leg=1.0) -> Example:
-    """The rimless wheel on its periodic gait (module docstring).
-
-    Parameters
-    ----------
-    alpha : float
-        Half the angle between spokes, in (0, pi/4) radians (``pi / alpha`` spokes when
-        that is an integer; default 8 spokes).
-    slope : float
-        Slope in radians, in (0, pi/2).
-    g, leg : float
-        Gravity and spoke length, > 0.
-
-    Returns
-    -------
-    Example
-        d = 2, n = 1. ``x0 = (0, omega_0)`` the gait's state at mid-stance and ``rho =
-        (alpha, omega_-)`` the impact that ends the step, at ``t_event`` (both in closed
-        form from the energy balance; the time by quadrature). :func:`rimless_wheel_orbit`
-        finds the gait with :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
-
-    Examples
-    --------
-    >>> ex = rimless_wheel()
-    >>> M = ex.system.bderivative(ex.rho)  # the saltation matrix of the leg swap
-    >>> M.n_events, M.dim
-    (1, 2)
-    """
-    alpha, slope, g, leg = float(alpha), float(slope), float(g), float(leg)
-    if not 0.0 < alpha < np.pi / 4:
-        raise ValueError(f"alpha must be in (0, pi/4) radians, got {alpha}")
-    if not 0.0 < slope < np.pi / 2:
-        raise ValueError(f"slope must be in (0, pi/2) radians, got {slope}")
-    _positive(g=g, leg=leg)
-    model = _Wheel(alpha, slope, g, leg)
-    rate, c = model.rate, model.c
-    u = c**2 * 4.0 * rate * np.sin(alpha) * np.sin(slope) / (1.0 - c**2)
-
-    def speed(theta):  # omega at theta on the gait (energy from -alpha)
-        return np.sqrt(u + 2.0 * rate * (np.cos(slope - alpha) - np.cos(theta + slope)))
-
-    top = -slope  # the hub above the contact point: the slowest point of the step
-    if top > -alpha and not u + 2.0 * rate * (np.cos(slope - alpha) - 1.0) > 0:
-        raise ValueError(f"the wheel with alpha={alpha:g}, slope={slope:g} has no gait: it "
-                         f"stops before rolling over its spoke (steeper slope or smaller "
-                         f"alpha)")
-    t_event = quad(lambda th: 1.0 / speed(th), 0.0, alpha, epsabs=1e-14, epsrel=1e-13)[0]
-    system = HybridSystem(model.field, model.events, n_events=1, dim=2,
-                          event_jacobian=model.event_jacobian,
-                          field_jacobian=model.field_jacobian, reset=model.reset,
-                          reset_jacobian=model.reset_jacobian)
-    ex = Example(system=system, rho=np.array([alpha, speed(alpha)]),
-                 x0=np.array([0.0, speed(0.0)]), t_event=t_event,
-                 t_final=float(f"{t_event + 0.1 * t_event:.15g}"), name="rimless-wheel",
-                 description=f"rimless wheel, spokes {2 * alpha:.4g} rad apart, slope "
-                 f"{slope:g} rad: a leg swap every step (d = 2, n = 1)")
-    return check_start(ex, {"alpha": alpha, "slope": slope, "g": g, "leg": leg})
-
-
-def rimless_wheel_orbit(example=None, *, perturbation=(0.0, 0.05), **kwargs):
-    """The wheel's gait by Newton's method from a perturbed mid-stance state.
-
-    Parameters
-    ----------
-    example : Example, optional
-        Default :func:`rimless_wheel`.
-    perturbation : array_like, shape (2,)
-        Added to ``example.x0`` for the guess.
-    **kwargs
-        Passed to :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
-
-    Returns
-    -------
-    PeriodicOrbit
-    """
-    return _orbit(rimless_wheel() if example is None else example, perturbation,
-                  wheel_section, wheel_section_gradient, kwargs)
-
-
-def _orbit(ex, perturbation, section, gradient, kwargs):
-    """``periodic_orbit`` of a walker from ``ex.x0 + perturbation``, awaiting the return
-    for two steps' time by default."""
-    kwargs.setdefault("section_gradient", gradient)
-    kwargs.setdefault("period_guess", 2.0 * ex.t_event)
-    return ex.system.periodic_orbit(ex.x0 + np.asarray(perturbation, dtype=np.float64),
-                                    section, **kwargs)
-
-
-# ----------------------------------------------------------------------------------
-# compass gait
-# ----------------------------------------------------------------------------------
 def _along(angle):
     """Unit vector from a foot to the hip for a leg at ``angle`` from the slope normal
     (slope frame: x downhill, y along the normal), and its derivative in the angle."""
@@ -477,8 +277,3 @@ def compass_gait_orbit(example=None, *, perturbation=(0.0, 0.01, -0.01, 0.005), 
     """
     return _orbit(compass_gait() if example is None else example, perturbation,
                   compass_section, compass_section_gradient, kwargs)
-
-
-# ----------------------------------------------------------------------------------
-# the demo: orbit, stability, and the reference numbers
-# ----------------------------------------------------------------------------------
