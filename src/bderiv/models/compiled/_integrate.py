@@ -83,7 +83,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
     clear); the value of event ``forced`` (-1: none) reads 1 at the start (a run that
     starts on its section counts only a return from below). With ``on_side`` (a run's
     stretch), a model event whose value at ``t0`` is 0 reads ``+-tiny`` on the side its
-    bit of ``mask`` says there, as :func:`bderiv.models.events.locate.on_side_at_start`
+    bit of ``mask`` says there, as :func:`bderiv.models.events.sides.on_side_at_start`
     makes solve_ivp read it (else a value leaving 0 counts as a crossing at ``t0``). No
     validation.
 

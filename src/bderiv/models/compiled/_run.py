@@ -277,7 +277,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
             if not ok or groups >= groups_left:
                 break
             # every event on the side its bit says, or within its window of the surface
-            # (locate.check_sides): else the Python loop words the broken invariant
+            # (sides.check_sides): else the Python loop words the broken invariant
             h_after = np.empty(n)
             if with_resets:
                 ok = call_events(model, np.bool_(False), x_after, n, h_after,
@@ -288,7 +288,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
             if not ok or wrong_side(h_after, new, window) >= 0:
                 break
             # an event a rounding across, carried further across at once: the Python loop
-            # refuses it (locate.check_carried)
+            # refuses it (sides.check_carried)
             if reads_across(h_after, new, window, bits) and _carried(
                     model, event_jac_mode, x_after, new, h_after, window, bits, n, d):
                 break

@@ -248,7 +248,7 @@ class CompiledModel:
             The section reads 1 at ``t0`` (a run that starts on it).
         on_side : bool
             An event at 0 at ``t0`` reads on the side its bit of ``mask`` says (a run's
-            stretch: :func:`bderiv.models.events.locate.on_side_at_start`).
+            stretch: :func:`bderiv.models.events.sides.on_side_at_start`).
         dense : bool
             Record the state's dense output of every step.
 

@@ -136,7 +136,7 @@ def wrong_side(h, mask, window):
     """The first event k whose value ``h[k]`` (n,) is not on the side of its surface that
     bit k of ``mask`` says (set: ``h_k > 0``; clear: ``h_k < 0``) and is further from it
     than ``window[k]``; -1 if none: the invariant of the region after every stop
-    (:func:`bderiv.models.events.locate.check_sides`)."""
+    (:func:`bderiv.models.events.sides.check_sides`)."""
     for k in range(h.size):
         side = 1.0 if mask >> k & 1 else -1.0
         if not side * h[k] > 0.0 and not abs(h[k]) <= window[k]:
@@ -161,7 +161,7 @@ def carried_across(h, mask, window, skip, J, F):
     """The first event k of :func:`reads_across` that the field ``F`` (d,) of region
     ``mask`` carries further across (``J[k] . F``, J (n, d) the event Jacobian, clearly of
     that side); -1 if none. Its crossing is at once and unseen: the integrator reads it
-    across at both ends of every step (:func:`bderiv.models.events.locate.check_carried`)."""
+    across at both ends of every step (:func:`bderiv.models.events.sides.check_carried`)."""
     for k in range(h.size):
         side = 1.0 if mask >> k & 1 else -1.0
         if (skip >> k) & 1 or not side * h[k] < 0.0 or abs(h[k]) > window[k]:
