@@ -363,6 +363,33 @@ def test_sigma_directions_each_take_their_own_piece(chair):
     assert np.allclose(push.cov, (Y - Y.mean(0)).T @ (Y - Y.mean(0)) / 12, atol=1e-18)
 
 
+def test_auto_takes_sigma_directions_where_the_mixture_does_not_apply():
+    """Three thresholds crossed at once (six pieces): the mixture is exact for two pieces
+    only and refuses by name; the default ("auto") takes the sigma directions, the 2 d
+    directions of the unscented transform each pushed through its own piece of D
+    (D.jvp(v, v) = D(v)), written out here."""
+    from bderiv.estimate.pushforward import sqrt_psd
+
+    ex = examples.network(3)
+    d = ex.system.dim
+    P = np.eye(d) * 1e-10
+    with pytest.raises(ValueError, match="method='sigma'"):
+        HybridKalmanFilter(ex.system, ex.x0, P, method="mixture").predict(ex.t_final)
+    kf = HybridKalmanFilter(ex.system, ex.x0, P)
+    mean, cov = kf.predict(ex.t_final)
+    assert kf.mode.method == "sigma"
+    assert [len(events) for _, events, _ in kf.mode.groups] == [3]
+    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    S = np.sqrt(d) * sqrt_psd(P)
+    V = np.concatenate([S.T, -S.T])
+    Y = D.jvp(V, V)
+    assert len({tuple(o) for o in D.orders(V)[0]}) > 2  # more than two pieces met
+    R = Y - Y.mean(axis=0)
+    scale = np.abs(R.T @ R).max() / len(V)
+    assert np.allclose(cov, R.T @ R / len(V), rtol=0, atol=1e-9 * scale)
+    assert np.allclose(mean, D.x_final + Y.mean(axis=0), rtol=0, atol=1e-12)
+
+
 # ----------------------------------------------------------------------------------
 # refusals
 # ----------------------------------------------------------------------------------
