@@ -20,33 +20,21 @@
 from __future__ import annotations
 
 import argparse
+import pathlib
+import sys
 import time
 
 import _record
 import numpy as np
 
-from bderiv import HybridSystem, examples
+from bderiv import examples
 from bderiv.estimate import HybridKalmanFilter
 from bderiv.estimate.consistency import FILTERS, consistency
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "tests"))
+from hybrid_tools_balls import ball_2d  # noqa: E402
+
 G = 9.81
-
-
-def ball_2d(e, g, floor):
-    """hybrid-tools' 2-D ball in bderiv: (qx, qy, vx, vy), the floor at qy = floor."""
-    def field(x, mask):
-        return np.array([x[2], x[3], 0.0, -g])
-
-    def field_jacobian(x, mask):
-        J = np.zeros((4, 4))
-        J[0, 2] = J[1, 3] = 1.0
-        return J
-
-    return HybridSystem(field, lambda x: np.array([floor - x[1]]), n_events=1, dim=4,
-                        field_jacobian=field_jacobian,
-                        event_jacobian=lambda x: np.array([[0.0, -1.0, 0.0, 0.0]]),
-                        reset=lambda x, mask, k: np.array([x[0], x[1], x[2], -e * x[3]]),
-                        reset_jacobian=lambda x, mask, k: np.diag([1.0, 1.0, 1.0, -e]))
 
 
 def side_by_side(dim, terminal, steps=40, dt=0.05, r=1e-4):

@@ -24,9 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hybrid_tools_balls import ball_2d
 from scipy.stats import chi2
 
-from bderiv import HybridSystem, examples
+from bderiv import examples
 from bderiv.estimate import HybridKalmanFilter
 
 G = 9.81
@@ -34,37 +35,6 @@ G = 9.81
 
 def _ht():
     return pytest.importorskip("hybrid_tools")
-
-
-# ----------------------------------------------------------------------------------
-# the balls in bderiv, as hybrid-tools writes them
-# ----------------------------------------------------------------------------------
-def _ball_2d(e, g, floor):
-    """hybrid-tools' 2-D ball: (qx, qy, vx, vy), the floor at ``qy = floor``."""
-
-    def field(x, mask):
-        return np.array([x[2], x[3], 0.0, -g])
-
-    def field_jacobian(x, mask):
-        J = np.zeros((4, 4))
-        J[0, 2] = J[1, 3] = 1.0
-        return J
-
-    def events(x):
-        return np.array([floor - x[1]])
-
-    def event_jacobian(x):
-        return np.array([[0.0, -1.0, 0.0, 0.0]])
-
-    def reset(x, mask, k):
-        return np.array([x[0], x[1], x[2], -e * x[3]])
-
-    def reset_jacobian(x, mask, k):
-        return np.diag([1.0, 1.0, 1.0, -e])
-
-    return HybridSystem(field, events, n_events=1, dim=4, field_jacobian=field_jacobian,
-                        event_jacobian=event_jacobian, reset=reset,
-                        reset_jacobian=reset_jacobian)
 
 
 def _case(dim):
@@ -77,7 +47,7 @@ def _case(dim):
         return (examples.bouncing_ball(e=e, g=G).system, bouncing_ball(),
                 np.array([e, G]), np.array([1.0, 0.0]), 0, ht)
     floor = 0.25
-    return (_ball_2d(e, G, floor), bouncing_ball_2d(), np.array([e, G, floor]),
+    return (ball_2d(e, G, floor), bouncing_ball_2d(), np.array([e, G, floor]),
             np.array([0.0, 1.2, 0.4, 0.0]), 1, ht)
 
 
