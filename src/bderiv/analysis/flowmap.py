@@ -10,7 +10,8 @@ i + 1 (from the variational equations) and ``M_i`` the :class:`BDerivative` of g
 event point. Evaluating a batch is m + 1 matrix products and m kernel calls; no ODE is
 solved per vector. Every stage is invertible (the linear ones are fundamental matrices of
 the variational equations, the jumps PL homeomorphisms), and so is D:
-``D^-1 = L_0^-1 . M_1^-1 . ... . M_m^-1 . L_m^-1``.
+``D^-1 = L_0^-1 . M_1^-1 . ... . M_m^-1 . L_m^-1``. The passes of a batch through the
+stages, and the checks of the stages, are in ``_flowstages``.
 """
 
 from __future__ import annotations
@@ -19,22 +20,27 @@ import functools
 
 import numpy as np
 
-from .._kernels import _core
 from .._limits import MAX_PIECES
 from .._support._batch import evaluate, is_dask_array
-from .._support._errors import QueryError
 from .._support._validate import (
     all_finite,
     check_bool,
     check_finite_result,
     check_matrix,
     check_points,
-    check_real_array,
-    singular_condition,
 )
 from ..engine._linearise import Linearisation
-from ..engine.bderivative import BDerivative
 from ..models.events.finaltime import FinalTimeMap
+from ._flowstages import (
+    backward,
+    check_dt,
+    check_stages,
+    compose_piece,
+    group_orders,
+    stage_inputs,
+    stage_inverses,
+    tangent_rows,
+)
 
 __all__ = ["FlowBDerivative"]
 
@@ -96,30 +102,7 @@ class FlowBDerivative(Linearisation):
         x_final=None,
         t_final=None,
     ):
-        jumps = list(jumps)
-        for i, bd in enumerate(jumps):
-            last = i == len(jumps) - 1
-            if not isinstance(bd, BDerivative) and not (last and isinstance(bd, FinalTimeMap)):
-                where = " (only the last jump may be one)" if isinstance(bd, FinalTimeMap) else ""
-                raise TypeError(
-                    f"jumps[{i}] must be a BDerivative, got {type(bd).__name__}{where}"
-                )
-        linear = list(linear)
-        if len(linear) != len(jumps) + 1:
-            raise ValueError(
-                f"need len(jumps) + 1 = {len(jumps) + 1} linear stages, got {len(linear)}"
-            )
-        first = np.asarray(linear[0])
-        if first.ndim != 2:
-            raise ValueError(f"linear[0] must be a (d, d) matrix, got shape {first.shape}")
-        d = first.shape[0]
-        self._linear = tuple(check_matrix(L, f"linear[{i}]", (d, d)) for i, L in enumerate(linear))
-        for L in self._linear:
-            L.setflags(write=False)
-        for i, bd in enumerate(jumps):
-            if bd.dim != d:
-                raise ValueError(f"jumps[{i}] has dimension {bd.dim} but the stages have {d}")
-        self._jumps = tuple(jumps)
+        self._linear, self._jumps, d = check_stages(linear, jumps)
         self.dim = d
         if final_field is None:
             self.final_field = None
@@ -192,26 +175,9 @@ class FlowBDerivative(Linearisation):
 
     # ------------------------------------------------------------------------------
     def _stage_inputs(self, flat, name="V", offset=0, dt=None):
-        """The vectors entering each jump, then the final result: a list of (m, d) arrays.
-
-        Errors name the row of the caller's batch (``offset`` is the first row's index) and
-        the group; a stage whose result overflows is refused, not passed on. ``dt`` (m,):
-        the final-time perturbations of the rows, for a group at the final time.
-        """
-        out = []
-        W = flat
-        for i, L in enumerate(self._linear):
-            W = _stage(L, W)
-            if not all_finite(W):
-                check_finite_result(W, name, offset, f"result of linear stage linear[{i}]")
-            out.append(W)
-            if i < len(self._jumps):
-                jump = self._jumps[i]
-                try:
-                    W = jump(W, dt) if isinstance(jump, FinalTimeMap) else jump(W)
-                except ValueError as exc:
-                    raise _in_group(exc, i, offset, name) from None
-        return out
+        """The vectors entering each jump, then the final result: a list of (m, d) arrays
+        (:func:`~bderiv.analysis._flowstages.stage_inputs`)."""
+        return stage_inputs(self._linear, self._jumps, flat, name, offset, dt)
 
     def apply(self, V, out=None, *, dt=None, chunk_size=None, progress=None):
         """Apply the B-derivative to tangent vectors.
@@ -245,29 +211,13 @@ class FlowBDerivative(Linearisation):
             if np.ndim(dt) != 0:
                 raise ValueError(f"dt must be a scalar when V is a dask array, got shape "
                                  f"{np.shape(dt)}")
-            method = functools.partial(self.apply, dt=self._check_dt(dt, ()).item())
+            method = functools.partial(self.apply, dt=check_dt(dt, ()).item())
             return evaluate(None, V, self.dim, out=out, method=method)
-        dt = self._check_dt(dt, np.shape(V)[:-1])
+        dt = check_dt(dt, np.shape(V)[:-1])
         return evaluate(functools.partial(self._forward, dt=dt), V, self.dim, out=out,
                         chunk_size=chunk_size, progress=progress, desc="FlowBDerivative")
 
     __call__ = apply
-
-    @staticmethod
-    def _check_dt(dt, lead):
-        """``dt`` as a flat float64 array of the batch's rows (broadcast to ``lead``)."""
-        arr = check_real_array(dt, "dt")
-        try:
-            arr = np.broadcast_to(arr, lead)
-        except ValueError:
-            raise ValueError(
-                f"dt must be a scalar or have a shape that broadcasts to the leading shape "
-                f"{lead} of V, got shape {arr.shape}"
-            ) from None
-        arr = arr.astype(np.float64).reshape(-1)
-        if not np.isfinite(arr).all():
-            raise ValueError(f"dt must be finite, got {arr[~np.isfinite(arr)][0]}")
-        return arr
 
     def _forward(self, rows, res, offset, dt=None):
         """The kernel of :meth:`apply`: ``res = D(rows) (+ dt * final_field)``."""
@@ -306,39 +256,15 @@ class FlowBDerivative(Linearisation):
 
     def _backward(self, rows, res, offset):
         """The kernel of :meth:`inverse`: the stages' inverses in reverse order."""
-        inverses = self._stage_inverses
-        V = _stage(inverses[-1], rows)
-        for i in reversed(range(len(self._jumps))):
-            try:
-                V = self._jumps[i].inverse(V)
-            except ValueError as exc:
-                raise _in_group(exc, i, offset, "W") from None
-            V = _stage(inverses[i], V)
-        res[...] = V
+        res[...] = backward(self._stage_inverses, self._jumps, rows, offset)
         if not all_finite(res):
             check_finite_result(res, "W", offset)
 
     @functools.cached_property
     def _stage_inverses(self):
-        """Inverses of the linear stages, (d, d) each, computed once (on the first inverse).
-
-        Explicit inverses (NumPy's LU-based ``inv``) applied as thin products like the
-        forward stages, rather than ``scipy.linalg.lu_solve`` per batch: SciPy's LAPACK
-        calls corrupted memory when threads (dask's default scheduler) shared the factors.
-        """
-        inverses = []
-        for i, L in enumerate(self._linear):
-            cond = singular_condition(L)
-            if cond is not None:
-                raise ValueError(
-                    f"the flow map is not invertible: its linear stage linear[{i}] is "
-                    f"singular to working precision (condition number {cond:.3g}); inverse "
-                    f"needs every linear stage invertible"
-                )
-            inv = np.linalg.inv(L)
-            inv.setflags(write=False)
-            inverses.append(inv)
-        return tuple(inverses)
+        """Inverses of the linear stages, (d, d) each, computed once (on the first inverse;
+        :func:`~bderiv.analysis._flowstages.stage_inverses`)."""
+        return stage_inverses(self._linear)
 
     def event_times(self, V):
         """Event times and orders of every group for tangent vectors V.
@@ -391,20 +317,8 @@ class FlowBDerivative(Linearisation):
 
     def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:
         """The kernel of ``jvp``/``vjp``: group i's piece is the one that the vector
-        entering it (row v of ``V`` through the earlier stages) selects. Forwards
-        ``L_m J_m ... J_1 L_0 t``; the transpose ``L_0^T J_1^T ... J_m^T L_m^T w``."""
-        m = len(self._jumps)
-        inputs = self._stage_inputs(V, "V", offset)
-        Y = T
-        Y = _stage(self._linear[m], Y, transpose) if transpose else _stage(self._linear[0], Y)
-        for i in reversed(range(m)) if transpose else range(m):
-            Z = np.empty_like(Y)
-            try:
-                self._jumps[i]._tangent_rows(inputs[i], Y, Z, transpose, 0, name)
-            except ValueError as exc:
-                raise _in_group(exc, i, offset) from None
-            Y = _stage(self._linear[i], Z, True) if transpose else _stage(self._linear[i + 1], Z)
-        res[...] = Y
+        entering it selects (:func:`~bderiv.analysis._flowstages.tangent_rows`)."""
+        res[...] = tangent_rows(self._linear, self._jumps, V, T, transpose, offset, name)
         if not all_finite(res):
             check_finite_result(res, name, offset)
 
@@ -455,58 +369,13 @@ class FlowBDerivative(Linearisation):
         -------
         ndarray, shape (d, d) or (d, d + 1)
         """
-        if orders is None:
-            if any(bd.n_events > 1 for bd in self._jumps):
-                raise ValueError(
-                    "orders must be given: groups "
-                    f"{[i for i, bd in enumerate(self._jumps) if bd.n_events > 1]} have "
-                    "several events"
-                )
-            orders = [[0]] * len(self._jumps)
-        orders = list(orders)
-        if len(orders) != len(self._jumps):
-            raise ValueError(
-                f"need one event order per group ({len(self._jumps)} groups), got {len(orders)}"
-            )
+        orders = group_orders(self._jumps, orders)
         if check_bool(with_time, "with_time") and self.final_field is None:
             raise ValueError("this map has no final_field, so with_time cannot be used")
-        M, shift = self._linear[0], 0.0
-        for i, (bd, order) in enumerate(zip(self._jumps, orders, strict=True)):
-            if isinstance(bd, FinalTimeMap):  # the final time is one of its events
-                P = bd.piece(order, with_time=True)
-                M, shift = P[:, :-1] @ M, self._linear[i + 1] @ P[:, -1]
-            else:
-                M = bd.piece(order) @ M
-            M = self._linear[i + 1] @ M
+        M, shift = compose_piece(self._linear, self._jumps, orders)
         if with_time:
             M = np.column_stack((M, self.final_field + shift))
         return np.array(M)
-
-
-def _stage(L, X, transpose: bool = False) -> np.ndarray:
-    """Rows of X through a linear stage: ``X @ L.T`` (``X @ L`` when ``transpose``).
-
-    A numba kernel of the package (parallel over rows, in tasks) rather than BLAS: these
-    products are thin, (m, d) x (d, d), and BLAS's own threads, on a machine whose cores
-    are busy, made their time swing 5x and more (docs/concepts.md, "Gotchas"; issue 10);
-    overflow gives inf.
-    """
-    M = np.ascontiguousarray(L if transpose else L.T)  # the kernel combines rows of M
-    out = np.empty((X.shape[0], M.shape[1]))
-    _core.linear(_core.LinearTables(M, M), np.ascontiguousarray(X), (out,), False,
-                 launch=_core.launch_queries(1, X.shape[1]))
-    return out
-
-
-def _in_group(exc: ValueError, group: int, offset: int, name: str | None = None
-              ) -> ValueError:
-    """An error of event group ``group``'s map, said of the flow map's batch: a refusal of
-    one row (:class:`~bderiv._support._errors.QueryError`) numbered as the caller's row ``offset +
-    row`` (of the batch ``name``, else the name it had)."""
-    where = f"in event group {group} of the flow map, for the vectors entering it: "
-    if isinstance(exc, QueryError):
-        return exc.at(row=exc.row + offset, name=name, shape=(), prefix=where)
-    return ValueError(where + str(exc))
 
 
 def _read_only(a) -> np.ndarray:

@@ -24,7 +24,8 @@ import numpy as np
 
 from .._limits import CHECK_VECTORS, MAX_PIECES
 from .._support._tables import corner_point_bytes
-from ..geometry.triangulation import load_triangulation, save_files
+from ..geometry._triangulation_files import save_files
+from ..geometry.triangulation import load_triangulation
 from .systems import load_example, refuse_without_triangulation
 from .usage import (
     UsageError,

@@ -21,8 +21,7 @@ from .._support._validate import (
     check_pieces,
     check_points,
 )
-from ..geometry.corners import CornerModel, StructuredCorners
-from ._engines import DenseEngine, FunctionEngine, StructuredEngine
+from ._engines import DenseEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
 from ._geometry import (  # noqa: F401 (re-exported)
     CornerGeometry,
@@ -30,36 +29,7 @@ from ._geometry import (  # noqa: F401 (re-exported)
     dh_rank,
 )
 from ._linearise import Linearisation, unit_scale
-
-#: the types of a table given as an array: the common case, told apart without the
-#: typing-Protocol ``isinstance`` (which looks up each member of the protocol by name).
-_TABLE_TYPES = (np.ndarray, list, tuple)
-
-
-def _representation(Dh, F, resets) -> str:
-    """Which engine ``F`` and ``resets`` call for: ``"dense"``, ``"resets"``,
-    ``"structured"`` or ``"function"``; refuses resets with a corner model, half a corner
-    model, and a model whose sizes differ from ``Dh``'s."""
-    if type(F) in _TABLE_TYPES:  # has none of the protocol's members: no isinstance needed
-        return "dense" if resets is None else "resets"
-    if resets is not None and hasattr(F, "corner_function"):
-        raise TypeError(f"resets need a dense table F (2**n, d), got the model {F!r}")
-    if not isinstance(F, CornerModel):
-        if hasattr(F, "corners") or hasattr(F, "corner_function"):
-            raise TypeError(
-                f"F = {F!r} looks like a corner model but lacks part of the protocol: it "
-                f"needs n_events, dim, corners(happened) and corner_function() (see "
-                f"bderiv.CornerModel)"
-            )
-        return "dense" if resets is None else "resets"
-    n, d = Dh.shape
-    want = (n if F.n_events is None else F.n_events, d if F.dim is None else F.dim)
-    if want != (n, d):
-        raise ValueError(
-            f"Dh has shape {Dh.shape} (n={n} events, dimension d={d}) but the corner "
-            f"model {F!r} has n={want[0]} events in dimension d={want[1]}"
-        )
-    return "structured" if isinstance(F, StructuredCorners) else "function"
+from ._representation import build_engine
 
 
 class BDerivative(Linearisation, CornerGeometry):
@@ -167,19 +137,10 @@ class BDerivative(Linearisation, CornerGeometry):
         if Dh.shape[0] == 0 or Dh.shape[1] == 0:
             raise ValueError(f"Dh must have at least one event and one dimension, got {Dh.shape}")
         fast_paths = self._fast_paths = check_bool(fast_paths, "fast_paths")
-        # choose the representation
-        kind = _representation(Dh, F, resets)
-        # build its engine (which validates its own tables)
-        if kind == "dense":
-            engine = DenseEngine.build(Dh, F, transversality_tol, memory_limit, fast_paths)
-        elif kind == "resets":
-            engine = ResetEngine.build(Dh, F, resets, transversality_tol, reset_tol,
-                                       memory_limit)
-        elif kind == "structured":
-            engine = StructuredEngine(Dh, F, fast_paths)
-        else:
-            engine = FunctionEngine.from_model(Dh, F)
-        self._adopt(Dh, engine, None if kind in ("dense", "resets") else F)
+        # choose the representation and build its engine (which validates its own tables)
+        engine, model = build_engine(Dh, F, resets, transversality_tol, memory_limit,
+                                     fast_paths, reset_tol)
+        self._adopt(Dh, engine, model)
 
     @classmethod
     def _from_checked(cls, Dh, F, *, resets=None, reset_tol: float = RESET_TOL):

@@ -7,7 +7,8 @@ surface for 0.03 time units, less than one DOP853 step, lost every one of its te
 contacts that way, and the final state was 31 % off, silently (docs/design.md,
 "Excursions inside a step"). The rules below are plain functions of arrays (samples of
 the dense output, event values, their windows), written once for any integrator; only
-:func:`without_lost_crossings` deals with a solver.
+:func:`without_lost_crossings` deals with a solver. The samples and the peaks between them
+(steps 1 and 2) are :mod:`bderiv.models.events.peaks`.
 
 Along a stretch in one region every event is pending in its local orientation (``h_k < 0``
 not yet crossed; the function negated for an event whose bit is set), so a crossing is a
@@ -62,86 +63,15 @@ among the samples; a step long against the time scale of the events needs ``max_
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
-from ..._limits import PEAK_XTOL
 from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
 from ..._support._validate import frozen, scratch
 from ..compiled import rules
 from .crossings import group_tolerance
+from .peaks import peak_brackets, peak_of, sample_times
 from .stopcalls import StopCalls, local_rates
 
 __all__ = ["REACH", "peak_brackets", "peak_of", "sample_times", "without_lost_crossings"]
-
-
-def sample_times(ends: np.ndarray) -> np.ndarray:
-    """The step ends and the midpoint of every step, in order: shape (2 m - 1,) for m ends.
-
-    Examples
-    --------
-    >>> sample_times(np.array([0.0, 1.0, 3.0]))
-    array([0. , 0.5, 1. , 2. , 3. ])
-    """
-    out = np.empty(2 * ends.size - 1)
-    rules.sample_times(frozen(ends), out)
-    return out
-
-
-def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH) -> list:
-    """Brackets of the sampled local maxima that could reach the surface.
-
-    Parameters
-    ----------
-    h : ndarray, shape (m, n)
-        Event values (local orientation: pending means ``h < 0``) at m sample times.
-    tol : ndarray, shape (n,)
-        How well each event's value is known.
-    stretch : bool
-        The samples span a whole stretch: an event at its surface (``h_k >= -tol_k``) at
-        the first sample was just switched and leaves it, and one at the last sample is
-        at the integrator's stop (located there, or switched with the located ones), so
-        neither end is a peak to search there.
-    reach : float
-        How far above a sampled maximum a peak may rise, in units of its drop to the
-        lower neighbour.
-
-    Returns
-    -------
-    list of (k, lo, hi)
-        Event k may peak between the samples lo < hi (indices), in order of lo.
-
-    Examples
-    --------
-    A peak between samples 1 and 2 that the samples miss (-0.004 on both sides):
-
-    >>> h = np.array([[-0.02], [-0.004], [-0.004], [-0.02]])
-    >>> peak_brackets(h, np.array([1e-11]))
-    [(0, 0, 2), (0, 1, 3)]
-    >>> peak_brackets(h - 1.0, np.array([1e-11]))
-    []
-    """
-    m = h.shape[0]
-    if m < 2:
-        return []
-    rows = rules.peak_rows(frozen(h), frozen(tol), bool(stretch), float(reach))
-    out = [(k, max(i - 1, 0), min(i + 1, m - 1)) for k, i in rows.tolist()]
-    return sorted(out, key=lambda b: (b[1], b[0]))
-
-
-def peak_of(value, t_lo: float, t_hi: float) -> tuple[float, float]:
-    """The maximum of ``value(t)`` on ``[t_lo, t_hi]``: ``(t_peak, value(t_peak))``.
-
-    Examples
-    --------
-    >>> t, v = peak_of(lambda t: np.cos(t) - 0.999, -0.3, 0.2)
-    >>> abs(t) < 1e-8, round(v, 12)
-    (True, 0.001)
-    """
-    res = minimize_scalar(lambda s: -value(s), bounds=(t_lo, t_hi), method="bounded",
-                          options={"xatol": PEAK_XTOL * (t_hi - t_lo)})
-    candidates = [(float(res.x), -float(res.fun)), (t_lo, float(value(t_lo))),
-                  (t_hi, float(value(t_hi)))]
-    return max(candidates, key=lambda c: c[1])
 
 
 def without_lost_crossings(system, mask, options, solve, t0, y0, t_end, events_at=None):
