@@ -107,8 +107,9 @@ def simulate(model, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL
         Integrator settings (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
         1e-12, no step limit).
     rtol, atol, method, max_step : optional
-        Override the settings of ``options`` (see :class:`SolverOptions`); a compiled
-        model takes ``method="DOP853"`` only (its compiled integrator).
+        Override the settings of ``options`` (see
+        :class:`~bderiv.models.integrate.options.SolverOptions`); a compiled model takes
+        ``method="DOP853"`` only (its compiled integrator).
     max_groups : int
         Largest number of event groups (default 10,000): a Zeno or chattering
         trajectory is refused with a RuntimeError.
@@ -206,9 +207,9 @@ def simulate_many(model, X0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEIT
     Returns
     -------
     Trajectories
-        ``trajectories`` (one :class:`Trajectory` per start state, also by ``len``,
-        iteration and ``runs[i]``), ``x_final`` of shape (..., d) and ``mask_final``
-        of shape (...).
+        ``trajectories`` (one :class:`~bderiv.models.integrate.trajectory.Trajectory` per start
+        state, also by ``len``, iteration and ``runs[i]``), ``x_final`` of shape (..., d) and
+        ``mask_final`` of shape (...).
 
     Raises
     ------
@@ -242,12 +243,12 @@ def flow_bderivative(model, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTAN
                      options=None, rtol=None, atol=None, method=None, max_step=None):
     """The B-derivative of ``x -> Phi(t_final, x)`` at ``x0``.
 
-    The nominal trajectory and its variational equations are integrated once. Events
-    switched within ``simultaneity_tol`` (time) of each other form one group; each
-    group gives a :class:`BDerivative` built at the group's state from the model
-    (event Jacobian rows of the group, region fields around the entering mask, in the
-    group's local orientation: rows negated for events crossed downward), and the
-    stage is ``D+ . M . D-`` (mathematics.md section 2).
+    The nominal trajectory and its variational equations are integrated once. Events switched
+    within ``simultaneity_tol`` (time) of each other form one group; each group gives a
+    :class:`~bderiv.engine.bderivative.BDerivative` built at the group's state from the model
+    (event Jacobian rows of the group, region fields around the entering mask, in the group's local
+    orientation: rows negated for events crossed downward), and the stage is ``D+ . M . D-``
+    (mathematics.md section 2).
 
     Parameters
     ----------

@@ -51,8 +51,8 @@ def return_map(model, x0, section, *, section_gradient=None, t_max=DEFAULT_T_MAX
     Returns
     -------
     ReturnMap
-        A :class:`FlowBDerivative` (``__call__``, ``event_times``, ``orders``,
-        ``piece``) mapping tangent vectors ``(..., d)`` at x0 to tangent vectors at
+        A :class:`~bderiv.analysis.flowmap.FlowBDerivative` (``__call__``, ``event_times``,
+        ``orders``, ``piece``) mapping tangent vectors ``(..., d)`` at x0 to tangent vectors at
         ``P(x0)``, with the correction for the change in return time
         (:mod:`bderiv.analysis.returnmap`); ``period`` is the return time.
     """
