@@ -25,7 +25,7 @@ ROUNDS = 3
 def main():
     ex = examples.chair()
     given = ex.system
-    field, events = given._field, given._events
+    field, events = given.field, given.events
 
     def float_field(x, mask):  # the same field, through a float array: no complex input
         out = np.zeros(6)

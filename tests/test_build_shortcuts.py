@@ -193,8 +193,9 @@ def test_corners_at_is_sample_corners_at_a_checked_state():
     system = HybridSystem(lambda x, m: x * (1.0 + m), lambda x: x[:2], n_events=2, dim=3)
     x = np.array([0.5, -1.0, 2.0])
     masks = np.array([3, 0, 2], dtype=np.int64)
-    np.testing.assert_array_equal(system.corners_at(x, masks), system.sample_corners(x, masks))
-    np.testing.assert_array_equal(system.corners_at(x, masks),
+    np.testing.assert_array_equal(system.calls.corners_at(x, masks),
+                                  system.calls.sample_corners(x, masks))
+    np.testing.assert_array_equal(system.calls.corners_at(x, masks),
                                   [x * (1.0 + m) for m in masks.tolist()])
 
 

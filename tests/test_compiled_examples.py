@@ -47,9 +47,10 @@ def test_the_pair_is_one_model_on_two_paths(pair):
     assert (py.t_event, py.t_final, py.name) == (cc.t_event, cc.t_final, cc.name)
     x = py.x0 + 0.01
     for mask in range(1 << py.system.n_events):
-        np.testing.assert_allclose(cc.system.eval_field(x, mask), py.system.eval_field(x, mask),
+        np.testing.assert_allclose(cc.system.calls.eval_field(x, mask),
+                                   py.system.calls.eval_field(x, mask),
                                    rtol=1e-15, atol=1e-15)
-    np.testing.assert_allclose(cc.system.eval_events(x), py.system.eval_events(x),
+    np.testing.assert_allclose(cc.system.calls.eval_events(x), py.system.calls.eval_events(x),
                                rtol=1e-15, atol=1e-15)
 
 
@@ -141,7 +142,7 @@ def test_the_compiled_running_gait_takes_its_speed_at_run_time():
     a, b = runner.running(compiled=True), runner.running(compiled=True, v_target=1.5)
     assert a.system.compiled.named["field"] is b.system.compiled.named["field"]
     x = b.x0 + 0.01
-    np.testing.assert_array_equal(b.system.eval_field(x, 3)[3],
+    np.testing.assert_array_equal(b.system.calls.eval_field(x, 3)[3],
                                   2 * 8.0 * (1.5 - x[3]))  # traction 8 shared by 2 legs
 
 

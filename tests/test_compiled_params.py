@@ -88,8 +88,8 @@ def test_a_hybrid_system_with_parameters_on_either_path(compiled):
     system = HybridSystem(fns[0], fns[1], n_events=1, dim=2, field_jacobian=fns[2],
                           event_jacobian=lambda x: np.array([[-1.0, 0.0]]), params=rates)
     assert (system.compiled is not None) == compiled
-    assert_allclose(system.eval_field([1.0, 2.0], 0), [-0.5, -6.0], rtol=0)
-    assert_allclose(system.eval_field_jacobian([1.0, 2.0], 0), -np.diag(rates), rtol=0)
+    assert_allclose(system.calls.eval_field([1.0, 2.0], 0), [-0.5, -6.0], rtol=0)
+    assert_allclose(system.calls.eval_field_jacobian([1.0, 2.0], 0), -np.diag(rates), rtol=0)
     traj = system.simulate(np.ones(2), 2.0, rtol=1e-12, atol=1e-14)
     assert traj.groups[0].time == pytest.approx(np.log(2.0) / 0.5, rel=1e-9)
     assert_allclose(traj.x_final, np.exp(-rates * 2.0) * [1.0, 1.0], rtol=1e-9)

@@ -161,9 +161,9 @@ def test_without_a_given_event_jacobian_its_complex_step_is_compiled(monkeypatch
     system = HybridSystem(tilted_field, tilted_events, n_events=2, dim=3)
     assert system.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP
     x = np.array([0.3, -0.7, 2.0])
-    assert_allclose(system.eval_event_jacobian(x), tilted_event_jacobian(x), rtol=1e-14,
+    assert_allclose(system.calls.eval_event_jacobian(x), tilted_event_jacobian(x), rtol=1e-14,
                     atol=1e-15)
-    assert system.event_jacobian_checked() and run_module.compiled_stops(system, None)
+    assert system.calls.event_jacobian_checked() and run_module.compiled_stops(system.calls, None)
     x0 = np.zeros(3)
     fast, slow = both_ways(monkeypatch, system, lambda s: s.flow_bderivative(x0, 3.0))
     assert fast.group_events == given.flow_bderivative(x0, 3.0).group_events
@@ -187,10 +187,10 @@ def python_event_jacobian_field(x, mask):
 def test_events_that_are_not_complex_analytic_keep_the_python_stops():
     system = HybridSystem(grazing_field, kinked_events, n_events=1, dim=3)
     assert system.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP
-    J = system.eval_event_jacobian(np.array([0.5, 0.2, 0.0]))  # checked: wrong, numerical
+    J = system.calls.eval_event_jacobian(np.array([0.5, 0.2, 0.0]))  # checked: wrong, numerical
     assert_allclose(J, [[1.0, 0.0, 0.0]], atol=1e-8)
     assert system.compiled.event_jac_mode == EVENT_JAC_NONE
-    assert not run_module.compiled_stops(system, None)
+    assert not run_module.compiled_stops(system.calls, None)
     traj = system.simulate(X0, T)
     x, log = closed_form(X0, T)
     assert_allclose([r.time for r in traj.events], log, atol=1e-8)
@@ -200,7 +200,7 @@ def test_a_python_event_jacobian_keeps_the_python_stops():
     system = HybridSystem(python_event_jacobian_field, grazing_events, n_events=1, dim=3,
                           event_jacobian=lambda x: np.array([[1.0, 0.0, 0.0]]))
     assert system.compiled.event_jac_mode == EVENT_JAC_NONE
-    assert not run_module.compiled_stops(system, None)
+    assert not run_module.compiled_stops(system.calls, None)
 
 
 def test_stops_handed_back_inside_a_run_against_the_closed_form(monkeypatch):
@@ -294,7 +294,7 @@ def test_a_bouncing_ball_in_one_compiled_call(monkeypatch):
     system = HybridSystem(ball_field, ball_events, n_events=1, dim=2, reset=ball_reset)
     x0, t_final = np.array([1.0, 0.0]), 2.5
     system.simulate(x0, t_final)  # the event Jacobian (complex step) checked
-    assert run_module.compiled_stops(system, None)
+    assert run_module.compiled_stops(system.calls, None)
     with monkeypatch.context() as m:
         calls = counting(m)
         fast = system.simulate(x0, t_final)
@@ -325,7 +325,7 @@ def test_the_landing_with_resets_compiled(monkeypatch):
     system = ex.system
     assert system.compiled.reset is not None
     system.simulate(ex.x0, ex.t_final)
-    assert run_module.compiled_stops(system, None)
+    assert run_module.compiled_stops(system.calls, None)
     fast, slow = both_ways(monkeypatch, system,
                            lambda s: s.simulate(ex.x0, ex.t_final, simultaneity_tol=1e-7))
     same_trajectory(fast, slow)

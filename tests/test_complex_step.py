@@ -26,7 +26,7 @@ def chair():
 
 def bare(system, field=None, events=None):
     """The model's own Python functions, no Jacobians given."""
-    return HybridSystem(field or system._field, events or system._events, n_events=2, dim=6)
+    return HybridSystem(field or system.field, events or system.events, n_events=2, dim=6)
 
 
 def test_a_complex_analytic_field_gets_its_jacobian_by_the_complex_step(chair):
@@ -56,7 +56,7 @@ def _not_analytic(field):
 
 @pytest.mark.parametrize("wrap", [_float_only, _not_analytic], ids=["float-only", "not-analytic"])
 def test_a_field_without_a_usable_complex_step_gets_central_differences(chair, wrap, caplog):
-    model = bare(chair.system, field=wrap(chair.system._field))
+    model = bare(chair.system, field=wrap(chair.system.field))
     with caplog.at_level(logging.INFO, logger="bderiv"):
         D = model.flow_bderivative(chair.x0, chair.t_final)
     jacobians, calls, _ = model.numerical_jacobian_cost["field_jacobian"]
@@ -70,7 +70,7 @@ def test_a_field_without_a_usable_complex_step_gets_central_differences(chair, w
 
 def test_a_build_mostly_in_numerical_jacobians_says_so_once(chair, caplog, monkeypatch):
     monkeypatch.setattr(calls_module, "SLOW_BUILD_SECONDS", 0.0)  # every build counts
-    model = bare(chair.system, field=_float_only(chair.system._field))
+    model = bare(chair.system, field=_float_only(chair.system.field))
     with caplog.at_level(logging.WARNING, logger="bderiv"):
         model.flow_bderivative(chair.x0, chair.t_final)
         jacobians, calls, _ = model.numerical_jacobian_cost["field_jacobian"]

@@ -95,8 +95,8 @@ def check_example(ex, n_random, n_boundary, seed=0, min_orders=2):
 def test_example_reaches_event_point(make):
     ex = make()
     s = ex.system
-    assert np.all(s.eval_events(ex.x0) < 0)
-    np.testing.assert_allclose(s.eval_events(ex.rho), 0, atol=1e-14)
+    assert np.all(s.calls.eval_events(ex.x0) < 0)
+    np.testing.assert_allclose(s.calls.eval_events(ex.rho), 0, atol=1e-14)
     traj = s.simulate(ex.x0, ex.t_final, simultaneity_tol=1e-9)
     assert len(traj.groups) == 1
     g = traj.groups[0]
@@ -165,14 +165,14 @@ def test_chair_mode_damping_gives_two_pieces():
 def test_chair_event_jacobian_analytic_vs_numerical():
     ex = examples.chair()
     s = ex.system
-    bare = HybridSystem(s.eval_field, s.eval_events, n_events=2, dim=6)
+    bare = HybridSystem(s.calls.eval_field, s.calls.eval_events, n_events=2, dim=6)
     np.testing.assert_allclose(
-        bare.eval_event_jacobian(ex.rho), s.eval_event_jacobian(ex.rho), atol=1e-9
+        bare.calls.eval_event_jacobian(ex.rho), s.calls.eval_event_jacobian(ex.rho), atol=1e-9
     )
     for mask in range(4):
         np.testing.assert_allclose(
-            bare.eval_field_jacobian(ex.rho, mask),
-            s.eval_field_jacobian(ex.rho, mask),
+            bare.calls.eval_field_jacobian(ex.rho, mask),
+            s.calls.eval_field_jacobian(ex.rho, mask),
             atol=1e-7,
             rtol=1e-8,
         )
@@ -209,8 +209,8 @@ def test_network_corner_field_matches_field():
     ex = examples.network(5, extended=True, seed=1)
     s = ex.system
     x = np.random.default_rng(0).standard_normal(10) * 0.3
-    table = s.sample_corners(x)
-    loop = np.array([s.eval_field(x, m) for m in range(32)])
+    table = s.calls.sample_corners(x)
+    loop = np.array([s.calls.eval_field(x, m) for m in range(32)])
     np.testing.assert_allclose(table, loop, rtol=1e-13, atol=1e-14)
 
 
@@ -218,12 +218,14 @@ def test_network_corner_field_matches_field():
 def test_network_analytic_jacobians(extended):
     ex = examples.network(4, extended=extended, seed=2)
     s = ex.system
-    bare = HybridSystem(s.eval_field, s.eval_events, n_events=4, dim=s.dim)
+    bare = HybridSystem(s.calls.eval_field, s.calls.eval_events, n_events=4, dim=s.dim)
     x = ex.x0 * 0.5
-    np.testing.assert_allclose(bare.eval_event_jacobian(x), s.eval_event_jacobian(x), atol=1e-9)
+    np.testing.assert_allclose(bare.calls.eval_event_jacobian(x), s.calls.eval_event_jacobian(x),
+                               atol=1e-9)
     for mask in (0, 5, 15):
         np.testing.assert_allclose(
-            bare.eval_field_jacobian(x, mask), s.eval_field_jacobian(x, mask), atol=1e-8
+            bare.calls.eval_field_jacobian(x, mask), s.calls.eval_field_jacobian(x, mask),
+            atol=1e-8
         )
 
 
@@ -234,8 +236,8 @@ def test_network_n16_sampling_is_fast_and_right():
     assert bd.F.shape == (1 << 16, 16)
     rng = np.random.default_rng(0)
     for mask in rng.integers(0, 1 << 16, 20):
-        np.testing.assert_allclose(bd.F[mask], s.eval_field(ex.rho, int(mask)), rtol=1e-13)
-    np.testing.assert_allclose(bd.Dh, s.eval_event_jacobian(ex.rho))
+        np.testing.assert_allclose(bd.F[mask], s.calls.eval_field(ex.rho, int(mask)), rtol=1e-13)
+    np.testing.assert_allclose(bd.Dh, s.calls.eval_event_jacobian(ex.rho))
 
 
 @pytest.mark.slow
@@ -307,14 +309,14 @@ def test_chair_corners_closed_form():
 def test_table_jacobians_complex_step_vs_scipy():
     ex = examples.table()
     s = ex.system
-    bare = HybridSystem(s.eval_field, s.eval_events, n_events=4, dim=12)
+    bare = HybridSystem(s.calls.eval_field, s.calls.eval_events, n_events=4, dim=12)
     np.testing.assert_allclose(
-        bare.eval_event_jacobian(ex.rho), s.eval_event_jacobian(ex.rho), atol=1e-9
+        bare.calls.eval_event_jacobian(ex.rho), s.calls.eval_event_jacobian(ex.rho), atol=1e-9
     )
     for mask in (0, 15):
         np.testing.assert_allclose(
-            bare.eval_field_jacobian(ex.rho, mask),
-            s.eval_field_jacobian(ex.rho, mask),
+            bare.calls.eval_field_jacobian(ex.rho, mask),
+            s.calls.eval_field_jacobian(ex.rho, mask),
             atol=1e-7,
             rtol=1e-8,
         )

@@ -319,10 +319,10 @@ def test_an_event_rising_into_a_stop_is_not_searched(monkeypatch):
     ex = pronking(legs=2)
     x0 = ex.x0 + np.array([0.0, 1e-5, 0.0, 0.0])  # the feet 3.5-4.5 us apart
     searches, evaluations = [], []
-    real_peak_of, real_events = excursions.peak_of, ex.system.eval_events
+    real_peak_of, real_events = excursions.peak_of, ex.system.calls.eval_events
     monkeypatch.setattr(excursions, "peak_of",
                         lambda *args: searches.append(args[1:]) or real_peak_of(*args))
-    monkeypatch.setattr(ex.system, "eval_events",
+    monkeypatch.setattr(ex.system.calls, "eval_events",
                         lambda x: evaluations.append(1) or real_events(x))
 
     def run():

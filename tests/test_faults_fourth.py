@@ -121,7 +121,7 @@ def test_damaged_cache_of_a_users_function_is_named(tmp_path):
     mod = import_fresh(tmp_path, name)
     system = HybridSystem(mod.field, mod.events, n_events=1, dim=2)
     system.compiled.describe()
-    assert system.eval_field(np.array([0.5, 0.0]), 1)[1] == -1.0
+    assert system.calls.eval_field(np.array([0.5, 0.0]), 1)[1] == -1.0
     folder = pathlib.Path(mod.field.stats.cache_path)
     data = sorted(folder.glob(f"{name}.field-*.nbc"))
     index, = folder.glob(f"{name}.field-*.nbi")
@@ -137,13 +137,13 @@ def test_damaged_cache_of_a_users_function_is_named(tmp_path):
     with pytest.raises(RuntimeError, match=expected):
         system.compiled  # noqa: B018 - the compiled path's first use of the field
     with pytest.raises(RuntimeError, match=expected):
-        system.eval_field(np.array([0.5, 0.0]), 1)  # the Python path's
+        system.calls.eval_field(np.array([0.5, 0.0]), 1)  # the Python path's
     for path in [index, *data]:
         path.unlink()
     mod = import_fresh(tmp_path, name)
     system = HybridSystem(mod.field, mod.events, n_events=1, dim=2)
     system.compiled.describe()
-    assert system.eval_field(np.array([0.5, 0.0]), 1)[1] == -1.0
+    assert system.calls.eval_field(np.array([0.5, 0.0]), 1)[1] == -1.0
 
 
 def test_damaged_symbolic_module_is_refused(tmp_path, caplog):

@@ -205,7 +205,7 @@ def test_chair_landing_at_the_final_time_converges():
              "mixed": (times.min(1) < -0.05) & (times.max(1) > 0.05)}
     W = np.concatenate([cand[sel][:2] for sel in kinds.values()])
     assert len(W) == 6
-    field, events = system.eval_field, system.eval_events
+    field, events = system.calls.eval_field, system.calls.eval_events
     base = reference_flow(field, events, ex.x0, T)
     DW = D(W)
     errors = []

@@ -91,7 +91,7 @@ def test_bad_user_functions_in_simulate(field, events, match):
 def test_user_function_returning_strings_is_a_type_error():
     s = HybridSystem(lambda x, m: np.array(["a", "b"]), lambda x: x - 1, n_events=2, dim=2)
     with pytest.raises(TypeError, match="field"):
-        s.eval_field(np.zeros(2), 0)
+        s.calls.eval_field(np.zeros(2), 0)
 
 
 def test_bad_jacobians_and_corner_field():
@@ -108,16 +108,16 @@ def test_bad_jacobians_and_corner_field():
         ValueError,
         match=r"event_jacobian\(x\) must return an array of shape \(2, 2\), got shape \(3, 3\)",
     ):
-        s.eval_event_jacobian(np.zeros(2))
+        s.calls.eval_event_jacobian(np.zeros(2))
     with pytest.raises(ValueError, match=r"field_jacobian\(x, mask=1\) returned a non-finite"):
-        s.eval_field_jacobian(np.zeros(2), 1)
+        s.calls.eval_field_jacobian(np.zeros(2), 1)
     with pytest.raises(
         ValueError,
         match=r"corner_field\(x\) must return an array of shape \(4, 2\), got shape \(3, 2\)",
     ):
-        s.sample_corners(np.zeros(2))
+        s.calls.sample_corners(np.zeros(2))
     with pytest.raises(ValueError, match=r"mask must be in \[0, 2\*\*2\)"):
-        s.eval_field_jacobian(np.zeros(2), 4)
+        s.calls.eval_field_jacobian(np.zeros(2), 4)
 
 
 def test_bad_states():
@@ -144,7 +144,7 @@ def test_start_on_surface_is_refused():
     ):
         s.simulate(np.array([0.0, 1.0]), 1.0)
     # just after the surface is fine: the start mask has bit 1 set
-    assert s.start_mask(np.array([0.0, 1.0 + 1e-12])) == 2
+    assert s.calls.start_mask(np.array([0.0, 1.0 + 1e-12])) == 2
 
 
 # ------------------------------------------------------------------------------------------
@@ -222,7 +222,7 @@ def test_no_event_gives_the_classical_derivative():
 def test_numerical_jacobians_match_analytic_flow_bderivative():
     ex = examples.network(2, seed=1)
     s = ex.system
-    bare = HybridSystem(s.eval_field, s.eval_events, n_events=2, dim=2)
+    bare = HybridSystem(s.calls.eval_field, s.calls.eval_events, n_events=2, dim=2)
     fa = s.flow_bderivative(ex.x0, ex.t_final)
     fn = bare.flow_bderivative(ex.x0, ex.t_final)
     V = np.random.default_rng(3).standard_normal((20, 2))
@@ -331,12 +331,12 @@ def test_groups_keep_the_stops_event_jacobian_and_the_map_is_the_same():
 
     ex = examples.network(2, seed=1)
     s = ex.system
-    traj = run(s, ex.x0, ex.t_final, simultaneity_tol=1e-7, variational=True)
+    traj = run(s.calls, ex.x0, ex.t_final, simultaneity_tol=1e-7, variational=True)
     assert traj.groups
     for g in traj.groups:
-        np.testing.assert_array_equal(g.event_jacobian, s.eval_event_jacobian(g.state))
+        np.testing.assert_array_equal(g.event_jacobian, s.calls.eval_event_jacobian(g.state))
     assert all(g.event_jacobian is None
-               for g in run(s, ex.x0, ex.t_final, simultaneity_tol=1e-7).groups)
+               for g in run(s.calls, ex.x0, ex.t_final, simultaneity_tol=1e-7).groups)
     again = dataclasses.replace(traj, groups=tuple(g._replace(event_jacobian=None)
                                                    for g in traj.groups))
     V = np.random.default_rng(3).standard_normal((50, s.dim))

@@ -35,7 +35,7 @@ def _steep(x, mask):
 def test_numerical_jacobian_of_steep_features_is_the_closed_form(depth):
     system = HybridSystem(_steep, lambda x: x[:1], n_events=1, dim=2)
     for v in (0.0, 3e-6):
-        J = system.eval_field_jacobian(np.array([-depth, v]), 1)
+        J = system.calls.eval_field_jacobian(np.array([-depth, v]), 1)
         exact = np.diag([-1.5 * K_HERTZ * depth**0.5, 1e5 / np.cosh(v / 1e-5) ** 2])
         np.testing.assert_allclose(J, exact, rtol=1e-7, atol=0.0)  # zeros exactly 0
 
@@ -50,7 +50,7 @@ def test_numerical_reset_jacobian_of_a_large_shear_is_the_closed_form(c, x2):
     # d x2'/d x2 = 1 beside d x2'/d x0 = c: scipy's absolute step 0.05 lost it to rounding
     system = HybridSystem(lambda x, mask: np.ones(3), lambda x: x[:1] - 1.0, n_events=1,
                           dim=3, reset=_shear_reset(c))
-    R = system.eval_reset_jacobian(np.array([1.0, 0.5, x2]), 0, 0)
+    R = system.calls.eval_reset_jacobian(np.array([1.0, 0.5, x2]), 0, 0)
     exact = np.eye(3)
     exact[2, 0] = c
     np.testing.assert_allclose(R, exact, rtol=1e-7, atol=0.0)
@@ -64,12 +64,12 @@ def test_a_numerical_jacobian_no_step_resolves_is_refused_with_its_entry():
     with pytest.raises(ValueError, match=r"numerical Jacobian of field\(x, mask=0b1\) at x = "
                                          r".*entry \[1, 0\] .*estimated error .*pass "
                                          r"field_jacobian"):
-        system.eval_field_jacobian(np.zeros(2), 1)
+        system.calls.eval_field_jacobian(np.zeros(2), 1)
     # a row 0 at x, whose entries need to be 0 exactly: the refusal still names its entry
     sign = lambda x, mask: np.array([x[1], 0.0 if x[0] == 0 else np.sign(x[0])])  # noqa: E731
     system = HybridSystem(sign, lambda x: x[:1] - 1.0, n_events=1, dim=2)
     with pytest.raises(ValueError, match=r"entry \[1, 0\] \(output 1 by x_0\)"):
-        system.eval_field_jacobian(np.zeros(2), 0)
+        system.calls.eval_field_jacobian(np.zeros(2), 0)
     # a reset with a steep step 1e-14 from the point (at large steps it looks like the
     # identity, which larger steps must not claim): named with its mask and event
     # (float() of the state: no complex step, which would give the local derivative)
@@ -78,13 +78,13 @@ def test_a_numerical_jacobian_no_step_resolves_is_refused_with_its_entry():
                           dim=2, reset=reset)
     with pytest.raises(ValueError, match=r"numerical Jacobian of reset\(x, mask=0b0, k=0\) "
                                          r".*entry \[1, 1\].*pass reset_jacobian"):
-        system.eval_reset_jacobian(np.array([1.0, 0.0]), 0, 0)
+        system.calls.eval_reset_jacobian(np.array([1.0, 0.0]), 0, 0)
 
 
 def test_the_cost_of_numerical_jacobians_is_reported(caplog):
     ex = examples.network(2, seed=1)
     given = ex.system
-    bare = HybridSystem(given.eval_field, given.eval_events, n_events=2, dim=2)
+    bare = HybridSystem(given.calls.eval_field, given.calls.eval_events, n_events=2, dim=2)
     assert repr(bare) == ("HybridSystem(n_events=2, dim=2, numerical: event_jacobian, "
                           "field_jacobian)")
     assert repr(given) == "HybridSystem(n_events=2, dim=2)"
@@ -275,17 +275,18 @@ def test_a_wrong_reset_jacobian_is_refused_and_the_right_one_gives_the_exact_map
 def test_wrong_field_and_event_jacobians_are_refused_naming_the_mask():
     ex = examples.network(2, seed=1)
     s = ex.system
-    typo = HybridSystem(s.eval_field, s.eval_events, n_events=2, dim=2,
-                        field_jacobian=lambda x, mask: -s.eval_field_jacobian(x, mask))
+    typo = HybridSystem(s.calls.eval_field, s.calls.eval_events, n_events=2, dim=2,
+                        field_jacobian=lambda x, mask: -s.calls.eval_field_jacobian(x, mask))
     with pytest.raises(ValueError, match=r"field_jacobian does not match field\(x, "
                                          r"mask=0b00\)"):
         typo.flow_bderivative(ex.x0, ex.t_final)
-    transposed = HybridSystem(s.eval_field, s.eval_events, n_events=2, dim=2,
-                              event_jacobian=lambda x: s.eval_event_jacobian(x).T + 0.1)
+    transposed = HybridSystem(s.calls.eval_field, s.calls.eval_events, n_events=2, dim=2,
+                              event_jacobian=lambda x: s.calls.eval_event_jacobian(x).T + 0.1)
     with pytest.raises(ValueError, match=r"event_jacobian does not match events\(x\)"):
         transposed.bderivative(ex.rho)
     with pytest.raises(TypeError, match="check_jacobians must be True or False, got str"):
-        HybridSystem(s.eval_field, s.eval_events, n_events=2, dim=2, check_jacobians="no")
+        HybridSystem(s.calls.eval_field, s.calls.eval_events, n_events=2, dim=2,
+                     check_jacobians="no")
 
 
 def test_a_section_gradient_is_checked_once():
@@ -303,11 +304,11 @@ def test_a_correct_jacobian_of_a_function_kinked_at_the_point_is_not_refused():
     x = np.array([-1e-19, 0.0, -1.0, 0.0])
     model = HybridSystem(_bar_field, _bar_events, n_events=2, dim=4,
                          field_jacobian=_bar_field_jacobian)
-    np.testing.assert_array_equal(model.eval_field_jacobian(x, 3), _bar_field_jacobian(x, 3))
+    np.testing.assert_array_equal(model.calls.eval_field_jacobian(x, 3), _bar_field_jacobian(x, 3))
     wrong = HybridSystem(_bar_field, _bar_events, n_events=2, dim=4,
                          field_jacobian=lambda x, mask: 1.01 * _bar_field_jacobian(x, mask))
     with pytest.raises(ValueError, match="field_jacobian does not match"):
-        wrong.eval_field_jacobian(np.array([-1e-5, 0.001, -0.5, 0.3]), 3)
+        wrong.calls.eval_field_jacobian(np.array([-1e-5, 0.001, -0.5, 0.3]), 3)
 
 
 # ----------------------------------------------------------------------------------
@@ -326,7 +327,7 @@ def test_every_example_model_passes(name):
     ex = EXAMPLES[name]()
     report = check_jacobians(ex.system, ex.rho)
     n = ex.system.n_events
-    resets = n * (1 << n) if ex.system.has_resets else 0
+    resets = n * (1 << n) if ex.system.calls.has_resets else 0
     assert len(report.rows) == 1 + (1 << n) + resets
     assert report.passed, str(report)
     assert repr(report) == f"JacobianReport({len(report.rows)} checks, all passed)"

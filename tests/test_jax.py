@@ -49,16 +49,16 @@ def _reference_flow(system, x0, t_final):
     watched in the direction that changes its region's bit (up while clear, down while
     set), so a surface just crossed is not found again at the restart."""
     n = system.n_events
-    mask = sum(1 << k for k, h in enumerate(system.eval_events(x0)) if h > 0)
+    mask = sum(1 << k for k, h in enumerate(system.calls.eval_events(x0)) if h > 0)
     t, x = 0.0, np.array(x0, dtype=float)
     while True:
         events = []
         for k in range(n):
             def ev(_t, y, k=k):
-                return system.eval_events(y)[k]
+                return system.calls.eval_events(y)[k]
             ev.terminal, ev.direction = True, -1.0 if mask >> k & 1 else 1.0
             events.append(ev)
-        sol = solve_ivp(lambda _t, y, m=mask: system.eval_field(y, m), (t, t_final), x,
+        sol = solve_ivp(lambda _t, y, m=mask: system.calls.eval_field(y, m), (t, t_final), x,
                         method="DOP853", rtol=1e-12, atol=1e-13, events=events)
         t, x = sol.t[-1], sol.y[:, -1]
         if sol.status == 0:

@@ -142,7 +142,7 @@ def assert_groups_are_the_references(times, events, log):
 
 def assert_sides_agree(system, x, mask):
     """The final region is the one the signs of the events say."""
-    h = system.eval_events(x)
+    h = system.calls.eval_events(x)
     assert mask == sum(1 << k for k in range(h.size) if h[k] > 0), (mask, h)
 
 

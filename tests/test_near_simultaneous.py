@@ -40,7 +40,8 @@ def chair(request):
 def truth():
     ex = examples.chair()
     start = ex.x0 + SHIFT
-    return start, reference(ex.system.eval_field, ex.system.eval_events, start, ex.t_final)
+    calls = ex.system.calls
+    return start, reference(calls.eval_field, calls.eval_events, start, ex.t_final)
 
 
 def test_the_run_switches_each_touchdown_at_its_own_time(chair, truth):
@@ -79,7 +80,7 @@ def test_the_merged_map_is_the_finite_differences_of_steps_above_the_gap(truth):
     first = times.argmin(axis=1)
     W = np.concatenate([cand[first == 0][:2], cand[first == 1][:2]])  # both orders
     assert len(W) == 4
-    field, events = ex.system.eval_field, ex.system.eval_events
+    field, events = ex.system.calls.eval_field, ex.system.calls.eval_events
     errors = []
     for eps in (1e-4, 1e-5):
         fd = np.array([(reference(field, events, start + eps * w, ex.t_final)[0] - base) / eps

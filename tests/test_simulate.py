@@ -34,7 +34,7 @@ def test_simulate_result():
 
 def test_without_resets_the_state_does_not_jump_at_a_group():
     s = constant_system(np.array([[1.0, 1.0], [1.0, 2.0], [2.0, 1.0], [3.0, 3.0]]))
-    assert not s.has_resets
+    assert not s.calls.has_resets
     traj = s.simulate(np.zeros(2), 2.0, simultaneity_tol=1e-9)
     (group,) = traj.groups
     assert np.array_equal(group.state_after, group.state)
@@ -271,9 +271,10 @@ def test_one_event_jacobian_per_stop():
     ex = examples.chair()
     s = ex.system
     calls = []
-    counted = HybridSystem(s._field, s._events, n_events=2, dim=6,
-                           event_jacobian=lambda x: calls.append(1) or s.eval_event_jacobian(x),
-                           field_jacobian=s._field_jac)
+    counted = HybridSystem(s.field, s.events, n_events=2, dim=6,
+                           event_jacobian=lambda x: calls.append(1)
+                           or s.calls.eval_event_jacobian(x),
+                           field_jacobian=s.field_jacobian)
     traj = counted.simulate(ex.x0, 1.0)
     assert len(traj.groups) == 5
     assert len(calls) == len(traj.groups) + 1  # each stop, and the end at t_final

@@ -120,12 +120,13 @@ def test_small_model_jacobians_against_central_differences(small, mask):
 
 def test_system_is_a_hybrid_system_with_exact_jacobians(small):
     assert isinstance(small, HybridSystem)
-    assert (small.dim, small.n_events, small.has_resets) == (3, 2, True)
+    assert (small.dim, small.n_events, small.calls.has_resets) == (3, 2, True)
     assert repr(small) == "SymbolicSystem(n_events=2, dim=3, resets, params: a=1.3, b=0.7, c=2.1)"
     x = POINTS[0]
-    assert_allclose(small.sample_corners(x), [closed_form(x, m, **PARAMS)[0] for m in range(4)],
+    assert_allclose(small.calls.sample_corners(x),
+                    [closed_form(x, m, **PARAMS)[0] for m in range(4)],
                     rtol=1e-14, atol=1e-14)
-    small.eval_field_jacobian(x, 3)
+    small.calls.eval_field_jacobian(x, 3)
     assert small.numerical_jacobian_cost == {}  # every Jacobian given
     with pytest.raises(ValueError, match=r"x must have shape \(3,\), got shape \(2,\)"):
         small.functions.field(np.zeros(2), 0)
@@ -189,25 +190,43 @@ def test_kernels_are_njit_functions_callable_from_compiled_code(small):
         K.field(x0.astype(np.float32), 0)
 
 
-def test_the_compiled_integrator_calls_the_kernels_without_python(small, monkeypatch):
-    """A symbolic model is on the compiled path: integrating it calls the Python
-    wrappers only at the stops (a handful of times), where solve_ivp on its scipy path
-    calls them at every step; both give the same trajectory and flow map."""
-    from bderiv.symbolic import ModelFunctions
+def test_a_symbolic_model_runs_every_stop_compiled(small, monkeypatch):
+    """A symbolic model is on the compiled path, its stops included (the kernels' event
+    Jacobian and resets are compiled): a run is one call of the compiled run, no stretch
+    of the Python loop and no call of its checked Python functions, where solve_ivp on
+    its scipy path calls them at every step; both give the same trajectory and flow
+    map."""
+    from bderiv.models.compiled import model as compiled_model
+    from bderiv.models.integrate import run as run_module
 
     python = small.scipy_path()
     assert small.compiled is not None and python.compiled is None
+    assert small.compiled.describe().endswith("stops: compiled")
     assert python.kernels is small.kernels and python.param_values == small.param_values
-    calls = []
-    x_of = ModelFunctions._x
-    x0, T, counted = np.array([0.66, 0.08, -0.57]), 2.0, {}
+    calls = {"compiled run": 0, "python stretch": 0, "python calls": 0}
+
+    def counted(name, fn):
+        def call(*args, **kwargs):
+            calls[name] += 1
+            return fn(*args, **kwargs)
+        return call
+
+    x0, T, counted_runs = np.array([0.66, 0.08, -0.57]), 2.0, {}
     with monkeypatch.context() as m:
-        m.setattr(ModelFunctions, "_x", lambda self, x: calls.append(1) or x_of(self, x))
-        for name, system in (("compiled", small), ("scipy", python)):
-            calls.clear()
-            counted[name] = (system.simulate(x0, T), len(calls))
-    (compiled, n_compiled), (scipy_, n_scipy) = counted["compiled"], counted["scipy"]
-    assert n_compiled * 10 < n_scipy, (n_compiled, n_scipy)
+        m.setattr(compiled_model.CompiledModel, "run_stretches",
+                  counted("compiled run", compiled_model.CompiledModel.run_stretches))
+        m.setattr(run_module, "_python_stretch",
+                  counted("python stretch", run_module._python_stretch))
+        for system in (small, python):
+            for name in ("eval_field", "eval_events", "eval_event_jacobian", "eval_reset"):
+                m.setattr(system.calls, name, counted("python calls",
+                                                      getattr(system.calls, name)))
+        counted_runs["compiled"] = (small.simulate(x0, T), dict(calls))
+        assert counted_runs["compiled"][1] == {"compiled run": 1, "python stretch": 0,
+                                               "python calls": 0}
+        counted_runs["scipy"] = (python.simulate(x0, T), calls["python calls"])
+    compiled, scipy_ = counted_runs["compiled"][0], counted_runs["scipy"][0]
+    assert counted_runs["scipy"][1] > 100
     assert [g.events for g in compiled.groups] == [g.events for g in scipy_.groups] == [
         (0,), (1,), (0,)]
     assert_allclose([g.time for g in compiled.groups], [g.time for g in scipy_.groups],
@@ -283,7 +302,7 @@ def chair_pair(cache):
 
     ex = chair()
     # the example's leg geometry (a_k, b_k), a constant of its field's closure
-    legs = inspect.getclosurevars(ex.system._field).nonlocals["legs"]
+    legs = inspect.getclosurevars(ex.system.field).nonlocals["legs"]
     return ex, from_sympy(**chair_equations(legs), cache_dir=cache)
 
 
@@ -292,13 +311,16 @@ def test_chair_functions_match_the_hand_written_model(chair_pair):
     hand = ex.system
     rng = np.random.default_rng(1)
     for x in (ex.rho, ex.x0, *(ex.rho + 0.3 * rng.standard_normal((2, 6)))):
-        assert_allclose(sym.eval_events(x), hand.eval_events(x), rtol=1e-13, atol=1e-14)
-        assert_allclose(sym.eval_event_jacobian(x), hand.eval_event_jacobian(x),
+        assert_allclose(sym.calls.eval_events(x), hand.calls.eval_events(x), rtol=1e-13,
+                        atol=1e-14)
+        assert_allclose(sym.calls.eval_event_jacobian(x), hand.calls.eval_event_jacobian(x),
                         rtol=1e-13, atol=1e-14)
-        assert_allclose(sym.sample_corners(x), hand.sample_corners(x), rtol=1e-13, atol=1e-12)
+        assert_allclose(sym.calls.sample_corners(x), hand.calls.sample_corners(x), rtol=1e-13,
+                        atol=1e-12)
         for mask in range(4):
             # the example's field_jacobian is a complex-step Jacobian of its field
-            assert_allclose(sym.eval_field_jacobian(x, mask), hand.eval_field_jacobian(x, mask),
+            assert_allclose(sym.calls.eval_field_jacobian(x, mask),
+                            hand.calls.eval_field_jacobian(x, mask),
                             rtol=1e-12, atol=1e-11)
             assert_allclose(sym.functions.field_jacobian(x, mask),
                             central(lambda y, mask=mask: sym.functions.field(y, mask), x),
@@ -355,10 +377,11 @@ def test_landing_with_resets_matches_the_hand_written_model(cache):
     hand = ex.system
     for mask in range(4):
         for k in range(2):
-            assert_allclose(sym.eval_reset(ex.rho, mask, k), hand.eval_reset(ex.rho, mask, k),
+            assert_allclose(sym.calls.eval_reset(ex.rho, mask, k),
+                            hand.calls.eval_reset(ex.rho, mask, k),
                             rtol=1e-15, atol=0)
-            assert_allclose(sym.eval_reset_jacobian(ex.rho, mask, k),
-                            hand.eval_reset_jacobian(ex.rho, mask, k), rtol=0, atol=0)
+            assert_allclose(sym.calls.eval_reset_jacobian(ex.rho, mask, k),
+                            hand.calls.eval_reset_jacobian(ex.rho, mask, k), rtol=0, atol=0)
     V = np.random.default_rng(3).standard_normal((40, 10))
     D_sym = sym.flow_bderivative(ex.x0, ex.t_final)
     D_hand = hand.flow_bderivative(ex.x0, ex.t_final)

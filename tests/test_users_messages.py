@@ -148,7 +148,7 @@ def test_the_first_run_says_its_start_region(caplog):
 
     ex = examples.chair()
     s = ex.system
-    flipped = HybridSystem(s._field, lambda x: -s._events(x), n_events=2, dim=6)
+    flipped = HybridSystem(s.field, lambda x: -s.events(x), n_events=2, dim=6)
     with caplog.at_level(logging.INFO, logger="bderiv"):
         traj = flipped.simulate(ex.x0, 0.05)
         flipped.simulate(ex.x0, 0.05)

@@ -49,39 +49,79 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
     ``event_jacobian`` (n, d): the checked event Jacobian at ``x`` when the caller has it
     (the stop's, :class:`~bderiv.models.events.crossings.EventGroup`), else evaluated.
     """
+    calls = system.calls
     events = tuple(int(k) for k in events)
     sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
     if event_jacobian is None:
-        event_jacobian = system.eval_event_jacobian(x)
+        event_jacobian = calls.eval_event_jacobian(x)
     Dh = sign[:, None] * event_jacobian[list(events)]
     glob = spread_masks(events, mask_before)  # every event's bit flipped
-    if system.has_resets:
-        base, R = system.sample_resets(x, events, glob, Dh, sign, where)
+    if calls.has_resets:
+        base, R = sample_resets(calls, x, events, glob, Dh, sign, where)
         lands = (1 << len(events)) - 1  # local bits of the events whose bit flips
         if mask_after is not None:
             lands = sum(1 << j for j, k in enumerate(events)
                         if (mask_before ^ mask_after) >> k & 1)
         regions = glob[np.arange(glob.size) & lands]  # the bits of bounces kept
-        F = np.array([system.eval_field(b, int(m)) for b, m in zip(base, regions,
+        F = np.array([calls.eval_field(b, int(m)) for b, m in zip(base, regions,
                                                                  strict=True)])
     else:
-        F = system.corners_at(x, glob)
+        F = calls.corners_at(x, glob)
     G = F @ Dh.T
     ok = G > 0
-    if system.has_resets:  # the rates of the events that happened may have either sign
+    if calls.has_resets:  # the rates of the events that happened may have either sign
         ok |= block_bits(slice(0, G.shape[0]), len(events)) != 0
     if np.count_nonzero(ok) != ok.size:
         i, j = (int(v) for v in np.argwhere(~ok)[0])
-        region = format_mask(int(glob[i]), system.n_events)
+        region = format_mask(int(glob[i]), calls.n_events)
         if sign[j] < 0:
             where += f" (event {events[j]} crossed downward: the rate is that of -h)"
         raise ValueError(transversality_message(events[j], region, G[i, j], where))
-    if system.has_resets:
+    if calls.has_resets:
         try:
-            return BDerivative._from_checked(Dh, F, resets=R, reset_tol=system.reset_tol)
+            return BDerivative._from_checked(Dh, F, resets=R, reset_tol=calls.reset_tol)
         except ValueError as exc:  # the existence check: say where
             raise ValueError(f"{where} (events {list(events)}): {exc}") from None
     return BDerivative._from_checked(Dh, F)  # Dh, F: made here from checked samples
+
+
+def sample_resets(calls, x, events, glob, Dh, sign, where):
+    """Base points and reset Jacobians of a group (mathematics.md section 9), by the
+    model's checked ``calls``.
+
+    ``base[B]`` (2**g, d) is ``x`` moved by the resets of the events of local mask B
+    (ascending; each called with the global mask before its crossing), ``R[B, j]``
+    (2**g, g, d, d) the Jacobian of the reset of ``events[j]`` at ``base[B]``. Refuses
+    resets that move a pending surface or change its gradient (beyond ``reset_tol``
+    relative to ``|Dh_k|``): the events would not stay simultaneous.
+    """
+    g, d = len(events), calls.dim
+    base = np.empty((1 << g, d))
+    base[0] = x
+    R = np.zeros((1 << g, g, d, d))
+    h0, tol = calls.eval_events(x)[list(events)], calls.reset_tol
+    scale = np.abs(Dh).sum(axis=1) * max(1.0, float(np.abs(x).max()))
+    for B in range(1 << g):
+        if B:
+            top = B.bit_length() - 1
+            rest = B & ~(1 << top)
+            base[B] = calls.eval_reset(base[rest], int(glob[rest]), events[top])
+        pending = [j for j in range(g) if not B >> j & 1]
+        h = calls.eval_events(base[B])[list(events)]
+        Dh_B = sign[:, None] * calls.eval_event_jacobian(base[B])[list(events)]
+        for j in pending:
+            moved = max(abs(h[j] - h0[j]) / scale[j],
+                        float(np.abs(Dh_B[j] - Dh[j]).max() / np.abs(Dh[j]).max()))
+            if not moved <= tol:
+                raise ValueError(
+                    f"{where}: the resets of the events of region "
+                    f"{format_mask(int(glob[B]), calls.n_events)} move the surface of "
+                    f"event {events[j]}, still pending (value or gradient, by {moved:.3g} "
+                    f"relative, tolerance {tol:g}): the events would not stay "
+                    f"simultaneous and the flow has no B-derivative there"
+                )
+            R[B, j] = calls.eval_reset_jacobian(base[B], int(glob[B]), events[j])
+    return base, R
 
 
 def flow_map_along(system, traj):
@@ -98,12 +138,12 @@ def flow_map_along(system, traj):
     """
     groups, linear = list(traj.groups), list(traj.linear)
     times = [(g.time, g.time) for g in groups]
-    final_field = system.eval_field(traj.x_final, traj.mask_final)
+    final_field = system.calls.eval_field(traj.x_final, traj.mask_final)
     if traj.final_pending:  # a group just after t_final: its map is stopped there too
         groups.append(traj.final_group)
-        linear.append(np.eye(system.dim))
+        linear.append(np.eye(system.calls.dim))
         times.append((min(traj.final_times), max(traj.final_times)))
-        final_field = system.eval_field(traj.x_final, traj.final_group.mask_after)
+        final_field = system.calls.eval_field(traj.x_final, traj.final_group.mask_after)
     groups, linear, spreads = merge_groups(groups, linear, times, traj.simultaneity_tol)
     jumps = [
         group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
@@ -182,21 +222,22 @@ def point_bderivative(system, rho, tol):
     accurate to
     ``reset_tol`` relative (of ``max(1, max |rho|)``).
     """
-    if not system.has_resets:
-        return group_bderivative(system, rho, range(system.n_events), 0)
-    events, accuracy = list(range(system.n_events)), system.reset_tol * max(
+    calls = system.calls
+    if not calls.has_resets:
+        return group_bderivative(system, rho, range(calls.n_events), 0)
+    events, accuracy = list(range(calls.n_events)), calls.reset_tol * max(
         1.0, float(np.abs(rho).max()))
     context = (f"at rho (taken as t=0, its integration accuracy as reset_tol="
-               f"{system.reset_tol:g} relative)")
-    after = apply_resets(system, events, 0, rho, 0.0, np.inf)  # orders compared below
-    window = np.maximum(accuracy * np.abs(system.eval_event_jacobian(after)).sum(axis=1), tol)
+               f"{calls.reset_tol:g} relative)")
+    after = apply_resets(calls, events, 0, rho, 0.0, np.inf)  # orders compared below
+    window = np.maximum(accuracy * np.abs(calls.eval_event_jacobian(after)).sum(axis=1), tol)
     try:
-        mask_after = landing(system, events, 0, after, window)
+        mask_after = landing(calls, events, 0, after, window)
     except ValueError as exc:
         raise ValueError(f"{context}: {exc}") from None
     bd = group_bderivative(system, rho, events, 0, mask_after)
     try:
-        apply_resets(system, events, 0, rho, 0.0, RESET_MISMATCH * accuracy)
+        apply_resets(calls, events, 0, rho, 0.0, RESET_MISMATCH * accuracy)
     except ValueError as exc:
         raise ValueError(f"{context}: {exc}") from None
     return bd

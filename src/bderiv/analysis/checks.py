@@ -84,7 +84,7 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
     settings = {"simultaneity_tol": simultaneity_tol, "options": options, "section": section,
                 "t_eval": ()}
     progress = resolve_progress(progress, desc="finite differences")
-    start = system._check_state(x0, "x0")
+    start = system.calls._check_state(x0, "x0")
     base = system.simulate(start, t_final, **settings)
     # the perturbed runs as one batch (its bar, or the callback after each run)
     runs = system.simulate_many(start + eps * flat, t_final, progress=progress, **settings)

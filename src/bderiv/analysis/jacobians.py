@@ -175,14 +175,15 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
     >>> report.passed, [(r.function, r.mask, r.given) for r in report.failures]
     (False, [('field_jacobian', 0, True), ('field_jacobian', 1, True)])
     """
-    x = system._check_state(x)
-    n, d = system.n_events, system.dim
+    calls = system.calls
+    x = calls._check_state(x)
+    n, d = calls.n_events, calls.dim
     if masks is None:
         if 1 << n > DEFAULT_MASKS:
             raise ValueError(f"a model with n={n} events has 2**{n} masks: pass masks= "
                              f"(the regions to check), at most {DEFAULT_MASKS} by default")
         masks = range(1 << n)
-    masks = [system._check_mask(m) for m in np.asarray(list(masks), dtype=np.int64)
+    masks = [calls._check_mask(m) for m in np.asarray(list(masks), dtype=np.int64)
              .reshape(-1).tolist()]
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise TypeError(f"seed must be an integer, got {type(seed).__name__}")
@@ -197,18 +198,18 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
     def given(jac, shape, name):  # the checked output of a given Jacobian, or None
         return None if jac is None else lambda *a: check_output(jac(x, *a), shape, name)
 
-    ev = given(system._event_jac, (n, d), "event_jacobian(x)")
-    add("event_jacobian", None, None, ev, system.eval_events)
+    ev = given(calls._event_jac, (n, d), "event_jacobian(x)")
+    add("event_jacobian", None, None, ev, calls.eval_events)
     for m in masks:
-        fj = given(system._field_jac, (d, d), f"field_jacobian(x, mask={m})")
+        fj = given(calls._field_jac, (d, d), f"field_jacobian(x, mask={m})")
         add("field_jacobian", m, None, fj and (lambda m=m, fj=fj: fj(m)),
-            lambda y, m=m: system.eval_field(y, m))
-    if system.has_resets:
+            lambda y, m=m: calls.eval_field(y, m))
+    if calls.has_resets:
         for m in masks:
             for k in range(n):
-                rj = given(system._reset_jac, (d, d), f"reset_jacobian(x, mask={m}, k={k})")
+                rj = given(calls._reset_jac, (d, d), f"reset_jacobian(x, mask={m}, k={k})")
                 add("reset_jacobian", m, k, rj and (lambda m=m, k=k, rj=rj: rj(m, k)),
-                    lambda y, m=m, k=k: system.eval_reset(y, m, k))
+                    lambda y, m=m, k=k: calls.eval_reset(y, m, k))
     if section is not None:
         sec = Section(section, d, section_gradient, check=False)
         sg = given(sec.grad, (d,), "section_gradient(x)")

@@ -98,7 +98,7 @@ def damped_step(system, section, x, delta, res, t_max, options, keep):
     for _ in range(MAX_HALVINGS + 1):
         trial = onto_section(section, x + delta)
         try:
-            traj = run(system, trial, t_max, simultaneity_tol=0.0, options=options,
+            traj = run(system.calls, trial, t_max, simultaneity_tol=0.0, options=options,
                        section=section, record=ENDS)
         except ValueError as exc:  # no return, an event at the section ...: a shorter step
             failure = f"; the last trial point failed: {exc}"

@@ -258,7 +258,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
         starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
         returned, *shifted = [_at_iterate(0, start, t_max, lambda s=start: run(
-            system, s, t_max, simultaneity_tol=0.0, options=options, section=section,
+            system.calls, s, t_max, simultaneity_tol=0.0, options=options, section=section,
             record=ENDS)).x_final for start in starts]
         check_independence(returned, x, shifted, cyclic)
     history, build_tol = [], 0.0

@@ -148,9 +148,9 @@ def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
         raise ValueError(f"x0 is not on the section: section(x0) = {value:.3g}, beyond "
                          f"tol={tol:g}")
     n0 = section.gradient(x0)
-    F0 = system.eval_field(x0, system.start_mask(x0))
+    F0 = system.calls.eval_field(x0, system.calls.start_mask(x0))
     _check_section_crossing(n0, F0, "x0", 0.0)
-    traj = run(system, x0, t_max, simultaneity_tol=simultaneity_tol, options=options,
+    traj = run(system.calls, x0, t_max, simultaneity_tol=simultaneity_tol, options=options,
                variational=True, section=section, record=ENDS)
     period = float(traj.t[-1])
     for g in traj.groups:
@@ -161,7 +161,7 @@ def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
                 f"return map is not piecewise differentiable there; move the section"
             )
     nT = section.gradient(traj.x_final)
-    FT = system.eval_field(traj.x_final, traj.mask_final)
+    FT = system.calls.eval_field(traj.x_final, traj.mask_final)
     _check_section_crossing(nT, FT, "the return point", period)
     flow = system.flow_map_along(traj)
     return ReturnMap(flow, normal=nT, field=FT, normal_start=n0, field_start=F0), traj

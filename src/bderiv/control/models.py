@@ -88,7 +88,7 @@ def _chair_legs(ex):
     Jacobian's pitch column is ``-(a cos - b sin)``."""
     z, theta = ex.rho[1], ex.rho[2]
     c, s = np.cos(theta), np.sin(theta)
-    rx, rz = -np.asarray(ex.system.eval_event_jacobian(ex.rho))[:, 2], -z
+    rx, rz = -np.asarray(ex.system.calls.eval_event_jacobian(ex.rho))[:, 2], -z
     return np.column_stack((rx * c + rz * s, rz * c - rx * s))
 
 

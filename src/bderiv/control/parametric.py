@@ -250,8 +250,8 @@ class ParametricFlow:
         (in the region of the start) must be 0 (ValueError naming them); returns the
         checked ``z = (x, p)``."""
         z = self._z(x, p)
-        mask = self.system.start_mask(z)
-        rate = np.asarray(self.system.eval_field(z, mask))[self.dim:]
+        mask = self.system.calls.start_mask(z)
+        rate = np.asarray(self.system.calls.eval_field(z, mask))[self.dim:]
         if np.any(rate != 0):
             raise ValueError(f"the parameters must not move: the augmented model's "
                              f"field(z, mask)[{self.dim}:] must be 0 (the last n_params = "

@@ -111,7 +111,7 @@ class HybridKalmanFilter:
         self.mean = check_vector(mean, "mean", d)
         self.cov = check_covariance(cov, "cov", d)
         self.time = 0.0
-        self.mode = ModeEstimate(model.start_mask(self.mean), [])
+        self.mode = ModeEstimate(model.calls.start_mask(self.mean), [])
 
     def predict(self, dt, Q=None):
         """Propagate over ``dt``: the mean by simulation, the covariance through the flow.
@@ -147,7 +147,7 @@ class HybridKalmanFilter:
         groups = [(t, ev, probs) for t, ev, probs in
                   zip(D.group_times, D.group_events, push.order_probabilities, strict=True)]
         self.time += dt
-        self.mode = ModeEstimate(self.model.start_mask(self.mean), groups, window,
+        self.mode = ModeEstimate(self.model.calls.start_mask(self.mean), groups, window,
                                  push.method)
         return self.mean.copy(), self.cov.copy()
 
@@ -215,7 +215,7 @@ class HybridKalmanFilter:
         IKH = np.eye(d) - K @ Hx
         cov = IKH @ self.cov @ IKH.T + K @ R @ K.T
         self.mean, self.cov = mean, 0.5 * (cov + cov.T)
-        self.mode = self.mode._replace(mask=self.model.start_mask(self.mean))
+        self.mode = self.mode._replace(mask=self.model.calls.start_mask(self.mean))
         return self.mean.copy(), self.cov.copy()
 
     def nees(self, x_true):

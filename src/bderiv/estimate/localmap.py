@@ -139,7 +139,7 @@ def group_offsets(model, D, traj):
         first = min(traj.groups, key=lambda g: abs(g.time - t))
         mask_before = D.group_masks[i][0] if D.group_masks else first.mask_before
         events = D.group_events[i]
-        h = model.eval_events(first.state)
+        h = model.calls.eval_events(first.state)
         sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
         c, *_ = np.linalg.lstsq(J.Dh, sign * h[list(events)], rcond=None)
         offsets.append(c)
@@ -181,8 +181,8 @@ def end_gap(model, D, dt):
     there is none."""
     gaps = [dt - t for t in D.group_times]
     x = np.asarray(D.x_final)
-    h = np.asarray(model.eval_events(x), float)
-    rate = np.asarray(model.eval_event_jacobian(x), float) @ np.asarray(D.final_field)
+    h = np.asarray(model.calls.eval_events(x), float)
+    rate = np.asarray(model.calls.eval_event_jacobian(x), float) @ np.asarray(D.final_field)
     with np.errstate(divide="ignore", invalid="ignore"):
         ahead = -h / rate
     gaps += [float(t) for t in ahead[np.isfinite(ahead) & (ahead >= 0)]]

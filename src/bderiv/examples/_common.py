@@ -156,7 +156,7 @@ def check_start(example, parameters, region=0):
                          f"(x0 = {x0.tolist()}, rho = {rho.tolist()}); choose other "
                          f"parameters")
     system = example.system
-    h = system.eval_events(x0)
+    h = system.calls.eval_events(x0)
     side = np.array([1.0 if region >> k & 1 else -1.0 for k in range(h.size)])
     wrong = np.flatnonzero(~(side * h > 0))
     if wrong.size:
@@ -168,7 +168,7 @@ def check_start(example, parameters, region=0):
             f"does not meet the events together at t_event={t_event:.6g}; choose other "
             f"parameters"
         )
-    off = np.abs(system.eval_events(rho))
+    off = np.abs(system.calls.eval_events(rho))
     if not (off <= ON_SURFACE_TOL * max(1.0, float(np.abs(rho).max()))).all():
         k = int(np.argmax(off))
         raise ValueError(f"{where}: its event point rho = {np.round(rho, 6).tolist()} is "

@@ -1,9 +1,9 @@
 """Checked calls of a user's model functions: outputs validated, numerical Jacobians.
 
-:class:`ModelCalls` holds a model's functions and evaluates them checked (the base of
-:class:`~bderiv.analysis.system.HybridSystem`), by the wrappers and checks of
-:mod:`.user_functions`; :class:`~bderiv.models.section.Section` does the same for a
-Poincare section.
+:class:`ModelCalls` holds a model's functions and evaluates them checked (a
+:class:`~bderiv.analysis.system.HybridSystem` holds one as ``model.calls``), by the
+wrappers and checks of :mod:`.user_functions`; :class:`~bderiv.models.section.Section`
+does the same for a Poincare section.
 """
 
 from __future__ import annotations
@@ -17,16 +17,14 @@ import numpy as np
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
 from .._support import _numdiff as numdiff
 from .._support._format import format_mask
-from .._support._validate import all_finite, check_bool, check_positive_int, check_real_array
+from .._support._validate import all_finite, check_real_array
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel
 from .readiness import ready_now
 from .user_functions import (
     _appending,
     _contiguous_args,
-    check_callable,
     check_given_jacobian,
     check_output,
-    check_params,
     compiled_or_refused,
     numerical_jacobian,
 )
@@ -51,45 +49,35 @@ def _matches(fun, x, J) -> bool:
 class ModelCalls:
     """A model's user functions, evaluated with every output checked.
 
-    The parameters are those of :class:`~bderiv.analysis.system.HybridSystem`, which documents
-    them. Every output is checked (shape and finiteness); errors say which function,
-    which mask, the expected and the received shape. A given Jacobian is compared with a
-    central difference the first time it is used for each mask (and event), unless
-    ``check_jacobians`` is False; a missing one is computed numerically, its cost counted
-    in :attr:`numerical_jacobian_cost`. With ``params`` the functions are called on the
-    state followed by the parameter values; every ``eval_*`` method takes the state alone.
+    Built from a model's description (:class:`~bderiv.analysis.system.HybridSystem`, which
+    documents and checks its fields), held by it as ``model.calls``: the runs and the
+    analyses evaluate the model through it. Every output is checked (shape and
+    finiteness); errors say which function, which mask, the expected and the received
+    shape. A given Jacobian is compared with a central difference the first time it is
+    used for each mask (and event), unless ``check_jacobians`` is False; a missing one is
+    computed numerically, its cost counted in :attr:`numerical_jacobian_cost`. With
+    ``params`` the functions are called on the state followed by the parameter values;
+    every ``eval_*`` method takes the state alone.
     """
 
-    def __init__(self, field, events, *, n_events, dim, event_jacobian=None,
-                 field_jacobian=None, corner_field=None, reset=None, reset_jacobian=None,
-                 check_jacobians=True, params=None):
-        for f, name in ((field, "field"), (events, "events"),
-                        (event_jacobian, "event_jacobian"),
-                        (field_jacobian, "field_jacobian"), (corner_field, "corner_field"),
-                        (reset, "reset"), (reset_jacobian, "reset_jacobian")):
-            check_callable(f, name)
-        if field is None or events is None:
-            raise TypeError("field and events are required callables")
-        if reset is None and reset_jacobian is not None:
-            raise TypeError("reset_jacobian was given without reset; pass reset=f(x, mask, k)")
-        self._compiled_functions = compiled_or_refused(field, events, field_jacobian)
-        # the compiled path decides their use
-        self._given_event_jacobian, self._given_reset = event_jacobian, reset
+    def __init__(self, model):
+        params = self._params = model.params
+        self.n_events, self.dim = model.n_events, model.dim
+        self.check_jacobians = model.check_jacobians
+        # the compiled path's functions (None: the scipy path); it decides the use of the
+        # event Jacobian and the reset (a guarded reset is the Python loop's)
+        self._compiled_functions = (compiled_or_refused(model.field, model.events,
+                                                        model.field_jacobian)
+                                    if model.use_compiled else None)
+        self._given_event_jacobian = model.event_jacobian
+        self._given_reset = model.reset if model.reset_guard is None else self.eval_reset
         self._compiled = None
-        self._params = params = check_params(params)
-        field, events, event_jacobian, field_jacobian, corner_field, reset, reset_jacobian = (
-            _appending(_contiguous_args(f), params)
-            for f in (field, events, event_jacobian, field_jacobian, corner_field, reset,
-                      reset_jacobian))
-        self._reset, self._reset_jac = reset, reset_jacobian
-        self.n_events = check_positive_int(n_events, "n_events")
-        self.dim = check_positive_int(dim, "dim")
-        self._field = field
-        self._events = events
-        self._event_jac = event_jacobian
-        self._field_jac = field_jacobian
-        self._corner_field = corner_field
-        self.check_jacobians = check_bool(check_jacobians, "check_jacobians")
+        self._field, self._events, self._event_jac, self._field_jac, self._corner_field, \
+            self._reset, self._reset_jac, self._guard = (
+                _appending(_contiguous_args(f), params)
+                for f in (model.field, model.events, model.event_jacobian,
+                          model.field_jacobian, model.corner_field, model.reset,
+                          model.reset_jacobian, model.reset_guard))
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
         self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
         self._how = {}  # key -> how its numerical Jacobian is computed (_COMPLEX, _CENTRAL)
@@ -333,6 +321,8 @@ class ModelCalls:
         (``x`` itself for a model without resets)."""
         if self._reset is None:
             return x
+        if self._guard is not None:
+            self._guard(x, mask, k)
         return check_output(self._reset(x, mask, k), (self.dim,),
                             f"reset(x, mask={mask}, k={k})")
 
@@ -351,43 +341,6 @@ class ModelCalls:
         """Relative tolerance of the reset checks: looser with numerical Jacobians."""
         exact = self._reset_jac is not None and self._event_jac is not None
         return RESET_TOL if exact else RESET_TOL_NUMERICAL
-
-    def sample_resets(self, x, events, glob, Dh, sign, where):
-        """Base points and reset Jacobians of a group (mathematics.md section 9).
-
-        ``base[B]`` (2**g, d) is ``x`` moved by the resets of the events of local mask B
-        (ascending; each called with the global mask before its crossing), ``R[B, j]``
-        (2**g, g, d, d) the Jacobian of the reset of ``events[j]`` at ``base[B]``. Refuses
-        resets that move a pending surface or change its gradient (beyond ``reset_tol``
-        relative to ``|Dh_k|``): the events would not stay simultaneous.
-        """
-        g, d = len(events), self.dim
-        base = np.empty((1 << g, d))
-        base[0] = x
-        R = np.zeros((1 << g, g, d, d))
-        h0, tol = self.eval_events(x)[list(events)], self.reset_tol
-        scale = np.abs(Dh).sum(axis=1) * max(1.0, float(np.abs(x).max()))
-        for B in range(1 << g):
-            if B:
-                top = B.bit_length() - 1
-                rest = B & ~(1 << top)
-                base[B] = self.eval_reset(base[rest], int(glob[rest]), events[top])
-            pending = [j for j in range(g) if not B >> j & 1]
-            h = self.eval_events(base[B])[list(events)]
-            Dh_B = sign[:, None] * self.eval_event_jacobian(base[B])[list(events)]
-            for j in pending:
-                moved = max(abs(h[j] - h0[j]) / scale[j],
-                            float(np.abs(Dh_B[j] - Dh[j]).max() / np.abs(Dh[j]).max()))
-                if not moved <= tol:
-                    raise ValueError(
-                        f"{where}: the resets of the events of region "
-                        f"{format_mask(int(glob[B]), self.n_events)} move the surface of "
-                        f"event {events[j]}, still pending (value or gradient, by {moved:.3g} "
-                        f"relative, tolerance {tol:g}): the events would not stay "
-                        f"simultaneous and the flow has no B-derivative there"
-                    )
-                R[B, j] = self.eval_reset_jacobian(base[B], int(glob[B]), events[j])
-        return base, R
 
     def sample_corners(self, x, masks=None):
         """Region fields at ``x`` for the given masks (default all 2**n).
@@ -423,7 +376,6 @@ class ModelCalls:
         for i, m in enumerate(masks.tolist()):
             out[i] = self.eval_field(x, m)
         return out
-
 
     def start_mask(self, x0):
         """Region mask of a start point from the signs of its event values.

@@ -2,21 +2,21 @@
 
 The compiled kernels (:mod:`bderiv.symbolic._codegen` lists them) live in a generated
 module in the cache folder (:mod:`bderiv.symbolic._cache`); :class:`Kernels` holds them,
-:class:`ModelFunctions` wraps them in the Python signatures ``HybridSystem`` calls, and
-:class:`SymbolicSystem` is the ``HybridSystem`` built on them, with its parameter values.
+:class:`ModelFunctions` wraps them in Python signatures on the state alone, and
+:class:`SymbolicSystem` is the ``HybridSystem`` whose functions they are, with its
+parameter values (:func:`symbolic_system`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import numpy as np
 
 from ..analysis.system import HybridSystem
-from ..models.compiled import CompiledModel
-from ..models.readiness import ready_now
 from . import _cache, _codegen
 from ._inputs import check_model, check_value, require_sympy
 
@@ -127,61 +127,42 @@ class ModelFunctions:
         return self.k.reset_jacobian(self._x(x), mask, k)
 
 
+@dataclasses.dataclass(frozen=True, eq=False, repr=False)
 class SymbolicSystem(HybridSystem):
     """A :class:`~bderiv.analysis.system.HybridSystem` built by :func:`from_sympy`.
 
-    Every method of ``HybridSystem`` applies. Its functions are :attr:`functions`
-    (:class:`ModelFunctions`, Python signatures) over the compiled :attr:`kernels`
-    (:class:`Kernels`, the njit functions), which are also its :attr:`compiled` model:
-    the trajectories are integrated by the compiled integrator (scipy's DOP853 in compiled
-    code, the kernels called without Python; a section must then be a numba dispatcher),
-    unless the system is on the scipy path (:meth:`scipy_path`).
+    Every method of ``HybridSystem`` applies: it is one, its functions the compiled
+    :attr:`kernels` (:class:`Kernels`, the njit functions) with the parameter values
+    ``params``, its Jacobians given (derived, not checked against differences), on the
+    compiled path (every stop included: the kernels' event Jacobian and resets are
+    compiled; a section must then be a numba dispatcher) unless it is on the scipy path
+    (:meth:`scipy_path`). It adds no hook: what it adds is data (the kernels, how they
+    were built) and the ways to another model over the same kernels.
 
     Attributes
     ----------
     kernels : Kernels
     functions : ModelFunctions
+        The kernels with the Python signatures, on the state alone.
     params : ndarray, shape (n_params,)
         The parameter values (read-only), in the order of ``kernels.param_names``.
     build : BuildInfo
     """
 
-    def __init__(self, kernels: Kernels, params, build: BuildInfo, *, compiled=True):
-        self.functions = f = ModelFunctions(kernels, np.array(params, dtype=np.float64))
-        self.params = f.p.view()
-        self.params.flags.writeable = False
-        self.kernels, self.build, self._on_compiled_path = kernels, build, compiled
-        resets = kernels.reset is not None
-        # the Jacobians are derived, not written by hand: no difference check at first use
-        super().__init__(f.field, f.events, n_events=kernels.n_events, dim=kernels.dim,
-                         event_jacobian=f.event_jacobian, field_jacobian=f.field_jacobian,
-                         corner_field=f.corner_field, reset=f.reset if resets else None,
-                         reset_jacobian=f.reset_jacobian if resets else None,
-                         check_jacobians=False)
+    _: KW_ONLY
+    kernels: Kernels = None
+    build: BuildInfo = None
+    functions: ModelFunctions = dataclasses.field(init=False, compare=False)
 
-    @property
-    def on_compiled_path(self) -> bool:
-        """Whether the runs go on the compiled integrator (False: :meth:`scipy_path`)."""
-        return self._on_compiled_path
-
-    @property
-    def compiled(self) -> CompiledModel | None:
-        """The compiled integrator's model: the kernels ``field``, ``events`` and
-        ``field_jacobian`` with this system's parameter values (None on the scipy path,
-        and while the compiled integrator compiles in the background:
-        :mod:`bderiv.models.readiness`)."""
-        if self._compiled is None and self._on_compiled_path and ready_now():
-            k = self.kernels
-            self._compiled = CompiledModel(k.field, k.events, k.field_jacobian,
-                                           n_events=k.n_events, dim=k.dim,
-                                           params=self.functions.p)
-        return self._compiled
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "functions", ModelFunctions(self.kernels, self.params))
 
     def scipy_path(self) -> SymbolicSystem:
         """The same model integrated by :func:`scipy.integrate.solve_ivp` through the
-        Python wrappers (:attr:`functions`): for a Python section, another method than
-        DOP853, or to compare the two integrators."""
-        return self._copy(self.params, compiled=False)
+        Python calls of its kernels: for a Python section, another method than DOP853,
+        or to compare the two integrators."""
+        return dataclasses.replace(self, use_compiled=False)
 
     @property
     def param_values(self) -> dict:
@@ -223,18 +204,28 @@ class SymbolicSystem(HybridSystem):
                 raise ValueError(f"{name} is not a parameter of this model (its parameters: "
                                  f"{known})")
             new[index[str(name)]] = check_value(value, f"the value of {name}")
-        return self._copy(new, compiled=self._on_compiled_path)
-
-    def _copy(self, values, *, compiled) -> SymbolicSystem:
-        """This system's kernels with the parameter values ``values`` (checked), on the
-        compiled path or not."""
-        return SymbolicSystem(self.kernels, values, self.build, compiled=compiled)
+        return dataclasses.replace(self, params=new)
 
     def __repr__(self):
         params = ", ".join(f"{k}={v:g}" for k, v in self.param_values.items())
         return (f"{type(self).__name__}(n_events={self.n_events}, dim={self.dim}"
-                f"{', resets' if self.has_resets else ''}"
+                f"{', resets' if self.reset is not None else ''}"
                 f"{', params: ' + params if params else ''})")
+
+
+def symbolic_system(kernels: Kernels, values, build: BuildInfo, *, kind=SymbolicSystem,
+                    **more) -> SymbolicSystem:
+    """The model of ``kernels`` with the parameter values ``values``: a ``kind`` (a
+    :class:`SymbolicSystem`) whose functions are the kernels themselves (``more``: the
+    fields ``kind`` adds)."""
+    k = kernels
+    resets = k.reset is not None
+    # the Jacobians are derived, not written by hand: no difference check at first use
+    return kind(k.field, k.events, n_events=k.n_events, dim=k.dim,
+                event_jacobian=k.event_jacobian, field_jacobian=k.field_jacobian,
+                corner_field=k.corner_field, reset=k.reset if resets else None,
+                reset_jacobian=k.reset_jacobian if resets else None, check_jacobians=False,
+                params=np.array(values, dtype=np.float64), kernels=k, build=build, **more)
 
 
 def _locate_compile_error(model, exc):
@@ -351,7 +342,7 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
         model, [f"bderiv.symbolic codegen {_codegen.CODEGEN_VERSION}",
                 f"sympy {sympy.__version__}", *model.canonical_text()],
         _codegen.generate, cache_dir, started=started)
-    return SymbolicSystem(kernels, model.values, build)
+    return symbolic_system(kernels, model.values, build)
 
 
 def load_model(model, key_parts, generate, cache_dir, extra=None, *, started):

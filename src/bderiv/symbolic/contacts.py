@@ -32,22 +32,24 @@ a few hundred flops, below the cost of the expressions themselves.
 Simultaneous impacts (docs/mathematics.md section 9, "When the B-derivative exists", which
 derives the condition): two plastic or restitution impacts at once commute, so that the
 state after them and the B-derivative exist, exactly when the contacts are orthogonal in
-the inverse-mass metric,
-``J_i M^-1 J_j^T = 0`` (the impulse at one does not change the other's normal velocity).
-:class:`ContactSystem` checks it wherever an impact resets the state while another
-contact is hit at the same instant (on its surface, within ``SURFACE_TOL`` relative,
-approaching, not yet in stance): in the simulation, the B-derivative at a point and along
-trajectories; coupled contacts are refused with their names, the coupling and what to
-do (a compliant contact, ``impact=None``, or the impacts one after the other). The
-check is local: a quadruped's feet on spring legs are orthogonal at a pronking touchdown,
-where the legs are vertical, and coupled where the body is pitched.
+the inverse-mass metric, ``J_i M^-1 J_j^T = 0`` (the impulse at one does not change the
+other's normal velocity). :class:`ImpactCheck` (the model's ``reset_guard``) checks it
+wherever an impact resets the state while another contact is hit at the same instant (on
+its surface, within ``SURFACE_TOL`` relative, approaching, not yet in stance): in the
+simulation, the B-derivative at a point and along trajectories; coupled contacts are
+refused with their names, the coupling and what to do (a compliant contact,
+``impact=None``, or the impacts one after the other). The check is local: a quadruped's
+feet on spring legs are orthogonal at a pronking touchdown, where the legs are vertical,
+and coupled where the body is pitched.
 :meth:`ContactSystem.coupling` gives the matrix at any state.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 import time
+from dataclasses import KW_ONLY
 
 import numpy as np
 
@@ -62,35 +64,40 @@ from ._inputs import (
     require_sympy,
 )
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
-from ._model import SymbolicSystem, load_model
+from ._model import SymbolicSystem, load_model, symbolic_system
 
-__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ContactSystem", "contact_system"]
+__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ContactSystem", "ImpactCheck",
+           "contact_system"]
 
 #: parameters of the default stance law ``stiffness * pen + damping * rate``, and values
 DEFAULT_STANCE = {"contact_stiffness": 1.0e4, "contact_damping": 100.0}
 
 
+@dataclasses.dataclass(frozen=True, eq=False, repr=False)
 class ContactSystem(SymbolicSystem):
     """The :class:`~bderiv.symbolic.SymbolicSystem` of :func:`contact_system`: every
     method of ``HybridSystem``, the parameters (``with_params``), :meth:`coupling`, and
-    simultaneous impacts checked for mass-orthogonality (module docstring).
+    simultaneous impacts checked for mass-orthogonality (module docstring) by its
+    ``reset_guard`` (:class:`ImpactCheck`; its stops are then decided in Python).
 
     Attributes
     ----------
+    coupling_kernel : numba dispatcher
+        ``J M^-1 J^T`` from ``(q, 0, params)``.
     contacts : tuple of str
         The gap functions as given (in the messages).
     n_coordinates : int
         m; the state is ``(q, q')``, d = 2m.
     """
 
-    def __init__(self, kernels, params, build, coupling_kernel, contacts, *, compiled=True):
-        super().__init__(kernels, params, build, compiled=compiled)
-        self._coupling_kernel, self.contacts = coupling_kernel, contacts
-        self.n_coordinates = self.dim // 2
+    _: KW_ONLY
+    coupling_kernel: object = None
+    contacts: tuple = ()
 
-    def _copy(self, values, *, compiled) -> ContactSystem:
-        return ContactSystem(self.kernels, values, self.build, self._coupling_kernel,
-                             self.contacts, compiled=compiled)
+    @property
+    def n_coordinates(self) -> int:
+        """m, the number of coordinates."""
+        return self.dim // 2
 
     def coupling(self, x) -> np.ndarray:
         """``J M^-1 J^T`` (n, n) at the state ``x`` (d,) or the coordinates ``q`` (m,):
@@ -120,26 +127,36 @@ class ContactSystem(SymbolicSystem):
         if x.shape not in ((m,), (2 * m,)):
             raise ValueError(f"x must be a state of shape ({2 * m},) or coordinates of shape "
                              f"({m},), got shape {x.shape}")
-        return self._coupling_kernel(np.concatenate((x[:m], np.zeros(m), self.functions.p)))
+        return self.coupling_kernel(np.concatenate((x[:m], np.zeros(m), self.params)))
 
-    def eval_reset(self, x, mask, k):
-        """The state after the impact of contact k, refused (ValueError naming the
-        contacts, the coupling and the remedies) when another contact is hit at the same
-        instant and coupled to k through the inverse mass matrix."""
-        if not int(mask) >> int(k) & 1:  # a touchdown: an impact
-            self._check_simultaneous(np.asarray(x, dtype=np.float64), int(mask), int(k))
-        return super().eval_reset(x, mask, k)
 
-    def _check_simultaneous(self, x, mask, k) -> None:
-        m = self.n_coordinates
-        h = self.functions.events(x)
-        rate = self.functions.event_jacobian(x)[:, :m] @ x[m:]  # d(-phi)/dt
+class ImpactCheck:
+    """A contact model's ``reset_guard``: before the impact of contact k (a touchdown),
+    refuse it (ValueError naming the contacts, the coupling and the remedies) when another
+    contact is hit at the same instant and coupled to k through the inverse mass matrix.
+
+    Called as the model's functions are, on ``x`` (d + n_params,): the state followed by
+    the parameter values.
+    """
+
+    def __init__(self, kernels, coupling_kernel, contacts):
+        self.kernels, self.coupling_kernel, self.contacts = kernels, coupling_kernel, contacts
+
+    def __call__(self, x, mask, k) -> None:
+        mask, k = int(mask), int(k)
+        if mask >> k & 1:  # a lift-off: no impact
+            return
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        d = self.kernels.dim
+        m = d // 2
+        h = self.kernels.events(x)
+        rate = self.kernels.event_jacobian(x)[:, :m] @ x[m:d]  # d(-phi)/dt
         on = np.abs(h) <= SURFACE_TOL * max(1.0, float(np.abs(x[:m]).max()))
-        hit = [j for j in range(self.n_events)
+        hit = [j for j in range(self.kernels.n_events)
                if j != k and on[j] and rate[j] > 0.0 and not mask >> j & 1]
         if not hit:
             return
-        C = self.coupling(x)
+        C = self.coupling_kernel(np.concatenate((x[:m], np.zeros(m), x[d:])))
         for j in hit:
             rel = abs(C[k, j]) / np.sqrt(abs(C[k, k] * C[j, j]))
             if not rel <= COUPLING_TOL:
@@ -367,4 +384,8 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"sympy {sp.__version__}",
                 *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE},
         started=started)
-    return ContactSystem(kernels, model.values, build, module.coupling, model.names)
+    guard = None if kernels.reset is None else ImpactCheck(kernels, module.coupling,
+                                                            model.names)
+    return symbolic_system(kernels, model.values, build, kind=ContactSystem,
+                           coupling_kernel=module.coupling, contacts=model.names,
+                           reset_guard=guard)

@@ -11,6 +11,7 @@ error that names the function, the region and the state.
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,6 +60,27 @@ COMPILE_NOTICE = notice_compilation(drive_stretch, run_stretches)
 #: how ``J`` is had, by the code of :mod:`._rhs`
 JACOBIAN_MODES = {JAC_GIVEN: "given", JAC_COMPLEX_STEP: "complex step",
                   JAC_CENTRAL: "central differences"}
+
+
+class CompiledRun(NamedTuple):
+    """What :meth:`CompiledModel.run_stretches` hands back: the compiled run's tuple
+    (:func:`._run.run_stretches`, which documents each entry), named at the Python
+    boundary."""
+
+    code: int
+    returned: bool
+    t: float
+    mask: int
+    state: np.ndarray
+    T: np.ndarray
+    X: np.ndarray
+    M: np.ndarray
+    L: np.ndarray
+    group_t: np.ndarray
+    group_masks: np.ndarray
+    group_x: np.ndarray
+    group_J: np.ndarray
+    steps: int
 
 
 class CompiledModel:
@@ -293,7 +315,8 @@ class CompiledModel:
                       simultaneity_tol, variational, all_checked, checked, groups_left,
                       section=None):
         """The run's stretches from ``(t, x)`` in region ``mask`` while their stops are plain
-        (:func:`._run.run_stretches`: its tuple, the first entry ``ENDED`` or ``HANDOFF``),
+        (:func:`._run.run_stretches`: its tuple as a :class:`CompiledRun`, ``code``
+        ``ENDED`` or ``HANDOFF``),
         for about ``SLICE_SECONDS`` of steps; None when a user function raised (the Python
         loop takes the stretch and says where). Needs ``event_jacobian``.
 
@@ -321,7 +344,7 @@ class CompiledModel:
         except Exception:  # noqa: BLE001 - a user function raised: the Python loop words it
             return None
         measured(key, time.perf_counter() - start, out[-1])
-        return out
+        return CompiledRun._make(out)
 
     def _atols(self, m, atol):
         """The driver's atol array (m,), the same for every stretch of a run (read only)."""

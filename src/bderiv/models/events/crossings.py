@@ -139,7 +139,8 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
 
     Parameters
     ----------
-    system : HybridSystem
+    system : ModelCalls
+        The model's checked calls (``HybridSystem.calls``).
     fired : list of int
         Events the integrator located at this stop.
     mask : int

@@ -259,7 +259,8 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
 
     Parameters
     ----------
-    system : HybridSystem
+    system : ModelCalls
+        The model's checked calls (``HybridSystem.calls``).
     mask : int
         The stretch's region.
     sol : OdeResult

@@ -46,8 +46,9 @@ class StopCalls:
 
     Parameters
     ----------
-    system : HybridSystem
-        The model (any object with the checked evaluations).
+    system : ModelCalls
+        The model's checked calls (``HybridSystem.calls``; any object with the checked
+        evaluations).
 
     Examples
     --------
@@ -55,7 +56,7 @@ class StopCalls:
     >>> seen = []
     >>> s = HybridSystem(lambda x, mask: -x, lambda x: seen.append(1) or x[:1], n_events=1,
     ...                  dim=2)
-    >>> calls = StopCalls(s)
+    >>> calls = StopCalls(s.calls)
     >>> a = calls.eval_events(np.ones(2)); b = calls.eval_events(np.ones(2))
     >>> a is b, len(seen), calls.dim
     (True, 1, 2)

@@ -79,7 +79,7 @@ class ImpactWatch:
 
     Parameters
     ----------
-    system : HybridSystem
+    system : ModelCalls (``HybridSystem.calls``)
         The model (its checked evaluations: ``eval_field``, ``eval_field_jacobian``).
     t_final : float
         The run's final time: an accumulation at or before it is refused where nothing

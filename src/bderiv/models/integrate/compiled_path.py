@@ -77,7 +77,7 @@ class CompiledStretches:
 
     Parameters
     ----------
-    system : HybridSystem
+    system : ModelCalls (``HybridSystem.calls``)
         Its compiled model (``system.compiled``), and its checked evaluations at stops.
     section : numba dispatcher, optional
         ``section(x) -> float``: watched upward after the events.

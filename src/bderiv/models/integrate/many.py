@@ -21,7 +21,7 @@ only take turns at the GIL.
 
 Thread safety. The runs share the model's compiled functions, its struct and atol caches
 (``CompiledModel``: built once, then read; two threads building an entry build equal ones),
-its set of checked Jacobians (``HybridSystem._checked``: one ``add`` per check), the
+its set of checked Jacobians (``ModelCalls._checked``: one ``add`` per check), the
 measured cost of a slice of steps (``_slices._cost``: it sets where a run hands back, never
 its bits) and numba's dispatchers (a compilation holds numba's lock). A run's ``StopCalls``
 and ``SimulationProgress`` are its own (the compiled path never draws the latter). The
@@ -120,7 +120,8 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
 
     Parameters
     ----------
-    system : HybridSystem
+    system : ModelCalls
+        The model's checked calls (``HybridSystem.calls``).
     X0 : ndarray, shape (m, d)
         Checked start states (:func:`check_states`).
     lead : tuple

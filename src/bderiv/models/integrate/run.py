@@ -1,7 +1,7 @@
 """Event-detecting integration of a hybrid model: the loop over stretches and stops.
 
-:func:`run` integrates a model (any object with the checked evaluations of
-:class:`~bderiv.analysis.system.HybridSystem`: ``eval_field``, ``eval_events``,
+:func:`run` integrates a model through its checked calls (a
+:class:`~bderiv.models.calls.ModelCalls`, ``HybridSystem.calls``: ``eval_field``, ``eval_events``,
 ``eval_event_jacobian``, ``eval_field_jacobian``, ``start_mask``, ``n_events``, ``dim``)
 from region to region with :func:`scipy.integrate.solve_ivp`. Each stretch stops at the
 first event crossing, upward or downward (a surface may be crossed any number of times);
@@ -121,7 +121,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
 
     Parameters
     ----------
-    system : HybridSystem
+    system : ModelCalls (``HybridSystem.calls``)
         The model (its checked evaluations are used).
     x0 : ndarray, shape (d,)
         Checked start point, not on an event surface.
@@ -276,24 +276,24 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
         section=None if section is None else section.compiled())
     if out is None:  # a user function raised: the Python loop says where
         return
-    code, returned, t, mask, state, T, X, M, L, times, masks, states, jacobians, _ = out
-    if T.size:
-        log.add_steps(T, X, M)
+    if out.T.size:
+        log.add_steps(out.T, out.X, out.M)
         if variational:
-            log.linear.extend(L)
-    records, groups = log.records, log.groups
-    for i, (time, (b, m0, m1)) in enumerate(zip(times.tolist(), masks.tolist(), strict=True)):
+            log.linear.extend(out.L)
+    records, groups, states = log.records, log.groups, out.group_x
+    for i, (time, (b, m0, m1)) in enumerate(zip(out.group_t.tolist(),
+                                                out.group_masks.tolist(), strict=True)):
         group = _events_of(b)
         for k in group:
             records.append(EventRecord(time, k, m1, -1 if m0 >> k & 1 else 1))
         jac = None
         if variational:
-            jac = jacobians[i]
+            jac = out.group_J[i]
             jac.flags.writeable = False
         # rows of the arrays the compiled run made for this call: no one else's
         groups.append(EventGroup(time, group, m0, m1, states[i, 0], states[i, 1], jac))
-    now.t, now.mask, (now.x, now.scale, now.err) = t, mask, state
-    now.ended, now.returned = code == ENDED, returned
+    now.t, now.mask, (now.x, now.scale, now.err) = out.t, out.mask, out.state
+    now.ended, now.returned = out.code == ENDED, out.returned
 
 
 def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,

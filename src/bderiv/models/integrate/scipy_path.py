@@ -74,7 +74,7 @@ class ScipyStretches:
 
     Parameters
     ----------
-    system : HybridSystem
+    system : ModelCalls (``HybridSystem.calls``)
         Its checked evaluations are used.
     section : callable ``section(x) -> float``, optional
         Watched upward after the events (solve_ivp's event ``n``).
