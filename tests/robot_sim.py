@@ -92,7 +92,9 @@ class PronkSim(GroundSim):
     PD reference ``q_stance`` while any foot is down, ``q_ref`` in flight; a stride from
     an apex to the next (the base's vertical velocity, in its frame, crossing zero
     downward after a touchdown). A foot lifts off when it is back at the ground moving
-    up; feet within ``touch_tol`` of the ground switch together."""
+    up; feet within ``touch_tol`` of the ground switch together (rounding: a perturbed
+    stride's feet a few nanometres apart are not simultaneous, and switching them
+    together would move the state by O(eps))."""
 
     def __init__(self, model, feet, q_ref, q_stance, law):
         super().__init__(model, feet, q_ref, law)
@@ -109,7 +111,7 @@ class PronkSim(GroundSim):
         return np.array([pin.getFrameJacobian(m, d, f, pin.LOCAL_WORLD_ALIGNED)[2] @ v
                          for f in self.fids])
 
-    def stride(self, q0, v0, t_max=1.0, rtol=1e-12, atol=1e-13, touch_tol=1e-9):
+    def stride(self, q0, v0, t_max=1.0, rtol=1e-12, atol=1e-13, touch_tol=1e-13):
         """From an apex (q0, v0) in the air to the next apex: (q, v) there, the return
         time and the switches [(time, foot, +1 down / -1 up)] in order."""
         y = np.concatenate((q0, v0))

@@ -127,18 +127,22 @@ class Pronking:
         self.nv, self.law = nv, self.robot.law
         self.extension = np.zeros(2 * nv)
         self.extension[6:nv] = delta
-        robot, stance, shift = self.robot, self.stance, self.extension
+        self.system = HybridSystem(self.field, self.robot.events, n_events=4, dim=2 * nv,
+                                   field_jacobian=self.field_jacobian,
+                                   event_jacobian=self.robot.event_jacobian)
 
-        def field(x, mask):
-            return stance.field(x - shift, mask) if mask else robot.field(x, mask)
+    def field(self, x, mask) -> np.ndarray:
+        """(2 nv,): the flight robot's field in region 0, the stance robot's (at its
+        coordinates ``x - extension``) in the others."""
+        if mask:
+            return self.stance.field(x - self.extension, mask)
+        return self.robot.field(x, mask)
 
-        def field_jacobian(x, mask):
-            return stance.field_jacobian(x - shift, mask) if mask else \
-                robot.field_jacobian(x, mask)
-
-        self.system = HybridSystem(field, robot.events, n_events=4, dim=2 * nv,
-                                   field_jacobian=field_jacobian,
-                                   event_jacobian=robot.event_jacobian)
+    def field_jacobian(self, x, mask) -> np.ndarray:
+        """(2 nv, 2 nv): the field's Jacobian (the shift of coordinates is a translation)."""
+        if mask:
+            return self.stance.field_jacobian(x - self.extension, mask)
+        return self.robot.field_jacobian(x, mask)
 
     def section(self, x) -> float:
         """The apex section ``-v_z`` (the base's vertical velocity, in its frame)."""
