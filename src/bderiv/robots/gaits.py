@@ -45,7 +45,7 @@ __all__ = ["APEX", "CYCLIC", "PRONK", "Pronking", "mirrors", "pronking", "pronki
 PRONK = {"extension": 0.6, "damping": 20.0}
 #: the orbit's apex with ``PRONK``: the base's height (m), then the front left leg's joint
 #: offsets from the flight posture (HAA, HFE, KFE; rad) and their rates (rad/s); the other
-#: legs mirror it (:func:`apex_state`). Found by ``pronking_orbit`` (residual 6e-12)
+#: legs mirror it (:meth:`Pronking.apex_state`). Found by ``pronking_orbit`` (residual 6e-12)
 APEX = (0.32315291253542411, 0.0067918517989590367, 0.020405259731043672,
         0.0050931461466747607, -0.088563913907917666, -0.74025618142489980,
         -0.21118119406640892)
@@ -210,14 +210,14 @@ def pronking_figure(gait: Pronking, orbit, stability=None, strides=2, samples=80
     for g in traj.groups:
         ax.axvline(1e3 * g.time, color="0.5", ls=":", lw=1)
         ax.annotate("4 feet " + ("down" if g.directions[0] > 0 else "up"),
-                    (1e3 * g.time, 1e3 * traj.x[:, 2].max() * 0.55), rotation=90,
+                    (1e3 * g.time, 1e3 * traj.x[:, 2].max() * 0.36), rotation=90,
                     xytext=(3, 0), textcoords="offset points", fontsize=8, color="0.3")
     ax.axhline(0.0, color="k", lw=0.8)
     ax.set_xlabel("time from the apex (ms)")
     ax.set_ylabel("height above the ground (mm)")
     ax.set_title(f"Solo12 pronking: period {1e3 * orbit.period:.2f} ms (the four feet's "
                  "curves coincide)", fontsize=10)
-    ax.legend(fontsize=8, loc="center right")
+    ax.legend(fontsize=8, loc="center")
     if stability is not None:
         ax = axes[0, 1]
         circle = np.exp(1j * np.linspace(0, 2 * np.pi, 200))
