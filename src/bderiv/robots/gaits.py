@@ -37,8 +37,8 @@ from .build import legged_robot
 from .legged import CONTACT
 from .quadrupeds import ROBOTS
 
-__all__ = ["APEX", "CYCLIC", "PRONK", "Pronking", "mirrors", "pronking", "pronking_figure",
-           "pronking_orbit", "symmetric_solo12"]
+__all__ = ["APEX", "CYCLIC", "PERIOD", "PRONK", "Pronking", "mirrors", "pronking",
+           "pronking_figure", "pronking_orbit", "symmetric_solo12"]
 
 #: the hopping law: the legs' extension in stance (rad) and the feet's damping (N s/m;
 #: lower than CONTACT's 50 so that a modest push sustains the hop); the rest is CONTACT's
