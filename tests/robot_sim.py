@@ -31,11 +31,15 @@ class GroundSim:
         pin.framesForwardKinematics(self.model, self.data, self._q(y))
         return np.array([self.data.oMf[f].translation[2] for f in self.fids]) - self.law["ground"]
 
+    def reference(self, contact):
+        """The PD law's reference configuration with the feet ``contact`` down."""
+        return self.q_ref
+
     def rhs(self, t, y, contact):
         m, d, law = self.model, self.data, self.law
         q, v = self._q(y), y[self.nq:]
         tau = np.zeros(self.nv)
-        tau[6:] = -law["kp"] * (q[7:] - self.q_ref[7:]) - law["kd"] * v[6:]
+        tau[6:] = -law["kp"] * (q[7:] - self.reference(contact)[7:]) - law["kd"] * v[6:]
         pin.computeJointJacobians(m, d, q)
         pin.framesForwardKinematics(m, d, q)
         for k in contact:
@@ -82,6 +86,63 @@ class GroundSim:
         q = self._q(y)
         return q, y[self.nq:], log
 
+
+class PronkSim(GroundSim):
+    """The pronking robot, independently (the oracle of tests/test_robots_gait.py): the
+    PD reference ``q_stance`` while any foot is down, ``q_ref`` in flight; a stride from
+    an apex to the next (the base's vertical velocity, in its frame, crossing zero
+    downward after a touchdown). A foot lifts off when it is back at the ground moving
+    up; feet within ``touch_tol`` of the ground switch together (rounding: a perturbed
+    stride's feet a few nanometres apart are not simultaneous, and switching them
+    together would move the state by O(eps))."""
+
+    def __init__(self, model, feet, q_ref, q_stance, law):
+        super().__init__(model, feet, q_ref, law)
+        self.q_stance = np.asarray(q_stance, dtype=float)
+
+    def reference(self, contact):
+        return self.q_stance if contact else self.q_ref
+
+    def _foot_vz(self, y):
+        m, d = self.model, self.data
+        q, v = self._q(y), y[self.nq:]
+        pin.computeJointJacobians(m, d, q)
+        pin.framesForwardKinematics(m, d, q)
+        return np.array([pin.getFrameJacobian(m, d, f, pin.LOCAL_WORLD_ALIGNED)[2] @ v
+                         for f in self.fids])
+
+    def stride(self, q0, v0, t_max=1.0, rtol=1e-12, atol=1e-13, touch_tol=1e-13):
+        """From an apex (q0, v0) in the air to the next apex: (q, v) there, the return
+        time and the switches [(time, foot, +1 down / -1 up)] in order."""
+        y = np.concatenate((q0, v0))
+        t, contact, log = 0.0, set(), []
+        while True:
+            evs = []
+            for k in range(len(self.fids)):
+                def ev(t, y, _contact, k=k):
+                    return self.heights(y)[k]
+                ev.terminal, ev.direction = True, (1.0 if k in contact else -1.0)
+                evs.append(ev)
+            if log:  # the apex once the stride has landed
+                def apex(t, y, _contact):
+                    return y[self.nq + 2]
+                apex.terminal, apex.direction = True, -1.0
+                evs.append(apex)
+            sol = solve_ivp(self.rhs, (t, t_max), y, method="DOP853", rtol=rtol, atol=atol,
+                            events=evs, args=(frozenset(contact),))
+            y, t = sol.y[:, -1], sol.t[-1]
+            if sol.status != 1:
+                raise RuntimeError(f"no apex before t_max={t_max}")
+            if log and sol.t_events[-1].size:
+                return self._q(y), y[self.nq:], t, log
+            h, vz = self.heights(y), self._foot_vz(y)
+            for k in range(len(self.fids)):
+                if k not in contact and h[k] <= touch_tol:
+                    contact.add(k)
+                    log.append((t, k, 1))
+                elif k in contact and h[k] >= -touch_tol and vz[k] > 0:
+                    contact.discard(k)
+                    log.append((t, k, -1))
 
 class RigidSim(GroundSim):
     """Rigid feet, independently (the oracle of tests/test_robots_rigid.py): at a

@@ -143,8 +143,9 @@ def test_a_trot_two_diagonal_feet_at_once():
 
 
 def test_a_second_robot_by_its_file_name():
-    """Go1: another file, its feet and posture; simulated through its four-foot touchdown
-    as the independent simulation does it."""
+    """Go1: another file, its feet and posture (and its mass's contact law); its four-foot
+    touchdown and 50 ms of stance against the independent simulation as Solo12's (about
+    4 s of CPU)."""
     model = pin.buildModelFromUrdf(str(_files.robot_file("go1_description/urdf/go1.urdf")),
                                    pin.JointModelFreeFlyer())
     q_ref = pin.neutral(model)
@@ -153,11 +154,15 @@ def test_a_second_robot_by_its_file_name():
                        ["FL_foot", "FR_foot", "RL_foot", "RR_foot"], q_ref,
                        stiffness=2.5e4, damping=250.0, friction=250.0, kp=25.0, kd=0.5)
     x0 = drop_state(go1, 0.01, -0.5)
-    T = TOUCHDOWN + 0.02
-    traj = go1.system.simulate(x0, T)
-    assert [g.events for g in traj.groups] == [(0, 1, 2, 3)]
-    sim = GroundSim(go1.model, go1.feet, go1.q_ref, go1.law)
-    assert np.abs(traj.x_final - _independent(go1, sim, x0, T)[0]).max() < 1e-9
+    T = TOUCHDOWN + STANCE
+    D, base, log, rows = _agreement(go1, x0, T, n_orders=4, seed=1)
+    assert D.group_events == ((0, 1, 2, 3),)
+    assert sorted(k for _, k in log) == [0, 1, 2, 3] and len({t for t, _ in log}) == 1
+    assert np.abs(go1.system.simulate(x0, T).x_final - base).max() < 1e-9
+    assert len({order for order, _, _ in rows}) >= 3
+    for order, met, (coarse, fine) in rows:
+        assert met == order
+        assert fine < 1e-4 and fine < 0.2 * coarse, (order, coarse, fine)
 
 
 def test_bad_input_is_refused_by_name(solo):

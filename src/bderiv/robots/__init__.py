@@ -14,6 +14,8 @@ package, as :mod:`bderiv.symbolic` does from equations. docs/robots.md is its gu
   constrained stance, the refusal of simultaneous impacts that do not commute;
 - :mod:`~bderiv.robots.quadrupeds`: Solo12, Go1, ANYmal from example-robot-data
   (:func:`quadruped`), :func:`drop_state` and :func:`touchdown_figure`;
+- :mod:`~bderiv.robots.gaits`: Solo12 pronking, a periodic orbit through four-foot
+  touchdowns and lift-offs, and its stability;
 - :mod:`~bderiv.robots._lie`: the base's coordinate rate on SE(3) and its derivative;
 - :mod:`~bderiv.robots._files`: the description files found, Pinocchio required.
 """
