@@ -115,6 +115,21 @@ def test_the_jacobians_are_the_fields(solo):
     assert np.abs(solo.event_jacobian(x) - central).max() < 1e-8
 
 
+def test_the_field_is_the_independent_simulations(solo):
+    """The accelerations of the field (the contact forces as ``J^T f`` from the joints'
+    world Jacobian, compiled) against the independent simulation's right-hand side
+    (Pinocchio's frame Jacobians, written in the test's simulation), in every region at a
+    state deep in the ground, spinning and sliding."""
+    x = 0.1 * np.random.default_rng(2).standard_normal(2 * solo.nv)
+    x[2] = -0.075  # every foot below the ground
+    sim = GroundSim(solo.model, solo.feet, solo.q_ref, solo.law)
+    q, v = solo.configuration(x)
+    for mask in range(16):
+        a = sim.rhs(0.0, np.concatenate((q, v)), [k for k in range(4) if mask >> k & 1])
+        assert np.abs(solo.field(x, mask)[solo.nv:] - a[solo.model.nq:]).max() \
+            < 1e-12 * np.abs(a).max(), mask
+
+
 def test_four_feet_touch_down_at_once_and_the_flow_map_is_the_simulations(solo):
     x0 = drop_state(solo, 0.01, -0.5)
     T = TOUCHDOWN + STANCE

@@ -37,8 +37,9 @@ the matrix at any state).
 **Derivatives**, analytical (no finite differences): the stance field's by
 differentiating the KKT system, ``[[M, -J^T], [J, 0]] [da; dlambda] = -[dr; dc]``, with
 ``dr`` the inverse dynamics' derivatives (``computeRNEADerivatives`` with the ground's
-forces as external forces, plus the turn of a world-fixed force in its joint's frame as in
-:mod:`bderiv.robots.legged`) and ``dc`` the feet's classical acceleration's
+forces as external forces in the joints' frames, which Pinocchio's derivative holds fixed
+there, plus the turn of a world-fixed force, ``J_i^T [[g]x; [r]x [g]x] J_i,ang`` for the
+force ``g`` in joint i's frame at ``r``) and ``dc`` the feet's classical acceleration's
 (``getFrameAccelerationDerivatives``, LOCAL, rotated to the world); the impact's by
 differentiating ``M v+ + J^T Lambda = M v-``, ``J v+ = 0`` the same way (``d(M w)`` from
 ``computeRNEADerivatives`` at zero velocity less ``computeGeneralizedGravityDerivatives``).
@@ -51,9 +52,13 @@ import numpy as np
 from .._limits import COUPLING_TOL, SURFACE_TOL
 from ..analysis.system import HybridSystem
 from ._lie import se3_rate_jacobians, se3_rate_matrix
-from .legged import LeggedRobot, _skew
+from .legged import LeggedRobot
 
 __all__ = ["RigidLeggedRobot"]
+
+
+def _skew(w):
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
 class RigidLeggedRobot(LeggedRobot):
