@@ -28,6 +28,9 @@ import time
 import numba
 import numpy as np
 
+from bderiv.robots._contact import field_jacobian_matrix, torque, torque_derivatives
+from bderiv.robots._lie import configuration
+
 
 def tree(model):
     """The arrays of the numba ABA: parents (nj,), joint kind (nj,: 0 free-flyer, 1-3
@@ -263,6 +266,26 @@ def _complex_jacobian_loop(n, q, v, tau, parents, kind, idx_v, R0, p0, inertia, 
     return acc
 
 
+@numba.njit(cache=True)
+def _kernels_loop(n, jacobian, x, Jw, P, support, ancestor, law, da_dq, da_dv, minv, q_ref,
+                  Phi):
+    """n rounds of bderiv.robots' compiled pieces (no Python between them) of a field
+    (the configuration, the contact torque) or, with ``jacobian``, of a Jacobian (the
+    configuration, the contact torque's derivatives, the assembly) and the variational
+    equation's product ``J Phi``."""
+    nv = Jw.shape[1]
+    acc = 0.0
+    for _ in range(n):
+        acc += configuration(q_ref, x, nv)[0]
+        if jacobian:
+            tau, dq, dv = torque_derivatives(x, Jw, P, support, ancestor, 15, law)
+            J = field_jacobian_matrix(x, da_dq, da_dv, minv, dq, dv, law[4], law[5])
+            acc += (J @ Phi)[0, 0] + tau[0]
+        else:
+            acc += torque(x, Jw, P, support, 15, law)[0]
+    return acc
+
+
 def _cpu(fn, n, rounds=5):
     best = np.inf
     for _ in range(rounds):
@@ -270,6 +293,37 @@ def _cpu(fn, n, rounds=5):
         fn()
         best = min(best, (time.process_time() - t) / n)
     return best
+
+
+def _drop(robot):
+    from bderiv.robots import drop_state
+
+    return drop_state(robot, 0.01, -0.5), 0.017123551038388 + 0.05
+
+
+def _counts(robot):
+    """The model's calls in a simulate and a flow_bderivative of the benchmark's run."""
+    from bderiv import HybridSystem
+
+    counts = {}
+    for run in ("simulate", "flow_bderivative"):
+        n = {"field": 0, "field_jacobian": 0}
+
+        def counted(name, n=n):
+            fn = getattr(robot, name)
+
+            def call(*args):
+                n[name] += 1
+                return fn(*args)
+            return call
+        system = HybridSystem(counted("field"), robot.events, n_events=4,
+                              dim=robot.system.dim, field_jacobian=counted("field_jacobian"),
+                              event_jacobian=robot.event_jacobian)
+        getattr(system, run)(*_drop(robot))
+        n["field"] = n["field_jacobian"] = 0
+        getattr(system, run)(*_drop(robot))
+        counts[run] = dict(n)
+    return counts
 
 
 def main():
@@ -310,6 +364,39 @@ def main():
     print(f"  numba ABA from Python                    {ours * 1e6:7.2f} us")
     print(f"  numba ABA inside a compiled loop         {inner * 1e6:7.2f} us")
     print(f"  its Jacobian by 36 complex steps         {cjac * 1e6:7.1f} us (compiled loop)")
+    # the compiled pieces bderiv.robots already has, timed without Python between them
+    x = robot.system.simulate(*_drop(robot)).x_final
+    nv = robot.nv
+    qx, vx = robot.configuration(x)
+    robot.field_jacobian(x, 15)
+    Jw, P = np.array(data.J), robot._positions()  # noqa: SLF001 - a prototype's probe
+    tau = torque(x, Jw, P, robot._support, 15, robot._law)
+    da_dq, da_dv, minv = (np.array(m) for m in pin.computeABADerivatives(model, data, qx, vx,
+                                                                         tau))
+    Phi = rng.standard_normal((2 * nv, 2 * nv))
+    args = (x, Jw, P, robot._support, robot._ancestor, robot._law, da_dq, da_dv, minv,
+            robot.q_ref, Phi)
+    k_field = _cpu(lambda: _kernels_loop(n, False, *args), n)
+    k_jac = _cpu(lambda: _kernels_loop(n, True, *args), n)
+    pin_kin = _cpu(lambda: [(pin.computeJointJacobians(model, data, qx),
+                             pin.updateFramePlacements(model, data)) for _ in range(n)], n)
+    print(f"  bderiv.robots' compiled pieces (compiled loop): of a field {k_field * 1e6:.2f}"
+          f" us, of a Jacobian with J Phi {k_jac * 1e6:.2f} us")
+    print(f"  the joints' Jacobian and placements (Pinocchio, from Python, a stand-in for "
+          f"generated kinematics) {pin_kin * 1e6:.2f} us")
+    counts = _counts(robot)
+    field = inner + pin_kin + k_field
+    jacobian = dtheirs / theirs * inner + pin_kin + k_jac
+    sim = counts["simulate"]["field"] * field
+    flow = counts["flow_bderivative"]["field"] * field + \
+        counts["flow_bderivative"]["field_jacobian"] * jacobian
+    print(f"  estimate of a compiled route: a field {field * 1e6:.1f} us, a Jacobian "
+          f"{jacobian * 1e6:.1f} us (an analytical ABA derivative at Pinocchio's "
+          f"{dtheirs / theirs:.1f} ABAs); simulate {counts['simulate']['field']} fields "
+          f"{sim * 1e3:.1f} ms, flow_bderivative {counts['flow_bderivative']['field']} "
+          f"fields and {counts['flow_bderivative']['field_jacobian']} Jacobians "
+          f"{flow * 1e3:.1f} ms, against central differences 72 x simulate: "
+          f"{72 * sim / flow:.1f}x (the integrator's own steps not counted)")
     return {"pin_aba": theirs, "pin_abad": dtheirs, "numba_aba_py": ours,
             "numba_aba": inner, "numba_complex_jacobian": cjac}
 
