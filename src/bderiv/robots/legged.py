@@ -159,7 +159,7 @@ class LeggedRobot:
         tau[6:] = -self.law["kp"] * x[6:self.nv] - self.law["kd"] * x[self.nv + 6:2 * self.nv]
         return tau
 
-    def _kinematics(self, q, mask):
+    def _stance_kinematics(self, q, mask):
         """``data.J`` and the feet's positions at ``q`` (placeholders in flight)."""
         if not mask:
             return self._flight
@@ -173,7 +173,7 @@ class LeggedRobot:
         x = np.ascontiguousarray(x, dtype=np.float64)
         nv, mask = self.nv, int(mask)
         q = configuration(self.q_ref, x, nv)
-        tau = torque(x, *self._kinematics(q, mask), self._support, mask, self._law)
+        tau = torque(x, *self._stance_kinematics(q, mask), self._support, mask, self._law)
         a = self.pin.aba(self.model, self.data, q, x[nv:2 * nv], tau)
         return field_vector(x, a, nv)
 
@@ -182,7 +182,7 @@ class LeggedRobot:
         x = np.ascontiguousarray(x, dtype=np.float64)
         nv, law, mask = self.nv, self.law, int(mask)
         q = configuration(self.q_ref, x, nv)
-        Jw, P = self._kinematics(q, mask)
+        Jw, P = self._stance_kinematics(q, mask)
         tau, dtau_dq, dtau_dv = torque_derivatives(x, Jw, P, self._support, self._ancestor,
                                                    mask, self._law)
         da_dq, da_dv, minv = self.pin.computeABADerivatives(self.model, self.data, q,

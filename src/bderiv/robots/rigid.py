@@ -51,7 +51,8 @@ import numpy as np
 
 from .._limits import COUPLING_TOL, SURFACE_TOL
 from ..analysis.system import HybridSystem
-from ._lie import se3_rate_jacobians, se3_rate_matrix
+from ._contact import field_vector
+from ._lie import se3_rate_jacobians
 from .legged import LeggedRobot
 
 __all__ = ["RigidLeggedRobot"]
@@ -182,17 +183,21 @@ class RigidLeggedRobot(LeggedRobot):
 
     def field(self, x, mask) -> np.ndarray:
         """(d,): ``(de/dt, dv/dt, 0)``, the stance's constrained dynamics (feet of mask
-        held)."""
+        held); in flight the compliant model's field without contacts (``aba``)."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if not int(mask):
+            return np.concatenate((super().field(x, 0), np.zeros(len(self.feet))))
         a = self._solve(x, mask)[0]
-        v = x[self.nv:2 * self.nv]
-        de = v.copy()
-        de[:6] = se3_rate_matrix(x[:6]) @ v[:6]
-        return np.concatenate((de, a, np.zeros(len(self.feet))))
+        return np.concatenate((field_vector(x, a, self.nv), np.zeros(len(self.feet))))
 
     def field_jacobian(self, x, mask) -> np.ndarray:
         """(d, d): the field's Jacobian, by the KKT system's derivative (module
-        docstring)."""
+        docstring); in flight the compliant model's without contacts."""
         pin, model, data, law, nv = self.pin, self.model, self.data, self.law, self.nv
+        if not int(mask):
+            out = np.zeros((self.system.dim, self.system.dim))
+            out[:2 * nv, :2 * nv] = super().field_jacobian(x, 0)
+            return out
         q, v = self.configuration(x)
         a, lam, M, J, feet = self._solve(x, mask)
         # the feet's classical acceleration J a + dJ/dt v, differentiated (a held fixed)
