@@ -126,8 +126,14 @@ def test_the_field_is_the_independent_simulations(solo):
     q, v = solo.configuration(x)
     for mask in range(16):
         a = sim.rhs(0.0, np.concatenate((q, v)), [k for k in range(4) if mask >> k & 1])
-        assert np.abs(solo.field(x, mask)[solo.nv:] - a[solo.model.nq:]).max() \
-            < 1e-12 * np.abs(a).max(), mask
+        f = solo.field(x, mask)
+        assert np.abs(f[solo.nv:] - a[solo.model.nq:]).max() < 1e-12 * np.abs(a).max(), mask
+        # after a Jacobian the field at its state reuses its numbers: the same to the bit,
+        # and nothing of it elsewhere
+        solo.field_jacobian(x, mask)
+        assert np.array_equal(solo.field(x, mask), f), mask
+        solo.field_jacobian(x + 1e-3, mask)
+        assert np.array_equal(solo.field(x, mask), f), mask
 
 
 def test_four_feet_touch_down_at_once_and_the_flow_map_is_the_simulations(solo):

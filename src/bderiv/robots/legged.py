@@ -35,7 +35,10 @@ compiled), with the chain rule through ``dIntegrate``; the events' Jacobian from
 feet's frame Jacobians. No finite differences (``check_jacobians`` compares them with
 differences once per region). Per call: one ``computeJointJacobians``, the feet's
 positions, and ``aba`` (the field) or ``computeABADerivatives`` (its Jacobian), the rest
-in compiled code (``benchmarks/robots.py --profile`` says where the time goes).
+in compiled code (``benchmarks/robots.py --profile`` says where the time goes). The
+variational equation asks for the field at the state of the Jacobian it just took: the
+field then reuses that call's configuration and torque (the same numbers) and only
+calls ``aba``.
 """
 
 from __future__ import annotations
@@ -97,6 +100,9 @@ class LeggedRobot:
         self._ancestor = np.array([[joint[i] in supports[joint[j]] for j in range(self.nv)]
                                    for i in range(self.nv)])
         self._flight = np.zeros((6, self.nv), order="F"), np.zeros((len(self.feet), 3))
+        # (mask, x's bytes, q, torque) of the last Jacobian: the variational equation asks
+        # for the field at the same state next, whose q and torque are those numbers
+        self._last = None
         self._law = np.array([self.law[k] for k in ("friction", "stiffness", "damping",
                                                      "ground", "kp", "kd")], dtype=np.float64)
         self.system = self._build_system()
@@ -172,8 +178,13 @@ class LeggedRobot:
         """(d,): ``(de/dt, dv/dt)`` in region ``mask`` (bit k: foot k in stance)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         nv, mask = self.nv, int(mask)
-        q = configuration(self.q_ref, x, nv)
-        tau = torque(x, *self._stance_kinematics(q, mask), self._support, mask, self._law)
+        last = self._last
+        if last is not None and last[0] == mask and last[1] == x.tobytes():
+            q, tau = last[2], last[3]  # the variational equation's: the same numbers
+        else:
+            q = configuration(self.q_ref, x, nv)
+            tau = torque(x, *self._stance_kinematics(q, mask), self._support, mask,
+                         self._law)
         a = self.pin.aba(self.model, self.data, q, x[nv:2 * nv], tau)
         return field_vector(x, a, nv)
 
@@ -185,6 +196,7 @@ class LeggedRobot:
         Jw, P = self._stance_kinematics(q, mask)
         tau, dtau_dq, dtau_dv = torque_derivatives(x, Jw, P, self._support, self._ancestor,
                                                    mask, self._law)
+        self._last = (mask, x.tobytes(), q, tau)
         da_dq, da_dv, minv = self.pin.computeABADerivatives(self.model, self.data, q,
                                                             x[nv:2 * nv], tau)
         return field_jacobian_matrix(x, da_dq, da_dv, minv, dtau_dq, dtau_dv,
