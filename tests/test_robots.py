@@ -29,6 +29,7 @@ from robot_sim import GroundSim  # noqa: E402
 from bderiv.robots import drop_state, legged_robot, quadruped  # noqa: E402
 from bderiv.robots._lie import (  # noqa: E402
     base_configuration,
+    rate_inverse,
     se3_rate_jacobians,
     se3_rate_matrix,
 )  # noqa: E402
@@ -88,6 +89,7 @@ def test_the_base_rate_is_pinocchios_and_its_derivative_exact():
             model, np.concatenate((q_base, q_ref[7:])), np.concatenate(
                 (xi, np.zeros(model.nv - 6))))[:7]).max() < 1e-14
         assert np.abs(se3_rate_matrix(xi) - pin.Jlog6(pin.exp6(xi))).max() < 1e-13
+        assert np.abs(rate_inverse(xi) - pin.Jexp6(xi)).max() < 1e-13  # its inverse
         e = np.concatenate((xi, np.zeros(model.nv - 6)))
         Jq = pin.dIntegrate(model, q_ref, e, pin.ARG1)[:6, :6]
         assert np.abs(se3_rate_matrix(xi) @ Jq - np.eye(6)).max() < 1e-9  # Pinocchio's

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ._lie import _rate_jacobian_xi, _rate_matrix, rate
+from ._lie import _rate_jacobian_xi, _rate_matrix, rate, rate_inverse
 
 
 @numba.njit(cache=True)
@@ -201,7 +201,7 @@ def field_jacobian_matrix(x, da_dq, da_dv, minv_upper, dtau_dq, dtau_dv, kp, kd)
     out[:6, nv:nv + 6] = d_nu
     for i in range(6, nv):
         out[i, nv + i] = 1.0
-    out[nv:, :6] = np.ascontiguousarray(Aq[:, :6]) @ np.linalg.inv(d_nu)
+    out[nv:, :6] = np.ascontiguousarray(Aq[:, :6]) @ rate_inverse(xi)
     out[nv:, 6:nv] = Aq[:, 6:] - kp * Minv[:, 6:]
     out[nv:, nv:] = da_dv + Minv @ dtau_dv
     out[nv:, nv + 6:] -= kd * Minv[:, 6:]

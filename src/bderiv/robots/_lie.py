@@ -194,12 +194,40 @@ def _rate_times(x0, x1, x2, x3, x4, x5, nu):
 def _rate_jacobian_xi(xi, nu):
     """d(Jr(xi)^-1 nu)/dxi (6, 6) by six complex steps."""
     out = np.empty((6, 6))
+    z = np.empty(6, dtype=np.complex128)
     for j in range(6):
-        z = [complex(xi[i]) for i in range(6)]
+        z[:] = xi
         z[j] += 1j * STEP
         r = _rate_times(z[0], z[1], z[2], z[3], z[4], z[5], nu)
         for i in range(6):
             out[i, j] = r[i].imag / STEP
+    return out
+
+
+@numba.njit(cache=True)
+def rate_inverse(xi):
+    """``Jr(xi)`` (6, 6), the inverse of :func:`se3_rate_matrix` of real ``xi`` in closed
+    form: ``J_l(-xi) = [[J_l3, Q], [0, J_l3]]`` at ``(-rho, -phi)`` (Barfoot's eqs.
+    7.85, 7.86), ``J_l3(phi) = I + (1 - cos t)/t^2 [phi]x + (t - sin t)/t^3 [phi]x^2``."""
+    rho, phi = -xi[:3], -xi[3:]
+    t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    a, b, c, _ = _coefficients_one(t2)
+    if t2 < SERIES_THETA2:
+        v1 = 0.5 - t2 / 24 + t2**2 / 720 - t2**3 / 40320
+    else:
+        v1 = (1 - np.cos(np.sqrt(t2))) / t2
+    P, R = _skew_one(phi), _skew_one(rho)
+    PP = _mm(P, P)
+    PR, RP = _mm(P, R), _mm(R, P)
+    PRP = _mm(PR, P)
+    out = np.zeros((6, 6))
+    out[:3, 3:] = (R / 2 + a * (PR + RP + PRP) + b * (_mm(P, PR) + _mm(RP, P) - 3 * PRP)
+                   + c * (_mm(PRP, P) + _mm(P, PRP)))
+    J3 = v1 * P + a * PP
+    for i in range(3):
+        J3[i, i] += 1
+    out[:3, :3] = J3
+    out[3:, 3:] = J3
     return out
 
 
