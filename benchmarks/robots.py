@@ -10,8 +10,9 @@ minimum of ``--repeat`` runs, wall and CPU seconds):
 - ``flow_bderivative``: the B-derivative of the flow map (the trajectory and its
   variational equation, the group's corner table and ``BDerivative``);
 - central finite differences of the same simulation: 2 d = 72 simulations; measured
-  with ``--fd`` (about 2 d times ``simulate``), else estimated as 2 d times the measured
-  ``simulate`` (the line says which);
+  with ``--fd`` (the minimum of ``--repeat`` runs too; more than 2 d times ``simulate``:
+  the perturbed runs meet the feet one by one), else estimated as 2 d times the
+  measured ``simulate`` (the line says which);
 
 with ``--rigid``, the same for rigid frictionless feet on the pacing posture whose two
 left feet land at once and commute (``SOLO12_PACE``; the four-foot drop of rigid feet is
@@ -196,7 +197,7 @@ def main(argv=None):
                               - robot.system.simulate(x0 - h * s, T).x_final) / (2 * h)
                              for s in np.eye(robot.system.dim)[:d]]).T
 
-        (fd_w, fd_c), _ = _timed(central, 1)
+        (fd_w, fd_c), _ = _timed(central, args.repeat)
         how = "measured"
     else:
         fd_w, fd_c, how = 2 * d * sim_w, 2 * d * sim_c, "estimated: 2 d x simulate"
