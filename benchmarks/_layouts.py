@@ -62,6 +62,11 @@ def measured(value: float, row: dict) -> str:
     return {"x": "{:.3g}x", "%": "{:.2g}%", "s": "{:.3g} s"}[row["unit"]].format(value)
 
 
+def in_unit(value: float, row: dict) -> str:
+    """Seconds (:func:`time_unit`) or a ratio, as the row's ``unit`` ("s" or "x") says."""
+    return time_unit(value) if row["unit"] == "s" else f"{value:.3g}x"
+
+
 def seconds_case(value, row: dict) -> str:
     """A cold-start case: its seconds (several joined by " / "), the import's, the
     second call's."""
@@ -175,6 +180,15 @@ LAYOUTS: dict[str, dict[str, list[Column]]] = {
         C("mean NEES", "mean_nees", "{:.3f}", align="l"),
         C("95 % band", "band", lambda v, row: f"[{v[0]:.3f}, {v[1]:.3f}]", align="l"),
         C("verdict", "verdict", align="l")]},
+    # benchmarks/robots.py (Solo12's touchdown; robots_rigid.json with --rigid)
+    "robots": {
+        "main": [C("", "what", align="l"), C("wall", "wall", in_unit),
+                 C("CPU", "cpu", in_unit)],
+        "where": [C("run", "run", align="l"), C("part", "part", align="l"),
+                  C("calls", "calls"), C("CPU per call", "per_call", time_unit),
+                  C("of which Pinocchio's routines", "pinocchio", time_unit),
+                  C("CPU in the run", "seconds", time_unit),
+                  C("share", "share", "{:.0f} %", scale=100)]},
     # benchmarks/jax_overhead.py
     "jax_overhead": {"main": [
         C("case", "case", align="l"), C("JAX route", "jax", time_unit),

@@ -29,6 +29,7 @@ from robot_sim import GroundSim  # noqa: E402
 from bderiv.robots import drop_state, legged_robot, quadruped  # noqa: E402
 from bderiv.robots._lie import (  # noqa: E402
     base_configuration,
+    rate_inverse,
     se3_rate_jacobians,
     se3_rate_matrix,
 )  # noqa: E402
@@ -88,6 +89,7 @@ def test_the_base_rate_is_pinocchios_and_its_derivative_exact():
             model, np.concatenate((q_base, q_ref[7:])), np.concatenate(
                 (xi, np.zeros(model.nv - 6))))[:7]).max() < 1e-14
         assert np.abs(se3_rate_matrix(xi) - pin.Jlog6(pin.exp6(xi))).max() < 1e-13
+        assert np.abs(rate_inverse(xi) - pin.Jexp6(xi)).max() < 1e-13  # its inverse
         e = np.concatenate((xi, np.zeros(model.nv - 6)))
         Jq = pin.dIntegrate(model, q_ref, e, pin.ARG1)[:6, :6]
         assert np.abs(se3_rate_matrix(xi) @ Jq - np.eye(6)).max() < 1e-9  # Pinocchio's
@@ -113,6 +115,27 @@ def test_the_jacobians_are_the_fields(solo):
     central = np.array([(solo.events(x + h * s) - solo.events(x - h * s)) / (2 * h)
                         for s in np.eye(2 * solo.nv)]).T
     assert np.abs(solo.event_jacobian(x) - central).max() < 1e-8
+
+
+def test_the_field_is_the_independent_simulations(solo):
+    """The accelerations of the field (the contact forces as ``J^T f`` from the joints'
+    world Jacobian, compiled) against the independent simulation's right-hand side
+    (Pinocchio's frame Jacobians, written in the test's simulation), in every region at a
+    state deep in the ground, spinning and sliding."""
+    x = 0.1 * np.random.default_rng(2).standard_normal(2 * solo.nv)
+    x[2] = -0.075  # every foot below the ground
+    sim = GroundSim(solo.model, solo.feet, solo.q_ref, solo.law)
+    q, v = solo.configuration(x)
+    for mask in range(16):
+        a = sim.rhs(0.0, np.concatenate((q, v)), [k for k in range(4) if mask >> k & 1])
+        f = solo.field(x, mask)
+        assert np.abs(f[solo.nv:] - a[solo.model.nq:]).max() < 1e-12 * np.abs(a).max(), mask
+        # after a Jacobian the field at its state reuses its numbers: the same to the bit,
+        # and nothing of it elsewhere
+        solo.field_jacobian(x, mask)
+        assert np.array_equal(solo.field(x, mask), f), mask
+        solo.field_jacobian(x + 1e-3, mask)
+        assert np.array_equal(solo.field(x, mask), f), mask
 
 
 def test_four_feet_touch_down_at_once_and_the_flow_map_is_the_simulations(solo):

@@ -38,68 +38,64 @@ SERIES_THETA2 = 1e-2
 STEP = 1e-30
 
 
-def _skew(w):
-    """The 3 x 3 matrices of ``w x`` (..., 3, 3) for ``w`` (..., 3), real or complex."""
-    out = np.zeros((*w.shape[:-1], 3, 3), dtype=w.dtype)
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
-    return out
-
-
-def _coefficients(t2):
-    """``a, b, c`` of Q and ``g`` of ``J_l3^-1`` as functions of theta^2 (module
-    docstring): a = (t - sin t)/t^3, b = (t^2 + 2 cos t - 2)/(2 t^4),
-    c = (2t - 3 sin t + t cos t)/(2 t^5), g = 1/t^2 - (1 + cos t)/(2 t sin t)."""
-    if np.real(np.ravel(t2)[0]) < SERIES_THETA2:  # a batch: equal real parts
-        a = 1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880
-        b = 1 / 24 - t2 / 720 + t2**2 / 40320 - t2**3 / 3628800
-        c = 1 / 120 - t2 / 2520 + t2**2 / 120960 - t2**3 / 6652800
-        g = 1 / 12 + t2 / 720 + t2**2 / 30240 + t2**3 / 1209600
-        return a, b, c, g
-    t = np.sqrt(t2)
-    s, co = np.sin(t), np.cos(t)
-    return ((t - s) / t**3, (t2 + 2 * co - 2) / (2 * t2**2),
-            (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
-
-
 def base_configuration(q_ref, xi) -> np.ndarray:
     """The free-flyer's configuration ``(p, quaternion x y z w)`` (7,) of
     ``M_ref exp6(xi)``, ``M_ref`` given as such a 7-vector ``q_ref``: Pinocchio's
-    ``integrate`` of the base (module docstring)."""
-    rho, phi = xi[:3], xi[3:]
-    t2 = phi @ phi
-    a, _, _, _ = _coefficients(t2)  # (t - sin t) / t^3
+    ``integrate`` of the base (module docstring; compiled)."""
+    out = np.empty(7)
+    _base_into(np.ascontiguousarray(q_ref, dtype=np.float64),
+               np.ascontiguousarray(xi, dtype=np.float64), out)
+    return out
+
+
+@numba.njit(cache=True)
+def configuration(q_ref, x, nv):
+    """``q = integrate(q_ref, x[:nv])`` (nq,) of a free-flyer then one-coordinate joints
+    (compiled)."""
+    q = np.empty(q_ref.size)
+    _base_into(q_ref, x[:6], q)
+    q[7:] = q_ref[7:] + x[6:nv]
+    return q
+
+
+@numba.njit(cache=True)
+def _base_into(q_ref, xi, out):
+    """:func:`base_configuration` into ``out[:7]``."""
+    t2 = xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]
     if t2 < SERIES_THETA2:
+        a = 1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880  # (t - sin t) / t^3
         half = 0.5 - t2 / 48 + t2**2 / 3840 - t2**3 / 645120  # sin(t/2) / t
         cos_half = 1 - t2 / 8 + t2**2 / 384 - t2**3 / 46080
         v1 = 0.5 - t2 / 24 + t2**2 / 720 - t2**3 / 40320  # (1 - cos t) / t^2
     else:
         t = np.sqrt(t2)
+        a = (t - np.sin(t)) / t**3
         half, cos_half, v1 = np.sin(t / 2) / t, np.cos(t / 2), (1 - np.cos(t)) / t2
-    P = _skew(phi)
-    step = rho + v1 * (P @ rho) + a * (P @ (P @ rho))  # J_l3(phi) rho
-    x0, y0, z0, w0 = q_ref[3:7]
-    x1, y1, z1 = half * phi
+    rho, phi = xi[:3], xi[3:6]
+    P = _skew_one(phi)
+    Pr = P @ rho
+    step = rho + v1 * Pr + a * (P @ Pr)  # J_l3(phi) rho
+    x0, y0, z0, w0 = q_ref[3], q_ref[4], q_ref[5], q_ref[6]
+    x1, y1, z1 = half * phi[0], half * phi[1], half * phi[2]
     w1 = cos_half
-    quat = np.array([w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
-                     w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1,
-                     w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1,
-                     w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1])
-    R0 = _rotation(q_ref[3:7])
-    return np.concatenate((q_ref[:3] + R0 @ step, quat))
-
-
-def _rotation(quat):
-    """The rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = quat
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    R0 = np.array([[1 - 2 * (y0 * y0 + z0 * z0), 2 * (x0 * y0 - z0 * w0),
+                    2 * (x0 * z0 + y0 * w0)],
+                   [2 * (x0 * y0 + z0 * w0), 1 - 2 * (x0 * x0 + z0 * z0),
+                    2 * (y0 * z0 - x0 * w0)],
+                   [2 * (x0 * z0 - y0 * w0), 2 * (y0 * z0 + x0 * w0),
+                    1 - 2 * (x0 * x0 + y0 * y0)]])
+    out[:3] = q_ref[:3] + R0 @ step
+    out[3] = w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1
+    out[4] = w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1
+    out[5] = w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1
+    out[6] = w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1
 
 
 @numba.njit(cache=True)
 def _coefficients_one(t2):
-    """:func:`_coefficients` of one real or complex theta^2, compiled."""
+    """``a, b, c`` of Q and ``g`` of ``J_l3^-1`` (module docstring) of one real or
+    complex theta^2: a = (t - sin t)/t^3, b = (t^2 + 2 cos t - 2)/(2 t^4),
+    c = (2t - 3 sin t + t cos t)/(2 t^5), g = 1/t^2 - (1 + cos t)/(2 t sin t)."""
     if t2.real < SERIES_THETA2:
         return (1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880,
                 1 / 24 - t2 / 720 + t2**2 / 40320 - t2**3 / 3628800,
@@ -154,18 +150,94 @@ def _rate_matrix(xi):
 
 
 @numba.njit(cache=True)
+def _cr(a0, a1, a2, b0, b1, b2):
+    """``a x b`` of scalars (real or complex) as a tuple."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@numba.njit(cache=True)
+def _rate_times(x0, x1, x2, x3, x4, x5, nu):
+    """``Jr(xi)^-1 nu`` (a 6-tuple) of ``xi = (x0 .. x5)``, real or complex scalars, by
+    cross products (:func:`_rate_matrix` applied to ``nu`` without its matrices: no
+    small arrays, for the complex steps)."""
+    r0, r1, r2, p0, p1, p2 = -x0, -x1, -x2, -x3, -x4, -x5  # J_r(xi) = J_l(-xi)
+    a, b, c, g = _coefficients_one(p0 * p0 + p1 * p1 + p2 * p2)
+    # w = J_l3^-1 nu_ang, J_l3^-1 y = y - (phi x y) / 2 + g phi x (phi x y)
+    y0, y1, y2 = nu[3], nu[4], nu[5]
+    s0, s1, s2 = _cr(p0, p1, p2, y0, y1, y2)
+    t0, t1, t2 = _cr(p0, p1, p2, s0, s1, s2)
+    w0, w1, w2 = y0 - s0 / 2 + g * t0, y1 - s1 / 2 + g * t1, y2 - s2 / 2 + g * t2
+    # Q w (Barfoot's eq. 7.86), P y = phi x y, R y = rho x y
+    Rw = _cr(r0, r1, r2, w0, w1, w2)
+    Pw = _cr(p0, p1, p2, w0, w1, w2)
+    PRw = _cr(p0, p1, p2, Rw[0], Rw[1], Rw[2])
+    RPw = _cr(r0, r1, r2, Pw[0], Pw[1], Pw[2])
+    PRPw = _cr(p0, p1, p2, RPw[0], RPw[1], RPw[2])
+    PPRw = _cr(p0, p1, p2, PRw[0], PRw[1], PRw[2])
+    PPw = _cr(p0, p1, p2, Pw[0], Pw[1], Pw[2])
+    RPPw = _cr(r0, r1, r2, PPw[0], PPw[1], PPw[2])
+    PRPPw = _cr(p0, p1, p2, RPPw[0], RPPw[1], RPPw[2])
+    PPRPw = _cr(p0, p1, p2, PRPw[0], PRPw[1], PRPw[2])
+
+    def q(i):
+        return (Rw[i] / 2 + a * (PRw[i] + RPw[i] + PRPw[i])
+                + b * (PPRw[i] + RPPw[i] - 3 * PRPw[i]) + c * (PRPPw[i] + PPRPw[i]))
+
+    # the linear rows: J_l3^-1 (nu_lin - Q w)
+    y0, y1, y2 = nu[0] - q(0), nu[1] - q(1), nu[2] - q(2)
+    s0, s1, s2 = _cr(p0, p1, p2, y0, y1, y2)
+    t0, t1, t2 = _cr(p0, p1, p2, s0, s1, s2)
+    return (y0 - s0 / 2 + g * t0, y1 - s1 / 2 + g * t1, y2 - s2 / 2 + g * t2, w0, w1, w2)
+
+
+@numba.njit(cache=True)
 def _rate_jacobian_xi(xi, nu):
     """d(Jr(xi)^-1 nu)/dxi (6, 6) by six complex steps."""
     out = np.empty((6, 6))
+    z = np.empty(6, dtype=np.complex128)
     for j in range(6):
-        z = xi.astype(np.complex128)
+        z[:] = xi
         z[j] += 1j * STEP
-        M = _rate_matrix(z)
+        r = _rate_times(z[0], z[1], z[2], z[3], z[4], z[5], nu)
         for i in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += (M[i, k] * nu[k]).imag
-            out[i, j] = acc / STEP
+            out[i, j] = r[i].imag / STEP
+    return out
+
+
+@numba.njit(cache=True)
+def rate_inverse(xi):
+    """``Jr(xi)`` (6, 6), the inverse of :func:`se3_rate_matrix` of real ``xi`` in closed
+    form: ``J_l(-xi) = [[J_l3, Q], [0, J_l3]]`` at ``(-rho, -phi)`` (Barfoot's eqs.
+    7.85, 7.86), ``J_l3(phi) = I + (1 - cos t)/t^2 [phi]x + (t - sin t)/t^3 [phi]x^2``."""
+    rho, phi = -xi[:3], -xi[3:]
+    t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    a, b, c, _ = _coefficients_one(t2)
+    if t2 < SERIES_THETA2:
+        v1 = 0.5 - t2 / 24 + t2**2 / 720 - t2**3 / 40320
+    else:
+        v1 = (1 - np.cos(np.sqrt(t2))) / t2
+    P, R = _skew_one(phi), _skew_one(rho)
+    PP = _mm(P, P)
+    PR, RP = _mm(P, R), _mm(R, P)
+    PRP = _mm(PR, P)
+    out = np.zeros((6, 6))
+    out[:3, 3:] = (R / 2 + a * (PR + RP + PRP) + b * (_mm(P, PR) + _mm(RP, P) - 3 * PRP)
+                   + c * (_mm(PRP, P) + _mm(P, PRP)))
+    J3 = v1 * P + a * PP
+    for i in range(3):
+        J3[i, i] += 1
+    out[:3, :3] = J3
+    out[3:, 3:] = J3
+    return out
+
+
+@numba.njit(cache=True)
+def rate(xi, nu):
+    """``Jr(xi)^-1 nu`` (6,) of real ``xi``, ``nu`` (6,) (compiled)."""
+    r = _rate_times(xi[0], xi[1], xi[2], xi[3], xi[4], xi[5], nu)
+    out = np.empty(6)
+    for i in range(6):
+        out[i] = r[i]
     return out
 
 

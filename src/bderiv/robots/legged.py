@@ -5,7 +5,7 @@ example-robot-data's or your own) and the names of its foot frames, and builds t
 :class:`~bderiv.analysis.system.HybridSystem` whose event k is foot k's penetration of the
 ground ``z = ground``, ``h_k = ground - z_k(q)`` (touchdown: an upward crossing, bit k
 set in stance; lift-off: downward). It is a Python model: each call goes into Pinocchio
-(``aba``, ``computeABADerivatives``, frame Jacobians), integrated by scipy's
+(``aba``, ``computeABADerivatives``, the joints' Jacobians), integrated by scipy's
 ``solve_ivp``. ``contact="rigid"`` gives rigid feet instead (a plastic impact, the feet
 then held: :mod:`bderiv.robots.rigid`); the rest of this docstring is the compliant law.
 
@@ -27,13 +27,18 @@ LOCAL_WORLD_ALIGNED linear Jacobian). The joints are held by a PD law around ``q
 posture, since gravity alone moves no joint). The feet are points (a foot's radius: lower
 ``ground`` by it).
 
-**Derivatives.** Analytical: ``computeABADerivatives`` with the contact forces as
-external forces in the joints' frames (whose derivative holds them fixed in those frames),
-the missing rotation of a world-fixed force written out (``J_i^T [[g]x; [r]x [g]x]
-J_i,ang`` for the force ``g`` in joint i's frame at ``r``), the force's own dependence
-on the state from ``getFrameVelocityDerivatives``, and the chain rule through
-``dIntegrate``; the events' Jacobian from the feet's frame Jacobians. No finite
-differences (``check_jacobians`` compares them with differences once per region).
+**Derivatives.** Analytical: the contact forces enter as the generalized force
+``sum_k J_k^T f_k`` in ``aba``'s torque, so ``computeABADerivatives`` at that torque gives
+the rest, and the force's derivatives (its Jacobian's turn, the foot's motion, the law)
+come from the joints' world Jacobian ``data.J`` alone (:mod:`bderiv.robots._contact`,
+compiled), with the chain rule through ``dIntegrate``; the events' Jacobian from the
+feet's frame Jacobians. No finite differences (``check_jacobians`` compares them with
+differences once per region). Per call: one ``computeJointJacobians``, the feet's
+positions, and ``aba`` (the field) or ``computeABADerivatives`` (its Jacobian), the rest
+in compiled code (``benchmarks/robots.py --profile`` says where the time goes). The
+variational equation asks for the field at the state of the Jacobian it just took: the
+field then reuses that call's configuration and torque (the same numbers) and only
+calls ``aba``.
 """
 
 from __future__ import annotations
@@ -41,8 +46,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..analysis.system import HybridSystem
+from ._contact import field_jacobian_matrix, field_vector, torque, torque_derivatives
 from ._files import require_pinocchio
-from ._lie import base_configuration, se3_rate_jacobians, se3_rate_matrix
+from ._lie import configuration, se3_rate_matrix
 
 __all__ = ["CONTACT", "LeggedRobot"]
 
@@ -50,10 +56,6 @@ __all__ = ["CONTACT", "LeggedRobot"]
 #: N m s/rad; Solo12 (2.5 kg) sinks about 1.2 mm per foot standing on four feet
 CONTACT = {"stiffness": 5.0e3, "damping": 50.0, "friction": 50.0, "kp": 5.0, "kd": 0.1,
            "ground": 0.0}
-
-
-def _skew(w):
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
 class LeggedRobot:
@@ -89,6 +91,20 @@ class LeggedRobot:
         self.q_ref = np.array(q_ref, dtype=np.float64)
         if self.q_ref.shape != (model.nq,):
             raise ValueError(f"q_ref must have shape ({model.nq},), got {self.q_ref.shape}")
+        # the joint of each velocity coordinate; the coordinates of each foot's support;
+        # ancestor[i, j]: coordinate i's joint is coordinate j's or one of its ancestors
+        joint = np.array([j for j in range(1, model.njoints) for _ in range(model.joints[j].nv)])
+        supports = [set(model.supports[j]) for j in range(model.njoints)]
+        self._support = np.array([[joint[c] in supports[j] for c in range(self.nv)]
+                                  for j in self.joint_ids])
+        self._ancestor = np.array([[joint[i] in supports[joint[j]] for j in range(self.nv)]
+                                   for i in range(self.nv)])
+        self._flight = np.zeros((6, self.nv), order="F"), np.zeros((len(self.feet), 3))
+        # (mask, x's bytes, q, torque) of the last Jacobian: the variational equation asks
+        # for the field at the same state next, whose q and torque are those numbers
+        self._last = None
+        self._law = np.array([self.law[k] for k in ("friction", "stiffness", "damping",
+                                                     "ground", "kp", "kd")], dtype=np.float64)
         self.system = self._build_system()
 
     def _build_system(self) -> HybridSystem:
@@ -104,11 +120,8 @@ class LeggedRobot:
 
     def configuration(self, x):
         """``(q, v)`` of the state ``x``: ``q = integrate(q_ref, e)``."""
-        x = np.asarray(x, dtype=np.float64)
-        q = np.empty(self.model.nq)
-        q[:7] = base_configuration(self.q_ref[:7], x[:6])  # pinocchio.integrate's, smooth
-        q[7:] = self.q_ref[7:] + x[6:self.nv]
-        return q, x[self.nv:2 * self.nv]
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        return configuration(self.q_ref, x, self.nv), x[self.nv:2 * self.nv]
 
     def _dintegrate(self, x, rate=None):
         """``dIntegrate(q_ref, e, ARG1)`` (nv, nv): ``Jr(e_base)`` (the inverse of
@@ -121,7 +134,12 @@ class LeggedRobot:
         """(n, 3): the feet's positions in the world."""
         q, _ = self.configuration(x)
         self.pin.framesForwardKinematics(self.model, self.data, q)
-        return np.array([self.data.oMf[i].translation for i in self.frame_ids])
+        return self._positions()
+
+    def _positions(self):
+        """(n, 3): the feet's positions of the frame placements computed last."""
+        oMf = self.data.oMf
+        return np.array([oMf[i].translation for i in self.frame_ids])
 
     # ------------------------------------------------------------------ the model
     def events(self, x) -> np.ndarray:
@@ -141,88 +159,45 @@ class LeggedRobot:
             out[k, :self.nv] = -J[2] @ Jq
         return out
 
-    def _forces(self, q, v, mask):
-        """The stance feet's world forces and the external forces in the joints' frames
-        (after ``forwardKinematics(q, v)``)."""
-        pin, model, data, law = self.pin, self.model, self.data, self.law
-        fext = pin.StdVec_Force()
-        for _ in range(model.njoints):
-            fext.append(pin.Force.Zero())
-        forces = {}
-        for k, (fid, jid) in enumerate(zip(self.frame_ids, self.joint_ids, strict=True)):
-            if not mask >> k & 1:
-                continue
-            p = data.oMf[fid].translation
-            vel = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear
-            f = np.array([-law["friction"] * vel[0], -law["friction"] * vel[1],
-                          law["stiffness"] * (law["ground"] - p[2]) - law["damping"] * vel[2]])
-            oMi = data.oMi[jid]
-            g = oMi.rotation.T @ f
-            r = oMi.rotation.T @ (p - oMi.translation)
-            fext[jid] = fext[jid] + pin.Force(g, _skew(r) @ g)
-            forces[k] = (f, g, r)
-        return fext, forces
-
     def _torque(self, x):
+        """The PD posture torques (nv,), none on the base."""
         tau = np.zeros(self.nv)
         tau[6:] = -self.law["kp"] * x[6:self.nv] - self.law["kd"] * x[self.nv + 6:2 * self.nv]
         return tau
 
+    def _stance_kinematics(self, q, mask):
+        """``data.J`` and the feet's positions at ``q`` (placeholders in flight)."""
+        if not mask:
+            return self._flight
+        pin, model, data = self.pin, self.model, self.data
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        return data.J, self._positions()
+
     def field(self, x, mask) -> np.ndarray:
         """(d,): ``(de/dt, dv/dt)`` in region ``mask`` (bit k: foot k in stance)."""
-        pin, model, data = self.pin, self.model, self.data
-        q, v = self.configuration(x)
-        pin.forwardKinematics(model, data, q, v)
-        pin.updateFramePlacements(model, data)
-        fext, _ = self._forces(q, v, int(mask))
-        a = pin.aba(model, data, q, v, self._torque(x), fext)
-        de = v.copy()
-        de[:6] = se3_rate_matrix(x[:6]) @ v[:6]
-        return np.concatenate((de, a))
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        nv, mask = self.nv, int(mask)
+        last = self._last
+        if last is not None and last[0] == mask and last[1] == x.tobytes():
+            q, tau = last[2], last[3]  # the variational equation's: the same numbers
+        else:
+            q = configuration(self.q_ref, x, nv)
+            tau = torque(x, *self._stance_kinematics(q, mask), self._support, mask,
+                         self._law)
+        a = self.pin.aba(self.model, self.data, q, x[nv:2 * nv], tau)
+        return field_vector(x, a, nv)
 
     def field_jacobian(self, x, mask) -> np.ndarray:
         """(d, d): the field's Jacobian, analytical (module docstring)."""
-        pin, model, data, law, nv = self.pin, self.model, self.data, self.law, self.nv
-        q, v = self.configuration(x)
-        mask = int(mask)
-        pin.computeForwardKinematicsDerivatives(model, data, q, v, np.zeros(nv))
-        pin.computeJointJacobians(model, data, q)
-        pin.updateFramePlacements(model, data)
-        fext, forces = self._forces(q, v, mask)
-        tau = self._torque(x)
-        da_dq, da_dv, Minv = pin.computeABADerivatives(model, data, q, v, tau, fext)
-        da_dq, da_dv, Minv = np.array(da_dq), np.array(da_dv), np.array(Minv)
-        Minv = np.triu(Minv) + np.triu(Minv, 1).T  # Pinocchio fills the upper triangle
-        dtau_dq, dtau_dv = np.zeros((nv, nv)), np.zeros((nv, nv))
-        for k, (_, g, r) in forces.items():
-            fid, jid = self.frame_ids[k], self.joint_ids[k]
-            J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
-            # the foot's world velocity R_f w (w: LOCAL): d(R_f w) = R_f (dw - [w]x dtheta_f)
-            # (Pinocchio's LOCAL_WORLD_ALIGNED derivatives are of the spatial velocity)
-            dw_dq, dw_dv = pin.getFrameVelocityDerivatives(model, data, fid, pin.LOCAL)
-            Rf = data.oMf[fid].rotation
-            w = pin.getFrameVelocity(model, data, fid, pin.LOCAL).linear
-            JfL = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
-            dvel_dq = Rf @ (dw_dq[:3] - _skew(w) @ JfL[3:])
-            dvel_dv = Rf @ dw_dv[:3]
-            c = np.array([law["friction"], law["friction"], law["damping"]])
-            df_dq = -c[:, None] * dvel_dq
-            df_dq[2] -= law["stiffness"] * J[2]
-            dtau_dq += J.T @ df_dq
-            dtau_dv += J.T @ (-c[:, None] * dvel_dv)
-            # the world-fixed force turns in joint i's frame: d(R_i^T f) = [g]x dtheta_i
-            Ji = pin.getJointJacobian(model, data, jid, pin.LOCAL)
-            G = _skew(g)
-            dtau_dq += Ji.T @ np.vstack((G, _skew(r) @ G)) @ Ji[3:]
-        _, d_nu, d_xi = se3_rate_jacobians(x[:6], v[:6])
-        Jq = self._dintegrate(x, d_nu)
-        out = np.zeros((2 * nv, 2 * nv))
-        out[:6, :6] = d_xi
-        out[:6, nv:nv + 6] = d_nu
-        out[6:nv, nv + 6:] = np.eye(nv - 6)
-        out[nv:, :nv] = (da_dq + Minv @ dtau_dq) @ Jq
-        out[nv:, nv:] = da_dv + Minv @ dtau_dv
-        # the PD torques, in e directly
-        out[nv:, 6:nv] -= law["kp"] * Minv[:, 6:]
-        out[nv:, nv + 6:] -= law["kd"] * Minv[:, 6:]
-        return out
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        nv, law, mask = self.nv, self.law, int(mask)
+        q = configuration(self.q_ref, x, nv)
+        Jw, P = self._stance_kinematics(q, mask)
+        tau, dtau_dq, dtau_dv = torque_derivatives(x, Jw, P, self._support, self._ancestor,
+                                                   mask, self._law)
+        self._last = (mask, x.tobytes(), q, tau)
+        da_dq, da_dv, minv = self.pin.computeABADerivatives(self.model, self.data, q,
+                                                            x[nv:2 * nv], tau)
+        return field_jacobian_matrix(x, da_dq, da_dv, minv, dtau_dq, dtau_dv,
+                                     law["kp"], law["kd"])

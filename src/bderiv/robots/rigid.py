@@ -37,8 +37,9 @@ the matrix at any state).
 **Derivatives**, analytical (no finite differences): the stance field's by
 differentiating the KKT system, ``[[M, -J^T], [J, 0]] [da; dlambda] = -[dr; dc]``, with
 ``dr`` the inverse dynamics' derivatives (``computeRNEADerivatives`` with the ground's
-forces as external forces, plus the turn of a world-fixed force in its joint's frame as in
-:mod:`bderiv.robots.legged`) and ``dc`` the feet's classical acceleration's
+forces as external forces in the joints' frames, which Pinocchio's derivative holds fixed
+there, plus the turn of a world-fixed force, ``J_i^T [[g]x; [r]x [g]x] J_i,ang`` for the
+force ``g`` in joint i's frame at ``r``) and ``dc`` the feet's classical acceleration's
 (``getFrameAccelerationDerivatives``, LOCAL, rotated to the world); the impact's by
 differentiating ``M v+ + J^T Lambda = M v-``, ``J v+ = 0`` the same way (``d(M w)`` from
 ``computeRNEADerivatives`` at zero velocity less ``computeGeneralizedGravityDerivatives``).
@@ -50,10 +51,25 @@ import numpy as np
 
 from .._limits import COUPLING_TOL, SURFACE_TOL
 from ..analysis.system import HybridSystem
-from ._lie import se3_rate_jacobians, se3_rate_matrix
-from .legged import LeggedRobot, _skew
+from ._contact import field_vector
+from ._lie import se3_rate_jacobians
+from .legged import LeggedRobot
 
 __all__ = ["RigidLeggedRobot"]
+
+
+def _skew(w):
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def _kkt(M, J, sign):
+    """``[[M, sign J^T], [J, 0]]`` (nv + r, nv + r); np.block's checks cost more."""
+    nv, r = M.shape[0], J.shape[0]
+    K = np.zeros((nv + r, nv + r))
+    K[:nv, :nv] = M
+    K[:nv, nv:] = sign * J.T
+    K[nv:, :nv] = J
+    return K
 
 
 class RigidLeggedRobot(LeggedRobot):
@@ -71,7 +87,11 @@ class RigidLeggedRobot(LeggedRobot):
     def __init__(self, model, feet, q_ref, law, sticking=True):
         self.sticking = bool(sticking)
         self.rows = [0, 1, 2] if self.sticking else [2]
+        self._lower = np.tril_indices(model.nv, -1)
         super().__init__(model, feet, q_ref, law)
+        self._no_forces = self.pin.StdVec_Force()
+        for _ in range(model.njoints):
+            self._no_forces.append(self.pin.Force.Zero())
 
     def _build_system(self) -> HybridSystem:
         return HybridSystem(self.field, self.events, n_events=len(self.feet),
@@ -105,7 +125,9 @@ class RigidLeggedRobot(LeggedRobot):
 
     def _mass(self, q):
         M = self.pin.crba(self.model, self.data, q)
-        return np.triu(M) + np.triu(M, 1).T  # Pinocchio fills the upper triangle
+        M = np.array(M)
+        M[self._lower] = M.T[self._lower]  # Pinocchio fills the upper triangle
+        return M
 
     def _feet(self, mask):
         return [k for k in range(len(self.feet)) if int(mask) >> k & 1]
@@ -121,19 +143,15 @@ class RigidLeggedRobot(LeggedRobot):
         drift = np.concatenate([pin.getFrameClassicalAcceleration(
             model, data, self.frame_ids[k], pin.LOCAL_WORLD_ALIGNED).linear[self.rows]
             for k in feet]) if feet else np.zeros(0)
-        r = J.shape[0]
-        K = np.block([[M, -J.T], [J, np.zeros((r, r))]])
-        sol = np.linalg.solve(K, np.concatenate((self._torque(x) - b, -drift)))
+        sol = np.linalg.solve(_kkt(M, J, -1.0), np.concatenate((self._torque(x) - b, -drift)))
         return sol[:self.nv], sol[self.nv:], M, J, feet
 
     def _external(self, feet, lam):
         """World forces ``lam`` (r,) at the feet as Pinocchio's external forces in the
         joints' frames, and the term of their turn in those frames, ``d(J^T f)/dq``
-        beyond Pinocchio's (:mod:`bderiv.robots.legged`), (nv, nv)."""
+        beyond Pinocchio's (module docstring), (nv, nv)."""
         pin, model, data = self.pin, self.model, self.data
-        fext = pin.StdVec_Force()
-        for _ in range(model.njoints):
-            fext.append(pin.Force.Zero())
+        fext = pin.StdVec_Force(self._no_forces)  # a copy
         turn = np.zeros((self.nv, self.nv))
         w = len(self.rows)
         for i, k in enumerate(feet):
@@ -177,17 +195,21 @@ class RigidLeggedRobot(LeggedRobot):
 
     def field(self, x, mask) -> np.ndarray:
         """(d,): ``(de/dt, dv/dt, 0)``, the stance's constrained dynamics (feet of mask
-        held)."""
+        held); in flight the compliant model's field without contacts (``aba``)."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if not int(mask):
+            return np.concatenate((super().field(x, 0), np.zeros(len(self.feet))))
         a = self._solve(x, mask)[0]
-        v = x[self.nv:2 * self.nv]
-        de = v.copy()
-        de[:6] = se3_rate_matrix(x[:6]) @ v[:6]
-        return np.concatenate((de, a, np.zeros(len(self.feet))))
+        return np.concatenate((field_vector(x, a, self.nv), np.zeros(len(self.feet))))
 
     def field_jacobian(self, x, mask) -> np.ndarray:
         """(d, d): the field's Jacobian, by the KKT system's derivative (module
-        docstring)."""
+        docstring); in flight the compliant model's without contacts."""
         pin, model, data, law, nv = self.pin, self.model, self.data, self.law, self.nv
+        if not int(mask):
+            out = np.zeros((self.system.dim, self.system.dim))
+            out[:2 * nv, :2 * nv] = super().field_jacobian(x, 0)
+            return out
         q, v = self.configuration(x)
         a, lam, M, J, feet = self._solve(x, mask)
         # the feet's classical acceleration J a + dJ/dt v, differentiated (a held fixed)
@@ -200,7 +222,7 @@ class RigidLeggedRobot(LeggedRobot):
             vel = pin.getFrameVelocity(model, data, fid, pin.LOCAL)
             acc = pin.getFrameAcceleration(model, data, fid, pin.LOCAL)
             nu, om = vel.linear, vel.angular
-            cl = acc.linear + np.cross(om, nu)
+            cl = acc.linear + _skew(om) @ nu
             lq = a_dq[:3] + _skew(om) @ v_dq[:3] - _skew(nu) @ v_dq[3:]
             lv = a_dv[:3] + _skew(om) @ a_da[:3] - _skew(nu) @ a_da[3:]
             dc_dq.append(self._world_rate(fid, lq, cl)[self.rows])
@@ -217,8 +239,10 @@ class RigidLeggedRobot(LeggedRobot):
         Jq = self._dintegrate(x, d_nu)
         dr_de = dr_dq @ Jq
         dr_de[6:, 6:] += law["kp"] * np.eye(nv - 6)
-        K = np.block([[M, -J.T], [J, np.zeros((r, r))]])
-        rhs = -np.block([[dr_de, dr_dv], [dc_dq @ Jq, dc_dv]])
+        K = _kkt(M, J, -1.0)
+        rhs = np.empty((nv + r, 2 * nv))
+        rhs[:nv, :nv], rhs[:nv, nv:], rhs[nv:, :nv], rhs[nv:, nv:] = (-dr_de, -dr_dv,
+                                                                       -dc_dq @ Jq, -dc_dv)
         da = np.linalg.solve(K, rhs)[:nv]
         out = np.zeros((self.system.dim, self.system.dim))
         out[:6, :6] = d_xi
@@ -320,7 +344,7 @@ class RigidLeggedRobot(LeggedRobot):
         dMw, _, _ = pin.computeRNEADerivatives(model, data, q, np.zeros(nv), w, fext)
         dg = pin.computeGeneralizedGravityDerivatives(model, data, q)
         r = J.shape[0]
-        K = np.block([[M, J.T], [J, np.zeros((r, r))]])
+        K = _kkt(M, J, 1.0)
         rhs_q = np.vstack((np.array(dMw) - dg - turn, -np.vstack(dvel)))
         rhs_v = np.vstack((M, np.zeros((r, nv))))
         Jq = self._dintegrate(x)
