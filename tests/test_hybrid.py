@@ -120,6 +120,24 @@ def test_bad_jacobians_and_corner_field():
         s.calls.eval_field_jacobian(np.zeros(2), 4)
 
 
+def test_bad_outputs_name_the_call_with_its_arguments():
+    """The names are formatted only when an output is refused: each still says which call
+    with which mask and event gave it."""
+    s = HybridSystem(lambda x, m: np.array([np.nan, 0.0]) if m == 2 else np.ones(2),
+                     lambda x: x, n_events=2, dim=2, reset=lambda x, m, k: np.ones(3),
+                     reset_jacobian=lambda x, m, k: np.eye(2)[:1])
+    with pytest.raises(ValueError, match=r"field\(x, mask=2\) returned a non-finite value: "
+                                         r"entry \[0\] = nan"):
+        s.calls.eval_field(np.zeros(2), 2)
+    s.calls.eval_field(np.zeros(2), 1)  # a good output is returned as it came
+    with pytest.raises(ValueError, match=r"reset\(x, mask=1, k=0\) must return an array of "
+                                         r"shape \(2,\), got shape \(3,\)"):
+        s.calls.eval_reset(np.zeros(2), 1, 0)
+    with pytest.raises(ValueError, match=r"reset_jacobian\(x, mask=1, k=1\) must return an "
+                                         r"array of shape \(2, 2\), got shape \(1, 2\)"):
+        s.calls.eval_reset_jacobian(np.zeros(2), 1, 1)
+
+
 def test_bad_states():
     s = constant_system(np.ones((4, 2)))
     with pytest.raises(

@@ -179,7 +179,7 @@ class ModelCalls:
 
     def eval_field(self, x, mask):
         """The checked vector field of region ``mask`` at ``x``: shape (d,)."""
-        return check_output(self._field(x, mask), (self.dim,), f"field(x, mask={mask})")
+        return check_output(self._field(x, mask), (self.dim,), lambda: f"field(x, mask={mask})")
 
     def eval_events(self, x):
         """The checked event values at ``x``: shape (n,)."""
@@ -190,12 +190,12 @@ class ModelCalls:
         time for ``key``, ``key[1:]`` its mask and event), else a numerical one (cost
         counted): the complex step of ``raw`` (the user's function, unchecked) where it
         matched a central difference of ``fun`` the first time for ``key``, else central
-        differences."""
+        differences. ``what`` gives the call's name for a message (formatted only then)."""
         if given is not None:
-            args = "".join(f", {a}={b}" for a, b in zip(("mask", "k"), key[1:], strict=False))
-            J = check_output(given(), shape, f"{jac_name}(x{args})")
+            J = check_output(given(), shape, lambda: jac_name + "(x" + "".join(
+                f", {a}={b}" for a, b in zip(("mask", "k"), key[1:], strict=False)) + ")")
             if self.check_jacobians and key not in self._checked:
-                check_given_jacobian(fun, x, J, what, jac_name)
+                check_given_jacobian(fun, x, J, what(), jac_name)
                 self._checked.add(key)
             return J
         start = time.perf_counter()
@@ -215,7 +215,7 @@ class ModelCalls:
                           "or is not complex-analytic: 10 to 100 calls per variable",
                           jac_name)
         if how == _CENTRAL:
-            D = numerical_jacobian(fun, x, what, jac_name)
+            D = numerical_jacobian(fun, x, what(), jac_name)
             J, calls = D.value, calls + D.calls
         cost = self._cost.setdefault(jac_name, [0, 0, 0.0])
         cost[0] += 1
@@ -281,7 +281,7 @@ class ModelCalls:
             return self._complex_step_event_jacobian(x)
         given = None if self._event_jac is None else (lambda: self._event_jac(x))
         return self._jacobian(given, ("event_jacobian",), self.eval_events, self._events, x,
-                              (self.n_events, self.dim), "events(x)", "event_jacobian")
+                              (self.n_events, self.dim), lambda: "events(x)", "event_jacobian")
 
     def _complex_step_event_jacobian(self, x):
         """The compiled complex step of ``events`` at ``x``: compared with a central
@@ -309,7 +309,8 @@ class ModelCalls:
         return self._jacobian(given, ("field_jacobian", mask),
                               lambda y: self.eval_field(y, mask),
                               lambda y: self._field(y, mask), x, (self.dim, self.dim),
-                              f"field(x, mask={self._mask_name(mask)})", "field_jacobian")
+                              lambda: f"field(x, mask={self._mask_name(mask)})",
+                              "field_jacobian")
 
     @property
     def has_resets(self) -> bool:
@@ -324,7 +325,7 @@ class ModelCalls:
         if self._guard is not None:
             self._guard(x, mask, k)
         return check_output(self._reset(x, mask, k), (self.dim,),
-                            f"reset(x, mask={mask}, k={k})")
+                            lambda: f"reset(x, mask={mask}, k={k})")
 
     def eval_reset_jacobian(self, x, mask, k):
         """Jacobian of ``reset(., mask, k)`` at ``x``, shape (d, d) (analytic if given)."""
@@ -333,7 +334,7 @@ class ModelCalls:
         return self._jacobian(given, ("reset_jacobian", int(mask), int(k)),
                               lambda y: self.eval_reset(y, mask, k),
                               lambda y: self._reset(y, mask, k), x, (self.dim, self.dim),
-                              f"reset(x, mask={self._mask_name(mask)}, k={k})",
+                              lambda: f"reset(x, mask={self._mask_name(mask)}, k={k})",
                               "reset_jacobian")
 
     @property

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._limits import ACCEPT_RTOL
 from .._support import _numdiff as numdiff
-from .._support._validate import check_finite, check_real_array
+from .._support._validate import all_finite, check_finite, check_real_array
 from .compiled import is_compiled, refuse_damaged_cache
 
 
@@ -107,8 +107,17 @@ def compiled_or_refused(field, events, field_jacobian):
     return field, events, field_jacobian
 
 
-def check_output(value, shape, what: str) -> np.ndarray:
-    """Validate the output of a user function: real, of ``shape``, finite; float64 array."""
+def check_output(value, shape, what) -> np.ndarray:
+    """Validate the output of a user function: real, of ``shape``, finite; float64 array.
+
+    ``what`` names the call in an error: a string, or a function of no arguments that
+    returns it (formatted only when the output is refused: the check runs at every stage
+    of an integration, the message almost never)."""
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape \
+            and all_finite(value):
+        return value  # the common case, as the checks below would return it
+    if callable(what):
+        what = what()
     try:
         arr = check_real_array(value, what)
     except TypeError as exc:
