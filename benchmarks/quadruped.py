@@ -22,7 +22,7 @@ shared machine the CPU time is the steadier one; the build's parts timed inside
 ``contact_system`` are wall time only). ``import bderiv`` is printed apart. The same
 process then finds the orbit again (the first one's share of loading bderiv's own
 compiled kernels from numba's cache is the difference) and times one call of the field
-and its Jacobian through ``system.functions`` (numpy in, numpy out, checks) against the
+and its Jacobian through ``ModelFunctions(system)`` (numpy in, numpy out, checks) against the
 njit kernel called directly. Timings on a shared machine are noisy: compare minima.
 """
 
@@ -60,7 +60,7 @@ def timed(*args, **kwargs):  # the user's expressions end where contact_system s
 bderiv.symbolic.contact_system = timed
 system = example.quadruped()
 t3 = now()
-b = system.build
+b = system.source.build
 out = {"import": since(t0, t1), "sympy": since(t1, t2), "user": since(t2, marks["user"]),
        "checks": [b.check_seconds] * 2, "derive": [b.derive_seconds] * 2,
        "load": [b.load_seconds] * 2, "cached": b.cached}
@@ -76,10 +76,11 @@ out.update(orbit=since(t3, t4), quick=since(t4, t5), stability=since(t5, t6),
            again=since(t6, t7), total=since(t1, t5), period=orb.period, growth=st.growth_rate,
            quick_growth=quick.growth_rate, stable=bool(st.stable and quick.stable))
 x, xp = orb.x0.copy(), np.concatenate((orb.x0, system.params))
-for name, call in (("field", lambda: system.functions.field(x, 15)),
-                   ("field kernel", lambda: system.kernels.field(xp, 15)),
-                   ("jacobian", lambda: system.functions.field_jacobian(x, 15)),
-                   ("jacobian kernel", lambda: system.kernels.field_jacobian(xp, 15))):
+functions = bderiv.symbolic.ModelFunctions(system)
+for name, call in (("field", lambda: functions.field(x, 15)),
+                   ("field kernel", lambda: system.source.kernels.field(xp, 15)),
+                   ("jacobian", lambda: functions.field_jacobian(x, 15)),
+                   ("jacobian kernel", lambda: system.source.kernels.field_jacobian(xp, 15))):
     best = float("inf")
     for _ in range(5):
         s = time.perf_counter()
@@ -135,7 +136,7 @@ def main():
           f"(quick: {warm[0]['quick_growth']:.6f})")
     for name in ("field", "jacobian"):
         wrapped, kernel = best[name], best[f"{name} kernel"]
-        print(f"  one {name} call: {wrapped * 1e6:.1f} us through system.functions, "
+        print(f"  one {name} call: {wrapped * 1e6:.1f} us through ModelFunctions(system), "
               f"{kernel * 1e6:.1f} us the kernel alone (ratio {wrapped / kernel:.1f})")
 
 

@@ -171,11 +171,11 @@ def test_damaged_symbolic_module_is_generated_again(tmp_path):
     Python and numba read it again) in a fresh process: the field is still the model's."""
     code = f"""
         import sympy as sp, numpy as np
-        from bderiv.symbolic import from_sympy
+        from bderiv.symbolic import ModelFunctions, from_sympy
         x, v, s = sp.symbols("x v s")
         m = from_sympy([x, v], [s], [v, -0.75 * x + 2.5 * s], [x - 0.5],
                        cache_dir={str(tmp_path)!r})
-        print(m.build.cached, m.functions.field(np.array([2.0, 0.0]), 1)[1])
+        print(m.source.build.cached, ModelFunctions(m).field(np.array([2.0, 0.0]), 1)[1])
     """
     out = run_python(code, tmp_path / "numba")
     assert out.stdout.split() == ["False", "1.0"], out.stderr[-2000:]  # -0.75 * 2 + 2.5

@@ -24,7 +24,7 @@ sp = pytest.importorskip("sympy")
 from bderiv.analysis.system import HybridSystem  # noqa: E402
 from bderiv.examples.chair import chair  # noqa: E402
 from bderiv.examples.impacts import landing  # noqa: E402
-from bderiv.symbolic import SymbolicSystem, from_sympy  # noqa: E402
+from bderiv.symbolic import ModelFunctions, SymbolicSource, from_sympy  # noqa: E402
 
 PARAMS = {"a": 1.3, "b": 0.7, "c": 2.1}
 
@@ -92,7 +92,7 @@ POINTS = np.array([[0.3, -1.2, 0.8], [-0.7, 0.4, -1.5], [1.9, 2.2, 0.1]])
 # ------------------------------------------------------------------------------
 @pytest.mark.parametrize("mask", range(4))
 def test_small_model_against_closed_forms(small, mask):
-    f = small.functions
+    f = ModelFunctions(small)
     for x in POINTS:
         F, JF, h, Dh, R, DR = closed_form(x, mask, **PARAMS)
         assert_allclose(f.field(x, mask), F, rtol=1e-14, atol=1e-14)
@@ -107,7 +107,7 @@ def test_small_model_against_closed_forms(small, mask):
 
 @pytest.mark.parametrize("mask", range(4))
 def test_small_model_jacobians_against_central_differences(small, mask):
-    f = small.functions
+    f = ModelFunctions(small)
     for x in POINTS:
         assert_allclose(f.field_jacobian(x, mask), central(lambda y: f.field(y, mask), x),
                         rtol=1e-7, atol=1e-7)
@@ -121,7 +121,10 @@ def test_small_model_jacobians_against_central_differences(small, mask):
 def test_system_is_a_hybrid_system_with_exact_jacobians(small):
     assert isinstance(small, HybridSystem)
     assert (small.dim, small.n_events, small.calls.has_resets) == (3, 2, True)
-    assert repr(small) == "SymbolicSystem(n_events=2, dim=3, resets, params: a=1.3, b=0.7, c=2.1)"
+    assert type(small) is HybridSystem and type(small.source) is SymbolicSource
+    assert small.source.builder == "from_sympy" and small.field is small.source.kernels.field
+    assert repr(small.scipy_path()) == ("HybridSystem(n_events=2, dim=3, params: a=1.3, b=0.7, "
+                                        "c=2.1)")
     x = POINTS[0]
     assert_allclose(small.calls.sample_corners(x),
                     [closed_form(x, m, **PARAMS)[0] for m in range(4)],
@@ -129,13 +132,13 @@ def test_system_is_a_hybrid_system_with_exact_jacobians(small):
     small.calls.eval_field_jacobian(x, 3)
     assert small.numerical_jacobian_cost == {}  # every Jacobian given
     with pytest.raises(ValueError, match=r"x must have shape \(3,\), got shape \(2,\)"):
-        small.functions.field(np.zeros(2), 0)
+        ModelFunctions(small).field(np.zeros(2), 0)
 
 
 def test_with_params_changes_the_answer_as_the_closed_form_says(small):
     other = small.with_params(b=0.2, c=-1.0)
-    assert isinstance(other, SymbolicSystem)
-    assert other.kernels is small.kernels  # neither re-derived nor recompiled
+    assert type(other) is HybridSystem and other.source is small.source
+    assert other.source.kernels is small.source.kernels  # neither re-derived nor recompiled
     assert other.param_values == {"a": 1.3, "b": 0.2, "c": -1.0}
     assert small.param_values == PARAMS  # the original keeps its values
     by_symbol = small.with_params({sp.Symbol("b"): 0.2}, c=-1.0)
@@ -143,11 +146,11 @@ def test_with_params_changes_the_answer_as_the_closed_form_says(small):
         for mask in range(4):
             F, JF, h, Dh, R, DR = closed_form(x, mask, a=1.3, b=0.2, c=-1.0)
             for sys_ in (other, by_symbol):
-                assert_allclose(sys_.functions.field(x, mask), F, rtol=1e-14, atol=1e-14)
-                assert_allclose(sys_.functions.field_jacobian(x, mask), JF, rtol=1e-14,
+                assert_allclose(ModelFunctions(sys_).field(x, mask), F, rtol=1e-14, atol=1e-14)
+                assert_allclose(ModelFunctions(sys_).field_jacobian(x, mask), JF, rtol=1e-14,
                                 atol=1e-14)
-                assert_allclose(sys_.functions.events(x), h, rtol=1e-14, atol=1e-14)
-                assert_allclose(sys_.functions.reset_jacobian(x, mask, 0), DR[0],
+                assert_allclose(ModelFunctions(sys_).events(x), h, rtol=1e-14, atol=1e-14)
+                assert_allclose(ModelFunctions(sys_).reset_jacobian(x, mask, 0), DR[0],
                                 rtol=1e-14, atol=1e-14)
     with pytest.raises(ValueError, match=r"d is not a parameter of this model \(its "
                                          r"parameters: a, b, c\)"):
@@ -159,13 +162,41 @@ def test_with_params_changes_the_answer_as_the_closed_form_says(small):
     assert not small.params.flags.writeable
 
 
+def test_the_generic_operations_on_a_hand_written_model(small):
+    """``with_params``, ``param_values``, ``scipy_path`` and :class:`ModelFunctions` are
+    HybridSystem's, for any model: a hand-written one has no named parameters; a model
+    not built by contact_system has no coupling."""
+    from bderiv.symbolic import coupling
+
+    p = np.array([2.0])
+    plain = HybridSystem(lambda x, mask: x[:1] * x[1], lambda x: x[:1] - 1.0, n_events=1,
+                         dim=1, params=p)
+    assert plain.source is None and plain.param_values == {}
+    assert repr(plain) == "HybridSystem(n_events=1, dim=1, numerical: event_jacobian, " \
+                          "field_jacobian)"
+    assert plain.with_params() is plain
+    with pytest.raises(ValueError, match=r"a is not a parameter of this model \(its "
+                                         r"parameters: none\)"):
+        plain.with_params(a=1.0)
+    with pytest.raises(TypeError, match="values must be a mapping parameter -> value, "
+                                        "got list"):
+        plain.with_params([1.0])
+    assert plain.scipy_path().use_compiled is False
+    assert ModelFunctions(plain).field(np.array([3.0]), 0) == [6.0]  # x then params
+    with pytest.raises(TypeError, match="the model has no reset"):
+        ModelFunctions(plain).reset(np.array([3.0]), 0, 0)
+    with pytest.raises(TypeError, match="coupling needs a model built by contact_system, "
+                                        "got HybridSystem with source SymbolicSource"):
+        coupling(small, np.zeros(3))
+
+
 def test_kernels_are_njit_functions_callable_from_compiled_code(small):
     """The layout the compiled integrator uses: the kernels called from an njit function,
     their ``x`` the state followed by the parameter values; they are closed to other
     argument types."""
     import numba
 
-    K = small.kernels
+    K = small.source.kernels
     field, events = K.field, K.events
 
     @numba.njit
@@ -202,7 +233,7 @@ def test_a_symbolic_model_runs_every_stop_compiled(small, monkeypatch):
     python = small.scipy_path()
     assert small.compiled is not None and python.compiled is None
     assert small.compiled.describe().endswith("stops: compiled")
-    assert python.kernels is small.kernels and python.param_values == small.param_values
+    assert python.source is small.source and python.param_values == small.param_values
     calls = {"compiled run": 0, "python stretch": 0, "python calls": 0}
 
     def counted(name, fn):
@@ -257,7 +288,7 @@ def test_numbers_print_exactly(cache):
     big = 10**30
     sys_ = from_sympy([x], [s], [0.1 * x + sp.Rational(1, 3) + big * s + sp.Integer(3) * x**2],
                       [x - sp.Rational(2, 7)], cache_dir=cache)
-    f = sys_.functions
+    f = ModelFunctions(sys_)
     assert f.field(np.array([2.0]), 0)[0] == 0.1 * 2.0 + 1 / 3 + 3 * 2.0**2
     assert f.field(np.array([0.0]), 1)[0] == 1 / 3 + 1e30
     assert f.events(np.array([1.0]))[0] == 1.0 - 2 / 7
@@ -322,8 +353,8 @@ def test_chair_functions_match_the_hand_written_model(chair_pair):
             assert_allclose(sym.calls.eval_field_jacobian(x, mask),
                             hand.calls.eval_field_jacobian(x, mask),
                             rtol=1e-12, atol=1e-11)
-            assert_allclose(sym.functions.field_jacobian(x, mask),
-                            central(lambda y, mask=mask: sym.functions.field(y, mask), x),
+            assert_allclose(ModelFunctions(sym).field_jacobian(x, mask),
+                            central(lambda y, mask=mask: ModelFunctions(sym).field(y, mask), x),
                             rtol=1e-6, atol=1e-6)
 
 
@@ -409,14 +440,14 @@ def _no_derivation(monkeypatch):
 
 def test_cache_hit_in_process_and_in_a_second_process(tmp_path, monkeypatch):
     first = from_sympy(**small_model(), cache_dir=tmp_path)
-    assert not first.build.cached and first.build.derive_seconds > 0
-    assert list((tmp_path / "symbolic").glob("m_*.py")) == [first.kernels.source]
+    assert not first.source.build.cached and first.source.build.derive_seconds > 0
+    assert list((tmp_path / "symbolic").glob("m_*.py")) == [first.source.kernels.source]
     with monkeypatch.context() as m:
         _no_derivation(m)
         again = from_sympy(**small_model(), cache_dir=tmp_path)
         with pytest.raises(AssertionError, match="derivation called"):
             from_sympy(**small_model(b_factor=2), cache_dir=tmp_path)  # other expressions
-    assert again.build.cached and again.build.key == first.build.key
+    assert again.source.build.cached and again.source.build.key == first.source.build.key
     # a second process with sympy's derivation disabled loads the same kernels
     code = textwrap.dedent(f"""
         import sys
@@ -427,32 +458,34 @@ def test_cache_hit_in_process_and_in_a_second_process(tmp_path, monkeypatch):
         def refuse(*args, **kwargs):
             raise AssertionError("sympy derivation called")
         sympy.diff = sympy.cse = refuse
-        from bderiv.symbolic import from_sympy
+        from bderiv.symbolic import ModelFunctions, from_sympy
         s = from_sympy(**small_model(), cache_dir={str(tmp_path)!r})
-        print(s.build.cached, s.build.key, *s.functions.field(np.array([0.3, -1.2, 0.8]), 3))
+        b = s.source.build
+        print(b.cached, b.key, *ModelFunctions(s).field(np.array([0.3, -1.2, 0.8]), 3))
     """)
     env = {k: v for k, v in os.environ.items() if k != "BDERIV_CACHE_DIR"}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env=env, timeout=300)
     assert out.returncode == 0, out.stderr
     cached, key, *F = out.stdout.split()
-    assert (cached, key) == ("True", first.build.key)
+    assert (cached, key) == ("True", first.source.build.key)
     assert_allclose(np.array(F, dtype=float),
                     closed_form(np.array([0.3, -1.2, 0.8]), 3, **PARAMS)[0], rtol=1e-15)
     other = from_sympy(**small_model(b_factor=2), cache_dir=tmp_path)  # a miss: derived
-    assert not other.build.cached and other.build.key != first.build.key
+    assert not other.source.build.cached and other.source.build.key != first.source.build.key
     assert len(list((tmp_path / "symbolic").glob("m_*.py"))) == 2
     x = POINTS[0]
-    assert other.functions.field(x, 0)[2] == pytest.approx(-2 * PARAMS["b"] * x[2], rel=1e-15)
+    assert ModelFunctions(other).field(x, 0)[2] == pytest.approx(-2 * PARAMS["b"] * x[2],
+                                                                 rel=1e-15)
 
 
 def test_cache_dir_from_the_environment(tmp_path, monkeypatch):
     monkeypatch.setenv("BDERIV_CACHE_DIR", str(tmp_path))
     x, s = sp.symbols("x s")
     sys_ = from_sympy([x], [s], [1 + s * x], [x - 1])
-    assert sys_.kernels.source.parent == tmp_path / "symbolic"
+    assert sys_.source.kernels.source.parent == tmp_path / "symbolic"
     assert sys_.params.shape == (0,)
-    assert_allclose(sys_.functions.corner_field(np.array([2.0])), [[1.0], [3.0]])
+    assert_allclose(ModelFunctions(sys_).corner_field(np.array([2.0])), [[1.0], [3.0]])
 
 
 # ------------------------------------------------------------------------------

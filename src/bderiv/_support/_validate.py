@@ -317,3 +317,13 @@ def check_number(value, name: str, *, low: float = 0.0, strict: bool = True,
         kind = "a number" if allow_inf else "a finite number"
         raise ValueError(f"{name} must be {kind} {bound}, got {value!r}")
     return value
+
+
+def check_value(value, name: str) -> float:
+    """A parameter value: a finite real number."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__} {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return value

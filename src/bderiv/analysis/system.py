@@ -26,6 +26,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import KW_ONLY
 
+import numpy as np
+
 from .._limits import (
     DEFAULT_T_MAX,
     DERIVATIVE_SIMULTANEITY_TOL,
@@ -36,7 +38,7 @@ from .._limits import (
     ORBIT_TOL,
     SIMULATION_SIMULTANEITY_TOL,
 )
-from .._support._validate import check_bool, check_positive_int
+from .._support._validate import check_bool, check_positive_int, check_value
 from ..models.calls import ModelCalls
 from ..models.compiled import CompiledModel
 from ..models.integrate.many import Trajectories
@@ -119,6 +121,12 @@ class HybridSystem:
         each ``reset``: raises a ValueError where that reset must be refused (the
         contacts of :func:`bderiv.symbolic.contact_system`: simultaneous impacts that do
         not commute). The stops of a model with one are decided in Python.
+    source : object, optional
+        Where the model came from, as data the runs never read: for the builders of
+        :mod:`bderiv.symbolic` a :class:`bderiv.symbolic.SymbolicSource` (the kernels, the
+        generated module, how they were built, the contacts); None for a model written
+        by hand. Its ``param_names``, if it has them, name ``params``
+        (:meth:`with_params`, :attr:`param_values`).
 
     Attributes
     ----------
@@ -192,6 +200,7 @@ class HybridSystem:
     params: object = None
     use_compiled: bool = True
     reset_guard: object = None
+    source: object = None
     calls: ModelCalls = dataclasses.field(init=False, compare=False)
 
     def __post_init__(self):
@@ -212,6 +221,8 @@ class HybridSystem:
 
     def __repr__(self):
         calls = self.calls
+        values = ", ".join(f"{k}={v:g}" for k, v in self.param_values.items())
+        params = f", params: {values}" if values else ""
         head = f"{type(self).__name__}(n_events={self.n_events}, dim={self.dim}"
         reset_jac = ["reset_jacobian"] if self.reset is not None and \
             self.reset_jacobian is None else []
@@ -219,11 +230,64 @@ class HybridSystem:
             how = ("functions checked at the first use" if calls._compiled is None
                    else calls._compiled.describe())
             numerical = f", numerical: {reset_jac[0]}" if reset_jac else ""
-            return f"{head}, compiled: {how}{numerical})"
+            return f"{head}, compiled: {how}{numerical}{params})"
         missing = [name for name in ("event_jacobian", "field_jacobian")
                    if getattr(self, name) is None] + reset_jac
         numerical = f", numerical: {', '.join(missing)}" if missing else ""
-        return f"{head}{numerical})"
+        return f"{head}{numerical}{params})"
+
+    @property
+    def param_values(self) -> dict:
+        """``{name: value}`` of ``params``, named by the ``source``'s ``param_names``
+        (``{}`` when it names none)."""
+        names = getattr(self.source, "param_names", ())
+        return {} if self.params is None or not names else dict(
+            zip(names, self.params.tolist(), strict=True))
+
+    def with_params(self, values=None, /, **by_name) -> HybridSystem:
+        """The same model with other values of its named parameters (:attr:`param_values`;
+        the symbolic builders name them): the same functions, so no derivation and no
+        compilation.
+
+        Parameters
+        ----------
+        values : mapping, optional
+            ``{name (or a sympy symbol of that name): value}``.
+        **by_name
+            ``name=value``.
+
+        Returns
+        -------
+        HybridSystem
+            A new model with the same functions and ``source`` (on the same path);
+            parameters not named keep their value.
+
+        Raises
+        ------
+        TypeError
+            If a value is not a real number, or ``values`` not a mapping.
+        ValueError
+            If a name is not a parameter of the model (the parameters are listed), or a
+            value is not finite.
+        """
+        if values is not None and not hasattr(values, "items"):
+            raise TypeError(f"values must be a mapping parameter -> value, got "
+                            f"{type(values).__name__}")
+        names = tuple(self.param_values)
+        index = {name: j for j, name in enumerate(names)}
+        new = np.array(self.params if names else (), dtype=np.float64)
+        for name, value in [*(values or {}).items(), *by_name.items()]:
+            if str(name) not in index:
+                raise ValueError(f"{name} is not a parameter of this model (its parameters: "
+                                 f"{', '.join(names) or 'none'})")
+            new[index[str(name)]] = check_value(value, f"the value of {name}")
+        return dataclasses.replace(self, params=new) if names else self
+
+    def scipy_path(self) -> HybridSystem:
+        """The same model integrated by :func:`scipy.integrate.solve_ivp` through the
+        Python calls of its functions (``use_compiled=False``): for a Python section,
+        another method than DOP853, or to compare the two integrators."""
+        return dataclasses.replace(self, use_compiled=False)
 
     @property
     def compiled(self) -> CompiledModel | None:

@@ -13,7 +13,7 @@ stopped through the inverse mass matrix), then stance on compliant ground.
 On the pronking gait the body does not pitch and all four feet land and lift off
 together: two simultaneous groups of four events per stride. The touchdowns pass the
 mass-orthogonality check: with the legs vertical an impulse at a foot only shortens its
-own leg (``J_i M^-1 J_j^T = 0``, :meth:`~bderiv.symbolic.ContactSystem.coupling`); a
+own leg (``J_i M^-1 J_j^T = 0``, :func:`~bderiv.symbolic.coupling`); a
 pitched body couples the feet (the variant refused in the tests). ``x`` is a cyclic
 coordinate (``periodic_orbit(..., cyclic=[0])``).
 
@@ -39,7 +39,7 @@ VZ = 8
 
 
 def quadruped(**values):
-    """The pronking quadruped as a :class:`~bderiv.symbolic.ContactSystem` (d = 14, n = 4).
+    """The pronking quadruped from :func:`~bderiv.symbolic.contact_system` (d = 14, n = 4).
 
     Parameters
     ----------
@@ -49,7 +49,7 @@ def quadruped(**values):
 
     Returns
     -------
-    ContactSystem
+    HybridSystem
         State ``(x, z, theta, l_0..l_3, vx, vz, omega, l_0'..l_3')``; event k is foot
         k's penetration of the ground (0, 1 hind, 2, 3 front). The first build derives
         and compiles (timed by ``benchmarks/quadruped.py``: docs/benchmarks.md, "Kernel
@@ -138,7 +138,9 @@ def quadruped_figure(orbit):
 
 def _max_coupling(system, x) -> float:
     """The largest relative inverse-mass coupling of two contacts at ``x``."""
-    C = system.coupling(x)
+    from ..symbolic import coupling
+
+    C = coupling(system, x)
     rel = np.abs(C) / np.sqrt(np.outer(np.diag(C), np.diag(C)))
     return float((rel - np.eye(len(C))).max())
 
@@ -166,6 +168,7 @@ def quadruped_summary(*, seed=0, n_directions=200, iterations=200, figure=None):
     start = time.perf_counter()
     system = quadruped()
     built = time.perf_counter()
+    build = system.source.build
     orb = quadruped_orbit(system)
     found = time.perf_counter()
     st = orb.stability(n_directions=n_directions, iterations=iterations, seed=seed)
@@ -178,8 +181,8 @@ def quadruped_summary(*, seed=0, n_directions=200, iterations=200, figure=None):
         "description": "planar quadruped pronking: body x, z, pitch and four telescopic "
                        "legs with massive feet (d = 14, n = 4), plastic foot impacts, "
                        "compliant ground, from bderiv.symbolic.contact_system",
-        "build": {"cached": system.build.cached, "derive_seconds": system.build.derive_seconds,
-                  "load_seconds": system.build.load_seconds, "seconds": built - start},
+        "build": {"cached": build.cached, "derive_seconds": build.derive_seconds,
+                  "load_seconds": build.load_seconds, "seconds": built - start},
         "orbit": {"x0": orb.x0.tolist(), "period": orb.period, "residual": orb.residual,
                   "newton_residuals": [h.residual for h in orb.history],
                   "seconds": found - built},

@@ -8,11 +8,12 @@ gives ``sign``), and hash the same for the same model (:func:`canonical_text`).
 
 from __future__ import annotations
 
-import math
 import numbers
 from dataclasses import dataclass
 
 import numpy as np
+
+from .._support._validate import check_value
 
 
 def require_sympy():
@@ -97,16 +98,6 @@ def tree_text(e, memo: dict) -> str:
             text = require_sympy().srepr(e)
         memo[key] = text
     return text
-
-
-def check_value(value, name: str) -> float:
-    """A parameter value: a finite real number."""
-    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__} {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return value
 
 
 def _sequence(seq, name: str, what: str) -> list:

@@ -2,23 +2,22 @@
 
 The compiled kernels (:mod:`bderiv.symbolic._codegen` lists them) live in a generated
 module in the cache folder (:mod:`bderiv.symbolic._cache`); :class:`Kernels` holds them,
-:class:`ModelFunctions` wraps them in Python signatures on the state alone, and
-:class:`SymbolicSystem` is the ``HybridSystem`` whose functions they are, with its
-parameter values (:func:`symbolic_system`).
+and the model is the plain ``HybridSystem`` whose functions they are, with its parameter
+values and a :class:`SymbolicSource` saying where it came from (:func:`symbolic_system`);
+:class:`ModelFunctions` calls a model's functions on the state alone.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import time
-from dataclasses import KW_ONLY, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..analysis.system import HybridSystem
 from . import _cache, _codegen
-from ._inputs import check_model, check_value, require_sympy
+from ._inputs import check_model, require_sympy
 
 
 @dataclass(frozen=True)
@@ -80,17 +79,55 @@ class BuildInfo:
     load_seconds: float
 
 
-class ModelFunctions:
-    """The kernels with the Python signatures of :class:`~bderiv.analysis.system.HybridSystem`.
+@dataclass(frozen=True)
+class SymbolicSource:
+    """Where a model of :mod:`bderiv.symbolic` came from: its ``source``
+    (:class:`~bderiv.analysis.system.HybridSystem`), shared by the models
+    :meth:`~bderiv.analysis.system.HybridSystem.with_params` makes from it.
 
-    Each method checks the state (converted to float64; shapes other than (d,) are
-    refused: the kernels do not check bounds) and calls its kernel on the state followed
-    by the parameter values ``params``.
+    Attributes
+    ----------
+    builder : str
+        ``"from_sympy"`` or ``"contact_system"``.
+    kernels : Kernels
+        The njit functions (the model's functions are these: ``model.field is
+        kernels.field``); ``kernels.source`` is the generated module.
+    build : BuildInfo
+        Whether the cache was hit and what the derivation and compilation took.
+    coupling : numba dispatcher or None
+        ``J M^-1 J^T`` from ``(q, 0, params)`` (:func:`bderiv.symbolic.coupling`); None
+        but for :func:`~bderiv.symbolic.contact_system`.
+    contacts : tuple of str
+        The gap functions as given (in the messages); ``()`` but for
+        :func:`~bderiv.symbolic.contact_system`.
     """
 
-    def __init__(self, kernels: Kernels, params: np.ndarray):
-        self.k, self.p = kernels, params
-        self.d, self.n = kernels.dim, kernels.n_events
+    builder: str
+    kernels: Kernels
+    build: BuildInfo
+    coupling: object = None
+    contacts: tuple = ()
+
+    @property
+    def param_names(self) -> tuple:
+        """The parameters' names, in the order their values follow the state in ``x``."""
+        return self.kernels.param_names
+
+
+class ModelFunctions:
+    """A model's functions with the Python signatures of
+    :class:`~bderiv.analysis.system.HybridSystem` on the state alone: ``ModelFunctions(model)``.
+
+    Each method checks the state (converted to float64; shapes other than (d,) are
+    refused: the kernels do not check bounds) and calls the model's function (for a
+    model of :mod:`bderiv.symbolic`, its kernel; no output check) on the state followed
+    by the model's parameter values ``params``.
+    """
+
+    def __init__(self, model):
+        self.model = model
+        self.p = np.zeros(0) if model.params is None else model.params
+        self.d = model.dim
 
     def _x(self, x):
         x = np.asarray(x, dtype=np.float64)
@@ -98,134 +135,56 @@ class ModelFunctions:
             raise ValueError(f"x must have shape ({self.d},), got shape {x.shape}")
         return np.concatenate((x, self.p))
 
+    def _given(self, name):
+        fun = getattr(self.model, name)
+        if fun is None:
+            raise TypeError(f"the model has no {name}")
+        return fun
+
     def field(self, x, mask):
         """``field(x, mask) -> (d,)``."""
-        return self.k.field(self._x(x), mask)
+        return self.model.field(self._x(x), mask)
 
     def field_jacobian(self, x, mask):
         """``field_jacobian(x, mask) -> (d, d)``."""
-        return self.k.field_jacobian(self._x(x), mask)
+        return self._given("field_jacobian")(self._x(x), mask)
 
     def events(self, x):
         """``events(x) -> (n,)``."""
-        return self.k.events(self._x(x))
+        return self.model.events(self._x(x))
 
     def event_jacobian(self, x):
         """``event_jacobian(x) -> (n, d)``."""
-        return self.k.event_jacobian(self._x(x))
+        return self._given("event_jacobian")(self._x(x))
 
     def corner_field(self, x):
         """``corner_field(x) -> (2**n, d)``: row ``mask`` is ``field(x, mask)``."""
-        return self.k.corner_field(self._x(x))
+        return self._given("corner_field")(self._x(x))
 
     def reset(self, x, mask, k):
         """``reset(x, mask, k) -> (d,)``."""
-        return self.k.reset(self._x(x), mask, k)
+        return self._given("reset")(self._x(x), mask, k)
 
     def reset_jacobian(self, x, mask, k):
         """``reset_jacobian(x, mask, k) -> (d, d)``."""
-        return self.k.reset_jacobian(self._x(x), mask, k)
+        return self._given("reset_jacobian")(self._x(x), mask, k)
 
 
-@dataclasses.dataclass(frozen=True, eq=False, repr=False)
-class SymbolicSystem(HybridSystem):
-    """A :class:`~bderiv.analysis.system.HybridSystem` built by :func:`from_sympy`.
-
-    Every method of ``HybridSystem`` applies: it is one, its functions the compiled
-    :attr:`kernels` (:class:`Kernels`, the njit functions) with the parameter values
-    ``params``, its Jacobians given (derived, not checked against differences), on the
-    compiled path (every stop included: the kernels' event Jacobian and resets are
-    compiled; a section must then be a numba dispatcher) unless it is on the scipy path
-    (:meth:`scipy_path`). It adds no hook: what it adds is data (the kernels, how they
-    were built) and the ways to another model over the same kernels.
-
-    Attributes
-    ----------
-    kernels : Kernels
-    functions : ModelFunctions
-        The kernels with the Python signatures, on the state alone.
-    params : ndarray, shape (n_params,)
-        The parameter values (read-only), in the order of ``kernels.param_names``.
-    build : BuildInfo
-    """
-
-    _: KW_ONLY
-    kernels: Kernels = None
-    build: BuildInfo = None
-    functions: ModelFunctions = dataclasses.field(init=False, compare=False)
-
-    def __post_init__(self):
-        super().__post_init__()
-        object.__setattr__(self, "functions", ModelFunctions(self.kernels, self.params))
-
-    def scipy_path(self) -> SymbolicSystem:
-        """The same model integrated by :func:`scipy.integrate.solve_ivp` through the
-        Python calls of its kernels: for a Python section, another method than DOP853,
-        or to compare the two integrators."""
-        return dataclasses.replace(self, use_compiled=False)
-
-    @property
-    def param_values(self) -> dict:
-        """``{name: value}`` of the parameters."""
-        return dict(zip(self.kernels.param_names, self.params.tolist(), strict=True))
-
-    def with_params(self, values=None, /, **by_name) -> SymbolicSystem:
-        """The same model with other parameter values: no derivation, no compilation.
-
-        Parameters
-        ----------
-        values : mapping, optional
-            ``{symbol or name: value}``.
-        **by_name
-            ``name=value``.
-
-        Returns
-        -------
-        SymbolicSystem
-            A new system sharing this one's kernels (on the same path); unnamed
-            parameters keep their value.
-
-        Raises
-        ------
-        TypeError
-            If a value is not a real number, or ``values`` not a mapping.
-        ValueError
-            If a name is not a parameter of the model (the parameters are listed), or a
-            value is not finite.
-        """
-        if values is not None and not hasattr(values, "items"):
-            raise TypeError(f"values must be a mapping parameter -> value, got "
-                            f"{type(values).__name__}")
-        new = self.params.copy()
-        index = {name: j for j, name in enumerate(self.kernels.param_names)}
-        for name, value in [*(values or {}).items(), *by_name.items()]:
-            if str(name) not in index:
-                known = ", ".join(self.kernels.param_names) or "none"
-                raise ValueError(f"{name} is not a parameter of this model (its parameters: "
-                                 f"{known})")
-            new[index[str(name)]] = check_value(value, f"the value of {name}")
-        return dataclasses.replace(self, params=new)
-
-    def __repr__(self):
-        params = ", ".join(f"{k}={v:g}" for k, v in self.param_values.items())
-        return (f"{type(self).__name__}(n_events={self.n_events}, dim={self.dim}"
-                f"{', resets' if self.reset is not None else ''}"
-                f"{', params: ' + params if params else ''})")
-
-
-def symbolic_system(kernels: Kernels, values, build: BuildInfo, *, kind=SymbolicSystem,
-                    **more) -> SymbolicSystem:
-    """The model of ``kernels`` with the parameter values ``values``: a ``kind`` (a
-    :class:`SymbolicSystem`) whose functions are the kernels themselves (``more``: the
-    fields ``kind`` adds)."""
+def symbolic_system(kernels: Kernels, values, build: BuildInfo, builder="from_sympy", *,
+                    coupling=None, contacts=(), reset_guard=None) -> HybridSystem:
+    """The model of ``kernels`` with the parameter values ``values``: a
+    :class:`~bderiv.analysis.system.HybridSystem` whose functions are the kernels
+    themselves, its ``source`` a :class:`SymbolicSource`."""
     k = kernels
     resets = k.reset is not None
+    source = SymbolicSource(builder, k, build, coupling, tuple(contacts))
     # the Jacobians are derived, not written by hand: no difference check at first use
-    return kind(k.field, k.events, n_events=k.n_events, dim=k.dim,
-                event_jacobian=k.event_jacobian, field_jacobian=k.field_jacobian,
-                corner_field=k.corner_field, reset=k.reset if resets else None,
-                reset_jacobian=k.reset_jacobian if resets else None, check_jacobians=False,
-                params=np.array(values, dtype=np.float64), kernels=k, build=build, **more)
+    return HybridSystem(k.field, k.events, n_events=k.n_events, dim=k.dim,
+                        event_jacobian=k.event_jacobian, field_jacobian=k.field_jacobian,
+                        corner_field=k.corner_field, reset=k.reset if resets else None,
+                        reset_jacobian=k.reset_jacobian if resets else None,
+                        check_jacobians=False, params=np.array(values, dtype=np.float64),
+                        reset_guard=reset_guard, source=source)
 
 
 def _locate_compile_error(model, exc):
@@ -309,17 +268,19 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
         ``s_k * v + (1 - s_k) * v_after`` for a jump at touchdown only). Events without an
         entry do not move the state. Simultaneous resets must commute (HybridSystem).
     params : mapping sympy.Symbol -> float, optional
-        Parameter values, changed later by :meth:`SymbolicSystem.with_params` without
-        re-deriving or recompiling (the kernels take them as an array).
+        Parameter values, changed later by
+        :meth:`~bderiv.analysis.system.HybridSystem.with_params` without re-deriving or
+        recompiling (the kernels take them as an array).
     cache_dir : str or os.PathLike, optional
         Root of the cache folder (default ``$BDERIV_CACHE_DIR``, else
         ``~/.cache/bderiv``; :mod:`bderiv.symbolic._cache`).
 
     Returns
     -------
-    SymbolicSystem
-        A ``HybridSystem`` with all its functions and Jacobians given; ``build`` says
-        whether the cache was hit and what the derivation and compilation took.
+    HybridSystem
+        With all its functions and Jacobians given (the kernels), on the compiled path;
+        its ``source`` (:class:`SymbolicSource`) holds the kernels and ``build``, which
+        says whether the cache was hit and what the derivation and compilation took.
 
     Raises
     ------

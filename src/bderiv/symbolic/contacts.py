@@ -41,19 +41,18 @@ refused with their names, the coupling and what to do (a compliant contact,
 ``impact=None``, or the impacts one after the other). The check is local: a quadruped's
 feet on spring legs are orthogonal at a pronking touchdown, where the legs are vertical,
 and coupled where the body is pitched.
-:meth:`ContactSystem.coupling` gives the matrix at any state.
+:func:`coupling` gives the matrix at any state.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import numbers
 import time
-from dataclasses import KW_ONLY
 
 import numpy as np
 
 from .._limits import COUPLING_TOL, SURFACE_TOL
+from ..analysis.system import HybridSystem
 from ._contact_model import ContactModel
 from ._inputs import (
     _check_free,
@@ -64,70 +63,57 @@ from ._inputs import (
     require_sympy,
 )
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
-from ._model import SymbolicSystem, load_model, symbolic_system
+from ._model import load_model, symbolic_system
 
-__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ContactSystem", "ImpactCheck",
-           "contact_system"]
+__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ImpactCheck", "contact_system",
+           "coupling"]
 
 #: parameters of the default stance law ``stiffness * pen + damping * rate``, and values
 DEFAULT_STANCE = {"contact_stiffness": 1.0e4, "contact_damping": 100.0}
 
 
-@dataclasses.dataclass(frozen=True, eq=False, repr=False)
-class ContactSystem(SymbolicSystem):
-    """The :class:`~bderiv.symbolic.SymbolicSystem` of :func:`contact_system`: every
-    method of ``HybridSystem``, the parameters (``with_params``), :meth:`coupling`, and
-    simultaneous impacts checked for mass-orthogonality (module docstring) by its
-    ``reset_guard`` (:class:`ImpactCheck`; its stops are then decided in Python).
+def coupling(model, x) -> np.ndarray:
+    """``J M^-1 J^T`` (n, n) of a model of :func:`contact_system` at the state ``x`` (d,)
+    or the coordinates ``q`` (m,), with the model's parameter values: entry (i, j) is the
+    change of contact i's normal velocity per unit impulse at contact j; zero off the
+    diagonal where the contacts are mass-orthogonal.
 
-    Attributes
-    ----------
-    coupling_kernel : numba dispatcher
-        ``J M^-1 J^T`` from ``(q, 0, params)``.
-    contacts : tuple of str
-        The gap functions as given (in the messages).
-    n_coordinates : int
-        m; the state is ``(q, q')``, d = 2m.
+    Raises
+    ------
+    TypeError
+        If ``model`` was not built by :func:`contact_system`.
+    ValueError
+        If ``x`` has neither shape.
+
+    Examples
+    --------
+    A ball on a floor and a wall at angle beta to the vertical: orthogonal impulses at
+    beta = 0, coupled by sin(beta) otherwise.
+
+    >>> import sympy as sp
+    >>> from bderiv.symbolic import contact_system, coupling
+    >>> x, y, beta = sp.symbols("x y beta")
+    >>> corner = contact_system([x, y], sp.eye(2), [0, -9.81],
+    ...                         [y, sp.cos(beta) * x + sp.sin(beta) * y], impact=0.8,
+    ...                         params={beta: 0.0})
+    >>> coupling(corner, [0.0, 0.0])
+    array([[1., 0.],
+           [0., 1.]])
+    >>> coupling(corner.with_params(beta=0.5), [0.0, 0.0]).round(6)
+    array([[1.      , 0.479426],
+           [0.479426, 1.      ]])
     """
-
-    _: KW_ONLY
-    coupling_kernel: object = None
-    contacts: tuple = ()
-
-    @property
-    def n_coordinates(self) -> int:
-        """m, the number of coordinates."""
-        return self.dim // 2
-
-    def coupling(self, x) -> np.ndarray:
-        """``J M^-1 J^T`` (n, n) at the state ``x`` (d,) or the coordinates ``q`` (m,):
-        entry (i, j) is the change of contact i's normal velocity per unit impulse at
-        contact j; zero off the diagonal where the contacts are mass-orthogonal.
-
-        Examples
-        --------
-        A ball on a floor and a wall at angle beta to the vertical: orthogonal impulses
-        at beta = 0, coupled by sin(beta) otherwise.
-
-        >>> import sympy as sp
-        >>> from bderiv.symbolic import contact_system
-        >>> x, y, beta = sp.symbols("x y beta")
-        >>> corner = contact_system([x, y], sp.eye(2), [0, -9.81],
-        ...                         [y, sp.cos(beta) * x + sp.sin(beta) * y], impact=0.8,
-        ...                         params={beta: 0.0})
-        >>> corner.coupling([0.0, 0.0])
-        array([[1., 0.],
-               [0., 1.]])
-        >>> corner.with_params(beta=0.5).coupling([0.0, 0.0]).round(6)
-        array([[1.      , 0.479426],
-               [0.479426, 1.      ]])
-        """
-        x = np.asarray(x, dtype=np.float64)
-        m = self.n_coordinates
-        if x.shape not in ((m,), (2 * m,)):
-            raise ValueError(f"x must be a state of shape ({2 * m},) or coordinates of shape "
-                             f"({m},), got shape {x.shape}")
-        return self.coupling_kernel(np.concatenate((x[:m], np.zeros(m), self.params)))
+    kernel = getattr(getattr(model, "source", None), "coupling", None)
+    if kernel is None:
+        raise TypeError(f"coupling needs a model built by contact_system, got "
+                        f"{type(model).__name__} with source "
+                        f"{type(getattr(model, 'source', None)).__name__}")
+    x = np.asarray(x, dtype=np.float64)
+    m = model.dim // 2
+    if x.shape not in ((m,), (2 * m,)):
+        raise ValueError(f"x must be a state of shape ({2 * m},) or coordinates of shape "
+                         f"({m},), got shape {x.shape}")
+    return kernel(np.concatenate((x[:m], np.zeros(m), model.params)))
 
 
 class ImpactCheck:
@@ -240,7 +226,7 @@ def _restitution(impact, params: dict):
 
 def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plastic",
                    params=None, *, velocities=None, flags=None, coriolis=True,
-                   cache_dir=None) -> ContactSystem:
+                   cache_dir=None) -> HybridSystem:
     """A body with point contacts as a compiled hybrid system (module docstring).
 
     Parameters
@@ -277,7 +263,11 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
 
     Returns
     -------
-    ContactSystem
+    HybridSystem
+        Its functions the compiled kernels (as :func:`~bderiv.symbolic.from_sympy`'s), its
+        ``reset_guard`` an :class:`ImpactCheck` when there are impacts, its ``source`` a
+        :class:`~bderiv.symbolic.SymbolicSource` with the contacts and the coupling kernel
+        (:func:`coupling`).
 
     Raises
     ------
@@ -292,12 +282,12 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     vertical, restitution 0.8; its impact on the floor at 3 m/s:
 
     >>> import numpy as np, sympy as sp
-    >>> from bderiv.symbolic import contact_system
+    >>> from bderiv.symbolic import ModelFunctions, contact_system
     >>> x, y, beta = sp.symbols("x y beta")
     >>> corner = contact_system([x, y], sp.eye(2), [0, -9.81],
     ...                         [y, sp.cos(beta) * x + sp.sin(beta) * y], impact=0.8,
     ...                         params={beta: 0.0})
-    >>> corner.functions.reset(np.array([1.0, 0.0, 0.5, -3.0]), 0, 0)
+    >>> ModelFunctions(corner).reset(np.array([1.0, 0.0, 0.5, -3.0]), 0, 0)
     array([1. , 0. , 0.5, 2.4])
     """
     started = time.perf_counter()
@@ -386,6 +376,5 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         started=started)
     guard = None if kernels.reset is None else ImpactCheck(kernels, module.coupling,
                                                             model.names)
-    return symbolic_system(kernels, model.values, build, kind=ContactSystem,
-                           coupling_kernel=module.coupling, contacts=model.names,
-                           reset_guard=guard)
+    return symbolic_system(kernels, model.values, build, "contact_system",
+                           coupling=module.coupling, contacts=model.names, reset_guard=guard)
