@@ -147,6 +147,6 @@ def controlled_chair(*, mode_damping=5.0, stiffness=400.0, damping=4.0, friction
     if compiled:
         fns = [compile_function(f) for f in fns]
     system = HybridSystem(fns[0], fns[1], n_events=2, dim=8, event_jacobian=fns[2])
-    flow = ParametricFlow(system, 2, simultaneity_tol=simultaneity_tol)
+    flow = ParametricFlow(system, 2, options=SolverOptions(simultaneity_tol=simultaneity_tol))
     flow.x0, flow.defaults = ex.x0.copy(), np.zeros(2)
     return flow

@@ -346,7 +346,8 @@ def _final_group(system, groups, mask, x, t_final, options):
     order); ``(None, ())`` when there is none. Pending events come before the last switched
     group within the tolerance: the flow map merges the two
     (:func:`bderiv.analysis.assembly.flow_map_along`)."""
-    _, h, _, _, rate = local_view(system, int(mask), x)
+    view = local_view(system, int(mask), x)
+    h, rate = view.h, view.rate
     tol = options.simultaneity_tol
     pending = pending_at_final_time(h, rate, tol)
     if pending:
