@@ -477,7 +477,7 @@ def test_the_orbit_map_is_built_once_at_the_orbit(monkeypatch, name):
     real, built = orbit_module.return_map, []
 
     def counted(system, x, section, **kw):
-        built.append((x.copy(), kw["simultaneity_tol"]))
+        built.append((x.copy(), kw["options"].simultaneity_tol))
         return real(system, x, section, **kw)
 
     monkeypatch.setattr(orbit_module, "return_map", counted)
@@ -491,7 +491,7 @@ def test_the_orbit_map_is_built_once_at_the_orbit(monkeypatch, name):
     assert np.array_equal(built[-1][0], orb.x0) and built[-1][1] == 1e-7
     assert [g.events for g in orb.trajectory.groups] == [(0, 1), (0, 1)]
     R, traj = real(ex.system, orb.x0, orb.section, t_max=1.5, tol=1e-9,
-                   simultaneity_tol=1e-7, options=orbit_module.ORBIT_OPTIONS)
+                   options=orbit_module.ORBIT_OPTIONS)  # simultaneity_tol 1e-7
     V = np.random.default_rng(0).standard_normal((100, ex.system.dim))
     for a, b in ((R.x_final, orb.return_map.x_final), (R.period, orb.period),
                  (R(V), orb.return_map(V)), (traj.t, orb.trajectory.t)):

@@ -345,16 +345,18 @@ def test_groups_keep_the_stops_event_jacobian_and_the_map_is_the_same():
     import dataclasses
 
     from bderiv.analysis.assembly import flow_map_along
+    from bderiv.models.integrate.options import SolverOptions
     from bderiv.models.integrate.run import run
 
     ex = examples.network(2, seed=1)
     s = ex.system
-    traj = run(s.calls, ex.x0, ex.t_final, simultaneity_tol=1e-7, variational=True)
+    options = SolverOptions(simultaneity_tol=1e-7)
+    traj = run(s.calls, ex.x0, ex.t_final, options=options, variational=True)
     assert traj.groups
     for g in traj.groups:
         np.testing.assert_array_equal(g.event_jacobian, s.calls.eval_event_jacobian(g.state))
     assert all(g.event_jacobian is None
-               for g in run(s.calls, ex.x0, ex.t_final, simultaneity_tol=1e-7).groups)
+               for g in run(s.calls, ex.x0, ex.t_final, options=options).groups)
     again = dataclasses.replace(traj, groups=tuple(g._replace(event_jacobian=None)
                                                    for g in traj.groups))
     V = np.random.default_rng(3).standard_normal((50, s.dim))

@@ -184,7 +184,18 @@ def test_solver_options_defaults_and_overrides():
     assert SolverOptions.resolve(None, atol=1e-8) == SolverOptions(atol=1e-8)
     tight = SolverOptions(rtol=1e-12)
     assert SolverOptions.resolve(None, tight) is tight
-    assert SolverOptions.resolve(o, tight, rtol=1e-7).rtol == 1e-7
+    assert SolverOptions.resolve(None, tight, rtol=1e-7).rtol == 1e-7
+    assert SolverOptions.resolve(o, tight, rtol=1e-10) == o  # agrees: no conflict
+    with pytest.raises(ValueError, match=r"rtol=1e-07 and options.rtol=1e-10 disagree"):
+        SolverOptions.resolve(o, tight, rtol=1e-7)
+    # simultaneity_tol: the options' own, else the function's default
+    tol = SolverOptions(simultaneity_tol=1e-9)
+    assert SolverOptions.resolve(o, tol).simultaneity_tol == 1e-9
+    assert SolverOptions.resolve(tol, o).simultaneity_tol == 1e-9
+    assert SolverOptions.resolve(o, tol, simultaneity_tol=0).simultaneity_tol == 0.0
+    with pytest.raises(ValueError, match=r"simultaneity_tol=0.0 and options.simultaneity_tol"
+                                         r"=1e-09 disagree"):
+        SolverOptions.resolve(tol, o, simultaneity_tol=0.0)
     assert o.solve_ivp_kwargs() == {"rtol": 1e-10, "atol": 1e-12, "method": "DOP853",
                                     "max_step": np.inf}
     assert SolverOptions(method=RK23).method is RK23
@@ -263,6 +274,20 @@ def test_options_object_and_keywords_agree():
     np.testing.assert_array_equal(a.t, b.t)
     c = s.simulate(np.zeros(2), 2.0, method=RK23)  # an OdeSolver class works too
     np.testing.assert_allclose(c.x_final, [4.0, 4.0], rtol=1e-8)
+    # simultaneity_tol travels in the options value too; a keyword that disagrees with it
+    # is refused, naming both
+    d = s.simulate(np.zeros(2), 2.0, options=SolverOptions(simultaneity_tol=1e-9))
+    e = s.simulate(np.zeros(2), 2.0, simultaneity_tol=1e-9)
+    np.testing.assert_array_equal(d.t, e.t)
+    assert d.simultaneity_tol == e.simultaneity_tol == 1e-9
+    assert s.simulate(np.zeros(2), 2.0).simultaneity_tol == 1e-12  # simulate's default
+    for kw in ({"rtol": 1e-7}, {"simultaneity_tol": 1e-8}):
+        with pytest.raises(ValueError, match=rf"{next(iter(kw))}=1e-0\d and options\."):
+            s.simulate(np.zeros(2), 2.0, options=SolverOptions(rtol=1e-6,
+                                                               simultaneity_tol=1e-9), **kw)
+    with pytest.raises(ValueError, match=r"simultaneity_tol=0.5 and options.simultaneity_tol"):
+        s.flow_bderivative(np.zeros(2), 2.0, simultaneity_tol=0.5,
+                           options=SolverOptions(simultaneity_tol=1e-7))
 
 
 def test_one_event_jacobian_per_stop():

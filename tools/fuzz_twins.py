@@ -168,9 +168,9 @@ def check_model(model, tally) -> None:
     for what, tol in (("simulate", SIMULATION_SIMULTANEITY_TOL),
                       ("flow", DERIVATIVE_SIMULTANEITY_TOL)):
         def call(s, what=what, tol=tol):  # flow_bderivative's two steps, the run kept
-            traj = run_module.run(s.calls, model.x0, model.t_final, simultaneity_tol=tol,
-                                  options=OPTIONS, variational=what == "flow",
-                                  max_groups=MAX_GROUPS)
+            traj = run_module.run(s.calls, model.x0, model.t_final,
+                                  options=OPTIONS.with_overrides(simultaneity_tol=tol),
+                                  variational=what == "flow", max_groups=MAX_GROUPS)
             return traj if what == "simulate" else (traj, s.flow_map_along(traj))
         c, cp, p = _outcome(call, C), _outcome(call, C, True), _outcome(call, P)
         note = _Note(tally, model, what, model.borderline(tol))
@@ -312,10 +312,11 @@ def repro(family, seed, m=8) -> None:
         for name, system, stops in (("compiled", C, False), ("compiled, Python stops", C, True),
                                     ("python", P, False)):
             res, exc = _outcome(lambda s, what=what: run_module.run(
-                s.calls, model.x0, model.t_final, options=OPTIONS, max_groups=MAX_GROUPS,
+                s.calls, model.x0, model.t_final, max_groups=MAX_GROUPS,
                 variational=what == "flow_bderivative",
-                simultaneity_tol=(SIMULATION_SIMULTANEITY_TOL if what == "simulate" else
-                                  DERIVATIVE_SIMULTANEITY_TOL)), system, stops)
+                options=OPTIONS.with_overrides(simultaneity_tol=(
+                    SIMULATION_SIMULTANEITY_TOL if what == "simulate" else
+                    DERIVATIVE_SIMULTANEITY_TOL))), system, stops)
             if exc is not None:
                 print(f"{what} [{name}]: refused: {exc}")
             else:

@@ -37,10 +37,15 @@ __all__ = [
 #: integration error is divided by eps. With the defaults (rtol = 1e-10) the relative
 #: error on ``examples.network(3)`` stalls at 1e-6 for eps = 1e-6 instead of falling to
 #: 1e-7 (tests/test_checks.py shows it); with these it keeps falling in proportion to eps.
-FD_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13)
+FD_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13, simultaneity_tol=FD_SIMULTANEITY_TOL)
+
+#: the keywords of the settings (:class:`SolverOptions`'s fields) and the default of
+#: :func:`decay_check` when other tolerances are given
+_SETTINGS = ("rtol", "atol", "method", "max_step", "simultaneity_tol")
+_FD_TOL_ONLY = SolverOptions(simultaneity_tol=FD_SIMULTANEITY_TOL)
 
 
-def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
+def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=None,
                         options=None, rtol=None, atol=None, method=None, max_step=None,
                         section=None, progress=None):
     """``(Phi(t_final, x0 + eps v) - Phi(t_final, x0)) / eps`` for every vector v.
@@ -60,12 +65,12 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
         Tangent vectors, finite.
     eps : float
         Step, finite, > 0.
-    simultaneity_tol : float
-        As for ``system.simulate``.
+    simultaneity_tol : float, optional
+        As for ``system.simulate``; default :data:`FD_SIMULTANEITY_TOL`.
     options : SolverOptions, optional
-        Integrator settings, default :data:`FD_OPTIONS`.
+        The settings as one value, default :data:`FD_OPTIONS`.
     rtol, atol, method, max_step : optional
-        Override the settings of ``options``.
+        The settings as keywords (one given with ``options`` must agree with it).
     section : callable ``section(x) -> float``, optional
         Difference the Poincare map of this section instead of the flow.
     progress : callable ``progress(done, total)``, or bool, optional
@@ -76,13 +81,12 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMU
     ndarray, shape (..., d)
     """
     options = SolverOptions.resolve(options, FD_OPTIONS, rtol=rtol, atol=atol, method=method,
-                                    max_step=max_step)
+                                    max_step=max_step, simultaneity_tol=simultaneity_tol)
     eps = check_number(eps, "eps")
     flat, lead = check_points(V, system.dim, "V")
 
     # the final states only: a bounded record (t_eval=()), whatever the span
-    settings = {"simultaneity_tol": simultaneity_tol, "options": options, "section": section,
-                "t_eval": ()}
+    settings = {"options": options, "section": section, "t_eval": ()}
     progress = resolve_progress(progress, desc="finite differences")
     start = system.calls._check_state(x0, "x0")
     base = system.simulate(start, t_final, **settings)
@@ -272,9 +276,12 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     if ceiling is None:
         ceiling = LINEAR_STATE * (size if size > 0 else 1.0)
     ceiling = check_number(ceiling, "ceiling")
-    simulate_options.setdefault("simultaneity_tol", FD_SIMULTANEITY_TOL)
-    if not any(k in simulate_options for k in ("options", "rtol", "atol")):
-        simulate_options["options"] = FD_OPTIONS
+    # the tight FD_OPTIONS unless other tolerances are given; FD_SIMULTANEITY_TOL always
+    given = {key: simulate_options.pop(key, None) for key in _SETTINGS}
+    options = simulate_options.pop("options", None)
+    loose = options is not None or given["rtol"] is not None or given["atol"] is not None
+    simulate_options["options"] = SolverOptions.resolve(
+        options, _FD_TOL_ONLY if loose else FD_OPTIONS, **given)
     dev = np.empty((V.shape[0], strides + 1))
     X = x0 + eps * V
     for k in range(strides + 1):  # stride by stride, every vector's run in one batch

@@ -6,24 +6,19 @@ same names call them): :func:`bderivative` at an event point (:mod:`.assembly`),
 (:mod:`bderiv.models.integrate.run`), :func:`flow_bderivative`, the flow map's B-derivative
 from a trajectory integrated with its variational equations, and :func:`flow_fd`, forward
 differences of the simulated flow (:mod:`.checks`). Each checks its arguments, resolves the
-integrator settings into one :class:`~bderiv.models.integrate.options.SolverOptions` and
-hands the model's checked calls (``model.calls``) to the model side.
+settings (the keywords, or ``options=``, and the function's default ``simultaneity_tol``)
+into one :class:`~bderiv.models.integrate.options.SolverOptions` and hands it, with the
+model's checked calls (``model.calls``), to the model side.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .._limits import (
-    DERIVATIVE_SIMULTANEITY_TOL,
-    FD_SIMULTANEITY_TOL,
-    MAX_GROUPS,
-    ON_SURFACE_TOL,
-    SIMULATION_SIMULTANEITY_TOL,
-)
+from .._limits import MAX_GROUPS, ON_SURFACE_TOL
 from .._support._validate import check_number
 from ..models.integrate.many import check_states, run_many
-from ..models.integrate.options import SolverOptions
+from ..models.integrate.options import DERIVATIVE_OPTIONS, SIMULATION_OPTIONS, SolverOptions
 from ..models.integrate.run import ENDS, STEPS, check_t_eval, run
 from ..models.section import Section
 from . import checks
@@ -81,7 +76,7 @@ def bderivative(model, rho, *, tol=ON_SURFACE_TOL):
     return point_bderivative(model, rho, tol)
 
 
-def simulate(model, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
+def simulate(model, x0, t_final, *, simultaneity_tol=None,
              options=None, rtol=None, atol=None, method=None, max_step=None,
              max_groups=MAX_GROUPS, section=None, t_eval=None):
     """Integrate from ``x0`` at time 0 to ``t_final`` with event detection.
@@ -94,8 +89,9 @@ def simulate(model, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL
         Start point, not on an event surface; its region comes from the event signs.
     t_final : float
         Final time, > 0.
-    simultaneity_tol : float
-        Events at the integrator's stop to within the integration accuracy that are
+    simultaneity_tol : float, optional
+        Default ``SIMULATION_SIMULTANEITY_TOL`` (1e-12, ``bderiv._limits``). Events at the
+        integrator's stop to within the integration accuracy that are
         crossing are switched together at the stop (one group: nothing orders them;
         :mod:`bderiv.models.events.locate`), and so are events that already crossed
         inside the step, so none is lost when two surfaces are crossed inside one
@@ -104,11 +100,12 @@ def simulate(model, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL
         crossing but measurably later are switched at their own time: the trajectory
         is the true one (a flow map merges such groups: :func:`flow_bderivative`).
     options : SolverOptions, optional
-        Integrator settings (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
-        1e-12, no step limit).
+        The settings as one value (default ``SolverOptions()``: DOP853, rtol 1e-10, atol
+        1e-12, no step limit; its ``simultaneity_tol`` left None takes this function's).
     rtol, atol, method, max_step : optional
-        Override the settings of ``options`` (see
-        :class:`~bderiv.models.integrate.options.SolverOptions`); a compiled model takes
+        The settings as keywords (see
+        :class:`~bderiv.models.integrate.options.SolverOptions`); one given with
+        ``options`` must agree with it (ValueError naming both). A compiled model takes
         ``method="DOP853"`` only (its compiled integrator).
     max_groups : int
         Largest number of event groups (default 10,000): a Zeno or chattering
@@ -155,13 +152,14 @@ def simulate(model, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL
     >>> traj.t.shape, traj.x.shape, bool(abs(traj.x_final[0] - np.cos(100.0)) < 1e-7)
     ((5,), (5, 2), True)
     """
-    options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
-                                    max_step=max_step)
+    options = SolverOptions.resolve(options, SIMULATION_OPTIONS, rtol=rtol, atol=atol,
+                                    method=method, max_step=max_step,
+                                    simultaneity_tol=simultaneity_tol)
     x0 = model.calls._check_state(x0, "x0")
     if section is not None:
         section = Section(section, model.dim)
-    return run(model.calls, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
-               max_groups=max_groups, section=section,
+    return run(model.calls, x0, t_final, options=options, max_groups=max_groups,
+               section=section,
                record=_record(t_eval, t_final, model.dim))
 
 
@@ -172,7 +170,7 @@ def _record(t_eval, t_final, dim):
     return check_t_eval(t_eval, check_number(t_final, "t_final"), dim)
 
 
-def simulate_many(model, X0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
+def simulate_many(model, X0, t_final, *, simultaneity_tol=None,
                   options=None, rtol=None, atol=None, method=None, max_step=None,
                   max_groups=MAX_GROUPS, section=None, progress=None, t_eval=None):
     """:func:`simulate` from every start state of a batch.
@@ -229,17 +227,18 @@ def simulate_many(model, X0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEIT
     >>> runs.x_final.shape, [round(r.events[0].time, 9) for r in runs]
     ((2, 2), [1.0, 0.5])
     """
-    options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
-                                    max_step=max_step)
+    options = SolverOptions.resolve(options, SIMULATION_OPTIONS, rtol=rtol, atol=atol,
+                                    method=method, max_step=max_step,
+                                    simultaneity_tol=simultaneity_tol)
     X0, lead = check_states(X0, model.dim)
     if section is not None:
         section = Section(section, model.dim)
-    return run_many(model.calls, X0, lead, t_final, simultaneity_tol=simultaneity_tol,
-                    options=options, max_groups=max_groups, section=section,
+    return run_many(model.calls, X0, lead, t_final, options=options, max_groups=max_groups,
+                    section=section,
                     progress=progress, record=_record(t_eval, t_final, model.dim))
 
 
-def flow_bderivative(model, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+def flow_bderivative(model, x0, t_final, *, simultaneity_tol=None,
                      options=None, rtol=None, atol=None, method=None, max_step=None):
     """The B-derivative of ``x -> Phi(t_final, x)`` at ``x0``.
 
@@ -256,9 +255,10 @@ def flow_bderivative(model, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTAN
         The model (:class:`~bderiv.analysis.system.HybridSystem`).
     x0 : array_like, shape (d,)
     t_final : float
-    simultaneity_tol : float
+    simultaneity_tol : float, optional
         Time window within which events of the nominal trajectory count as
-        simultaneous (default 1e-7, well above the event-location accuracy). The run
+        simultaneous (default ``DERIVATIVE_SIMULTANEITY_TOL``, 1e-7, well above the
+        event-location accuracy). The run
         switches each event at its own time (:func:`simulate`); groups whose events
         cross within this time of the first of them are merged into one, the group's
         map at the nearby point where they are simultaneous, and
@@ -279,16 +279,16 @@ def flow_bderivative(model, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTAN
         more event: its jumps apply only to the directions for which they come before
         it (``stops_at_group``; mathematics.md section 7). Refused there with resets.
     """
-    options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
-                                    max_step=max_step)
+    options = SolverOptions.resolve(options, DERIVATIVE_OPTIONS, rtol=rtol, atol=atol,
+                                    method=method, max_step=max_step,
+                                    simultaneity_tol=simultaneity_tol)
     x0 = model.calls._check_state(x0, "x0")
     with model.calls.numerical_jacobian_watch("flow_bderivative"):
-        traj = run(model.calls, x0, t_final, simultaneity_tol=simultaneity_tol, options=options,
-                   variational=True, record=ENDS)
+        traj = run(model.calls, x0, t_final, options=options, variational=True, record=ENDS)
         return flow_map_along(model, traj)
 
 
-def flow_fd(model, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
+def flow_fd(model, x0, t_final, V, eps, *, simultaneity_tol=None,
             options=None, rtol=None, atol=None, method=None, max_step=None):
     """Forward (one-sided) finite differences of the simulated flow.
 
@@ -314,7 +314,7 @@ def flow_fd(model, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
     -------
     ndarray, shape (..., d)
     """
-    options = SolverOptions.resolve(options, checks.FD_OPTIONS, rtol=rtol, atol=atol,
-                                    method=method, max_step=max_step)
     return checks.forward_differences(model, x0, t_final, V, eps,
-                                      simultaneity_tol=simultaneity_tol, options=options)
+                                      simultaneity_tol=simultaneity_tol, options=options,
+                                      rtol=rtol, atol=atol, method=method,
+                                      max_step=max_step)

@@ -6,15 +6,35 @@ section, halved until it reduces the residual (:func:`damped_step`, :func:`onto_
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .._limits import MAX_HALVINGS, MAX_PIECE_SWITCHES, PIECE_RTOL
 from ..models.integrate.run import ENDS, run
 
-__all__ = ["damped_step", "newton_step", "onto_section"]
+__all__ = ["Damped", "NewtonStep", "damped_step", "newton_step", "onto_section"]
 
 
-def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None):
+class NewtonStep(NamedTuple):
+    """A piecewise-linear Newton step (:func:`newton_step`).
+
+    Attributes
+    ----------
+    delta : ndarray, shape (d,)
+    piece : tuple of tuples
+        The piece of ``delta`` (one event order per group).
+    switches : int
+        Pieces tried before ``piece``.
+    """
+
+    delta: np.ndarray
+    piece: tuple
+    switches: int
+
+
+def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES,
+                keep=None) -> NewtonStep:
     """Solve the PL Newton equation ``r + R(delta) - delta = 0``, ``normal . delta =
     -value`` by moving between pieces, never listing them.
 
@@ -42,11 +62,7 @@ def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None)
 
     Returns
     -------
-    delta : ndarray, shape (d,)
-    piece : tuple of tuples
-        The piece of ``delta`` (one event order per group).
-    switches : int
-        Pieces tried before ``piece``.
+    NewtonStep
     """
     d = R.dim
     keep = np.arange(d) if keep is None else np.asarray(keep)
@@ -63,7 +79,7 @@ def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None)
         image = R(delta)
         if np.abs(image - A @ delta).max() <= PIECE_RTOL * np.abs(A).max() * np.abs(
                 delta).max():
-            return delta, piece, switches
+            return NewtonStep(delta, piece, switches)
         miss = np.abs((r + image - delta)[keep]).max()
         if best is None or miss < best[0]:
             best = (miss, delta, piece, switches)
@@ -71,7 +87,7 @@ def newton_step(R, r, normal, value, max_switches=MAX_PIECE_SWITCHES, keep=None)
         piece = _piece_of(R, delta)
         if piece in tried:
             break
-    return best[1], best[2], best[3]
+    return NewtonStep(*best[1:])
 
 
 def _piece_of(R, v):
@@ -91,22 +107,31 @@ def onto_section(section, x, steps=20):
     return x
 
 
-def damped_step(system, section, x, delta, res, t_max, options, keep):
+class Damped(NamedTuple):
+    """The end of a damped Newton step (:func:`damped_step`): the point ``x`` and the
+    ``max |P(x) - x|`` (over the coordinates kept) its run gave, the ``residual``."""
+
+    x: np.ndarray
+    residual: float
+
+
+def damped_step(system, section, x, delta, res, t_max, options, keep) -> Damped:
     """``x + delta`` (on the section), halved until ``max |P - x|`` (over the coordinates
-    ``keep``) falls below ``res``; and that ``max |P - x|`` at it."""
+    ``keep``) falls below ``res``; and that ``max |P - x|`` at it. ``options``: the run's
+    settings (their ``simultaneity_tol`` is the iterates', 0)."""
     failure = ""
     for _ in range(MAX_HALVINGS + 1):
         trial = onto_section(section, x + delta)
         try:
-            traj = run(system.calls, trial, t_max, simultaneity_tol=0.0, options=options,
-                       section=section, record=ENDS)
+            traj = run(system.calls, trial, t_max, options=options, section=section,
+                       record=ENDS)
         except ValueError as exc:  # no return, an event at the section ...: a shorter step
             failure = f"; the last trial point failed: {exc}"
             delta = delta / 2
             continue
         returned = float(np.abs((traj.x_final - trial)[keep]).max())
         if returned < res:
-            return trial, returned
+            return Damped(trial, returned)
         delta = delta / 2
     raise RuntimeError(f"a Newton step from x = {x} could not reduce max |P(x) - x| = "
                        f"{res:.3g} in {MAX_HALVINGS} halvings: the guess is too far from "

@@ -47,7 +47,7 @@ from .._limits import (
     T_MAX_PER_PERIOD,
 )
 from .._support._validate import check_number, check_positive_int
-from ..models.integrate.options import SolverOptions
+from ..models.integrate.options import SolverOptions, check_options
 from ..models.integrate.run import ENDS, NoReturn, run
 from ._cyclic import (
     SHIFTS,
@@ -66,7 +66,8 @@ __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
 
 #: integrator settings of the orbit search: the residual is only as good as the
 #: integration, and Newton's method converges to within it.
-ORBIT_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13)
+ORBIT_OPTIONS = SolverOptions(rtol=1e-12, atol=1e-13,
+                              simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL)
 
 
 @dataclass(frozen=True)
@@ -152,10 +153,9 @@ class PeriodicOrbit:
         """One period simulated again with at most ``period / n_points`` per step (for
         figures: the solver's own steps can be few): a Trajectory."""
         n_points = check_positive_int(n_points, "n_points")
+        options = ORBIT_OPTIONS.with_overrides(max_step=self.period / n_points)
         return self.system.simulate(self.x0, T_MAX_PER_PERIOD * self.period,
-                                    section=self.section, max_step=self.period / n_points,
-                                    simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
-                                    options=ORBIT_OPTIONS)
+                                    section=self.section, options=options)
 
     def stability(self, n_directions=1000, iterations=1000, burn_in=None, seed=0) -> Stability:
         """The stability of the orbit, from the piecewise-linear return map.
@@ -201,8 +201,7 @@ class PeriodicOrbit:
 
 
 def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL,
-                   max_iter=ORBIT_MAX_ITER, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
-                   options=None, cyclic=()):
+                   max_iter=ORBIT_MAX_ITER, options=ORBIT_OPTIONS, cyclic=()):
     """Solve ``P(x) = x`` on the section by Newton's method with the B-derivative.
 
     Parameters
@@ -217,10 +216,9 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         Stop when ``max |P(x) - x| <= tol * max(1, max |x|)``.
     max_iter : int
         Largest number of Newton iterations.
-    simultaneity_tol : float
-        For the orbit's return map (the iterates use 0).
-    options : SolverOptions, optional
-        Default :data:`ORBIT_OPTIONS`.
+    options : SolverOptions
+        The settings (default :data:`ORBIT_OPTIONS`); their ``simultaneity_tol`` is the
+        orbit's return map's (the iterates use 0).
     cyclic : sequence of int
         Coordinates the model and the section do not depend on (a forward position, a
         heading): left out of ``P(x) = x`` (they advance every stride) and of the
@@ -250,7 +248,8 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     max_iter = check_positive_int(max_iter, "max_iter")
     t_max = (DEFAULT_T_MAX if period_guess is None
              else T_MAX_PER_PERIOD * check_number(period_guess, "period_guess"))
-    options = ORBIT_OPTIONS if options is None else options
+    check_options(options)
+    iterates = options.with_overrides(simultaneity_tol=0.0)
     x = onto_section(section, x_guess)
     cyclic = check_cyclic(cyclic, x.size)
     keep = kept(cyclic, x.size)
@@ -258,13 +257,13 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
         starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
         returned, *shifted = [_at_iterate(0, start, t_max, lambda s=start: run(
-            system.calls, s, t_max, simultaneity_tol=0.0, options=options, section=section,
-            record=ENDS)).x_final for start in starts]
+            system.calls, s, t_max, options=iterates, section=section, record=ENDS)).x_final
+            for start in starts]
         check_independence(returned, x, shifted, cyclic)
-    history, build_tol = [], 0.0
+    history, build = [], iterates
     for iteration in range(max_iter + 1):
-        R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build_tol:
-                                          _build(system, x, section, t_max, b, options))
+        R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build:
+                                          _build(system, x, section, t_max, b, iterates))
         check_equivariance(R, x, cyclic)
         r = R.x_final - x
         res = float(np.abs(r[keep]).max())
@@ -273,20 +272,19 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         if iteration == max_iter:
             raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
                                f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
-        delta, piece, switches = newton_step(R, r, section.gradient(x), section(x), keep=keep)
-        x_new, returned = damped_step(system, section, x, delta, res, t_max, options, keep)
-        history.append(NewtonIterate(x.copy(), res, float(np.abs(x_new - x).max()), piece,
-                                     switches))
-        x = x_new
+        step = newton_step(R, r, section.gradient(x), section(x), keep=keep)
+        damped = damped_step(system, section, x, step.delta, res, t_max, iterates, keep)
+        history.append(NewtonIterate(x.copy(), res, float(np.abs(damped.x - x).max()),
+                                     step.piece, step.switches))
+        x = damped.x
         # converged already by the damped step's run: the next map is likely the orbit's,
         # so it is built with the caller's tolerance (and kept if the test passes on it)
-        build_tol = simultaneity_tol if returned <= tol * max(1.0, float(np.abs(
-            x[keep]).max())) else 0.0
+        build = options if damped.residual <= tol * max(1.0, float(np.abs(
+            x[keep]).max())) else iterates
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
-    if built_with != simultaneity_tol:  # the map at x was built for the iteration only
+    if built_with != options:  # the map at x was built for the iteration only
         R, traj = _at_iterate(iteration, x, t_max, lambda: return_map(
-            system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
-            simultaneity_tol=simultaneity_tol, options=options))
+            system, x, section, t_max=t_max, tol=ON_SURFACE_TOL, options=options))
         check_equivariance(R, x, cyclic)
     r = R.x_final - x
     return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
@@ -309,19 +307,18 @@ def _at_iterate(iteration, x, t_max, call):
                          f"{exc}{hint}") from exc
 
 
-def _build(system, x, section, t_max, simultaneity_tol, options):
-    """``(R, trajectory, tolerance)``: the return map at x with ``simultaneity_tol``, else
-    with 0 where that refuses (two events of an iterate close in time but not at one
-    point)."""
-    if simultaneity_tol != 0.0:
+def _build(system, x, section, t_max, options, iterates):
+    """``(R, trajectory, settings)``: the return map at x with ``options``, else with
+    ``iterates`` (``simultaneity_tol`` 0) where that refuses (two events of an iterate close
+    in time but not at one point)."""
+    if options != iterates:
         try:
             return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
-                                simultaneity_tol=simultaneity_tol, options=options),
-                    simultaneity_tol)
+                                options=options), options)
         except ValueError:
             pass
-    return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL, simultaneity_tol=0.0,
-                        options=options), 0.0)
+    return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
+                        options=iterates), iterates)
 
 
 def _without(R, cyclic):

@@ -8,15 +8,9 @@ checked (:class:`~bderiv.models.section.Section`) and the integrator settings re
 
 from __future__ import annotations
 
-from .._limits import (
-    DEFAULT_T_MAX,
-    DERIVATIVE_SIMULTANEITY_TOL,
-    ON_SURFACE_TOL,
-    ORBIT_MAX_ITER,
-    ORBIT_TOL,
-)
+from .._limits import DEFAULT_T_MAX, ON_SURFACE_TOL, ORBIT_MAX_ITER, ORBIT_TOL
 from .._support._validate import check_number
-from ..models.integrate.options import SolverOptions
+from ..models.integrate.options import DERIVATIVE_OPTIONS, SolverOptions
 from ..models.section import Section
 from . import orbit, returnmap
 from .orbit import ORBIT_OPTIONS
@@ -25,8 +19,8 @@ __all__ = ["periodic_orbit", "return_map"]
 
 
 def return_map(model, x0, section, *, section_gradient=None, t_max=DEFAULT_T_MAX,
-               tol=ON_SURFACE_TOL, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL, options=None,
-               rtol=None, atol=None, method=None, max_step=None):
+               tol=ON_SURFACE_TOL, simultaneity_tol=None, options=None, rtol=None, atol=None,
+               method=None, max_step=None):
     """The B-derivative of the Poincare map of ``section(x) = 0`` at x0 on it.
 
     Parameters
@@ -56,19 +50,20 @@ def return_map(model, x0, section, *, section_gradient=None, t_max=DEFAULT_T_MAX
         ``P(x0)``, with the correction for the change in return time
         (:mod:`bderiv.analysis.returnmap`); ``period`` is the return time.
     """
-    options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
-                                    max_step=max_step)
+    options = SolverOptions.resolve(options, DERIVATIVE_OPTIONS, rtol=rtol, atol=atol,
+                                    method=method, max_step=max_step,
+                                    simultaneity_tol=simultaneity_tol)
     x0 = model.calls._check_state(x0, "x0")
     section = Section(section, model.dim, section_gradient, model.check_jacobians)
     with model.calls.numerical_jacobian_watch("return_map"):
         return returnmap.return_map(model, x0, section, t_max=check_number(t_max, "t_max"),
                                     tol=check_number(tol, "tol", strict=False),
-                                    simultaneity_tol=simultaneity_tol, options=options)[0]
+                                    options=options).map
 
 
 def periodic_orbit(model, x_guess, section, period_guess=None, *, section_gradient=None,
                    tol=ORBIT_TOL, max_iter=ORBIT_MAX_ITER,
-                   simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL, options=None, cyclic=()):
+                   simultaneity_tol=None, options=None, cyclic=()):
     """A periodic orbit through the section ``section(x) = 0``: ``P(x) = x``.
 
     Newton's method with the return map's B-derivative, the piecewise-linear Newton
@@ -88,10 +83,12 @@ def periodic_orbit(model, x_guess, section, period_guess=None, *, section_gradie
         Stop when ``max |P(x) - x| <= tol * max(1, max |x|)``.
     max_iter : int
         Largest number of Newton iterations.
-    simultaneity_tol : float
-        For the orbit's return map, as for :func:`~bderiv.analysis.flows.flow_bderivative`.
+    simultaneity_tol : float, optional
+        For the orbit's return map, as for :func:`~bderiv.analysis.flows.flow_bderivative`
+        (default ``DERIVATIVE_SIMULTANEITY_TOL``, 1e-7).
     options : SolverOptions, optional
-        Default ``SolverOptions(rtol=1e-12, atol=1e-13)``.
+        Default ``SolverOptions(rtol=1e-12, atol=1e-13)`` (``orbit.ORBIT_OPTIONS``); a
+        ``simultaneity_tol`` given must agree with it (ValueError naming both).
     cyclic : sequence of int
         Coordinates the model and the section do not depend on (a forward position,
         a heading): left out of ``P(x) = x`` and of the stability, their advance per
@@ -105,10 +102,9 @@ def periodic_orbit(model, x_guess, section, period_guess=None, *, section_gradie
         ``history``, ``advance`` and ``stability()``.
     """
     x_guess = model.calls._check_state(x_guess, "x_guess")
-    options = SolverOptions.resolve(options, ORBIT_OPTIONS)
+    options = SolverOptions.resolve(options, ORBIT_OPTIONS, simultaneity_tol=simultaneity_tol)
     section = Section(section, model.dim, section_gradient, model.check_jacobians)
     with model.calls.numerical_jacobian_watch("periodic_orbit"):
         return orbit.periodic_orbit(model, x_guess, section, period_guess=period_guess,
-                                    tol=tol, max_iter=max_iter,
-                                    simultaneity_tol=simultaneity_tol, options=options,
+                                    tol=tol, max_iter=max_iter, options=options,
                                     cyclic=cyclic)

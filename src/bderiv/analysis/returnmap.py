@@ -19,13 +19,15 @@ one: ``Pi_0 . D^-1`` with ``Pi_0`` the projection at x0 (``D^-1`` maps ``F(P(x0)
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .._numerics import GRAZING_RTOL
 from ..models.integrate.run import ENDS, run
 from .flowmap import FlowBDerivative, _read_only
 
-__all__ = ["ReturnMap", "flow_projection", "return_map"]
+__all__ = ["ReturnMap", "ReturnRun", "flow_projection", "return_map"]
 
 
 def flow_projection(normal, field) -> np.ndarray:
@@ -113,7 +115,21 @@ class ReturnMap(FlowBDerivative):
         return out
 
 
-def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
+class ReturnRun(NamedTuple):
+    """A return map and the run it was built from (:func:`return_map`).
+
+    Attributes
+    ----------
+    map : ReturnMap
+    trajectory : Trajectory
+        The trajectory from x0 to the return (with its event groups).
+    """
+
+    map: ReturnMap
+    trajectory: object
+
+
+def return_map(system, x0, section, *, t_max, tol, options) -> ReturnRun:
     """Integrate once around from x0 to the section and build the :class:`ReturnMap`.
 
     Parameters
@@ -127,21 +143,20 @@ def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
         Longest time to wait for the return.
     tol : float
         Largest accepted ``|section(x0)|``.
-    simultaneity_tol : float
     options : SolverOptions
+        The run's settings, ``simultaneity_tol`` set.
 
     Returns
     -------
-    ReturnMap
-    Trajectory
-        The trajectory from x0 to the return (with its event groups).
+    ReturnRun
 
     Raises
     ------
     ValueError
         If x0 is not on the section, if the flow does not cross it upward and
         transversally at x0 or at the return, if it does not return before ``t_max``, or
-        if an event group lies within ``simultaneity_tol`` of the start or the return.
+        if an event group lies within ``options.simultaneity_tol`` of the start or the
+        return.
     """
     value = section(x0)
     if abs(value) > tol:
@@ -150,21 +165,22 @@ def return_map(system, x0, section, *, t_max, tol, simultaneity_tol, options):
     n0 = section.gradient(x0)
     F0 = system.calls.eval_field(x0, system.calls.start_mask(x0))
     _check_section_crossing(n0, F0, "x0", 0.0)
-    traj = run(system.calls, x0, t_max, simultaneity_tol=simultaneity_tol, options=options,
-               variational=True, section=section, record=ENDS)
+    traj = run(system.calls, x0, t_max, options=options, variational=True, section=section,
+               record=ENDS)
     period = float(traj.t[-1])
     for g in traj.groups:
-        if min(g.time, period - g.time) <= simultaneity_tol:
+        if min(g.time, period - g.time) <= options.simultaneity_tol:
             raise ValueError(
                 f"event group {g.events} at t={g.time:.10g} is within simultaneity_tol="
-                f"{simultaneity_tol:g} of the section (return time {period:.10g}): the "
+                f"{options.simultaneity_tol:g} of the section (return time {period:.10g}): the "
                 f"return map is not piecewise differentiable there; move the section"
             )
     nT = section.gradient(traj.x_final)
     FT = system.calls.eval_field(traj.x_final, traj.mask_final)
     _check_section_crossing(nT, FT, "the return point", period)
     flow = system.flow_map_along(traj)
-    return ReturnMap(flow, normal=nT, field=FT, normal_start=n0, field_start=F0), traj
+    return ReturnRun(ReturnMap(flow, normal=nT, field=FT, normal_start=n0, field_start=F0),
+                     traj)
 
 
 def _check_section_crossing(normal, field, where, t):

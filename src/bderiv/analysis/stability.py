@@ -27,12 +27,13 @@ linearisation: it predicts the decay of small perturbations of the nonlinear sys
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from .._support._validate import check_matrix, check_memory, check_positive_int
 
-__all__ = ["Stability", "growth_rate", "log_growth", "piece_multipliers"]
+__all__ = ["Growth", "Stability", "growth_rate", "log_growth", "piece_multipliers"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +87,26 @@ class Stability:
         return "\n".join(lines)
 
 
-def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None):
+class Growth(NamedTuple):
+    """The growth rates of a PL map's iterates (:func:`growth_rate`).
+
+    Attributes
+    ----------
+    rates : ndarray, shape (m,)
+        Per direction, ``exp`` of the least-squares slope of ``log |A^k v|`` against k
+        over the window (after the burn-in).
+    spread : ndarray, shape (m,)
+        Absolute difference of the log-rates fitted on the two halves of the window.
+    visits : dict
+        ``{orders: count}`` (empty without ``fmap_orders``).
+    """
+
+    rates: np.ndarray
+    spread: np.ndarray
+    visits: dict
+
+
+def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None) -> Growth:
     """Iterate a PL map on a batch of directions and estimate its growth rate.
 
     Parameters
@@ -106,13 +126,8 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None):
 
     Returns
     -------
-    rates : ndarray, shape (m,)
-        Per direction, ``exp`` of the least-squares slope of ``log |A^k v|`` against k
-        over the window (after the burn-in).
-    spread : ndarray, shape (m,)
-        Absolute difference of the log-rates fitted on the two halves of the window.
-    visits : dict
-        ``{orders: count}`` (empty without ``fmap_orders``).
+    Growth
+        ``rates``, ``spread``, ``visits``.
     """
     iterations = check_positive_int(iterations, "iterations")
     if iterations < 2:
@@ -130,7 +145,7 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None):
     with np.errstate(invalid="ignore"):  # directions mapped to 0 (-inf) get rate 0
         slope = np.nan_to_num(_slope(window), nan=-np.inf)
         spread = np.nan_to_num(np.abs(_slope(window[:half]) - _slope(window[half:])), nan=0.0)
-    return np.exp(slope), spread, visits
+    return Growth(np.exp(slope), spread, visits)
 
 
 #: (m, d) float arrays alive at once in a growth-rate run: the start directions (on the

@@ -30,13 +30,10 @@ import numpy as np
 
 from .._limits import (
     DEFAULT_T_MAX,
-    DERIVATIVE_SIMULTANEITY_TOL,
-    FD_SIMULTANEITY_TOL,
     MAX_GROUPS,
     ON_SURFACE_TOL,
     ORBIT_MAX_ITER,
     ORBIT_TOL,
-    SIMULATION_SIMULTANEITY_TOL,
 )
 from .._support._validate import check_bool, check_positive_int, check_value
 from ..models.calls import ModelCalls
@@ -313,7 +310,7 @@ class HybridSystem:
         :func:`bderiv.analysis.flows.bderivative`."""
         return flows.bderivative(self, rho, tol=tol)
 
-    def simulate(self, x0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
+    def simulate(self, x0, t_final, *, simultaneity_tol=None,
                  options=None, rtol=None, atol=None, method=None, max_step=None,
                  max_groups=MAX_GROUPS, section=None, t_eval=None):
         """Integrate from ``x0`` at time 0 to ``t_final`` with event detection:
@@ -323,7 +320,7 @@ class HybridSystem:
                               max_step=max_step, max_groups=max_groups, section=section,
                               t_eval=t_eval)
 
-    def simulate_many(self, X0, t_final, *, simultaneity_tol=SIMULATION_SIMULTANEITY_TOL,
+    def simulate_many(self, X0, t_final, *, simultaneity_tol=None,
                       options=None, rtol=None, atol=None, method=None, max_step=None,
                       max_groups=MAX_GROUPS, section=None, progress=None, t_eval=None):
         """:meth:`simulate` from every start state of a batch:
@@ -333,7 +330,7 @@ class HybridSystem:
                                    max_step=max_step, max_groups=max_groups,
                                    section=section, progress=progress, t_eval=t_eval)
 
-    def flow_bderivative(self, x0, t_final, *, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+    def flow_bderivative(self, x0, t_final, *, simultaneity_tol=None,
                          options=None, rtol=None, atol=None, method=None, max_step=None):
         """The B-derivative of ``x -> Phi(t_final, x)`` at ``x0``:
         :func:`bderiv.analysis.flows.flow_bderivative`."""
@@ -347,7 +344,7 @@ class HybridSystem:
         :func:`bderiv.analysis.assembly.flow_map_along`."""
         return flow_map_along(self, traj)
 
-    def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=FD_SIMULTANEITY_TOL,
+    def flow_fd(self, x0, t_final, V, eps, *, simultaneity_tol=None,
                 options=None, rtol=None, atol=None, method=None, max_step=None):
         """Forward finite differences of the simulated flow:
         :func:`bderiv.analysis.flows.flow_fd`."""
@@ -356,7 +353,7 @@ class HybridSystem:
                              max_step=max_step)
 
     def return_map(self, x0, section, *, section_gradient=None, t_max=DEFAULT_T_MAX,
-                   tol=ON_SURFACE_TOL, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+                   tol=ON_SURFACE_TOL, simultaneity_tol=None,
                    options=None, rtol=None, atol=None, method=None, max_step=None):
         """The B-derivative of the Poincare map of ``section(x) = 0`` at ``x0``:
         :func:`bderiv.analysis.poincare.return_map`."""
@@ -367,7 +364,7 @@ class HybridSystem:
 
     def periodic_orbit(self, x_guess, section, period_guess=None, *, section_gradient=None,
                        tol=ORBIT_TOL, max_iter=ORBIT_MAX_ITER,
-                       simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL, options=None, cyclic=()):
+                       simultaneity_tol=None, options=None, cyclic=()):
         """A periodic orbit through ``section(x) = 0``, ``P(x) = x``:
         :func:`bderiv.analysis.poincare.periodic_orbit`."""
         return poincare.periodic_orbit(self, x_guess, section, period_guess,

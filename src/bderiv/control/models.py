@@ -24,6 +24,7 @@ from ..analysis.system import HybridSystem
 from ..examples._common import compile_function
 from ..examples.chair import _functions as chair_functions
 from ..examples.chair import chair
+from ..models.integrate.options import SolverOptions
 from .parametric import ParametricFlow
 
 __all__ = ["ball_1d", "ball_2d", "controlled_chair"]
@@ -59,13 +60,13 @@ def _ball_functions(d, vertical, ground):
     return field, events, reset
 
 
-def _ball(d, vertical, ground, p, compiled, simultaneity_tol):
+def _ball(d, vertical, ground, p, compiled, options):
     fns = _ball_functions(d, vertical, ground)
     if compiled:
         fns = [compile_function(f) for f in fns]
     field, events, reset = fns
     system = HybridSystem(field, events, n_events=1, dim=d + len(p), reset=reset)
-    flow = ParametricFlow(system, len(p), simultaneity_tol=simultaneity_tol)
+    flow = ParametricFlow(system, len(p), options=options)
     flow.defaults = np.array(p, dtype=np.float64)
     return flow
 
@@ -73,13 +74,14 @@ def _ball(d, vertical, ground, p, compiled, simultaneity_tol):
 def ball_1d(*, e=0.8, g=_G, compiled=True, simultaneity_tol=1e-7) -> ParametricFlow:
     """hybrid-tools' 1-D bouncing ball (``bouncing_ball``): ``x = (q, q')``,
     ``p = (u, e, g)``; ``flow.defaults`` = ``(0, e, g)``."""
-    return _ball(2, 0, -1, (0.0, e, g), compiled, simultaneity_tol)
+    return _ball(2, 0, -1, (0.0, e, g), compiled, SolverOptions(simultaneity_tol=simultaneity_tol))
 
 
 def ball_2d(*, e=0.8, g=_G, h=0.0, compiled=True, simultaneity_tol=1e-7) -> ParametricFlow:
     """hybrid-tools' 2-D bouncing ball (``bouncing_ball_2d``): ``x = (qx, qy, qx', qy')``,
     ``p = (ux, uy, e, g, h)``; ``flow.defaults`` = ``(0, 0, e, g, h)``."""
-    return _ball(4, 1, 8, (0.0, 0.0, e, g, h), compiled, simultaneity_tol)
+    return _ball(4, 1, 8, (0.0, 0.0, e, g, h), compiled,
+                 SolverOptions(simultaneity_tol=simultaneity_tol))
 
 
 def _chair_legs(ex):
@@ -145,6 +147,6 @@ def controlled_chair(*, mode_damping=5.0, stiffness=400.0, damping=4.0, friction
     if compiled:
         fns = [compile_function(f) for f in fns]
     system = HybridSystem(fns[0], fns[1], n_events=2, dim=8, event_jacobian=fns[2])
-    flow = ParametricFlow(system, 2, simultaneity_tol=simultaneity_tol)
+    flow = ParametricFlow(system, 2, options=SolverOptions(simultaneity_tol=simultaneity_tol))
     flow.x0, flow.defaults = ex.x0.copy(), np.zeros(2)
     return flow

@@ -23,9 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._limits import DERIVATIVE_SIMULTANEITY_TOL
+from .._limits import SIMULATION_SIMULTANEITY_TOL
 from .._support._validate import check_number, check_positive_int, check_real_array
 from ..analysis.system import HybridSystem
+from ..models.integrate.options import DERIVATIVE_OPTIONS, SolverOptions
 
 __all__ = ["ParametricFlow", "Step", "augment", "nominal_orders"]
 
@@ -204,24 +205,29 @@ class ParametricFlow:
         its field's last ``n_params`` entries zero).
     n_params : int
         m: the last m coordinates of ``z`` are the parameters.
-    simultaneity_tol : float
-        Window of the steps' B-derivatives (``flow_bderivative``): events crossed within it
-        form one group, whose piece is chosen by the order the nominal trajectory took.
+    simultaneity_tol : float, optional
+        Window of the steps' B-derivatives (``flow_bderivative``), > 0 (default
+        ``DERIVATIVE_SIMULTANEITY_TOL``, 1e-7): events crossed within it form one group,
+        whose piece is chosen by the order the nominal trajectory took.
     options : SolverOptions, optional
-        Integrator settings of every run.
+        Settings of every run (its ``simultaneity_tol`` that of the B-derivatives; one
+        given as a keyword too must agree with it); the simulations keep
+        ``simulate``'s own ``simultaneity_tol``.
 
     Attributes
     ----------
     dim, n_params : int
         d and m.
+    options : SolverOptions
+        The settings of the B-derivatives (``simultaneity_tol`` set, also as the attribute
+        ``simultaneity_tol``).
     defaults : ndarray, shape (m,), or None
         Parameter values a model builder suggests (:mod:`.models`).
     x0 : ndarray, shape (d,), or None
         A start state a model builder suggests.
     """
 
-    def __init__(self, system, n_params, *, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
-                 options=None):
+    def __init__(self, system, n_params, *, simultaneity_tol=None, options=None):
         if not isinstance(system, HybridSystem):
             raise TypeError(f"system must be a HybridSystem (the augmented model), got "
                             f"{type(system).__name__}")
@@ -230,8 +236,11 @@ class ParametricFlow:
             raise ValueError(f"n_params must be below the system's dimension {system.dim} "
                              f"(state first, then the parameters), got {m}")
         self.system, self.n_params, self.dim = system, m, system.dim - m
-        self.simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol")
-        self.options = options
+        self.options = SolverOptions.resolve(options, DERIVATIVE_OPTIONS,
+                                             simultaneity_tol=simultaneity_tol)
+        self.simultaneity_tol = check_number(self.options.simultaneity_tol, "simultaneity_tol")
+        self._simulation = self.options.with_overrides(
+            simultaneity_tol=SIMULATION_SIMULTANEITY_TOL)
         self.defaults = self.x0 = None
 
     def _z(self, x, p):
@@ -262,7 +271,7 @@ class ParametricFlow:
     def final(self, x, p, dt):
         """The state at ``dt`` from ``x`` under parameters ``p``: shape (d,)."""
         z = self.rate_check(x, p)
-        traj = self.system.simulate(z, check_number(dt, "dt"), options=self.options,
+        traj = self.system.simulate(z, check_number(dt, "dt"), options=self._simulation,
                                     t_eval=())
         return traj.x_final[:self.dim].copy()
 
@@ -284,11 +293,10 @@ class ParametricFlow:
         Step
         """
         z, dt = self.rate_check(x, p), check_number(dt, "dt")
-        D = self.system.flow_bderivative(z, dt, simultaneity_tol=self.simultaneity_tol,
-                                         options=self.options)
+        D = self.system.flow_bderivative(z, dt, options=self.options)
         if any(s > 0 for s in D.group_spreads) or D.stops_at_group:
             # the crossing times within a merged group: the run's own event log
-            events = self.system.simulate(z, dt, options=self.options, t_eval=()).events
+            events = self.system.simulate(z, dt, options=self._simulation, t_eval=()).events
             nominal, ties = nominal_orders(D, events, dt)
         else:  # every group crossed at one stop: no order measurable, ascending
             nominal = [list(range(J.n_events)) for J in D.jumps]

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._limits import DERIVATIVE_SIMULTANEITY_TOL
 from .._support._validate import check_number, check_positive_int
 from ..analysis.system import HybridSystem
-from ..models.integrate.options import SolverOptions
+from ..models.integrate.options import DERIVATIVE_OPTIONS, SolverOptions
 from ._host import FlowHost
 from ._primitive import pl_function
 
 
-def flow(system, t_final, *, direction=None, simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL,
+def flow(system, t_final, *, direction=None, simultaneity_tol=None,
          options=None, rtol=None, atol=None, method=None, max_step=None, cache_size=256):
     """The flow map ``x0 -> Phi(t_final, x0)`` of a :class:`~bderiv.HybridSystem` as a
     JAX function, with the exact B-derivative as its forward mode.
@@ -28,7 +27,7 @@ def flow(system, t_final, *, direction=None, simultaneity_tol=DERIVATIVE_SIMULTA
         point). Needed only where the B-derivative has several pieces (simultaneous
         events, or an event group at the final time); without it reverse mode refuses
         them.
-    simultaneity_tol : float
+    simultaneity_tol : float, optional
         Events within this time of each other form one group of the B-derivative (as for
         :meth:`~bderiv.HybridSystem.flow_bderivative`, default 1e-7). The value itself is
         :meth:`~bderiv.HybridSystem.simulate`'s, with its own (1e-12).
@@ -90,14 +89,14 @@ def flow(system, t_final, *, direction=None, simultaneity_tol=DERIVATIVE_SIMULTA
         raise TypeError(f"system must be a HybridSystem, got {type(system).__name__}")
     d = system.dim
     t_final = check_number(t_final, "t_final")
-    options = SolverOptions.resolve(options, rtol=rtol, atol=atol, method=method,
-                                    max_step=max_step)
-    simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
+    options = SolverOptions.resolve(options, DERIVATIVE_OPTIONS, rtol=rtol, atol=atol,
+                                    method=method, max_step=max_step,
+                                    simultaneity_tol=simultaneity_tol)
     cache_size = check_positive_int(cache_size, "cache_size")
     if direction is not None:
         direction = _check_direction(direction, d)
-    host = FlowHost(system, t_final, options=options, simultaneity_tol=simultaneity_tol,
-                    direction=direction, cache_size=cache_size)
+    host = FlowHost(system, t_final, options=options, direction=direction,
+                    cache_size=cache_size)
     phi = pl_function(host.final_states, host, d, "x0")
     phi.__name__ = phi.__qualname__ = "flow_map"
     phi.__doc__ = f"x0 (..., {d}) -> Phi({t_final:g}, x0) of {system!r} (bderiv.jax.flow)"

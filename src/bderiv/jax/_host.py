@@ -20,6 +20,8 @@ import functools
 
 import numpy as np
 
+from .._limits import SIMULATION_SIMULTANEITY_TOL
+
 #: the exception types of bderiv's refusals, re-raised with the start point named
 _REFUSALS = (ValueError, TypeError, RuntimeError)
 
@@ -57,10 +59,10 @@ class FlowHost:
     system : HybridSystem
     t_final : float
     options : SolverOptions
-        Integrator settings of the simulations (primal and derivative).
-    simultaneity_tol : float
-        For the B-derivative (:meth:`~bderiv.analysis.system.HybridSystem.flow_bderivative`); the
-        primal is :meth:`~bderiv.analysis.system.HybridSystem.simulate` with its own default.
+        Settings of the simulations (primal and derivative); their ``simultaneity_tol`` is
+        the B-derivative's (:meth:`~bderiv.analysis.system.HybridSystem.flow_bderivative`),
+        the primal is :meth:`~bderiv.analysis.system.HybridSystem.simulate` with its own
+        default.
     direction : ndarray, shape (d,), or None
         The tangent whose piece reverse mode transposes (None: only where the
         B-derivative has a single piece).
@@ -72,17 +74,17 @@ class FlowHost:
     >>> from bderiv.examples import chair
     >>> from bderiv.models.integrate.options import SolverOptions
     >>> ex = chair()
-    >>> host = FlowHost(ex.system, ex.t_final, options=SolverOptions(), simultaneity_tol=1e-7,
+    >>> host = FlowHost(ex.system, ex.t_final, options=SolverOptions(simultaneity_tol=1e-7),
     ...                 direction=None, cache_size=8)
     >>> host.final_states(ex.x0[None]).shape
     (1, 6)
     """
 
-    def __init__(self, system, t_final, *, options, simultaneity_tol, direction, cache_size):
+    def __init__(self, system, t_final, *, options, direction, cache_size):
         self.system = system
         self.t_final = t_final
         self.options = options
-        self.simultaneity_tol = simultaneity_tol
+        self.primal = options.with_overrides(simultaneity_tol=SIMULATION_SIMULTANEITY_TOL)
         self.direction = direction
         self.bderivative = functools.lru_cache(maxsize=cache_size)(self._bderivative)
 
@@ -93,7 +95,7 @@ class FlowHost:
         out = np.empty_like(starts)
         for start, rows in _by_start(starts):
             try:
-                traj = self.system.simulate(start, self.t_final, options=self.options)
+                traj = self.system.simulate(start, self.t_final, options=self.primal)
             except _REFUSALS as exc:
                 raise _refused(exc, f"bderiv.jax.flow at x0 = {start.tolist()}") from None
             out[rows] = traj.x_final
@@ -102,8 +104,7 @@ class FlowHost:
     def _bderivative(self, key: bytes):
         start = np.frombuffer(key, dtype=np.float64)
         try:
-            return self.system.flow_bderivative(start, self.t_final, options=self.options,
-                                                simultaneity_tol=self.simultaneity_tol)
+            return self.system.flow_bderivative(start, self.t_final, options=self.options)
         except _REFUSALS as exc:
             raise _refused(exc, f"bderiv.jax.flow, B-derivative at x0 = {start.tolist()}"
                            ) from None

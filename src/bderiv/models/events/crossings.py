@@ -36,6 +36,7 @@ __all__ = [
     "apply_resets",
     "group_tolerance",
     "holds",
+    "Switched",
     "landing",
     "switch",
 ]
@@ -106,6 +107,25 @@ class EventGroup(NamedTuple):
         return tuple(k for k in self.events if not (self.mask_before ^ self.mask_after) >> k & 1)
 
 
+class Switched(NamedTuple):
+    """The switch at a stop (:func:`switch`).
+
+    Attributes
+    ----------
+    group : list of int
+        The events that cross, ascending.
+    new : int
+        The mask after them: the bits of the events that landed on the far side flipped
+        (all of them without resets; :func:`landing`).
+    x_after : ndarray, shape (d,)
+        The state after their resets (:func:`apply_resets`; ``x`` without resets).
+    """
+
+    group: list
+    new: int
+    x_after: np.ndarray
+
+
 def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     """Largest ``|h_k(x)|`` at which event k counts as being at the stop ``x``, from the
     state's error alone: shape (n,).
@@ -134,7 +154,7 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     return out
 
 
-def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
+def switch(system, fired, mask, x, t, options, err, stop=None) -> Switched:
     """The events that cross at the stop ``(t, x)`` and the mask after them.
 
     Parameters
@@ -147,10 +167,11 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
         Region mask before the stop.
     x : ndarray, shape (d,)
     t : float
-    simultaneity_tol : float
-        Events at ``x`` to within their window (:func:`bderiv.models.events.locate.windows`)
-        are switched with the located ones; those whose time is known only to more than
-        this were settled before (:func:`bderiv.models.events.locate.settle`). Events
+    options : SolverOptions
+        The run's settings. Events at ``x`` to within their window
+        (:func:`bderiv.models.events.locate.windows`) are switched with the located ones;
+        those whose time is known only to more than its ``simultaneity_tol`` were settled
+        before (:func:`bderiv.models.events.locate.settle`). Events
         within this time of crossing but measurably later are not switched: each stops the
         integrator at its own time, so the state is the true one (a flow map merges such
         groups: :func:`bderiv.analysis.assembly.flow_map_along`).
@@ -164,13 +185,8 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
 
     Returns
     -------
-    group : list of int
-        The events that cross, ascending.
-    new : int
-        The mask after them: the bits of the events that landed on the far side flipped
-        (all of them without resets; :func:`landing`).
-    x_after : ndarray, shape (d,)
-        The state after their resets (:func:`apply_resets`; ``x`` without resets).
+    Switched
+        ``group``, ``new``, ``x_after``.
 
     Raises
     ------
@@ -183,11 +199,11 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
     """
     n = system.n_events
     if stop is None:
-        stop = examine(system, mask, x, err, fired, simultaneity_tol)
+        stop = examine(system, mask, x, err, fired, options)
     sign, h, Dh, F, rate, window, classes = stop
     # crossed, located or not (two surfaces crossed in one step): always switched, so
     # none is ever lost (bderiv.models.events.locate.classify); events within
-    # simultaneity_tol but measurably later are switched at their own time
+    # options.simultaneity_tol but measurably later are switched at their own time
     group = classes.group
     flags = flags_of(group, n)
     _check_crossings(group, flags, Dh, F, mask, "before", t, sign, n)
@@ -195,10 +211,10 @@ def switch(system, fired, mask, x, t, simultaneity_tol, err, stop=None):
         new = mask ^ sum(1 << k for k in group)
         _check_crossings(group, flags, Dh, system.eval_field(x, new), new, "after", t, sign,
                          n)
-        return group, new, x
+        return Switched(group, new, x)
     x_after = apply_resets(system, group, mask, x, t, RESET_MISMATCH * float(err.max()))
     _check_jumps(sign * system.eval_events(x_after), group, window, t)
-    return group, landing(system, group, mask, x_after, window, t), x_after
+    return Switched(group, landing(system, group, mask, x_after, window, t), x_after)
 
 
 def landing(system, group, mask, x_after, window, t=None):

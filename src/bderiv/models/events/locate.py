@@ -203,13 +203,15 @@ class Stop(NamedTuple):
     classes: Classes
 
 
-def examine(system, mask, x, err, fired, simultaneity_tol) -> Stop:
+def examine(system, mask, x, err, fired, options) -> Stop:
     """The :class:`Stop` at ``x`` in region ``mask``: the local view, the windows from the
-    state's error bound ``err`` (d,) and the located events ``fired``, and the classes."""
+    state's error bound ``err`` (d,) and the located events ``fired``, and the classes (by
+    the ``simultaneity_tol`` of ``options``, the run's
+    :class:`~bderiv.models.integrate.options.SolverOptions`)."""
     sign, h, Dh, F, rate = local_view(system, mask, x)
     window, _ = windows(Dh, rate, err, fired)
     return Stop(sign, h, Dh, F, rate, window,
-                classify(h, rate, window, fired, simultaneity_tol))
+                classify(h, rate, window, fired, options.simultaneity_tol))
 
 
 def tightened(options):
@@ -245,8 +247,7 @@ class Settled(NamedTuple):
     stop: Stop | None
 
 
-def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
-           integrate=None) -> Settled:
+def settle(system, mask, sol, options, scale, carried, integrate=None) -> Settled:
     """The stretch ``sol``, or the same stretch integrated more tightly when events at its
     stop are undecided; with the state's error bound and the :class:`Stop` at its end.
 
@@ -265,9 +266,8 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
         The stretch's region.
     sol : OdeResult
         The stretch from solve_ivp (one terminal event function per event, in order).
-    simultaneity_tol : float
     options : SolverOptions
-        The tolerances ``sol`` was integrated with.
+        The tolerances ``sol`` was integrated with, and the run's ``simultaneity_tol``.
     scale : ndarray, shape (d,)
         Largest ``|x_i|`` of the run before the stretch.
     carried : ndarray, shape (d,)
@@ -289,7 +289,7 @@ def settle(system, mask, sol, simultaneity_tol, options, scale, carried,
         fired = [k for k in range(n) if sol.t_events[k].size]
         if sol.status != 1 or not fired:
             return Settled(sol, err, grown, fired, None)
-        stop = examine(system, mask, sol.y[:d, -1], err, fired, simultaneity_tol)
+        stop = examine(system, mask, sol.y[:d, -1], err, fired, options)
         return Settled(sol, err, grown, fired, stop)
 
     first = decide(sol, options)

@@ -6,13 +6,14 @@ events' values, gradients and rates in the local orientation of a region
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
 from ..._support._validate import frozen
 from ..compiled import rules
 
-__all__ = ["StopCalls", "local_rates", "local_view", "orientation"]
+__all__ = ["LocalView", "StopCalls", "local_rates", "local_view", "orientation"]
 
 
 @lru_cache(maxsize=4096)
@@ -122,13 +123,11 @@ class StopCalls:
         return _local_view(self, mask, x)
 
 
-def local_view(system, mask, x):
-    """Event values, gradients, field and rates at ``x`` in the local orientation of
-    region ``mask`` (an event whose bit is set has its function negated); through
-    ``system``'s own ``local_view`` when it keeps them (:class:`StopCalls`).
+class LocalView(NamedTuple):
+    """The events at a state in the local orientation of a region (:func:`local_view`).
 
-    Returns
-    -------
+    Attributes
+    ----------
     sign : ndarray, shape (n,)
     h : ndarray, shape (n,)
     Dh : ndarray, shape (n, d)
@@ -136,6 +135,23 @@ def local_view(system, mask, x):
         The field of region ``mask``.
     rate : ndarray, shape (n,)
         ``Dh @ F``.
+    """
+
+    sign: np.ndarray
+    h: np.ndarray
+    Dh: np.ndarray
+    F: np.ndarray
+    rate: np.ndarray
+
+
+def local_view(system, mask, x) -> LocalView:
+    """Event values, gradients, field and rates at ``x`` in the local orientation of
+    region ``mask`` (an event whose bit is set has its function negated); through
+    ``system``'s own ``local_view`` when it keeps them (:class:`StopCalls`).
+
+    Returns
+    -------
+    LocalView
     """
     if isinstance(system, StopCalls):
         return system.local_view(mask, x)
@@ -146,7 +162,7 @@ def _local_view(system, mask, x):
     sign = orientation(int(mask), system.n_events)
     F = system.eval_field(x, mask)
     Dh, rate = local_rates(sign, system.eval_event_jacobian(x), F)
-    return sign, sign * system.eval_events(x), Dh, F, rate
+    return LocalView(sign, sign * system.eval_events(x), Dh, F, rate)
 
 
 def local_rates(sign, J, F):

@@ -51,6 +51,7 @@ import numpy as np
 from ..._support._progress import SimulationProgress, resolve_progress
 from ..._support._validate import check_number, check_points, check_positive_int
 from ..compiled import Cancelled, stopped_by
+from .options import check_options
 from .run import STEPS, compiled_stops, run, stops_compile
 
 __all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count"]
@@ -113,7 +114,7 @@ def worker_count(m: int) -> int:
     return max(1, min(m, numba.config.NUMBA_NUM_THREADS))
 
 
-def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups,
+def run_many(system, X0, lead, t_final, *, options, max_groups,
              section=None, progress=None, record=STEPS) -> Trajectories:
     """:func:`~bderiv.models.integrate.run.run` from every row of ``X0``, on
     :func:`worker_count` threads when :func:`threaded` (else one after the other).
@@ -126,7 +127,7 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
         Checked start states (:func:`check_states`).
     lead : tuple
         The leading shape the results take (``m`` = its product).
-    t_final, simultaneity_tol, options, max_groups, section, record
+    t_final, options, max_groups, section, record
         As for :func:`~bderiv.models.integrate.run.run` (checked here once; ``record``
         by the caller).
     progress : None, bool or callable ``progress(done, total)``
@@ -145,13 +146,13 @@ def run_many(system, X0, lead, t_final, *, simultaneity_tol, options, max_groups
         first failing run in the order of ``X0``).
     """
     t_final = check_number(t_final, "t_final")
-    simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
+    check_options(options)
     max_groups = check_positive_int(max_groups, "max_groups")
     m = X0.shape[0]
 
     def one(i):
-        return run(system, X0[i].copy(), t_final, simultaneity_tol=simultaneity_tol,
-                   options=options, max_groups=max_groups, section=section, record=record)
+        return run(system, X0[i].copy(), t_final, options=options, max_groups=max_groups,
+                   section=section, record=record)
 
     watch = None
     if progress is None:

@@ -1,5 +1,11 @@
-"""The integrator settings of a run (:class:`SolverOptions`): tolerances, method and step
-limit as one frozen value, checked once, with their one set of defaults."""
+"""The settings of a run (:class:`SolverOptions`): tolerances, method, step limit and
+``simultaneity_tol`` as one frozen value, checked once at the public boundary and passed as
+one value through every layer below it (the run, its stops, the flow and return maps).
+
+``simultaneity_tol``'s default depends on the use (``bderiv._limits``: simulation,
+derivative, finite differences): a value that leaves it None takes the default of the
+function it is given to (:meth:`SolverOptions.resolve`); the layers below the public
+functions receive it set."""
 
 from __future__ import annotations
 
@@ -9,18 +15,25 @@ from functools import lru_cache
 import numpy as np
 from scipy.integrate import OdeSolver
 
-from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL
+from ..._limits import (
+    DEFAULT_ATOL,
+    DEFAULT_RTOL,
+    DERIVATIVE_SIMULTANEITY_TOL,
+    SIMULATION_SIMULTANEITY_TOL,
+)
 from ..._numerics import MIN_RTOL
 from ..._support._validate import check_number
 
-__all__ = ["SOLVE_IVP_METHODS", "SolverOptions"]
+__all__ = ["DERIVATIVE_OPTIONS", "SIMULATION_OPTIONS", "SOLVE_IVP_METHODS", "SolverOptions",
+           "check_options"]
 
 #: the methods of :func:`scipy.integrate.solve_ivp` by name.
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 
 @dataclass(frozen=True)
 class SolverOptions:
-    """Settings of :func:`scipy.integrate.solve_ivp`, validated, with one set of defaults.
+    """Settings of a run: those of :func:`scipy.integrate.solve_ivp` and
+    ``simultaneity_tol``, validated, with one set of defaults.
 
     Parameters
     ----------
@@ -32,6 +45,10 @@ class SolverOptions:
         A solve_ivp method name (``SOLVE_IVP_METHODS``) or an ``OdeSolver`` subclass.
     max_step : float
         Largest step, > 0 (``inf``: no limit).
+    simultaneity_tol : float or None
+        Events within this time (first order) of crossing at a stop switch with it; the
+        flow and return maps merge groups this close (finite, >= 0). None: the default of
+        the function the value is given to (:meth:`resolve`).
 
     Examples
     --------
@@ -47,6 +64,7 @@ class SolverOptions:
     atol: float = DEFAULT_ATOL
     method: object = "DOP853"
     max_step: float = np.inf
+    simultaneity_tol: float | None = None
 
     def __post_init__(self):
         rtol = check_number(self.rtol, "rtol")
@@ -60,6 +78,9 @@ class SolverOptions:
         object.__setattr__(
             self, "max_step", check_number(self.max_step, "max_step", allow_inf=True)
         )
+        if self.simultaneity_tol is not None:
+            object.__setattr__(self, "simultaneity_tol", check_number(
+                self.simultaneity_tol, "simultaneity_tol", strict=False))
         method = self.method
         known = isinstance(method, str) and method in SOLVE_IVP_METHODS
         if not known and not (isinstance(method, type) and issubclass(method, OdeSolver)):
@@ -77,21 +98,49 @@ class SolverOptions:
     def resolve(cls, options=None, default=None, **settings) -> SolverOptions:
         """``options`` (or ``default``, or the defaults) with keyword ``settings`` applied.
 
-        The public methods take both an ``options`` object and the keywords ``rtol``,
-        ``atol``, ``method``, ``max_step``; a keyword that is not None wins.
+        The public functions take both an ``options`` value and the keywords ``rtol``,
+        ``atol``, ``method``, ``max_step``, ``simultaneity_tol`` (None: not given). A
+        keyword given with ``options`` must agree with the value ``options`` holds
+        (ValueError naming both); ``simultaneity_tol`` left None takes ``default``'s (the
+        function's own).
         """
         if options is not None and not isinstance(options, cls):
             raise TypeError(f"options must be a SolverOptions, got {type(options).__name__}")
         base = options if options is not None else (default or _defaults(cls))
-        for value in settings.values():
-            if value is not None:
-                return base.with_overrides(**settings)
-        return base
+        given = {key: value for key, value in settings.items() if value is not None}
+        resolved = base.with_overrides(**given)  # the keywords checked
+        for key in given if options is not None else ():
+            held = getattr(options, key)
+            if held is not None and getattr(resolved, key) != held:
+                raise ValueError(
+                    f"{key}={given[key]!r} and options.{key}={held!r} disagree: pass the "
+                    f"setting once, as a keyword or in options"
+                )
+        if resolved.simultaneity_tol is None and default is not None:
+            resolved = resolved.with_overrides(simultaneity_tol=default.simultaneity_tol)
+        return resolved
 
     def solve_ivp_kwargs(self) -> dict:
         """Keyword arguments for :func:`scipy.integrate.solve_ivp`."""
         return {"rtol": self.rtol, "atol": self.atol, "method": self.method,
                 "max_step": self.max_step}
+
+
+#: the settings of a simulation (``simulate``, ``simulate_many``) and of the
+#: B-derivatives along trajectories (flow and return maps): the defaults with each use's
+#: own ``simultaneity_tol`` (``bderiv._limits``).
+SIMULATION_OPTIONS = SolverOptions(simultaneity_tol=SIMULATION_SIMULTANEITY_TOL)
+DERIVATIVE_OPTIONS = SolverOptions(simultaneity_tol=DERIVATIVE_SIMULTANEITY_TOL)
+
+
+def check_options(options) -> None:
+    """Refuse what a layer below the public functions cannot run with: ``options`` not a
+    :class:`SolverOptions`, or one whose ``simultaneity_tol`` is not set (the public
+    functions set their default: :meth:`SolverOptions.resolve`)."""
+    if not isinstance(options, SolverOptions):
+        raise TypeError(f"options must be a SolverOptions, got {type(options).__name__}")
+    if options.simultaneity_tol is None:
+        raise ValueError("options.simultaneity_tol must be set (a number >= 0), got None")
 
 
 @lru_cache(maxsize=8)

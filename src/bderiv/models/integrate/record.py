@@ -15,13 +15,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from dataclasses import field as dc_field
+from typing import NamedTuple
 
 import numpy as np
 
 from ..._support._tables import human_bytes
 from ..._support._validate import check_real_array, check_record
 
-__all__ = ["ENDS", "STEPS", "RunLog", "check_t_eval", "dense_state"]
+__all__ = ["ENDS", "STEPS", "RunLog", "Samples", "check_t_eval", "dense_state"]
 
 #: what a run records (``run``'s ``record``, besides an array of times): every accepted
 #: step, or the start and the end only
@@ -29,6 +30,15 @@ STEPS, ENDS = "steps", "ends"
 #: the words of a refusal of the record of every step: what to pass instead
 _INSTEAD = ("pass t_eval (the times to sample: a bounded record), t_eval=() for the final "
             "state and the events only, or a shorter t_final")
+
+class Samples(NamedTuple):
+    """What a run kept of its states (:meth:`RunLog.finish`): the Trajectory's ``t``
+    (k,), ``x`` (k, d) and ``masks`` (k,)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    masks: np.ndarray
+
 
 @dataclass
 class RunLog:
@@ -92,11 +102,11 @@ class RunLog:
             self.masks.append(np.full(here.size, mask, dtype=np.int64))
             self.taken = stop
 
-    def finish(self, x0, now):
-        """``(t, x, masks)`` of the Trajectory."""
+    def finish(self, x0, now) -> Samples:
+        """The :class:`Samples` of the Trajectory."""
         if self.record is ENDS:
-            return (np.array([0.0, now.t]), np.array([x0, now.x]),
-                    np.array([self.first_mask, now.mask], dtype=np.int64))
+            return Samples(np.array([0.0, now.t]), np.array([x0, now.x]),
+                           np.array([self.first_mask, now.mask], dtype=np.int64))
         if isinstance(self.record, np.ndarray):  # times at the end after the last stretch
             stop = int(np.searchsorted(self.record, now.t, side="right"))
             if stop > self.taken:
@@ -105,8 +115,9 @@ class RunLog:
                 self.x.append(np.tile(now.x, (here.size, 1)))
                 self.masks.append(np.full(here.size, now.mask, dtype=np.int64))
             if not self.t:
-                return np.empty(0), np.empty((0, x0.size)), np.empty(0, dtype=np.int64)
-        return _joined(self.t), _joined(self.x), _joined(self.masks)
+                return Samples(np.empty(0), np.empty((0, x0.size)),
+                               np.empty(0, dtype=np.int64))
+        return Samples(_joined(self.t), _joined(self.x), _joined(self.masks))
 
 
 def dense_state(sol, times, d):

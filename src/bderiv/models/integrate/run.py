@@ -5,13 +5,15 @@
 ``eval_event_jacobian``, ``eval_field_jacobian``, ``start_mask``, ``n_events``, ``dim``)
 from region to region with :func:`scipy.integrate.solve_ivp`. Each stretch stops at the
 first event crossing, upward or downward (a surface may be crossed any number of times);
-the events that crossed, and those within ``simultaneity_tol`` (in time) of crossing,
+the events that crossed, and those within the options' ``simultaneity_tol`` (in time) of
+crossing,
 switch together as one :class:`~bderiv.models.events.crossings.EventGroup`
 (:func:`bderiv.models.events.crossings.switch`
 checks each crossing and that every event of a group is at the stop). With ``section``
 the run ends at the first upward crossing of a Poincare section after the start.
-:class:`~bderiv.models.integrate.options.SolverOptions` holds the integrator settings with
-their one set of defaults; a run's result is a
+:class:`~bderiv.models.integrate.options.SolverOptions` holds the run's settings (the
+integrator's and ``simultaneity_tol``), one value passed down to the stops; a run's result
+is a
 :class:`~bderiv.models.integrate.trajectory.Trajectory`.
 
 What a run records is asked for (``record``): every accepted step (``STEPS``, what
@@ -46,7 +48,7 @@ from ..events.stopcalls import StopCalls, local_view
 from ..events.zeno import ImpactWatch
 from ..readiness import integrator_ready
 from .compiled_path import CompiledStretches
-from .options import SolverOptions
+from .options import check_options
 from .record import ENDS, STEPS, RunLog, check_t_eval
 from .scipy_path import ScipyStretches
 from .trajectory import Trajectory
@@ -115,8 +117,8 @@ def stretches_for(system, options, section=None, watch=None, stops=None):
     return CompiledStretches(system, compiled_section, stops)
 
 
-def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=False,
-        section=None, max_groups=MAX_GROUPS, record=STEPS):
+def run(system, x0, t_final, *, options, variational=False, section=None,
+        max_groups=MAX_GROUPS, record=STEPS):
     """Integrate ``system`` from ``x0`` at time 0 to ``t_final`` with event detection.
 
     Parameters
@@ -127,9 +129,10 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
         Checked start point, not on an event surface.
     t_final : float
         Final time, > 0 (with ``section``: the longest time to wait for the return).
-    simultaneity_tol : float
-        Events within this time (first order) of crossing at a stop switch with it.
-    options : SolverOptions, optional
+    options : SolverOptions
+        The run's settings, ``simultaneity_tol`` set (the public functions set their
+        default): events within this time (first order) of crossing at a stop switch
+        with it.
     variational : bool
         Also integrate the variational equations (fills ``Trajectory.linear``).
     section : Section, optional
@@ -165,9 +168,8 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     if getattr(system, "on_compiled_path", False):
         integrator_ready()  # the compiled integrator, or scipy while it compiles
     t_final = check_number(t_final, "t_final")
-    simultaneity_tol = check_number(simultaneity_tol, "simultaneity_tol", strict=False)
     max_groups = check_positive_int(max_groups, "max_groups")
-    options = SolverOptions() if options is None else options
+    check_options(options)
     d = system.dim
     log, loop = RunLog(record), None  # the Python loop's own state: made for its first stretch
     # samples at given times are taken on the dense output of the Python loop's stretches
@@ -175,7 +177,7 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     # the start's region (mask -1) from the signs of its events: by the compiled run, or
     # by start_mask before the first stretch in Python (which refuses a start on a surface)
     now = _Now(0.0, x0, -1, np.abs(x0), np.zeros(d))
-    settings = (t_final, simultaneity_tol, options, variational, section, max_groups)
+    settings = (t_final, options, variational, section, max_groups)
     impacts = ImpactWatch(system, t_final)  # bounces that accumulate: refused
     while not now.ended:
         cancel_point()  # a run of a batch on threads stops with its batch
@@ -199,14 +201,13 @@ def run(system, x0, t_final, *, simultaneity_tol, options=None, variational=Fals
     final, times = None, ()
     if variational and section is None:
         stops = StopCalls(system) if loop is None else loop.stops
-        final, times = _final_group(stops, log.groups, now.mask, now.x, t_final,
-                                    simultaneity_tol)
+        final, times = _final_group(stops, log.groups, now.mask, now.x, t_final, options)
     t, x, masks = log.finish(x0, now)
     return Trajectory(t=t, x=x, masks=masks, events=tuple(log.records),
                       groups=tuple(log.groups), x_final=now.x, mask_final=now.mask,
                       linear=tuple(log.linear), final_group=final,
                       final_pending=bool(times), final_times=times,
-                      simultaneity_tol=simultaneity_tol)
+                      simultaneity_tol=options.simultaneity_tol)
 
 
 #: the regions of a run without sensitivity (no field Jacobian to check)
@@ -261,8 +262,8 @@ def compiled_stops(system, section) -> bool:
     return stops_compile(system) and system.event_jacobian_checked()
 
 
-def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, variational,
-                        section, max_groups):
+def _compiled_stretches(system, log, now, t_final, options, variational, section,
+                        max_groups):
     """The stretches from ``now`` that the compiled run decides, recorded in ``log``;
     ``now`` moved to their end."""
     model = system.compiled
@@ -270,7 +271,7 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
                             else (True, _NO_MASKS))
     out = model.run_stretches(
         now.t, now.x, now.mask, now.scale, now.err, t_final, rtol=options.rtol,
-        atol=options.atol, max_step=options.max_step, simultaneity_tol=simultaneity_tol,
+        atol=options.atol, max_step=options.max_step, simultaneity_tol=options.simultaneity_tol,
         variational=variational, all_checked=all_checked, checked=checked,
         groups_left=max_groups - len(log.groups),
         section=None if section is None else section.compiled())
@@ -296,8 +297,8 @@ def _compiled_stretches(system, log, now, t_final, simultaneity_tol, options, va
     now.ended, now.returned = out.code == ENDED, out.returned
 
 
-def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
-                    variational, section, max_groups):
+def _python_stretch(system, loop, log, now, t_final, options, variational, section,
+                    max_groups):
     """One stretch from ``now`` and its stop, in Python (``loop``: a :class:`_PythonLoop`),
     recorded in ``log``; ``now`` moved to its end (after the group's switch)."""
     d, n = system.dim, system.n_events
@@ -306,7 +307,7 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
         now.mask = system.start_mask(now.x)
     sol = stretches(now.x, now.t, t_final, now.mask, options, variational)
     again = partial(stretches, now.x, now.t, t_final, now.mask, variational=variational)
-    settled = settle(stops, now.mask, sol, simultaneity_tol, options, now.scale, now.err,
+    settled = settle(stops, now.mask, sol, options, now.scale, now.err,
                      again if variational else None)
     sol, now.err, now.scale, fired = settled.sol, settled.err, settled.scale, settled.fired
     returned = section is not None and sol.t_events[n].size
@@ -320,8 +321,7 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
     if sol.status == 0:
         now.ended = True
         return
-    group, new, x_after = switch(stops, fired, mask, x, t, simultaneity_tol, now.err,
-                                 settled.stop)
+    group, new, x_after = switch(stops, fired, mask, x, t, options, now.err, settled.stop)
     # every event on the side its bit says, or within its window of the surface
     h_after = stops.eval_events(x_after)
     check_sides(h_after, new, settled.stop.window, t)
@@ -340,20 +340,22 @@ def _python_stretch(system, loop, log, now, t_final, simultaneity_tol, options,
     now.ended = t >= t_final
 
 
-def _final_group(system, groups, mask, x, t_final, simultaneity_tol):
-    """The event group within ``simultaneity_tol`` of ``t_final`` and, when it is pending
+def _final_group(system, groups, mask, x, t_final, options):
+    """The event group within ``options.simultaneity_tol`` of ``t_final`` and, when it is pending
     (events about to cross after ``t_final``), the times at which its events cross (first
     order); ``(None, ())`` when there is none. Pending events come before the last switched
     group within the tolerance: the flow map merges the two
     (:func:`bderiv.analysis.assembly.flow_map_along`)."""
-    _, h, _, _, rate = local_view(system, int(mask), x)
-    pending = pending_at_final_time(h, rate, simultaneity_tol)
+    view = local_view(system, int(mask), x)
+    h, rate = view.h, view.rate
+    tol = options.simultaneity_tol
+    pending = pending_at_final_time(h, rate, tol)
     if pending:
         bits = sum(1 << k for k in pending)
         group = EventGroup(t_final, tuple(pending), mask, mask ^ bits, x.copy(), x.copy(),
                            system.eval_event_jacobian(x))
         return group, tuple(t_final - float(h[k] / rate[k]) for k in pending)
-    if groups and t_final - groups[-1].time <= simultaneity_tol:
+    if groups and t_final - groups[-1].time <= tol:
         return groups[-1], ()
     return None, ()
 
