@@ -19,7 +19,7 @@ import functools
 
 import numpy as np
 
-from .._kernels import _core
+from .._kernels import _core, linear
 from .._limits import MAX_PIECES
 from .._support._batch import evaluate, is_dask_array
 from .._support._errors import QueryError
@@ -493,8 +493,8 @@ def _stage(L, X, transpose: bool = False) -> np.ndarray:
     """
     M = np.ascontiguousarray(L if transpose else L.T)  # the kernel combines rows of M
     out = np.empty((X.shape[0], M.shape[1]))
-    _core.linear(_core.LinearTables(M, M), np.ascontiguousarray(X), (out,), False,
-                 launch=_core.launch_queries(1, X.shape[1]))
+    linear.linear(linear.LinearTables(M, M), np.ascontiguousarray(X), (out,), False,
+                  launch=_core.launch_queries(1, X.shape[1]))
     return out
 
 
