@@ -89,7 +89,7 @@ def _apply_block(tables, V, outs, start, stop, inverse):
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
         chain_group(tables, V, q0, pn, inverse, tables.check != 0, status, scratch)
-        products(tables.ABp, scratch[1], 0, pn, 1.0 if inverse else -1.0, V, q0, out, q0)
+        products(tables.ABp, scratch[1], np.int64(0), pn, 1.0 if inverse else -1.0, V, q0, out, q0)
 
 
 @njit(**JIT)

@@ -256,6 +256,7 @@ def group_scratch(tables):
 def chain_group(tables, V, q0, pn, inverse, check, status, scratch):
     """Event values, then the chains, of the queries ``V[q0:q0 + pn]`` (pn <= GROUP)."""
     G, TS, ORD, work, zeros = scratch
-    products(tables.DhTp, V, q0, pn, -1.0 if inverse else 1.0, zeros, 0, G, 0)  # s Dh u
+    zero = np.int64(0)
+    products(tables.DhTp, V, q0, pn, -1.0 if inverse else 1.0, zeros, zero, G, zero)  # s Dh u
     for p0 in range(0, pn, LOCK):
         _chains(tables, G, p0, min(LOCK, pn - p0), inverse, check, TS, ORD, status, q0, work)
