@@ -70,6 +70,8 @@ def pytest_runtest_protocol(item, nextitem):
 
 
 def pytest_runtest_logfinish(nodeid, location):
+    if "cpu" not in _state:  # the controller of an xdist run: its workers record
+        return
     _per_test.append((nodeid, time.process_time() - _state["cpu"],
                       _state["compile"] - _state["at"], _state["wall"],
                       time.time() - _state["wall"]))
