@@ -5,17 +5,17 @@ instead).
 A block gets ``(tables, shape)``: the :class:`LaneTables` of the engine and the
 :class:`LaneShape` its drivers are compiled for (:func:`kernels`): the widths ``wh`` and
 ``wx`` of the event values' and of the position's vectors (so d <= 64 here:
-``_engines.dense`` runs the plain blocks above) and ``carry`` (1: the chain carries the
-position, see :func:`_assemble`; 0: it records its steps). A query is one row of ``V``
-(m, d).
+``_engines.dense`` runs the plain blocks above), ``far`` (1 when the records exceed the
+caches: see :func:`_step`) and ``carry`` (1: the chain carries the position, see
+:func:`_assemble`; 0: it records its steps). A query is one row of ``V`` (m, d).
 
 The sizes are an int64 array, ``LaneTables.dims``, not four int fields: on two threads
 the int fields were slower (measured: docs/benchmarks.md, "Kernel design choices,
-measured"). Two flags ride in it as run-time values, so that a width pair compiles one
-driver per operation: ``far`` (1 when the records exceed the caches: see :func:`_step`)
-and ``check`` (1: apply tests the query band, see :func:`_lane_apply_block`; 0 in the
-tables of :func:`unchecked`). As compile-time values each doubled the drivers of a width
-pair; as branches they are taken the same way for a whole batch.
+measured"). The flag ``check`` rides in it as a run-time value (1: apply tests the query
+band, see :func:`_lane_apply_block`; 0 in the tables of :func:`unchecked`), so that apply
+compiles once for both; compiled in, it doubled apply's drivers of a width pair. ``far``
+stays compiled in: as a run-time branch in each step the chains beyond the caches ran
+13 to 27 % slower (``benchmarks/ab.py``, n = 20).
 
 The lanes select with arithmetic of their own, not the scalar chain's (:mod:`.selection`,
 run by :mod:`.dense`): actual coordinates (h = Dh x(t), one record row read per step), a
@@ -72,9 +72,9 @@ class LaneTables(NamedTuple):
     DhTp: np.ndarray
     #: (n, 8 dc) Dh, each row padded with zeros
     Dhp: np.ndarray
-    #: int64 [n, d, nc, dc, far, check]: the events, the dimension, vectors of 8 per event
-    #: row (``8 nc >= n``) and per position (``8 dc >= d``), and the flags ``far`` and
-    #: ``check`` (:data:`FAR`, :data:`CHECK`); an array, see the module docstring
+    #: int64 [n, d, nc, dc, check]: the events, the dimension, vectors of 8 per event row
+    #: (``8 nc >= n``) and per position (``8 dc >= d``), and the flag :data:`CHECK`; an
+    #: array, see the module docstring
     dims: np.ndarray
 
 
@@ -85,18 +85,19 @@ class LaneShape(NamedTuple):
     wh: tuple
     #: the width of the position's vectors, 8 dc
     wx: tuple
+    #: 1: prefetch the next record (records beyond the caches)
+    far: tuple
     #: 1: the chain carries the position; 0: it records its steps
     carry: tuple
 
 
-#: where ``LaneTables.dims`` holds the flags: 1: prefetch the next record (records beyond
-#: the caches); 1: apply tests the query band
-FAR, CHECK = 4, 5
+#: where ``LaneTables.dims`` holds the flag ``check`` (1: apply tests the query band)
+CHECK = 4
 
 
-def lane_tables(R, DhTp, Dhp, n: int, d: int, nc: int, dc: int, far: int) -> LaneTables:
+def lane_tables(R, DhTp, Dhp, n: int, d: int, nc: int, dc: int) -> LaneTables:
     """The :class:`LaneTables` of a dense table, read-only, apply checking the band."""
-    dims = np.array([n, d, nc, dc, far, 1], dtype=np.int64)
+    dims = np.array([n, d, nc, dc, 1], dtype=np.int64)
     return frozen_tables(LaneTables(R, DhTp, Dhp, dims))
 
 
@@ -125,9 +126,8 @@ def _step(R, h, x, t, b, out, wh, wx, far, carry):
     (they get dt = +inf, so no entry of h is ever overwritten). If no candidate equals the smallest
     time (a time overflowed to inf or NaN: the row is refused as non-finite) the first
     candidate is taken, so that k is always a pending event. Returns (h, x, t, b) after
-    the event and k; when ``far`` (records beyond the caches; a run-time int, the same for
-    every step of a batch), fetches the lines of the next record it will read now (they are
-    read after the other lanes' steps).
+    the event and k; when ``far`` (records beyond the caches), fetches the lines of the next
+    record it will read now (they are read after the other lanes' steps).
     """
     og = vec.value(wh)
     dt = vec.where_bits(vec.mul(h, vec.load(R, b, 0, wh)), out, np.inf)
@@ -138,7 +138,7 @@ def _step(R, h, x, t, b, out, wh, wx, far, carry):
     if vec.value(carry):
         x = vec.fma(vec.splat(best, wx), vec.load(R, b, 2 * og, wx), x)
     b ^= 1 << k
-    if far:
+    if vec.value(far):
         for c in range((2 * og + vec.value(carry) * vec.value(wx)) // 8):
             vec.prefetch(R, b, 8 * c)
     return h, x, t + best, b, k
@@ -171,8 +171,7 @@ def _lanes(args, V, q0, last, inverse, X, T, order, times):
     """
     tables, shape = args
     R, DhTp, n, d = tables.R, tables.DhTp, tables.dims[0], tables.dims[1]
-    wh, wx, carry = shape.wh, shape.wx, shape.carry
-    far = tables.dims[FAR]
+    wh, wx, far, carry = shape.wh, shape.wx, shape.far, shape.carry
     s = -1.0 if inverse else 1.0
     # not candidates: the events that happened (forwards) or did not (backwards), and the
     # padding lanes: out = (b ^ flip) | pad
@@ -340,16 +339,16 @@ def _lane_tangent_block(args, V, outs, start, stop, transpose):
 
 
 @functools.cache
-def kernels(wh: int, wx: int):
+def kernels(wh: int, wx: int, far: int):
     """The batches ``(apply, event_times, tangents)`` compiled for vectors of ``wh`` and
-    ``wx`` lanes; each takes a :class:`LaneTables` and outs ``(out,)`` (M(V) or M^-1(V)),
-    ``(times, orders)``, ``(out, T)`` (M_sigma(V) T or its transpose). Only apply carries
+    ``wx`` lanes and ``far``; each takes a :class:`LaneTables` and outs ``(out,)`` (M(V) or
+    M^-1(V)), ``(times, orders)``, ``(out, T)`` (M_sigma(V) T or its transpose). Only apply carries
     the position along the chain (``carry``), and only while it fits the registers; the
     others record the steps. ``apply`` gives NaN rows for groups outside the query band
     unless the tables are :func:`unchecked` (see :func:`_lane_apply_block`)."""
 
     def statics(carry):
-        return LaneShape(vec.static(wh), vec.static(wx), vec.static(carry))
+        return LaneShape(vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry))
     return (batch(_lane_apply_block, statics=statics(int(wx <= WIDE_X))),
             batch(_lane_times_block, statics=statics(0)),
             batch(_lane_tangent_block, statics=statics(0)))

@@ -91,8 +91,8 @@ class DenseEngine(Engine):
         if PLAIN or d > lanes.MAX_D:
             return None, None, plain
         return (lanes.lane_tables(self.R, _tables.padded(self.Dh.T, 8 * nc),
-                                  _tables.padded(self.Dh, 8 * dc), n, d, nc, dc, self._far),
-                lanes.kernels(8 * nc, 8 * dc), plain)
+                                  _tables.padded(self.Dh, 8 * dc), n, d, nc, dc),
+                lanes.kernels(8 * nc, 8 * dc, self._far), plain)
 
     @property
     def _lanes(self):
