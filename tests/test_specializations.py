@@ -81,7 +81,7 @@ def test_writeable_and_read_only_inputs_compile_each_kernel_once():
     names = {name for name, e in table.items() if e["signatures"]}
     for kernel in ("rules:state_error", "rules:windows", "rules:classify", "rules:tolerances",
                    "rules:start_dip_steps", "rules:wrong_side", "rules:clearly_positive",
-                   "_core:piece_from_corners", "scaling:_scale_rows_serial"):
+                   "linear:piece_from_corners", "scaling:_scale_rows_serial"):
         assert any(name.endswith(kernel) for name in names), kernel
 
 
