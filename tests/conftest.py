@@ -100,29 +100,62 @@ def _warm_ups():
     rng = np.random.default_rng(0)
     small, large = rng.standard_normal((3, 3)), rng.standard_normal((5000, 3))
     # ordered for two workers (the tasks 0, 2 and 1, 3): about 11 and 15 s on a cold cache;
-    # then the compiled integrator and its compiled run (a minute or more on a cold cache)
+    # then the stop rules. Not the compiled integrator: it compiles in the main process's
+    # background process meanwhile (a minute or more on a cold cache), and a worker that
+    # waited for it here would leave its core idle; a test that needs it waits for it, and
+    # the files that do not run first (pytest_collection_modifyitems)
     return [
         lambda: (bd(small), bd(large), bd.inverse(small), bd.inverse(large)),
         lambda: (bd.event_times(small), bd.event_times(large)),
         lambda: (bd.triangulation()(small), list(bd.pieces())),
         lambda: (bd.jvp(small, small), bd.vjp(small, small), bd.jvp(large, large),
                  bd.vjp(large, large)),
-        _compiled_run,
+        _python_model_run,
     ]
 
 
-def _compiled_run():
-    """A compiled model's run and flow map: the driver, the compiled run and its rules."""
-    import numba
-
+def _python_model_run():
+    """A Python model's run and flow map (scipy's integrator): the stop rules, which both
+    integrators call."""
     from bderiv import HybridSystem
 
-    field = numba.njit(lambda x, mask: np.array([1.0 + 0.0 * x[0], 0.5 + 0.5 * mask]))
-    events = numba.njit(lambda x: np.array([x[0] - 1.0]))
-    event_jacobian = numba.njit(lambda x: np.array([[1.0, 0.0]]))
-    system = HybridSystem(field, events, n_events=1, dim=2, event_jacobian=event_jacobian)
+    def field(x, mask):
+        return np.array([1.0, 0.5 + 0.5 * mask])
+
+    def events(x):
+        return np.array([x[0] - 1.0])
+
+    system = HybridSystem(field, events, n_events=1, dim=2,
+                          event_jacobian=lambda x: np.array([[1.0, 0.0]]))
     system.simulate(np.zeros(2), 2.0)
     system.flow_bderivative(np.zeros(2), 2.0)
+
+
+#: files that compile many kernels and never run the compiled integrator: each pytest-xdist
+#: worker runs those of its share first, while the integrator compiles in the background
+KERNEL_FILES = {"test_adjoints.py", "test_bderivative.py", "test_corners.py",
+                "test_fastpaths.py", "test_build_shortcuts.py", "test_kernels.py",
+                "test_lanes.py", "test_variants.py", "test_resets.py", "test_scaling.py",
+                "test_structured_lanes.py", "test_selection.py", "test_sizes.py",
+                "test_triangulation.py", "test_bench_corners.py", "test_bench_dense.py"}
+
+
+@pytest.hookimpl(trylast=True)  # after -m and -k deselected: the shares of what runs
+def pytest_collection_modifyitems(session, config, items):
+    """Within each worker's first share of the tests (pytest-xdist's worksteal gives worker
+    i of K the next ``len(rest) // (K - i)`` of the collection), the tests of
+    :data:`KERNEL_FILES` first, in their order; the set of tests and each worker's share
+    stay the same. Without workers the order is that of the collection."""
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if count < 2:
+        return
+    start, ordered = 0, []
+    for i in range(count):
+        stop = start + (len(items) - start) // (count - i)
+        share = items[start:stop]
+        ordered += sorted(share, key=lambda item: item.path.name not in KERNEL_FILES)
+        start = stop
+    items[:] = ordered
 
 
 def pytest_sessionfinish(session, exitstatus):

@@ -12,7 +12,7 @@ import pytest
 from reference import random_system
 
 from bderiv import BDerivative
-from bderiv._kernels import _core
+from bderiv._kernels import _core, steps
 
 _PROBE = """
 import json, numpy as np
@@ -130,7 +130,7 @@ def test_the_orders_are_numpys_stable_argsort(n):
     argsort), with ties broken by the smaller event."""
     rng = np.random.default_rng(n)
     order = np.empty(n, dtype=np.int64)
-    sorts = [_core.merge_order] + ([_core.insertion_order] if n <= 40 else [])
+    sorts = [steps.merge_order] + ([steps.insertion_order] if n <= 40 else [])
     for t in (rng.standard_normal(n), rng.integers(0, max(n // 4, 1), n).astype(float),
               np.zeros(n), np.arange(n, 0, -1.0)):
         for sort in sorts:

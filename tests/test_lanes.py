@@ -225,3 +225,20 @@ def test_the_lanes_agree_with_the_scalar_chain_at_ties():
         bound = 4 * n * np.finfo(float).eps / RTOL
         assert excess(lanes_apply, x, S).max() <= bound
         assert excess(lanes_back, back, S_back).max() <= bound
+
+
+def test_queries_beyond_the_band_rerun_on_the_same_apply_driver():
+    """A group with event values beyond ``QUERY_BAND`` comes back NaN from the checked
+    apply and runs again scaled into the band, through the same compiled driver (the flag
+    ``check`` is in the tables, not compiled in: one apply per width pair). Scaled by a
+    power of two, a row whose largest entry is in [0.5, 1) gives its answer's bits scaled."""
+    rng = np.random.default_rng(11)
+    Dh, F = random_system(rng, 5, 6)
+    bd = BDerivative(Dh, F, fast_paths=False)
+    apply, times, tangents = bd._engine._lane_kernels
+    assert bd._engine._lanes.dims[lanes.CHECK] == 1
+    assert lanes.unchecked(bd._engine._lanes).dims[lanes.CHECK] == 0
+    V = rng.standard_normal((20, 6))
+    V /= 2.0 ** np.ceil(np.log2(np.abs(V).max(axis=1, keepdims=True) * 1.0000001))
+    np.testing.assert_array_equal(bd(V * 2.0**600), bd(V) * 2.0**600)
+    np.testing.assert_array_equal(bd.inverse(V * 2.0**-600), bd.inverse(V) * 2.0**-600)

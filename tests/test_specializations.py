@@ -8,6 +8,7 @@ call in its process, and other tests call kernels directly with arrays of their 
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import pathlib
@@ -80,7 +81,7 @@ def test_writeable_and_read_only_inputs_compile_each_kernel_once():
     names = {name for name, e in table.items() if e["signatures"]}
     for kernel in ("rules:state_error", "rules:windows", "rules:classify", "rules:tolerances",
                    "rules:start_dip_steps", "rules:wrong_side", "rules:clearly_positive",
-                   "_core:piece_from_corners", "scaling:_scale_rows_serial"):
+                   "linear:piece_from_corners", "scaling:_scale_rows_serial"):
         assert any(name.endswith(kernel) for name in names), kernel
 
 
@@ -101,3 +102,40 @@ def test_the_tool_merges_the_tables_of_processes(tmp_path):
                              "cached": True}
     assert "| `m:f` | yes | 2 | 2 |" in tool.render(merged)
     assert "2 dispatchers, 2 signatures" in tool.render(merged)
+
+
+def _jitted_calls(tree):
+    """The names of a module's njit functions that numba compiles as functions of their own
+    (not ``inline="always"``): each literal argument would be another signature of them."""
+    names = set()
+    for node in tree.body:
+        if not isinstance(node, ast.FunctionDef):
+            continue
+        for deco in node.decorator_list:
+            call = deco if isinstance(deco, ast.Call) else None
+            name = (call.func if call else deco)
+            name = name.id if isinstance(name, ast.Name) else getattr(name, "attr", "")
+            inline = call and any(k.arg == "inline" for k in call.keywords)
+            if name in ("njit", "cached") and not inline:
+                names.add(node.name)
+    return names
+
+
+def test_no_literal_constants_reach_a_chain():
+    """A constant passed from njit code to an njit function that is not inlined is a
+    literal type (``Literal[bool](False)``, ``Literal[int](0)``): numba compiles the callee,
+    and what it calls with the value, once more than for the run-time value. The kernels
+    pass ``np.bool_(False)``, ``np.int64(0)`` (checked on the sources: nothing compiles)."""
+    folder = ROOT / "src" / "bderiv" / "_kernels"
+    modules = {p.stem: ast.parse(p.read_text()) for p in folder.glob("*.py")}
+    jitted = set().union(*(_jitted_calls(tree) for tree in modules.values()))
+    found = []
+    for stem, tree in modules.items():
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                    and node.func.id in jitted):
+                literal = [ast.unparse(a) for a in node.args if isinstance(a, ast.Constant)
+                           and isinstance(a.value, (bool, int))]
+                if literal:
+                    found.append(f"{stem}.py:{node.lineno} {node.func.id}({', '.join(literal)})")
+    assert not found, found

@@ -10,7 +10,7 @@ from reference import assert_maps_close, ref_apply, ref_event_times, ref_inverse
 from test_corners import structured_system
 
 from bderiv import BDerivative
-from bderiv._kernels.structured import GROUP, LOCK
+from bderiv._kernels.structured_chains import GROUP, LOCK
 from bderiv.geometry.corners import StructuredCorners
 
 #: 11 events and 13 coordinates: both axes padded inside the kernel

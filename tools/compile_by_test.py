@@ -13,6 +13,12 @@ The plugin writes ``compile_by_test.json`` (or ``$COMPILE_BY_TEST``) at the end 
 session; the second command prints the files and the dispatchers that cost most. CPU time
 (``time.process_time``) changes little with other load on the machine; what subprocesses of
 a test spend (the command line's tests, fresh-process checks) is not counted.
+
+Under pytest-xdist (``-n 2``) each worker writes its own record, the path with ``-gw0``,
+``-gw1``, ... before ``.json``; give the second command all of them. Each test's record
+also holds its wall-clock start (seconds since the epoch) and duration, so that
+``--timeline`` shows what each worker ran when, and where it waited (wall time far above
+its CPU time: the compiled integrator, a lock, a subprocess).
 """
 
 from __future__ import annotations
@@ -60,15 +66,24 @@ def pytest_configure(config):
 def pytest_runtest_protocol(item, nextitem):
     _state["file"] = item.nodeid.split("::")[0]
     _state["cpu"], _state["at"] = time.process_time(), _state["compile"]
+    _state["wall"] = time.time()
 
 
 def pytest_runtest_logfinish(nodeid, location):
+    if "cpu" not in _state:  # the controller of an xdist run: its workers record
+        return
     _per_test.append((nodeid, time.process_time() - _state["cpu"],
-                      _state["compile"] - _state["at"]))
+                      _state["compile"] - _state["at"], _state["wall"],
+                      time.time() - _state["wall"]))
 
 
 def pytest_sessionfinish(session):
     path = os.environ.get("COMPILE_BY_TEST", "compile_by_test.json")
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker:
+        path = f"{path.removesuffix('.json')}-{worker}.json"
+    elif not _per_test:  # the controller of an xdist run: the workers write
+        return
     with open(path, "w") as fh:
         json.dump({"tests": _per_test,
                    "dispatchers": [[f, n, s, _compiles[(f, n)]]
@@ -77,13 +92,21 @@ def pytest_sessionfinish(session):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description="Print where a recorded test run's time went.")
-    ap.add_argument("record", help="the JSON the plugin wrote")
+    ap.add_argument("records", nargs="+", help="the JSON the plugin wrote (one per worker)")
     ap.add_argument("--top", type=int, default=30)
+    ap.add_argument("--timeline", action="store_true",
+                    help="per worker, the files in the order run: wall and CPU seconds")
     args = ap.parse_args(argv)
-    with open(args.record) as fh:
-        data = json.load(fh)
+    data = {"tests": [], "dispatchers": []}
+    for record in args.records:
+        with open(record) as fh:
+            part = json.load(fh)
+        data["tests"] += part["tests"]
+        data["dispatchers"] += part["dispatchers"]
+        if args.timeline:
+            _timeline(record, part["tests"])
     files = collections.defaultdict(lambda: [0.0, 0.0, 0])
-    for nodeid, cpu, compiled in data["tests"]:
+    for nodeid, cpu, compiled, *_ in data["tests"]:
         row = files[nodeid.split("::")[0]]
         row[0] += cpu
         row[1] += compiled
@@ -103,6 +126,25 @@ def main(argv=None):
     print(f"\n{'compile s':>9s} {'times':>5s}  dispatcher (its own compilation)")
     for name, seconds in per.most_common(args.top):
         print(f"{seconds:9.1f} {count[name]:5d}  {name}")
+
+
+def _timeline(record, tests):
+    """The runs of consecutive tests of one file in a worker's record: start (seconds after
+    its first test), wall, CPU and compile seconds."""
+    if not tests or len(tests[0]) < 5:
+        return
+    t0 = tests[0][3]
+    print(f"\n{record}: {'start':>6s} {'wall':>6s} {'CPU':>6s} {'compile':>7s}  file")
+    runs = []
+    for nodeid, cpu, compiled, start, wall in tests:
+        name = nodeid.split("::")[0]
+        if runs and runs[-1][0] == name:
+            runs[-1][2:] = [start + wall - runs[-1][1], runs[-1][3] + cpu, runs[-1][4] + compiled]
+        else:
+            runs.append([name, start, wall, cpu, compiled])
+    for name, start, wall, cpu, compiled in runs:
+        print(f"{'':{len(record) + 1}s} {start - t0:6.0f} {wall:6.1f} {cpu:6.1f} {compiled:7.1f}  "
+              f"{name}")
 
 
 if __name__ == "__main__":

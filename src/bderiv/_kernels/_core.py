@@ -1,4 +1,5 @@
-"""What every kernel shares: jit options, the one task driver, and the common steps.
+"""What every kernel shares: jit options, the disk cache's key, read-only inputs and the
+one task driver (:class:`Batch`); the shared arithmetic steps are in :mod:`.steps`.
 
 A *block* is an njit function ``block(tables, V, outs, start, stop, inverse)`` that
 computes queries ``V[start:stop]`` of one corner representation (``tables``: a named tuple
@@ -15,12 +16,14 @@ or the split into tasks and launches, so results are bitwise independent of all 
 No validation here: callers pass C-contiguous arrays of consistent shapes. What a kernel
 only reads (queries, tables, tangents) it gets read-only (:func:`read_only`,
 :func:`frozen_tables`, applied by :class:`Batch` and the Python wrappers): a writeable and a
-read-only array are two numba types, and each would compile the kernel once more.
+read-only array are two numba types, and each would compile the kernel once more. Likewise
+a constant passed to an njit function that is not inlined is a literal type (``False``,
+``0``), another compilation of the callee and of what it calls: the blocks pass
+``np.bool_(False)``, ``np.int64(0)`` instead.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import pathlib
 import threading
@@ -34,9 +37,8 @@ from numba import njit, parallel_chunksize, prange
 
 from .. import _numerics
 from .._limits import LAUNCH_WORK, PARALLEL_MIN_QUERIES
-from .._numerics import INSERTION_SORT_MAX, QUERY_BAND, TASK_QUERIES
+from .._numerics import TASK_QUERIES
 from ._cache import harden_all, keyed, sources_digest
-from ._simd import bits_float, float_bits
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
@@ -215,7 +217,7 @@ def batch(block, cache: bool = True, statics: NamedTuple | None = None) -> Batch
 
 
 # ----------------------------------------------------------------------------------------
-# steps shared by the representations
+# the drivers' count of bad rows
 # ----------------------------------------------------------------------------------------
 @njit(**JIT)
 def nonfinite_rows(a, start, stop):
@@ -227,295 +229,3 @@ def nonfinite_rows(a, start, stop):
             s += a[q, i] * 0.0  # 0 for a finite entry, NaN for inf or NaN
         bad += s != s
     return bad
-
-
-@njit(inline="always", **JIT)
-def row_exponent(V, q, d):
-    """e with ``max_i |V[q, i]|`` in [2**(e - 1), 2**e) (0 for a zero row), as
-    ``math.frexp`` gives it: the query ``2**-e V[q]`` has its largest entry in [0.5, 1)
-    (see :mod:`.scaling`). Read from the bits of a normal float (a libm call per query
-    cost the lane kernels half their time)."""
-    big = 0.0
-    for i in range(d):
-        big = max(big, abs(V[q, i]))
-    biased = (float_bits(big) >> 52) & 0x7FF
-    if biased == 0:  # 0 or subnormal
-        return math.frexp(big)[1]
-    return biased - 1022
-
-
-@njit(inline="always", **JIT)
-def query_exponent(V, q, d):
-    """:func:`row_exponent`, or 0 for a row within the query band (``QUERY_BAND``): such
-    a row runs as given, which gives the scaled row's bits, scaled."""
-    e = row_exponent(V, q, d)
-    return 0 if -QUERY_BAND <= e <= QUERY_BAND else e
-
-
-@njit(inline="always", **JIT)
-def _pow2(k):
-    """2.0**k for -1022 <= k <= 1023, from its bits."""
-    return bits_float((k + 1023) << 52)
-
-
-@njit(inline="always", **JIT)
-def factors(e):
-    """Two floats whose product is 2**e, for |e| <= 2044: ``(2**e, 1)`` when 2**e is a
-    normal float (one multiplication rounds once, into the subnormals too), else two
-    halves (the first product is exact, the second rounds only into the subnormals)."""
-    if -1022 <= e <= 1023:
-        return _pow2(e), 1.0
-    return _pow2(e // 2), _pow2(e - e // 2)
-
-
-@njit(**JIT)
-def impacts(DhT, u, g):
-    """g = Dh @ u from DhT = Dh.T (d, n), as axpys over the rows of DhT (vectorises)."""
-    d, n = DhT.shape
-    for k in range(n):
-        g[k] = 0.0
-    for i in range(d):
-        ui = u[i]
-        for k in range(n):
-            g[k] += DhT[i, k] * ui
-
-
-@njit(**JIT)
-def own_rate_times(DhT, rate, u, tev):
-    """tev[k] = -(Dh u)_k / rate[k]: the event times when no pending rate ever changes."""
-    impacts(DhT, u, tev)
-    for k in range(tev.shape[0]):
-        tev[k] = -tev[k] / rate[k]
-
-
-@njit(**JIT)
-def insertion_order(t, order):
-    """order = stable argsort of t (ties keep the smaller event first), by insertion: the
-    order of up to a few dozen events (:data:`INSERTION_SORT_MAX`; a dense table's n <= 40)."""
-    n = t.shape[0]
-    for k in range(n):
-        order[k] = k
-    # the bound i >= 0 lets LLVM drop the negative-index test of order[i] (a bound passed
-    # in, as merge_order's runs have, cost 10-20 % at n = 2..16)
-    for j in range(1, n):
-        k = order[j]
-        v = t[k]
-        i = j - 1
-        while i >= 0 and t[order[i]] > v:
-            order[i + 1] = order[i]
-            i -= 1
-        order[i + 1] = k
-
-
-@njit(**JIT)
-def merge_order(t, order):
-    """order = stable argsort of t (ties keep the smaller event first) for more than
-    :data:`INSERTION_SORT_MAX` events: runs of that length by insertion, merged pairwise,
-    bottom up (``np.argsort``'s merge sort compiled into the kernels cost seconds of
-    compile time each)."""
-    n = t.shape[0]
-    for k in range(n):
-        order[k] = k
-    run = INSERTION_SORT_MAX
-    for lo in range(0, n, run):
-        for j in range(lo + 1, min(lo + run, n)):
-            k = order[j]
-            v = t[k]
-            i = j - 1
-            while i >= lo and t[order[i]] > v:
-                order[i + 1] = order[i]
-                i -= 1
-            order[i + 1] = k
-    src, dst = order, np.empty(n, dtype=np.int64)
-    moved = False
-    while run < n:
-        for lo in range(0, n, 2 * run):
-            mid, hi = min(lo + run, n), min(lo + 2 * run, n)
-            i, j = lo, mid
-            for o in range(lo, hi):  # the left run first on ties: stable
-                if j >= hi or (i < mid and not t[src[i]] > t[src[j]]):
-                    dst[o] = src[i]
-                    i += 1
-                else:
-                    dst[o] = src[j]
-                    j += 1
-        src, dst = dst, src
-        moved = not moved
-        run *= 2
-    if moved:  # the last pass wrote the scratch
-        for k in range(n):
-            order[k] = src[k]
-
-
-class OwnRateTables(NamedTuple):
-    """The own-rates fast path's event times (any representation)."""
-
-    #: (d, n) the transposed event Jacobian
-    DhT: np.ndarray
-    #: (n,) the rates of the region the chains start from
-    rate: np.ndarray
-
-
-class LinearTables(NamedTuple):
-    """The linear fast path, and the linear stages of a flow map."""
-
-    #: (d, d) M transposed (forwards)
-    MT: np.ndarray
-    #: (d, d) M^-1 transposed (backwards)
-    MinvT: np.ndarray
-
-
-class ChainCornerTables(NamedTuple):
-    """Tangents along chains found beforehand (:func:`_saltations_block`)."""
-
-    #: (n, d) the event Jacobian
-    Dh: np.ndarray
-    #: (m, n + 1, d): C[q, j] the corner of the region before the (j+1)-th event of query q
-    C: np.ndarray
-    #: (m, n) int64: the order of each query's chain
-    orders: np.ndarray
-
-
-@njit(**JIT)
-def _own_times_block(tables, V, outs, start, stop, inverse):
-    """Event times and orders from own rates (any representation's own-rates fast path),
-    for up to :data:`INSERTION_SORT_MAX` events."""
-    times, orders = outs
-    for q in range(start, stop):
-        own_rate_times(tables.DhT, tables.rate, V[q], times[q])
-        insertion_order(times[q], orders[q])
-
-
-@njit(**JIT)
-def _own_times_many_block(tables, V, outs, start, stop, inverse):
-    """:func:`_own_times_block` for more events (a kernel of its own: the merge sort is
-    compiled only where it runs)."""
-    times, orders = outs
-    for q in range(start, stop):
-        own_rate_times(tables.DhT, tables.rate, V[q], times[q])
-        merge_order(times[q], orders[q])
-
-
-@njit(**JIT)
-def _linear_block(tables, V, outs, start, stop, inverse):
-    """out[q] = M @ V[q] (:class:`LinearTables`), as axpys (vectorises), on V[q] scaled by
-    a power of two (:func:`query_exponent`: no product under- or overflows unless the
-    result does)."""
-    MT = tables.MinvT if inverse else tables.MT
-    out = outs[0]
-    d = MT.shape[0]
-    for q in range(start, stop):
-        e = query_exponent(V, q, d)
-        a, b = factors(-e)
-        for r in range(d):
-            out[q, r] = 0.0
-        for c in range(d):
-            vc = V[q, c] * a * b
-            for r in range(d):
-                out[q, r] += MT[c, r] * vc
-        if e != 0:
-            a, b = factors(e)
-            for r in range(d):
-                out[q, r] = out[q, r] * a * b
-
-
-@njit(**JIT)
-def write_times(order, times, q0, pn, order_out, times_out):
-    """Rows q0.. of the outputs of ``event_times`` from a group's steps: ``order[p, j]``
-    the j-th event of query q0 + p and ``times[p, j]`` its time."""
-    for p in range(pn):
-        for j in range(order.shape[1]):
-            order_out[q0 + p, j] = order[p, j]
-            times_out[q0 + p, order[p, j]] = times[p, j]
-
-
-
-#: times and orders of an own-rates fast path: :class:`OwnRateTables`, outs (times,
-#: orders); ``own_times`` for up to :data:`INSERTION_SORT_MAX` events, ``own_times_many``
-#: above (the engine picks by n).
-own_times = batch(_own_times_block)
-own_times_many = batch(_own_times_many_block)
-#: the linear fast path: :class:`LinearTables`, outs (out,).
-linear = batch(_linear_block)
-
-
-@cached
-def piece_from_corners(Dh, Fc, order, out):
-    """Linear piece S_n ... S_1 of one order (mathematics.md section 4) into ``out`` (d, d).
-
-    ``Fc[j]`` is the corner of the region before the (j+1)-th event (``Fc[n]`` after the
-    last). S_j = I + (Fc[j] - Fc[j-1]) Dh[k_j]^T / rate, rate = Dh[k_j] . Fc[j-1]; applied
-    to the running product as M += outer(jump, Dh[k_j] @ M / rate).
-    """
-    n, d = Dh.shape
-    out[:, :] = 0.0
-    for i in range(d):
-        out[i, i] = 1.0
-    row = np.empty(d)
-    for j in range(n):
-        k = order[j]
-        rate = 0.0
-        for i in range(d):
-            rate += Dh[k, i] * Fc[j, i]
-        for c in range(d):
-            s = 0.0
-            for i in range(d):
-                s += Dh[k, i] * out[i, c]
-            row[c] = s / rate
-        for r in range(d):
-            jump = Fc[j + 1, r] - Fc[j, r]
-            for c in range(d):
-                out[r, c] += jump * row[c]
-
-
-# ----------------------------------------------------------------------------------------
-# tangent maps: one saltation factor at a time, along a query's chain
-# ----------------------------------------------------------------------------------------
-@njit(**JIT)
-def saltation_step(y, Dh, k, Fc, before, after, rate, transpose):
-    """y <- S y, or S^T y when ``transpose``, in place (mathematics.md section 4).
-
-    S = I + (Fc[after] - Fc[before]) Dh[k]^T / rate, the factor of event k leaving the
-    region whose corner is ``Fc[before]`` (``rate`` = Dh[k] . Fc[before] > 0). O(d).
-    """
-    d = y.shape[0]
-    c = 0.0
-    if transpose:  # S^T y = y + Dh[k] (jump . y) / rate
-        for i in range(d):
-            c += (Fc[after, i] - Fc[before, i]) * y[i]
-        c /= rate
-        for i in range(d):
-            y[i] += c * Dh[k, i]
-    else:  # S y = y + jump (Dh[k] . y) / rate
-        for i in range(d):
-            c += Dh[k, i] * y[i]
-        c /= rate
-        for i in range(d):
-            y[i] += c * (Fc[after, i] - Fc[before, i])
-
-
-@njit(**JIT)
-def _saltations_block(tables, V, outs, start, stop, transpose):
-    """out[q] = M_sigma T[q] (or M_sigma^T T[q]) from the corners along each chain
-    (:class:`ChainCornerTables`); ``outs = (out, T)``. The transpose runs the factors
-    backwards: M^T = S_1^T ... S_n^T.
-    """
-    Dh, C, orders = tables.Dh, tables.C, tables.orders
-    out, T = outs
-    n, d = Dh.shape
-    for q in range(start, stop):
-        y = out[q]
-        for i in range(d):
-            y[i] = T[q, i]
-        Cq = C[q]
-        for s in range(n):
-            j = n - 1 - s if transpose else s
-            k = orders[q, j]
-            rate = 0.0
-            for i in range(d):
-                rate += Dh[k, i] * Cq[j, i]
-            saltation_step(y, Dh, k, Cq, j, j + 1, rate, transpose)
-
-
-#: tangents from chain corners: :class:`ChainCornerTables`, outs (out, T).
-saltations = batch(_saltations_block)

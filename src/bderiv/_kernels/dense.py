@@ -13,10 +13,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._core import (
-    JIT,
-    batch,
-    cached,
+from ._core import JIT, batch, cached
+from .selection import advance, earliest, pending_times, retire
+from .steps import (
     factors,
     insertion_order,
     own_rate_times,
@@ -24,7 +23,6 @@ from ._core import (
     saltation_step,
     write_times,
 )
-from .selection import advance, earliest, pending_times, retire
 
 #: queries evaluated in lockstep by one thread. Each query is a chain of n dependent steps
 #: (rates of the region reached -> event times -> next event -> next region), so one query
@@ -71,7 +69,7 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
     B* (the largest among the happened ones, going backwards), ties to the smaller k.
 
     Each query outside the query band runs scaled by a power of two, ``u = 2**-e V[q]``
-    with its largest entry in [0.5, 1) (``_core.query_exponent``): the times are then
+    with its largest entry in [0.5, 1) (``steps.query_exponent``): the times are then
     those of u, ``2**-e`` times those of V[q].
 
     Writes, for each p < pn: ``times[p, j]`` (j-th event time; non-decreasing forwards),
@@ -84,7 +82,7 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
         q = q0 + p
         for k in range(n):
             g[p, k] = 0.0
-        a, b = factors(-query_exponent(V, q, d))  # u = 2**-e V[q] (_core.query_exponent)
+        a, b = factors(-query_exponent(V, q, d))  # u = 2**-e V[q] (steps.query_exponent)
         for i in range(d):
             ui = V[q, i] * a * b
             for k in range(n):
@@ -156,7 +154,7 @@ def _times_block(tables, V, outs, start, stop, inverse):
     g, tau, times, order, chain = _scratch(n)
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _chains(DhT, G, V, q0, pn, False, g, tau, times, order, chain)
+        _chains(DhT, G, V, q0, pn, np.bool_(False), g, tau, times, order, chain)
         write_times(order, times, q0, pn, order_out, times_out)
 
 
@@ -206,7 +204,7 @@ def _tangent_block(tables, V, outs, start, stop, transpose):
     g, tau, times, order, chain = _scratch(n)
     for q0 in range(start, stop, GROUP):
         pn = min(GROUP, stop - q0)
-        _chains(DhT, G, V, q0, pn, False, g, tau, times, order, chain)
+        _chains(DhT, G, V, q0, pn, np.bool_(False), g, tau, times, order, chain)
         for p in range(pn):
             y = out[q0 + p]
             for i in range(d):

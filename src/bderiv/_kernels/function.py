@@ -18,8 +18,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._core import batch, impacts
+from ._core import batch
 from .selection import advance, earliest, pending_times, retire
+from .steps import impacts
 
 #: status of a query whose chain met a corner with a non-finite (or unwritten) entry.
 NON_FINITE = -2
@@ -115,7 +116,7 @@ def _blocks(func):
         d, n = DhT.shape
         x, g, tau, R, C, hap, _, _ = _scratch(n, d)
         for q in range(start, stop):
-            status[q] = chain(func, DhT, V[q], False, x, g, tau, R, C, hap, times[q],
+            status[q] = chain(func, DhT, V[q], np.bool_(False), x, g, tau, R, C, hap, times[q],
                               orders[q])
 
     return apply_block, times_block

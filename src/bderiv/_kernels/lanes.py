@@ -6,13 +6,16 @@ A block gets ``(tables, shape)``: the :class:`LaneTables` of the engine and the
 :class:`LaneShape` its drivers are compiled for (:func:`kernels`): the widths ``wh`` and
 ``wx`` of the event values' and of the position's vectors (so d <= 64 here:
 ``_engines.dense`` runs the plain blocks above), ``far`` (1 when the records exceed the
-caches: see :func:`_step`), ``carry`` (1: the chain carries the position, see
-:func:`_assemble`; 0: it records its steps) and ``check`` (1: apply tests the query band,
-see :func:`_lane_apply_block`). A query is one row of ``V`` (m, d).
+caches: see :func:`_step`) and ``carry`` (1: the chain carries the position, see
+:func:`_assemble`; 0: it records its steps). A query is one row of ``V`` (m, d).
 
 The sizes are an int64 array, ``LaneTables.dims``, not four int fields: on two threads
 the int fields were slower (measured: docs/benchmarks.md, "Kernel design choices,
-measured").
+measured"). The flag ``check`` rides in it as a run-time value (1: apply tests the query
+band, see :func:`_lane_apply_block`; 0 in the tables of :func:`unchecked`), so that apply
+compiles once for both; compiled in, it doubled apply's drivers of a width pair. ``far``
+stays compiled in: as a run-time branch in each step the chains beyond the caches ran
+13 to 27 % slower (``benchmarks/ab.py``, n = 20).
 
 The lanes select with arithmetic of their own, not the scalar chain's (:mod:`.selection`,
 run by :mod:`.dense`): actual coordinates (h = Dh x(t), one record row read per step), a
@@ -39,7 +42,8 @@ from numba import njit
 
 from .._numerics import QUERY_BAND
 from . import _simd as vec
-from ._core import JIT, batch, write_times
+from ._core import JIT, batch, frozen_tables
+from .steps import write_times
 
 #: queries per lockstep group: eight independent chains hide the latency of each step's
 #: reduction (the lanes are written out in :func:`_lanes`: their state lives in registers).
@@ -54,7 +58,7 @@ WIDE_X = 32
 #: the width of the loops over 8 coordinates
 W8 = vec.static(8)
 
-#: the query band of ``_core.QUERY_BAND``
+#: the query band of ``_numerics.QUERY_BAND``
 LOW, HIGH = 2.0**-QUERY_BAND, 2.0**QUERY_BAND
 
 
@@ -68,8 +72,9 @@ class LaneTables(NamedTuple):
     DhTp: np.ndarray
     #: (n, 8 dc) Dh, each row padded with zeros
     Dhp: np.ndarray
-    #: int64 [n, d, nc, dc]: the events, the dimension, vectors of 8 per event row
-    #: (``8 nc >= n``) and per position (``8 dc >= d``); an array, see the module docstring
+    #: int64 [n, d, nc, dc, check]: the events, the dimension, vectors of 8 per event row
+    #: (``8 nc >= n``) and per position (``8 dc >= d``), and the flag :data:`CHECK`; an
+    #: array, see the module docstring
     dims: np.ndarray
 
 
@@ -84,8 +89,24 @@ class LaneShape(NamedTuple):
     far: tuple
     #: 1: the chain carries the position; 0: it records its steps
     carry: tuple
-    #: 1: apply tests the query band
-    check: tuple
+
+
+#: where ``LaneTables.dims`` holds the flag ``check`` (1: apply tests the query band)
+CHECK = 4
+
+
+def lane_tables(R, DhTp, Dhp, n: int, d: int, nc: int, dc: int) -> LaneTables:
+    """The :class:`LaneTables` of a dense table, read-only, apply checking the band."""
+    dims = np.array([n, d, nc, dc, 1], dtype=np.int64)
+    return frozen_tables(LaneTables(R, DhTp, Dhp, dims))
+
+
+def unchecked(tables: LaneTables) -> LaneTables:
+    """The same tables with ``check`` off: apply runs every group as given (for queries
+    the caller scaled into the band)."""
+    dims = tables.dims.copy()
+    dims[CHECK] = 0
+    return frozen_tables(tables._replace(dims=dims))
 
 
 @njit(**JIT)
@@ -219,20 +240,19 @@ def _lane_apply_block(args, V, outs, start, stop, inverse):
     """out = M(V) (M^-1 when ``inverse``), eight queries at a time (:func:`_assemble`).
 
     When ``check``, a group whose event values at time 0 (``Dh v``, the tables scaled
-    at build) are not all 0 or within ``2**+-_core.QUERY_BAND`` gets NaN rows: the
+    at build) are not all 0 or within ``2**+-_numerics.QUERY_BAND`` gets NaN rows: the
     engine runs them again scaled by powers of two (M is positively homogeneous; the event
     times of a query near the ends of the float64 range would under- or overflow). The
     test, on vectors in registers and without a branch in the chains, costs about 2 %;
     scaling every query in the kernel cost 1.3x to 2x.
     """
-    tables, shape = args
-    d, check = tables.dims[1], shape.check
+    tables = args[0]
+    d, check = tables.dims[1], tables.dims[CHECK]
     out = outs[0]
     X, T, order, times = _lane_scratch(tables)
     for q0 in range(start, stop, LANES):
         pn = min(LANES, stop - q0)
-        if _lanes(args, V, q0, q0 + pn - 1, inverse, X, T, order, times) or not vec.value(
-                check):
+        if _lanes(args, V, q0, q0 + pn - 1, inverse, X, T, order, times) or not check:
             _assemble(args, V, q0, pn, inverse, out, q0, X, T, order, times)
         else:
             for p in range(pn):
@@ -320,19 +340,15 @@ def _lane_tangent_block(args, V, outs, start, stop, transpose):
 
 @functools.cache
 def kernels(wh: int, wx: int, far: int):
-    """The batches ``(apply, event_times, tangents, apply_unchecked)`` compiled for
-    vectors of ``wh`` and ``wx`` lanes and ``far``; each takes a :class:`LaneTables` and
-    outs ``(out,)`` (M(V) or M^-1(V)), ``(times, orders)``, ``(out, T)``
-    (M_sigma(V) T or its transpose). Only apply carries the position along the chain
-    (``carry``), and only while it fits the registers; the others record the steps.
-    ``apply`` gives NaN rows for groups outside the query band (``check``, see
-    :func:`_lane_apply_block`), ``apply_unchecked`` runs them (scaled by the caller)."""
-    carry = int(wx <= WIDE_X)
+    """The batches ``(apply, event_times, tangents)`` compiled for vectors of ``wh`` and
+    ``wx`` lanes and ``far``; each takes a :class:`LaneTables` and outs ``(out,)`` (M(V) or
+    M^-1(V)), ``(times, orders)``, ``(out, T)`` (M_sigma(V) T or its transpose). Only apply carries
+    the position along the chain (``carry``), and only while it fits the registers; the
+    others record the steps. ``apply`` gives NaN rows for groups outside the query band
+    unless the tables are :func:`unchecked` (see :func:`_lane_apply_block`)."""
 
-    def statics(carry, check=0):
-        return LaneShape(vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry),
-                         vec.static(check))
-    return (batch(_lane_apply_block, statics=statics(carry, 1)),
+    def statics(carry):
+        return LaneShape(vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry))
+    return (batch(_lane_apply_block, statics=statics(int(wx <= WIDE_X))),
             batch(_lane_times_block, statics=statics(0)),
-            batch(_lane_tangent_block, statics=statics(0)),
-            batch(_lane_apply_block, statics=statics(carry, 0)))
+            batch(_lane_tangent_block, statics=statics(0)))

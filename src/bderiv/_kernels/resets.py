@@ -20,8 +20,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._core import JIT, batch, impacts
+from ._core import JIT, batch
 from .selection import advance, earliest, exclude, pending_times
+from .steps import impacts
 
 
 class ResetTables(NamedTuple):
@@ -169,7 +170,7 @@ def _times_block(tables, V, outs, start, stop, inverse):
     scratch = _scratch(n, d, tables.P)
     times, order = scratch[5], scratch[6]
     for q in range(start, stop):
-        chain(tables, V[q], False, scratch)
+        chain(tables, V[q], np.bool_(False), scratch)
         for j in range(n):
             order_out[q, j] = order[j]
             times_out[q, order[j]] = times[j]
@@ -215,7 +216,7 @@ def _tangent_block(tables, V, outs, start, stop, transpose):
     w, order, regions = scratch[4], scratch[6], scratch[7]
     tmp = np.empty(d)
     for q in range(start, stop):
-        chain(tables, V[q], False, scratch)
+        chain(tables, V[q], np.bool_(False), scratch)
         z = out[q]
         for i in range(d):
             z[i] = T[q, i]

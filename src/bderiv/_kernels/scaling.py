@@ -7,8 +7,8 @@ entry in [0.5, 1)), and the result is scaled back by ``2**e``: queries whose cha
 representable give the same bits as before, and queries near the ends of the float64
 range (event times that would underflow or overflow) give the answer of a mid-range one.
 A factor ``2**e`` with ``|e|`` up to 2098 is applied as two representable factors
-(``_core.factors``). The lane, plain, own-rates and linear kernels of dense tables scale
-each query as they load it (``_core.row_exponent``); the other engines scale a batch with
+(``steps.factors``). The lane, plain, own-rates and linear kernels of dense tables scale
+each query as they load it (``steps.row_exponent``); the other engines scale a batch with
 :func:`scale_rows` and :func:`unscale_rows`, which launch their parallel kernels through
 ``_core.serialised`` (numba's workqueue layer aborts on concurrent launches). A batch of
 fewer than :data:`SERIAL_ENTRIES` entries runs serially instead: the same rows in the same
@@ -21,7 +21,8 @@ from numba import njit, prange
 
 from .._limits import SERIAL_ENTRIES
 from .._numerics import QUERY_BAND
-from ._core import JIT, cached, factors, read_only, row_exponent, serialised
+from ._core import JIT, cached, read_only, serialised
+from .steps import factors, row_exponent
 
 
 def _small(A):
@@ -47,7 +48,7 @@ def unscale_rows(out, exps, shift):
 
 def outside_band(V, exps):
     """``exps[q]``: the :func:`row_exponent` of each row (read only); returns how many
-    rows are beyond ``_core.QUERY_BAND`` (those need :func:`scale_rows`)."""
+    rows are beyond ``_numerics.QUERY_BAND`` (those need :func:`scale_rows`)."""
     V = read_only(V)
     if _small(V):
         return _outside_band_serial(V, exps)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._kernels import _core
+from .._kernels import linear as _linear
 from .._support._errors import QueryError
 from .._support._validate import (
     all_finite,
@@ -69,8 +70,8 @@ def stage(L, X, transpose: bool = False) -> np.ndarray:
     """
     M = np.ascontiguousarray(L if transpose else L.T)  # the kernel combines rows of M
     out = np.empty((X.shape[0], M.shape[1]))
-    _core.linear(_core.LinearTables(M, M), np.ascontiguousarray(X), (out,), False,
-                 launch=_core.launch_queries(1, X.shape[1]))
+    _linear.linear(_linear.LinearTables(M, M), np.ascontiguousarray(X), (out,), False,
+                   launch=_core.launch_queries(1, X.shape[1]))
     return out
 
 

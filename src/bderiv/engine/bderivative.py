@@ -318,7 +318,7 @@ class BDerivative(Linearisation, CornerGeometry):
     def _tangent_rows(self, V, T, res, transpose: bool, offset: int, name: str) -> None:
         """The kernel of ``jvp``/``vjp`` (:class:`~bderiv.engine._linearise.Linearisation`);
         ``name``: T's in the caller's errors. The piece is linear: when a row of T is
-        beyond ``_core.QUERY_BAND``, the rows run scaled by powers of two, as the queries
+        beyond ``_numerics.QUERY_BAND``, the rows run scaled by powers of two, as the queries
         of :meth:`apply` do, so that their products along the chain under- or overflow
         only where the result does (a read-only pass otherwise: scaling every batch cost
         jvp 1.2x)."""

@@ -6,7 +6,7 @@ import functools
 
 import numpy as np
 
-from ..._kernels import _core, scaling
+from ..._kernels import _core, linear, scaling
 from ..._limits import CHAIN_BYTES
 from ..._support._errors import ChainStop, refusal
 from ..._support._format import format_happened, format_order, transversality_message
@@ -26,7 +26,7 @@ class Engine:
 
     fast = None
     #: whether the kernels of :meth:`_map` scale each query themselves (the dense ones,
-    #: ``_core.row_exponent``); otherwise :meth:`map` scales the batch around them
+    #: ``steps.row_exponent``); otherwise :meth:`map` scales the batch around them
     scales_queries = False
     #: event times of the engine's tables are ``2**time_shift`` those of the caller's
     #: (a dense table scaled at build, ``_engines.dense.table_exponents``)
@@ -87,7 +87,7 @@ class Engine:
         V, T (m, d), sigma(q) the order that V[q] selects; returns the number
         of non-finite rows of ``out``. Generic: the orders by :meth:`event_times`, the
         corners along them by :meth:`corners` (chunks of about ``CHAIN_BYTES``), then one
-        saltation factor per event (``_core.saltations``)."""
+        saltation factor per event (``linear.saltations``)."""
         n, d = self.n, self.d
         # per row: the corners C, the region flags and the model's float copy of them
         rows = int(min(max(CHAIN_BYTES // ((n + 1) * (8 * d + 9 * n)), 64), 1 << 16))
@@ -99,8 +99,8 @@ class Engine:
             C = np.ascontiguousarray(
                 self.corners(chain_regions(orders, n).reshape(-1, n)), dtype=np.float64
             ).reshape(e - s, n + 1, d)
-            bad += _core.saltations(_core.ChainCornerTables(self.Dh, C, orders), V[s:e],
-                                    (out[s:e], T[s:e]), transpose, launch=e - s)
+            bad += linear.saltations(linear.ChainCornerTables(self.Dh, C, orders), V[s:e],
+                                     (out[s:e], T[s:e]), transpose, launch=e - s)
         return bad
 
     def chain_corners(self, order) -> np.ndarray:
@@ -125,8 +125,8 @@ class Engine:
             raise ValueError(transversality_message(int(order[j]), format_happened(regions[j]),
                                                     float(rates[j]), where))
         out = np.empty((self.d, self.d))
-        _core.piece_from_corners(_core.read_only(self.Dh), _core.read_only(Fc),
-                                 _core.read_only(np.asarray(order, dtype=np.int64)), out)
+        linear.piece_from_corners(_core.read_only(self.Dh), _core.read_only(Fc),
+                                  _core.read_only(np.asarray(order, dtype=np.int64)), out)
         return out
 
     def dense_table(self) -> np.ndarray:

@@ -90,9 +90,8 @@ class DenseEngine(Engine):
                                            self.Dh))
         if PLAIN or d > lanes.MAX_D:
             return None, None, plain
-        return (frozen_tables(lanes.LaneTables(self.R, _tables.padded(self.Dh.T, 8 * nc),
-                                        _tables.padded(self.Dh, 8 * dc),
-                                        np.array([n, d, nc, dc], dtype=np.int64))),
+        return (lanes.lane_tables(self.R, _tables.padded(self.Dh.T, 8 * nc),
+                                  _tables.padded(self.Dh, 8 * dc), n, d, nc, dc),
                 lanes.kernels(8 * nc, 8 * dc, self._far), plain)
 
     @property
@@ -222,7 +221,8 @@ class DenseEngine(Engine):
         rows = np.flatnonzero(~np.isfinite(out).all(axis=1))
         U, exps = unit_rows(V[rows])
         res = np.empty_like(U)
-        self._lane_kernels[3](self._lanes, U, (res,), inverse, launch=self.launch)
+        self._lane_kernels[0](lanes.unchecked(self._lanes), U, (res,), inverse,
+                              launch=self.launch)
         bad = scaling.unscale_rows(res, exps, 0)
         out[rows] = res
         return bad

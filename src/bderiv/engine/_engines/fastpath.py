@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._kernels import _core
+from ..._kernels import _core, linear
 from ..._limits import FAST_RTOL
 from ..._numerics import INSERTION_SORT_MAX
 from ..._support import _tables
@@ -38,16 +38,16 @@ class FastPath:
             eye = np.eye(Dh.shape[1])
             self.M = eye + A.T @ (Dh / rate0[:, None])
             self.Minv = eye - A.T @ (Dh / ratef[:, None])
-            self._linear = _core.frozen_tables(_core.LinearTables(np.ascontiguousarray(self.M.T),
-                                                           np.ascontiguousarray(self.Minv.T)))
-        self._own = _core.frozen_tables(_core.OwnRateTables(self.DhT, self.rate0))
+            self._linear = _core.frozen_tables(linear.LinearTables(
+                np.ascontiguousarray(self.M.T), np.ascontiguousarray(self.Minv.T)))
+        self._own = _core.frozen_tables(linear.OwnRateTables(self.DhT, self.rate0))
 
     def apply_linear(self, V, out, inverse: bool, launch: int) -> int:
-        return _core.linear(self._linear, V, (out,), inverse, launch)
+        return linear.linear(self._linear, V, (out,), inverse, launch)
 
     def event_times(self, V, times, orders, launch: int) -> int:
         few = self.DhT.shape[1] <= INSERTION_SORT_MAX  # the merge sort compiled only for many
-        kernel = _core.own_times if few else _core.own_times_many
+        kernel = linear.own_times if few else linear.own_times_many
         return kernel(self._own, V, (times, orders), False, launch)
 
 
