@@ -34,6 +34,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 from numba import njit, parallel_chunksize, prange
+from numba.core import cgutils, errors
+from numba.extending import intrinsic
 
 from .. import _numerics
 from .._limits import LAUNCH_WORK, PARALLEL_MIN_QUERIES
@@ -126,36 +128,67 @@ def _paired(tables, statics):
     return tables, statics
 
 
-# The code of the drivers. ``block``, ``bind`` and ``statics`` are no names of this module:
-# :class:`Batch` runs this code with globals of its own, one namespace per block, so each
-# driver is a plain function without a closure that numba caches by its own means.
-def _serial(tables, V, outs, inverse):
-    m = V.shape[0]
-    start = m - m  # 0 as an int64, as :func:`_tasks` passes it: a literal 0 would compile
-    # the block (and its steps) a second time, for the literal
-    block(bind(tables, statics), V, outs, start, m, inverse)  # noqa: F821
-    return nonfinite_rows(outs[0], start, m)
+# The code of the drivers. ``block``, ``bind``, ``statics`` and ``run_at`` are no names of
+# this module: :class:`Batch` runs this code with globals of its own, one namespace per
+# block, so each driver is a plain function without a closure that numba caches by its own
+# means.
+def _serial(tables, V, outs, start, stop, inverse):
+    block(bind(tables, statics), V, outs, start, stop, inverse)  # noqa: F821
+    return nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
 
 
-def _tasks(tables, V, outs, inverse):
+def _tasks(tables, V, outs, inverse, serial):
     m = V.shape[0]
     bad = 0
     for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
         start = task * TASK_QUERIES
         stop = min(start + TASK_QUERIES, m)
-        block(bind(tables, statics), V, outs, start, stop, inverse)  # noqa: F821
-        bad += nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
+        bad += run_at(serial, (tables, V, outs, start, stop, inverse))  # noqa: F821
     return bad
+
+
+def _caller(dispatcher):
+    """An intrinsic ``run_at(address, args)``: ``dispatcher(*args)`` called at ``address``,
+    the address of its machine code compiled for the types of ``args`` (numba's call of a
+    compiled function, its exceptions propagated, through a pointer)."""
+
+    @intrinsic
+    def run_at(typingctx, address, args):
+        if not isinstance(args, numba.types.BaseTuple):
+            raise errors.TypingError(f"run_at: the arguments as a tuple, got {args}")
+        argtypes = tuple(args.types)
+        dispatcher.compile(argtypes)  # for its return type
+        signature = dispatcher.overloads[argtypes].signature
+
+        def codegen(context, builder, sig, llargs):
+            values = cgutils.unpack_tuple(builder, llargs[1], len(argtypes))
+            function = context.call_conv.get_function_type(signature.return_type, argtypes)
+            pointer = builder.inttoptr(llargs[0], function.as_pointer())
+            status, result = context.call_conv.call_function(
+                builder, pointer, signature.return_type, argtypes, values)
+            with cgutils.if_unlikely(builder, status.is_error):
+                context.call_conv.return_status_propagate(builder, status)
+            return result
+
+        return signature.return_type(address, args), codegen
+
+    return run_at
 
 
 class Batch:
     """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``.
 
-    ``statics``: a named tuple of ``_simd.static`` values compiled into the drivers; the
-    block then gets ``(tables, statics)`` in place of ``tables``. They are constants of
-    the drivers, not arguments: numba's parallel loops take no nested tuples, and a type
-    of our own in an argument would send every call through Python's typeof
-    (docs/benchmarks.md, "Kernel design choices, measured").
+    The serial driver runs the block on rows ``start:stop`` and counts the non-finite ones;
+    the parallel driver runs the serial one on each task's rows, called through its
+    address (an argument: :meth:`_address`), so that the block's code is optimised and
+    generated once, in the serial driver, and not again in the parallel one (numba links a
+    called function's code into its caller and optimises and generates the whole again
+    there).
+
+    ``statics``: a named tuple of ``_simd.static`` values compiled into the serial driver;
+    the block then gets ``(tables, statics)`` in place of ``tables``. They are constants
+    of the driver, not arguments: a type of our own in an argument would send every call
+    through Python's typeof (docs/benchmarks.md, "Kernel design choices, measured").
 
     The drivers are cached on disk (``cache=True``) under the block's qualified name, the
     statics' sizes and :data:`SOURCES`; ``cache=False`` for blocks that call a user's
@@ -169,12 +202,29 @@ class Batch:
             sizes = "" if statics is None else "_" + "_".join(str(len(s)) for s in statics)
             name = f"{block.py_func.__module__.rsplit('.', 1)[-1]}.{block.__name__}{sizes}"
             serial = keyed(_serial, SOURCES, f"{name}.serial", namespace, **JIT)
+            namespace = dict(namespace, run_at=_caller(serial))
             tasks = keyed(_tasks, SOURCES, f"{name}.tasks", namespace, parallel=True, **JIT)
             harden_all()  # the kernels of the modules imported so far
         else:
             serial = njit(**JIT)(_bound(_serial, namespace))
+            namespace = dict(namespace, run_at=_caller(serial))
             tasks = njit(parallel=True, **JIT)(_bound(_tasks, namespace))
         self.block, self.serial, self.tasks = block, serial, tasks
+        self._addresses = {}
+
+    def _address(self, tables, V, outs, inverse) -> int:
+        """The address of the serial driver compiled for the types the parallel one calls
+        it with (compiled, or loaded from the disk cache, the first time)."""
+        typeof = self.serial.typeof_pyval
+        argtypes = (typeof(tables), typeof(V), typeof(outs), numba.int64, numba.int64,
+                    typeof(inverse))
+        address = self._addresses.get(argtypes)
+        if address is None:
+            self.serial.compile(argtypes)
+            compiled = self.serial.overloads[argtypes]
+            address = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)
+            self._addresses[argtypes] = address
+        return address
 
     def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> int:
         """Run the block on every row of ``V``; ``launch``: queries per kernel launch.
@@ -186,7 +236,7 @@ class Batch:
         tables, V = frozen_tables(tables), read_only(V)
         m = V.shape[0]
         if m < PARALLEL_MIN_QUERIES:
-            return self.serial(tables, V, outs, inverse)
+            return self.serial(tables, V, outs, 0, m, inverse)
         bad = 0
         for start in range(0, m, launch):
             stop = min(start + launch, m)
@@ -195,13 +245,14 @@ class Batch:
         return bad
 
     def _launch(self, tables, V, outs, inverse) -> int:
+        serial = self._address(tables, V, outs, inverse)
         # dynamic schedule, one task at a time (set outside the jit: inside it, numba could
         # not cache the function)
         if _SAFE_LAYER[0]:
             with parallel_chunksize(1):
-                return self.tasks(tables, V, outs, inverse)
+                return self.tasks(tables, V, outs, inverse, serial)
         with _LAUNCH_LOCK, parallel_chunksize(1):
-            bad = self.tasks(tables, V, outs, inverse)
+            bad = self.tasks(tables, V, outs, inverse, serial)
             _note_layer()
         return bad
 

@@ -101,7 +101,8 @@ def touchdown_figure(robot: LeggedRobot, x0, t_final, *, direction=None, eps=2e-
     Left: the run from ``x0`` over ``[0, t_final]``, its event groups marked. Right, near
     the first group: the same run and, dashed, the run from ``x0 + eps * direction`` (a
     perturbation that orders the feet), with the order in which its feet land: the piece
-    of the flow's B-derivative that the perturbation meets.
+    of the flow's B-derivative that the perturbation meets (with feet whose forces add,
+    as compliant feet's do, every order's piece is the same matrix: docs/robots.md).
 
     Returns
     -------
@@ -151,7 +152,8 @@ def touchdown_figure(robot: LeggedRobot, x0, t_final, *, direction=None, eps=2e-
     zoom.set_xlabel("time (ms)")
     zoom.set_title("near touchdown: solid as dropped, dashed perturbed", fontsize=10)
     landing = nominal.groups[0].events if nominal.groups else robot.feet
-    zoom.text(0.98, 0.97, "perturbed run lands " + " < ".join(order) + "\n(one of the "
-              f"{np.prod(range(1, len(landing) + 1))} pieces of the B-derivative)",
-              transform=zoom.transAxes, fontsize=8, ha="right", va="top")
+    pieces = np.prod(range(1, len(landing) + 1))
+    zoom.text(0.98, 0.97, "perturbed run lands " + " < ".join(order) + "\nits piece of the "
+              f"B-derivative: one of {pieces} orders\n(feet whose forces add: all {pieces} "
+              "are one matrix)", transform=zoom.transAxes, fontsize=8, ha="right", va="top")
     return fig
