@@ -3,12 +3,18 @@
 Each factory returns ``numba.njit`` functions computing what the example's Python model
 computes (the formulas written again, loop style, as one writes for numba): the same model
 on both integrators. The fields take complex input (complex step) unless said otherwise.
+
+The functions of a model are made once per process (``functools.cache``): each new
+closure is compiled again (about a second for the three of a model, once per signature),
+and the tests of one process share them; ``fresh=True`` makes new ones (a model none of
+this process's runs has seen).
 """
 
 from __future__ import annotations
 
 import _thread
 import contextlib
+import functools
 import signal
 import threading
 import time
@@ -22,6 +28,7 @@ from bderiv.examples import chair, pronking
 G = 9.81
 
 
+@functools.cache
 def pronking_functions(legs, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0,
                        coupling=0.5, half_base=0.4, leg=0.5, inertia=0.16):
     """``field, events, event_jacobian`` of ``gaits.pronking(legs=legs)`` (its formulas:
@@ -72,14 +79,17 @@ def apex_section(x):
     return -x[2]
 
 
-def pronking_pair(legs):
-    """``(example, compiled system)``: gaits.pronking(legs) and its numba twin."""
+def pronking_pair(legs, fresh=False):
+    """``(example, compiled system)``: gaits.pronking(legs) and its numba twin (its
+    functions new ones when ``fresh``)."""
     ex = pronking(legs=legs)
-    field, events, event_jacobian = pronking_functions(legs)
+    make = pronking_functions.__wrapped__ if fresh else pronking_functions
+    field, events, event_jacobian = make(legs)
     return ex, HybridSystem(field, events, n_events=legs, dim=4,
                             event_jacobian=event_jacobian)
 
 
+@functools.cache
 def chair_functions(stiffness=400.0, damping=4.0, mode_damping=1.0, friction=1.0,
                     inertia=0.1):
     """``field, events, event_jacobian`` of ``examples.chair()`` (its legs and formulas)."""

@@ -117,6 +117,24 @@ def test_launches_do_not_change_the_result(monkeypatch):
     np.testing.assert_array_equal(o2, order)
 
 
+def test_one_parallel_driver_serves_every_block_and_matches_the_serial_one():
+    """The parallel driver calls each block's serial driver through its address: two
+    systems whose apply kernels differ (h in 8 lanes and in 16) share it (their tables and
+    outputs have one type), and each gives the bits of its serial driver."""
+    rng = np.random.default_rng(11)
+    V = rng.standard_normal((3000, 20))
+    before, serial = set(_core._TASKS.signatures), set()
+    for n in (3, 12):
+        bd = BDerivative(*random_system(rng, n, 20), fast_paths=False)
+        whole = bd(V)  # the parallel driver (3000 rows)
+        rows = np.concatenate([bd(V[i:i + 500]) for i in range(0, 3000, 500)])  # serial
+        np.testing.assert_array_equal(whole, rows)
+        if not _core.PLAIN:
+            serial.add(bd._engine._lane_kernels[0].serial)
+    assert len(serial) == (0 if _core.PLAIN else 2)
+    assert len(set(_core._TASKS.signatures) - before) <= 1, _core._TASKS.signatures
+
+
 def test_launch_sizes():
     assert _core.launch_queries(8, 8) == 1 << 18
     assert _core.launch_queries(128, 128) == 1 << 14  # floor

@@ -174,7 +174,7 @@ def test_threaded_batch_is_a_loop_of_simulate_to_the_bit(three_threads, monkeypa
     calls = itertools.count()  # every other compiled run hands its stretch back after 5 steps
     monkeypatch.setattr(compiled_model, "slice_budget",
                         lambda key: 5 if next(calls) % 2 else 10**6)
-    ex, system = pronking_pair(2)  # a fresh model: its first run goes alone
+    ex, system = pronking_pair(2, fresh=True)  # a fresh model: its first run goes alone
     X0 = mixed_starts(ex.x0, 24)
     seen = []
     runs = system.simulate_many(X0, ex.t_final, simultaneity_tol=1e-7,

@@ -18,10 +18,11 @@ function belongs to a module under ``bderiv`` (``gc.get_objects``: the module-le
 of ``vars(module)`` for each module of ``sys.modules`` and those made by factories, the
 drivers of :class:`bderiv._kernels._core.Batch` and the lane kernels of
 ``_kernels.lanes.kernels``). A kernel cached under a keyed name (``name.k<digest>``) is
-listed by its plain name; a driver (``_core._serial``/``_tasks``) by the qualified name of
-its block; several dispatchers of one name (a factory's, per user function) are merged
-(their signatures' union; ``instances`` counts them). The union over the processes is
-taken per name.
+listed by its plain name; a serial driver (``_core._serial``) by the qualified name of its
+block (the parallel driver ``_core._tasks`` is one for all blocks, with a signature per
+type of the tables and outputs it runs); several dispatchers of one name (a factory's, per
+user function) are merged (their signatures' union; ``instances`` counts them). The union
+over the processes is taken per name.
 
 ``cached``: whether the dispatcher caches on disk (an entry point called from Python:
 its signatures count whether they were compiled or loaded). An uncached one (a step
@@ -46,10 +47,10 @@ _KEY = re.compile(r"\.k[0-9a-f]{16}$")
 
 def _name(dispatcher) -> str:
     """``module:qualname`` of a dispatcher, without its cache key; a driver of a block
-    (``_core._serial``/``_tasks``, uncached) by its block's name."""
+    (``_core._serial``, uncached) by its block's name."""
     fn = dispatcher.py_func
     qualname = _KEY.sub("", fn.__qualname__)
-    block = fn.__globals__.get("block") if fn.__qualname__ in ("_serial", "_tasks") else None
+    block = fn.__globals__.get("block") if fn.__qualname__ == "_serial" else None
     if block is not None and hasattr(block, "py_func"):
         qualname = f"{block.py_func.__module__}.{block.py_func.__qualname__}.{qualname}"
     return f"{fn.__module__}:{qualname}"

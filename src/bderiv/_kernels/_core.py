@@ -5,13 +5,14 @@ A *block* is an njit function ``block(tables, V, outs, start, stop, inverse)`` t
 computes queries ``V[start:stop]`` of one corner representation (``tables``: a named tuple
 of its arrays, one class per representation, defined beside the blocks that read it and
 built once by its engine) and writes the rows ``start:stop`` of the arrays in the tuple
-``outs``. The
-arrays of ``outs`` are the per-query ones (row q belongs to ``V[q]``), cut with ``V`` into
-launches; ``outs[0]`` is the result whose non-finite rows are counted, and a block may read
-a later one as a second per-query input (the tangent vectors of jvp/vjp).
-:func:`batch` turns a block into a :class:`Batch`: a serial and a parallel driver around
-it. Every query is computed by the same serial code whatever the driver, the thread count
-or the split into tasks and launches, so results are bitwise independent of all three.
+``outs``. The arrays of ``outs`` are the per-query ones (row q belongs to ``V[q]``), cut
+with ``V`` into launches; ``outs[0]`` is the result whose non-finite rows are counted, and
+a block may read a later one as a second per-query input (the tangent vectors of
+jvp/vjp). :func:`batch` turns a block into a :class:`Batch`: a serial driver with the block
+inlined, and the parallel driver all blocks share, which calls the serial one through its
+address (each block's code is compiled once, in its serial driver). Every query is
+computed by the same serial code whatever the driver, the thread count or the split into
+tasks and launches, so results are bitwise independent of all three.
 
 No validation here: callers pass C-contiguous arrays of consistent shapes. What a kernel
 only reads (queries, tables, tangents) it gets read-only (:func:`read_only`,
@@ -128,13 +129,37 @@ def _paired(tables, statics):
     return tables, statics
 
 
-# The code of the drivers. ``block``, ``bind``, ``statics`` and ``run_at`` are no names of
-# this module: :class:`Batch` runs this code with globals of its own, one namespace per
-# block, so each driver is a plain function without a closure that numba caches by its own
+# The serial driver's code. ``block``, ``bind`` and ``statics`` are no names of this
+# module: :class:`Batch` runs this code with globals of its own, one namespace per block,
+# so each serial driver is a plain function without a closure that numba caches by its own
 # means.
 def _serial(tables, V, outs, start, stop, inverse):
     block(bind(tables, statics), V, outs, start, stop, inverse)  # noqa: F821
     return nonfinite_rows(outs[0], start, stop)  # while the rows are in cache
+
+
+@intrinsic
+def _run_at(typingctx, address, args):
+    """``serial(*args) -> int64`` called at ``address``: the address of a serial driver
+    compiled for the types of ``args`` (numba's call of a compiled function, its exceptions
+    propagated, through a pointer). Typed from ``args`` alone, so that one parallel driver
+    serves every block whose arguments have these types; :meth:`Batch._address` checks
+    that the driver at the address returns an int64."""
+    if not isinstance(args, numba.types.BaseTuple):
+        raise errors.TypingError(f"_run_at: the arguments as a tuple, got {args}")
+    argtypes = tuple(args.types)
+
+    def codegen(context, builder, sig, llargs):
+        values = cgutils.unpack_tuple(builder, llargs[1], len(argtypes))
+        function = context.call_conv.get_function_type(numba.int64, argtypes)
+        pointer = builder.inttoptr(llargs[0], function.as_pointer())
+        status, result = context.call_conv.call_function(builder, pointer, numba.int64,
+                                                         argtypes, values)
+        with cgutils.if_unlikely(builder, status.is_error):
+            context.call_conv.return_status_propagate(builder, status)
+        return result
+
+    return numba.int64(address, args), codegen
 
 
 def _tasks(tables, V, outs, inverse, serial):
@@ -143,73 +168,48 @@ def _tasks(tables, V, outs, inverse, serial):
     for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
         start = task * TASK_QUERIES
         stop = min(start + TASK_QUERIES, m)
-        bad += run_at(serial, (tables, V, outs, start, stop, inverse))  # noqa: F821
+        bad += _run_at(serial, (tables, V, outs, start, stop, inverse))
     return bad
 
 
-def _caller(dispatcher):
-    """An intrinsic ``run_at(address, args)``: ``dispatcher(*args)`` called at ``address``,
-    the address of its machine code compiled for the types of ``args`` (numba's call of a
-    compiled function, its exceptions propagated, through a pointer)."""
-
-    @intrinsic
-    def run_at(typingctx, address, args):
-        if not isinstance(args, numba.types.BaseTuple):
-            raise errors.TypingError(f"run_at: the arguments as a tuple, got {args}")
-        argtypes = tuple(args.types)
-        dispatcher.compile(argtypes)  # for its return type
-        signature = dispatcher.overloads[argtypes].signature
-
-        def codegen(context, builder, sig, llargs):
-            values = cgutils.unpack_tuple(builder, llargs[1], len(argtypes))
-            function = context.call_conv.get_function_type(signature.return_type, argtypes)
-            pointer = builder.inttoptr(llargs[0], function.as_pointer())
-            status, result = context.call_conv.call_function(
-                builder, pointer, signature.return_type, argtypes, values)
-            with cgutils.if_unlikely(builder, status.is_error):
-                context.call_conv.return_status_propagate(builder, status)
-            return result
-
-        return signature.return_type(address, args), codegen
-
-    return run_at
+#: the parallel driver of every block (:class:`Batch`): compiled once per type of its
+#: arguments, whatever the block
+_TASKS = keyed(_tasks, SOURCES, "_tasks", parallel=True, **JIT)
 
 
 class Batch:
     """Serial and parallel drivers of one block; call ``batch(tables, V, outs, inverse)``.
 
-    The serial driver runs the block on rows ``start:stop`` and counts the non-finite ones;
-    the parallel driver runs the serial one on each task's rows, called through its
-    address (an argument: :meth:`_address`), so that the block's code is optimised and
-    generated once, in the serial driver, and not again in the parallel one (numba links a
-    called function's code into its caller and optimises and generates the whole again
-    there).
+    The serial driver runs the block on rows ``start:stop`` and counts the non-finite
+    ones; the block is inlined into it (numba's ``inline="always"``: its code is compiled
+    there only, once). The parallel driver (one for all blocks, :data:`_TASKS`) runs the
+    serial one on each task's rows, called through its address (an argument:
+    :meth:`_address`): numba would otherwise link the serial driver's code into it and
+    optimise and generate it again there.
 
     ``statics``: a named tuple of ``_simd.static`` values compiled into the serial driver;
     the block then gets ``(tables, statics)`` in place of ``tables``. They are constants
     of the driver, not arguments: a type of our own in an argument would send every call
     through Python's typeof (docs/benchmarks.md, "Kernel design choices, measured").
 
-    The drivers are cached on disk (``cache=True``) under the block's qualified name, the
-    statics' sizes and :data:`SOURCES`; ``cache=False`` for blocks that call a user's
-    function (a closure: numba cannot key it across processes).
+    The serial driver is cached on disk (``cache=True``) under the block's qualified name,
+    the statics' sizes and :data:`SOURCES`; ``cache=False`` for blocks that call a user's
+    function (a closure: numba cannot key it across processes; the parallel driver,
+    which does not hold the block, is cached all the same).
     """
 
     def __init__(self, block, cache: bool = True, statics: NamedTuple | None = None):
-        namespace = dict(globals(), block=block, statics=statics,
+        inlined = njit(inline="always", **JIT)(block.py_func)
+        namespace = dict(globals(), block=inlined, statics=statics,
                          bind=_alone if statics is None else _paired)
         if cache:
             sizes = "" if statics is None else "_" + "_".join(str(len(s)) for s in statics)
             name = f"{block.py_func.__module__.rsplit('.', 1)[-1]}.{block.__name__}{sizes}"
             serial = keyed(_serial, SOURCES, f"{name}.serial", namespace, **JIT)
-            namespace = dict(namespace, run_at=_caller(serial))
-            tasks = keyed(_tasks, SOURCES, f"{name}.tasks", namespace, parallel=True, **JIT)
             harden_all()  # the kernels of the modules imported so far
         else:
             serial = njit(**JIT)(_bound(_serial, namespace))
-            namespace = dict(namespace, run_at=_caller(serial))
-            tasks = njit(parallel=True, **JIT)(_bound(_tasks, namespace))
-        self.block, self.serial, self.tasks = block, serial, tasks
+        self.block, self.serial, self.tasks = block, serial, _TASKS
         self._addresses = {}
 
     def _address(self, tables, V, outs, inverse) -> int:
@@ -222,6 +222,9 @@ class Batch:
         if address is None:
             self.serial.compile(argtypes)
             compiled = self.serial.overloads[argtypes]
+            if compiled.signature.return_type != numba.int64:  # what _run_at calls
+                raise TypeError(f"the serial driver of {self.block.__name__} returns "
+                                f"{compiled.signature.return_type}, not int64")
             address = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)
             self._addresses[argtypes] = address
         return address
