@@ -260,7 +260,9 @@ def _lane_apply_block(args, V, outs, start, stop, inverse):
                     out[q0 + p, i] = np.nan
 
 
-@njit(inline="always", **JIT)
+# not inlined: its copy into the apply block, after the lanes', took a fifth of a width
+# pair's compilation and gained nothing at run time (design.md, "The drivers compiled once")
+@njit(**JIT)
 def _assemble(args, V, r0, pn, inverse, out, q0, X, T, order, times):
     """out[q0 + p] = M(V[r0 + p]) for p < pn from the chains of :func:`_lanes`:
     ``v + s X - T F[end]``, the position at the last event moved back to time 0 along the
