@@ -331,6 +331,25 @@ def test_corner_function_beyond_62_events_matches_structured():
                                    atol=1e-10)
 
 
+def test_a_corner_function_that_raises_raises_the_same_in_a_large_batch():
+    """An exception of the user's function inside the parallel driver reaches Python as
+    numba's SystemError ("returned a result with an exception set"); the batch raises the
+    function's own exception, as a small batch (the serial driver) does."""
+    @numba.njit
+    def undefined_after_1(happened, out):
+        if happened[1] and not happened[0]:
+            raise ValueError("region 0b10 is not modelled")
+        out[0] = 1.0 + happened[0]
+        out[1] = 1.0 + 0.5 * happened[1]
+
+    bd = BDerivative(np.eye(2), CornerFunction(undefined_after_1))
+    V = np.random.default_rng(3).standard_normal((3000, 2))  # some visit 0b10
+    for rows in (V[:20], V):  # the serial driver, the parallel one
+        with pytest.raises(ValueError, match="region 0b10 is not modelled") as info:
+            bd(rows)
+        assert info.value.__context__ is None  # not chained to numba's SystemError
+
+
 def test_corner_function_violation_and_errors():
     @numba.njit
     def bad(happened, out):

@@ -249,6 +249,17 @@ class Batch:
 
     def _launch(self, tables, V, outs, inverse) -> int:
         serial = self._address(tables, V, outs, inverse)
+        try:
+            return self._tasks_at(tables, V, outs, inverse, serial)
+        except SystemError as exc:
+            # an exception raised inside numba's parallel loop (a user's corner function)
+            # reaches Python as a SystemError: the serial driver, run on the launch's rows,
+            # raises it as it is (outside this handler, so not chained to the SystemError)
+            failure = exc
+        self.serial(tables, V, outs, 0, V.shape[0], inverse)
+        raise failure
+
+    def _tasks_at(self, tables, V, outs, inverse, serial) -> int:
         # dynamic schedule, one task at a time (set outside the jit: inside it, numba could
         # not cache the function)
         if _SAFE_LAYER[0]:
