@@ -42,6 +42,7 @@ from .. import _numerics
 from .._limits import LAUNCH_WORK, PARALLEL_MIN_QUERIES
 from .._numerics import TASK_QUERIES
 from ._cache import harden_all, keyed, sources_digest
+from ._pointer import call_at
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
@@ -151,13 +152,7 @@ def _run_at(typingctx, address, args):
 
     def codegen(context, builder, sig, llargs):
         values = cgutils.unpack_tuple(builder, llargs[1], len(argtypes))
-        function = context.call_conv.get_function_type(numba.int64, argtypes)
-        pointer = builder.inttoptr(llargs[0], function.as_pointer())
-        status, result = context.call_conv.call_function(builder, pointer, numba.int64,
-                                                         argtypes, values)
-        with cgutils.if_unlikely(builder, status.is_error):
-            context.call_conv.return_status_propagate(builder, status)
-        return result
+        return call_at(context, builder, llargs[0], numba.int64, argtypes, values)
 
     return numba.int64(address, args), codegen
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ._lie import _rate_jacobian_xi, _rate_matrix, rate, rate_inverse
+from ._lie import _cr, _rate_jacobian_xi, _rate_matrix, rate, rate_inverse
 
 
 @numba.njit(cache=True)
@@ -98,12 +98,6 @@ def torque(x, Jw, P, support, mask, law):
 
 
 @numba.njit(cache=True)
-def _cross(a0, a1, a2, b0, b1, b2):
-    """``a x b`` as a tuple (scalars: no small arrays in the loops below)."""
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-
-
-@numba.njit(cache=True)
 def torque_derivatives(x, Jw, P, support, ancestor, mask, law):
     """:func:`torque` and the derivatives of its contact part in q (tangent,
     Pinocchio's) and v (module docstring).
@@ -134,7 +128,7 @@ def torque_derivatives(x, Jw, P, support, ancestor, mask, law):
         _point_jacobian(Jw, support[k], p, Jk)
         f = _force(Jk, p, v, law)
         tau += Jk.T @ f
-        pf0, pf1, pf2 = _cross(p[0], p[1], p[2], f[0], f[1], f[2])
+        pf0, pf1, pf2 = _cr(p[0], p[1], p[2], f[0], f[1], f[2])
         W0 = W1 = W2 = 0.0  # the body's angular velocity
         for j in cols:
             W0 += Jw[3, j] * v[j]
@@ -144,18 +138,18 @@ def torque_derivatives(x, Jw, P, support, ancestor, mask, law):
             vi0, vi1, vi2, wi0, wi1, wi2 = (Jw[0, i], Jw[1, i], Jw[2, i], Jw[3, i],
                                             Jw[4, i], Jw[5, i])
             d0, d1, d2 = Jk[0, i], Jk[1, i], Jk[2, i]  # dp/dq_i
-            u0, u1, u2 = _cross(W0, W1, W2, d0, d1, d2)  # du/dq_i
-            e0, e1, e2 = _cross(d0, d1, d2, f[0], f[1], f[2])
+            u0, u1, u2 = _cr(W0, W1, W2, d0, d1, d2)  # du/dq_i
+            e0, e1, e2 = _cr(d0, d1, d2, f[0], f[1], f[2])
             for j in cols:
                 vj0, vj1, vj2, wj0, wj1, wj2 = (Jw[0, j], Jw[1, j], Jw[2, j], Jw[3, j],
                                                 Jw[4, j], Jw[5, j])
                 acc = wj0 * e0 + wj1 * e1 + wj2 * e2
                 if ancestor[i, j] and i != j:  # (c, a) = S_i x S_j
-                    c0, c1, c2 = _cross(wi0, wi1, wi2, vj0, vj1, vj2)
-                    b0, b1, b2 = _cross(vi0, vi1, vi2, wj0, wj1, wj2)
+                    c0, c1, c2 = _cr(wi0, wi1, wi2, vj0, vj1, vj2)
+                    b0, b1, b2 = _cr(vi0, vi1, vi2, wj0, wj1, wj2)
                     c0, c1, c2 = c0 + b0, c1 + b1, c2 + b2
-                    a0, a1, a2 = _cross(wi0, wi1, wi2, wj0, wj1, wj2)
-                    b0, b1, b2 = _cross(a0, a1, a2, p[0], p[1], p[2])
+                    a0, a1, a2 = _cr(wi0, wi1, wi2, wj0, wj1, wj2)
+                    b0, b1, b2 = _cr(a0, a1, a2, p[0], p[1], p[2])
                     u0 += (c0 + b0) * v[j]
                     u1 += (c1 + b1) * v[j]
                     u2 += (c2 + b2) * v[j]

@@ -5,9 +5,9 @@ calls (and compiled into it) does: after an edit of ``_rhs.py`` the driver and t
 would load the old right-hand side from the cache. Every kernel here is therefore cached
 under a name that ends with a digest of all of ``compiled/``'s sources and of
 ``bderiv._numerics`` (whose numbers are compiled in; ``bderiv._limits``, Python-only
-defaults, keys nothing), by numba's own cache, in bderiv's
-checked cache files (:func:`bderiv._kernels._cache.rekey`: a damaged entry is compiled
-again, never run).
+defaults, keys nothing) and of ``bderiv._kernels._pointer`` (the driver's call), by
+numba's own cache, in bderiv's checked cache files (:func:`bderiv._kernels._cache.rekey`:
+a damaged entry is compiled again, never run).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from numba import njit
 from numba.core.dispatcher import Dispatcher
 
 from ... import _numerics
+from ..._kernels import _pointer
 from ..._kernels._cache import harden, rekey, sources_digest
 
 
@@ -40,8 +41,10 @@ def eager(signature):
 
 
 def sources_key() -> str:
-    """The digest of ``compiled/``'s sources and of ``bderiv._numerics``."""
-    return sources_digest(pathlib.Path(__file__).parent, _numerics.__file__)
+    """The digest of ``compiled/``'s sources, of ``bderiv._numerics`` and of the pointer
+    call compiled into the run (``bderiv._kernels._pointer``)."""
+    return sources_digest(pathlib.Path(__file__).parent, _numerics.__file__,
+                          _pointer.__file__)
 
 
 def key_all_kernels() -> None:

@@ -26,6 +26,7 @@ from numba.core import cgutils, errors
 from numba.experimental import structref
 from numba.extending import intrinsic
 
+from ..._kernels._pointer import call_at
 from ._cached import eager
 from ._integrate import drive_stretch
 from ._rhs import (
@@ -121,13 +122,8 @@ def drive_at(typingctx, address, args):
 
     def codegen(context, builder, sig, llargs):
         values = cgutils.unpack_tuple(builder, llargs[1], len(DRIVER_ARGS))
-        function = context.call_conv.get_function_type(signature.return_type, DRIVER_ARGS)
-        pointer = builder.inttoptr(llargs[0], function.as_pointer())
-        status, result = context.call_conv.call_function(
-            builder, pointer, signature.return_type, DRIVER_ARGS, values)
-        with cgutils.if_unlikely(builder, status.is_error):
-            context.call_conv.return_status_propagate(builder, status)
-        return result
+        return call_at(context, builder, llargs[0], signature.return_type, DRIVER_ARGS,
+                       values)
 
     return signature.return_type(address, args), codegen
 
