@@ -169,3 +169,36 @@ def test_the_caches_are_keyed_by_the_numerics_not_the_defaults():
     assert _cached.sources_key() == sources_digest(pathlib.Path(_cached.__file__).parent,
                                                    _numerics.__file__, _pointer.__file__)
     assert not PYTHON_ONLY & set(vars(_numerics))
+
+
+def _callees(fn):
+    """The dispatchers ``fn``'s code names: globals, and attributes of global modules."""
+    names = fn.__code__.co_names
+    for name in names:
+        value = fn.__globals__.get(name)
+        if isinstance(value, types.ModuleType):
+            yield from (getattr(value, attr) for attr in names
+                        if isinstance(getattr(value, attr, None), Dispatcher))
+        elif isinstance(value, Dispatcher):
+            yield value
+
+
+def test_a_kernel_cached_under_its_own_name_calls_kernels_of_its_own_file_only():
+    """Numba invalidates a cached kernel when its own file changes, not when a callee's
+    file does (the callee is compiled into it): a cached kernel of bderiv that calls a
+    kernel of another file must be cached under a digest of both (``.k<digest>``), else an
+    edit of the callee's file leaves the caller's stale entry in use."""
+    for info in pkgutil.walk_packages(bderiv.__path__, "bderiv."):
+        if info.name.endswith("__main__"):
+            continue
+        module = importlib.import_module(info.name)
+        for value in list(vars(module).values()):
+            if (not isinstance(value, Dispatcher) or value.py_func.__module__ != info.name
+                    or value.stats.cache_path is None
+                    or ".k" in value.py_func.__qualname__):
+                continue
+            for callee in _callees(value.py_func):
+                assert callee.py_func.__module__ == info.name, (
+                    f"{info.name}.{value.py_func.__qualname__} is cached under its own "
+                    f"name and calls {callee.py_func.__module__}."
+                    f"{callee.py_func.__qualname__}")

@@ -72,10 +72,11 @@ KEY_DIGITS = 16
 
 def sources_digest(folder, *files) -> str:
     """The first :data:`KEY_DIGITS` hex digits of the sha256 of the ``*.py`` files of
-    ``folder`` (names and contents, in name order), then of ``files`` (the modules outside
-    ``folder`` whose values are compiled in: ``bderiv._numerics``)."""
+    ``folder`` (names and contents, in name order; ``None``: no folder), then of ``files``
+    (the modules outside ``folder`` whose values are compiled in: ``bderiv._numerics``)."""
     h = hashlib.sha256()
-    for path in [*sorted(pathlib.Path(folder).glob("*.py")), *map(pathlib.Path, files)]:
+    listed = sorted(pathlib.Path(folder).glob("*.py")) if folder is not None else []
+    for path in [*listed, *map(pathlib.Path, files)]:
         h.update(path.name.encode() + b"\0" + path.read_bytes())
     return h.hexdigest()[:KEY_DIGITS]
 
@@ -106,6 +107,18 @@ def rekey(dispatcher, key: str):
     dispatcher.py_func.__qualname__ = f"{dispatcher.py_func.__qualname__}.k{key}"
     dispatcher.enable_caching()
     return harden(dispatcher)
+
+
+def rekey_modules(modules, key: str) -> None:
+    """:func:`rekey` every cached kernel defined at the top level of ``modules`` that has
+    not compiled yet and is not keyed by ``key`` already (those compiled at import keep
+    their names: they call nothing of another file)."""
+    for module in modules:
+        for value in list(vars(module).values()):
+            if (isinstance(value, Dispatcher) and value.py_func.__module__ == module.__name__
+                    and value.stats.cache_path is not None and not value.signatures
+                    and not value.py_func.__qualname__.endswith(f".k{key}")):
+                rekey(value, key)
 
 
 class CheckedCacheFile(IndexDataCacheFile):

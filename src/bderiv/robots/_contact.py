@@ -28,9 +28,13 @@ the field.
 
 from __future__ import annotations
 
+import sys
+
 import numba
 import numpy as np
 
+from .._kernels._cache import rekey_modules, sources_digest
+from . import _lie
 from ._lie import _cr, _rate_jacobian_xi, _rate_matrix, rate, rate_inverse
 
 
@@ -200,3 +204,8 @@ def field_jacobian_matrix(x, da_dq, da_dv, minv_upper, dtau_dq, dtau_dv, kp, kd)
     out[nv:, nv:] = da_dv + Minv @ dtau_dv
     out[nv:, nv + 6:] -= kd * Minv[:, 6:]
     return out
+
+
+# numba watches a cached kernel's own file only, and these compile _lie's kernels into
+# theirs: cached under a digest of both files, an edit of either names new entries
+rekey_modules([sys.modules[__name__]], sources_digest(None, _lie.__file__, __file__))

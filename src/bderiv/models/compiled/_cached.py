@@ -16,11 +16,10 @@ import pathlib
 import sys
 
 from numba import njit
-from numba.core.dispatcher import Dispatcher
 
 from ... import _numerics
 from ..._kernels import _pointer
-from ..._kernels._cache import harden, rekey, sources_digest
+from ..._kernels._cache import harden, rekey_modules, sources_digest
 
 
 def eager(signature):
@@ -53,12 +52,6 @@ def key_all_kernels() -> None:
     (The few kernels with an explicit signature compile at import, before this runs: they
     call nothing of the package.)
     """
-    digest = sources_key()
-    for name, module in list(sys.modules.items()):
-        if not name.startswith(__package__ + ".") or module is None:
-            continue
-        for value in list(vars(module).values()):
-            if (isinstance(value, Dispatcher) and value.py_func.__module__ == name
-                    and value.stats.cache_path is not None and not value.signatures
-                    and not value.py_func.__qualname__.endswith(f".k{digest}")):
-                rekey(value, digest)
+    rekey_modules([module for name, module in list(sys.modules.items())
+                   if name.startswith(__package__ + ".") and module is not None],
+                  sources_key())
