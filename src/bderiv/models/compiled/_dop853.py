@@ -151,12 +151,13 @@ def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, point
 
     :func:`._rhs.rhs` written out: called per stage it would take the arrays as new
     references, an atomic increment and decrement each that numba cannot prune around
-    the user's call (10 of the 22 reference counts of a field call at d = 8). Inlined into
-    the step and the dense output, though it is then compiled twice (its 15 stage branches
-    are the largest code of the driver): a call of it costs its arguments' counts, those
-    around the field's calls too (the driver slower per step), and so does a call of
-    :func:`_stage_point` per stage (docs/design.md, "What the integrator compiles,
-    measured")."""
+    the user's call (10 of the 22 reference counts of a field call at d = 8). Inlined
+    straight into the driver, for the step and for the dense output's extra stages, though
+    it is then compiled twice (its 15 stage branches are the largest code of the driver;
+    inlined through a helper of its own, each inlining copies the helper with it too): a
+    call of it costs its arguments' counts, those around the field's calls too (the driver
+    slower per step), and so does a call of :func:`_stage_point` per stage
+    (docs/design.md, "What the integrator compiles, measured")."""
     params = model.params
     for s in range(first, last):
         _stage_point(y, K, s, h, n, points)
@@ -172,15 +173,6 @@ def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, point
         for j in range(d):
             K[s, j] = f[j]
     return OK
-
-
-@njit(cache=True, inline="always")
-def step(model, jac_mode, variational, mask, d, y, h, K, y_new, bad):
-    """One DOP853 step from ``y`` (``K[0]`` = f(y) on entry): stages into ``K[1:12]``,
-    the 8th-order solution into ``y_new`` (each stage's point passes through it), f there
-    into ``K[12]``. Returns a status."""
-    return stages(model, jac_mode, variational, mask, d, y, K, 1, N_STAGES + 1, h, y.size,
-                  y_new, bad)
 
 
 @njit(cache=True, inline="always")
@@ -220,16 +212,12 @@ def step_factor(err, rejected):
 
 
 @njit(cache=True, inline="always")
-def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K, F, ys, bad):
+def dense_coefficients(y_old, y_new, h, K, F):
     """The 7th-order dense output of the step ``y_old -> y_new`` of size ``h``, of the
-    first n components (``F`` (7, n)): the three extra stages into ``K[13:16, :n]`` and the
-    coefficients into ``F``, as scipy's ``DOP853._dense_output_impl``. n is the vector's
-    length, or d with ``variational`` False (the state's output alone). Returns a status."""
+    first n components (``F`` (7, n)), from its stages ``K`` with the three extra ones in
+    ``K[13:16, :n]`` (:func:`stages` from 13), as scipy's ``DOP853._dense_output_impl``.
+    n is the vector's length, or d when the state's output alone is needed."""
     n = F.shape[1]
-    status = stages(model, jac_mode, variational, mask, d, y_old, K, N_STAGES + 1,
-                    N_STAGES_EXTENDED, h, n, ys, bad)
-    if status != OK:
-        return status
     for j in range(n):
         dy = y_new[j] - y_old[j]
         F[0, j] = dy
@@ -241,7 +229,6 @@ def dense_coefficients(model, jac_mode, variational, mask, d, y_old, y_new, h, K
             for r in range(N_STAGES_EXTENDED):
                 acc += D[i, r] * K[r, j]
             F[3 + i, j] = h * acc
-    return OK
 
 
 @njit(cache=True)

@@ -26,7 +26,7 @@ from ._dop853 import (
     dense_eval,
     error_norm,
     initial_step,
-    step,
+    stages,
     step_factor,
 )
 from ._rhs import OK, call_events, rhs, state_events
@@ -184,7 +184,9 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             t_new = min(t + h_abs, t_final)
             h = t_new - t
             h_abs = abs(h)
-            status = step(model, jac_mode, variational, mask, d, y, h, K, y_new, bad)
+            # the step: stages 1 to 12, each point through y_new, the last the solution
+            status = stages(model, jac_mode, variational, mask, d, y, K, 1, N_STAGES + 1, h,
+                            m, y_new, bad)
             counts[NFEV] += N_STAGES
             counts[NJEV] += jev * N_STAGES
             if status != OK:
@@ -212,8 +214,10 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             steps[n_dense, 1] = h
         coef = F if whole or not dense else Fd[n_dense]
         if event or dense:
-            status = dense_coefficients(model, jac_mode, whole, mask, d, y, y_new, h, K, coef,
-                                        work[0], bad)
+            status = stages(model, jac_mode, whole, mask, d, y, K, N_STAGES + 1,
+                            N_STAGES_EXTENDED, h, coef.shape[1], work[0], bad)
+            if status == OK:
+                dense_coefficients(y, y_new, h, K, coef)
             counts[NFEV] += _DENSE_EXTRA
             counts[NJEV] += _DENSE_EXTRA if whole else 0
             if status != OK:
