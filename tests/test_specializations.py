@@ -1,6 +1,7 @@
 """Each kernel compiles once per genuinely different need (issue 36): writeable and read-only
-inputs reach the kernels in one form (read-only), and ``tools/specializations.py`` counts
-the signatures.
+inputs reach the kernels in one form (read-only for the B-derivative's kernels; writeable
+for the stop rules, as the compiled run passes them), and ``tools/specializations.py``
+counts the signatures.
 
 The workload runs in a fresh process: the signatures a dispatcher holds are those of every
 call in its process, and other tests call kernels directly with arrays of their own.
@@ -59,6 +60,12 @@ for h in both([[1e-16, -1.0], [2e-16, -0.5], [3e-16, -0.2]]):
 H = np.array([[1e-16, -1.0], [2e-16, -0.5], [3e-16, -0.2]])
 rules.start_dip_steps(H), rules.wrong_side(H[0], 0, np.full(2, 1e-9))
 rules.clearly_positive(H[1], H[2])
+W, err = np.array(Dh), np.full(3, 1e-9)
+rules.state_error(1e-12, 1e-10, np.array([500.0, 1e-3]), np.zeros(2), np.empty(2))
+rules.windows(W, np.array([1.0, 1e-4]), err, np.array([False, True]), np.empty(2))
+rules.classify(np.array([0.0, -1e-12]), np.ones(2), np.full(2, 1e-9), np.array([True, False]),
+               1e-10, np.empty(2, dtype=np.int64))
+rules.tolerances(W, err, np.empty(2))
 print("JSON" + json.dumps(tool.collect()))
 """
 

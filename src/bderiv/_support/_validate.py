@@ -152,11 +152,13 @@ def frozen(a, dtype=np.float64) -> np.ndarray:
 
 def scratch(a, dtype=np.float64) -> np.ndarray:
     """``a`` in the form the compiled run passes its own arrays to the stop rules it shares
-    with the Python loop (``rules.clearly_positive``, ``wrong_side``, ``start_dip_steps``):
+    with the Python loop (every function of :mod:`bderiv.models.compiled.rules`):
     C-contiguous, of ``dtype``, writeable (``a`` itself when it is; a copy otherwise).
 
-    The compiled run can only pass writeable arrays, so the Python loop passes those
-    rules the same type, and each compiles once (:func:`frozen` is the form of the rest).
+    The compiled run can only pass writeable arrays, so the Python loop passes the rules
+    the same type, and each compiles once for both (in a process that runs both, and in
+    the disk cache: the compiled integrator, compiling in the background, loads the rules
+    that the Python loop compiled). :func:`frozen` is the form of the other kernels.
     """
     return np.require(a, dtype=dtype, requirements=["C", "W"])
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
 from ..._support._format import format_mask, transversality_message
-from ..._support._validate import frozen, scratch
+from ..._support._validate import scratch
 from ..compiled import rules
 from .locate import examine, flags_of, state_error
 from .stopcalls import orientation
@@ -146,11 +146,11 @@ def group_tolerance(Dh: np.ndarray, options, scale) -> np.ndarray:
     >>> group_tolerance(np.array([[1.0, 0.0]]), SolverOptions(), np.array([1e-3, 500.0]))
     array([1.1e-11])
     """
-    Dh = frozen(Dh)
+    Dh = scratch(Dh)
     err = state_error(options.atol, options.rtol,
                       np.broadcast_to(np.asarray(scale, dtype=np.float64), Dh.shape[1:]))
     out = np.empty(Dh.shape[0])
-    rules.tolerances(Dh, frozen(err), out)
+    rules.tolerances(Dh, scratch(err), out)
     return out
 
 
@@ -276,9 +276,9 @@ def landing(system, group, mask, x_after, window, t=None):
     if kept:  # some bounced: the rates in the region the state goes on in (the decisions
         # above read the region with every bit flipped)
         after = new ^ kept
-        F = frozen(system.eval_field(x_after, after))
-        k = rules.first_sent_back(flags_of(group, n), frozen(h), frozen(window),
-                                  np.int64(kept), frozen(Dh), F)
+        F = scratch(system.eval_field(x_after, after))
+        k = rules.first_sent_back(flags_of(group, n), scratch(h), scratch(window),
+                                  np.int64(kept), scratch(Dh), F)
         if k >= 0:
             way = "bounced: the bit kept" if kept >> k & 1 else "crossed: the bit flipped"
             at = "" if t is None else f" at t={t:.10g}"
@@ -300,8 +300,8 @@ def holds(system, x, far, near, F_far=None, F_near=None) -> bool:
     its own (:func:`bderiv.models.compiled.rules.same_flow`)."""
     F_far = system.eval_field(x, far) if F_far is None else F_far
     F_near = system.eval_field(x, near) if F_near is None else F_near
-    J_far, J_near = (frozen(system.eval_field_jacobian(x, m)) for m in (far, near))
-    return not rules.same_flow(frozen(F_near), frozen(F_far), J_near, J_far)
+    J_far, J_near = (scratch(system.eval_field_jacobian(x, m)) for m in (far, near))
+    return not rules.same_flow(scratch(F_near), scratch(F_far), J_near, J_far)
 
 
 def _refuse_unheld(k, h, window, rate, far, sign, n, t):
@@ -380,7 +380,7 @@ def _check_crossings(group, flags, Dh, F, mask, when, t, sign, n):
     ``Dh_k . F`` in region ``mask`` is not clearly positive (:func:`_clearly_positive`):
     grazing, or pushed back (``when``: "before" or "after" switching the group; ``Dh`` and
     ``sign``: the gradients and signs of the local orientation, all n events)."""
-    k = rules.first_grazing(flags, frozen(Dh), frozen(F))
+    k = rules.first_grazing(flags, scratch(Dh), scratch(F))
     if k >= 0:
         _refuse_crossing(k, Dh[k], F, mask, f"{when} switching events {group}", t, sign[k], n)
 

@@ -65,7 +65,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
-from ..._support._validate import frozen, scratch
+from ..._support._validate import scratch
 from ..compiled import rules
 from .crossings import group_tolerance
 from .peaks import peak_brackets, peak_of, sample_times
@@ -257,7 +257,7 @@ def _return(h, tol):
     step: both step ends read across, no sign change. Integrated again to the lowest
     sample before the return, the stretch has a step end below the surface there.
     """
-    i = rules.return_sample(frozen(h), frozen(tol))
+    i = rules.return_sample(scratch(h), scratch(tol))
     return None if i < 0 else int(i)
 
 

@@ -31,7 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
-from ..._support._validate import frozen
+from ..._support._validate import scratch
 from ..compiled import rules
 from .stopcalls import local_view
 
@@ -69,8 +69,8 @@ def state_error(atol, rtol, scale, carried=0.0) -> np.ndarray:
     >>> state_error(1e-12, 1e-10, np.array([500.0, 1e-3]))
     array([5.0001e-07, 1.1000e-11])
     """
-    scale = frozen(scale)
-    carried = frozen(np.broadcast_to(carried, scale.shape))
+    scale = scratch(scale)
+    carried = scratch(np.broadcast_to(carried, scale.shape))
     out = np.empty(scale.shape)
     rules.state_error(float(atol), float(rtol), scale, carried, out)
     return out
@@ -108,7 +108,8 @@ def windows(Dh, rate, err, fired):
     (1e-07, [1.01e-07, 2e-11])
     """
     window = np.empty(rate.size)
-    u = rules.windows(frozen(Dh), frozen(rate), frozen(err), flags_of(fired, rate.size), window)
+    u = rules.windows(scratch(Dh), scratch(rate), scratch(err), flags_of(fired, rate.size),
+                      window)
     return window, float(u)
 
 
@@ -175,7 +176,7 @@ def classify(h, rate, window, fired, simultaneity_tol) -> Classes:
     [1]
     """
     codes = np.empty(h.size, dtype=np.int64)
-    rules.classify(frozen(h), frozen(rate), frozen(window), flags_of(fired, h.size),
+    rules.classify(scratch(h), scratch(rate), scratch(window), flags_of(fired, h.size),
                    float(simultaneity_tol), codes)
     return Classes.of(codes)
 

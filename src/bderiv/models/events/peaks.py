@@ -16,7 +16,7 @@ from scipy.optimize import minimize_scalar
 
 from ..._limits import PEAK_XTOL
 from ..._numerics import REACH
-from ..._support._validate import frozen
+from ..._support._validate import scratch
 from ..compiled import rules
 
 __all__ = ["peak_brackets", "peak_of", "sample_times"]
@@ -31,7 +31,7 @@ def sample_times(ends: np.ndarray) -> np.ndarray:
     array([0. , 0.5, 1. , 2. , 3. ])
     """
     out = np.empty(2 * ends.size - 1)
-    rules.sample_times(frozen(ends), out)
+    rules.sample_times(scratch(ends), out)
     return out
 
 
@@ -71,7 +71,7 @@ def peak_brackets(h: np.ndarray, tol: np.ndarray, *, stretch=False, reach=REACH)
     m = h.shape[0]
     if m < 2:
         return []
-    rows = rules.peak_rows(frozen(h), frozen(tol), bool(stretch), float(reach))
+    rows = rules.peak_rows(scratch(h), scratch(tol), bool(stretch), float(reach))
     out = [(k, max(i - 1, 0), min(i + 1, m - 1)) for k, i in rows.tolist()]
     return sorted(out, key=lambda b: (b[1], b[0]))
 

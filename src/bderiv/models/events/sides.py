@@ -115,13 +115,11 @@ def check_carried(system, h, mask, window, group, x, t):
     ValueError
         Naming the time, the event, its value, its window, its rate and the region.
     """
-    h = np.ascontiguousarray(h, dtype=np.float64)
-    window = np.ascontiguousarray(window, dtype=np.float64)
+    h, window = scratch(h), scratch(window)
     skip = sum(1 << k for k in group)
     if not rules.reads_across(h, int(mask), window, skip):
         return
-    J = np.ascontiguousarray(system.eval_event_jacobian(x), dtype=np.float64)
-    F = np.ascontiguousarray(system.eval_field(x, mask), dtype=np.float64)
+    J, F = scratch(system.eval_event_jacobian(x)), scratch(system.eval_field(x, mask))
     k = rules.carried_across(h, int(mask), window, skip, J, F)
     if k < 0:
         return

@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._support._validate import frozen
+from ..._support._validate import scratch
 from ..compiled import rules
 
 __all__ = ["LocalView", "StopCalls", "local_rates", "local_view", "orientation"]
@@ -168,7 +168,7 @@ def _local_view(system, mask, x):
 def local_rates(sign, J, F):
     """The gradients ``Dh = sign J`` (n, d) in the local orientation ``sign`` (n,) and the
     rates ``Dh . F`` (n,) of the event Jacobian ``J`` (n, d) in the field ``F`` (d,)."""
-    J = frozen(J)
+    J = scratch(J)
     Dh, rate = np.empty(J.shape), np.empty(J.shape[0])
-    rules.local_rates(frozen(sign), J, frozen(F), Dh, rate)
+    rules.local_rates(scratch(sign), J, scratch(F), Dh, rate)
     return Dh, rate
