@@ -42,7 +42,9 @@ def earliest(tau, p, inverse):
     """``(k, tau[p, k])``: the smallest time of row p (the largest when ``inverse``), ties
     to the smaller k. Branch-free selects: the outcome is random, a branch mispredicts."""
     best = tau[p, 0]
-    kb = 0
+    # an int64 0, not a literal: a callee given k would be compiled for both while the
+    # caller's loop is typed (resets' reset_move and _rank_update were)
+    kb = np.int64(0)
     if inverse:
         for k in range(1, tau.shape[1]):
             tk = tau[p, k]
