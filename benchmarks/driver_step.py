@@ -83,7 +83,7 @@ def bare_stretch(field, events, mask, y0, t0, t1, dense):
                 break
             rejected = True
         events(y_new.copy())
-        if dense:  # the driver's coefficients (dense_coefficients without its checks)
+        if dense:  # the driver's dense output: the extra stages, then dense_coefficients' sums
             _rates(field, mask, y, K, N_STAGES + 1, N_STAGES_EXTENDED, h, work[0])
             for j in range(d):
                 dy = y_new[j] - y[j]

@@ -171,16 +171,26 @@ def test_the_caches_are_keyed_by_the_numerics_not_the_defaults():
     assert not PYTHON_ONLY & set(vars(_numerics))
 
 
-def _callees(fn):
-    """The dispatchers ``fn``'s code names: globals, and attributes of global modules."""
-    names = fn.__code__.co_names
+def _callees(fn, seen=None):
+    """The dispatchers ``fn``'s code names (globals, and attributes of global modules, in
+    its nested code too), and those of the uncached helpers of its own file it calls
+    (compiled into it)."""
+    seen = set() if seen is None else seen
+    names = {name for code in _codes(fn.__code__) for name in code.co_names}
     for name in names:
         value = fn.__globals__.get(name)
-        if isinstance(value, types.ModuleType):
-            yield from (getattr(value, attr) for attr in names
-                        if isinstance(getattr(value, attr, None), Dispatcher))
-        elif isinstance(value, Dispatcher):
-            yield value
+        found = ([getattr(value, attr) for attr in names
+                  if isinstance(getattr(value, attr, None), Dispatcher)]
+                 if isinstance(value, types.ModuleType)
+                 else [value] if isinstance(value, Dispatcher) else [])
+        for callee in found:
+            if id(callee) in seen:
+                continue
+            seen.add(id(callee))
+            yield callee
+            if (callee.py_func.__module__ == fn.__module__
+                    and callee.stats.cache_path is None):
+                yield from _callees(callee.py_func, seen)
 
 
 def test_a_kernel_cached_under_its_own_name_calls_kernels_of_its_own_file_only():
@@ -188,17 +198,14 @@ def test_a_kernel_cached_under_its_own_name_calls_kernels_of_its_own_file_only()
     file does (the callee is compiled into it): a cached kernel of bderiv that calls a
     kernel of another file must be cached under a digest of both (``.k<digest>``), else an
     edit of the callee's file leaves the caller's stale entry in use."""
-    for info in pkgutil.walk_packages(bderiv.__path__, "bderiv."):
-        if info.name.endswith("__main__"):
-            continue
-        module = importlib.import_module(info.name)
+    for name, module in _import_all().items():
         for value in list(vars(module).values()):
-            if (not isinstance(value, Dispatcher) or value.py_func.__module__ != info.name
+            if (not isinstance(value, Dispatcher) or value.py_func.__module__ != name
                     or value.stats.cache_path is None
                     or ".k" in value.py_func.__qualname__):
                 continue
             for callee in _callees(value.py_func):
-                assert callee.py_func.__module__ == info.name, (
-                    f"{info.name}.{value.py_func.__qualname__} is cached under its own "
+                assert callee.py_func.__module__ == name, (
+                    f"{name}.{value.py_func.__qualname__} is cached under its own "
                     f"name and calls {callee.py_func.__module__}."
                     f"{callee.py_func.__qualname__}")

@@ -52,6 +52,20 @@ for D in both(Dh):
         locate.classify(np.array([0.0, -1e-12]), rate, np.full(2, 1e-9), [0], 1e-10)
     crossings.group_tolerance(D, SimpleNamespace(atol=1e-12, rtol=1e-10), 1.0)
 # the stop rules the compiled run calls too, on its writeable scratch (_validate.scratch)
+from bderiv.models.events import peaks, stopcalls
+for D in both(Dh):
+    for f in both(F[1]):
+        stopcalls.local_rates(np.array([1.0, -1.0]), D, f)
+        crossings._check_crossings([0], np.array([True, False]), D, f, 0, "before", 0.0,
+                                   np.ones(2), 2)
+system = SimpleNamespace(eval_field=lambda x, m: both(F[m])[1],
+                         eval_field_jacobian=lambda x, m: both(np.eye(3) * (m + 1))[0])
+crossings.holds(system, np.zeros(3), 1, 0)
+for ends in both([0.0, 1.0, 3.0]):
+    peaks.sample_times(ends)
+for h in both([[-1.0, -0.5], [-0.2, 0.5], [-0.9, -0.1]]):
+    for tol in both([1e-9, 1e-9]):
+        peaks.peak_brackets(h, tol), excursions._return(h, tol)
 for h in both([[1e-16, -1.0], [2e-16, -0.5], [3e-16, -0.2]]):
     excursions._start_dip(h, np.full(2, 1e-9), np.array([0.0, 0.5, 1.0]), lambda t, k: 1.0)
     sides.check_sides(h[0], 0b00, both([1e-9, 1e-9])[1], 0.5)
@@ -66,6 +80,11 @@ rules.windows(W, np.array([1.0, 1e-4]), err, np.array([False, True]), np.empty(2
 rules.classify(np.array([0.0, -1e-12]), np.ones(2), np.full(2, 1e-9), np.array([True, False]),
                1e-10, np.empty(2, dtype=np.int64))
 rules.tolerances(W, err, np.empty(2))
+rules.local_rates(np.array([1.0, -1.0]), W, np.array(F[1]), np.empty((2, 3)), np.empty(2))
+rules.first_grazing(np.array([True, False]), W, np.array(F[1]))
+rules.same_flow(np.array(F[0]), np.array(F[1]), np.eye(3), 2.0 * np.eye(3))
+rules.sample_times(np.array([0.0, 1.0, 3.0]), np.empty(5))
+rules.peak_rows(H, np.full(2, 1e-9), True, 3.0), rules.return_sample(H, np.full(2, 1e-9))
 print("JSON" + json.dumps(tool.collect()))
 """
 
@@ -89,6 +108,8 @@ def test_writeable_and_read_only_inputs_compile_each_kernel_once():
     names = {name for name, e in table.items() if e["signatures"]}
     for kernel in ("rules:state_error", "rules:windows", "rules:classify", "rules:tolerances",
                    "rules:start_dip_steps", "rules:wrong_side", "rules:clearly_positive",
+                   "rules:local_rates", "rules:first_grazing", "rules:same_flow",
+                   "rules:sample_times", "rules:peak_rows", "rules:return_sample",
                    "linear:piece_from_corners", "scaling:_scale_rows_serial"):
         assert any(name.endswith(kernel) for name in names), kernel
 

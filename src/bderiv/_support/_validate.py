@@ -158,9 +158,11 @@ def scratch(a, dtype=np.float64) -> np.ndarray:
     The compiled run can only pass writeable arrays, so the Python loop passes the rules
     the same type, and each compiles once for both (in a process that runs both, and in
     the disk cache: the compiled integrator, compiling in the background, loads the rules
-    that the Python loop compiled). :func:`frozen` is the form of the other kernels.
+    that the Python loop compiled). :func:`frozen` is the form of the other kernels. As
+    there, a scalar becomes shape (1,) and a subclass a plain array.
     """
-    return np.require(a, dtype=dtype, requirements=["C", "W"])
+    arr = np.ascontiguousarray(a, dtype=dtype)
+    return arr if arr.flags.writeable else arr.copy()
 
 
 def check_out(out, shape: tuple[int, ...], name: str = "out") -> np.ndarray:

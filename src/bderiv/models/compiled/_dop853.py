@@ -154,7 +154,7 @@ def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, point
     the user's call (10 of the 22 reference counts of a field call at d = 8). Inlined
     straight into the driver, for the step and for the dense output's extra stages, though
     it is then compiled twice (its 15 stage branches are the largest code of the driver;
-    inlined through a helper of its own, each inlining copies the helper with it too): a
+    were it inlined through a helper, each inlining of the helper would copy it again): a
     call of it costs its arguments' counts, those around the field's calls too (the driver
     slower per step), and so does a call of :func:`_stage_point` per stage
     (docs/design.md, "What the integrator compiles, measured")."""

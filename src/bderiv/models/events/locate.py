@@ -68,6 +68,8 @@ def state_error(atol, rtol, scale, carried=0.0) -> np.ndarray:
     --------
     >>> state_error(1e-12, 1e-10, np.array([500.0, 1e-3]))
     array([5.0001e-07, 1.1000e-11])
+    >>> state_error(1e-12, 1e-10, 500.0)
+    array([5.0001e-07])
     """
     scale = scratch(scale)
     carried = scratch(np.broadcast_to(carried, scale.shape))
