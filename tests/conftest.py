@@ -140,20 +140,32 @@ KERNEL_FILES = {"test_adjoints.py", "test_bderivative.py", "test_corners.py",
                 "test_triangulation.py", "test_bench_corners.py", "test_bench_dense.py"}
 
 
+#: tests of :data:`KERNEL_FILES` that run the kernels in a subprocess on the same disk
+#: cache: they run after the kernel files of their share, so that the subprocess loads what
+#: both workers' kernel files have compiled by then instead of compiling it again
+AFTER_KERNELS = {"test_the_plain_kernels_pass_the_same_tests"}
+
+
+def _place(item) -> int:
+    if item.path.name not in KERNEL_FILES:
+        return 2
+    return 1 if item.originalname in AFTER_KERNELS else 0
+
+
 @pytest.hookimpl(trylast=True)  # after -m and -k deselected: the shares of what runs
 def pytest_collection_modifyitems(session, config, items):
     """Within each worker's first share of the tests (pytest-xdist's worksteal gives worker
     i of K the next ``len(rest) // (K - i)`` of the collection), the tests of
-    :data:`KERNEL_FILES` first, in their order; the set of tests and each worker's share
-    stay the same. Without workers the order is that of the collection."""
+    :data:`KERNEL_FILES` first, in their order, then those of :data:`AFTER_KERNELS`; the
+    set of tests and each worker's share stay the same. Without workers the order is that
+    of the collection."""
     count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     if count < 2:
         return
     start, ordered = 0, []
     for i in range(count):
         stop = start + (len(items) - start) // (count - i)
-        share = items[start:stop]
-        ordered += sorted(share, key=lambda item: item.path.name not in KERNEL_FILES)
+        ordered += sorted(items[start:stop], key=_place)
         start = stop
     items[:] = ordered
 
