@@ -69,6 +69,20 @@ def test_the_prefetching_variant_gives_the_same_bits(monkeypatch):
     np.testing.assert_array_equal(far.vjp(V, T), near.vjp(V, T))
 
 
+def test_chains_that_record_their_steps_share_drivers_across_position_widths():
+    """Event times, and apply when the position is too wide to carry (d > 32), record
+    the steps and never read the position's width: one driver per ``wh`` and ``far``
+    serves every ``wx``; the tangents, which carry a vector of d, do not share."""
+    a8, t8, g8 = lanes.kernels(8, 8, 0)
+    a16, t16, g16 = lanes.kernels(8, 16, 0)
+    a40, t40, g40 = lanes.kernels(8, 40, 0)
+    a64, t64, g64 = lanes.kernels(8, 64, 0)
+    assert t8 is t16 is t40 is t64
+    assert a40 is a64 and a8 is not a16 and a16 is not a40
+    assert len({g8, g16, g40, g64}) == 4
+    assert lanes.kernels(16, 8, 0)[1] is not t8 and lanes.kernels(8, 8, 1)[1] is not t8
+
+
 def test_a_query_does_not_depend_on_its_lockstep_group():
     """Eight queries run in lockstep (and a short group repeats its last query): each row
     alone gives the bits it gets in any group, whatever its neighbours' orders."""
@@ -174,7 +188,9 @@ def test_the_lanes_agree_with_the_scalar_chain(n, d):
     Dh, F = random_system(rng, n, d)
     e = BDerivative(Dh, F, fast_paths=False)._engine
     assert e._lanes is not None
-    V, T = rng.standard_normal((300, d)), rng.standard_normal((300, d))
+    # T read-only, as the engine passes it (a writeable T would compile the tangent
+    # drivers once more)
+    V, T = rng.standard_normal((300, d)), _core.read_only(rng.standard_normal((300, d)))
     x, back, t, o, jvp, vjp = _plain(e, V, T)
     lanes_apply, lanes_back = np.empty_like(V), np.empty_like(V)
     e._lane_kernels[0](e._lanes, V, (lanes_apply,), False)

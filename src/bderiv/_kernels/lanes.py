@@ -347,10 +347,22 @@ def kernels(wh: int, wx: int, far: int):
     M^-1(V)), ``(times, orders)``, ``(out, T)`` (M_sigma(V) T or its transpose). Only apply carries
     the position along the chain (``carry``), and only while it fits the registers; the
     others record the steps. ``apply`` gives NaN rows for groups outside the query band
-    unless the tables are :func:`unchecked` (see :func:`_lane_apply_block`)."""
+    unless the tables are :func:`unchecked` (see :func:`_lane_apply_block`).
 
-    def statics(carry):
-        return LaneShape(vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry))
-    return (batch(_lane_apply_block, statics=statics(int(wx <= WIDE_X))),
-            batch(_lane_times_block, statics=statics(0)),
-            batch(_lane_tangent_block, statics=statics(0)))
+    A chain that records its steps never reads ``wx`` (the sums after it go 8 coordinates
+    at a time), so those blocks are compiled for ``wx = 8`` whatever d: one driver per
+    ``wh`` and ``far`` serves every width of the position."""
+    carry = int(wx <= WIDE_X)
+    return (_batch(_lane_apply_block, _shape(wh, wx if carry else 8, far, carry)),
+            _batch(_lane_times_block, _shape(wh, 8, far, 0)),
+            _batch(_lane_tangent_block, _shape(wh, wx, far, 0)))
+
+
+def _shape(wh: int, wx: int, far: int, carry: int) -> LaneShape:
+    return LaneShape(vec.static(wh), vec.static(wx), vec.static(far), vec.static(carry))
+
+
+@functools.cache
+def _batch(block, shape: LaneShape):
+    """One batch per block and shape (widths that share a shape share its drivers)."""
+    return batch(block, statics=shape)
