@@ -177,7 +177,9 @@ def test_the_rate_spread_of_small_tables_is_the_kernels(n):
             if G[fast, k] / G[slow, k] > best[0]:
                 best = (G[fast, k] / G[slow, k], k, slow, fast)
         assert rate_spread(G, n) == best
-        assert tuple(widest_rate_spread(G)) == best
+        # a slice of the region records, as the engine passes it (one compilation)
+        records = np.hstack([G, np.zeros((2**n, 1))])
+        assert tuple(widest_rate_spread(records[:, :n])) == best
 
 
 #: the tests of the plain kernels' files that reach another engine (corner functions,
