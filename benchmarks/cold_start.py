@@ -17,6 +17,9 @@ symbolic cache beside it), and reports wall seconds as each child measures them:
 - a new model, its source never seen (a module written for the run: the chair's equations
   as numba functions under a fresh name), with the library's cache warm: the case of every
   edit a user makes;
+- a new corner function (``CornerFunction``, its source never seen), the library's cache
+  warm: its first B-derivative's apply, inverse, event times and jvp on 10 and 5,000
+  queries (the serial and the parallel drivers);
 - diffrax's first Jacobian of the same flow (``jax.jacfwd`` of the event-switching loop of
   docs/jax.md: trace, compile and run) in a fresh process, where jax and diffrax are
   installed;
@@ -80,6 +83,40 @@ s = HybridSystem(m.field, m.events, n_events=2, dim=6, event_jacobian=m.event_ja
 s.flow_bderivative(m.X0, 0.15)
 t2 = time.perf_counter()
 print(json.dumps({{"import": t1 - t0, "first": t2 - t1}}))
+"""
+
+NEW_CORNERS = """
+import json, sys, time
+t0 = time.perf_counter()
+import numpy as np
+import bderiv
+sys.path.insert(0, {folder!r})
+import {module} as m
+from bderiv import BDerivative, CornerFunction
+t1 = time.perf_counter()
+bd = BDerivative(m.DH, CornerFunction(m.corners))
+for V in (m.V[:10], m.V):
+    bd(V), bd.inverse(V), bd.event_times(V), bd.jvp(V, V)
+t2 = time.perf_counter()
+print(json.dumps({{"import": t1 - t0, "first": t2 - t1}}))
+"""
+
+#: a corner function of four events in dimension 5, written out under a fresh module name
+CORNERS_SOURCE = """
+import numba
+import numpy as np
+
+DH = np.eye(4, 5) + 0.1 * np.arange(20.0).reshape(4, 5) / 20
+F0 = np.array([1.0, 1.5, 2.0, 1.2, 0.8])
+V = np.random.default_rng(0).standard_normal((5000, 5))
+
+@numba.njit
+def corners(happened, out):
+    s = 0.0
+    for k in range(happened.shape[0]):
+        s += 0.05 * happened[k] * (k + 1)
+    for i in range(out.shape[0]):
+        out[i] = F0[i] * (1.0 + s)
 """
 
 #: a planar body landing on two legs at once (the chair's geometry, d = 6, n = 2) as numba
@@ -251,6 +288,13 @@ def main(argv=None):
         (folder / f"{module}.py").write_text(MODEL_SOURCE)
         rows["bderiv: a new model, library warm"] = child(
             NEW_MODEL.format(folder=str(folder), module=module), env, args.timeout)
+        # the first corner function compiles the library's function kernels; the second,
+        # another source, is the case measured
+        for k, scale in enumerate(("0.05", "0.04")):
+            name = f"{module}_corners{k}"
+            (folder / f"{name}.py").write_text(CORNERS_SOURCE.replace("0.05", scale))
+            rows["bderiv: a new corner function, library warm"] = child(
+                NEW_CORNERS.format(folder=str(folder), module=name), env, args.timeout)
         if args.demo:
             demo_env = {**env, "NUMBA_CACHE_DIR": os.path.join(tmp, "numba-demo")}
             rows["bderiv demo, cache empty"] = demo(demo_env, args.timeout)
@@ -291,6 +335,10 @@ def doc_rows(rows: dict) -> list[dict]:
                     second=False))
     out.append(case("bderiv: a new model (source never seen), the library's cache warm",
                     rows["bderiv: a new model, library warm"], second=False))
+    if "bderiv: a new corner function, library warm" in rows:
+        out.append(case("bderiv: a new corner function's first apply, inverse, event times "
+                        "and jvp (10 and 5,000 queries), the library's cache warm",
+                        rows["bderiv: a new corner function, library warm"], second=False))
     if "bderiv demo, cache empty" in rows:
         r = rows["bderiv demo, cache empty"]
         out.append({"case": "`python -m bderiv demo`, cache empty: first line / total",

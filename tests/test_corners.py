@@ -350,6 +350,53 @@ def test_a_corner_function_that_raises_raises_the_same_in_a_large_batch():
         assert info.value.__context__ is None  # not chained to numba's SystemError
 
 
+def test_a_new_corner_function_compiles_only_itself():
+    """The blocks call the function through an address (``_kernels/function.entry``):
+    a second function adds no signature to the blocks' drivers or to the chain, only its
+    own wrapper; both give their own corners."""
+    from bderiv._kernels import function as kernels
+
+    V = np.random.default_rng(5).standard_normal((40, 5))
+    before = BDerivative(DH4, TABLE_FUNC)
+    before(V), before.inverse(V), before.event_times(V)
+    drivers = (kernels.apply.serial, kernels.event_times.serial, kernels.chain,
+               kernels.diagnose, kernels._corners)
+    counts = [len(k.signatures) for k in drivers]
+
+    @numba.njit
+    def doubled(happened, out):
+        table_corners(happened, out)
+        for i in range(out.shape[0]):
+            out[i] *= 2.0
+
+    bd = BDerivative(DH4, CornerFunction(doubled))
+    W = bd(V)
+    back, (times, orders) = bd.inverse(W), bd.event_times(V)
+    assert [len(k.signatures) for k in drivers] == counts
+    # doubling every corner keeps the orders and halves the event times (M is unchanged)
+    np.testing.assert_allclose(W, before(V), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(back, V, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(orders, before.event_times(V)[1])
+    np.testing.assert_allclose(times, before.event_times(V)[0] / 2, rtol=1e-12)
+    np.testing.assert_array_equal(bd.corner_points()[1], 2 * before.corner_points()[1])
+
+
+def test_a_corner_function_engine_pickles_and_links_its_function_again():
+    """The tables hold an address of this process: the engine drops it when pickled and
+    links the function again when unpickled; the wrapper lives as long as the engine."""
+    from bderiv._kernels import function as kernels
+
+    bd = BDerivative(DH4, TABLE_FUNC)
+    V = np.random.default_rng(6).standard_normal((30, 5))
+    state = bd._engine.__getstate__()
+    assert "_tables" not in state and "_entry" not in state
+    copy = pickle.loads(pickle.dumps(bd))
+    np.testing.assert_array_equal(copy(V), bd(V))
+    kernels.entry.cache_clear()  # the engines still hold their wrappers
+    np.testing.assert_array_equal(copy(V), bd(V))
+    np.testing.assert_array_equal(copy.event_times(V)[1], bd.event_times(V)[1])
+
+
 def test_corner_function_violation_and_errors():
     @numba.njit
     def bad(happened, out):

@@ -241,8 +241,10 @@ class CornerFunction(_Tabulated):
     Notes
     -----
     Each query costs n + 1 calls of ``func`` plus O(n d) for the rates ``Dh @ F`` of each
-    region. The kernels are compiled once per function and per process (the first call
-    takes seconds). Every region a query visits is checked: rates > 0, and every entry of
+    region. The kernels call ``func`` through its address: they are compiled once and
+    kept on disk, and a new function compiles only itself (under a second, where the
+    kernels compiled again per function took about 5 s). Every region a query visits is
+    checked: rates > 0, and every entry of
     ``out`` written and finite (``out`` is NaN-filled before each call). No fast path is
     looked for (that would need all 2**n corners).
 

@@ -18,8 +18,22 @@ class FunctionEngine(Engine):
     def __init__(self, Dh, func):
         self.Dh, self.func = Dh, func
         self.n, self.d = Dh.shape
-        self._tables = frozen_tables(kernels.FunctionTables(np.ascontiguousarray(Dh.T)))
-        self._apply_batch, self._times_batch = kernels.batches(func)
+        self._link()
+
+    def _link(self):
+        # the kernels call func at an address of this process (kernels.entry); the
+        # wrapper compiled there lives as long as the engine
+        self._entry, at = kernels.entry(self.func)
+        self._tables = frozen_tables(kernels.tables(self.Dh, at))
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.pop("_entry"), state.pop("_tables")  # an address of this process
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._link()
 
     @classmethod
     def from_model(cls, Dh, model):
@@ -27,13 +41,13 @@ class FunctionEngine(Engine):
         return cls(Dh, checked_function(model, *Dh.shape))
 
     def _apply(self, V, out, inverse, name, offset) -> int:
-        return self._run_checked(self._apply_batch, V, (out,), inverse, name, offset)
+        return self._run_checked(kernels.apply, V, (out,), inverse, name, offset)
 
     def _event_times(self, V, times, orders, offset) -> int:
-        return self._run_checked(self._times_batch, V, (times, orders), False, "V", offset)
+        return self._run_checked(kernels.event_times, V, (times, orders), False, "V", offset)
 
     def _diagnose(self, u, inverse, hap, r):
-        return kernels.diagnose(self.func, self._tables.DhT, u, inverse, hap, r)
+        return kernels.diagnose(self._tables.at[0], self._tables.DhT, u, inverse, hap, r)
 
     def corners(self, happened) -> np.ndarray:
         """F on regions given as (m, n) 0/1 flags; NaN where ``func`` wrote nothing."""
