@@ -28,7 +28,6 @@ from __future__ import annotations
 import os
 import pathlib
 import threading
-import types
 import warnings
 from typing import NamedTuple
 
@@ -187,23 +186,19 @@ class Batch:
     of the driver, not arguments: a type of our own in an argument would send every call
     through Python's typeof (docs/benchmarks.md, "Kernel design choices, measured").
 
-    The serial driver is cached on disk (``cache=True``) under the block's qualified name,
-    the statics' sizes and :data:`SOURCES`; ``cache=False`` for blocks that call a user's
-    function (a closure: numba cannot key it across processes; the parallel driver,
-    which does not hold the block, is cached all the same).
+    The serial driver is cached on disk under the block's qualified name, the statics'
+    sizes and :data:`SOURCES` (a block that calls a user's function calls it through an
+    address, as :mod:`.function` does, so that it is cached too).
     """
 
-    def __init__(self, block, cache: bool = True, statics: NamedTuple | None = None):
+    def __init__(self, block, statics: NamedTuple | None = None):
         inlined = njit(inline="always", **JIT)(block.py_func)
         namespace = dict(globals(), block=inlined, statics=statics,
                          bind=_alone if statics is None else _paired)
-        if cache:
-            sizes = "" if statics is None else "_" + "_".join(str(len(s)) for s in statics)
-            name = f"{block.py_func.__module__.rsplit('.', 1)[-1]}.{block.__name__}{sizes}"
-            serial = keyed(_serial, SOURCES, f"{name}.serial", namespace, **JIT)
-            harden_all()  # the kernels of the modules imported so far
-        else:
-            serial = njit(**JIT)(_bound(_serial, namespace))
+        sizes = "" if statics is None else "_" + "_".join(str(len(s)) for s in statics)
+        name = f"{block.py_func.__module__.rsplit('.', 1)[-1]}.{block.__name__}{sizes}"
+        serial = keyed(_serial, SOURCES, f"{name}.serial", namespace, **JIT)
+        harden_all()  # the kernels of the modules imported so far
         self.block, self.serial, self.tasks = block, serial, _TASKS
         self._addresses = {}
 
@@ -266,14 +261,9 @@ class Batch:
         return bad
 
 
-def _bound(fn, namespace):
-    """A copy of ``fn`` whose code runs with ``namespace`` as its globals."""
-    return types.FunctionType(fn.__code__, namespace, fn.__name__, fn.__defaults__)
-
-
-def batch(block, cache: bool = True, statics: NamedTuple | None = None) -> Batch:
+def batch(block, statics: NamedTuple | None = None) -> Batch:
     """The :class:`Batch` of an njit ``block``."""
-    return Batch(block, cache, statics)
+    return Batch(block, statics)
 
 
 # ----------------------------------------------------------------------------------------
