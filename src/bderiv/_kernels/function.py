@@ -181,7 +181,8 @@ def _apply_block(tables, V, outs, start, stop, inverse):
     x, g, tau, R, C, hap, tev, order = _scratch(n, d)
     for q in range(start, stop):
         status[q] = chain(at, DhT, V[q], inverse, x, g, tau, R, C, hap, tev, order)
-        out[q, :] = x
+        for i in range(d):
+            out[q, i] = x[i]
 
 
 @njit(**JIT)

@@ -244,7 +244,9 @@ def group_scratch(tables):
     ROW, T, BEST, PL, K (``J``: the jump rows of :func:`_chains`, with a copy of ``a``)."""
     n, nc, npairs, deg = tables.n, tables.nc, tables.npairs, tables.deg
     J = np.zeros((n + LOCK + 1, 8 * nc))
-    J[:n] = tables.ap
+    for k in range(n):  # a loop: an array into a slice compiles numba's shape error
+        for i in range(8 * nc):
+            J[k, i] = tables.ap[k, i]
     work = (np.empty((LOCK, 8 * nc)), np.empty((LOCK, n), dtype=np.uint8), J,
             np.empty(LOCK, dtype=np.int64), np.empty(LOCK), np.empty((LOCK, 24)),
             np.empty(max(deg, 1), dtype=np.int64), np.empty(LOCK, dtype=np.int64))

@@ -35,7 +35,7 @@ import numpy as np
 
 from .._kernels._cache import rekey_modules, sources_digest
 from . import _lie
-from ._lie import _cr, _rate_jacobian_xi, _rate_matrix, rate, rate_inverse
+from ._lie import _cr, _rate_jacobian_xi, _rate_matrix, put, put1, rate, rate_inverse
 
 
 @numba.njit(cache=True)
@@ -172,9 +172,10 @@ def torque_derivatives(x, Jw, P, support, ancestor, mask, law):
 def field_vector(x, a, nv):
     """The field ``(de/dt, dv/dt)`` (2 nv,) from the state and the acceleration ``a``."""
     out = np.empty(2 * nv)
-    out[:6] = rate(x[:6], x[nv:nv + 6])
-    out[6:nv] = x[nv + 6:2 * nv]
-    out[nv:] = a
+    put1(out, 0, rate(x[:6], x[nv:nv + 6]))
+    for i in range(6, nv):
+        out[i] = x[nv + i]
+    put1(out, nv, a)
     return out
 
 
@@ -195,14 +196,16 @@ def field_jacobian_matrix(x, da_dq, da_dv, minv_upper, dtau_dq, dtau_dv, kp, kd)
     d_xi = _rate_jacobian_xi(xi, np.ascontiguousarray(x[nv:nv + 6]))
     Aq = da_dq + Minv @ dtau_dq
     out = np.zeros((2 * nv, 2 * nv))
-    out[:6, :6] = d_xi
-    out[:6, nv:nv + 6] = d_nu
+    put(out, 0, 0, d_xi)
+    put(out, 0, nv, d_nu)
     for i in range(6, nv):
         out[i, nv + i] = 1.0
-    out[nv:, :6] = np.ascontiguousarray(Aq[:, :6]) @ rate_inverse(xi)
-    out[nv:, 6:nv] = Aq[:, 6:] - kp * Minv[:, 6:]
-    out[nv:, nv:] = da_dv + Minv @ dtau_dv
-    out[nv:, nv + 6:] -= kd * Minv[:, 6:]
+    put(out, nv, 0, np.ascontiguousarray(Aq[:, :6]) @ rate_inverse(xi))
+    put(out, nv, nv, da_dv + Minv @ dtau_dv)
+    for i in range(nv):
+        for j in range(6, nv):
+            out[nv + i, j] = Aq[i, j] - kp * Minv[i, j]
+            out[nv + i, nv + j] -= kd * Minv[i, j]
     return out
 
 

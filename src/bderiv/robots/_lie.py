@@ -54,7 +54,8 @@ def configuration(q_ref, x, nv):
     (compiled)."""
     q = np.empty(q_ref.size)
     _base_into(q_ref, x[:6], q)
-    q[7:] = q_ref[7:] + x[6:nv]
+    for i in range(7, q.size):
+        q[i] = q_ref[i] + x[i - 1]
     return q
 
 
@@ -84,7 +85,7 @@ def _base_into(q_ref, xi, out):
                     2 * (y0 * z0 - x0 * w0)],
                    [2 * (x0 * z0 - y0 * w0), 2 * (y0 * z0 + x0 * w0),
                     1 - 2 * (x0 * x0 + y0 * y0)]])
-    out[:3] = q_ref[:3] + R0 @ step
+    put1(out, 0, q_ref[:3] + R0 @ step)
     out[3] = w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1
     out[4] = w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1
     out[5] = w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1
@@ -105,6 +106,23 @@ def _coefficients_one(t2):
     s, co = np.sin(t), np.cos(t)
     return ((t - s) / t**3, (t2 + 2 * co - 2) / (2 * t2**2),
             (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
+
+
+@numba.njit(cache=True)
+def put(out, r0, c0, M):
+    """``out[r0:r0 + M.shape[0], c0:c0 + M.shape[1]] = M`` by loops (an array assigned
+    into a slice compiles numba's shape-mismatch error and its formatting: about a second
+    in every process that compiles these kernels)."""
+    for i in range(M.shape[0]):
+        for j in range(M.shape[1]):
+            out[r0 + i, c0 + j] = M[i, j]
+
+
+@numba.njit(cache=True)
+def put1(out, i0, v):
+    """``out[i0:i0 + v.size] = v`` by a loop (see :func:`put`)."""
+    for i in range(v.shape[0]):
+        out[i0 + i] = v[i]
 
 
 @numba.njit(cache=True)
@@ -143,9 +161,9 @@ def _rate_matrix(xi):
     for i in range(3):
         inv3[i, i] += 1
     out = np.zeros((6, 6), dtype=xi.dtype)
-    out[:3, :3] = inv3
-    out[3:, 3:] = inv3
-    out[:3, 3:] = -_mm(_mm(inv3, Q), inv3)
+    put(out, 0, 0, inv3)
+    put(out, 3, 3, inv3)
+    put(out, 0, 3, -_mm(_mm(inv3, Q), inv3))
     return out
 
 
@@ -196,7 +214,8 @@ def _rate_jacobian_xi(xi, nu):
     out = np.empty((6, 6))
     z = np.empty(6, dtype=np.complex128)
     for j in range(6):
-        z[:] = xi
+        for i in range(6):
+            z[i] = xi[i]
         z[j] += 1j * STEP
         r = _rate_times(z[0], z[1], z[2], z[3], z[4], z[5], nu)
         for i in range(6):
@@ -221,13 +240,13 @@ def rate_inverse(xi):
     PR, RP = _mm(P, R), _mm(R, P)
     PRP = _mm(PR, P)
     out = np.zeros((6, 6))
-    out[:3, 3:] = (R / 2 + a * (PR + RP + PRP) + b * (_mm(P, PR) + _mm(RP, P) - 3 * PRP)
-                   + c * (_mm(PRP, P) + _mm(P, PRP)))
+    put(out, 0, 3, R / 2 + a * (PR + RP + PRP) + b * (_mm(P, PR) + _mm(RP, P) - 3 * PRP)
+        + c * (_mm(PRP, P) + _mm(P, PRP)))
     J3 = v1 * P + a * PP
     for i in range(3):
         J3[i, i] += 1
-    out[:3, :3] = J3
-    out[3:, 3:] = J3
+    put(out, 0, 0, J3)
+    put(out, 3, 3, J3)
     return out
 
 
