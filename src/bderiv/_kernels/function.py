@@ -6,12 +6,12 @@
 regions of each query's chain and the rates are recomputed as ``Dh @ F[region]``.
 
 The blocks call ``func`` through an address (:func:`entry`: ``func`` compiled behind a
-one-line wrapper of a fixed signature), so they
-are compiled once and cached on disk like the other blocks, and a new corner function
-compiles only itself and its wrapper. Called directly (numba's first-class function, or a
-closure per function), the function was part of the blocks' signature: numba compiled the
-chain and both drivers again for every function and process and could not cache them
-(design.md, "Corner functions through their address").
+one-line wrapper of a fixed signature), so they are compiled once and cached on disk like
+the other blocks, and a new corner function compiles only itself and its wrapper. Called
+directly (numba's first-class function, or a closure per function), the function was part
+of the blocks' signature: numba compiled the chain and both drivers again for every
+function and process and could not cache them (design.md, "Corner functions through
+their address, the lanes' position width").
 """
 
 from __future__ import annotations
