@@ -11,8 +11,10 @@ that a kernel is charged to the first test that compiles it)::
 
 The plugin writes ``compile_by_test.json`` (or ``$COMPILE_BY_TEST``) at the end of the
 session; the second command prints the files and the dispatchers that cost most. CPU time
-(``time.process_time``) changes little with other load on the machine; what subprocesses of
-a test spend (the command line's tests, fresh-process checks) is not counted.
+(``time.process_time``) changes little with other load on the machine. What the
+subprocesses a test waited for spent (the command line's tests, fresh-process checks) is
+recorded apart (``RUSAGE_CHILDREN``, on Unix); a process it did not wait for is not
+counted.
 
 Under pytest-xdist (``-n 2``) each worker writes its own record, the path with ``-gw0``,
 ``-gw1``, ... before ``.json``; give the second command all of them. Each test's record
@@ -30,8 +32,14 @@ import os
 import sys
 import time
 
+try:
+    import resource
+except ImportError:  # Windows: no record of the subprocesses
+    resource = None
+
 _stack: list = []  # [name, start, nested seconds] of the compilations under way
-_per_test: list = []  # (nodeid, cpu seconds, compile seconds)
+#: (nodeid, cpu seconds, compile seconds, wall start, wall seconds, subprocesses' cpu seconds)
+_per_test: list = []
 _dispatchers: collections.Counter = collections.Counter()  # (file, dispatcher) -> seconds
 _compiles: collections.Counter = collections.Counter()
 _state = {"file": "?", "compile": 0.0}
@@ -66,7 +74,7 @@ def pytest_configure(config):
 def pytest_runtest_protocol(item, nextitem):
     _state["file"] = item.nodeid.split("::")[0]
     _state["cpu"], _state["at"] = time.process_time(), _state["compile"]
-    _state["wall"] = time.time()
+    _state["wall"], _state["children"] = time.time(), _children()
 
 
 def pytest_runtest_logfinish(nodeid, location):
@@ -74,7 +82,15 @@ def pytest_runtest_logfinish(nodeid, location):
         return
     _per_test.append((nodeid, time.process_time() - _state["cpu"],
                       _state["compile"] - _state["at"], _state["wall"],
-                      time.time() - _state["wall"]))
+                      time.time() - _state["wall"], _children() - _state["children"]))
+
+
+def _children() -> float:
+    """CPU seconds of the terminated subprocesses this process waited for."""
+    if resource is None:
+        return 0.0
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def pytest_sessionfinish(session):
@@ -105,19 +121,22 @@ def main(argv=None):
         data["dispatchers"] += part["dispatchers"]
         if args.timeline:
             _timeline(record, part["tests"])
-    files = collections.defaultdict(lambda: [0.0, 0.0, 0])
-    for nodeid, cpu, compiled, *_ in data["tests"]:
+    files = collections.defaultdict(lambda: [0.0, 0.0, 0, 0.0])
+    for nodeid, cpu, compiled, *rest in data["tests"]:
         row = files[nodeid.split("::")[0]]
         row[0] += cpu
         row[1] += compiled
         row[2] += 1
+        row[3] += rest[2] if len(rest) > 2 else 0.0  # older records: no subprocesses
     cpu = sum(r[0] for r in files.values())
     compiled = sum(r[1] for r in files.values())
+    children = sum(r[3] for r in files.values())
     print(f"{len(data['tests'])} tests: {cpu:.1f} s CPU in the test process, {compiled:.1f} s "
-          f"of it compiling ({100 * compiled / max(cpu, 1e-9):.0f} %)")
-    print(f"\n{'file':48s} {'CPU s':>7s} {'compile s':>9s} {'tests':>5s}")
-    for name, (c, k, n) in sorted(files.items(), key=lambda kv: -kv[1][0])[:args.top]:
-        print(f"{name:48s} {c:7.1f} {k:9.1f} {n:5d}")
+          f"of it compiling ({100 * compiled / max(cpu, 1e-9):.0f} %); {children:.1f} s in "
+          f"the subprocesses the tests waited for")
+    print(f"\n{'file':48s} {'CPU s':>7s} {'compile s':>9s} {'tests':>5s} {'subproc s':>9s}")
+    for name, (c, k, n, sub) in sorted(files.items(), key=lambda kv: -kv[1][0])[:args.top]:
+        print(f"{name:48s} {c:7.1f} {k:9.1f} {n:5d} {sub:9.1f}")
     per = collections.Counter()
     count = collections.Counter()
     for _, name, seconds, n in data["dispatchers"]:
@@ -136,7 +155,7 @@ def _timeline(record, tests):
     t0 = tests[0][3]
     print(f"\n{record}: {'start':>6s} {'wall':>6s} {'CPU':>6s} {'compile':>7s}  file")
     runs = []
-    for nodeid, cpu, compiled, start, wall in tests:
+    for nodeid, cpu, compiled, start, wall, *_ in tests:
         name = nodeid.split("::")[0]
         if runs and runs[-1][0] == name:
             runs[-1][2:] = [start + wall - runs[-1][1], runs[-1][3] + cpu, runs[-1][4] + compiled]
