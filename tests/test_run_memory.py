@@ -57,6 +57,14 @@ def far_wall(x):
 compiled_rotate, compiled_far_wall = numba.njit(rotate), numba.njit(far_wall)
 
 
+def rotate_pairs(x, mask):
+    """64 copies of :func:`rotate` side by side (d = 128): each step's record is wider, so
+    a Python run reaches a memory limit in a tenth of the steps (and CPU) of d = 2."""
+    out = np.empty_like(x)
+    out[0::2], out[1::2] = x[1::2], -x[0::2]
+    return out
+
+
 @pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "python"])
 def test_a_long_simulation_keeps_only_the_samples_asked_for(compiled):
     """x(t) = (cos t, -sin t): 20 and 2000 periods (Python: 2 and 200) keep the 11
@@ -115,14 +123,17 @@ _LIMITED = """
     import test_run_memory as t
     from bderiv.analysis.system import HybridSystem
     compiled = {compiled}
-    fns = (t.compiled_rotate, t.compiled_far_wall) if compiled else (t.rotate, t.far_wall)
-    system = HybridSystem(*fns, n_events=1, dim=2)
-    system.simulate([1.0, 0.0], 1.0)  # compiled (and loaded) without the limit
+    fns = (t.compiled_rotate, t.compiled_far_wall) if compiled else (t.rotate_pairs, t.far_wall)
+    d = 2 if compiled else 128
+    system = HybridSystem(*fns, n_events=1, dim=d)
+    x0 = np.zeros(d)
+    x0[0::2] = 1.0
+    system.simulate(x0, 1.0)  # compiled (and loaded) without the limit
     with open("/proc/self/statm") as fh:
         used = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
     resource.setrlimit(resource.RLIMIT_AS, (used + ({room} << 20), resource.RLIM_INFINITY))
     try:
-        system.simulate([1.0, 0.0], 1e9)
+        system.simulate(x0, 1e9)
     except ValueError as exc:
         print("ValueError:", exc)
     except MemoryError as exc:
@@ -135,7 +146,8 @@ _LIMITED = """
                          ids=["compiled", "python"])
 def test_a_record_that_outgrows_the_limit_is_refused_by_name(compiled, room):
     """simulate(x0, 1e9) keeps every step: with ``room`` MiB of address space left it is
-    refused before the record takes them, naming the record and what to pass instead."""
+    refused before the record takes them, naming the record and what to pass instead
+    (Python: the oscillator at d = 128, :func:`rotate_pairs`)."""
     out = _child(_LIMITED.format(compiled=compiled, room=room), timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.startswith("ValueError:"), out.stdout
