@@ -246,14 +246,15 @@ def _lane_apply_block(args, V, outs, start, stop, inverse):
     test, on vectors in registers and without a branch in the chains, costs about 2 %;
     scaling every query in the kernel cost 1.3x to 2x.
     """
-    tables = args[0]
+    tables, shape = args
     d, check = tables.dims[1], tables.dims[CHECK]
     out = outs[0]
     X, T, order, times = _lane_scratch(tables)
     for q0 in range(start, stop, LANES):
         pn = min(LANES, stop - q0)
         if _lanes(args, V, q0, q0 + pn - 1, inverse, X, T, order, times) or not check:
-            _assemble(args, V, q0, pn, inverse, out, q0, X, T, order, times)
+            _assemble(tables, shape.wx, shape.carry, V, q0, pn, inverse, out, q0, X, T, order,
+                      times)
         else:
             for p in range(pn):
                 for i in range(d):
@@ -261,17 +262,18 @@ def _lane_apply_block(args, V, outs, start, stop, inverse):
 
 
 # not inlined: its copy into the apply block, after the lanes', took a fifth of a width
-# pair's compilation and gained nothing at run time (design.md, "The drivers compiled once")
+# pair's compilation and gained nothing at run time (design.md, "The drivers compiled once");
+# it gets the two static values it reads, not the shape: one compilation per wx and carry,
+# not per width pair
 @njit(**JIT)
-def _assemble(args, V, r0, pn, inverse, out, q0, X, T, order, times):
+def _assemble(tables, wx, carry, V, r0, pn, inverse, out, q0, X, T, order, times):
     """out[q0 + p] = M(V[r0 + p]) for p < pn from the chains of :func:`_lanes`:
     ``v + s X - T F[end]``, the position at the last event moved back to time 0 along the
     final region's field. Unless ``carry`` (d > 32: the lanes' positions would not fit
     the registers) the chain only records its steps and
     ``v + sum_j t_j (F[before_j] - F[after_j])`` (mathematics.md section 3) is summed afterwards,
     8 coordinates at a time."""
-    tables, shape = args
-    R, wx, carry = tables.R, shape.wx, shape.carry
+    R = tables.R
     n, d, dc, of = tables.dims[0], tables.dims[1], tables.dims[3], 16 * tables.dims[2]
     end = 0 if inverse else (1 << n) - 1
     s = -1.0 if inverse else 1.0
