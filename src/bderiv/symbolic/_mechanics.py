@@ -116,7 +116,10 @@ def _contact_rows(printer, model, ind, hessian: bool) -> list:
         outputs = [(f"J[{i}, 0]", grad[i], f"the derivative of contacts[{k}] by "
                                           f"{model.show(model.x[i])}") for i in range(m)]
         lines += _codegen._block(printer, model, outputs, ind + "    ")
-        lines += [f"{ind}    W[:, :] = J", f"{ind}    M2[:, :] = M", f"{ind}    _solve(M2, W)"]
+        # loops, not W[:, :] = J: an array into a slice compiles numba's shape error
+        lines += [f"{ind}    for i in range({m}):", f"{ind}        W[i, 0] = J[i, 0]",
+                  f"{ind}        for j in range({m}):", f"{ind}            M2[i, j] = M[i, j]",
+                  f"{ind}    _solve(M2, W)"]
         if not hessian:
             continue
         lines += [f"{ind}    w_{i} = W[{i}, 0]" for i in range(m)]
