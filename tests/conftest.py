@@ -146,6 +146,27 @@ KERNEL_FILES = {"test_adjoints.py", "test_bderivative.py", "test_corners.py",
 AFTER_KERNELS = {"test_the_plain_kernels_pass_the_same_tests"}
 
 
+#: files whose tests build a model that a test file builds too, and the file they run
+#: beside (right after it, in its worker): the symbolic contact model of the doctests
+#: compiled in both workers at once, about 4 s each
+BESIDE = {"src/bderiv/symbolic/contacts.py": "tests/test_contacts.py"}
+
+
+def _beside(items) -> list:
+    """``items`` with those of each :data:`BESIDE` file moved right after the last test
+    of its partner file (where the partner is not collected, they stay where they are)."""
+    def file(item):
+        return item.nodeid.split("::")[0]
+
+    moved = {name: [it for it in items if file(it) == name] for name in BESIDE}
+    out = [it for it in items if file(it) not in BESIDE]
+    for name, group in moved.items():
+        ends = [i for i, it in enumerate(out) if file(it) == BESIDE[name]]
+        at = ends[-1] + 1 if ends else len(out)
+        out[at:at] = group
+    return out
+
+
 def _place(item) -> int:
     if item.path.name not in KERNEL_FILES:
         return 2
@@ -157,11 +178,12 @@ def pytest_collection_modifyitems(session, config, items):
     """Within each worker's first share of the tests (pytest-xdist's worksteal gives worker
     i of K the next ``len(rest) // (K - i)`` of the collection), the tests of
     :data:`KERNEL_FILES` first, in their order, then those of :data:`AFTER_KERNELS`; the
-    set of tests and each worker's share stay the same. Without workers the order is that
-    of the collection."""
+    tests of a :data:`BESIDE` file join its partner's share, after it. The set of tests
+    stays the same. Without workers the order is that of the collection."""
     count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     if count < 2:
         return
+    items[:] = _beside(items)
     start, ordered = 0, []
     for i in range(count):
         stop = start + (len(items) - start) // (count - i)
