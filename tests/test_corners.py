@@ -352,16 +352,19 @@ def test_a_corner_function_that_raises_raises_the_same_in_a_large_batch():
 
 def test_a_new_corner_function_compiles_only_itself():
     """The blocks call the function through an address (``_kernels/function.entry``):
-    a second function adds no signature to the blocks' drivers or to the chain, only its
-    own wrapper; both give their own corners."""
+    a second function adds no signature to the blocks' serial or parallel drivers or to
+    ``corners``, only its own wrapper (one more ``entry``); both give their own corners."""
+    from bderiv._kernels import _core
     from bderiv._kernels import function as kernels
 
-    V = np.random.default_rng(5).standard_normal((40, 5))
+    V = np.random.default_rng(5).standard_normal((2000, 5))  # the parallel driver too
     before = BDerivative(DH4, TABLE_FUNC)
-    before(V), before.inverse(V), before.event_times(V)
-    drivers = (kernels.apply.serial, kernels.event_times.serial, kernels.chain,
-               kernels.diagnose, kernels._corners)
+    before(V), before.inverse(V), before.event_times(V), before.corner_points()
+    drivers = (kernels.apply.serial, kernels.event_times.serial, _core._TASKS,
+               kernels._corners)
     counts = [len(k.signatures) for k in drivers]
+    assert min(counts) >= 1
+    misses = kernels.entry.cache_info().misses
 
     @numba.njit
     def doubled(happened, out):
@@ -373,6 +376,7 @@ def test_a_new_corner_function_compiles_only_itself():
     W = bd(V)
     back, (times, orders) = bd.inverse(W), bd.event_times(V)
     assert [len(k.signatures) for k in drivers] == counts
+    assert kernels.entry.cache_info().misses == misses + 1
     # doubling every corner keeps the orders and halves the event times (M is unchanged)
     np.testing.assert_allclose(W, before(V), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(back, V, rtol=1e-12, atol=1e-12)
@@ -381,20 +385,56 @@ def test_a_new_corner_function_compiles_only_itself():
     np.testing.assert_array_equal(bd.corner_points()[1], 2 * before.corner_points()[1])
 
 
-def test_a_corner_function_engine_pickles_and_links_its_function_again():
+def test_a_corner_function_engine_pickles_and_links_its_function_again(monkeypatch):
     """The tables hold an address of this process: the engine drops it when pickled and
-    links the function again when unpickled; the wrapper lives as long as the engine."""
+    links the function again when unpickled, and holds the wrapper behind the address as
+    long as it lives (not the cache of ``entry``)."""
+    import gc
+    import weakref
+
     from bderiv._kernels import function as kernels
 
     bd = BDerivative(DH4, TABLE_FUNC)
     V = np.random.default_rng(6).standard_normal((30, 5))
     state = bd._engine.__getstate__()
     assert "_tables" not in state and "_entry" not in state
-    copy = pickle.loads(pickle.dumps(bd))
+    linked, real = [], kernels.entry
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "entry", lambda func: linked.append(func) or real(func))
+        copy = pickle.loads(pickle.dumps(bd))
+    assert len(linked) == 1  # linked again on unpickling
+    wrapper, at = kernels.entry(copy._engine.func)
+    assert copy._engine._entry is wrapper and copy._engine._tables.at[0] == at
     np.testing.assert_array_equal(copy(V), bd(V))
-    kernels.entry.cache_clear()  # the engines still hold their wrappers
+    held = weakref.ref(copy._engine._entry)
+    del wrapper
+    kernels.entry.cache_clear()
+    gc.collect()
+    assert held() is not None  # the engine holds it
     np.testing.assert_array_equal(copy(V), bd(V))
     np.testing.assert_array_equal(copy.event_times(V)[1], bd.event_times(V)[1])
+
+
+def test_a_corner_function_gets_a_copy_of_the_regions_it_is_asked_for():
+    """``func`` may write into ``happened``: the caller's array (read-only here) is not
+    touched, and a read-only ``out`` is refused."""
+    from bderiv._kernels import function as kernels
+
+    @numba.njit
+    def scribbles(happened, out):
+        out[0] = 1.0 + happened[0]
+        out[1] = 1.0
+        happened[0] = 7
+
+    h = np.array([[0, 1], [1, 0]], dtype=np.uint8)
+    h.flags.writeable = False
+    np.testing.assert_array_equal(CornerFunction(scribbles, n_events=2, dim=2).corners(h),
+                                  [[1.0, 1.0], [2.0, 1.0]])
+    np.testing.assert_array_equal(h, [[0, 1], [1, 0]])
+    out = np.zeros((2, 2))
+    out.flags.writeable = False
+    with pytest.raises(TypeError, match="out must be a writeable C-contiguous float64"):
+        kernels.corners(scribbles, h, out)
 
 
 def test_corner_function_violation_and_errors():

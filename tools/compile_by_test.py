@@ -13,7 +13,9 @@ The plugin writes ``compile_by_test.json`` (or ``$COMPILE_BY_TEST``) at the end 
 session; the second command prints the files and the dispatchers that cost most. CPU time
 (``time.process_time``) changes little with other load on the machine. What the
 subprocesses a test waited for spent (the command line's tests, fresh-process checks) is
-recorded apart (``RUSAGE_CHILDREN``, on Unix); a process it did not wait for is not
+recorded apart (``RUSAGE_CHILDREN``, on Unix): a subprocess is charged to the test during
+which it is reaped (under ``-n 0`` the background compilation of the integrator that the
+session starts goes to whichever test reaps it), and one never waited for is not
 counted.
 
 Under pytest-xdist (``-n 2``) each worker writes its own record, the path with ``-gw0``,

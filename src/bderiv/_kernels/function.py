@@ -17,6 +17,7 @@ their address, the lanes' position width").
 from __future__ import annotations
 
 import functools
+from types import FunctionType
 from typing import NamedTuple
 
 import numpy as np
@@ -24,6 +25,8 @@ from numba import carray, njit, types
 from numba.core import errors
 from numba.extending import intrinsic
 
+from .._limits import COMPILE_BYTES
+from ._cache import check_address_space
 from ._core import JIT, batch, cached
 from ._pointer import call_at
 from .selection import advance, earliest, pending_times, retire
@@ -49,22 +52,33 @@ class FunctionTables(NamedTuple):
     at: np.ndarray
 
 
+def _entry(happened, out, n, d):
+    """The wrapper's code (:func:`entry` gives it ``func`` and ``carray`` as globals)."""
+    func(carray(happened, n), carray(out, d))  # noqa: F821
+
+
 @functools.lru_cache(maxsize=64)
 def entry(func):
     """``(wrapper, address)``: ``func`` compiled for ``(happened, out)`` (:data:`HAPPENED`,
-    :data:`OUT`) inside an njit wrapper of raw pointers and sizes,
+    :data:`OUT`) and called by an njit wrapper of raw pointers and sizes,
     ``wrapper(happened_data, out_data, n, d)``, and the wrapper's address, which the
     kernels call (:func:`_call`). The address is valid while ``wrapper`` lives: hold it as
-    long as the address is used. Raises numba's error if ``func`` cannot be compiled so.
+    long as the address is used. Raises numba's error (naming ``func``) if ``func`` cannot
+    be compiled so, and ``MemoryError`` where the address space left is too small to
+    compile (LLVM would abort the process).
 
     Pointers and not arrays: numba passes an array as seven values and counts references
-    to its owner around the call; the corner of a region then cost 14 ns against 6 ns
-    inlined (n = d = 8), with pointers 7 ns."""
-
-    @njit(**JIT)
-    def wrapper(happened, out, n, d):
-        func(carray(happened, n), carray(out, d))
-
+    to its owner around the call, and a view made for the call (``out[i]``) is a new
+    reference; the corner of a region then cost 14 ns against 6 ns inlined (n = d = 8),
+    with the rows' pointers 5 ns. The wrapper's globals name ``func``'s module, not this
+    one: it is the user's code, compiled per process (not cached), not a kernel of the
+    package."""
+    name = getattr(func, "__name__", repr(func))
+    check_address_space(COMPILE_BYTES, f"compiling the corner function {name}")
+    func.compile((HAPPENED, OUT))
+    module = getattr(getattr(func, "py_func", None), "__module__", None) or "__main__"
+    namespace = {"func": func, "carray": carray, "__name__": module}
+    wrapper = njit(**JIT)(FunctionType(_entry.__code__, namespace, f"{name}_entry"))
     wrapper.compile(_ENTRY_ARGS)
     compiled = wrapper.overloads[_ENTRY_ARGS]
     return wrapper, compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)
@@ -76,28 +90,36 @@ def tables(Dh: np.ndarray, address: int) -> FunctionTables:
                           np.array([address], dtype=np.int64))
 
 
-def _rows(a, name):
-    """The int dtype and dimensions of an array the intrinsic :func:`_call` reads rows of."""
-    if not isinstance(a, types.Array) or a.layout != "C" or a.ndim not in (1, 2):
-        raise errors.TypingError(f"_call: {name} must be a C-contiguous array of 1 or 2 "
-                                 f"dimensions, got {a}")
+def _rows(a, index, name, dtype):
+    """Refuse (numba's ``TypingError``) what :func:`_call` cannot pass: ``a`` must be a
+    writeable C-contiguous array of ``dtype`` with 1 or 2 dimensions, ``index`` an integer,
+    the literal 0 for a 1-D ``a``."""
+    if (not isinstance(a, types.Array) or a.layout != "C" or a.ndim not in (1, 2)
+            or not a.mutable or a.dtype != dtype):
+        raise errors.TypingError(f"_call: {name} must be a writeable C-contiguous {dtype} "
+                                 f"array of 1 or 2 dimensions, got {a}")
+    if not isinstance(index, types.Integer) or (
+            a.ndim == 1 and getattr(index, "literal_value", None) != 0):
+        raise errors.TypingError(f"_call: the row of {name} must be an integer (the "
+                                 f"literal 0 for a 1-D array), got {index}")
 
 
 @intrinsic
 def _call(typingctx, at, happened, i, out, j):
     """``func(happened[i], out[j])`` (``happened`` and ``out`` 2-D) or ``func(happened,
-    out)`` (1-D, ``i`` and ``j`` 0) for the function whose :func:`entry` is at ``at``; an
-    exception it raises propagates. Rows by pointer: no array views made for the call."""
-    _rows(happened, "happened"), _rows(out, "out")
-    if at != types.int64 or happened.dtype != types.uint8 or out.dtype != types.float64:
-        raise errors.TypingError(f"_call: (int64, uint8 rows, int, float64 rows, int), got "
-                                 f"({at}, {happened}, {i}, {out}, {j})")
+    out)`` (1-D, ``i`` and ``j`` the literal 0) for the function whose :func:`entry` is at
+    ``at``; an exception it raises propagates. Rows by pointer: no array views made for the
+    call; like numba's own indexing, the rows are not bounds-checked."""
+    if at != types.int64:
+        raise errors.TypingError(f"_call: the address must be an int64, got {at}")
+    _rows(happened, i, "happened", types.uint8), _rows(out, j, "out", types.float64)
 
     def row(context, builder, arytype, value, index):
         a = context.make_array(arytype)(context, builder, value)
         size = builder.extract_value(a.shape, arytype.ndim - 1)
-        offset = builder.mul(index, size) if arytype.ndim == 2 else index
-        return builder.gep(a.data, [offset]), size
+        if arytype.ndim == 1:
+            return a.data, size
+        return builder.gep(a.data, [builder.mul(index, size)]), size
 
     def codegen(context, builder, sig, args):
         index_i = context.cast(builder, args[2], i, types.int64)
@@ -223,7 +245,12 @@ def _corners(at, happened, out):
 
 def corners(func, happened: np.ndarray, out: np.ndarray) -> None:
     """out[i] = F[happened[i]] for each row of 0/1 flags (tables, chains, checks):
-    ``happened`` (m, n) uint8 and ``out`` (m, d) float64, both C-contiguous and
-    writeable."""
+    ``happened`` (m, n) of 0/1 (``func`` gets a private uint8 copy: it may write it) and
+    ``out`` (m, d), a writeable C-contiguous float64 array."""
+    if not (isinstance(out, np.ndarray) and out.dtype == np.float64 and out.ndim == 2
+            and out.flags.c_contiguous and out.flags.writeable):
+        raise TypeError(f"out must be a writeable C-contiguous float64 array (m, d), got "
+                        f"{type(out).__name__} {getattr(out, 'dtype', '')} "
+                        f"{getattr(out, 'shape', '')}")
     wrapper, at = entry(func)  # wrapper held while its address is in use
-    _corners(at, happened, out)
+    _corners(at, np.array(happened, dtype=np.uint8, order="C", ndmin=2), out)

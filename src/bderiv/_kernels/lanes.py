@@ -7,7 +7,8 @@ A block gets ``(tables, shape)``: the :class:`LaneTables` of the engine and the
 ``wx`` of the event values' and of the position's vectors (so d <= 64 here:
 ``_engines.dense`` runs the plain blocks above), ``far`` (1 when the records exceed the
 caches: see :func:`_step`) and ``carry`` (1: the chain carries the position, see
-:func:`_assemble`; 0: it records its steps). A query is one row of ``V`` (m, d).
+:func:`_assemble`; 0: it records its steps, and ``wx`` is 8 whatever d: such a chain never
+reads it). A query is one row of ``V`` (m, d).
 
 The sizes are an int64 array, ``LaneTables.dims``, not four int fields: on two threads
 the int fields were slower (measured: docs/benchmarks.md, "Kernel design choices,
@@ -83,7 +84,8 @@ class LaneShape(NamedTuple):
 
     #: the width of the event values' vectors, 8 nc
     wh: tuple
-    #: the width of the position's vectors, 8 dc
+    #: the width of the position's vectors, 8 dc (8 in the blocks whose chains record their
+    #: steps, which never read it: :func:`kernels`)
     wx: tuple
     #: 1: prefetch the next record (records beyond the caches)
     far: tuple

@@ -14,7 +14,9 @@ argument types real calls give them:
   waits for it or runs on scipy instead of compiling it a second time.
 - ``dense``: the kernels of a B-derivative from a dense corner table (a model's event
   point, as the chair's): single vectors, batches, transposes, pieces.
-- ``structured``: those of corner models and structured corners (n up to 128).
+- ``structured``: those of corner models: structured corners (n up to 128) and corner
+  functions (``CornerFunction``: the kernels are shared by every function; a user's own
+  function compiles at its first use, under a second).
 - ``resets``: those of B-derivatives with resets (impacts, bounces).
 
 Each family's process writes its own cache entries; two families that compile the same
@@ -76,7 +78,7 @@ def _dense() -> None:
 
 def _structured() -> None:
     from ..engine.bderivative import BDerivative
-    from ..geometry.corners import StructuredCorners
+    from ..geometry.corners import CornerFunction, StructuredCorners
 
     rng = np.random.default_rng(1)
     for n in (4, 40):  # corners like a multi-contact system, two pairs per event
@@ -86,6 +88,12 @@ def _structured() -> None:
         pairs = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
         B = 0.2 / n * rng.uniform(-1, 1, (n, n))
         _queries(BDerivative(Dh, StructuredCorners(F0, A, pairs, B)), n, rng)
+
+    def corners(happened, out):  # three events in three dimensions, every rate positive
+        for i in range(out.shape[0]):
+            out[i] = 1.0 + 0.5 * happened[i] + 0.25 * happened[(i + 1) % out.shape[0]]
+
+    _queries(BDerivative(np.eye(3), CornerFunction(corners)), 3, rng)  # CornerFunction jits
 
 
 def _resets() -> None:

@@ -111,7 +111,7 @@ def _coefficients_one(t2):
 @numba.njit(cache=True)
 def put(out, r0, c0, M):
     """``out[r0:r0 + M.shape[0], c0:c0 + M.shape[1]] = M`` by loops (an array assigned
-    into a slice compiles numba's shape-mismatch error and its formatting: about a second
+    into a slice compiles numba's shape-mismatch error and its string formatting, seconds
     in every process that compiles these kernels)."""
     for i in range(M.shape[0]):
         for j in range(M.shape[1]):

@@ -28,7 +28,7 @@ from . import _codegen
 from ._inputs import require_sympy
 
 #: bump when the generated source changes
-MECHANICS_VERSION = 2
+MECHANICS_VERSION = 3
 
 COUPLING_SIGNATURE = "float64[:, ::1](float64[::1])"
 
