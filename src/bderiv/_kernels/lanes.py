@@ -318,13 +318,15 @@ def _lane_tangent_block(args, V, outs, start, stop, transpose):
     ``outs = (out, T)`` (T is read)."""
     tables, shape = args
     R, Dhp, wx = tables.R, tables.Dhp, shape.wx
+    # the chain records its steps: it never reads wx (its steps compile as the event times')
+    chain = (tables, LaneShape(shape.wh, W8, shape.far, shape.carry))
     out, T = outs
     n, d, og, of = tables.dims[0], tables.dims[1], 8 * tables.dims[2], 16 * tables.dims[2]
     X, times, order, steps = _lane_scratch(tables)
     Y = np.empty_like(X)
     region = np.empty(LANES, dtype=np.int64)
     for q0 in range(start, stop, LANES):
-        _lanes(args, V, q0, stop - 1, False, X, times, order, steps)
+        _lanes(chain, V, q0, stop - 1, False, X, times, order, steps)
         for p in range(LANES):  # the padding lanes of y stay 0
             vec.store(Y, p, 0, vec.load_first(T, min(q0 + p, stop - 1), 0, d, wx))
             region[p] = (1 << n) - 1 if transpose else 0  # walk the chain either way
