@@ -158,12 +158,14 @@ def test_no_literal_constants_reach_a_chain():
     except where a line says ``# literal: kept``: the plain dense chains forwards, whose
     copy with ``inverse`` folded away runs 4-6 % faster (benchmarks/ab.py, plain8 times)
     for about a second more of compiling."""
-    folder = ROOT / "src" / "bderiv" / "_kernels"
-    modules = {p.stem: ast.parse(p.read_text()) for p in folder.glob("*.py")}
+    package = ROOT / "src" / "bderiv"  # the kernels, and the robots' contact kernels
+    files = [*(package / "_kernels").glob("*.py"), *(package / "robots").glob("_*.py")]
+    modules = {p: ast.parse(p.read_text()) for p in files}
     jitted = set().union(*(_jitted_calls(tree) for tree in modules.values()))
     found = []
-    for stem, tree in modules.items():
-        lines = (folder / f"{stem}.py").read_text().splitlines()
+    for path, tree in modules.items():
+        stem = path.stem
+        lines = path.read_text().splitlines()
         for node in ast.walk(tree):
             if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
                     and node.func.id in jitted):

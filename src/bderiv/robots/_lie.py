@@ -108,17 +108,18 @@ def _coefficients_one(t2):
             (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
 
 
-@numba.njit(cache=True)
+@numba.njit(inline="always", cache=True)
 def put(out, r0, c0, M):
     """``out[r0:r0 + M.shape[0], c0:c0 + M.shape[1]] = M`` by loops (an array assigned
     into a slice compiles numba's shape-mismatch error and its string formatting, seconds
-    in every process that compiles these kernels)."""
+    in every process that compiles these kernels). Inlined: called with constant offsets,
+    a function of its own would compile once per literal."""
     for i in range(M.shape[0]):
         for j in range(M.shape[1]):
             out[r0 + i, c0 + j] = M[i, j]
 
 
-@numba.njit(cache=True)
+@numba.njit(inline="always", cache=True)
 def put1(out, i0, v):
     """``out[i0:i0 + v.size] = v`` by a loop (see :func:`put`)."""
     for i in range(v.shape[0]):
