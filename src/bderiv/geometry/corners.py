@@ -296,7 +296,7 @@ class CornerFunction(_Tabulated):
         h = np.asarray(happened)
         if h.ndim == 0 or h.shape[-1] != n:
             raise ValueError(f"happened must have shape (..., {n}), got {h.shape}")
-        flat = np.ascontiguousarray(h.reshape(-1, n), dtype=np.uint8)
+        flat = h.reshape(-1, n)  # corners gives func its own uint8 copy
         out = np.full((flat.shape[0], d), np.nan)
         corners(self.func, flat, out)
         return out.reshape(h.shape[:-1] + (d,))

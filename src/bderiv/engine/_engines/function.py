@@ -51,7 +51,7 @@ class FunctionEngine(Engine):
 
     def corners(self, happened) -> np.ndarray:
         """F on regions given as (m, n) 0/1 flags; NaN where ``func`` wrote nothing."""
-        h = np.ascontiguousarray(happened, dtype=np.uint8)
+        h = np.asarray(happened)  # kernels.corners gives func its own uint8 copy
         out = np.full((h.shape[0], self.d), np.nan)
         kernels.corners(self.func, h, out)
         return out
