@@ -361,7 +361,7 @@ def test_a_new_corner_function_compiles_only_itself():
     before = BDerivative(DH4, TABLE_FUNC)
     before(V), before.inverse(V), before.event_times(V), before.corner_points()
     drivers = (kernels.apply.serial, kernels.event_times.serial, _core._TASKS,
-               kernels._corners)
+               _core._LAUNCH, kernels._corners)
     counts = [len(k.signatures) for k in drivers]
     assert min(counts) >= 1
     misses = kernels.entry.cache_info().misses

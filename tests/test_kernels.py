@@ -23,7 +23,8 @@ bd = BDerivative(np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]]), F, fast_paths=Fal
 V = np.random.default_rng(0).standard_normal((5000, 3))
 bd(V[:3]); bd(V)
 drivers = dense.apply if _core.PLAIN else bd._engine._lane_kernels[0]
-stats = [drivers.serial.stats, drivers.tasks.stats]
+(trampoline, _), = _core.TRAMPOLINES.values()
+stats = [d.stats for d in (drivers.serial, _core._TASKS, _core._LAUNCH, trampoline)]
 print(json.dumps([[sum(s.cache_hits.values()), sum(s.cache_misses.values())] for s in stats]))
 """
 
@@ -34,7 +35,8 @@ def test_drivers_load_from_the_disk_cache_in_a_new_process():
         out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True)
         assert out.returncode == 0, out.stderr
         runs.append(json.loads(out.stdout))
-    assert runs[1] == [[1, 0], [1, 0]], runs  # (hits, misses) of the serial and parallel drivers
+    # (hits, misses) of the serial driver, the parallel one, its launcher and trampoline
+    assert runs[1] == [[1, 0]] * 4, runs
 
 
 def _kernel_modules():
@@ -119,12 +121,14 @@ def test_launches_do_not_change_the_result(monkeypatch):
 
 def test_one_parallel_driver_serves_every_block_and_matches_the_serial_one():
     """The parallel driver calls each block's serial driver through its address: two
-    systems whose apply kernels differ (h in 8 lanes and in 16) share it (their tables and
-    outputs have one type), and each gives the bits of its serial driver. (d = 16: the
-    width pairs 8 x 16 and 16 x 16, which test_lanes compiles too.)"""
+    systems whose apply kernels differ (h in 8 lanes and in 16) share it, its launcher and
+    its trampoline (their tables and outputs have one type), and each gives the bits of
+    its serial driver. The parallel driver has one signature, whatever the types. (d = 16:
+    the width pairs 8 x 16 and 16 x 16, which test_lanes compiles too.)"""
     rng = np.random.default_rng(11)
     V = rng.standard_normal((3000, 16))
-    before, serial = set(_core._TASKS.signatures), set()
+    before, serial = set(_core._LAUNCH.signatures), set()
+    trampolines = set(_core.TRAMPOLINES)
     for n in (3, 12):
         bd = BDerivative(*random_system(rng, n, 16), fast_paths=False)
         whole = bd(V)  # the parallel driver (3000 rows)
@@ -133,7 +137,9 @@ def test_one_parallel_driver_serves_every_block_and_matches_the_serial_one():
         if not _core.PLAIN:
             serial.add(bd._engine._lane_kernels[0].serial)
     assert len(serial) == (0 if _core.PLAIN else 2)
-    assert len(set(_core._TASKS.signatures) - before) <= 1, _core._TASKS.signatures
+    assert len(set(_core._LAUNCH.signatures) - before) <= 1, _core._LAUNCH.signatures
+    assert len(set(_core.TRAMPOLINES) - trampolines) <= 1, list(_core.TRAMPOLINES)
+    assert _core._TASKS.signatures == [_core._TASKS_ARGS]
 
 
 def test_launch_sizes():

@@ -153,6 +153,7 @@ def _plain(e, V, T):
     dense.apply(e._plain, V, (res[0],), False)
     dense.apply(e._plain, V, (res[1],), True)
     dense.event_times(e._plain, V, (res[2], res[3]))
+    T = _core.read_only(T)  # as the engines pass it: one signature of the driver
     dense.tangents(e._plain, V, (res[4], T), False)
     dense.tangents(e._plain, V, (res[5], T), True)
     return res

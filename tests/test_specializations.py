@@ -100,9 +100,9 @@ def _signatures():
 
 def test_writeable_and_read_only_inputs_compile_each_kernel_once():
     table = _signatures()
-    # the parallel driver of all blocks has a signature per type of tables and outputs
+    # the parallel driver's launcher has a signature per type of tables and outputs
     more = {name: e["signatures"] for name, e in table.items()
-            if e["cached"] and len(e["signatures"]) > 1 and not name.endswith(":_tasks")}
+            if e["cached"] and len(e["signatures"]) > 1 and not name.endswith(":_launch")}
     assert not more, more
     # the workload reached the kernels it is about
     names = {name for name, e in table.items() if e["signatures"]}

@@ -25,6 +25,7 @@ a constant passed to an njit function that is not inlined is a literal type (``F
 
 from __future__ import annotations
 
+import hashlib
 import os
 import pathlib
 import threading
@@ -156,19 +157,125 @@ def _run_at(typingctx, address, args):
     return numba.int64(address, args), codegen
 
 
-def _tasks(tables, V, outs, inverse, serial):
-    m = V.shape[0]
+@intrinsic
+def _pack(typingctx, args):
+    """The address of a copy of the tuple ``args`` in the caller's stack frame, valid while
+    the caller runs (the arrays in it are the caller's references: it holds them)."""
+    if not isinstance(args, numba.types.BaseTuple):
+        raise errors.TypingError(f"_pack: a tuple, got {args}")
+
+    def codegen(context, builder, sig, llargs):
+        slot = cgutils.alloca_once_value(builder, llargs[0])
+        return builder.ptrtoint(slot, context.get_value_type(numba.int64))
+
+    return numba.int64(args), codegen
+
+
+def _unowned(context, builder, kind, value):
+    """``value`` with each array's owner (its meminfo and parent) set to null, as numba's
+    parallel loops pass arrays to their threads: the threads' reference counting is then
+    a no-op, not atomic operations of every thread on the same counters (which took a
+    third of the speed on two threads)."""
+    if isinstance(kind, numba.types.Array):
+        array = context.make_array(kind)(context, builder, value=value)
+        array.meminfo = cgutils.get_null_value(array.meminfo.type)
+        array.parent = cgutils.get_null_value(array.parent.type)
+        return array._getvalue()
+    if isinstance(kind, numba.types.BaseTuple):
+        for i, item in enumerate(kind.types):
+            member = _unowned(context, builder, item, builder.extract_value(value, i))
+            value = builder.insert_value(value, member, i)
+        return value
+    if isinstance(kind, (numba.types.Number, numba.types.Boolean)):
+        return value
+    raise errors.TypingError(f"_unpack: arrays, numbers and tuples of them, got {kind}")
+
+
+@intrinsic
+def _unpack(typingctx, address, kind):
+    """The tuple :func:`_pack` stored at ``address``, its arrays without an owner (the
+    packing caller holds them while it runs); ``kind``: its type, a global of the caller."""
+    if not isinstance(kind, numba.types.TypeRef):
+        raise errors.TypingError(f"_unpack: the tuple's type as a global, got {kind}")
+    packed = kind.instance_type
+
+    def codegen(context, builder, sig, llargs):
+        pointer = builder.inttoptr(llargs[0], context.get_value_type(packed).as_pointer())
+        return _unowned(context, builder, packed, builder.load(pointer))
+
+    return packed(address, kind), codegen
+
+
+def _tasks(m, packed, trampoline):
     bad = 0
     for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
         start = task * TASK_QUERIES
         stop = min(start + TASK_QUERIES, m)
-        bad += _run_at(serial, (tables, V, outs, start, stop, inverse))
+        bad += _run_at(trampoline, (packed, start, stop))
     return bad
 
 
-#: the parallel driver of every block (:class:`Batch`): compiled once per type of its
-#: arguments, whatever the block
+#: the parallel driver of every block (:class:`Batch`), compiled once: its arguments are
+#: int64 (the rows, the address of the launch's packed arguments, the address of the
+#: trampoline that unpacks them for the serial driver), whatever the block and the types
 _TASKS = keyed(_tasks, SOURCES, "_tasks", parallel=True, **JIT)
+
+#: what :data:`_TASKS` is compiled for
+_TASKS_ARGS = (numba.int64, numba.int64, numba.int64)
+
+
+def _launch(tables, V, outs, inverse, serial, trampoline, tasks):
+    return _run_at(tasks, (V.shape[0], _pack((tables, V, outs, inverse, serial)), trampoline))
+
+
+#: the launcher: packs the launch's arguments and runs :data:`_TASKS` at ``tasks`` on them
+#: (a few lines compiled per type of tables and outputs, where the parallel driver itself
+#: would be compiled again per type)
+_LAUNCH = keyed(_launch, SOURCES, "_launch", **JIT)
+
+
+# The trampoline's code: ``PACKED`` is no name of this module (:func:`_trampoline` runs it
+# with globals of its own, one per type of the packed arguments).
+def _trampoline_code(packed, start, stop):
+    tables, V, outs, inverse, serial = _unpack(packed, PACKED)  # noqa: F821
+    return _run_at(serial, (tables, V, outs, start, stop, inverse))
+
+
+#: the trampolines made so far: packed type -> (dispatcher, address)
+TRAMPOLINES: dict = {}
+
+
+def _trampoline(packed_type) -> int:
+    """The address of the trampoline for arguments of ``packed_type`` (the tuple of
+    :func:`_launch`'s ``tables, V, outs, inverse, serial``): it unpacks them and calls the
+    serial driver on its task's rows. Cached on disk under the type's digest."""
+    if packed_type not in TRAMPOLINES:
+        digest = hashlib.sha256(str(packed_type).encode()).hexdigest()[:16]
+        trampoline = keyed(_trampoline_code, SOURCES, f"_trampoline_{digest}",
+                           dict(globals(), PACKED=packed_type), **JIT)
+        TRAMPOLINES[packed_type] = trampoline, _address_of(trampoline, _TASKS_ARGS)
+    return TRAMPOLINES[packed_type][1]
+
+
+def _address_of(dispatcher, argtypes) -> int:
+    """The address of ``dispatcher`` compiled (or loaded) for ``argtypes``, which must
+    return an int64 (what :func:`_run_at` calls)."""
+    dispatcher.compile(argtypes)
+    compiled = dispatcher.overloads[argtypes]
+    if compiled.signature.return_type != numba.int64:
+        raise TypeError(f"{dispatcher.py_func.__qualname__} returns "
+                        f"{compiled.signature.return_type}, not int64")
+    return compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)
+
+
+_TASKS_AT: list = []
+
+
+def _tasks_address() -> int:
+    """The address of :data:`_TASKS` (compiled, or loaded, at the first parallel launch)."""
+    if not _TASKS_AT:
+        _TASKS_AT.append(_address_of(_TASKS, _TASKS_ARGS))
+    return _TASKS_AT[0]
 
 
 class Batch:
@@ -199,25 +306,22 @@ class Batch:
         name = f"{block.py_func.__module__.rsplit('.', 1)[-1]}.{block.__name__}{sizes}"
         serial = keyed(_serial, SOURCES, f"{name}.serial", namespace, **JIT)
         harden_all()  # the kernels of the modules imported so far
-        self.block, self.serial, self.tasks = block, serial, _TASKS
+        self.block, self.serial = block, serial
         self._addresses = {}
 
-    def _address(self, tables, V, outs, inverse) -> int:
-        """The address of the serial driver compiled for the types the parallel one calls
-        it with (compiled, or loaded from the disk cache, the first time)."""
+    def _address(self, tables, V, outs, inverse) -> tuple[int, int]:
+        """The addresses of the serial driver compiled for the types the parallel one calls
+        it with, and of the trampoline for them (each compiled, or loaded from the disk
+        cache, the first time)."""
         typeof = self.serial.typeof_pyval
-        argtypes = (typeof(tables), typeof(V), typeof(outs), numba.int64, numba.int64,
-                    typeof(inverse))
-        address = self._addresses.get(argtypes)
-        if address is None:
-            self.serial.compile(argtypes)
-            compiled = self.serial.overloads[argtypes]
-            if compiled.signature.return_type != numba.int64:  # what _run_at calls
-                raise TypeError(f"the serial driver of {self.block.__name__} returns "
-                                f"{compiled.signature.return_type}, not int64")
-            address = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)
-            self._addresses[argtypes] = address
-        return address
+        kinds = (typeof(tables), typeof(V), typeof(outs))
+        addresses = self._addresses.get(kinds)
+        if addresses is None:
+            serial = _address_of(self.serial, (*kinds, numba.int64, numba.int64,
+                                               numba.boolean))
+            packed = numba.types.Tuple((*kinds, numba.boolean, numba.int64))
+            addresses = self._addresses[kinds] = serial, _trampoline(packed)
+        return addresses
 
     def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> int:
         """Run the block on every row of ``V``; ``launch``: queries per kernel launch.
@@ -238,9 +342,9 @@ class Batch:
         return bad
 
     def _launch(self, tables, V, outs, inverse) -> int:
-        serial = self._address(tables, V, outs, inverse)
+        serial, trampoline = self._address(tables, V, outs, inverse)
         try:
-            return self._tasks_at(tables, V, outs, inverse, serial)
+            return self._tasks_at(tables, V, outs, bool(inverse), serial, trampoline)
         except SystemError as exc:
             # an exception raised inside numba's parallel loop (a user's corner function)
             # reaches Python as a SystemError: the serial driver, run on the launch's rows,
@@ -249,14 +353,15 @@ class Batch:
         self.serial(tables, V, outs, 0, V.shape[0], inverse)
         raise failure
 
-    def _tasks_at(self, tables, V, outs, inverse, serial) -> int:
+    def _tasks_at(self, tables, V, outs, inverse, serial, trampoline) -> int:
         # dynamic schedule, one task at a time (set outside the jit: inside it, numba could
         # not cache the function)
+        tasks = _tasks_address()
         if _SAFE_LAYER[0]:
             with parallel_chunksize(1):
-                return self.tasks(tables, V, outs, inverse, serial)
+                return _LAUNCH(tables, V, outs, inverse, serial, trampoline, tasks)
         with _LAUNCH_LOCK, parallel_chunksize(1):
-            bad = self.tasks(tables, V, outs, inverse, serial)
+            bad = _LAUNCH(tables, V, outs, inverse, serial, trampoline, tasks)
             _note_layer()
         return bad
 
@@ -269,7 +374,7 @@ def batch(block, statics: NamedTuple | None = None) -> Batch:
 # ----------------------------------------------------------------------------------------
 # the drivers' count of bad rows
 # ----------------------------------------------------------------------------------------
-@njit(**JIT)
+@cached
 def nonfinite_rows(a, start, stop):
     """How many of the rows ``a[start:stop]`` hold a NaN or an infinity."""
     bad = 0

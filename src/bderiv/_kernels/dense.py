@@ -59,7 +59,7 @@ class SortedTables(NamedTuple):
     rate: np.ndarray
 
 
-@njit(**JIT)
+@cached
 def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
     """Event chains of the queries ``V[q0:q0 + pn]`` (pn <= GROUP), in lockstep.
 
@@ -108,7 +108,7 @@ def _chains(DhT, G, V, q0, pn, inverse, g, tau, times, order, chain):
             order[p, j] = kb
 
 
-@njit(**JIT)
+@cached
 def _scratch(n):
     """g, tau, times, order, chain for GROUP queries of n events."""
     return (np.empty((GROUP, n)), np.empty((GROUP, n)), np.empty((GROUP, n)),

@@ -132,7 +132,7 @@ def _call(typingctx, at, happened, i, out, j):
     return types.none(at, happened, i, out, j), codegen
 
 
-@njit(**JIT)
+@cached
 def _region(at, DhT, hap, C, c, R):
     """C[c] = F[hap] and R[c] = Dh @ F[hap]; returns -1, NON_FINITE when ``func`` left an
     entry unwritten or non-finite (the row is NaN-filled before the call), or the first
@@ -150,7 +150,7 @@ def _region(at, DhT, hap, C, c, R):
     return -1
 
 
-@njit(**JIT)
+@cached
 def chain(at, DhT, u, inverse, x, g, tau, R, C, hap, tev, order):
     """One query; x = M(u) (or M^-1(u)), ``tev[k]`` the time of event k, ``order``.
 
@@ -166,7 +166,7 @@ def chain(at, DhT, u, inverse, x, g, tau, R, C, hap, tev, order):
         hap[k] = 1 if inverse else 0
     for i in range(d):
         x[i] = u[i]
-    now = 0
+    now = np.int64(0)  # not a literal: _region compiles once for both rows
     bad = _region(at, DhT, hap, C, now, R)
     if bad != -1:
         return bad
@@ -187,7 +187,7 @@ def chain(at, DhT, u, inverse, x, g, tau, R, C, hap, tev, order):
     return -1
 
 
-@njit(**JIT)
+@cached
 def _scratch(n, d):
     """x, g, tau, R, C, hap, tev, order: the per-query work arrays of :func:`chain`."""
     return (np.empty(d), np.empty((1, n)), np.empty((1, n)), np.empty((2, n)),

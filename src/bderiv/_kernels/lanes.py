@@ -43,7 +43,7 @@ from numba import njit
 
 from .._numerics import QUERY_BAND
 from . import _simd as vec
-from ._core import JIT, batch, frozen_tables
+from ._core import JIT, batch, cached, frozen_tables
 from .steps import write_times
 
 #: queries per lockstep group: eight independent chains hide the latency of each step's
@@ -111,7 +111,7 @@ def unchecked(tables: LaneTables) -> LaneTables:
     return frozen_tables(tables._replace(dims=dims))
 
 
-@njit(**JIT)
+@cached
 def _start(DhTp, V, q, d, s, wh):
     """s Dh V[q]: the event values at time 0 (negated backwards), in a vector."""
     h = vec.splat(0.0, wh)
@@ -120,7 +120,7 @@ def _start(DhTp, V, q, d, s, wh):
     return h
 
 
-@njit(**JIT)
+@cached
 def _step(R, h, x, t, b, out, wh, wx, far, carry):
     """One event of one lane: the smallest pending ``dt_k = h_k * (-1 / G[b, k])`` (ties
     to the smaller k, the lowest bit of the equality mask), then ``h += dt G[b]`` and, when
@@ -146,7 +146,7 @@ def _step(R, h, x, t, b, out, wh, wx, far, carry):
     return h, x, t + best, b, k
 
 
-@njit(**JIT)
+@cached
 def _record(order, times, j, k, t, s, carry):
     """The j-th event of a lane and its time (``order``, ``times``: the lane's rows),
     unless the chain carries the position. (Rows, not a lane index: each literal index
@@ -228,7 +228,7 @@ def _lanes(args, V, q0, last, inverse, X, T, order, times):
     return bad == 0
 
 
-@njit(**JIT)
+@cached
 def _lane_scratch(tables):
     """X (moves), T (times of the last events), order and times of the steps of one
     lockstep group."""
@@ -267,7 +267,7 @@ def _lane_apply_block(args, V, outs, start, stop, inverse):
 # pair's compilation and gained nothing at run time (design.md, "The drivers compiled once");
 # it gets the two static values it reads, not the shape: one compilation per wx and carry,
 # not per width pair
-@njit(**JIT)
+@cached
 def _assemble(tables, wx, carry, V, r0, pn, inverse, out, q0, X, T, order, times):
     """out[q0 + p] = M(V[r0 + p]) for p < pn from the chains of :func:`_lanes`:
     ``v + s X - T F[end]``, the position at the last event moved back to time 0 along the

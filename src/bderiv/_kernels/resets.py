@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._core import JIT, batch
+from ._core import JIT, batch, cached
 from .selection import advance, earliest, exclude, pending_times
 from .steps import impacts
 
@@ -44,7 +44,7 @@ class ResetTables(NamedTuple):
     low: int
 
 
-@njit(**JIT)
+@cached
 def _rank_update(left, right, b, k, y, out, w):
     """out += y + left[b, k]^T (right[b, k] y): (I + U V^T) y with (left, right) = (U^T,
     V^T), its transpose with (V^T, U^T); ``w``: scratch of length r."""
@@ -62,7 +62,7 @@ def _rank_update(left, right, b, k, y, out, w):
             out[i] += left[b, k, s, i] * ws
 
 
-@njit(**JIT)
+@cached
 def reset_move(P, Q, low, b, k, y, out, w):
     """out += R[b, k] y (``w``: scratch of length r). O(d^2) dense, O(d r) low rank."""
     if low:
@@ -75,7 +75,7 @@ def reset_move(P, Q, low, b, k, y, out, w):
             out[i] += P[b, k, j, i] * yj
 
 
-@njit(**JIT)
+@cached
 def reset_move_t(P, Q, low, b, k, z, out, w):
     """out = R[b, k]^T z (``w``: scratch of length r)."""
     d = z.shape[0]
@@ -91,7 +91,7 @@ def reset_move_t(P, Q, low, b, k, z, out, w):
         out[j] = c
 
 
-@njit(**JIT)
+@cached
 def _scratch(n, d, P):
     """x, g (1, n), tau (1, n), y, w, times, order, regions for one query."""
     r = max(P.shape[2], 1)
@@ -99,7 +99,7 @@ def _scratch(n, d, P):
             np.empty(n), np.empty(n, dtype=np.int64), np.empty(n + 1, dtype=np.int64))
 
 
-@njit(**JIT)
+@cached
 def chain(tables, u, inverse, scratch):
     """The event chain of one query, leaving M(u) (M^-1(u) when ``inverse``) in ``x``.
 
@@ -176,7 +176,7 @@ def _times_block(tables, V, outs, start, stop, inverse):
             times_out[q, order[j]] = times[j]
 
 
-@njit(**JIT)
+@cached
 def saltation_reset_step(tables, y, k, b, a, transpose, tmp, w):
     """y <- S y (S^T y when ``transpose``), S the saltation matrix with reset of event k
     from region b to region a (mathematics.md section 9), in place. With R = R[b, k] and

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from .._numerics import INSERTION_SORT_MAX, QUERY_BAND
-from ._core import JIT
+from ._core import JIT, cached
 from ._simd import bits_float, float_bits
 
 
@@ -55,7 +55,7 @@ def factors(e):
     return _pow2(e // 2), _pow2(e - e // 2)
 
 
-@njit(**JIT)
+@cached
 def impacts(DhT, u, g):
     """g = Dh @ u from DhT = Dh.T (d, n), as axpys over the rows of DhT (vectorises)."""
     d, n = DhT.shape
@@ -67,7 +67,7 @@ def impacts(DhT, u, g):
             g[k] += DhT[i, k] * ui
 
 
-@njit(**JIT)
+@cached
 def own_rate_times(DhT, rate, u, tev):
     """tev[k] = -(Dh u)_k / rate[k]: the event times when no pending rate ever changes."""
     impacts(DhT, u, tev)
@@ -75,7 +75,7 @@ def own_rate_times(DhT, rate, u, tev):
         tev[k] = -tev[k] / rate[k]
 
 
-@njit(**JIT)
+@cached
 def insertion_order(t, order):
     """order = stable argsort of t (ties keep the smaller event first), by insertion: the
     order of up to a few dozen events (:data:`INSERTION_SORT_MAX`; a dense table's n <= 40)."""
@@ -94,7 +94,7 @@ def insertion_order(t, order):
         order[i + 1] = k
 
 
-@njit(**JIT)
+@cached
 def merge_order(t, order):
     """order = stable argsort of t (ties keep the smaller event first) for more than
     :data:`INSERTION_SORT_MAX` events: runs of that length by insertion, merged pairwise,
@@ -134,7 +134,7 @@ def merge_order(t, order):
             order[k] = src[k]
 
 
-@njit(**JIT)
+@cached
 def write_times(order, times, q0, pn, order_out, times_out):
     """Rows q0.. of the outputs of ``event_times`` from a group's steps: ``order[p, j]``
     the j-th event of query q0 + p and ``times[p, j]`` its time."""
@@ -146,7 +146,7 @@ def write_times(order, times, q0, pn, order_out, times_out):
 
 
 
-@njit(**JIT)
+@cached
 def saltation_step(y, Dh, k, Fc, before, after, rate, transpose):
     """y <- S y, or S^T y when ``transpose``, in place (mathematics.md section 4).
 

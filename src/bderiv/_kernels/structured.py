@@ -120,7 +120,7 @@ def diagnose(tables, U, inverse, hap, r):
     return status[0]
 
 
-@njit(**JIT)
+@cached
 def output(A, Bm, u, tev, s, inverse, x):
     """x = u - A^T t - B^T s (forward) or u + A^T t + B^T s (inverse)."""
     n, d = A.shape
@@ -137,7 +137,7 @@ def output(A, Bm, u, tev, s, inverse, x):
             x[i] += c * Bm[p, i]
 
 
-@njit(**JIT)
+@cached
 def _pair_times(pairs, tev, s):
     for p in range(pairs.shape[0]):
         s[p] = max(tev[pairs[p, 0]], tev[pairs[p, 1]])

@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from . import _simd as vec
-from ._core import JIT
+from ._core import JIT, cached
 
 #: queries whose event values and outputs are computed as one matrix product
 GROUP = 32
@@ -38,7 +38,7 @@ LOCK = 4
 W8 = vec.static(8)
 
 
-@njit(**JIT)
+@cached
 def products(M, X, x0, pn, s, B, b0, Y, y0):
     """``Y[y0 + p] = B[b0 + p] + s X[x0 + p] @ M`` for p < pn (the first ``Y.shape[1]``
     columns; M's rows padded to a multiple of 8), four rows of X per pass over M. Entry i
@@ -175,7 +175,7 @@ def _start(rates, G, p0, ln, cand, n, nc, status, q0, R, HAP, ROW, T):
                 HAP[lane, k] = cand
 
 
-@njit(**JIT)
+@cached
 def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
     """The chains of the group rows ``p0 .. p0 + ln - 1`` (ln <= LOCK) in lockstep.
 
@@ -238,7 +238,7 @@ def _chains(tables, G, p0, ln, inverse, check, TS, ORD, status, q0, work):
             ROW[lane] = n + lane if na else kb
 
 
-@njit(**JIT)
+@cached
 def group_scratch(tables):
     """G (and zeros of its shape), TS, ORD of a group and the lockstep work arrays R, HAP, J,
     ROW, T, BEST, PL, K (``J``: the jump rows of :func:`_chains`, with a copy of ``a``)."""
@@ -254,7 +254,7 @@ def group_scratch(tables):
             np.empty((GROUP, n), dtype=np.int64), work, np.zeros((GROUP, 8 * nc)))
 
 
-@njit(**JIT)
+@cached
 def chain_group(tables, V, q0, pn, inverse, check, status, scratch):
     """Event values, then the chains, of the queries ``V[q0:q0 + pn]`` (pn <= GROUP)."""
     G, TS, ORD, work, zeros = scratch
