@@ -19,14 +19,16 @@ of ``vars(module)`` for each module of ``sys.modules`` and those made by factori
 drivers of :class:`bderiv._kernels._core.Batch` and the lane kernels of
 ``_kernels.lanes.kernels``). A kernel cached under a keyed name (``name.k<digest>``) is
 listed by its plain name; a serial driver (``_core._serial``) by the qualified name of its
-block (the parallel driver ``_core._tasks`` is one for all blocks, with a signature per
-type of the tables and outputs it runs); several dispatchers of one name (a factory's, per
+block (the parallel driver ``_core._tasks`` is one for all blocks with one signature; its
+launcher ``_core._launch`` has a signature per type of the tables and outputs it runs, and
+a trampoline per type, ``_core._trampoline_<digest>``); several dispatchers of one name (a factory's, per
 user function) are merged (their signatures' union; ``instances`` counts them). The union
 over the processes is taken per name.
 
-``cached``: whether the dispatcher caches on disk (an entry point called from Python:
-its signatures count whether they were compiled or loaded). An uncached one (a step
-compiled into its callers) lists only the signatures compiled in the process, so on a warm
+``cached``: whether the dispatcher caches on disk (an entry point called from Python, or
+since 2026-11-29 a step of ``_kernels`` that its callers load and link: its signatures
+count whether they were compiled or loaded). An uncached one (a step compiled into its
+callers) lists only the signatures compiled in the process, so on a warm
 cache it shows fewer than a cold run compiles. By default the table lists the dispatchers
 with more than one signature, then a one-line total; ``--all`` lists every one.
 """
