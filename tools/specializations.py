@@ -21,9 +21,9 @@ drivers of :class:`bderiv._kernels._core.Batch` and the lane kernels of
 listed by its plain name; a serial driver (``_core._serial``) by the qualified name of its
 block (the parallel driver ``_core._tasks`` is one for all blocks with one signature; its
 launcher ``_core._launch`` has a signature per type of the tables and outputs it runs, and
-a trampoline per type, ``_core._trampoline_<digest>``); several dispatchers of one name (a factory's, per
-user function) are merged (their signatures' union; ``instances`` counts them). The union
-over the processes is taken per name.
+a trampoline per type, ``_core._trampoline_<digest>``); several dispatchers of one name
+(a factory's, per user function) are merged (their signatures' union; ``instances``
+counts them). The union over the processes is taken per name.
 
 ``cached``: whether the dispatcher caches on disk (an entry point called from Python, or
 since 2026-11-29 a step of ``_kernels`` that its callers load and link: its signatures
