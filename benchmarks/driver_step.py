@@ -31,9 +31,10 @@ from bderiv.models.compiled._dop853 import (
     N_STAGES,
     N_STAGES_EXTENDED,
     D,
-    _stage_point,
+    dense_point,
     error_norm,
     step_factor,
+    step_point,
 )
 from bderiv.models.compiled._integrate import N_STEPS, drive_stretch
 
@@ -45,11 +46,12 @@ SIZES = ((2, 0), (8, 12))
 
 
 @njit(inline="always")
-def _rates(field, mask, y, K, first, last, h, points):
-    """Stages first..last-1: point into ``points``, the field there (a fresh copy of x)."""
+def _rates(field, mask, y, K, first, last, h, points, point):
+    """Stages first..last-1: point into ``points`` (by ``point``, as the driver's
+    ``stages``), the field there (a fresh copy of x)."""
     d = y.size
     for s in range(first, last):
-        _stage_point(y, K, s, h, d, points)
+        point(y, K, s, h, d, points)
         a = np.empty(d)
         for j in range(d):
             a[j] = points[j]
@@ -76,7 +78,7 @@ def bare_stretch(field, events, mask, y0, t0, t1, dense):
         while True:
             t_new = min(t + h_abs, t1)
             h = t_new - t
-            _rates(field, mask, y, K, 1, N_STAGES + 1, h, y_new)
+            _rates(field, mask, y, K, 1, N_STAGES + 1, h, y_new, step_point)
             err = error_norm(K, h, y, y_new, RTOL, atol, work)
             h_abs = abs(h) * step_factor(err, rejected)
             if err < 1.0:
@@ -84,7 +86,8 @@ def bare_stretch(field, events, mask, y0, t0, t1, dense):
             rejected = True
         events(y_new.copy())
         if dense:  # the driver's dense output: the extra stages, then dense_coefficients' sums
-            _rates(field, mask, y, K, N_STAGES + 1, N_STAGES_EXTENDED, h, work[0])
+            _rates(field, mask, y, K, N_STAGES + 1, N_STAGES_EXTENDED, h, work[0],
+                   dense_point)
             for j in range(d):
                 dy = y_new[j] - y[j]
                 F[0, j] = dy

@@ -95,9 +95,9 @@ def _combination(y, K, s, h, n, out):
     """``out[:n] = y[:n] + h * (K[:s, :n].T @ A[s, :s])``: stage s's point (scipy's
     ``y + dot(K[:s].T, a[:s]) * h``), each component's sum in the order r = 0, 1, ...
 
-    Called with a constant ``s`` (:func:`_stage_point`): LLVM unrolls the sum over the
-    rows, folds the coefficients in and vectorizes over the components. ``out`` must not
-    overlap ``y`` or ``K``."""
+    Called with a constant ``s`` (:func:`step_point`, :func:`dense_point`): LLVM unrolls
+    the sum over the rows, folds the coefficients in and vectorizes over the components.
+    ``out`` must not overlap ``y`` or ``K``."""
     for j in range(n):
         acc = 0.0
         for r in range(s):
@@ -106,11 +106,11 @@ def _combination(y, K, s, h, n, out):
 
 
 @njit(cache=True, inline="always")
-def _stage_point(y, K, s, h, n, out):
-    """:func:`_combination` for stage ``s`` (1 to 15; 12 is the step's 8th-order solution,
-    ``A[12, :12]`` being ``B``), one branch per stage: a constant number of rows in each
-    (faster than a sum over ``s`` rows: docs/benchmarks.md, "Kernel design choices,
-    measured")."""
+def step_point(y, K, s, h, n, out):
+    """:func:`_combination` for stage ``s`` of the step (1 to 12; 12 is the step's
+    8th-order solution, ``A[12, :12]`` being ``B``), one branch per stage: a constant
+    number of rows in each (faster than a sum over ``s`` rows: docs/benchmarks.md,
+    "Kernel design choices, measured")."""
     if s == 1:
         _combination(y, K, 1, h, n, out)
     elif s == 2:
@@ -133,9 +133,15 @@ def _stage_point(y, K, s, h, n, out):
         _combination(y, K, 10, h, n, out)
     elif s == 11:
         _combination(y, K, 11, h, n, out)
-    elif s == 12:
+    else:
         _combination(y, K, 12, h, n, out)
-    elif s == 13:
+
+
+@njit(cache=True, inline="always")
+def dense_point(y, K, s, h, n, out):
+    """:func:`step_point` for the dense output's extra stages (13 to 15): each use of
+    :func:`stages` compiles only the branches it runs."""
+    if s == 13:
         _combination(y, K, 13, h, n, out)
     elif s == 14:
         _combination(y, K, 14, h, n, out)
@@ -144,10 +150,12 @@ def _stage_point(y, K, s, h, n, out):
 
 
 @njit(cache=True, inline="always")
-def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, points, bad):
+def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, points, bad,
+           point):
     """Stages ``first`` to ``last - 1`` of the step of size ``h`` from ``y``: each one's
-    point (its first n components) into ``points``, the right-hand side there into
-    ``K[s]``. Returns a status (the failed point's state in ``bad``).
+    point (its first n components, by ``point``: :func:`step_point` or
+    :func:`dense_point`) into ``points``, the right-hand side there into ``K[s]``. Returns
+    a status (the failed point's state in ``bad``).
 
     :func:`._rhs.rhs` written out: called per stage it would take the arrays as new
     references, an atomic increment and decrement each that numba cannot prune around
@@ -156,11 +164,11 @@ def stages(model, jac_mode, variational, mask, d, y, K, first, last, h, n, point
     it is then compiled twice (its 15 stage branches are the largest code of the driver;
     were it inlined through a helper, each inlining of the helper would copy it again): a
     call of it costs its arguments' counts, those around the field's calls too (the driver
-    slower per step), and so does a call of :func:`_stage_point` per stage
+    slower per step), and so does a call of :func:`step_point` per stage
     (docs/design.md, "What the integrator compiles, measured")."""
     params = model.params
     for s in range(first, last):
-        _stage_point(y, K, s, h, n, points)
+        point(y, K, s, h, n, points)
         a = np.empty(d + params.size)
         fill_argument(a, points, params, d)
         status, f = field_value(model, a, mask, d)

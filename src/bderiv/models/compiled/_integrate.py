@@ -24,10 +24,12 @@ from ._dop853 import (
     N_STAGES_EXTENDED,
     dense_coefficients,
     dense_eval,
+    dense_point,
     error_norm,
     initial_step,
     stages,
     step_factor,
+    step_point,
 )
 from ._rhs import OK, call_events, rhs, state_events
 from ._watch import crossed, locate
@@ -186,7 +188,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
             h_abs = abs(h)
             # the step: stages 1 to 12, each point through y_new, the last the solution
             status = stages(model, jac_mode, variational, mask, d, y, K, 1, N_STAGES + 1, h,
-                            m, y_new, bad)
+                            m, y_new, bad, step_point)
             counts[NFEV] += N_STAGES
             counts[NJEV] += jev * N_STAGES
             if status != OK:
@@ -215,7 +217,7 @@ def drive_stretch(model, jac_mode, variational, with_section, n_events, mask, d,
         coef = F if whole or not dense else Fd[n_dense]
         if event or dense:
             status = stages(model, jac_mode, whole, mask, d, y, K, N_STAGES + 1,
-                            N_STAGES_EXTENDED, h, coef.shape[1], work[0], bad)
+                            N_STAGES_EXTENDED, h, coef.shape[1], work[0], bad, dense_point)
             if status == OK:
                 dense_coefficients(y, y_new, h, K, coef)
             counts[NFEV] += _DENSE_EXTRA
