@@ -38,7 +38,7 @@ def pronking_functions(legs, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0,
     a = np.linspace(-half_base, half_base, legs)
     all_down = (1 << legs) - 1
 
-    @numba.njit
+    @numba.njit(cache=True)
     def field(x, mask):
         c, s = np.cos(x[1]), np.sin(x[1])
         g = gain * (1.0 + coupling) if mask == all_down else gain
@@ -55,14 +55,14 @@ def pronking_functions(legs, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0,
                 out[3] += rx * f / inertia
         return out
 
-    @numba.njit
+    @numba.njit(cache=True)
     def events(x):
         out = np.empty(legs)
         for k in range(legs):
             out[k] = -(x[0] + a[k] * np.sin(x[1]) - leg * np.cos(x[1]))
         return out
 
-    @numba.njit
+    @numba.njit(cache=True)
     def event_jacobian(x):
         D = np.zeros((legs, 4))
         for k in range(legs):
@@ -73,7 +73,7 @@ def pronking_functions(legs, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0,
     return field, events, event_jacobian
 
 
-@numba.njit
+@numba.njit(cache=True)
 def apex_section(x):
     """The apex ``-vz`` (gaits.apex_section)."""
     return -x[2]
@@ -97,7 +97,7 @@ def chair_functions(stiffness=400.0, damping=4.0, mode_damping=1.0, friction=1.0
     a0, b0, a1 = -0.5, -0.4, 0.6
     legs = np.array([[a0, b0], [a1, b0 + (a0 - a1) * np.tan(theta)]])
 
-    @numba.njit
+    @numba.njit(cache=True)
     def field(x, mask):
         c, s = np.cos(x[2]), np.sin(x[2])
         c_leg = damping * (1.0 + mode_damping) if mask & 3 == 3 else damping
@@ -115,7 +115,7 @@ def chair_functions(stiffness=400.0, damping=4.0, mode_damping=1.0, friction=1.0
                 out[5] += (rx * fz - rz * fx) / inertia
         return out
 
-    @numba.njit
+    @numba.njit(cache=True)
     def events(x):
         c, s = np.cos(x[2]), np.sin(x[2])
         out = np.empty(2)
@@ -123,7 +123,7 @@ def chair_functions(stiffness=400.0, damping=4.0, mode_damping=1.0, friction=1.0
             out[k] = -(x[1] + legs[k, 0] * s + legs[k, 1] * c)
         return out
 
-    @numba.njit
+    @numba.njit(cache=True)
     def event_jacobian(x):
         c, s = np.cos(x[2]), np.sin(x[2])
         D = np.zeros((2, 6))
@@ -142,14 +142,14 @@ def chair_pair():
     return ex, HybridSystem(field, events, n_events=2, dim=6, event_jacobian=event_jacobian)
 
 
-@numba.njit
+@numba.njit(cache=True)
 def slow_rotation(x, mask):
     """A rotation that never reaches ``far_event``: a run as long as ``t_final`` says
     (the Ctrl-C tests)."""
     return np.array([x[1], -x[0]])
 
 
-@numba.njit
+@numba.njit(cache=True)
 def far_event(x):
     return np.array([x[0] - 2.0])  # never reached
 
