@@ -175,12 +175,19 @@ def ctrl_c_after(seconds):
         signal.signal(signal.SIGINT, previous)
 
 
+@functools.cache
+def _twin(fn):
+    """``numba.njit(fn)``, one per function and process (its constants are parameters: the
+    tests of one function share its compilation)."""
+    return numba.njit(cache=True)(fn)
+
+
 def on_path(path, field, field_jacobian, events, event_jacobian, *, n_events, dim, params):
     """A model of four Python functions on ``path``: ``"compiled"`` (their ``numba.njit``
     twins, on the compiled integrator) or ``"python"`` (scipy's ``solve_ivp``)."""
     fns = (field, field_jacobian, events, event_jacobian)
     if path == "compiled":
-        fns = tuple(numba.njit(f) for f in fns)
+        fns = tuple(_twin(f) for f in fns)
     f, fj, ev, ej = fns
     system = HybridSystem(f, ev, n_events=n_events, dim=dim, field_jacobian=fj,
                           event_jacobian=ej, params=params)
