@@ -46,9 +46,10 @@ from ._pointer import call_at
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
-# when tables are built, or per region by the model kernels). Not cached: only the
-# functions called from Python are (:func:`cached`, the drivers), under a key that
-# covers everything compiled into them (see ``_cache``).
+# when tables are built, or per region by the model kernels). Not cached by itself: the
+# kernels called from Python and the steps several kernels call are :func:`cached`, the
+# drivers keyed, under a key that covers everything compiled into them (see ``_cache``);
+# the blocks and the inlined helpers compile into them.
 JIT = {"error_model": "numpy"}
 
 #: the digest of this package's sources and of the numbers compiled into them
@@ -57,8 +58,10 @@ SOURCES = sources_digest(pathlib.Path(__file__).parent, _numerics.__file__)
 
 
 def cached(fn=None, *, parallel: bool = False):
-    """A kernel called from Python: ``njit(parallel=parallel, **JIT)``, cached on disk
-    under :data:`SOURCES`. ``@cached`` or ``@cached(parallel=True)``."""
+    """A kernel called from Python, or a step several kernels call (a process compiling a
+    new kernel then loads it, where it would compile it again): ``njit(parallel=parallel,
+    **JIT)``, cached on disk under :data:`SOURCES`. ``@cached`` or
+    ``@cached(parallel=True)``."""
     if fn is None:
         return lambda f: keyed(f, SOURCES, parallel=parallel, **JIT)
     return keyed(fn, SOURCES, parallel=parallel, **JIT)
