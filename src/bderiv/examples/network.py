@@ -20,6 +20,7 @@ table doubles one event at a time), and the Jacobians are analytic, so n = 16..2
 from __future__ import annotations
 
 import numpy as np
+from numba.extending import register_jitable
 
 from .._support._validate import check_bool
 from ._common import Example, check_start, flow_back
@@ -41,67 +42,96 @@ def _exponent_table(W):
     return E
 
 
-def _functions(r, W, W2, extended) -> dict:
-    """The network's field, events and their analytic Jacobians, and its corner table:
-    plain functions over the rates ``r`` and couplings ``W``, ``W2`` (zero unless
-    ``extended``), for Python as they are and for numba compiled (the corner table stays
-    Python)."""
-    n = r.size
-    d = 2 * n if extended else n
-    nxt = (np.arange(n) + 1) % n  # x_{k+1}, indices mod n
+# The model's functions: plain functions of ``x = (state, r, W, W2, n, extended)``, the
+# state (d) followed by the parameters, the rates ``r`` (n), the couplings ``W`` and ``W2``
+# (n * n each, row by row; ``W2`` zero unless extended), ``n`` and ``extended`` (0 or 1):
+# for Python as they are, and for numba compiled once for every n and set of values (a
+# closure over the values was compiled again for each network).
+@register_jitable
+def _parts(x):
+    """``(n, d, xs, r, W, W2)`` of ``x`` (the state, its first n components, the
+    parameters: views)."""
+    n = int(x[-2])
+    d = 2 * n if x[-1] != 0.0 else n
+    r = x[d:d + n]
+    W = x[d + n:d + n + n * n].reshape((n, n))
+    W2 = x[d + n + n * n:d + n + 2 * n * n].reshape((n, n))
+    return n, d, x[:n], r, W, W2
 
-    def field(x, mask):
-        bits = ((mask >> np.arange(n)) & 1).astype(np.float64)  # bit j: event j happened
-        xs = x[:n]
-        fx = r * np.exp(_S * np.tanh(bits @ W)) * (1 + 0.2 * np.tanh(xs[nxt]))
-        if not extended:
-            return fx
-        fy = np.exp(_S * np.tanh(bits @ W2)) - 0.5 * x[n:] + 0.3 * np.tanh(xs)
-        return np.concatenate((fx, fy))
 
-    def field_jacobian(x, mask):
-        bits = ((mask >> np.arange(n)) & 1).astype(np.float64)
-        scale = r * np.exp(_S * np.tanh(bits @ W))
-        J = np.zeros((d, d))
-        for k in range(n):
-            J[k, nxt[k]] += scale[k] * 0.2 / np.cosh(x[nxt[k]]) ** 2
-            if extended:
-                J[n + k, n + k] = -0.5
-                J[n + k, k] = 0.3 / np.cosh(x[k]) ** 2
-        return J
+@register_jitable
+def _next(n):
+    """x_{k+1}'s index, mod n."""
+    return (np.arange(n) + 1) % n
 
-    def events(x):
-        xs = x[:n]
-        h = xs + _A * np.sin(xs[nxt])
-        if extended:
-            h = h + _C * np.tanh(x[n:])
-        return h
 
-    def event_jacobian(x):
-        D = np.zeros((n, d))
-        for k in range(n):
-            D[k, k] += 1.0
-            D[k, nxt[k]] += _A * np.cos(x[nxt[k]])
-            if extended:
-                D[k, n + k] = _C / np.cosh(x[n + k]) ** 2
-        return D
+def field(x, mask):
+    """The field in region ``mask``: (d,)."""
+    n, d, xs, r, W, W2 = _parts(x)
+    bits = ((mask >> np.arange(n)) & 1).astype(np.float64)  # bit j: event j happened
+    fx = r * np.exp(_S * np.tanh(bits @ W)) * (1 + 0.2 * np.tanh(xs[_next(n)]))
+    if d == n:
+        return fx
+    fy = np.exp(_S * np.tanh(bits @ W2)) - 0.5 * x[n:d] + 0.3 * np.tanh(xs)
+    return np.concatenate((fx, fy))
 
-    def corner_field(x):
-        xs = x[:n]
-        rates = np.tanh(_exponent_table(W))
-        rates *= _S
-        np.exp(rates, out=rates)
-        rates *= r * (1 + 0.2 * np.tanh(xs[nxt]))
-        if not extended:
-            return rates
-        fy = np.tanh(_exponent_table(W2))
-        fy *= _S
-        np.exp(fy, out=fy)
-        fy += -0.5 * x[n:] + 0.3 * np.tanh(xs)
-        return np.concatenate((rates, fy), axis=1)
 
-    return {"field": field, "events": events, "event_jacobian": event_jacobian,
-            "field_jacobian": field_jacobian, "corner_field": corner_field}
+def field_jacobian(x, mask):
+    """The field's Jacobian by the state: (d, d)."""
+    n, d, xs, r, W, W2 = _parts(x)
+    nxt = _next(n)
+    bits = ((mask >> np.arange(n)) & 1).astype(np.float64)
+    scale = r * np.exp(_S * np.tanh(bits @ W))
+    J = np.zeros((d, d))
+    for k in range(n):
+        J[k, nxt[k]] += scale[k] * 0.2 / np.cosh(x[nxt[k]]) ** 2
+        if d > n:
+            J[n + k, n + k] = -0.5
+            J[n + k, k] = 0.3 / np.cosh(x[k]) ** 2
+    return J
+
+
+def events(x):
+    """The event values: (n,)."""
+    n, d, xs, r, W, W2 = _parts(x)
+    h = xs + _A * np.sin(xs[_next(n)])
+    if d > n:
+        h = h + _C * np.tanh(x[n:d])
+    return h
+
+
+def event_jacobian(x):
+    """The events' Jacobian by the state: (n, d)."""
+    n, d, xs, r, W, W2 = _parts(x)
+    nxt = _next(n)
+    D = np.zeros((n, d))
+    for k in range(n):
+        D[k, k] += 1.0
+        D[k, nxt[k]] += _A * np.cos(x[nxt[k]])
+        if d > n:
+            D[k, n + k] = _C / np.cosh(x[n + k]) ** 2
+    return D
+
+
+def corner_field(x):
+    """Every region's field at ``x``: (2**n, d) (Python only: the table of exponents is
+    built by doubling, no loop over the regions)."""
+    n, d, xs, r, W, W2 = _parts(x)
+    rates = np.tanh(_exponent_table(W))
+    rates *= _S
+    np.exp(rates, out=rates)
+    rates *= r * (1 + 0.2 * np.tanh(xs[_next(n)]))
+    if d == n:
+        return rates
+    fy = np.tanh(_exponent_table(W2))
+    fy *= _S
+    np.exp(fy, out=fy)
+    fy += -0.5 * x[n:d] + 0.3 * np.tanh(xs)
+    return np.concatenate((rates, fy), axis=1)
+
+
+FUNCTIONS = {"field": field, "events": events, "event_jacobian": event_jacobian,
+             "field_jacobian": field_jacobian, "corner_field": corner_field}
 
 
 def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0.5,
@@ -137,14 +167,14 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
     r = rng.uniform(0.8, 1.2, n)
     W = float(coupling) * rng.standard_normal((n, n))
     W2 = float(coupling) * rng.standard_normal((n, n)) if extended else np.zeros((n, n))
-    functions = _functions(r, W, W2, extended)
+    params = np.concatenate((r, W.ravel(), W2.ravel(), [n, float(extended)]))
     d = 2 * n if extended else n
     rho = np.zeros(d)
-    field = functions["field"]
-    x0 = flow_back(lambda x: field(x, 0), rho, t_event)
+    x0 = flow_back(lambda x: field(np.concatenate((x, params)), 0), rho, t_event)
     ex = Example.from_functions(
-        functions,
+        FUNCTIONS,
         compiled=compiled,
+        params=params,
         n_events=n,
         dim=d,
         rho=rho,
