@@ -244,20 +244,25 @@ def _trampoline_code(packed, start, stop):
     return _run_at(serial, (tables, V, outs, start, stop, inverse))
 
 
-#: the trampolines made so far: packed type -> (dispatcher, address)
+#: the trampolines made so far: packed type -> (dispatcher, address); each is kept for
+#: the process's life, since the drivers keep its address
 TRAMPOLINES: dict = {}
+_TRAMPOLINES_LOCK = threading.Lock()
 
 
 def _trampoline(packed_type) -> int:
     """The address of the trampoline for arguments of ``packed_type`` (the tuple of
     :func:`_launch`'s ``tables, V, outs, inverse, serial``): it unpacks them and calls the
-    serial driver on its task's rows. Cached on disk under the type's digest."""
-    if packed_type not in TRAMPOLINES:
-        digest = hashlib.sha256(str(packed_type).encode()).hexdigest()[:16]
-        trampoline = keyed(_trampoline_code, SOURCES, f"_trampoline_{digest}",
-                           dict(globals(), PACKED=packed_type), **JIT)
-        TRAMPOLINES[packed_type] = trampoline, _address_of(trampoline, _TASKS_ARGS)
-    return TRAMPOLINES[packed_type][1]
+    serial driver on its task's rows. Cached on disk under the type's digest; made once
+    per type and process, under a lock (two threads' dispatchers for one type: the one
+    not kept would be freed under its address)."""
+    with _TRAMPOLINES_LOCK:
+        if packed_type not in TRAMPOLINES:
+            digest = hashlib.sha256(str(packed_type).encode()).hexdigest()[:16]
+            trampoline = keyed(_trampoline_code, SOURCES, f"_trampoline_{digest}",
+                               dict(globals(), PACKED=packed_type), **JIT)
+            TRAMPOLINES[packed_type] = trampoline, _address_of(trampoline, _TASKS_ARGS)
+        return TRAMPOLINES[packed_type][1]
 
 
 def _address_of(dispatcher, argtypes) -> int:
