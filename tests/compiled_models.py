@@ -4,10 +4,10 @@ Each factory returns ``numba.njit`` functions computing what the example's Pytho
 computes (the formulas written again, loop style, as one writes for numba): the same model
 on both integrators. The fields take complex input (complex step) unless said otherwise.
 
-The functions of a model are made once per process (``functools.cache``): each new
-closure is compiled again (about a second for the three of a model, once per signature),
-and the tests of one process share them; ``fresh=True`` makes new ones (a model none of
-this process's runs has seen).
+The functions of a model are made once per process (``functools.cache``), and the tests
+of one process share them; they are cached on disk (numba keys a closure by the values it
+holds), so the other worker loads them. ``fresh=True`` makes new ones (a model none of
+this process's runs has seen; loaded from the disk where compiled before).
 """
 
 from __future__ import annotations

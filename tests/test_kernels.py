@@ -6,7 +6,9 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from typing import NamedTuple
 
+import numba
 import numpy as np
 import pytest
 from reference import random_system
@@ -127,19 +129,42 @@ def test_one_parallel_driver_serves_every_block_and_matches_the_serial_one():
     the width pairs 8 x 16 and 16 x 16, which test_lanes compiles too.)"""
     rng = np.random.default_rng(11)
     V = rng.standard_normal((3000, 16))
-    before, serial = set(_core._LAUNCH.signatures), set()
-    trampolines = set(_core.TRAMPOLINES)
+    batches = []
     for n in (3, 12):
         bd = BDerivative(*random_system(rng, n, 16), fast_paths=False)
         whole = bd(V)  # the parallel driver (3000 rows)
         rows = np.concatenate([bd(V[i:i + 500]) for i in range(0, 3000, 500)])  # serial
         np.testing.assert_array_equal(whole, rows)
-        if not _core.PLAIN:
-            serial.add(bd._engine._lane_kernels[0].serial)
-    assert len(serial) == (0 if _core.PLAIN else 2)
-    assert len(set(_core._LAUNCH.signatures) - before) <= 1, _core._LAUNCH.signatures
-    assert len(set(_core.TRAMPOLINES) - trampolines) <= 1, list(_core.TRAMPOLINES)
+        batches.append(bd._engine._lane_kernels[0] if not _core.PLAIN else None)
     assert _core._TASKS.signatures == [_core._TASKS_ARGS]
+    if not _core.PLAIN:
+        a, b = batches
+        assert a.serial is not b.serial  # two blocks ...
+        (kinds, (_, trampoline)), = a._addresses.items()  # ... of one type: one trampoline
+        assert b._addresses[kinds][1] == trampoline
+        assert [address for _, address in _core.TRAMPOLINES.values()].count(trampoline) == 1
+
+
+class _Named(NamedTuple):
+    a: np.ndarray
+    name: str
+
+
+@numba.njit
+def _copy_block(tables, V, outs, start, stop, inverse):
+    for q in range(start, stop):
+        outs[0][q, 0] = V[q, 0] + tables.a[0]
+
+
+def test_tables_the_threads_cannot_share_are_refused_by_name():
+    """The parallel driver hands its threads arrays, numbers and tuples of them (without
+    an owner): tables holding anything else are refused before anything compiles for
+    them, naming the block, where the serial driver runs them."""
+    copy = _core.batch(_copy_block)
+    tables, out = _Named(np.ones(1), "x"), np.empty((5000, 1))
+    assert copy(tables, np.zeros((10, 1)), (out[:10],)) == 0  # serial: fine
+    with pytest.raises(TypeError, match="_copy_block: .* got a unicode_type"):
+        copy(tables, np.zeros((5000, 1)), (out,))
 
 
 def test_launch_sizes():

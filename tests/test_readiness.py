@@ -141,12 +141,14 @@ def test_a_fresh_process_answers_before_the_integrator_is_compiled(tmp_path):
                 os.killpg(readiness._state["child"].pid, signal.SIGSTOP)
             return started
         readiness.start_background = start_paused
-        ex = examples.chair(compiled=True)
-        D = ex.system.flow_bderivative(ex.x0, ex.t_final)
-        child = readiness._state["child"]
-        print("compiled" if ex.system.compiled is not None else "scipy", child is not None)
-        if child is not None:
-            os.killpg(child.pid, signal.SIGKILL)
+        try:
+            ex = examples.chair(compiled=True)
+            D = ex.system.flow_bderivative(ex.x0, ex.t_final)
+            print("compiled" if ex.system.compiled is not None else "scipy",
+                  readiness._state["child"] is not None)
+        finally:  # the paused process never ends by itself
+            if readiness._state["child"] is not None:
+                os.killpg(readiness._state["child"].pid, signal.SIGKILL)
     """)
     env = {**readiness.child_environment(), "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
            "BDERIV_CACHE_DIR": str(tmp_path / "bderiv")}

@@ -9,8 +9,8 @@ built once by its engine) and writes the rows ``start:stop`` of the arrays in th
 with ``V`` into launches; ``outs[0]`` is the result whose non-finite rows are counted, and
 a block may read a later one as a second per-query input (the tangent vectors of
 jvp/vjp). :func:`batch` turns a block into a :class:`Batch`: a serial driver with the block
-inlined, and the parallel driver all blocks share, which calls the serial one through its
-address (each block's code is compiled once, in its serial driver). Every query is
+inlined, and the parallel driver all blocks share, whose tasks call the serial one through
+a trampoline's address (each block's code is compiled once, in its serial driver). Every query is
 computed by the same serial code whatever the driver, the thread count or the split into
 tasks and launches, so results are bitwise independent of all three.
 
@@ -42,7 +42,7 @@ from .. import _numerics
 from .._limits import LAUNCH_WORK, PARALLEL_MIN_QUERIES
 from .._numerics import TASK_QUERIES
 from ._cache import harden_all, keyed, sources_digest
-from ._pointer import call_at
+from ._pointer import call_at, call_at_or
 
 # error_model="numpy": a division by zero gives inf instead of a Python exception path, so
 # LLVM vectorises the loops that divide (rates are positive where it matters: checked
@@ -144,11 +144,11 @@ def _serial(tables, V, outs, start, stop, inverse):
 
 @intrinsic
 def _run_at(typingctx, address, args):
-    """``serial(*args) -> int64`` called at ``address``: the address of a serial driver
-    compiled for the types of ``args`` (numba's call of a compiled function, its exceptions
-    propagated, through a pointer). Typed from ``args`` alone, so that one parallel driver
-    serves every block whose arguments have these types; :meth:`Batch._address` checks
-    that the driver at the address returns an int64."""
+    """``f(*args) -> int64`` called at ``address``: the address of a function compiled for
+    the types of ``args`` (numba's call of a compiled function, its exceptions propagated,
+    through a pointer): the parallel driver from its launcher, a serial driver from its
+    trampoline. Typed from ``args`` alone, so that one caller serves every callee of those
+    types; :func:`_address_of` checks that the function at the address returns an int64."""
     if not isinstance(args, numba.types.BaseTuple):
         raise errors.TypingError(f"_run_at: the arguments as a tuple, got {args}")
     argtypes = tuple(args.types)
@@ -209,12 +209,32 @@ def _unpack(typingctx, address, kind):
     return packed(address, kind), codegen
 
 
+#: what a task adds to the parallel driver's count when its serial driver raised: the
+#: count is then negative (a launch has at most 2**20 rows, so at most 2**12 tasks)
+FAILED = -(1 << 40)
+
+
+@intrinsic
+def _try_at(typingctx, address, args):
+    """:func:`_run_at`, giving :data:`FAILED` where the function raises (the exception is
+    dropped: ``_kernels/_pointer.call_at_or``)."""
+    if not isinstance(args, numba.types.BaseTuple):
+        raise errors.TypingError(f"_try_at: the arguments as a tuple, got {args}")
+    argtypes = tuple(args.types)
+
+    def codegen(context, builder, sig, llargs):
+        values = cgutils.unpack_tuple(builder, llargs[1], len(argtypes))
+        return call_at_or(context, builder, llargs[0], numba.int64, argtypes, values, FAILED)
+
+    return numba.int64(address, args), codegen
+
+
 def _tasks(m, packed, trampoline):
     bad = 0
     for task in prange((m + TASK_QUERIES - 1) // TASK_QUERIES):
         start = task * TASK_QUERIES
         stop = min(start + TASK_QUERIES, m)
-        bad += _run_at(trampoline, (packed, start, stop))
+        bad += _try_at(trampoline, (packed, start, stop))
     return bad
 
 
@@ -265,6 +285,18 @@ def _trampoline(packed_type) -> int:
         return TRAMPOLINES[packed_type][1]
 
 
+def _check_packable(kind, block: str) -> None:
+    """A TypeError unless the launch's arguments are arrays, numbers, booleans and tuples
+    of them, what :func:`_unpack` hands the threads without an owner (another value
+    numba counts references of would be freed under them)."""
+    if isinstance(kind, numba.types.BaseTuple):
+        for item in kind.types:
+            _check_packable(item, block)
+    elif not isinstance(kind, (numba.types.Array, numba.types.Number, numba.types.Boolean)):
+        raise TypeError(f"the parallel driver of {block}: its tables and outputs must be "
+                        f"arrays, numbers and tuples of them, got a {kind}")
+
+
 def _address_of(dispatcher, argtypes) -> int:
     """The address of ``dispatcher`` compiled (or loaded) for ``argtypes``, which must
     return an int64 (what :func:`_run_at` calls)."""
@@ -291,10 +323,12 @@ class Batch:
 
     The serial driver runs the block on rows ``start:stop`` and counts the non-finite
     ones; the block is inlined into it (numba's ``inline="always"``: its code is compiled
-    there only, once). The parallel driver (one for all blocks, :data:`_TASKS`) runs the
-    serial one on each task's rows, called through its address (an argument:
-    :meth:`_address`): numba would otherwise link the serial driver's code into it and
-    optimise and generate it again there.
+    there only, once). The parallel driver (one for all blocks and types, :data:`_TASKS`,
+    started by the launcher :data:`_LAUNCH`) runs the serial one on each task's rows
+    through a trampoline, both called through their addresses (:meth:`_address`): numba
+    would otherwise link the serial driver's code into its caller and optimise and
+    generate it again there. A task whose serial driver raised counts :data:`FAILED`, and
+    the launch's rows then run on the serial driver, which raises the error here.
 
     ``statics``: a named tuple of ``_simd.static`` values compiled into the serial driver;
     the block then gets ``(tables, statics)`` in place of ``tables``. They are constants
@@ -327,7 +361,9 @@ class Batch:
         if addresses is None:
             serial = _address_of(self.serial, (*kinds, numba.int64, numba.int64,
                                                numba.boolean))
-            packed = numba.types.Tuple((*kinds, numba.boolean, numba.int64))
+            # the type of the tuple _launch packs: (tables, V, outs, bool, address)
+            packed = typeof((tables, V, outs, True, serial))
+            _check_packable(packed, self.block.__name__)
             addresses = self._addresses[kinds] = serial, _trampoline(packed)
         return addresses
 
@@ -351,15 +387,14 @@ class Batch:
 
     def _launch(self, tables, V, outs, inverse) -> int:
         serial, trampoline = self._address(tables, V, outs, inverse)
-        try:
-            return self._tasks_at(tables, V, outs, bool(inverse), serial, trampoline)
-        except SystemError as exc:
-            # an exception raised inside numba's parallel loop (a user's corner function)
-            # reaches Python as a SystemError: the serial driver, run on the launch's rows,
-            # raises it as it is (outside this handler, so not chained to the SystemError)
-            failure = exc
-        self.serial(tables, V, outs, 0, V.shape[0], inverse)
-        raise failure
+        bad = self._tasks_at(tables, V, outs, bool(inverse), serial, trampoline)
+        if bad >= 0:
+            return bad
+        # a task's serial driver raised (a user's corner function): the tasks report it
+        # by :data:`FAILED`, since numba's parallel loop loses an exception raised on a
+        # worker thread; the serial driver, run on the launch's rows here, raises it as it
+        # is (or, if it does not raise again, computes every row)
+        return self.serial(tables, V, outs, 0, V.shape[0], inverse)
 
     def _tasks_at(self, tables, V, outs, inverse, serial, trampoline) -> int:
         # dynamic schedule, one task at a time (set outside the jit: inside it, numba could

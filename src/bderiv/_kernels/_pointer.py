@@ -24,3 +24,16 @@ def call_at(context, builder, address, return_type, argtypes, values):
     with cgutils.if_unlikely(builder, status.is_error):
         context.call_conv.return_status_propagate(builder, status)
     return result
+
+
+def call_at_or(context, builder, address, return_type, argtypes, values, failed):
+    """:func:`call_at`, except that where ``f`` raises, the call gives the constant
+    ``failed`` and the exception goes no further: for a caller whose own exception would
+    be lost, a task of numba's parallel loop on a worker thread (there numba sets it on
+    that thread's Python state, which nothing reads; the caller of the loop sees nothing).
+    Which exception it was is not kept: the caller runs ``f`` again where it propagates."""
+    function = context.call_conv.get_function_type(return_type, argtypes)
+    pointer = builder.inttoptr(address, function.as_pointer())
+    status, result = context.call_conv.call_function(builder, pointer, return_type, argtypes,
+                                                     values)
+    return builder.select(status.is_error, context.get_constant(return_type, failed), result)
