@@ -371,14 +371,14 @@ def test_a_new_corner_function_compiles_only_itself():
     """The blocks call the function through an address (``_kernels/function.entry``):
     a second function adds no signature to the blocks' serial or parallel drivers or to
     ``corners``, only its own wrapper (one more ``entry``); both give their own corners."""
-    from bderiv._kernels import _core
+    from bderiv._kernels import _drivers
     from bderiv._kernels import function as kernels
 
     V = np.random.default_rng(5).standard_normal((2000, 5))  # the parallel driver too
     before = BDerivative(DH4, TABLE_FUNC)
     before(V), before.inverse(V), before.event_times(V), before.corner_points()
-    drivers = (kernels.apply.serial, kernels.event_times.serial, _core._TASKS,
-               _core._LAUNCH, kernels._corners)
+    drivers = (kernels.apply.serial, kernels.event_times.serial, _drivers._TASKS,
+               _drivers._LAUNCH, kernels._corners)
     counts = [len(k.signatures) for k in drivers]
     assert min(counts) >= 1
     misses = kernels.entry.cache_info().misses

@@ -14,19 +14,19 @@ import pytest
 from reference import random_system
 
 from bderiv import BDerivative
-from bderiv._kernels import _core, steps
+from bderiv._kernels import _core, _drivers, steps
 
 _PROBE = """
 import json, numpy as np
 from bderiv import BDerivative
-from bderiv._kernels import _core, dense, lanes
+from bderiv._kernels import _core, _drivers, dense, lanes
 F = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [2.0, 2.0, 0.0]])
 bd = BDerivative(np.array([[1.0, 0.2, 0.0], [0.1, 1.0, 0.3]]), F, fast_paths=False)
 V = np.random.default_rng(0).standard_normal((5000, 3))
 bd(V[:3]); bd(V)
 drivers = dense.apply if _core.PLAIN else bd._engine._lane_kernels[0]
-(trampoline, _), = _core.TRAMPOLINES.values()
-stats = [d.stats for d in (drivers.serial, _core._TASKS, _core._LAUNCH, trampoline)]
+(trampoline, _), = _drivers.TRAMPOLINES.values()
+stats = [d.stats for d in (drivers.serial, _drivers._TASKS, _drivers._LAUNCH, trampoline)]
 print(json.dumps([[sum(s.cache_hits.values()), sum(s.cache_misses.values())] for s in stats]))
 """
 
@@ -63,7 +63,7 @@ def test_every_cached_kernel_is_named_by_the_sources_and_checked():
     found = []
     for module in _kernel_modules():
         for value in vars(module).values():
-            if isinstance(value, _core.Batch):
+            if isinstance(value, _drivers.Batch):
                 value = value.serial
             if not isinstance(value, Dispatcher) or value.stats.cache_path is None:
                 continue
@@ -136,13 +136,13 @@ def test_one_parallel_driver_serves_every_block_and_matches_the_serial_one():
         rows = np.concatenate([bd(V[i:i + 500]) for i in range(0, 3000, 500)])  # serial
         np.testing.assert_array_equal(whole, rows)
         batches.append(bd._engine._lane_kernels[0] if not _core.PLAIN else None)
-    assert _core._TASKS.signatures == [_core._TASKS_ARGS]
+    assert _drivers._TASKS.signatures == [_drivers._TASKS_ARGS]
     if not _core.PLAIN:
         a, b = batches
         assert a.serial is not b.serial  # two blocks ...
         (kinds, (_, trampoline)), = a._addresses.items()  # ... of one type: one trampoline
         assert b._addresses[kinds][1] == trampoline
-        assert [address for _, address in _core.TRAMPOLINES.values()].count(trampoline) == 1
+        assert [address for _, address in _drivers.TRAMPOLINES.values()].count(trampoline) == 1
 
 
 class _Named(NamedTuple):
@@ -160,7 +160,7 @@ def test_tables_the_threads_cannot_share_are_refused_by_name():
     """The parallel driver hands its threads arrays, numbers and tuples of them (without
     an owner): tables holding anything else are refused before anything compiles for
     them, naming the block, where the serial driver runs them."""
-    copy = _core.batch(_copy_block)
+    copy = _drivers.batch(_copy_block)
     tables, out = _Named(np.ones(1), "x"), np.empty((5000, 1))
     assert copy(tables, np.zeros((10, 1)), (out[:10],)) == 0  # serial: fine
     with pytest.raises(TypeError, match="_copy_block: .* got a unicode_type"):

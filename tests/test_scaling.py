@@ -194,7 +194,7 @@ def test_small_batches_scale_serially_with_the_same_bits():
     each under load), with the parallel kernels' bits: scaled rows, exponents, the rows
     beyond the band and the overflow count, on rows from 5e-324 to 1.7e308; the oracle of
     the scaling is NumPy's frexp/ldexp."""
-    from bderiv._kernels import _core, scaling
+    from bderiv._kernels import _core, _drivers, scaling
     from bderiv._numerics import QUERY_BAND
 
     rng = np.random.default_rng(4)
@@ -209,11 +209,11 @@ def test_small_batches_scale_serially_with_the_same_bits():
              scaling._outside_band_serial),
             ("parallel", scaling._scale_rows, scaling._unscale_rows, scaling._outside_band)):
         U, exps = np.empty_like(R), np.empty(R.shape[0], np.int64)
-        _core.serialised(scale, R, U, exps)
+        _drivers.serialised(scale, R, U, exps)
         band_exps = np.empty_like(exps)
-        beyond = _core.serialised(band, R, band_exps)
+        beyond = _drivers.serialised(band, R, band_exps)
         back = U.copy()
-        bad = _core.serialised(unscale, back, exps, 300)  # overflows the rows beyond 2**724
+        bad = _drivers.serialised(unscale, back, exps, 300)  # overflows the rows beyond 2**724
         outs[name] = (U, exps, band_exps, beyond, back, bad)
     serial, parallel = outs["serial"], outs["parallel"]
     for s, p in zip(serial, parallel, strict=True):

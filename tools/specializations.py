@@ -16,11 +16,11 @@ done), then merge and print::
 Which dispatchers. Every ``numba.core.dispatcher.Dispatcher`` alive in the process whose
 function belongs to a module under ``bderiv`` (``gc.get_objects``: the module-level kernels
 of ``vars(module)`` for each module of ``sys.modules`` and those made by factories, the
-drivers of :class:`bderiv._kernels._core.Batch` and the lane kernels of
+drivers of :class:`bderiv._kernels._drivers.Batch` and the lane kernels of
 ``_kernels.lanes.kernels``). A kernel cached under a keyed name (``name.k<digest>``) is
-listed by its plain name; a serial driver (``_core._serial``) by the qualified name of its
-block (the parallel driver ``_core._tasks`` is one for all blocks with one signature; its
-launcher ``_core._launch`` has a signature per type of the tables and outputs it runs, and
+listed by its plain name; a serial driver (``_drivers._serial``) by the qualified name of its
+block (the parallel driver ``_drivers._tasks`` is one for all blocks with one signature; its
+launcher ``_drivers._launch`` has a signature per type of the tables and outputs it runs, and
 a trampoline per type, ``_core._trampoline_<digest>``); several dispatchers of one name
 (a factory's, per user function) are merged (their signatures' union; ``instances``
 counts them). The union over the processes is taken per name.
@@ -49,7 +49,7 @@ _KEY = re.compile(r"\.k[0-9a-f]{16}$")
 
 def _name(dispatcher) -> str:
     """``module:qualname`` of a dispatcher, without its cache key; a driver of a block
-    (``_core._serial``, uncached) by its block's name."""
+    (``_drivers._serial``, uncached) by its block's name."""
     fn = dispatcher.py_func
     qualname = _KEY.sub("", fn.__qualname__)
     block = fn.__globals__.get("block") if fn.__qualname__ == "_serial" else None

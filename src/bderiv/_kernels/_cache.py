@@ -11,7 +11,7 @@ of them names new cache files, which numba then fills by its own means; the func
 below the cached ones are compiled uncached (in the process that needs them, only when
 the cached one is missing). Drivers are plain functions without closures (numba could not
 key a closure over dispatchers: they pickle with per-process ids), bound to their block
-by their globals (``_core.batch``).
+by their globals (``_drivers.batch``).
 
 Damage. Read as numba reads them, a truncated or garbled file raises
 ``UnpicklingError``/``EOFError`` from every first call in every process, and a flipped bit

@@ -13,7 +13,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._core import JIT, batch, cached
+from ._core import JIT, cached
+from ._drivers import batch
 from .selection import advance, earliest, pending_times, retire
 from .steps import (
     factors,

@@ -27,7 +27,8 @@ from numba.extending import intrinsic
 
 from .._limits import COMPILE_BYTES
 from ._cache import check_address_space
-from ._core import JIT, batch, cached
+from ._core import JIT, cached
+from ._drivers import batch
 from ._pointer import call_at
 from .selection import advance, earliest, pending_times, retire
 from .steps import impacts

@@ -43,7 +43,8 @@ from numba import njit
 
 from .._numerics import QUERY_BAND
 from . import _simd as vec
-from ._core import JIT, batch, cached, frozen_tables
+from ._core import JIT, cached, frozen_tables
+from ._drivers import batch
 from .steps import write_times
 
 #: queries per lockstep group: eight independent chains hide the latency of each step's

@@ -11,7 +11,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._core import JIT, batch, cached
+from ._core import JIT, cached
+from ._drivers import batch
 from .steps import (
     factors,
     insertion_order,

@@ -10,7 +10,7 @@ A factor ``2**e`` with ``|e|`` up to 2098 is applied as two representable factor
 (``steps.factors``). The lane, plain, own-rates and linear kernels of dense tables scale
 each query as they load it (``steps.row_exponent``); the other engines scale a batch with
 :func:`scale_rows` and :func:`unscale_rows`, which launch their parallel kernels through
-``_core.serialised`` (numba's workqueue layer aborts on concurrent launches). A batch of
+``_drivers.serialised`` (numba's workqueue layer aborts on concurrent launches). A batch of
 fewer than :data:`SERIAL_ENTRIES` entries runs serially instead: the same rows in the same
 order, so the same bits, without a launch that costs more than the work.
 """
@@ -21,7 +21,8 @@ from numba import njit, prange
 
 from .._limits import SERIAL_ENTRIES
 from .._numerics import QUERY_BAND
-from ._core import JIT, cached, read_only, serialised
+from ._core import JIT, cached, read_only
+from ._drivers import serialised
 from .steps import factors, row_exponent
 
 

@@ -25,7 +25,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._core import JIT, batch, cached
+from ._core import JIT, cached
+from ._drivers import batch
 from .steps import own_rate_times
 from .structured_chains import GROUP, chain_group, group_scratch, products
 
