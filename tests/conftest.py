@@ -68,6 +68,10 @@ def pytest_configure(config):
     # to the user's cache; a BDERIV_CACHE_DIR set by the caller is kept
     os.environ.setdefault("BDERIV_CACHE_DIR", os.path.join(
         tempfile.gettempdir(), f"bderiv-tests-{getpass.getuser()}"))
+    # two pytest-xdist workers share two cores: after each parallel launch OpenMP's threads
+    # (numba's parallel driver) would spin for milliseconds on the core the other worker
+    # needs; passive, they sleep at once (the same results: only the waiting differs)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     # the tests of compiled models run on the compiled integrator from their first call
     # (waiting for its compilation, once for all workers); test_readiness tests the rest
     os.environ.setdefault("BDERIV_INTEGRATOR", "compiled")

@@ -95,6 +95,25 @@ def test_a_failed_background_process_is_named_and_the_integrator_compiles_here(
     assert "exit status 1" in caplog.text and "no compiler here" in caplog.text
 
 
+@pytest.mark.parametrize("set_by_caller", [None, "2"])
+def test_the_compiling_process_runs_at_the_integrators_optimisation_level(
+        stand_in, monkeypatch, tmp_path, set_by_caller):
+    """The background process compiles at ``COMPILE_OPT`` (LLVM -O1), unless the caller's
+    environment sets ``NUMBA_OPT``."""
+    if set_by_caller is None:
+        monkeypatch.delenv("NUMBA_OPT", raising=False)
+    else:
+        monkeypatch.setenv("NUMBA_OPT", set_by_caller)
+    said = tmp_path / "opt.txt"
+    monkeypatch.setattr(readiness, "compile_command", lambda: [
+        sys.executable, "-c", f"import numba, pathlib; pathlib.Path({str(said)!r})"
+        ".write_text(str(int(numba.config.OPT)))"])
+    assert readiness.start_background(nice=False) is True
+    _wait_child()
+    readiness._state["child"].log.close()
+    assert said.read_text() == (set_by_caller or readiness.COMPILE_OPT) != "3"
+
+
 def test_scipy_policy_and_a_bad_value(stand_in, monkeypatch):
     monkeypatch.setenv(readiness.POLICY_VARIABLE, "scipy")
     assert readiness.integrator_ready() is False

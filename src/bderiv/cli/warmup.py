@@ -182,10 +182,12 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
 def _start(name: str) -> subprocess.Popen:
     """The process that compiles family ``name`` (this bderiv: its folder first on
     ``PYTHONPATH``)."""
-    from ..models.readiness import child_environment
+    from ..models import readiness
 
+    env = readiness.compile_environment() if name == "integrator" else \
+        readiness.child_environment()
     proc = subprocess.Popen([sys.executable, "-m", "bderiv", "compile", name, "--here"],
-                            env=child_environment(), stdin=subprocess.DEVNULL,
+                            env=env, stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=(log := tempfile.TemporaryFile()))
     proc.log = log  # its error output, read when it fails
     return proc

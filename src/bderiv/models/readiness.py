@@ -67,6 +67,12 @@ POLL_SECONDS = 1.0
 #: seconds wherever they are first called)
 DISPATCHERS = (drive_stretch, run_stretches)
 
+#: numba's optimisation level (``NUMBA_OPT``) in the process that compiles the integrator,
+#: unless the caller set one: LLVM's -O1 compiles it in about 12 % less CPU than numba's
+#: default 3, and the driver and the compiled run are as fast and give the same bits
+#: (benchmarks/driver_step.py and compiled_path.py; design.md, "The integrator at -O1")
+COMPILE_OPT = "1"
+
 _state = {"ready": False, "checked": -float("inf"), "child": None, "said": False}
 
 
@@ -144,6 +150,14 @@ def child_environment() -> dict:
     return env
 
 
+def compile_environment() -> dict:
+    """The environment of the process that compiles the integrator:
+    :func:`child_environment` with ``NUMBA_OPT`` at :data:`COMPILE_OPT` unless set."""
+    env = child_environment()
+    env.setdefault("NUMBA_OPT", COMPILE_OPT)
+    return env
+
+
 def start_background(nice: bool = True) -> bool | None:
     """Start the compiling process unless another process holds the lock (``nice``: at a
     lower priority than this one): True when started, None when another compiles, False
@@ -154,7 +168,7 @@ def start_background(nice: bool = True) -> bool | None:
     try:
         log = tempfile.TemporaryFile()  # its error output, read if it fails
         child = subprocess.Popen([*compile_command(), *(["--nice"] if nice else [])],
-                                 env=child_environment(),
+                                 env=compile_environment(),
                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                  stderr=log, start_new_session=True)
         child.log = log
@@ -189,7 +203,7 @@ def _wait_for_integrator() -> None:
         return
     _log.warning("bderiv: compiling the compiled integrator for this machine (once: "
                  "about one to two minutes; later runs load it from numba's disk cache)")
-    subprocess.run(compile_command(), env=child_environment(), check=False,
+    subprocess.run(compile_command(), env=compile_environment(), check=False,
                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
 
 
