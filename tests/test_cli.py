@@ -220,8 +220,8 @@ def test_bench(capsys, tmp_path):
     assert out.startswith("bderiv bench: d = 2n,")
 
 
-@pytest.mark.parametrize("fmt", ["pdf", "svg"])  # png: test_plot_default_and_chair
-def test_plot_2d(capsys, tmp_path, fmt):
+@pytest.mark.parametrize("fmt", ["pdf"])  # png: test_plot_default_and_chair; svg:
+def test_plot_2d(capsys, tmp_path, fmt):      # test_cli_gait_figures.py (--figure all)
     code, out, _ = run(["plot", "--example", "planar", "--out", str(tmp_path), "--format",
                         fmt, "--dpi", "40"], capsys)
     assert code == 0

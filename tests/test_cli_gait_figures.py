@@ -78,12 +78,16 @@ def test_all_on_planar_names_the_gait_figures(capsys, tmp_path):
     assert summary["skipped"] == {"orbit": "needs a gait's periodic orbit",
                                   "growth": "needs a gait's periodic orbit",
                                   "scaling": "needs --bench-json"}
-    code, out, err = run(["plot", "--example", "planar", "--figure", "all", "--dpi", "30",
-                          "--out", str(tmp_path)], capsys)
+    # in words, and as SVG (the other formats: test_cli.py::test_plot_2d)
+    code, out, err = run(["plot", "--example", "planar", "--figure", "all", "--format", "svg",
+                          "--out", str(tmp_path / "svg")], capsys)
     assert code == 0, err
     assert ("not drawn: orbit, which needs a gait's periodic orbit (try --example pronking)"
             in out)
     assert "not drawn: scaling, which needs --bench-json\n" in out
+    for name in ("field", "triangulation", "circle", "note", "pieces"):
+        assert f"wrote {tmp_path / 'svg' / name}.svg" in out
+        assert (tmp_path / "svg" / f"{name}.svg").read_bytes().startswith(b"<?xml")
 
 
 BAD = [
