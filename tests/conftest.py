@@ -45,6 +45,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
+from bderiv.cli.warmup import FULL_COLLECTIONS
+
 try:
     import fcntl
 except ImportError:  # Windows: the workers may then compile a task twice at once
@@ -61,6 +63,12 @@ settings.register_profile(
 )
 settings.register_profile("thorough", parent=settings.get_profile("bderiv"), max_examples=500)
 settings.load_profile("bderiv")
+
+# numba's compiler keeps a large graph of objects alive, and every full collection walks all
+# of it: test_lanes and test_adjoints on an empty cache spent 13.2 of their 73 s of CPU in
+# 55 full collections; with full collections as rare as in bderiv's own compiling
+# processes, 4.4 s in 9 (docs/design.md, "The collector")
+gc.set_threshold(*gc.get_threshold()[:2], FULL_COLLECTIONS)
 
 
 def pytest_configure(config):

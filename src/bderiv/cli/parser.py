@@ -319,11 +319,10 @@ def _compile(args) -> str:
                          f"{', '.join(FAMILIES)}")
     if args.nice and hasattr(os, "nice"):  # a background compilation yields to the work
         os.nice(10)
-    from .warmup import compile_family, warm_up
+    from .warmup import compile_here, warm_up
 
     if args.here:  # the process of one family (warmup.warm_up starts it)
-        for name in args.families:
-            compile_family(name)
+        compile_here(args.families)
         return ""
     def say(text):  # on stderr: stdout is the summary
         print(f"bderiv compile: {text}", file=sys.stderr, flush=True)

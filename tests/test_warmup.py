@@ -1,0 +1,57 @@
+"""``python -m bderiv compile``: its checks of arguments, and what each family's process is
+given (the integrator's optimisation level, the collector's threshold). The families' own
+compilation runs in every suite: the integrator's family in the background process that
+``tests/conftest.py`` starts, through the same ``--here`` path."""
+
+from __future__ import annotations
+
+import gc
+import subprocess
+
+import pytest
+
+from bderiv.cli import main, warmup
+from bderiv.models import readiness
+
+
+def test_a_family_process_makes_full_collections_rarer(monkeypatch):
+    compiled = []
+    monkeypatch.setattr(warmup, "compile_family", compiled.append)
+    before = gc.get_threshold()
+    try:
+        gc.set_threshold(700, 10, 10)  # Python's default
+        warmup.compile_here(["dense", "resets"])
+        assert gc.get_threshold() == (700, 10, warmup.FULL_COLLECTIONS)
+    finally:
+        gc.set_threshold(*before)
+    assert compiled == ["dense", "resets"] and warmup.FULL_COLLECTIONS > 10
+
+
+def test_only_the_integrators_process_runs_at_its_optimisation_level(monkeypatch):
+    monkeypatch.delenv("NUMBA_OPT", raising=False)
+    seen = {}
+
+    class Popen:  # records what the family's process would get, starts nothing
+        def __init__(self, command, env, **kwargs):
+            seen[command[4]] = env.get("NUMBA_OPT")
+            kwargs["stderr"].close()
+
+    monkeypatch.setattr(subprocess, "Popen", Popen)
+    for name in warmup.FAMILIES:
+        warmup._start(name)
+    assert seen == {"integrator": readiness.COMPILE_OPT, "dense": None, "structured": None,
+                    "resets": None}
+
+
+def test_bad_families_and_process_counts_are_refused_by_name(capsys):
+    with pytest.raises(ValueError, match="families must be among integrator, dense, "
+                                         "structured, resets, got 'lanes'"):
+        warmup.warm_up(["lanes"])
+    with pytest.raises(ValueError, match="processes must be an integer >= 1, got 0"):
+        warmup.warm_up(["dense"], processes=0)
+    with pytest.raises(ValueError, match="family must be one of"):
+        warmup.compile_family("lanes")
+    assert main(["compile", "lanes"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown family 'lanes': the families are integrator, dense, structured, " \
+        "resets" in err
