@@ -5,7 +5,9 @@ Rules for new tests (docs/setup.md, "The tests"): a case that takes more than a 
 on a warm cache is marked ``slow`` and keeps a smaller case of the same check in the default
 run; an object that takes seconds and several files need is a session fixture here, never a
 module-level computation (collection runs in every pytest-xdist worker); a nested pytest
-run passes ``-n 0``; timings live in benchmarks/ and run with ``-n 0``.
+run passes ``-n 0``; timings live in benchmarks/ and run with ``-n 0``; a test that looks for
+objects with ``gc.get_objects()`` thaws them first (``gc.unfreeze()``: each file's end
+freezes what is alive, see :func:`pytest_runtest_protocol`).
 
 The default run (README's ``python -m pytest``, CI) and ``python -m pytest -m slow``.
 On a fresh numba cache most of the default run is compilation (about 85 % of the CPU of
@@ -65,9 +67,9 @@ settings.register_profile("thorough", parent=settings.get_profile("bderiv"), max
 settings.load_profile("bderiv")
 
 # numba's compiler keeps a large graph of objects alive, and every full collection walks all
-# of it: test_lanes and test_adjoints on an empty cache spent 13.2 of their 73 s of CPU in
-# 55 full collections; with full collections as rare as in bderiv's own compiling
-# processes, 4.4 s in 9 (docs/design.md, "The collector")
+# of it: test_lanes and test_adjoints on an empty cache spent 13.2 s of CPU in 55 full
+# collections; with full collections as rare as in bderiv's own compiling processes,
+# 4.4 s in 9 (docs/design.md, "The collector")
 gc.set_threshold(*gc.get_threshold()[:2], FULL_COLLECTIONS)
 
 
@@ -209,9 +211,10 @@ def pytest_collection_modifyitems(session, config, items):
 def pytest_runtest_protocol(item, nextitem):
     """After a file's last test, collect its garbage and freeze what is left alive (numba's
     dispatchers and types, the modules, the session's fixtures) out of the collector's
-    reach: a full collection otherwise walks all of it again, about 27 times per worker and
-    0.3 s each late in the run (section "The suite's garbage collections" of
-    docs/design.md). :func:`pytest_sessionfinish` thaws it for pytest's last collections."""
+    reach: every full collection walked all of it again (docs/design.md, "The
+    collector"). Frozen objects are not in ``gc.get_objects()``: a test that looks for
+    objects there thaws them first (``gc.unfreeze()``; the next file's end freezes again).
+    :func:`pytest_sessionfinish` thaws them for pytest's last collections."""
     yield
     if nextitem is None or nextitem.path != item.path:
         gc.collect()
@@ -224,7 +227,7 @@ def pytest_sessionfinish(session, exitstatus):
     ``BDERIV_SPECIALIZATIONS=<folder>`` set, write this process's table of compiled
     signatures of bderiv's dispatchers there (``tools/specializations.py``, issue 36: one
     file per pytest-xdist worker, merged by the tool)."""
-    gc.unfreeze()
+    gc.unfreeze()  # first: the table's dispatchers are found by gc.get_objects()
     folder = os.environ.get("BDERIV_SPECIALIZATIONS")
     if not folder:
         return

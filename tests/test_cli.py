@@ -220,16 +220,6 @@ def test_bench(capsys, tmp_path):
     assert out.startswith("bderiv bench: d = 2n,")
 
 
-@pytest.mark.parametrize("fmt", ["pdf"])  # png: test_plot_default_and_chair; svg:
-def test_plot_2d(capsys, tmp_path, fmt):      # test_cli_gait_figures.py (--figure all)
-    code, out, _ = run(["plot", "--example", "planar", "--out", str(tmp_path), "--format",
-                        fmt, "--dpi", "40"], capsys)
-    assert code == 0
-    for name in ("field", "triangulation", "circle", "note", "pieces"):
-        assert (tmp_path / f"{name}.{fmt}").stat().st_size > 1000
-    assert "wrote" in out and "not drawn: scaling, which needs --bench-json" in out
-
-
 def test_plot_default_and_chair(capsys, tmp_path):
     code, out, _ = run(["plot", "--out", str(tmp_path / "a"), "--dpi", "30", "--json"],
                        capsys)

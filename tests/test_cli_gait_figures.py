@@ -68,27 +68,32 @@ def test_orbit_in_other_formats(capsys, tmp_path, fmt, magic):
 
 def test_all_on_planar_names_the_gait_figures(capsys, tmp_path):
     """And the other way round: ``--figure all`` on a B-derivative leaves out orbit and
-    growth, with the reason."""
+    growth, with the reason; in JSON as PDF, in words as SVG (each format's one drawing of
+    the five figures in the suite; PNG: test_cli.py::test_plot_default_and_chair)."""
     code, out, err = run(["plot", "--example", "planar", "--figure", "all", "--dpi", "30",
-                          "--out", str(tmp_path), "--json"], capsys)
+                          "--format", "pdf", "--out", str(tmp_path / "pdf"), "--json"],
+                         capsys)
     assert code == 0, err
     summary = json.loads(out)
-    assert [p.rsplit("/", 1)[-1] for p in summary["files"]] == [
-        "field.png", "triangulation.png", "circle.png", "note.png", "pieces.png"]
+    names = ("field", "triangulation", "circle", "note", "pieces")
+    assert summary["files"] == [str(tmp_path / "pdf" / f"{name}.pdf") for name in names]
     assert summary["skipped"] == {"orbit": "needs a gait's periodic orbit",
                                   "growth": "needs a gait's periodic orbit",
                                   "scaling": "needs --bench-json"}
-    # in words, and as SVG (the other formats: test_cli.py::test_plot_2d)
-    code, out, err = run(["plot", "--example", "planar", "--figure", "all", "--format", "svg",
-                          "--out", str(tmp_path / "svg")], capsys)
+    for name in names:
+        data = (tmp_path / "pdf" / f"{name}.pdf").read_bytes()
+        assert data.startswith(b"%PDF-") and len(data) > 1000
+    code, out, err = run(["plot", "--example", "planar", "--figure", "all", "--dpi", "30",
+                          "--format", "svg", "--out", str(tmp_path / "svg")], capsys)
     assert code == 0, err
+    assert "wrote" in out
     assert ("not drawn: orbit, which needs a gait's periodic orbit (try --example pronking)"
             in out)
     assert "not drawn: scaling, which needs --bench-json\n" in out
-    for name in ("field", "triangulation", "circle", "note", "pieces"):
+    for name in names:
         assert f"wrote {tmp_path / 'svg' / name}.svg" in out
-        assert (tmp_path / "svg" / f"{name}.svg").read_bytes().startswith(b"<?xml")
-
+        data = (tmp_path / "svg" / f"{name}.svg").read_bytes()
+        assert data.startswith(b"<?xml") and len(data) > 1000
 
 BAD = [
     (["--figure", "orbit"],

@@ -95,12 +95,15 @@ def test_a_failed_background_process_is_named_and_the_integrator_compiles_here(
     assert "exit status 1" in caplog.text and "no compiler here" in caplog.text
 
 
+@pytest.mark.parametrize("policy", ["auto", "compiled"])  # in the background, waited for
 @pytest.mark.parametrize("set_by_caller", [None, "2"])
 def test_the_compiling_process_runs_at_the_integrators_optimisation_level(
-        stand_in, monkeypatch, tmp_path, set_by_caller):
-    """The background process compiles at ``COMPILE_OPT`` (LLVM -O1), unless the caller's
-    environment sets ``NUMBA_OPT`` (numba reads its level from that variable: the child
-    says what it got, without importing numba)."""
+        stand_in, monkeypatch, tmp_path, set_by_caller, policy):
+    """The process that compiles the integrator, started in the background or waited for,
+    compiles at ``COMPILE_OPT`` (LLVM -O1), unless the caller's environment sets
+    ``NUMBA_OPT`` (numba reads its level from that variable: the child says what it got,
+    without importing numba)."""
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, policy)
     if set_by_caller is None:
         monkeypatch.delenv("NUMBA_OPT", raising=False)
     else:
@@ -109,10 +112,12 @@ def test_the_compiling_process_runs_at_the_integrators_optimisation_level(
     monkeypatch.setattr(readiness, "compile_command", lambda: [
         sys.executable, "-c", f"import os, pathlib; pathlib.Path({str(said)!r})"
         ".write_text(os.environ.get('NUMBA_OPT', '3'))"])
-    assert readiness.start_background(nice=False) is True
-    _wait_child()
-    readiness._state["child"].log.close()
-    assert said.read_text() == (set_by_caller or readiness.COMPILE_OPT) != "3"
+    readiness.integrator_ready()
+    if policy == "auto":
+        _wait_child()
+        readiness._state["child"].log.close()
+    assert said.read_text() == (set_by_caller or readiness.COMPILE_OPT)
+    assert readiness.COMPILE_OPT != "3"
 
 
 def test_scipy_policy_and_a_bad_value(stand_in, monkeypatch):

@@ -39,10 +39,11 @@ import numpy as np
 #: the families, in the order they are started (the longest first)
 FAMILIES = ("integrator", "dense", "structured", "resets")
 
-#: the collector's threshold of full collections (Python's third, 10 by default) in a
-#: process of one family: numba's compiler keeps a large graph of objects alive, which
-#: every full collection walks; at 10 the integrator's 33 took 7.0 of its 58 s of CPU, at
-#: this value its 4 took 2.3 s, for 6 % more memory (design.md, "The collector")
+#: the collector's threshold of full collections (CPython's third, 10 by default; a
+#: collector without generations ignores it) in a process of one family: numba's compiler
+#: keeps a large graph of objects alive, which every full collection walks; at 10 the
+#: integrator's 33 took 7.0 s of CPU (at -O1), at this value its 4 took 2.3 s, for 6 % more
+#: memory (design.md, "The collector")
 FULL_COLLECTIONS = 100
 
 

@@ -68,9 +68,11 @@ POLL_SECONDS = 1.0
 DISPATCHERS = (drive_stretch, run_stretches)
 
 #: numba's optimisation level (``NUMBA_OPT``) in the process that compiles the integrator,
-#: unless the caller set one: LLVM's -O1 compiles it in about 12 % less CPU than numba's
-#: default 3, and the driver and the compiled run are as fast and give the same bits
-#: (benchmarks/driver_step.py and compiled_path.py; design.md, "The integrator at -O1")
+#: unless the caller's environment sets one: LLVM's -O1 compiles it in about 12 % less CPU
+#: than numba's default 3; the driver and the compiled run are as fast within the runs'
+#: spread, and compute the same numbers (no fast-math: no level reorders floating-point
+#: arithmetic) (benchmarks/driver_step.py and compiled_path.py; design.md, "The integrator
+#: at -O1")
 COMPILE_OPT = "1"
 
 _state = {"ready": False, "checked": -float("inf"), "child": None, "said": False}
