@@ -95,6 +95,7 @@ def test_all_on_planar_names_the_gait_figures(capsys, tmp_path):
         data = (tmp_path / "svg" / f"{name}.svg").read_bytes()
         assert data.startswith(b"<?xml") and len(data) > 1000
 
+
 BAD = [
     (["--figure", "orbit"],
      "figure orbit needs a gait's periodic orbit, but planar is not a gait: use --example "
