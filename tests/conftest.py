@@ -47,7 +47,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
-from bderiv.cli.warmup import FULL_COLLECTIONS
+from bderiv.cli.warmup import rarer_full_collections
 
 try:
     import fcntl
@@ -70,7 +70,7 @@ settings.load_profile("bderiv")
 # of it: test_lanes and test_adjoints on an empty cache spent 13.2 s of CPU in 55 full
 # collections; with full collections as rare as in bderiv's own compiling processes,
 # 4.4 s in 9 (docs/design.md, "The collector")
-gc.set_threshold(*gc.get_threshold()[:2], FULL_COLLECTIONS)
+rarer_full_collections()
 
 
 def pytest_configure(config):

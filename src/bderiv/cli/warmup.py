@@ -126,12 +126,18 @@ def compile_family(name: str) -> None:
     _WORK[name]()
 
 
+def rarer_full_collections() -> None:
+    """Set this process's threshold of full collections to :data:`FULL_COLLECTIONS` (for a
+    process that mostly compiles: a family's, a test worker; never a user's)."""
+    young, middle, _ = gc.get_threshold()
+    gc.set_threshold(young, middle, FULL_COLLECTIONS)
+
+
 def compile_here(families) -> None:
     """Compile ``families`` in this process, a process of its own (``python -m bderiv
     compile FAMILY --here``: started by :func:`warm_up` and by the integrator's background
-    compilation), its full collections made rarer first (:data:`FULL_COLLECTIONS`)."""
-    young, middle, _ = gc.get_threshold()
-    gc.set_threshold(young, middle, FULL_COLLECTIONS)
+    compilation), its full collections made rarer first (:func:`rarer_full_collections`)."""
+    rarer_full_collections()
     for name in families:
         compile_family(name)
 
