@@ -57,6 +57,29 @@ def test_stability_leaves_the_advance_out(gait):
     assert decay.rate < 0.8
 
 
+def test_a_converged_guess_builds_the_orbits_map_once(gait, monkeypatch):
+    """From the orbit itself (a stored orbit), the guess's run for the check of the cyclic
+    coordinate already returns within the tolerance: the return map is built once, with
+    the caller's settings, and it is the orbit's (the same period and state)."""
+    from bderiv.analysis import orbit as orbit_module
+
+    ex, orb = gait
+    built = []
+
+    def counted(*args, **kwargs):
+        built.append(kwargs["options"])
+        return return_map(*args, **kwargs)
+
+    return_map = orbit_module.return_map
+    monkeypatch.setattr(orbit_module, "return_map", counted)
+    again = ex.system.periodic_orbit(orb.x0, runner.apex_section, period_guess=0.5,
+                                     cyclic=[0], section_gradient=runner.apex_section_gradient)
+    assert built == [orbit_module.ORBIT_OPTIONS] and len(again.history) == 1
+    assert again.period == pytest.approx(orb.period, rel=1e-12)
+    np.testing.assert_allclose(again.x0, orb.x0, rtol=0, atol=1e-12)
+    assert again.residual <= orb.residual + 1e-12
+
+
 def test_coordinates_that_are_not_cyclic_are_refused(gait):
     ex, _ = gait
     guess = ex.x0 + [0.0, 0.02, 0.0, 0.0, 0.0, 0.0]

@@ -28,7 +28,9 @@ never refused; the orbit's return map is built with the caller's tolerance. When
 that accepted a Newton step already returns within the tolerance, the map at the new
 iterate is built with the caller's tolerance: it is then both the convergence test and
 the orbit's map, built once (a map built twice at the orbit was about a sixth of the
-search). Convergence is judged on the map returned.
+search); so is the guess's map when the guess's own run, made for the check of the cyclic
+coordinates, returns within the tolerance (a stored orbit). Convergence is judged on the
+map returned.
 """
 
 from __future__ import annotations
@@ -254,20 +256,23 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     cyclic = check_cyclic(cyclic, x.size)
     keep = kept(cyclic, x.size)
     check_section_normal(section.gradient(x), cyclic, x)
+    history, build = [], iterates
     if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
         starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
         returned, *shifted = [_at_iterate(0, start, t_max, lambda s=start: run(
             system.calls, s, t_max, options=iterates, section=section, record=ENDS)).x_final
             for start in starts]
         check_independence(returned, x, shifted, cyclic)
-    history, build = [], iterates
+        # the guess returns within the tolerance (a stored orbit): its map is the orbit's
+        if _within(float(np.abs((returned - x)[keep]).max()), x, keep, tol):
+            build = options
     for iteration in range(max_iter + 1):
         R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build:
                                           _build(system, x, section, t_max, b, iterates))
         check_equivariance(R, x, cyclic)
         r = R.x_final - x
         res = float(np.abs(r[keep]).max())
-        if res <= tol * max(1.0, float(np.abs(x[keep]).max())):
+        if _within(res, x, keep, tol):
             break
         if iteration == max_iter:
             raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
@@ -279,8 +284,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         x = damped.x
         # converged already by the damped step's run: the next map is likely the orbit's,
         # so it is built with the caller's tolerance (and kept if the test passes on it)
-        build = options if damped.residual <= tol * max(1.0, float(np.abs(
-            x[keep]).max())) else iterates
+        build = options if _within(damped.residual, x, keep, tol) else iterates
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
     if built_with != options:  # the map at x was built for the iteration only
         R, traj = _at_iterate(iteration, x, t_max, lambda: return_map(
@@ -289,6 +293,12 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     r = R.x_final - x
     return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
                          cyclic, r[list(cyclic)])
+
+
+def _within(res, x, keep, tol) -> bool:
+    """Whether the residual ``res`` (``max |P(x) - x|`` over ``keep``) meets the test of
+    :func:`periodic_orbit`: ``res <= tol * max(1, max |x[keep]|)``."""
+    return res <= tol * max(1.0, float(np.abs(x[keep]).max()))
 
 
 def _at_iterate(iteration, x, t_max, call):
