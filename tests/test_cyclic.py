@@ -57,23 +57,31 @@ def test_stability_leaves_the_advance_out(gait):
     assert decay.rate < 0.8
 
 
-def test_a_converged_guess_builds_the_orbits_map_once(gait, monkeypatch):
-    """From the orbit itself (a stored orbit), the guess's run for the check of the cyclic
-    coordinate already returns within the tolerance: the return map is built once, with
-    the caller's settings, and it is the orbit's (the same period and state)."""
+@pytest.mark.parametrize("which", ["running, x cyclic", "pronking, none cyclic"])
+def test_a_converged_guess_builds_the_orbits_map_once(gait, monkeypatch, which):
+    """From the orbit itself (a stored orbit), the return map is built once, with the
+    caller's settings, and it is the orbit's (the same period and state, one iterate):
+    with a cyclic coordinate and without."""
     from bderiv.analysis import orbit as orbit_module
 
-    ex, orb = gait
+    if which.startswith("running"):
+        ex, orb = gait
+        section, kwargs = runner.apex_section, {
+            "cyclic": [0], "section_gradient": runner.apex_section_gradient}
+    else:
+        ex = gaits.pronking()
+        orb = gaits.pronking_orbit(ex)
+        section, kwargs = gaits.apex_section, {}
+    assert bool(orb.cyclic) == which.startswith("running")
     built = []
 
-    def counted(*args, **kwargs):
-        built.append(kwargs["options"])
-        return return_map(*args, **kwargs)
+    def counted(*args, **kw):
+        built.append(kw["options"])
+        return return_map(*args, **kw)
 
     return_map = orbit_module.return_map
     monkeypatch.setattr(orbit_module, "return_map", counted)
-    again = ex.system.periodic_orbit(orb.x0, runner.apex_section, period_guess=0.5,
-                                     cyclic=[0], section_gradient=runner.apex_section_gradient)
+    again = ex.system.periodic_orbit(orb.x0, section, period_guess=0.5, **kwargs)
     assert built == [orbit_module.ORBIT_OPTIONS] and len(again.history) == 1
     assert again.period == pytest.approx(orb.period, rel=1e-12)
     np.testing.assert_allclose(again.x0, orb.x0, rtol=0, atol=1e-12)
