@@ -52,14 +52,27 @@ def test_progress_counts_small_totals_plainly():
 # -- periodic_orbit names the iterate that failed and the argument to change (item 4) ------
 
 
-def test_periodic_orbit_names_period_guess_when_the_return_is_not_awaited_long_enough():
+def test_periodic_orbit_names_period_guess_when_the_return_is_not_awaited_long_enough(
+        monkeypatch):
+    """Said after one attempt: the guess's map is built with the caller's settings first,
+    and a run that does not return is not tried again with the iterates' (the tolerance
+    does not change where it goes)."""
+    from bderiv.analysis import orbit
     from bderiv.examples import gaits
 
+    real, built = orbit.return_map, []
+
+    def counted(*args, **kwargs):
+        built.append(kwargs["options"].simultaneity_tol)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(orbit, "return_map", counted)
     with pytest.raises(ValueError, match=r"periodic_orbit at the guess, x = \[.*\]: the "
                                          r"trajectory did not return to the section .* waits 3 "
                                          r"times period_guess for the return, 0.03 here: pass "
                                          r"a larger period_guess"):
         gaits.pronking_orbit(period_guess=0.01)
+    assert built == [orbit.ORBIT_OPTIONS.simultaneity_tol]
 
 
 def test_periodic_orbit_names_the_newton_iterate_that_failed(monkeypatch):

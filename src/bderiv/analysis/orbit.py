@@ -322,11 +322,14 @@ def _at_iterate(iteration, x, t_max, call):
 def _build(system, x, section, t_max, options, iterates):
     """``(R, trajectory, settings)``: the return map at x with ``options``, else with
     ``iterates`` (``simultaneity_tol`` 0) where that refuses (two events of an iterate close
-    in time but not at one point)."""
+    in time but not at one point). A map that does not return (``NoReturn``) is not built
+    again: the tolerance does not change where the run goes."""
     if options != iterates:
         try:
             return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
                                 options=options), options)
+        except NoReturn:
+            raise
         except ValueError:
             pass
     return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
