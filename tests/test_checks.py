@@ -66,6 +66,26 @@ def test_tight_options_are_needed_for_small_steps():
     assert FD_OPTIONS.rtol < SolverOptions().rtol
 
 
+def test_fd_check_runs_the_unperturbed_flow_once(linear_system, monkeypatch):
+    """One unperturbed run for every step and the perturbed ones in one batch; each step's
+    errors are those of its own forward differences, bit for bit."""
+    V = np.random.default_rng(2).standard_normal((4, 3))
+    D_V = V @ scipy.linalg.expm(A * T).T
+    eps, runs = (1e-3, 1e-4, 1e-5), []
+    for name in ("simulate", "simulate_many"):  # the model is frozen: its class's methods
+        real = getattr(HybridSystem, name)
+        monkeypatch.setattr(HybridSystem, name, lambda *args, _real=real, _name=name,
+                            **kwargs: runs.append(_name) or _real(*args, **kwargs))
+    check = fd_check(linear_system, X0, T, V, D_V, eps=eps)
+    assert runs == ["simulate", "simulate_many"]
+    monkeypatch.undo()
+    for i, e in enumerate(eps):
+        FD = forward_differences(linear_system, X0, T, V, e)
+        np.testing.assert_array_equal(
+            check.errors[:, i], np.linalg.norm(FD - D_V, axis=1) / np.linalg.norm(D_V, axis=1))
+        assert check.max_errors[i] == np.abs(FD - D_V).max() / np.abs(D_V).max()
+
+
 @pytest.mark.parametrize(
     ("args", "kwargs", "error", "match"),
     [
@@ -85,6 +105,9 @@ def test_tight_options_are_needed_for_small_steps():
          "rtol must be a finite number > 0, got nan"),
         ((np.ones((1, 3)), np.ones((1, 3))), {"progress": "yes"}, TypeError,
          "progress must be None, a bool or a callable"),
+        ((np.ones((1, 3)), np.ones((1, 3))), {"rtoll": 1e-9}, TypeError,
+         r"fd_check got unknown settings \['rtoll'\]; it takes rtol, atol, method, "
+         r"max_step, simultaneity_tol, options, section"),
     ],
 )
 def test_fd_check_validation(linear_system, args, kwargs, error, match):

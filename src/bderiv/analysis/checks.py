@@ -80,19 +80,34 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=None,
     -------
     ndarray, shape (..., d)
     """
-    options = SolverOptions.resolve(options, FD_OPTIONS, rtol=rtol, atol=atol, method=method,
-                                    max_step=max_step, simultaneity_tol=simultaneity_tol)
+    options = _settings(simultaneity_tol=simultaneity_tol, options=options, rtol=rtol,
+                        atol=atol, method=method, max_step=max_step)
     eps = check_number(eps, "eps")
     flat, lead = check_points(V, system.dim, "V")
+    progress = resolve_progress(progress, desc="finite differences")
+    FD = _differences(system, x0, t_final, flat, (eps,), options, section, progress)
+    return FD[0].reshape(*lead, system.dim)
 
+
+def _settings(*, simultaneity_tol=None, options=None, rtol=None, atol=None, method=None,
+              max_step=None) -> SolverOptions:
+    """The settings of the differences: :data:`FD_OPTIONS` where none are given."""
+    return SolverOptions.resolve(options, FD_OPTIONS, rtol=rtol, atol=atol, method=method,
+                                 max_step=max_step, simultaneity_tol=simultaneity_tol)
+
+
+def _differences(system, x0, t_final, flat, steps, options, section, progress):
+    """(len(steps), m, d): the forward differences of the rows of ``flat`` (m, d) with
+    each of ``steps``, from one unperturbed run and one batch of all the perturbed ones."""
     # the final states only: a bounded record (t_eval=()), whatever the span
     settings = {"options": options, "section": section, "t_eval": ()}
-    progress = resolve_progress(progress, desc="finite differences")
     start = system.calls._check_state(x0, "x0")
     base = system.simulate(start, t_final, **settings)
     # the perturbed runs as one batch (its bar, or the callback after each run)
-    runs = system.simulate_many(start + eps * flat, t_final, progress=progress, **settings)
-    return ((runs.x_final - base.x_final) / eps).reshape(*lead, system.dim)
+    steps = np.asarray(steps, dtype=np.float64)[:, None, None]
+    runs = system.simulate_many((start + steps * flat).reshape(-1, system.dim), t_final,
+                                progress=progress, **settings)
+    return (runs.x_final.reshape(steps.shape[0], *flat.shape) - base.x_final) / steps
 
 
 @dataclass(frozen=True)
@@ -161,22 +176,21 @@ def fd_check(system, x0, t_final, V, D_V, eps=FD_EPS, *, progress=None,
         raise ValueError(f"D_V must have no zero row (errors are relative to |D(v)|), but "
                          f"row {int(zero[0])} is zero")
     eps = tuple(check_number(e, f"eps[{i}]") for i, e in enumerate(np.atleast_1d(eps)))
+    unknown = sorted(set(simulate_options) - {*_SETTINGS, "options", "section"})
+    if unknown:
+        raise TypeError(f"fd_check got unknown settings {unknown}; it takes "
+                        f"{', '.join((*_SETTINGS, 'options', 'section'))}")
+    section = simulate_options.pop("section", None)
+    options = _settings(**simulate_options)
     progress = resolve_progress(progress, desc="finite differences")
-    scale_rows = np.linalg.norm(D_V, axis=1)
-    scale = np.abs(D_V).max()
-    errors, worst, seconds = [], [], 0.0
-    m = V.shape[0]
-    for i, e in enumerate(eps):
-        t0 = time.perf_counter()
-        step = None if progress is None else (
-            lambda done, total, i=i: progress(i * m + done, len(eps) * m))
-        FD = forward_differences(system, x0, t_final, V, e, progress=step, **simulate_options)
-        seconds += time.perf_counter() - t0
-        errors.append(np.linalg.norm(FD - D_V, axis=1) / scale_rows)
-        worst.append(float(np.abs(FD - D_V).max() / scale))
+    t0 = time.perf_counter()
+    # every step's runs in one batch, one unperturbed run for all
+    FD = _differences(system, x0, t_final, V, eps, options, section, progress)
+    per_vector = (time.perf_counter() - t0) / (len(eps) * V.shape[0] + 1)
+    errors = np.linalg.norm(FD - D_V, axis=2) / np.linalg.norm(D_V, axis=1)
+    worst = tuple(float(w) for w in np.abs(FD - D_V).max(axis=(1, 2)) / np.abs(D_V).max())
     ratios = tuple(b / a if a else float("nan") for a, b in zip(worst, worst[1:], strict=False))
-    per_vector = seconds / (len(eps) * (V.shape[0] + 1))
-    return FDCheck(eps, np.array(errors).T, tuple(worst), ratios, per_vector)
+    return FDCheck(eps, errors.T, worst, ratios, per_vector)
 
 
 @dataclass(frozen=True)
