@@ -312,7 +312,7 @@ from bderiv import BDerivative
 F = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [2.0, 1.0]])
 V = np.array([[-1.0, -2.0], [-2.0, -1.0], [0.5, -3.0]])
 bd = BDerivative(np.eye(2), F)
-out = bd(V)  # its kernel and the steps it calls: several files to damage
+out = bd(V)  # its two kernels: an index and a data file each, four files to damage
 print(json.dumps(out.tolist()))
 """
 

@@ -2,7 +2,8 @@
 
 One routine for the CLI, the tests and the benchmarks: :func:`forward_differences` (also
 :meth:`HybridSystem.flow_fd <bderiv.analysis.system.HybridSystem.flow_fd>`) and :func:`fd_check`,
-which runs it for several steps and measures the errors. The differences are one-sided on
+which differences the flow with several steps at once (one unperturbed run, one batch
+of the perturbed ones) and measures the errors. The differences are one-sided on
 purpose: the flow is only piecewise differentiable, so a central quotient converges to
 ``(D(v) - D(-v)) / 2``, not to ``D(v)``. With a Poincare section they difference the
 return map instead. :func:`decay_check` follows perturbations of a periodic orbit through
@@ -103,11 +104,11 @@ def _differences(system, x0, t_final, flat, steps, options, section, progress):
     settings = {"options": options, "section": section, "t_eval": ()}
     start = system.calls._check_state(x0, "x0")
     base = system.simulate(start, t_final, **settings)
-    # the perturbed runs as one batch (its bar, or the callback after each run)
+    # the perturbed runs as one batch (its bar, or the callback after each run), shaped
+    # (step, vector, d): a failed run is named by its step and its row of V
     steps = np.asarray(steps, dtype=np.float64)[:, None, None]
-    runs = system.simulate_many((start + steps * flat).reshape(-1, system.dim), t_final,
-                                progress=progress, **settings)
-    return (runs.x_final.reshape(steps.shape[0], *flat.shape) - base.x_final) / steps
+    runs = system.simulate_many(start + steps * flat, t_final, progress=progress, **settings)
+    return (runs.x_final - base.x_final) / steps
 
 
 @dataclass(frozen=True)
@@ -161,13 +162,20 @@ def fd_check(system, x0, t_final, V, D_V, eps=FD_EPS, *, progress=None,
         Called after each simulation (``total``: one per vector and step); ``True``
         draws a tqdm bar.
     **simulate_options
-        Passed to :func:`forward_differences` (``simultaneity_tol``, ``options``,
-        ``rtol``, ``atol``, ``method``, ``max_step``, ``section``: with a section,
-        ``t_final`` is the longest wait and ``D_V`` the return map's B-derivative).
+        The settings, as for :func:`forward_differences` (``simultaneity_tol``,
+        ``options``, ``rtol``, ``atol``, ``method``, ``max_step``, ``section``: with a
+        section, ``t_final`` is the longest wait and ``D_V`` the return map's
+        B-derivative). The runs of every step are one batch: their final states are kept,
+        ``len(eps) * m`` of them.
 
     Returns
     -------
     FDCheck
+
+    Raises
+    ------
+    TypeError
+        For a setting not named above.
     """
     V = check_matrix(V, "V", (None, system.dim))
     D_V = check_matrix(D_V, "D_V", V.shape)

@@ -24,16 +24,13 @@ quadratically there as well: each smooth piece of P passes through the fixed poi
 
 The runs that test a Newton step use ``simultaneity_tol = 0`` (events are grouped only
 when the integrator cannot tell them apart), so an iterate whose events are close but not
-simultaneous is never refused. The return map at an iterate is built with the caller's
-tolerance where the iterate may be the orbit: the guess (a stored orbit, say) and an
-iterate whose accepting run already returns within the tolerance. That map is then both
-the convergence test and the orbit's map, built once: built for the iteration and again
-for the orbit, it was about a sixth of the search, and the pronking Solo12's search from
-its stored apex took 6.4 s instead of 3.0. Elsewhere the map is built with 0, and so is
-one the caller's tolerance refuses (two events close in time but not at one point). At a
-guess that is not the orbit, the caller's tolerance changes the map only where it groups
-two events (closer than it in time, at one point). Convergence is judged on the map
-returned.
+simultaneous is never refused. A map is built with the caller's tolerance where its
+iterate may be the orbit: the guess (a stored orbit, say) and an iterate whose accepting
+run already returns within the tolerance; it is then both the convergence test and the
+orbit's map, built once. Where such a map fails the test and has merged events that are
+apart at its iterate (its step would be a chord: Newton's method would converge only
+linearly), or where the caller's tolerance refuses it, the map is built with 0. The
+other iterates' maps are built with 0. Convergence is judged on the map returned.
 """
 
 from __future__ import annotations
@@ -260,8 +257,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
     cyclic = check_cyclic(cyclic, x.size)
     keep = kept(cyclic, x.size)
     check_section_normal(section.gradient(x), cyclic, x)
-    # the guess may be the orbit (a stored one): its map is built with the caller's settings
-    history, build = [], options
+    history, build = [], options  # the guess may be the orbit (a stored one)
     if cyclic:  # checked first: Newton's method fails, or finds a false gait, on a wrong choice
         starts = [x, *(x + c * np.eye(x.size)[i] for i in cyclic for c in SHIFTS)]
         returned, *shifted = [_at_iterate(0, start, t_max, lambda s=start: run(
@@ -279,6 +275,13 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         if iteration == max_iter:
             raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
                                f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
+        if built_with != iterates and any(s > 0 for s in R.flow.group_spreads):
+            # events apart at x merged by the caller's tolerance: a step from that map is a
+            # chord, and Newton's method converges only linearly; the iterates' map instead
+            R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x: _build(
+                system, x, section, t_max, iterates, iterates))
+            check_equivariance(R, x, cyclic)
+            r = R.x_final - x
         step = newton_step(R, r, section.gradient(x), section(x), keep=keep)
         damped = damped_step(system, section, x, step.delta, res, t_max, iterates, keep)
         history.append(NewtonIterate(x.copy(), res, float(np.abs(damped.x - x).max()),
@@ -322,8 +325,9 @@ def _at_iterate(iteration, x, t_max, call):
 def _build(system, x, section, t_max, options, iterates):
     """``(R, trajectory, settings)``: the return map at x with ``options``, else with
     ``iterates`` (``simultaneity_tol`` 0) where that refuses (two events of an iterate close
-    in time but not at one point). A map that does not return (``NoReturn``) is not built
-    again: the tolerance does not change where the run goes."""
+    in time but not at one point). Any other ValueError is tried again with 0 too (the one
+    raised is the second attempt's: a failure takes two attempts), but not ``NoReturn``:
+    the tolerance does not change where the run goes."""
     if options != iterates:
         try:
             return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
