@@ -230,6 +230,34 @@ def offset_cloud(chair):
     return start, P, V, runs.x_final, first
 
 
+def test_a_merged_groups_offsets_come_from_the_flow_maps_own_run(chair, monkeypatch):
+    """The offsets of a merged group are measured at its first crossing in the run the
+    flow map was built along (``D.group_states``): those of a separate simulation of the
+    mean to integration accuracy, and the filter's step simulates nothing more than its
+    flow maps' runs. A map that holds no states (built by hand) needs the trajectory."""
+    from bderiv.analysis.flowmap import FlowBDerivative
+    from bderiv.estimate import group_offsets
+
+    model = chair.system
+    start = chair.x0 + np.array([0.0, 0.0, 2e-5, 0.0, 0.0, 0.0])
+    D = model.flow_bderivative(start, chair.t_final, simultaneity_tol=1e-3)
+    assert D.group_spreads[0] > 1e-6 and len(D.group_states) == D.n_groups
+    own, = group_offsets(model, D)
+    separate, = group_offsets(model, D, model.simulate(start, chair.t_final))
+    assert np.allclose(own, separate, rtol=1e-7, atol=1e-12) and np.abs(own).max() > 1e-6
+    bare = FlowBDerivative(D.linear, D.jumps, group_spreads=D.group_spreads)
+    with pytest.raises(ValueError, match="pass traj, the mean's trajectory"):
+        group_offsets(model, bare)
+    runs = []
+    for name in ("simulate", "flow_bderivative"):  # the model is frozen: its class's
+        real = getattr(type(model), name)
+        monkeypatch.setattr(type(model), name, lambda *args, _real=real, _name=name,
+                            **kwargs: runs.append(_name) or _real(*args, **kwargs))
+    kf = HybridKalmanFilter(model, start, (3e-5) ** 2 * np.eye(6), window=1e-3)
+    kf.predict(chair.t_final)
+    assert kf.mode.groups and "simulate" not in runs
+
+
 def test_mixture_moments_equal_a_sample_of_the_local_map(chair, offset_cloud):
     """The mixture's closed-form moments (the prior cut by the orders' hyperplane) equal
     the moments of 200,000 samples pushed through the flow's B-derivative one by one,

@@ -157,7 +157,8 @@ def flow_map_along(system, traj):
         linear, jumps, final_field=final_field,
         group_times=[g.time for g in groups], group_events=[g.events for g in groups],
         group_masks=[(g.mask_before, g.mask_after) for g in groups], group_spreads=spreads,
-        x0=traj.x[0], x_final=traj.x_final, t_final=float(traj.t[-1]),
+        group_states=[g.state for g in groups], x0=traj.x[0], x_final=traj.x_final,
+        t_final=float(traj.t[-1]),
     )
 
 

@@ -77,6 +77,10 @@ class FlowBDerivative(Linearisation):
         B-derivative at the nearby point where they are simultaneous, met by perturbations
         larger than the spread (:func:`bderiv.analysis.assembly.flow_map_along`); a
         ``simultaneity_tol`` below it gives the map of the separated events.
+    group_states : sequence of array_like, shape (d,), optional
+        The state before each group, at its first crossing (information only; the point
+        the offsets of a merged group's surfaces are measured at:
+        :func:`bderiv.estimate.group_offsets`).
     x0, x_final : array_like, shape (d,), optional
         Start and final point of the nominal trajectory (information only).
     t_final : float, optional
@@ -98,6 +102,7 @@ class FlowBDerivative(Linearisation):
         group_events=None,
         group_masks=None,
         group_spreads=None,
+        group_states=None,
         x0=None,
         x_final=None,
         t_final=None,
@@ -121,6 +126,7 @@ class FlowBDerivative(Linearisation):
             )
         self.group_masks = tuple((int(b), int(a)) for b, a in (group_masks or ()))
         self.group_spreads = tuple(float(s) for s in (group_spreads or [0.0] * len(jumps)))
+        self.group_states = tuple(_read_only(x) for x in (group_states or ()))
         self.x0 = None if x0 is None else _read_only(x0)
         self.x_final = None if x_final is None else _read_only(x_final)
         self.t_final = None if t_final is None else float(t_final)
@@ -168,8 +174,10 @@ class FlowBDerivative(Linearisation):
         # unpickled arrays come back writeable; keep the stages read-only as built (a map
         # pickled before group_spreads existed: its groups were each at one point)
         state.setdefault("group_spreads", (0.0,) * len(state["_jumps"]))
+        state.setdefault("group_states", ())
         self.__dict__.update(state)
-        for arr in (*self._linear, self.final_field, self.x0, self.x_final):
+        for arr in (*self._linear, *self.group_states, self.final_field, self.x0,
+                    self.x_final):
             if arr is not None:
                 arr.setflags(write=False)
 

@@ -133,11 +133,9 @@ class HybridKalmanFilter:
         d = self.model.dim
         Q = None if Q is None else check_covariance(Q, "Q", d)
         D, window = self._flow_map(dt)
-        # the run switches each event at its own time: D.x_final is the simulated mean;
-        # a merged group needs the states of its crossings (group_offsets)
-        traj = (self.model.simulate(self.mean, dt, t_eval=(), **self.solver)
-                if any(s > 0 for s in D.group_spreads) else None)
-        local = LocalMap(D, group_offsets(self.model, D, traj))
+        # the run switches each event at its own time: D.x_final is the simulated mean,
+        # and a merged group's offsets are measured at its first crossing's state
+        local = LocalMap(D, group_offsets(self.model, D))
         push = {"auto": push_auto, "sigma": push_sigma, "mixture": push_mixture,
                 "piece": lambda m, P: push_piece(m, P, self.priority)}[self.method](
                     local, self.cov)

@@ -4,7 +4,8 @@ A predict step integrates the mean ``m`` over ``[0, dt]`` and takes the flow's
 B-derivative ``D`` there with a wide ``simultaneity_tol`` (the filter's ``window``): events
 of the mean's trajectory that cross within the window of each other are one group, whose
 map is built at the state ``rho_1`` of its first crossing, as if they were simultaneous
-there (docs/mathematics.md, section 7, "Events close together"). The mean itself is off
+there (docs/mathematics.md, section 7, "Events close together"; ``rho_1`` is the run's
+own, ``D.group_states``). The mean itself is off
 that simultaneous point: at ``rho_1`` the group's other events are still ahead, by their
 values ``h_k(rho_1) < 0``. To first order the true local map around the mean is the
 group's map moved to the offset ``c`` with ``Dh c = h(rho_1)`` (local orientation):
@@ -105,7 +106,7 @@ class LocalMap:
         return np.array(a[: self.dim])
 
 
-def group_offsets(model, D, traj):
+def group_offsets(model, D, traj=None):
     """The offset ``c`` (d,) of each event group of ``D`` (None where the group crossed
     at one stop): ``Dh c = h(rho_1)`` in the group's local orientation, least squares.
 
@@ -114,9 +115,12 @@ def group_offsets(model, D, traj):
     model : HybridSystem
     D : FlowBDerivative
         The flow map at the mean, its groups merged within the filter's window.
-    traj : Trajectory or None
-        The mean's trajectory over the same span (its groups each at its own stop); only
-        read for a group with a spread (None will do when there is none).
+    traj : Trajectory, optional
+        The mean's trajectory over the same span (its groups each at its own stop): the
+        state before a group with a spread is that of its stop nearest the group's time.
+        Default: the flow map's own (``D.group_states``, the state at each group's first
+        crossing in the run the map was built along; a map from ``flow_bderivative`` has
+        them).
 
     Raises
     ------
@@ -135,11 +139,17 @@ def group_offsets(model, D, traj):
                 f"step's end, its events {spread:.3g} apart: the filter does not offset a "
                 f"group at the final time; choose dt so that the step does not end within "
                 f"the window of an event of the mean's trajectory, or a smaller window")
-        t = D.group_times[i]
-        first = min(traj.groups, key=lambda g: abs(g.time - t))
-        mask_before = D.group_masks[i][0] if D.group_masks else first.mask_before
+        if traj is not None:
+            first = min(traj.groups, key=lambda g: abs(g.time - D.group_times[i]))
+            state = first.state
+            mask_before = D.group_masks[i][0] if D.group_masks else first.mask_before
+        elif len(D.group_states) == len(D.jumps) and D.group_masks:
+            state, mask_before = D.group_states[i], D.group_masks[i][0]
+        else:
+            raise ValueError("D does not hold its groups' states and masks (a map from "
+                             "flow_bderivative does): pass traj, the mean's trajectory")
         events = D.group_events[i]
-        h = model.calls.eval_events(first.state)
+        h = model.calls.eval_events(state)
         sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
         c, *_ = np.linalg.lstsq(J.Dh, sign * h[list(events)], rcond=None)
         offsets.append(c)
