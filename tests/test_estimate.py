@@ -248,6 +248,10 @@ def test_a_merged_groups_offsets_come_from_the_flow_maps_own_run(chair, monkeypa
     bare = FlowBDerivative(D.linear, D.jumps, group_spreads=D.group_spreads)
     with pytest.raises(ValueError, match="pass traj, the mean's trajectory"):
         group_offsets(model, bare)
+    with pytest.raises(ValueError, match="group_states has 2 states but there are 1 jumps"):
+        FlowBDerivative(D.linear, D.jumps, group_states=[start, start])
+    with pytest.raises(ValueError, match=r"group_states must have shape \(1, 6\)"):
+        FlowBDerivative(D.linear, D.jumps, group_states=np.zeros((1, 5)))
     runs = []
     for name in ("simulate", "flow_bderivative"):  # the model is frozen: its class's
         real = getattr(type(model), name)
@@ -255,7 +259,8 @@ def test_a_merged_groups_offsets_come_from_the_flow_maps_own_run(chair, monkeypa
                             **kwargs: runs.append(_name) or _real(*args, **kwargs))
     kf = HybridKalmanFilter(model, start, (3e-5) ** 2 * np.eye(6), window=1e-3)
     kf.predict(chair.t_final)
-    assert kf.mode.groups and "simulate" not in runs
+    assert kf.mode.window == 1e-3 and kf.mode.groups  # the merged group, its spread > 0
+    assert runs == ["flow_bderivative"]
 
 
 def test_mixture_moments_equal_a_sample_of_the_local_map(chair, offset_cloud):

@@ -78,9 +78,9 @@ class FlowBDerivative(Linearisation):
         larger than the spread (:func:`bderiv.analysis.assembly.flow_map_along`); a
         ``simultaneity_tol`` below it gives the map of the separated events.
     group_states : sequence of array_like, shape (d,), optional
-        The state before each group, at its first crossing (information only; the point
-        the offsets of a merged group's surfaces are measured at:
-        :func:`bderiv.estimate.group_offsets`).
+        The state at each group's first crossing, before its resets (for a group pending
+        at the final time, the final state), one per jump (information only; where the
+        offsets of a merged group's surfaces are measured: :func:`bderiv.estimate.group_offsets`).
     x0, x_final : array_like, shape (d,), optional
         Start and final point of the nominal trajectory (information only).
     t_final : float, optional
@@ -126,7 +126,12 @@ class FlowBDerivative(Linearisation):
             )
         self.group_masks = tuple((int(b), int(a)) for b, a in (group_masks or ()))
         self.group_spreads = tuple(float(s) for s in (group_spreads or [0.0] * len(jumps)))
-        self.group_states = tuple(_read_only(x) for x in (group_states or ()))
+        self.group_states = () if group_states is None else tuple(
+            _read_only(check_matrix(np.reshape(x, (1, -1)), "group_states", (1, d))[0])
+            for x in group_states)
+        if self.group_states and len(self.group_states) != len(jumps):
+            raise ValueError(f"group_states has {len(self.group_states)} states but there "
+                             f"are {len(jumps)} jumps")
         self.x0 = None if x0 is None else _read_only(x0)
         self.x_final = None if x_final is None else _read_only(x_final)
         self.t_final = None if t_final is None else float(t_final)

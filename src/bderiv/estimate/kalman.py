@@ -19,7 +19,7 @@ from ._checks import PSD_RTOL, check_covariance, check_time, check_vector, measu
 from .localmap import LocalMap, derived_window, end_gap, group_offsets
 from .pushforward import METHODS, push_auto, push_mixture, push_piece, push_sigma
 
-#: the integrator settings a filter passes on to ``simulate`` and ``flow_bderivative``
+#: the integrator settings a filter passes on to ``flow_bderivative`` (every run of a step)
 SOLVER_KEYWORDS = ("options", "rtol", "atol", "max_step")
 
 
@@ -80,8 +80,9 @@ class HybridKalmanFilter:
         Add the mean of the pushed perturbation, ``E[M(delta)]``, to the simulated mean
         (default True; off: the mean is ``Phi(dt, m)`` as in a salted filter).
     **solver
-        Integrator settings passed to ``simulate`` and ``flow_bderivative``: ``options``,
-        ``rtol``, ``atol``, ``max_step`` (the integration method through ``options``).
+        Integrator settings passed to ``flow_bderivative`` (every run of a step):
+        ``options``, ``rtol``, ``atol``, ``max_step`` (the integration method through
+        ``options``).
 
     Attributes
     ----------

@@ -126,7 +126,8 @@ def group_offsets(model, D, traj=None):
     ------
     ValueError
         For a merged group at the final time (events about to cross after the step's end
-        within the window): shorten the window or move the step's end.
+        within the window): shorten the window or move the step's end; and for a map
+        that holds no group states or masks (one built by hand) without ``traj``.
     """
     offsets = []
     for i, (J, spread) in enumerate(zip(D.jumps, D.group_spreads, strict=True)):
