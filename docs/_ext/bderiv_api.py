@@ -107,7 +107,7 @@ def build_reference() -> Reference:
 class ApiDirective(SphinxDirective):
     def run(self):
         ref = build_reference()
-        self.env.app.bderiv_names = ref.name_of
+        self.env.bderiv_names = ref.name_of  # the build's environment, read by resolve
         node = nodes.section()
         node.document = self.state.document
         nested_parse_with_titles(self.state, StringList(ref.lines, "<bderiv-api>"), node)
@@ -172,9 +172,9 @@ def resolve(app, env, node, contnode):
     _, _, owner = (node.source or "").partition("docstring of ")
     parts = owner.split(".") if owner else []
     candidates += [".".join([*parts[:cut], target]) for cut in range(len(parts), 0, -1)]
-    if not hasattr(app, "bderiv_names"):  # the reference page was not read in this build
-        app.bderiv_names = build_reference().name_of
-    names = app.bderiv_names
+    if not hasattr(env, "bderiv_names"):  # the reference page was not read in this build
+        env.bderiv_names = build_reference().name_of
+    names = env.bderiv_names
     objects = env.get_domain("py").objects
     for candidate in candidates:
         obj = lookup(candidate)
