@@ -17,7 +17,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
-def sphinx(args, capsys, monkeypatch):
+def build_site(args, capsys, monkeypatch):
     """``(status, stderr)`` of ``python -m sphinx -W --keep-going -E -q -b html *args``,
     run here, ``sys.path`` kept as it was (a ``conf.py`` inserts folders). Python's
     warnings as a fresh process filters them (the suite's filters turn the package's
@@ -40,7 +40,7 @@ def sphinx(args, capsys, monkeypatch):
 
 
 def test_site_builds_without_warnings(tmp_path, capsys, monkeypatch):
-    status, err = sphinx(["-d", tmp_path / "doctrees", ROOT / "docs", tmp_path / "html"],
+    status, err = build_site(["-d", tmp_path / "doctrees", ROOT / "docs", tmp_path / "html"],
                          capsys, monkeypatch)
     assert status == 0, err[-8000:]
     api = (tmp_path / "html" / "api.html").read_text(encoding="utf-8")
@@ -61,7 +61,7 @@ def test_a_broken_reference_fails_the_build(tmp_path, capsys, monkeypatch):
         "Probe\n=====\n\n"
         "A name that exists, by another path: :func:`bderiv.engine.bderivative.BDerivative`.\n\n"
         "One that does not: :func:`bderiv.no_such_function`.\n")
-    status, err = sphinx([src, tmp_path / "html"], capsys, monkeypatch)
+    status, err = build_site([src, tmp_path / "html"], capsys, monkeypatch)
     assert status != 0
     assert "bderiv.no_such_function" in err
     assert "BDerivative" not in err
