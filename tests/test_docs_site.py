@@ -41,7 +41,7 @@ def build_site(args, capsys, monkeypatch):
 
 def test_site_builds_without_warnings(tmp_path, capsys, monkeypatch):
     status, err = build_site(["-d", tmp_path / "doctrees", ROOT / "docs", tmp_path / "html"],
-                         capsys, monkeypatch)
+                             capsys, monkeypatch)
     assert status == 0, err[-8000:]
     api = (tmp_path / "html" / "api.html").read_text(encoding="utf-8")
     for name in ("bderiv.BDerivative", "bderiv.HybridSystem", "bderiv.FlowBDerivative"):
