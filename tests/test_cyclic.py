@@ -88,23 +88,6 @@ def test_a_converged_guess_builds_the_orbits_map_once(gait, monkeypatch, which):
     assert again.residual <= orb.residual + 1e-12
 
 
-def test_a_guess_near_the_orbit_converges_as_from_the_iterates_maps():
-    """1e-8 from the pronking orbit the feet land apart, closer than the caller's
-    simultaneity_tol: the guess's map merges them, and a step from it would be a chord
-    (Newton's method then converges linearly: three iterates, the orbit found to 1e-10
-    only). It is built again with the iterates' tolerance: two iterates, the orbit to
-    rounding."""
-    ex = gaits.pronking()
-    orb = gaits.pronking_orbit(ex)
-    d = np.random.default_rng(5).standard_normal(orb.x0.size)
-    d[2] = 0.0  # along the section
-    for scale in (1e-8, 1e-7):
-        again = ex.system.periodic_orbit(orb.x0 + scale * d, gaits.apex_section,
-                                         period_guess=0.5)
-        assert len(again.history) == 2
-        np.testing.assert_allclose(again.x0, orb.x0, rtol=0, atol=1e-12)
-
-
 def test_coordinates_that_are_not_cyclic_are_refused(gait):
     ex, _ = gait
     guess = ex.x0 + [0.0, 0.02, 0.0, 0.0, 0.0, 0.0]

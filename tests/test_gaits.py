@@ -502,6 +502,23 @@ def test_eight_legs_orbit_and_its_growth_confirmed_by_simulation():
     assert decay.rate == pytest.approx(st.growth_rate, rel=0.01)
 
 
+def test_a_guess_near_the_orbit_converges_as_from_the_iterates_maps():
+    """1e-8 from the pronking orbit the feet land apart, closer than the caller's
+    simultaneity_tol: the guess's map merges them, and a step from it would be a chord
+    (Newton's method then converges linearly: three iterates, the orbit found to 1e-10
+    only). It is built again with the iterates' tolerance: two iterates, the orbit to
+    rounding."""
+    ex = gaits.pronking()
+    orb = gaits.pronking_orbit(ex)
+    d = np.random.default_rng(5).standard_normal(orb.x0.size)
+    d[2] = 0.0  # along the section
+    for scale in (1e-8, 1e-7):
+        again = ex.system.periodic_orbit(orb.x0 + scale * d, gaits.apex_section,
+                                         period_guess=0.5)
+        assert len(again.history) == 2
+        np.testing.assert_allclose(again.x0, orb.x0, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("name", ["pronking", "running"])
 def test_the_orbit_map_is_built_once_at_the_orbit(monkeypatch, name):
     # the last iterate's map is built with the caller's simultaneity_tol and returned, not
