@@ -53,30 +53,6 @@ def test_python_blocks_run(path, tmp_path, monkeypatch):
         exec(compile("\n" * (line - 1) + code, str(path), "exec"), namespace)
 
 
-def test_modules_import_without_extras():
-    """Every module of the package imports with matplotlib, tqdm, dask and jax missing.
-
-    (The doctests import them all; the extras are only needed inside the functions.)
-    """
-    import subprocess
-    import sys
-
-    code = (
-        "import sys, importlib, pkgutil\n"
-        "for name in ('matplotlib', 'tqdm', 'dask', 'distributed', 'jax', 'diffrax'):\n"
-        "    sys.modules[name] = None\n"
-        "import bderiv\n"
-        "names = [m.name for m in pkgutil.walk_packages(bderiv.__path__, 'bderiv.')]\n"
-        "for name in names:\n"
-        "    if name != 'bderiv.__main__':\n"
-        "        importlib.import_module(name)\n"
-        "print(len(names))\n"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
-    assert int(out.stdout) >= 10
-
-
 #: a command line in the docs: ``bderiv <command> ...`` or ``python -m bderiv <command> ...``
 COMMAND_LINE = re.compile(r"(?:python -m )?bderiv (demo|bench|plot|export|compile)\b([^`\n]*)")
 #: the files whose command lines are checked: every page that names a command

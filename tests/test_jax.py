@@ -8,9 +8,6 @@ unchanged); tests/reference.py for the saltation map of a table (bmap).
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -388,24 +385,3 @@ def test_bmap_errors():
         m(np.ones(2))
     with pytest.raises(REFUSED, match="V must be finite"):
         m(np.array([1.0, np.inf, 0.0]))
-
-
-# -- packaging --------------------------------------------------------------------------
-
-
-def test_jax_is_imported_only_when_used():
-    """``import bderiv.jax`` does not import jax (nor does ``import bderiv``); without jax
-    the functions say how to install it."""
-    code = ("import sys\n"
-            "import bderiv.jax\n"
-            "print('jax' in sys.modules)\n"
-            "sys.modules['jax'] = None\n"
-            "try:\n"
-            "    bderiv.jax.flow(bderiv.examples.chair().system, 1.0)\n"
-            "except ImportError as exc:\n"
-            "    print(exc)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
-    imported, message = out.stdout.splitlines()
-    assert imported == "False"
-    assert message.startswith("bderiv.jax needs jax: pip install 'bderiv[jax]'")

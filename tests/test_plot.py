@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import sys
 
 import numpy as np
 import pytest
@@ -283,37 +282,6 @@ def test_2d_only():
     for fn in (plot.corner_field, plot.triangulation, plot.tangent_circle):
         with pytest.raises(ValueError, match="2-D systems only.*d=3"):
             fn(bd)
-
-
-def _run(code):
-    import subprocess
-
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          check=True).stdout
-
-
-def test_matplotlib_imported_lazily():
-    """bderiv and bderiv.plot import without matplotlib; each figure asks to install it."""
-    assert _run("import sys, bderiv, bderiv.plot\n"
-                "print('matplotlib' in sys.modules)\n") == "False\n"
-    code = (
-        "import sys; sys.modules['matplotlib'] = None\n"
-        "from bderiv import BDerivative, plot\n"
-        "from bderiv.examples import planar_table\n"
-        "bd = BDerivative(*planar_table())\n"
-        "rows = [{'n': 2, 'method': 'bderiv', 'seconds_per_query': 1e-8}]\n"
-        "for draw, arg in ((plot.corner_field, bd), (plot.triangulation, bd),\n"
-        "                  (plot.tangent_circle, bd), (plot.pieces, bd), (plot.scaling, rows)):\n"
-        "    try:\n"
-        "        draw(arg)\n"
-        "    except ImportError as e:\n"
-        "        print(draw.__name__, e)\n"
-    )
-    lines = _run(code).splitlines()
-    names = ["corner_field", "triangulation", "tangent_circle", "pieces", "scaling"]
-    assert [line.split()[0] for line in lines] == names
-    for line in lines:
-        assert "pip install 'bderiv[plot]'" in line
 
 
 # the corner models of a 2-D system with additive corners F[mask] = F0 + sum_{k in mask} A[k]

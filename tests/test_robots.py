@@ -9,9 +9,6 @@ O(eps). The agreement per order is printed (``pytest -s``).
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -205,15 +202,6 @@ def test_bad_input_is_refused_by_name(solo):
         legged_robot(fixed, ["FL_FOOT"])
     with pytest.raises(ValueError, match="name must be one of"):
         quadruped("solo13")
-
-
-def test_the_package_imports_without_pinocchio():
-    code = ("import sys; sys.modules['pinocchio'] = None\n"
-            "import bderiv.robots as r\n"
-            "try:\n    r.quadruped()\nexcept ImportError as err:\n    print(err)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True).stdout
-    assert "pip install 'bderiv[robots]'" in out
 
 
 @pytest.mark.slow
