@@ -1,10 +1,14 @@
 """Where a cold start's compilation goes: ``python benchmarks/compile_profile.py [N]``.
 
-Run with an empty cache (``NUMBA_CACHE_DIR=$(mktemp -d) BDERIV_CACHE_DIR=$(mktemp -d)``):
-compiles and runs the chair's first flow B-derivative (``examples.chair(compiled=True)``,
-``flow_bderivative(x0, t_final)``), the compiled integrator compiled in this process, and
-prints, from numba's compile and pass events, CPU
-time (``time.process_time``: other load on the machine changes it little):
+Run with an empty cache (``NUMBA_CACHE_DIR=$(mktemp -d) BDERIV_CACHE_DIR=$(mktemp -d)``),
+and with ``NUMBA_OPT=1`` for what the integrator's own compiling process does (it runs at
+-O1: :data:`bderiv.models.readiness.COMPILE_OPT`; the chair's functions then compile at -O1
+too); like that process it makes full collections rarer
+(:func:`bderiv.cli.warmup.rarer_full_collections`). Refused where the integrator is in the
+cache already or ``BDERIV_INTEGRATOR=scipy``. It compiles and runs the chair's first flow
+B-derivative (``examples.chair(compiled=True)``, ``flow_bderivative(x0, t_final)``), the
+compiled integrator compiled in this process, and prints, from numba's compile and pass
+events, CPU time (``time.process_time``: other load on the machine changes it little):
 
 - per dispatcher, the N (default 25) most expensive: exclusive seconds (its own
   compilation, nested compilations subtracted), inclusive seconds, compilations, name;
@@ -81,11 +85,16 @@ def main(n):
     event.register("numba:compile", _Compiles())
     event.register("numba:run_pass", _Passes())
     from bderiv import examples
+    from bderiv.cli.warmup import rarer_full_collections
     from bderiv.models import readiness
 
-    # the integrator compiles here at its first use, not in a process of its own (as
-    # ``python -m bderiv compile integrator`` does): this process's events see it
+    if readiness.policy() == "scipy" or readiness.integrator_cached():
+        sys.exit("compile_profile: the integrator is in numba's cache already, or "
+                 "BDERIV_INTEGRATOR=scipy: run with an empty NUMBA_CACHE_DIR, without it")
+    # the integrator compiles in this process at its first use, not in a process of its
+    # own: this process's events see it (as ``python -m bderiv compile integrator`` does)
     readiness.compiling_here()
+    rarer_full_collections()
     start = time.process_time()
     ex = examples.chair(compiled=True)
     ex.system.flow_bderivative(ex.x0, ex.t_final)

@@ -89,6 +89,18 @@ def pytest_configure(config):
     # the notices of first compilations (bderiv._support._compiling) depend on which test runs
     # first on a fresh cache: kept out of the tests' logs (test_compiling turns them on)
     logging.getLogger("bderiv.compiling").setLevel(logging.ERROR)
+    # pytest collects garbage five times at its end, to report exceptions raised in the
+    # finalizers of what the session leaves (_pytest.unraisableexception): each walks a
+    # worker's million objects (4.8 s at the end of the last worker, the other core idle).
+    # Once finds what the session left (the fixtures torn down, even after -x); the four
+    # more find only garbage that a finalizer makes in a cycle (a stash key meant to be
+    # set; another pytest without it collects its own number of times)
+    try:
+        from _pytest.unraisableexception import gc_collect_iterations_key
+    except ImportError:  # pragma: no cover - another pytest
+        pass
+    else:
+        config.stash[gc_collect_iterations_key] = 1
     if not hasattr(config, "workerinput"):  # the main process: the integrator compiles
         from bderiv.models import readiness  # meanwhile, while the workers start
 
@@ -214,7 +226,7 @@ def pytest_runtest_protocol(item, nextitem):
     reach: every full collection walked all of it again (docs/design.md, "The
     collector"). Frozen objects are not in ``gc.get_objects()``: a test that looks for
     objects there thaws them first (``gc.unfreeze()``; the next file's end freezes again).
-    :func:`pytest_sessionfinish` thaws them for pytest's last collections."""
+    :func:`pytest_sessionfinish` thaws them for pytest's last collection."""
     yield
     if nextitem is None or nextitem.path != item.path:
         gc.collect()
@@ -222,22 +234,14 @@ def pytest_runtest_protocol(item, nextitem):
 
 
 def pytest_sessionfinish(session, exitstatus):
-    """Thaw the objects :func:`pytest_runtest_protocol` froze and collect once (what the
-    session fixtures' teardown left unreachable is collected, and an exception its
-    finalizers raise reaches pytest's report of unraisable exceptions), then freeze what
-    is still alive again: pytest's own five collections at the end
-    (``_pytest.unraisableexception``) then walk only what is made after, not the million
-    objects a worker holds (4.8 of a worker's last 5 s, the other core idle; the main
-    process 0.7 s). Before that, with ``BDERIV_SPECIALIZATIONS=<folder>`` set, write this
-    process's table of compiled signatures of bderiv's dispatchers there
+    """Thaw the objects :func:`pytest_runtest_protocol` froze (pytest's own collection at
+    the end, which reports exceptions raised in finalizers, sees every object: one,
+    :func:`pytest_configure`); then, with ``BDERIV_SPECIALIZATIONS=<folder>`` set, write
+    this process's table of compiled signatures of bderiv's dispatchers there
     (``tools/specializations.py``, issue 36: one file per pytest-xdist worker, merged by
     the tool)."""
     gc.unfreeze()  # first: the table's dispatchers are found by gc.get_objects()
-    try:
-        _write_specializations()
-    finally:
-        gc.collect()
-        gc.freeze()
+    _write_specializations()
 
 
 def _write_specializations():
