@@ -241,10 +241,6 @@ def pytest_sessionfinish(session, exitstatus):
     (``tools/specializations.py``, issue 36: one file per pytest-xdist worker, merged by
     the tool)."""
     gc.unfreeze()  # first: the table's dispatchers are found by gc.get_objects()
-    _write_specializations()
-
-
-def _write_specializations():
     folder = os.environ.get("BDERIV_SPECIALIZATIONS")
     if not folder:
         return
