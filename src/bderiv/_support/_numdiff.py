@@ -32,6 +32,7 @@ from .._limits import (
     TARGET_RTOL,
 )
 from .._numerics import SCALE_FLOOR
+from ._validate import all_finite
 
 #: levels of one run (steps H .. H / 2**(LEVELS - 1)), each two calls of the function.
 LEVELS = 8
@@ -193,20 +194,24 @@ def complex_step(fun, x, m, strict=True):
 
 
 def _complex_columns(fun, x, h, m):
-    """The columns of :func:`complex_step` (None where ``fun`` fails on complex input)."""
-    J = np.empty((m, x.shape[0]))
-    y = x.astype(np.complex128)
+    """The columns of :func:`complex_step` (None where ``fun`` fails on complex input).
+
+    Row j of ``Y`` is ``x + i h_j e_j``, each call's own row (what ``fun`` does to its
+    input touches nothing else); the outputs are stacked once at the end (the integrator
+    of a model without ``field_jacobian`` calls this at every stage)."""
+    d = x.shape[0]
+    Y = np.diag(1j * h) + x
+    outs = []
     try:
-        for j in range(x.shape[0]):
-            y[j] = complex(x[j], h[j])
-            out = fun(y.copy())
-            y[j] = x[j]
-            if np.shape(out) != (m,):
+        for y in Y:
+            out = fun(y)
+            if getattr(out, "shape", None) != (m,) and np.shape(out) != (m,):
                 return None
-            J[:, j] = np.imag(out) / h[j]
+            outs.append(out)
+        J = np.ascontiguousarray(np.array(outs, dtype=np.complex128).reshape(d, m).imag.T) / h
     except Exception:  # noqa: BLE001 - any refusal of complex input: not usable
         return None
-    return J if np.isfinite(J).all() else None
+    return J if all_finite(J) else None
 
 
 def directional(fun, x, v, scale=1.0) -> Derivative:

@@ -38,8 +38,9 @@ class _EventValues:
 
     def __call__(self, y):
         x = y[: self.system.dim]
-        if self.key is None or not np.array_equal(self.key, x):
-            self.key, self.value = x.copy(), self.system.eval_events(x)
+        key = x.tobytes()  # the same bits: the same values (a NaN too, -0.0 apart from 0.0)
+        if key != self.key:
+            self.key, self.value = key, self.system.eval_events(x)
         return self.value
 
     def terminal_events(self, mask):
