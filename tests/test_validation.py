@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from reference import random_system, ref_apply
 
 from bderiv import BDerivative
+from bderiv._support._validate import all_finite
 
 DH2 = np.eye(2)
 F2 = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]])
@@ -356,3 +359,22 @@ def test_fast_paths_false_means_no_fast_path():
     assert slow._fast_paths is False and fast._fast_paths is True
     expected = np.array([ref_apply(DH2, F2, v) for v in V])
     np.testing.assert_allclose(slow(V), expected, rtol=1e-13, atol=1e-13)
+
+
+# --------------------------------------------------------------------------------------
+# The finiteness test every check uses (a sum where it can), against NumPy's element-wise one
+# --------------------------------------------------------------------------------------
+#: values whose sums overflow, cancel to NaN, or stay finite next to a non-finite entry
+_EDGES = st.sampled_from([np.inf, -np.inf, np.nan, 1.7e308, -1.7e308, 0.0, -0.0, 5e-324])
+
+
+@given(st.integers(1, 40), st.lists(st.tuples(st.integers(0, 39), _EDGES), max_size=4),
+       st.integers(0, 2**32 - 1))
+def test_all_finite_is_numpys_elementwise_test(size, edges, seed):
+    """Sizes on both sides of the Python sum's limit (32), with infinities of both signs
+    (whose sum is NaN), NaNs, and values whose sum overflows among finite ones."""
+    arr = np.random.default_rng(seed).standard_normal(size)
+    for i, value in edges:
+        arr[i % size] = value
+    for a in (arr, arr.reshape(1, -1), arr[::2], np.full(5000, arr[0])):
+        assert all_finite(a) == bool(np.isfinite(a).all()), a
