@@ -100,6 +100,21 @@ def test_complex_step_jacobian_closed_form():
     np.testing.assert_allclose(J, [[2e-100, 3.0]], rtol=1e-15)
 
 
+def test_complex_step_jacobian_of_a_function_that_reuses_its_output():
+    """A function that fills and returns one buffer at every call (the last call's values
+    are all a stacked output would hold) gets every column; and one of three outputs from
+    two coordinates (m != d)."""
+    buf = np.empty(3, dtype=np.complex128)
+
+    def fun(y):
+        buf[0], buf[1], buf[2] = y[0] * y[1], y[0] ** 2, np.sin(y[1])
+        return buf
+
+    J = complex_step_jacobian(fun, [2.0, 3.0])
+    np.testing.assert_allclose(J, [[3.0, 2.0], [4.0, 0.0], [0.0, np.cos(3.0)]], rtol=1e-15)
+    assert J.flags.c_contiguous and J.dtype == np.float64
+
+
 def test_complex_step_jacobian_refuses_a_function_without_complex_input():
     with pytest.raises(TypeError, match=r"fun does not take complex input \(it raised "
                                         r"(ComplexWarning|TypeError)"):

@@ -196,21 +196,25 @@ def complex_step(fun, x, m, strict=True):
 def _complex_columns(fun, x, h, m):
     """The columns of :func:`complex_step` (None where ``fun`` fails on complex input).
 
-    Row j of ``Y`` is ``x + i h_j e_j``, each call's own row (what ``fun`` does to its
-    input touches nothing else); the outputs are stacked once at the end (the integrator
-    of a model without ``field_jacobian`` calls this at every stage)."""
+    Each call gets a fresh copy of ``x`` (signed zeros kept) with ``i h_j`` added to entry
+    j, and its output's imaginary part is copied out at once (a function that returns one
+    buffer it reuses gives the right columns); rows are divided by the steps and turned
+    into columns once at the end (the integrator of a model without ``field_jacobian``
+    calls this at every stage)."""
     d = x.shape[0]
-    Y = np.diag(1j * h) + x
-    outs = []
+    base = x.astype(np.complex128)
+    rows = np.empty((d, m))
     try:
-        for y in Y:
+        for j in range(d):
+            y = base.copy()
+            y[j] = complex(x[j], h[j])
             out = fun(y)
             if getattr(out, "shape", None) != (m,) and np.shape(out) != (m,):
                 return None
-            outs.append(out)
-        J = np.ascontiguousarray(np.array(outs, dtype=np.complex128).reshape(d, m).imag.T) / h
+            rows[j] = np.imag(out)
     except Exception:  # noqa: BLE001 - any refusal of complex input: not usable
         return None
+    J = np.ascontiguousarray((rows / h[:, None]).T)
     return J if all_finite(J) else None
 
 
