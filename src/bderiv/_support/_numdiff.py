@@ -197,24 +197,23 @@ def _complex_columns(fun, x, h, m):
     """The columns of :func:`complex_step` (None where ``fun`` fails on complex input).
 
     Each call gets a fresh copy of ``x`` (signed zeros kept) with ``i h_j`` added to entry
-    j, and its output's imaginary part is copied out at once (a function that returns one
-    buffer it reuses gives the right columns); rows are divided by the steps and turned
-    into columns once at the end (the integrator of a model without ``field_jacobian``
-    calls this at every stage)."""
-    d = x.shape[0]
+    j, and its output's imaginary part is copied into column j at once (a function that
+    returns one buffer it reuses gives the right columns); the columns are divided by the
+    steps once at the end (the integrator of a model without ``field_jacobian`` calls
+    this at every stage)."""
     base = x.astype(np.complex128)
-    rows = np.empty((d, m))
+    J = np.empty((m, x.shape[0]))
     try:
-        for j in range(d):
+        for j in range(x.shape[0]):
             y = base.copy()
             y[j] = complex(x[j], h[j])
             out = fun(y)
             if getattr(out, "shape", None) != (m,) and np.shape(out) != (m,):
                 return None
-            rows[j] = np.imag(out)
+            J[:, j] = np.imag(out)
     except Exception:  # noqa: BLE001 - any refusal of complex input: not usable
         return None
-    J = np.ascontiguousarray((rows / h[:, None]).T)
+    J /= h
     return J if all_finite(J) else None
 
 
