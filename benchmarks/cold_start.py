@@ -26,6 +26,11 @@ symbolic cache beside it), and reports wall seconds as each child measures them:
 - with ``--demo``: ``python -m bderiv demo`` with the cache empty, its first line's time and
   its total.
 
+``--pairs N`` runs only target 2's two cases, diffrax's first Jacobian and a new model's
+first flow B-derivative (the library's cache warmed once first), N times one after the
+other, and prints each pair's ratio against the target's quarter: both sides move by a
+third within an hour on a shared machine, so one pair says little.
+
 A benchmark, not a test: cold runs take minutes on two cores, and their times move with the
 machine's load, so the rows are read side by side (same run, same load), and the load is
 printed.
@@ -260,11 +265,32 @@ def demo(env, timeout):
     return {"first_line": first, "wall": time.perf_counter() - start}
 
 
+def pairs(count: int, env: dict, folder: pathlib.Path, timeout: float) -> list[tuple]:
+    """Target 2's cases alternated ``count`` times: ``[(diffrax_first, new_model_first)]``,
+    each printed with its ratio as it comes."""
+    out = []
+    for k in range(count):
+        jax_first = child(DIFFRAX, env, timeout)["first"]
+        module = f"user_model_{os.getpid()}_pair{k}"
+        (folder / f"{module}.py").write_text(MODEL_SOURCE)
+        model_first = child(NEW_MODEL.format(folder=str(folder), module=module), env,
+                            timeout)["first"]
+        ratio = model_first / jax_first
+        print(f"pair {k + 1}/{count}: diffrax {jax_first:.2f} s, a new model {model_first:.2f}"
+              f" s, ratio {ratio:.3f} ({'within' if ratio <= 0.25 else 'over'} a quarter),"
+              f" load {os.getloadavg()[0]:.2f}", flush=True)
+        out.append((jax_first, model_first))
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--demo", action="store_true", help="also the demo, cache empty")
     parser.add_argument("--no-diffrax", action="store_true", help="skip diffrax's case")
     parser.add_argument("--timeout", type=float, default=1800.0)
+    parser.add_argument("--pairs", type=int, default=0, metavar="N",
+                        help="only diffrax's first Jacobian and a new model's first flow "
+                             "B-derivative, N times alternated (target 2)")
     _record.add_argument(parser, "cold_start")
     args = parser.parse_args(argv)
     rows = {}
@@ -273,6 +299,14 @@ def main(argv=None):
                "BDERIV_CACHE_DIR": os.path.join(tmp, "bderiv")}
         print(f"load {os.getloadavg()[0]:.2f}, {os.cpu_count()} CPUs, cache in {tmp}",
               flush=True)
+        if args.pairs:
+            if args.pairs < 0 or args.no_diffrax or args.demo or args.record:
+                parser.error("--pairs N takes a positive N and none of --no-diffrax, --demo,"
+                             " --record")
+            child(CHAIR, env, args.timeout)  # the library's cache warm
+            folder = pathlib.Path(tmp, "models")
+            folder.mkdir()
+            return pairs(args.pairs, env, folder, args.timeout)
         if not args.no_diffrax:
             rows["diffrax: first Jacobian (trace, compile, run)"] = child(DIFFRAX, env,
                                                                          args.timeout)
