@@ -1,6 +1,7 @@
 """The optional dependencies (the extras and the test and docs tools of pyproject.toml): no
 module of the package imports one, and a function that needs a missing extra says which
-extra to install.
+extra to install. The same process also reports the package's cached kernels that would
+read numba's unchecked cache files.
 
 One fresh process answers every check (a Python interpreter and the package's import cost
 about 1.5 s of CPU each; these checks took five): it imports every module of the package
@@ -61,6 +62,15 @@ _PROBE = textwrap.dedent("""
             importlib.import_module(name)
     report = {{"modules": len(names),
                "imported": [name for name in {optional!r} if name in sys.modules]}}
+    from numba.core.dispatcher import Dispatcher
+    from bderiv._kernels._cache import hardened
+    report["unchecked"] = sorted(
+        name + "." + value.py_func.__qualname__
+        for name, module in list(sys.modules.items())
+        if name.split(".")[0] == "bderiv" and module is not None
+        for value in vars(module).values()
+        if isinstance(value, Dispatcher) and value.stats.cache_path is not None
+        and not hardened(value))
 
     def refusals(extra, calls):
         sys.modules[extra] = None
@@ -124,6 +134,14 @@ def test_no_module_imports_an_optional_dependency(report):
     files = list(pathlib.Path(bderiv.__file__).parent.rglob("*.py"))
     assert report["modules"] == len(files) - 1  # all but bderiv/__init__.py: none skipped
     assert report["imported"] == []
+
+
+def test_every_cached_kernel_reads_checked_files_however_its_module_is_imported(report):
+    """Every module imported directly (not through ``bderiv``'s names, which harden what
+    is imported so far): each cached top-level kernel of the package reads bderiv's checked
+    cache files, so a damaged entry is compiled again (robots' ``_lie`` read numba's plain
+    files, and one flipped bit broke every later process)."""
+    assert report["unchecked"] == []
 
 
 def test_the_figures_ask_for_matplotlib(report):

@@ -108,6 +108,42 @@ def import_fresh(folder, name):
         sys.modules.pop(name, None)
 
 
+def test_an_entry_whose_data_file_another_save_took_is_a_miss(tmp_path):
+    """Two processes saving two keys of one kernel at once both take the first free data
+    file name; the index written last can name the data file the other wrote. That entry
+    is a miss (compiled again, then saved right), never the other key's code: a float
+    signature ran an int one's machine code, and another CPU's code could run too."""
+    from numba.core.caching import IndexDataCacheFile
+
+    from bderiv._kernels._cache import CheckedCacheFile
+
+    plain = IndexDataCacheFile(str(tmp_path), "probe-1.py311", ("stamp", 1))
+    cache = CheckedCacheFile(plain, "probe", parallel=False)
+    ints, floats = (("int64",), "cpu-a", "code"), (("float64",), "cpu-a", "code")
+    cache.save(ints, "the int64 entry")
+    assert cache.load(ints) == "the int64 entry"
+    # the race's outcome: the other process's index, naming this one's data file
+    cache._save_index({floats: cache._data_name(1)})
+    assert cache.load(floats) is None
+    assert cache.load(ints) is None  # not in that index: compiled again too
+    cache.save(floats, "the float64 entry")
+    cache.save(ints, "the int64 entry")
+    assert cache.load(floats) == "the float64 entry"
+    assert cache.load(ints) == "the int64 entry"
+
+
+def test_numba_disable_jit_is_refused_by_name():
+    """``NUMBA_DISABLE_JIT=1`` makes ``njit`` return plain functions: bderiv's kernels and
+    compiled integrator cannot run, and said so by an AttributeError on a dispatcher."""
+    out = subprocess.run([sys.executable, "-c", "import bderiv; bderiv.examples.chair()"],
+                         capture_output=True, text=True, timeout=300,
+                         env=dict(os.environ, NUMBA_DISABLE_JIT="1"))
+    assert out.returncode != 0
+    assert "ImportError: bderiv needs numba's compiler, and NUMBA_DISABLE_JIT is set" in \
+        out.stderr, out.stderr[-2000:]
+    assert "undecorated" in out.stderr
+
+
 def test_damaged_cache_of_a_users_function_is_named(tmp_path):
     """A user's ``cache=True`` field whose numba cache is truncated: every later process
     raised ``UnpicklingError`` (or "field was compiled for [] only") from the first

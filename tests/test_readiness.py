@@ -40,7 +40,7 @@ def stand_in(tmp_path, monkeypatch):
     monkeypatch.setattr(readiness, "DISPATCHERS", (mod.part,))
     monkeypatch.setattr(readiness, "lock_path", lambda: tmp_path / "integrator.lock")
     monkeypatch.setattr(readiness, "_state", {"ready": False, "checked": -float("inf"),
-                                              "child": None, "said": False})
+                                              "child": None, "said": False, "here": False})
     monkeypatch.setattr(readiness, "POLL_SECONDS", 0.0)
     monkeypatch.delenv(readiness.POLICY_VARIABLE, raising=False)
     # the compiling process takes the lock, as `bderiv compile integrator` does (at once:
@@ -118,6 +118,76 @@ def test_the_compiling_process_runs_at_the_integrators_optimisation_level(
         readiness._state["child"].log.close()
     assert said.read_text() == (set_by_caller or readiness.COMPILE_OPT)
     assert readiness.COMPILE_OPT != "3"
+
+
+_FORKED = """
+import os, subprocess, sys, tempfile
+from bderiv.models import readiness
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+child.log = tempfile.TemporaryFile()
+readiness._state["child"] = child  # as start_background leaves it
+pid = os.fork()
+if pid == 0:  # the forked process: the check, then out at once
+    code = 1
+    try:
+        code = 0 if (readiness._state["child"] is None
+                     and readiness._child_ended() is False) else 3
+    finally:
+        os._exit(code)
+_, status = os.waitpid(pid, 0)
+mine = readiness._state["child"] is child and readiness._child_ended() is False
+child.kill()
+child.wait()
+print(os.waitstatus_to_exitcode(status), mine)
+"""
+
+
+@pytest.mark.skipif(not hasattr(readiness.os, "fork"), reason="no fork here")
+def test_a_forked_process_does_not_take_its_parents_compilation_for_its_own():
+    """A process forked after the background compilation started (a multiprocessing pool)
+    inherits its handle, but the process is not its child: polled there, it looked ended
+    with status 0, and every such worker warned and compiled the integrator itself. (In a
+    fresh interpreter: this one has threads that a fork must not copy.)"""
+    out = subprocess.run([sys.executable, "-c", _FORKED], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["0", "True"], out.stdout + out.stderr[-2000:]
+
+
+def test_the_compiling_process_runs_compiled_whatever_the_policy(stand_in, monkeypatch):
+    """``BDERIV_INTEGRATOR=scipy python -m bderiv compile``: the process that compiles the
+    integrator runs its workload on it (on scipy it compiled nothing and said it had)."""
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "scipy")
+    assert readiness.integrator_ready() is False
+    readiness.compiling_here()
+    assert readiness.integrator_ready() is True and readiness.ready_now() is True
+
+
+def test_compiled_policy_says_that_it_waits_for_another_process(stand_in, monkeypatch,
+                                                                 caplog):
+    import threading
+
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "compiled")
+    caplog.set_level(logging.WARNING, logger="bderiv")
+    held, release = threading.Event(), threading.Event()
+
+    def other_process():  # another open file: flock sees another holder
+        with open(readiness.lock_path(), "a+b") as fh:
+            readiness.fcntl.flock(fh, readiness.fcntl.LOCK_EX)
+            held.set()
+            release.wait(30)
+            readiness.fcntl.flock(fh, readiness.fcntl.LOCK_UN)
+
+    holder = threading.Thread(target=other_process)
+    holder.start()
+    held.wait(30)
+    threading.Timer(0.3, release.set).start()
+    try:
+        assert readiness.integrator_ready() is True
+    finally:
+        release.set()
+        holder.join()
+    assert "waiting for another process that compiles" in caplog.text
 
 
 def test_scipy_policy_and_a_bad_value(stand_in, monkeypatch):

@@ -53,6 +53,8 @@ def test_bad_families_and_process_counts_are_refused_by_name(capsys):
     with pytest.raises(ValueError, match="families must be among integrator, dense, "
                                          "structured, resets, got 'lanes'"):
         warmup.warm_up(["lanes"])
+    with pytest.raises(ValueError, match="families must be among .*, got 'lanes'"):
+        warmup.warm_up("lanes")  # one name: a family, not its letters
     with pytest.raises(ValueError, match="processes must be an integer >= 1, got 0"):
         warmup.warm_up(["dense"], processes=0)
     with pytest.raises(ValueError, match="family must be one of"):

@@ -22,10 +22,15 @@ rewritten; the logger ``bderiv`` warns once per folder, naming it and the first 
 entry), and index and data files carry the sha256 of their content, checked before
 anything is unpickled, so damaged machine code is never run (suffixes ``.bdi``/``.bdc``:
 plain numba never reads them; an index without the digest, an earlier bderiv's, is a
-miss). This is the one guarantee that needs numba internals: numba reads its files in
+miss). Each data file also holds the key it was saved under (signature, CPU, bytecode),
+checked when it is loaded: two processes that save two keys of one kernel at once both
+take the first free file name, and the index of one can end up naming the other's data
+file; that entry is then a miss, compiled again, never the other signature's or another
+CPU's code. This is the one guarantee that needs numba internals: numba reads its files in
 ``numba.core.caching.IndexDataCacheFile``, with no public hook, so the checked file
 subclasses it (``_load_index``, ``_save_index``, ``_load_data``, ``_save_data``, ``load``,
-``save``, ``_index_path``, ``_data_name_pattern``, ``_version``, ``_source_stamp``) and is
+``save``, ``_data_name``, ``_index_path``, ``_data_name_pattern``, ``_version``,
+``_source_stamp``) and is
 put in place as the ``_cache_file`` of the dispatcher's cache. If numba changes these,
 :func:`harden` leaves numba's own files (kernels still cache, without the check) and
 ``tests/test_faults.py`` fails; nothing else here depends on them.
@@ -45,6 +50,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
+import itertools
 import logging
 import os
 import pathlib
@@ -63,6 +69,13 @@ from numba.core.caching import IndexDataCacheFile
 from numba.core.dispatcher import Dispatcher
 
 from .._limits import COMPILE_BYTES, THREAD_EXTRA_BYTES
+
+if numba.config.DISABLE_JIT:  # njit would give plain functions: every kernel call fails
+    raise ImportError(
+        "bderiv needs numba's compiler, and NUMBA_DISABLE_JIT is set (numba.config."
+        "DISABLE_JIT): its kernels and compiled integrator do not run as plain Python. "
+        "Unset NUMBA_DISABLE_JIT; to step through your own model's functions in Python, "
+        "pass them to bderiv undecorated (plain Python functions run on scipy's solve_ivp)")
 
 log = logging.getLogger("bderiv")
 
@@ -97,6 +110,18 @@ def keyed(fn, key: str, name: str | None = None, namespace: dict | None = None, 
     func.__qualname__ = f"{name or fn.__qualname__}.k{key}"
     func.__doc__ = fn.__doc__
     return harden(njit(cache=True, **options)(func))
+
+
+def checked_njit(**options):
+    """The decorator ``njit(cache=True, **options)``, its dispatcher :func:`harden`-ed where it
+    is defined: for a cached kernel outside ``_kernels`` whose compiled code comes from its
+    own file only (numba's own key then suffices), in a module that may be imported after
+    :func:`harden_all` ran."""
+
+    def decorate(fn):
+        return harden(njit(cache=True, **options)(fn))
+
+    return decorate
 
 
 def rekey(dispatcher, key: str):
@@ -138,7 +163,7 @@ class CheckedCacheFile(IndexDataCacheFile):
         # process when it cannot create them: asked before the first one is loaded
         threads = self._parallel and not _THREADS_CHECKED
         try:
-            data = super().load(key)
+            data = self._load_entry(key)
         except OSError as exc:  # unreadable (permissions, I/O): a miss, not damage
             log.debug("bderiv: kernel cache not read (%s: %s)", type(exc).__name__, exc)
             data = None
@@ -154,9 +179,35 @@ class CheckedCacheFile(IndexDataCacheFile):
             _threads_checked()
         return data
 
-    def save(self, key, data):
+    def _load_entry(self, key):
+        """numba's ``load``, the key saved with the data checked: another key's data (two
+        saves at once that took one file name) is a miss."""
+        name = self._load_index().get(key)
+        if name is None:
+            return None
         try:
-            super().save(key, data)
+            saved, data = self._load_data(name)
+        except FileNotFoundError:  # removed while the index still names it
+            return None
+        if saved != key:
+            log.debug("bderiv: %s holds another entry of %s; compiled again", name,
+                      self._qualname)
+            return None
+        return data
+
+    def save(self, key, data):
+        """numba's ``save`` (the index names the entry's data file, the first free name),
+        the key saved with the data."""
+        try:
+            overloads = self._load_index()
+            name = overloads.get(key)
+            if name is None:
+                taken = set(overloads.values())
+                name = next(n for n in map(self._data_name, itertools.count(1))
+                            if n not in taken)
+                overloads[key] = name
+                self._save_index(overloads)
+            self._save_data(name, (key, data))
         except Exception as exc:  # noqa: BLE001 - a cache that cannot be written is no cache
             log.debug("bderiv: not cached (%s: %s)", type(exc).__name__, exc)
 
@@ -217,7 +268,7 @@ class CheckedCacheFile(IndexDataCacheFile):
 
 
 #: how a checked index file starts; the sha256 of the rest follows, then numba's index
-INDEX_MAGIC = b"bderiv-index-sha256\n"
+INDEX_MAGIC = b"bderiv-index-sha256-keyed\n"
 
 #: cache folders already warned about in this process
 _WARNED: set = set()

@@ -149,8 +149,8 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
 
     Parameters
     ----------
-    families : sequence of str
-        Some of :data:`FAMILIES`.
+    families : str or sequence of str
+        One or some of :data:`FAMILIES`.
     processes : int, optional
         Families compiled at once (default ``len(os.sched_getaffinity(0))``).
     progress : callable ``progress(message)``, optional
@@ -165,7 +165,7 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
     KeyboardInterrupt
         Ctrl-C: the families' processes are stopped first.
     """
-    families = list(families)
+    families = [families] if isinstance(families, str) else list(families)
     for name in families:
         if name not in _WORK:
             raise ValueError(f"families must be among {', '.join(FAMILIES)}, got {name!r}")

@@ -25,8 +25,9 @@ from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from .._kernels._cache import checked_njit
 from .._limits import BLAS_SIZE, NUMPY_CHUNK
 
 
@@ -276,7 +277,7 @@ def measure_blas_rate(rng=None, size: int = BLAS_SIZE, repeat: int = 5) -> float
     return 2 * size**3 / best_time(lambda: blas_yardstick(A, B, C), repeat).wall
 
 
-@njit(parallel=True, cache=True)
+@checked_njit(parallel=True)
 def copy_yardstick(V, W):
     """W[:] = V on all numba threads: the streaming limit of any map that reads V and
     writes W (the lane kernels' target is a small multiple of it)."""

@@ -26,8 +26,9 @@ from __future__ import annotations
 
 import time
 
-import numba
 import numpy as np
+
+from .._kernels._cache import checked_njit
 
 __all__ = ["APEX", "LABELS", "apex_section", "quadruped", "quadruped_figure",
            "quadruped_orbit", "quadruped_summary", "summary_text"]
@@ -94,7 +95,7 @@ def quadruped(**values):
                           params={p[n]: P[n] for n in P}, velocities=v, flags=flags)
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def apex_section(x):
     """The apex section ``-vz``: crossed upward when the body starts to fall (compiled:
     the compiled integrator watches it at every step)."""

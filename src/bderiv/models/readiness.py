@@ -27,9 +27,12 @@ runs compiled keeps doing so).
 
 The lock (``fcntl.flock`` on a file beside the driver's cache index) makes one process
 compile while the others wait or go on with scipy; the compiling process checks the cache
-again once it holds the lock. Where ``fcntl`` is missing (Windows) or a background process
-cannot be started, the integrator is compiled in the process that needs it, as numba
-does by itself.
+again once it holds the lock. Where ``fcntl`` is missing (Windows), a process that needs
+the integrator runs ``python -m bderiv compile integrator`` and waits for it (no lock to
+share a background compilation by); where no process can be started, the integrator is
+compiled in the process that needs it, as numba does by itself. A process forked from
+one that started the background compilation (a ``multiprocessing`` pool) does not own
+that process: it reads the lock and the disk cache like any other.
 
 Only :func:`integrator_ready` is called on the run's path (through ``ModelCalls.compiled``):
 while the integrator is not ready it looks at the disk at most every
@@ -75,7 +78,18 @@ DISPATCHERS = (drive_stretch, run_stretches)
 #: at -O1")
 COMPILE_OPT = "1"
 
-_state = {"ready": False, "checked": -float("inf"), "child": None, "said": False}
+_state = {"ready": False, "checked": -float("inf"), "child": None, "said": False,
+          "here": False}
+
+
+def _forget_child() -> None:
+    """In a forked process: the background compilation is its parent's child, not its own
+    (``poll`` would take a foreign process for one that ended with status 0)."""
+    _state["child"] = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_child)
 
 
 def policy() -> str:
@@ -183,8 +197,9 @@ def start_background(nice: bool = True) -> bool | None:
 
 def compiling_here() -> None:
     """Mark the integrator ready in this process: the process that compiles it
-    (``python -m bderiv compile integrator``, holding the lock) runs it compiled."""
-    _state["ready"] = True
+    (``python -m bderiv compile integrator``, holding the lock) runs it compiled, whatever
+    ``BDERIV_INTEGRATOR`` says (``scipy`` would compile nothing)."""
+    _state["ready"] = _state["here"] = True
 
 
 def ready_now() -> bool:
@@ -192,15 +207,20 @@ def ready_now() -> bool:
     call of a process looks: :func:`integrator_ready`); runs look when they start."""
     if _state["checked"] == -float("inf"):
         return integrator_ready()
-    return _state["ready"] and policy() != "scipy"
+    return _state["here"] or (_state["ready"] and policy() != "scipy")
 
 
 def _wait_for_integrator() -> None:
     """Compile the integrator in the foreground (policy ``compiled``), or wait for the
     process that compiles it; a compilation that fails there is left to numba here. The
     compiling process takes the lock itself: it is not held here meanwhile."""
-    with compile_lock(wait=True):  # another process compiling: its end
+    with compile_lock(wait=False) as free:
         pass
+    if not free and fcntl is not None and lock_path() is not None:
+        _log.warning("bderiv: waiting for another process that compiles the compiled "
+                     "integrator for this machine (once: about one to two minutes)")
+        with compile_lock(wait=True):  # its end
+            pass
     if integrator_cached():
         return
     _log.warning("bderiv: compiling the compiled integrator for this machine (once: "
@@ -230,6 +250,8 @@ def integrator_ready() -> bool:
     """Whether compiled models run on the compiled integrator now (see the module
     docstring for the policies); the first call that finds it missing starts its
     compilation (``auto``) or waits for it (``compiled``)."""
+    if _state["here"]:
+        return True
     chosen = policy()
     if chosen == "scipy":
         return False
@@ -241,8 +263,9 @@ def integrator_ready() -> bool:
     _state["checked"] = now
     if integrator_cached():
         _state["ready"] = True
-        if _state["child"] is not None:  # its error output is not needed (it is kept:
-            _state["child"].log.close()  # still ending, it is not waited for here)
+        if _state["child"] is not None:  # its error output is not needed; reaped if it
+            _state["child"].log.close()  # has ended (still ending, not waited for here)
+            _state["child"].poll()
         if _state["said"]:
             _log.warning("bderiv: the compiled integrator is ready; compiled models run on it "
                          "from the next run on")

@@ -28,8 +28,9 @@ harmless to a simulation but stalls the variational equation's step control (ste
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from .._kernels._cache import checked_njit
 
 #: below this squared angle the coefficients come from their Taylor series (the closed
 #: forms lose up to 1e-16 / theta^4 relative there: 1e-12 at theta = 0.1)
@@ -48,7 +49,7 @@ def base_configuration(q_ref, xi) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def configuration(q_ref, x, nv):
     """``q = integrate(q_ref, x[:nv])`` (nq,) of a free-flyer then one-coordinate joints
     (compiled)."""
@@ -59,7 +60,7 @@ def configuration(q_ref, x, nv):
     return q
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _base_into(q_ref, xi, out):
     """:func:`base_configuration` into ``out[:7]``."""
     t2 = xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]
@@ -92,7 +93,7 @@ def _base_into(q_ref, xi, out):
     out[6] = w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _coefficients_one(t2):
     """``a, b, c`` of Q and ``g`` of ``J_l3^-1`` (module docstring) of one real or
     complex theta^2: a = (t - sin t)/t^3, b = (t^2 + 2 cos t - 2)/(2 t^4),
@@ -108,7 +109,7 @@ def _coefficients_one(t2):
             (2 * t - 3 * s + t * co) / (2 * t2**2 * t), 1 / t2 - (1 + co) / (2 * t * s))
 
 
-@numba.njit(inline="always", cache=True)
+@checked_njit(inline="always")
 def put(out, r0, c0, M):
     """``out[r0:r0 + M.shape[0], c0:c0 + M.shape[1]] = M`` by loops (an array assigned
     into a slice compiles numba's shape-mismatch error and its string formatting, seconds
@@ -119,14 +120,14 @@ def put(out, r0, c0, M):
             out[r0 + i, c0 + j] = M[i, j]
 
 
-@numba.njit(inline="always", cache=True)
+@checked_njit(inline="always")
 def put1(out, i0, v):
     """``out[i0:i0 + v.size] = v`` by a loop (see :func:`put`)."""
     for i in range(v.shape[0]):
         out[i0 + i] = v[i]
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _skew_one(w):
     out = np.zeros((3, 3), dtype=w.dtype)
     out[0, 1], out[0, 2], out[1, 2] = -w[2], w[1], -w[0]
@@ -134,7 +135,7 @@ def _skew_one(w):
     return out
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _mm(A, B):
     """A 3 x 3 product by loops (numba's ``@`` of complex matrices goes to BLAS)."""
     out = np.zeros((3, 3), dtype=A.dtype)
@@ -147,7 +148,7 @@ def _mm(A, B):
     return out
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _rate_matrix(xi):
     """:func:`se3_rate_matrix`, compiled for float64 and complex128 ``xi`` (6,)."""
     rho, phi = -xi[:3], -xi[3:]  # J_r(xi) = J_l(-xi)
@@ -168,13 +169,13 @@ def _rate_matrix(xi):
     return out
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _cr(a0, a1, a2, b0, b1, b2):
     """``a x b`` of scalars (real or complex) as a tuple."""
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _rate_times(x0, x1, x2, x3, x4, x5, nu):
     """``Jr(xi)^-1 nu`` (a 6-tuple) of ``xi = (x0 .. x5)``, real or complex scalars, by
     cross products (:func:`_rate_matrix` applied to ``nu`` without its matrices: no
@@ -209,7 +210,7 @@ def _rate_times(x0, x1, x2, x3, x4, x5, nu):
     return (y0 - s0 / 2 + g * t0, y1 - s1 / 2 + g * t1, y2 - s2 / 2 + g * t2, w0, w1, w2)
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def _rate_jacobian_xi(xi, nu):
     """d(Jr(xi)^-1 nu)/dxi (6, 6) by six complex steps."""
     out = np.empty((6, 6))
@@ -224,7 +225,7 @@ def _rate_jacobian_xi(xi, nu):
     return out
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def rate_inverse(xi):
     """``Jr(xi)`` (6, 6), the inverse of :func:`se3_rate_matrix` of real ``xi`` in closed
     form: ``J_l(-xi) = [[J_l3, Q], [0, J_l3]]`` at ``(-rho, -phi)`` (Barfoot's eqs.
@@ -251,7 +252,7 @@ def rate_inverse(xi):
     return out
 
 
-@numba.njit(cache=True)
+@checked_njit()
 def rate(xi, nu):
     """``Jr(xi)^-1 nu`` (6,) of real ``xi``, ``nu`` (6,) (compiled)."""
     r = _rate_times(xi[0], xi[1], xi[2], xi[3], xi[4], xi[5], nu)
