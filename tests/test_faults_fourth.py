@@ -6,6 +6,7 @@ map once per client."""
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 import pathlib
 import re
@@ -108,7 +109,7 @@ def import_fresh(folder, name):
         sys.modules.pop(name, None)
 
 
-def test_an_entry_whose_data_file_another_save_took_is_a_miss(tmp_path):
+def test_an_entry_whose_data_file_another_save_took_is_a_miss(tmp_path, caplog):
     """Two processes saving two keys of one kernel at once both take the first free data
     file name; the index written last can name the data file the other wrote. That entry
     is a miss (compiled again, then saved right), never the other key's code: a float
@@ -117,6 +118,7 @@ def test_an_entry_whose_data_file_another_save_took_is_a_miss(tmp_path):
 
     from bderiv._kernels._cache import CheckedCacheFile
 
+    caplog.set_level(logging.WARNING, logger="bderiv")
     plain = IndexDataCacheFile(str(tmp_path), "probe-1.py311", ("stamp", 1))
     cache = CheckedCacheFile(plain, "probe", parallel=False)
     ints, floats = (("int64",), "cpu-a", "code"), (("float64",), "cpu-a", "code")
@@ -130,6 +132,14 @@ def test_an_entry_whose_data_file_another_save_took_is_a_miss(tmp_path):
     cache.save(ints, "the int64 entry")
     assert cache.load(floats) == "the float64 entry"
     assert cache.load(ints) == "the int64 entry"
+    # a data file without its key (an earlier bderiv's, beside a current index): a miss
+    cache._save_data(cache._data_name(1), ("a", "tuple", "of", "numba's"))  # floats' file
+    assert cache.load(floats) is None
+    assert cache.load(ints) == "the int64 entry"
+    # an earlier source's entry under the same key (read between a save's index and data)
+    cache._save_data(cache._data_name(2), (("stamp", 0), ints, "an earlier source's"))
+    assert cache.load(ints) is None
+    assert caplog.records == []  # not taken for damage
 
 
 def test_numba_disable_jit_is_refused_by_name():

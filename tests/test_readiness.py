@@ -13,6 +13,7 @@ import logging
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -40,7 +41,8 @@ def stand_in(tmp_path, monkeypatch):
     monkeypatch.setattr(readiness, "DISPATCHERS", (mod.part,))
     monkeypatch.setattr(readiness, "lock_path", lambda: tmp_path / "integrator.lock")
     monkeypatch.setattr(readiness, "_state", {"ready": False, "checked": -float("inf"),
-                                              "child": None, "said": False, "here": False})
+                                              "child": None, "said": False, "here": False,
+                                              "foreign": None})
     monkeypatch.setattr(readiness, "POLL_SECONDS", 0.0)
     monkeypatch.delenv(readiness.POLICY_VARIABLE, raising=False)
     # the compiling process takes the lock, as `bderiv compile integrator` does (at once:
@@ -123,19 +125,24 @@ def test_the_compiling_process_runs_at_the_integrators_optimisation_level(
 _FORKED = """
 import os, subprocess, sys, tempfile
 from bderiv.models import readiness
-child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-child.log = tempfile.TemporaryFile()
-readiness._state["child"] = child  # as start_background leaves it
+# as start_background leaves it (the only reference: dropped in the forked process)
+readiness._state["child"] = subprocess.Popen([sys.executable, "-c",
+                                              "import time; time.sleep(60)"])
+readiness._state["child"].log = tempfile.TemporaryFile()
+started = readiness._state["child"].pid
 pid = os.fork()
 if pid == 0:  # the forked process: the check, then out at once
     code = 1
     try:
         code = 0 if (readiness._state["child"] is None
-                     and readiness._child_ended() is False) else 3
+                     and readiness._child_ended() is False
+                     and readiness._state["foreign"] == started
+                     and readiness._foreign_running()) else 3
     finally:
         os._exit(code)
 _, status = os.waitpid(pid, 0)
-mine = readiness._state["child"] is child and readiness._child_ended() is False
+child = readiness._state["child"]
+mine = child is not None and child.pid == started and readiness._child_ended() is False
 child.kill()
 child.wait()
 print(os.waitstatus_to_exitcode(status), mine)
@@ -146,12 +153,28 @@ print(os.waitstatus_to_exitcode(status), mine)
 def test_a_forked_process_does_not_take_its_parents_compilation_for_its_own():
     """A process forked after the background compilation started (a multiprocessing pool)
     inherits its handle, but the process is not its child: polled there, it looked ended
-    with status 0, and every such worker warned and compiled the integrator itself. (In a
-    fresh interpreter: this one has threads that a fork must not copy.)"""
-    out = subprocess.run([sys.executable, "-c", _FORKED], capture_output=True, text=True,
-                         timeout=120)
+    with status 0, and every such worker warned and compiled the integrator itself. It
+    keeps the pid, to start no compilation of its own while that one runs. (In a fresh
+    interpreter: this one has threads that a fork must not copy.)"""
+    out = subprocess.run([sys.executable, "-X", "dev", "-c", _FORKED], capture_output=True,
+                         text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["0", "True"], out.stdout + out.stderr[-2000:]
+    assert "ResourceWarning" not in out.stderr, out.stderr[-2000:]  # the handle, its file
+
+
+def test_the_background_process_is_waited_for_once_it_has_ended(stand_in):
+    """It runs its workload after the integrator is in the cache; the calls that follow
+    wait for its end (a zombie for the rest of the process's life before)."""
+    assert readiness.integrator_ready() is False
+    child = readiness._state["child"]
+    deadline = time.monotonic() + 120
+    while not readiness.integrator_cached() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    while readiness._state["child"] is not None and time.monotonic() < deadline:
+        assert readiness.integrator_ready() is True
+        time.sleep(0.05)
+    assert readiness._state["child"] is None and child.returncode == 0
 
 
 def test_the_compiling_process_runs_compiled_whatever_the_policy(stand_in, monkeypatch):

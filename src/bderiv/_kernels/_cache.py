@@ -22,8 +22,8 @@ rewritten; the logger ``bderiv`` warns once per folder, naming it and the first 
 entry), and index and data files carry the sha256 of their content, checked before
 anything is unpickled, so damaged machine code is never run (suffixes ``.bdi``/``.bdc``:
 plain numba never reads them; an index without the digest, an earlier bderiv's, is a
-miss). Each data file also holds the key it was saved under (signature, CPU, bytecode),
-checked when it is loaded: two processes that save two keys of one kernel at once both
+miss). Each data file also holds the source stamp and key it was saved under (signature,
+CPU, bytecode), checked when it is loaded: two processes that save two keys of one kernel at once both
 take the first free file name, and the index of one can end up naming the other's data
 file; that entry is then a miss, compiled again, never the other signature's or another
 CPU's code. This is the one guarantee that needs numba internals: numba reads its files in
@@ -180,24 +180,26 @@ class CheckedCacheFile(IndexDataCacheFile):
         return data
 
     def _load_entry(self, key):
-        """numba's ``load``, the key saved with the data checked: another key's data (two
-        saves at once that took one file name) is a miss."""
+        """numba's ``load``, the source stamp and key saved with the data checked: another
+        key's data (two saves at once that took one file name), an earlier source's (read
+        between a save's index and its data) or an earlier bderiv's is a miss."""
         name = self._load_index().get(key)
         if name is None:
             return None
         try:
-            saved, data = self._load_data(name)
+            entry = self._load_data(name)
         except FileNotFoundError:  # removed while the index still names it
             return None
-        if saved != key:
+        if not (isinstance(entry, tuple) and len(entry) == 3
+                and entry[:2] == (self._source_stamp, key)):
             log.debug("bderiv: %s holds another entry of %s; compiled again", name,
                       self._qualname)
             return None
-        return data
+        return entry[2]
 
     def save(self, key, data):
         """numba's ``save`` (the index names the entry's data file, the first free name),
-        the key saved with the data."""
+        the source stamp and key saved with the data."""
         try:
             overloads = self._load_index()
             name = overloads.get(key)
@@ -207,7 +209,7 @@ class CheckedCacheFile(IndexDataCacheFile):
                             if n not in taken)
                 overloads[key] = name
                 self._save_index(overloads)
-            self._save_data(name, (key, data))
+            self._save_data(name, (self._source_stamp, key, data))
         except Exception as exc:  # noqa: BLE001 - a cache that cannot be written is no cache
             log.debug("bderiv: not cached (%s: %s)", type(exc).__name__, exc)
 

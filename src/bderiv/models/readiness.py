@@ -32,7 +32,8 @@ the integrator runs ``python -m bderiv compile integrator`` and waits for it (no
 share a background compilation by); where no process can be started, the integrator is
 compiled in the process that needs it, as numba does by itself. A process forked from
 one that started the background compilation (a ``multiprocessing`` pool) does not own
-that process: it reads the lock and the disk cache like any other.
+that process: it starts no other while that one runs, and reads the lock and the disk
+cache like any other.
 
 Only :func:`integrator_ready` is called on the run's path (through ``ModelCalls.compiled``):
 while the integrator is not ready it looks at the disk at most every
@@ -79,13 +80,38 @@ DISPATCHERS = (drive_stretch, run_stretches)
 COMPILE_OPT = "1"
 
 _state = {"ready": False, "checked": -float("inf"), "child": None, "said": False,
-          "here": False}
+          "here": False, "foreign": None}
 
 
 def _forget_child() -> None:
     """In a forked process: the background compilation is its parent's child, not its own
-    (``poll`` would take a foreign process for one that ended with status 0)."""
-    _state["child"] = None
+    (``poll`` would take it for a process that ended with status 0). Its pid is kept, to
+    start no other while it runs (it takes the lock only once its interpreter is up)."""
+    child, _state["child"] = _state["child"], None
+    if child is not None:
+        _state["foreign"] = child.pid
+        child.returncode = -1  # Popen's finalizer then neither warns nor waits for it
+        child.log.close()
+
+
+def _foreign_running() -> bool:
+    """Whether the background compilation a forked process inherited still runs (a
+    zombie, ended but not yet waited for by its parent, does not)."""
+    pid = _state["foreign"]
+    if pid is None:
+        return False
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            running = fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):  # no /proc: whether the pid exists
+        try:
+            os.kill(pid, 0)
+            running = True
+        except OSError:
+            running = False
+    if not running:
+        _state["foreign"] = None
+    return running
 
 
 if hasattr(os, "register_at_fork"):
@@ -256,6 +282,9 @@ def integrator_ready() -> bool:
     if chosen == "scipy":
         return False
     if _state["ready"]:
+        child = _state["child"]  # the background process, after its workload: waited for
+        if child is not None and child.poll() is not None:
+            _state["child"] = None
         return True
     now = time.monotonic()
     if now - _state["checked"] < POLL_SECONDS:
@@ -263,9 +292,8 @@ def integrator_ready() -> bool:
     _state["checked"] = now
     if integrator_cached():
         _state["ready"] = True
-        if _state["child"] is not None:  # its error output is not needed; reaped if it
-            _state["child"].log.close()  # has ended (still ending, not waited for here)
-            _state["child"].poll()
+        if _state["child"] is not None:  # its error output is not needed (it runs its
+            _state["child"].log.close()  # workload still: waited for by later calls)
         if _state["said"]:
             _log.warning("bderiv: the compiled integrator is ready; compiled models run on it "
                          "from the next run on")
@@ -274,7 +302,8 @@ def integrator_ready() -> bool:
         _wait_for_integrator()
         _state["ready"] = True  # compiled now, or compiled by numba at the first call
         return True
-    if _child_ended() or (_state["child"] is None and start_background() is False):
+    if _child_ended() or (_state["child"] is None and not _foreign_running()
+                          and start_background() is False):
         _state["ready"] = True  # numba compiles it here, at the first call
         return True
     if not _state["said"]:
