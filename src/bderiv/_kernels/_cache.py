@@ -23,15 +23,15 @@ entry), and index and data files carry the sha256 of their content, checked befo
 anything is unpickled, so damaged machine code is never run (suffixes ``.bdi``/``.bdc``:
 plain numba never reads them; an index without the digest, an earlier bderiv's, is a
 miss). Each data file also holds the source stamp and key it was saved under (signature,
-CPU, bytecode), checked when it is loaded: two processes that save two keys of one kernel at once both
-take the first free file name, and the index of one can end up naming the other's data
-file; that entry is then a miss, compiled again, never the other signature's or another
-CPU's code. This is the one guarantee that needs numba internals: numba reads its files in
-``numba.core.caching.IndexDataCacheFile``, with no public hook, so the checked file
-subclasses it (``_load_index``, ``_save_index``, ``_load_data``, ``_save_data``, ``load``,
-``save``, ``_data_name``, ``_index_path``, ``_data_name_pattern``, ``_version``,
-``_source_stamp``) and is
-put in place as the ``_cache_file`` of the dispatcher's cache. If numba changes these,
+CPU, bytecode), checked when it is loaded: two processes that save two keys of one kernel
+at once both take the first free file name, and the index of one can end up naming the
+other's data file; that entry is then a miss, compiled again, never the other
+signature's or another CPU's code. This is the one guarantee that needs numba internals:
+numba reads its files in ``numba.core.caching.IndexDataCacheFile``, with no public hook,
+so the checked file subclasses it (``_load_index``, ``_save_index``, ``_load_data``,
+``_save_data``, ``load``, ``save``, ``_data_name``, ``_index_path``,
+``_data_name_pattern``, ``_version``, ``_source_stamp``) and is put in place as the
+``_cache_file`` of the dispatcher's cache. If numba changes these,
 :func:`harden` leaves numba's own files (kernels still cache, without the check) and
 ``tests/test_faults.py`` fails; nothing else here depends on them.
 
