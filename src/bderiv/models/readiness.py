@@ -177,6 +177,13 @@ def compile_lock(wait: bool = True):
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+def held_elsewhere() -> bool:
+    """Whether another process holds the compilation lock (False where no lock can be
+    had: no ``fcntl``, no cache folder)."""
+    with compile_lock(wait=False) as free:
+        return not free and fcntl is not None and lock_path() is not None
+
+
 def compile_command() -> list[str]:
     """The command that compiles the integrator: this interpreter, ``-m bderiv compile
     integrator`` (in that process itself: ``--here``)."""
@@ -204,9 +211,8 @@ def start_background(nice: bool = True) -> bool | None:
     """Start the compiling process unless another process holds the lock (``nice``: at a
     lower priority than this one): True when started, None when another compiles, False
     when no process could be started."""
-    with compile_lock(wait=False) as free:
-        if not free and fcntl is not None and lock_path() is not None:
-            return None
+    if held_elsewhere():
+        return None
     try:
         log = tempfile.TemporaryFile()  # its error output, read if it fails
         child = subprocess.Popen([*compile_command(), *(["--nice"] if nice else [])],
@@ -240,9 +246,7 @@ def _wait_for_integrator() -> None:
     """Compile the integrator in the foreground (policy ``compiled``), or wait for the
     process that compiles it; a compilation that fails there is left to numba here. The
     compiling process takes the lock itself: it is not held here meanwhile."""
-    with compile_lock(wait=False) as free:
-        pass
-    if not free and fcntl is not None and lock_path() is not None:
+    if held_elsewhere():
         _log.warning("bderiv: waiting for another process that compiles the compiled "
                      "integrator for this machine (once: about one to two minutes)")
         with compile_lock(wait=True):  # its end

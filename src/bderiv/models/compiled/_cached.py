@@ -15,23 +15,21 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from numba import njit
-
 from ... import _numerics
 from ..._kernels import _pointer
-from ..._kernels._cache import harden, rekey_modules, sources_digest
+from ..._kernels._cache import checked_njit, rekey_modules, sources_digest
 
 
 def eager(signature):
     """``njit(signature, cache=True)``, compiled at import, through bderiv's checked cache
-    files (:func:`bderiv._kernels._cache.harden`, given before the compilation: numba's
-    plain ``.nbi``/``.nbc`` files are never read, so a damaged entry is compiled again,
+    files (:func:`bderiv._kernels._cache.checked_njit`, hardened before the compilation:
+    numba's plain ``.nbi``/``.nbc`` files are never read, so a damaged entry is compiled again,
     never run: a flipped bit in a plain ``.nbc`` aborted every later ``import bderiv``).
     Its compilation is then closed (other argument types are refused), as with a
     signature given to ``njit``."""
 
     def decorate(fn):
-        dispatcher = harden(njit(cache=True)(fn))
+        dispatcher = checked_njit()(fn)
         dispatcher.compile(signature)
         dispatcher.disable_compile()
         return dispatcher
