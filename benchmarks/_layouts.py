@@ -68,11 +68,14 @@ def in_unit(value: float, row: dict) -> str:
 
 
 def seconds_case(value, row: dict) -> str:
-    """A cold-start case: its seconds (several joined by " / "), the import's, the
-    second call's."""
+    """A cold-start case: its seconds (several joined by " / "), the import's (and how
+    much of it numba compiled), the second call's."""
     out = " / ".join(f"{v:.3g}" for v in (value if isinstance(value, list) else [value]))
     if row.get("import") is not None:
-        out += f" (+{row['import']:.1f} import)"
+        out += f" (+{row['import']:.1f} import"
+        if row.get("import_compile"):  # numba compiling kernels at their definition
+            out += f", {row['import_compile']:.1f} of it compiling"
+        out += ")"
     if row.get("second") is not None:
         out += f"; the second {row['second']:#.2g}"
     return out

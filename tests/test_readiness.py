@@ -276,3 +276,18 @@ def test_a_fresh_process_answers_before_the_integrator_is_compiled(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["scipy", "True"], (out.stdout, out.stderr[-2000:])
     assert "being compiled in a background process" in out.stderr
+
+
+def test_wait_for_background_waits_for_the_process_this_one_started(stand_in, monkeypatch):
+    """A script that measures what follows, or removes the cache folder, waits for the
+    background process to end: False while it runs (the timeout), True once it has ended
+    (or when none was started)."""
+    assert readiness.wait_for_background(0.01) is True  # none started yet
+    monkeypatch.setattr(readiness, "compile_command", lambda: [
+        sys.executable, "-c", "import time; time.sleep(60)"])
+    assert readiness.start_background() is True
+    child = readiness._state["child"]
+    assert readiness.wait_for_background(0.2) is False and child.poll() is None
+    child.kill()
+    assert readiness.wait_for_background(30) is True and child.poll() is not None
+    child.log.close()

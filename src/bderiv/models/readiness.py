@@ -227,6 +227,22 @@ def start_background(nice: bool = True) -> bool | None:
     return True
 
 
+def wait_for_background(timeout: float | None = None) -> bool:
+    """Wait for the background compilation this process started to end, its workload
+    included (for a script that measures what comes next, or removes the cache folder the
+    compilation writes to): True when it has ended or none was started, False when
+    ``timeout`` seconds passed first. A failure is reported as before, by the next look
+    at the integrator."""
+    child = _state["child"]
+    if child is None:
+        return True
+    try:
+        child.wait(timeout)
+    except subprocess.TimeoutExpired:
+        return False
+    return True
+
+
 def compiling_here() -> None:
     """Mark the integrator ready in this process: the process that compiles it
     (``python -m bderiv compile integrator``, holding the lock) runs it compiled, whatever
