@@ -41,7 +41,6 @@ import gc
 import getpass
 import logging
 import os
-import sys
 import tempfile
 
 import numpy as np
@@ -75,13 +74,6 @@ rarer_full_collections()
 
 
 def pytest_configure(config):
-    # bytecode: every process of the run (the two workers, a nested pytest run, the tests'
-    # subprocesses) imports the package and pytest rewrites the test modules' asserts; where
-    # the machine sets PYTHONDONTWRITEBYTECODE each process compiled them all again (2.2 s
-    # of wall time at each start of the run's two workers). The .pyc files go beside the
-    # sources, where numba's cache goes too; the workers and subprocesses inherit this
-    if os.environ.pop("PYTHONDONTWRITEBYTECODE", None) is not None:
-        sys.dont_write_bytecode = False
     # the generated modules of symbolic models go to a temporary folder of the test runs
     # (kept between runs, so that they are not derived and compiled again each time), not
     # to the user's cache; a BDERIV_CACHE_DIR set by the caller is kept
