@@ -65,7 +65,7 @@ def measure(m: int, rounds: int) -> dict:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--m", type=int, default=50)
+    ap.add_argument("--m", type=int, default=30)
     ap.add_argument("--rounds", type=int, default=5)
     _record.add_argument(ap, "jax_overhead")
     args = ap.parse_args(argv)
