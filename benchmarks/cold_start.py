@@ -22,8 +22,11 @@ caller's ``NUMBA_*``, ``JAX_*`` or ``XLA_*`` settings.
   before the first answer (what every first call paid before the background compilation);
 - a new model, its source never seen (a module written for the run: the chair's equations
   as numba functions under a fresh name), with the library's cache warm: the case of every
-  edit a user makes; and the same equations as plain Python functions (no compilation of
-  the user's code: they run on scipy's integrator);
+  edit a user makes: under ``BDERIV_INTEGRATOR=auto`` its runs start on the functions'
+  Python code ("Python first", :mod:`bderiv.models.calls`), so the child goes on with flow
+  maps until they are compiled (``maps_on_python``, ``until_compiled``) and times one after
+  (``compiled``); and the same equations as plain Python functions (no compilation of the
+  user's code: they run on scipy's integrator);
 - a new corner function (``CornerFunction``, its source never seen), the library's cache
   warm: its first B-derivative's apply, inverse, event times and jvp on 10 and 5,000
   queries (the serial and the parallel drivers);
@@ -138,8 +141,19 @@ import_compile = _compiling[0]
 s = HybridSystem(m.field, m.events, n_events=2, dim=6, event_jacobian=m.event_jacobian)
 D = s.flow_bderivative(m.X0, 0.15)
 t2 = time.perf_counter()
-print(json.dumps({{"import": t1 - t0, "import_compile": import_compile, "first": t2 - t1,
-                  "DV": np.asarray(D(V)).tolist()}}))
+row = {{"import": t1 - t0, "import_compile": import_compile, "first": t2 - t1,
+       "on": "python" if s.calls.python_first else (
+           "compiled" if s.compiled is not None else "scipy"),
+       "DV": np.asarray(D(V)).tolist()}}
+if s.calls.python_first:  # more flow maps until its functions are compiled, and one after
+    k = 0
+    while s.calls.python_first:
+        k += 1
+        s.flow_bderivative(m.X0 + 1e-4 * k, 0.15)
+    t3 = time.perf_counter()
+    s.flow_bderivative(m.X0, 0.15)
+    row.update(maps_on_python=k, until_compiled=t3 - t2, compiled=time.perf_counter() - t3)
+print(json.dumps(row))
 """
 
 NEW_CORNERS = """
@@ -529,8 +543,15 @@ def doc_rows(rows: dict) -> list[dict]:
     out.append(case("bderiv: cache empty, `BDERIV_INTEGRATOR=compiled` (waiting for the "
                     "integrator)", rows["bderiv: chair, cache empty, BDERIV_INTEGRATOR=compiled"],
                     second=False))
-    out.append(case("bderiv: a new model (source never seen), the library's cache warm",
-                    rows["bderiv: a new model, library warm"], second=False))
+    model = rows["bderiv: a new model, library warm"]
+    out.append(case("bderiv: a new model (source never seen), the library's cache warm" + (
+        " (on its Python code: Python first)" if model.get("on") == "python" else ""),
+        model, second=False))
+    if "until_compiled" in model:
+        out.append({"case": f"... flow maps until compiled ({model['maps_on_python']} on "
+                    "Python code, the compilation included) / the next, compiled",
+                    "seconds": [model["until_compiled"], model["compiled"]],
+                    "import": None, "second": None})
     out.append(case("bderiv: the same model's functions in plain Python (none compiled: on "
                     "scipy), the library's cache warm",
                     rows["bderiv: a new model in plain Python, library warm"], second=False))

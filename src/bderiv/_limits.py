@@ -109,6 +109,12 @@ CHECK_ERROR_FACTOR = 8.0
 #: a build (flow map, return map) longer than this, most of it in numerical Jacobians, is
 #: reported at WARNING (``models.calls``; a judgement: a pause a user notices)
 SLOW_BUILD_SECONDS = 2.0
+#: seconds that a new model's numba functions take on their Python code in its runs before
+#: they are compiled (``models.calls.starts_in_python``; about what compiling them takes,
+#: 1.5 to 2.5 s for the chair's): a first answer that needs less comes without compiling
+#: them, and work that needs more spends at most this on Python (docs/design.md, "Python
+#: first")
+PYTHON_FIRST_SECONDS = 1.0
 #: largest number of masks ``check_jacobians`` checks by default (all 2**n up to n = 8;
 #: a judgement of cost: each mask is a Jacobian by differences).
 DEFAULT_MASKS = 1 << 8

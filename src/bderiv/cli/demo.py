@@ -100,8 +100,10 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     report("model", res)
     with phases("flow map"):
         fb = system.flow_bderivative(ex.x0, ex.t_final)
-    # scipy also for a compiled model while the integrator compiles elsewhere
-    res["integrator"] = "scipy" if system.compiled is None else "compiled"
+    # scipy also for a compiled model while the integrator compiles elsewhere, and on
+    # its functions' Python code first where they are not compiled on this machine yet
+    res["integrator"] = "python" if system.calls.python_first else \
+        "scipy" if system.compiled is None else "compiled"
     res["build_seconds"] = phases.without_compiling("flow map")
     res["groups"] = _groups(fb, full)
     if full:

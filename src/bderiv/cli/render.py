@@ -70,6 +70,11 @@ def _integrator(res):
     """Which integrator the simulations ran on (a compiled model's, or scipy)."""
     if not res.get("compiled"):
         return ""
+    if res.get("integrator") == "python":
+        return ("  its field, events and Jacobians are numba functions, not compiled on this "
+                "machine yet: its runs go on their Python code (the code numba compiles) on "
+                "scipy's solve_ivp until that has taken a second, then they are compiled "
+                "(BDERIV_INTEGRATOR=compiled compiles them at once)\n")
     if res.get("integrator") == "scipy":
         return ("  its field, events and Jacobians are numba-compiled functions; the compiled "
                 "integrator is not ready on this machine (being compiled in a background "

@@ -10,16 +10,24 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
 
 import numpy as np
 
+from .. import _limits
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
 from .._support import _numdiff as numdiff
 from .._support._format import format_mask
 from .._support._validate import all_finite, check_real_array
-from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel
-from .readiness import ready_now
+from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
+from .readiness import (
+    PythonTierEnded,
+    compiling_in_this_process,
+    machine_has,
+    policy,
+    ready_now,
+)
 from .user_functions import (
     _appending,
     _contiguous_args,
@@ -33,6 +41,18 @@ _log = logging.getLogger("bderiv")
 
 #: how a Jacobian not given is computed (the first use of each function and mask decides)
 _COMPLEX, _CENTRAL = "complex step", "central differences"
+
+
+def starts_in_python(functions) -> bool:
+    """Whether a model's runs start on its numba functions' Python code: under
+    ``BDERIV_INTEGRATOR=auto`` (the default), when none of its dispatchers is compiled in
+    this process or kept in numba's disk cache for this machine (``cache=True``: it loads
+    in milliseconds): a model just written or edited, or a machine's first use of one,
+    whose compilation would take seconds before the first answer. numba runs the same code
+    as Python under ``NUMBA_DISABLE_JIT``."""
+    dispatchers = [f for f in functions if is_compiled(f)]
+    return policy() == "auto" and bool(dispatchers) and not compiling_in_this_process() \
+        and not any(machine_has(f) for f in dispatchers)
 
 
 def _matches(fun, x, J) -> bool:
@@ -72,16 +92,105 @@ class ModelCalls:
         self._given_event_jacobian = model.event_jacobian
         self._given_reset = model.reset if model.reset_guard is None else self.eval_reset
         self._compiled = None
-        self._field, self._events, self._event_jac, self._field_jac, self._corner_field, \
-            self._reset, self._reset_jac, self._guard = (
-                _appending(_contiguous_args(f), params)
-                for f in (model.field, model.events, model.event_jacobian,
-                          model.field_jacobian, model.corner_field, model.reset,
-                          model.reset_jacobian, model.reset_guard))
+        functions = (model.field, model.events, model.event_jacobian, model.field_jacobian,
+                     model.corner_field, model.reset, model.reset_jacobian, model.reset_guard)
+        self._dispatched = tuple(_appending(_contiguous_args(f), params) for f in functions)
+        # a new model of numba functions starts on their Python code (PYTHON_FIRST_SECONDS)
+        self._python_left = _limits.PYTHON_FIRST_SECONDS if (
+            self._compiled_functions is not None and starts_in_python(functions)) else 0.0
+        # a run on the Python code is its thread's (threading.local: another thread's call
+        # outside a run is not counted, nor raised as a run's end)
+        self._on_python, self._run_here = self._python_left > 0, threading.local()
+        self._use(tuple(_appending(self._budgeted(f), params) for f in functions)
+                  if self._on_python else self._dispatched)
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
         self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
         self._how = {}  # key -> how its numerical Jacobian is computed (_COMPLEX, _CENTRAL)
         self._warned = set()  # the builds whose numerical Jacobians were warned about
+
+    def _use(self, wrappers) -> None:
+        """Evaluate the model by ``wrappers`` (its eight functions, in the order of
+        ``__init__``) from now on."""
+        self._field, self._events, self._event_jac, self._field_jac, self._corner_field, \
+            self._reset, self._reset_jac, self._guard = wrappers
+
+    def _budgeted(self, f):
+        """A numba dispatcher ``f`` called on its Python code: in a run, its time taken
+        from the model's time on Python code, raising
+        :class:`~bderiv.models.readiness.PythonTierEnded` once that is spent, or when the
+        code raises (the cause); outside a run, what the code raises is decided by the
+        compiled function, the model compiled from then on. Anything else (None, a Python
+        function) as it is."""
+        if not is_compiled(f):
+            return f
+        fn, compiled = f.py_func, _contiguous_args(f)
+
+        def call(*args):
+            in_run = getattr(self._run_here, "on", False)
+            if in_run and self._python_left <= 0:
+                raise PythonTierEnded
+            start = time.perf_counter()
+            try:
+                return fn(*args)
+            except Exception as exc:  # noqa: BLE001 - the compiled function decides
+                if any(np.iscomplexobj(a) for a in args):
+                    raise  # complex input refused: the complex step's fallback decides
+                if in_run:
+                    raise PythonTierEnded from exc
+                self.compile_from_now(exc)
+                return compiled(*args)
+            finally:
+                if in_run:
+                    self._python_left -= time.perf_counter() - start
+
+        call.__wrapped__ = fn
+        return call
+
+    @property
+    def python_first(self) -> bool:
+        """Whether the model's runs go on its numba functions' Python code now: a new model
+        (:func:`starts_in_python`) until its runs have taken
+        :data:`bderiv._limits.PYTHON_FIRST_SECONDS`, or until its field is compiled
+        elsewhere (another model of the same functions, a parameter sweep's)."""
+        if self._on_python and self._compiled_functions[0].signatures:
+            self._to_dispatchers("compiled meanwhile, by another model of them")
+        return self._on_python
+
+    @contextlib.contextmanager
+    def python_run(self):
+        """A run on the model's Python code: its evaluations raise
+        :class:`~bderiv.models.readiness.PythonTierEnded` once the model's functions have
+        taken :data:`bderiv._limits.PYTHON_FIRST_SECONDS` in the runs so far (their own
+        time: not the integrator's, nor a library kernel's first compilation)."""
+        if self._python_left == _limits.PYTHON_FIRST_SECONDS:
+            _log.info("bderiv: a new model of numba functions: its runs go on their Python "
+                      "code for %g s of it, then compiled (BDERIV_INTEGRATOR=compiled "
+                      "compiles them at the first use)", self._python_left)
+        self._run_here.on = True
+        try:
+            yield
+        finally:
+            self._run_here.on = False
+            if self._python_left <= 0:
+                self.compile_from_now()
+
+    def compile_from_now(self, cause=None) -> None:
+        """Evaluate the model by its numba functions from now on, and run it on the compiled
+        integrator (``cause``: what their Python code raised, logged)."""
+        self._to_dispatchers(
+            f"their Python code raised {type(cause).__name__}: {cause}" if cause is not None
+            else f"their Python code took {_limits.PYTHON_FIRST_SECONDS:g} s in its runs"
+            if self._python_left <= 0 else "asked")
+
+    def _to_dispatchers(self, reason: str) -> None:
+        """Leave the Python code for the numba functions (``reason`` logged, once)."""
+        if self._on_python:
+            _log.info("bderiv: the model's numba functions are compiled from now on (%s)",
+                      reason)
+        self._on_python = False
+        self._python_left = 0.0
+        self._use(self._dispatched)
+        self._how = {}  # decided on the Python code (the dispatchers take float input)
 
     @property
     def on_compiled_path(self) -> bool:
@@ -96,7 +205,8 @@ class ModelCalls:
         took is logged once, logger ``"bderiv"``, level INFO), else None; None also while
         the compiled integrator is compiled in a background process
         (:mod:`bderiv.models.readiness`: the model's runs then go on scipy)."""
-        if self._compiled is None and self._compiled_functions is not None and ready_now():
+        if self._compiled is None and self._compiled_functions is not None and ready_now() \
+                and not self._on_python:
             start = time.perf_counter()
             field, events, jac = self._compiled_functions
             self._compiled = CompiledModel(field, events, jac, n_events=self.n_events,

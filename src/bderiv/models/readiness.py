@@ -23,7 +23,10 @@ the disk cache does one of three things, chosen by the environment variable
   that must not compile).
 
 The variable is read when a model's compiled functions are first needed (a model that
-runs compiled keeps doing so).
+runs compiled keeps doing so). Under ``auto`` a new model of numba functions (none compiled
+in the process, none kept on disk) also starts on their Python code, the code numba
+compiles, until that code has taken a second in its runs: its first answers come without
+compiling it (:func:`bderiv.models.calls.starts_in_python`).
 
 The lock (``fcntl.flock`` on a file beside the driver's cache index) makes one process
 compile while the others wait or go on with scipy; the compiling process checks the cache
@@ -79,6 +82,14 @@ DISPATCHERS = (drive_stretch, run_stretches)
 #: at -O1")
 COMPILE_OPT = "1"
 
+class PythonTierEnded(BaseException):
+    """Raised in a run on a new model's Python code when its time there is spent
+    (:data:`bderiv._limits.PYTHON_FIRST_SECONDS`), or when that code raised (its
+    cause: numba may compile what Python refuses): the run is made again on the compiled
+    functions. A BaseException, as KeyboardInterrupt: no ``except Exception`` on the way
+    takes it for the model's own error."""
+
+
 _state = {"ready": False, "checked": -float("inf"), "child": None, "said": False,
           "here": False, "foreign": None}
 
@@ -127,7 +138,7 @@ def policy() -> str:
     return value
 
 
-def _machine_has(dispatcher) -> bool:
+def machine_has(dispatcher) -> bool:
     """Whether ``dispatcher`` is compiled in this process or its disk cache holds an entry
     for this machine (numba's codegen magic tuple: the CPU and its features)."""
     if dispatcher.signatures:
@@ -142,7 +153,7 @@ def _machine_has(dispatcher) -> bool:
 
 def integrator_cached() -> bool:
     """Whether every part of the integrator is compiled here or in the disk cache."""
-    return all(_machine_has(d) for d in DISPATCHERS)
+    return all(machine_has(d) for d in DISPATCHERS)
 
 
 def lock_path() -> pathlib.Path | None:
@@ -248,6 +259,12 @@ def compiling_here() -> None:
     (``python -m bderiv compile integrator``, holding the lock) runs it compiled, whatever
     ``BDERIV_INTEGRATOR`` says (``scipy`` would compile nothing)."""
     _state["ready"] = _state["here"] = True
+
+
+def compiling_in_this_process() -> bool:
+    """Whether this process compiles the integrator (:func:`compiling_here`): its models
+    run compiled from their first use, their functions compiled for the disk cache."""
+    return _state["here"]
 
 
 def ready_now() -> bool:

@@ -46,7 +46,7 @@ from ..events.locate import settle
 from ..events.sides import check_carried, check_sides
 from ..events.stopcalls import StopCalls, local_view
 from ..events.zeno import ImpactWatch
-from ..readiness import integrator_ready
+from ..readiness import PythonTierEnded, integrator_ready
 from .compiled_path import CompiledStretches
 from .options import check_options
 from .record import ENDS, STEPS, RunLog, check_t_eval
@@ -164,6 +164,18 @@ def run(system, x0, t_final, *, options, variational=False, section=None,
     RuntimeError
         When the integrator fails or the run has more than ``max_groups`` event groups.
     """
+    if getattr(system, "python_first", False):  # a new model of numba functions
+        try:
+            with system.python_run():
+                return _run(system, x0, t_final, options, variational, section, max_groups,
+                            record)
+        except PythonTierEnded as ended:  # its time spent, or its Python code raised
+            system.compile_from_now(ended.__cause__)
+    return _run(system, x0, t_final, options, variational, section, max_groups, record)
+
+
+def _run(system, x0, t_final, options, variational, section, max_groups, record):
+    """:func:`run`'s work, on the integrator the model takes now."""
     _tell_start(system, x0)
     if getattr(system, "on_compiled_path", False):
         integrator_ready()  # the compiled integrator, or scipy while it compiles
