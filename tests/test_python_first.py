@@ -111,18 +111,47 @@ def test_on_scipy_after_its_python_code_the_jacobians_are_right(auto, monkeypatc
     assert np.allclose(D(V), expected, rtol=1e-6, atol=1e-9)
 
 
-def test_models_of_functions_compiled_since_run_compiled(auto, monkeypatch):
-    """Two models of the same functions (a parameter sweep's): once one has compiled them,
-    the other's next run is compiled too, its own time on Python not waited for."""
-    functions = _functions()
-    second = _model(functions)  # a second on Python code ahead of it
+def test_the_models_of_one_field_share_its_time_on_python(auto, monkeypatch):
+    """A sweep's models (one field, other parameters or starts): once the runs of one have
+    spent the field's time on Python code, every model of it runs compiled."""
     monkeypatch.setattr(_limits, "PYTHON_FIRST_SECONDS", 1e-4)
-    first = _model(functions)
+    functions = _functions()
+    first, second = _model(functions), _model(functions)
     assert first.calls.python_first and second.calls.python_first
-    first.simulate(X0, T_FINAL)  # its time spent: compiled
+    first.simulate(X0, T_FINAL)  # the time spent: compiled
     assert not first.calls.python_first and functions[0].signatures
+    assert not second.calls.python_first
     second.simulate(X0, T_FINAL)
-    assert not second.calls.python_first and second.compiled is not None
+    assert second.compiled is not None
+
+
+def test_a_field_compiled_meanwhile_runs_compiled(auto):
+    functions = _functions()
+    model = _model(functions)
+    assert model.calls.python_first
+    functions[0](X0.copy(), 0)  # compiled by its user
+    assert not model.calls.python_first
+
+
+def test_a_batch_goes_on_threads_once_compiled(auto, monkeypatch):
+    """simulate_many runs a new model's runs one by one on its Python code, then decides
+    again: the rest of the batch on the compiled integrator's threads."""
+    from bderiv.models.integrate import many
+
+    monkeypatch.setattr(_limits, "PYTHON_FIRST_SECONDS", 1e-4)
+    workers, original = [], many._Workers.__init__
+
+    def spy(self, one, indices, count):
+        workers.append((indices, count))
+        original(self, one, indices, count)
+
+    monkeypatch.setattr(many._Workers, "__init__", spy)
+    model = _model(_functions())
+    X = X0 + 1e-3 * np.arange(40)[:, None] * np.array([0.0, 1.0])
+    out = model.simulate_many(X, T_FINAL)
+    assert workers and workers[0][0].start >= 1  # the first run on Python code, alone
+    reference = _model(_functions()).scipy_path().simulate_many(X, T_FINAL)
+    assert np.allclose(out.x_final, reference.x_final, rtol=1e-8, atol=1e-10)
 
 
 def test_python_code_that_raises_is_run_compiled(auto, caplog):
@@ -133,7 +162,7 @@ def test_python_code_that_raises_is_run_compiled(auto, caplog):
     assert model.calls.python_first
     D = model.flow_bderivative(X0, T_FINAL)
     assert not model.calls.python_first and model.compiled is not None
-    assert "NotImplementedError: this runs compiled only" in caplog.text
+    assert "NotImplementedError: this runs compiled only" in caplog.text  # a warning
     assert np.allclose(D(V), _compiled_answer(), rtol=1e-9, atol=1e-12)
 
 

@@ -12,8 +12,10 @@ import contextlib
 import logging
 import threading
 import time
+import weakref
 
 import numpy as np
+from numba.core import event as numba_event
 
 from .. import _limits
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
@@ -41,6 +43,35 @@ _log = logging.getLogger("bderiv")
 
 #: how a Jacobian not given is computed (the first use of each function and mask decides)
 _COMPLEX, _CENTRAL = "complex step", "central differences"
+
+
+#: the time left to a field's Python code, shared by every model of that field (a sweep's
+#: models): ``{field dispatcher: [seconds]}``
+_LEFT = weakref.WeakKeyDictionary()
+#: seconds this process has spent in numba's compilations (the outermost ones): a run on
+#: Python code is charged its time without them (a library kernel's first compilation)
+_COMPILING = [0.0]
+
+
+class _CompileClock(numba_event.Listener):
+    """Adds the time of each outermost numba compilation to :data:`_COMPILING` (numba
+    compiles under one lock: the depth is the process's)."""
+
+    def __init__(self):
+        self.depth, self.start = 0, 0.0
+
+    def on_start(self, event):
+        self.depth += 1
+        if self.depth == 1:
+            self.start = time.perf_counter()
+
+    def on_end(self, event):
+        self.depth -= 1
+        if self.depth == 0:
+            _COMPILING[0] += time.perf_counter() - self.start
+
+
+numba_event.register("numba:compile", _CompileClock())
 
 
 def starts_in_python(functions) -> bool:
@@ -95,12 +126,15 @@ class ModelCalls:
         functions = (model.field, model.events, model.event_jacobian, model.field_jacobian,
                      model.corner_field, model.reset, model.reset_jacobian, model.reset_guard)
         self._dispatched = tuple(_appending(_contiguous_args(f), params) for f in functions)
-        # a new model of numba functions starts on their Python code (PYTHON_FIRST_SECONDS)
-        self._python_left = _limits.PYTHON_FIRST_SECONDS if (
-            self._compiled_functions is not None and starts_in_python(functions)) else 0.0
+        # a new model of numba functions starts on their Python code (PYTHON_FIRST_SECONDS,
+        # shared by the models of one field)
+        self._on_python = self._compiled_functions is not None and \
+            starts_in_python(functions)
+        self._left = _LEFT.setdefault(model.field, [_limits.PYTHON_FIRST_SECONDS]) \
+            if self._on_python else [0.0]
         # a run on the Python code is its thread's (threading.local: another thread's call
-        # outside a run is not counted, nor raised as a run's end)
-        self._on_python, self._run_here = self._python_left > 0, threading.local()
+        # outside a run is not charged, nor raised as a run's end)
+        self._run_here = threading.local()
         self._use(tuple(_appending(self._budgeted(f), params) for f in functions)
                   if self._on_python else self._dispatched)
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
@@ -115,21 +149,19 @@ class ModelCalls:
             self._reset, self._reset_jac, self._guard = wrappers
 
     def _budgeted(self, f):
-        """A numba dispatcher ``f`` called on its Python code: in a run, its time taken
-        from the model's time on Python code, raising
-        :class:`~bderiv.models.readiness.PythonTierEnded` once that is spent, or when the
-        code raises (the cause); outside a run, what the code raises is decided by the
-        compiled function, the model compiled from then on. Anything else (None, a Python
-        function) as it is."""
+        """A numba dispatcher ``f`` called on its Python code: in a run, raising
+        :class:`~bderiv.models.readiness.PythonTierEnded` at a call once the run has spent
+        the time left to the Python code, or when the code raises (the cause); outside a
+        run, what the code raises is decided by the compiled function, the model compiled
+        from then on. Anything else (None, a Python function) as it is."""
         if not is_compiled(f):
             return f
         fn, compiled = f.py_func, _contiguous_args(f)
 
         def call(*args):
-            in_run = getattr(self._run_here, "on", False)
-            if in_run and self._python_left <= 0:
+            in_run = getattr(self._run_here, "start", None) is not None
+            if in_run and self._run_spent() > self._left[0]:
                 raise PythonTierEnded
-            start = time.perf_counter()
             try:
                 return fn(*args)
             except Exception as exc:  # noqa: BLE001 - the compiled function decides
@@ -139,9 +171,6 @@ class ModelCalls:
                     raise PythonTierEnded from exc
                 self.compile_from_now(exc)
                 return compiled(*args)
-            finally:
-                if in_run:
-                    self._python_left -= time.perf_counter() - start
 
         call.__wrapped__ = fn
         return call
@@ -152,35 +181,51 @@ class ModelCalls:
         (:func:`starts_in_python`) until its runs have taken
         :data:`bderiv._limits.PYTHON_FIRST_SECONDS`, or until its field is compiled
         elsewhere (another model of the same functions, a parameter sweep's)."""
-        if self._on_python and self._compiled_functions[0].signatures:
-            self._to_dispatchers("compiled meanwhile, by another model of them")
+        if self._on_python and (self._compiled_functions[0].signatures or
+                                self._left[0] <= 0):
+            self._to_dispatchers("compiled meanwhile, for another model of them"
+                                 if self._left[0] > 0 else "their time on Python code spent "
+                                 "by another model of them")
         return self._on_python
 
     @contextlib.contextmanager
     def python_run(self):
         """A run on the model's Python code: its evaluations raise
-        :class:`~bderiv.models.readiness.PythonTierEnded` once the model's functions have
-        taken :data:`bderiv._limits.PYTHON_FIRST_SECONDS` in the runs so far (their own
-        time: not the integrator's, nor a library kernel's first compilation)."""
-        if self._python_left == _limits.PYTHON_FIRST_SECONDS:
+        :class:`~bderiv.models.readiness.PythonTierEnded` once the runs on it so far, of
+        every model of its field, have taken :data:`bderiv._limits.PYTHON_FIRST_SECONDS`
+        (their wall time, numba's compilations left out: a library kernel's first)."""
+        if self._left[0] == _limits.PYTHON_FIRST_SECONDS:
             _log.info("bderiv: a new model of numba functions: its runs go on their Python "
-                      "code for %g s of it, then compiled (BDERIV_INTEGRATOR=compiled "
-                      "compiles them at the first use)", self._python_left)
-        self._run_here.on = True
+                      "code for %g s, then compiled (BDERIV_INTEGRATOR=compiled compiles "
+                      "them at the first use)", self._left[0])
+        here = self._run_here
+        here.start, here.compiling = time.perf_counter(), _COMPILING[0]
         try:
             yield
         finally:
-            self._run_here.on = False
-            if self._python_left <= 0:
+            self._left[0] -= self._run_spent()
+            here.start = None
+            if self._left[0] <= 0:
                 self.compile_from_now()
+
+    def _run_spent(self) -> float:
+        """The seconds this thread's run on Python code has taken, numba's compilations
+        meanwhile left out."""
+        here = self._run_here
+        return time.perf_counter() - here.start - (_COMPILING[0] - here.compiling)
 
     def compile_from_now(self, cause=None) -> None:
         """Evaluate the model by its numba functions from now on, and run it on the compiled
         integrator (``cause``: what their Python code raised, logged)."""
+        if cause is not None and self._on_python:  # numba's code may not check it
+            _log.warning("bderiv: the Python code of the model's numba functions raised "
+                         "%s: %s; they run compiled from now on (numba compiles code that "
+                         "Python refuses, and does not check array bounds: where the function "
+                         "is wrong there, fix it)", type(cause).__name__, cause)
         self._to_dispatchers(
-            f"their Python code raised {type(cause).__name__}: {cause}" if cause is not None
-            else f"their Python code took {_limits.PYTHON_FIRST_SECONDS:g} s in its runs"
-            if self._python_left <= 0 else "asked")
+            f"their Python code raised {type(cause).__name__}" if cause is not None
+            else f"its runs on their Python code took {_limits.PYTHON_FIRST_SECONDS:g} s"
+            if self._left[0] <= 0 else "asked")
 
     def _to_dispatchers(self, reason: str) -> None:
         """Leave the Python code for the numba functions (``reason`` logged, once)."""
@@ -188,7 +233,6 @@ class ModelCalls:
             _log.info("bderiv: the model's numba functions are compiled from now on (%s)",
                       reason)
         self._on_python = False
-        self._python_left = 0.0
         self._use(self._dispatched)
         self._how = {}  # decided on the Python code (the dispatchers take float input)
 
@@ -309,7 +353,8 @@ class ModelCalls:
                 self._checked.add(key)
             return J
         start = time.perf_counter()
-        how = self._how.get(key)
+        table = self._how  # the decisions of these functions: a switch to the compiled ones
+        how = table.get(key)  # meanwhile (another thread, a probe) starts a new table
         # the first time with NumPy's discarded imaginary parts refused; once the step has
         # matched a central difference, without that check's warnings context
         J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0],
@@ -317,7 +362,7 @@ class ModelCalls:
         calls = 0 if how == _CENTRAL else x.size
         if how is None:  # the first time for this key: held to a central difference once
             how = _COMPLEX if J is not None and _matches(fun, x, J) else _CENTRAL
-            self._how[key] = how
+            table[key] = how
             if jac_name not in self._cost:
                 _log.info("%s not given: computing it by %s (%s); pass %s to save that time",
                           jac_name, how, "d calls of the function per Jacobian"

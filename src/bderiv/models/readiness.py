@@ -23,7 +23,7 @@ the disk cache does one of three things, chosen by the environment variable
   that must not compile).
 
 The variable is read when a model's compiled functions are first needed (a model that
-runs compiled keeps doing so). Under ``auto`` a new model of numba functions (none compiled
+runs compiled keeps doing so), and when a model of numba functions is made. Under ``auto`` a new model of numba functions (none compiled
 in the process, none kept on disk) also starts on their Python code, the code numba
 compiles, until that code has taken a second in its runs: its first answers come without
 compiling it (:func:`bderiv.models.calls.starts_in_python`).

@@ -167,6 +167,9 @@ def run_many(system, X0, lead, t_final, *, options, max_groups,
 
     try:
         first = 0
+        # a new model's runs on its Python code one by one, until they are compiled
+        while first < m and getattr(system, "python_first", False):
+            first += _serial(one, range(first, first + 1), trajectories, report, X0, lead)
         # runs alone until one has checked the event Jacobian (whose check may change how
         # the model computes it): the order of the loop of simulate
         while parallel(first) and not compiled_stops(system, section):
