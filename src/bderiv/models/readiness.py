@@ -23,10 +23,11 @@ the disk cache does one of three things, chosen by the environment variable
   that must not compile).
 
 The variable is read when a model's compiled functions are first needed (a model that
-runs compiled keeps doing so), and when a model of numba functions is made. Under ``auto`` a new model of numba functions (none compiled
-in the process, none kept on disk) also starts on their Python code, the code numba
-compiles, until that code has taken a second in its runs: its first answers come without
-compiling it (:func:`bderiv.models.calls.starts_in_python`).
+runs compiled keeps doing so), and when a model of numba functions is made. Under ``auto``
+a new model of numba functions (none compiled in the process, none kept on disk) also
+starts on their Python code, the code numba compiles, until its runs on it have taken a
+second: its first answers come without compiling it
+(:func:`bderiv.models.calls.starts_in_python`).
 
 The lock (``fcntl.flock`` on a file beside the driver's cache index) makes one process
 compile while the others wait or go on with scipy; the compiling process checks the cache
