@@ -14,12 +14,12 @@ caller's ``NUMBA_*``, ``JAX_*`` or ``XLA_*`` settings.
   in a process with the cache empty (``first``), and a second one (``second``): on scipy
   while the compiled integrator compiles in a background process (``on scipy``; the default
   ``BDERIV_INTEGRATOR=auto``, :mod:`bderiv.models.readiness`), then, in the same process,
-  the time until it is in the cache (``ready``, from the first call), then, once the
-  chair's functions have left their Python code (``maps_on_python`` flow maps: they were
-  not on this machine either, "Python first"), the first flow map on the compiled
-  integrator (``switch``: loading it, compiling the functions) and the next
-  (``compiled``); each child waits for its
-  background compilation to end before it exits, so that none runs into the next case;
+  the time until it is in the cache (``ready``, from the first call), then flow maps until
+  the chair's functions have left their Python code (they were not on this machine either:
+  "Python first"; ``maps_on_python`` of them in ``until_compiled``, their compilation
+  included), the first flow map after (``switch``) and the next (``compiled``); each child
+  waits for its background compilation to end before it exits, so that none runs into the
+  next case;
 - the same in a second process, the cache now warm (loading only), and the warm call;
 - the chair with the cache empty and ``BDERIV_INTEGRATOR=compiled``: the integrator compiled
   before the first answer (what every first call paid before the background compilation);
@@ -124,16 +124,16 @@ if on == "scipy":  # the integrator compiles in a background process: until it i
     t4 = time.perf_counter()
     while not readiness.integrator_ready():  # this process's look (once a second)
         time.sleep(0.05)
-    k = 0  # its functions on their Python code (not compiled on this machine yet): until
-    while ex.system.calls.python_first:  # they are compiled, flow maps on them
+    t5, k = time.perf_counter(), 0  # its functions on their Python code (not compiled on
+    while ex.system.calls.python_first:  # this machine yet): flow maps until they compile
         k += 1
         ex.system.flow_bderivative(ex.x0 + 1e-4 * k, ex.t_final)
-    row.update(maps_on_python=k)
-    t5 = time.perf_counter()
-    ex.system.flow_bderivative(ex.x0, ex.t_final)  # it loads, the model's calls compile
     t6 = time.perf_counter()
+    ex.system.flow_bderivative(ex.x0, ex.t_final)  # on the compiled integrator
+    t7 = time.perf_counter()
     ex.system.flow_bderivative(ex.x0 + 1e-3, ex.t_final)
-    row.update(ready=t4 - t1, switch=t6 - t5, compiled=time.perf_counter() - t6)
+    row.update(ready=t4 - t1, maps_on_python=k, until_compiled=t6 - t5, switch=t7 - t6,
+               compiled=time.perf_counter() - t7)
 readiness.wait_for_background()  # its workload too: none runs into the next case
 print(json.dumps(row))
 """
@@ -543,11 +543,11 @@ def doc_rows(rows: dict) -> list[dict]:
         " (on scipy; the integrator compiling in the background)"
         if empty["on"] == "scipy" else ""), empty))
     if "ready" in empty:
-        out.append({"case": "... the integrator ready (from the first call) / the first flow "
-                    "map on it" + (f" (after {empty['maps_on_python']} more on the functions'"
-                                   " Python code)" if empty.get("maps_on_python") else "")
-                    + " / the next", "seconds": [empty["ready"], empty["switch"],
-                                                 empty["compiled"]],
+        out.append({"case": "... the integrator ready (from the first call) / flow maps "
+                    f"until the chair's functions are compiled ({empty['maps_on_python']} on "
+                    "their Python code, the compilation included) / the first after / the "
+                    "next", "seconds": [empty["ready"], empty["until_compiled"],
+                                        empty["switch"], empty["compiled"]],
                     "import": None, "second": None})
     out.append(case("bderiv: the same, cache warm", rows["bderiv: chair, cache warm"]))
     out.append(case("bderiv: cache empty, `BDERIV_INTEGRATOR=compiled` (waiting for the "

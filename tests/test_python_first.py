@@ -111,18 +111,38 @@ def test_on_scipy_after_its_python_code_the_jacobians_are_right(auto, monkeypatc
     assert np.allclose(D(V), expected, rtol=1e-6, atol=1e-9)
 
 
-def test_the_models_of_one_field_share_its_time_on_python(auto, monkeypatch):
+def test_the_models_of_one_field_share_its_time_on_python(auto, caplog):
     """A sweep's models (one field, other parameters or starts): once the runs of one have
-    spent the field's time on Python code, every model of it runs compiled."""
-    monkeypatch.setattr(_limits, "PYTHON_FIRST_SECONDS", 1e-4)
+    spent the field's time on Python code, every model of it runs compiled, before any
+    compilation."""
+    caplog.set_level(logging.INFO, logger="bderiv")
     functions = _functions()
     first, second = _model(functions), _model(functions)
     assert first.calls.python_first and second.calls.python_first
-    first.simulate(X0, T_FINAL)  # the time spent: compiled
-    assert not first.calls.python_first and functions[0].signatures
-    assert not second.calls.python_first
+    first.calls._left[0] = -1e-3  # the second spent by the first model's runs
+    assert not second.calls.python_first and functions[0].signatures == []
+    assert "spent" in caplog.text
     second.simulate(X0, T_FINAL)
     assert second.compiled is not None
+
+
+def test_a_value_error_of_the_python_code_is_the_runs_own(auto):
+    """Raised on purpose (a guard, a check of the model's own), it reaches the caller as
+    the compiled function's would, with nothing compiled for it."""
+
+    def field(x, mask):
+        if mask == 1:
+            raise ValueError("refused after the event")
+        return np.ones_like(x)
+
+    def events(x):
+        return np.array([x[0] - 1.0])
+
+    functions = numba.njit(field), numba.njit(events)
+    model = _model(functions)
+    with pytest.raises(ValueError, match="refused after the event"):
+        model.simulate(X0, T_FINAL)
+    assert functions[0].signatures == []
 
 
 def test_a_field_compiled_meanwhile_runs_compiled(auto):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 import threading
 import time
 import weakref
@@ -48,14 +49,15 @@ _COMPLEX, _CENTRAL = "complex step", "central differences"
 #: the time left to a field's Python code, shared by every model of that field (a sweep's
 #: models): ``{field dispatcher: [seconds]}``
 _LEFT = weakref.WeakKeyDictionary()
-#: seconds this process has spent in numba's compilations (the outermost ones): a run on
-#: Python code is charged its time without them (a library kernel's first compilation)
-_COMPILING = [0.0]
+#: seconds each thread has spent in numba's compilations (the outermost ones), by thread
+#: id: a run on Python code is charged its time without its own thread's compilations (a
+#: library kernel's first)
+_COMPILING = {}
 
 
 class _CompileClock(numba_event.Listener):
-    """Adds the time of each outermost numba compilation to :data:`_COMPILING` (numba
-    compiles under one lock: the depth is the process's)."""
+    """Adds the time of each outermost numba compilation to its thread's entry of
+    :data:`_COMPILING` (numba compiles under one lock: one compilation at a time)."""
 
     def __init__(self):
         self.depth, self.start = 0, 0.0
@@ -66,9 +68,10 @@ class _CompileClock(numba_event.Listener):
             self.start = time.perf_counter()
 
     def on_end(self, event):
-        self.depth -= 1
+        self.depth = max(self.depth - 1, 0)
         if self.depth == 0:
-            _COMPILING[0] += time.perf_counter() - self.start
+            thread = threading.get_ident()
+            _COMPILING[thread] = _COMPILING.get(thread, 0.0) + time.perf_counter() - self.start
 
 
 numba_event.register("numba:compile", _CompileClock())
@@ -140,6 +143,7 @@ class ModelCalls:
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
         self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
         self._how = {}  # key -> how its numerical Jacobian is computed (_COMPLEX, _CENTRAL)
+        self._generation = 0  # of the functions evaluated: one more at the switch to numba's
         self._warned = set()  # the builds whose numerical Jacobians were warned about
 
     def _use(self, wrappers) -> None:
@@ -164,6 +168,8 @@ class ModelCalls:
                 raise PythonTierEnded
             try:
                 return fn(*args)
+            except ValueError:  # raised on purpose (a guard, a check): as compiled
+                raise
             except Exception as exc:  # noqa: BLE001 - the compiled function decides
                 if any(np.iscomplexobj(a) for a in args):
                     raise  # complex input refused: the complex step's fallback decides
@@ -183,9 +189,9 @@ class ModelCalls:
         elsewhere (another model of the same functions, a parameter sweep's)."""
         if self._on_python and (self._compiled_functions[0].signatures or
                                 self._left[0] <= 0):
-            self._to_dispatchers("compiled meanwhile, for another model of them"
-                                 if self._left[0] > 0 else "their time on Python code spent "
-                                 "by another model of them")
+            self._to_dispatchers("compiled meanwhile: by a direct call, or for another "
+                                 "model of them" if self._left[0] > 0 else "their time on "
+                                 "Python code spent, by this model's runs or another's")
         return self._on_python
 
     @contextlib.contextmanager
@@ -199,29 +205,33 @@ class ModelCalls:
                       "code for %g s, then compiled (BDERIV_INTEGRATOR=compiled compiles "
                       "them at the first use)", self._left[0])
         here = self._run_here
-        here.start, here.compiling = time.perf_counter(), _COMPILING[0]
+        outer = getattr(here, "start", None), getattr(here, "compiling", 0.0)
+        here.start = time.perf_counter()
+        here.compiling = _COMPILING.get(threading.get_ident(), 0.0)
         try:
             yield
         finally:
             self._left[0] -= self._run_spent()
-            here.start = None
-            if self._left[0] <= 0:
+            here.start, here.compiling = outer  # a run within a run: the outer one's again
+            if self._left[0] <= 0 and outer[0] is None and sys.exc_info()[0] is None:
                 self.compile_from_now()
 
     def _run_spent(self) -> float:
-        """The seconds this thread's run on Python code has taken, numba's compilations
-        meanwhile left out."""
+        """The seconds this thread's run on Python code has taken, this thread's numba
+        compilations meanwhile left out."""
         here = self._run_here
-        return time.perf_counter() - here.start - (_COMPILING[0] - here.compiling)
+        return time.perf_counter() - here.start - (
+            _COMPILING.get(threading.get_ident(), 0.0) - here.compiling)
 
     def compile_from_now(self, cause=None) -> None:
         """Evaluate the model by its numba functions from now on, and run it on the compiled
         integrator (``cause``: what their Python code raised, logged)."""
-        if cause is not None and self._on_python:  # numba's code may not check it
+        if cause is not None:  # numba's code may not check what Python did
             _log.warning("bderiv: the Python code of the model's numba functions raised "
-                         "%s: %s; they run compiled from now on (numba compiles code that "
-                         "Python refuses, and does not check array bounds: where the function "
-                         "is wrong there, fix it)", type(cause).__name__, cause)
+                         "%s: %s; the run is made again on them compiled, as every run from "
+                         "now on (numba compiles code that Python refuses, but it also skips "
+                         "checks that Python makes, such as array bounds: if the function is "
+                         "wrong there, fix it)", type(cause).__name__, cause)
         self._to_dispatchers(
             f"their Python code raised {type(cause).__name__}" if cause is not None
             else f"its runs on their Python code took {_limits.PYTHON_FIRST_SECONDS:g} s"
@@ -235,6 +245,7 @@ class ModelCalls:
         self._on_python = False
         self._use(self._dispatched)
         self._how = {}  # decided on the Python code (the dispatchers take float input)
+        self._generation += 1
 
     @property
     def on_compiled_path(self) -> bool:
@@ -352,7 +363,7 @@ class ModelCalls:
                 check_given_jacobian(fun, x, J, what(), jac_name)
                 self._checked.add(key)
             return J
-        start = time.perf_counter()
+        start, generation = time.perf_counter(), self._generation
         table = self._how  # the decisions of these functions: a switch to the compiled ones
         how = table.get(key)  # meanwhile (another thread, a probe) starts a new table
         # the first time with NumPy's discarded imaginary parts refused; once the step has
@@ -372,6 +383,8 @@ class ModelCalls:
         if how == _CENTRAL:
             D = numerical_jacobian(fun, x, what(), jac_name)
             J, calls = D.value, calls + D.calls
+        if self._generation != generation:  # the functions switched under it: again, on
+            return self._jacobian(given, key, fun, raw, x, shape, what, jac_name)  # theirs
         cost = self._cost.setdefault(jac_name, [0, 0, 0.0])
         cost[0] += 1
         cost[1] += calls
