@@ -20,7 +20,8 @@ LAYERS = [
     {"examples"},  # ready models: on the analysis, symbolic (quadruped) and plot
     {"plot", "symbolic", "jax", "estimate", "robots"},  # the front ends over the analysis
     {"analysis"},  # flow maps, return maps, orbits, stability, checks; HybridSystem
-    {"models", "models/calls", "models/user_functions", "models/section"},  # a run's needs
+    {"models", "models/calls", "models/user_functions", "models/section",
+     "models/python_first"},  # a run's needs
     {"models/integrate", "models/readiness"},  # the run, over both integrators
     {"models/events"},  # the event logic at a stop, for both integrators
     {"models/compiled"},  # the compiled integrator

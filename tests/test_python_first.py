@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from bderiv import HybridSystem, _limits
-from bderiv.models import calls, readiness
+from bderiv.models import calls, python_first, readiness
 
 X0 = np.array([0.0, 0.2])
 T_FINAL = 2.0
@@ -119,7 +119,7 @@ def test_the_models_of_one_field_share_its_time_on_python(auto, caplog):
     functions = _functions()
     first, second = _model(functions), _model(functions)
     assert first.calls.python_first and second.calls.python_first
-    first.calls._left[0] = -1e-3  # the second spent by the first model's runs
+    first.calls._time.left[0] = -1e-3  # the second spent by the first model's runs
     assert not second.calls.python_first and functions[0].signatures == []
     assert "spent" in caplog.text
     second.simulate(X0, T_FINAL)
@@ -200,21 +200,21 @@ def test_only_new_uncached_models_under_auto_start_in_python(monkeypatch):
         return x
 
     monkeypatch.setenv(readiness.POLICY_VARIABLE, "auto")
-    assert calls.starts_in_python([numba.njit(f), None])
-    assert not calls.starts_in_python([f])  # a Python model: always Python
+    assert python_first.starts_in_python([numba.njit(f), None])
+    assert not python_first.starts_in_python([f])  # a Python model: always Python
     cached = numba.njit(cache=True)(f)  # what its disk cache holds decides
     monkeypatch.setattr(readiness, "machine_has", lambda d: d is cached)
-    monkeypatch.setattr(calls, "machine_has", readiness.machine_has)
-    assert not calls.starts_in_python([cached])  # loads from disk in milliseconds
-    assert calls.starts_in_python([numba.njit(cache=True)(f)])  # not on disk yet
+    monkeypatch.setattr(python_first, "machine_has", readiness.machine_has)
+    assert not python_first.starts_in_python([cached])  # loads from disk in milliseconds
+    assert python_first.starts_in_python([numba.njit(cache=True)(f)])  # not on disk yet
     monkeypatch.undo()
     monkeypatch.setenv(readiness.POLICY_VARIABLE, "auto")
     compiled = numba.njit(f)
     compiled(np.zeros(2), 0)
-    assert not calls.starts_in_python([compiled])  # compiled in this process already
+    assert not python_first.starts_in_python([compiled])  # compiled in this process already
     monkeypatch.setitem(readiness._state, "here", True)  # the integrator's compiling
-    assert not calls.starts_in_python([numba.njit(f)])  # process: its runs compile it
+    assert not python_first.starts_in_python([numba.njit(f)])  # process: its runs compile it
     monkeypatch.setitem(readiness._state, "here", False)
     for policy in ("compiled", "scipy"):
         monkeypatch.setenv(readiness.POLICY_VARIABLE, policy)
-        assert not calls.starts_in_python([numba.njit(f)])
+        assert not python_first.starts_in_python([numba.njit(f)])

@@ -10,13 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import sys
-import threading
 import time
-import weakref
 
 import numpy as np
-from numba.core import event as numba_event
 
 from .. import _limits
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
@@ -24,13 +20,8 @@ from .._support import _numdiff as numdiff
 from .._support._format import format_mask
 from .._support._validate import all_finite, check_real_array
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
-from .readiness import (
-    PythonTierEnded,
-    compiling_in_this_process,
-    machine_has,
-    policy,
-    ready_now,
-)
+from .python_first import PythonTime, starts_in_python
+from .readiness import ready_now
 from .user_functions import (
     _appending,
     _contiguous_args,
@@ -44,49 +35,6 @@ _log = logging.getLogger("bderiv")
 
 #: how a Jacobian not given is computed (the first use of each function and mask decides)
 _COMPLEX, _CENTRAL = "complex step", "central differences"
-
-
-#: the time left to a field's Python code, shared by every model of that field (a sweep's
-#: models): ``{field dispatcher: [seconds]}``
-_LEFT = weakref.WeakKeyDictionary()
-#: seconds each thread has spent in numba's compilations (the outermost ones), by thread
-#: id: a run on Python code is charged its time without its own thread's compilations (a
-#: library kernel's first)
-_COMPILING = {}
-
-
-class _CompileClock(numba_event.Listener):
-    """Adds the time of each outermost numba compilation to its thread's entry of
-    :data:`_COMPILING` (numba compiles under one lock: one compilation at a time)."""
-
-    def __init__(self):
-        self.depth, self.start = 0, 0.0
-
-    def on_start(self, event):
-        self.depth += 1
-        if self.depth == 1:
-            self.start = time.perf_counter()
-
-    def on_end(self, event):
-        self.depth = max(self.depth - 1, 0)
-        if self.depth == 0:
-            thread = threading.get_ident()
-            _COMPILING[thread] = _COMPILING.get(thread, 0.0) + time.perf_counter() - self.start
-
-
-numba_event.register("numba:compile", _CompileClock())
-
-
-def starts_in_python(functions) -> bool:
-    """Whether a model's runs start on its numba functions' Python code: under
-    ``BDERIV_INTEGRATOR=auto`` (the default), when none of its dispatchers is compiled in
-    this process or kept in numba's disk cache for this machine (``cache=True``: it loads
-    in milliseconds): a model just written or edited, or a machine's first use of one,
-    whose compilation would take seconds before the first answer. numba runs the same code
-    as Python under ``NUMBA_DISABLE_JIT``."""
-    dispatchers = [f for f in functions if is_compiled(f)]
-    return policy() == "auto" and bool(dispatchers) and not compiling_in_this_process() \
-        and not any(machine_has(f) for f in dispatchers)
 
 
 def _matches(fun, x, J) -> bool:
@@ -133,11 +81,7 @@ class ModelCalls:
         # shared by the models of one field)
         self._on_python = self._compiled_functions is not None and \
             starts_in_python(functions)
-        self._left = _LEFT.setdefault(model.field, [_limits.PYTHON_FIRST_SECONDS]) \
-            if self._on_python else [0.0]
-        # a run on the Python code is its thread's (threading.local: another thread's call
-        # outside a run is not charged, nor raised as a run's end)
-        self._run_here = threading.local()
+        self._time = PythonTime(model.field if self._on_python else None)
         self._use(tuple(_appending(self._budgeted(f), params) for f in functions)
                   if self._on_python else self._dispatched)
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
@@ -153,33 +97,18 @@ class ModelCalls:
             self._reset, self._reset_jac, self._guard = wrappers
 
     def _budgeted(self, f):
-        """A numba dispatcher ``f`` called on its Python code: in a run, raising
-        :class:`~bderiv.models.readiness.PythonTierEnded` at a call once the run has spent
-        the time left to the Python code, or when the code raises (the cause); outside a
-        run, what the code raises is decided by the compiled function, the model compiled
-        from then on. Anything else (None, a Python function) as it is."""
+        """A numba dispatcher ``f`` on its Python code (:meth:`PythonTime.budgeted`): what
+        the code raises outside a run is decided by the compiled function, the model
+        compiled from then on. Anything else (None, a Python function) as it is."""
         if not is_compiled(f):
             return f
-        fn, compiled = f.py_func, _contiguous_args(f)
+        compiled = _contiguous_args(f)
 
-        def call(*args):
-            in_run = getattr(self._run_here, "start", None) is not None
-            if in_run and self._run_spent() > self._left[0]:
-                raise PythonTierEnded
-            try:
-                return fn(*args)
-            except ValueError:  # raised on purpose (a guard, a check): as compiled
-                raise
-            except Exception as exc:  # noqa: BLE001 - the compiled function decides
-                if any(np.iscomplexobj(a) for a in args):
-                    raise  # complex input refused: the complex step's fallback decides
-                if in_run:
-                    raise PythonTierEnded from exc
-                self.compile_from_now(exc)
-                return compiled(*args)
+        def outside(exc, args):
+            self.compile_from_now(exc)
+            return compiled(*args)
 
-        call.__wrapped__ = fn
-        return call
+        return self._time.budgeted(f.py_func, outside)
 
     @property
     def python_first(self) -> bool:
@@ -188,40 +117,25 @@ class ModelCalls:
         :data:`bderiv._limits.PYTHON_FIRST_SECONDS`, or until its field is compiled
         elsewhere (another model of the same functions, a parameter sweep's)."""
         if self._on_python and (self._compiled_functions[0].signatures or
-                                self._left[0] <= 0):
+                                self._time.left[0] <= 0):
             self._to_dispatchers("compiled meanwhile: by a direct call, or for another "
-                                 "model of them" if self._left[0] > 0 else "their time on "
+                                 "model of them" if self._time.left[0] > 0 else "their time on "
                                  "Python code spent, by this model's runs or another's")
         return self._on_python
 
     @contextlib.contextmanager
     def python_run(self):
-        """A run on the model's Python code: its evaluations raise
-        :class:`~bderiv.models.readiness.PythonTierEnded` once the runs on it so far, of
-        every model of its field, have taken :data:`bderiv._limits.PYTHON_FIRST_SECONDS`
-        (their wall time, numba's compilations left out: a library kernel's first)."""
-        if self._left[0] == _limits.PYTHON_FIRST_SECONDS:
+        """A run on the model's Python code (:meth:`PythonTime.run`); compiled after it
+        when it spent the last of the field's time (unless it ends by an exception: the
+        caller decides then)."""
+        if self._time.left[0] == _limits.PYTHON_FIRST_SECONDS:
             _log.info("bderiv: a new model of numba functions: its runs go on their Python "
                       "code for %g s, then compiled (BDERIV_INTEGRATOR=compiled compiles "
-                      "them at the first use)", self._left[0])
-        here = self._run_here
-        outer = getattr(here, "start", None), getattr(here, "compiling", 0.0)
-        here.start = time.perf_counter()
-        here.compiling = _COMPILING.get(threading.get_ident(), 0.0)
-        try:
+                      "them at the first use)", self._time.left[0])
+        with self._time.run() as outermost:
             yield
-        finally:
-            self._left[0] -= self._run_spent()
-            here.start, here.compiling = outer  # a run within a run: the outer one's again
-            if self._left[0] <= 0 and outer[0] is None and sys.exc_info()[0] is None:
-                self.compile_from_now()
-
-    def _run_spent(self) -> float:
-        """The seconds this thread's run on Python code has taken, this thread's numba
-        compilations meanwhile left out."""
-        here = self._run_here
-        return time.perf_counter() - here.start - (
-            _COMPILING.get(threading.get_ident(), 0.0) - here.compiling)
+        if outermost and self._time.left[0] <= 0:
+            self.compile_from_now()
 
     def compile_from_now(self, cause=None) -> None:
         """Evaluate the model by its numba functions from now on, and run it on the compiled
@@ -235,7 +149,7 @@ class ModelCalls:
         self._to_dispatchers(
             f"their Python code raised {type(cause).__name__}" if cause is not None
             else f"its runs on their Python code took {_limits.PYTHON_FIRST_SECONDS:g} s"
-            if self._left[0] <= 0 else "asked")
+            if self._time.left[0] <= 0 else "asked")
 
     def _to_dispatchers(self, reason: str) -> None:
         """Leave the Python code for the numba functions (``reason`` logged, once)."""
