@@ -152,10 +152,10 @@ class ModelCalls:
             if self._time.left[0] <= 0 else "asked")
 
     def _to_dispatchers(self, reason: str) -> None:
-        """Leave the Python code for the numba functions (``reason`` logged, once)."""
-        if self._on_python:
-            _log.info("bderiv: the model's numba functions are compiled from now on (%s)",
-                      reason)
+        """Leave the Python code for the numba functions (``reason`` logged), once."""
+        if not self._on_python:
+            return
+        _log.info("bderiv: the model's numba functions are compiled from now on (%s)", reason)
         self._on_python = False
         self._use(self._dispatched)
         self._how = {}  # decided on the Python code (the dispatchers take float input)
