@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bderiv import HybridSystem, complex_step_jacobian, examples
-from bderiv.models import calls as calls_module
+from bderiv.models import numerical_jacobians as jacobians_module
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_a_field_without_a_usable_complex_step_gets_central_differences(chair, w
 
 
 def test_a_build_mostly_in_numerical_jacobians_says_so_once(chair, caplog, monkeypatch):
-    monkeypatch.setattr(calls_module, "SLOW_BUILD_SECONDS", 0.0)  # every build counts
+    monkeypatch.setattr(jacobians_module, "SLOW_BUILD_SECONDS", 0.0)  # every build counts
     model = bare(chair.system, field=_float_only(chair.system.field))
     with caplog.at_level(logging.WARNING, logger="bderiv"):
         model.flow_bderivative(chair.x0, chair.t_final)
@@ -82,7 +82,7 @@ def test_a_build_mostly_in_numerical_jacobians_says_so_once(chair, caplog, monke
     assert "flow_bderivative took" in warned[0] and "central differences" in warned[0]
     assert "bderiv.complex_step_jacobian" in warned[0]
     quick = bare(chair.system)  # the complex step: the build is no longer mostly Jacobians
-    monkeypatch.setattr(calls_module, "SLOW_BUILD_SECONDS", 1e9)
+    monkeypatch.setattr(jacobians_module, "SLOW_BUILD_SECONDS", 1e9)
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="bderiv"):
         quick.flow_bderivative(chair.x0, chair.t_final)

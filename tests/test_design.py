@@ -21,7 +21,7 @@ LAYERS = [
     {"plot", "symbolic", "jax", "estimate", "robots"},  # the front ends over the analysis
     {"analysis"},  # flow maps, return maps, orbits, stability, checks; HybridSystem
     {"models", "models/calls", "models/user_functions", "models/section",
-     "models/python_first"},  # a run's needs
+     "models/python_first", "models/numerical_jacobians"},  # a run's needs
     {"models/integrate", "models/readiness"},  # the run, over both integrators
     {"models/events"},  # the event logic at a stop, for both integrators
     {"models/compiled"},  # the compiled integrator

@@ -15,11 +15,11 @@ import time
 import numpy as np
 
 from .. import _limits
-from .._limits import RESET_TOL, RESET_TOL_NUMERICAL, SLOW_BUILD_SECONDS
-from .._support import _numdiff as numdiff
+from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
 from .._support._format import format_mask
 from .._support._validate import all_finite, check_real_array
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
+from .numerical_jacobians import NumericalJacobians
 from .python_first import PythonTime, starts_in_python
 from .readiness import ready_now
 from .user_functions import (
@@ -28,25 +28,9 @@ from .user_functions import (
     check_given_jacobian,
     check_output,
     compiled_or_refused,
-    numerical_jacobian,
 )
 
 _log = logging.getLogger("bderiv")
-
-#: how a Jacobian not given is computed (the first use of each function and mask decides)
-_COMPLEX, _CENTRAL = "complex step", "central differences"
-
-
-def _matches(fun, x, J) -> bool:
-    """Whether ``J`` matches a central difference of ``fun`` at ``x`` along a random
-    direction (:func:`check_given_jacobian`'s test): a complex step is trusted only then."""
-    try:
-        with np.errstate(all="ignore"):  # a scale beyond float64's square root: not trusted
-            check_given_jacobian(fun, x, J, "", "")
-    except ValueError:
-        return False
-    return True
-
 
 class ModelCalls:
     """A model's user functions, evaluated with every output checked.
@@ -85,10 +69,7 @@ class ModelCalls:
         self._use(tuple(_appending(self._budgeted(f), params) for f in functions)
                   if self._on_python else self._dispatched)
         self._checked = set()  # (name, mask, k) of the given Jacobians compared so far
-        self._cost = {}  # name -> [Jacobians, calls, seconds] of the numerical ones
-        self._how = {}  # key -> how its numerical Jacobian is computed (_COMPLEX, _CENTRAL)
-        self._generation = 0  # of the functions evaluated: one more at the switch to numba's
-        self._warned = set()  # the builds whose numerical Jacobians were warned about
+        self._numerical = NumericalJacobians()  # the Jacobians not given: how, and cost
 
     def _use(self, wrappers) -> None:
         """Evaluate the model by ``wrappers`` (its eight functions, in the order of
@@ -158,8 +139,7 @@ class ModelCalls:
         _log.info("bderiv: the model's numba functions are compiled from now on (%s)", reason)
         self._on_python = False
         self._use(self._dispatched)
-        self._how = {}  # decided on the Python code (the dispatchers take float input)
-        self._generation += 1
+        self._numerical.forget()  # decided on the Python code (the dispatchers: float)
 
     @property
     def on_compiled_path(self) -> bool:
@@ -277,64 +257,11 @@ class ModelCalls:
                 check_given_jacobian(fun, x, J, what(), jac_name)
                 self._checked.add(key)
             return J
-        start, generation = time.perf_counter(), self._generation
-        table = self._how  # the decisions of these functions: a switch to the compiled ones
-        how = table.get(key)  # meanwhile (another thread, a probe) starts a new table
-        # the first time with NumPy's discarded imaginary parts refused; once the step has
-        # matched a central difference, without that check's warnings context
-        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0],
-                                                              strict=how is None)
-        calls = 0 if how == _CENTRAL else x.size
-        if how is None:  # the first time for this key: held to a central difference once
-            how = _COMPLEX if J is not None and _matches(fun, x, J) else _CENTRAL
-            table[key] = how
-            if jac_name not in self._cost:
-                _log.info("%s not given: computing it by %s (%s); pass %s to save that time",
-                          jac_name, how, "d calls of the function per Jacobian"
-                          if how == _COMPLEX else "the function does not take complex input "
-                          "or is not complex-analytic: 10 to 100 calls per variable",
-                          jac_name)
-        if how == _CENTRAL:
-            D = numerical_jacobian(fun, x, what(), jac_name)
-            J, calls = D.value, calls + D.calls
-        if self._generation != generation:  # the functions switched under it: again, on
-            return self._jacobian(given, key, fun, raw, x, shape, what, jac_name)  # theirs
-        cost = self._cost.setdefault(jac_name, [0, 0, 0.0])
-        cost[0] += 1
-        cost[1] += calls
-        cost[2] += time.perf_counter() - start
-        return J
+        return self._numerical.jacobian(key, fun, raw, x, shape, what, jac_name)
 
-    @contextlib.contextmanager
     def numerical_jacobian_watch(self, what):
-        """Around a build (``what``: the method's name): when it took over
-        ``SLOW_BUILD_SECONDS``, most of it in numerical Jacobians, say so at WARNING (logger
-        ``"bderiv"``) with their count, calls and time, once per model and method."""
-        before = {name: tuple(c) for name, c in self._cost.items()}
-        start = time.perf_counter()
-        yield
-        took = time.perf_counter() - start
-        spent = {name: (c[0] - before.get(name, (0, 0, 0.0))[0],
-                        c[1] - before.get(name, (0, 0, 0.0))[1],
-                        c[2] - before.get(name, (0, 0, 0.0))[2])
-                 for name, c in self._cost.items()}
-        seconds = sum(s[2] for s in spent.values())
-        if took < SLOW_BUILD_SECONDS or seconds < 0.5 * took or what in self._warned:
-            return
-        self._warned.add(what)
-        parts = ", ".join(f"{name}: {n:,} Jacobians, {calls:,} calls, {sec:.2f} s "
-                          f"({self._how_of(name)})" for name, (n, calls, sec) in spent.items()
-                          if n)
-        _log.warning("%s took %.2f s, %.2f s of it (%.0f %%) in numerical Jacobians (%s): "
-                     "pass them to the model (HybridSystem's field_jacobian, event_jacobian, "
-                     "reset_jacobian; bderiv.complex_step_jacobian writes one from a "
-                     "function that takes complex input)", what, took, seconds,
-                     100 * seconds / took, parts)
-
-    def _how_of(self, jac_name) -> str:
-        """How the numerical ``jac_name`` was computed: by which of the two, or both."""
-        hows = {how for key, how in self._how.items() if key[0] == jac_name}
-        return " and ".join(sorted(hows))
+        """Around a build (``what``: the method's name): :meth:`NumericalJacobians.watch`."""
+        return self._numerical.watch(what)
 
     @property
     def numerical_jacobian_cost(self) -> dict:
@@ -348,7 +275,7 @@ class ModelCalls:
             time they took. Passing the Jacobian saves nearly all of that time (inside
             the variational equations of ``flow_bderivative`` typically 90 % of it).
         """
-        return {name: (c[0], c[1], c[2]) for name, c in self._cost.items()}
+        return self._numerical.cost
 
     def eval_event_jacobian(self, x):
         """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""

@@ -1,0 +1,125 @@
+"""The Jacobians a model does not give: how each is computed, and what they cost.
+
+A missing Jacobian is had by complex step (exact to rounding, d calls) where that matched a
+central difference the first time for its function, mask and event, else by central
+differences (10 to 100 calls per variable); the decision is kept per key, and forgotten
+when the model's evaluations switch to other code (Python first: its Python code takes
+complex input, the dispatchers called from Python cast it to float). The cost is counted
+per missing parameter, and a build that spent most of its time on them says so
+(:class:`~bderiv.models.calls.ModelCalls` holds one :class:`NumericalJacobians`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+
+import numpy as np
+
+from .._limits import SLOW_BUILD_SECONDS
+from .._support import _numdiff as numdiff
+from .user_functions import check_given_jacobian, numerical_jacobian
+
+_log = logging.getLogger("bderiv")
+
+#: how a Jacobian not given is computed (the first use of each function and mask decides)
+_COMPLEX, _CENTRAL = "complex step", "central differences"
+
+
+def _matches(fun, x, J) -> bool:
+    """Whether ``J`` matches a central difference of ``fun`` at ``x`` along a random
+    direction (:func:`check_given_jacobian`'s test): a complex step is trusted only then."""
+    try:
+        with np.errstate(all="ignore"):  # a scale beyond float64's square root: not trusted
+            check_given_jacobian(fun, x, J, "", "")
+    except ValueError:
+        return False
+    return True
+
+
+class NumericalJacobians:
+    """A model's numerical Jacobians: ``how`` (key -> complex step or central differences),
+    ``generation`` (of the functions they are taken of: one more at each :meth:`forget`),
+    their cost per name, and the builds warned about."""
+
+    def __init__(self):
+        self.how = {}
+        self.generation = 0
+        self._cost = {}  # name -> [Jacobians, calls, seconds]
+        self._warned = set()
+
+    def forget(self) -> None:
+        """The decisions were made on other code (the model's evaluations switched)."""
+        self.how = {}
+        self.generation += 1
+
+    def jacobian(self, key, fun, raw, x, shape, what, jac_name):
+        """The Jacobian of ``fun`` at ``x`` (``shape``, cost counted): the complex step of
+        ``raw`` (the user's function, unchecked) where it matched a central difference of
+        ``fun`` the first time for ``key``, else central differences; one computed across a
+        :meth:`forget` is computed again. ``what`` gives the call's name for a message
+        (formatted only then)."""
+        start, generation = time.perf_counter(), self.generation
+        table = self.how  # the decisions of these functions: a switch to the compiled ones
+        how = table.get(key)  # meanwhile (another thread, a probe) starts a new table
+        # the first time with NumPy's discarded imaginary parts refused; once the step has
+        # matched a central difference, without that check's warnings context
+        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0],
+                                                              strict=how is None)
+        calls = 0 if how == _CENTRAL else x.size
+        if how is None:  # the first time for this key: held to a central difference once
+            how = _COMPLEX if J is not None and _matches(fun, x, J) else _CENTRAL
+            table[key] = how
+            if jac_name not in self._cost:
+                _log.info("%s not given: computing it by %s (%s); pass %s to save that time",
+                          jac_name, how, "d calls of the function per Jacobian"
+                          if how == _COMPLEX else "the function does not take complex input "
+                          "or is not complex-analytic: 10 to 100 calls per variable",
+                          jac_name)
+        if how == _CENTRAL:
+            D = numerical_jacobian(fun, x, what(), jac_name)
+            J, calls = D.value, calls + D.calls
+        if self.generation != generation:  # the functions switched under it: again, on
+            return self.jacobian(key, fun, raw, x, shape, what, jac_name)  # theirs
+        cost = self._cost.setdefault(jac_name, [0, 0, 0.0])
+        cost[0] += 1
+        cost[1] += calls
+        cost[2] += time.perf_counter() - start
+        return J
+
+    @contextlib.contextmanager
+    def watch(self, what):
+        """Around a build (``what``: the method's name): when it took over
+        ``SLOW_BUILD_SECONDS``, most of it in numerical Jacobians, say so at WARNING (logger
+        ``"bderiv"``) with their count, calls and time, once per model and method."""
+        before = {name: tuple(c) for name, c in self._cost.items()}
+        start = time.perf_counter()
+        yield
+        took = time.perf_counter() - start
+        spent = {name: (c[0] - before.get(name, (0, 0, 0.0))[0],
+                        c[1] - before.get(name, (0, 0, 0.0))[1],
+                        c[2] - before.get(name, (0, 0, 0.0))[2])
+                 for name, c in self._cost.items()}
+        seconds = sum(s[2] for s in spent.values())
+        if took < SLOW_BUILD_SECONDS or seconds < 0.5 * took or what in self._warned:
+            return
+        self._warned.add(what)
+        parts = ", ".join(f"{name}: {n:,} Jacobians, {calls:,} calls, {sec:.2f} s "
+                          f"({self._how_of(name)})" for name, (n, calls, sec) in spent.items()
+                          if n)
+        _log.warning("%s took %.2f s, %.2f s of it (%.0f %%) in numerical Jacobians (%s): "
+                     "pass them to the model (HybridSystem's field_jacobian, event_jacobian, "
+                     "reset_jacobian; bderiv.complex_step_jacobian writes one from a "
+                     "function that takes complex input)", what, took, seconds,
+                     100 * seconds / took, parts)
+
+    def _how_of(self, jac_name) -> str:
+        """How the numerical ``jac_name`` was computed: by which of the two, or both."""
+        hows = {how for key, how in self.how.items() if key[0] == jac_name}
+        return " and ".join(sorted(hows))
+
+    @property
+    def cost(self) -> dict:
+        """``{name: (Jacobians, calls, seconds)}`` so far."""
+        return {name: (c[0], c[1], c[2]) for name, c in self._cost.items()}
