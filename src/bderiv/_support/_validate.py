@@ -202,6 +202,32 @@ def check_order(order, n: int) -> np.ndarray:
     return arr.astype(np.int64)
 
 
+def check_state(x, dim: int, name: str = "x") -> np.ndarray:
+    """A state of a system of dimension ``dim``: a finite float64 copy, shape (dim,)."""
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (dim,):
+        arr = x.copy()  # the common case, checked in a third of the time
+    else:
+        arr = check_real_array(x, name)
+        if arr.shape != (dim,):
+            raise ValueError(
+                f"{name} must have shape ({dim},) (a state of this system), got "
+                f"shape {arr.shape}"
+            )
+        arr = np.array(arr, dtype=np.float64)
+    if not all_finite(arr):
+        raise ValueError(f"{name} must be finite, got {arr}")
+    return arr
+
+
+def check_mask(mask, n_events: int) -> int:
+    """A region mask of a system of ``n_events`` events: an integer in [0, 2**n)."""
+    if isinstance(mask, bool) or not isinstance(mask, int | np.integer):
+        raise TypeError(f"mask must be an integer, got {type(mask).__name__}")
+    if not 0 <= mask < (1 << n_events):
+        raise ValueError(f"mask must be in [0, 2**{n_events}), got {mask}")
+    return int(mask)
+
+
 def check_positive_int(value, name: str) -> int:
     """Validate a positive integer parameter."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):

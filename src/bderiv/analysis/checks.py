@@ -20,7 +20,13 @@ import numpy as np
 
 from .._limits import FD_EPS, FD_SIMULTANEITY_TOL, LINEAR_STATE, MIN_FIT_STRIDES
 from .._support._progress import resolve_progress
-from .._support._validate import check_matrix, check_number, check_points, check_positive_int
+from .._support._validate import (
+    check_matrix,
+    check_number,
+    check_points,
+    check_positive_int,
+    check_state,
+)
 from ..models.integrate.options import SolverOptions
 from ._cyclic import check_cyclic, kept
 
@@ -102,7 +108,7 @@ def _differences(system, x0, t_final, flat, steps, options, section, progress):
     each of ``steps``, from one unperturbed run and one batch of all the perturbed ones."""
     # the final states only: a bounded record (t_eval=()), whatever the span
     settings = {"options": options, "section": section, "t_eval": ()}
-    start = system.calls._check_state(x0, "x0")
+    start = check_state(x0, system.dim, "x0")
     base = system.simulate(start, t_final, **settings)
     # the perturbed runs as one batch (its bar, or the callback after each run), shaped
     # (step, vector, d): a failed run is named by its step and its row of V

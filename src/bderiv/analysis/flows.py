@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._limits import MAX_GROUPS, ON_SURFACE_TOL
-from .._support._validate import check_number
+from .._support._validate import check_number, check_state
 from ..models.integrate.many import check_states, run_many
 from ..models.integrate.options import DERIVATIVE_OPTIONS, SIMULATION_OPTIONS, SolverOptions
 from ..models.integrate.run import ENDS, STEPS, check_t_eval, run
@@ -64,7 +64,7 @@ def bderivative(model, rho, *, tol=ON_SURFACE_TOL):
         accurate to ``reset_tol``), as :func:`simulate` refuses them.
     """
     tol = check_number(tol, "tol", strict=False)
-    rho = model.calls._check_state(rho, "rho")
+    rho = check_state(rho, model.dim, "rho")
     h = model.calls.eval_events(rho)
     off = np.flatnonzero(np.abs(h) > tol)
     if off.size:
@@ -155,7 +155,7 @@ def simulate(model, x0, t_final, *, simultaneity_tol=None,
     options = SolverOptions.resolve(options, SIMULATION_OPTIONS, rtol=rtol, atol=atol,
                                     method=method, max_step=max_step,
                                     simultaneity_tol=simultaneity_tol)
-    x0 = model.calls._check_state(x0, "x0")
+    x0 = check_state(x0, model.dim, "x0")
     if section is not None:
         section = Section(section, model.dim)
     return run(model.calls, x0, t_final, options=options, max_groups=max_groups,
@@ -282,7 +282,7 @@ def flow_bderivative(model, x0, t_final, *, simultaneity_tol=None,
     options = SolverOptions.resolve(options, DERIVATIVE_OPTIONS, rtol=rtol, atol=atol,
                                     method=method, max_step=max_step,
                                     simultaneity_tol=simultaneity_tol)
-    x0 = model.calls._check_state(x0, "x0")
+    x0 = check_state(x0, model.dim, "x0")
     with model.calls.numerical_jacobian_watch("flow_bderivative"):
         traj = run(model.calls, x0, t_final, options=options, variational=True, record=ENDS)
         return flow_map_along(model, traj)

@@ -9,7 +9,7 @@ checked (:class:`~bderiv.models.section.Section`) and the integrator settings re
 from __future__ import annotations
 
 from .._limits import DEFAULT_T_MAX, ON_SURFACE_TOL, ORBIT_MAX_ITER, ORBIT_TOL
-from .._support._validate import check_number
+from .._support._validate import check_number, check_state
 from ..models.integrate.options import DERIVATIVE_OPTIONS, SolverOptions
 from ..models.section import Section
 from . import orbit, returnmap
@@ -53,7 +53,7 @@ def return_map(model, x0, section, *, section_gradient=None, t_max=DEFAULT_T_MAX
     options = SolverOptions.resolve(options, DERIVATIVE_OPTIONS, rtol=rtol, atol=atol,
                                     method=method, max_step=max_step,
                                     simultaneity_tol=simultaneity_tol)
-    x0 = model.calls._check_state(x0, "x0")
+    x0 = check_state(x0, model.dim, "x0")
     section = Section(section, model.dim, section_gradient, model.check_jacobians)
     with model.calls.numerical_jacobian_watch("return_map"):
         return returnmap.return_map(model, x0, section, t_max=check_number(t_max, "t_max"),
@@ -101,7 +101,7 @@ def periodic_orbit(model, x_guess, section, period_guess=None, *, section_gradie
         With ``x0``, ``period``, ``trajectory``, ``return_map``, ``residual``,
         ``history``, ``advance`` and ``stability()``.
     """
-    x_guess = model.calls._check_state(x_guess, "x_guess")
+    x_guess = check_state(x_guess, model.dim, "x_guess")
     options = SolverOptions.resolve(options, ORBIT_OPTIONS, simultaneity_tol=simultaneity_tol)
     section = Section(section, model.dim, section_gradient, model.check_jacobians)
     with model.calls.numerical_jacobian_watch("periodic_orbit"):

@@ -17,7 +17,7 @@ import numpy as np
 from .. import _limits
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
 from .._support._format import format_mask
-from .._support._validate import all_finite, check_real_array
+from .._support._validate import check_mask, check_state
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
 from .numerical_jacobians import NumericalJacobians
 from .python_first import PythonTime, starts_in_python
@@ -180,7 +180,7 @@ class ModelCalls:
         if key in self._checked or mode == "central differences" or \
                 (given and not self.check_jacobians):
             return
-        x = self._check_state(x)
+        x = check_state(x, self.dim)
         what = f"field(x, mask={self._mask_name(mask)})"
         try:
             check_given_jacobian(lambda y: self.eval_field(y, mask), x,
@@ -210,28 +210,6 @@ class ModelCalls:
         step is always compared once)."""
         given_unchecked = self._event_jac is not None and not self.check_jacobians
         return given_unchecked or ("event_jacobian",) in self._checked
-
-    def _check_state(self, x, name="x"):
-        if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (self.dim,):
-            arr = x.copy()  # the common case, checked in a third of the time
-        else:
-            arr = check_real_array(x, name)
-            if arr.shape != (self.dim,):
-                raise ValueError(
-                    f"{name} must have shape ({self.dim},) (a state of this system), got "
-                    f"shape {arr.shape}"
-                )
-            arr = np.array(arr, dtype=np.float64)
-        if not all_finite(arr):
-            raise ValueError(f"{name} must be finite, got {arr}")
-        return arr
-
-    def _check_mask(self, mask):
-        if isinstance(mask, bool) or not isinstance(mask, int | np.integer):
-            raise TypeError(f"mask must be an integer, got {type(mask).__name__}")
-        if not 0 <= mask < (1 << self.n_events):
-            raise ValueError(f"mask must be in [0, 2**{self.n_events}), got {mask}")
-        return int(mask)
 
     def _mask_name(self, mask) -> str:
         return format_mask(mask, self.n_events)
@@ -279,7 +257,7 @@ class ModelCalls:
 
     def eval_event_jacobian(self, x):
         """Jacobian of the events at ``x``, shape (n, d) (analytic if given, else numerical)."""
-        return self.event_jacobian_at(self._check_state(x))
+        return self.event_jacobian_at(check_state(x, self.dim))
 
     def event_jacobian_at(self, x):
         """:meth:`eval_event_jacobian` at a state known to be one (float64, shape (d,),
@@ -312,8 +290,8 @@ class ModelCalls:
 
     def eval_field_jacobian(self, x, mask):
         """Jacobian of ``field(., mask)`` at ``x``, shape (d, d)."""
-        x = self._check_state(x)
-        mask = self._check_mask(mask)
+        x = check_state(x, self.dim)
+        mask = check_mask(mask, self.n_events)
         given = None if self._field_jac is None else (lambda: self._field_jac(x, mask))
         return self._jacobian(given, ("field_jacobian", mask),
                               lambda y: self.eval_field(y, mask),
@@ -338,7 +316,7 @@ class ModelCalls:
 
     def eval_reset_jacobian(self, x, mask, k):
         """Jacobian of ``reset(., mask, k)`` at ``x``, shape (d, d) (analytic if given)."""
-        x = self._check_state(x)
+        x = check_state(x, self.dim)
         given = None if self._reset_jac is None else (lambda: self._reset_jac(x, mask, k))
         return self._jacobian(given, ("reset_jacobian", int(mask), int(k)),
                               lambda y: self.eval_reset(y, mask, k),
@@ -371,7 +349,7 @@ class ModelCalls:
             if masks is None
             else np.asarray(masks, dtype=np.int64).reshape(-1)
         )
-        return self.corners_at(self._check_state(x), masks)
+        return self.corners_at(check_state(x, self.dim), masks)
 
     def corners_at(self, x, masks):
         """:meth:`sample_corners` at a state known to be one (float64, shape (d,), finite:
@@ -392,7 +370,7 @@ class ModelCalls:
 
         Raises ``ValueError`` when ``x0`` lies exactly on an event surface.
         """
-        x0 = self._check_state(x0, "x0")
+        x0 = check_state(x0, self.dim, "x0")
         h = self.eval_events(x0)
         values = h.tolist()
         on = [k for k, v in enumerate(values) if v == 0]
