@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 
+import numba
 import numpy as np
 import pytest
 
@@ -123,3 +124,73 @@ def test_complex_step_jacobian_refuses_a_function_without_complex_input():
         complex_step_jacobian(lambda y: y, [np.nan])
     with pytest.raises(ValueError, match=r"fun must return a 1-d array, got shape \(\)"):
         complex_step_jacobian(lambda y: y[0], [1.0])
+
+
+def _compile_starts(name):
+    """A list whose length counts numba's compilations (attempts too) of functions named
+    ``name`` from now on, and the listener to unregister."""
+    from numba.core import event
+
+    starts = []
+
+    class Count(event.Listener):
+        def on_start(self, ev):
+            if ev.data["dispatcher"].py_func.__name__ == name:
+                starts.append(ev.data["dispatcher"])
+
+        def on_end(self, ev):
+            pass
+
+    listener = Count()
+    event.register("numba:compile", listener)
+    return starts, listener
+
+
+def test_a_numba_model_on_scipy_gets_its_jacobian_by_the_complex_step(monkeypatch, caplog):
+    """A numba model's field on the scipy path (while the integrator compiles, or as here
+    under BDERIV_INTEGRATOR=scipy) gets the complex state as complex128, the version the
+    compiled path compiles for its complex step: its Jacobian by the complex step, not
+    by central differences under a message that blamed the field."""
+    from numba.core import event
+
+    monkeypatch.setenv("BDERIV_INTEGRATOR", "scipy")
+    compiled = examples.chair(compiled=True).system
+    model = HybridSystem(compiled.field, compiled.events, n_events=2, dim=6)
+    ex = examples.chair()
+    with caplog.at_level(logging.INFO, logger="bderiv"):
+        D = model.flow_bderivative(ex.x0, ex.t_final)
+    assert model.calls.compiled is None  # the run went on scipy
+    assert any("field_jacobian not given: computing it by complex step" in r.message
+               for r in caplog.records)
+    jacobians, calls, _ = model.numerical_jacobian_cost["field_jacobian"]
+    assert calls <= 6 * jacobians + 2 * 120, (jacobians, calls)
+    exact = ex.system.flow_bderivative(ex.x0, ex.t_final)  # hand-written Jacobians
+    V = np.random.default_rng(2).standard_normal((16, 6))
+    np.testing.assert_allclose(D(V), exact(V), rtol=1e-10, atol=1e-10 * np.abs(exact(V)).max())
+
+    # a field whose complex version does not compile: central differences, and numba tries
+    # to compile that version once, not at every Jacobian
+    @numba.njit
+    def float_only_field(x, mask):
+        y = np.zeros(x.size)
+        for i in range(x.size):
+            y[i] = x[i] * (1.0 + mask)
+        return y
+
+    @numba.njit
+    def one_event(x):
+        return np.array([x[0] - 1.0])
+
+    starts, listener = _compile_starts("float_only_field")
+    try:
+        plain = HybridSystem(float_only_field, one_event, n_events=1, dim=2)
+        with caplog.at_level(logging.INFO, logger="bderiv"):
+            F = plain.flow_bderivative(np.array([0.5, 0.0]), 1.0)
+    finally:
+        event.unregister("numba:compile", listener)
+    assert len(starts) == 2, starts  # float64, then complex128 once
+    assert any("field_jacobian not given: computing it by central differences" in r.message
+               for r in caplog.records)
+    # x' = x before x0 = 1, 2 x after: x0(1) = e^2 x0^2, x1(1) = e^2 x0 x1 (x0 = 0.5, x1 = 0)
+    np.testing.assert_allclose(F(np.eye(2)), [[np.e ** 2, 0.0], [0.0, np.e ** 2 / 2]],
+                               rtol=1e-7)

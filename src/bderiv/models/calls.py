@@ -139,7 +139,7 @@ class ModelCalls:
         _log.info("bderiv: the model's numba functions are compiled from now on (%s)", reason)
         self._on_python = False
         self._use(self._dispatched)
-        self._numerical.forget()  # decided on the Python code (the dispatchers: float)
+        self._numerical.forget()  # decided on the Python code: decided again compiled
 
     @property
     def on_compiled_path(self) -> bool:

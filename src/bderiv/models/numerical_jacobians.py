@@ -3,8 +3,8 @@
 A missing Jacobian is had by complex step (exact to rounding, d calls) where that matched a
 central difference the first time for its function, mask and event, else by central
 differences (10 to 100 calls per variable); the decision is kept per key, and forgotten
-when the model's evaluations switch to other code (Python first: its Python code takes
-complex input, the dispatchers called from Python cast it to float). The cost is counted
+when the model's evaluations switch to other code (Python first: the Python code and the
+compiled functions may differ in what they make of complex input). The cost is counted
 per missing parameter, and a build that spent most of its time on them says so
 (:class:`~bderiv.models.calls.ModelCalls` holds one :class:`NumericalJacobians`).
 """

@@ -28,20 +28,32 @@ def check_callable(f, name: str) -> None:
 def _contiguous_args(fn):
     """``fn`` itself, or for a numba dispatcher a function that passes it the types the
     compiled path compiled it for (a C-contiguous float64 state, int masks and events): a
-    strided view or an int array would make numba compile another version of it. A
-    compilation that fails on a damaged numba disk cache of ``fn`` raises the RuntimeError
-    naming its files (:func:`bderiv.models.compiled.refuse_damaged_cache`)."""
+    strided view or an int array would make numba compile another version of it. A complex
+    state (a complex step's) goes as C-contiguous complex128, the version the compiled path
+    compiles for the complex step of a field and of events (once per function); where that
+    version does not compile, every later complex call raises the same TypeError at once
+    (numba would try to compile it again at each). A compilation that fails on a damaged
+    numba disk cache of ``fn`` raises the RuntimeError naming its files
+    (:func:`bderiv.models.compiled.refuse_damaged_cache`)."""
     if not is_compiled(fn):
         return fn
+    refused = []  # why the complex version does not compile, once known
 
     def call(x, *ints):
-        args = (np.ascontiguousarray(x, dtype=np.float64), *(int(i) for i in ints))
+        complex_state = type(x) is np.ndarray and x.dtype.kind == "c"
+        if complex_state and refused:
+            raise TypeError(refused[0])
+        args = (np.ascontiguousarray(x, dtype=np.complex128 if complex_state else np.float64),
+                *(int(i) for i in ints))
         try:
             return fn(*args)
-        except Exception:
+        except Exception as exc:
             types = tuple(map(numba.typeof, args))
             if types not in fn.overloads:  # its compilation failed: a damaged disk cache?
                 refuse_damaged_cache(fn, fn.__name__, types)
+                if complex_state:
+                    refused.append(f"{fn.__name__} does not compile for complex input "
+                                   f"({type(exc).__name__})")
             raise
 
     call.__wrapped__ = fn
