@@ -194,3 +194,96 @@ def test_a_numba_model_on_scipy_gets_its_jacobian_by_the_complex_step(monkeypatc
     # x' = x before x0 = 1, 2 x after: x0(1) = e^2 x0^2, x1(1) = e^2 x0 x1 (x0 = 0.5, x1 = 0)
     np.testing.assert_allclose(F(np.eye(2)), [[np.e ** 2, 0.0], [0.0, np.e ** 2 / 2]],
                                rtol=1e-7)
+
+    # a second model of the same functions does not try the complex version again
+    starts, listener = _compile_starts("float_only_field")
+    try:
+        HybridSystem(float_only_field, one_event, n_events=1, dim=2).flow_bderivative(
+            np.array([0.5, 0.0]), 1.0)
+    finally:
+        event.unregister("numba:compile", listener)
+    assert starts == [], starts
+
+
+def _drag(x, mask):
+    """Falling against quadratic drag: |v| v is not complex-analytic, and at v = 0 its
+    complex step (0) and its derivative (0) agree."""
+    return np.array([x[1], -1.0 - 0.3 * np.abs(x[1]) * x[1]])
+
+
+def _drag_jacobian(x, mask):
+    return np.array([[0.0, 1.0], [0.0, -0.6 * abs(x[1])]])
+
+
+def _floor(x):
+    return np.array([x[0] + 5.0])
+
+
+def test_a_complex_step_that_matches_only_where_it_starts_is_not_trusted():
+    """The complex step is held to central differences at the first state of each region
+    and beside it: from rest, the drag's complex step matched at v = 0 and was 16 % wrong
+    along the fall. Compiled, the flow map is now that of the hand-written Jacobian; in
+    Python, where central differences cannot resolve |v| v at rest to the accuracy they
+    need, the build says so instead of answering wrong."""
+    x0 = np.array([1.0, 0.0])
+    exact = HybridSystem(_drag, _floor, n_events=1, dim=2, field_jacobian=_drag_jacobian,
+                         event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    E = exact.flow_bderivative(x0, 2.0)(np.eye(2))
+    compiled = HybridSystem(numba.njit(_drag), numba.njit(_floor), n_events=1, dim=2)
+    D = compiled.flow_bderivative(x0, 2.0)
+    assert compiled.calls.compiled is not None  # the compiled path's check
+    np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-6, atol=1e-6 * np.abs(E).max())
+    with pytest.raises(ValueError, match=r"field\(x, mask=0b1\) .* not accurate enough"
+                                         r".*pass field_jacobian"):
+        HybridSystem(_drag, _floor, n_events=1, dim=2).flow_bderivative(x0, 2.0)
+
+
+def _field_complex_on_one_side(x, mask):
+    """Takes complex input where x0 > 0.5 only (math.sin refuses it on the other side)."""
+    if x[0].real > 0.5:
+        return np.array([x[1], -x[0]])
+    return np.array([x[1], -math.sin(x[0])])
+
+
+@pytest.mark.parametrize("compile_it", [False, True], ids=["python", "numba-python-first"])
+def test_a_complex_step_that_fails_later_gives_way_to_central_differences(
+        compile_it, monkeypatch, caplog):
+    """A complex step decided at the first state and refused at a later one: central
+    differences from there, and the flow map of the hand-written Jacobian (it returned no
+    Jacobian, and scipy's step failed on it)."""
+    monkeypatch.setenv("BDERIV_INTEGRATOR", "auto")  # a numba model starts on Python code
+    field, events = _field_complex_on_one_side, (lambda x: np.array([x[0] + 5.0]))
+    if compile_it:
+        field, events = numba.njit(field), numba.njit(lambda x: np.array([x[0] + 5.0]))
+    x0 = np.array([1.0, 0.0])
+    with caplog.at_level(logging.INFO, logger="bderiv"):
+        D = HybridSystem(field, events, n_events=1, dim=2).flow_bderivative(x0, 2.0)
+    exact = HybridSystem(
+        _field_complex_on_one_side, lambda x: np.array([x[0] + 5.0]), n_events=1, dim=2,
+        field_jacobian=lambda x, mask: np.array(
+            [[0.0, 1.0], [-1.0 if x[0] > 0.5 else -math.cos(x[0]), 0.0]]),
+        event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    E = exact.flow_bderivative(x0, 2.0)(np.eye(2))
+    np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-6, atol=1e-6 * np.abs(E).max())
+    assert any("central differences from now on" in r.getMessage() for r in caplog.records)
+
+
+def test_a_damaged_cache_of_the_complex_version_is_not_taken_for_a_refusal(monkeypatch):
+    """The complex step passes on the error that names a damaged disk cache (the compiled
+    path raises it too), instead of falling back to central differences under a message
+    that blames the function."""
+    from bderiv._support import _numdiff
+    from bderiv._support._errors import DamagedCacheError
+    from bderiv.models.compiled import _checks
+    from bderiv.models.user_functions import _contiguous_args
+
+    @numba.njit
+    def float_only(x):
+        y = np.zeros(x.size)
+        for i in range(x.size):
+            y[i] = x[i]
+        return y
+
+    monkeypatch.setattr(_checks, "damaged_entry", lambda fn, args: "its index is damaged")
+    with pytest.raises(DamagedCacheError, match="float_only .*its index is damaged"):
+        _numdiff.complex_step(_contiguous_args(float_only), np.array([1.0, 2.0]), 2)

@@ -16,6 +16,13 @@ import numpy as np
 
 from ._format import transversality_message
 
+
+class DamagedCacheError(RuntimeError):
+    """A function's numba disk cache that cannot be loaded (a damaged or foreign entry),
+    named with its files where a compilation failed because of it: never taken for the
+    function's refusal of an input (the complex step passes it on)."""
+
+
 #: where a message names its query
 QUERY = "{query}"
 

@@ -32,6 +32,7 @@ from .._limits import (
     TARGET_RTOL,
 )
 from .._numerics import SCALE_FLOOR
+from ._errors import DamagedCacheError
 from ._validate import all_finite
 
 #: levels of one run (steps H .. H / 2**(LEVELS - 1)), each two calls of the function.
@@ -211,6 +212,8 @@ def _complex_columns(fun, x, h, m):
             if getattr(out, "shape", None) != (m,) and np.shape(out) != (m,):
                 return None
             J[:, j] = np.imag(out)
+    except DamagedCacheError:  # not the function's refusal: the user must see it
+        raise
     except Exception:  # noqa: BLE001 - any refusal of complex input: not usable
         return None
     J /= h

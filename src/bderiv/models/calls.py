@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
+from functools import partial
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
 from .._support._format import format_mask
 from .._support._validate import check_mask, check_state
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
-from .numerical_jacobians import NumericalJacobians
+from .numerical_jacobians import NumericalJacobians, matches_near
 from .python_first import PythonTime, starts_in_python
 from .readiness import ready_now
 from .user_functions import (
@@ -182,9 +183,11 @@ class ModelCalls:
             return
         x = check_state(x, self.dim)
         what = f"field(x, mask={self._mask_name(mask)})"
+        field = partial(self.eval_field, mask=mask)
         try:
-            check_given_jacobian(lambda y: self.eval_field(y, mask), x,
-                                 model.jacobian(x, mask), what, "field_jacobian")
+            check_given_jacobian(field, x, model.jacobian(x, mask), what, "field_jacobian")
+            if not given and not matches_near(field, partial(model.jacobian, mask=mask), x):
+                raise ValueError("the complex step does not match beside x")
         except ValueError:
             if given:
                 raise
@@ -279,6 +282,8 @@ class ModelCalls:
         if key not in self._checked:
             try:
                 check_given_jacobian(self.eval_events, x, J, "events(x)", "event_jacobian")
+                if not matches_near(self.eval_events, self.compiled.event_jacobian_at, x):
+                    raise ValueError("the complex step does not match beside x")
             except ValueError:
                 _log.info("the complex-step Jacobian of events(x) does not match its central "
                           "differences (the events are not complex-analytic): a numerical "

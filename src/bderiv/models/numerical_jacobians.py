@@ -1,8 +1,10 @@
 """The Jacobians a model does not give: how each is computed, and what they cost.
 
 A missing Jacobian is had by complex step (exact to rounding, d calls) where that matched a
-central difference the first time for its function, mask and event, else by central
-differences (10 to 100 calls per variable); the decision is kept per key, and forgotten
+central difference the first time for its function, mask and event, at that state and
+beside it (:func:`trusted`), else by central differences (10 to 100 calls per variable);
+where the complex step fails at a later state, by central differences from then on. The
+decision is kept per key, and forgotten
 when the model's evaluations switch to other code (Python first: the Python code and the
 compiled functions may differ in what they make of complex input). The cost is counted
 per missing parameter, and a build that spent most of its time on them says so
@@ -19,6 +21,7 @@ import numpy as np
 
 from .._limits import SLOW_BUILD_SECONDS
 from .._support import _numdiff as numdiff
+from .._support._validate import all_finite
 from .user_functions import check_given_jacobian, numerical_jacobian
 
 _log = logging.getLogger("bderiv")
@@ -27,15 +30,49 @@ _log = logging.getLogger("bderiv")
 _COMPLEX, _CENTRAL = "complex step", "central differences"
 
 
+#: the second point where a complex step is held to central differences: this fraction of
+#: each variable's scale away from the first, along a fixed direction
+NEAR = 1e-3
+
+
 def _matches(fun, x, J) -> bool:
     """Whether ``J`` matches a central difference of ``fun`` at ``x`` along a random
-    direction (:func:`check_given_jacobian`'s test): a complex step is trusted only then."""
+    direction (:func:`check_given_jacobian`'s test)."""
     try:
         with np.errstate(all="ignore"):  # a scale beyond float64's square root: not trusted
             check_given_jacobian(fun, x, J, "", "")
     except ValueError:
         return False
     return True
+
+
+def matches_near(fun, complex_jacobian, x) -> bool:
+    """Whether the complex step ``complex_jacobian(y)`` (None: it failed) matches a central
+    difference of ``fun`` at a point near ``x`` too (:data:`NEAR`): a function that is not
+    complex-analytic can match at one point and not beside it (``abs(v) * v`` at v = 0,
+    where both are 0). True where ``fun`` has no value there, or central differences none
+    (the first point's match decides then)."""
+    direction = np.random.default_rng(1).uniform(-1.0, 1.0, x.size)
+    y = x + NEAR * numdiff.variable_scales(x) * direction
+    try:
+        with np.errstate(all="ignore"):
+            if not all_finite(np.asarray(fun(y), dtype=np.float64)):
+                return True
+    except Exception:  # noqa: BLE001 - no value beside x: nothing to hold the step to
+        return True
+    J = complex_jacobian(y)
+    if J is None:
+        return False
+    try:
+        return _matches(fun, y, J)
+    except Exception:  # noqa: BLE001 - central differences fail beside x: as above
+        return True
+
+
+def trusted(fun, complex_jacobian, x, J) -> bool:
+    """Whether a complex-step Jacobian is trusted for a function and mask: ``J`` at ``x``
+    matches a central difference of ``fun`` there, and :func:`matches_near`."""
+    return _matches(fun, x, J) and matches_near(fun, complex_jacobian, x)
 
 
 class NumericalJacobians:
@@ -63,13 +100,16 @@ class NumericalJacobians:
         start, generation = time.perf_counter(), self.generation
         table = self.how  # the decisions of these functions: a switch to the compiled ones
         how = table.get(key)  # meanwhile (another thread, a probe) starts a new table
-        # the first time with NumPy's discarded imaginary parts refused; once the step has
-        # matched a central difference, without that check's warnings context
-        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0],
-                                                              strict=how is None)
+        # NumPy's discarded imaginary parts refused (a branch of the function may cast)
+        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0])
         calls = 0 if how == _CENTRAL else x.size
-        if how is None:  # the first time for this key: held to a central difference once
-            how = _COMPLEX if J is not None and _matches(fun, x, J) else _CENTRAL
+        if how == _COMPLEX and J is None:  # it took complex input once, not here
+            _log.info("the complex step of %s failed at x = %s (the function does not take "
+                      "complex input there): central differences from now on", what(), x)
+            how = table[key] = _CENTRAL
+        if how is None:  # the first time for this key: held to central differences twice
+            how = _COMPLEX if J is not None and trusted(
+                fun, lambda y: numdiff.complex_step(raw, y, shape[0]), x, J) else _CENTRAL
             table[key] = how
             if jac_name not in self._cost:
                 _log.info("%s not given: computing it by %s (%s); pass %s to save that time",

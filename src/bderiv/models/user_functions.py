@@ -16,7 +16,7 @@ import numpy as np
 from .._limits import ACCEPT_RTOL
 from .._support import _numdiff as numdiff
 from .._support._validate import all_finite, check_finite, check_real_array
-from .compiled import is_compiled, refuse_damaged_cache
+from .compiled import is_compiled, note_refused, refuse_damaged_cache, refused_types
 
 
 def check_callable(f, name: str) -> None:
@@ -30,30 +30,30 @@ def _contiguous_args(fn):
     compiled path compiled it for (a C-contiguous float64 state, int masks and events): a
     strided view or an int array would make numba compile another version of it. A complex
     state (a complex step's) goes as C-contiguous complex128, the version the compiled path
-    compiles for the complex step of a field and of events (once per function); where that
-    version does not compile, every later complex call raises the same TypeError at once
-    (numba would try to compile it again at each). A compilation that fails on a damaged
-    numba disk cache of ``fn`` raises the RuntimeError naming its files
+    compiles for the complex step of a field and of events; where a version does not
+    compile, later calls for it raise a TypeError at once, in every model of ``fn``
+    (numba would try to compile it again at each: :func:`~.compiled.refused_types`). A
+    compilation that fails on a damaged numba disk cache of ``fn`` raises the
+    :class:`~bderiv._support._errors.DamagedCacheError` naming its files
     (:func:`bderiv.models.compiled.refuse_damaged_cache`)."""
     if not is_compiled(fn):
         return fn
-    refused = []  # why the complex version does not compile, once known
 
     def call(x, *ints):
         complex_state = type(x) is np.ndarray and x.dtype.kind == "c"
-        if complex_state and refused:
-            raise TypeError(refused[0])
         args = (np.ascontiguousarray(x, dtype=np.complex128 if complex_state else np.float64),
                 *(int(i) for i in ints))
+        if complex_state and refused_types(fn) and \
+                tuple(map(numba.typeof, args)) in refused_types(fn):
+            raise TypeError(f"{fn.__name__} does not compile for complex input")
         try:
             return fn(*args)
-        except Exception as exc:
+        except Exception:
             types = tuple(map(numba.typeof, args))
             if types not in fn.overloads:  # its compilation failed: a damaged disk cache?
                 refuse_damaged_cache(fn, fn.__name__, types)
                 if complex_state:
-                    refused.append(f"{fn.__name__} does not compile for complex input "
-                                   f"({type(exc).__name__})")
+                    note_refused(fn, types)
             raise
 
     call.__wrapped__ = fn

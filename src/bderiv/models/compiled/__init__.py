@@ -14,7 +14,13 @@ path".
 from __future__ import annotations
 
 from ._cached import key_all_kernels
-from ._checks import check_compiled, is_compiled, refuse_damaged_cache
+from ._checks import (
+    check_compiled,
+    is_compiled,
+    note_refused,
+    refuse_damaged_cache,
+    refused_types,
+)
 from ._integrate import EVENT
 from ._run import ENDED, HANDOFF
 from ._slices import Cancelled, cancel_point, stopped_by
@@ -27,4 +33,4 @@ key_all_kernels()
 __all__ = ["ENDED", "EVENT", "EVENT_JAC_COMPLEX_STEP", "EVENT_JAC_GIVEN", "EVENT_JAC_NONE",
            "HANDOFF", "JACOBIAN_MODES", "Cancelled", "CompiledModel", "Stretch",
            "cancel_point", "check_compiled", "dense_at", "integrate_stretch", "is_compiled",
-           "refuse_damaged_cache", "stopped_by"]
+           "note_refused", "refuse_damaged_cache", "refused_types", "stopped_by"]

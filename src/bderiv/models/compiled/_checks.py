@@ -9,6 +9,7 @@ the driver left is evaluated again here, in Python, to say what came back.
 from __future__ import annotations
 
 import re
+import weakref
 from functools import lru_cache
 
 import numpy as np
@@ -16,6 +17,7 @@ from numba.core.dispatcher import Dispatcher
 from numba.core.errors import NumbaError
 
 from ..._kernels._cache import damaged_entry
+from ..._support._errors import DamagedCacheError
 from ..._support._format import MASK_MEANING, format_mask
 from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
@@ -136,28 +138,47 @@ def _check_types(fn, name: str) -> None:
         )
 
 
+#: per dispatcher of the user's, the argument types it failed to compile for: numba would
+#: try again at every call (up to a second each), so a failure is kept for the process
+_REFUSED = weakref.WeakKeyDictionary()
+
+
+def refused_types(fn) -> set:
+    """The argument types (tuples of numba types) ``fn`` is known not to compile for."""
+    return _REFUSED.get(fn, set())
+
+
+def note_refused(fn, args) -> None:
+    """Keep that ``fn`` does not compile for ``args`` (:func:`refused_types`)."""
+    _REFUSED.setdefault(fn, set()).add(args)
+
+
 @lru_cache(maxsize=256)
 def compiles_as(fn, signature) -> bool:
     """Whether the dispatcher ``fn`` compiles for ``signature``'s arguments and returns
     its return type (quietly: False where it does not)."""
     args = signature.args
+    if args in refused_types(fn):
+        return False
     if args not in fn.overloads:
         try:
             fn.compile(args)
         except Exception as exc:
             refuse_damaged_cache(fn, getattr(fn, "__name__", "a function"), args)
             if isinstance(exc, NumbaError | RuntimeError | TypeError | ValueError):
+                note_refused(fn, args)
                 return False
             raise
     return fn.overloads[args].signature.return_type == signature.return_type
 
 
 def refuse_damaged_cache(fn, name: str, args) -> None:
-    """After a failed compilation of the user's ``fn`` for ``args``: raise the RuntimeError
-    naming the damaged disk cache when that is why (:func:`damaged_entry`), else return."""
+    """After a failed compilation of the user's ``fn`` for ``args``: raise the
+    :class:`~bderiv._support._errors.DamagedCacheError` (a RuntimeError) naming the
+    damaged disk cache when that is why (:func:`damaged_entry`), else return."""
     why = damaged_entry(fn, args)
     if why is not None:
-        raise RuntimeError(f"{name} ({fn.py_func.__qualname__}): {why}")
+        raise DamagedCacheError(f"{name} ({fn.py_func.__qualname__}): {why}")
 
 
 def compiles_for_complex(field) -> bool:
