@@ -287,3 +287,30 @@ def test_a_damaged_cache_of_the_complex_version_is_not_taken_for_a_refusal(monke
     monkeypatch.setattr(_checks, "damaged_entry", lambda fn, args: "its index is damaged")
     with pytest.raises(DamagedCacheError, match="float_only .*its index is damaged"):
         _numdiff.complex_step(_contiguous_args(float_only), np.array([1.0, 2.0]), 2)
+
+
+def _pendulum(x, mask):
+    """Analytic, started at rest at angle 0: a state with zero components."""
+    return np.array([x[1], np.cos(x[0]) - 0.5])
+
+
+@pytest.mark.parametrize("policy", ["scipy", "compiled"])
+def test_an_analytic_field_from_rest_keeps_its_complex_step(policy, monkeypatch, caplog):
+    """The complex step is held to central differences beside the first state, at least
+    half of NEAR of each variable's scale away and along the first state's scales: with a
+    variable that is 0 there (a body at rest) 2e-5 beside it and the differences along its
+    own scale there, they lost 1e-5 to rounding, and a right complex step was taken for a
+    wrong one (central differences, 5x the calls, 1e-10 off; a second review)."""
+    monkeypatch.setenv("BDERIV_INTEGRATOR", policy)
+    event = numba.njit(lambda x: np.array([x[0] - 0.5]))
+    model = HybridSystem(numba.njit(_pendulum), event, n_events=1, dim=2)
+    with caplog.at_level(logging.INFO, logger="bderiv"):
+        D = model.flow_bderivative(np.zeros(2), 3.0)
+    messages = " ".join(r.getMessage() for r in caplog.records)
+    assert "central differences" not in messages, messages
+    exact = HybridSystem(_pendulum, lambda x: np.array([x[0] - 0.5]), n_events=1, dim=2,
+                         field_jacobian=lambda x, mask: np.array([[0.0, 1.0],
+                                                                  [-np.sin(x[0]), 0.0]]),
+                         event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    E = exact.flow_bderivative(np.zeros(2), 3.0)(np.eye(2))
+    np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-12, atol=1e-12 * np.abs(E).max())

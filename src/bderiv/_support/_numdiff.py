@@ -281,10 +281,13 @@ class Comparison(NamedTuple):
         return bool((self.mismatch <= self.tolerance).all())
 
 
-def compare(fun, x, J, seed=0) -> Comparison:
+def compare(fun, x, J, seed=0, scales=None) -> Comparison:
     """Compare ``J`` (m, d), the claimed Jacobian of ``fun`` at ``x``, with the derivative
-    along a random direction (normal entries times the variables' scales, seeded)."""
-    v = np.random.default_rng(seed).standard_normal(x.size) * variable_scales(x)
+    along a random direction (normal entries times the variables' scales, seeded;
+    ``scales`` (d,) instead of those of ``x``: a point beside another, where a variable
+    that is 0 at the other is tiny here, keeps the other's unit step)."""
+    scales = variable_scales(x) if scales is None else scales
+    v = np.random.default_rng(seed).standard_normal(x.size) * scales
     D = directional(fun, x, v)
     dv, err = D.value[:, 0], D.error[:, 0]
     Jv, size = J @ v, np.abs(J) @ np.abs(v) + np.abs(dv)

@@ -47,25 +47,30 @@ def _matches(fun, x, J) -> bool:
 
 
 def matches_near(fun, complex_jacobian, x) -> bool:
-    """Whether the complex step ``complex_jacobian(y)`` (None: it failed) matches a central
-    difference of ``fun`` at a point near ``x`` too (:data:`NEAR`): a function that is not
-    complex-analytic can match at one point and not beside it (``abs(v) * v`` at v = 0,
-    where both are 0). True where ``fun`` has no value there, or central differences none
-    (the first point's match decides then)."""
-    direction = np.random.default_rng(1).uniform(-1.0, 1.0, x.size)
-    y = x + NEAR * numdiff.variable_scales(x) * direction
+    """Whether the complex step ``complex_jacobian(y)`` matches a central difference of
+    ``fun`` at a point ``y`` near ``x`` too (:data:`NEAR` of each variable's scale, along
+    a fixed direction whose entries are 1/2 to 1 in size; the difference along the scales
+    of ``x``): a function that is not complex-analytic can match at one point and not
+    beside it (``abs(v) * v`` at v = 0, where both are 0). True where ``fun`` has no value
+    at ``y``, the complex step none (a later refusal goes to central differences then) or
+    central differences none: the first point's match decides."""
+    rng = np.random.default_rng(1)
+    direction = rng.uniform(0.5, 1.0, x.size) * rng.choice((-1.0, 1.0), x.size)
+    scales = numdiff.variable_scales(x)
+    y = x + NEAR * scales * direction
     try:
         with np.errstate(all="ignore"):
             if not all_finite(np.asarray(fun(y), dtype=np.float64)):
                 return True
     except Exception:  # noqa: BLE001 - no value beside x: nothing to hold the step to
         return True
-    J = complex_jacobian(y)
-    if J is None:
-        return False
     try:
-        return _matches(fun, y, J)
-    except Exception:  # noqa: BLE001 - central differences fail beside x: as above
+        J = complex_jacobian(y)
+        if J is None:
+            return True
+        with np.errstate(all="ignore"):
+            return numdiff.compare(fun, y, J, scales=scales).passed
+    except Exception:  # noqa: BLE001 - no complex step or difference beside x: as above
         return True
 
 
