@@ -43,8 +43,8 @@ def _contiguous_args(fn):
         complex_state = type(x) is np.ndarray and x.dtype.kind == "c"
         args = (np.ascontiguousarray(x, dtype=np.complex128 if complex_state else np.float64),
                 *(int(i) for i in ints))
-        if complex_state and refused_types(fn) and \
-                tuple(map(numba.typeof, args)) in refused_types(fn):
+        refused = refused_types(fn) if complex_state else ()
+        if refused and tuple(map(numba.typeof, args)) in refused:
             raise TypeError(f"{fn.__name__} does not compile for complex input")
         try:
             return fn(*args)
