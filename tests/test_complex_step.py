@@ -314,3 +314,24 @@ def test_an_analytic_field_from_rest_keeps_its_complex_step(policy, monkeypatch,
                          event_jacobian=lambda x: np.array([[1.0, 0.0]]))
     E = exact.flow_bderivative(np.zeros(2), 3.0)(np.eye(2))
     np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-12, atol=1e-12 * np.abs(E).max())
+
+
+@pytest.mark.parametrize("field", [_pendulum, lambda x, mask: np.array([x[1], abs(x[0])])],
+                         ids=["complex-step", "central-differences"])
+def test_the_cost_counts_every_call_of_the_field_the_jacobians_made(field):
+    """The calls of the checks that choose the method (a central difference at the first
+    state, a complex step and a difference beside it) count in the cost, as those of the
+    Jacobians do: the cost's calls are the field's calls, counted here."""
+    calls = []
+
+    def counted(x, mask):
+        calls.append(1)
+        return field(x, mask)
+
+    model = HybridSystem(counted, lambda x: np.array([x[0] - 0.5]), n_events=1, dim=2,
+                         event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    for x in (np.array([0.3, -0.2]), np.array([0.4, 0.1]), np.array([0.2, 0.5])):
+        model.calls.eval_field_jacobian(x, 0)
+    jacobians, counted_calls, _ = model.numerical_jacobian_cost["field_jacobian"]
+    assert jacobians == 3
+    assert counted_calls == len(calls), (counted_calls, len(calls))

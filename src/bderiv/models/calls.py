@@ -252,9 +252,10 @@ class ModelCalls:
         -------
         dict
             ``{"field_jacobian": (jacobians, calls, seconds), ...}``: how many numerical
-            Jacobians were computed, the calls of the user's function they made and the
-            time they took. Passing the Jacobian saves nearly all of that time (inside
-            the variational equations of ``flow_bderivative`` typically 90 % of it).
+            Jacobians were computed, the calls of the user's function they made (those
+            of the checks that chose the method included) and the time they took.
+            Passing the Jacobian saves nearly all of that time (inside the variational
+            equations of ``flow_bderivative`` typically 90 % of it).
         """
         return self._numerical.cost
 

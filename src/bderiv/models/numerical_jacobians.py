@@ -73,6 +73,18 @@ def trusted(fun, complex_jacobian, x, J) -> bool:
     return _matches(fun, x, J) and matches_near(fun, complex_jacobian, x)
 
 
+class _Counted:
+    """``fun`` with its calls counted (those of the checks that decide how a Jacobian is
+    computed count in its cost)."""
+
+    def __init__(self, fun):
+        self.fun, self.calls = fun, 0
+
+    def __call__(self, *args):
+        self.calls += 1
+        return self.fun(*args)
+
+
 class NumericalJacobians:
     """A model's numerical Jacobians: ``how`` (key -> complex step or central differences),
     ``generation`` (of the functions they are taken of: one more at each :meth:`forget`),
@@ -106,8 +118,11 @@ class NumericalJacobians:
                       "complex input there): central differences from now on", what(), x)
             how = table[key] = _CENTRAL
         if how is None:  # the first time for this key: held to central differences twice
+            counted, counted_raw = _Counted(fun), _Counted(raw)
             how = _COMPLEX if J is not None and trusted(
-                fun, lambda y: numdiff.complex_step(raw, y, shape[0]), x, J) else _CENTRAL
+                counted, lambda y: numdiff.complex_step(counted_raw, y, shape[0]), x,
+                J) else _CENTRAL
+            calls += counted.calls + counted_raw.calls
             table[key] = how
             if jac_name not in self._cost:
                 _log.info("%s not given: computing it by %s (%s); pass %s to save that time",
