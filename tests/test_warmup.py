@@ -41,6 +41,7 @@ def test_only_the_integrators_process_runs_at_its_optimisation_level(monkeypatch
         def __init__(self, command, env, **kwargs):
             seen[command[4]] = env.get("NUMBA_OPT")
             kwargs["stderr"].close()
+            kwargs["stdout"].close()
 
     monkeypatch.setattr(subprocess, "Popen", Popen)
     for name in warmup.FAMILIES:
@@ -63,3 +64,55 @@ def test_bad_families_and_process_counts_are_refused_by_name(capsys):
     err = capsys.readouterr().err
     assert "unknown family 'lanes': the families are integrator, dense, structured, " \
         "resets" in err
+
+
+def _stand_in(said):
+    """``warmup._start`` replaced: a process that prints what a family's process says
+    (``said[name]``, nothing where absent) and compiles nothing."""
+    import sys
+    import tempfile
+
+    def start(name):
+        proc = subprocess.Popen([sys.executable, "-c", f"print({said.get(name, '')!r})"],
+                                stdout=(out := tempfile.TemporaryFile()),
+                                stderr=(log := tempfile.TemporaryFile()))
+        proc.out, proc.log = out, log
+        return proc
+    return start
+
+
+def test_a_family_named_twice_is_compiled_once_and_one_that_waited_says_so(monkeypatch):
+    """A family given twice starts one process (it started two, counted "1 of 2" twice
+    and left one unchecked: a review); an integrator compiled by another process meanwhile
+    is said to have been waited for, not compiled (a review)."""
+    started, lines = [], []
+    start = _stand_in({"integrator": "integrator: compiled by another process, waited for"})
+    monkeypatch.setattr(warmup, "_start", lambda name: started.append(name) or start(name))
+    seconds = warmup.warm_up(["resets", "integrator", "resets"], processes=2,
+                             progress=lines.append)
+    assert started == ["resets", "integrator"] and list(seconds) == ["resets", "integrator"]
+    assert lines[:2] == ["compiling resets (1 of 2)", "compiling integrator (2 of 2)"]
+    done = sorted(line.split(" in ")[0] for line in lines[2:])
+    assert done == ["integrator compiled by another process, waited for", "resets compiled"]
+
+
+def test_the_integrators_family_says_where_it_compiled_nothing(monkeypatch):
+    import contextlib
+
+    monkeypatch.setattr(readiness, "compile_lock", lambda wait: contextlib.nullcontext())
+    monkeypatch.setattr(readiness, "integrator_cached", lambda: True)
+    monkeypatch.setattr(readiness, "held_elsewhere", lambda: True)
+    assert warmup.compile_family("integrator") == "compiled by another process, waited for"
+    monkeypatch.setattr(readiness, "held_elsewhere", lambda: False)
+    assert warmup.compile_family("integrator") == "in the cache already"
+
+
+def test_ctrl_c_ends_a_command_with_a_line_and_the_shells_status(monkeypatch, capsys):
+    from bderiv.cli import parser
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(parser._COMMANDS, "compile", interrupted)
+    assert main(["compile"]) == 130
+    assert capsys.readouterr().err.strip() == "bderiv compile: interrupted"

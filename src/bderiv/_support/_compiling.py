@@ -18,11 +18,15 @@ from numba.core import event
 
 log = logging.getLogger("bderiv.compiling")
 
-#: (module prefix, what compiles, how long it takes on two cores), the first match counts
+#: (module prefix, what compiles, how long it takes on two cores, whether ``python -m
+#: bderiv compile`` compiles it ahead), the first match counts
 FAMILIES = (
-    ("bderiv._kernels", "the B-derivative kernels this call needs", "seconds to a minute"),
-    ("bderiv.models.compiled.rules", "the stop rules' arithmetic", "a few seconds"),
-    ("bderiv.symbolic", "a model's generated kernels", "seconds"),
+    ("bderiv._kernels", "the B-derivative kernels this call needs", "seconds to a minute",
+     True),
+    ("bderiv.models.compiled.rules", "the stop rules' arithmetic", "a few seconds", True),
+    # the modules that from_sympy generates (bderiv.symbolic._cache names them so)
+    ("bderiv_symbolic_", "a symbolic model's generated functions", "seconds", False),
+    ("bderiv.robots", "a robot's contact kernels", "seconds", False),
 )
 
 
@@ -39,20 +43,21 @@ class _Notice(event.Listener):
         module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
         if depth:  # compiled into a function that compiles already
             return
-        for prefix, what, how_long in FAMILIES:
+        for prefix, what, how_long, ahead in FAMILIES:
             if module.startswith(prefix):
                 if prefix not in self.said:
                     self.said.add(prefix)
                     log.warning("bderiv: compiling %s for this machine (their first use here, "
-                                "%s; numba keeps them on disk for later processes; "
-                                "`python -m bderiv compile` compiles them ahead)", what,
-                                how_long)
+                                "%s; numba keeps them on disk for later processes%s)", what,
+                                how_long, "; `python -m bderiv compile` compiles them ahead"
+                                if ahead else "")
                 return
 
     def on_end(self, ev):
         self.depth.n = getattr(self.depth, "n", 1) - 1
 
 
-#: the listener, registered once when the package's kernels are imported
+#: the listener, registered once, at the first import of the packages whose calls compile
+#: (``bderiv.engine``, ``bderiv.models``: each imports this module) or of a public name
 NOTICE = _Notice()
 event.register("numba:compile", NOTICE)

@@ -100,10 +100,7 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     report("model", res)
     with phases("flow map"):
         fb = system.flow_bderivative(ex.x0, ex.t_final)
-    # scipy also for a compiled model while the integrator compiles elsewhere, and on
-    # its functions' Python code first where they are not compiled on this machine yet
-    res["integrator"] = "python" if system.calls.python_first else \
-        "scipy" if system.compiled is None else "compiled"
+    res["integrator"] = _running_on(system)
     res["build_seconds"] = phases.without_compiling("flow map")
     res["groups"] = _groups(fb, full)
     if full:
@@ -120,7 +117,16 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
         with phases("check"):
             res["check"] = _check(ex, fb, rng, check, eps, progress,
                                   res["batch"]["ns_per_vector"] * 1e-9)
+        res["check"]["simulations_on"] = _running_on(system)  # the speed-up's reference
         report("check", res)
+
+
+def _running_on(system) -> str:
+    """Where ``system``'s runs go now: ``"python"`` (a compiled model's functions on their
+    Python code, before they are compiled on this machine), ``"scipy"`` (a Python model,
+    or a compiled one while the integrator compiles elsewhere) or ``"compiled"``."""
+    return "python" if system.calls.python_first else \
+        "scipy" if system.compiled is None else "compiled"
 
 
 def _groups(fb, full):

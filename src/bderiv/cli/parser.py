@@ -357,8 +357,9 @@ def main(argv=None) -> int:
     Returns
     -------
     int
-        0 on success, 2 on a bad argument (after a one-line message on stderr). Any other
-        error propagates (a traceback, exit status 1).
+        0 on success, 2 on a bad argument (after a one-line message on stderr), 130 after
+        Ctrl-C (a line saying so). Any other error propagates (a traceback, exit status
+        1).
 
     Examples
     --------
@@ -392,4 +393,7 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # the reader went away (`bderiv demo | head`): stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    except KeyboardInterrupt:  # Ctrl-C: a line, not a traceback; the shell's status
+        print(f"\nbderiv {args.command}: interrupted", file=sys.stderr, flush=True)
+        return 130
     return 0

@@ -66,6 +66,13 @@ def _model(res):  # the line "bderiv demo: <example>" came first, before the imp
     return f"  {res['description']}\n"
 
 
+#: where a compiled model's check simulations ran (the speed-up's reference), as its line
+#: says it
+_SIMULATIONS_ON = {"python": " (its Python code on scipy: the functions not compiled yet)",
+                   "scipy": " (on scipy: the compiled integrator not ready yet)",
+                   "compiled": ""}
+
+
 def _integrator(res):
     """Which integrator the simulations ran on (a compiled model's, or scipy)."""
     if not res.get("compiled"):
@@ -73,8 +80,10 @@ def _integrator(res):
     if res.get("integrator") == "python":
         return ("  its field, events and Jacobians are numba functions, not compiled on this "
                 "machine yet: its runs go on their Python code (the code numba compiles) on "
-                "scipy's solve_ivp until that has taken a second, then they are compiled "
-                "(BDERIV_INTEGRATOR=compiled compiles them at once)\n")
+                "scipy's solve_ivp until that has taken a second, then they are compiled, "
+                "and run on the compiled integrator once it is ready (on a fresh machine it "
+                "compiles in a background process; BDERIV_INTEGRATOR=compiled compiles both "
+                "at once)\n")
     if res.get("integrator") == "scipy":
         return ("  its field, events and Jacobians are numba-compiled functions; the compiled "
                 "integrator is not ready on this machine (being compiled in a background "
@@ -187,7 +196,8 @@ def _check(res):
         lines.append("  error shrinks with eps by "
                      + ", ".join(f"{r:.1f}x" for r in c["error_ratios"])
                      + " per step (O(eps) expected)")
-    lines.append(f"  one simulation per vector: {c['fd_seconds_per_vector'] * 1e3:.1f} ms; "
+    on = _SIMULATIONS_ON.get(c.get("simulations_on"), "") if res.get("compiled") else ""
+    lines.append(f"  one simulation per vector{on}: {c['fd_seconds_per_vector'] * 1e3:.1f} ms; "
                  f"D: {res['batch']['ns_per_vector']:.0f} ns per vector in the batch "
                  f"({c['speedup']:,.0f}x faster; {c['map_seconds_per_vector'] * 1e6:.1f} us per "
                  f"vector in a call of {c['vectors']})")

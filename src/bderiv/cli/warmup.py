@@ -13,11 +13,13 @@ argument types real calls give them:
   lock of :mod:`bderiv.models.readiness`, so a process that needs it meanwhile
   waits for it or runs on scipy instead of compiling it a second time.
 - ``dense``: the kernels of a B-derivative from a dense corner table (a model's event
-  point, as the chair's): single vectors, batches, transposes, pieces.
+  point, as the chair's): single vectors, batches, transposes, orders, and the chair's
+  flow map (on its Python functions: the demo's queries, on a model's read-only tables).
 - ``structured``: those of corner models: structured corners (n up to 128) and corner
   functions (``CornerFunction``: the kernels are shared by every function; a user's own
   function compiles at its first use, under a second).
-- ``resets``: those of B-derivatives with resets (impacts, bounces).
+- ``resets``: those of B-derivatives with resets (impacts, bounces): the ball in a
+  corner's flow map, every query.
 
 Each family's process writes its own cache entries; two families that compile the same
 small helper both write the same entry (numba writes a file whole, under a temporary name
@@ -47,13 +49,15 @@ FAMILIES = ("integrator", "dense", "structured", "resets")
 FULL_COLLECTIONS = 100
 
 
-def _integrator() -> None:
+def _integrator() -> str | None:
     from .. import examples
     from ..models import readiness
 
+    elsewhere = readiness.held_elsewhere()
     with readiness.compile_lock(wait=True):
         if readiness.integrator_cached():
-            return
+            return "compiled by another process, waited for" if elsewhere else \
+                "in the cache already"
         readiness.compiling_here()
         ex = examples.chair(compiled=True)
         s = ex.system
@@ -63,7 +67,8 @@ def _integrator() -> None:
 
 
 def _queries(bd, d, rng) -> None:
-    """Every operation of ``bd`` on one vector and on a batch (the parallel kernels)."""
+    """Every operation of ``bd`` (a B-derivative or a flow map) on one vector and on a
+    batch (the parallel kernels), and the orders of a small batch and of a large one."""
     for V in (rng.standard_normal(d), rng.standard_normal((20_000, d))):
         T = rng.standard_normal(V.shape)
         bd(V)
@@ -71,6 +76,24 @@ def _queries(bd, d, rng) -> None:
         bd.event_times(V)
         bd.jvp(V, T)
         bd.vjp(V, T)
+    for m in (10, 20_000):
+        bd.orders(rng.standard_normal((m, d)))
+
+
+def _flow_map(example) -> None:
+    """The queries of ``example``'s flow map on its Python functions (no integrator): the
+    read-only tables of a model's event groups, which the tables built here are not."""
+    from .. import examples
+
+    ex = getattr(examples, example)()
+    fb = ex.system.flow_bderivative(ex.x0, ex.t_final)
+    rng = np.random.default_rng(3)
+    _queries(fb, fb.dim, rng)
+    orders = fb.orders(rng.standard_normal((1, fb.dim)))
+    fb.apply_orders(rng.standard_normal((10, fb.dim)))
+    fb.piece([o[0].tolist() for o in orders])  # a piece's matrices (the demo lists them)
+    for bd, o in zip(fb.jumps, orders, strict=True):
+        bd.piece(o[0])
 
 
 def _dense() -> None:
@@ -82,6 +105,7 @@ def _dense() -> None:
         F = np.linalg.lstsq(Dh, np.ones(n), rcond=None)[0] + \
             0.1 * rng.uniform(-1, 1, (2**n, d))
         _queries(BDerivative(Dh, F), d, rng)
+    _flow_map("chair")  # the demo's and a model's flow map
 
 
 def _structured() -> None:
@@ -105,25 +129,20 @@ def _structured() -> None:
 
 
 def _resets() -> None:
-    from .. import examples
-
-    rng = np.random.default_rng(2)
-    ex = examples.ball_in_corner()
-    D = ex.system.flow_bderivative(ex.x0, ex.t_final)
-    V = rng.standard_normal((20_000, D.dim))
-    D(V)
-    D.vjp(V, V)
+    _flow_map("ball_in_corner")
 
 
 _WORK = {"integrator": _integrator, "dense": _dense, "structured": _structured,
          "resets": _resets}
 
 
-def compile_family(name: str) -> None:
-    """Compile family ``name`` in this process (its workload; see the module docstring)."""
+def compile_family(name: str) -> str | None:
+    """Compile family ``name`` in this process (its workload; see the module docstring);
+    returns what happened instead where nothing was compiled (the integrator found in the
+    cache, or compiled by another process meanwhile), else None."""
     if name not in _WORK:
         raise ValueError(f"family must be one of {', '.join(FAMILIES)}, got {name!r}")
-    _WORK[name]()
+    return _WORK[name]()
 
 
 def rarer_full_collections() -> None:
@@ -139,7 +158,9 @@ def compile_here(families) -> None:
     compilation), its full collections made rarer first (:func:`rarer_full_collections`)."""
     rarer_full_collections()
     for name in families:
-        compile_family(name)
+        note = compile_family(name)
+        if note:  # for warm_up, which reads this process's output
+            print(f"{name}: {note}", flush=True)
 
 
 def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
@@ -150,7 +171,7 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
     Parameters
     ----------
     families : str or sequence of str
-        One or some of :data:`FAMILIES`.
+        One or some of :data:`FAMILIES` (a name given twice is compiled once).
     processes : int, optional
         Families compiled at once (default ``len(os.sched_getaffinity(0))``).
     progress : callable ``progress(message)``, optional
@@ -165,7 +186,7 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
     KeyboardInterrupt
         Ctrl-C: the families' processes are stopped first.
     """
-    families = [families] if isinstance(families, str) else list(families)
+    families = [families] if isinstance(families, str) else list(dict.fromkeys(families))
     for name in families:
         if name not in _WORK:
             raise ValueError(f"families must be among {', '.join(FAMILIES)}, got {name!r}")
@@ -190,16 +211,22 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
                 proc.log.seek(0)
                 err = proc.log.read().decode(errors="replace")
                 proc.log.close()
+                proc.out.seek(0)
+                note = proc.out.read().decode(errors="replace").strip()
+                proc.out.close()
                 if proc.returncode != 0:
                     raise RuntimeError(f"compiling the family {name} failed (exit status "
                                        f"{proc.returncode}):\n{err[-2000:]}")
                 seconds[name] = time.perf_counter() - start
-                say(f"{name} compiled in {seconds[name]:.1f} s ({len(seconds)} of "
+                done = note.partition(": ")[2] or "compiled"
+                say(f"{name} {done} in {seconds[name]:.1f} s ({len(seconds)} of "
                     f"{len(families)} done)")
     finally:
         for _, proc in running.values():
             proc.kill()
             proc.wait()
+            proc.log.close()
+            proc.out.close()
     return {name: seconds[name] for name in families}  # in the order asked
 
 
@@ -212,6 +239,8 @@ def _start(name: str) -> subprocess.Popen:
         readiness.child_environment()
     proc = subprocess.Popen([sys.executable, "-m", "bderiv", "compile", name, "--here"],
                             env=env, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=(log := tempfile.TemporaryFile()))
+                            stdout=(out := tempfile.TemporaryFile()),
+                            stderr=(log := tempfile.TemporaryFile()))
     proc.log = log  # its error output, read when it fails
+    proc.out = out  # what it says it did where it compiled nothing (compile_here)
     return proc

@@ -17,3 +17,5 @@ The user's class, :class:`~bderiv.analysis.system.HybridSystem`, is
 analysis layer above (:mod:`bderiv.analysis`), so that imports point one way. See
 ``docs/design.md``, "Layers, top to bottom".
 """
+
+from .._support import _compiling  # noqa: F401 - a first compilation is announced

@@ -19,8 +19,11 @@ the disk cache does one of three things, chosen by the environment variable
 - ``compiled``: it waits for the integrator (compiling it, or waiting for the process that
   does), then runs compiled. For benchmarks and for work that must run on one integrator
   from its first call.
-- ``scipy``: compiled models run on scipy (a check of the compiled path, or a machine
-  that must not compile).
+- ``scipy``: compiled models run on scipy, their numba functions called from Python (a
+  check of the compiled path, or a machine that should not spend the integrator's minutes
+  of compiling). The model's functions still compile at their first calls, as numba
+  compiles any function, and so do the kernels of the B-derivatives; there is no Python
+  first under this policy (the check is of the numba functions).
 
 The variable is read when a model's compiled functions are first needed (a model that
 runs compiled keeps doing so), and when a model of numba functions is made. Under ``auto``
@@ -289,8 +292,16 @@ def _wait_for_integrator() -> None:
         return
     _log.warning("bderiv: compiling the compiled integrator for this machine (once: "
                  "about one to two minutes; later runs load it from numba's disk cache)")
-    subprocess.run(compile_command(), env=compile_environment(), check=False,
-                   stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+    with tempfile.TemporaryFile() as log:  # its error output: said only if it fails
+        done = subprocess.run(compile_command(), env=compile_environment(), check=False,
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                              stderr=log)
+        if done.returncode != 0 and not integrator_cached():
+            log.seek(0)
+            tail = log.read().decode(errors="replace")[-1500:]
+            _log.warning("bderiv: compiling the compiled integrator in its own process "
+                         "failed (exit status %d); it is compiled in this process at its "
+                         "first use.%s", done.returncode, f"\n{tail}" if tail else "")
 
 
 def _child_ended() -> bool:
@@ -348,9 +359,11 @@ def integrator_ready() -> bool:
         _state["said"] = True
         _log.warning(
             "bderiv: the compiled integrator is not compiled on this machine yet; it is "
-            "being compiled in a background process (about one to two minutes of one core, "
-            "once per machine). Until it is ready, compiled models run on scipy's solve_ivp "
-            "(the same method and stop rules, slower per run). `python -m bderiv compile` "
-            "compiles everything and waits; %s=compiled waits in this process.",
+            "being compiled in a background process%s (about one to two minutes of one "
+            "core, once per machine; it goes on if this program ends first, and later "
+            "programs load what it compiled). Until it is ready, compiled models run on "
+            "scipy's solve_ivp (the same method and stop rules, slower per run). `python -m "
+            "bderiv compile` compiles everything and waits; %s=compiled waits in this "
+            "process.", "" if _state["child"] is None else f" (pid {_state['child'].pid})",
             POLICY_VARIABLE)
     return False
