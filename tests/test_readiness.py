@@ -291,3 +291,23 @@ def test_wait_for_background_waits_for_the_process_this_one_started(stand_in, mo
     child.kill()
     assert readiness.wait_for_background(30) is True and child.poll() is not None
     child.log.close()
+
+
+def test_the_background_compilation_yields_to_the_program_in_its_own_session():
+    """Its session's scheduling group gets the nice value too: where Linux groups sessions
+    (autogroup), a new session's own nice value counts only within that session, and the
+    background compilation took half the cores from the program that started it (a
+    review: a 4.5 s first answer spent 1.5 s waiting for a core)."""
+    import os
+
+    probe = ("import os\nfrom bderiv.models.readiness import lower_priority\n"
+             "before = os.nice(0)\nlower_priority()\nprint(os.nice(0) - before)\n"
+             "try:\n    print(open('/proc/self/autogroup').read().split()[-1])\n"
+             "except OSError:\n    print('none')\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         start_new_session=True)  # as start_background starts it
+    assert out.returncode == 0, out.stderr
+    raised, group = out.stdout.split()
+    assert int(raised) == readiness.NICE
+    if group != "none" and os.path.exists("/proc/sys/kernel/sched_autogroup_enabled"):
+        assert int(group) == readiness.NICE

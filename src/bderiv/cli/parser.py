@@ -317,8 +317,10 @@ def _compile(args) -> str:
     if unknown:
         raise UsageError(f"unknown family {unknown[0]!r}: the families are "
                          f"{', '.join(FAMILIES)}")
-    if args.nice and hasattr(os, "nice"):  # a background compilation yields to the work
-        os.nice(10)
+    if args.nice:  # a background compilation yields to the work
+        from ..models.readiness import lower_priority
+
+        lower_priority()
     from .warmup import compile_here, warm_up
 
     if args.here:  # the process of one family (warmup.warm_up starts it)

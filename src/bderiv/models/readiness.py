@@ -222,6 +222,27 @@ def compile_environment() -> dict:
     return env
 
 
+#: the nice value of the background compilation (its process, and its session's scheduling
+#: group where the kernel groups sessions: the "autogroup" of Linux desktops and of these
+#: machines, where a process's own nice value counts only against its own session)
+NICE = 10
+
+
+def lower_priority() -> None:
+    """Run this process (the background compilation, a session of its own) at :data:`NICE`:
+    its nice value, and its session's scheduling group's where Linux has one. Without the
+    group's, a new session's process competes with the program that started it as an equal,
+    whatever its nice value (measured with two busy loops on one core: 2.0 / 2.0 s; with it
+    3.6 / 0.4 s, the program first)."""
+    if hasattr(os, "nice"):
+        os.nice(NICE)
+    try:
+        with open("/proc/self/autogroup", "w") as group:
+            group.write(str(NICE))
+    except OSError:  # no autogroup (another kernel, another system): the nice value alone
+        pass
+
+
 def start_background(nice: bool = True) -> bool | None:
     """Start the compiling process unless another process holds the lock (``nice``: at a
     lower priority than this one): True when started, None when another compiles, False
