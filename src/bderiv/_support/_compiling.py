@@ -23,7 +23,6 @@ log = logging.getLogger("bderiv.compiling")
 FAMILIES = (
     ("bderiv._kernels", "the B-derivative kernels this call needs", "seconds to a minute",
      True),
-    ("bderiv.models.compiled.rules", "the stop rules' arithmetic", "a few seconds", True),
     # the modules that from_sympy generates (bderiv.symbolic._cache names them so)
     ("bderiv_symbolic_", "a symbolic model's generated functions", "seconds", False),
     ("bderiv.robots", "a robot's contact kernels", "seconds", False),

@@ -9,7 +9,9 @@ loads. Each family is a small workload of the public API that reaches its kernel
 argument types real calls give them:
 
 - ``integrator``: the compiled integrator of compiled models (the driver and the compiled
-  run; about one to two minutes of one core, most of the total). Its process holds the
+  run; about one to two minutes of one core, most of the total), after the stop rules as
+  the Python integrator calls them (which run as Python until they are on the machine:
+  :mod:`bderiv.models.events._python_rules`). Its process holds the
   lock of :mod:`bderiv.models.readiness`, so a process that needs it meanwhile
   waits for it or runs on scipy instead of compiling it a second time.
 - ``dense``: the kernels of a B-derivative from a dense corner table (a model's event
@@ -52,6 +54,7 @@ FULL_COLLECTIONS = 100
 def _integrator() -> str | None:
     from .. import examples
     from ..models import readiness
+    from ..models.events._python_rules import compile_for_python
 
     elsewhere = readiness.held_elsewhere()
     with readiness.compile_lock(wait=True):
@@ -59,11 +62,21 @@ def _integrator() -> str | None:
             return "compiled by another process, waited for" if elsewhere else \
                 "in the cache already"
         readiness.compiling_here()
+        compile_for_python(_python_stops)  # first: the rules a first answer needs
         ex = examples.chair(compiled=True)
         s = ex.system
         s.simulate(ex.x0, ex.t_final)  # the compiled run decides the stops
         s.simulate(ex.x0, ex.t_final, t_eval=np.linspace(0.0, ex.t_final, 3))  # the driver
         s.flow_bderivative(ex.x0, ex.t_final)  # with the variational equations
+
+
+def _python_stops() -> None:
+    """Flow maps of Python models, the stops of the chair and of the ball in a corner (its
+    resets): the stop rules as the Python integrator calls them."""
+    from .. import examples
+
+    for ex in (examples.chair(), examples.ball_in_corner()):
+        ex.system.flow_bderivative(ex.x0, ex.t_final)
 
 
 def _queries(bd, d, rng) -> None:

@@ -63,6 +63,7 @@ try:
 except ImportError:  # Windows: no lock, the integrator compiles where it is needed
     fcntl = None
 
+from .compiled import machine_has
 from .compiled._integrate import drive_stretch
 from .compiled._run import run_stretches
 
@@ -140,19 +141,6 @@ def policy() -> str:
         raise ValueError(f"the environment variable {POLICY_VARIABLE} must be one of "
                          f"{', '.join(POLICIES)}, got {value!r}")
     return value
-
-
-def machine_has(dispatcher) -> bool:
-    """Whether ``dispatcher`` is compiled in this process or its disk cache holds an entry
-    for this machine (numba's codegen magic tuple: the CPU and its features)."""
-    if dispatcher.signatures:
-        return True
-    try:
-        index = dispatcher._cache._cache_file._load_index()
-        magic = dispatcher.targetctx.codegen().magic_tuple()
-    except Exception:  # noqa: BLE001 - uncached, another numba, a damaged index: not there
-        return False
-    return any(key[1] == magic for key in index)
 
 
 def integrator_cached() -> bool:

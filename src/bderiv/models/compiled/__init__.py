@@ -17,6 +17,7 @@ from ._cached import key_all_kernels
 from ._checks import (
     check_compiled,
     is_compiled,
+    machine_has,
     note_refused,
     refuse_damaged_cache,
     refused_types,
@@ -33,4 +34,4 @@ key_all_kernels()
 __all__ = ["ENDED", "EVENT", "EVENT_JAC_COMPLEX_STEP", "EVENT_JAC_GIVEN", "EVENT_JAC_NONE",
            "HANDOFF", "JACOBIAN_MODES", "Cancelled", "CompiledModel", "Stretch",
            "cancel_point", "check_compiled", "dense_at", "integrate_stretch", "is_compiled",
-           "note_refused", "refuse_damaged_cache", "refused_types", "stopped_by"]
+           "machine_has", "note_refused", "refuse_damaged_cache", "refused_types", "stopped_by"]

@@ -14,27 +14,47 @@ from __future__ import annotations
 
 import pathlib
 import sys
+import threading
 
 from ... import _numerics
 from ..._kernels import _pointer
 from ..._kernels._cache import checked_njit, rekey_modules, sources_digest
 
+#: the functions of :func:`eager` not compiled yet, with their signatures
+_PENDING: list = []
+_PENDING_LOCK = threading.Lock()
+
 
 def eager(signature):
-    """``njit(signature, cache=True)``, compiled at import, through bderiv's checked cache
-    files (:func:`bderiv._kernels._cache.checked_njit`, hardened before the compilation:
-    numba's plain ``.nbi``/``.nbc`` files are never read, so a damaged entry is compiled again,
-    never run: a flipped bit in a plain ``.nbc`` aborted every later ``import bderiv``).
-    Its compilation is then closed (other argument types are refused), as with a
-    signature given to ``njit``."""
+    """``njit(signature, cache=True)`` through bderiv's checked cache files
+    (:func:`bderiv._kernels._cache.checked_njit`: numba's plain ``.nbi``/``.nbc`` files are
+    never read, so a damaged entry is compiled again, never run: a flipped bit in a plain
+    ``.nbc`` aborted every later ``import bderiv``), compiled for ``signature`` alone by
+    :func:`compile_eager`, before the first model is bound for the compiled integrator:
+    not at import, where these placeholders and the binder took 0.66 s of a fresh
+    machine's first answer, which runs on scipy while the integrator compiles. Its
+    compilation is then closed (other argument types are refused), as with a signature
+    given to ``njit``."""
 
     def decorate(fn):
         dispatcher = checked_njit()(fn)
-        dispatcher.compile(signature)
-        dispatcher.disable_compile()
+        _PENDING.append((dispatcher, signature))
         return dispatcher
 
     return decorate
+
+
+def compile_eager() -> None:
+    """Compile the functions of :func:`eager` (once; loaded from the disk cache where it
+    holds them)."""
+    if not _PENDING:
+        return
+    with _PENDING_LOCK:
+        while _PENDING:
+            dispatcher, signature = _PENDING[0]
+            dispatcher.compile(signature)
+            dispatcher.disable_compile()
+            _PENDING.pop(0)
 
 
 def sources_key() -> str:
@@ -47,8 +67,7 @@ def sources_key() -> str:
 def key_all_kernels() -> None:
     """Give every lazily compiled, cached kernel of ``bderiv.models.compiled`` the sources key.
 
-    (The few kernels with an explicit signature compile at import, before this runs: they
-    call nothing of the package.)
+    (Those of :func:`eager` too: they compile later, under that key.)
     """
     rekey_modules([module for name, module in list(sys.modules.items())
                    if name.startswith(__package__ + ".") and module is not None],

@@ -247,3 +247,16 @@ def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
             f"finite in {region} at x = {format_state(x)}"
         )
     raise_failed_check(status, named[name], name, x, mask, d, n, params)
+
+
+def machine_has(dispatcher) -> bool:
+    """Whether ``dispatcher`` is compiled in this process or its disk cache holds an entry
+    for this machine (numba's codegen magic tuple: the CPU and its features)."""
+    if dispatcher.signatures:
+        return True
+    try:
+        index = dispatcher._cache._cache_file._load_index()
+        magic = dispatcher.targetctx.codegen().magic_tuple()
+    except Exception:  # noqa: BLE001 - uncached, another numba, a damaged index: not there
+        return False
+    return any(key[1] == magic for key in index)

@@ -27,7 +27,7 @@ from numba.experimental import structref
 from numba.extending import intrinsic
 
 from ..._kernels._pointer import call_at
-from ._cached import eager
+from ._cached import compile_eager, eager
 from ._integrate import drive_stretch
 from ._rhs import (
     COMPLEX_FIELD_TYPE,
@@ -156,6 +156,7 @@ def bound_model(field, jacobian, events, cfield=no_complex_field, section=no_sec
                 reset=no_reset):
     """The struct of checked dispatchers and parameter values ``params`` (C-contiguous
     float64; None: none). Without parameters it is kept for the 64 latest sets."""
+    compile_eager()  # the placeholders and the binder, at the first struct
     if params is None:
         return _bound(field, jacobian, events, cfield, section, event_jacobian, cevents, reset)
     return _bind(field, jacobian, events, cfield, section, params, event_jacobian, cevents,

@@ -25,7 +25,7 @@ import numpy as np
 from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
 from ..._support._format import format_mask, transversality_message
 from ..._support._validate import scratch
-from ..compiled import rules
+from ._python_rules import rules
 from .locate import examine, flags_of, state_error
 from .stopcalls import orientation
 

@@ -66,7 +66,7 @@ import numpy as np
 
 from ..._numerics import FINE_REACH, FINE_SAMPLES, REACH
 from ..._support._validate import scratch
-from ..compiled import rules
+from ._python_rules import rules
 from .crossings import group_tolerance
 from .peaks import peak_brackets, peak_of, sample_times
 from .stopcalls import StopCalls, local_rates

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..._numerics import GLOBAL_ERROR_FACTOR, MIN_RTOL, REFINE_FACTOR
 from ..._support._validate import scratch
-from ..compiled import rules
+from ._python_rules import rules
 from .stopcalls import local_view
 
 __all__ = [

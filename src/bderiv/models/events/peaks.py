@@ -17,7 +17,7 @@ from scipy.optimize import minimize_scalar
 from ..._limits import PEAK_XTOL
 from ..._numerics import REACH
 from ..._support._validate import scratch
-from ..compiled import rules
+from ._python_rules import rules
 
 __all__ = ["peak_brackets", "peak_of", "sample_times"]
 

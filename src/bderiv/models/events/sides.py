@@ -10,7 +10,7 @@ import numpy as np
 
 from ..._support._format import format_mask
 from ..._support._validate import scratch
-from ..compiled import rules
+from ._python_rules import rules
 
 __all__ = ["check_carried", "check_sides", "on_side_at_start"]
 

@@ -11,7 +11,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._support._validate import scratch
-from ..compiled import rules
+from ._python_rules import rules
 
 __all__ = ["LocalView", "StopCalls", "local_rates", "local_view", "orientation"]
 
