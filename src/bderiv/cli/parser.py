@@ -317,14 +317,10 @@ def _compile(args) -> str:
     if unknown:
         raise UsageError(f"unknown family {unknown[0]!r}: the families are "
                          f"{', '.join(FAMILIES)}")
-    if args.nice:  # a background compilation yields to the work
-        from ..models.readiness import lower_priority
-
-        lower_priority()
     from .warmup import compile_here, warm_up
 
-    if args.here:  # the process of one family (warmup.warm_up starts it)
-        compile_here(args.families)
+    if args.here:  # the process of one family (warm_up starts it; --nice: in the background)
+        compile_here(args.families, nice=args.nice)
         return ""
     def say(text):  # on stderr: stdout is the summary
         print(f"bderiv compile: {text}", file=sys.stderr, flush=True)

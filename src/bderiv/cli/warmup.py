@@ -165,10 +165,15 @@ def rarer_full_collections() -> None:
     gc.set_threshold(young, middle, FULL_COLLECTIONS)
 
 
-def compile_here(families) -> None:
+def compile_here(families, nice: bool = False) -> None:
     """Compile ``families`` in this process, a process of its own (``python -m bderiv
     compile FAMILY --here``: started by :func:`warm_up` and by the integrator's background
-    compilation), its full collections made rarer first (:func:`rarer_full_collections`)."""
+    compilation, ``--nice``: at a lower priority, :func:`bderiv.models.readiness.lower_priority`),
+    its full collections made rarer first (:func:`rarer_full_collections`)."""
+    if nice:  # a background compilation yields to the work
+        from ..models.readiness import lower_priority
+
+        lower_priority()
     rarer_full_collections()
     for name in families:
         note = compile_family(name)
