@@ -47,6 +47,21 @@ def test_demo_says_when_the_compiled_model_ran_on_scipy(capsys, monkeypatch):
     code, out, err = run(["demo", *SMALL, "--check", "1"], capsys)
     assert "the compiled integrator is not ready on this machine" in out
     assert "every simulation runs on the compiled" not in out
+    # the check's speed-up is against simulations on scipy, and its line says so
+    assert "one simulation per vector (on scipy: the compiled integrator not ready" in out
+
+
+def test_demo_says_when_the_checks_simulations_changed_integrator(capsys, monkeypatch):
+    """The integrator ready during the check: its time per simulation is a mean of both
+    (a review: the line named only where the last ones ran)."""
+    from bderiv.cli import demo
+
+    where = iter(["scipy", "scipy", "compiled"])  # the flow map, the check's start, end
+    monkeypatch.setattr(demo, "_running_on", lambda system: next(where))
+    code, out, err = run(["demo", *SMALL, "--check", "1"], capsys)
+    assert code == 0, err
+    assert ("one simulation per vector (first on scipy, then the compiled integrator, "
+            "ready meanwhile: a mean of both)") in out
 
 
 def test_demo_python_model_agrees_with_the_compiled_default(capsys):

@@ -316,12 +316,14 @@ def test_an_analytic_field_from_rest_keeps_its_complex_step(policy, monkeypatch,
     np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-12, atol=1e-12 * np.abs(E).max())
 
 
-@pytest.mark.parametrize("field", [_pendulum, lambda x, mask: np.array([x[1], abs(x[0])])],
-                         ids=["complex-step", "central-differences"])
+@pytest.mark.parametrize("field", [_pendulum, lambda x, mask: np.array([x[1], abs(x[0])]),
+                                   lambda x, mask: np.array([float(x[1]), x[0]])],
+                         ids=["complex-step", "central-differences", "refused-at-once"])
 def test_the_cost_counts_every_call_of_the_field_the_jacobians_made(field):
     """The calls of the checks that choose the method (a central difference at the first
     state, a complex step and a difference beside it) count in the cost, as those of the
-    Jacobians do: the cost's calls are the field's calls, counted here."""
+    Jacobians do, and a complex step refused at its first call counts one call, not d:
+    the cost's calls are the field's calls, counted here."""
     calls = []
 
     def counted(x, mask):

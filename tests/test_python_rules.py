@@ -87,11 +87,43 @@ def test_each_twin_gives_the_compiled_rules_bits(seed):
 def test_a_rule_runs_compiled_where_the_machine_has_it_else_as_python(monkeypatch):
     chosen = _python_rules._Rules()
     monkeypatch.setattr(_python_rules, "machine_has", lambda dispatcher: False)
-    assert chosen.windows is TWIN.windows
+    assert chosen.windows.__wrapped__ is TWIN.windows  # (its warnings off)
     assert chosen.GROUP == compiled.GROUP  # constants as they are
     monkeypatch.setattr(_python_rules, "machine_has", lambda dispatcher: True)
-    assert chosen.windows is TWIN.windows  # looked again only after POLL_SECONDS
+    assert chosen.windows.__wrapped__ is TWIN.windows  # looked again after POLL_SECONDS
     monkeypatch.setattr(_python_rules, "POLL_SECONDS", 0.0)
     assert chosen.windows is compiled.windows
     monkeypatch.setattr(_python_rules, "machine_has", lambda dispatcher: False)
     assert chosen.windows is compiled.windows  # compiled once found: kept
+
+
+@pytest.mark.parametrize("on_machine", [False, True], ids=["twins", "compiled"])
+def test_a_python_model_of_seventy_events_crosses_them_all_either_way(on_machine,
+                                                                      monkeypatch):
+    """Compiled, a mask is an int64: bit k >= 64 read bit k - 64, and a model of 70 events
+    was refused ("event 64 is on the wrong side ... an internal error") once the machine
+    had the compiled rules, not before (a review). The rules that read masks go to their
+    twins for such a model."""
+    from bderiv import HybridSystem
+
+    monkeypatch.setattr(_python_rules, "machine_has", lambda dispatcher: on_machine)
+    monkeypatch.setattr(_python_rules, "rules", _python_rules._Rules())
+    for module in ("crossings", "excursions", "locate", "peaks", "sides", "stopcalls"):
+        monkeypatch.setattr(f"bderiv.models.events.{module}.rules", _python_rules.rules)
+    n = 70
+    levels = 0.5 * np.arange(1, n + 1)
+    model = HybridSystem(lambda x, mask: np.array([1.0]), lambda x: x[0] - levels,
+                         n_events=n, dim=1, event_jacobian=lambda x: np.ones((n, 1)),
+                         field_jacobian=lambda x, mask: np.zeros((1, 1)))
+    run = model.simulate(np.array([0.0]), 2.0)  # events 0, 1 and 2 cross (at 0.5, 1, 1.5)
+    assert run.x_final == pytest.approx([2.0])
+    assert run.mask_final == 0b111
+
+
+def test_the_twins_are_as_quiet_as_the_compiled_rules(monkeypatch):
+    """An overflow to inf in a twin's NumPy scalars warned, where the compiled rule is
+    silent: under warnings as errors (this suite's setting) the twin raised (a review)."""
+    monkeypatch.setattr(_python_rules, "machine_has", lambda dispatcher: False)
+    chosen = _python_rules._Rules()
+    dh, F = np.array([1e160, 0.0]), np.array([1.0, 1.0])
+    assert chosen.clearly_positive(dh, F) == compiled.clearly_positive(dh, F)

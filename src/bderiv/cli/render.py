@@ -68,9 +68,16 @@ def _model(res):  # the line "bderiv demo: <example>" came first, before the imp
 
 #: where a compiled model's check simulations ran (the speed-up's reference), as its line
 #: says it
-_SIMULATIONS_ON = {"python": " (its Python code on scipy: the functions not compiled yet)",
-                   "scipy": " (on scipy: the compiled integrator not ready yet)",
-                   "compiled": ""}
+_SIMULATIONS_ON = {
+    "python": " (its Python code on scipy: the functions not compiled yet)",
+    "scipy": " (on scipy: the compiled integrator not ready yet)",
+    "compiled": "",
+    "python-scipy": " (on scipy, first on its Python code, then compiled: the integrator "
+                    "not ready yet)",
+    "python-compiled": " (first its Python code on scipy, then the compiled integrator, "
+                       "ready meanwhile: a mean of both)",
+    "scipy-compiled": " (first on scipy, then the compiled integrator, ready meanwhile: a "
+                      "mean of both)"}
 
 
 def _integrator(res):

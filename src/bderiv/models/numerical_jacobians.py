@@ -111,8 +111,9 @@ class NumericalJacobians:
         table = self.how  # the decisions of these functions: a switch to the compiled ones
         how = table.get(key)  # meanwhile (another thread, a probe) starts a new table
         # NumPy's discarded imaginary parts refused (a branch of the function may cast)
-        J = None if how == _CENTRAL else numdiff.complex_step(raw, x, shape[0])
-        calls = 0 if how == _CENTRAL else x.size
+        stepped = _Counted(raw)  # (a refusal of complex input ends the step early)
+        J = None if how == _CENTRAL else numdiff.complex_step(stepped, x, shape[0])
+        calls = stepped.calls
         if how == _COMPLEX and J is None:  # it took complex input once, not here
             _log.info("the complex step of %s failed at x = %s (the function does not take "
                       "complex input there): central differences from now on", what(), x)

@@ -368,11 +368,11 @@ def integrator_ready() -> bool:
         _state["said"] = True
         _log.warning(
             "bderiv: the compiled integrator is not compiled on this machine yet; it is "
-            "being compiled in a background process%s (about one to two minutes of one "
+            "being compiled in a background process (%sabout one to two minutes of one "
             "core, once per machine; it goes on if this program ends first, and later "
             "programs load what it compiled). Until it is ready, compiled models run on "
             "scipy's solve_ivp (the same method and stop rules, slower per run). `python -m "
             "bderiv compile` compiles everything and waits; %s=compiled waits in this "
-            "process.", "" if _state["child"] is None else f" (pid {_state['child'].pid})",
+            "process.", "" if _state["child"] is None else f"pid {_state['child'].pid}; ",
             POLICY_VARIABLE)
     return False

@@ -14,20 +14,33 @@ here compiles a rule: the background compilation of the integrator does
 
 The rules are loops over scalars of float64 arrays. CPython's floats are the same IEEE
 doubles, each operation rounded once, and numba compiles without fast-math (nothing fused
-or reordered), so a twin returns the bits of its compiled rule on the same arrays
-(``tests/test_python_rules.py`` compares every rule), and a run may use either at any stop.
+or reordered), so a twin returns the bits of its compiled rule on the same arrays (a NaN's
+sign aside, which no comparison sees; ``tests/test_python_rules.py`` compares every
+rule), with NumPy's floating-point warnings off as the compiled rules have none, and a run
+may use either at any stop. Masks are the exception: compiled, a mask is an int64, so the
+rules that read one go to their twins for a model of more than ``MAX_EVENTS`` events.
 The twins are slower (the chair's Python flow map about 12 % slower with every rule a
 twin); they serve until the compiled rules are on the machine.
 """
 
 from __future__ import annotations
 
+import functools
 import pathlib
 import time
 import types
 
+import numpy as np
+
 from ..compiled import machine_has
 from ..compiled import rules as _compiled
+from ..compiled.stretch import MAX_EVENTS
+
+#: the rules that read a region's mask bit by bit: compiled, an int64 mask holds
+#: MAX_EVENTS events, so a model of more (the Python integrator's masks are Python ints)
+#: calls their twins (compiled, bit k >= 64 read bit k - 64: a crossing refused as an
+#: internal error once the machine had the compiled rules; a review)
+_MASK_RULES = frozenset(("wrong_side", "reads_across", "carried_across", "first_sent_back"))
 
 #: seconds between two looks at the disk cache for a rule still run as Python
 POLL_SECONDS = 1.0
@@ -54,6 +67,32 @@ def _twin() -> types.ModuleType:
 TWIN = _twin()
 
 
+def _quiet(twin):
+    """``twin`` with NumPy's floating-point warnings off, as its compiled rule runs (an
+    overflow to inf, a NaN: IEEE's results, no warning: under warnings as errors the twin
+    raised where the compiled rule returned)."""
+
+    @functools.wraps(twin)
+    def run(*args):
+        with np.errstate(all="ignore"):
+            return twin(*args)
+
+    return run
+
+
+def _by_events(name, compiled_rule):
+    """Rule ``name`` (of :data:`_MASK_RULES`) compiled for models of at most
+    :data:`MAX_EVENTS` events (its first argument has one entry per event), its twin
+    for more."""
+    twin = _quiet(getattr(TWIN, name))
+
+    @functools.wraps(compiled_rule)
+    def run(*args):
+        return (compiled_rule if args[0].size <= MAX_EVENTS else twin)(*args)
+
+    return run
+
+
 class _Rules:
     """Each rule of :mod:`bderiv.models.compiled.rules`: compiled where the machine has it,
     else its twin (looked again at most every :data:`POLL_SECONDS`); constants as they
@@ -73,9 +112,10 @@ class _Rules:
         if not hasattr(compiled, "py_func"):  # a constant
             return compiled
         here = self.compiled_only or machine_has(compiled)
-        self._chosen[name] = (compiled if here else getattr(TWIN, name), here,
-                              time.monotonic())
-        return self._chosen[name][0]
+        rule = (_by_events(name, compiled) if name in _MASK_RULES else compiled) if here \
+            else _quiet(getattr(TWIN, name))
+        self._chosen[name] = (rule, here, time.monotonic())
+        return rule
 
 
 #: the rules as the Python stop logic calls them
