@@ -311,3 +311,32 @@ def test_the_background_compilation_yields_to_the_program_in_its_own_session():
     assert int(raised) == readiness.NICE
     if group != "none" and os.path.exists("/proc/sys/kernel/sched_autogroup_enabled"):
         assert int(group) == readiness.NICE
+
+
+def test_under_the_compiled_policy_threads_wait_for_the_one_that_looks(monkeypatch):
+    """``BDERIV_INTEGRATOR=compiled``: threads whose first runs start together all run
+    compiled; those that asked while one looked at the disk answered False, and ran on
+    scipy (a review)."""
+    import threading
+
+    monkeypatch.setenv("BDERIV_INTEGRATOR", "compiled")
+    for key, value in (("ready", False), ("checked", -float("inf")), ("here", False)):
+        monkeypatch.setitem(readiness._state, key, value)
+
+    def slow_look():
+        time.sleep(0.3)
+        return True
+
+    monkeypatch.setattr(readiness, "integrator_cached", slow_look)
+    start, answers = threading.Barrier(4), []
+
+    def first_run():
+        start.wait()
+        answers.append(readiness.integrator_ready())
+
+    threads = [threading.Thread(target=first_run) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert answers == [True] * 4

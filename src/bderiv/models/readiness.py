@@ -56,6 +56,7 @@ import pathlib
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 try:
@@ -95,6 +96,9 @@ class PythonTierEnded(BaseException):
     takes it for the model's own error."""
 
 
+#: held by the thread that looks at the disk where the others must wait for its answer
+#: (``BDERIV_INTEGRATOR=compiled``)
+_LOOKING = threading.Lock()
 _state = {"ready": False, "checked": -float("inf"), "child": None, "said": False,
           "here": False, "foreign": None}
 
@@ -344,22 +348,26 @@ def integrator_ready() -> bool:
         if child is not None and child.poll() is not None:
             _state["child"] = None
         return True
-    now = time.monotonic()
-    if now - _state["checked"] < POLL_SECONDS:
-        return False
-    _state["checked"] = now
-    if integrator_cached():
-        _state["ready"] = True
-        if _state["child"] is not None:  # its error output is not needed (it runs its
-            _state["child"].log.close()  # workload still: waited for by later calls)
-        if _state["said"]:
-            _log.warning("bderiv: the compiled integrator is ready; compiled models run on it "
-                         "from the next run on")
-        return True
-    if chosen == "compiled" or fcntl is None:
-        _wait_for_integrator()
-        _state["ready"] = True  # compiled now, or compiled by numba at the first call
-        return True
+    waits = chosen == "compiled" or fcntl is None
+    with _LOOKING if waits else contextlib.nullcontext():  # a thread that must wait waits
+        if _state["ready"]:  # for the one that looks (it answered False: a review)
+            return True
+        now = time.monotonic()
+        if not waits and now - _state["checked"] < POLL_SECONDS:
+            return False
+        _state["checked"] = now
+        if integrator_cached():
+            _state["ready"] = True
+            if _state["child"] is not None:  # its error output is not needed (it runs its
+                _state["child"].log.close()  # workload still: waited for by later calls)
+            if _state["said"]:
+                _log.warning("bderiv: the compiled integrator is ready; compiled models run "
+                             "on it from the next run on")
+            return True
+        if waits:
+            _wait_for_integrator()
+            _state["ready"] = True  # compiled now, or compiled by numba at the first call
+            return True
     if _child_ended() or (_state["child"] is None and not _foreign_running()
                           and start_background() is False):
         _state["ready"] = True  # numba compiles it here, at the first call
