@@ -118,7 +118,8 @@ def test_local_cluster(bd):
     X = np.random.default_rng(2).standard_normal((200_000, 3))
     with (
         distributed.LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"}
         ) as cluster,
         distributed.Client(cluster) as client,
     ):

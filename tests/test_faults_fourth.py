@@ -422,7 +422,8 @@ def test_dask_sends_the_map_once_per_client():
     X = np.random.default_rng(1).standard_normal((400, 3))
     V = da.from_array(X, chunks=(100, 3))
     with (distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                   dashboard_address=None) as cluster,
+                                   dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"}) as cluster,
           distributed.Client(cluster)):
         small, large = CountedMap(10), CountedMap(200_000)  # 1.6 MB of payload
         sizes = [len(pickle.dumps(dict(map_blocks(m.apply, V, 3).__dask_graph__())))

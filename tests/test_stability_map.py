@@ -63,7 +63,8 @@ def test_closed_form_growth_rates_serially():
 def test_through_a_dask_client_the_same_map():
     distributed = pytest.importorskip("distributed")
     with (distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                   dashboard_address=None) as cluster,
+                                   dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"}) as cluster,
           distributed.Client(cluster) as client):
         smap = stability_map(cycle, GRID, [1.05, 0.0], section, period_guess=1.0,
                              client=client)

@@ -256,8 +256,11 @@ def _runner(client):
         if client != "local":
             raise ValueError(f'client must be None, "local" or a distributed.Client, got '
                              f"{client!r}")
+        # its scheduler's HTTP server on a free port: by default it takes 8787, and where
+        # that is taken (the user's own cluster) distributed warns and takes another
         cluster = LocalCluster(n_workers=LOCAL_WORKERS, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+                               dashboard_address=None,
+                               scheduler_kwargs={"dashboard_address": ":0"})
         client = Client(cluster)
     elif not isinstance(client, Client):
         raise TypeError(f'client must be None, "local" or a distributed.Client, got '
