@@ -32,6 +32,16 @@ def mask_bits(masks, n: int, dtype=np.float64) -> np.ndarray:
     return ((np.asarray(masks, dtype=np.int64)[:, None] >> np.arange(n)) & 1).astype(dtype)
 
 
+#: the most events whose region masks an int64 holds (bit 63 is its sign)
+INT64_EVENTS = 63
+
+
+def mask_dtype(n_events: int):
+    """The dtype of an array of region masks of ``n_events`` events: int64, or object
+    (Python ints) beyond :data:`INT64_EVENTS`."""
+    return np.int64 if n_events <= INT64_EVENTS else object
+
+
 def block_bits(rows: slice, n: int) -> np.ndarray:
     """:func:`mask_bits` of the masks ``rows.start .. rows.stop - 1`` of a block, (rows, n)
     float 0/1. The whole table of n <= ``SHARED_BITS_N`` events is one block: its bits are

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._numerics import RESET_MISMATCH
 from .._support._format import format_mask, transversality_message
-from .._support._tables import block_bits
+from .._support._tables import INT64_EVENTS, block_bits
 from ..engine.bderivative import BDerivative
 from ..models.events.crossings import apply_resets, landing
 from ..models.events.finaltime import FinalTimeMap
@@ -27,11 +27,13 @@ __all__ = ["flow_map_along", "group_bderivative", "merge_groups", "point_bderiva
 
 def spread_masks(events, mask_before):
     """Global masks of all 2**g local masks of a group (bit j of local: event events[j]
-    crossed, i.e. its bit of ``mask_before`` flipped, whichever the direction)."""
-    glob = np.empty(1 << len(events), dtype=np.int64)
+    crossed, i.e. its bit of ``mask_before`` flipped, whichever the direction): int64, or
+    Python ints where a bit beyond 62 is set or flipped."""
+    wide = max(events, default=0) >= INT64_EVENTS or mask_before >> INT64_EVENTS
+    glob = np.empty(1 << len(events), dtype=object if wide else np.int64)
     glob[0] = mask_before
     for j, k in enumerate(events):  # the local masks with bit j set: those without, flipped
-        glob[1 << j : 2 << j] = glob[: 1 << j] ^ (np.int64(1) << np.int64(k))
+        glob[1 << j : 2 << j] = glob[: 1 << j] ^ (1 << k if wide else np.int64(1) << k)
     return glob
 
 

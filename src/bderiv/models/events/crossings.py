@@ -278,7 +278,7 @@ def landing(system, group, mask, x_after, window, t=None):
         after = new ^ kept
         F = scratch(system.eval_field(x_after, after))
         k = rules.first_sent_back(flags_of(group, n), scratch(h), scratch(window),
-                                  np.int64(kept), scratch(Dh), F)
+                                  kept, scratch(Dh), F)
         if k >= 0:
             way = "bounced: the bit kept" if kept >> k & 1 else "crossed: the bit flipped"
             at = "" if t is None else f" at t={t:.10g}"

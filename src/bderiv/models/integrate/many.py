@@ -49,6 +49,7 @@ import numba
 import numpy as np
 
 from ..._support._progress import SimulationProgress, resolve_progress
+from ..._support._tables import mask_dtype
 from ..._support._validate import check_number, check_points, check_positive_int
 from ..compiled import Cancelled, stopped_by
 from .options import check_options
@@ -75,7 +76,8 @@ class Trajectories:
     x_final : ndarray, shape (..., d)
         The final states, in the shape of ``X0``.
     mask_final : ndarray of int64, shape (...)
-        The final region masks.
+        The final region masks (Python ints, dtype object, for a model of more than 63
+        events).
 
     ``len``, iteration and indexing (``runs[i]``: a Trajectory) go over ``trajectories``.
     """
@@ -184,7 +186,8 @@ def run_many(system, X0, lead, t_final, *, options, max_groups,
             watch.close()
     d = X0.shape[1]
     x_final = np.array([traj.x_final for traj in trajectories]).reshape(lead + (d,))
-    masks = np.array([traj.mask_final for traj in trajectories], dtype=np.int64)
+    masks = np.array([traj.mask_final for traj in trajectories],
+                     dtype=mask_dtype(system.n_events))
     return Trajectories(tuple(trajectories), x_final, masks.reshape(lead))
 
 

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._support._tables import human_bytes
+from ..._support._tables import human_bytes, mask_dtype
 from ..._support._validate import check_real_array, check_record
 
 __all__ = ["ENDS", "STEPS", "RunLog", "Samples", "check_t_eval", "dense_state"]
@@ -44,9 +44,12 @@ class Samples(NamedTuple):
 class RunLog:
     """What :func:`~bderiv.models.integrate.run.run` accumulates, stretch by stretch: the
     samples ``record`` asks for (``STEPS``, ``ENDS`` or the sorted times ``t_eval``, of
-    which ``taken`` are sampled), the events, the groups and the stretches' sensitivities."""
+    which ``taken`` are sampled), the events, the groups and the stretches' sensitivities.
+    The masks are int64, or Python ints for a model of more than 63 events
+    (``n_events``)."""
 
     record: object = STEPS
+    n_events: int = 0
     t: list = dc_field(default_factory=list)
     x: list = dc_field(default_factory=list)
     masks: list = dc_field(default_factory=list)
@@ -57,6 +60,10 @@ class RunLog:
     taken: int = 0
     held: int = 0
     next_check: int = 0
+
+    def _masks(self, count, mask):
+        """``count`` copies of ``mask``, of the run's mask dtype."""
+        return np.full(count, mask, dtype=mask_dtype(self.n_events))
 
     def add_steps(self, T, X, M):
         """The samples of recorded stretches: times (N,), states (N, d), masks (N,); kept
@@ -86,7 +93,7 @@ class RunLog:
                 self.first_mask = mask
             self.sample(sol, mask, d, last)
         else:
-            self.add_steps(sol.t, sol.y[:d].T, np.full(sol.t.size, mask, dtype=np.int64))
+            self.add_steps(sol.t, sol.y[:d].T, self._masks(sol.t.size, mask))
         if variational:
             self.linear.append(np.array(sol.y[d:, -1].reshape(d, d)))
 
@@ -99,24 +106,25 @@ class RunLog:
             here = times[self.taken:stop]
             self.t.append(here)
             self.x.append(dense_state(sol, here, d))
-            self.masks.append(np.full(here.size, mask, dtype=np.int64))
+            self.masks.append(self._masks(here.size, mask))
             self.taken = stop
 
     def finish(self, x0, now) -> Samples:
         """The :class:`Samples` of the Trajectory."""
         if self.record is ENDS:
             return Samples(np.array([0.0, now.t]), np.array([x0, now.x]),
-                           np.array([self.first_mask, now.mask], dtype=np.int64))
+                           np.array([self.first_mask, now.mask],
+                                    dtype=mask_dtype(self.n_events)))
         if isinstance(self.record, np.ndarray):  # times at the end after the last stretch
             stop = int(np.searchsorted(self.record, now.t, side="right"))
             if stop > self.taken:
                 here = self.record[self.taken:stop]
                 self.t.append(here)
                 self.x.append(np.tile(now.x, (here.size, 1)))
-                self.masks.append(np.full(here.size, now.mask, dtype=np.int64))
+                self.masks.append(self._masks(here.size, now.mask))
             if not self.t:
                 return Samples(np.empty(0), np.empty((0, x0.size)),
-                               np.empty(0, dtype=np.int64))
+                               self._masks(0, 0))
         return Samples(_joined(self.t), _joined(self.x), _joined(self.masks))
 
 

@@ -183,7 +183,8 @@ def _run(system, x0, t_final, options, variational, section, max_groups, record)
     max_groups = check_positive_int(max_groups, "max_groups")
     check_options(options)
     d = system.dim
-    log, loop = RunLog(record), None  # the Python loop's own state: made for its first stretch
+    # the Python loop's own state is made for its first stretch
+    log, loop = RunLog(record, system.n_events), None
     # samples at given times are taken on the dense output of the Python loop's stretches
     sampled = isinstance(record, np.ndarray)
     # the start's region (mask -1) from the signs of its events: by the compiled run, or

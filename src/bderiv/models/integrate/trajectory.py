@@ -28,7 +28,8 @@ class Trajectory:
     x : ndarray, shape (N, d)
         States at ``t``.
     masks : ndarray, shape (N,), int64
-        Region mask in effect on the stretch each sample belongs to.
+        Region mask in effect on the stretch each sample belongs to (Python ints, dtype
+        object, for a model of more than 63 events: an int64 holds 63 bits).
     events : tuple of EventRecord
         The event log ``(time, event, mask after)`` in order of switching.
     groups : tuple of EventGroup
