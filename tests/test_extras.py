@@ -25,6 +25,7 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 
 import bderiv
@@ -61,7 +62,9 @@ _PROBE = textwrap.dedent("""
         if name != "bderiv.__main__":  # it runs the command line
             importlib.import_module(name)
     report = {{"modules": len(names),
-               "imported": [name for name in {optional!r} if name in sys.modules]}}
+               "imported": [name for name in {optional!r} if name in sys.modules],
+               "scipy": [name for name in ("scipy.integrate", "scipy.optimize",
+                                           "scipy.stats") if name in sys.modules]}}
     from numba.core.dispatcher import Dispatcher
     from bderiv._kernels._cache import hardened
     report["unchecked"] = sorted(
@@ -134,6 +137,32 @@ def test_no_module_imports_an_optional_dependency(report):
     files = list(pathlib.Path(bderiv.__file__).parent.rglob("*.py"))
     assert report["modules"] == len(files) - 1  # all but bderiv/__init__.py: none skipped
     assert report["imported"] == []
+
+
+def test_no_module_imports_scipys_integrators_optimizers_or_statistics(report):
+    """They cost a process 0.35 s (scipy.integrate, with scipy.special and
+    scipy.optimize) to 0.6 s (scipy.stats) at import: the functions that call them import
+    them, so that the compiled path, which never does, is spared them. The DOP853 tableau
+    of the compiled integrator is read from scipy's file without its package
+    (``test_the_compiled_integrators_tableau_is_scipys``)."""
+    assert report["scipy"] == []
+
+
+def test_the_compiled_integrators_tableau_is_scipys(monkeypatch):
+    """Read from scipy's file on its own where scipy.integrate was not imported: the same
+    numbers as the module solve_ivp uses, bit for bit."""
+    from scipy.integrate._ivp import dop853_coefficients as scipys
+
+    from bderiv.models.compiled import _dop853
+
+    monkeypatch.delitem(sys.modules, "scipy.integrate")
+    alone = _dop853._scipys_tableau()
+    assert alone is not scipys
+    for name in ("A", "B", "C", "E3", "E5", "D", "N_STAGES", "N_STAGES_EXTENDED",
+                 "INTERPOLATOR_POWER"):
+        ours, theirs = np.asarray(getattr(alone, name)), np.asarray(getattr(scipys, name))
+        assert ours.dtype == theirs.dtype and ours.shape == theirs.shape, name
+        assert ours.tobytes() == theirs.tobytes(), name
 
 
 def test_every_cached_kernel_reads_checked_files_however_its_module_is_imported(report):

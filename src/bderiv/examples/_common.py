@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from .._kernels._cache import keyed, sources_digest
 from .._limits import ON_SURFACE_TOL
@@ -205,6 +204,8 @@ def compiled_once(fn):
 
 def flow_back(field0, rho, t_event, rtol=1e-13, atol=1e-14):
     """Integrate the pre-event field ``field0(x)`` backward from ``rho`` for ``t_event``."""
+    from scipy.integrate import solve_ivp  # here: the compiled examples never need it
+
     sol = solve_ivp(
         lambda _t, x: field0(x),
         (t_event, 0.0),

@@ -4,7 +4,6 @@ numbers compared in the tests)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from ..._support._numdiff import complex_step
 from ...analysis.system import HybridSystem
@@ -243,6 +242,8 @@ def _step_from(model, start):
 
     def strike(_t, x):  # only once the swing leg is past the stance leg
         return x[1] - 2.0 * x[0] if x[1] < 0 else -1.0
+
+    from scipy.integrate import solve_ivp  # here: bderiv.examples imports no scipy.integrate
 
     mid.terminal, mid.direction = True, -1
     strike.terminal, strike.direction = True, 1

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import quad
 
 from ...analysis.system import HybridSystem
 from .._common import Example, check_start
@@ -92,6 +91,8 @@ def rimless_wheel(*, alpha=np.pi / 8, slope=0.08, g=1.0, leg=1.0) -> Example:
         raise ValueError(f"the wheel with alpha={alpha:g}, slope={slope:g} has no gait: it "
                          f"stops before rolling over its spoke (steeper slope or smaller "
                          f"alpha)")
+    from scipy.integrate import quad  # here: bderiv.examples imports no scipy.integrate
+
     t_event = quad(lambda th: 1.0 / speed(th), 0.0, alpha, epsabs=1e-14, epsrel=1e-13)[0]
     system = HybridSystem(model.field, model.events, n_events=1, dim=2,
                           event_jacobian=model.event_jacobian,

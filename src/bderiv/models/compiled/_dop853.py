@@ -1,11 +1,14 @@
 """DOP853 (Dormand-Prince 8(5,3)) kernels: stages, error norm, step control, dense output.
 
-The tableau is scipy's own (``scipy.integrate._ivp.dop853_coefficients``), imported once
+The tableau is scipy's own (``scipy.integrate._ivp.dop853_coefficients``), read once
 here: the same digits as ``solve_ivp(method="DOP853")``, so that both take the same steps
 and the tests can hold this integrator to scipy's on the same problems. The module is
 private to scipy; if it moves, importing :mod:`bderiv.models.compiled` fails with an ImportError
 that says so (writing the tableau in would silently drift from the solver it is compared
-with). The arrays become compile-time constants of the kernels.
+with). Where scipy.integrate is not imported yet, the file is run on its own (it needs only
+NumPy): importing the package would import its quadrature, BVP and special functions, about
+0.35 s of every process that runs the compiled path, which never calls them. The arrays
+become compile-time constants of the kernels.
 
 The kernels mirror ``scipy.integrate._ivp.rk`` (``rk_step``, ``DOP853._estimate_error_norm``,
 ``RungeKutta._step_impl``'s factors, ``Dop853DenseOutput``) and ``common.select_initial_step``.
@@ -15,20 +18,37 @@ sensitivity, see :mod:`._rhs`) and do no validation.
 
 from __future__ import annotations
 
-import numpy as np
-from numba import njit
+import importlib.util
+import pathlib
+import sys
 
-try:
-    from scipy.integrate._ivp import dop853_coefficients as _tableau
-except ImportError as exc:  # pragma: no cover - depends on scipy's private layout
-    raise ImportError(
-        "bderiv.models.compiled reads the DOP853 tableau from scipy's private module "
-        "scipy.integrate._ivp.dop853_coefficients, which this scipy does not have; "
-        "install a scipy that has it (1.15 to 1.17 do)"
-    ) from exc
+import numpy as np
+import scipy
+from numba import njit
 
 from ._rhs import OK, field_value, fill_argument, rhs, sensitivity_rate
 
+_TABLEAU = "scipy.integrate._ivp.dop853_coefficients"
+
+
+def _scipys_tableau():
+    """scipy's module of the DOP853 tableau: imported where scipy.integrate is, else its
+    file run on its own."""
+    if "scipy.integrate" in sys.modules:
+        return importlib.import_module(_TABLEAU)
+    path = pathlib.Path(scipy.__file__).parent / "integrate" / "_ivp" / "dop853_coefficients.py"
+    spec = importlib.util.spec_from_file_location(_TABLEAU, path)
+    if not path.is_file() or spec is None:
+        raise ImportError(
+            f"bderiv.models.compiled reads the DOP853 tableau from scipy's private module "
+            f"{_TABLEAU}, which this scipy does not have ({path} is missing); install a "
+            f"scipy that has it (1.15 to 1.17 do)")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+_tableau = _scipys_tableau()
 #: stages of a step (the 13th row of K holds f at the step's end, the FSAL value)
 N_STAGES = _tableau.N_STAGES
 #: stages with the three extra ones of the dense output

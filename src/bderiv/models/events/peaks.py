@@ -12,7 +12,6 @@ integrator.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from ..._limits import PEAK_XTOL
 from ..._numerics import REACH
@@ -85,6 +84,8 @@ def peak_of(value, t_lo: float, t_hi: float) -> tuple[float, float]:
     >>> abs(t) < 1e-8, round(v, 12)
     (True, 0.001)
     """
+    from scipy.optimize import minimize_scalar  # here: a peak is rare, the import 0.1 s
+
     res = minimize_scalar(lambda s: -value(s), bounds=(t_lo, t_hi), method="bounded",
                           options={"xatol": PEAK_XTOL * (t_hi - t_lo)})
     candidates = [(float(res.x), -float(res.fun)), (t_lo, float(value(t_lo))),

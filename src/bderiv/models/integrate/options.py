@@ -13,7 +13,6 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.integrate import OdeSolver
 
 from ..._limits import (
     DEFAULT_ATOL,
@@ -83,7 +82,7 @@ class SolverOptions:
                 self.simultaneity_tol, "simultaneity_tol", strict=False))
         method = self.method
         known = isinstance(method, str) and method in SOLVE_IVP_METHODS
-        if not known and not (isinstance(method, type) and issubclass(method, OdeSolver)):
+        if not known and not (isinstance(method, type) and _is_ode_solver(method)):
             raise ValueError(
                 f"method must be one of {', '.join(SOLVE_IVP_METHODS)} or an OdeSolver "
                 f"subclass, got {method!r}"
@@ -147,3 +146,11 @@ def check_options(options) -> None:
 def _defaults(cls) -> SolverOptions:
     """``cls()``, made once (frozen: shared by every run that passes no options)."""
     return cls()
+
+
+def _is_ode_solver(method: type) -> bool:
+    """Whether ``method`` is an ``OdeSolver`` subclass (scipy.integrate imported here: at
+    import it costs a process about 0.35 s, which the compiled path never needs)."""
+    from scipy.integrate import OdeSolver
+
+    return issubclass(method, OdeSolver)

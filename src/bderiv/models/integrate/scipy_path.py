@@ -12,7 +12,6 @@ at a stop to :func:`bderiv.models.integrate.run.run`.
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from ..._support._format import MASK_MEANING, format_mask
 from ..._support._validate import check_record
@@ -112,6 +111,8 @@ class ScipyStretches:
             y0 = x
         funcs = on_side_at_start(self.events.terminal_events(mask), t, mask, system.n_events)
         pieces = []  # each integration's start and dense output (record.dense_state)
+
+        from scipy.integrate import solve_ivp  # here: the compiled path never imports it
 
         def solve(start, y_start, stop):
             counted = _Counted(rhs, y_start.size, options.method, mask, system.n_events,
