@@ -363,7 +363,7 @@ def test_check_jacobians_refuses_bad_arguments():
         check_jacobians(system, np.zeros(9))
     report = check_jacobians(system, np.zeros(9), masks=[0, 511])
     assert [r.mask for r in report.rows] == [None, 0, 511] and report.passed
-    with pytest.raises(ValueError, match=r"mask must be in \[0, 2\*\*9\), got 512"):
+    with pytest.raises(ValueError, match=r"masks must be in \[0, 2\*\*9\), got 512"):
         check_jacobians(system, np.zeros(9), masks=[512])
     with pytest.raises(ValueError, match=r"x must have shape \(9,\)"):
         check_jacobians(system, np.zeros(3))

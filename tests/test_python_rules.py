@@ -120,65 +120,6 @@ def test_a_python_model_of_seventy_events_crosses_them_all_either_way(on_machine
     assert run.mask_final == 0b111
 
 
-def test_events_beyond_bit_63_cross_and_their_flow_map_is_the_closed_form():
-    """Events 64 and 65 at once, then 66, of a Python model of 70 events: the run
-    recorded its masks as int64 and raised a raw OverflowError at the first of them (and
-    the group's masks too). Closed form: s' = 1 crosses the levels, y' = 1 + the number
-    of those three events that happened, so that at T = 2 from (0, 0)
-    y = 0.5 * 1 + 0.5 * 3 + 1 * 4 = 6, and the flow's derivative is [[1, 0], [4 - 1, 1]]
-    (each crossing earlier by ds: dy = (a_before - a_after) * -ds, summed)."""
-    from bderiv import HybridSystem
-
-    n = 70
-    levels = np.full(n, 10.0)
-    levels[[64, 65, 66]] = [0.5, 0.5, 1.0]
-
-    def field(x, mask):
-        return np.array([1.0, 1.0 + bin(int(mask) >> 64).count("1")])
-
-    model = HybridSystem(field, lambda x: x[0] - levels, n_events=n, dim=2,
-                         event_jacobian=lambda x: np.outer(np.ones(n), [1.0, 0.0]),
-                         field_jacobian=lambda x, mask: np.zeros((2, 2)))
-    run = model.simulate(np.zeros(2), 2.0)
-    final = (1 << 64) | (1 << 65) | (1 << 66)
-    assert run.mask_final == final
-    assert run.masks.dtype == object and run.masks[0] == 0 and run.masks[-1] == final
-    assert run.x_final == pytest.approx([2.0, 6.0], rel=1e-9)
-    assert [g.events for g in run.groups] == [(64, 65), (66,)]
-    D = model.flow_bderivative(np.zeros(2), 2.0)
-    assert D(np.eye(2)) == pytest.approx(np.array([[1.0, 3.0], [0.0, 1.0]]), abs=1e-8)
-    many = model.simulate_many(np.zeros((2, 2)), 2.0)
-    assert many.mask_final.tolist() == [final, final]
-
-
-def test_a_bounce_on_event_66_is_the_one_event_balls():
-    """A bounce keeps its event's bit (the state is sent back): its mask went to a rule
-    as an int64 and overflowed for bit 66. The ball with the floor as its event 66 (the
-    other 69 far below) runs as the ball of one event: the same state, region and flow
-    map."""
-    from bderiv import HybridSystem
-    from bderiv.examples import bouncing_ball
-
-    n, floor = 70, 66
-    one = bouncing_ball(e=0.8).system
-    below = np.full(n, 100.0)
-    below[floor] = 0.0
-    wide = HybridSystem(
-        one.field, lambda x: -x[0] - below, n_events=n, dim=2,
-        event_jacobian=lambda x: np.outer(np.ones(n), [-1.0, 0.0]),
-        field_jacobian=lambda x, mask: np.array([[0.0, 1.0], [0.0, 0.0]]),
-        reset=lambda x, mask, k: np.array([x[0], -0.8 * x[1]]),
-        reset_jacobian=lambda x, mask, k: np.array([[1.0, 0.0], [0.0, -0.8]]))
-    x0, t = np.array([1.0, 0.0]), 0.55
-    a, b = one.simulate(x0, t), wide.simulate(x0, t)
-    assert [g.events for g in b.groups] == [(floor,)]
-    assert (b.mask_final, a.mask_final) == (0, 0)  # the bounce kept both bits clear
-    assert b.x_final == pytest.approx(a.x_final, rel=1e-12)
-    V = np.eye(2)
-    assert wide.flow_bderivative(x0, t)(V) == pytest.approx(
-        one.flow_bderivative(x0, t)(V), rel=1e-9)
-
-
 def test_the_twins_are_as_quiet_as_the_compiled_rules(monkeypatch):
     """An overflow to inf in a twin's NumPy scalars warned, where the compiled rule is
     silent: under warnings as errors (this suite's setting) the twin raised (a review)."""

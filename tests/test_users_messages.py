@@ -171,3 +171,13 @@ def test_the_first_run_says_its_start_region(caplog):
                     "(h_k(x0) > 0); events written with the other sign start it elsewhere "
                     "than meant"]  # once per model
     assert "start region 0b11" in repr(traj)
+
+
+def test_a_trajectory_without_sensitivities_has_no_flow_map_along_it():
+    from bderiv.examples import bouncing_ball
+
+    system = bouncing_ball().system
+    traj = system.simulate(np.array([1.0, 0.0]), 0.55)
+    with pytest.raises(ValueError, match=r"traj holds no sensitivities .* call "
+                                         r"flow_bderivative\(x0, t_final\)"):
+        system.flow_map_along(traj)

@@ -14,7 +14,7 @@ import numpy as np
 
 from .._limits import SMALL_NEED_BYTES
 from ._errors import QUERY, QueryError
-from ._tables import available_memory, human_bytes, memory_headroom
+from ._tables import INT64_EVENTS, available_memory, human_bytes, mask_dtype, memory_headroom
 
 _KIND_NAMES = {
     "b": "bool",
@@ -226,6 +226,24 @@ def check_mask(mask, n_events: int) -> int:
     if not 0 <= mask < (1 << n_events):
         raise ValueError(f"mask must be in [0, 2**{n_events}), got {mask}")
     return int(mask)
+
+
+def check_masks(masks, n_events: int, name: str = "masks") -> np.ndarray:
+    """Region masks of a system of ``n_events`` events (each as :func:`check_mask`), as a
+    1-D array: int64, or Python ints (dtype object) beyond 63 events, which an int64 does
+    not hold (an unsigned or object array is never cast: a uint64 mask with bit 63 set
+    would read as negative)."""
+    values = np.asarray(masks)
+    flat = values.reshape(-1)
+    if values.dtype.kind in "iu" and n_events <= INT64_EVENTS:
+        if flat.size:
+            low, high = int(flat.min()), int(flat.max())
+            if low < 0 or high >= 1 << n_events:
+                bad = low if low < 0 else high
+                raise ValueError(f"{name} must be in [0, 2**{n_events}), got {bad}")
+        return flat.astype(np.int64)
+    return np.array([check_mask(m, n_events) for m in flat.tolist()],
+                    dtype=mask_dtype(n_events))
 
 
 def check_positive_int(value, name: str) -> int:

@@ -15,7 +15,8 @@ import numpy as np
 
 from .._numerics import RESET_MISMATCH
 from .._support._format import format_mask, transversality_message
-from .._support._tables import INT64_EVENTS, block_bits
+from .._support._tables import INT64_EVENTS, block_bits, dense_table_bytes
+from .._support._validate import check_memory
 from ..engine.bderivative import BDerivative
 from ..models.events.crossings import apply_resets, landing
 from ..models.events.finaltime import FinalTimeMap
@@ -53,6 +54,10 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
     """
     calls = system.calls
     events = tuple(int(k) for k in events)
+    # the group's 2**g regions are sampled from the model and kept as a dense table
+    check_memory(dense_table_bytes(len(events), calls.dim), None,
+                 f"the corner tables of {len(events)} events at once (the fields of their "
+                 f"2**{len(events)} regions, sampled from the model)")
     sign = np.array([-1.0 if mask_before >> k & 1 else 1.0 for k in events])
     if event_jacobian is None:
         event_jacobian = calls.eval_event_jacobian(x)
@@ -139,6 +144,10 @@ def flow_map_along(system, traj):
     ``simultaneity_tol`` below the gap gives the map of the separated events instead.
     """
     groups, linear = list(traj.groups), list(traj.linear)
+    if len(linear) != len(groups) + 1:
+        raise ValueError(f"traj holds no sensitivities (traj.linear has {len(linear)} "
+                         f"matrices for {len(groups)} event groups; simulate does not "
+                         f"integrate them): call flow_bderivative(x0, t_final), which does")
     times = [(g.time, g.time) for g in groups]
     final_field = system.calls.eval_field(traj.x_final, traj.mask_final)
     if traj.final_pending:  # a group just after t_final: its map is stopped there too

@@ -20,7 +20,7 @@ import numpy as np
 from .._limits import DEFAULT_MASKS
 from .._support import _numdiff as numdiff
 from .._support._format import format_mask
-from .._support._validate import all_finite, check_mask, check_real_array, check_state
+from .._support._validate import all_finite, check_masks, check_real_array, check_state
 from ..models.section import Section
 from ..models.user_functions import check_output
 
@@ -183,8 +183,7 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
             raise ValueError(f"a model with n={n} events has 2**{n} masks: pass masks= "
                              f"(the regions to check), at most {DEFAULT_MASKS} by default")
         masks = range(1 << n)
-    masks = [check_mask(m, n) for m in np.asarray(list(masks), dtype=np.int64)
-             .reshape(-1).tolist()]
+    masks = check_masks(list(masks), n).tolist()
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise TypeError(f"seed must be an integer, got {type(seed).__name__}")
     rows = []

@@ -18,7 +18,7 @@ import numpy as np
 from .. import _limits
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
 from .._support._format import format_mask
-from .._support._validate import check_mask, check_state
+from .._support._validate import check_mask, check_masks, check_memory, check_state
 from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
 from .numerical_jacobians import NumericalJacobians, matches_near
 from .python_first import PythonTime, starts_in_python
@@ -27,6 +27,7 @@ from .user_functions import (
     _appending,
     _contiguous_args,
     check_given_jacobian,
+    check_mask_width,
     check_output,
     compiled_or_refused,
 )
@@ -51,6 +52,8 @@ class ModelCalls:
         params = self._params = model.params
         self.n_events, self.dim = model.n_events, model.dim
         self.check_jacobians = model.check_jacobians
+        check_mask_width(model.n_events, field=model.field, field_jacobian=model.field_jacobian,
+                         reset=model.reset, reset_jacobian=model.reset_jacobian)
         # the compiled path's functions (None: the scipy path); it decides the use of the
         # event Jacobian and the reset (a guarded reset is the Python loop's)
         self._compiled_functions = (compiled_or_refused(model.field, model.events,
@@ -350,16 +353,18 @@ class ModelCalls:
             ``F[i] = field(x, masks[i])``; taken from ``corner_field`` when given.
         """
         n = self.n_events
-        masks = (
-            np.arange(1 << n, dtype=np.int64)
-            if masks is None
-            else np.asarray(masks, dtype=np.int64).reshape(-1)
-        )
+        if masks is None:
+            check_memory((1 << n) * self.dim * 8, None, f"the fields of all 2**{n} regions "
+                         f"(pass masks=, the regions to sample)")
+            masks = np.arange(1 << n, dtype=np.int64)
+        else:
+            masks = check_masks(masks, n)
         return self.corners_at(check_state(x, self.dim), masks)
 
     def corners_at(self, x, masks):
         """:meth:`sample_corners` at a state known to be one (float64, shape (d,), finite:
-        an event point of a run, a checked rho) for int64 masks (m,), not checked again."""
+        an event point of a run, a checked rho) for masks (m,) (int64, or Python ints beyond
+        63 events), not checked again."""
         n, d = self.n_events, self.dim
         if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
             table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")

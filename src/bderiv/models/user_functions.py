@@ -15,6 +15,7 @@ import numpy as np
 
 from .._limits import ACCEPT_RTOL
 from .._support import _numdiff as numdiff
+from .._support._tables import INT64_EVENTS
 from .._support._validate import all_finite, check_finite, check_real_array
 from .compiled import is_compiled, note_refused, refuse_damaged_cache, refused_types
 
@@ -117,6 +118,22 @@ def compiled_or_refused(field, events, field_jacobian):
                 f"numba.njit, or pass field as a Python function"
             )
     return field, events, field_jacobian
+
+
+def check_mask_width(n_events, **functions) -> None:
+    """Refuse a model of more than 63 events whose functions that take the region's mask
+    (``functions``: by name) include a numba one: numba passes it as an int64, which
+    holds 63 events (a larger mask raised numba's OverflowError in the first run that
+    crossed event 63, or the compiled integrator refused the model after its first
+    second on Python)."""
+    compiled = [name for name, fn in functions.items() if fn is not None and is_compiled(fn)]
+    if compiled and n_events > INT64_EVENTS:
+        one = len(compiled) == 1
+        raise ValueError(
+            f"n_events={n_events}, but {', '.join(compiled)} {'is' if one else 'are'} "
+            f"numba-compiled, and numba takes the region's mask as an int64, which holds "
+            f"{INT64_EVENTS} events; write {'it' if one else 'them'} as Python (masks are "
+            f"then Python ints), or model at most {INT64_EVENTS} events")
 
 
 def check_output(value, shape, what) -> np.ndarray:
