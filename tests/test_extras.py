@@ -163,6 +163,9 @@ def test_the_compiled_integrators_tableau_is_scipys(monkeypatch):
         ours, theirs = np.asarray(getattr(alone, name)), np.asarray(getattr(scipys, name))
         assert ours.dtype == theirs.dtype and ours.shape == theirs.shape, name
         assert ours.tobytes() == theirs.tobytes(), name
+    # an install without scipy's sources (bytecode only): imported as a module
+    monkeypatch.setattr(_dop853.scipy, "__file__", "/nonexistent/scipy/__init__.py")
+    assert _dop853._scipys_tableau() is scipys
 
 
 def test_every_cached_kernel_reads_checked_files_however_its_module_is_imported(report):

@@ -186,6 +186,34 @@ def test_python_code_that_raises_is_run_compiled(auto, caplog):
     assert np.allclose(D(V), _compiled_answer(), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("returns", ["float32", "int64", "view"])
+def test_a_type_the_compiled_path_refuses_is_refused_from_the_first_run(auto, returns):
+    """Python code returning float32, ints or a non-contiguous view ran for the model's
+    first second and was refused only after it (the compiled function's TypeError): the
+    same model worked, then failed (a review of the docs). The compiled function now
+    decides at once, whose check names the type it takes."""
+    def field(x, mask):
+        if returns == "float32":
+            return np.ones(2, dtype=np.float32)
+        if returns == "int64":
+            return np.ones(2, dtype=np.int64)
+        return (np.ones(4) * x[0])[::2]
+
+    for call in ("simulate", "eval_field"):  # in a run, and outside one
+        model = HybridSystem(numba.njit(field), _functions()[1], n_events=1, dim=2)
+        assert model.calls.python_first
+        with pytest.raises(TypeError, match=r"field must return array\(float64, 1d, C\)"):
+            model.simulate(X0, T_FINAL) if call == "simulate" else model.calls.eval_field(X0, 0)
+    # on scipy (while the integrator compiles, or by policy) the dispatchers ran, and
+    # scipy took their float32 until the integrator was ready
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(readiness.POLICY_VARIABLE, "scipy")
+        model = HybridSystem(numba.njit(field), _functions()[1], n_events=1, dim=2)
+        assert not model.calls.python_first and model.compiled is None
+        with pytest.raises(TypeError, match=r"field must return array\(float64, 1d, C\)"):
+            model.simulate(X0, T_FINAL)
+
+
 def test_errors_of_the_run_itself_are_not_compiled_for(auto):
     """A bad argument is refused as on the compiled path, without compiling the model."""
     functions = _functions()

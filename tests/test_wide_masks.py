@@ -100,7 +100,7 @@ def test_masks_beyond_bit_63_given_by_the_caller_are_read_whole():
             model.calls.sample_corners(x, bad)
         with pytest.raises(ValueError, match=r"mask.* must be in \[0, 2\*\*70\)"):
             bderiv.check_jacobians(model, x, masks=bad)
-    with pytest.raises(TypeError, match="mask must be an integer, got float"):
+    with pytest.raises(TypeError, match=r"masks\[0\] must be an integer, got float"):
         model.calls.sample_corners(x, [1.5])
     with pytest.raises(ValueError, match=r"the fields of all 2\*\*70 regions .*pass masks="):
         model.calls.sample_corners(x)
@@ -144,3 +144,41 @@ def test_numba_functions_of_more_than_63_events_are_refused_when_the_model_is_ma
                                              r"int64, which holds 63 events"):
             HybridSystem(field, events, n_events=70, dim=2, use_compiled=use_compiled)
     HybridSystem(field, events, n_events=63, dim=2)  # 63 fit
+
+
+def test_masks_mixed_of_signed_and_unsigned_integers_are_integers():
+    """numpy makes a list of int64 and uint64 values float64: each mask was then refused
+    as a float (a review)."""
+    from bderiv import HybridSystem
+
+    small = HybridSystem(lambda x, mask: np.array([1.0, 1.0 + mask]), lambda x: x[:1],
+                         n_events=2, dim=2, field_jacobian=lambda x, mask: np.zeros((2, 2)))
+    x = np.zeros(2)
+    assert small.calls.sample_corners(x, [np.uint64(1), 2]).tolist() == [[1.0, 2.0],
+                                                                          [1.0, 3.0]]
+    wide = _wide_model()
+    assert wide.calls.sample_corners(x, [np.uint64(1 << 63), 5]).tolist() == [
+        [1.0, 101.0], [1.0, 1.0]]
+    with pytest.raises(ValueError, match=r"^masks\[1\] must be in \[0, 2\*\*70\), got -1"):
+        wide.calls.sample_corners(x, [0, -1])
+    with pytest.raises(TypeError, match=r"^masks\[0\] must be an integer, got float"):
+        small.calls.sample_corners(x, [1.0])
+
+
+def test_a_numba_reset_guard_is_refused_too():
+    """reset_guard(x, mask, k) takes the mask as well: a numba one passed the check and
+    raised numba's "Int value is too large" at the first bounce (a review)."""
+    from numba import njit
+
+    from bderiv import HybridSystem
+
+    @njit
+    def guard(x, mask, k):
+        return None
+
+    n = 70
+    with pytest.raises(ValueError, match=r"n_events=70, but reset_guard is numba-compiled"):
+        HybridSystem(lambda x, mask: np.array([x[1], -9.81]), lambda x: -x[0] - np.zeros(n),
+                     n_events=n, dim=2, reset=lambda x, mask, k: np.array([x[0], -x[1]]),
+                     reset_guard=guard)
+

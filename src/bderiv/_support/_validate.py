@@ -219,12 +219,12 @@ def check_state(x, dim: int, name: str = "x") -> np.ndarray:
     return arr
 
 
-def check_mask(mask, n_events: int) -> int:
+def check_mask(mask, n_events: int, name: str = "mask") -> int:
     """A region mask of a system of ``n_events`` events: an integer in [0, 2**n)."""
     if isinstance(mask, bool) or not isinstance(mask, int | np.integer):
-        raise TypeError(f"mask must be an integer, got {type(mask).__name__}")
+        raise TypeError(f"{name} must be an integer, got {type(mask).__name__}")
     if not 0 <= mask < (1 << n_events):
-        raise ValueError(f"mask must be in [0, 2**{n_events}), got {mask}")
+        raise ValueError(f"{name} must be in [0, 2**{n_events}), got {mask}")
     return int(mask)
 
 
@@ -234,6 +234,8 @@ def check_masks(masks, n_events: int, name: str = "masks") -> np.ndarray:
     not hold (an unsigned or object array is never cast: a uint64 mask with bit 63 set
     would read as negative)."""
     values = np.asarray(masks)
+    if values.dtype.kind not in "iu":  # Python ints beyond int64, int64 and uint64 mixed
+        values = np.asarray(masks, dtype=object)
     flat = values.reshape(-1)
     if values.dtype.kind in "iu" and n_events <= INT64_EVENTS:
         if flat.size:
@@ -242,8 +244,8 @@ def check_masks(masks, n_events: int, name: str = "masks") -> np.ndarray:
                 bad = low if low < 0 else high
                 raise ValueError(f"{name} must be in [0, 2**{n_events}), got {bad}")
         return flat.astype(np.int64)
-    return np.array([check_mask(m, n_events) for m in flat.tolist()],
-                    dtype=mask_dtype(n_events))
+    return np.array([check_mask(m, n_events, f"{name}[{i}]")
+                     for i, m in enumerate(flat.tolist())], dtype=mask_dtype(n_events))
 
 
 def check_positive_int(value, name: str) -> int:

@@ -19,9 +19,15 @@ from .. import _limits
 from .._limits import RESET_TOL, RESET_TOL_NUMERICAL
 from .._support._format import format_mask
 from .._support._validate import check_mask, check_masks, check_memory, check_state
-from .compiled import EVENT_JAC_COMPLEX_STEP, JACOBIAN_MODES, CompiledModel, is_compiled
+from .compiled import (
+    EVENT_JAC_COMPLEX_STEP,
+    JACOBIAN_MODES,
+    CompiledModel,
+    check_compiled_functions,
+    is_compiled,
+)
 from .numerical_jacobians import NumericalJacobians, matches_near
-from .python_first import PythonTime, starts_in_python
+from .python_first import NotAsCompiled, PythonTime, starts_in_python
 from .readiness import ready_now
 from .user_functions import (
     _appending,
@@ -53,7 +59,8 @@ class ModelCalls:
         self.n_events, self.dim = model.n_events, model.dim
         self.check_jacobians = model.check_jacobians
         check_mask_width(model.n_events, field=model.field, field_jacobian=model.field_jacobian,
-                         reset=model.reset, reset_jacobian=model.reset_jacobian)
+                         reset=model.reset, reset_jacobian=model.reset_jacobian,
+                         reset_guard=model.reset_guard)
         # the compiled path's functions (None: the scipy path); it decides the use of the
         # event Jacobian and the reset (a guarded reset is the Python loop's)
         self._compiled_functions = (compiled_or_refused(model.field, model.events,
@@ -91,6 +98,7 @@ class ModelCalls:
 
         def outside(exc, args):
             self.compile_from_now(exc)
+            self.check_compiled_types()
             return compiled(*args)
 
         return self._time.budgeted(f.py_func, outside)
@@ -122,17 +130,25 @@ class ModelCalls:
         if outermost and self._time.left[0] <= 0:
             self.compile_from_now()
 
+    def check_compiled_types(self) -> None:
+        """Once it evaluates its numba functions compiled (on scipy too, while the integrator
+        compiles): their types checked as the compiled path checks them."""
+        if self._compiled_functions is not None and not self._on_python:
+            check_compiled_functions(*self._compiled_functions)
+
     def compile_from_now(self, cause=None) -> None:
         """Evaluate the model by its numba functions from now on, and run it on the compiled
         integrator (``cause``: what their Python code raised, logged)."""
-        if cause is not None:  # numba's code may not check what Python did
+        # NotAsCompiled: the compiled call names the type it takes, no warning needed
+        if cause is not None and not isinstance(cause, NotAsCompiled):
             _log.warning("bderiv: the Python code of the model's numba functions raised "
                          "%s: %s; the run is made again on them compiled, as every run from "
                          "now on (numba compiles code that Python refuses, but it also skips "
                          "checks that Python makes, such as array bounds: if the function is "
                          "wrong there, fix it)", type(cause).__name__, cause)
         self._to_dispatchers(
-            f"their Python code raised {type(cause).__name__}" if cause is not None
+            str(cause) if isinstance(cause, NotAsCompiled)
+            else f"their Python code raised {type(cause).__name__}" if cause is not None
             else f"its runs on their Python code took {_limits.PYTHON_FIRST_SECONDS:g} s"
             if self._time.left[0] <= 0 else "asked")
 
@@ -340,18 +356,9 @@ class ModelCalls:
         return RESET_TOL if exact else RESET_TOL_NUMERICAL
 
     def sample_corners(self, x, masks=None):
-        """Region fields at ``x`` for the given masks (default all 2**n).
-
-        Parameters
-        ----------
-        x : array_like, shape (d,)
-        masks : array_like of int, shape (m,), optional
-
-        Returns
-        -------
-        F : ndarray, shape (m, d) (``(2**n, d)`` by default)
-            ``F[i] = field(x, masks[i])``; taken from ``corner_field`` when given.
-        """
+        """Region fields ``F`` (m, d) at ``x`` (d,) for ``masks`` (m,), integers (default
+        all 2**n, F (2**n, d)): ``F[i] = field(x, masks[i])``, from ``corner_field`` when
+        given."""
         n = self.n_events
         if masks is None:
             check_memory((1 << n) * self.dim * 8, None, f"the fields of all 2**{n} regions "

@@ -100,7 +100,7 @@ class PythonTime:
             if in_run and self.spent() > self.left[0]:
                 raise PythonTierEnded
             try:
-                return fn(*args)
+                out = fn(*args)
             except ValueError:  # raised on purpose (a guard, a check): as compiled
                 raise
             except Exception as exc:  # noqa: BLE001 - the compiled function decides
@@ -109,6 +109,15 @@ class PythonTime:
                 if in_run:
                     raise PythonTierEnded from exc
                 return outside(exc, args)
+            if out is None or as_compiled_returns(out):
+                return out
+            # another type than the compiled path takes (float32, ints, a list, a view):
+            # the compiled function decides, which refuses it by name from the first run
+            # on, not after the model's Python second
+            other = NotAsCompiled(f"{fn.__name__} returned {_kind(out)}")
+            if in_run:
+                raise PythonTierEnded from other
+            return outside(other, args)
 
         call.__wrapped__ = fn
         return call
@@ -133,3 +142,22 @@ class PythonTime:
         here = self._here
         return time.perf_counter() - here.start - (
             _COMPILING.get(threading.get_ident(), 0.0) - here.compiling)
+
+
+class NotAsCompiled(TypeError):
+    """A numba function's Python code returned another type than the compiled path takes
+    (:func:`as_compiled_returns`): its compiled version decides."""
+
+
+def _kind(out) -> str:
+    if isinstance(out, np.ndarray):
+        layout = "C-contiguous" if out.flags.c_contiguous else "non-contiguous"
+        return f"a {layout} {out.dtype} array"
+    return f"a {type(out).__name__}"
+
+
+def as_compiled_returns(out) -> bool:
+    """Whether ``out`` is of the type the compiled path takes from a model's function: a
+    C-contiguous float64 array (complex128 under the complex step)."""
+    return (type(out) is np.ndarray and out.dtype in (np.float64, np.complex128)
+            and out.flags.c_contiguous)

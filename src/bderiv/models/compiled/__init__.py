@@ -16,6 +16,7 @@ from __future__ import annotations
 from ._cached import key_all_kernels
 from ._checks import (
     check_compiled,
+    check_compiled_functions,
     is_compiled,
     machine_has,
     note_refused,
@@ -33,5 +34,6 @@ key_all_kernels()
 
 __all__ = ["ENDED", "EVENT", "EVENT_JAC_COMPLEX_STEP", "EVENT_JAC_GIVEN", "EVENT_JAC_NONE",
            "HANDOFF", "JACOBIAN_MODES", "Cancelled", "CompiledModel", "Stretch",
-           "cancel_point", "check_compiled", "dense_at", "integrate_stretch", "is_compiled",
-           "machine_has", "note_refused", "refuse_damaged_cache", "refused_types", "stopped_by"]
+           "cancel_point", "check_compiled", "check_compiled_functions", "dense_at",
+           "integrate_stretch", "is_compiled", "machine_has", "note_refused",
+           "refuse_damaged_cache", "refused_types", "stopped_by"]

@@ -105,6 +105,14 @@ def check_compiled(fn, name: str) -> None:
     _check_types(fn, name)
 
 
+def check_compiled_functions(field, events, field_jacobian=None) -> None:
+    """:func:`check_compiled` of the functions the integrator calls at every step (a
+    ``field_jacobian`` of None: none given)."""
+    for fn, name in ((field, "field"), (events, "events"), (field_jacobian, "field_jacobian")):
+        if fn is not None:
+            check_compiled(fn, name)
+
+
 @lru_cache(maxsize=256)
 def _check_types(fn, name: str) -> None:
     """The compilation and return type of :func:`check_compiled` (a passed check is

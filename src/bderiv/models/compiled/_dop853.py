@@ -32,20 +32,21 @@ _TABLEAU = "scipy.integrate._ivp.dop853_coefficients"
 
 
 def _scipys_tableau():
-    """scipy's module of the DOP853 tableau: imported where scipy.integrate is, else its
-    file run on its own."""
-    if "scipy.integrate" in sys.modules:
-        return importlib.import_module(_TABLEAU)
+    """scipy's module of the DOP853 tableau: its file run on its own where scipy.integrate
+    is not imported and the file is there (an install without sources imports it)."""
     path = pathlib.Path(scipy.__file__).parent / "integrate" / "_ivp" / "dop853_coefficients.py"
-    spec = importlib.util.spec_from_file_location(_TABLEAU, path)
-    if not path.is_file() or spec is None:
+    if "scipy.integrate" not in sys.modules and path.is_file():
+        spec = importlib.util.spec_from_file_location(_TABLEAU, path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    try:
+        return importlib.import_module(_TABLEAU)
+    except ImportError as exc:  # pragma: no cover - depends on scipy's private layout
         raise ImportError(
             f"bderiv.models.compiled reads the DOP853 tableau from scipy's private module "
-            f"{_TABLEAU}, which this scipy does not have ({path} is missing); install a "
-            f"scipy that has it (1.15 to 1.17 do)")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+            f"{_TABLEAU}, which this scipy does not have; install a scipy that has it "
+            f"(1.15 to 1.17 do)") from exc
 
 
 _tableau = _scipys_tableau()

@@ -18,7 +18,7 @@ import numpy as np
 from ..._support._format import MASK_MEANING, format_mask
 from ..._support._validate import RecordTooLarge
 from ._checks import (
-    check_compiled,
+    check_compiled_functions,
     compiles_as,
     compiles_for_complex,
     format_state,
@@ -127,11 +127,10 @@ class CompiledModel:
         if n_events > MAX_EVENTS:
             raise ValueError(f"the compiled integrator takes at most {MAX_EVENTS} events (one "
                              f"bit each of an int64 region mask), got n_events={n_events}")
+        check_compiled_functions(field, events, field_jacobian)
         self.named = {"field": field, "events": events}
         if field_jacobian is not None:
             self.named["field_jacobian"] = field_jacobian
-        for name, fn in self.named.items():
-            check_compiled(fn, name)
         if field_jacobian is not None:
             self.jac_mode = JAC_GIVEN
         elif compiles_for_complex(field):

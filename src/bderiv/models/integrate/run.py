@@ -179,6 +179,7 @@ def _run(system, x0, t_final, options, variational, section, max_groups, record)
     _tell_start(system, x0)
     if getattr(system, "on_compiled_path", False):
         integrator_ready()  # the compiled integrator, or scipy while it compiles
+        system.check_compiled_types()  # on either, the types the compiled path takes
     t_final = check_number(t_final, "t_final")
     max_groups = check_positive_int(max_groups, "max_groups")
     check_options(options)
