@@ -181,3 +181,43 @@ def test_a_trajectory_without_sensitivities_has_no_flow_map_along_it():
     with pytest.raises(ValueError, match=r"traj holds no sensitivities .* call "
                                          r"flow_bderivative\(x0, t_final\)"):
         system.flow_map_along(traj)
+
+
+def _two_event_model(**extra):
+    from bderiv import HybridSystem
+
+    return HybridSystem(lambda x, mask: np.array([1.0, 0.5 + mask]),
+                        lambda x: np.array([x[0] - 1.0, x[0] - 1.0]), n_events=2, dim=2,
+                        event_jacobian=lambda x: np.array([[1.0, 0.0], [1.0, 0.0]]),
+                        field_jacobian=lambda x, mask: np.zeros((2, 2)), **extra)
+
+
+def test_a_corner_field_that_is_not_the_field_is_refused_by_mask():
+    """corner_field was used as it came: a table of 5s gave a flow map of [1.09, -0.79]
+    where the field's is [1, 2] (a review), silently."""
+    right = _two_event_model(corner_field=lambda x: np.array([[1.0, 0.5 + m]
+                                                               for m in range(4)]))
+    assert right.flow_bderivative(np.zeros(2), 2.0)(np.array([1.0, -1.0])) == pytest.approx(
+        [1.0, 2.0])
+    wrong = _two_event_model(corner_field=lambda x: np.full((4, 2), 5.0))
+    with pytest.raises(ValueError, match=r"corner_field\(x\) row 0 = \[5\. 5\.\] is not "
+                                         r"field\(x, mask=0b00\)"):
+        wrong.flow_bderivative(np.zeros(2), 2.0)
+
+
+def test_a_step_below_the_resolution_of_x0_is_refused():
+    """x0 + eps v rounded to x0: flow_fd gave zeros and fd_check an error of 1, silently
+    (a review)."""
+    model = _two_event_model()
+    x0, V = np.array([0.0, 1.0]), np.array([[0.0, 0.0], [0.0, 1.0]])  # a zero row is fine
+    with pytest.raises(ValueError, match=r"eps=1e-17 is below the resolution of x0 along "
+                                         r"V\[1\]"):
+        model.flow_fd(x0, 2.0, V, 1e-17)
+    assert model.flow_fd(x0, 2.0, V, 1e-6) == pytest.approx(np.array([[0.0, 0.0], [0.0, 1.0]]))
+
+
+def test_a_max_step_that_forces_too_many_steps_is_refused_before_the_run():
+    """max_step=1e-300 ran without end on scipy (a review)."""
+    with pytest.raises(ValueError, match=r"max_step=1e-300 would take at least 2e\+300 "
+                                         r"steps to t_final=2"):
+        _two_event_model().simulate(np.zeros(2), 2.0, max_step=1e-300)

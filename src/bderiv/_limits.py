@@ -30,6 +30,11 @@ from __future__ import annotations
 
 # --- integration ------------------------------------------------------------------------
 
+#: the most steps a run's ``max_step`` may force (``t_final / max_step``): beyond, refused
+#: before the run (1e-300 ran for minutes on the compiled integrator until its record
+#: outgrew the memory, and without end on scipy)
+MAX_FORCED_STEPS = 1e10
+
 #: default relative and absolute tolerance of the integrators (``SolverOptions``, the
 #: compiled ``integrate_stretch``): a judgement, about ten digits of the state, well
 #: above what the integrators can reach (MIN_RTOL) and cheap enough for the default.

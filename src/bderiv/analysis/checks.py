@@ -113,7 +113,16 @@ def _differences(system, x0, t_final, flat, steps, options, section, progress):
     # the perturbed runs as one batch (its bar, or the callback after each run), shaped
     # (step, vector, d): a failed run is named by its step and its row of V
     steps = np.asarray(steps, dtype=np.float64)[:, None, None]
-    runs = system.simulate_many(start + steps * flat, t_final, progress=progress, **settings)
+    starts = start + steps * flat
+    # a step below x0's resolution gives x0 again, and a difference of 0 (no error said)
+    still = ~(starts != start).any(axis=-1) & (flat != 0).any(axis=-1)
+    if still.any():
+        i, j = (int(k) for k in np.argwhere(still)[0])
+        raise ValueError(f"eps={float(steps[i, 0, 0])!r} is below the resolution of x0 along "
+                         f"V[{j}]: x0 + eps * V[{j}] rounds to x0 in float64 (spacing "
+                         f"{float(np.spacing(np.abs(start).max())):.3g} at x0's largest "
+                         f"entry); take a larger eps")
+    runs = system.simulate_many(starts, t_final, progress=progress, **settings)
     return (runs.x_final - base.x_final) / steps
 
 

@@ -35,6 +35,7 @@ from .user_functions import (
     check_given_jacobian,
     check_mask_width,
     check_output,
+    check_rows,
     compiled_or_refused,
 )
 
@@ -58,9 +59,8 @@ class ModelCalls:
         params = self._params = model.params
         self.n_events, self.dim = model.n_events, model.dim
         self.check_jacobians = model.check_jacobians
-        check_mask_width(model.n_events, field=model.field, field_jacobian=model.field_jacobian,
-                         reset=model.reset, reset_jacobian=model.reset_jacobian,
-                         reset_guard=model.reset_guard)
+        check_mask_width(model.n_events, **{name: getattr(model, name) for name in (
+            "field", "field_jacobian", "reset", "reset_jacobian", "reset_guard")})
         # the compiled path's functions (None: the scipy path); it decides the use of the
         # event Jacobian and the reset (a guarded reset is the Python loop's)
         self._compiled_functions = (compiled_or_refused(model.field, model.events,
@@ -83,8 +83,7 @@ class ModelCalls:
         self._numerical = NumericalJacobians()  # the Jacobians not given: how, and cost
 
     def _use(self, wrappers) -> None:
-        """Evaluate the model by ``wrappers`` (its eight functions, in the order of
-        ``__init__``) from now on."""
+        """Evaluate the model by ``wrappers`` (its eight functions, ``__init__``'s order)."""
         self._field, self._events, self._event_jac, self._field_jac, self._corner_field, \
             self._reset, self._reset_jac, self._guard = wrappers
 
@@ -375,6 +374,9 @@ class ModelCalls:
         n, d = self.n_events, self.dim
         if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
             table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
+            if ("corner_field",) not in self._checked:  # its rows are the field's, once
+                check_rows(table, masks, partial(self.eval_field, x), self._mask_name)
+                self._checked.add(("corner_field",))
             return np.ascontiguousarray(table[masks])
         if self.compiled is not None:  # one compiled loop over the masks
             return self.compiled.fields(x, masks)
@@ -384,10 +386,8 @@ class ModelCalls:
         return out
 
     def start_mask(self, x0):
-        """Region mask of a start point from the signs of its event values.
-
-        Raises ``ValueError`` when ``x0`` lies exactly on an event surface.
-        """
+        """Region mask of a start point from the signs of its event values (a
+        ``ValueError`` when ``x0`` lies exactly on an event surface)."""
         x0 = check_state(x0, self.dim, "x0")
         h = self.eval_events(x0)
         values = h.tolist()

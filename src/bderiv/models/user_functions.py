@@ -136,6 +136,19 @@ def check_mask_width(n_events, **functions) -> None:
             f"then Python ints), or model at most {INT64_EVENTS} events")
 
 
+def check_rows(table, masks, field, mask_name) -> None:
+    """Rows of ``corner_field(x)`` against ``field(mask)`` for the first, the last and the
+    middle of ``masks``: a table that is not the field's is refused, naming the mask (it
+    was used as it came: a silent wrong map)."""
+    for m in {int(masks[0]), int(masks[-1]), int(masks[masks.size // 2])}:
+        row, want = table[m], field(m)
+        if not np.allclose(row, want, rtol=ACCEPT_RTOL, atol=ACCEPT_RTOL * max(
+                1.0, float(np.abs(want).max()))):
+            raise ValueError(f"corner_field(x) row {m} = {row} is not field(x, mask="
+                             f"{mask_name(m)}) = {want}: corner_field must give every "
+                             f"region's field, row mask")
+
+
 def check_output(value, shape, what) -> np.ndarray:
     """Validate the output of a user function: real, of ``shape``, finite; float64 array.
 

@@ -34,7 +34,7 @@ from functools import lru_cache, partial
 
 import numpy as np
 
-from ..._limits import MAX_GROUPS
+from ..._limits import MAX_FORCED_STEPS, MAX_GROUPS
 from ..._numerics import GLOBAL_ERROR_FACTOR
 from ..._support._format import format_mask
 from ..._support._progress import SimulationProgress
@@ -183,6 +183,10 @@ def _run(system, x0, t_final, options, variational, section, max_groups, record)
     t_final = check_number(t_final, "t_final")
     max_groups = check_positive_int(max_groups, "max_groups")
     check_options(options)
+    if t_final / options.max_step > MAX_FORCED_STEPS:
+        raise ValueError(f"max_step={options.max_step:g} would take at least "
+                         f"{t_final / options.max_step:.3g} steps to t_final={t_final:g} "
+                         f"(more than {MAX_FORCED_STEPS:.0e}): take a larger max_step")
     d = system.dim
     # the Python loop's own state is made for its first stretch
     log, loop = RunLog(record, system.n_events), None
