@@ -221,3 +221,35 @@ def test_a_max_step_that_forces_too_many_steps_is_refused_before_the_run():
     with pytest.raises(ValueError, match=r"max_step=1e-300 would take at least 2e\+300 "
                                          r"steps to t_final=2"):
         _two_event_model().simulate(np.zeros(2), 2.0, max_step=1e-300)
+
+
+def test_a_corner_functions_table_is_checked_as_the_engine_checks_it():
+    """table() and corners() returned NaN for an entry left unwritten or written NaN, and
+    numba's raw TypingError for a function that does not compile (a review); a
+    BDerivative refused the same functions by name."""
+    import numba
+
+    from bderiv import CornerFunction
+
+    @numba.njit
+    def half(happened, out):
+        out[0] = 1.0 + happened[0]  # out[1] never written
+
+    @numba.njit
+    def nan(happened, out):
+        out[0] = 1.0
+        out[1] = np.nan if happened[1] else 1.0
+
+    with pytest.raises(ValueError, match=r"write all 2 entries of out with finite values; "
+                                         r"on the region happened = \[0, 0\] it gave"):
+        CornerFunction(half, n_events=2, dim=2).table()
+    with pytest.raises(ValueError, match=r"happened = \[0, 1\]"):
+        CornerFunction(nan, n_events=2, dim=2).corners([[1, 0], [0, 1]])
+
+    def typo(happened, out):
+        out[0] = undefined_name  # noqa: F821
+
+    with pytest.raises(TypeError, match=r"(?s)func could not be called as func\(happened, out\)"
+                                        r".*TypingError: .*undefined_name") as err:
+        CornerFunction(typo, n_events=2, dim=2).table()
+    assert "\x1b[" not in str(err.value)

@@ -7,10 +7,21 @@ right to left (bit k set = event k happened, event 0 rightmost); an event order 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 #: the reminder that follows a region in messages.
 MASK_MEANING = "bit k set = event k happened"
+
+
+#: a terminal's colour codes (numba's error messages carry them)
+ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def error_text(exc: BaseException) -> str:
+    """``Type: message`` of an exception, its terminal colour codes left out."""
+    return f"{type(exc).__name__}: {ANSI.sub('', str(exc)).strip()}"
 
 
 def format_mask(mask: int, n: int) -> str:

@@ -36,6 +36,7 @@ import numpy as np
 
 from .._limits import MAX_TABLE_EVENTS
 from .._support import _tables
+from .._support._format import error_text
 from .._support._validate import check_finite, check_matrix, check_real_array
 
 __all__ = ["CornerFunction", "CornerModel", "StructuredCorners"]
@@ -297,6 +298,17 @@ class CornerFunction(_Tabulated):
         if h.ndim == 0 or h.shape[-1] != n:
             raise ValueError(f"happened must have shape (..., {n}), got {h.shape}")
         flat = h.reshape(-1, n)  # corners gives func its own uint8 copy
-        out = np.full((flat.shape[0], d), np.nan)
-        corners(self.func, flat, out)
+        out = np.full((flat.shape[0], d), np.nan)  # an entry left unwritten stays NaN
+        try:
+            corners(self.func, flat, out)
+        except Exception as exc:  # numba's typing errors come in many classes
+            raise TypeError(f"func could not be called as func(happened, out) with happened "
+                            f"a uint8 array of {n} flags and out a float64 array of shape "
+                            f"({d},): {error_text(exc)}") from None
+        bad = ~np.isfinite(out).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f"func must write all {d} entries of out with finite values; on "
+                             f"the region happened = {flat[i].tolist()} it gave {out[i]} (NaN: "
+                             f"an entry left unwritten)")
         return out.reshape(h.shape[:-1] + (d,))

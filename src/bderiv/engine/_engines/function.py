@@ -6,6 +6,7 @@ import numpy as np
 
 from ..._kernels import function as kernels
 from ..._kernels._core import frozen_tables
+from ..._support._format import error_text
 from .base import Engine
 
 
@@ -69,7 +70,7 @@ def checked_function(model, n: int, d: int):
         raise TypeError(
             f"the corner function of {model!r} could not be called as func(happened, out) "
             f"with happened a uint8 array of {n} flags and out a float64 array of shape "
-            f"({d},): {type(exc).__name__}: {exc}"
+            f"({d},): {error_text(exc)}"
         ) from exc
     if not np.isfinite(out).all():
         raise ValueError(

@@ -18,7 +18,7 @@ from numba.core.errors import NumbaError
 
 from ..._kernels._cache import damaged_entry
 from ..._support._errors import DamagedCacheError
-from ..._support._format import MASK_MEANING, format_mask
+from ..._support._format import ANSI, MASK_MEANING, format_mask
 from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
     COMPLEX_FIELD_SIGNATURE,
@@ -53,7 +53,6 @@ _FUNCTIONS = {
     "section": (SECTION_SIGNATURE, "section(x)", lambda d, n: (), None, SECTION_NONFINITE,
                 SECTION_RAISED),
 }
-_ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
 #: numba's lowering of a closed-over value: ``freevar(name: value)`` and where
@@ -67,7 +66,7 @@ def _typing_summary(exc: Exception) -> str:
     step that failed instead: a closed-over value numba cannot compile in is named, with
     what to close over.
     """
-    lines = [ln.strip() for ln in _ANSI.sub("", str(exc)).splitlines() if ln.strip()]
+    lines = [ln.strip() for ln in ANSI.sub("", str(exc)).splitlines() if ln.strip()]
     useful = [ln for ln in lines if not ln.startswith(("Failed in", "File", "During"))]
     first = (useful or lines or ["(no message)"])[0]
     if " object at 0x" not in first:
