@@ -97,6 +97,12 @@ def test_bad_grids_and_clients():
     with pytest.raises(ValueError, match='client must be None, "local" or a distributed'):
         stability_map(cycle, {"multiplier": [0.5], "turns": [1.0]}, [1.0, 0.0], section,
                       client="cluster")
+    # refused at once, not recorded as "no orbit" at every point (a review)
+    grid = {"multiplier": [0.5], "turns": [1.0]}
+    with pytest.raises(ValueError, match=r"x_guess must be a finite 1-d array"):
+        stability_map(cycle, grid, [1.0, np.nan], section)
+    with pytest.raises(ValueError, match=r"period_guess must be a finite number > 0, got -1"):
+        stability_map(cycle, grid, [1.0, 0.0], section, period_guess=-1)
 
 
 def test_figure_marks_the_unstable_region(tmp_path):

@@ -304,6 +304,7 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     """
     V = check_matrix(V, "V", (None, system.dim))
     eps = check_number(eps, "eps")
+    t_max = check_number(t_max, "t_max")
     strides = check_positive_int(strides, "strides")
     if strides < 4:
         raise ValueError(f"strides must be >= 4, got {strides}")

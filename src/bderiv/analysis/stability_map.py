@@ -46,7 +46,7 @@ import numpy as np
 
 from .._limits import LOCAL_WORKERS
 from .._support._progress import resolve_progress
-from .._support._validate import check_positive_int
+from .._support._validate import all_finite, check_number, check_positive_int, check_real_array
 
 __all__ = ["StabilityMap", "stability_map"]
 
@@ -153,7 +153,12 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     ([True, True], [0.86, 0.78])
     """
     names, axes = _check_grid(grid)
-    x_guess = np.array(x_guess, dtype=np.float64)
+    # checked here: a bad one would be refused at every point, each recorded as "no orbit"
+    x_guess = check_real_array(x_guess, "x_guess").astype(np.float64)
+    if x_guess.ndim != 1 or not all_finite(x_guess):
+        raise ValueError(f"x_guess must be a finite 1-d array (a state), got {x_guess!r}")
+    if period_guess is not None:
+        period_guess = check_number(period_guess, "period_guess")
     n_directions = check_positive_int(n_directions, "n_directions")
     iterations = check_positive_int(iterations, "iterations")
     shape = tuple(a.size for a in axes)

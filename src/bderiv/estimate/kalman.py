@@ -206,6 +206,9 @@ class HybridKalmanFilter:
         d = self.model.dim
         hx, Hx = measurement_model(h, H, self.mean, d)
         p = hx.shape[0]
+        if np.size(z) != p:  # either may be the wrong one: both named
+            raise ValueError(f"z must have shape ({p},), as H has {p} rows (one per "
+                             f"measured quantity), got {np.size(z)} entries")
         z = check_vector(z, "z", p)
         R = check_covariance(R, "R", p, definite=True)
         S = Hx @ self.cov @ Hx.T + R
