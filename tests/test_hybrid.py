@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 import scipy.linalg
@@ -44,16 +45,28 @@ def assert_shrinks(errs):
 # construction and checked evaluations
 # ------------------------------------------------------------------------------------------
 def test_constructor_validation():
-    f = lambda x, m: x  # noqa: E731
+    f, h = (lambda x, m: x), (lambda x: x)  # noqa: E731
     with pytest.raises(TypeError, match="field must be callable"):
-        HybridSystem(3, f, n_events=1, dim=1)
+        HybridSystem(3, h, n_events=1, dim=1)
     with pytest.raises(TypeError, match="corner_field must be callable"):
-        HybridSystem(f, f, n_events=1, dim=1, corner_field="no")
+        HybridSystem(f, h, n_events=1, dim=1, corner_field="no")
     with pytest.raises(ValueError, match="n_events must be >= 1"):
-        HybridSystem(f, f, n_events=0, dim=1)
+        HybridSystem(f, h, n_events=0, dim=1)
     with pytest.raises(TypeError, match="dim must be an integer"):
-        HybridSystem(f, f, n_events=1, dim=2.0)
-    assert "n_events=1" in repr(HybridSystem(f, f, n_events=1, dim=1))
+        HybridSystem(f, h, n_events=1, dim=2.0)
+    assert "n_events=1" in repr(HybridSystem(f, h, n_events=1, dim=1))
+    # a function that cannot take its arguments, named by its role (Python's own TypeError
+    # at the first call named none; a review), numba's by its Python code
+    with pytest.raises(TypeError, match=r"events is called as events\(x\), but it takes "
+                                        r"\(x, m\)"):
+        HybridSystem(f, f, n_events=1, dim=1)
+    with pytest.raises(TypeError, match=r"field is called as field\(x, mask\), but it takes "
+                                        r"\(x\)"):
+        HybridSystem(numba.njit(h), numba.njit(h), n_events=1, dim=1)
+    with pytest.raises(TypeError, match=r"reset is called as reset\(x, mask, k\)"):
+        HybridSystem(f, h, n_events=1, dim=1, reset=f)
+    HybridSystem(f, np.negative, n_events=1, dim=1)  # a ufunc: not inspectable, taken
+    HybridSystem(lambda x, *rest: x, lambda x, **kw: x, n_events=1, dim=1)
 
 
 @pytest.mark.parametrize(

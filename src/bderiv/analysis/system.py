@@ -51,8 +51,12 @@ from .assembly import flow_map_along
 __all__ = ["EventGroup", "EventRecord", "HybridSystem", "SolverOptions", "Trajectories",
            "Trajectory"]
 
-_FUNCTIONS = ("field", "events", "event_jacobian", "field_jacobian", "corner_field", "reset",
-              "reset_jacobian", "reset_guard")
+#: the model's functions, as they are called
+_FUNCTIONS = {"field": "field(x, mask)", "events": "events(x)",
+              "event_jacobian": "event_jacobian(x)", "field_jacobian": "field_jacobian(x, mask)",
+              "corner_field": "corner_field(x)", "reset": "reset(x, mask, k)",
+              "reset_jacobian": "reset_jacobian(x, mask, k)",
+              "reset_guard": "reset_guard(x, mask, k)"}
 
 
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
@@ -201,8 +205,8 @@ class HybridSystem:
     calls: ModelCalls = dataclasses.field(init=False, compare=False)
 
     def __post_init__(self):
-        for name in _FUNCTIONS:
-            check_callable(getattr(self, name), name)
+        for name, call in _FUNCTIONS.items():
+            check_callable(getattr(self, name), name, call)
         if self.field is None or self.events is None:
             raise TypeError("field and events are required callables")
         if self.reset is None and self.reset_jacobian is not None:

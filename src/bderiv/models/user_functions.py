@@ -10,6 +10,8 @@ or hold a given one to its function. :mod:`.calls` and :mod:`.section` are built
 
 from __future__ import annotations
 
+import inspect
+
 import numba
 import numpy as np
 
@@ -20,10 +22,25 @@ from .._support._validate import all_finite, check_finite, check_real_array
 from .compiled import is_compiled, note_refused, refuse_damaged_cache, refused_types
 
 
-def check_callable(f, name: str) -> None:
-    """Refuse a parameter that should be a function (None passes: optional)."""
-    if f is not None and not callable(f):
+def check_callable(f, name: str, call: str | None = None) -> None:
+    """Refuse a parameter that should be a function (None passes: optional), or one whose
+    signature cannot take the arguments of ``call`` (``"field(x, mask)"``: it raised
+    Python's own TypeError, naming no role, at the first call)."""
+    if f is None:
+        return
+    if not callable(f):
         raise TypeError(f"{name} must be callable, got {type(f).__name__}")
+    if call is None:
+        return
+    args = call[call.index("(") + 1:-1].split(", ")
+    try:
+        signature = inspect.signature(getattr(f, "py_func", f))
+    except (TypeError, ValueError):  # a builtin or a ufunc: not inspectable, called as is
+        return
+    try:
+        signature.bind(*args)
+    except TypeError:
+        raise TypeError(f"{name} is called as {call}, but it takes {signature}") from None
 
 
 def _contiguous_args(fn):
