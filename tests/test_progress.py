@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import sys
 
+import numpy as np
 import pytest
 
 from bderiv._support._progress import TqdmCallback, resolve_progress
@@ -160,3 +161,30 @@ def test_short_simulations_draw_no_bar(monkeypatch):
     ex = examples.chair()
     ex.system.simulate(ex.x0, ex.t_final)
     assert buffer.getvalue() == ""
+
+
+def test_a_large_batch_goes_in_chunks_and_gives_the_same_numbers(monkeypatch):
+    """A batch in one call held Ctrl-C for seconds (5e6 rows of d = 30: up to 2.9 s, a
+    review): above IMPLICIT_CHUNK_ROWS rows it goes chunk by chunk, with the same bits
+    and the same error index."""
+    from bderiv import BDerivative
+    from bderiv._support import _batch
+
+    rng = np.random.default_rng(3)
+    bd = BDerivative(np.eye(2) + 0.1, np.abs(rng.standard_normal((4, 2))) + 0.5)
+    V = rng.standard_normal((1000, 2))
+    whole = bd(V)
+    calls = []
+    real = _batch._run
+
+    def counted(kernel, rows, *args):
+        calls.append(rows.shape[0])
+        return real(kernel, rows, *args)
+
+    monkeypatch.setattr(_batch, "_run", counted)
+    monkeypatch.setattr(_batch, "IMPLICIT_CHUNK_ROWS", 300)
+    monkeypatch.setattr(_batch, "DEFAULT_CHUNK_ROWS", 256)
+    assert bd(V).tobytes() == whole.tobytes() and calls == [256, 256, 256, 232]
+    V[700, 1] = np.nan
+    with pytest.raises(ValueError, match=r"vector V\[700\] = "):
+        bd(V)

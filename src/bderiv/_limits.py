@@ -185,6 +185,10 @@ THREAD_EXTRA_BYTES = 2 << 20
 #: no ``chunk_size`` is given: 2**16 rows of d = 128 are 64 MiB, and a chunk is long enough
 #: to keep two threads busy.
 DEFAULT_CHUNK_ROWS = 1 << 16
+#: rows of a batch above which it is chunked all the same (``DEFAULT_CHUNK_ROWS``): a
+#: batch in one call held Ctrl-C for seconds (5e6 rows of d = 30: 0.6 to 2.9 s, its
+#: scaling step one call over all rows); 2**20 keeps the benchmarks' 10**6 in one call
+IMPLICIT_CHUNK_ROWS = 1 << 20
 #: rows per block when a table is built or scanned; 2**15 rows of 20 float64 are 5 MiB.
 BLOCK_ROWS = 1 << 15
 #: rows per BLAS call when the rates of the region records are built. Products this small

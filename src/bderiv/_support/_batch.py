@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._limits import DEFAULT_CHUNK_ROWS
+from .._limits import DEFAULT_CHUNK_ROWS, IMPLICIT_CHUNK_ROWS
 from ._errors import QueryError
 from ._validate import check_out, check_points, check_positive_int
 
@@ -47,7 +47,8 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
         then copied first, as NumPy ufuncs do).
     chunk_size : int, optional
         Rows per kernel call; default: the whole batch at once, or ``DEFAULT_CHUNK_ROWS``
-        when ``V`` is a memmap or ``progress`` is given.
+        when ``V`` is a memmap, ``progress`` is given or the batch has more than
+        ``IMPLICIT_CHUNK_ROWS`` rows (Ctrl-C is seen between chunks).
     progress : callable ``progress(done, total)``, or bool, optional
         Called after each chunk; ``True`` draws a tqdm bar labelled ``desc``.
     method : callable, optional
@@ -62,7 +63,9 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
         from ._dask import map_blocks
 
         return map_blocks(method, V, dim, name, out)
-    if chunk_size is None and progress in (None, False) and not isinstance(V, np.memmap):
+    large = isinstance(V, np.ndarray) and V.size > IMPLICIT_CHUNK_ROWS * max(dim, 1)
+    if chunk_size is None and progress in (None, False) and not isinstance(V, np.memmap) \
+            and not large:
         flat, lead = check_points(V, dim, name)
         shape = lead + (dim,)
         result = np.empty(shape) if out is None else check_out(out, shape)

@@ -206,7 +206,8 @@ class FlowBDerivative(Linearisation):
             when ``V`` is a dask array.
         chunk_size : int, optional
             Vectors per chunk (results do not depend on it); default: all at once, or
-            chunks when ``V`` is a memmap or ``progress`` is given.
+            chunks when ``V`` is a memmap, ``progress`` is given or ``V`` has more than
+            2**20 vectors.
         progress : callable ``progress(done, total)``, or True, optional
             Called after each chunk; ``True`` draws a tqdm bar.
 
