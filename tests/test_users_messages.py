@@ -253,3 +253,20 @@ def test_a_corner_functions_table_is_checked_as_the_engine_checks_it():
                                         r".*TypingError: .*undefined_name") as err:
         CornerFunction(typo, n_events=2, dim=2).table()
     assert "\x1b[" not in str(err.value)
+
+
+def test_example_builders_refuse_nonsense_parameters_by_name():
+    """chair(inertia=-0.1) and pronking(stiffness=-400) built models all the same, and
+    chair(inertia=0) failed later as a non-finite field (a review)."""
+    from bderiv.examples import chair, gaits
+
+    for build, kw, match in ((chair, {"inertia": -0.1}, "inertia must be a finite number > 0"),
+                             (chair, {"inertia": 0}, "inertia must be a finite number > 0"),
+                             (chair, {"damping": -4}, "damping must be a finite number >= 0"),
+                             (gaits.pronking, {"stiffness": -400}, "stiffness must be"),
+                             (gaits.pronking, {"leg": 0}, "leg must be a finite number > 0"),
+                             (gaits.pronking, {"gain": np.nan}, "gain must be a finite")):
+        with pytest.raises(ValueError, match=match):
+            build(**kw)
+    with pytest.raises(TypeError, match="stiffness must be a real number, got str"):
+        chair(stiffness="a")

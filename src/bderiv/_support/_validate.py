@@ -370,9 +370,9 @@ def check_number(value, name: str, *, low: float = 0.0, strict: bool = True,
     value = float(value)
     ok = value > low if strict else value >= low
     if not ok or math.isnan(value) or (math.isinf(value) and not allow_inf):
-        bound = f"> {low:g}" if strict else f">= {low:g}"
+        bound = "" if low == -math.inf else f" > {low:g}" if strict else f" >= {low:g}"
         kind = "a number" if allow_inf else "a finite number"
-        raise ValueError(f"{name} must be {kind} {bound}, got {value!r}")
+        raise ValueError(f"{name} must be {kind}{bound}, got {value!r}")
     return value
 
 
