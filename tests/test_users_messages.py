@@ -270,3 +270,11 @@ def test_example_builders_refuse_nonsense_parameters_by_name():
             build(**kw)
     with pytest.raises(TypeError, match="stiffness must be a real number, got str"):
         chair(stiffness="a")
+    from bderiv.examples import landing, network
+
+    with pytest.raises(ValueError, match="foot_mass must be a finite number > 0, got 0"):
+        landing(foot_mass=0)  # a ZeroDivisionError before
+    with pytest.raises(TypeError, match="n must be an integer, got float"):
+        network(2.5)  # silently n = 2 before
+    with pytest.raises(ValueError, match="coupling must be a finite number, got nan"):
+        network(3, coupling=np.nan)

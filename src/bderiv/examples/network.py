@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba.extending import register_jitable
 
-from .._support._validate import check_bool
+from .._support._validate import check_bool, check_number
 from ._common import Example, check_start, flow_back
 
 __all__ = ["network"]
@@ -159,10 +159,13 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
     -------
     Example
     """
+    if isinstance(n, bool) or not isinstance(n, int | np.integer):  # int(n): 2.5 was 2
+        raise TypeError(f"n must be an integer, got {type(n).__name__}")
     n = int(n)
     if not 1 <= n <= 24:
         raise ValueError(f"n must be in 1..24, got {n}")
     extended = check_bool(extended, "extended")
+    coupling = check_number(coupling, "coupling", low=-np.inf, strict=False)
     rng = np.random.default_rng(seed)
     r = rng.uniform(0.8, 1.2, n)
     W = float(coupling) * rng.standard_normal((n, n))
