@@ -213,3 +213,18 @@ def test_the_demo_from_the_command_line(capsys):
     assert main(["demo", "--example", "solo12", "--json"]) == 0
     out = capsys.readouterr().out
     assert '"orders_met": 24' in out and '"FL_FOOT"' in out
+
+
+def test_nan_starts_and_a_foot_named_twice_are_refused_by_name():
+    """drop_state(robot, nan) gave a NaN state, a NaN joint reference a NaN posture, and
+    a foot named twice doubled its contact force, silently (a review)."""
+    robot = quadruped()
+    with pytest.raises(ValueError, match="height must be a finite number, got nan"):
+        drop_state(robot, np.nan)
+    with pytest.raises(ValueError, match="vz must be a finite number, got nan"):
+        drop_state(robot, 0.01, vz=np.nan)
+    with pytest.raises(ValueError, match="q_ref must be finite"):
+        quadruped(joints=(np.nan,) * 12)
+    with pytest.raises(ValueError, match=r"feet must name each foot once, got \['FL_foot'\]"):
+        legged_robot("go1_description/urdf/go1.urdf",
+                     ["FL_foot", "FL_foot", "RL_foot", "RR_foot"])

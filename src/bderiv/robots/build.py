@@ -73,7 +73,14 @@ def legged_robot(source, feet, q_ref=None, *, contact="compliant", sticking=True
         if not np.isfinite(value) or (name != "ground" and value < 0):
             raise ValueError(f"{name} must be a finite number"
                              f"{'' if name == 'ground' else ' >= 0'}, got {value!r}")
+    names = [feet] if isinstance(feet, str) else list(feet)
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:  # one foot's contact counted twice: its force doubled, silently
+        raise ValueError(f"feet must name each foot once, got {twice} more than once")
     q_ref = pin.neutral(model) if q_ref is None else q_ref
+    q_arr = np.asarray(q_ref, dtype=np.float64)
+    if not np.isfinite(q_arr).all():
+        raise ValueError(f"q_ref must be finite, got {q_ref!r}")
     if contact == "rigid":
         return RigidLeggedRobot(model, feet, q_ref, {**CONTACT, **law}, sticking)
     return LeggedRobot(model, feet, q_ref, {**CONTACT, **law})

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._support._validate import check_number
 from .build import legged_robot
 from .legged import LeggedRobot
 
@@ -85,6 +86,8 @@ def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarr
     -------
     ndarray, (robot.system.dim,)
     """
+    height = check_number(height, "height", low=-np.inf, strict=False)
+    vz = check_number(vz, "vz", low=-np.inf, strict=False)
     x = np.zeros(robot.system.dim)  # a rigid robot's contact latches (0: in the air)
     low = robot.foot_positions(x)[:, 2].min()
     x[2] = robot.law["ground"] + height - low  # the base's height offset (level: e_z = dz)
