@@ -376,6 +376,12 @@ def check_number(value, name: str, *, low: float = 0.0, strict: bool = True,
     return value
 
 
+def check_numbers(*, low: float = 0.0, strict: bool = True, **values) -> tuple:
+    """:func:`check_number` of each keyword's value, named by its keyword: the floats in
+    the keywords' order (a builder's parameters; ``low=-inf``: any finite number)."""
+    return tuple(check_number(v, name, low=low, strict=strict) for name, v in values.items())
+
+
 def check_value(value, name: str) -> float:
     """A parameter value: a finite real number."""
     if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba.extending import register_jitable
 
-from .._support._validate import check_number
+from .._support._validate import check_numbers
 from ._common import Example, check_start
 
 __all__ = ["chair"]
@@ -113,10 +113,9 @@ def chair(
     b1 = b0 + (a0 - a1) * np.tan(theta)  # both feet on the ground at theta
     legs = np.array([[a0, b0], [a1, b1]])
     # checked by name: a negative inertia or stiffness gave a model all the same
-    stiffness, inertia = (check_number(v, n) for v, n in ((stiffness, "stiffness"),
-                                                          (inertia, "inertia")))
-    damping, mode_damping, friction = (check_number(v, n, strict=False) for v, n in (
-        (damping, "damping"), (mode_damping, "mode_damping"), (friction, "friction")))
+    stiffness, inertia = check_numbers(stiffness=stiffness, inertia=inertia)
+    damping, mode_damping, friction = check_numbers(
+        strict=False, damping=damping, mode_damping=mode_damping, friction=friction)
     functions = _functions(stiffness, damping, mode_damping, friction, inertia, legs)
     z = -(a0 * np.sin(theta) + b0 * np.cos(theta))
     vx, vz, om = 0.5, -2.0, 0.3

@@ -36,7 +36,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from .._support._validate import check_number, check_positive_int
+from .._support._validate import check_number, check_numbers, check_positive_int
 from ._common import Example, check_start, compile_function
 
 __all__ = [
@@ -177,11 +177,11 @@ def body(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5, hal
     if legs < 2:
         raise ValueError(f"legs must be an integer >= 2, got {legs}")
     # checked by name (a negative stiffness or a leg of 0 gave a model all the same)
-    stiffness, leg, inertia, half_base = (check_number(v, n) for v, n in (
-        (stiffness, "stiffness"), (leg, "leg"), (inertia, "inertia"), (half_base, "half_base")))
+    stiffness, leg, inertia, half_base = check_numbers(
+        stiffness=stiffness, leg=leg, inertia=inertia, half_base=half_base)
     damping = check_number(damping, "damping", strict=False)
-    gain, v_ref, coupling = (check_number(v, n, low=-np.inf, strict=False) for v, n in (
-        (gain, "gain"), (v_ref, "v_ref"), (coupling, "coupling")))
+    gain, v_ref, coupling = check_numbers(low=-np.inf, strict=False, gain=gain, v_ref=v_ref,
+                                          coupling=coupling)
     share = 2.0 / legs  # the totals of two legs, shared by all of them
     return Body(a=np.linspace(-half_base, half_base, legs), K=share * stiffness,
                 C=share * damping, gain=share * gain, coupling=coupling, v_ref=v_ref,

@@ -29,7 +29,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from .._support._validate import check_number
+from .._support._validate import check_numbers
 from ._common import Example, check_start, flow_back
 
 __all__ = ["landing", "landing_summary", "summary_text"]
@@ -116,15 +116,13 @@ def landing(*, foot_mass=0.4, leg_stiffness=200.0, leg_damping=4.0, ground_stiff
     """The two-foot landing (module docstring); ``coupling != 0``: the refused variant;
     ``compiled``: the model's functions compiled with numba (the same equations)."""
     # checked by name: a negative mass built a model, a mass of 0 divided by zero
-    foot_mass, leg_stiffness, ground_stiffness = (check_number(v, n) for v, n in (
-        (foot_mass, "foot_mass"), (leg_stiffness, "leg_stiffness"),
-        (ground_stiffness, "ground_stiffness")))
-    leg_damping, ground_damping, hip_stiffness, friction = (
-        check_number(v, n, strict=False) for v, n in (
-            (leg_damping, "leg_damping"), (ground_damping, "ground_damping"),
-            (hip_stiffness, "hip_stiffness"), (friction, "friction")))
-    thrust, coupling = (check_number(v, n, low=-np.inf, strict=False)
-                        for v, n in ((thrust, "thrust"), (coupling, "coupling")))
+    foot_mass, leg_stiffness, ground_stiffness = check_numbers(
+        foot_mass=foot_mass, leg_stiffness=leg_stiffness, ground_stiffness=ground_stiffness)
+    leg_damping, ground_damping, hip_stiffness, friction = check_numbers(
+        strict=False, leg_damping=leg_damping, ground_damping=ground_damping,
+        hip_stiffness=hip_stiffness, friction=friction)
+    thrust, coupling = check_numbers(low=-np.inf, strict=False, thrust=thrust,
+                                     coupling=coupling)
     A, b = _tables(foot_mass, leg_stiffness, leg_damping, ground_stiffness, ground_damping,
                    hip_stiffness, friction, thrust)
     functions = _functions(A, b, coupling)
