@@ -9,6 +9,7 @@ linear model); the flow map with an analytic Jacobian against the computed ones.
 
 from __future__ import annotations
 
+import io
 import math
 import time
 
@@ -409,16 +410,27 @@ def test_a_stretch_in_slices_takes_the_same_steps(monkeypatch):
     np.testing.assert_array_equal(compiled.flow_bderivative(x0, 0.9)(V), whole(V))
 
 
-def test_ctrl_c_stops_a_long_compiled_run_within_a_second():
+def test_ctrl_c_stops_a_long_compiled_run_within_a_second(monkeypatch):
     """The run's stops in compiled code (the event Jacobian by complex step): the compiled
     run hands the stretch back when its step budget is spent, and the Python loop's driver
-    calls (slices of steps) see the interrupt."""
+    calls (slices of steps) see the interrupt. Between the slices the run's bar of the
+    simulated time moves, as on scipy's path (it was drawn only there)."""
+    from bderiv._support import _progress
+
+    pytest.importorskip("tqdm")
     system = HybridSystem(slow_rotation, far_event, n_events=1, dim=2)
     system.simulate(np.array([1.0, 0.0]), 1.0)  # compiled and warm
     assert compiled_stops(system.calls, None)
-    with ctrl_c_after(0.3) as start, pytest.raises(KeyboardInterrupt):
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "BAR_DELAY", 0.05)
+    monkeypatch.setattr(_progress, "BAR_OPTIONS",
+                        {"file": buffer, "disable": False, "leave": True})
+    with ctrl_c_after(0.5) as start, pytest.raises(KeyboardInterrupt):
         system.simulate(np.array([1.0, 0.0]), LONG_RUN, max_step=1e-3)
-    assert time.perf_counter() - start < 0.3 + 1.0
+    assert time.perf_counter() - start < 0.5 + 1.0
+    last = buffer.getvalue().split("\r")[-1]
+    assert last.startswith("simulate: ") and f"of {LONG_RUN:.4g} [" in last, last
+    assert float(last.split("t = ")[1].split(" of")[0]) > 0  # it moved
 
 
 # --- resets that land back (crossings.landing), on the compiled path -------------------

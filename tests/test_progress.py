@@ -127,8 +127,8 @@ def test_long_simulation_shows_progress_and_stops_on_ctrl_c(monkeypatch):
 
     pytest.importorskip("tqdm")
     buffer = io.StringIO()
-    monkeypatch.setattr(_progress, "SIMULATION_BAR_DELAY", 0.2)
-    monkeypatch.setattr(_progress, "SIMULATION_BAR",
+    monkeypatch.setattr(_progress, "BAR_DELAY", 0.2)
+    monkeypatch.setattr(_progress, "BAR_OPTIONS",
                         {"file": buffer, "disable": False, "leave": True})
     # a background job may ignore SIGINT: take it as an interactive session does
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -151,12 +151,12 @@ def test_long_simulation_shows_progress_and_stops_on_ctrl_c(monkeypatch):
 
 
 def test_short_simulations_draw_no_bar(monkeypatch):
-    """The bar waits for SIMULATION_BAR_DELAY: a run shorter than that draws nothing."""
+    """The bar waits for BAR_DELAY: a run shorter than that draws nothing."""
     from bderiv import examples
     from bderiv._support import _progress
 
     buffer = io.StringIO()
-    monkeypatch.setattr(_progress, "SIMULATION_BAR",
+    monkeypatch.setattr(_progress, "BAR_OPTIONS",
                         {"file": buffer, "disable": False, "leave": True})
     ex = examples.chair()
     ex.system.simulate(ex.x0, ex.t_final)
@@ -188,3 +188,59 @@ def test_a_large_batch_goes_in_chunks_and_gives_the_same_numbers(monkeypatch):
     V[700, 1] = np.nan
     with pytest.raises(ValueError, match=r"vector V\[700\] = "):
         bd(V)
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """Every delayed bar drawn at once, into the buffer returned."""
+    from bderiv._support import _progress
+
+    pytest.importorskip("tqdm")
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "BAR_DELAY", 0.0)
+    monkeypatch.setattr(_progress, "BAR_REFRESH", 0.0)
+    monkeypatch.setattr(_progress, "BAR_OPTIONS",
+                        {"file": buffer, "disable": False, "leave": True})
+    return buffer
+
+
+def _last(buffer, label):
+    """The last drawing of the bar labelled ``label``."""
+    drawings = [d for d in buffer.getvalue().replace("\n", "\r").split("\r")
+                if d.startswith(label + ": ")]
+    assert drawings, buffer.getvalue()
+    return drawings[-1]
+
+
+def test_a_newton_search_shows_its_iterate_and_residual(drawn):
+    """periodic_orbit's bar (drawn once the search lasts, here at once): the iterate and
+    the residual of the last map, which falls to the tolerance."""
+    from bderiv.examples import gaits
+
+    ex = gaits.pronking(legs=2)
+    guess = ex.x0 + np.array([0.02, 0.01, 0.0, -0.05])
+    orbit = ex.system.periodic_orbit(guess, gaits.apex_section, period_guess=0.5)
+    last = _last(drawn, "periodic_orbit")
+    iterate = len(orbit.history) - 1
+    assert last.startswith(f"periodic_orbit: Newton iterate {iterate} (of at most "), last
+    residuals = [float(d.split("max |P(x) - x| = ")[1].split(" [")[0])
+                 for d in drawn.getvalue().split("\r") if "max |P(x) - x| = " in d]
+    assert residuals[0] > 1e-3 and residuals[-1] < 1e-9, residuals
+
+
+def test_a_growth_rate_a_monte_carlo_and_a_triangulation_count_their_steps(drawn):
+    from bderiv import BDerivative
+    from bderiv.analysis.stability import growth_rate
+    from bderiv.estimate.consistency import consistency
+    from bderiv.examples import chair
+
+    A = np.array([[2.0, 1.0], [0.0, 0.5]])
+    growth = growth_rate(lambda V: V @ A.T, np.eye(2), iterations=40)
+    np.testing.assert_allclose(growth.rates[0], 2.0, rtol=1e-6)
+    assert " 40 of 40 iterations [" in _last(drawn, "growth rate")
+    consistency(chair(), 3, seed=1)
+    assert " 3 of 3 runs [" in _last(drawn, "consistency")
+    tri = BDerivative(np.eye(3), np.ones((8, 3))).triangulation()
+    tri(np.ones((2, 3)))
+    cones = len(tri.simplices)
+    assert f" {cones} of {cones} cones [" in _last(drawn, "Triangulation")

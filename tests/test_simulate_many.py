@@ -105,12 +105,13 @@ def test_progress_callback_after_each_run_and_the_bar(monkeypatch):
     assert seen == [(1, 3), (2, 3), (3, 3)]
     pytest.importorskip("tqdm")
     buffer = io.StringIO()
-    monkeypatch.setattr(_progress, "SIMULATION_BAR_DELAY", 0.0)
-    monkeypatch.setattr(_progress, "SIMULATION_BAR_REFRESH", 0.0)
-    monkeypatch.setattr(_progress, "SIMULATION_BAR",
+    monkeypatch.setattr(_progress, "BAR_DELAY", 0.0)
+    monkeypatch.setattr(_progress, "BAR_REFRESH", 0.0)
+    monkeypatch.setattr(_progress, "BAR_OPTIONS",
                         {"file": buffer, "disable": False, "leave": True})
     ex.system.simulate_many(X0, ex.t_final)  # the default: a bar once it lasts
     assert "simulate_many: " in buffer.getvalue() and "3 of 3 runs" in buffer.getvalue()
+    assert "simulate: " not in buffer.getvalue()  # the batch's bar only, not its runs'
 
 
 def test_ctrl_c_stops_a_long_compiled_batch_within_a_second(monkeypatch):

@@ -311,3 +311,36 @@ def test_composed_refuses_bad_matrices():
         tri.composed([[np.nan, 0.0], [0.0, 1.0]], np.eye(2))
     with pytest.raises(TypeError, match="after"):
         tri.composed(np.eye(2), [["a", "b"], ["c", "d"]])
+
+
+def _one_cone_at_a_time(tri, rows):
+    """Triangulation.apply as it was written before the cones went in blocks: each cone's
+    weights in turn, the first cone kept on a tie."""
+    n = tri.simplices.shape[1] - 1
+    best_weight, res = np.full(rows.shape[0], -np.inf), np.full(rows.shape, np.nan)
+    for simplex in tri.simplices:
+        P = np.hstack([tri.pre[simplex[1:]].T, tri.kernel])
+        Q = np.hstack([tri.post[simplex[1:]].T, tri.kernel_post])
+        weights = np.einsum("ij,mj->mi", np.linalg.inv(P), rows)
+        lam = weights[:, :n]
+        min_weight = lam.min(axis=1) / (np.abs(lam).max(axis=1) + 1e-300)
+        better = min_weight > best_weight
+        best_weight[better] = min_weight[better]
+        res[better] = np.einsum("ij,mj->mi", Q, weights[better])
+    return res
+
+
+@pytest.mark.parametrize("block", [1, 7 * 6, 1 << 20])  # 1 and 7 cones of 6 rows at once
+def test_cones_in_blocks_give_the_bits_of_one_cone_at_a_time(monkeypatch, block):
+    """On vectors inside cones, on their shared faces (a tie: the first cone wins) and on
+    their rays, over block boundaries."""
+    from bderiv.geometry import triangulation
+
+    rng = np.random.default_rng(5)
+    Dh, F = random_system(rng, 4, 6)
+    tri = BDerivative(Dh, F).triangulation()
+    rows = np.vstack([rng.standard_normal((3, 6)), tri.pre[tri.simplices[9, 2]],
+                      tri.pre[tri.simplices[9, 1]] + tri.pre[tri.simplices[9, 2]],
+                      tri.pre[tri.simplices[-1, 3]]])
+    monkeypatch.setattr(triangulation, "FAN_BLOCK", block)
+    assert_array_equal(tri(rows), _one_cone_at_a_time(tri, rows))

@@ -6,7 +6,9 @@ done so far, total units). This module turns the user-facing values into such a 
 ``progress``) or any callable (guarded: an exception it raises stops the work as a
 :class:`ProgressCallbackError` that says how far the work got, with the callback's own
 exception as its cause). tqdm is imported only when a bar is asked for.
-:class:`SimulationProgress` is the integrator's: a bar of the simulated time for long runs.
+:class:`DelayedBar` is the bar of long work that no ``progress=`` asked for (drawn after a
+few seconds, on a terminal); :class:`SimulationProgress`, the integrator's, is one of the
+simulated time.
 """
 
 from __future__ import annotations
@@ -176,24 +178,123 @@ def resolve_progress(progress, desc: str = "bderiv", **kwargs):
     )
 
 
-#: a simulation shows its progress bar once it has run this long (seconds of wall time),
-#: and redraws it at most this often: short runs (nearly all) never draw one
-SIMULATION_BAR_DELAY, SIMULATION_BAR_REFRESH = 2.0, 0.2
-#: keyword arguments of the simulations' tqdm bars (tests draw them into a buffer);
-#: ``disable=None``: only on a terminal, so that logs and captured output stay clean
-SIMULATION_BAR = {"disable": None, "leave": False}
+#: long work (a simulation, a batch of runs, Newton's iterations, a growth rate) shows a
+#: bar once it has run this long (seconds of wall time), redrawn at most this often: short
+#: work (nearly all) never draws one
+BAR_DELAY, BAR_REFRESH = 2.0, 0.2
+#: keyword arguments of these tqdm bars (tests draw them into a buffer); ``disable=None``:
+#: only on a terminal, so that logs and captured output stay clean
+BAR_OPTIONS = {"disable": None, "leave": False}
 
 
-class SimulationProgress:
-    """The progress of one simulation over ``[0, t_final]``, in simulated time.
+class DelayedBar:
+    """The bar of long work that reports how far it got: drawn once the work has lasted
+    :data:`BAR_DELAY` seconds (on a terminal; tqdm is the extra ``progress``, and without
+    it nothing is drawn), redrawn at most every :data:`BAR_REFRESH` seconds. Each call
+    costs a clock reading; work shorter than the delay draws nothing.
+
+    Parameters
+    ----------
+    total : float
+        The work's end, in its own units (simulated time, runs, iterations).
+    desc : str
+        Label of the bar.
+    bar_format : str
+        tqdm's ``bar_format`` (``{n}``, ``{total}``, ``{postfix}``: the note of the last
+        call, ...).
+    delay : float, optional
+        Seconds before the bar is drawn (default :data:`BAR_DELAY`).
+    **bar
+        Passed to ``tqdm`` over :data:`BAR_OPTIONS` (``file=``, ``disable=``, ...).
+
+    Examples
+    --------
+    >>> import io
+    >>> bar = DelayedBar(10, "solve", "{desc}: {n:.0f} of {total:.0f}{postfix}", delay=0.0,
+    ...                  file=io.StringIO(), disable=False)
+    >>> bar(3, "residual 1e-05")
+    >>> bar.bar_text()
+    'solve: 3 of 10, residual 1e-05'
+    >>> bar.close()
+    """
+
+    def __init__(self, total: float, desc: str, bar_format: str, delay: float | None = None,
+                 **bar):
+        self.total = float(total)
+        self.desc = desc
+        self._next = time.monotonic() + (BAR_DELAY if delay is None else delay)
+        self._options = {**BAR_OPTIONS, "bar_format": bar_format, **bar}
+        self._bar = None
+
+    def __call__(self, done: float, note: str | None = None) -> None:
+        """The work has reached ``done`` (of ``total``); ``note``: shown after the count."""
+        now = time.monotonic()
+        if now < self._next:
+            return
+        self._next = now + BAR_REFRESH
+        if self._bar is None:
+            try:
+                from tqdm.auto import tqdm
+            except ImportError:  # the bar is a nicety: without tqdm, run silently
+                self._next = float("inf")
+                return
+            self._bar = tqdm(total=self.total, desc=self.desc, initial=min(done, self.total),
+                             postfix=note, **self._options)  # drawn as it is made
+            return
+        self._bar.n = min(float(done), self.total)
+        if note is not None:
+            self._bar.set_postfix_str(note, refresh=False)
+        self._bar.refresh()
+
+    def bar_text(self) -> str:
+        """The bar as drawn now ("" before it is drawn)."""
+        return "" if self._bar is None else str(self._bar)
+
+    def close(self) -> None:
+        """Remove the bar, if one was drawn (idempotent)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def count_bar(total: int, desc: str, units: str, delay: float | None = None, **bar):
+    """A :class:`DelayedBar` of ``total`` steps of work counted in ``units`` (plural: "runs",
+    "iterations"), with an estimate of the time left and the last call's note.
+
+    Examples
+    --------
+    >>> import io
+    >>> bar = count_bar(8, "stability", "iterations", delay=0.0, file=io.StringIO(),
+    ...                 disable=False)
+    >>> bar(2)
+    >>> bar.bar_text().split("|")[-1]
+    ' 2 of 8 iterations [00:00<?]'
+    >>> bar.close()
+    """
+    return DelayedBar(total, desc, "{desc}: {percentage:3.0f}%|{bar}| {n:.0f} of {total:.0f} "
+                      + units + "{postfix} [{elapsed}<{remaining}]", delay, **bar)
+
+
+#: a simulation's bar: the simulated time reached, and an estimate of the time left
+_SIMULATION_FORMAT = ("{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g} of {total:.4g} "
+                      "[{elapsed}<{remaining}]")
+
+
+class SimulationProgress(DelayedBar):
+    """The progress of one simulation over ``[0, t_final]``, in simulated time: a
+    :class:`DelayedBar` of the time reached, with an estimate of the time left.
 
     The integrator calls it with the time it has reached, or integrates the field that
-    :meth:`wrap` returns (it calls it with each evaluation's time). Once the run has
-    lasted :data:`SIMULATION_BAR_DELAY` seconds, a tqdm bar of the simulated time with an
-    estimate of the time left is drawn (on a terminal; tqdm is the extra ``progress``, and
-    without it nothing is drawn). Each call costs a clock reading, and returns to Python:
-    Ctrl-C (``KeyboardInterrupt``) stops the run at the next field evaluation. A compiled
-    driver that calls it must return to Python every few tenths of a second for the same.
+    :meth:`wrap` returns (it calls it with each evaluation's time). Each call returns to
+    Python: Ctrl-C (``KeyboardInterrupt``) stops the run at the next field evaluation. A
+    compiled driver that calls it must return to Python every few tenths of a second for
+    the same.
 
     Parameters
     ----------
@@ -202,9 +303,10 @@ class SimulationProgress:
     desc : str
         Label of the bar.
     delay : float, optional
-        Seconds before the bar is drawn (default :data:`SIMULATION_BAR_DELAY`).
+        Seconds before the bar is drawn (default :data:`BAR_DELAY`).
     **bar
-        Passed to ``tqdm`` over :data:`SIMULATION_BAR` (``file=``, ``disable=``, ...).
+        Passed to ``tqdm`` over :data:`BAR_OPTIONS` (``file=``, ``disable=``,
+        ``bar_format=``, ...).
 
     Examples
     --------
@@ -220,33 +322,9 @@ class SimulationProgress:
 
     def __init__(self, t_final: float, desc: str = "simulate", delay: float | None = None,
                  **bar):
-        self.t_final = float(t_final)
-        self.desc = desc
-        delay = SIMULATION_BAR_DELAY if delay is None else delay
-        self._next = time.monotonic() + delay
-        self._options = {**SIMULATION_BAR, **bar}
-        self._bar = None
-
-    def __call__(self, t: float) -> None:
-        now = time.monotonic()
-        if now < self._next:
-            return
-        self._next = now + SIMULATION_BAR_REFRESH
-        if self._bar is None:
-            try:
-                from tqdm.auto import tqdm
-            except ImportError:  # the bar is a nicety: without tqdm, run silently
-                self._next = float("inf")
-                return
-            self._bar = tqdm(total=self.t_final, desc=self.desc, **{
-                "bar_format": "{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g} of {total:.4g} "
-                              "[{elapsed}<{remaining}]", **self._options})
-        self._bar.n = min(float(t), self.t_final)
-        self._bar.refresh()
-
-    def bar_text(self) -> str:
-        """The bar as drawn now ("" before it is drawn)."""
-        return "" if self._bar is None else str(self._bar)
+        bar_format = bar.pop("bar_format", _SIMULATION_FORMAT)
+        super().__init__(t_final, desc, bar_format, delay, **bar)
+        self.t_final = self.total
 
     def wrap(self, field):
         """``field(t, y)`` that reports ``t`` before each evaluation."""
@@ -256,9 +334,3 @@ class SimulationProgress:
             return field(t, y)
 
         return watched
-
-    def close(self) -> None:
-        """Remove the bar, if one was drawn (idempotent)."""
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None

@@ -48,6 +48,7 @@ from .._limits import (
     ORBIT_TOL,
     T_MAX_PER_PERIOD,
 )
+from .._support._progress import DelayedBar
 from .._support._validate import check_number, check_positive_int
 from ..models.integrate.options import SolverOptions, check_options
 from ..models.integrate.run import ENDS, NoReturn, run
@@ -65,6 +66,9 @@ from .returnmap import return_map
 from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
 
 __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
+
+#: the bar of a long search (drawn after a few seconds, on a terminal)
+_NEWTON_BAR = "{desc}: Newton iterate {n:.0f} (of at most {total:.0f}){postfix} [{elapsed}]"
 
 #: integrator settings of the orbit search: the residual is only as good as the
 #: integration, and Newton's method converges to within it.
@@ -264,32 +268,34 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
             system.calls, s, t_max, options=iterates, section=section, record=ENDS)).x_final
             for start in starts]
         check_independence(returned, x, shifted, cyclic)
-    for iteration in range(max_iter + 1):
-        R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build:
-                                          _build(system, x, section, t_max, b, iterates))
-        check_equivariance(R, x, cyclic)
-        r = R.x_final - x
-        res = float(np.abs(r[keep]).max())
-        if _within(res, x, keep, tol):
-            break
-        if iteration == max_iter:
-            raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
-                               f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
-        if built_with != iterates and any(s > 0 for s in R.flow.group_spreads):
-            # events apart at x merged by the caller's tolerance: a step from that map is a
-            # chord, and Newton's method converges only linearly; the iterates' map instead
-            R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x: _build(
-                system, x, section, t_max, iterates, iterates))
+    with DelayedBar(max_iter, "periodic_orbit", _NEWTON_BAR) as bar:  # long searches
+        for iteration in range(max_iter + 1):
+            R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build:
+                                              _build(system, x, section, t_max, b, iterates))
             check_equivariance(R, x, cyclic)
             r = R.x_final - x
-        step = newton_step(R, r, section.gradient(x), section(x), keep=keep)
-        damped = damped_step(system, section, x, step.delta, res, t_max, iterates, keep)
-        history.append(NewtonIterate(x.copy(), res, float(np.abs(damped.x - x).max()),
-                                     step.piece, step.switches))
-        x = damped.x
-        # converged already by the damped step's run: the next map is likely the orbit's,
-        # so it is built with the caller's tolerance (and kept if the test passes on it)
-        build = options if _within(damped.residual, x, keep, tol) else iterates
+            res = float(np.abs(r[keep]).max())
+            bar(iteration, f"max |P(x) - x| = {res:.2g}")
+            if _within(res, x, keep, tol):
+                break
+            if iteration == max_iter:
+                raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
+                                   f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
+            if built_with != iterates and any(s > 0 for s in R.flow.group_spreads):
+                # events apart at x merged by the caller's tolerance: a step from that map is a
+                # chord, and Newton's method converges only linearly; the iterates' map instead
+                R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x: _build(
+                    system, x, section, t_max, iterates, iterates))
+                check_equivariance(R, x, cyclic)
+                r = R.x_final - x
+            step = newton_step(R, r, section.gradient(x), section(x), keep=keep)
+            damped = damped_step(system, section, x, step.delta, res, t_max, iterates, keep)
+            history.append(NewtonIterate(x.copy(), res, float(np.abs(damped.x - x).max()),
+                                         step.piece, step.switches))
+            x = damped.x
+            # converged already by the damped step's run: the next map is likely the orbit's,
+            # so it is built with the caller's tolerance (and kept if the test passes on it)
+            build = options if _within(damped.residual, x, keep, tol) else iterates
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
     if built_with != options:  # the map at x was built for the iteration only
         R, traj = _at_iterate(iteration, x, t_max, lambda: return_map(

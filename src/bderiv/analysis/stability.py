@@ -31,6 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._support._progress import count_bar
 from .._support._validate import check_matrix, check_memory, check_positive_int
 
 __all__ = ["Growth", "Stability", "growth_rate", "log_growth", "piece_multipliers"]
@@ -204,17 +205,19 @@ def log_growth(fmap, V0, iterations, *, fmap_orders=None, record_from=0):
     V = V / norms[:, None]
     logs = np.empty((iterations, V.shape[0]))
     visits = _Visits()
-    for k in range(iterations):
-        if fmap_orders is not None and k >= record_from:
-            W, orders = fmap_orders(V)
-            visits.add(orders)
-        else:
-            W = fmap(V)
-        norms = np.linalg.norm(W, axis=1)
-        zero = norms == 0
-        safe = np.where(zero, 1.0, norms)
-        logs[k] = np.where(zero, -np.inf, np.log(safe))
-        V = np.where(zero[:, None], V, W / safe[:, None])
+    with count_bar(iterations, "growth rate", "iterations") as bar:  # long runs
+        for k in range(iterations):
+            if fmap_orders is not None and k >= record_from:
+                W, orders = fmap_orders(V)
+                visits.add(orders)
+            else:
+                W = fmap(V)
+            norms = np.linalg.norm(W, axis=1)
+            zero = norms == 0
+            safe = np.where(zero, 1.0, norms)
+            logs[k] = np.where(zero, -np.inf, np.log(safe))
+            V = np.where(zero[:, None], V, W / safe[:, None])
+            bar(k + 1)
     return logs, visits.result()
 
 

@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._support._progress import count_bar
 from .kalman import HybridKalmanFilter
 
 #: the filters compared: name -> HybridKalmanFilter keywords
@@ -94,8 +95,8 @@ def consistency(example, runs, *, prior_sd=1e-4, seed=0, window=None, filters=No
     R = (prior_sd / 2) ** 2 * np.eye(d // 2)
     t1, T = example.t_event / 2, example.t_final
     X0 = example.x0 + prior_sd * rng.standard_normal((runs, d))
-    X1 = model.simulate_many(X0, t1, progress=False).x_final
-    truth = model.simulate_many(X1, T - t1, progress=False)
+    X1 = model.simulate_many(X0, t1).x_final  # (bars of their own once they last)
+    truth = model.simulate_many(X1, T - t1)
     orders = np.array([[k for g in run.groups for k in g.events][:2] for run in truth])
     Z = X1 @ H.T + (prior_sd / 2) * rng.standard_normal((runs, d // 2))
     first = {name: HybridKalmanFilter(model, example.x0, P0, **given, **kw)
@@ -103,12 +104,15 @@ def consistency(example, runs, *, prior_sd=1e-4, seed=0, window=None, filters=No
     for f in first.values():
         f.predict(t1)  # the same prior for every run: one step for all
     nees = {name: np.empty(runs) for name in filters}
-    for i in range(runs):
-        for name, kw in filters.items():
-            f = HybridKalmanFilter(model, first[name].mean, first[name].cov, **given, **kw)
-            f.update(Z[i], R, H=H)
-            f.predict(T - t1)
-            nees[name][i] = f.nees(truth.x_final[i])
+    with count_bar(runs, "consistency", "runs") as bar:  # long runs
+        for i in range(runs):
+            for name, kw in filters.items():
+                f = HybridKalmanFilter(model, first[name].mean, first[name].cov, **given,
+                                       **kw)
+                f.update(Z[i], R, H=H)
+                f.predict(T - t1)
+                nees[name][i] = f.nees(truth.x_final[i])
+            bar(i + 1)
     from scipy.stats import chi2  # here: scipy.stats imports in 0.6 s
 
     lo, hi = chi2.ppf([0.025, 0.975], runs * d) / runs

@@ -92,8 +92,9 @@ def measured(key, elapsed, steps) -> None:
 
 
 def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0, t_final,
-          rtol, atol, max_step, first_step, forced, on_side, dense) -> Driven:
-    """``drive_stretch`` with these arguments, in slices of steps (no validation).
+          rtol, atol, max_step, first_step, forced, on_side, dense, watch=None) -> Driven:
+    """``drive_stretch`` with these arguments, in slices of steps (no validation);
+    ``watch(t)``, if given, is told the time reached after each slice.
 
     The stretch's record (every accepted step's time and integrated vector, and with
     ``dense`` its dense output) grows with its steps: before each slice its projected size
@@ -119,6 +120,8 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
         if status != PAUSED:
             break
         cancel_point()
+        if watch is not None:
+            watch(t_end)
         # the next slice (about as many steps as this one; the driver's arrays double as
         # they fill) and the parts joined into one record at the end
         grown = sum(a.nbytes for a in parts[-1])

@@ -253,7 +253,7 @@ class CompiledModel:
         return out
 
     def stretch(self, y0, t0, t_final, mask, *, rtol, atol, max_step, variational,
-                section=None, forced=False, on_side=False, dense=True) -> Driven:
+                section=None, forced=False, on_side=False, dense=True, watch=None) -> Driven:
         """Integrate region ``mask`` from ``(t0, y0)`` to ``t_final`` or the first crossing.
 
         Parameters
@@ -272,6 +272,9 @@ class CompiledModel:
             stretch: :func:`bderiv.models.events.sides.on_side_at_start`).
         dense : bool
             Record the state's dense output of every step.
+        watch : callable, optional
+            ``watch(t)`` with the time reached after each slice of steps (the run's bar:
+            :class:`~bderiv._support._progress.SimulationProgress`).
 
         Returns
         -------
@@ -287,7 +290,7 @@ class CompiledModel:
             out = drive(self.struct(section), self.jac_mode, variational, section is not None,
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
                         atols, float(max_step), 0.0, n if forced else -1, bool(on_side),
-                        dense)
+                        dense, watch)
         except RecordTooLarge:  # the stretch's record, refused before it grew: named
             raise
         except MemoryError as exc:  # an allocation of the driver's record failed

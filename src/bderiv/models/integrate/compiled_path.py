@@ -85,11 +85,14 @@ class CompiledStretches:
         The run's evaluations at the stops
         (:class:`bderiv.models.events.stopcalls.StopCalls`), for the search of crossings
         inside the steps; default ``system``.
+    watch : SimulationProgress, optional
+        The run's bar, told the time reached after each slice of steps.
     """
 
-    def __init__(self, system, section=None, stops=None):
+    def __init__(self, system, section=None, stops=None, watch=None):
         self.system, self.model, self.section = system, system.compiled, section
         self.stops = system if stops is None else stops
+        self.watch = watch
 
     def __call__(self, x, t, t_final, mask, options, variational):
         """Integrate region ``mask`` from ``(t, x)`` until ``t_final``, an event or the
@@ -108,7 +111,8 @@ class CompiledStretches:
             out = self.model.stretch(
                 y_start, start, stop, mask, rtol=options.rtol, atol=options.atol,
                 max_step=options.max_step, variational=variational, section=self.section,
-                forced=self.section is not None and start == 0.0, on_side=start == t)
+                forced=self.section is not None and start == 0.0, on_side=start == t,
+                watch=self.watch)
             sol = CompiledSolution(out, d, watched)
             pieces.append((start, sol.sol))
             return sol

@@ -24,7 +24,8 @@ Thread safety. The runs share the model's compiled functions, its struct and ato
 its set of checked Jacobians (``ModelCalls._checked``: one ``add`` per check), the
 measured cost of a slice of steps (``_slices._cost``: it sets where a run hands back, never
 its bits) and numba's dispatchers (a compilation holds numba's lock). A run's ``StopCalls``
-and ``SimulationProgress`` are its own (the compiled path never draws the latter). The
+are its own, and it draws no bar of its own time (the batch's bar is the calling
+thread's). The
 numerical-Jacobian cost counters are not touched: such a model's event Jacobian is had in
 compiled code, and a field Jacobian only with the variational equations, which ``simulate``
 does not integrate. The first runs go alone, until one has checked the event Jacobian (a
@@ -48,7 +49,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..._support._progress import SimulationProgress, resolve_progress
+from ..._support._progress import count_bar, resolve_progress
 from ..._support._tables import mask_dtype
 from ..._support._validate import check_number, check_points, check_positive_int
 from ..compiled import Cancelled, stopped_by
@@ -57,9 +58,6 @@ from .run import STEPS, compiled_stops, run, stops_compile
 
 __all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count"]
 
-#: the bar of a batch's runs (drawn as a simulation's: after a delay, on a terminal)
-_BAR_FORMAT = ("{desc}: {percentage:3.0f}%|{bar}| {n:.0f} of {total:.0f} runs "
-               "[{elapsed}<{remaining}]")
 #: seconds the calling thread waits for a run at a time (it sees Ctrl-C in between)
 _POLL = 0.05
 
@@ -154,11 +152,11 @@ def run_many(system, X0, lead, t_final, *, options, max_groups,
 
     def one(i):
         return run(system, X0[i].copy(), t_final, options=options, max_groups=max_groups,
-                   section=section, record=record)
+                   section=section, record=record, bar=False)
 
     watch = None
     if progress is None:
-        watch = SimulationProgress(m, desc="simulate_many", bar_format=_BAR_FORMAT)
+        watch = count_bar(m, "simulate_many", "runs")
         report = watch
     else:
         tell = resolve_progress(progress, desc="simulate_many", unit="run")

@@ -93,9 +93,9 @@ class NoReturn(ValueError):
 def stretches_for(system, options, section=None, watch=None, stops=None):
     """The integrator of a run's stretches: compiled when the model's functions are numba
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
-    (``watch``: a :class:`~bderiv._support._progress.SimulationProgress` told each
-    evaluation's time; the compiled driver returns to Python between slices of steps
-    instead; ``stops``: the run's :class:`~bderiv.models.events.stopcalls.StopCalls`).
+    (``watch``: a :class:`~bderiv._support._progress.SimulationProgress`, or None, told
+    each evaluation's time on scipy's path, the time reached after each slice of steps on
+    the compiled one; ``stops``: the run's :class:`~bderiv.models.events.stopcalls.StopCalls`).
 
     Raises
     ------
@@ -114,11 +114,11 @@ def stretches_for(system, options, section=None, watch=None, stops=None):
     compiled_section = None if section is None else section.compiled()
     if system.compiled is None:  # the integrator compiles in the background: scipy's DOP853
         return ScipyStretches(system, section, watch, stops)
-    return CompiledStretches(system, compiled_section, stops)
+    return CompiledStretches(system, compiled_section, stops, watch)
 
 
 def run(system, x0, t_final, *, options, variational=False, section=None,
-        max_groups=MAX_GROUPS, record=STEPS):
+        max_groups=MAX_GROUPS, record=STEPS, bar=True):
     """Integrate ``system`` from ``x0`` at time 0 to ``t_final`` with event detection.
 
     Parameters
@@ -148,6 +148,10 @@ def run(system, x0, t_final, *, options, variational=False, section=None,
         and the end only (the time and state at 0 and at the run's end), or the states at
         these times (checked by :func:`check_t_eval`; those after a return to the
         section are not sampled).
+    bar : bool
+        Draw the bar of the simulated time once the run has lasted a few seconds (on a
+        terminal: :class:`~bderiv._support._progress.SimulationProgress`); False in a
+        batch, which draws its own.
 
     Returns
     -------
@@ -168,13 +172,13 @@ def run(system, x0, t_final, *, options, variational=False, section=None,
         try:
             with system.python_run():
                 return _run(system, x0, t_final, options, variational, section, max_groups,
-                            record)
+                            record, bar)
         except PythonTierEnded as ended:  # its time spent, or its Python code raised
             system.compile_from_now(ended.__cause__)
-    return _run(system, x0, t_final, options, variational, section, max_groups, record)
+    return _run(system, x0, t_final, options, variational, section, max_groups, record, bar)
 
 
-def _run(system, x0, t_final, options, variational, section, max_groups, record):
+def _run(system, x0, t_final, options, variational, section, max_groups, record, bar):
     """:func:`run`'s work, on the integrator the model takes now."""
     _tell_start(system, x0)
     if getattr(system, "on_compiled_path", False):
@@ -197,18 +201,23 @@ def _run(system, x0, t_final, options, variational, section, max_groups, record)
     now = _Now(0.0, x0, -1, np.abs(x0), np.zeros(d))
     settings = (t_final, options, variational, section, max_groups)
     impacts = ImpactWatch(system, t_final)  # bounces that accumulate: refused
-    while not now.ended:
-        cancel_point()  # a run of a batch on threads stops with its batch
-        if not sampled and compiled_stops(system, section):  # the plain stops, in one call
-            _compiled_stretches(system, log, now, *settings)
-            impacts.see(log.groups)
-        if not now.ended:
-            if loop is None:
-                loop = _PythonLoop(system, options, section, t_final)
-            _python_stretch(system, loop, log, now, *settings)
-            impacts.see(log.groups)
-    if loop is not None:
-        loop.watch.close()
+    watch = SimulationProgress(t_final) if bar else None
+    try:
+        while not now.ended:
+            cancel_point()  # a run of a batch on threads stops with its batch
+            if not sampled and compiled_stops(system, section):  # the plain stops at once
+                _compiled_stretches(system, log, now, *settings)  # a slice of steps at most
+                impacts.see(log.groups)
+                if watch is not None:
+                    watch(now.t)
+            if not now.ended:
+                if loop is None:
+                    loop = _PythonLoop(system, options, section, watch)
+                _python_stretch(system, loop, log, now, *settings)
+                impacts.see(log.groups)
+    finally:
+        if watch is not None:
+            watch.close()
     if section is not None and not now.returned:
         raise NoReturn(
             f"the trajectory did not return to the section (upward) before t={t_final:g}; "
@@ -233,14 +242,13 @@ _NO_MASKS = np.empty(0, dtype=np.int64)
 
 
 class _PythonLoop:
-    """What the Python loop's stretches share in a run: the progress bar of long runs
-    (Ctrl-C at each evaluation), the checked calls at a stop (made once for all its rules),
-    and the stretches' integrator."""
+    """What the Python loop's stretches share in a run: the checked calls at a stop (made
+    once for all its rules) and the stretches' integrator, which tells ``watch`` (the run's
+    bar, or None) each evaluation's time."""
 
-    def __init__(self, system, options, section, t_final):
-        self.watch = SimulationProgress(t_final)
+    def __init__(self, system, options, section, watch):
         self.stops = StopCalls(system)
-        self.stretches = stretches_for(system, options, section, self.watch, self.stops)
+        self.stretches = stretches_for(system, options, section, watch, self.stops)
 
 
 @lru_cache(maxsize=1024)
