@@ -40,6 +40,7 @@ with its message, not raised: a map has unstable and degenerate regions by natur
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,8 +178,14 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
                 done += 1
                 if progress is not None:
                     progress(done, total)
-    finally:
+    except KeyboardInterrupt:  # Ctrl-C returns now, an own cluster closes in a thread (the
+        # interpreter waits for it at exit: its processes take a second to end)
+        threading.Thread(target=close, name="bderiv-close-cluster").start()
+        raise
+    except BaseException:
         close()
+        raise
+    close()
     return _collect(names, axes, shape, x_guess.size, results)
 
 
