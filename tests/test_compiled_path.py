@@ -433,6 +433,24 @@ def test_ctrl_c_stops_a_long_compiled_run_within_a_second(monkeypatch):
     assert float(last.split("t = ")[1].split(" of")[0]) > 0  # it moved
 
 
+def test_a_stopped_batch_stops_a_stretch_as_such():
+    """A run of a stopped batch ends its stretch at the next slice with ``Cancelled``
+    (the batch's own signal), not as an error of the model's functions: before, the
+    stretch's catch-all said "a compiled function of the model raised Cancelled", a
+    ValueError that a batch would have reported as that run's failure."""
+    import threading
+
+    from bderiv.models.compiled import Cancelled, stopped_by
+
+    system = HybridSystem(slow_rotation, far_event, n_events=1, dim=2)
+    system.simulate(np.array([1.0, 0.0]), 1.0)  # compiled and warm
+    stop = threading.Event()
+    stop.set()
+    with stopped_by(stop), pytest.raises(Cancelled):
+        system.calls.compiled.stretch(np.array([1.0, 0.0]), 0.0, LONG_RUN, 0, rtol=1e-6,
+                                      atol=1e-9, max_step=1e-3, variational=False)
+
+
 # --- resets that land back (crossings.landing), on the compiled path -------------------
 
 GRAVITY, RESTITUTION = 9.81, 0.8

@@ -171,6 +171,31 @@ def test_ilqr_through_the_simultaneous_touchdown(chair_flow, torque):
             assert theirs is None or theirs >= 2 * ours, (lin, theirs, ours)
 
 
+def test_a_long_ilqr_shows_its_iteration_and_cost(chair_flow, monkeypatch):
+    """The bar of a search (drawn once it lasts, here at once): each accepted iteration
+    with the nominal's cost, as the result's history has them."""
+    import io
+
+    from bderiv._support import _progress
+
+    pytest.importorskip("tqdm")
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "BAR_DELAY", 0.0)
+    monkeypatch.setattr(_progress, "BAR_REFRESH", 0.0)
+    monkeypatch.setattr(_progress, "BAR_OPTIONS",
+                        {"file": buffer, "disable": False, "leave": True})
+    N, dt = 5, 0.03
+    U0 = np.zeros((N, 2))
+    target = rollout(chair_flow, chair_flow.x0, U0, dt)[-1]
+    U0[:, 1] = 4.0
+    res = ilqr(chair_flow, chair_flow.x0, U0, dt, target, Qf=np.eye(6), R=1e-6 * np.eye(2),
+               max_iters=2, tol=0.0)
+    drawn = [d for d in buffer.getvalue().replace("\n", "\r").split("\r")
+             if d.startswith("ilqr: ")]
+    assert drawn[0].startswith("ilqr: iteration 1 (of at most 2), cost "), drawn
+    assert drawn[-1].startswith(f"ilqr: iteration 2 (of at most 2), cost {res.cost:.4g} ")
+
+
 def test_augment_is_the_params_model():
     """augment() of a params model's functions: the same trajectory as
     HybridSystem(..., params=p), and parameters that do not move."""
@@ -324,3 +349,86 @@ def test_refusals():
     wide = augment(lambda z, m: z[:2], lambda z: z[:1] - 5, n_events=1, dim=1, n_params=1)
     with pytest.raises(ValueError, match=r"field\(z, mask\) must return shape \(1,\)"):
         ParametricFlow(wide, 1).final([1.0], [0.0], 1.0)
+
+
+# -- settings out of range: refused by name, before any simulation --------------------------
+
+
+@pytest.mark.parametrize(("field", "value", "error", "message"), [
+    ("max_iters", 0, ValueError, "max_iters must be >= 1, got 0"),
+    ("max_iters", 2.5, TypeError, "max_iters must be an integer, got float"),
+    ("max_iters", True, TypeError, "max_iters must be an integer, got bool"),
+    ("error_tol", 0.0, ValueError, "error_tol must be a finite number > 0, got 0.0"),
+    ("error_tol", np.nan, ValueError, "error_tol must be a finite number > 0, got nan"),
+    ("error_tol", -0.1, ValueError, "error_tol must be a finite number > 0, got -0.1"),
+    ("error_tol", "0.1", TypeError, "error_tol must be a real number, got str '0.1'"),
+    ("input_state_tol", -1e-3, ValueError, "input_state_tol must be a finite number >= 0"),
+    ("input_state_tol", np.inf, ValueError, "input_state_tol must be a finite number >= 0"),
+    ("initial_lambda", 0.0, ValueError, "initial_lambda must be a finite number > 0"),
+    ("initial_lambda", 1e7, ValueError,
+     r"initial_lambda must lie in \[min_lambda, max_lambda\] = \[1e-10, 1000000.0\], got "
+     r"10000000.0"),
+    ("lambda_increase", 0.5, ValueError, "lambda_increase must be a finite number >= 1"),
+    ("lambda_increase", np.nan, ValueError, "lambda_increase must be a finite number >= 1"),
+    ("lambda_decrease", 0.0, ValueError, "lambda_decrease must be a finite number > 0"),
+    ("lambda_decrease", 10.0, ValueError,
+     r"lambda_decrease must be a finite number in \(0, 1\], got 10.0"),
+    ("min_lambda", 0.0, ValueError, "min_lambda must be a finite number > 0, got 0.0"),
+    ("min_lambda", 1e7, ValueError,
+     "min_lambda must be <= max_lambda, got min_lambda=10000000.0 > max_lambda=1000000.0"),
+    ("max_lambda", np.inf, ValueError, "max_lambda must be a finite number > 0, got inf"),
+    ("line_search_max_iters", -1, ValueError, "line_search_max_iters must be >= 0, got -1"),
+    ("line_search_max_iters", 1.0, TypeError,
+     "line_search_max_iters must be an integer, got float"),
+    ("line_search_backoff", 1.0, ValueError,
+     r"line_search_backoff must be a finite number in \(0, 1\), got 1.0"),
+    ("line_search_backoff", 0.0, ValueError, "line_search_backoff must be a finite number > 0"),
+    ("line_search_backoff", np.nan, ValueError, "line_search_backoff must be a finite number"),
+])
+def test_shooting_config_refuses_out_of_range(field, value, error, message):
+    """Each setting is checked when the config is built (not met as a silent wrong run: a
+    NaN tolerance never stops, a backoff of 1 never shortens the step)."""
+    with pytest.raises(error, match=message):
+        ShootingConfig(**{field: value})
+
+
+def test_shooting_config_keeps_meaningful_edges():
+    """0 stays allowed where it means something: no stop for a small step, no halved
+    steps; NumPy scalars are stored as plain Python numbers."""
+    config = ShootingConfig(input_state_tol=0, line_search_max_iters=np.int64(0),
+                            lambda_increase=1, lambda_decrease=1, error_tol=np.float32(0.5))
+    assert config.input_state_tol == 0.0 and type(config.input_state_tol) is float
+    assert config.line_search_max_iters == 0 and type(config.line_search_max_iters) is int
+    assert type(config.error_tol) is float and type(config.lambda_increase) is float
+
+
+@pytest.mark.parametrize(("keyword", "value", "error", "message"), [
+    ("tol", np.nan, ValueError, "tol must be a finite number >= 0, got nan"),
+    ("tol", -1e-9, ValueError, "tol must be a finite number >= 0, got -1e-09"),
+    ("tol", 1.0, ValueError, r"tol must be a finite number in \[0, 1\) \(a relative "
+                             r"decrease of the cost; max_iters bounds the iterations\), got 1.0"),
+    ("tol", "1e-6", TypeError, "tol must be a real number, got str '1e-6'"),
+    ("cost_tol", -1.0, ValueError, "cost_tol must be a finite number >= 0, got -1.0"),
+    ("cost_tol", np.nan, ValueError, "cost_tol must be a finite number >= 0, got nan"),
+    ("cost_tol", np.inf, ValueError, "cost_tol must be a finite number >= 0, got inf"),
+    ("mu0", 0.0, ValueError, "mu0 must be a finite number > 0, got 0.0"),
+    ("mu_max", np.nan, ValueError, "mu_max must be a finite number > 0, got nan"),
+    ("mu_max", np.inf, ValueError, "mu_max must be a finite number > 0, got inf"),
+    ("mu_max", 0.0, ValueError, "mu_max must be a finite number > 0, got 0.0"),
+    ("mu_max", 1e-8, ValueError,
+     r"mu_max must be >= mu0 \(the regularisation grows from mu0 up to mu_max\), got "
+     r"mu_max=1e-08 < mu0=1e-06"),
+    ("max_iters", 0, ValueError, "max_iters must be >= 1, got 0"),
+    ("max_iters", 10.0, TypeError, "max_iters must be an integer, got float"),
+    ("line_search", 2.5, TypeError, "line_search must be an integer, got float"),
+])
+def test_ilqr_refuses_settings_before_simulating(monkeypatch, keyword, value, error,
+                                                  message):
+    """Each numeric keyword of ilqr is checked at the call's start: no simulation runs
+    (a NaN tolerance or mu_max < mu0 would otherwise run and return a wrong result)."""
+    flow = ball_1d()
+    monkeypatch.setattr(type(flow), "final", lambda *a, **k: pytest.fail("simulated"))
+    monkeypatch.setattr(type(flow), "step", lambda *a, **k: pytest.fail("simulated"))
+    with pytest.raises(error, match=message):
+        ilqr(flow, [1, 0], np.zeros((3, 3)), 0.3, [0, 0], Qf=np.eye(2), R=np.eye(3),
+             **{keyword: value})

@@ -160,3 +160,57 @@ def test_triangulation_lazy_in_processes(bd, X):
     assert_array_equal(v, tri.inverse(tri(V)))
     with pytest.raises(ValueError, match="out cannot be used"):
         tri(D, out=np.empty_like(V))
+
+
+# -- a refused row is named by its index in the whole dask array, not in its block ---------
+
+
+_MAPS = {
+    "apply": lambda bd: bd,
+    "inverse": lambda bd: bd.inverse,
+    "triangulation": lambda bd: bd.triangulation(),
+    "triangulation inverse": lambda bd: bd.triangulation().inverse,
+}
+
+
+def _refusals(fn, V, chunks):
+    """The error of ``fn`` on ``V`` as a dask array of ``chunks`` (computed), and on ``V``
+    itself."""
+    with pytest.raises(ValueError) as lazy:
+        fn(da.from_array(V, chunks=chunks)).compute(scheduler="synchronous")
+    with pytest.raises(ValueError) as eager:
+        fn(V)
+    return lazy.value, eager.value
+
+
+@pytest.mark.parametrize("which", list(_MAPS))
+def test_a_nan_row_of_the_second_block_is_named_by_its_global_index(bd, X, which):
+    """Two blocks of 1000 rows, a NaN in row 1003 (row 3 of the second block): the error
+    names V[1003] (W[1003] for an inverse), as for the NumPy array, not V[3]."""
+    V = X[:2000].copy()
+    V[1003] = np.nan
+    lazy, eager = _refusals(_MAPS[which](bd), V, (1000, 3))
+    assert "[1003] = [nan nan nan] is not" in str(lazy)
+    assert str(lazy) == str(eager)
+
+
+def test_a_refused_query_of_the_second_block_is_named_by_its_global_index(bd, X):
+    """A refusal by the map itself (a QueryError: the result overflows float64) is
+    renumbered too."""
+    V = X[:2000].copy()
+    V[1003] = 1e308
+    lazy, eager = _refusals(bd, V, (1000, 3))
+    assert type(lazy).__name__ == "QueryError"
+    assert str(lazy).startswith("the result for V[1003] overflowed")
+    assert str(lazy) == str(eager)
+
+
+@pytest.mark.parametrize("bad", [np.nan, 1e308], ids=["nan", "overflow"])
+def test_several_leading_axes_chunked_name_the_full_index(bd, X, bad):
+    """Leading axes (40, 50) in blocks of (20, 20): row (25, 37) sits at (5, 17) of its
+    block; the error names V[25, 37]."""
+    V = np.resize(X, (40, 50, 3)).copy()
+    V[25, 37] = bad
+    lazy, eager = _refusals(bd, V, (20, 20, 3))
+    assert "V[25, 37]" in str(lazy)
+    assert str(lazy) == str(eager)

@@ -440,3 +440,103 @@ def test_carried_fan_refuses():
         plot.carried_fan(BDerivative(*three_event_table()))
     with pytest.raises(ValueError, match="snapshots must be a non-empty sequence of finite"):
         plot.carried_fan(BDerivative(*planar_table()), snapshots=[np.nan])
+
+
+# -- the wrong object: a TypeError naming the parameter, before any drawing ----------------
+
+
+def _wrong_result(param):
+    """An object of the package that is not what ``param`` takes (another result)."""
+    if param == "bd":
+        return BDerivative(*planar_table()).triangulation()
+    return BDerivative(*planar_table())
+
+
+def _stub(cls_path):
+    """An instance of a result class without its data: enough for a type check, which
+    comes before any use (a figure that reached the data would fail otherwise)."""
+    import importlib
+
+    module, name = cls_path.rsplit(".", 1)
+    cls = getattr(importlib.import_module(module), name)
+    return cls.__new__(cls)
+
+
+# (figure, how it is called with the wrong object w, the parameter, what it must be)
+_CHECKED = [
+    ("corner_field", lambda w: plot.corner_field(w), "bd", "a BDerivative"),
+    ("tangent_circle", lambda w: plot.tangent_circle(w), "bd", "a BDerivative"),
+    ("pieces", lambda w: plot.pieces(w), "bd", "a BDerivative"),
+    ("carried_fan", lambda w: plot.carried_fan(w), "bd", "a BDerivative"),
+    ("triangulation", lambda w: plot.triangulation(w), "bd",
+     "a BDerivative or a FlowBDerivative"),
+    ("triangulation", lambda w: plot.triangulation(None, tri=w), "tri", "a Triangulation"),
+    ("gait_orbit", lambda w: plot.gait_orbit(w), "orbit", "a PeriodicOrbit"),
+    ("gait_growth", lambda w: plot.gait_growth(w), "orbit", "a PeriodicOrbit"),
+    ("gait_growth", lambda w: plot.gait_growth(_stub("bderiv.analysis.orbit.PeriodicOrbit"),
+                                               stability=w),
+     "stability", "a Stability or None"),
+    ("gait_growth", lambda w: plot.gait_growth(_stub("bderiv.analysis.orbit.PeriodicOrbit"),
+                                               decay=w),
+     "decay", "a DecayCheck or None"),
+    ("stability_map", lambda w: plot.stability_map(w), "smap", "a StabilityMap"),
+    ("scaling", lambda w: plot.scaling(w), "rows", "a sequence of dicts"),
+]
+
+
+_WRONG = ["array", "dict", "None", "result"]
+
+
+@pytest.mark.parametrize(("figure", "call", "param", "expected", "wrong"), [
+    pytest.param(*row, wrong, id=f"{row[0]}-{row[2]}-{wrong}")
+    for row in _CHECKED for wrong in _WRONG
+    # None is allowed where it is the default: an optional argument, or tri (bd's own)
+    if not (wrong == "None" and ("or None" in row[3] or row[2] == "tri"))])
+def test_every_figure_names_a_wrong_object(figure, call, param, expected, wrong):
+    """Each public figure refuses an object of the wrong type up front: a TypeError naming
+    the parameter, what it must be and the type it got (not an AttributeError inside)."""
+    value = {"array": np.zeros((4, 2)), "dict": {"F": np.zeros((4, 2))}, "None": None,
+             "result": _wrong_result(param)}[wrong]
+    with pytest.raises(TypeError) as info:
+        call(value)
+    message = str(info.value)
+    assert message.startswith(f"{param} must be {expected}"), message
+    assert f"got {type(value).__name__}" in message, message
+
+
+def test_public_figures_are_all_checked():
+    """The table above covers every public figure (a new one gets its check and a row)."""
+    assert {f for f, *_ in _CHECKED} == set(plot.__all__)
+
+
+def test_wrong_object_hints(planar):
+    """The commonest mix-ups say what to do instead."""
+    with pytest.raises(TypeError, match=r"bd must be a BDerivative, got Triangulation \(draw "
+                                        r"a triangulation with triangulation\(None, tri="):
+        plot.corner_field(planar.triangulation())
+    with pytest.raises(TypeError, match=r"got Triangulation \(pass a Triangulation as tri=\)"):
+        plot.triangulation(planar.triangulation())
+    flow = _stub("bderiv.analysis.flowmap.FlowBDerivative")
+    with pytest.raises(TypeError, match="got FlowBDerivative .a flow map's B-derivative has "
+                                        "no corner table; triangulation.. draws it"):
+        plot.pieces(flow)
+    with pytest.raises(TypeError, match=r"orbit must be a PeriodicOrbit, got BDerivative "
+                                        r"\(HybridSystem.periodic_orbit finds one\)"):
+        plot.gait_orbit(planar)
+
+
+def test_wrong_axes_and_rows_are_named(planar):
+    with pytest.raises(TypeError, match="ax must be a matplotlib Axes, got str"):
+        plot.corner_field(planar, ax="left")
+    with pytest.raises(TypeError, match=r"axes\[1\] must be a matplotlib Axes, got dict"):
+        from matplotlib.figure import Figure
+
+        plot.pieces(planar, axes=[Figure().subplots(), {}])
+    row = {"n": 2, "d": 2, "m": 10, "method": "bderiv", "seconds_per_query": 1e-8}
+    with pytest.raises(TypeError, match=r"rows\[1\] must be a dict, got list"):
+        plot.scaling([row, [2, "bderiv", 1e-8]])
+    with pytest.raises(TypeError, match="rows must be a sequence of dicts .* got str"):
+        plot.scaling("rows.json")
+    with pytest.raises(ValueError, match=r"rows\[0\] must have the keys n, method and "
+                                         r"seconds_per_query, but lacks method"):
+        plot.scaling([{"n": 2, "seconds_per_query": 1e-8}])

@@ -28,7 +28,8 @@ import weakref
 
 import numpy as np
 
-from ._validate import check_real_array
+from ._errors import QueryError
+from ._validate import all_finite, check_points, check_real_array
 
 
 def map_blocks(fn, V, dim: int, name: str = "V", out=None):
@@ -52,7 +53,9 @@ def map_blocks(fn, V, dim: int, name: str = "V", out=None):
     Returns
     -------
     dask.array.Array, shape (..., dim), float64
-        Lazy; nothing is computed until ``.compute()`` (or ``dask.compute``).
+        Lazy; nothing is computed until ``.compute()`` (or ``dask.compute``). A row that
+        a block refuses is named by its index in the whole of ``V``, as for a NumPy
+        query (``V[1003]``, not its row in the block).
 
     Examples
     --------
@@ -92,7 +95,7 @@ def map_blocks(fn, V, dim: int, name: str = "V", out=None):
         import dask
 
         shipped = dask.delayed(owner, pure=True, name=f"bderiv-shipped-{token}")
-    return V.map_blocks(_apply, shipped, method, dtype=np.float64,
+    return V.map_blocks(_apply, shipped, method, name, dtype=np.float64,
                         meta=np.empty((0,) * V.ndim), name=f"bderiv-{what}-{token}")
 
 
@@ -124,8 +127,39 @@ def _scattered(owner):
     return future
 
 
-def _apply(block, owner, method):
+def _apply(block, owner, method, name="V", block_info=None):
     """One block's task: the map's ``method`` (or ``owner`` itself when None) on the
-    block, as a float64 ndarray."""
+    block, as a float64 ndarray.
+
+    A refused row (a non-finite vector, a :class:`~bderiv._support._errors.QueryError`) is
+    named by its index in the whole dask array ``name``, not in the block: ``block_info``
+    (given by ``map_blocks``) says where the block sits."""
     fn = owner if method is None else getattr(owner, method)
-    return np.asarray(fn(np.asarray(block)), dtype=np.float64)
+    block = np.asarray(block)
+    lead = block.shape[:-1]
+    if block.dtype.kind == "f" and not all_finite(block):
+        row = int(np.flatnonzero(~np.isfinite(block.reshape(-1, block.shape[-1])).all(
+            axis=1))[0])
+        where, whole = _whole_row(row, lead, block_info)
+        check_points(block.reshape(-1, block.shape[-1])[row:row + 1], block.shape[-1], name,
+                     index_shape=whole, offset=where)  # raises, naming the whole array's row
+    try:
+        return np.asarray(fn(block), dtype=np.float64)
+    except QueryError as exc:
+        where, whole = _whole_row(exc.row, lead, block_info)
+        raise exc.at(row=where, shape=whole) from None
+
+
+def _whole_row(row, lead, block_info):
+    """``(flat index, leading shape)`` in the whole dask array of the block's flat row
+    ``row`` (the block of leading shape ``lead``, placed by ``block_info``; None: the
+    block is the whole array)."""
+    if block_info is None or 0 not in block_info:
+        return row, lead
+    info = block_info[0]
+    starts = [start for start, _ in info["array-location"][:-1]]
+    whole = tuple(info["shape"][:-1])
+    if not whole:
+        return row, whole
+    index = [int(i) + s for i, s in zip(np.unravel_index(row, lead), starts, strict=True)]
+    return int(np.ravel_multi_index(index, whole)), whole

@@ -54,10 +54,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._support._progress import DelayedBar
 from .._support._validate import check_number, check_positive_int, check_real_array
 from .parametric import ParametricFlow
 
 __all__ = ["ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]
+
+#: the bar of a long search (drawn after a few seconds, on a terminal)
+_BAR = "{desc}: iteration {n:.0f} (of at most {total:.0f}){postfix} [{elapsed}]"
 
 
 @dataclass
@@ -199,6 +203,22 @@ def _checked(flow, x0, U, dt, target, Qf, R):
     return x0, U, target, Qf, R
 
 
+def _checked_settings(max_iters, tol, cost_tol, mu0, mu_max, line_search):
+    """The numeric keywords of :func:`ilqr`, checked before any simulation."""
+    max_iters = check_positive_int(max_iters, "max_iters")
+    tol = check_number(tol, "tol", strict=False)
+    if tol >= 1.0:
+        raise ValueError(f"tol must be a finite number in [0, 1) (a relative decrease of the "
+                         f"cost; max_iters bounds the iterations), got {tol!r}")
+    cost_tol = check_number(cost_tol, "cost_tol", strict=False)
+    mu0, mu_max = check_number(mu0, "mu0"), check_number(mu_max, "mu_max")
+    if mu_max < mu0:
+        raise ValueError(f"mu_max must be >= mu0 (the regularisation grows from mu0 up to "
+                         f"mu_max), got mu_max={mu_max!r} < mu0={mu0!r}")
+    line_search = check_positive_int(line_search, "line_search")
+    return max_iters, tol, cost_tol, mu0, mu_max, line_search
+
+
 def _backward(steps, U, X, target, Qf, R, mu):
     """Gains ``k`` (N, m), ``K`` (N, m, d) and the predicted decrease terms, or None when
     ``Q_uu`` is not positive definite."""
@@ -254,12 +274,14 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
         ``"nominal"``: each group's piece by the nominal's order; a sequence of event
         indices: the fixed-order piece (a single-order linearisation, for comparison).
     max_iters : int
+        Iterations (linearisations after the start), >= 1.
     tol : float
-        Stop when an accepted step lowers the cost by less than ``tol`` times it.
+        Stop when an accepted step lowers the cost by less than ``tol`` times it; in
+        [0, 1) (0: never stop for a small decrease).
     cost_tol : float
-        Stop when the cost is below it.
+        Stop when the cost is below it, >= 0.
     mu0, mu_max : float
-        First and largest regularisation of ``Q_uu``.
+        First and largest regularisation of ``Q_uu``: ``0 < mu0 <= mu_max``, finite.
     line_search : int
         Forward passes (``alpha`` = 1, 1/2, ...) tried before ``mu`` grows, >= 1.
 
@@ -269,41 +291,43 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
     """
     x0, U, target, Qf, R = _checked(flow, x0, U0, dt, target, Qf, R)
     fixed = _order_fn(linearisation, flow.system.n_events)
-    check_positive_int(max_iters, "max_iters")
-    check_positive_int(line_search, "line_search")
-    mu, history = check_number(mu0, "mu0"), []
+    max_iters, tol, cost_tol, mu0, mu_max, line_search = _checked_settings(
+        max_iters, tol, cost_tol, mu0, mu_max, line_search)
+    mu, history = mu0, []
     X = rollout(flow, x0, U, dt)
     cost = _cost(X, U, target, Qf, R)
     start = time.perf_counter()
     steps, orders = _linearise(flow, X, U, dt, fixed)
     history.append(Iteration(cost, 0.0, mu, orders, seconds=time.perf_counter() - start))
     converged = stalled = False
-    while len(history) <= max_iters and not converged:
-        start, accepted = time.perf_counter(), None
-        while accepted is None and mu <= mu_max:
-            back = _backward(steps, U, X, target, Qf, R, mu)
-            if back is not None:
-                k_ff, K, d1, d2 = back
-                alpha = 1.0
-                for _ in range(line_search):
-                    Xn, Un = _forward(flow, X, U, dt, k_ff, K, alpha)
-                    new = _cost(Xn, Un, target, Qf, R)
-                    expected = -(alpha * d1 + alpha**2 * d2)
-                    if new < cost and cost - new >= 1e-4 * expected:
-                        accepted = (Xn, Un, new, alpha)
-                        break
-                    alpha *= 0.5
+    with DelayedBar(max_iters, "ilqr", _BAR) as bar:  # long searches
+        while len(history) <= max_iters and not converged:
+            start, accepted = time.perf_counter(), None
+            while accepted is None and mu <= mu_max:
+                back = _backward(steps, U, X, target, Qf, R, mu)
+                if back is not None:
+                    k_ff, K, d1, d2 = back
+                    alpha = 1.0
+                    for _ in range(line_search):
+                        Xn, Un = _forward(flow, X, U, dt, k_ff, K, alpha)
+                        new = _cost(Xn, Un, target, Qf, R)
+                        expected = -(alpha * d1 + alpha**2 * d2)
+                        if new < cost and cost - new >= 1e-4 * expected:
+                            accepted = (Xn, Un, new, alpha)
+                            break
+                        alpha *= 0.5
+                if accepted is None:
+                    mu *= 10.0
             if accepted is None:
-                mu *= 10.0
-        if accepted is None:
-            stalled = True
-            break
-        X, U, new, alpha = accepted
-        converged = cost - new < tol * cost or new <= cost_tol
-        cost, mu = new, max(mu / 10.0, 1e-12)
-        steps, new_orders = _linearise(flow, X, U, dt, fixed)
-        switches, regrouped = _changes(orders, new_orders)
-        orders = new_orders
-        history.append(Iteration(cost, alpha, mu, orders, switches, regrouped,
-                                 time.perf_counter() - start))
+                stalled = True
+                break
+            X, U, new, alpha = accepted
+            converged = cost - new < tol * cost or new <= cost_tol
+            cost, mu = new, max(mu / 10.0, 1e-12)
+            steps, new_orders = _linearise(flow, X, U, dt, fixed)
+            switches, regrouped = _changes(orders, new_orders)
+            orders = new_orders
+            history.append(Iteration(cost, alpha, mu, orders, switches, regrouped,
+                                     time.perf_counter() - start))
+            bar(len(history) - 1, f"cost {cost:.4g}")
     return ILQRResult(U, X, cost, converged, stalled, history)

@@ -36,7 +36,14 @@ __all__ = ["ShootingConfig", "ShootingResult", "shoot"]
 
 @dataclass(frozen=True)
 class ShootingConfig:
-    """Stopping rule and Levenberg-Marquardt constants (hybrid-tools' defaults)."""
+    """Stopping rule and Levenberg-Marquardt constants (hybrid-tools' defaults).
+
+    Checked when built: ``max_iters >= 1`` and ``line_search_max_iters >= 0`` integers;
+    ``error_tol > 0``, ``input_state_tol >= 0`` (0: never stop for a small step);
+    ``0 < min_lambda <= initial_lambda <= max_lambda``; ``lambda_increase >= 1``,
+    ``0 < lambda_decrease <= 1``, ``0 < line_search_backoff < 1``; all finite. Anything
+    else is a ``TypeError``/``ValueError`` naming the field.
+    """
 
     max_iters: int = 50
     error_tol: float = 0.05
@@ -48,6 +55,52 @@ class ShootingConfig:
     max_lambda: float = 1e6
     line_search_max_iters: int = 15
     line_search_backoff: float = 0.5
+
+    def __post_init__(self):
+        checked = {  # in the fields' order
+            "max_iters": check_positive_int(self.max_iters, "max_iters"),
+            "error_tol": check_number(self.error_tol, "error_tol"),
+            "input_state_tol": check_number(self.input_state_tol, "input_state_tol",
+                                            strict=False),
+            "initial_lambda": check_number(self.initial_lambda, "initial_lambda"),
+            "lambda_increase": check_number(self.lambda_increase, "lambda_increase", low=1.0,
+                                            strict=False),
+            "lambda_decrease": _check_fraction(self.lambda_decrease, "lambda_decrease",
+                                               closed=True),
+            "min_lambda": check_number(self.min_lambda, "min_lambda"),
+            "max_lambda": check_number(self.max_lambda, "max_lambda"),
+            "line_search_max_iters": _check_count(self.line_search_max_iters,
+                                                  "line_search_max_iters"),
+            "line_search_backoff": _check_fraction(self.line_search_backoff,
+                                                   "line_search_backoff"),
+        }
+        low, high = checked["min_lambda"], checked["max_lambda"]
+        if low > high:
+            raise ValueError(f"min_lambda must be <= max_lambda, got min_lambda={low!r} > "
+                             f"max_lambda={high!r}")
+        if not low <= checked["initial_lambda"] <= high:
+            raise ValueError(f"initial_lambda must lie in [min_lambda, max_lambda] = "
+                             f"[{low!r}, {high!r}], got {checked['initial_lambda']!r}")
+        for name, value in checked.items():  # plain int and float (not a NumPy scalar)
+            object.__setattr__(self, name, value)
+
+
+def _check_count(value, name):
+    """A count that may be 0 (``check_positive_int`` refuses 0)."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
+    if value < 0:
+        raise ValueError(f"{name} must be >= 0, got {value}")
+    return int(value)
+
+
+def _check_fraction(value, name, closed=False):
+    """A factor in (0, 1) (``closed``: in (0, 1])."""
+    value = check_number(value, name)
+    if value > 1.0 or (value == 1.0 and not closed):
+        raise ValueError(f"{name} must be a finite number in (0, 1{']' if closed else ')'}, "
+                         f"got {value!r}")
+    return value
 
 
 @dataclass
@@ -121,7 +174,6 @@ def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
     config = ShootingConfig() if config is None else config
     if not isinstance(config, ShootingConfig):
         raise TypeError(f"config must be a ShootingConfig, got {type(config).__name__}")
-    check_positive_int(config.max_iters, "config.max_iters")
     d, m = flow.dim, flow.n_params
     z0 = flow._z(x0, p)
     t_final = check_number(t_final, "t_final")

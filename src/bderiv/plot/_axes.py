@@ -43,9 +43,15 @@ def figure_axes(ax, ncols=1, figsize=(5.5, 5.0)):
     (matplotlib.figure.Figure, list of ``ncols`` matplotlib Axes)
     """
     if ax is not None:
-        axes = list(np.atleast_1d(ax))
+        axes = list(np.atleast_1d(np.asarray(ax, dtype=object)))
         if len(axes) != ncols:
             raise ValueError(f"this figure needs {ncols} axes, got {len(axes)}")
+        from matplotlib.axes import Axes
+
+        name = "ax" if ncols == 1 else "axes"
+        for i, one in enumerate(axes):
+            check_type(one, name if ncols == 1 else f"{name}[{i}]", (Axes,),
+                       expected="a matplotlib Axes")
         return axes[0].figure, axes
     fig = new_figure(figsize)
     axes = fig.subplots(1, ncols, squeeze=False)[0]
@@ -61,3 +67,35 @@ def new_figure(figsize):
     except ImportError as exc:  # pragma: no cover - exercised without matplotlib only
         raise ImportError(PLOT_HINT) from exc
     return Figure(figsize=figsize, layout="constrained")
+
+
+def check_type(value, name, types, *, optional=False, expected=None, hint=""):
+    """Refuse a ``value`` that is none of ``types`` (nor None, if ``optional``): a
+    ``TypeError`` naming the parameter ``name``, what it must be (``expected``, by default
+    the types' names) and the type it got, then ``hint``. A figure checks the objects it
+    draws with it before it draws anything, so that a wrong object (an array, a dict, the
+    result of another analysis) is named, not met as a missing attribute deep inside."""
+    if isinstance(value, types) or (optional and value is None):
+        return value
+    if expected is None:
+        names = [f"a {t.__name__}" for t in types] + (["None"] if optional else [])
+        expected = " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
+    raise TypeError(f"{name} must be {expected}, got {type(value).__name__}{hint}")
+
+
+def check_bderivative(bd, name="bd"):
+    """Refuse a ``bd`` that is not a :class:`~bderiv.BDerivative` (a figure of its corner
+    table), the commonest wrong objects named with what to do instead."""
+    from ..engine.bderivative import BDerivative
+
+    if isinstance(bd, BDerivative):
+        return
+    from ..analysis.flowmap import FlowBDerivative
+    from ..geometry.triangulation import Triangulation
+
+    hint = ""
+    if isinstance(bd, FlowBDerivative):
+        hint = " (a flow map's B-derivative has no corner table; triangulation() draws it)"
+    elif isinstance(bd, Triangulation):
+        hint = " (draw a triangulation with triangulation(None, tri=...))"
+    check_type(bd, name, (BDerivative,), hint=hint)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._support._format import format_mask
-from ._axes import PALETTE, REGION_GREYS, SIMPLEX_ALPHA, figure_axes
+from ._axes import PALETTE, REGION_GREYS, SIMPLEX_ALPHA, check_bderivative, figure_axes
 from ._planar import _event_lines, _order_handles, _region_masks
 
 #: points per edge of a simplex when its boundary is carried through the flow
@@ -58,6 +58,7 @@ def carried_fan(bd, axes=None, *, snapshots=(-2.0, 0.0, 2.0)):
     >>> [ax.get_xlabel() for ax in fig.axes]
     ['$x_0$ (from the event point)', '$\\\\tau_0$ (time until event 0)']
     """
+    check_bderivative(bd)
     if (bd.n_events, bd.dim) != (2, 2):
         raise ValueError(
             f"carried_fan draws systems with 2 events in the plane, but this map has "

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._support._format import format_mask
-from ..analysis.stability import log_growth
-from ._axes import PALETTE, figure_axes, new_figure
+from ..analysis.stability import Stability, log_growth
+from ._axes import PALETTE, check_type, figure_axes, new_figure
 
 #: marker of an event group by its directions: all upward, all downward, mixed.
 _MARKERS = {1: "^", -1: "v", 0: "D"}
@@ -16,6 +16,14 @@ _COLORS = {1: PALETTE[3], -1: PALETTE[4], 0: PALETTE[2]}
 
 def _group_kind(directions):
     return directions[0] if len(set(directions)) == 1 else 0
+
+
+def _check_orbit(orbit):
+    """Refuse an ``orbit`` that is not a :class:`~bderiv.analysis.orbit.PeriodicOrbit`."""
+    from ..analysis.orbit import PeriodicOrbit
+
+    check_type(orbit, "orbit", (PeriodicOrbit,),
+               hint=" (HybridSystem.periodic_orbit finds one)")
 
 
 def gait_orbit(orbit, axes=None, *, components=None, phase=(0, 2), labels=None,
@@ -49,6 +57,7 @@ def gait_orbit(orbit, axes=None, *, components=None, phase=(0, 2), labels=None,
     -------
     matplotlib.figure.Figure
     """
+    _check_orbit(orbit)
     d, n = orbit.system.dim, orbit.system.n_events
     components = list(range(d)) if components is None else [int(c) for c in components]
     if not components or not all(0 <= c < d for c in components):
@@ -154,6 +163,11 @@ def gait_growth(orbit, ax=None, *, n_directions=200, iterations=40, stability=No
     -------
     matplotlib.figure.Figure
     """
+    from ..analysis.checks import DecayCheck
+
+    _check_orbit(orbit)
+    check_type(stability, "stability", (Stability,), optional=True)
+    check_type(decay, "decay", (DecayCheck,), optional=True)
     fig, (ax,) = figure_axes(ax, ncols=1, figsize=(6.0, 4.5))
     st = orbit.stability() if stability is None else stability
     R = orbit.return_map

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from .._support._format import format_order
-from ._axes import BAR_COLOR, figure_axes
+from ._axes import BAR_COLOR, check_bderivative, figure_axes
 
 
 def pieces(bd, axes=None, *, max_pieces=24, n_samples=4000, seed=0):
@@ -48,6 +48,7 @@ def pieces(bd, axes=None, *, max_pieces=24, n_samples=4000, seed=0):
     >>> [t.get_text() for t in fig.axes[0].get_xticklabels()]  # det 10, then det 1
     ['(0,1,2)', '(0,2,1)\\nand 4 more']
     """
+    check_bderivative(bd)
     n = bd.n_events
     total = math.factorial(n)
     xlabel = "event order"

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._support._format import format_mask, format_order
-from ._axes import PALETTE, SIMPLEX_ALPHA, figure_axes
+from ._axes import PALETTE, SIMPLEX_ALPHA, check_bderivative, check_type, figure_axes
 
 
 def _require_2d(bd, what):
@@ -79,6 +79,7 @@ def corner_field(bd, ax=None, *, radius=1.0, density=13, n_trajectories=7):
     >>> fig.axes[0].get_title()
     'corner-limit field at the event point (n=2 events)'
     """
+    check_bderivative(bd)
     _require_2d(bd, "corner_field")
     F = bd.to_dense("the corner-field figure").F
     fig, (ax,) = figure_axes(ax, figsize=(5.5, 6.0))
@@ -176,8 +177,8 @@ def triangulation(bd, axes=None, *, tri=None):
 
     Parameters
     ----------
-    bd : BDerivative
-        A map with ``dim == 2`` and Dh of full rank.
+    bd : BDerivative or FlowBDerivative
+        A map with ``dim == 2`` and Dh of full rank (ignored, may be None, with ``tri``).
     axes : sequence of 2 matplotlib Axes, optional
     tri : Triangulation, optional
         Drawn instead of ``bd.triangulation()`` (for example one loaded from a file).
@@ -195,10 +196,16 @@ def triangulation(bd, axes=None, *, tri=None):
     >>> [ax.get_title() for ax in fig.axes]
     ['pre-event fan (4 simplices)', 'post-event fan (4 simplices)']
     """
+    from ..analysis.flowmap import FlowBDerivative
+    from ..engine.bderivative import BDerivative
+    from ..geometry.triangulation import Triangulation
+
     if tri is None:
+        hint = " (pass a Triangulation as tri=)" if isinstance(bd, Triangulation) else ""
+        check_type(bd, "bd", (BDerivative, FlowBDerivative), hint=hint)
         _require_2d(bd, "triangulation")
         tri = bd.triangulation()
-    elif tri.dim != 2:
+    elif check_type(tri, "tri", (Triangulation,)).dim != 2:
         raise ValueError(f"triangulation draws 2-D systems only, got dimension {tri.dim}")
     fig, axs = figure_axes(axes, ncols=2, figsize=(10.0, 5.4))  # first: the install hint
     from matplotlib.patches import Polygon
@@ -301,6 +308,7 @@ def tangent_circle(bd, ax=None, *, n_vectors=720):
     B-derivative M at the event point:
     unit tangent vectors u (dashed) and their images M(u)
     """
+    check_bderivative(bd)
     _require_2d(bd, "tangent_circle")
     F = bd.to_dense("the tangent-circle figure").F
     fig, (ax,) = figure_axes(ax, figsize=(5.2, 5.6))

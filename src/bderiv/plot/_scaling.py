@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import math
 import textwrap
+from collections.abc import Mapping, Sequence
 
-from ._axes import PALETTE, figure_axes
+from ._axes import PALETTE, check_type, figure_axes
 
 #: legend label, line style and colour of the methods of ``bderiv bench`` and of the
 #: contenders of ``benchmarks/test_bench_dense.py`` in :func:`scaling`
@@ -50,8 +51,10 @@ def scaling(rows, ax=None, *, batch=None, machine=None):
 
     Raises
     ------
+    TypeError
+        If ``rows`` is not a sequence of dicts.
     ValueError
-        If no row is left, or rows of one n have different dimensions d.
+        If a row lacks a key, no row is left, or rows of one n have different dimensions d.
 
     Examples
     --------
@@ -62,6 +65,7 @@ def scaling(rows, ax=None, *, batch=None, machine=None):
     B-derivative at the event point: time per tangent vector
     d = n, batch m = 1,000
     """
+    _check_rows(rows)
     kept = [r for r in rows if batch is None or r.get("m") == batch]
     if not kept:
         where = "" if batch is None else f" with batch m = {batch}"
@@ -118,6 +122,19 @@ def _machine_note(machine: str) -> str:
     parts = [", ".join(c for c in part.split(", ") if not c.endswith(" unset"))
              for part in machine.split("; ")]
     return "; ".join(p for p in parts if p)
+
+
+def _check_rows(rows) -> None:
+    """Refuse ``rows`` that are not a sequence of dicts with the keys the figure reads."""
+    if isinstance(rows, str | bytes) or not isinstance(rows, Sequence):
+        raise TypeError(f"rows must be a sequence of dicts (the rows of `bderiv bench "
+                        f"--json`), got {type(rows).__name__}")
+    for i, r in enumerate(rows):
+        check_type(r, f"rows[{i}]", (Mapping,), expected="a dict")
+        missing = [k for k in ("n", "method", "seconds_per_query") if k not in r]
+        if missing:
+            raise ValueError(f"rows[{i}] must have the keys n, method and seconds_per_query, "
+                             f"but lacks {', '.join(missing)}")
 
 
 def _check_one_dim(rows) -> None:

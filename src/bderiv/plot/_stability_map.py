@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._axes import figure_axes
+from ._axes import check_type, figure_axes
 
 #: the colour of the grid points without an orbit
 NO_ORBIT = "0.75"
@@ -30,6 +30,9 @@ def stability_map(smap, ax=None, labels=None):
     -------
     matplotlib.figure.Figure
     """
+    from ..analysis.stability_map import StabilityMap
+
+    check_type(smap, "smap", (StabilityMap,))
     if len(smap.names) != 2:
         raise ValueError(f"the figure needs a map over two parameters, got {len(smap.names)}: "
                          f"{list(smap.names)}")

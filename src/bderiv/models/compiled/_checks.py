@@ -226,18 +226,39 @@ def raise_failed_check(status, fn, name, x, mask, d, n, params=None) -> None:
     raise ValueError(f"{call} returned a non-finite value{entry} {where}")
 
 
+#: what to do about a run that left the floating-point range (the end of its messages)
+BLOW_UP_HINT = (
+    "the solution may escape to infinity in finite time (a blow-up, as x' = x**2), or the "
+    "model's units make the state or its rate of change too large for float64: rescale "
+    "them, or stop the run before the blow-up (a shorter t_final)"
+)
+
+
 def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
                      params=None) -> None:
-    """Raise the error of a failed driver run: its status code, the state ``x`` at ``t``.
+    """Raise the error of a failed driver run: its status code, the state ``x`` at ``t``
+    (None: a call at a given state, outside a run).
 
     ``named`` maps "field", "events", "field_jacobian", "section" to the functions passed;
-    ``params`` are the model's parameter values (None: none).
+    ``params`` are the model's parameter values (None: none). A function that came back
+    non-finite at a non-finite state is not blamed: the integration itself left the
+    floating-point range, and the error says so.
     """
     region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
     if status == STEP_UNDERFLOW:
         raise RuntimeError(
             f"step size underflow at t = {t!r} in {region}, x = {format_state(x)}: the step "
-            f"the tolerances need is below 10 ulp of t (a singular or very stiff field?)"
+            f"the tolerances need is below 10 ulp of t (a singular or very stiff field, or a "
+            f"solution that escapes to infinity near this t, as x' = x**2 does?)"
+        )
+    x = np.asarray(x, dtype=np.float64)
+    shapes = (FIELD_SHAPE, EVENTS_SHAPE, JACOBIAN_SHAPE)
+    if status not in shapes and not np.isfinite(x).all():  # the integrator's step overflowed
+        when = "" if t is None else f" at t = {t!r}"
+        raise ValueError(
+            f"the integration blew up{when} in {region}: the state grew beyond the "
+            f"floating-point range (float64 ends near 1.8e308), x = {format_state(x)}; "
+            f"{BLOW_UP_HINT}"
         )
     if status in (FIELD_SHAPE, FIELD_NONFINITE, FIELD_RAISED):
         name = "field"
@@ -254,6 +275,33 @@ def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
             f"finite in {region} at x = {format_state(x)}"
         )
     raise_failed_check(status, named[name], name, x, mask, d, n, params)
+
+
+def raise_overflowed_run(exc, x, t, mask, n, field=None) -> None:
+    """Raise the ValueError of a stretch whose driver raised ``exc`` (an ArithmeticError)
+    in its own arithmetic, the stretch of region ``mask`` from ``(t, x)``.
+
+    The model's functions never raise out of the driver (what they raise is caught in
+    compiled code, a status code: :func:`raise_failed_run`), so a division by zero or an
+    overflow there is the step-size control's: the state's or the field's size scaled by
+    the tolerances overflowed float64 (a zero initial step, an infinite error norm).
+    ``field()``, if given, is the field at ``x`` (its size is named; not when it fails).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    sizes = f"|x| up to {np.abs(x).max(initial=0.0):.3g}"
+    if field is not None:
+        try:
+            sizes += f", |field(x, mask)| up to {np.abs(field()).max(initial=0.0):.3g}"
+        except Exception:  # noqa: BLE001 - only a detail of the message
+            pass
+    raise ValueError(
+        f"the integration blew up in the stretch of region mask {format_mask(mask, max(n, 1))} "
+        f"({MASK_MEANING}) from t = {t!r}, x = {format_state(x)} ({sizes}): the integrator's "
+        f"step-size control overflowed ({type(exc).__name__}: {exc}, in its own arithmetic, "
+        f"not in a function of the model) as the state or its rate of change, scaled by the "
+        f"tolerances, went beyond the floating-point range (float64 ends near 1.8e308); "
+        f"{BLOW_UP_HINT}"
+    ) from exc
 
 
 def machine_has(dispatcher) -> bool:

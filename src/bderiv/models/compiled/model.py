@@ -24,6 +24,7 @@ from ._checks import (
     format_state,
     is_compiled,
     raise_failed_run,
+    raise_overflowed_run,
 )
 from ._dop853 import dense_rows
 from ._integrate import EVENT, FINISHED, drive_stretch
@@ -51,7 +52,7 @@ from ._rhs import (
     no_section,
 )
 from ._run import run_stretches
-from ._slices import Driven, _interrupted, drive, measured, slice_budget
+from ._slices import Cancelled, Driven, _interrupted, drive, measured, slice_budget
 from ._stops import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_GIVEN, EVENT_JAC_NONE, event_jacobian
 from .stretch import MAX_EVENTS
 
@@ -195,7 +196,7 @@ class CompiledModel:
         x = np.array(x, dtype=np.float64)
         status = jacobian(self.struct(), self.jac_mode, x.copy(), int(mask), d, J)
         if status != OK:
-            raise_failed_run(status, self.named, x, 0.0, mask, d, self.n_events,
+            raise_failed_run(status, self.named, x, None, mask, d, self.n_events,
                              self.jac_mode, self.params)
         return J
 
@@ -227,7 +228,7 @@ class CompiledModel:
         bad = np.zeros(self.dim)
         status = events_rows(self.struct(), X, self.n_events, G, bad)
         if status != OK:
-            raise_failed_run(status, self.named, bad, 0.0, 0, self.dim, self.n_events,
+            raise_failed_run(status, self.named, bad, None, 0, self.dim, self.n_events,
                              params=self.params)
         return G
 
@@ -237,7 +238,7 @@ class CompiledModel:
         h, F = np.empty(self.n_events), np.empty(self.dim)
         status = events_and_field(self.struct(), x, int(mask), self.n_events, self.dim, h, F)
         if status != OK:
-            raise_failed_run(status, self.named, x, 0.0, mask, self.dim, self.n_events,
+            raise_failed_run(status, self.named, x, None, mask, self.dim, self.n_events,
                              params=self.params)
         return h, F
 
@@ -248,7 +249,7 @@ class CompiledModel:
         out = np.empty((masks.size, self.dim))
         status, i = field_rows(self.struct(), x, masks, self.dim, out)
         if status != OK:
-            raise_failed_run(status, self.named, x, 0.0, int(masks[i]), self.dim,
+            raise_failed_run(status, self.named, x, None, int(masks[i]), self.dim,
                              self.n_events, params=self.params)
         return out
 
@@ -291,7 +292,7 @@ class CompiledModel:
                         watched, int(mask), d, float(t0), y0, float(t_final), float(rtol),
                         atols, float(max_step), 0.0, n if forced else -1, bool(on_side),
                         dense, watch)
-        except RecordTooLarge:  # the stretch's record, refused before it grew: named
+        except (RecordTooLarge, Cancelled):  # its record refused by name; its batch stopped
             raise
         except MemoryError as exc:  # an allocation of the driver's record failed
             raise RecordTooLarge(
@@ -300,6 +301,9 @@ class CompiledModel:
                 f"output) did not fit in memory: pass a shorter t_final and go on from the "
                 f"run's x_final, or a larger rtol and atol (fewer steps)"
             ) from exc
+        except ArithmeticError as exc:  # the driver's own: the model's are status codes
+            raise_overflowed_run(exc, y0[:d], t0, mask, n,
+                                 lambda: self.events_and_field(y0[:d], mask)[1])
         except Exception as exc:  # raised inside a user function: say where
             raise ValueError(
                 f"a compiled function of the model raised {type(exc).__name__}: {exc}; while "

@@ -14,7 +14,7 @@ import numpy as np
 from ..._limits import DEFAULT_ATOL, DEFAULT_RTOL
 from ..._numerics import MIN_RTOL
 from ..._support._validate import check_number, check_real_array
-from ._checks import check_compiled, raise_failed_run
+from ._checks import check_compiled, raise_failed_run, raise_overflowed_run
 from ._integrate import EVENT, FINISHED, N_REJECTED, N_STEPS, NFEV, NJEV
 from ._model import bound_model
 from ._rhs import JAC_GIVEN, no_events, no_jacobian
@@ -154,7 +154,8 @@ def integrate_stretch(field, x0, t_final, *, mask=0, t0=0.0, events=None,
         A function that is not compiled, or does not compile for the integrator's types.
     ValueError
         A function returned a wrong shape or a non-finite value (the message names it, the
-        region and the state), or a bad argument.
+        region and the state), or a bad argument; or the integration blew up (the state or
+        its rate of change beyond the floating-point range: the message says so).
     RuntimeError
         The step size fell below 10 ulp of t.
 
@@ -190,8 +191,11 @@ def integrate_stretch(field, x0, t_final, *, mask=0, t0=0.0, events=None,
                          f"the mask), got {n}")
     y0 = np.concatenate((x0, np.eye(d).ravel())) if variational else x0
     model = bound_model(field, field_jacobian if variational else no_jacobian, events_fn)
-    out = drive(model, JAC_GIVEN, variational, False, n, mask, d, t0, y0, t_final, rtol,
-                atol, max_step, first_step, -1, False, False)
+    try:
+        out = drive(model, JAC_GIVEN, variational, False, n, mask, d, t0, y0, t_final, rtol,
+                    atol, max_step, first_step, -1, False, False)
+    except ArithmeticError as exc:  # the driver's own (the functions' are status codes)
+        raise_overflowed_run(exc, x0, t0, mask, n, lambda: field(x0.copy(), mask))
     if out.status not in (FINISHED, EVENT):
         raise_failed_run(out.status, named, out.bad, out.t_bad, mask, d, n)
     counts = out.counts
