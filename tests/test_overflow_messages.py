@@ -2,7 +2,8 @@
 integration blew up, not that a function of the model raised (the driver's own step-size
 arithmetic divided by zero) or returned a non-finite value (at a state that already was).
 
-The tests run on the compiled integrator (conftest sets ``BDERIV_INTEGRATOR=compiled``).
+The tests run on the compiled integrator (conftest sets ``BDERIV_INTEGRATOR=compiled``),
+but the last, which runs the same model's Python functions on scipy's ``solve_ivp``.
 """
 
 from __future__ import annotations
@@ -98,3 +99,21 @@ def test_the_model_s_own_division_by_zero_is_still_named():
                                          r"division by zero; in region mask 0b0 .* at "
                                          r"x = \[0.0, 0.0\]"):
         _system(inverse).simulate(np.array([0.0, 0.0]), 1.0)
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+@pytest.mark.parametrize("how", ["simulate", "flow_bderivative"])
+def test_the_python_path_says_the_same(how):
+    """The same blow-up on scipy's path: it said that the field returned -inf (called at
+    a state that was -inf already), and flow_bderivative that "x must be finite, got
+    [inf 0.]", an x0 the caller never gave."""
+    system = HybridSystem(fast_growth.py_func, clock.py_func, n_events=1, dim=2)
+    assert system.compiled is None  # Python functions: scipy's solve_ivp
+    with pytest.raises(ValueError) as info:
+        getattr(system, how)(np.array([1e300, 0.0]), 2.0)
+    message = str(info.value)
+    assert message.startswith("the integration blew up at t = 0.1"), message
+    assert "in region mask 0b0 (bit k set = event k happened): the state grew beyond" \
+        in message
+    assert "x must be finite" not in message and "returned a non-finite" not in message

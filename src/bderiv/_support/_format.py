@@ -71,3 +71,31 @@ def transversality_message(event: int, region: str, rate: float, where: str = ""
         f"{region} ({MASK_MEANING}); the flow must cross every event surface from h_k < 0 "
         f"to h_k > 0 in every region"
     )
+
+
+def format_state(x) -> str:
+    """A state in a message, every digit kept: ``[0.5, -1.25]``."""
+    return "[" + ", ".join(repr(float(v)) for v in x) + "]"
+
+
+#: what to do about a run that left the floating-point range (the end of its messages)
+BLOW_UP_HINT = (
+    "the solution may escape to infinity in finite time (a blow-up, as x' = x**2), or the "
+    "model's units make the state or its rate of change too large for float64: rescale "
+    "them, or stop the run before the blow-up (a shorter t_final)"
+)
+
+
+def blown_up(region: str, x, t=None) -> str:
+    """The message of a run whose state ``x`` left the floating-point range at ``t`` (None:
+    not known) in ``region`` (its words), on either integrator.
+
+    Examples
+    --------
+    >>> blown_up("region mask 0b0", [float("inf")], 0.5)[:60]
+    'the integration blew up at t = 0.5 in region mask 0b0: the s'
+    """
+    when = "" if t is None else f" at t = {float(t)!r}"
+    return (f"the integration blew up{when} in {region}: the state grew beyond the "
+            f"floating-point range (float64 ends near 1.8e308), x = {format_state(x)}; "
+            f"{BLOW_UP_HINT}")

@@ -18,7 +18,14 @@ from numba.core.errors import NumbaError
 
 from ..._kernels._cache import damaged_entry
 from ..._support._errors import DamagedCacheError
-from ..._support._format import ANSI, MASK_MEANING, format_mask
+from ..._support._format import (
+    ANSI,
+    BLOW_UP_HINT,
+    MASK_MEANING,
+    blown_up,
+    format_mask,
+    format_state,
+)
 from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
     COMPLEX_FIELD_SIGNATURE,
@@ -194,11 +201,6 @@ def compiles_for_complex(field) -> bool:
     return compiles_as(field, COMPLEX_FIELD_SIGNATURE)
 
 
-def format_state(x) -> str:
-    """A state in a message, every digit kept: ``[0.5, -1.25]``."""
-    return "[" + ", ".join(repr(float(v)) for v in x) + "]"
-
-
 def raise_failed_check(status, fn, name, x, mask, d, n, params=None) -> None:
     """Raise the ValueError of a failed output check of ``fn`` (``name``) at ``x`` (the
     model's ``params`` after it, but for the section)."""
@@ -226,14 +228,6 @@ def raise_failed_check(status, fn, name, x, mask, d, n, params=None) -> None:
     raise ValueError(f"{call} returned a non-finite value{entry} {where}")
 
 
-#: what to do about a run that left the floating-point range (the end of its messages)
-BLOW_UP_HINT = (
-    "the solution may escape to infinity in finite time (a blow-up, as x' = x**2), or the "
-    "model's units make the state or its rate of change too large for float64: rescale "
-    "them, or stop the run before the blow-up (a shorter t_final)"
-)
-
-
 def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
                      params=None) -> None:
     """Raise the error of a failed driver run: its status code, the state ``x`` at ``t``
@@ -254,12 +248,7 @@ def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
     x = np.asarray(x, dtype=np.float64)
     shapes = (FIELD_SHAPE, EVENTS_SHAPE, JACOBIAN_SHAPE)
     if status not in shapes and not np.isfinite(x).all():  # the integrator's step overflowed
-        when = "" if t is None else f" at t = {t!r}"
-        raise ValueError(
-            f"the integration blew up{when} in {region}: the state grew beyond the "
-            f"floating-point range (float64 ends near 1.8e308), x = {format_state(x)}; "
-            f"{BLOW_UP_HINT}"
-        )
+        raise ValueError(blown_up(region, x, t))
     if status in (FIELD_SHAPE, FIELD_NONFINITE, FIELD_RAISED):
         name = "field"
     elif status in (EVENTS_SHAPE, EVENTS_NONFINITE, EVENTS_RAISED):

@@ -15,13 +15,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._support._format import MASK_MEANING, format_mask
+from ..._support._format import MASK_MEANING, format_mask, format_state
 from ..._support._validate import RecordTooLarge
 from ._checks import (
     check_compiled_functions,
     compiles_as,
     compiles_for_complex,
-    format_state,
     is_compiled,
     raise_failed_run,
     raise_overflowed_run,

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._support._format import MASK_MEANING, format_mask
-from ..._support._validate import check_record
+from ..._support._format import MASK_MEANING, blown_up, format_mask
+from ..._support._validate import all_finite, check_record
 from ..events.excursions import without_lost_crossings
 from ..events.sides import on_side_at_start
 
@@ -115,7 +115,7 @@ class ScipyStretches:
         from scipy.integrate import solve_ivp  # here: the compiled path never imports it
 
         def solve(start, y_start, stop):
-            counted = _Counted(rhs, y_start.size, options.method, mask, system.n_events,
+            counted = _Counted(rhs, y_start.size, options.method, mask, system.n_events, d,
                                start)
             field = counted if self.watch is None else self.watch.wrap(counted)
             sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
@@ -140,8 +140,8 @@ class _Counted:
     estimated from the evaluations (``EVALUATIONS_PER_STEP`` of the method, at least one)
     and ``SOLVE_IVP_STEP_BYTES`` per step; checked each time it has doubled."""
 
-    def __init__(self, rhs, m, method, mask, n, start):
-        self.rhs, self.calls, self.next_check = rhs, 0, 1 << 12
+    def __init__(self, rhs, m, method, mask, n, d, start):
+        self.rhs, self.calls, self.next_check, self.d = rhs, 0, 1 << 12, d
         self.per_call = (SOLVE_IVP_STEP_BYTES + 80 * m) / EVALUATIONS_PER_STEP.get(method, 1)
         self.mask, self.n, self.start = mask, n, start
 
@@ -157,4 +157,10 @@ class _Counted:
                          f"about {self.calls} evaluations to t = {t!r})",
                          "pass a shorter t_final and go on from the run's x_final, or a "
                          "larger rtol and atol (fewer steps)")
-        return self.rhs(t, y)
+        try:
+            return self.rhs(t, y)
+        except ValueError as exc:  # at a state beyond float64: the run's, not the model's
+            if all_finite(y):
+                raise
+            region = f"region mask {format_mask(self.mask, self.n)} ({MASK_MEANING})"
+            raise ValueError(blown_up(region, y[:self.d], t)) from exc
