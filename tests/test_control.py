@@ -196,6 +196,18 @@ def test_a_long_ilqr_shows_its_iteration_and_cost(chair_flow, monkeypatch):
     assert drawn[-1].startswith(f"ilqr: iteration 2 (of at most 2), cost {res.cost:.4g} ")
 
 
+def test_ilqr_started_at_the_target_has_converged(chair_flow):
+    """Cost 0 at the start (the target is the nominal's own end): converged at once, not
+    "stalled" after line searches that cannot lower a cost of 0 (about 170 forward passes
+    up to mu_max before)."""
+    N, dt = 5, 0.03
+    U0 = np.zeros((N, 2))
+    target = rollout(chair_flow, chair_flow.x0, U0, dt)[-1]
+    res = ilqr(chair_flow, chair_flow.x0, U0, dt, target, Qf=np.eye(6), R=1e-6 * np.eye(2))
+    assert res.cost == 0.0 and res.converged and not res.stalled
+    assert len(res.history) == 1 and np.array_equal(res.U, U0)
+
+
 def test_augment_is_the_params_model():
     """augment() of a params model's functions: the same trajectory as
     HybridSystem(..., params=p), and parameters that do not move."""

@@ -349,6 +349,54 @@ def test_a_step_ending_within_the_window_of_a_bounce(gap, window):
     assert np.allclose(cov, M @ P @ M.T, rtol=1e-7, atol=1e-15)
 
 
+def test_a_given_window_reaching_the_steps_end_shrinks_for_simultaneous_events(chair):
+    """The chair's feet touch down together (spread 0) 0.05 s before the step's end. A
+    given window of 0.06 reaches the end: it shrinks to half the distance, and the step is
+    the one a window of 0.04 gives (two pieces, the mixture). It was kept whole for events
+    exactly simultaneous: the final time joined their group as a third event, and sigma
+    directions through that map gave a covariance off the simulated cloud's by 0.03 to 135
+    times along its axes, the mean 2 standard deviations off."""
+    P0 = 1e-4**2 * np.eye(6)
+    steps = {}
+    for window in (0.04, 0.06):
+        f = HybridKalmanFilter(chair.system, chair.x0, P0, window=window)
+        steps[window] = (*f.predict(chair.t_final), f.mode)
+    gap = chair.t_final - chair.t_event
+    mean, cov, mode = steps[0.06]
+    assert mode.window == pytest.approx(gap / 2, rel=1e-9)
+    assert mode.method == "mixture" and set(mode.groups[0][2]) == {(0, 1), (1, 0)}
+    np.testing.assert_allclose(mean, steps[0.04][0], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(cov, steps[0.04][1], rtol=1e-9, atol=1e-20)
+
+
+def test_a_mean_moved_onto_a_surface_is_refused_and_leaves_the_filter_as_it_was():
+    """An update whose mean lands exactly on an event's surface (its region undefined, and
+    no step could start there: a measurement of x_0 = 1 with R = 2**-60 against a prior
+    variance of 1 gives the gain 1.0 in float64) is refused by name, and the filter keeps
+    its state. A predict step ending so is refused the same way (the same check, made
+    before anything is assigned); it had moved the mean and the time, kept the old mode,
+    and said "x0 lies on the surface" of an x0 the caller never passed."""
+    from bderiv import HybridSystem
+
+    def field(x, mask):
+        return np.array([1.0, 0.0])
+
+    def events(x):
+        return np.array([x[0] - 1.0])
+
+    model = HybridSystem(field, events, n_events=1, dim=2)
+    f = HybridKalmanFilter(model, np.array([0.5, 0.0]), np.eye(2))
+    before = (f.mean.copy(), f.cov.copy(), f.time, f.mode)
+    with pytest.raises(ValueError, match=r"the update with the mean on the surface of "
+                                         r"event\(s\) \[0\] .* \(the filter is left as it "
+                                         r"was\)"):
+        f.update([1.0], [[2.0**-60]], H=[[1.0, 0.0]])
+    assert np.array_equal(f.mean, before[0]) and np.array_equal(f.cov, before[1])
+    assert (f.time, f.mode) == before[2:]
+    f.update([0.9], [[1e-2]], H=[[1.0, 0.0]])  # and it goes on from there
+    assert f.mode.mask == 0 and f.mean[0] < 1.0
+
+
 def test_sigma_directions_each_take_their_own_piece(chair):
     """The sigma method's mean and covariance are those of the 2 d directions pushed
     one by one through D (each by its own piece, D.jvp(v, v) = D(v))."""

@@ -86,7 +86,8 @@ class Iteration:
 class ILQRResult:
     """``U`` (N, m) and ``X`` (N + 1, d) of the last nominal, its ``cost``; ``history``:
     one :class:`Iteration` per linearisation (``history[0]`` the start); ``converged``
-    when the relative decrease fell below ``tol`` or the cost below ``cost_tol``;
+    when the relative decrease fell below ``tol`` or the cost to ``cost_tol`` (at the
+    start too: a nominal that reaches the target is returned as it is);
     ``stalled`` when no step decreased the cost at the largest ``mu``."""
 
     U: np.ndarray
@@ -299,7 +300,7 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
     start = time.perf_counter()
     steps, orders = _linearise(flow, X, U, dt, fixed)
     history.append(Iteration(cost, 0.0, mu, orders, seconds=time.perf_counter() - start))
-    converged = stalled = False
+    converged, stalled = cost <= cost_tol, False  # (a start at the target: done)
     with DelayedBar(max_iters, "ilqr", _BAR) as bar:  # long searches
         while len(history) <= max_iters and not converged:
             start, accepted = time.perf_counter(), None

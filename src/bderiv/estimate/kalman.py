@@ -142,13 +142,25 @@ class HybridKalmanFilter:
                     local, self.cov)
         mean = D.x_final + (push.mean if self.mean_correction else 0.0)
         cov = push.cov if Q is None else push.cov + Q
-        self.mean, self.cov = mean, 0.5 * (cov + cov.T)
         groups = [(t, ev, probs) for t, ev, probs in
                   zip(D.group_times, D.group_events, push.order_probabilities, strict=True)]
-        self.time += dt
-        self.mode = ModeEstimate(self.model.calls.start_mask(self.mean), groups, window,
-                                 push.method)
+        mask = self._region(mean, f"the step of dt={dt!r} ends at t = {self.time + dt!r}",
+                            "take a step that ends before or after the event")
+        self.mean, self.cov, self.time = mean, 0.5 * (cov + cov.T), self.time + dt
+        self.mode = ModeEstimate(mask, groups, window, push.method)
         return self.mean.copy(), self.cov.copy()
+
+    def _region(self, mean, what, advice):
+        """The region mask of a new ``mean``; a ValueError saying ``what`` put it on an
+        event surface (the filter unchanged: the next step could not start there)."""
+        h = np.asarray(self.model.calls.eval_events(mean))
+        on = np.flatnonzero(h == 0).tolist()
+        if on:
+            raise ValueError(f"{what} with the mean on the surface of event(s) {on} "
+                             f"(events(mean) = {h}), where its region is ambiguous and the "
+                             f"next step could not start: {advice} (the filter is left as it "
+                             f"was)")
+        return self.model.calls.start_mask(mean)
 
     def _flow_map(self, dt):
         """The step's B-derivative at the mean and its window (class docstring).
@@ -170,7 +182,7 @@ class HybridKalmanFilter:
             window = self.window
         try:
             D = model.flow_bderivative(m, dt, simultaneity_tol=window, **kw)
-            if not (D.stops_at_group and D.group_spreads[-1] > 0):
+            if not D.stops_at_group:  # (one of exactly simultaneous events too: spread 0)
                 return D, window
             refused = None
         except ValueError as exc:  # an event group with resets at the final time
@@ -216,8 +228,10 @@ class HybridKalmanFilter:
         mean = self.mean + K @ (z - hx)
         IKH = np.eye(d) - K @ Hx
         cov = IKH @ self.cov @ IKH.T + K @ R @ K.T
+        mask = self._region(mean, "the update", "a measurement this exact leaves the mean "
+                            "nowhere to go; perturb z or R")
         self.mean, self.cov = mean, 0.5 * (cov + cov.T)
-        self.mode = self.mode._replace(mask=self.model.calls.start_mask(self.mean))
+        self.mode = self.mode._replace(mask=mask)
         return self.mean.copy(), self.cov.copy()
 
     def nees(self, x_true):
