@@ -196,3 +196,31 @@ def test_jvp_and_vjp_of_a_corner_bounce_are_the_selected_piece():
     pieces = np.array([bd.piece(o) for o in orders])
     np.testing.assert_allclose(bd.jvp(V, T), np.einsum("mij,mj->mi", pieces, T), atol=1e-12)
     np.testing.assert_allclose(bd.vjp(V, W), np.einsum("mji,mj->mi", pieces, W), atol=1e-12)
+
+
+@pytest.mark.parametrize("lift", [0.0, 0.3], ids=["on the diagonal", "off it"])
+def test_a_reset_that_puts_the_state_on_another_surface_is_crossed_after_it(lift):
+    """A point moving at (1, 1); event 0 (x_0 = 0) resets x_1 to 0, onto the surface of
+    event 1 (x_1 = 0), which it then crosses at once, from every nearby start: the flow
+    from x0 over [0, 2] is x -> (1 + v_0, 1 + v_0) for x0 + v, smooth, its derivative
+    [[1, 0], [1, 0]] (closed form). The two groups share their time, and had been merged
+    as simultaneous: refused, the flow said to have no B-derivative there. Event 1's
+    surface was moved by event 0's reset (from -2 to 0): its group stays apart."""
+
+    def reset(x, mask, k):
+        y = x.copy()
+        if k == 0:
+            y[1] = 0.0
+        return y
+
+    def reset_jacobian(x, mask, k):
+        return np.diag([1.0, 0.0]) if k == 0 else np.eye(2)
+
+    model = HybridSystem(lambda x, m: np.array([1.0, 1.0]), lambda x: x.copy(), n_events=2,
+                         dim=2, reset=reset, reset_jacobian=reset_jacobian)
+    x0 = np.array([-1.0, -3.0 + lift])
+    D = model.flow_bderivative(x0, 2.0)
+    assert D.group_events == ((0,), (1,)) and D.group_times[0] == D.group_times[1]
+    V = np.vstack([np.eye(2), -np.eye(2), [[1.0, 1.0], [-1.0, 2.0]]])
+    np.testing.assert_allclose(D(V), V[:, :1] * [1.0, 1.0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(model.simulate(x0, 2.0).x_final, [1.0, 1.0], atol=1e-12)

@@ -155,7 +155,9 @@ def flow_map_along(system, traj):
         linear.append(np.eye(system.calls.dim))
         times.append((min(traj.final_times), max(traj.final_times)))
         final_field = system.calls.eval_field(traj.x_final, traj.final_group.mask_after)
-    groups, linear, spreads = merge_groups(groups, linear, times, traj.simultaneity_tol)
+    apart = landed_by_resets(system.calls) if system.calls.has_resets else None
+    groups, linear, spreads = merge_groups(groups, linear, times, traj.simultaneity_tol,
+                                           apart)
     jumps = [
         group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
                           where=f"at the event point at t={g.time:.10g}",
@@ -173,8 +175,9 @@ def flow_map_along(system, traj):
     )
 
 
-def merge_groups(groups, linear, times, tol):
-    """Consecutive event groups within ``tol`` of the first of them merged into one.
+def merge_groups(groups, linear, times, tol, apart=None):
+    """Consecutive event groups within ``tol`` of the first of them merged into one,
+    unless ``apart(head, group)`` (:func:`landed_by_resets`).
 
     Parameters
     ----------
@@ -210,7 +213,8 @@ def merge_groups(groups, linear, times, tol):
     out, stages, spreads = [], [linear[0]], []
     first = 0.0
     for g, (start, end), after in zip(groups, times, linear[1:], strict=True):
-        if out and end - first <= tol and not set(g.events) & set(out[-1].events):
+        if out and end - first <= tol and not set(g.events) & set(out[-1].events) and \
+                not (apart is not None and apart(out[-1], g)):
             head = out[-1]
             out[-1] = head._replace(events=tuple(sorted(head.events + g.events)),
                                     mask_after=g.mask_after, state_after=g.state_after)
@@ -222,6 +226,26 @@ def merge_groups(groups, linear, times, tol):
         first = start
         spreads.append(end - start)
     return out, stages, spreads
+
+
+def landed_by_resets(calls):
+    """``apart(head, group)``: whether the resets of the group ``head`` moved the surface
+    of an event of ``group`` (its value, by more than ``reset_tol`` relative as
+    :func:`sample_resets` measures it). Such events are crossed because of those resets
+    (a reset that sets a contact's coordinate to 0 puts the state on its surface), after
+    them from every nearby start, however close in time: their group stays apart.
+    Merged, they were taken as simultaneous with the head's and refused, the flow said
+    to have no B-derivative where it is smooth."""
+
+    def apart(head, group):
+        events = list(group.events)
+        before = calls.eval_events(head.state)[events]
+        after = calls.eval_events(head.state_after)[events]
+        scale = np.abs(calls.eval_event_jacobian(head.state)[events]).sum(axis=1) * \
+            max(1.0, float(np.abs(head.state).max()))
+        return bool(np.any(np.abs(after - before) > calls.reset_tol * scale))
+
+    return apart
 
 
 def point_bderivative(system, rho, tol):
