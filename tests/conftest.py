@@ -304,6 +304,23 @@ def warm_jit(tmp_path_factory):
             tasks[i]()
 
 
+@pytest.fixture
+def bars_drawn(monkeypatch):
+    """Every delayed bar of long work (``_progress.DelayedBar``) drawn at once and at each
+    report, into the buffer returned (they wait for seconds, on a terminal only)."""
+    import io
+
+    from bderiv._support import _progress
+
+    pytest.importorskip("tqdm")
+    buffer = io.StringIO()
+    monkeypatch.setattr(_progress, "BAR_DELAY", 0.0)
+    monkeypatch.setattr(_progress, "BAR_REFRESH", 0.0)
+    monkeypatch.setattr(_progress, "BAR_OPTIONS",
+                        {"file": buffer, "disable": False, "leave": True})
+    return buffer
+
+
 @pytest.fixture(scope="session")
 def pronking_gait():
     """``(example, orbit)``: the two-legged pronking gait's periodic orbit, found once per

@@ -171,26 +171,16 @@ def test_ilqr_through_the_simultaneous_touchdown(chair_flow, torque):
             assert theirs is None or theirs >= 2 * ours, (lin, theirs, ours)
 
 
-def test_a_long_ilqr_shows_its_iteration_and_cost(chair_flow, monkeypatch):
+def test_a_long_ilqr_shows_its_iteration_and_cost(chair_flow, bars_drawn):
     """The bar of a search (drawn once it lasts, here at once): each accepted iteration
     with the nominal's cost, as the result's history has them."""
-    import io
-
-    from bderiv._support import _progress
-
-    pytest.importorskip("tqdm")
-    buffer = io.StringIO()
-    monkeypatch.setattr(_progress, "BAR_DELAY", 0.0)
-    monkeypatch.setattr(_progress, "BAR_REFRESH", 0.0)
-    monkeypatch.setattr(_progress, "BAR_OPTIONS",
-                        {"file": buffer, "disable": False, "leave": True})
     N, dt = 5, 0.03
     U0 = np.zeros((N, 2))
     target = rollout(chair_flow, chair_flow.x0, U0, dt)[-1]
     U0[:, 1] = 4.0
     res = ilqr(chair_flow, chair_flow.x0, U0, dt, target, Qf=np.eye(6), R=1e-6 * np.eye(2),
                max_iters=2, tol=0.0)
-    drawn = [d for d in buffer.getvalue().replace("\n", "\r").split("\r")
+    drawn = [d for d in bars_drawn.getvalue().replace("\n", "\r").split("\r")
              if d.startswith("ilqr: ")]
     assert drawn[0].startswith("ilqr: iteration 1 (of at most 2), cost "), drawn
     assert drawn[-1].startswith(f"ilqr: iteration 2 (of at most 2), cost {res.cost:.4g} ")

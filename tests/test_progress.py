@@ -190,20 +190,6 @@ def test_a_large_batch_goes_in_chunks_and_gives_the_same_numbers(monkeypatch):
         bd(V)
 
 
-@pytest.fixture
-def drawn(monkeypatch):
-    """Every delayed bar drawn at once, into the buffer returned."""
-    from bderiv._support import _progress
-
-    pytest.importorskip("tqdm")
-    buffer = io.StringIO()
-    monkeypatch.setattr(_progress, "BAR_DELAY", 0.0)
-    monkeypatch.setattr(_progress, "BAR_REFRESH", 0.0)
-    monkeypatch.setattr(_progress, "BAR_OPTIONS",
-                        {"file": buffer, "disable": False, "leave": True})
-    return buffer
-
-
 def _last(buffer, label):
     """The last drawing of the bar labelled ``label``."""
     drawings = [d for d in buffer.getvalue().replace("\n", "\r").split("\r")
@@ -212,7 +198,8 @@ def _last(buffer, label):
     return drawings[-1]
 
 
-def test_a_newton_search_shows_its_iterate_and_residual(drawn):
+def test_a_newton_search_shows_its_iterate_and_residual(bars_drawn):
+    drawn = bars_drawn
     """periodic_orbit's bar (drawn once the search lasts, here at once): the iterate and
     the residual of the last map, which falls to the tolerance."""
     from bderiv.examples import gaits
@@ -228,7 +215,8 @@ def test_a_newton_search_shows_its_iterate_and_residual(drawn):
     assert residuals[0] > 1e-3 and residuals[-1] < 1e-9, residuals
 
 
-def test_a_growth_rate_a_monte_carlo_and_a_triangulation_count_their_steps(drawn):
+def test_a_growth_rate_a_monte_carlo_and_a_triangulation_count_their_steps(bars_drawn):
+    drawn = bars_drawn
     from bderiv import BDerivative
     from bderiv.analysis.stability import growth_rate
     from bderiv.estimate.consistency import consistency

@@ -72,7 +72,26 @@ class GuardedCallback:
             ) from exc
 
 
-class TqdmCallback:
+class _Bar:
+    """What the bars share: a tqdm bar in ``_bar`` (None until drawn), closed once, and a
+    context that closes it."""
+
+    _bar = None
+
+    def close(self) -> None:
+        """Remove the bar, if one was drawn (idempotent)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class TqdmCallback(_Bar):
     """A ``progress(done, total)`` callable drawing a tqdm bar.
 
     Parameters
@@ -119,18 +138,6 @@ class TqdmCallback:
             self.done = int(done)
         if self.done >= int(total):
             self.close()
-
-    def close(self) -> None:
-        """Close the bar (idempotent)."""
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
 
 def resolve_progress(progress, desc: str = "bderiv", **kwargs):
@@ -187,7 +194,7 @@ BAR_DELAY, BAR_REFRESH = 2.0, 0.2
 BAR_OPTIONS = {"disable": None, "leave": False}
 
 
-class DelayedBar:
+class DelayedBar(_Bar):
     """The bar of long work that reports how far it got: drawn once the work has lasted
     :data:`BAR_DELAY` seconds (on a terminal; tqdm is the extra ``progress``, and without
     it nothing is drawn), redrawn at most every :data:`BAR_REFRESH` seconds. Each call
@@ -249,18 +256,6 @@ class DelayedBar:
     def bar_text(self) -> str:
         """The bar as drawn now ("" before it is drawn)."""
         return "" if self._bar is None else str(self._bar)
-
-    def close(self) -> None:
-        """Remove the bar, if one was drawn (idempotent)."""
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
 
 def count_bar(total: int, desc: str, units: str, delay: float | None = None, **bar):
