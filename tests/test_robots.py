@@ -223,8 +223,89 @@ def test_nan_starts_and_a_foot_named_twice_are_refused_by_name():
         drop_state(robot, np.nan)
     with pytest.raises(ValueError, match="vz must be a finite number, got nan"):
         drop_state(robot, 0.01, vz=np.nan)
-    with pytest.raises(ValueError, match="q_ref must be finite"):
+    with pytest.raises(ValueError, match=r"joints must be finite, but joints\[0\] = nan"):
         quadruped(joints=(np.nan,) * 12)
+    with pytest.raises(ValueError, match=r"q_ref must be finite, but q_ref\[7\] = nan"):
+        legged_robot(robot.model, robot.feet, np.r_[robot.q_ref[:7], [np.nan] * 12])
     with pytest.raises(ValueError, match=r"feet must name each foot once, got \['FL_foot'\]"):
         legged_robot("go1_description/urdf/go1.urdf",
                      ["FL_foot", "FL_foot", "RL_foot", "RR_foot"])
+
+
+def test_a_state_of_another_size_is_refused_by_name(solo):
+    """A short state was read past its end by the compiled configuration (garbage, run to
+    run), a long one cut silently, a short q or v reached Pinocchio's C++ errors or gave
+    a state of another size (a review). The system's own functions are not checked
+    again (the integration's hot path: HybridSystem checks its states)."""
+    x = drop_state(solo, 0.01)
+    shape = r"x must have shape \(36,\) \(a state \(e, v\) of this robot, 2 nv = 36\)"
+    for bad in (x[:5], np.r_[x, 0.0], x[None]):
+        for method in (solo.configuration, solo.foot_positions, solo.events,
+                       solo.event_jacobian):
+            with pytest.raises(ValueError, match=shape + ", got shape"):
+                method(bad)
+        for method in (solo.field, solo.field_jacobian):
+            with pytest.raises(ValueError, match=shape):
+                method(bad, 0)
+    with pytest.raises(ValueError, match=r"x must be finite, but x\[3\] = nan"):
+        solo.events(np.where(np.arange(36) == 3, np.nan, x))
+    with pytest.raises(ValueError, match=r"mask must be in \[0, 2\*\*4\), got 16"):
+        solo.field(x, 16)
+    with pytest.raises(TypeError, match="x must hold real numbers"):
+        solo.events(x.astype(complex))
+    q, v = solo.configuration(x)
+    assert np.array_equal(solo.state(q, v), x)
+    with pytest.raises(ValueError, match=r"v must have shape \(18,\) \(a velocity"):
+        solo.state(q, v[:5])
+    with pytest.raises(ValueError, match=r"q must have shape \(19,\) \(a configuration"):
+        solo.state(q[:5], v)
+    with pytest.raises(ValueError, match=r"v must be finite, but v\[0\] = nan"):
+        solo.state(q, np.full(18, np.nan))
+    with pytest.raises(ValueError, match=r"q\[3:7\], the base's quaternion .* unit norm"):
+        solo.state(np.r_[q[:3], 2 * q[3:7], q[7:]], v)  # Pinocchio took it as another
+    assert solo.system.events.__func__ is type(solo)._events  # not the checked events
+
+
+def test_one_foot_named_alone():
+    """``legged_robot(source, "FL_FOOT")`` was refused as the feet 'F', 'L', '_', ...: one
+    name is one foot (a review)."""
+    solo = quadruped()
+    one = legged_robot(solo.model, "FL_FOOT", solo.q_ref, **solo.law)
+    assert one.feet == ("FL_FOOT",) and one.system.n_events == 1
+    groups = one.system.simulate(drop_state(one, 0.01, -0.5), TOUCHDOWN + 0.005).groups
+    assert [g.events for g in groups] == [(0,)]
+    assert abs(groups[0].time - TOUCHDOWN) < 1e-12
+
+
+def test_bad_parameters_are_refused_by_name_before_any_work(solo):
+    """Raw NumPy, Pinocchio and Boost errors, and a NaN state or a zero base quaternion
+    taken silently (the quaternion failed much later, inside simulate), before (a
+    review)."""
+    with pytest.raises(ValueError, match=r"joints must have shape \(12,\) \(a standing "
+                       r"posture of solo12: one angle per joint, 12\), got shape \(5,\)"):
+        quadruped("solo12", joints=(0.0,) * 5)
+    with pytest.raises(ValueError, match=r"velocity must have shape \(18,\)"):
+        drop_state(solo, 0.01, velocity=np.zeros(5))
+    with pytest.raises(ValueError, match=r"velocity must be finite, but velocity\[0\]"):
+        drop_state(solo, 0.01, velocity=np.full(18, np.nan))
+    with pytest.raises(TypeError, match="robot must be a LeggedRobot"):
+        drop_state(solo.model, 0.01)
+    with pytest.raises(TypeError, match="stiffness must be a real number, got str '1'"):
+        quadruped("solo12", stiffness="1")
+    with pytest.raises(TypeError, match=r"feet must be names of frames \(str\), got int 1 "
+                       r"at feet\[0\]"):
+        legged_robot(solo.model, [1, 2])
+    with pytest.raises(TypeError, match="feet must be a foot frame's name or a sequence"):
+        legged_robot(solo.model, 3)
+    with pytest.raises(TypeError, match="sticking must be True or False, got str 'no'"):
+        quadruped("solo12", contact="rigid", sticking="no")
+    with pytest.raises(ValueError, match=r"q_ref\[3:7\], the base's quaternion \(x, y, z, "
+                       r"w\), must have unit norm \(to 1e-09; it is used as given\), got "
+                       r"\[0.0, 0.0, 0.0, 0.0\] of norm 0"):
+        legged_robot(solo.model, solo.feet, q_ref=np.zeros(19))
+    q_ref = solo.q_ref.copy()
+    q_ref[6] = 1 + 1e-6
+    with pytest.raises(ValueError, match="unit norm.*pinocchio.normalize"):
+        legged_robot(solo.model, solo.feet, q_ref)
+    q_ref[6] = 1 + 1e-12  # within the tolerance: taken as given
+    assert legged_robot(solo.model, solo.feet, q_ref).q_ref[6] == 1 + 1e-12

@@ -215,3 +215,49 @@ def test_the_held_feet_push_and_bad_contact_is_refused():
     assert normal.min() > 0.0, normal
     with pytest.raises(ValueError, match="contact must be 'compliant' or 'rigid', got 'hard'"):
         quadruped("solo12", contact="hard")
+
+
+def test_down_holds_the_feet_indices_or_one_bool_per_foot(solo):
+    """``down=[1, 1, 0, 0]`` (flags) was taken as the indices 1, 1, 0, 0 (feet 0 and 1),
+    ``[0, 5, 0, 0]`` raised a raw IndexError (a review)."""
+    q, v = solo.q_ref, np.zeros(solo.nv)
+    for down in ((0, 3), [3, 0], np.array([0, 3]), [True, False, False, True]):
+        assert tuple(solo.state(q, v, down)[2 * solo.nv:]) == (1.0, 0.0, 0.0, 1.0), down
+    assert not solo.state(q, v).any()
+    with pytest.raises(ValueError, match=r"down must name each foot once \(indices, not "
+                       r"flags: pass booleans for flags\), got \[0, 1\] more than once"):
+        solo.state(q, v, [1, 1, 0, 0])
+    with pytest.raises(ValueError, match=r"down must hold foot indices in \[0, 4\), got "
+                       r"\[5\] in \[0, 5, 0, 0\]"):
+        solo.state(q, v, [0, 5, 0, 0])
+    with pytest.raises(ValueError, match=r"got \[-1\]"):
+        solo.state(q, v, [-1])
+    with pytest.raises(TypeError, match=r"down must be a sequence of foot indices"):
+        solo.state(q, v, [0.0, 3.0])
+    with pytest.raises(ValueError, match="down as booleans must have one per foot, 4, got 2"):
+        solo.state(q, v, [True, True])
+
+
+def test_the_methods_refuse_a_state_mask_or_foot_of_another_size(solo):
+    """A short state reached Pinocchio's C++ errors, a compliant robot's state (no
+    latches) a broadcast error, and a mask's bits beyond the feet were ignored (99: feet
+    0 and 1), silently (a review)."""
+    x = drop_state(solo, 0.0)
+    shape = r"x must have shape \(40,\) \(a state \(e, v, c\) of this robot, 2 nv \+ n = 40"
+    for call in (lambda y: solo.contact_forces(y, 1), solo.coupling, solo.events,
+                 solo.event_jacobian, solo.configuration, lambda y: solo.field(y, 1),
+                 lambda y: solo.field_jacobian(y, 1), lambda y: solo.reset(y, 0, 1),
+                 lambda y: solo.reset_jacobian(y, 0, 1)):
+        for bad in (x[:5], x[:2 * solo.nv]):
+            with pytest.raises(ValueError, match=shape):
+                call(bad)
+    for mask in (99, 16, -1):
+        with pytest.raises(ValueError, match=rf"mask must be in \[0, 2\*\*4\), got {mask}"):
+            solo.contact_forces(x, mask)
+    with pytest.raises(TypeError, match="mask must be an integer, got float"):
+        solo.contact_forces(x, 1.0)
+    with pytest.raises(ValueError, match=r"k must be a foot's index in \[0, 4\), got 4"):
+        solo.reset(x, 0, 4)
+    with pytest.raises(TypeError, match="k must be an integer"):
+        solo.reset_jacobian(x, 0, 1.0)
+    assert solo.contact_forces(x, 0b0011).shape == (2, 3)

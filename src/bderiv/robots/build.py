@@ -4,8 +4,8 @@ URDF and builds the robot with compliant feet (:mod:`bderiv.robots.legged`) or r
 
 from __future__ import annotations
 
-import numpy as np
-
+from .._support._validate import check_bool
+from ._checks import check_law
 from ._files import require_pinocchio, robot_file
 from .legged import CONTACT, LeggedRobot
 from .rigid import RigidLeggedRobot
@@ -30,7 +30,6 @@ def _load(source, pin):
     return model
 
 
-
 def legged_robot(source, feet, q_ref=None, *, contact="compliant", sticking=True,
                  **law) -> LeggedRobot:
     """A legged robot as a hybrid system (:mod:`bderiv.robots.legged`'s docstring).
@@ -40,11 +39,13 @@ def legged_robot(source, feet, q_ref=None, *, contact="compliant", sticking=True
     source : pinocchio.Model, str or os.PathLike
         A model with a free-flying base, or a URDF: a path, or a file of example-robot-data
         such as ``"solo_description/robots/solo12.urdf"`` (loaded with a free-flyer).
-    feet : sequence of str
-        The foot frames; event k is foot k's touchdown.
+    feet : str or sequence of str
+        The foot frames, each once; event k is foot k's touchdown (one name: a robot
+        of one foot).
     q_ref : array_like, (nq,), optional
-        The reference configuration (tangent coordinates, PD posture); default the
-        model's neutral configuration.
+        The reference configuration (tangent coordinates, PD posture), its base
+        quaternion ``q_ref[3:7]`` (x, y, z, w) of unit norm to 1e-9 (used as given, not
+        normalised); default the model's neutral configuration.
     contact : {"compliant", "rigid"}
         Compliant feet (the spring-damper of the module docstring), or rigid: a plastic
         impact at touchdown and the feet then held (:mod:`bderiv.robots.rigid`).
@@ -63,24 +64,11 @@ def legged_robot(source, feet, q_ref=None, *, contact="compliant", sticking=True
     """
     if contact not in ("compliant", "rigid"):
         raise ValueError(f"contact must be 'compliant' or 'rigid', got {contact!r}")
+    sticking = check_bool(sticking, "sticking")
+    law = check_law(law, CONTACT)
     pin = require_pinocchio()
     model = _load(source, pin)
-    unknown = set(law) - set(CONTACT)
-    if unknown:
-        raise ValueError(f"{sorted(unknown)} are not parameters of the contact law (its "
-                         f"parameters: {', '.join(CONTACT)})")
-    for name, value in law.items():
-        if not np.isfinite(value) or (name != "ground" and value < 0):
-            raise ValueError(f"{name} must be a finite number"
-                             f"{'' if name == 'ground' else ' >= 0'}, got {value!r}")
-    names = [feet] if isinstance(feet, str) else list(feet)
-    twice = sorted({name for name in names if names.count(name) > 1})
-    if twice:  # one foot's contact counted twice: its force doubled, silently
-        raise ValueError(f"feet must name each foot once, got {twice} more than once")
-    q_ref = pin.neutral(model) if q_ref is None else q_ref
-    q_arr = np.asarray(q_ref, dtype=np.float64)
-    if not np.isfinite(q_arr).all():
-        raise ValueError(f"q_ref must be finite, got {q_ref!r}")
+    q_ref = pin.neutral(model) if q_ref is None else q_ref  # feet, q_ref: LeggedRobot's checks
     if contact == "rigid":
         return RigidLeggedRobot(model, feet, q_ref, {**CONTACT, **law}, sticking)
     return LeggedRobot(model, feet, q_ref, {**CONTACT, **law})

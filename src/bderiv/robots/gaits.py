@@ -127,22 +127,29 @@ class Pronking:
         self.nv, self.law = nv, self.robot.law
         self.extension = np.zeros(2 * nv)
         self.extension[6:nv] = delta
-        self.system = HybridSystem(self.field, self.robot.events, n_events=4, dim=2 * nv,
-                                   field_jacobian=self.field_jacobian,
-                                   event_jacobian=self.robot.event_jacobian)
+        # the robots' unchecked functions (the system checks its states itself)
+        self.system = HybridSystem(self._field, self.robot._events, n_events=4, dim=2 * nv,
+                                   field_jacobian=self._field_jacobian,
+                                   event_jacobian=self.robot._event_jacobian)
 
     def field(self, x, mask) -> np.ndarray:
         """(2 nv,): the flight robot's field in region 0, the stance robot's (at its
         coordinates ``x - extension``) in the others."""
-        if mask:
-            return self.stance.field(x - self.extension, mask)
-        return self.robot.field(x, mask)
+        return self._field(self.robot._x(x), self.robot._mask(mask))
 
     def field_jacobian(self, x, mask) -> np.ndarray:
         """(2 nv, 2 nv): the field's Jacobian (the shift of coordinates is a translation)."""
+        return self._field_jacobian(self.robot._x(x), self.robot._mask(mask))
+
+    def _field(self, x, mask) -> np.ndarray:
         if mask:
-            return self.stance.field_jacobian(x - self.extension, mask)
-        return self.robot.field_jacobian(x, mask)
+            return self.stance._field(x - self.extension, mask)
+        return self.robot._field(x, mask)
+
+    def _field_jacobian(self, x, mask) -> np.ndarray:
+        if mask:
+            return self.stance._field_jacobian(x - self.extension, mask)
+        return self.robot._field_jacobian(x, mask)
 
     def section(self, x) -> float:
         """The apex section ``-v_z`` (the base's vertical velocity, in its frame)."""

@@ -45,7 +45,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._support._validate import check_mask
 from ..analysis.system import HybridSystem
+from ._checks import check_configuration, check_feet, check_vector
 from ._contact import field_jacobian_matrix, field_vector, torque, torque_derivatives
 from ._files import require_pinocchio
 from ._lie import configuration, se3_rate_matrix
@@ -71,26 +73,20 @@ class LeggedRobot:
     law : dict
         The contact and posture parameters (:data:`CONTACT`).
     system : HybridSystem
-        n = len(feet) events, d = 2 nv.
+        n = len(feet) events, d = 2 nv. The methods below check their arguments (a
+        state of another size, a mask beyond the feet: a ValueError naming them); the
+        system's functions are their unchecked versions (it checks its states itself).
     """
 
     def __init__(self, model, feet, q_ref, law):
         pin = require_pinocchio()
         self.pin, self.model, self.law = pin, model, dict(law)
-        self.data = model.createData()
         self.nv = model.nv
-        names = [f.name for f in model.frames]
-        self.feet = tuple(feet)
-        missing = [f for f in self.feet if not model.existFrame(f)]
-        if missing or not self.feet:
-            raise ValueError(f"feet must name frames of the model, got {missing or 'none'}; "
-                             f"the model's frames with 'foot' in their name: "
-                             f"{[n for n in names if 'foot' in n.lower()]}")
+        self.feet = check_feet(feet, model)
+        self.q_ref = check_configuration(q_ref, model, "q_ref")
+        self.data = model.createData()
         self.frame_ids = [model.getFrameId(f) for f in self.feet]
         self.joint_ids = [model.frames[i].parentJoint for i in self.frame_ids]
-        self.q_ref = np.array(q_ref, dtype=np.float64)
-        if self.q_ref.shape != (model.nq,):
-            raise ValueError(f"q_ref must have shape ({model.nq},), got {self.q_ref.shape}")
         # the joint of each velocity coordinate; the coordinates of each foot's support;
         # ancestor[i, j]: coordinate i's joint is coordinate j's or one of its ancestors
         joint = np.array([j for j in range(1, model.njoints) for _ in range(model.joints[j].nv)])
@@ -106,20 +102,40 @@ class LeggedRobot:
         self._law = np.array([self.law[k] for k in ("friction", "stiffness", "damping",
                                                      "ground", "kp", "kd")], dtype=np.float64)
         self.system = self._build_system()
+        self._state = self._STATE.format(d=self.system.dim)
 
     def _build_system(self) -> HybridSystem:
-        return HybridSystem(self.field, self.events, n_events=len(self.feet),
-                            dim=2 * self.nv, field_jacobian=self.field_jacobian,
-                            event_jacobian=self.event_jacobian)
+        # the unchecked functions: the system checks the states it passes them itself
+        return HybridSystem(self._field, self._events, n_events=len(self.feet),
+                            dim=2 * self.nv, field_jacobian=self._field_jacobian,
+                            event_jacobian=self._event_jacobian)
+
+    # ------------------------------------------------------------------ checks
+    #: what a state is, in the message refusing its shape ({d}: its size)
+    _STATE = "a state (e, v) of this robot, 2 nv = {d}"
+
+    def _x(self, x) -> np.ndarray:
+        """The state ``x`` of a public method: a finite float64 copy, (system.dim,)."""
+        return check_vector(x, self.system.dim, "x", self._state)
+
+    def _mask(self, mask) -> int:
+        """A region ``mask`` of a public method: bit k foot k, none beyond the feet."""
+        return check_mask(mask, len(self.feet), "mask")
 
     # ------------------------------------------------------------------ coordinates
     def state(self, q, v) -> np.ndarray:
-        """``x = (difference(q_ref, q), v)`` (2 nv,)."""
-        q, v = np.asarray(q, dtype=np.float64), np.asarray(v, dtype=np.float64)
+        """``x = (difference(q_ref, q), v)`` (2 nv,) of a configuration ``q`` (nq,), its
+        base quaternion of unit norm, and a velocity ``v`` (nv,)."""
+        q = check_configuration(q, self.model, "q")
+        v = check_vector(v, self.nv, "v", f"a velocity of the model, nv = {self.nv}")
         return np.concatenate((self.pin.difference(self.model, self.q_ref, q), v))
 
     def configuration(self, x):
         """``(q, v)`` of the state ``x``: ``q = integrate(q_ref, e)``."""
+        return self._configuration(self._x(x))
+
+    def _configuration(self, x):
+        """:meth:`configuration` of a state of the right size (unchecked)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         return configuration(self.q_ref, x, self.nv), x[self.nv:2 * self.nv]
 
@@ -132,7 +148,10 @@ class LeggedRobot:
 
     def foot_positions(self, x) -> np.ndarray:
         """(n, 3): the feet's positions in the world."""
-        q, _ = self.configuration(x)
+        return self._foot_positions(self._x(x))
+
+    def _foot_positions(self, x) -> np.ndarray:
+        q, _ = self._configuration(x)
         self.pin.framesForwardKinematics(self.model, self.data, q)
         return self._positions()
 
@@ -142,14 +161,33 @@ class LeggedRobot:
         return np.array([oMf[i].translation for i in self.frame_ids])
 
     # ------------------------------------------------------------------ the model
+    # The public methods check their arguments and call the unchecked ones that the
+    # system calls (its integration's hot path).
     def events(self, x) -> np.ndarray:
-        """(n,): ``ground - z_k``, positive in penetration."""
-        return self.law["ground"] - self.foot_positions(x)[:, 2]
+        """(n,): ``ground - z_k`` (``+ c_k`` with rigid feet), positive in penetration."""
+        return self._events(self._x(x))
 
     def event_jacobian(self, x) -> np.ndarray:
-        """(n, d): ``-dz_k/de`` (the velocities do not enter)."""
+        """(n, d): ``-dz_k/de`` (the velocities do not enter; rigid feet: and the
+        latches')."""
+        return self._event_jacobian(self._x(x))
+
+    def field(self, x, mask) -> np.ndarray:
+        """(d,): ``(de/dt, dv/dt)`` in region ``mask`` (bit k: foot k in stance; rigid
+        feet: held, and the latches' rate 0)."""
+        return self._field(self._x(x), self._mask(mask))
+
+    def field_jacobian(self, x, mask) -> np.ndarray:
+        """(d, d): the field's Jacobian, analytical (module docstring; rigid feet:
+        :mod:`bderiv.robots.rigid`'s)."""
+        return self._field_jacobian(self._x(x), self._mask(mask))
+
+    def _events(self, x) -> np.ndarray:
+        return self.law["ground"] - self._foot_positions(x)[:, 2]
+
+    def _event_jacobian(self, x) -> np.ndarray:
         pin, model, data = self.pin, self.model, self.data
-        q, _ = self.configuration(x)
+        q, _ = self._configuration(x)
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
         Jq = self._dintegrate(x)
@@ -174,8 +212,7 @@ class LeggedRobot:
         pin.updateFramePlacements(model, data)
         return data.J, self._positions()
 
-    def field(self, x, mask) -> np.ndarray:
-        """(d,): ``(de/dt, dv/dt)`` in region ``mask`` (bit k: foot k in stance)."""
+    def _field(self, x, mask) -> np.ndarray:
         x = np.ascontiguousarray(x, dtype=np.float64)
         nv, mask = self.nv, int(mask)
         last = self._last
@@ -188,8 +225,7 @@ class LeggedRobot:
         a = self.pin.aba(self.model, self.data, q, x[nv:2 * nv], tau)
         return field_vector(x, a, nv)
 
-    def field_jacobian(self, x, mask) -> np.ndarray:
-        """(d, d): the field's Jacobian, analytical (module docstring)."""
+    def _field_jacobian(self, x, mask) -> np.ndarray:
         x = np.ascontiguousarray(x, dtype=np.float64)
         nv, law, mask = self.nv, self.law, int(mask)
         q = configuration(self.q_ref, x, nv)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._support._validate import check_number
+from ._checks import check_vector
 from .build import legged_robot
 from .legged import LeggedRobot
 
@@ -53,7 +54,7 @@ def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
     name : str
         A key of :data:`ROBOTS`.
     joints : array_like, (nv - 6,), optional
-        Another standing posture.
+        Another standing posture: one angle per joint (12), finite.
     contact, sticking
         As :func:`~bderiv.robots.build.legged_robot`'s.
     **law
@@ -61,9 +62,13 @@ def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
         scaled to the robot's mass (stiffness and damping in proportion to Solo12's
         2.5 kg, the PD gains too), unless given.
     """
-    if name not in ROBOTS:
+    if not isinstance(name, str) or name not in ROBOTS:
         raise ValueError(f"name must be one of {', '.join(ROBOTS)}, got {name!r}")
     entry = ROBOTS[name]
+    if joints is not None:
+        n = len(entry["joints"])
+        joints = check_vector(joints, n, "joints", f"a standing posture of {name}: one angle "
+                              f"per joint, {n}")
     from ._files import require_pinocchio, robot_file
     from .legged import CONTACT
 
@@ -86,14 +91,20 @@ def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarr
     -------
     ndarray, (robot.system.dim,)
     """
+    if not isinstance(robot, LeggedRobot):
+        raise TypeError(f"robot must be a LeggedRobot (legged_robot, quadruped), got "
+                        f"{type(robot).__name__}")
     height = check_number(height, "height", low=-np.inf, strict=False)
     vz = check_number(vz, "vz", low=-np.inf, strict=False)
+    if velocity is not None:
+        velocity = check_vector(velocity, robot.nv, "velocity",
+                                f"a velocity of the robot's model, nv = {robot.nv}")
     x = np.zeros(robot.system.dim)  # a rigid robot's contact latches (0: in the air)
     low = robot.foot_positions(x)[:, 2].min()
     x[2] = robot.law["ground"] + height - low  # the base's height offset (level: e_z = dz)
     x[robot.nv + 2] = vz
     if velocity is not None:
-        x[robot.nv:2 * robot.nv] += np.asarray(velocity, dtype=np.float64)
+        x[robot.nv:2 * robot.nv] += velocity
     return x
 
 

@@ -11,6 +11,9 @@ Event k is ``h_k = ground - z_k + c_k``: in the air the foot's penetration; the 
 of surface k and stays there. A foot once down stays down: lift-off is not modelled (the
 constraint is bilateral once made); :meth:`RigidLeggedRobot.contact_forces` gives the
 ground's forces, whose normal component a user checks stays positive over the stance.
+A robot's state has latches 0 or 1 (``state``, ``drop_state`` and the impact make no
+other), but they are coordinates like ``e`` and ``v`` (the flow's B-derivative has their
+columns, finite differences move them), so the methods take any finite value.
 
 **Friction** (``sticking``): True (default) holds the foot's 3-D velocity at zero (a foot
 that does not slip, as common for legged robots: three constraint rows per foot); False
@@ -51,6 +54,7 @@ import numpy as np
 
 from .._limits import COUPLING_TOL, SURFACE_TOL
 from ..analysis.system import HybridSystem
+from ._checks import check_down, check_index
 from ._contact import field_vector
 from ._lie import se3_rate_jacobians
 from .legged import LeggedRobot
@@ -94,16 +98,25 @@ class RigidLeggedRobot(LeggedRobot):
             self._no_forces.append(self.pin.Force.Zero())
 
     def _build_system(self) -> HybridSystem:
-        return HybridSystem(self.field, self.events, n_events=len(self.feet),
+        # the unchecked functions (the public ones check, then call them)
+        return HybridSystem(self._field, self._events, n_events=len(self.feet),
                             dim=2 * self.nv + len(self.feet),
-                            field_jacobian=self.field_jacobian,
-                            event_jacobian=self.event_jacobian, reset=self.reset,
-                            reset_jacobian=self.reset_jacobian)
+                            field_jacobian=self._field_jacobian,
+                            event_jacobian=self._event_jacobian, reset=self._reset,
+                            reset_jacobian=self._reset_jacobian)
+
+    _STATE = "a state (e, v, c) of this robot, 2 nv + n = {d}: the feet's latches c last"
 
     def state(self, q, v, down=()) -> np.ndarray:
-        """``(difference(q_ref, q), v, c)`` with ``c_k = 1`` for the feet ``down``."""
+        """``(difference(q_ref, q), v, c)``: ``q`` (nq,) and ``v`` (nv,) as
+        :meth:`LeggedRobot.state <bderiv.robots.legged.LeggedRobot.state>`'s, and the
+        latches ``c_k = 1`` for the feet down, 0 for the others. ``down`` holds the
+        indices of the feet down (positions in ``feet``, each in ``[0, n)`` and once:
+        ``down=(0, 3)``, feet 0 and 3), or one bool per foot (``[True, False, False,
+        True]``, the same); anything else is refused (flags as integers, ``[1, 1, 0,
+        0]``, are refused as indices repeated)."""
         c = np.zeros(len(self.feet))
-        c[list(down)] = 1.0
+        c[check_down(down, len(self.feet))] = 1.0
         return np.concatenate((super().state(q, v), c))
 
     # ------------------------------------------------------------------ pieces
@@ -135,7 +148,7 @@ class RigidLeggedRobot(LeggedRobot):
     def _solve(self, x, mask):
         """The stance's acceleration (nv,), the ground's forces (r,), M, J, feet."""
         pin, model, data = self.pin, self.model, self.data
-        q, v = self.configuration(x)
+        q, v = self._configuration(x)
         self._kinematics(q, v)
         feet = self._feet(mask)
         M, J = self._mass(q), self._jacobian(feet)
@@ -173,44 +186,47 @@ class RigidLeggedRobot(LeggedRobot):
         return self.data.oMf[fid].rotation @ (d_local - _skew(u_local) @ JfL[3:])
 
     # ------------------------------------------------------------------ the model
-    def events(self, x) -> np.ndarray:
+    # The public events, event_jacobian, field, field_jacobian (LeggedRobot's), reset,
+    # reset_jacobian, contact_forces and coupling check their arguments; the unchecked
+    # functions below are the system's.
+    def _events(self, x) -> np.ndarray:
         """(n,): ``ground - z_k + c_k``."""
-        return super().events(x) + x[2 * self.nv:]
+        return super()._events(x) + x[2 * self.nv:]
 
-    def event_jacobian(self, x) -> np.ndarray:
+    def _event_jacobian(self, x) -> np.ndarray:
         """(n, d): the feet's heights' and the latches'."""
         out = np.zeros((len(self.feet), 2 * self.nv + len(self.feet)))
-        out[:, :2 * self.nv] = super().event_jacobian(x)
+        out[:, :2 * self.nv] = super()._event_jacobian(x)
         out[:, 2 * self.nv:] = np.eye(len(self.feet))
         return out
 
     def contact_forces(self, x, mask) -> np.ndarray:
         """(len(feet of mask), 3): the ground's world forces on the held feet (a foot's
         normal force is the last column; zeros in the friction columns without
-        ``sticking``)."""
-        _, lam, _, _, feet = self._solve(np.asarray(x, dtype=np.float64), mask)
+        ``sticking``); ``mask``: bit k, foot k held."""
+        _, lam, _, _, feet = self._solve(self._x(x), self._mask(mask))
         out = np.zeros((len(feet), 3))
         out[:, self.rows] = lam.reshape(len(feet), len(self.rows))
         return out
 
-    def field(self, x, mask) -> np.ndarray:
+    def _field(self, x, mask) -> np.ndarray:
         """(d,): ``(de/dt, dv/dt, 0)``, the stance's constrained dynamics (feet of mask
         held); in flight the compliant model's field without contacts (``aba``)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         if not int(mask):
-            return np.concatenate((super().field(x, 0), np.zeros(len(self.feet))))
+            return np.concatenate((super()._field(x, 0), np.zeros(len(self.feet))))
         a = self._solve(x, mask)[0]
         return np.concatenate((field_vector(x, a, self.nv), np.zeros(len(self.feet))))
 
-    def field_jacobian(self, x, mask) -> np.ndarray:
+    def _field_jacobian(self, x, mask) -> np.ndarray:
         """(d, d): the field's Jacobian, by the KKT system's derivative (module
         docstring); in flight the compliant model's without contacts."""
         pin, model, data, law, nv = self.pin, self.model, self.data, self.law, self.nv
         if not int(mask):
             out = np.zeros((self.system.dim, self.system.dim))
-            out[:2 * nv, :2 * nv] = super().field_jacobian(x, 0)
+            out[:2 * nv, :2 * nv] = super()._field_jacobian(x, 0)
             return out
-        q, v = self.configuration(x)
+        q, v = self._configuration(x)
         a, lam, M, J, feet = self._solve(x, mask)
         # the feet's classical acceleration J a + dJ/dt v, differentiated (a held fixed)
         pin.computeForwardKinematicsDerivatives(model, data, q, v, a)
@@ -256,14 +272,14 @@ class RigidLeggedRobot(LeggedRobot):
         """``J M^-1 J^T`` (r n, r n) of all the feet at the state ``x`` (r = 3 sticking,
         1 not): block (i, j) is the change of foot i's held velocity per unit impulse at
         foot j; zero off the diagonal where the feet are mass-orthogonal."""
-        q, v = self.configuration(np.asarray(x, dtype=np.float64))
+        q, v = self._configuration(self._x(x))
         self._kinematics(q, v)
         J = self._jacobian(range(len(self.feet)))
         return J @ np.linalg.solve(self._mass(q), J.T)
 
     def _check_simultaneous(self, x, mask, k) -> None:
         pin, w = self.pin, len(self.rows)
-        h = super().events(x)
+        h = super()._events(x)
         vz = np.array([pin.getFrameVelocity(self.model, self.data, fid,
                                             pin.LOCAL_WORLD_ALIGNED).linear[2]
                        for fid in self.frame_ids])
@@ -297,7 +313,7 @@ class RigidLeggedRobot(LeggedRobot):
 
     def _impact(self, x, mask, k):
         """v+, the impulses, M, J, the feet held, w = v- - v+ (after the kinematics)."""
-        q, v = self.configuration(x)
+        q, v = self._configuration(x)
         self._kinematics(q, v)
         feet = sorted(set(self._feet(mask)) | {k})
         M, J = self._mass(q), self._jacobian(feet)
@@ -307,13 +323,23 @@ class RigidLeggedRobot(LeggedRobot):
         return v - w, impulse, M, J, feet, w
 
     def reset(self, x, mask, k) -> np.ndarray:
-        """(d,): the plastic impact of foot k (module docstring); refused when another
-        foot touches down at the same instant coupled to it (ValueError naming them)."""
+        """(d,): the plastic impact of foot k from region ``mask`` (module docstring);
+        refused when another foot touches down at the same instant coupled to it
+        (ValueError naming them)."""
+        return self._reset(self._x(x), self._mask(mask), check_index(k, len(self.feet), "k"))
+
+    def reset_jacobian(self, x, mask, k) -> np.ndarray:
+        """(d, d): the impact's Jacobian, differentiating ``M v+ + J^T Lambda = M v-``,
+        ``J v+ = 0`` (module docstring)."""
+        return self._reset_jacobian(self._x(x), self._mask(mask),
+                                    check_index(k, len(self.feet), "k"))
+
+    def _reset(self, x, mask, k) -> np.ndarray:
         mask, k = int(mask), int(k)
         if mask >> k & 1:
             return np.array(x, dtype=np.float64)  # not met: the latch keeps h_k > 0
         x = np.asarray(x, dtype=np.float64)
-        q, v = self.configuration(x)
+        q, v = self._configuration(x)
         self._kinematics(q, v)
         self._check_simultaneous(x, mask, k)
         out = x.copy()
@@ -321,16 +347,14 @@ class RigidLeggedRobot(LeggedRobot):
         out[2 * self.nv + k] = 1.0
         return out
 
-    def reset_jacobian(self, x, mask, k) -> np.ndarray:
-        """(d, d): the impact's Jacobian, differentiating ``M v+ + J^T Lambda = M v-``,
-        ``J v+ = 0`` (module docstring)."""
+    def _reset_jacobian(self, x, mask, k) -> np.ndarray:
         pin, model, data, nv = self.pin, self.model, self.data, self.nv
         mask, k = int(mask), int(k)
         out = np.eye(self.system.dim)
         if mask >> k & 1:
             return out
         x = np.asarray(x, dtype=np.float64)
-        q, _ = self.configuration(x)
+        q, _ = self._configuration(x)
         vp, impulse, M, J, feet, w = self._impact(x, mask, k)
         pin.computeForwardKinematicsDerivatives(model, data, q, vp, np.zeros(nv))
         dvel = []

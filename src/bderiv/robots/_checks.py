@@ -1,0 +1,122 @@
+"""The robots' argument checks: what a user gives :func:`~bderiv.robots.build.legged_robot`,
+:func:`~bderiv.robots.quadrupeds.quadruped`, :func:`~bderiv.robots.quadrupeds.drop_state`
+and the robots' methods, refused by name before any work (a short state would otherwise
+be read past its end by the compiled configuration, a long one cut silently, and a bad
+configuration reach Pinocchio's C++ errors).
+
+The functions a robot hands to its :class:`~bderiv.analysis.system.HybridSystem` check
+nothing (the system checks its states once per call already): the robots' public methods
+check, then call them.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from .._support._validate import all_finite, check_finite, check_number, check_real_array
+
+#: how far from 1 the norm of a configuration's base quaternion may be: it is used as
+#: given (not normalised; Pinocchio's ``difference`` and bderiv's exponential take it as
+#: a unit quaternion, so a quaternion of norm 1 + 1e-9 moves the base's rotation by that)
+QUATERNION_TOL = 1e-9
+
+
+def check_vector(a, size: int, name: str, meaning: str) -> np.ndarray:
+    """``a`` as a finite float64 copy of shape ``(size,)``; ``meaning`` says what it is
+    in the shape's message."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (size,) \
+            and all_finite(a):
+        return a.copy()  # the common case, in a third of the time
+    arr = check_real_array(a, name)
+    if arr.shape != (size,):
+        got = "a scalar" if arr.ndim == 0 else f"shape {arr.shape}"
+        raise ValueError(f"{name} must have shape ({size},) ({meaning}), got {got}")
+    arr = np.array(arr, dtype=np.float64)
+    check_finite(arr, name)
+    return arr
+
+
+def check_configuration(q, model, name: str) -> np.ndarray:
+    """A configuration (nq,) of ``model`` (a free-flyer first): finite, its base
+    quaternion ``q[3:7]`` of unit norm to :data:`QUATERNION_TOL`."""
+    arr = check_vector(q, model.nq, name, f"a configuration of the model, nq = {model.nq}: "
+                       f"the base's position and quaternion (x, y, z, w), then the joints")
+    norm = float(np.linalg.norm(arr[3:7]))
+    if not abs(norm - 1.0) <= QUATERNION_TOL:
+        raise ValueError(f"{name}[3:7], the base's quaternion (x, y, z, w), must have unit "
+                         f"norm (to {QUATERNION_TOL:g}; it is used as given), got "
+                         f"{arr[3:7].tolist()} of norm {norm:.17g}; "
+                         f"pinocchio.normalize(model, {name}) scales it to norm 1")
+    return arr
+
+
+def check_feet(feet, model) -> tuple:
+    """The foot frames: one name (a str) or a sequence of names, each a frame of
+    ``model`` and named once."""
+    names = (feet,) if isinstance(feet, str) else feet
+    try:
+        names = tuple(names)
+    except TypeError:
+        raise TypeError(f"feet must be a foot frame's name or a sequence of them, got "
+                        f"{type(feet).__name__} {feet!r}") from None
+    bad = [(i, name) for i, name in enumerate(names) if not isinstance(name, str)]
+    if bad:
+        i, name = bad[0]
+        raise TypeError(f"feet must be names of frames (str), got {type(name).__name__} "
+                        f"{name!r} at feet[{i}]")
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:  # one foot's contact counted twice: its force doubled, silently
+        raise ValueError(f"feet must name each foot once, got {twice} more than once")
+    missing = [name for name in names if not model.existFrame(name)]
+    if missing or not names:
+        frames = [f.name for f in model.frames if "foot" in f.name.lower()]
+        raise ValueError(f"feet must name frames of the model, got {missing or 'none'}; "
+                         f"the model's frames with 'foot' in their name: {frames}")
+    return names
+
+
+def check_law(law: dict, defaults: dict) -> dict:
+    """The contact law's parameters given (a subset of ``defaults``' names) as floats:
+    finite, ``>= 0`` but ``ground``."""
+    unknown = set(law) - set(defaults)
+    if unknown:
+        raise ValueError(f"{sorted(unknown)} are not parameters of the contact law (its "
+                         f"parameters: {', '.join(defaults)})")
+    return {name: check_number(value, name, low=-np.inf if name == "ground" else 0.0,
+                               strict=False) for name, value in law.items()}
+
+
+def check_index(k, n: int, name: str) -> int:
+    """A foot's index, an integer in ``[0, n)``."""
+    if isinstance(k, bool | np.bool_) or not isinstance(k, numbers.Integral):
+        raise TypeError(f"{name} must be an integer (a foot's index), got "
+                        f"{type(k).__name__} {k!r}")
+    if not 0 <= k < n:
+        raise ValueError(f"{name} must be a foot's index in [0, {n}), got {k}")
+    return int(k)
+
+
+def check_down(down, n: int) -> list:
+    """The feet of ``down``: their indices (each in ``[0, n)``, once), or a bool array of
+    length ``n`` (True: that foot down); the indices, sorted."""
+    arr = np.asarray(down)
+    if arr.ndim != 1 or arr.dtype.kind not in "biu" and arr.size:
+        raise TypeError(f"down must be a sequence of foot indices (integers in [0, {n})) or "
+                        f"{n} booleans, got {down!r}")
+    if arr.dtype.kind == "b":
+        if arr.size != n:
+            raise ValueError(f"down as booleans must have one per foot, {n}, got {arr.size}: "
+                             f"{arr.tolist()}")
+        return np.flatnonzero(arr).tolist()
+    indices = arr.astype(np.int64).tolist()
+    out = [i for i in indices if not 0 <= i < n]
+    if out:
+        raise ValueError(f"down must hold foot indices in [0, {n}), got {out} in "
+                         f"{indices}")
+    twice = sorted({i for i in indices if indices.count(i) > 1})
+    if twice:
+        raise ValueError(f"down must name each foot once (indices, not flags: pass booleans "
+                         f"for flags), got {twice} more than once in {indices}")
+    return sorted(indices)
