@@ -390,7 +390,7 @@ def test_python_m_bderiv_subprocess():
 
 def test_bench_n26_refused_before_allocating(capsys, monkeypatch):
     """--n 26 needs tens of GiB; with 4 GiB available it is a usage error, not a try."""
-    monkeypatch.setattr(usage, "available_memory", lambda: 4 << 30)
+    monkeypatch.setattr(usage, "memory_headroom", lambda: 4 << 30)
     code, out, err = run(["bench", "--n", "2", "26", "--no-progress"], capsys)
     assert (code, out) == (2, "")
     assert err.count("\n") == 1 and "--n 26 (d = 26)" in err and "GiB of memory" in err

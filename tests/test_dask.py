@@ -214,3 +214,17 @@ def test_several_leading_axes_chunked_name_the_full_index(bd, X, bad):
     lazy, eager = _refusals(bd, V, (20, 20, 3))
     assert "V[25, 37]" in str(lazy)
     assert str(lazy) == str(eager)
+
+
+def test_methods_without_dask_blocks_refuse_a_dask_array_without_computing_it(bd):
+    """event_times, orders and piece_matrices take NumPy arrays: a dask array is refused
+    (as jvp and vjp refuse it), never converted (it was computed whole in memory)."""
+
+    def never(block):
+        raise AssertionError("the dask array was computed")
+
+    V = da.ones((40, bd.dim), chunks=(10, bd.dim)).map_blocks(never, dtype=float)
+    for call in (bd.event_times, bd.orders, bd.piece_matrices):
+        with pytest.raises(TypeError, match=r"take[s]? NumPy arrays, got a dask array; apply "
+                                            r"it block by block with dask.array.map_blocks"):
+            call(V)

@@ -180,7 +180,7 @@ def test_orbit_stability_sized_before_its_directions(pronking_gait):
 
 def test_default_memory_limit_read_only_for_tables_above_the_small_size(monkeypatch):
     from bderiv import _limits
-    from bderiv._support import _tables, _validate
+    from bderiv._support import _tables
 
     reads = []
 
@@ -188,8 +188,7 @@ def test_default_memory_limit_read_only_for_tables_above_the_small_size(monkeypa
         reads.append(1)
         return 0  # no memory at all: whatever is measured against it is refused
 
-    monkeypatch.setattr(_tables, "available_memory", none_left)
-    monkeypatch.setattr(_validate, "available_memory", none_left)
+    monkeypatch.setattr(_tables, "available_memory", none_left)  # memory_headroom reads it
     # n = 2, d = 8: 768 bytes of records, under SMALL_NEED_BYTES: the limit is not read
     assert _tables.dense_table_bytes(2, 8) <= _limits.SMALL_NEED_BYTES
     BDerivative(np.eye(2, 8), np.ones((4, 8)))
@@ -204,3 +203,39 @@ def test_default_memory_limit_read_only_for_tables_above_the_small_size(monkeypa
     with pytest.raises(ValueError, match="more than the memory limit of 100 B"):
         BDerivative(np.eye(2, 8), np.ones((4, 8)), memory_limit=100)
     assert reads == [1]
+
+
+def test_the_default_limit_is_what_the_process_may_take(monkeypatch):
+    """Under ``ulimit -v`` the process may take less than the memory available: the
+    default limit of every size check is ``memory_headroom`` (available memory and the
+    address-space limit), as for a run's records. It was the available memory alone, so
+    that under a limit a table, a batch's result or the piece matrices ended in numpy's
+    MemoryError. Also the sizes that had no check: a corner model's table and corners,
+    a batch's result, and the event times and orders."""
+    from bderiv import StructuredCorners
+    from bderiv._support import _validate
+
+    monkeypatch.setattr(_validate, "memory_headroom", lambda: 2 << 20)  # 2 MiB left
+    n, d = 12, 100
+    model = StructuredCorners(np.ones(d), np.zeros((n, d)))
+    model.n_events, model.dim = n, d
+    Dh = np.zeros((n, d))
+    Dh[:, :n] = np.eye(n)
+    bd = BDerivative(Dh, model)
+    limit = "more than the memory limit of 2.0 MiB"
+    with pytest.raises(ValueError, match=rf"the dense table of a corner model \(12 events "
+                                         rf"in R\^100: 2\*\*12 rows of 100 float64\) take "
+                                         rf"3.1 MiB, {limit}"):
+        model.table()
+    with pytest.raises(ValueError, match=rf"the corners of 4096 regions in R\^100 .*{limit}"):
+        model.corners(np.zeros((4096, n), np.uint8))
+    with pytest.raises(ValueError, match=rf"the piece matrices of 30 vectors .*{limit}"):
+        bd.piece_matrices(-np.ones((30, d)))
+    with pytest.raises(ValueError, match=rf"the result for V, float64 of shape \(3000, 100\), "
+                                         rf"takes 2.3 MiB, {limit}: pass out="):
+        bd(-np.ones((3000, d)))
+    with pytest.raises(ValueError, match=rf"the event times and orders of 11000 vectors .*"
+                                         rf"{limit}"):
+        bd.event_times(-np.ones((11000, d)))
+    out = np.empty((3000, d))  # the result's own room: no limit to it
+    np.testing.assert_array_equal(bd(-np.ones((3000, d)), out=out), -np.ones((3000, d)))

@@ -12,7 +12,8 @@ import numpy as np
 
 from .._limits import DEFAULT_CHUNK_ROWS, IMPLICIT_CHUNK_ROWS
 from ._errors import QueryError
-from ._validate import check_out, check_points, check_positive_int
+from ._tables import human_bytes
+from ._validate import check_out, check_points, check_positive_int, memory_limit_for
 
 
 def is_dask_array(x) -> bool:
@@ -26,6 +27,16 @@ def is_dask_array(x) -> bool:
     """
     t = type(x)
     return t.__name__ == "Array" and t.__module__.split(".")[0] == "dask"
+
+
+def refuse_dask(*arrays, what: str, how: str = "") -> None:
+    """Refuse a dask array among ``arrays`` for a method that takes NumPy arrays only
+    (``what``: its name and verb; ``how``: a note on the blocks): a TypeError saying how to
+    apply it block by block (converted, it would be computed whole in memory)."""
+    if any(is_dask_array(a) for a in arrays):
+        raise TypeError(f"{what} NumPy arrays, got a dask array; apply it block by block "
+                        f"with dask.array.map_blocks{how} (converting it would compute it "
+                        f"whole in memory)")
 
 
 def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
@@ -68,7 +79,7 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
             and not large:
         flat, lead = check_points(V, dim, name)
         shape = lead + (dim,)
-        result = np.empty(shape) if out is None else check_out(out, shape)
+        result = _result(shape, name) if out is None else check_out(out, shape)
         res = result.reshape(-1, dim)
         if out is not None and np.may_share_memory(flat, res):
             flat = flat.copy()
@@ -93,7 +104,7 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
     lead = V.shape[:-1]
     rows = V.reshape(-1, dim)  # a view for contiguous (memmap) input
     shape = lead + (dim,)
-    result = np.empty(shape) if out is None else check_out(out, shape)
+    result = _result(shape, name) if out is None else check_out(out, shape)
     res = result.reshape(-1, dim)
     if out is not None and np.may_share_memory(rows, res) and not _same_rows(rows, res):
         rows = rows.copy()  # a shifted overlap: later chunks would read what earlier wrote
@@ -109,6 +120,19 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
     if progress is not None and total == 0:
         progress(0, 0)
     return result
+
+
+def _result(shape, name) -> np.ndarray:
+    """The result of a batch, refused by name beyond what the process may take (a memmap
+    of millions of rows: the result goes to a file of its own through ``out=``)."""
+    need = 8 * int(np.prod(shape, dtype=object))
+    limit = memory_limit_for(need, None)
+    if need > limit:
+        raise ValueError(f"the result for {name}, float64 of shape {shape}, takes "
+                         f"{human_bytes(need)}, more than the memory limit of "
+                         f"{human_bytes(limit)}: pass out=, a writeable np.memmap of that "
+                         f"shape, to write it to a file instead")
+    return np.empty(shape)
 
 
 def _run(kernel, rows, res, offset, name, lead) -> None:

@@ -14,7 +14,7 @@ import numpy as np
 
 from .._limits import SMALL_NEED_BYTES
 from ._errors import QUERY, QueryError
-from ._tables import INT64_EVENTS, available_memory, human_bytes, mask_dtype, memory_headroom
+from ._tables import INT64_EVENTS, human_bytes, mask_dtype, memory_headroom
 
 _KIND_NAMES = {
     "b": "bool",
@@ -290,7 +290,9 @@ def check_finite_result(res, name: str, offset: int, what: str = "result") -> No
 
 
 def check_memory(need: int, memory_limit, what: str) -> None:
-    """Refuse ``need`` bytes above ``memory_limit`` (default: the memory available)."""
+    """Refuse ``need`` bytes above ``memory_limit`` (default: what the process may still
+    take, :func:`bderiv._support._tables.memory_headroom`: the memory available, and under
+    ``ulimit -v`` what the address-space limit leaves)."""
     limit = memory_limit_for(need, memory_limit)
     if need > limit:
         raise ValueError(
@@ -322,11 +324,13 @@ def check_record(held: int, more: int, what: str, instead: str) -> None:
 
 def memory_limit_for(need: int, memory_limit) -> int:
     """The limit, in bytes, that ``need`` bytes are held to: ``memory_limit`` checked
-    (:func:`memory_limit_bytes`), or by default the memory available, read only for a need
-    above ``SMALL_NEED_BYTES`` (a smaller one is its own limit: never refused by default)."""
+    (:func:`memory_limit_bytes`), or by default what the process may still take (the memory
+    available and the address-space limit ``RLIMIT_AS``:
+    :func:`~bderiv._support._tables.memory_headroom`), read only for a need above
+    ``SMALL_NEED_BYTES`` (a smaller one is its own limit: never refused by default)."""
     if memory_limit is not None:
         return memory_limit_bytes(memory_limit)
-    return available_memory() if need > SMALL_NEED_BYTES else need
+    return memory_headroom() if need > SMALL_NEED_BYTES else need
 
 
 def memory_limit_bytes(value) -> int:

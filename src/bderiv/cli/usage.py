@@ -11,7 +11,7 @@ import importlib.util
 import os
 import tempfile
 
-from .._support._tables import available_memory, human_bytes
+from .._support._tables import human_bytes, memory_headroom
 
 #: the extra of ``pip install 'bderiv[...]'`` that brings each optional module
 EXTRAS = {"matplotlib": "plot"}
@@ -22,7 +22,8 @@ class UsageError(Exception):
 
 
 def require_memory(nbytes: int, what: str) -> None:
-    """Refuse ``what`` when it needs more than the memory available now.
+    """Refuse ``what`` when it needs more than the process may take now (the memory
+    available, and under ``ulimit -v`` what the address-space limit leaves).
 
     Parameters
     ----------
@@ -38,7 +39,7 @@ def require_memory(nbytes: int, what: str) -> None:
     ...
     bderiv.cli.usage.UsageError: --n 60 needs about 1024.0 PiB of memory, but only ...
     """
-    free = available_memory()
+    free = memory_headroom()
     if nbytes > free:
         raise UsageError(
             f"{what} needs about {human_bytes(nbytes)} of memory, but only "

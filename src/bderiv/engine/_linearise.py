@@ -27,7 +27,7 @@ import numpy as np
 
 from .._kernels import scaling
 from .._limits import PIECE_CHUNK_BYTES
-from .._support._batch import evaluate, is_dask_array
+from .._support._batch import evaluate, refuse_dask
 from .._support._errors import QueryError
 from .._support._validate import check_memory, check_points, check_real_array
 
@@ -113,6 +113,7 @@ class Linearisation:
             If the result would not fit in ``memory_limit`` (naming its size).
         """
         d = self.dim
+        refuse_dask(V, what="piece_matrices takes")
         arr = check_real_array(V, "V")  # sized before check_points copies it (a wrong
         m = math.prod(arr.shape[:-1]) if arr.ndim and arr.shape[-1] == d else 0  # shape: there)
         # the result, the rows (a copy and its scaled copy) and one chunk's temporaries
@@ -139,11 +140,7 @@ class Linearisation:
         """Validate V and T and evaluate ``_tangent_rows`` on V's rows (chunks of V carry
         their offset; the rows of T are taken at the same offset)."""
         d = self.dim
-        if is_dask_array(V) or is_dask_array(T):
-            raise TypeError(
-                f"jvp/vjp take NumPy arrays, got a dask array; apply them block by block "
-                f"with dask.array.map_blocks (V and {t_name} chunked alike)"
-            )
+        refuse_dask(V, T, what="jvp/vjp take", how=f" (V and {t_name} chunked alike)")
         flat_t, lead_t = check_points(T, d, t_name)
         lead_v = np.shape(V)[:-1]
         if lead_v != lead_t:

@@ -11,12 +11,13 @@ from .._kernels import scaling
 from .._kernels._core import read_only
 from .._limits import MAX_PIECES, RESET_TOL
 from .._numerics import GRAZING_RTOL
-from .._support._batch import evaluate
+from .._support._batch import evaluate, refuse_dask
 from .._support._errors import QueryError
 from .._support._validate import (
     check_bool,
     check_finite_result,
     check_matrix,
+    check_memory,
     check_order,
     check_pieces,
     check_points,
@@ -306,8 +307,11 @@ class BDerivative(Linearisation, CornerGeometry):
         return self._event_times(V, False)[1]
 
     def _event_times(self, V, exact: bool):
+        refuse_dask(V, what="event_times and orders take")
         flat, lead = check_points(V, self.dim)
         n = self.n_events
+        check_memory(2 * flat.shape[0] * n * 8, None,
+                     f"the event times and orders of {flat.shape[0]} vectors ({n} events)")
         times = np.empty((flat.shape[0], n))
         order = np.empty((flat.shape[0], n), dtype=np.int64)
         try:

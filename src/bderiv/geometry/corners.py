@@ -37,7 +37,7 @@ import numpy as np
 from .._limits import MAX_TABLE_EVENTS
 from .._support import _tables
 from .._support._format import error_text
-from .._support._validate import check_finite, check_matrix, check_real_array
+from .._support._validate import check_finite, check_matrix, check_memory, check_real_array
 
 __all__ = ["CornerFunction", "CornerModel", "StructuredCorners"]
 
@@ -73,7 +73,7 @@ class CornerModel(Protocol):
 
 def check_table_size(n: int, d: int, what: str = "the dense table") -> None:
     """Refuse ``what`` (something that needs a model's dense table) above
-    ``MAX_TABLE_EVENTS`` events."""
+    ``MAX_TABLE_EVENTS`` events, or beyond what the process may take."""
     if n > MAX_TABLE_EVENTS:
         raise ValueError(
             f"{what} of a corner model with n={n} events needs its dense table of 2**{n} "
@@ -81,6 +81,15 @@ def check_table_size(n: int, d: int, what: str = "the dense table") -> None:
             f"for n > {MAX_TABLE_EVENTS}. apply, inverse, event_times and piece work for any "
             f"n without it"
         )
+    check_memory((1 << n) * d * 8, None,
+                 f"{what} of a corner model ({n} events in R^{d}: 2**{n} rows of {d} float64)")
+
+
+def _check_corners_memory(lead, d) -> None:
+    """Refuse the corners of regions of leading shape ``lead`` beyond what the process may
+    take (their (..., d) float64 result and a copy of that size)."""
+    m = int(np.prod(lead, dtype=object))
+    check_memory(2 * m * d * 8, None, f"the corners of {m} regions in R^{d}")
 
 
 class _Tabulated:
@@ -213,6 +222,7 @@ class StructuredCorners(_Tabulated):
             raise ValueError(f"happened must have shape (..., {self.n_events}), got {h.shape}")
         if h.dtype.kind not in "biu" or ((h != 0) & (h != 1)).any():
             raise ValueError("happened must hold 0/1 flags (bool or integers)")
+        _check_corners_memory(h.shape[:-1], self.dim)
         h = h.astype(np.float64)
         both = h[..., self.pairs[:, 0]] * h[..., self.pairs[:, 1]]
         return self.F0 + h @ self.A + both @ self.B
@@ -297,6 +307,7 @@ class CornerFunction(_Tabulated):
         h = np.asarray(happened)
         if h.ndim == 0 or h.shape[-1] != n:
             raise ValueError(f"happened must have shape (..., {n}), got {h.shape}")
+        _check_corners_memory(h.shape[:-1], d)
         flat = h.reshape(-1, n)  # corners gives func its own uint8 copy
         out = np.full((flat.shape[0], d), np.nan)  # an entry left unwritten stays NaN
         try:
