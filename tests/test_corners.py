@@ -601,3 +601,41 @@ def test_incomplete_corner_model_is_refused():
 
     with pytest.raises(TypeError, match=r"lacks part of the protocol.*corner_function\(\)"):
         BDerivative(np.eye(2), OnlyCorners())
+
+
+def test_a_corner_functions_launches_are_sized_by_their_time(monkeypatch):
+    """A user's corner function runs n + 1 times per query at a cost no one knows before:
+    the batch's first launch is PARALLEL_MIN_QUERIES queries and each next one is sized to
+    LAUNCH_SECONDS from the last one's time (Ctrl-C is seen between launches; at n = 128 a
+    launch of 2**14 queries held it for up to 20 s). The launches never change the bits."""
+    from bderiv._kernels import _drivers
+    from bderiv._limits import PARALLEL_MIN_QUERIES
+
+    rng = np.random.default_rng(16)
+    n = 16
+    Dh, model = structured_system(rng, n, n, 0)
+    F0, A = model.F0.copy(), model.A.copy()
+
+    @numba.njit
+    def additive(happened, out):
+        out[:] = F0
+        for k in range(happened.shape[0]):
+            if happened[k]:
+                out += A[k]
+
+    bd = BDerivative(Dh, CornerFunction(additive))
+    V = rng.standard_normal((20000, n))
+    sizes, launch = [], _drivers.Batch._launch
+
+    def counted(self, tables, V, outs, inverse):
+        sizes.append(V.shape[0])
+        return launch(self, tables, V, outs, inverse)
+
+    monkeypatch.setattr(_drivers.Batch, "_launch", counted)
+    whole = bd(V)  # launches as LAUNCH_SECONDS sizes them
+    assert sizes[0] == PARALLEL_MIN_QUERIES and sum(sizes) == V.shape[0]
+    sizes.clear()
+    monkeypatch.setattr(_drivers, "LAUNCH_SECONDS", 1e-9)  # each at its smallest
+    np.testing.assert_array_equal(bd(V), whole)
+    assert sizes == [PARALLEL_MIN_QUERIES] * 19 + [V.shape[0] - 19 * PARALLEL_MIN_QUERIES]
+    np.testing.assert_allclose(whole, BDerivative(Dh, model.table())(V), atol=1e-12)

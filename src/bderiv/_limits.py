@@ -156,6 +156,10 @@ PARALLEL_MIN_QUERIES = 1024
 #: between launches only, so a long batch is cut into launches of about 0.05 to 0.3 s;
 #: a launch wakes the threads, which costs more on a busy machine, so not shorter.
 LAUNCH_WORK = 1 << 25
+#: seconds a launch of a block whose cost per query is not known (a user's corner function,
+#: called n + 1 times per query) is sized to, from the last launch's time: at n = 128 a
+#: launch of LAUNCH_WORK's 2**14 queries took up to 20 s, Ctrl-C waiting for it
+LAUNCH_SECONDS = 0.2
 #: row scaling: batches with fewer entries (rows x d) are scaled serially: measured (load 8
 #: on 2 cores) 0.7-1.8 ns per entry serially, a parallel launch 13-34 us when its threads
 #: get cores at once and 11-16 ms when they wait (318 launches on (200, 8) batches were 6 of

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import time
 from typing import NamedTuple
 
 import numba
@@ -28,7 +29,7 @@ from numba import njit, parallel_chunksize, prange
 from numba.core import cgutils, errors
 from numba.extending import intrinsic
 
-from .._limits import PARALLEL_MIN_QUERIES
+from .._limits import LAUNCH_SECONDS, PARALLEL_MIN_QUERIES
 from .._numerics import TASK_QUERIES
 from ._cache import harden_all, keyed
 from ._core import JIT, SOURCES, cached, frozen_tables, read_only
@@ -305,22 +306,33 @@ class Batch:
             addresses = self._addresses[kinds] = serial, _trampoline(packed)
         return addresses
 
-    def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16) -> int:
-        """Run the block on every row of ``V``; ``launch``: queries per kernel launch.
+    def __call__(self, tables, V, outs, inverse: bool = False, launch: int = 1 << 16,
+                 timed: bool = False) -> int:
+        """Run the block on every row of ``V``; ``launch``: queries per kernel launch (with
+        ``timed``, at most: the block's cost per query is not known, as where it calls a
+        user's function, so the first launch takes ``PARALLEL_MIN_QUERIES`` and each next
+        one as many as the last ran in ``LAUNCH_SECONDS``: Ctrl-C is seen between them).
 
         Returns the number of rows of ``outs[0]`` with a non-finite entry (an overflow, or a
         query that a model's kernel stopped and left unwritten). ``tables`` and ``V`` are
-        run read-only (:func:`frozen_tables`, :func:`read_only`).
+        run read-only (:func:`frozen_tables`, :func:`read_only`). Every row is computed by
+        the same serial code, so the launches never change the bits.
         """
         tables, V = frozen_tables(tables), read_only(V)
         m = V.shape[0]
         if m < PARALLEL_MIN_QUERIES:
             return self.serial(tables, V, outs, 0, m, inverse)
-        bad = 0
-        for start in range(0, m, launch):
-            stop = min(start + launch, m)
+        bad, start, size = 0, 0, min(launch, PARALLEL_MIN_QUERIES) if timed else launch
+        while start < m:
+            stop = min(start + size, m)
             part = tuple(o[start:stop] for o in outs)
+            began = time.perf_counter()
             bad += self._launch(tables, V[start:stop], part, inverse)
+            if timed:  # (a first launch that compiled is short and soon outgrown)
+                took = max(time.perf_counter() - began, 1e-6)
+                size = int(min(max((stop - start) * LAUNCH_SECONDS / took,
+                                   PARALLEL_MIN_QUERIES), launch))
+            start = stop
         return bad
 
     def _launch(self, tables, V, outs, inverse) -> int:

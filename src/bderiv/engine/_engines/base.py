@@ -36,6 +36,10 @@ class Engine:
         """F and G in the caller's units (the engine's own unless scaled at build)."""
         return self.F, self.G
 
+    #: the launches sized by their time (``_drivers.Batch``): the cost per query is not
+    #: known (a user's function)
+    timed_launches = False
+
     @functools.cached_property
     def launch(self) -> int:
         """Queries per kernel launch (see ``_kernels._core.launch_queries``)."""
@@ -136,7 +140,8 @@ class Engine:
     def _run_checked(self, batch, V, outs, inverse, name, offset) -> int:
         """Run a model kernel that reports a status per query, then :meth:`_check` it."""
         status = np.empty(V.shape[0], dtype=np.int64)
-        bad = batch(self._tables, V, (*outs, status), inverse, launch=self.launch)
+        bad = batch(self._tables, V, (*outs, status), inverse, launch=self.launch,
+                    timed=self.timed_launches)
         self._check(status, V, inverse, name, offset)
         return bad
 

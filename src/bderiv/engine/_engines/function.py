@@ -15,6 +15,7 @@ class FunctionEngine(Engine):
     would need all 2**n corners); every region a query visits is checked instead."""
 
     transversal_proved = False
+    timed_launches = True
 
     def __init__(self, Dh, func):
         self.Dh, self.func = Dh, func
