@@ -308,6 +308,17 @@ def test_return_map_matches_finite_differences_through_every_piece(gait):
     assert check.first_order(), check.ratios
 
 
+def test_too_few_iterations_give_no_verdict(gait):
+    """Two iterations of the stable pronk's return map (its rate 0.7785) estimate 3.7 from
+    a transient, its halves 3.1 apart in log-rate: no verdict (it said "unstable")."""
+    ex, orb = gait
+    st = orb.stability(n_directions=200, iterations=2)
+    assert st.growth_rate > 1 and st.spread > abs(np.log(st.growth_rate))
+    assert st.stable is None and st.verdict_word == "undecided"
+    assert st.summary().startswith(f"growth rate {st.growth_rate:.6g} (undecided: the "
+                                   f"estimate has not settled in 2 iterations, pass more")
+
+
 def test_predicted_growth_rate_matches_long_simulations(gait):
     ex, orb = gait
     st = orb.stability(n_directions=500, iterations=1000)

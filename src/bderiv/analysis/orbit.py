@@ -63,7 +63,13 @@ from ._cyclic import (
 )
 from .newton import damped_step, newton_step, onto_section
 from .returnmap import return_map
-from .stability import Stability, check_growth_memory, growth_rate, piece_multipliers
+from .stability import (
+    Stability,
+    check_growth_memory,
+    growth_rate,
+    piece_multipliers,
+    verdict,
+)
 
 __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
 
@@ -202,8 +208,8 @@ class PeriodicOrbit:
         multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in most}
         i = int(np.argmax(rates))
         burn_in = iterations // 4 if burn_in is None else int(burn_in)
-        return Stability(float(rates[i]), bool(rates[i] < 1.0), rates, float(spread[i]),
-                         multipliers, visits, int(iterations), burn_in)
+        return Stability(float(rates[i]), verdict(rates[i], spread[i]), rates,
+                         float(spread[i]), multipliers, visits, int(iterations), burn_in)
 
 
 def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL,

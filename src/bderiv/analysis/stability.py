@@ -45,8 +45,10 @@ class Stability:
     ----------
     growth_rate : float
         Estimated asymptotic growth rate of the map (the largest over the batch).
-    stable : bool
-        ``growth_rate < 1``.
+    stable : bool or None
+        ``growth_rate < 1``; None when the estimate has not settled enough to say (its
+        ``spread`` is not below ``|log growth_rate|``: the first and second halves of the
+        window disagree about the side of 1; more iterations decide).
     rates : ndarray, shape (m,)
         Growth rate of each direction of the batch.
     spread : float
@@ -72,9 +74,17 @@ class Stability:
     iterations: int
     burn_in: int
 
+    @property
+    def verdict_word(self) -> str:
+        """"stable", "unstable" or "undecided" (``stable`` None)."""
+        return {True: "stable", False: "unstable"}.get(self.stable, "undecided")
+
     def summary(self) -> str:
         """A few lines: the verdict, the rate, and the pieces with their multipliers."""
-        verdict = "stable" if self.stable else "unstable"
+        verdict = self.verdict_word
+        if self.stable is None:
+            verdict += (f": the estimate has not settled in {self.iterations} iterations, "
+                        f"pass more")
         lines = [f"growth rate {self.growth_rate:.6g} ({verdict}; spread of the estimate "
                  f"{self.spread:.2g}, {self.rates.size} directions, {self.iterations} "
                  f"iterations)"]
@@ -105,6 +115,20 @@ class Growth(NamedTuple):
     rates: np.ndarray
     spread: np.ndarray
     visits: dict
+
+
+def verdict(rate: float, spread: float) -> bool | None:
+    """``rate < 1``, or None when the estimate's ``spread`` (of its log) is not below the
+    distance of ``log rate`` from 0 (:attr:`Stability.stable`).
+
+    Examples
+    --------
+    >>> verdict(0.78, 1e-4), verdict(3.7, 3.1), verdict(1.2, 0.01)
+    (True, None, False)
+    """
+    if not spread < abs(np.log(rate)):
+        return None
+    return bool(rate < 1.0)
 
 
 def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None) -> Growth:

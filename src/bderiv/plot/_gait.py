@@ -178,7 +178,7 @@ def gait_growth(orbit, ax=None, *, n_directions=200, iterations=40, stability=No
     ax.semilogy(k, growth, color=PALETTE[0], lw=0.5, alpha=0.3)
     ax.semilogy(k, st.growth_rate ** k.astype(float), "--", color="k", lw=1.5,
                 label=f"$\\lambda^k$, growth rate $\\lambda$ = {st.growth_rate:.4g} "
-                      f"({'stable' if st.stable else 'unstable'})")
+                      f"({st.verdict_word})")
     if decay is not None:
         dev = decay.deviations / decay.deviations[:, :1]
         kk = np.arange(dev.shape[1])
