@@ -232,3 +232,23 @@ def test_a_growth_rate_a_monte_carlo_and_a_triangulation_count_their_steps(bars_
     tri(np.ones((2, 3)))
     cones = len(tri.simplices)
     assert f" {cones} of {cones} cones [" in _last(drawn, "Triangulation")
+
+
+def test_default_chunks_are_sized_by_their_time(monkeypatch):
+    """Without chunk_size the chunks are sized by their time (progress every half second
+    or so, however slow the rows: a corner function at n = 128 reported its first 2**16
+    rows after 100 s): the first of FIRST_CHUNK_ROWS, then as many as the last one ran in
+    CHUNK_SECONDS, at most DEFAULT_CHUNK_ROWS. The same bits whatever the chunks."""
+    from bderiv import BDerivative
+    from bderiv._support import _batch
+
+    rng = np.random.default_rng(4)
+    bd = BDerivative(np.eye(3) + 0.1, np.abs(rng.standard_normal((8, 3))) + 0.5)
+    V = rng.standard_normal((20_000, 3))
+    whole, seen = bd(V), []
+    assert bd(V, progress=lambda done, total: seen.append(done)).tobytes() == whole.tobytes()
+    assert seen[0] == _batch.FIRST_CHUNK_ROWS and seen[-1] == V.shape[0]
+    monkeypatch.setattr(_batch, "CHUNK_SECONDS", 1e-12)  # as if each row took ages
+    seen.clear()
+    assert bd(V, progress=lambda done, total: seen.append(done)).tobytes() == whole.tobytes()
+    assert seen[:3] == [4096, 4096 + 64, 4096 + 128]  # the smallest chunks: 64 rows

@@ -186,9 +186,14 @@ THREAD_EXTRA_BYTES = 2 << 20
 # --- blocks and chunks (memory at a time) -----------------------------------------------
 
 #: rows per chunk when chunking is implied (a ``progress`` callback or a memmap input) and
-#: no ``chunk_size`` is given: 2**16 rows of d = 128 are 64 MiB, and a chunk is long enough
-#: to keep two threads busy.
+#: no ``chunk_size`` is given, at most: 2**16 rows of d = 128 are 64 MiB, and a chunk is
+#: long enough to keep two threads busy. The chunks are sized by their time: the first of
+#: ``FIRST_CHUNK_ROWS``, each next one to ``CHUNK_SECONDS`` by the last one's time, so that
+#: progress is reported every second or so however slow the rows are (a corner function
+#: at n = 128: 2**16 rows took 100 s before the first report)
 DEFAULT_CHUNK_ROWS = 1 << 16
+FIRST_CHUNK_ROWS = 1 << 12
+CHUNK_SECONDS = 0.5
 #: rows of a batch above which it is chunked all the same (``DEFAULT_CHUNK_ROWS``): a
 #: batch in one call held Ctrl-C for seconds (5e6 rows of d = 30: 0.6 to 2.9 s, its
 #: scaling step one call over all rows); 2**20 keeps the benchmarks' 10**6 in one call

@@ -8,9 +8,11 @@ asked, chunk by chunk with progress reports; or, for a dask array, lazily block 
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
-from .._limits import DEFAULT_CHUNK_ROWS, IMPLICIT_CHUNK_ROWS
+from .._limits import CHUNK_SECONDS, DEFAULT_CHUNK_ROWS, FIRST_CHUNK_ROWS, IMPLICIT_CHUNK_ROWS
 from ._errors import QueryError
 from ._tables import human_bytes
 from ._validate import check_out, check_points, check_positive_int, memory_limit_for
@@ -57,8 +59,9 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
         Writeable C-contiguous float64; may be ``V`` itself or overlap it (the input is
         then copied first, as NumPy ufuncs do).
     chunk_size : int, optional
-        Rows per kernel call; default: the whole batch at once, or ``DEFAULT_CHUNK_ROWS``
-        when ``V`` is a memmap, ``progress`` is given or the batch has more than
+        Rows per kernel call; default: the whole batch at once, or chunks of at most
+        ``DEFAULT_CHUNK_ROWS`` rows, each sized to about ``CHUNK_SECONDS`` by the last one's
+        time, when ``V`` is a memmap, ``progress`` is given or the batch has more than
         ``IMPLICIT_CHUNK_ROWS`` rows (Ctrl-C is seen between chunks).
     progress : callable ``progress(done, total)``, or bool, optional
         Called after each chunk; ``True`` draws a tqdm bar labelled ``desc``.
@@ -89,10 +92,11 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
 
 
 def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
-    """Chunk by chunk: only one chunk of ``V`` is converted or held at a time."""
-    chunk_size = check_positive_int(
-        DEFAULT_CHUNK_ROWS if chunk_size is None else chunk_size, "chunk_size"
-    )
+    """Chunk by chunk: only one chunk of ``V`` is converted or held at a time (their rows
+    as given, else sized by their time: the bits are the same whatever the chunks)."""
+    timed = chunk_size is None
+    size = min(FIRST_CHUNK_ROWS, DEFAULT_CHUNK_ROWS) if timed else check_positive_int(
+        chunk_size, "chunk_size")
     if progress is not None:
         from ._progress import resolve_progress
 
@@ -108,15 +112,20 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
     res = result.reshape(-1, dim)
     if out is not None and np.may_share_memory(rows, res) and not _same_rows(rows, res):
         rows = rows.copy()  # a shifted overlap: later chunks would read what earlier wrote
-    total = rows.shape[0]
-    for start in range(0, total, chunk_size):
-        stop = min(start + chunk_size, total)
+    total, start = rows.shape[0], 0
+    while start < total:
+        stop = min(start + size, total)
+        began = time.perf_counter()
         flat, _ = check_points(rows[start:stop], dim, name, index_shape=lead, offset=start)
         if out is not None and np.may_share_memory(flat, res):
             flat = flat.copy()
         _run(kernel, flat, res[start:stop], start, name, lead)
         if progress is not None:
             progress(stop, total)
+        if timed:
+            took = max(time.perf_counter() - began, 1e-6)
+            size = int(min(max((stop - start) * CHUNK_SECONDS / took, 64), DEFAULT_CHUNK_ROWS))
+        start = stop
     if progress is not None and total == 0:
         progress(0, 0)
     return result

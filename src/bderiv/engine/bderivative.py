@@ -236,9 +236,10 @@ class BDerivative(Linearisation, CornerGeometry):
         chunk_size : int, optional
             Evaluate ``chunk_size`` vectors at a time, so that only one chunk of ``V`` is
             converted to float64 and validated at once. Default: the whole batch at once,
-            or ``DEFAULT_CHUNK_ROWS`` when ``V`` is a memmap, ``progress`` is given or
-            ``V`` has more than ``IMPLICIT_CHUNK_ROWS`` (2**20) vectors (Ctrl-C is then
-            seen between chunks).
+            or, when ``V`` is a memmap, ``progress`` is given or ``V`` has more than
+            ``IMPLICIT_CHUNK_ROWS`` (2**20) vectors, chunks of at most
+            ``DEFAULT_CHUNK_ROWS`` (2**16) vectors sized to about half a second each by
+            the last one's time (Ctrl-C is then seen between chunks).
             Results do not depend on the chunking (bit for bit).
         progress : callable ``progress(done, total)``, or True, optional
             Called after each chunk with the number of vectors done and the total;
