@@ -9,6 +9,8 @@ followed in long simulations.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -103,5 +105,12 @@ def test_coordinates_that_are_not_cyclic_are_refused(gait):
         orbit([4])
     with pytest.raises(ValueError, match=r"distinct coordinate indices in \[0, 6\), got \[0, 0\]"):
         orbit([0, 0])
-    with pytest.raises(TypeError, match="cyclic must be a sequence of coordinate indices"):
+    with pytest.raises(TypeError, match=r"cyclic must be a sequence of coordinate indices "
+                       r"\(integers\), got 0 \(int, not a sequence\)"):
         orbit(0)
+    # a review: int(0.5) made 0.5 coordinate 0, and the orbit was found with it cyclic
+    for bad, what in (([0.5], "0.5 is float"), ([np.float64(0.0)], "is float64"),
+                      ([False], "False is bool"), (["0"], "'0' is str")):
+        with pytest.raises(TypeError, match=r"cyclic must be a sequence of coordinate indices "
+                           r"\(integers\), got .* \(.*" + re.escape(what) + r"\)$"):
+            orbit(bad)

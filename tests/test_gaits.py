@@ -171,8 +171,16 @@ def test_visits_count_every_piece_of_the_batch(sizes):
 def test_growth_rate_validation():
     fmap = rotating_pl_map(1.0, 1.0, 1.0, 1.0)[0]
     V0 = np.ones((3, 2))
-    with pytest.raises(ValueError, match="iterations must be >= 2, got 1"):
-        growth_rate(fmap, V0, iterations=1)
+    # one message for every count below 2 (0 said ">= 1", 1 said ">= 2"; a review)
+    for bad in (1, 0, -3):
+        with pytest.raises(ValueError, match=rf"iterations must be an integer >= 2, got {bad}$"):
+            growth_rate(fmap, V0, iterations=bad)
+    with pytest.raises(TypeError, match=r"iterations must be an integer >= 2, got float 2.0"):
+        growth_rate(fmap, V0, iterations=2.0)
+    # a burn-in of 1.5 was silently 1
+    with pytest.raises(TypeError, match=r"burn_in must be an integer in \[0, iterations - 2 = "
+                       r"8\] \(or None: iterations // 4\), got float 1.5"):
+        growth_rate(fmap, V0, iterations=10, burn_in=1.5)
     with pytest.raises(ValueError, match=r"burn_in must be in \[0, iterations - 2 = 8\], got 9"):
         growth_rate(fmap, V0, iterations=10, burn_in=9)
     with pytest.raises(ValueError, match="V0 must have no zero row, but row 1 is zero"):
@@ -383,6 +391,39 @@ def test_periodic_orbit_validation_and_failure(gait):
         gaits.pronking_orbit(ex, max_iter=1)
     with pytest.raises(ValueError, match="n_directions must be >= 1"):
         orb.stability(n_directions=0)
+    # a review: iterations 0 and 1 gave two different bounds, burn_in=1.5 became 1 silently,
+    # a negative seed got NumPy's "expected non-negative integer", naming nothing
+    for bad in (0, 1):
+        with pytest.raises(ValueError, match=rf"iterations must be an integer >= 2, got {bad}$"):
+            orb.stability(n_directions=5, iterations=bad)
+    for burn_in in (1.5, True, "3"):
+        with pytest.raises(TypeError, match=r"burn_in must be an integer in \[0, iterations "
+                           r"- 2 = 18\]"):
+            orb.stability(n_directions=5, iterations=20, burn_in=burn_in)
+    with pytest.raises(ValueError, match=r"burn_in must be in \[0, iterations - 2 = 18\], "
+                       r"got 19"):
+        orb.stability(n_directions=5, iterations=20, burn_in=19)
+    with pytest.raises(ValueError, match=r"seed must be an integer >= 0, got -1$"):
+        orb.stability(n_directions=5, iterations=20, seed=-1)
+    with pytest.raises(TypeError, match=r"seed must be an integer >= 0, got float 1.5"):
+        orb.stability(n_directions=5, iterations=20, seed=1.5)
+    assert orb.stability(n_directions=5, iterations=20, burn_in=np.int64(3)).burn_in == 3
+    # a periodic_orbit coordinate 1.5 was coordinate 1
+    for cyclic in ([1.5], [True], [np.float64(1.0)]):
+        with pytest.raises(TypeError, match=r"cyclic must be a sequence of coordinate "
+                           r"indices \(integers\), got .* is (float|bool|float64)\)"):
+            s.periodic_orbit(orb.x0, gaits.apex_section, period_guess=0.5, cyclic=cyclic)
+    # the perturbation of the guess is a state, not broadcast (its docstring: shape (4,))
+    for bad, got in (((0.1,), r"shape \(1,\)"), (np.zeros((2, 4)), r"shape \(2, 4\)"),
+                     ([0.1, [0.0, 1.0]], r"\[0.1, \[0.0, 1.0\]\]")):
+        with pytest.raises(ValueError, match=r"perturbation must have shape \(4,\) \(added to "
+                           r"the example's start x0, a state of pronking\), got " + got):
+            gaits.pronking_orbit(ex, perturbation=bad)
+    with pytest.raises(ValueError, match=r"perturbation must be finite, got \[0.1, 0.0, 0.0, "
+                       r"nan\]"):
+        gaits.pronking_orbit(ex, perturbation=[0.1, 0.0, 0.0, np.nan])
+    with pytest.raises(TypeError, match=r"perturbation must hold real numbers"):
+        gaits.pronking_orbit(ex, perturbation="abcd")
     assert "PeriodicOrbit(period=0.48976329" in repr(orb)
     assert "ReturnMap(dim=4, groups=[2, 2], period=0.48976329" in repr(orb.return_map)
 
@@ -390,11 +431,96 @@ def test_periodic_orbit_validation_and_failure(gait):
 def test_decay_check_validation(gait):
     ex, orb = gait
     V = np.array([[1.0, 0.0, 0.0, 0.0]])
-    with pytest.raises(ValueError, match="strides must be >= 4, got 3"):
-        decay_check(ex.system, orb.x0, gaits.apex_section, V, strides=3)
+    for bad in (3, 0):  # one message for both (0 said ">= 1")
+        with pytest.raises(ValueError, match=rf"strides must be an integer >= 4, got {bad}$"):
+            decay_check(ex.system, orb.x0, gaits.apex_section, V, strides=bad)
     with pytest.raises(ValueError, match=r"deviation of vector 0 falls below floor=1 before "
                        r"stride 4"):
         decay_check(ex.system, orb.x0, gaits.apex_section, V, strides=4, floor=1.0)
+
+
+def _simulations_counted(monkeypatch):
+    """A list that grows by one at every simulation of a HybridSystem (none must run
+    before the arguments are checked)."""
+    runs = []
+    for name in ("simulate", "simulate_many"):
+        real = getattr(HybridSystem, name)
+
+        def counted(*args, _real=real, **kwargs):
+            runs.append(1)
+            return _real(*args, **kwargs)
+
+        monkeypatch.setattr(HybridSystem, name, counted)
+    return runs
+
+
+@pytest.mark.parametrize(("change", "error", "message"), [
+    # a review: numpy's "zero-size array to reduction operation maximum", an IndexError, a
+    # broadcast error and "X0 must be finite" (an internal name) before these
+    ({"V": np.zeros((0, 4))}, ValueError,
+     r"V must hold at least one direction of perturbation \(shape \(m, 4\) with m >= 1\), "
+     r"got shape \(0, 4\)"),
+    ({"x0": "short"}, ValueError, r"x0 must have shape \(4,\) \(a state of this system\), "
+                                  r"got shape \(3,\)"),
+    ({"x0": "long"}, ValueError, r"x0 must have shape \(4,\) .*got shape \(5,\)"),
+    ({"x0": "nan"}, ValueError, r"x0 must be finite, got \[.* nan\]"),
+    ({"V": np.zeros((2, 4))}, ValueError,
+     r"V must have no zero row \(each row is a direction of perturbation\), but row 0 is "
+     r"zero"),
+    ({"V": np.ones((2, 3))}, ValueError, r"V must have shape \(any, 4\), got \(2, 3\)"),
+    ({"floor": np.nan}, ValueError, r"floor must be a finite number >= 0, got nan"),
+    ({"floor": -1.0}, ValueError, r"floor must be a finite number >= 0, got -1.0"),
+    ({"section": 3}, TypeError, r"section must be callable, got int"),
+    ({"system": 3}, TypeError, r"system must be a HybridSystem, got int"),
+    ({"cyclic": [1.5]}, TypeError, r"cyclic must be a sequence of coordinate indices "
+                                   r"\(integers\), got \[1.5\] \(1.5 is float\)"),
+    ({"rtoll": 1e-9}, TypeError, r"decay_check got unknown settings \['rtoll'\]; it takes "
+                                 r"rtol, atol"),
+    ({"strides": 4.0}, TypeError, r"strides must be an integer >= 4, got float 4.0"),
+])
+def test_decay_check_refuses_bad_arguments_by_name_before_simulating(gait, monkeypatch,
+                                                                      change, error, message):
+    ex, orb = gait
+    args = {"system": ex.system, "x0": orb.x0, "section": gaits.apex_section,
+            "V": np.eye(4)[:2], "strides": 4}
+    states = {"short": orb.x0[:3], "long": np.r_[orb.x0, 0.0],
+              "nan": np.r_[orb.x0[:3], np.nan]}
+    change = {k: states.get(v, v) if isinstance(v, str) else v for k, v in change.items()}
+    runs = _simulations_counted(monkeypatch)
+    kwargs = {**args, **change}
+    with pytest.raises(error, match=message):
+        decay_check(kwargs.pop("system"), kwargs.pop("x0"), kwargs.pop("section"),
+                    kwargs.pop("V"), **kwargs)
+    assert runs == []
+
+
+@pytest.mark.parametrize(("change", "error", "message"), [
+    ({"V": np.zeros((0, 4)), "D_V": np.zeros((0, 4))}, ValueError,
+     r"V must hold at least one vector \(shape \(m, 4\) with m >= 1\), got shape \(0, 4\)"),
+    ({"x0": "short"}, ValueError, r"x0 must have shape \(4,\) \(a state of this system\), "
+                                  r"got shape \(3,\)"),
+    ({"x0": "nan"}, ValueError, r"x0 must be finite, got"),
+    ({"eps": ()}, ValueError, r"eps must be a step or a non-empty 1-d sequence of steps, got "
+                              r"shape \(0,\)"),
+    ({"eps": [[1e-4]]}, ValueError, r"eps must be a step or a non-empty 1-d sequence of "
+                                    r"steps, got shape \(1, 1\)"),
+    ({"eps": "a"}, TypeError, r"eps\[0\] must be a real number, got str 'a'"),
+    ({"eps": (1e-4, -1e-5)}, ValueError, r"eps\[1\] must be a finite number > 0, got -1e-05"),
+    ({"system": 3}, TypeError, r"system must be a HybridSystem, got int"),
+])
+def test_fd_check_refuses_bad_arguments_by_name_before_simulating(gait, monkeypatch, change,
+                                                                   error, message):
+    ex, orb = gait
+    V = np.eye(4)[:2]
+    states = {"short": orb.x0[:3], "nan": np.r_[orb.x0[:3], np.nan]}
+    kwargs = {"system": ex.system, "x0": orb.x0, "t_final": 1.0, "V": V, "D_V": V,
+              "eps": (1e-4, 1e-5)}
+    kwargs.update({k: states.get(v, v) if isinstance(v, str) else v
+                   for k, v in change.items()})
+    runs = _simulations_counted(monkeypatch)
+    with pytest.raises(error, match=message):
+        fd_check(**kwargs)
+    assert runs == []
 
 
 def test_return_map_pickles_and_is_read_only(gait):

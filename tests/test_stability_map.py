@@ -100,10 +100,69 @@ def test_bad_grids_and_clients():
                       client="cluster")
     # refused at once, not recorded as "no orbit" at every point (a review)
     grid = {"multiplier": [0.5], "turns": [1.0]}
-    with pytest.raises(ValueError, match=r"x_guess must be a finite 1-d array"):
+    with pytest.raises(ValueError, match=r"x_guess must be finite, got \[ 1. nan\]"):
         stability_map(cycle, grid, [1.0, np.nan], section)
     with pytest.raises(ValueError, match=r"period_guess must be a finite number > 0, got -1"):
         stability_map(cycle, grid, [1.0, 0.0], section, period_guess=-1)
+
+
+def test_a_guess_of_the_wrong_size_is_refused_before_the_grid_runs(monkeypatch):
+    # a review: every point ran and failed with "x_guess must have shape (2,)", the map all
+    # NaN; now the model of the first point is built once, and nothing is solved
+    built, solved = [], []
+    real = HybridSystem.periodic_orbit
+    monkeypatch.setattr(HybridSystem, "periodic_orbit",
+                        lambda *a, **k: solved.append(1) or real(*a, **k))
+
+    def make(**params):
+        built.append(params)
+        return cycle(**params)
+
+    grid = {"multiplier": [0.5, 0.9, 1.5], "turns": [1.0, 2.0]}
+    for guess, got in (([1.05], r"shape \(1,\)"), ([1.05, 0.0, 0.0], r"shape \(3,\)"),
+                       ([[1.05, 0.0]], r"shape \(1, 2\)"), ([1.0, [0.0]], r"\[1.0, \[0.0\]\]")):
+        with pytest.raises(ValueError, match=r"x_guess must have shape \(2,\) \(a state of "
+                           r"the model that make_system\(multiplier=0.5, turns=1\) builds\), "
+                           r"got " + got):
+            stability_map(make, grid, guess, section, period_guess=1.0)
+    with pytest.raises(TypeError, match=r"x_guess must hold real numbers"):
+        stability_map(make, grid, ["a", "b"], section, period_guess=1.0)
+    assert built == [{"multiplier": 0.5, "turns": 1.0}] * 5 and solved == []
+    # the same with the pronking example (an Example: its system is read)
+    from bderiv.examples import gaits
+
+    with pytest.raises(ValueError, match=r"x_guess must have shape \(4,\) \(a state of the "
+                       r"model that make_system\(gain=3\) builds\), got shape \(3,\)"):
+        stability_map(gaits.pronking, {"gain": [3, 4, 5]}, gaits.pronking().x0[:3],
+                      gaits.apex_section, period_guess=0.5)
+    assert solved == []
+
+
+def test_bad_make_system_grid_values_and_iterations_are_named():
+    grid, guess = {"multiplier": [0.5], "turns": [1.0]}, [1.05, 0.0]
+    with pytest.raises(TypeError, match=r"make_system must be callable \(make_system\(\*\*params"
+                       r"\) -> HybridSystem\), got int"):
+        stability_map(3, grid, guess, section)
+    with pytest.raises(TypeError, match=r"make_system must return a HybridSystem \(or an object "
+                       r"with a system attribute, such as an Example\), got float"):
+        stability_map(lambda **p: 3.0, grid, guess, section)
+    # "could not convert string to float: 'abc'" named no argument
+    with pytest.raises(TypeError, match=r"grid\['turns'\] must hold real numbers \(float or "
+                       r"integer dtype\), got dtype <U3 \(string\)"):
+        stability_map(cycle, {"multiplier": [0.5], "turns": "abc"}, guess, section)
+    with pytest.raises(ValueError, match=r"grid\['turns'\] must be a non-empty 1-d sequence of "
+                       r"finite numbers, got \[1, \[2, 3\]\]"):
+        stability_map(cycle, {"multiplier": [0.5], "turns": [1, [2, 3]]}, guess, section)
+    with pytest.raises(ValueError, match=r"grid\['turns'\] must be a non-empty 1-d sequence of "
+                       r"finite numbers, got \[1.0, inf\]"):
+        stability_map(cycle, {"multiplier": [0.5], "turns": [1.0, np.inf]}, guess, section)
+    with pytest.raises(TypeError, match=r"grid's keys must be parameter names \(str, keywords "
+                       r"of make_system\), got int 1"):
+        stability_map(cycle, {"multiplier": [0.5], 1: [1.0]}, guess, section)
+    # refused at once, not after the first orbit (iterations=1 passed the first check)
+    for bad in (0, 1):
+        with pytest.raises(ValueError, match=rf"iterations must be an integer >= 2, got {bad}$"):
+            stability_map(cycle, grid, guess, section, iterations=bad)
 
 
 def test_figure_marks_the_unstable_region(tmp_path):

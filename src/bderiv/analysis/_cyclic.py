@@ -38,10 +38,18 @@ SHIFTS = (math.sqrt(2.0), -(math.sqrt(5.0) - 1.0) / 2.0)
 def check_cyclic(cyclic, dim: int) -> tuple:
     """The cyclic coordinates as a sorted tuple of distinct indices in ``[0, dim)``."""
     try:
-        indices = [int(i) for i in cyclic]
-    except (TypeError, ValueError):
-        raise TypeError(f"cyclic must be a sequence of coordinate indices, got "
-                        f"{cyclic!r}") from None
+        items = list(cyclic)
+    except TypeError:
+        items = None
+    # integers only: int(1.5) would silently be coordinate 1
+    bad = None if items is None else [i for i in items if isinstance(i, bool | np.bool_)
+                                      or not isinstance(i, int | np.integer)]
+    if items is None or bad:
+        what = (f"{type(cyclic).__name__}, not a sequence" if items is None
+                else f"{bad[0]!r} is {type(bad[0]).__name__}")
+        raise TypeError(f"cyclic must be a sequence of coordinate indices (integers), got "
+                        f"{cyclic!r} ({what})")
+    indices = [int(i) for i in items]
     if len(set(indices)) != len(indices) or not all(0 <= i < dim for i in indices):
         raise ValueError(f"cyclic must hold distinct coordinate indices in [0, {dim}), got "
                          f"{list(cyclic)}")

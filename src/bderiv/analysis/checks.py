@@ -24,10 +24,17 @@ from .._support._validate import (
     check_matrix,
     check_number,
     check_points,
-    check_positive_int,
     check_state,
 )
 from ..models.integrate.options import SolverOptions
+from ..models.section import Section
+from ._arguments import (
+    check_count,
+    check_directions,
+    check_settings,
+    check_steps,
+    check_system,
+)
 from ._cyclic import check_cyclic, kept
 
 __all__ = [
@@ -87,6 +94,7 @@ def forward_differences(system, x0, t_final, V, eps, *, simultaneity_tol=None,
     -------
     ndarray, shape (..., d)
     """
+    check_system(system)
     options = _settings(simultaneity_tol=simultaneity_tol, options=options, rtol=rtol,
                         atol=atol, method=method, max_step=max_step)
     eps = check_number(eps, "eps")
@@ -189,20 +197,20 @@ def fd_check(system, x0, t_final, V, D_V, eps=FD_EPS, *, progress=None,
 
     Raises
     ------
-    TypeError
-        For a setting not named above.
+    TypeError, ValueError
+        Before any simulation, for an argument of the wrong type, shape or range (named),
+        or a setting not named above.
     """
-    V = check_matrix(V, "V", (None, system.dim))
+    check_system(system)
+    check_state(x0, system.dim, "x0")
+    V = check_directions(V, system.dim, "vector")
     D_V = check_matrix(D_V, "D_V", V.shape)
     zero = np.flatnonzero(~np.any(D_V, axis=1))
     if zero.size:
         raise ValueError(f"D_V must have no zero row (errors are relative to |D(v)|), but "
                          f"row {int(zero[0])} is zero")
-    eps = tuple(check_number(e, f"eps[{i}]") for i, e in enumerate(np.atleast_1d(eps)))
-    unknown = sorted(set(simulate_options) - {*_SETTINGS, "options", "section"})
-    if unknown:
-        raise TypeError(f"fd_check got unknown settings {unknown}; it takes "
-                        f"{', '.join((*_SETTINGS, 'options', 'section'))}")
+    eps = check_steps(eps)
+    check_settings("fd_check", simulate_options, (*_SETTINGS, "options", "section"))
     section = simulate_options.pop("section", None)
     options = _settings(**simulate_options)
     progress = resolve_progress(progress, desc="finite differences")
@@ -273,13 +281,13 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     section : callable
         ``section(x) -> float``.
     V : array_like, shape (m, d)
-        Perturbation directions (unit size is sensible).
+        Perturbation directions, m >= 1, no row zero (unit size is sensible).
     eps : float
         Size of the perturbations.
     strides : int
         Returns simulated per vector (>= 4).
     floor : float
-        Deviations below this (the integration error) are not fitted.
+        Deviations below this (the integration error) are not fitted; finite, >= 0.
     ceiling : float, optional
         The largest deviation counted as linear (default ``LINEAR_STATE * |x0|``, or
         ``LINEAR_STATE`` when x0 is 0).
@@ -289,12 +297,19 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     t_max : float
         Longest wait for each return.
     **simulate_options
-        ``simultaneity_tol``, ``options``, ``rtol``, ... for ``system.simulate``
-        (default the tight :data:`FD_OPTIONS` and :data:`FD_SIMULTANEITY_TOL`).
+        ``simultaneity_tol``, ``options``, ``rtol``, ``atol``, ``method``, ``max_step``,
+        ``max_groups`` for ``system.simulate`` (default the tight :data:`FD_OPTIONS` and
+        :data:`FD_SIMULTANEITY_TOL`).
 
     Returns
     -------
     DecayCheck
+
+    Raises
+    ------
+    TypeError, ValueError
+        Before any simulation, for an argument of the wrong type, shape or range (named),
+        or a setting not named above.
 
     Warns
     -----
@@ -302,13 +317,15 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
         When a vector's deviation leaves the linear regime before
         :data:`MIN_FIT_STRIDES` strides after the transient (pass a smaller eps).
     """
-    V = check_matrix(V, "V", (None, system.dim))
+    check_system(system)
+    x0 = check_state(x0, system.dim, "x0")
+    Section(section, system.dim)  # checked: callable
+    V = check_directions(V, system.dim, "direction of perturbation", nonzero=True)
     eps = check_number(eps, "eps")
     t_max = check_number(t_max, "t_max")
-    strides = check_positive_int(strides, "strides")
-    if strides < 4:
-        raise ValueError(f"strides must be >= 4, got {strides}")
-    x0 = np.asarray(x0, dtype=np.float64)
+    floor = check_number(floor, "floor", strict=False)
+    strides = check_count(strides, "strides", 4)
+    check_settings("decay_check", simulate_options, (*_SETTINGS, "options", "max_groups"))
     keep = kept(check_cyclic(cyclic, system.dim), system.dim)
     size = float(np.linalg.norm(x0[keep]))
     if ceiling is None:

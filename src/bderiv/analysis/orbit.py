@@ -52,6 +52,7 @@ from .._support._progress import DelayedBar
 from .._support._validate import check_number, check_positive_int
 from ..models.integrate.options import SolverOptions, check_options
 from ..models.integrate.run import ENDS, NoReturn, run
+from ._arguments import check_burn_in, check_iterations, check_seed
 from ._cyclic import (
     SHIFTS,
     check_cyclic,
@@ -186,15 +187,18 @@ class PeriodicOrbit:
         iterations : int
             Iterations of the map (>= 2).
         burn_in : int, optional
-            Iterations not averaged (default ``iterations // 4``).
+            Iterations not averaged, in ``[0, iterations - 2]`` (default
+            ``iterations // 4``).
         seed : int
-            Seed of the random directions.
+            Seed of the random directions, >= 0 (None: fresh entropy).
 
         Returns
         -------
         Stability
         """
         n_directions = check_positive_int(n_directions, "n_directions")
+        iterations = check_iterations(iterations)
+        burn_in, seed = check_burn_in(burn_in, iterations), check_seed(seed)
         R = self.return_map
         fmap, fmap_orders, basis = R, R.apply_orders, R.tangent_basis
         check_growth_memory(n_directions, basis.shape[0], iterations)  # before V0 exists
@@ -207,7 +211,6 @@ class PeriodicOrbit:
         most = sorted(visits, key=visits.get, reverse=True)[:MULTIPLIER_PIECES]
         multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in most}
         i = int(np.argmax(rates))
-        burn_in = iterations // 4 if burn_in is None else int(burn_in)
         return Stability(float(rates[i]), verdict(rates[i], spread[i]), rates,
                          float(spread[i]), multipliers, visits, int(iterations), burn_in)
 

@@ -32,7 +32,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .._support._progress import count_bar
-from .._support._validate import check_matrix, check_memory, check_positive_int
+from .._support._validate import check_matrix, check_memory
+from ._arguments import check_burn_in, check_iterations
 
 __all__ = ["Growth", "Stability", "growth_rate", "log_growth", "piece_multipliers"]
 
@@ -143,7 +144,7 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None) -> Gro
     iterations : int
         Number of iterations, >= 2.
     burn_in : int, optional
-        Iterations not averaged (default ``iterations // 4``).
+        Iterations not averaged, in ``[0, iterations - 2]`` (default ``iterations // 4``).
     fmap_orders : callable, optional
         ``fmap_orders(V) -> (fmap(V), orders)``, ``orders`` a list of (m, n_g) arrays
         (``FlowBDerivative.apply_orders``): the map and the pieces of V in one pass, used
@@ -154,15 +155,10 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None) -> Gro
     Growth
         ``rates``, ``spread``, ``visits``.
     """
-    iterations = check_positive_int(iterations, "iterations")
-    if iterations < 2:
-        raise ValueError(f"iterations must be >= 2, got {iterations}")
+    iterations = check_iterations(iterations)
+    burn_in = check_burn_in(burn_in, iterations)
     if np.ndim(V0) == 2:  # (else check_matrix names the shape)
         check_growth_memory(*np.shape(V0), iterations)
-    burn_in = iterations // 4 if burn_in is None else int(burn_in)
-    if not 0 <= burn_in <= iterations - 2:
-        raise ValueError(f"burn_in must be in [0, iterations - 2 = {iterations - 2}], got "
-                         f"{burn_in}")
     logs, visits = log_growth(fmap, V0, iterations, fmap_orders=fmap_orders,
                               record_from=burn_in)
     window = logs[burn_in:]
@@ -192,7 +188,7 @@ def check_growth_memory(n_directions, dim, iterations, memory_limit=None) -> Non
         naming the sizes.
     """
     m, d = int(n_directions), int(dim)
-    iterations = check_positive_int(iterations, "iterations")
+    iterations = check_iterations(iterations)
     check_memory(8 * m * (GROWTH_ROW_ARRAYS * d + iterations), memory_limit,
                  f"the growth rate of {m} directions in dimension {d} over {iterations} "
                  f"iterations (n_directions x (8 d + iterations) floats)")

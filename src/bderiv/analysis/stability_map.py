@@ -47,7 +47,14 @@ import numpy as np
 
 from .._limits import LOCAL_WORKERS
 from .._support._progress import resolve_progress
-from .._support._validate import all_finite, check_number, check_positive_int, check_real_array
+from .._support._validate import (
+    all_finite,
+    check_number,
+    check_positive_int,
+    check_real_array,
+    check_state,
+)
+from ._arguments import check_iterations
 
 __all__ = ["StabilityMap", "stability_map"]
 
@@ -119,7 +126,8 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     grid : dict
         ``{name: values}`` for one or two parameters, each a 1-d sequence of numbers.
     x_guess : array_like, shape (d,)
-        Start of Newton's method at the first point (and where no neighbour has an orbit).
+        Start of Newton's method at the first point (and where no neighbour has an orbit);
+        checked, before the grid runs, against the model built at the grid's first point.
     section : callable
         ``section(x) -> float``, crossed upward once per stride (must pickle with Dask).
     period_guess : float, optional
@@ -130,7 +138,8 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
         ``x_guess``, and recorded as a failure if that one is refused too. Must pickle
         with Dask.
     n_directions, iterations : int
-        Of each orbit's :meth:`~bderiv.analysis.orbit.PeriodicOrbit.stability`.
+        Of each orbit's :meth:`~bderiv.analysis.orbit.PeriodicOrbit.stability`
+        (``n_directions >= 1``, ``iterations >= 2``).
     client : None, "local" or distributed.Client
         None: serially in this process; "local": a LocalCluster for this call; a Client:
         its cluster.
@@ -143,6 +152,12 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     -------
     StabilityMap
 
+    Raises
+    ------
+    TypeError, ValueError
+        Before the grid runs, for an argument of the wrong type, shape or range (named):
+        a point's failure is recorded, but a bad argument would fail at every point.
+
     Examples
     --------
     >>> import numpy as np
@@ -153,15 +168,17 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     >>> smap.stable.tolist(), np.round(smap.growth_rate, 2).tolist()  # doctest: +SKIP
     ([True, True], [0.86, 0.78])
     """
+    if not callable(make_system):
+        raise TypeError(f"make_system must be callable (make_system(**params) -> "
+                        f"HybridSystem), got {type(make_system).__name__}")
     names, axes = _check_grid(grid)
-    # checked here: a bad one would be refused at every point, each recorded as "no orbit"
-    x_guess = check_real_array(x_guess, "x_guess").astype(np.float64)
-    if x_guess.ndim != 1 or not all_finite(x_guess):
-        raise ValueError(f"x_guess must be a finite 1-d array (a state), got {x_guess!r}")
     if period_guess is not None:
         period_guess = check_number(period_guess, "period_guess")
     n_directions = check_positive_int(n_directions, "n_directions")
-    iterations = check_positive_int(iterations, "iterations")
+    iterations = check_iterations(iterations)
+    # checked here: a bad one would be refused at every point, each recorded as "no orbit"
+    x_guess = _check_guess(make_system, {n: float(a[0]) for n, a in zip(names, axes,
+                                                                         strict=True)}, x_guess)
     shape = tuple(a.size for a in axes)
     task = _Task(make_system, names, section, period_guess, accept, n_directions, iterations,
                  orbit_options, x_guess)
@@ -197,12 +214,41 @@ def _check_grid(grid):
                             grid, dict) else ""))
     axes = []
     for name, values in grid.items():
-        a = np.asarray(values, dtype=np.float64)
-        if a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)):
-            raise ValueError(f"grid[{name!r}] must be a non-empty 1-d sequence of finite "
-                             f"numbers, got shape {a.shape}")
-        axes.append(a)
+        if not isinstance(name, str):
+            raise TypeError(f"grid's keys must be parameter names (str, keywords of "
+                            f"make_system), got {type(name).__name__} {name!r}")
+        what = f"grid[{name!r}] must be a non-empty 1-d sequence of finite numbers, got"
+        try:
+            a = check_real_array(values, f"grid[{name!r}]")
+        except ValueError:  # a ragged nest of sequences
+            raise ValueError(f"{what} {values!r}") from None
+        if a.ndim != 1 or a.size == 0 or not all_finite(a):
+            got = f"shape {a.shape}" if a.ndim != 1 or a.size == 0 else f"{a.tolist()}"
+            raise ValueError(f"{what} {got}")
+        axes.append(a.astype(np.float64))
     return tuple(grid), tuple(axes)
+
+
+def _check_guess(make_system, params, x_guess):
+    """``x_guess`` checked against the model of the grid's first point (built here, so that
+    a guess of the wrong size is refused before the grid runs, not at every point)."""
+    system = make_system(**params)
+    system = getattr(system, "system", system)  # an Example carries its system
+    dim = getattr(system, "dim", None)
+    if not isinstance(dim, int | np.integer) or not callable(
+            getattr(system, "periodic_orbit", None)):
+        raise TypeError(f"make_system must return a HybridSystem (or an object with a "
+                        f"system attribute, such as an Example), got {type(system).__name__}")
+    try:
+        x = check_real_array(x_guess, "x_guess")
+    except ValueError:  # a ragged nest of sequences
+        x = np.empty(0, dtype=object)
+    if x.dtype == object or x.shape != (dim,):
+        got = f"shape {x.shape}" if x.dtype != object else repr(x_guess)
+        at = ", ".join(f"{k}={v:g}" for k, v in params.items())
+        raise ValueError(f"x_guess must have shape ({dim},) (a state of the model that "
+                         f"make_system({at}) builds), got {got}")
+    return check_state(x, dim, "x_guess")
 
 
 def _waves(shape):

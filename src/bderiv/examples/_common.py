@@ -22,10 +22,11 @@ from .._kernels._cache import keyed, sources_digest
 from .._limits import ON_SURFACE_TOL
 from .._support._format import format_mask
 from .._support._numdiff import complex_step
-from .._support._validate import check_bool
+from .._support._validate import all_finite, check_bool, check_real_array
 from ..analysis.system import HybridSystem
 
-__all__ = ["Example", "check_start", "compile_function", "compiled_once", "flow_back"]
+__all__ = ["Example", "check_start", "compile_function", "compiled_once", "flow_back",
+           "perturbed_start"]
 
 #: the functions of a model that the compiled version compiles (corner_field stays Python:
 #: it is called at the event points only, with the whole table at once)
@@ -125,9 +126,10 @@ class Example:
                    compiled=compiled)
 
 
-def check_start(example, parameters, region=0):
+def check_start(example, parameters, region=0, remedy="choose other parameters"):
     """``example`` itself when it starts where it says, else a ValueError naming
-    ``parameters`` (dict, name -> value: those that placed the start).
+    ``parameters`` (dict, name -> value: those that placed the start) and ending with
+    ``remedy`` (what to do instead).
 
     Where it says: ``t_event`` finite, > 0 and before ``t_final``, ``x0`` and ``rho``
     finite, ``x0`` strictly inside region ``region`` (every event's value of the sign its
@@ -148,32 +150,47 @@ def check_start(example, parameters, region=0):
     t_event, t_final, x0, rho = example.t_event, example.t_final, example.x0, example.rho
     if not (np.isfinite(t_event) and t_event > 0 and t_final > t_event):
         raise ValueError(f"{where}: the event time must be > 0 and before the final time, "
-                         f"got t_event={t_event:.6g}, t_final={t_final:.6g}; choose other "
-                         f"parameters")
+                         f"got t_event={t_event:.6g}, t_final={t_final:.6g}; {remedy}")
     if not (np.isfinite(x0).all() and np.isfinite(rho).all()):
         raise ValueError(f"{where}: the start or the event point it builds is not finite "
-                         f"(x0 = {x0.tolist()}, rho = {rho.tolist()}); choose other "
-                         f"parameters")
+                         f"(x0 = {x0.tolist()}, rho = {rho.tolist()}); {remedy}")
     system = example.system
     h = system.calls.eval_events(x0)
     side = np.array([1.0 if region >> k & 1 else -1.0 for k in range(h.size)])
     wrong = np.flatnonzero(~(side * h > 0))
     if wrong.size:
         k = int(wrong[0])
+        meet = "its event" if h.size == 1 else "the events together"
         raise ValueError(
             f"{where}: the start it builds, x0 = {np.round(x0, 6).tolist()}, is not in "
             f"region {format_mask(region, h.size)} where the example starts: event {k} has "
             f"h_{k}(x0) = {h[k]:.6g} (on the surface or beyond it), so the trajectory from x0 "
-            f"does not meet the events together at t_event={t_event:.6g}; choose other "
-            f"parameters"
+            f"does not meet {meet} at t_event={t_event:.6g}; {remedy}"
         )
     off = np.abs(system.calls.eval_events(rho))
     if not (off <= ON_SURFACE_TOL * max(1.0, float(np.abs(rho).max()))).all():
         k = int(np.argmax(off))
         raise ValueError(f"{where}: its event point rho = {np.round(rho, 6).tolist()} is "
                          f"not on the surface of event {k} (|h_{k}(rho)| = {off[k]:.3g}); "
-                         f"choose other parameters")
+                         f"{remedy}")
     return example
+
+
+def perturbed_start(example, perturbation):
+    """``example.x0 + perturbation``, the guess of a gait's ``*_orbit`` function, with the
+    perturbation checked by name: finite, shape ``(d,)`` (not broadcast)."""
+    d = example.x0.size
+    try:
+        p = check_real_array(perturbation, "perturbation")
+    except ValueError:  # a ragged nest of sequences
+        p = None
+    if p is None or p.shape != (d,):
+        got = f"{perturbation!r}" if p is None else f"shape {p.shape}"
+        raise ValueError(f"perturbation must have shape ({d},) (added to the example's start "
+                         f"x0, a state of {example.name}), got {got}")
+    if not all_finite(p):
+        raise ValueError(f"perturbation must be finite, got {p.tolist()}")
+    return example.x0 + p
 
 
 @cache

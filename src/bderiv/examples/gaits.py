@@ -37,7 +37,7 @@ from numba.extending import register_jitable
 
 from .._limits import FD_EPS
 from .._support._validate import check_number, check_numbers, check_positive_int
-from ._common import Example, check_start, compile_function
+from ._common import Example, check_start, compile_function, perturbed_start
 
 __all__ = [
     "APEX",
@@ -276,7 +276,7 @@ def pronking_orbit(example=None, *, perturbation=(0.02, 0.01, 0.0, -0.05), **kwa
     PeriodicOrbit
     """
     ex = pronking() if example is None else example
-    guess = ex.x0 + np.asarray(perturbation, dtype=np.float64)
+    guess = perturbed_start(ex, perturbation)
     kwargs.setdefault("section_gradient", apex_section_gradient)
     kwargs.setdefault("period_guess", 0.5)
     section = compiled_apex_section if ex.compiled else apex_section

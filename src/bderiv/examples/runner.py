@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import Example, check_start, compile_function
+from ._common import Example, check_start, compile_function, perturbed_start
 from .gaits import (
     FEET,
     INERTIA,
@@ -150,7 +150,7 @@ def running_orbit(example=None, *, perturbation=(0.0, 0.02, 0.01, -0.3, 0.0, -0.
         ``advance[0]``: the forward distance per stride.
     """
     ex = running() if example is None else example
-    guess = ex.x0 + np.asarray(perturbation, dtype=np.float64)
+    guess = perturbed_start(ex, perturbation)
     kwargs.setdefault("period_guess", 0.5)
     kwargs.setdefault("cyclic", [0])
     kwargs.setdefault("section_gradient", apex_section_gradient)

@@ -181,7 +181,8 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
         ``(theta, theta')`` just after a heel strike to start the step from (with ``phi =
         2 theta``, ``phi' = theta' (1 - cos 2 theta)``, exact for ``leg_mass = 0``).
         Default: Garcia et al.'s published fixed point, ``theta'`` scaled by
-        ``sqrt(g / leg)`` (a good start for slopes near 0.009 and light legs).
+        ``sqrt(g / leg)`` (a good start for slopes near 0.009 and light legs; steeper
+        slopes need their own, such as ``(0.24, -0.228)`` for slopes 0.015 to 0.02).
 
     Returns
     -------
@@ -218,22 +219,31 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
                           reset_jacobian=model.reset_jacobian)
     if start is None:
         theta, rate = GARCIA_FIXED_POINT[0], GARCIA_FIXED_POINT[1] * np.sqrt(g / leg)
+        # the default suits slopes near 0.009 only: the step from it at a steeper slope
+        # scuffs after mid-stance (no error of the parameters given)
+        remedy = (f"the default start, (theta, theta') = ({theta:.6g}, {rate:.6g}), is "
+                  f"Garcia et al.'s fixed point for slope 0.009 and suits slopes near it "
+                  f"only: pass start=(theta, theta'), a state just after a heel strike of "
+                  f"the gait at slope {slope:g} (steeper slopes take longer steps: a larger "
+                  f"theta)")
     else:
         given = np.asarray(start, dtype=np.float64)
         if given.shape != (2,) or not np.isfinite(given).all():
             raise ValueError(f"start must be two finite numbers (theta, theta'), got {start!r}")
         theta, rate = given
+        remedy = "pass another start, or choose other parameters"
     start = np.array([theta, 2 * theta, rate, rate * (1.0 - np.cos(2.0 * theta))])
-    x0, rho, t_event = _step_from(model, start)
+    x0, rho, t_event = _step_from(model, start, remedy)
     ex = Example(system=system, rho=rho, x0=x0, t_event=t_event,
                  t_final=float(f"{t_event + 0.1 * t_event:.15g}"), name="compass-gait",
                  description=f"compass-gait walker, slope {slope:g} rad, leg/hip mass "
                  f"{leg_mass / hip_mass:g}: a scuff and a heel strike every step (d = 4, "
                  f"n = 1)")
-    return check_start(ex, {"slope": slope, "theta": float(theta), "theta'": float(rate)})
+    return check_start(ex, {"slope": slope, "theta": float(theta), "theta'": float(rate)},
+                       remedy=remedy)
 
 
-def _step_from(model, start):
+def _step_from(model, start, remedy):
     """From a state just after heel strike: the state at mid-stance, the next heel strike
     and the time between them (integrated with scipy, events located by it)."""
 
@@ -256,7 +266,7 @@ def _step_from(model, start):
         raise ValueError(f"the compass gait with these parameters does not complete a step "
                          f"from (theta, theta') = {start[[0, 2]].tolist()} just after heel "
                          f"strike (no mid-stance and heel strike within 50 time units): "
-                         f"pass another start")
+                         f"{remedy}")
     return a.y_events[0][0], b.y_events[0][0], float(b.t_events[0][0])
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._common import perturbed_start
+
 
 def _positive(**values):
     for name, v in values.items():
@@ -16,5 +18,4 @@ def _orbit(ex, perturbation, section, gradient, kwargs):
     for two steps' time by default."""
     kwargs.setdefault("section_gradient", gradient)
     kwargs.setdefault("period_guess", 2.0 * ex.t_event)
-    return ex.system.periodic_orbit(ex.x0 + np.asarray(perturbation, dtype=np.float64),
-                                    section, **kwargs)
+    return ex.system.periodic_orbit(perturbed_start(ex, perturbation), section, **kwargs)
