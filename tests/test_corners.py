@@ -306,10 +306,9 @@ def test_corner_function_overtaking():
     np.testing.assert_allclose(t, times, atol=1e-12)
 
 
-def test_corner_function_beyond_62_events_matches_structured():
-    """happened is an array: n = 70 > 62 works; same map as the structured model."""
-    rng = np.random.default_rng(70)
-    n = 70
+def _additive(rng, n):
+    """``(Dh, model, function)``: a structured model of n events in R^n without pairs and
+    the corner function that adds its jumps, written out."""
     Dh, model = structured_system(rng, n, n, 0)
     F0, A = model.F0.copy(), model.A.copy()
 
@@ -320,7 +319,15 @@ def test_corner_function_beyond_62_events_matches_structured():
             if happened[k]:
                 out += A[k]
 
-    bd = BDerivative(Dh, CornerFunction(additive))
+    return Dh, model, CornerFunction(additive)
+
+
+def test_corner_function_beyond_62_events_matches_structured():
+    """happened is an array: n = 70 > 62 works; same map as the structured model."""
+    rng = np.random.default_rng(70)
+    n = 70
+    Dh, model, function = _additive(rng, n)
+    bd = BDerivative(Dh, function)
     ref = BDerivative(Dh, model)
     V = rng.standard_normal((50, n))
     np.testing.assert_allclose(bd(V), ref(V), atol=1e-10)
@@ -613,17 +620,8 @@ def test_a_corner_functions_launches_are_sized_by_their_time(monkeypatch):
 
     rng = np.random.default_rng(16)
     n = 16
-    Dh, model = structured_system(rng, n, n, 0)
-    F0, A = model.F0.copy(), model.A.copy()
-
-    @numba.njit
-    def additive(happened, out):
-        out[:] = F0
-        for k in range(happened.shape[0]):
-            if happened[k]:
-                out += A[k]
-
-    bd = BDerivative(Dh, CornerFunction(additive))
+    Dh, model, function = _additive(rng, n)
+    bd = BDerivative(Dh, function)
     V = rng.standard_normal((20000, n))
     sizes, launch = [], _drivers.Batch._launch
 
