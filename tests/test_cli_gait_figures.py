@@ -118,7 +118,7 @@ BAD = [
     (["--example", "pronking", "--figure", "gait"], "invalid choice: 'gait'"),
     (["--example", "pronking", "--figure", "growth", "scaling"], "pass --bench-json"),
     (["--example", "pronking", "--figure", "orbit", "--format", "jpg"], "invalid choice"),
-    (["--example", "pronking", "--figure", "orbit", "--dpi", "0"], "positive integer"),
+    (["--example", "pronking", "--figure", "orbit", "--dpi", "0"], "an integer >= 10"),
     (["--example", "pronking", "--figure", "orbit", "--dpi", "100000"],
      "--dpi 100000 makes the figure orbit 1000000 x 760000 pixels"),
 ]

@@ -188,12 +188,32 @@ def corner_point_bytes(n: int, d: int) -> int:
 
 
 def human_bytes(nbytes: float) -> str:
-    """``1536 -> '1.5 KiB'``."""
+    """``1536 -> '1.5 KiB'``, in B, KiB, ..., PiB; from 10,000 PiB on, in PiB with an exponent
+    (``'8.9e+10 PiB'``), for any Python int (beyond floats, 2**1024, too).
+
+    Examples
+    --------
+    >>> human_bytes(1000), human_bytes(1536), human_bytes(1 << 60), human_bytes(10**26)
+    ('1000 B', '1.5 KiB', '1024.0 PiB', '8.9e+10 PiB')
+    >>> human_bytes((1 << 100_000) * 8)  # 2**100003 B
+    '7.1e+30088 PiB'
+    """
+    if isinstance(nbytes, int) and nbytes >= 1 << 1000:  # no float holds it: from its log
+        import math
+
+        exponent = math.log10(nbytes) - 50 * math.log10(2)  # of the size in PiB
+        digits = math.floor(exponent)
+        mantissa = round(10 ** (exponent - digits), 1)
+        if mantissa >= 10:
+            mantissa, digits = 1.0, digits + 1
+        return f"{mantissa:.1f}e+{digits} PiB"
     for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
         if nbytes < 1024 or unit == "PiB":
-            return f"{nbytes:.1f} {unit}" if unit != "B" else f"{int(nbytes)} B"
+            break
         nbytes /= 1024
-    raise AssertionError("unreachable")
+    if unit == "B":
+        return f"{int(nbytes)} B"
+    return f"{nbytes:.1f} {unit}" if nbytes < 1e4 else f"{nbytes:.1e} {unit}"
 
 
 def row_norms(A: np.ndarray) -> np.ndarray:

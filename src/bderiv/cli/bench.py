@@ -5,11 +5,22 @@ from __future__ import annotations
 import os
 
 from .._limits import BENCH_BATCH, BENCH_REPEAT
-from .._support._tables import dense_table_bytes
-from . import sweep
+from .._support._tables import dense_table_bytes, human_bytes
+from . import sweep, usage
 from .figures import save_figure
 from .machine import describe, machine_info
-from .usage import check_figure_path, make_output_directory, require_memory, require_module
+from .usage import (
+    UsageError,
+    check_figure_path,
+    make_output_directory,
+    require_memory,
+    require_module,
+)
+
+#: the largest n whose bytes :func:`sweep_bytes` counts exactly: its 2**n rows are a Python
+#: int of n bits (a megabit here); a larger n (up to 2**53 is accepted as an integer) is
+#: refused by that count alone, 2**n bytes and more
+EXACT_BYTES_N = 1 << 20
 
 
 def sweep_bytes(n: int, d: int, batch: int) -> int:
@@ -56,7 +67,12 @@ def run_bench(ns, *, d_factor=1, batch=BENCH_BATCH, repeat=BENCH_REPEAT, plot=No
         check_figure_path(plot, "--plot")
     for n in ns:
         d = d_factor * n
-        require_memory(sweep_bytes(n, d, batch), f"--n {n} (d = {d}) with --batch {batch}")
+        what = f"--n {n} (d = {d}) with --batch {batch}"
+        if n > EXACT_BYTES_N:
+            raise UsageError(f"{what} needs more than 2**{n} B of memory (a table of 2**n "
+                             f"rows), but only {human_bytes(usage.memory_headroom())} is "
+                             f"available; ask for less")
+        require_memory(sweep_bytes(n, d, batch), what)
     rows = sweep.sweep(tuple(ns), d_factor=d_factor, batch=batch, repeat=repeat,
                         progress=progress)
     result = {"d_factor": d_factor, "batch": batch, "repeat": repeat,

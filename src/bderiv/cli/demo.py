@@ -27,7 +27,7 @@ from .machine import machine_info
 from .pieces import distinct_pieces, group_tables, piece_summary
 from .systems import load_example
 from .timing import Phases
-from .usage import require_memory
+from .usage import require_demo_memory
 
 #: tangent vectors of the batch whose event orders are counted (pieces met, shares)
 PIECE_SAMPLE = 100_000
@@ -76,9 +76,7 @@ def run_demo(example="chair", n=None, extended=False, batch=DEMO_BATCH, check=DE
     with phases("loading the example"):
         ex, bd = load_example(example, n, extended, compiled)
     dim = bd.dim if ex is None else ex.system.dim
-    # the batch, its image and one temporary of the flow's stages, before anything runs
-    require_memory(3 * batch * dim * 8, f"--batch {batch} (d = {dim})")
-    require_memory(3 * check * dim * 8, f"--check {check} (d = {dim})")
+    require_demo_memory(batch, check, dim)  # before anything runs
     res = {"example": example}
     if ex is None:
         with phases("corner table"):

@@ -26,10 +26,12 @@ from .._limits import CHECK_VECTORS, MAX_PIECES
 from .._support._tables import corner_point_bytes
 from ..geometry._triangulation_files import save_files
 from ..geometry.triangulation import load_triangulation
+from .names import check_example_options
 from .systems import load_example, refuse_without_triangulation
 from .usage import (
     UsageError,
     check_output_directory,
+    check_output_file,
     make_output_directory,
     not_writable,
     require_memory,
@@ -85,8 +87,12 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
     ``.npz``, which loading refuses (the pair token), beside the earlier ``.json``.
     """
     base = _output_base(out)
+    suffixes = ("npz", "json") if fmt == "both" else (fmt,)
+    for suffix in suffixes:  # each replaced by a rename: a directory in the way refused
+        check_output_file(f"{base}.{suffix}", "--out", in_place=False)
     if example is None:
         example = "network" if n is not None or extended else "chair"
+    check_example_options(example, n, extended)  # --n in its range before its n! below
     if n is not None:  # the pieces known before the example's tables are built
         _refuse_pieces(n, max_pieces)
     ex, bd = load_example(example, n, extended)
@@ -114,7 +120,7 @@ def run_export(example=None, n=None, extended=False, out="triangulation", fmt="b
         tri = flow_triangulation(fmap, max_pieces)
     V = np.random.default_rng(0).standard_normal((CHECK_VECTORS, d))
     expected = fmap(V)
-    paths = {f"{base}.{f}": f for f in (("npz", "json") if fmt == "both" else (fmt,))}
+    paths = {f"{base}.{f}": f for f in suffixes}
     errors = {}
 
     def read_back(temps):  # every file read back before any replaces its target

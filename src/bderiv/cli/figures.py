@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import numpy as np
@@ -20,11 +21,13 @@ from .names import (  # noqa: E402, F401  (the figures' names live in .names)
     FIGURES,
     FIGURES_2D,
     GAIT_FIGURES,
+    MIN_TEXT_PIXELS,
 )
 from .systems import ORBIT_EXAMPLES, load_example, load_gait, load_orbit
 from .usage import (
     UsageError,
     check_output_directory,
+    check_output_file,
     make_output_directory,
     not_writable,
     require_memory,
@@ -98,6 +101,9 @@ def run_figures(example=None, n=None, extended=False, figures=None, out=None,
         refused = _not_applicable(wanted, example, *sizes)
         if refused:
             raise UsageError(_refusal(*next(iter(refused.items())), example, *sizes))
+    written = [os.path.join(out, f"{name}.{fmt}") for name in wanted]
+    for path in written:  # every file, before the first is drawn
+        check_output_file(path, "--out")
     say = report or (lambda text: None)
     if example in ORBIT_EXAMPLES and set(wanted) - {"scaling"}:
         say(f"finding the {example} orbit by Newton's method (a few seconds)")
@@ -111,7 +117,6 @@ def run_figures(example=None, n=None, extended=False, figures=None, out=None,
                       if name == "scaling" else _draw(plot, name, example, subject))
     for name, fig in figs.items():  # refuse a --dpi before writing anything
         check_raster(fig, dpi, name)
-    written = [os.path.join(out, f"{name}.{fmt}") for name in figs]
     replaced = [path for path in written if os.path.exists(path)]
     created = make_output_directory(out, "--out")
     for fig, path in zip(figs.values(), written, strict=True):
@@ -194,10 +199,19 @@ def read_bench(path: str) -> dict:
             f"--bench-json: cannot read benchmark rows from {path!r}: {exc}"
         ) from None
     rows = data.get("rows") if isinstance(data, dict) else None
-    if not isinstance(rows, list) or not rows or not all(
-        isinstance(r, dict) and {"n", "method", "seconds_per_query"} <= r.keys() for r in rows
-    ):
+    if not isinstance(rows, list) or not rows:
         raise UsageError(f"--bench-json: {path!r} is not the output of `bderiv bench --json`")
+    for i, row in enumerate(rows):
+        wrong = _wrong_row(row)
+        if wrong:
+            raise UsageError(f"--bench-json: {path!r} is not the output of `bderiv bench "
+                             f"--json`: rows[{i}]{wrong}")
+    ds = {}  # one dimension d per n, as the figure draws it
+    for i, row in enumerate(rows):
+        if ds.setdefault(row["n"], (row.get("d"), i))[0] != row.get("d"):
+            raise UsageError(f"--bench-json: {path!r} mixes sweeps: rows[{i}] has d = "
+                             f"{row.get('d')} at n = {row['n']}, rows[{ds[row['n']][1]}] has d = "
+                             f"{ds[row['n']][0]}; keep one d per n")
     try:
         machine = describe(data["machine"])
     except (KeyError, TypeError, AttributeError):
@@ -206,8 +220,49 @@ def read_bench(path: str) -> dict:
     return {"rows": rows, "machine": machine}
 
 
+#: the keys of a row of ``bderiv bench --json`` that the scaling figure reads, each with
+#: what its value must be (``d`` and ``m`` may be left out)
+_ROW_KEYS = {"n": "a positive integer", "method": "a string",
+             "seconds_per_query": "a positive number", "d": "a positive integer",
+             "m": "a positive integer"}
+
+
+def _wrong_row(row) -> str | None:
+    """What is wrong with a row of ``--bench-json``, to follow ``rows[i]`` (``' lacks
+    ...'``, ``"['n'] is ..."``), or None."""
+    if not isinstance(row, dict):
+        return f" is {json.dumps(row)[:40]}, not an object with the keys n, method and " \
+               f"seconds_per_query"
+    for key, expected in _ROW_KEYS.items():
+        if key not in row:
+            if key in ("d", "m"):
+                continue
+            return f" lacks the key {key!r}"
+        value = row[key]
+        if key == "method":
+            good = isinstance(value, str)
+        elif key == "seconds_per_query":
+            good = (isinstance(value, int | float) and not isinstance(value, bool)
+                    and math.isfinite(value) and value > 0)
+        else:
+            good = isinstance(value, int) and not isinstance(value, bool) and value >= 1
+        if not good:
+            return f"[{key!r}] is {json.dumps(value)[:40]}, not {expected}"
+    return None
+
+
 def check_raster(fig, dpi: int, name: str) -> None:
-    """Refuse a ``dpi`` that makes ``fig`` an image Agg or the memory cannot hold."""
+    """Refuse a ``dpi`` that makes ``fig`` an image Agg or the memory cannot hold, or its
+    text too small for Agg to draw (fonts made small by matplotlib's settings)."""
+    from matplotlib.text import Text
+
+    small = min((t.get_fontsize() for t in fig.findobj(Text) if t.get_text()), default=None)
+    if small is not None and small * dpi / 72 < MIN_TEXT_PIXELS:
+        raise UsageError(
+            f"--dpi {dpi} makes the smallest text of the figure {name} ({small:g} pt) "
+            f"{small * dpi / 72:.2g} pixel high, too small to draw; at least --dpi "
+            f"{math.ceil(MIN_TEXT_PIXELS * 72 / small)} for this figure"
+        )
     width, height = fig.get_size_inches() * dpi
     if max(width, height) >= MAX_SIDE_PIXELS:
         raise UsageError(

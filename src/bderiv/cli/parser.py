@@ -31,13 +31,17 @@ from .names import (
     FIGURES,
     GAIT_EXAMPLES,
     GAIT_FIGURES,
+    GAIT_HELP,
     IMPACT_EXAMPLES,
+    MIN_DPI,
     MODEL_EXAMPLES,
     ORBIT_EXAMPLES,
     TABLE_EXAMPLES,
+    check_demo_options,
     check_example_options,
+    demo_dim,
 )
-from .usage import UsageError
+from .usage import UsageError, require_demo_memory, require_robot_files
 from .warmup import FAMILIES
 
 # the commands' computations (numba, scipy, the kernels) are imported by the command that
@@ -81,20 +85,8 @@ _positive_int = _argument_type(_integer, lambda v: v >= 1, "a positive integer")
 _nonneg_int = _argument_type(_integer, lambda v: v >= 0, "an integer >= 0")
 _eps = _argument_type(float, lambda v: EPS_RANGE[0] <= v <= EPS_RANGE[1],
                       f"a step between {EPS_RANGE[0]:g} and {EPS_RANGE[1]:g}")
-
-
-#: the examples beyond the models and the corner tables, in the help of ``--example``
-_GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability)",
-              "landing": "the impact landing (resets at a simultaneous touchdown)",
-              "rimless-wheel": "the rimless wheel's gait (a leg swap every step, against "
-                               "its closed forms)",
-              "compass-gait": "the compass gait (leg swaps; against Garcia et al. 1998)",
-              "ball-in-corner": "a ball bouncing off two walls at once (resets that send "
-                                "the state back)",
-              "quadruped": "a planar quadruped pronking, built from its equations "
-                           "(bderiv.symbolic.contact_system; sympy)",
-              "solo12": "Solo12's four-foot touchdown from its URDF (bderiv.robots; "
-                        "Pinocchio)"}
+_dpi = _argument_type(_integer, lambda v: v >= MIN_DPI, f"an integer >= {MIN_DPI} (below, "
+                      f"the figures' text would be under a pixel high)")
 
 
 def _add_example_args(p, default_help, gaits=()):
@@ -103,7 +95,7 @@ def _add_example_args(p, default_help, gaits=()):
                    f"{', '.join(MODEL_EXAMPLES)} or the corner tables "
                    f"{' and '.join(TABLE_EXAMPLES)} (no model, so no flow map; planar: 2 "
                    f"events in the plane)"
-                   + "".join(f"; {_GAIT_HELP[g]}" for g in gaits))
+                   + "".join(f"; {GAIT_HELP[g]}" for g in gaits))
     p.add_argument("--n", type=_positive_int, default=None,
                    help=f"number of events of --example network (1..{NETWORK_MAX_N}, "
                    f"default 3); --n alone means --example network")
@@ -120,8 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     Examples
     --------
     >>> args = build_parser().parse_args(["demo", "--example", "network", "--n", "4"])
-    >>> args.command, args.example, args.n, args.batch
-    ('demo', 'network', 4, 1000000)
+    >>> args.command, args.example, args.n, args.batch  # None: the option left out
+    ('demo', 'network', 4, None)
     """
     from .. import __version__
 
@@ -137,14 +129,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="the B-derivative of a built-in model, checked against "
                        "simulation (default command)")
     _add_example_args(p, "chair", GAIT_EXAMPLES)
-    p.add_argument("--batch", type=_positive_int, default=DEMO_BATCH,
+    # --batch, --check, --eps: None when left out (an example that ignores one refuses it)
+    p.add_argument("--batch", type=_positive_int,
                    help=f"tangent vectors in the timed batch (default {DEMO_BATCH})")
-    p.add_argument("--check", type=_nonneg_int, default=DEMO_CHECK,
+    p.add_argument("--check", type=_nonneg_int,
                    help=f"vectors checked against finite differences (default {DEMO_CHECK}, "
                    f"0 = none)")
-    p.add_argument("--eps", type=_eps, nargs="+", default=list(FD_EPS),
-                   help=f"finite-difference steps, each between {EPS_RANGE[0]:g} and "
-                   f"{EPS_RANGE[1]:g} (default {' '.join(f'{e:.0e}' for e in FD_EPS)})")
+    p.add_argument("--eps", type=_eps, nargs="+",
+                   help=f"finite-difference steps, largest first, each between "
+                   f"{EPS_RANGE[0]:g} and {EPS_RANGE[1]:g} (default "
+                   f"{' '.join(f'{e:.0e}' for e in FD_EPS)})")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
     p.add_argument("--full", action="store_true",
                    help="also print the matrices: the pieces listed, each group's Dh and "
@@ -189,8 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
                    f"the output says which")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
                    help="file format (default png)")
-    p.add_argument("--dpi", type=_positive_int, default=120,
-                   help="resolution of png files (default 120)")
+    p.add_argument("--dpi", type=_dpi, default=120,
+                   help=f"resolution of png files (default 120, at least {MIN_DPI})")
     p.add_argument("--bench-json", metavar="FILE",
                    help="rows of `bderiv bench --json` (a file) for the scaling figure")
     p.add_argument("--json", action="store_true", help="print the files written as JSON")
@@ -227,11 +221,9 @@ def _demo(args) -> str | None:
     example = args.example
     if example is None:
         example = "network" if args.n is not None or args.extended else "chair"
-    if args.python and example not in COMPILED_EXAMPLES:
-        raise UsageError(f"--python chooses the Python functions of an example that has "
-                         f"numba-compiled ones ({', '.join(COMPILED_EXAMPLES)}); {example} "
-                         f"has no compiled version, so it means nothing there")
-
+    check_demo_options(example, {"--batch": args.batch, "--check": args.check,
+                                 "--eps": args.eps, "--full": args.full or None,
+                                 "--python": args.python or None})
     if example in GAIT_EXAMPLES:
         return _gait_demo(args)
 
@@ -239,12 +231,15 @@ def _demo(args) -> str | None:
         print(render.demo_section(section, res), end="", flush=True)
 
     check_example_options(example, args.n, args.extended)
+    batch = DEMO_BATCH if args.batch is None else args.batch
+    check = DEMO_CHECK if args.check is None else args.check
+    require_demo_memory(batch, check, demo_dim(example, args.n, args.extended))
     if example in MODEL_EXAMPLES and not args.json:  # before the computations load
         print(f"bderiv demo: {example}", flush=True)
     progress = None if args.no_progress else render.progress_bar("finite differences")
     from .demo import run_demo
 
-    res = run_demo(example, args.n, args.extended, args.batch, args.check, tuple(args.eps),
+    res = run_demo(example, args.n, args.extended, batch, check, tuple(args.eps or FD_EPS),
                    args.seed, args.full, progress=progress,
                    report=show if not args.json else None, compiled=not args.python)
     return render.to_json(res, indent=1) if args.json else None
@@ -264,6 +259,7 @@ def _gait_demo(args) -> str:
     from ..examples import gaits, impacts, walker_report
 
     if args.example == "solo12":
+        require_robot_files("--example solo12")
         from ..robots import demo
 
         res = demo.solo12_summary(seed=args.seed)

@@ -270,6 +270,7 @@ def bench_text(result: dict) -> str:
              format_table(result["rows"]),
              "speed-up = numpy / bderiv; % of BLAS = useful work rate (n^2 + 2 n d flops per "
              "query) over a matrix product of the same flop count",
+             *_without_numpy(result["rows"]),
              f"measured on {describe(result['machine'])}"]
     if any(r["method"] == "bderiv" and r["gflops"] > _blas_gflops(result["rows"], r)
            for r in result["rows"]):
@@ -281,6 +282,17 @@ def bench_text(result: dict) -> str:
         lines += _made(plot["created"])
         lines.append(f"plot written to {plot['path']}{_replaced(plot['replaced'])}")
     return "\n".join(lines) + "\n"
+
+
+def _without_numpy(rows) -> list:
+    """The note on the sizes whose NumPy baseline was not timed (none when all were)."""
+    from .sweep import NUMPY_MAX_N
+
+    ns = [r["n"] for r in rows if r["method"] == "bderiv" and "speedup" not in r]
+    if not ns:
+        return []
+    return [f"numpy ns/q and speed-up '-' at n = {', '.join(map(str, ns))}: the NumPy "
+            f"baseline is timed up to n = {NUMPY_MAX_N} only"]
 
 
 def _blas_gflops(rows, row) -> float:

@@ -30,9 +30,12 @@ from ..engine._baselines import (
 )
 from ..engine.bderivative import BDerivative
 
+#: the largest n at which :func:`sweep` times the NumPy baseline by default
+NUMPY_MAX_N = 16
+
 
 def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: int = BENCH_REPEAT,
-          numpy_max_n: int = 16, seed: int = 0, progress=None):
+          numpy_max_n: int = NUMPY_MAX_N, seed: int = 0, progress=None):
     """Time bderiv, the NumPy baseline and the BLAS yardstick for each n.
 
     Parameters
@@ -100,7 +103,8 @@ def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: i
 
 
 def format_table(rows) -> str:
-    """A plain-text table of :func:`sweep` rows (one line per n)."""
+    """A plain-text table of :func:`sweep` rows (one line per n); ``-`` where a row has no
+    NumPy baseline (n above ``numpy_max_n``), no speed-up nor BLAS yardstick."""
     by_n = {}
     for r in rows:
         by_n.setdefault((r["n"], r["d"], r["m"]), {})[r["method"]] = r
@@ -113,11 +117,12 @@ def format_table(rows) -> str:
         b = r["bderiv"]
         np_ = r.get("numpy")
         blas = r.get("blas")
+        numpy_ns = f"{np_['seconds_per_query'] * 1e9:>11.1f}" if np_ else f"{'-':>11}"
+        speedup = f"{b['speedup']:>8.1f}x" if "speedup" in b else f"{'-':>9}"
+        of_blas = f"{100 * b['gflops'] / blas['gflops']:>8.1f}%" if blas else f"{'-':>9}"
         lines.append(
             f"{n:>3} {d:>3} {m:>9,} {b['build_seconds'] * 1e3:>7.2f}ms "
-            f"{b['seconds_per_query'] * 1e9:>12.1f} "
-            f"{np_['seconds_per_query'] * 1e9 if np_ else float('nan'):>11.1f} "
-            f"{b.get('speedup', float('nan')):>8.1f}x {b['gflops']:>8.2f} "
-            f"{100 * b['gflops'] / blas['gflops'] if blas else float('nan'):>8.1f}%"
+            f"{b['seconds_per_query'] * 1e9:>12.1f} {numpy_ns} {speedup} {b['gflops']:>8.2f} "
+            f"{of_blas}"
         )
     return "\n".join(lines)

@@ -47,6 +47,13 @@ def require_memory(nbytes: int, what: str) -> None:
         )
 
 
+def require_demo_memory(batch: int, check: int, dim: int) -> None:
+    """Refuse a demo whose batch (with its image and one temporary of the flow's stages) or
+    check vectors do not fit, ``3 * vectors * dim`` float64 each."""
+    require_memory(3 * batch * dim * 8, f"--batch {batch} (d = {dim})")
+    require_memory(3 * check * dim * 8, f"--check {check} (d = {dim})")
+
+
 def require_module(module: str, for_what: str) -> None:
     """Refuse ``for_what`` when the optional ``module`` is not installed."""
     if importlib.util.find_spec(module) is None:
@@ -55,13 +62,45 @@ def require_module(module: str, for_what: str) -> None:
         )
 
 
+def require_robot_files(for_what: str) -> None:
+    """Refuse ``for_what`` without Pinocchio or example-robot-data (the extra ``robots``)."""
+    from ..robots import _files
+
+    try:
+        _files.require_pinocchio()
+        _files.example_robot_data()
+    except ImportError as exc:  # the library's message says what to install
+        raise UsageError(f"{for_what}: {exc}") from None
+
+
 def check_figure_path(path: str, option: str) -> None:
     """Refuse a figure path before any work is done (suffix; a directory that exists and
-    is writable, or can be made)."""
+    is writable, or can be made; no directory of that name in the way)."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".png", ".pdf", ".svg"):
         raise UsageError(f"{option}: figure file {path!r} must end in .png, .pdf or .svg")
     check_output_directory(os.path.dirname(os.path.abspath(path)), option)
+    check_output_file(path, option)
+
+
+def check_output_file(path: str, option: str, in_place: bool = True) -> None:
+    """Refuse, before any work is done, an output file that exists but cannot be replaced:
+    a directory of that name, or (``in_place``: a file opened for writing, not replaced by
+    a rename) a file that this process may not write.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> check_output_file(tempfile.mkdtemp(), "--out")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    bderiv.cli.usage.UsageError: --out: cannot write '...': a directory of that name is in the way
+    """
+    if os.path.isdir(path):
+        raise UsageError(f"{option}: cannot write {path!r}: a directory of that name is in "
+                         f"the way")
+    if in_place and os.path.exists(path) and not os.access(path, os.W_OK):
+        raise UsageError(f"{option}: cannot write {path!r}: the file there is not writable")
 
 
 def check_output_directory(directory: str, option: str) -> None:
