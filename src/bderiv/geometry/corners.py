@@ -73,7 +73,7 @@ class CornerModel(Protocol):
 
 def check_table_size(n: int, d: int, what: str = "the dense table") -> None:
     """Refuse ``what`` (something that needs a model's dense table) above
-    ``MAX_TABLE_EVENTS`` events, or beyond what the process may take."""
+    ``MAX_TABLE_EVENTS`` events."""
     if n > MAX_TABLE_EVENTS:
         raise ValueError(
             f"{what} of a corner model with n={n} events needs its dense table of 2**{n} "
@@ -81,8 +81,6 @@ def check_table_size(n: int, d: int, what: str = "the dense table") -> None:
             f"for n > {MAX_TABLE_EVENTS}. apply, inverse, event_times and piece work for any "
             f"n without it"
         )
-    check_memory((1 << n) * d * 8, None,
-                 f"{what} of a corner model ({n} events in R^{d}: 2**{n} rows of {d} float64)")
 
 
 def _check_corners_memory(lead, d) -> None:
@@ -115,6 +113,9 @@ class _Tabulated:
         """The dense (2**n, d) table (n <= ``MAX_TABLE_EVENTS``), e.g. for comparisons."""
         n, d = self._sizes("the dense table")
         check_table_size(n, d)
+        check_memory((1 << n) * d * 8, None,
+                     f"the dense table of a corner model ({n} events in R^{d}: 2**{n} rows of "
+                     f"{d} float64)")
         return _tables.tabulate(self.corners, n, d)
 
 
