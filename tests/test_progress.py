@@ -251,4 +251,4 @@ def test_default_chunks_are_sized_by_their_time(monkeypatch):
     monkeypatch.setattr(_batch, "CHUNK_SECONDS", 1e-12)  # as if each row took ages
     seen.clear()
     assert bd(V, progress=lambda done, total: seen.append(done)).tobytes() == whole.tobytes()
-    assert seen[:3] == [4096, 4096 + 64, 4096 + 128]  # the smallest chunks: 64 rows
+    assert seen[:3] == [4096, 4096 + 1024, 4096 + 2048]  # the smallest: a parallel launch

@@ -194,6 +194,19 @@ THREAD_EXTRA_BYTES = 2 << 20
 DEFAULT_CHUNK_ROWS = 1 << 16
 FIRST_CHUNK_ROWS = 1 << 12
 CHUNK_SECONDS = 0.5
+
+
+def sized_by_time(rows: int, took: float, seconds: float, low: int, high: int) -> int:
+    """The rows of the next launch or chunk: as many as the last (``rows`` in ``took``
+    seconds) would run in ``seconds``, within ``[low, high]`` (the rule of the kernels'
+    timed launches and of the batches' default chunks).
+
+    Examples
+    --------
+    >>> sized_by_time(1000, 0.1, 0.5, 64, 1 << 16), sized_by_time(1000, 10.0, 0.5, 64, 9999)
+    (5000, 64)
+    """
+    return int(min(max(rows * seconds / max(took, 1e-6), low), high))
 #: rows of a batch above which it is chunked all the same (``DEFAULT_CHUNK_ROWS``): a
 #: batch in one call held Ctrl-C for seconds (5e6 rows of d = 30: 0.6 to 2.9 s, its
 #: scaling step one call over all rows); 2**20 keeps the benchmarks' 10**6 in one call

@@ -29,7 +29,7 @@ from numba import njit, parallel_chunksize, prange
 from numba.core import cgutils, errors
 from numba.extending import intrinsic
 
-from .._limits import LAUNCH_SECONDS, PARALLEL_MIN_QUERIES
+from .._limits import LAUNCH_SECONDS, PARALLEL_MIN_QUERIES, sized_by_time
 from .._numerics import TASK_QUERIES
 from ._cache import harden_all, keyed
 from ._core import JIT, SOURCES, cached, frozen_tables, read_only
@@ -326,12 +326,11 @@ class Batch:
         while start < m:
             stop = min(start + size, m)
             part = tuple(o[start:stop] for o in outs)
-            began = time.perf_counter()
+            began = time.perf_counter() if timed else 0.0
             bad += self._launch(tables, V[start:stop], part, inverse)
             if timed:  # (a first launch that compiled is short and soon outgrown)
-                took = max(time.perf_counter() - began, 1e-6)
-                size = int(min(max((stop - start) * LAUNCH_SECONDS / took,
-                                   PARALLEL_MIN_QUERIES), launch))
+                size = sized_by_time(stop - start, time.perf_counter() - began,
+                                     LAUNCH_SECONDS, PARALLEL_MIN_QUERIES, launch)
             start = stop
         return bad
 

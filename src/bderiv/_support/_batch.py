@@ -12,7 +12,14 @@ import time
 
 import numpy as np
 
-from .._limits import CHUNK_SECONDS, DEFAULT_CHUNK_ROWS, FIRST_CHUNK_ROWS, IMPLICIT_CHUNK_ROWS
+from .._limits import (
+    CHUNK_SECONDS,
+    DEFAULT_CHUNK_ROWS,
+    FIRST_CHUNK_ROWS,
+    IMPLICIT_CHUNK_ROWS,
+    PARALLEL_MIN_QUERIES,
+    sized_by_time,
+)
 from ._errors import QueryError
 from ._tables import human_bytes
 from ._validate import check_out, check_points, check_positive_int, memory_limit_for
@@ -120,11 +127,11 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
         if out is not None and np.may_share_memory(flat, res):
             flat = flat.copy()
         _run(kernel, flat, res[start:stop], start, name, lead)
+        if timed:  # no fewer rows than a parallel launch takes: slow rows keep both threads
+            size = sized_by_time(stop - start, time.perf_counter() - began, CHUNK_SECONDS,
+                                 PARALLEL_MIN_QUERIES, DEFAULT_CHUNK_ROWS)
         if progress is not None:
             progress(stop, total)
-        if timed:
-            took = max(time.perf_counter() - began, 1e-6)
-            size = int(min(max((stop - start) * CHUNK_SECONDS / took, 64), DEFAULT_CHUNK_ROWS))
         start = stop
     if progress is not None and total == 0:
         progress(0, 0)

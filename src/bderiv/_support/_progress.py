@@ -276,6 +276,21 @@ def count_bar(total: int, desc: str, units: str, delay: float | None = None, **b
                       + units + "{postfix} [{elapsed}<{remaining}]", delay, **bar)
 
 
+def search_bar(most: int, desc: str, step: str) -> DelayedBar:
+    """A :class:`DelayedBar` of a search of at most ``most`` steps (``step``: the word for
+    one, "Newton iterate"), with the last call's note (a residual, a cost) and no estimate
+    of the time left (a search may end at any step).
+
+    Examples
+    --------
+    >>> bar = search_bar(30, "ilqr", "iteration")
+    >>> bar._options["bar_format"]
+    '{desc}: iteration {n:.0f} (of at most {total:.0f}){postfix} [{elapsed}]'
+    """
+    return DelayedBar(most, desc, "{desc}: " + step + " {n:.0f} (of at most {total:.0f})"
+                      "{postfix} [{elapsed}]")
+
+
 #: a simulation's bar: the simulated time reached, and an estimate of the time left
 _SIMULATION_FORMAT = ("{desc}: {percentage:3.0f}%|{bar}| t = {n:.4g} of {total:.4g} "
                       "[{elapsed}<{remaining}]")

@@ -48,7 +48,7 @@ from .._limits import (
     ORBIT_TOL,
     T_MAX_PER_PERIOD,
 )
-from .._support._progress import DelayedBar
+from .._support._progress import search_bar
 from .._support._validate import check_number, check_positive_int
 from ..models.integrate.options import SolverOptions, check_options
 from ..models.integrate.run import ENDS, NoReturn, run
@@ -73,9 +73,6 @@ from .stability import (
 )
 
 __all__ = ["NewtonIterate", "PeriodicOrbit", "periodic_orbit"]
-
-#: the bar of a long search (drawn after a few seconds, on a terminal)
-_NEWTON_BAR = "{desc}: Newton iterate {n:.0f} (of at most {total:.0f}){postfix} [{elapsed}]"
 
 #: integrator settings of the orbit search: the residual is only as good as the
 #: integration, and Newton's method converges to within it.
@@ -277,7 +274,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
             system.calls, s, t_max, options=iterates, section=section, record=ENDS)).x_final
             for start in starts]
         check_independence(returned, x, shifted, cyclic)
-    with DelayedBar(max_iter, "periodic_orbit", _NEWTON_BAR) as bar:  # long searches
+    with search_bar(max_iter, "periodic_orbit", "Newton iterate") as bar:  # long searches
         for iteration in range(max_iter + 1):
             R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build:
                                               _build(system, x, section, t_max, b, iterates))

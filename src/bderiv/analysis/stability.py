@@ -77,8 +77,8 @@ class Stability:
 
     @property
     def verdict_word(self) -> str:
-        """"stable", "unstable" or "undecided" (``stable`` None)."""
-        return {True: "stable", False: "unstable"}.get(self.stable, "undecided")
+        """"stable", "unstable" or "undecided" (``stable`` None): :func:`verdict_word`."""
+        return verdict_word(self.stable)
 
     def summary(self) -> str:
         """A few lines: the verdict, the rate, and the pieces with their multipliers."""
@@ -116,6 +116,12 @@ class Growth(NamedTuple):
     rates: np.ndarray
     spread: np.ndarray
     visits: dict
+
+
+def verdict_word(stable) -> str:
+    """``stable`` (True, False or None: :attr:`Stability.stable`) in a word: "stable",
+    "unstable" or "undecided"."""
+    return {True: "stable", False: "unstable"}.get(stable, "undecided")
 
 
 def verdict(rate: float, spread: float) -> bool | None:

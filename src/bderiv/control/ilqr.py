@@ -54,14 +54,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._support._progress import DelayedBar
+from .._support._progress import search_bar
 from .._support._validate import check_number, check_positive_int, check_real_array
 from .parametric import ParametricFlow
 
 __all__ = ["ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]
-
-#: the bar of a long search (drawn after a few seconds, on a terminal)
-_BAR = "{desc}: iteration {n:.0f} (of at most {total:.0f}){postfix} [{elapsed}]"
 
 
 @dataclass
@@ -301,7 +298,7 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
     steps, orders = _linearise(flow, X, U, dt, fixed)
     history.append(Iteration(cost, 0.0, mu, orders, seconds=time.perf_counter() - start))
     converged, stalled = cost <= cost_tol, False  # (a start at the target: done)
-    with DelayedBar(max_iters, "ilqr", _BAR) as bar:  # long searches
+    with search_bar(max_iters, "ilqr", "iteration") as bar:  # long searches
         while len(history) <= max_iters and not converged:
             start, accepted = time.perf_counter(), None
             while accepted is None and mu <= mu_max:

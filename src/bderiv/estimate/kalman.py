@@ -153,14 +153,14 @@ class HybridKalmanFilter:
     def _region(self, mean, what, advice):
         """The region mask of a new ``mean``; a ValueError saying ``what`` put it on an
         event surface (the filter unchanged: the next step could not start there)."""
-        h = np.asarray(self.model.calls.eval_events(mean))
-        on = np.flatnonzero(h == 0).tolist()
-        if on:
-            raise ValueError(f"{what} with the mean on the surface of event(s) {on} "
-                             f"(events(mean) = {h}), where its region is ambiguous and the "
-                             f"next step could not start: {advice} (the filter is left as it "
-                             f"was)")
-        return self.model.calls.start_mask(mean)
+        try:
+            return self.model.calls.start_mask(mean)
+        except ValueError as exc:  # on a surface: its region is ambiguous
+            h = np.asarray(self.model.calls.eval_events(mean))
+            raise ValueError(f"{what} with the mean on the surface of event(s) "
+                             f"{np.flatnonzero(h == 0).tolist()} (events(mean) = {h}), where "
+                             f"its region is ambiguous and the next step could not start: "
+                             f"{advice} (the filter is left as it was)") from exc
 
     def _flow_map(self, dt):
         """The step's B-derivative at the mean and its window (class docstring).

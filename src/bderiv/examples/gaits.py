@@ -37,6 +37,7 @@ from numba.extending import register_jitable
 
 from .._limits import FD_EPS
 from .._support._validate import check_number, check_numbers, check_positive_int
+from ..analysis.stability import verdict_word
 from ._common import Example, check_start, compile_function, perturbed_start
 
 __all__ = [
@@ -367,7 +368,7 @@ def summary_text(res):
         dirs = ",".join(arrow[d] for d in g["directions"])
         lines.append(f"  event group at t = {g['time']:.6f}: events {tuple(g['events'])} "
                      f"crossed {dirs}")
-    verdict = "stable" if st["stable"] else "unstable"
+    verdict = verdict_word(st["stable"])
     lines.append(f"return map: growth rate {st['growth_rate']:.6f} -> {verdict} (spread of "
                  f"the estimate {st['spread']:.1e})")
     for p in sorted(st["pieces"], key=lambda p: -p["visits"]):

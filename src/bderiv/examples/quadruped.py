@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from .._kernels._cache import checked_njit
+from ..analysis.stability import verdict_word
 
 __all__ = ["APEX", "LABELS", "apex_section", "quadruped", "quadruped_figure",
            "quadruped_orbit", "quadruped_summary", "summary_text"]
@@ -217,7 +218,7 @@ def summary_text(res) -> str:
                      f"inverse-mass coupling of two feet {g['coupling']:.1e}")
     lines.append(f"  at a touchdown pitched by {res['coupling']['pitch']} rad the feet would "
                  f"be coupled ({res['coupling']['max_relative']:.3f}): refused if simultaneous")
-    verdict = "stable" if st["stable"] else "unstable"
+    verdict = verdict_word(st["stable"])
     mult = ", ".join(f"{m:.4f}" for m in st["abs_multipliers"] if m > 1e-9)
     lines.append(f"return map: growth rate {st['growth_rate']:.6f} -> {verdict} in "
                  f"{st['seconds']:.2f} s ({st['pieces']} pieces met; the most visited has "

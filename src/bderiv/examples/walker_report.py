@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..analysis.stability import verdict_word
 from .walkers import (
     GARCIA_EIGENVALUES,
     GARCIA_FIXED_POINT,
@@ -105,7 +106,7 @@ def summary_text(res):
         lines.append(f"  t = {g['time']:.6f}: event {g['events'][0]} crossed {way}{jump} "
                      f"({kind})")
     mult = ", ".join(f"{complex(*z):.6f}" for z in st["multipliers"])
-    verdict = "stable" if st["stable"] else "unstable"
+    verdict = verdict_word(st["stable"])
     lines.append(f"return map: growth rate {st['growth_rate']:.6f} -> {verdict}; multipliers "
                  f"on the section {mult}")
     ref = res["reference"]
