@@ -231,8 +231,8 @@ def test_the_default_limit_is_what_the_process_may_take(monkeypatch):
         model.corners(np.zeros((4096, n), np.uint8))
     with pytest.raises(ValueError, match=rf"the piece matrices of 30 vectors .*{limit}"):
         bd.piece_matrices(-np.ones((30, d)))
-    with pytest.raises(ValueError, match=rf"the result for V, float64 of shape \(3000, 100\), "
-                                         rf"takes 2.3 MiB, {limit}: pass out="):
+    with pytest.raises(ValueError, match=rf"the result for V \(float64 of shape \(3000, 100\)\) "
+                                         rf"would take 2.3 MiB, {limit}: pass out="):
         bd(-np.ones((3000, d)))
     with pytest.raises(ValueError, match=rf"the event times and orders of 11000 vectors .*"
                                          rf"{limit}"):

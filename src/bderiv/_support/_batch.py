@@ -21,8 +21,7 @@ from .._limits import (
     sized_by_time,
 )
 from ._errors import QueryError
-from ._tables import human_bytes
-from ._validate import check_out, check_points, check_positive_int, memory_limit_for
+from ._validate import check_memory, check_out, check_points, check_positive_int
 
 
 def is_dask_array(x) -> bool:
@@ -141,13 +140,10 @@ def _chunked(kernel, V, dim, name, out, chunk_size, progress, desc):
 def _result(shape, name) -> np.ndarray:
     """The result of a batch, refused by name beyond what the process may take (a memmap
     of millions of rows: the result goes to a file of its own through ``out=``)."""
-    need = 8 * int(np.prod(shape, dtype=object))
-    limit = memory_limit_for(need, None)
-    if need > limit:
-        raise ValueError(f"the result for {name}, float64 of shape {shape}, takes "
-                         f"{human_bytes(need)}, more than the memory limit of "
-                         f"{human_bytes(limit)}: pass out=, a writeable np.memmap of that "
-                         f"shape, to write it to a file instead")
+    check_memory(8 * int(np.prod(shape, dtype=object)), None,
+                 f"the result for {name} (float64 of shape {shape}) would",
+                 "pass out=, a writeable np.memmap of that shape, to write it to a file "
+                 "instead")
     return np.empty(shape)
 
 

@@ -289,16 +289,14 @@ def check_finite_result(res, name: str, offset: int, what: str = "result") -> No
             q + offset, name)
 
 
-def check_memory(need: int, memory_limit, what: str) -> None:
+def check_memory(need: int, memory_limit, what: str, instead: str = "") -> None:
     """Refuse ``need`` bytes above ``memory_limit`` (default: what the process may still
     take, :func:`bderiv._support._tables.memory_headroom`: the memory available, and under
-    ``ulimit -v`` what the address-space limit leaves)."""
+    ``ulimit -v`` what the address-space limit leaves); ``instead``: what to do, if said."""
     limit = memory_limit_for(need, memory_limit)
     if need > limit:
-        raise ValueError(
-            f"{what} take {human_bytes(need)}, more than the memory limit of "
-            f"{human_bytes(limit)}"
-        )
+        raise ValueError(f"{what} take {human_bytes(need)}, more than the memory limit of "
+                         f"{human_bytes(limit)}" + (f": {instead}" if instead else ""))
 
 
 class RecordTooLarge(ValueError):
