@@ -53,11 +53,19 @@ def check_closed_form(smap):
 
 
 def test_closed_form_growth_rates_serially():
-    calls = []
-    smap = stability_map(cycle, GRID, [1.05, 0.0], section, period_guess=1.0,
+    """Each point's model is built once: the first point's, built to check x_guess, is
+    the one its orbit is found on (it was built twice: a robot's URDF loaded again)."""
+    calls, built = [], []
+
+    def counted(**params):
+        built.append(params)
+        return cycle(**params)
+
+    smap = stability_map(counted, GRID, [1.05, 0.0], section, period_guess=1.0,
                          progress=lambda done, total: calls.append((done, total)))
     check_closed_form(smap)
     assert calls[-1] == (6, 6) and len(calls) == 6
+    assert len(built) == 6 and built[0] == {"multiplier": 0.5, "turns": 1.0}
     assert "4 stable, 2 unstable, 0 without an orbit" in smap.summary()
 
 

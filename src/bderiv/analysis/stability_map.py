@@ -177,11 +177,11 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     n_directions = check_positive_int(n_directions, "n_directions")
     iterations = check_iterations(iterations)
     # checked here: a bad one would be refused at every point, each recorded as "no orbit"
-    x_guess = _check_guess(make_system, {n: float(a[0]) for n, a in zip(names, axes,
-                                                                         strict=True)}, x_guess)
+    first = {n: float(a[0]) for n, a in zip(names, axes, strict=True)}
+    x_guess, system = _check_guess(make_system, first, x_guess)
     shape = tuple(a.size for a in axes)
     task = _Task(make_system, names, section, period_guess, accept, n_directions, iterations,
-                 orbit_options, x_guess)
+                 orbit_options, x_guess, (first, system))
     run, close = _runner(client)
     progress = resolve_progress(progress, desc="stability map", unit="point")
     results, done, total = {}, 0, math.prod(shape)
@@ -230,8 +230,9 @@ def _check_grid(grid):
 
 
 def _check_guess(make_system, params, x_guess):
-    """``x_guess`` checked against the model of the grid's first point (built here, so that
-    a guess of the wrong size is refused before the grid runs, not at every point)."""
+    """``(x_guess, system)``: ``x_guess`` checked against the model of the grid's first
+    point (built here, so that a guess of the wrong size is refused before the grid runs,
+    not at every point), and that model."""
     system = make_system(**params)
     system = getattr(system, "system", system)  # an Example carries its system
     dim = getattr(system, "dim", None)
@@ -248,7 +249,7 @@ def _check_guess(make_system, params, x_guess):
         at = ", ".join(f"{k}={v:g}" for k, v in params.items())
         raise ValueError(f"x_guess must have shape ({dim},) (a state of the model that "
                          f"make_system({at}) builds), got {got}")
-    return check_state(x, dim, "x_guess")
+    return check_state(x, dim, "x_guess"), system
 
 
 def _waves(shape):
@@ -274,15 +275,25 @@ class _Task:
     """One point: its orbit and growth rate, or the message of the failure (picklable)."""
 
     def __init__(self, make_system, names, section, period_guess, accept, n_directions,
-                 iterations, orbit_options, x_guess):
+                 iterations, orbit_options, x_guess, built=None):
         self.make_system, self.names, self.section = make_system, names, section
         self.period_guess, self.accept, self.orbit_options = period_guess, accept, orbit_options
         self.n_directions, self.iterations, self.x_guess = n_directions, iterations, x_guess
+        # (params, system) of the first point, built to check x_guess: taken by the first
+        # call in this process (a robot's model loads its URDF), never shipped to workers
+        self._built = built
+
+    def __getstate__(self):
+        return {**self.__dict__, "_built": None}
 
     def __call__(self, params, start):
         """(x0, period, growth rate) of the orbit, or (None, message, None)."""
-        system = self.make_system(**params)
-        system = getattr(system, "system", system)  # an Example carries its system
+        built, self._built = self._built, None
+        if built is not None and built[0] == params:
+            system = built[1]
+        else:
+            system = self.make_system(**params)
+            system = getattr(system, "system", system)  # an Example carries its system
         starts = [start] if np.array_equal(start, self.x_guess) else [start, self.x_guess]
         for x in starts:
             try:
