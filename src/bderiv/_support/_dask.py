@@ -29,7 +29,7 @@ import weakref
 import numpy as np
 
 from ._errors import QueryError
-from ._validate import all_finite, check_points, check_real_array
+from ._validate import check_real_array
 
 
 def map_blocks(fn, V, dim: int, name: str = "V", out=None):
@@ -95,7 +95,7 @@ def map_blocks(fn, V, dim: int, name: str = "V", out=None):
         import dask
 
         shipped = dask.delayed(owner, pure=True, name=f"bderiv-shipped-{token}")
-    return V.map_blocks(_apply, shipped, method, name, dtype=np.float64,
+    return V.map_blocks(_apply, shipped, method, dtype=np.float64,
                         meta=np.empty((0,) * V.ndim), name=f"bderiv-{what}-{token}")
 
 
@@ -127,22 +127,16 @@ def _scattered(owner):
     return future
 
 
-def _apply(block, owner, method, name="V", block_info=None):
+def _apply(block, owner, method, block_info=None):
     """One block's task: the map's ``method`` (or ``owner`` itself when None) on the
     block, as a float64 ndarray.
 
-    A refused row (a non-finite vector, a :class:`~bderiv._support._errors.QueryError`) is
-    named by its index in the whole dask array ``name``, not in the block: ``block_info``
-    (given by ``map_blocks``) says where the block sits."""
+    A refused row (a :class:`~bderiv._support._errors.QueryError`: a non-finite vector, a
+    query the kernels refuse) is named by its index in the whole dask array, not in the
+    block: ``block_info`` (given by ``map_blocks``) says where the block sits."""
     fn = owner if method is None else getattr(owner, method)
     block = np.asarray(block)
     lead = block.shape[:-1]
-    if block.dtype.kind == "f" and not all_finite(block):
-        row = int(np.flatnonzero(~np.isfinite(block.reshape(-1, block.shape[-1])).all(
-            axis=1))[0])
-        where, whole = _whole_row(row, lead, block_info)
-        check_points(block.reshape(-1, block.shape[-1])[row:row + 1], block.shape[-1], name,
-                     index_shape=whole, offset=where)  # raises, naming the whole array's row
     try:
         return np.asarray(fn(block), dtype=np.float64)
     except QueryError as exc:

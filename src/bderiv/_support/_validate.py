@@ -132,12 +132,10 @@ def check_points(V, dim: int, name: str = "V", *, index_shape=None, offset: int 
     if not all_finite(flat):
         row = int(np.flatnonzero(~np.isfinite(flat).all(axis=1))[0])
         shape = lead if index_shape is None else tuple(index_shape)
-        if shape:
-            where = ", ".join(str(int(i)) for i in np.unravel_index(row + offset, shape))
-            what = f"vector {name}[{where}] = {flat[row]} is not"
-        else:
-            what = f"{name} = {flat[row]} is not"
-        raise ValueError(f"{name} must be finite, but {what}")
+        if not shape:  # one vector: no index to name
+            raise ValueError(f"{name} must be finite, but {name} = {flat[row]} is not")
+        raise QueryError(f"{name} must be finite, but vector {QUERY} = {flat[row]} is not",
+                         row + offset, name, shape)  # renumbered by callers: QueryError.at
     return flat, lead
 
 
