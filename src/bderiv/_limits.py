@@ -207,6 +207,8 @@ def sized_by_time(rows: int, took: float, seconds: float, low: int, high: int) -
     (5000, 64)
     """
     return int(min(max(rows * seconds / max(took, 1e-6), low), high))
+
+
 #: rows of a batch above which it is chunked all the same (``DEFAULT_CHUNK_ROWS``): a
 #: batch in one call held Ctrl-C for seconds (5e6 rows of d = 30: 0.6 to 2.9 s, its
 #: scaling step one call over all rows); 2**20 keeps the benchmarks' 10**6 in one call
