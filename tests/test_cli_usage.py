@@ -162,7 +162,7 @@ def bench_rows():
     (3, "n", True, "rows[3]['n'] is true"),
     (4, "method", None, "rows[4]['method'] is null, not a string"),
     (5, "m", [500], "rows[5]['m'] is [500], not a positive integer"),
-    (4, "d", 7, "mixes sweeps: rows[4] has d = 7 at n = 3, rows[3] has d = 3"),
+    (4, "d", 7, "rows mix sweeps: rows[4] has d = 7 at n = 3, rows[3] has d = 3"),
 ])
 def test_bench_json_of_the_wrong_type(capsys, tmp_path, bench_rows, row, key, value, message):
     data = json.loads(json.dumps(bench_rows))
@@ -179,7 +179,8 @@ def test_bench_json_row_that_is_no_object(capsys, tmp_path, bench_rows):
     path = tmp_path / "rows.json"
     path.write_text(json.dumps(data))
     refused(["plot", "--figure", "scaling", "--bench-json", str(path)], capsys,
-            """rows[6] is [2, "bderiv"], not an object""")
+            """rows[6] must be a dict with the keys n, method and seconds_per_query, got """
+            """[2, "bderiv"]""")
 
 
 # -- 6. every output file checked before the work -----------------------------------------------

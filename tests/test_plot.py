@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 
 import numpy as np
 import pytest
@@ -263,7 +264,8 @@ def test_scaling_keeps_the_largest_batch_of_each_point():
 def test_scaling_refuses_two_dimensions_per_n():
     rows = [{"n": 2, "d": d, "m": 10, "method": "bderiv", "seconds_per_query": 1e-7}
             for d in (2, 4)]
-    with pytest.raises(ValueError, match=r"one dimension d per n, got d in \[2, 4\] at n = 2"):
+    with pytest.raises(ValueError, match=r"rows mix sweeps: rows\[1\] has d = 4 at n = 2, "
+                                         r"rows\[0\] has d = 2; keep one dimension d per n"):
         plot.scaling(rows)
 
 
@@ -533,10 +535,29 @@ def test_wrong_axes_and_rows_are_named(planar):
 
         plot.pieces(planar, axes=[Figure().subplots(), {}])
     row = {"n": 2, "d": 2, "m": 10, "method": "bderiv", "seconds_per_query": 1e-8}
-    with pytest.raises(TypeError, match=r"rows\[1\] must be a dict, got list"):
+    with pytest.raises(TypeError, match=r"rows\[1\] must be a dict with the keys n, method and "
+                                        r"seconds_per_query, got \[2, 'bderiv', 1e-08\]"):
         plot.scaling([row, [2, "bderiv", 1e-8]])
     with pytest.raises(TypeError, match="rows must be a sequence of dicts .* got str"):
         plot.scaling("rows.json")
     with pytest.raises(ValueError, match=r"rows\[0\] must have the keys n, method and "
                                          r"seconds_per_query, but lacks method"):
         plot.scaling([{"n": 2, "seconds_per_query": 1e-8}])
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("seconds_per_query", "1e-8", "rows[0]['seconds_per_query'] is '1e-8', not a positive number"),
+    ("seconds_per_query", float("nan"), "rows[0]['seconds_per_query'] is nan, not a positive"),
+    ("seconds_per_query", -1e-8, "is -1e-08, not a positive number"),
+    ("n", 2.0, "rows[0]['n'] is 2.0, not a positive integer"),
+    ("n", True, "rows[0]['n'] is True, not a positive integer"),
+    ("method", None, "rows[0]['method'] is None, not a string"),
+    ("m", 0, "rows[0]['m'] is 0, not a positive integer"),
+])
+def test_scaling_rows_of_the_wrong_kind_are_named(key, value, words):
+    """A value the figure would draw wrongly (a string's log, a NaN, a count of 2.0 events)
+    is refused by the row and key, before any figure is made; numpy integers are counts."""
+    row = {"n": 2, "d": 2, "m": 10, "method": "bderiv", "seconds_per_query": 1e-8}
+    with pytest.raises(ValueError, match=re.escape(words)):
+        plot.scaling([dict(row, **{key: value})])
+    plot.scaling([dict(row, n=np.int64(2), d=np.int64(2))])

@@ -201,54 +201,19 @@ def read_bench(path: str) -> dict:
     rows = data.get("rows") if isinstance(data, dict) else None
     if not isinstance(rows, list) or not rows:
         raise UsageError(f"--bench-json: {path!r} is not the output of `bderiv bench --json`")
-    for i, row in enumerate(rows):
-        wrong = _wrong_row(row)
-        if wrong:
-            raise UsageError(f"--bench-json: {path!r} is not the output of `bderiv bench "
-                             f"--json`: rows[{i}]{wrong}")
-    ds = {}  # one dimension d per n, as the figure draws it
-    for i, row in enumerate(rows):
-        if ds.setdefault(row["n"], (row.get("d"), i))[0] != row.get("d"):
-            raise UsageError(f"--bench-json: {path!r} mixes sweeps: rows[{i}] has d = "
-                             f"{row.get('d')} at n = {row['n']}, rows[{ds[row['n']][1]}] has d = "
-                             f"{ds[row['n']][0]}; keep one d per n")
+    from ..plot._scaling import check_rows
+
+    try:  # the figure's own check, its values spelled as in the file
+        check_rows(rows, spell=json.dumps)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"--bench-json: {path!r} is not the output of `bderiv bench "
+                         f"--json` as the figure reads it: {exc}") from None
     try:
         machine = describe(data["machine"])
     except (KeyError, TypeError, AttributeError):
         raise UsageError(f"--bench-json: {path!r} lacks the machine record of `bderiv bench "
                          f"--json`") from None
     return {"rows": rows, "machine": machine}
-
-
-#: the keys of a row of ``bderiv bench --json`` that the scaling figure reads, each with
-#: what its value must be (``d`` and ``m`` may be left out)
-_ROW_KEYS = {"n": "a positive integer", "method": "a string",
-             "seconds_per_query": "a positive number", "d": "a positive integer",
-             "m": "a positive integer"}
-
-
-def _wrong_row(row) -> str | None:
-    """What is wrong with a row of ``--bench-json``, to follow ``rows[i]`` (``' lacks
-    ...'``, ``"['n'] is ..."``), or None."""
-    if not isinstance(row, dict):
-        return f" is {json.dumps(row)[:40]}, not an object with the keys n, method and " \
-               f"seconds_per_query"
-    for key, expected in _ROW_KEYS.items():
-        if key not in row:
-            if key in ("d", "m"):
-                continue
-            return f" lacks the key {key!r}"
-        value = row[key]
-        if key == "method":
-            good = isinstance(value, str)
-        elif key == "seconds_per_query":
-            good = (isinstance(value, int | float) and not isinstance(value, bool)
-                    and math.isfinite(value) and value > 0)
-        else:
-            good = isinstance(value, int) and not isinstance(value, bool) and value >= 1
-        if not good:
-            return f"[{key!r}] is {json.dumps(value)[:40]}, not {expected}"
-    return None
 
 
 def check_raster(fig, dpi: int, name: str) -> None:

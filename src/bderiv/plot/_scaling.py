@@ -6,7 +6,9 @@ import math
 import textwrap
 from collections.abc import Mapping, Sequence
 
-from ._axes import PALETTE, check_type, figure_axes
+import numpy as np
+
+from ._axes import PALETTE, figure_axes
 
 #: legend label, line style and colour of the methods of ``bderiv bench`` and of the
 #: contenders of ``benchmarks/test_bench_dense.py`` in :func:`scaling`
@@ -54,7 +56,8 @@ def scaling(rows, ax=None, *, batch=None, machine=None):
     TypeError
         If ``rows`` is not a sequence of dicts.
     ValueError
-        If a row lacks a key, no row is left, or rows of one n have different dimensions d.
+        If a row lacks a key or has a value of the wrong kind (:data:`ROW_KEYS`), rows of
+        one n have different dimensions d, or no row is left.
 
     Examples
     --------
@@ -65,12 +68,11 @@ def scaling(rows, ax=None, *, batch=None, machine=None):
     B-derivative at the event point: time per tangent vector
     d = n, batch m = 1,000
     """
-    _check_rows(rows)
+    check_rows(rows)
     kept = [r for r in rows if batch is None or r.get("m") == batch]
     if not kept:
         where = "" if batch is None else f" with batch m = {batch}"
         raise ValueError(f"no benchmark rows to plot{where}")
-    _check_one_dim(kept)
     points = {}  # (method, n) -> the row of the largest batch
     for r in kept:
         key = (r["method"], r["n"])
@@ -124,30 +126,49 @@ def _machine_note(machine: str) -> str:
     return "; ".join(p for p in parts if p)
 
 
-def _check_rows(rows) -> None:
-    """Refuse ``rows`` that are not a sequence of dicts with the keys the figure reads."""
+#: the keys of a benchmark row that :func:`scaling` reads, each with what its value must be
+#: (``d`` and ``m`` may be left out)
+ROW_KEYS = {"n": "a positive integer", "method": "a string",
+            "seconds_per_query": "a positive number", "d": "a positive integer",
+            "m": "a positive integer"}
+
+
+def check_rows(rows, spell=repr) -> None:
+    """Refuse ``rows`` that :func:`scaling` cannot draw: not a sequence of dicts (a
+    ``TypeError``), a row without a key it reads or with a value of the wrong kind, or two
+    dimensions d at one n (a ``ValueError`` naming the row). ``spell(value)`` writes a
+    value into the message (``bderiv plot --bench-json`` spells them as JSON)."""
     if isinstance(rows, str | bytes) or not isinstance(rows, Sequence):
         raise TypeError(f"rows must be a sequence of dicts (the rows of `bderiv bench "
                         f"--json`), got {type(rows).__name__}")
     for i, r in enumerate(rows):
-        check_type(r, f"rows[{i}]", (Mapping,), expected="a dict")
+        if not isinstance(r, Mapping):
+            raise TypeError(f"rows[{i}] must be a dict with the keys n, method and "
+                            f"seconds_per_query, got {spell(r)[:40]}")
         missing = [k for k in ("n", "method", "seconds_per_query") if k not in r]
         if missing:
             raise ValueError(f"rows[{i}] must have the keys n, method and seconds_per_query, "
                              f"but lacks {', '.join(missing)}")
+        for key, expected in ROW_KEYS.items():
+            if key in r and not _good(key, r[key]):
+                raise ValueError(f"rows[{i}][{key!r}] is {spell(r[key])[:40]}, not {expected}")
+    first = {}  # n -> the index of its first row: one dimension d per n, as drawn
+    for i, r in enumerate(rows):
+        j = first.setdefault(r["n"], i)
+        if rows[j].get("d") != r.get("d"):
+            raise ValueError(f"rows mix sweeps: rows[{i}] has d = {r.get('d')} at n = "
+                             f"{r['n']}, rows[{j}] has d = {rows[j].get('d')}; keep one "
+                             f"dimension d per n")
 
 
-def _check_one_dim(rows) -> None:
-    by_n = {}
-    for r in rows:
-        by_n.setdefault(r["n"], set()).add(r.get("d"))
-    mixed = {n: ds for n, ds in by_n.items() if len(ds) > 1}
-    if mixed:
-        n, ds = min(mixed.items())
-        raise ValueError(
-            f"rows must have one dimension d per n, got d in {sorted(ds, key=str)} at n = "
-            f"{n}; keep the rows of one d per n"
-        )
+def _good(key, value) -> bool:
+    if key == "method":
+        return isinstance(value, str)
+    if isinstance(value, bool):
+        return False
+    if key == "seconds_per_query":
+        return isinstance(value, int | float) and math.isfinite(value) and value > 0
+    return isinstance(value, int | np.integer) and value >= 1
 
 
 def _sweep_caption(rows) -> str:
