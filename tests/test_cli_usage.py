@@ -107,12 +107,14 @@ def test_text_made_small_by_matplotlibs_settings_is_refused(capsys, tmp_path):
 
 @pytest.mark.parametrize("argv, message", [
     (["--example", "pronking", "--eps", "1e-3", "--check", "1", "--full", "--batch", "7"],
-     "--batch, --check, --eps and --full mean nothing for --example pronking, whose demo is "
-     "a summary of its own; it takes --python, --seed and --json"),
+     "--batch, --check and --full mean nothing for --example pronking, whose demo is "
+     "a summary of its own; it takes --eps, --python, --seed and --json"),
     (["--example", "rimless-wheel", "--batch", "5"], "--batch means nothing for --example "
                                                      "rimless-wheel"),
     (["--example", "rimless-wheel", "--check", "0"], "--check means nothing"),
-    (["--example", "landing", "--eps", "1e-4"], "--eps means nothing for --example landing"),
+    (["--example", "landing", "--full"], "--full means nothing for --example landing"),
+    (["--example", "compass-gait", "--eps", "1e-4"], "--eps means nothing for --example "
+                                                     "compass-gait"),
     (["--example", "solo12", "--full"], "it takes --seed and --json"),
     (["--example", "corners", "--check", "5", "--eps", "1e-3"],
      "--check and --eps mean nothing for --example corners, a corner table without a model"),

@@ -78,6 +78,7 @@ def test_the_plastic_impact_is_the_projection_written_out(sticking):
 
 def test_the_stance_is_pinocchios_constrained_dynamics(solo):
     x = 0.1 * np.random.default_rng(3).standard_normal(solo.system.dim)
+    x[2 * solo.nv:] = (1.0, 0.0, 0.0, 1.0)  # feet 0 and 3 down: region 0b1001
     q, v = solo.configuration(x)
     model = solo.model
     data = model.createData()
@@ -260,4 +261,39 @@ def test_the_methods_refuse_a_state_mask_or_foot_of_another_size(solo):
         solo.reset(x, 0, 4)
     with pytest.raises(TypeError, match="k must be an integer"):
         solo.reset_jacobian(x, 0, 1.0)
+    x[2 * solo.nv:] = (1.0, 1.0, 0.0, 0.0)  # feet 0 and 1 down, as the mask says
     assert solo.contact_forces(x, 0b0011).shape == (2, 3)
+
+
+def test_contact_forces_refuses_a_mask_the_latches_do_not_give(solo):
+    """``contact_forces(x, mask)`` gave the forces of the mask's feet whatever the state's
+    latches said (a foot in the air held, a foot down left out: a review). The mask the
+    latches give is worked out here by hand: feet 0 and 3 down is 0b1001."""
+    feet = solo.feet
+    x = solo.state(solo.q_ref, np.zeros(solo.nv), down=(0, 3))
+    with pytest.raises(ValueError) as info:
+        solo.contact_forces(x, 0b0011)
+    message = str(info.value)
+    assert message.startswith("mask must hold the feet that the latches of x say are down")
+    assert (f"x's latches [1.0, 0.0, 0.0, 1.0] give mask 0b1001 (feet down: 0 ({feet[0]}), "
+            f"3 ({feet[3]})), got mask 0b0011 (feet held: 0 ({feet[0]}), 1 ({feet[1]})); "
+            f"they disagree on feet 1, 3") in message, message
+    with pytest.raises(ValueError, match=r"x's latches \[1.0, 0.0, 0.0, 1.0\] give mask "
+                       r"0b1001 .*, got mask 0b0000 \(feet held: none\); they disagree on "
+                       r"feet 0, 3"):
+        solo.contact_forces(x, 0)
+    flying = drop_state(solo, 0.0)  # every latch 0: in the air
+    with pytest.raises(ValueError, match=r"give mask 0b0000 \(feet down: none\), got mask "
+                       r"0b0100 .*disagree on foot 2\."):
+        solo.contact_forces(flying, 0b0100)
+    assert solo.contact_forces(flying, 0).shape == (0, 3)
+    # a finite-difference step moves a latch, not the feet down; the forces do not
+    # depend on the latches
+    forces = solo.contact_forces(x, 0b1001)
+    assert forces.shape == (2, 3)
+    for step in (1e-6, -1e-6, 0.4):
+        moved = x.copy()
+        moved[2 * solo.nv:] += step
+        assert np.array_equal(solo.contact_forces(moved, 0b1001), forces), step
+    # the model's functions (the system's path) take the latches as coordinates, unchecked
+    assert np.array_equal(solo.field(flying, 0b0100), solo.system.field(flying, 0b0100))

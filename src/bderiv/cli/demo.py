@@ -16,7 +16,6 @@ in ``res["phases"]``; the timings reported (the build, the batch) leave compilat
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -69,6 +68,8 @@ def run_demo(example="chair", n=None, extended=False, batch=DEMO_BATCH, check=DE
     Returns
     -------
     dict
+        A model's ``check`` holds ``error_ratios``, how much the error shrinks from each
+        step to the next: None (JSON null) where the smaller step's error is exactly 0.
     """
     report = report or (lambda section, res: None)
     t_start, phases = time.perf_counter(), Phases()
@@ -168,8 +169,9 @@ def _check(ex, fb, rng, k, eps, progress, per_batch):
         fb(V)
     per_call = (time.perf_counter() - t0) / (10 * k)  # D in calls of k vectors
     errors = list(fd.max_errors)
-    # how much the error shrinks from one step to the next (10x per decade when O(eps))
-    shrink = [a / b if b > 0 else math.inf for a, b in zip(errors[:-1], errors[1:], strict=True)]
+    # how much the error shrinks from one step to the next (10x per decade when O(eps));
+    # None (JSON null) where the smaller step's error is exactly 0: no ratio
+    shrink = [a / b if b > 0 else None for a, b in zip(errors[:-1], errors[1:], strict=True)]
     covered = len(distinct_pieces(fb.orders(V) if fb.n_groups else []))
     per_fd = fd.seconds_per_vector
     return {"vectors": k, "pieces_covered": covered, "eps": list(fd.eps),

@@ -79,14 +79,18 @@ def check_example_options(name: str, n: int | None, extended: bool) -> None:
         raise UsageError(f"--n must be between 1 and {NETWORK_MAX_N}, got {n}")
 
 
+#: summaries whose check against finite differences takes its steps from ``--eps`` (the
+#: walkers' and the quadruped's summaries have no such check; solo12's checks at its own
+#: fixed steps, 1e-5 and 1e-6)
+FD_SUMMARIES = ("pronking", "landing")
 #: the dimension d of the examples whose demo times a batch (``network``: n, 2n extended),
 #: known before they load, so that a batch too large is refused before the demo's first line
 DEMO_DIMS = {"chair": 6, "table": 12, "corners": 3, "planar": 2}
 #: the demo's options that only some examples use, with those examples (--seed, --json and
 #: --no-progress apply to all: without a progress bar, --no-progress asks for nothing)
 DEMO_OPTIONS = {"--batch": (*MODEL_EXAMPLES, *TABLE_EXAMPLES), "--check": MODEL_EXAMPLES,
-                "--eps": MODEL_EXAMPLES, "--full": (*MODEL_EXAMPLES, *TABLE_EXAMPLES),
-                "--python": COMPILED_EXAMPLES}
+                "--eps": (*MODEL_EXAMPLES, *FD_SUMMARIES),
+                "--full": (*MODEL_EXAMPLES, *TABLE_EXAMPLES), "--python": COMPILED_EXAMPLES}
 
 
 def demo_dim(name: str, n: int | None, extended: bool) -> int:

@@ -274,7 +274,8 @@ def _gait_demo(args) -> str:
         return render.to_json(res, indent=1) if args.json else walker_report.summary_text(res)
     module, run = ((impacts, impacts.landing_summary) if args.example == "landing"
                    else (gaits, gaits.pronking_summary))
-    res = run(seed=args.seed, compiled=not args.python)
+    steps = {} if args.eps is None else {"eps": tuple(args.eps)}  # their check's steps
+    res = run(seed=args.seed, compiled=not args.python, **steps)
     return render.to_json(res, indent=1) if args.json else module.summary_text(res)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import sys
 
 import numpy as np
@@ -17,8 +18,22 @@ from .machine import describe
 
 
 def to_json(data, indent=None) -> str:
-    """The JSON document of a command's result."""
-    return json.dumps(data, indent=indent)
+    """The JSON document of a command's result: standard JSON, which has no Infinity or
+    NaN, so a number that is not finite is written ``null`` (the demo's error ratios where
+    a step's error is exactly 0, an estimate that found no number)."""
+    return json.dumps(_finite(data), indent=indent, allow_nan=False)
+
+
+def _finite(data):
+    """``data`` with every float that is not finite replaced by None, in its dicts,
+    lists and tuples (a copy where one changes)."""
+    if isinstance(data, float):  # np.float64 too
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: _finite(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_finite(v) for v in data]
+    return data
 
 
 def progress_bar(desc: str, unit: str = "vec"):
@@ -201,7 +216,8 @@ def _check(res):
         lines.append(f"  eps = {e:.0e}: {err:.3e}")
     if c["error_ratios"]:
         lines.append("  error shrinks with eps by "
-                     + ", ".join(f"{r:.1f}x" for r in c["error_ratios"])
+                     + ", ".join("- (to 0)" if r is None else f"{r:.1f}x"
+                                 for r in c["error_ratios"])
                      + " per step (O(eps) expected)")
     on = _SIMULATIONS_ON.get(c.get("simulations_on"), "") if res.get("compiled") else ""
     lines.append(f"  one simulation per vector{on}: {c['fd_seconds_per_vector'] * 1e3:.1f} ms; "

@@ -25,8 +25,8 @@ from .._support._numdiff import complex_step
 from .._support._validate import all_finite, check_bool, check_real_array
 from ..analysis.system import HybridSystem
 
-__all__ = ["Example", "check_start", "compile_function", "compiled_once", "flow_back",
-           "perturbed_start"]
+__all__ = ["Example", "check_start", "compile_function", "compiled_once", "finite_ratios",
+           "flow_back", "perturbed_start"]
 
 #: the functions of a model that the compiled version compiles (corner_field stays Python:
 #: it is called at the event points only, with the whole table at once)
@@ -174,6 +174,12 @@ def check_start(example, parameters, region=0, remedy="choose other parameters")
                          f"not on the surface of event {k} (|h_{k}(rho)| = {off[k]:.3g}); "
                          f"{remedy}")
     return example
+
+
+def finite_ratios(fd) -> list:
+    """The ratios of an :class:`~bderiv.analysis.checks.FDCheck` for a JSON-friendly
+    summary: None (JSON null) for NaN, the ratio to a step whose error is exactly 0."""
+    return [float(r) if np.isfinite(r) else None for r in fd.ratios]
 
 
 def perturbed_start(example, perturbation):

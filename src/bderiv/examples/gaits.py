@@ -38,7 +38,7 @@ from numba.extending import register_jitable
 from .._limits import FD_EPS
 from .._support._validate import check_number, check_numbers, check_positive_int
 from ..analysis.stability import verdict_word
-from ._common import Example, check_start, compile_function, perturbed_start
+from ._common import Example, check_start, compile_function, finite_ratios, perturbed_start
 
 __all__ = [
     "APEX",
@@ -311,7 +311,8 @@ def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
     dict
         JSON-friendly: ``orbit`` (x0, period, residual, Newton residuals), ``groups``
         (time, events, directions), ``stability`` (growth rate, spread, stable, pieces
-        with visits and ``|multipliers|``), ``fd`` (eps, max errors, ratios), ``decay``
+        with visits and ``|multipliers|``), ``fd`` (eps, max errors, ratios: None where a
+        step's error is exactly 0), ``decay``
         (simulated rate per direction, the largest, the window).
     """
     from ..analysis.checks import decay_check, fd_check  # the checks simulate: only here
@@ -340,7 +341,7 @@ def pronking_summary(*, n_check=4, eps=FD_EPS, strides=60, seed=0,
                        for p, m in st.multipliers.items()],
         },
         "fd": {"eps": list(fd.eps), "max_errors": list(fd.max_errors),
-               "ratios": list(fd.ratios), "vectors": len(V)},
+               "ratios": finite_ratios(fd), "vectors": len(V)},
         "decay": {"rates": decay.rates.tolist(), "rate": decay.rate,
                   "window": list(decay.window), "eps": 1e-2},
     }

@@ -30,7 +30,7 @@ from numba.extending import register_jitable
 
 from .._limits import FD_EPS
 from .._support._validate import check_numbers
-from ._common import Example, check_start, flow_back
+from ._common import Example, check_start, finite_ratios, flow_back
 
 __all__ = ["landing", "landing_summary", "summary_text"]
 
@@ -154,7 +154,8 @@ def landing_summary(*, n_check=8, eps=FD_EPS, seed=0, compiled=False):
     dict
         JSON-friendly: ``groups`` (time, events, state before and after), ``pieces``
         (orders, share of a batch, rank and the norm of their difference), ``fd`` (eps,
-        max errors, ratios), ``refused`` (the library's message for the coupled feet).
+        max errors, ratios: None where a step's error is exactly 0), ``refused`` (the
+        library's message for the coupled feet).
     """
     from ..analysis.checks import fd_check  # simulates: only here
 
@@ -182,7 +183,7 @@ def landing_summary(*, n_check=8, eps=FD_EPS, seed=0, compiled=False):
                    "ranks": [int(np.linalg.matrix_rank(M.piece(o))) for o in ((0, 1), (1, 0))],
                    "difference": float(np.abs(M.piece([0, 1]) - M.piece([1, 0])).max())},
         "fd": {"eps": list(fd.eps), "max_errors": list(fd.max_errors),
-               "ratios": list(fd.ratios), "vectors": n_check,
+               "ratios": finite_ratios(fd), "vectors": n_check,
                "orders": sorted({tuple(int(k) for k in o) for o in D.orders(V)[0]})},
         "refused": refused,
     }
@@ -209,8 +210,10 @@ def summary_text(res):
                  f"{', '.join(map(str, fd['orders']))}), max |FD - D V| / max |D V|:")
     lines += [f"  eps = {e:.0e}: {err:.3e}" for e, err in zip(fd["eps"], fd["max_errors"],
                                                               strict=True)]
-    lines.append("  error shrinks with eps by " + ", ".join(f"{1 / r:.1f}x" for r in fd["ratios"])
-                 + " per step (O(eps) expected)")
+    if fd["ratios"]:  # one step: no ratio
+        lines.append("  error shrinks with eps by "
+                     + ", ".join(f"{1 / r:.1f}x" if r else "- (to 0)" if r == 0 else "-"
+                                 for r in fd["ratios"]) + " per step (O(eps) expected)")
     lines.append("variant with coupled feet (horizontal impulses shared through the "
                  "inverse mass, coupling 0.5: contacts not orthogonal in its metric): refused:")
     lines.append(f"  {res['refused']}")

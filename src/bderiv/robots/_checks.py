@@ -15,6 +15,7 @@ import numbers
 
 import numpy as np
 
+from .._support._format import format_mask
 from .._support._validate import all_finite, check_finite, check_number, check_real_array
 
 #: how far from 1 the norm of a configuration's base quaternion may be: it is used as
@@ -120,3 +121,27 @@ def check_down(down, n: int) -> list:
         raise ValueError(f"down must name each foot once (indices, not flags: pass booleans "
                          f"for flags), got {twice} more than once in {indices}")
     return sorted(indices)
+
+
+def check_latches(latches, mask: int, feet) -> None:
+    """``mask`` (checked already) against a rigid robot's state's latches ``c`` (one per
+    foot in ``feet``): foot k held in ``mask`` (bit k set) where its latch says it is down,
+    ``c_k > 1/2`` (a robot's states have latches 0 or 1; a finite-difference step moves
+    them less than 1/2)."""
+    down = sum(1 << k for k, c in enumerate(latches) if c > 0.5)
+    if down == mask:
+        return
+    n = len(feet)
+
+    def named(bits):
+        return ", ".join(f"{k} ({feet[k]})" for k in range(n) if bits >> k & 1) or "none"
+
+    wrong = [k for k in range(n) if (down ^ mask) >> k & 1]
+    raise ValueError(
+        f"mask must hold the feet that the latches of x say are down (x[2 nv + k] = c_k: 1 "
+        f"down, 0 in the air; down above 1/2): x's latches {np.asarray(latches).tolist()} "
+        f"give mask {format_mask(down, n)} (feet down: {named(down)}), got mask "
+        f"{format_mask(mask, n)} (feet held: {named(mask)}); they disagree on "
+        f"{'feet' if len(wrong) > 1 else 'foot'} {', '.join(map(str, wrong))}. Pass the "
+        f"mask of the state's region (a trajectory's mask at that time), or a state whose "
+        f"latches agree (robot.state(q, v, down=...))")

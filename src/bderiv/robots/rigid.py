@@ -13,7 +13,9 @@ constraint is bilateral once made); :meth:`RigidLeggedRobot.contact_forces` give
 ground's forces, whose normal component a user checks stays positive over the stance.
 A robot's state has latches 0 or 1 (``state``, ``drop_state`` and the impact make no
 other), but they are coordinates like ``e`` and ``v`` (the flow's B-derivative has their
-columns, finite differences move them), so the methods take any finite value.
+columns, finite differences move them), so the methods take any finite value;
+:meth:`RigidLeggedRobot.contact_forces` reads a latch above 1/2 as a foot down and refuses
+a ``mask`` that holds other feet (their forces would be those of another region).
 
 **Friction** (``sticking``): True (default) holds the foot's 3-D velocity at zero (a foot
 that does not slip, as common for legged robots: three constraint rows per foot); False
@@ -54,7 +56,7 @@ import numpy as np
 
 from .._limits import COUPLING_TOL, SURFACE_TOL
 from ..analysis.system import HybridSystem
-from ._checks import check_down, check_index
+from ._checks import check_down, check_index, check_latches
 from ._contact import field_vector
 from ._lie import se3_rate_jacobians
 from .legged import LeggedRobot
@@ -203,8 +205,11 @@ class RigidLeggedRobot(LeggedRobot):
     def contact_forces(self, x, mask) -> np.ndarray:
         """(len(feet of mask), 3): the ground's world forces on the held feet (a foot's
         normal force is the last column; zeros in the friction columns without
-        ``sticking``); ``mask``: bit k, foot k held."""
-        _, lam, _, _, feet = self._solve(self._x(x), self._mask(mask))
+        ``sticking``); ``mask``: bit k, foot k held, the feet whose latches in ``x`` say
+        they are down (``c_k > 1/2``; another mask is refused, a ValueError)."""
+        x, mask = self._x(x), self._mask(mask)
+        check_latches(x[2 * self.nv:], mask, self.feet)
+        _, lam, _, _, feet = self._solve(x, mask)
         out = np.zeros((len(feet), 3))
         out[:, self.rows] = lam.reshape(len(feet), len(self.rows))
         return out

@@ -48,6 +48,13 @@ crossing, once the swing leg is past the stance leg, is the heel strike (the res
 an upward crossing with ``phi >= 0``). Each step thus has two events of the same index:
 the scuff (downward, no jump) and the heel strike (upward, leg swap). The section of the
 gait is mid-stance, ``theta = 0`` crossed downward (:func:`compass_section`).
+**Its gaits**: :func:`compass_gait` starts on the long-period gait of Garcia et al.'s walker
+at the slope given (:func:`long_gait_start`), which :func:`compass_gait_orbit` then finds
+(from Garcia et al.'s fixed point at 0.009, the start at every slope before, Newton's method
+found another, unstable, orbit at slope 0.012, its scuff after mid-stance). The long-period
+gait is stable up to slope :data:`STABLE_SLOPE` = 0.01509 and loses its stability there by a
+period doubling (Garcia et al.: 0.0151): beyond, the orbit found is that gait, unstable, as
+its stability says (the stable gait there has period two, then longer periods).
 
 **Published numbers** compared in the tests: Garcia, Chatterjee, Ruina & Coleman, "The
 simplest walking model: stability, complexity, and scaling", ASME J. Biomech. Eng. 120(2),
@@ -67,20 +74,24 @@ beyond the second decimal (whose integration and differencing steps the code doe
 from ._compass import (
     GARCIA_EIGENVALUES,
     GARCIA_FIXED_POINT,
+    STABLE_SLOPE,
     compass_gait,
     compass_gait_orbit,
     compass_section,
     compass_section_gradient,
+    long_gait_start,
 )
 from ._wheel import rimless_wheel, rimless_wheel_orbit, wheel_section, wheel_section_gradient
 
 __all__ = [
     "GARCIA_EIGENVALUES",
     "GARCIA_FIXED_POINT",
+    "STABLE_SLOPE",
     "compass_gait",
     "compass_gait_orbit",
     "compass_section",
     "compass_section_gradient",
+    "long_gait_start",
     "rimless_wheel",
     "rimless_wheel_orbit",
     "wheel_section",

@@ -13,10 +13,12 @@ from ._shared import _orbit, _positive
 __all__ = [
     "GARCIA_EIGENVALUES",
     "GARCIA_FIXED_POINT",
+    "STABLE_SLOPE",
     "compass_gait",
     "compass_gait_orbit",
     "compass_section",
     "compass_section_gradient",
+    "long_gait_start",
 ]
 
 #: Garcia et al. (1998), slope 0.009, leg_mass = 0: (theta, theta') just after heel strike
@@ -24,6 +26,21 @@ GARCIA_FIXED_POINT = (0.20031090049483, -0.19983247291764)
 #: ... and the nonzero eigenvalues of its stride map
 GARCIA_EIGENVALUES = (complex(-0.19120868949940, 0.55633363687106),
                       complex(-0.19120868949940, -0.55633363687106))
+#: the slope (rad) beyond which the long-period gait of Garcia et al.'s walker (leg_mass 0)
+#: is unstable: a multiplier leaves the unit circle through -1 (a period doubling; their
+#: 0.0151); the stable gait beyond has period two, then longer periods
+STABLE_SLOPE = 0.01509
+#: the long-period gait's ``(theta, theta')`` just after heel strike against the slope s,
+#: ``GARCIA_FIXED_POINT`` times ``f(s) / f(0.009)``, ``f(s) = s^(1/3) - b s`` with b for
+#: theta and theta' (a least-squares fit of the fixed points of Garcia et al.'s stride map
+#: for s from 1e-4 to 0.04, within 6e-5 of them; their leading term, ``theta* ~ 0.97
+#: s^(1/3)``, is the asymptote of small slopes)
+_GAIT_FIT = (0.1843, 1.2206)
+#: the size ``|x0|`` of a gait's mid-stance state below which the orbit's default
+#: perturbation shrinks with it (slopes below about 0.006: the gait's size goes as
+#: ``slope^(1/3)``, and a perturbation of 0.01 at slope 1e-3 leads Newton's method to
+#: another, unstable, orbit)
+_GAIT_SIZE = 0.3
 
 
 def _along(angle):
@@ -180,9 +197,13 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
     start : (float, float), optional
         ``(theta, theta')`` just after a heel strike to start the step from (with ``phi =
         2 theta``, ``phi' = theta' (1 - cos 2 theta)``, exact for ``leg_mass = 0``).
-        Default: Garcia et al.'s published fixed point, ``theta'`` scaled by
-        ``sqrt(g / leg)`` (a good start for slopes near 0.009 and light legs; steeper
-        slopes need their own, such as ``(0.24, -0.228)`` for slopes 0.015 to 0.02).
+        Default: the long-period gait of Garcia et al.'s walker (``leg_mass = 0``) at
+        ``slope`` (:func:`long_gait_start`; their published fixed point at 0.009),
+        ``theta'`` scaled by ``sqrt(g / leg)``: a start for light legs at any slope. That
+        gait is stable up to slope :data:`STABLE_SLOPE` (0.01509) and unstable beyond
+        (a period doubling): there :func:`compass_gait_orbit` finds it, unstable (its
+        stability says so), not the stable gait of period two. Heavy legs need a start
+        of their own.
 
     Returns
     -------
@@ -218,14 +239,14 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
                           field_jacobian=model.field_jacobian, reset=model.reset,
                           reset_jacobian=model.reset_jacobian)
     if start is None:
-        theta, rate = GARCIA_FIXED_POINT[0], GARCIA_FIXED_POINT[1] * np.sqrt(g / leg)
-        # the default suits slopes near 0.009 only: the step from it at a steeper slope
-        # scuffs after mid-stance (no error of the parameters given)
-        remedy = (f"the default start, (theta, theta') = ({theta:.6g}, {rate:.6g}), is "
-                  f"Garcia et al.'s fixed point for slope 0.009 and suits slopes near it "
-                  f"only: pass start=(theta, theta'), a state just after a heel strike of "
-                  f"the gait at slope {slope:g} (steeper slopes take longer steps: a larger "
-                  f"theta)")
+        theta, rate = long_gait_start(slope)
+        rate *= np.sqrt(g / leg)
+        # the gait of light legs on gentle slopes: heavier legs walk another gait
+        remedy = (f"the default start, (theta, theta') = ({theta:.6g}, {rate:.6g}), is the "
+                  f"long-period gait of Garcia et al.'s walker (leg_mass 0) at slope "
+                  f"{slope:g} (fitted for slopes up to 0.04) and suits light legs only: pass "
+                  f"start=(theta, theta'), a state just after a heel strike of the gait with "
+                  f"these parameters")
     else:
         given = np.asarray(start, dtype=np.float64)
         if given.shape != (2,) or not np.isfinite(given).all():
@@ -241,6 +262,23 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
                  f"n = 1)")
     return check_start(ex, {"slope": slope, "theta": float(theta), "theta'": float(rate)},
                        remedy=remedy)
+
+
+def long_gait_start(slope):
+    """``(theta, theta')`` just after heel strike of the long-period gait of Garcia et
+    al.'s walker (``leg_mass = 0``, ``g = leg = 1``) at ``slope``, to about 6e-5 (exact
+    at 0.009: :data:`GARCIA_FIXED_POINT`), for slopes up to 0.04: a start for Newton's
+    method (``GARCIA_FIXED_POINT`` times ``f(slope) / f(0.009)``, ``f(s) = s^(1/3) - b s``,
+    b fitted to the gait's fixed points, 0.1843 for theta and 1.2206 for theta')."""
+
+    def f(b):
+        return slope ** (1.0 / 3.0) - b * slope
+
+    def f_ref(b):
+        return 0.009 ** (1.0 / 3.0) - b * 0.009
+
+    (bt, br), (theta, rate) = _GAIT_FIT, GARCIA_FIXED_POINT
+    return theta * f(bt) / f_ref(bt), rate * f(br) / f_ref(br)
 
 
 def _step_from(model, start, remedy):
@@ -270,15 +308,17 @@ def _step_from(model, start, remedy):
     return a.y_events[0][0], b.y_events[0][0], float(b.t_events[0][0])
 
 
-def compass_gait_orbit(example=None, *, perturbation=(0.0, 0.01, -0.01, 0.005), **kwargs):
+def compass_gait_orbit(example=None, *, perturbation=None, **kwargs):
     """The compass gait by Newton's method from a perturbed mid-stance state.
 
     Parameters
     ----------
     example : Example, optional
         Default :func:`compass_gait`.
-    perturbation : array_like, shape (4,)
-        Added to ``example.x0`` for the guess.
+    perturbation : array_like, shape (4,), optional
+        Added to ``example.x0`` for the guess. Default ``(0, 0.01, -0.01, 0.005)``, scaled
+        by ``|x0| / 0.3`` where ``|x0| < 0.3`` (the small gaits of slopes below about
+        0.006, which a perturbation of 0.01 sends to another, unstable, orbit).
     **kwargs
         Passed to :meth:`~bderiv.analysis.system.HybridSystem.periodic_orbit`.
 
@@ -286,5 +326,8 @@ def compass_gait_orbit(example=None, *, perturbation=(0.0, 0.01, -0.01, 0.005), 
     -------
     PeriodicOrbit
     """
-    return _orbit(compass_gait() if example is None else example, perturbation,
-                  compass_section, compass_section_gradient, kwargs)
+    ex = compass_gait() if example is None else example
+    if perturbation is None:
+        scale = min(1.0, float(np.linalg.norm(ex.x0)) / _GAIT_SIZE)
+        perturbation = scale * np.array([0.0, 0.01, -0.01, 0.005])
+    return _orbit(ex, perturbation, compass_section, compass_section_gradient, kwargs)
