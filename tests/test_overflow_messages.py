@@ -3,10 +3,14 @@ integration blew up, not that a function of the model raised (the driver's own s
 arithmetic divided by zero) or returned a non-finite value (at a state that already was).
 
 The tests run on the compiled integrator (conftest sets ``BDERIV_INTEGRATOR=compiled``),
-but the last, which runs the same model's Python functions on scipy's ``solve_ivp``.
+but the last ones, which run the same model's Python functions on scipy's ``solve_ivp``:
+there the blow-up error comes alone, without the RuntimeWarnings of scipy's overflowing
+arithmetic on the way (pytest's filters turn those into errors, raised before it).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numba
 import numpy as np
@@ -101,13 +105,12 @@ def test_the_model_s_own_division_by_zero_is_still_named():
         _system(inverse).simulate(np.array([0.0, 0.0]), 1.0)
 
 
-@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
-@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 @pytest.mark.parametrize("how", ["simulate", "flow_bderivative"])
 def test_the_python_path_says_the_same(how):
     """The same blow-up on scipy's path: it said that the field returned -inf (called at
     a state that was -inf already), and flow_bderivative that "x must be finite, got
-    [inf 0.]", an x0 the caller never gave."""
+    [inf 0.]", an x0 the caller never gave. Under pytest's filters (warnings are errors)
+    scipy's "overflow encountered in dot" was raised before it."""
     system = HybridSystem(fast_growth.py_func, clock.py_func, n_events=1, dim=2)
     assert system.compiled is None  # Python functions: scipy's solve_ivp
     with pytest.raises(ValueError) as info:
@@ -117,3 +120,48 @@ def test_the_python_path_says_the_same(how):
     assert "in region mask 0b0 (bit k set = event k happened): the state grew beyond" \
         in message
     assert "x must be finite" not in message and "returned a non-finite" not in message
+
+
+def _python_system(field=fast_growth.py_func):
+    return HybridSystem(field, clock.py_func, n_events=1, dim=2)
+
+
+@pytest.mark.parametrize("how", ["simulate", "flow_bderivative"])
+def test_the_python_path_s_blow_up_shows_no_runtime_warning(how):
+    """scipy's RuntimeWarnings of its overflow (its dot products of the stages and of the
+    dense output, steps before the state reaches inf) came before the error: dropped."""
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        with pytest.raises(ValueError, match="the integration blew up at t = 0.1"):
+            getattr(_python_system(), how)(np.array([1e300, 0.0]), 2.0)
+    assert not [w for w in seen if issubclass(w.category, RuntimeWarning)], \
+        [str(w.message) for w in seen]
+
+
+def test_scipy_s_warnings_of_a_run_that_ends_well_are_given():
+    """The same run stopped short of the blow-up (t_final = 0.105, x near 3.6e304): scipy's
+    dense output overflowed, and nothing else says so: its warnings are given, from scipy's
+    line, when its solve_ivp call returns."""
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        trajectory = _python_system().simulate(np.array([1e300, 0.0]), 0.105)
+    assert np.all(np.isfinite(trajectory.x_final))
+    assert "overflow encountered in dot" in {str(w.message) for w in seen}
+    assert all(w.category is RuntimeWarning and "scipy" in w.filename for w in seen), \
+        [(str(w.message), w.filename) for w in seen]
+
+
+def test_the_user_s_own_runtime_warning_is_given_at_once():
+    """A model's function's own floating-point warning is NumPy's, at once and where it was
+    made: under pytest's filters an error raised inside the function."""
+
+    def field(x, mask):
+        return np.array([np.float64(1.0) / (x[1] - x[1]), 1.0])
+
+    with pytest.warns(RuntimeWarning, match="divide by zero encountered in scalar divide") \
+            as seen:
+        with pytest.raises(ValueError, match="returned a non-finite value"):
+            _python_system(field).simulate(np.array([1.0, 0.0]), 1.0)
+    assert seen[0].filename == __file__
+    with pytest.raises(RuntimeWarning, match="divide by zero encountered in scalar divide"):
+        _python_system(field).simulate(np.array([1.0, 0.0]), 1.0)

@@ -7,6 +7,8 @@ right to left (bit k set = event k happened, event 0 rightmost); an event order 
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
 
 import numpy as np
@@ -99,3 +101,92 @@ def blown_up(region: str, x, t=None) -> str:
     return (f"the integration blew up{when} in {region}: the state grew beyond the "
             f"floating-point range (float64 ends near 1.8e308), x = {format_state(x)}; "
             f"{BLOW_UP_HINT}")
+
+
+#: whether exceptions take notes (``add_note``, Python 3.11+): an exception raised in a
+#: model's function then says where (:func:`note_call`); on 3.10 it is left as it is
+NOTES = hasattr(BaseException, "add_note")
+#: the package's folder: a ValueError or TypeError raised in its code is bderiv's own
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
+
+
+def _argument(x) -> str:
+    """A function's argument ``x`` as :func:`format_state` writes a state (complex entries,
+    a complex step's, as complex numbers)."""
+    try:
+        x = np.asarray(x)
+        if x.dtype.kind == "c":
+            return "[" + ", ".join(repr(complex(v)) for v in x.ravel()) + "]"
+        return format_state(x.ravel())
+    except Exception:  # noqa: BLE001 - a note never replaces the exception it is on
+        return repr(x)
+
+
+def _note_text(where: dict) -> str:
+    when = "" if where["t"] is None else f" at t = {where['t']!r}"
+    region = "" if where["region"] is None else f" in {where['region']}"
+    return (f"bderiv: raised by the model's {where['call']}, called with "
+            f"{where['args']}{when}{region}")
+
+
+def _bderivs_own(exc: BaseException) -> bool:
+    """Whether ``exc`` is a ValueError or TypeError raised in bderiv's code (a check, a
+    refusal, a guard of its own: its message names what it is about)."""
+    if not isinstance(exc, (ValueError, TypeError)) or exc.__traceback__ is None:
+        return False
+    tb = exc.__traceback__
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb.tb_frame.f_code.co_filename.startswith(_PACKAGE)
+
+
+def note_call(exc: BaseException, call: str, x, args=(), n: int = 1) -> None:
+    """Note on ``exc``, raised by a model's function, which function it was (``call``, its
+    role: ``"field(x, mask)"``) and its arguments: ``x``, then ``args`` (the ints ``call``
+    names after x: a mask of ``n`` events, an event k). Once, by the innermost call the
+    exception passes; its type, message and traceback are kept (users catch their own
+    exceptions). bderiv's own errors (:func:`_bderivs_own`) are left as they are, and every
+    exception on Python 3.10 (no notes); the caller leaves out those that are not the
+    function's (``KeyboardInterrupt``, a batch's cancellation). :func:`note_time` adds the
+    time. The note reads ``bderiv: raised by the model's field(x, mask), called with x =
+    [0.0, 1.0], mask = 0b01 (bit k set = event k happened) at t = 0.25``.
+    """
+    if not NOTES or hasattr(exc, "_bderiv_call") or _bderivs_own(exc):
+        return
+    names = call[call.index("(") + 1:-1].split(", ")[1:]
+    try:  # a note never replaces the exception it is on
+        words = [f"x = {_argument(x)}"] + [
+            f"mask = {format_mask(v, n)} ({MASK_MEANING})" if name == "mask" else
+            f"{name} = {v}" for name, v in zip(names, args, strict=False)]
+        where = {"call": call, "args": ", ".join(words), "t": None,
+                 "region": None, "has_mask": "mask" in names}
+        exc.add_note(_note_text(where))
+        exc._bderiv_call = where
+    except Exception:  # noqa: BLE001 - a mask that is no integer, notes that are no list
+        pass
+
+
+def note_time(exc: BaseException, t, region=None) -> None:
+    """Add the time ``t`` (and ``region``, words, for a function called without a mask)
+    to the note :func:`note_call` put on ``exc``, where it has none yet."""
+    where = getattr(exc, "_bderiv_call", None)
+    if where is None or where["t"] is not None:
+        return
+    old = _note_text(where)
+    where["t"] = float(t)
+    if not where["has_mask"]:
+        where["region"] = region
+    notes = getattr(exc, "__notes__", None)
+    if isinstance(notes, list) and old in notes:
+        notes[notes.index(old)] = _note_text(where)
+
+
+@contextlib.contextmanager
+def noted_at(t, region=None):
+    """A block at time ``t`` (a run's stop): the note of an exception a model's function
+    raised in it gets the time (:func:`note_time`)."""
+    try:
+        yield
+    except Exception as exc:
+        note_time(exc, t, region)
+        raise

@@ -37,6 +37,7 @@ from .user_functions import (
     check_output,
     check_rows,
     compiled_or_refused,
+    noted_functions,
 )
 
 _log = logging.getLogger("bderiv")
@@ -69,8 +70,7 @@ class ModelCalls:
         self._given_event_jacobian = model.event_jacobian
         self._given_reset = model.reset if model.reset_guard is None else self.eval_reset
         self._compiled = None
-        functions = (model.field, model.events, model.event_jacobian, model.field_jacobian,
-                     model.corner_field, model.reset, model.reset_jacobian, model.reset_guard)
+        functions = noted_functions(model)  # an exception of a Python one says where
         self._dispatched = tuple(_appending(_contiguous_args(f), params) for f in functions)
         # a new model of numba functions starts on their Python code (PYTHON_FIRST_SECONDS,
         # shared by the models of one field)

@@ -9,6 +9,7 @@ import numpy as np
 from .compiled import check_compiled, is_compiled
 from .user_functions import (
     _contiguous_args,
+    _noted,
     check_callable,
     check_given_jacobian,
     check_output,
@@ -39,8 +40,9 @@ class Section:
             raise TypeError("section must be a callable section(x) -> float, got None")
         check_callable(func, "section")
         check_callable(gradient, "section_gradient")
-        self.func, self.grad, self.dim = func, _contiguous_args(gradient), dim
-        self._call = _contiguous_args(func)
+        self.func, self.dim = func, dim
+        self.grad = _contiguous_args(_noted(gradient, "section_gradient(x)"))
+        self._call = _contiguous_args(_noted(func, "section(x)"))
         self.check = check  # compare a given gradient with a central difference, once
 
     def compiled(self):

@@ -2,8 +2,9 @@
 
 The functions a model is made of (field, events, Jacobians, resets, a section) are the
 user's: :func:`check_callable` and :func:`compiled_or_refused` take them in,
-:func:`_contiguous_args` and :func:`_appending` wrap them (the compiled path's argument
-types, the parameter values), :func:`check_output` validates what they return, and
+:func:`_noted`, :func:`_contiguous_args` and :func:`_appending` wrap them (what an
+exception they raise says, the compiled path's argument types, the parameter values),
+:func:`check_output` validates what they return, and
 :func:`numerical_jacobian` / :func:`check_given_jacobian` stand in for a Jacobian not given
 or hold a given one to its function. :mod:`.calls` and :mod:`.section` are built on them.
 """
@@ -16,10 +17,16 @@ import numba
 import numpy as np
 
 from .._limits import ACCEPT_RTOL
+from .._support import _format
 from .._support import _numdiff as numdiff
 from .._support._tables import INT64_EVENTS
 from .._support._validate import all_finite, check_finite, check_real_array
-from .compiled import is_compiled, note_refused, refuse_damaged_cache, refused_types
+from .compiled import Cancelled, is_compiled, note_refused, refuse_damaged_cache, refused_types
+
+#: how a model's functions are called, in the order :class:`~.calls.ModelCalls` holds them
+MODEL_CALLS = ("field(x, mask)", "events(x)", "event_jacobian(x)", "field_jacobian(x, mask)",
+               "corner_field(x)", "reset(x, mask, k)", "reset_jacobian(x, mask, k)",
+               "reset_guard(x, mask, k)")
 
 
 def check_callable(f, name: str, call: str | None = None) -> None:
@@ -41,6 +48,53 @@ def check_callable(f, name: str, call: str | None = None) -> None:
         signature.bind(*args)
     except TypeError:
         raise TypeError(f"{name} is called as {call}, but it takes {signature}") from None
+
+
+def _noted(fn, call: str, n_events: int = 1):
+    """``fn`` (a Python function of the model, called as ``call``: ``"field(x, mask)"``),
+    an exception it raises noted with the call, its state and mask
+    (:func:`bderiv._support._format.note_call`; the integrator adds the time), the
+    exception itself kept. None, a numba dispatcher (its exceptions are the compiled
+    path's to word) and every function on Python 3.10 (no notes) as they are."""
+    if fn is None or is_compiled(fn) or not _format.NOTES:
+        return fn
+
+    def note(exc, x, ints):
+        if not isinstance(exc, Cancelled):  # the batch's, not the function's
+            _format.note_call(exc, call, x, ints, n_events)
+
+    # one wrapper per arity: no tuple of arguments packed at every call
+    def noted_x(x):
+        try:
+            return fn(x)
+        except Exception as exc:  # the function's own (KeyboardInterrupt passes)
+            note(exc, x, ())
+            raise
+
+    def noted_mask(x, mask):
+        try:
+            return fn(x, mask)
+        except Exception as exc:
+            note(exc, x, (mask,))
+            raise
+
+    def noted_k(x, mask, k):
+        try:
+            return fn(x, mask, k)
+        except Exception as exc:
+            note(exc, x, (mask, k))
+            raise
+
+    noted = (noted_x, noted_mask, noted_k)[call.count(",")]
+    noted.__wrapped__ = fn
+    return noted
+
+
+def noted_functions(model) -> tuple:
+    """A model's eight functions (``field``, ``events``, ...: :data:`MODEL_CALLS`' order),
+    each Python one :func:`_noted`."""
+    return tuple(_noted(getattr(model, call[:call.index("(")]), call, model.n_events)
+                 for call in MODEL_CALLS)
 
 
 def _contiguous_args(fn):

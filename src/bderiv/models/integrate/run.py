@@ -36,7 +36,7 @@ import numpy as np
 
 from ..._limits import MAX_FORCED_STEPS, MAX_GROUPS
 from ..._numerics import GLOBAL_ERROR_FACTOR
-from ..._support._format import format_mask
+from ..._support._format import format_mask, noted_at
 from ..._support._progress import SimulationProgress
 from ..._support._validate import check_number, check_positive_int
 from ..compiled import ENDED, EVENT_JAC_NONE, cancel_point
@@ -347,15 +347,16 @@ def _python_stretch(system, loop, log, now, t_final, options, variational, secti
     if sol.status == 0:
         now.ended = True
         return
-    group, new, x_after = switch(stops, fired, mask, x, t, options, now.err, settled.stop)
-    # every event on the side its bit says, or within its window of the surface
-    h_after = stops.eval_events(x_after)
-    check_sides(h_after, new, settled.stop.window, t)
-    # and none a rounding across that the region's flow carries further across, unseen
-    check_carried(stops, h_after, new, settled.stop.window, group, x_after, t)
-    log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
-    # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
-    jac = stops.eval_event_jacobian(x) if variational else None
+    with noted_at(t):  # a model's function raised at the stop (a reset): at its time
+        group, new, x_after = switch(stops, fired, mask, x, t, options, now.err, settled.stop)
+        # every event on the side its bit says, or within its window of the surface
+        h_after = stops.eval_events(x_after)
+        check_sides(h_after, new, settled.stop.window, t)
+        # and none a rounding across that the region's flow carries further across, unseen
+        check_carried(stops, h_after, new, settled.stop.window, group, x_after, t)
+        log.records.extend(EventRecord(t, k, new, -1 if mask >> k & 1 else 1) for k in group)
+        # the stop's event Jacobian at x (kept by ``stops``), for the group's B-derivative
+        jac = stops.eval_event_jacobian(x) if variational else None
     log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy(), jac))
     now.mask, now.x = new, x_after
     if len(log.groups) > max_groups:

@@ -11,9 +11,12 @@ at a stop to :func:`bderiv.models.integrate.run.run`.
 
 from __future__ import annotations
 
+import sys
+import warnings
+
 import numpy as np
 
-from ..._support._format import MASK_MEANING, blown_up, format_mask
+from ..._support._format import MASK_MEANING, blown_up, format_mask, note_time
 from ..._support._validate import all_finite, check_record
 from ..events.excursions import without_lost_crossings
 from ..events.sides import on_side_at_start
@@ -48,8 +51,12 @@ class _EventValues:
         funcs = []
         for k in range(self.system.n_events):
 
-            def ev(_t, y, k=k):
-                return self(y)[k]
+            def ev(t, y, k=k):
+                try:
+                    return self(y)[k]
+                except Exception as exc:  # the model's events: at this time, in this region
+                    note_time(exc, t, _region(mask, self.system.n_events))
+                    raise
 
             ev.terminal = True
             ev.direction = -1 if mask >> k & 1 else 1
@@ -60,7 +67,11 @@ class _EventValues:
             def sec(t, y):
                 # the run starts on the section: read it as positive there, so that only
                 # a return from below counts (solve_ivp counts 0 -> positive as a crossing)
-                return 1.0 if t == 0.0 else section(y[:d])
+                try:
+                    return 1.0 if t == 0.0 else section(y[:d])
+                except Exception as exc:
+                    note_time(exc, t, _region(mask, self.system.n_events))
+                    raise
 
             sec.terminal = True
             sec.direction = 1
@@ -115,11 +126,13 @@ class ScipyStretches:
         from scipy.integrate import solve_ivp  # here: the compiled path never imports it
 
         def solve(start, y_start, stop):
+            held = _HeldWarnings()
             counted = _Counted(rhs, y_start.size, options.method, mask, system.n_events, d,
-                               start)
+                               start, held)
             field = counted if self.watch is None else self.watch.wrap(counted)
-            sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
-                            **options.solve_ivp_kwargs())
+            with held:
+                sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
+                                **options.solve_ivp_kwargs())
             if sol.status == -1:
                 raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
             # the end of the first step (beyond the stop when an event stopped it there)
@@ -140,10 +153,10 @@ class _Counted:
     estimated from the evaluations (``EVALUATIONS_PER_STEP`` of the method, at least one)
     and ``SOLVE_IVP_STEP_BYTES`` per step; checked each time it has doubled."""
 
-    def __init__(self, rhs, m, method, mask, n, d, start):
+    def __init__(self, rhs, m, method, mask, n, d, start, held):
         self.rhs, self.calls, self.next_check, self.d = rhs, 0, 1 << 12, d
         self.per_call = (SOLVE_IVP_STEP_BYTES + 80 * m) / EVALUATIONS_PER_STEP.get(method, 1)
-        self.mask, self.n, self.start = mask, n, start
+        self.mask, self.n, self.start, self.held = mask, n, start, held
 
     def __call__(self, t, y):
         self.calls += 1
@@ -159,8 +172,70 @@ class _Counted:
                          "larger rtol and atol (fewer steps)")
         try:
             return self.rhs(t, y)
-        except ValueError as exc:  # at a state beyond float64: the run's, not the model's
-            if all_finite(y):
+        except Exception as exc:
+            region = _region(self.mask, self.n)
+            if not isinstance(exc, ValueError) or all_finite(y):
+                note_time(exc, t, region)  # a model's function raised: at this time
                 raise
-            region = f"region mask {format_mask(self.mask, self.n)} ({MASK_MEANING})"
+            # at a state beyond float64: the run's, not the model's; scipy's warnings of
+            # its overflow on the way are dropped (the user sees this error alone)
+            self.held.blew_up = True
             raise ValueError(blown_up(region, y[:self.d], t)) from exc
+
+
+def _region(mask, n) -> str:
+    return f"region mask {format_mask(mask, n)} ({MASK_MEANING})"
+
+
+class _HeldWarnings:
+    """NumPy's floating-point warnings of scipy's own arithmetic in one solve_ivp call (an
+    overflow in its dot products as the state nears the end of float64), held: dropped
+    when the call ends in the blow-up error (``blew_up``, set by :class:`_Counted`: the
+    user sees that error alone), else given when it ends, as NumPy would have given them
+    (the same text, place and filters). Those of other code (the model's functions) are
+    given at once, as NumPy gives them. NumPy's ``log`` mode brings them here
+    (``np.errstate``: the thread's and context's own), for the kinds NumPy warns of, and
+    only where no ``np.seterrcall`` handler is set (a user's own is left alone)."""
+
+    def __init__(self):
+        call, modes = np.geterrcall(), np.geterr()
+        if isinstance(call, _HeldWarnings):  # a run inside a model's function: as outside
+            self.kinds = call.kinds
+        else:
+            self.kinds = () if call is not None else tuple(
+                k for k in ("divide", "over", "invalid") if modes[k] == "warn")
+        self.held, self.blew_up, self._state = [], False, None
+
+    def write(self, text):
+        """NumPy's ``log`` of a floating-point error, from the frame that made it."""
+        frame = sys._getframe(1)
+        message = text.strip().removeprefix("Warning: ")
+        caller = frame  # scipy's, or numpy's code called by scipy's
+        while caller is not None and caller.f_globals.get("__name__", "").startswith("numpy"):
+            caller = caller.f_back
+        if caller is None or not caller.f_globals.get("__name__", "").startswith(
+                "scipy.integrate"):
+            warnings.warn(message, RuntimeWarning, stacklevel=2)
+            return
+        self.held.append((message, frame.f_code.co_filename, frame.f_lineno, frame.f_globals))
+
+    def __enter__(self):
+        if self.kinds:
+            self._state = np.errstate(**dict.fromkeys(self.kinds, "log"), call=self)
+            self._state.__enter__()
+        return self
+
+    def __exit__(self, kind, exc, tb):
+        if self._state is not None:
+            self._state.__exit__(kind, exc, tb)
+        if self.blew_up:
+            return
+        for message, filename, lineno, module_globals in self.held:
+            try:
+                warnings.warn_explicit(message, RuntimeWarning, filename, lineno,
+                                       module_globals.get("__name__"),
+                                       module_globals.setdefault("__warningregistry__", {}),
+                                       module_globals)
+            except Warning:  # an error by the filters: unless the call raised its own
+                if exc is None:
+                    raise
