@@ -16,7 +16,7 @@ import numba
 import numpy as np
 import pytest
 
-from bderiv import HybridSystem, complex_step_jacobian, examples
+from bderiv import HybridSystem, _limits, complex_step_jacobian, examples
 from bderiv.models import numerical_jacobians as jacobians_module
 
 
@@ -239,10 +239,14 @@ def test_a_complex_step_that_matches_only_where_it_starts_is_not_trusted():
 
 
 def _field_complex_on_one_side(x, mask):
-    """Takes complex input where x0 > 0.5 only (math.sin refuses it on the other side)."""
+    """Takes complex input where x0 > 0.5 only (math.sin refuses it on the other side).
+    Continuous at x0 = 0.5 (its Jacobian has a kink there): a jump of the field inside a
+    region would add a saltation that no Jacobian holds, and the flow map of the
+    hand-written Jacobian would not be the flow's (the compiled path's central
+    differences, straddling the jump, caught it)."""
     if x[0].real > 0.5:
         return np.array([x[1], -x[0]])
-    return np.array([x[1], -math.sin(x[0])])
+    return np.array([x[1], -math.sin(x[0]) + (math.sin(0.5) - 0.5)])
 
 
 @pytest.mark.parametrize("compile_it", [False, True], ids=["python", "numba-python-first"])
@@ -266,6 +270,26 @@ def test_a_complex_step_that_fails_later_gives_way_to_central_differences(
     E = exact.flow_bderivative(x0, 2.0)(np.eye(2))
     np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-6, atol=1e-6 * np.abs(E).max())
     assert any("central differences from now on" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.parametrize("seconds", [1e-3, 0.05])
+def test_a_model_compiled_during_its_run_gives_the_same_flow_map(seconds, monkeypatch):
+    """The numba model of the test above, its time on Python code cut so that it is
+    compiled before or during its run (a loaded machine does this at 1 s): the compiled
+    path's central differences give the hand-written Jacobian's flow map too."""
+    monkeypatch.setenv("BDERIV_INTEGRATOR", "auto")
+    monkeypatch.setattr(_limits, "PYTHON_FIRST_SECONDS", seconds)
+    x0 = np.array([1.0, 0.0])
+    D = HybridSystem(numba.njit(_field_complex_on_one_side),
+                     numba.njit(lambda x: np.array([x[0] + 5.0])), n_events=1,
+                     dim=2).flow_bderivative(x0, 2.0)
+    exact = HybridSystem(
+        _field_complex_on_one_side, lambda x: np.array([x[0] + 5.0]), n_events=1, dim=2,
+        field_jacobian=lambda x, mask: np.array(
+            [[0.0, 1.0], [-1.0 if x[0] > 0.5 else -math.cos(x[0]), 0.0]]),
+        event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    E = exact.flow_bderivative(x0, 2.0)(np.eye(2))
+    np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-6, atol=1e-6 * np.abs(E).max())
 
 
 def test_a_damaged_cache_of_the_complex_version_is_not_taken_for_a_refusal(monkeypatch):
