@@ -104,8 +104,8 @@ def test_compiled_must_be_a_flag(make):
 
 @pytest.mark.parametrize("legs, error, message", [
     (1, ValueError, "legs must be an integer >= 2, got 1"),
-    (2.5, TypeError, "legs must be an integer, got float"),
-    ("4", TypeError, "legs must be an integer, got str"),
+    (2.5, TypeError, "legs must be an integer >= 2, got float 2.5"),
+    ("4", TypeError, "legs must be an integer >= 2, got str '4'"),
 ])
 def test_pronking_legs_are_checked(legs, error, message):
     with pytest.raises(error, match=message):

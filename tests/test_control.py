@@ -344,9 +344,9 @@ def test_refusals():
         ilqr(*args, Qf=np.eye(2), R=np.eye(3), linearisation=5)
     with pytest.raises(ValueError, match=r"linearisation, a fixed order.*\(0 \.\. 0\)"):
         ilqr(*args, Qf=np.eye(2), R=np.eye(3), linearisation=(7,))
-    with pytest.raises(ValueError, match="Qf must be finite, got"):
+    with pytest.raises(ValueError, match=r"Qf must be finite, but Qf\[0, 0\] = nan"):
         ilqr(*args, Qf=np.full((2, 2), np.nan), R=np.eye(3))
-    with pytest.raises(ValueError, match="line_search must be >= 1"):
+    with pytest.raises(ValueError, match="line_search must be an integer >= 1, got 0"):
         ilqr(*args, Qf=np.eye(2), R=np.eye(3), line_search=0)
     wide = augment(lambda z, m: z[:2], lambda z: z[:1] - 5, n_events=1, dim=1, n_params=1)
     with pytest.raises(ValueError, match=r"field\(z, mask\) must return shape \(1,\)"):
@@ -357,9 +357,9 @@ def test_refusals():
 
 
 @pytest.mark.parametrize(("field", "value", "error", "message"), [
-    ("max_iters", 0, ValueError, "max_iters must be >= 1, got 0"),
-    ("max_iters", 2.5, TypeError, "max_iters must be an integer, got float"),
-    ("max_iters", True, TypeError, "max_iters must be an integer, got bool"),
+    ("max_iters", 0, ValueError, "max_iters must be an integer >= 1, got 0"),
+    ("max_iters", 2.5, TypeError, "max_iters must be an integer >= 1, got float 2.5"),
+    ("max_iters", True, TypeError, "max_iters must be an integer >= 1, got bool True"),
     ("error_tol", 0.0, ValueError, "error_tol must be a finite number > 0, got 0.0"),
     ("error_tol", np.nan, ValueError, "error_tol must be a finite number > 0, got nan"),
     ("error_tol", -0.1, ValueError, "error_tol must be a finite number > 0, got -0.1"),
@@ -379,9 +379,10 @@ def test_refusals():
     ("min_lambda", 1e7, ValueError,
      "min_lambda must be <= max_lambda, got min_lambda=10000000.0 > max_lambda=1000000.0"),
     ("max_lambda", np.inf, ValueError, "max_lambda must be a finite number > 0, got inf"),
-    ("line_search_max_iters", -1, ValueError, "line_search_max_iters must be >= 0, got -1"),
+    ("line_search_max_iters", -1, ValueError,
+     "line_search_max_iters must be an integer >= 0, got -1"),
     ("line_search_max_iters", 1.0, TypeError,
-     "line_search_max_iters must be an integer, got float"),
+     "line_search_max_iters must be an integer >= 0, got float 1.0"),
     ("line_search_backoff", 1.0, ValueError,
      r"line_search_backoff must be a finite number in \(0, 1\), got 1.0"),
     ("line_search_backoff", 0.0, ValueError, "line_search_backoff must be a finite number > 0"),
@@ -420,9 +421,9 @@ def test_shooting_config_keeps_meaningful_edges():
     ("mu_max", 1e-8, ValueError,
      r"mu_max must be >= mu0 \(the regularisation grows from mu0 up to mu_max\), got "
      r"mu_max=1e-08 < mu0=1e-06"),
-    ("max_iters", 0, ValueError, "max_iters must be >= 1, got 0"),
-    ("max_iters", 10.0, TypeError, "max_iters must be an integer, got float"),
-    ("line_search", 2.5, TypeError, "line_search must be an integer, got float"),
+    ("max_iters", 0, ValueError, "max_iters must be an integer >= 1, got 0"),
+    ("max_iters", 10.0, TypeError, "max_iters must be an integer >= 1, got float 10.0"),
+    ("line_search", 2.5, TypeError, "line_search must be an integer >= 1, got float 2.5"),
 ])
 def test_ilqr_refuses_settings_before_simulating(monkeypatch, keyword, value, error,
                                                   message):

@@ -277,7 +277,7 @@ def test_example_flow_bderivative_pickles():
 
 
 def test_network_rejects_bad_n():
-    with pytest.raises(ValueError, match="n must be in 1..24"):
+    with pytest.raises(ValueError, match=r"n must be an integer in \[1, 24\], got 0"):
         examples.network(0)
 
 

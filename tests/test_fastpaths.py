@@ -222,7 +222,7 @@ def test_progress_default_chunk_and_validation(system):
     calls.clear()
     bd.inverse(np.empty((0, 5)), progress=lambda d, t: calls.append((d, t)))
     assert calls == [(0, 0)]
-    with pytest.raises(ValueError, match="chunk_size must be >= 1"):
+    with pytest.raises(ValueError, match="chunk_size must be an integer >= 1"):
         bd.apply(V, chunk_size=0)
     with pytest.raises(TypeError, match="chunk_size must be an integer"):
         bd.apply(V, chunk_size=2.5)

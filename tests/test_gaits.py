@@ -181,7 +181,8 @@ def test_growth_rate_validation():
     with pytest.raises(TypeError, match=r"burn_in must be an integer in \[0, iterations - 2 = "
                        r"8\] \(or None: iterations // 4\), got float 1.5"):
         growth_rate(fmap, V0, iterations=10, burn_in=1.5)
-    with pytest.raises(ValueError, match=r"burn_in must be in \[0, iterations - 2 = 8\], got 9"):
+    with pytest.raises(ValueError, match=r"burn_in must be an integer in \[0, iterations - 2 = "
+                       r"8\] \(or None: iterations // 4\), got 9"):
         growth_rate(fmap, V0, iterations=10, burn_in=9)
     with pytest.raises(ValueError, match="V0 must have no zero row, but row 1 is zero"):
         growth_rate(fmap, np.array([[1.0, 0.0], [0.0, 0.0]]))
@@ -380,7 +381,7 @@ def test_periodic_orbit_validation_and_failure(gait):
     s, guess = ex.system, ex.x0
     with pytest.raises(ValueError, match="tol must be a finite number > 0, got 0.0"):
         s.periodic_orbit(guess, gaits.apex_section, tol=0.0)
-    with pytest.raises(ValueError, match="max_iter must be >= 1"):
+    with pytest.raises(ValueError, match="max_iter must be an integer >= 1"):
         s.periodic_orbit(guess, gaits.apex_section, max_iter=0)
     with pytest.raises(ValueError, match="period_guess must be a finite number > 0"):
         s.periodic_orbit(guess, gaits.apex_section, period_guess=-1.0)
@@ -389,7 +390,7 @@ def test_periodic_orbit_validation_and_failure(gait):
     with pytest.raises(RuntimeError, match=r"did not converge in max_iter=1 iterations: max "
                        r"\|P\(x\) - x\| = "):
         gaits.pronking_orbit(ex, max_iter=1)
-    with pytest.raises(ValueError, match="n_directions must be >= 1"):
+    with pytest.raises(ValueError, match="n_directions must be an integer >= 1"):
         orb.stability(n_directions=0)
     # a review: iterations 0 and 1 gave two different bounds, burn_in=1.5 became 1 silently,
     # a negative seed got NumPy's "expected non-negative integer", naming nothing
@@ -400,8 +401,8 @@ def test_periodic_orbit_validation_and_failure(gait):
         with pytest.raises(TypeError, match=r"burn_in must be an integer in \[0, iterations "
                            r"- 2 = 18\]"):
             orb.stability(n_directions=5, iterations=20, burn_in=burn_in)
-    with pytest.raises(ValueError, match=r"burn_in must be in \[0, iterations - 2 = 18\], "
-                       r"got 19"):
+    with pytest.raises(ValueError, match=r"burn_in must be an integer in \[0, iterations - 2 = "
+                       r"18\] \(or None: iterations // 4\), got 19"):
         orb.stability(n_directions=5, iterations=20, burn_in=19)
     with pytest.raises(ValueError, match=r"seed must be an integer >= 0, got -1$"):
         orb.stability(n_directions=5, iterations=20, seed=-1)
@@ -419,8 +420,8 @@ def test_periodic_orbit_validation_and_failure(gait):
         with pytest.raises(ValueError, match=r"perturbation must have shape \(4,\) \(added to "
                            r"the example's start x0, a state of pronking\), got " + got):
             gaits.pronking_orbit(ex, perturbation=bad)
-    with pytest.raises(ValueError, match=r"perturbation must be finite, got \[0.1, 0.0, 0.0, "
-                       r"nan\]"):
+    with pytest.raises(ValueError, match=r"perturbation must be finite, but perturbation\[3\] = "
+                       r"nan; got \[0.1, 0.0, 0.0, nan\]"):
         gaits.pronking_orbit(ex, perturbation=[0.1, 0.0, 0.0, np.nan])
     with pytest.raises(TypeError, match=r"perturbation must hold real numbers"):
         gaits.pronking_orbit(ex, perturbation="abcd")
@@ -463,7 +464,7 @@ def _simulations_counted(monkeypatch):
     ({"x0": "short"}, ValueError, r"x0 must have shape \(4,\) \(a state of this system\), "
                                   r"got shape \(3,\)"),
     ({"x0": "long"}, ValueError, r"x0 must have shape \(4,\) .*got shape \(5,\)"),
-    ({"x0": "nan"}, ValueError, r"x0 must be finite, got \[.* nan\]"),
+    ({"x0": "nan"}, ValueError, r"x0 must be finite, but x0\[3\] = nan; got \[.* nan\]"),
     ({"V": np.zeros((2, 4))}, ValueError,
      r"V must have no zero row \(each row is a direction of perturbation\), but row 0 is "
      r"zero"),
@@ -499,7 +500,7 @@ def test_decay_check_refuses_bad_arguments_by_name_before_simulating(gait, monke
      r"V must hold at least one vector \(shape \(m, 4\) with m >= 1\), got shape \(0, 4\)"),
     ({"x0": "short"}, ValueError, r"x0 must have shape \(4,\) \(a state of this system\), "
                                   r"got shape \(3,\)"),
-    ({"x0": "nan"}, ValueError, r"x0 must be finite, got"),
+    ({"x0": "nan"}, ValueError, r"x0 must be finite, but x0\[3\] = nan; got"),
     ({"eps": ()}, ValueError, r"eps must be a step or a non-empty 1-d sequence of steps, got "
                               r"shape \(0,\)"),
     ({"eps": [[1e-4]]}, ValueError, r"eps must be a step or a non-empty 1-d sequence of "

@@ -50,7 +50,7 @@ def test_constructor_validation():
         HybridSystem(3, h, n_events=1, dim=1)
     with pytest.raises(TypeError, match="corner_field must be callable"):
         HybridSystem(f, h, n_events=1, dim=1, corner_field="no")
-    with pytest.raises(ValueError, match="n_events must be >= 1"):
+    with pytest.raises(ValueError, match="n_events must be an integer >= 1"):
         HybridSystem(f, h, n_events=0, dim=1)
     with pytest.raises(TypeError, match="dim must be an integer"):
         HybridSystem(f, h, n_events=1, dim=2.0)

@@ -77,7 +77,7 @@ def test_zeno_spiral_is_refused_with_max_groups():
     s = square_spiral(0.9)  # turns shrink by 0.9**4: infinitely many crossings before t = 10
     with pytest.raises(RuntimeError, match=r"more than max_groups=40 event groups.*Zeno"):
         s.simulate(np.array([-0.5, -0.55]), 30.0, max_groups=40)
-    with pytest.raises(ValueError, match="max_groups must be >= 1"):
+    with pytest.raises(ValueError, match="max_groups must be an integer >= 1"):
         s.simulate(np.array([-0.5, -0.55]), 1.0, max_groups=0)
 
 

@@ -257,9 +257,10 @@ def test_the_methods_refuse_a_state_mask_or_foot_of_another_size(solo):
             solo.contact_forces(x, mask)
     with pytest.raises(TypeError, match="mask must be an integer, got float"):
         solo.contact_forces(x, 1.0)
-    with pytest.raises(ValueError, match=r"k must be a foot's index in \[0, 4\), got 4"):
+    index = r"k must be an integer in \[0, 4\) \(a foot's index\), got "
+    with pytest.raises(ValueError, match=index + "4"):
         solo.reset(x, 0, 4)
-    with pytest.raises(TypeError, match="k must be an integer"):
+    with pytest.raises(TypeError, match=index + "float 1.0"):
         solo.reset_jacobian(x, 0, 1.0)
     x[2 * solo.nv:] = (1.0, 1.0, 0.0, 0.0)  # feet 0 and 1 down, as the mask says
     assert solo.contact_forces(x, 0b0011).shape == (2, 3)

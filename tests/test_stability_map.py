@@ -108,7 +108,8 @@ def test_bad_grids_and_clients():
                       client="cluster")
     # refused at once, not recorded as "no orbit" at every point (a review)
     grid = {"multiplier": [0.5], "turns": [1.0]}
-    with pytest.raises(ValueError, match=r"x_guess must be finite, got \[ 1. nan\]"):
+    with pytest.raises(ValueError,
+                       match=r"x_guess must be finite, but x_guess\[1\] = nan; got \[1.0, nan\]"):
         stability_map(cycle, grid, [1.0, np.nan], section)
     with pytest.raises(ValueError, match=r"period_guess must be a finite number > 0, got -1"):
         stability_map(cycle, grid, [1.0, 0.0], section, period_guess=-1)

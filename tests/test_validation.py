@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 from reference import random_system, ref_apply
 
 from bderiv import BDerivative
-from bderiv._support._validate import all_finite
+from bderiv._support._validate import all_finite, check_state
+from bderiv._support._validate_ints import check_int
 
 DH2 = np.eye(2)
 F2 = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 3.0], [2.0, 2.0]])
@@ -229,9 +230,9 @@ def test_piece_order_not_integers(order):
 
 
 def test_pieces_bad_limit(bd3):
-    with pytest.raises(ValueError, match=r"max_pieces must be >= 1, got 0"):
+    with pytest.raises(ValueError, match=r"max_pieces must be an integer >= 1, got 0"):
         bd3.pieces(max_pieces=0)
-    with pytest.raises(TypeError, match=r"max_pieces must be an integer, got float"):
+    with pytest.raises(TypeError, match=r"max_pieces must be an integer >= 1, got float 2.0"):
         bd3.pieces(max_pieces=2.0)
 
 
@@ -378,3 +379,40 @@ def test_all_finite_is_numpys_elementwise_test(size, edges, seed):
         arr[i % size] = value
     for a in (arr, arr.reshape(1, -1), arr[::2], np.full(5000, arr[0])):
         assert all_finite(a) == bool(np.isfinite(a).all()), a
+
+
+@pytest.mark.parametrize("value, kwargs, error, message", [
+    (True, {"low": 0}, TypeError, "n must be an integer >= 0, got bool True"),
+    (3.0, {"low": 0}, TypeError, "n must be an integer >= 0, got float 3.0"),
+    (np.int64(0), {"low": 1, "high": 4}, ValueError, r"n must be an integer in \[1, 4\], got 0"),
+    (5, {"high": 4}, ValueError, "n must be an integer <= 4, got 5"),
+    (4, {"low": 0, "high": 3, "span": "in [0, 4)", "meaning": "an index"}, ValueError,
+     r"n must be an integer in \[0, 4\) \(an index\), got 4"),
+])
+def test_one_integer_check_names_the_range_and_what_came(value, kwargs, error, message):
+    with pytest.raises(error, match=f"^{message}$"):
+        check_int(value, "n", **kwargs)
+
+
+def test_one_integer_check_takes_numpy_integers_as_ints():
+    got = check_int(np.uint8(3), "n", low=0, high=3)
+    assert got == 3 and type(got) is int
+
+
+@pytest.mark.parametrize("x, message", [
+    (1.0, r"x must have shape \(2,\) \(a point\), got a scalar"),
+    ([1.0, [2.0, 3.0]], r"x must have shape \(2,\) \(a point\), got \[1.0, \[2.0, 3.0\]\]"),
+    (np.zeros((1, 2)), r"x must have shape \(2,\) \(a point\), got shape \(1, 2\)"),
+    ([1.0, np.inf], r"x must be finite, but x\[1\] = inf; got \[1.0, inf\]"),
+])
+def test_one_state_check_names_the_shape_its_meaning_and_what_came(x, message):
+    with pytest.raises(ValueError, match=f"^{message}$"):
+        check_state(x, 2, "x", meaning="a point")
+
+
+def test_one_state_check_returns_a_contiguous_float64_copy():
+    x = np.arange(4)[::2]
+    got = check_state(x, 2)
+    assert got.dtype == np.float64 and got.flags.c_contiguous and got.flags.writeable
+    y = np.array([1.0, 2.0])
+    assert check_state(y, 2) is not y

@@ -21,7 +21,8 @@ from .._limits import (
     sized_by_time,
 )
 from ._errors import QueryError
-from ._validate import check_memory, check_out, check_points, check_positive_int
+from ._validate import check_memory, check_out, check_points
+from ._validate_ints import check_positive_int
 
 
 def is_dask_array(x) -> bool:

@@ -1,6 +1,8 @@
-"""Argument checks shared by every public entry point.
+"""Argument checks shared by every public entry point: real numbers and their arrays
+(states, matrices, query vectors), flags, memory; the integer checks are
+:mod:`bderiv._support._validate_ints`'s.
 
-Each ``check_*`` helper either returns a clean float64/int64 array or raises a
+Each ``check_*`` helper either returns a clean float64 array or value or raises a
 ``TypeError``/``ValueError`` saying what was expected and what arrived. Nothing here
 knows about the mathematics beyond shapes and finiteness.
 """
@@ -14,7 +16,12 @@ import numpy as np
 
 from .._limits import SMALL_NEED_BYTES
 from ._errors import QUERY, QueryError
-from ._tables import INT64_EVENTS, human_bytes, mask_dtype, memory_headroom
+from ._tables import human_bytes, memory_headroom
+from ._validate_ints import (  # noqa: F401 (re-exported: bderiv.models imports them here)
+    check_mask,
+    check_masks,
+    check_positive_int,
+)
 
 _KIND_NAMES = {
     "b": "bool",
@@ -184,75 +191,35 @@ def check_out(out, shape: tuple[int, ...], name: str = "out") -> np.ndarray:
     return out
 
 
-def check_order(order, n: int) -> np.ndarray:
-    """Validate an event order: a permutation of ``0..n-1``; returns int64 array."""
-    arr = np.asarray(order)
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind == "f" and arr.ndim == 1 and np.all(arr == np.round(arr)):
-            arr = arr.astype(np.int64)
-        else:
-            raise TypeError(f"order must be a sequence of integers, got dtype {arr.dtype}")
-    if arr.shape != (n,) or not np.array_equal(np.sort(arr), np.arange(n)):
-        raise ValueError(
-            f"order must be a permutation of 0..{n - 1} (each of the {n} events once), "
-            f"got {arr.tolist()}"
-        )
-    return arr.astype(np.int64)
+def check_state(x, dim: int, name: str = "x", *,
+                meaning: str = "a state of this system") -> np.ndarray:
+    """``x`` as a vector of dimension ``dim``, a state of a system unless ``meaning`` says
+    what else: a finite float64 C-contiguous copy, shape (dim,).
 
-
-def check_state(x, dim: int, name: str = "x") -> np.ndarray:
-    """A state of a system of dimension ``dim``: a finite float64 copy, shape (dim,)."""
+    Raises
+    ------
+    TypeError
+        If ``x`` does not hold real numbers (:func:`check_real_array`).
+    ValueError
+        If its shape is another (a scalar, a ragged nest) or an entry is not finite; the
+        message names ``name``, the shape expected and ``meaning``, and what came.
+    """
     if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (dim,):
         arr = x.copy()  # the common case, checked in a third of the time
     else:
-        arr = check_real_array(x, name)
-        if arr.shape != (dim,):
-            raise ValueError(
-                f"{name} must have shape ({dim},) (a state of this system), got "
-                f"shape {arr.shape}"
-            )
+        try:
+            arr = check_real_array(x, name)
+        except ValueError:  # a ragged nest of sequences
+            arr = None
+        if arr is None or arr.shape != (dim,):
+            got = (repr(x) if arr is None else "a scalar" if arr.ndim == 0
+                   else f"shape {arr.shape}")
+            raise ValueError(f"{name} must have shape ({dim},) ({meaning}), got {got}")
         arr = np.array(arr, dtype=np.float64)
     if not all_finite(arr):
-        raise ValueError(f"{name} must be finite, got {arr}")
+        i = int(np.flatnonzero(~np.isfinite(arr))[0])
+        raise ValueError(f"{name} must be finite, but {name}[{i}] = {arr[i]}; got {arr.tolist()}")
     return arr
-
-
-def check_mask(mask, n_events: int, name: str = "mask") -> int:
-    """A region mask of a system of ``n_events`` events: an integer in [0, 2**n)."""
-    if isinstance(mask, bool) or not isinstance(mask, int | np.integer):
-        raise TypeError(f"{name} must be an integer, got {type(mask).__name__}")
-    if not 0 <= mask < (1 << n_events):
-        raise ValueError(f"{name} must be in [0, 2**{n_events}), got {mask}")
-    return int(mask)
-
-
-def check_masks(masks, n_events: int, name: str = "masks") -> np.ndarray:
-    """Region masks of a system of ``n_events`` events (each as :func:`check_mask`), as a
-    1-D array: int64, or Python ints (dtype object) beyond 63 events, which an int64 does
-    not hold (an unsigned or object array is never cast: a uint64 mask with bit 63 set
-    would read as negative)."""
-    values = np.asarray(masks)
-    if values.dtype.kind not in "iu":  # Python ints beyond int64, int64 and uint64 mixed
-        values = np.asarray(masks, dtype=object)
-    flat = values.reshape(-1)
-    if values.dtype.kind in "iu" and n_events <= INT64_EVENTS:
-        if flat.size:
-            low, high = int(flat.min()), int(flat.max())
-            if low < 0 or high >= 1 << n_events:
-                bad = low if low < 0 else high
-                raise ValueError(f"{name} must be in [0, 2**{n_events}), got {bad}")
-        return flat.astype(np.int64)
-    return np.array([check_mask(m, n_events, f"{name}[{i}]")
-                     for i, m in enumerate(flat.tolist())], dtype=mask_dtype(n_events))
-
-
-def check_positive_int(value, name: str) -> int:
-    """Validate a positive integer parameter."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
-    if value < 1:
-        raise ValueError(f"{name} must be >= 1, got {value}")
-    return int(value)
 
 
 def check_bool(value, name: str) -> bool:
@@ -339,17 +306,6 @@ def memory_limit_bytes(value) -> int:
     if not (math.isfinite(value) and value > 0 and value == int(value)):
         raise ValueError(f"memory_limit must be a positive whole number of bytes, got {value!r}")
     return int(value)
-
-
-def check_pieces(n: int, max_pieces) -> None:
-    """Refuse n! pieces above ``max_pieces``."""
-    check_positive_int(max_pieces, "max_pieces")
-    count = math.factorial(n)
-    if count > max_pieces:
-        raise ValueError(
-            f"{n} events have {n}! = {count} pieces, more than max_pieces={max_pieces}; pass "
-            f"a larger max_pieces, or use piece(order) for the orders you need"
-        )
 
 
 def check_number(value, name: str, *, low: float = 0.0, strict: bool = True,

@@ -9,14 +9,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._support._validate import check_matrix, check_number
+from .._support._validate_ints import check_int
 
-__all__ = ["check_burn_in", "check_count", "check_directions", "check_iterations",
-           "check_seed", "check_settings", "check_steps", "check_system"]
-
-
-def _integer(value) -> bool:
-    """Whether ``value`` is an integer (a NumPy one too), not a bool."""
-    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+__all__ = ["check_burn_in", "check_directions", "check_iterations", "check_seed",
+           "check_settings", "check_steps", "check_system"]
 
 
 def check_system(system) -> None:
@@ -63,19 +59,9 @@ def check_settings(caller: str, given, known) -> None:
                         f"{', '.join(known)}")
 
 
-def check_count(value, name: str, low: int) -> int:
-    """An integer parameter ``>= low``, one message for the type and the range."""
-    if not _integer(value):
-        raise TypeError(f"{name} must be an integer >= {low}, got {type(value).__name__} "
-                        f"{value!r}")
-    if value < low:
-        raise ValueError(f"{name} must be an integer >= {low}, got {value}")
-    return int(value)
-
-
 def check_iterations(iterations) -> int:
     """Iterations of a growth-rate run: an integer >= 2 (the fit needs two)."""
-    return check_count(iterations, "iterations", 2)
+    return check_int(iterations, "iterations", low=2)
 
 
 def check_burn_in(burn_in, iterations: int) -> int:
@@ -83,22 +69,11 @@ def check_burn_in(burn_in, iterations: int) -> int:
     ``iterations // 4``."""
     if burn_in is None:
         return iterations // 4
-    if not _integer(burn_in):
-        raise TypeError(f"burn_in must be an integer in [0, iterations - 2 = "
-                        f"{iterations - 2}] (or None: iterations // 4), got "
-                        f"{type(burn_in).__name__} {burn_in!r}")
-    if not 0 <= burn_in <= iterations - 2:
-        raise ValueError(f"burn_in must be in [0, iterations - 2 = {iterations - 2}], got "
-                         f"{burn_in}")
-    return int(burn_in)
+    return check_int(burn_in, "burn_in", low=0, high=iterations - 2,
+                     span=f"in [0, iterations - 2 = {iterations - 2}]",
+                     meaning="or None: iterations // 4")
 
 
 def check_seed(seed):
     """A seed of ``numpy.random.default_rng``: an integer >= 0 (or None: fresh entropy)."""
-    if seed is None:
-        return None
-    if not _integer(seed):
-        raise TypeError(f"seed must be an integer >= 0, got {type(seed).__name__} {seed!r}")
-    if seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {seed}")
-    return int(seed)
+    return None if seed is None else check_int(seed, "seed", low=0)

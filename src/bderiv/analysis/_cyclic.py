@@ -28,6 +28,7 @@ import numpy as np
 import scipy.linalg
 
 from .._limits import EQUIVARIANCE_RTOL, INDEPENDENCE_RTOL
+from .._support._validate_ints import is_integer
 
 #: shifts applied to a cyclic coordinate to check that the model does not depend on it:
 #: of both signs, of irrational ratio (sqrt 2 and the golden ratio's inverse), so that no
@@ -42,8 +43,7 @@ def check_cyclic(cyclic, dim: int) -> tuple:
     except TypeError:
         items = None
     # integers only: int(1.5) would silently be coordinate 1
-    bad = None if items is None else [i for i in items if isinstance(i, bool | np.bool_)
-                                      or not isinstance(i, int | np.integer)]
+    bad = None if items is None else [i for i in items if not is_integer(i)]
     if items is None or bad:
         what = (f"{type(cyclic).__name__}, not a sequence" if items is None
                 else f"{bad[0]!r} is {type(bad[0]).__name__}")

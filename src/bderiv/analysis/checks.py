@@ -26,10 +26,10 @@ from .._support._validate import (
     check_points,
     check_state,
 )
+from .._support._validate_ints import check_int
 from ..models.integrate.options import SolverOptions
 from ..models.section import Section
 from ._arguments import (
-    check_count,
     check_directions,
     check_settings,
     check_steps,
@@ -324,7 +324,7 @@ def decay_check(system, x0, section, V, *, eps=1e-4, strides=40, floor=1e-9, cei
     eps = check_number(eps, "eps")
     t_max = check_number(t_max, "t_max")
     floor = check_number(floor, "floor", strict=False)
-    strides = check_count(strides, "strides", 4)
+    strides = check_int(strides, "strides", low=4)
     check_settings("decay_check", simulate_options, (*_SETTINGS, "options", "max_groups"))
     keep = kept(check_cyclic(cyclic, system.dim), system.dim)
     size = float(np.linalg.norm(x0[keep]))

@@ -20,7 +20,8 @@ import numpy as np
 from .._limits import DEFAULT_MASKS
 from .._support import _numdiff as numdiff
 from .._support._format import format_mask
-from .._support._validate import all_finite, check_masks, check_real_array, check_state
+from .._support._validate import all_finite, check_real_array, check_state
+from .._support._validate_ints import check_int, check_masks
 from ..models.section import Section
 from ..models.user_functions import check_output
 
@@ -184,8 +185,7 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
                              f"(the regions to check), at most {DEFAULT_MASKS} by default")
         masks = range(1 << n)
     masks = check_masks(list(masks), n).tolist()
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise TypeError(f"seed must be an integer, got {type(seed).__name__}")
+    check_int(seed, "seed")
     rows = []
 
     def add(function, mask, event, jac, fun):

@@ -49,7 +49,8 @@ from .._limits import (
     T_MAX_PER_PERIOD,
 )
 from .._support._progress import search_bar
-from .._support._validate import check_number, check_positive_int
+from .._support._validate import check_number
+from .._support._validate_ints import check_positive_int
 from ..models.integrate.options import SolverOptions, check_options
 from ..models.integrate.run import ENDS, NoReturn, run
 from ._arguments import check_burn_in, check_iterations, check_seed

@@ -50,10 +50,10 @@ from .._support._progress import resolve_progress
 from .._support._validate import (
     all_finite,
     check_number,
-    check_positive_int,
     check_real_array,
     check_state,
 )
+from .._support._validate_ints import check_positive_int
 from ._arguments import check_iterations
 
 __all__ = ["StabilityMap", "stability_map"]
@@ -240,16 +240,9 @@ def _check_guess(make_system, params, x_guess):
             getattr(system, "periodic_orbit", None)):
         raise TypeError(f"make_system must return a HybridSystem (or an object with a "
                         f"system attribute, such as an Example), got {type(system).__name__}")
-    try:
-        x = check_real_array(x_guess, "x_guess")
-    except ValueError:  # a ragged nest of sequences
-        x = np.empty(0, dtype=object)
-    if x.dtype == object or x.shape != (dim,):
-        got = f"shape {x.shape}" if x.dtype != object else repr(x_guess)
-        at = ", ".join(f"{k}={v:g}" for k, v in params.items())
-        raise ValueError(f"x_guess must have shape ({dim},) (a state of the model that "
-                         f"make_system({at}) builds), got {got}")
-    return check_state(x, dim, "x_guess"), system
+    at = ", ".join(f"{k}={v:g}" for k, v in params.items())
+    return check_state(x_guess, dim, "x_guess",
+                       meaning=f"a state of the model that make_system({at}) builds"), system
 
 
 def _waves(shape):

@@ -35,7 +35,8 @@ from .._limits import (
     ORBIT_MAX_ITER,
     ORBIT_TOL,
 )
-from .._support._validate import check_bool, check_positive_int, check_value
+from .._support._validate import check_bool, check_value
+from .._support._validate_ints import check_positive_int
 from ..models.calls import ModelCalls
 from ..models.compiled import CompiledModel
 from ..models.integrate.many import Trajectories
@@ -268,8 +269,10 @@ class HybridSystem:
         TypeError
             If a value is not a real number, or ``values`` not a mapping.
         ValueError
-            If a name is not a parameter of the model (the parameters are listed), or a
-            value is not finite.
+            If a name is not a parameter of the model (the parameters are listed), a
+            value is not finite, or the model's ``source`` refuses the values (its
+            ``check_params``: :func:`bderiv.symbolic.contact_system`'s restitution outside
+            [0, 1], a mass matrix that is not positive definite).
         """
         if values is not None and not hasattr(values, "items"):
             raise TypeError(f"values must be a mapping parameter -> value, got "
@@ -282,6 +285,9 @@ class HybridSystem:
                 raise ValueError(f"{name} is not a parameter of this model (its parameters: "
                                  f"{', '.join(names) or 'none'})")
             new[index[str(name)]] = check_value(value, f"the value of {name}")
+        check = getattr(self.source, "check_params", None)
+        if check is not None and names:
+            check(new)
         return dataclasses.replace(self, params=new) if names else self
 
     def scipy_path(self) -> HybridSystem:

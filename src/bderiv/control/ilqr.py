@@ -55,7 +55,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._support._progress import search_bar
-from .._support._validate import check_number, check_positive_int, check_real_array
+from .._support._validate import check_matrix, check_number, check_real_array, check_state
+from .._support._validate_ints import check_positive_int
 from .parametric import ParametricFlow
 
 __all__ = ["ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]
@@ -182,17 +183,11 @@ def _checked(flow, x0, U, dt, target, Qf, R):
         raise TypeError(f"flow must be a ParametricFlow, got {type(flow).__name__}")
     d, m = flow.dim, flow.n_params
     check_number(dt, "dt")
-    x0 = check_real_array(x0, "x0").astype(np.float64)
+    x0 = check_state(x0, d, "x0", meaning=f"the start, a state of the model, d = {d}")
     U = check_real_array(U, "U").astype(np.float64)
-    target = check_real_array(target, "target").astype(np.float64)
-    Qf = check_real_array(Qf, "Qf").astype(np.float64)
-    R = check_real_array(R, "R").astype(np.float64)
-    for a, name, shape in ((x0, "x0", (d,)), (target, "target", (d,)), (Qf, "Qf", (d, d)),
-                           (R, "R", (m, m))):
-        if a.shape != shape:
-            raise ValueError(f"{name} must have shape {shape}, got shape {a.shape}")
-        if not np.isfinite(a).all():
-            raise ValueError(f"{name} must be finite, got {a.tolist()}")
+    target = check_state(target, d, "target", meaning=f"a state of the model, d = {d}")
+    Qf = check_matrix(Qf, "Qf", (d, d))
+    R = check_matrix(R, "R", (m, m))
     if U.ndim != 2 or U.shape[1] != m or not len(U) or not np.isfinite(U).all():
         raise ValueError(f"U must be finite of shape (N, {m}), N >= 1, got shape {U.shape}")
     for a, name in ((Qf, "Qf"), (R, "R")):

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._limits import SIMULATION_SIMULTANEITY_TOL
-from .._support._validate import check_number, check_positive_int, check_real_array
+from .._support._validate import check_number, check_state
+from .._support._validate_ints import check_positive_int
 from ..analysis.system import HybridSystem
 from ..models.integrate.options import DERIVATIVE_OPTIONS, SolverOptions
 
@@ -244,15 +245,10 @@ class ParametricFlow:
         self.defaults = self.x0 = None
 
     def _z(self, x, p):
-        x = check_real_array(x, "x").astype(np.float64)
-        p = check_real_array(p, "p").astype(np.float64)
-        if x.shape != (self.dim,) or p.shape != (self.n_params,):
-            raise ValueError(f"x must have shape ({self.dim},) and p shape ({self.n_params},)"
-                             f", got {x.shape} and {p.shape}")
-        z = np.concatenate((x, p))
-        if not np.isfinite(z).all():
-            raise ValueError(f"x and p must be finite, got x = {x}, p = {p}")
-        return z
+        x = check_state(x, self.dim, "x", meaning=f"a state of the model, d = {self.dim}")
+        p = check_state(p, self.n_params, "p",
+                        meaning=f"the parameters' values, n_params = {self.n_params}")
+        return np.concatenate((x, p))
 
     def rate_check(self, x, p):
         """Refuse a model whose parameters move: the field's last m entries at ``(x, p)``

@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._support._validate import check_number, check_positive_int, check_real_array
+from .._support._validate import check_number, check_real_array, check_state
+from .._support._validate_ints import check_int, check_positive_int
 from .parametric import ParametricFlow
 
 __all__ = ["ShootingConfig", "ShootingResult", "shoot"]
@@ -69,8 +70,8 @@ class ShootingConfig:
                                                closed=True),
             "min_lambda": check_number(self.min_lambda, "min_lambda"),
             "max_lambda": check_number(self.max_lambda, "max_lambda"),
-            "line_search_max_iters": _check_count(self.line_search_max_iters,
-                                                  "line_search_max_iters"),
+            "line_search_max_iters": check_int(self.line_search_max_iters,
+                                               "line_search_max_iters", low=0),
             "line_search_backoff": _check_fraction(self.line_search_backoff,
                                                    "line_search_backoff"),
         }
@@ -83,15 +84,6 @@ class ShootingConfig:
                              f"[{low!r}, {high!r}], got {checked['initial_lambda']!r}")
         for name, value in checked.items():  # plain int and float (not a NumPy scalar)
             object.__setattr__(self, name, value)
-
-
-def _check_count(value, name):
-    """A count that may be 0 (``check_positive_int`` refuses 0)."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
-    if value < 0:
-        raise ValueError(f"{name} must be >= 0, got {value}")
-    return int(value)
 
 
 def _check_fraction(value, name, closed=False):
@@ -183,14 +175,10 @@ def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
     if not cols.size or not out.size:
         raise ValueError("give at least one decision index (state_indices, param_indices) "
                          "and one output index")
-    target = check_real_array(target, "target").astype(np.float64)
-    if target.shape != out.shape or not np.isfinite(target).all():
-        raise ValueError(f"target must be {out.size} finite values (one per output index),"
-                         f" got {target}")
-    w = z0[cols].copy() if initial_guess is None else \
-        check_real_array(initial_guess, "initial_guess").astype(np.float64)
-    if w.shape != cols.shape or not np.isfinite(w).all():
-        raise ValueError(f"initial_guess must be {cols.size} finite values, got {w}")
+    target = check_state(target, out.size, "target", meaning="one value per output index")
+    w = z0[cols].copy() if initial_guess is None else check_state(
+        initial_guess, cols.size, "initial_guess",
+        meaning="one value per decision index: state_indices, then param_indices")
     sims = 0
 
     def residual(wv):

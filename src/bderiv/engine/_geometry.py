@@ -14,7 +14,8 @@ import numpy as np
 from .._limits import MAX_PIECES
 from .._support import _tables
 from .._support._format import MASK_MEANING, format_mask
-from .._support._validate import check_memory, check_pieces
+from .._support._validate import check_memory
+from .._support._validate_ints import check_pieces
 from ..geometry.corners import check_table_size
 
 

@@ -18,10 +18,9 @@ from .._support._validate import (
     check_finite_result,
     check_matrix,
     check_memory,
-    check_order,
-    check_pieces,
     check_points,
 )
+from .._support._validate_ints import check_order, check_pieces
 from ._engines import DenseEngine
 from ._engines.resets import LowRankResets, ResetEngine  # noqa: F401 (re-exported)
 from ._geometry import (  # noqa: F401 (re-exported)

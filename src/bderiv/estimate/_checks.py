@@ -16,22 +16,12 @@ PSD_RTOL = 1e-9
 
 def check_vector(x, name: str, size: int | None = None) -> np.ndarray:
     """``x`` as a finite float64 array of shape (size,) (any size when None)."""
-    if isinstance(x, str | bytes) or x is None:
-        raise TypeError(f"{name} must be an array of numbers, got {type(x).__name__}")
-    try:
-        arr = np.array(x, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be an array of real numbers, got {x!r}") from None
-    if arr.ndim != 1 or (size is not None and arr.shape != (size,)):
-        want = f"({size},)" if size is not None else "(k,)"
-        raise ValueError(f"{name} must have shape {want}, got shape {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite, got {arr}")
-    return arr
+    return check_matrix(x, name, (size,))
 
 
 def check_matrix(a, name: str, shape) -> np.ndarray:
-    """``a`` as a finite float64 array of ``shape`` (entries None: any size there)."""
+    """``a`` as a finite float64 array of ``shape`` (entries None: any size there), from
+    anything that ``numpy.array(a, dtype=float64)`` converts but a string."""
     if isinstance(a, str | bytes) or a is None:
         raise TypeError(f"{name} must be an array of numbers, got {type(a).__name__}")
     try:
@@ -40,10 +30,11 @@ def check_matrix(a, name: str, shape) -> np.ndarray:
         raise TypeError(f"{name} must be an array of real numbers, got {a!r}") from None
     if arr.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, arr.shape,
                                                                            strict=True)):
-        want = "(" + ", ".join("k" if s is None else str(s) for s in shape) + ")"
-        raise ValueError(f"{name} must have shape {want}, got shape {arr.shape}")
+        want = ", ".join("k" if s is None else str(s) for s in shape)
+        raise ValueError(f"{name} must have shape ({want}{',' * (len(shape) == 1)}), got "
+                         f"shape {arr.shape}")
     if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite")
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
     return arr
 
 

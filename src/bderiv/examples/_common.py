@@ -22,7 +22,7 @@ from .._kernels._cache import keyed, sources_digest
 from .._limits import ON_SURFACE_TOL
 from .._support._format import format_mask
 from .._support._numdiff import complex_step
-from .._support._validate import all_finite, check_bool, check_real_array
+from .._support._validate import check_bool, check_state
 from ..analysis.system import HybridSystem
 
 __all__ = ["Example", "check_start", "compile_function", "compiled_once", "finite_ratios",
@@ -185,18 +185,9 @@ def finite_ratios(fd) -> list:
 def perturbed_start(example, perturbation):
     """``example.x0 + perturbation``, the guess of a gait's ``*_orbit`` function, with the
     perturbation checked by name: finite, shape ``(d,)`` (not broadcast)."""
-    d = example.x0.size
-    try:
-        p = check_real_array(perturbation, "perturbation")
-    except ValueError:  # a ragged nest of sequences
-        p = None
-    if p is None or p.shape != (d,):
-        got = f"{perturbation!r}" if p is None else f"shape {p.shape}"
-        raise ValueError(f"perturbation must have shape ({d},) (added to the example's start "
-                         f"x0, a state of {example.name}), got {got}")
-    if not all_finite(p):
-        raise ValueError(f"perturbation must be finite, got {p.tolist()}")
-    return example.x0 + p
+    return example.x0 + check_state(
+        perturbation, example.x0.size, "perturbation",
+        meaning=f"added to the example's start x0, a state of {example.name}")
 
 
 @cache

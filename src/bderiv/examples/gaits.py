@@ -36,7 +36,8 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from .._support._validate import check_number, check_numbers, check_positive_int
+from .._support._validate import check_number, check_numbers
+from .._support._validate_ints import check_int
 from ..analysis.stability import verdict_word
 from ._common import Example, check_start, compile_function, finite_ratios, perturbed_start
 
@@ -174,9 +175,7 @@ def body(*, stiffness=400.0, damping=2.0, gain=4.0, v_ref=2.0, coupling=0.5, hal
          leg=0.5, inertia=0.16, legs=2) -> Body:
     """The pronking body's constants for :func:`pronking`'s parameters: the part other
     gaits build on (:mod:`bderiv.examples.runner`)."""
-    legs = check_positive_int(legs, "legs")
-    if legs < 2:
-        raise ValueError(f"legs must be an integer >= 2, got {legs}")
+    legs = check_int(legs, "legs", low=2)
     # checked by name (a negative stiffness or a leg of 0 gave a model all the same)
     stiffness, leg, inertia, half_base = check_numbers(
         stiffness=stiffness, leg=leg, inertia=inertia, half_base=half_base)

@@ -23,6 +23,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._support._validate import check_bool, check_number
+from .._support._validate_ints import check_int
 from ._common import Example, check_start, flow_back
 
 __all__ = ["network"]
@@ -159,11 +160,7 @@ def network(n=3, *, extended=False, seed=0, coupling=1.0, t_event=1.0, t_after=0
     -------
     Example
     """
-    if isinstance(n, bool) or not isinstance(n, int | np.integer):  # int(n): 2.5 was 2
-        raise TypeError(f"n must be an integer, got {type(n).__name__}")
-    n = int(n)
-    if not 1 <= n <= 24:
-        raise ValueError(f"n must be in 1..24, got {n}")
+    n = check_int(n, "n", low=1, high=24)  # an integer: int(n) made 2.5 into 2
     extended = check_bool(extended, "extended")
     coupling = check_number(coupling, "coupling", low=-np.inf, strict=False)
     rng = np.random.default_rng(seed)

@@ -281,7 +281,7 @@ class CornerFunction(_Tabulated):
     def __init__(self, func, *, n_events=None, dim=None):
         from numba.core.registry import CPUDispatcher
 
-        from .._support._validate import check_positive_int
+        from .._support._validate_ints import check_positive_int
 
         if not callable(func):
             raise TypeError(f"func must be a function func(happened, out), got {func!r}")

@@ -22,9 +22,9 @@ from .._support._validate import (
     all_finite,
     check_finite_result,
     check_matrix,
-    check_positive_int,
     singular_condition,
 )
+from .._support._validate_ints import check_positive_int
 from ._triangulation_fields import FIELDS, check_fields
 from ._triangulation_files import TriangulationFiles, save_files
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._support._validate import check_number, check_positive_int
+from .._support._validate import check_number, check_state
+from .._support._validate_ints import check_positive_int
 from ..analysis.system import HybridSystem
 from ..models.integrate.options import DERIVATIVE_OPTIONS, SolverOptions
 from ._host import FlowHost
@@ -104,14 +105,8 @@ def flow(system, t_final, *, direction=None, simultaneity_tol=None,
 
 
 def _check_direction(direction, d: int) -> np.ndarray:
-    arr = np.asarray(direction)
-    if arr.dtype.kind not in "fiu":
-        raise TypeError(f"direction must hold real numbers, got dtype {arr.dtype}")
-    if arr.shape != (d,):
-        raise ValueError(f"direction must have shape ({d},) (a tangent at the start point), "
-                         f"got shape {arr.shape}")
-    arr = arr.astype(np.float64)
-    if not np.isfinite(arr).all() or not arr.any():
+    arr = check_state(direction, d, "direction", meaning="a tangent at the start point")
+    if not arr.any():
         raise ValueError(f"direction must be finite and nonzero (it selects a piece), got "
                          f"{arr.tolist()}")
     arr.setflags(write=False)

@@ -11,12 +11,11 @@ check, then call them.
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
 
 from .._support._format import format_mask
-from .._support._validate import all_finite, check_finite, check_number, check_real_array
+from .._support._validate import check_number, check_state
+from .._support._validate_ints import check_int
 
 #: how far from 1 the norm of a configuration's base quaternion may be: it is used as
 #: given (not normalised; Pinocchio's ``difference`` and bderiv's exponential take it as
@@ -24,26 +23,12 @@ from .._support._validate import all_finite, check_finite, check_number, check_r
 QUATERNION_TOL = 1e-9
 
 
-def check_vector(a, size: int, name: str, meaning: str) -> np.ndarray:
-    """``a`` as a finite float64 copy of shape ``(size,)``; ``meaning`` says what it is
-    in the shape's message."""
-    if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == (size,) \
-            and all_finite(a):
-        return a.copy()  # the common case, in a third of the time
-    arr = check_real_array(a, name)
-    if arr.shape != (size,):
-        got = "a scalar" if arr.ndim == 0 else f"shape {arr.shape}"
-        raise ValueError(f"{name} must have shape ({size},) ({meaning}), got {got}")
-    arr = np.array(arr, dtype=np.float64)
-    check_finite(arr, name)
-    return arr
-
-
 def check_configuration(q, model, name: str) -> np.ndarray:
     """A configuration (nq,) of ``model`` (a free-flyer first): finite, its base
     quaternion ``q[3:7]`` of unit norm to :data:`QUATERNION_TOL`."""
-    arr = check_vector(q, model.nq, name, f"a configuration of the model, nq = {model.nq}: "
-                       f"the base's position and quaternion (x, y, z, w), then the joints")
+    arr = check_state(q, model.nq, name, meaning=f"a configuration of the model, nq = "
+                      f"{model.nq}: the base's position and quaternion (x, y, z, w), then "
+                      f"the joints")
     norm = float(np.linalg.norm(arr[3:7]))
     if not abs(norm - 1.0) <= QUATERNION_TOL:
         raise ValueError(f"{name}[3:7], the base's quaternion (x, y, z, w), must have unit "
@@ -91,12 +76,7 @@ def check_law(law: dict, defaults: dict) -> dict:
 
 def check_index(k, n: int, name: str) -> int:
     """A foot's index, an integer in ``[0, n)``."""
-    if isinstance(k, bool | np.bool_) or not isinstance(k, numbers.Integral):
-        raise TypeError(f"{name} must be an integer (a foot's index), got "
-                        f"{type(k).__name__} {k!r}")
-    if not 0 <= k < n:
-        raise ValueError(f"{name} must be a foot's index in [0, {n}), got {k}")
-    return int(k)
+    return check_int(k, name, low=0, high=n - 1, span=f"in [0, {n})", meaning="a foot's index")
 
 
 def check_down(down, n: int) -> list:

@@ -45,9 +45,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._support._validate import check_mask
+from .._support._validate import check_state
+from .._support._validate_ints import check_mask
 from ..analysis.system import HybridSystem
-from ._checks import check_configuration, check_feet, check_vector
+from ._checks import check_configuration, check_feet
 from ._contact import field_jacobian_matrix, field_vector, torque, torque_derivatives
 from ._files import require_pinocchio
 from ._lie import configuration, se3_rate_matrix
@@ -116,7 +117,7 @@ class LeggedRobot:
 
     def _x(self, x) -> np.ndarray:
         """The state ``x`` of a public method: a finite float64 copy, (system.dim,)."""
-        return check_vector(x, self.system.dim, "x", self._state)
+        return check_state(x, self.system.dim, "x", meaning=self._state)
 
     def _mask(self, mask) -> int:
         """A region ``mask`` of a public method: bit k foot k, none beyond the feet."""
@@ -127,7 +128,7 @@ class LeggedRobot:
         """``x = (difference(q_ref, q), v)`` (2 nv,) of a configuration ``q`` (nq,), its
         base quaternion of unit norm, and a velocity ``v`` (nv,)."""
         q = check_configuration(q, self.model, "q")
-        v = check_vector(v, self.nv, "v", f"a velocity of the model, nv = {self.nv}")
+        v = check_state(v, self.nv, "v", meaning=f"a velocity of the model, nv = {self.nv}")
         return np.concatenate((self.pin.difference(self.model, self.q_ref, q), v))
 
     def configuration(self, x):

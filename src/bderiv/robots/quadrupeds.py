@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._support._validate import check_number
-from ._checks import check_vector
+from .._support._validate import check_number, check_state
 from .build import legged_robot
 from .legged import LeggedRobot
 
@@ -67,8 +66,8 @@ def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
     entry = ROBOTS[name]
     if joints is not None:
         n = len(entry["joints"])
-        joints = check_vector(joints, n, "joints", f"a standing posture of {name}: one angle "
-                              f"per joint, {n}")
+        joints = check_state(joints, n, "joints", meaning=f"a standing posture of {name}: "
+                             f"one angle per joint, {n}")
     from ._files import require_pinocchio, robot_file
     from .legged import CONTACT
 
@@ -97,8 +96,8 @@ def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarr
     height = check_number(height, "height", low=-np.inf, strict=False)
     vz = check_number(vz, "vz", low=-np.inf, strict=False)
     if velocity is not None:
-        velocity = check_vector(velocity, robot.nv, "velocity",
-                                f"a velocity of the robot's model, nv = {robot.nv}")
+        velocity = check_state(velocity, robot.nv, "velocity",
+                               meaning=f"a velocity of the robot's model, nv = {robot.nv}")
     x = np.zeros(robot.system.dim)  # a rigid robot's contact latches (0: in the air)
     low = robot.foot_positions(x)[:, 2].min()
     x[2] = robot.law["ground"] + height - low  # the base's height offset (level: e_z = dz)
