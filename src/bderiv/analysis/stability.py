@@ -18,8 +18,9 @@ grow.
 Limits: a finite batch samples directions, so growth confined to a thin set of
 directions that repels all others can be missed (it then concerns a set of measure zero,
 but a perturbation placed exactly there would grow); a finite number of iterations
-gives lambda to about ``exp(+-c / iterations)`` (the spread between the two halves of the
-window is reported), and a rate within that of 1 is undecided. The verdict is about the
+gives lambda to about ``exp(+-c / iterations)`` (the spread is reported: the two halves
+of the window's difference, or the wobble of ``log |A^k v|`` about its line over the
+window's length where larger), and a rate within that of 1 is undecided. The verdict is about the
 linearisation: it predicts the decay of small perturbations of the nonlinear system
 (checked against long simulations in tests/test_gaits.py), not the basin of attraction.
 """
@@ -48,13 +49,15 @@ class Stability:
         Estimated asymptotic growth rate of the map (the largest over the batch).
     stable : bool or None
         ``growth_rate < 1``; None when the estimate has not settled enough to say (its
-        ``spread`` is not below ``|log growth_rate|``: the first and second halves of the
-        window disagree about the side of 1; more iterations decide).
+        ``spread`` is not below ``|log growth_rate|``: the window's halves disagree about
+        the side of 1, or the window is too short for its wobble; more iterations
+        decide).
     rates : ndarray, shape (m,)
         Growth rate of each direction of the batch.
     spread : float
-        ``|log(rate, first half) - log(rate, second half)|`` of the window, for the
-        direction of the largest rate: how well the window has converged.
+        The uncertainty of ``log growth_rate`` (:attr:`Growth.spread`, for the direction
+        of the largest rate): the difference of the window's two halves, or the range of
+        ``log |A^k v|`` about its fitted line over the window's length where larger.
     multipliers : dict
         ``{orders: eigenvalues}`` for the pieces met most often during the iteration
         (``PeriodicOrbit.stability`` reports a dozen); ``orders`` a
@@ -108,7 +111,10 @@ class Growth(NamedTuple):
         Per direction, ``exp`` of the least-squares slope of ``log |A^k v|`` against k
         over the window (after the burn-in).
     spread : ndarray, shape (m,)
-        Absolute difference of the log-rates fitted on the two halves of the window.
+        The uncertainty of each log-rate: the absolute difference of the log-rates fitted
+        on the two halves of the window, or, where larger, the range of ``log |A^k v|``
+        about the fitted line over the window's length (the two halves of a short window
+        can agree by chance).
     visits : dict
         ``{orders: count}`` (empty without ``fmap_orders``).
     """
@@ -171,8 +177,22 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None) -> Gro
     half = window.shape[0] // 2
     with np.errstate(invalid="ignore"):  # directions mapped to 0 (-inf) get rate 0
         slope = np.nan_to_num(_slope(window), nan=-np.inf)
-        spread = np.nan_to_num(np.abs(_slope(window[:half]) - _slope(window[half:])), nan=0.0)
+        halves = np.abs(_slope(window[:half]) - _slope(window[half:]))
+        spread = np.nan_to_num(np.maximum(halves, _wobble(window, slope)), nan=0.0)
     return Growth(np.exp(slope), spread, visits)
+
+
+def _wobble(logs, slope):
+    """Per direction, how far ``log |A^k v|`` strays from the fitted line ``k log rate``
+    over the window (its range), over the window's length: the rate's uncertainty from a
+    window this short. ``log |A^k v| = k log rate + b_k`` with ``b_k`` bounded (complex
+    multipliers make it oscillate): the two halves' slopes can agree by chance on a few
+    iterations (the pronking map's one-step growth swings from 0.15 to 4.3, and two
+    halves of two iterations put its rate 0.78 at 1.1), but no slope is known better than
+    the range of ``b`` over the window's length."""
+    k = np.arange(1, logs.shape[0] + 1, dtype=np.float64)[:, None]
+    b = np.cumsum(logs, axis=0) - k * slope
+    return (b.max(axis=0) - b.min(axis=0)) / logs.shape[0]
 
 
 #: (m, d) float arrays alive at once in a growth-rate run: the start directions (on the
