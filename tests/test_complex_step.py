@@ -82,6 +82,7 @@ def test_a_build_mostly_in_numerical_jacobians_says_so_once(chair, caplog, monke
     assert f"field_jacobian: {jacobians:,} Jacobians, {calls:,} calls" in warned[0]
     assert "flow_bderivative took" in warned[0] and "central differences" in warned[0]
     assert "bderiv.complex_step_jacobian" in warned[0]
+    assert "write its functions with numba (@numba.njit)" in warned[0]  # Python functions
     quick = bare(chair.system)  # the complex step: the build is no longer mostly Jacobians
     monkeypatch.setattr(jacobians_module, "SLOW_BUILD_SECONDS", 1e9)
     caplog.clear()
@@ -144,6 +145,19 @@ def _compile_starts(name):
     listener = Count()
     event.register("numba:compile", listener)
     return starts, listener
+
+
+@pytest.mark.parametrize("python", [True, False])
+def test_the_slow_build_warning_points_python_models_to_numba(python, caplog, monkeypatch):
+    """Models of numba functions are on the compiled path already: only Python ones are
+    told of it."""
+    monkeypatch.setattr(jacobians_module, "SLOW_BUILD_SECONDS", 0.0)
+    numerical = jacobians_module.NumericalJacobians()
+    with caplog.at_level(logging.WARNING, logger="bderiv"):
+        with numerical.watch("flow_bderivative", python=python):
+            numerical._cost["field_jacobian"] = [3, 30, 1.0]  # all the build's time
+    (message,) = [r.getMessage() for r in caplog.records]
+    assert ("@numba.njit" in message) is python, message
 
 
 def test_a_numba_model_on_scipy_gets_its_jacobian_by_the_complex_step(monkeypatch, caplog):

@@ -310,8 +310,16 @@ class HybridSystem:
 
     @property
     def numerical_jacobian_cost(self) -> dict:
-        """What the numerical Jacobians cost so far, per missing parameter
-        (:attr:`bderiv.models.calls.ModelCalls.numerical_jacobian_cost`)."""
+        """What the numerical Jacobians cost so far, per missing parameter.
+
+        Returns
+        -------
+        dict
+            ``{"field_jacobian": (jacobians, calls, seconds), ...}``: how many numerical
+            Jacobians were computed, the calls of the user's function they made and the
+            seconds they took (:attr:`bderiv.models.calls.ModelCalls.numerical_jacobian_cost`).
+            Passing the Jacobian saves nearly all of that time.
+        """
         return self.calls.numerical_jacobian_cost
 
     # the algorithms, functions over the model (bderiv.analysis.flows, .poincare)

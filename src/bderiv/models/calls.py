@@ -260,7 +260,7 @@ class ModelCalls:
 
     def numerical_jacobian_watch(self, what):
         """Around a build (``what``: the method's name): :meth:`NumericalJacobians.watch`."""
-        return self._numerical.watch(what)
+        return self._numerical.watch(what, python=self._compiled_functions is None)
 
     @property
     def numerical_jacobian_cost(self) -> dict:

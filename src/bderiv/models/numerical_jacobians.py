@@ -29,6 +29,11 @@ _log = logging.getLogger("bderiv")
 #: how a Jacobian not given is computed (the first use of each function and mask decides)
 _COMPLEX, _CENTRAL = "complex step", "central differences"
 
+#: the end of the slow build's warning for a model of Python functions
+_COMPILED_HINT = ("; or write its functions with numba (@numba.njit): the compiled "
+                  "integrator built flow maps of such models 62-100x faster "
+                  "(docs/tutorial.md, section 12)")
+
 
 #: the second point where a complex step is held to central differences: this fraction of
 #: each variable's scale away from the first, along a fixed direction
@@ -143,10 +148,11 @@ class NumericalJacobians:
         return J
 
     @contextlib.contextmanager
-    def watch(self, what):
+    def watch(self, what, python=False):
         """Around a build (``what``: the method's name): when it took over
         ``SLOW_BUILD_SECONDS``, most of it in numerical Jacobians, say so at WARNING (logger
-        ``"bderiv"``) with their count, calls and time, once per model and method."""
+        ``"bderiv"``) with their count, calls and time, once per model and method; a model
+        of Python functions (``python``) is also told of the compiled path."""
         before = {name: tuple(c) for name, c in self._cost.items()}
         start = time.perf_counter()
         yield
@@ -165,8 +171,8 @@ class NumericalJacobians:
         _log.warning("%s took %.2f s, %.2f s of it (%.0f %%) in numerical Jacobians (%s): "
                      "pass them to the model (HybridSystem's field_jacobian, event_jacobian, "
                      "reset_jacobian; bderiv.complex_step_jacobian writes one from a "
-                     "function that takes complex input)", what, took, seconds,
-                     100 * seconds / took, parts)
+                     "function that takes complex input)%s", what, took, seconds,
+                     100 * seconds / took, parts, _COMPILED_HINT if python else "")
 
     def _how_of(self, jac_name) -> str:
         """How the numerical ``jac_name`` was computed: by which of the two, or both."""
