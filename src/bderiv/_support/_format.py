@@ -37,6 +37,18 @@ def format_mask(mask: int, n: int) -> str:
     return "0b" + format(int(mask), f"0{n}b")
 
 
+def format_region(mask: int, n: int) -> str:
+    """``region mask 0b...`` with the reminder of what its bits mean, as messages name a
+    region.
+
+    Examples
+    --------
+    >>> format_region(2, 2)
+    'region mask 0b10 (bit k set = event k happened)'
+    """
+    return f"region mask {format_mask(mask, n)} ({MASK_MEANING})"
+
+
 def format_happened(happened) -> str:
     """``0b...`` string of a 0/1 flag array (``happened[k]`` = event k); event 0 rightmost.
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from .._limits import MAX_PIECES
 from .._support import _tables
-from .._support._format import MASK_MEANING, format_mask
+from .._support._format import format_region
 from .._support._validate import check_memory
 from .._support._validate_ints import check_pieces
 from ..geometry.corners import check_table_size
@@ -113,7 +113,7 @@ class CornerGeometry:
         if not np.isfinite(F).all():
             mask = int(np.flatnonzero(~np.isfinite(F).all(axis=1))[0])
             raise ValueError(
-                f"the corner model {self.model!r} gave a non-finite corner for region mask "
-                f"{format_mask(mask, n)} ({MASK_MEANING}): {F[mask]}"
+                f"the corner model {self.model!r} gave a non-finite corner for "
+                f"{format_region(mask, n)}: {F[mask]}"
             )
         return type(self)(self.Dh, F, fast_paths=self._fast_paths)

@@ -12,7 +12,7 @@ from ..._kernels import lanes, scaling
 from ..._kernels._core import PLAIN, frozen_tables
 from ..._limits import BLOCK_ROWS, FAR_BYTES, TABLE_BAND
 from ..._support import _tables
-from ..._support._format import MASK_MEANING, format_mask
+from ..._support._format import MASK_MEANING, format_mask, format_region
 from ..._support._validate import check_matrix, check_number, memory_limit_for
 from . import fastpath
 from .base import Engine, unit_rows
@@ -165,7 +165,7 @@ class DenseEngine(Engine):
             mask, k, kind, scale = bad
             rate = np.ldexp(G[mask, k], f_exp + int(dh_exps[k]))  # in the caller's units
             where = (
-                f"event {k} in region mask {format_mask(mask, n)} ({MASK_MEANING}): rate "
+                f"event {k} in {format_region(mask, n)}: rate "
                 f"G[{mask}, {k}] = F[{mask}] . Dh[{k}] = {rate:.3g}"
             )
             if kind == "underflow":

@@ -18,7 +18,7 @@ import scipy.linalg
 from ..._kernels import resets as kernels
 from ..._kernels._core import frozen_tables
 from ..._limits import CHECK_ROWS
-from ..._support._format import MASK_MEANING, format_mask
+from ..._support._format import format_mask, format_region
 from ..._support._tables import blocks, dense_table_bytes
 from ..._support._validate import check_finite, check_memory, check_number, check_real_array
 from .base import Engine
@@ -136,7 +136,7 @@ def _refuse(gap, move_k, move_j, b, j, k, n, tol) -> None:
     if not bad.size:
         return
     i = int(bad[0])
-    region = f"region mask {format_mask(int(b[i]), n)} ({MASK_MEANING})"
+    region = format_region(int(b[i]), n)
     for a, c, move in ((j, k, move_k[i]), (k, j, move_j[i])):
         if not move <= tol:
             raise ValueError(

@@ -21,9 +21,8 @@ from ..._support._errors import DamagedCacheError
 from ..._support._format import (
     ANSI,
     BLOW_UP_HINT,
-    MASK_MEANING,
     blown_up,
-    format_mask,
+    format_region,
     format_state,
 )
 from ._integrate import STEP_UNDERFLOW
@@ -205,7 +204,7 @@ def raise_failed_check(status, fn, name, x, mask, d, n, params=None) -> None:
     """Raise the ValueError of a failed output check of ``fn`` (``name``) at ``x`` (the
     model's ``params`` after it, but for the section)."""
     _, call, shape_of, shape_code, _, raised_code = _FUNCTIONS[name]
-    region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
+    region = format_region(mask, max(n, 1))
     x = np.ascontiguousarray(x, dtype=np.float64)
     arg = x if params is None or name == "section" else np.concatenate((x, params))
     where = f"in {region} at x = {format_state(x)}"
@@ -238,7 +237,7 @@ def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
     non-finite at a non-finite state is not blamed: the integration itself left the
     floating-point range, and the error says so.
     """
-    region = f"region mask {format_mask(mask, max(n, 1))} ({MASK_MEANING})"
+    region = format_region(mask, max(n, 1))
     if status == STEP_UNDERFLOW:
         raise RuntimeError(
             f"step size underflow at t = {t!r} in {region}, x = {format_state(x)}: the step "
@@ -284,8 +283,8 @@ def raise_overflowed_run(exc, x, t, mask, n, field=None) -> None:
         except Exception:  # noqa: BLE001 - only a detail of the message
             pass
     raise ValueError(
-        f"the integration blew up in the stretch of region mask {format_mask(mask, max(n, 1))} "
-        f"({MASK_MEANING}) from t = {t!r}, x = {format_state(x)} ({sizes}): the integrator's "
+        f"the integration blew up in the stretch of {format_region(mask, max(n, 1))} "
+        f"from t = {t!r}, x = {format_state(x)} ({sizes}): the integrator's "
         f"step-size control overflowed ({type(exc).__name__}: {exc}, in its own arithmetic, "
         f"not in a function of the model) as the state or its rate of change, scaled by the "
         f"tolerances, went beyond the floating-point range (float64 ends near 1.8e308); "

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._limits import FIRST_SLICE, SLICE_SECONDS
-from ..._support._format import MASK_MEANING, format_mask
+from ..._support._format import format_region
 from ..._support._validate import check_record
 from ._integrate import N_STEPS, PAUSED, drive_stretch
 
@@ -140,7 +140,7 @@ def drive(model, jac_mode, variational, with_section, n_events, mask, d, t0, y0,
 
 def _stretch_record(mask, n, t0, t, steps) -> str:
     """The words naming a stretch's record in a refusal."""
-    return (f"the record of the stretch of region mask {format_mask(mask, n)} "
-            f"({MASK_MEANING}) from t = {t0!r} (every accepted step's state and dense "
+    return (f"the record of the stretch of {format_region(mask, n)} "
+            f"from t = {t0!r} (every accepted step's state and dense "
             f"output, kept to search for crossings inside the steps), {int(steps)} steps to "
             f"t = {t!r},")

@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._support._format import MASK_MEANING, format_mask, format_state
+from ..._support._format import format_region, format_state
 from ..._support._validate import RecordTooLarge
 from ._checks import (
     check_compiled_functions,
@@ -295,8 +295,8 @@ class CompiledModel:
             raise
         except MemoryError as exc:  # an allocation of the driver's record failed
             raise RecordTooLarge(
-                f"the record of the stretch of region mask {format_mask(mask, n)} "
-                f"({MASK_MEANING}) from t = {t0!r} (every accepted step's state and dense "
+                f"the record of the stretch of {format_region(mask, n)} "
+                f"from t = {t0!r} (every accepted step's state and dense "
                 f"output) did not fit in memory: pass a shorter t_final and go on from the "
                 f"run's x_final, or a larger rtol and atol (fewer steps)"
             ) from exc
@@ -306,7 +306,7 @@ class CompiledModel:
         except Exception as exc:  # raised inside a user function: say where
             raise ValueError(
                 f"a compiled function of the model raised {type(exc).__name__}: {exc}; while "
-                f"integrating region mask {format_mask(mask, n)} ({MASK_MEANING}) from "
+                f"integrating {format_region(mask, n)} from "
                 f"t = {t0!r}, x = {format_state(y0[:d])}"
             ) from exc
         if out.status not in (FINISHED, EVENT):

@@ -16,7 +16,7 @@ import warnings
 
 import numpy as np
 
-from ..._support._format import MASK_MEANING, blown_up, format_mask, note_time
+from ..._support._format import blown_up, format_region, note_time
 from ..._support._validate import all_finite, check_record
 from ..events.excursions import without_lost_crossings
 from ..events.sides import on_side_at_start
@@ -55,7 +55,7 @@ class _EventValues:
                 try:
                     return self(y)[k]
                 except Exception as exc:  # the model's events: at this time, in this region
-                    note_time(exc, t, _region(mask, self.system.n_events))
+                    note_time(exc, t, format_region(mask, self.system.n_events))
                     raise
 
             ev.terminal = True
@@ -70,7 +70,7 @@ class _EventValues:
                 try:
                     return 1.0 if t == 0.0 else section(y[:d])
                 except Exception as exc:
-                    note_time(exc, t, _region(mask, self.system.n_events))
+                    note_time(exc, t, format_region(mask, self.system.n_events))
                     raise
 
             sec.terminal = True
@@ -164,8 +164,8 @@ class _Counted:
             self.next_check *= 2
             held = int(self.calls * self.per_call)
             check_record(held, 2 * held,
-                         f"solve_ivp's record of the stretch of region mask "
-                         f"{format_mask(self.mask, self.n)} ({MASK_MEANING}) from t = "
+                         f"solve_ivp's record of the stretch of "
+                         f"{format_region(self.mask, self.n)} from t = "
                          f"{self.start!r} (every accepted step's state and dense output, "
                          f"about {self.calls} evaluations to t = {t!r})",
                          "pass a shorter t_final and go on from the run's x_final, or a "
@@ -173,7 +173,7 @@ class _Counted:
         try:
             return self.rhs(t, y)
         except Exception as exc:
-            region = _region(self.mask, self.n)
+            region = format_region(self.mask, self.n)
             if not isinstance(exc, ValueError) or all_finite(y):
                 note_time(exc, t, region)  # a model's function raised: at this time
                 raise
@@ -181,10 +181,6 @@ class _Counted:
             # its overflow on the way are dropped (the user sees this error alone)
             self.held.blew_up = True
             raise ValueError(blown_up(region, y[:self.d], t)) from exc
-
-
-def _region(mask, n) -> str:
-    return f"region mask {format_mask(mask, n)} ({MASK_MEANING})"
 
 
 class _HeldWarnings:
