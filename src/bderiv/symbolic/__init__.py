@@ -24,6 +24,9 @@ Layout
 - ``contacts``: :func:`contact_system`, bodies with point contacts (mass matrix, forces,
   gaps, stance law, impacts), whose ``reset_guard`` checks simultaneous impacts, and
   :func:`coupling`;
+- ``_contact_checks``: its own argument checks (mass matrix, stance laws, impact law, one
+  role per symbol) and :class:`~._contact_checks.ParamCheck`, the parameter values it
+  cannot take (at the build and by ``with_params``);
 - ``_mechanics``: their kernels, the mass matrix solved in compiled code with exact
   Jacobians.
 """

@@ -7,7 +7,8 @@ from the cache) for the signatures :data:`SIGNATURES` by
 :func:`bderiv.symbolic._model.compile_kernels` (in ``KERNELS`` order: ``corner_field``
 calls ``field``). The kernels have the signatures of a compiled model
 (:class:`bderiv.models.compiled.CompiledModel` with ``params``): their ``x`` (d + m,) is
-the state then the m parameter values, and each returns a new array:
+the state then the m parameter values (another length is refused: a ValueError, whose
+message names the length, before any entry is read), and each returns a new array:
 
 =====================================================  =====================
 kernel                                                 returns
@@ -30,12 +31,13 @@ identity in ``reset``. sympy is used through its module attributes (``sympy.diff
 
 from __future__ import annotations
 
+import math
 import re
 
 from ._inputs import require_sympy
 
 #: bump when the generated source changes: old cache files are then no longer used
-CODEGEN_VERSION = 2
+CODEGEN_VERSION = 3
 
 #: the kernels of every model, then those of models with resets
 KERNELS = ("field", "field_jacobian", "events", "event_jacobian", "corner_field")
@@ -52,6 +54,10 @@ SIGNATURES = {
     "reset": f"{_X1}({_X1}, int64, int64)",
     "reset_jacobian": f"{_X2}({_X1}, int64, int64)",
 }
+
+
+class CoefficientOverflow(ArithmeticError):
+    """A number of an expression beyond the range of a double (raised by the printer)."""
 
 
 class CodegenError(ValueError):
@@ -71,18 +77,25 @@ def _reason(exc) -> str:
 
 
 def _printer():
-    require_sympy()
+    sympy = require_sympy()
     from sympy.printing.pycode import PythonCodePrinter
+
+    def double(expr) -> str:
+        value = float(expr)
+        if not math.isfinite(value):  # repr would print inf, an undefined name
+            raise CoefficientOverflow(f"the coefficient {sympy.N(expr, 3)} overflows a "
+                                      f"double (float64 ends near 1.8e308)")
+        return repr(value)
 
     class Printer(PythonCodePrinter):
         def _print_Float(self, expr):  # every bit of the double, not 15 digits
-            return repr(float(expr))
+            return double(expr)
 
         def _print_Integer(self, expr):  # beyond 2**53 an int64 literal could overflow
-            return str(expr.p) if abs(expr.p) <= 2**53 else repr(float(expr))
+            return str(expr.p) if abs(expr.p) <= 2**53 else double(expr)
 
         def _print_Rational(self, expr):  # p/q correctly rounded, whatever their size
-            return repr(float(expr))
+            return double(expr)
 
     try:
         printer = Printer({"fully_qualified_modules": True, "strict": True})
@@ -98,6 +111,8 @@ def print_expr(printer, expr, label: str, shown=None) -> str:
     printer._not_supported = set()
     try:
         text = printer.doprint(expr)
+    except CoefficientOverflow as exc:
+        raise CodegenError(label, shown, str(exc)) from None
     except Exception as exc:  # sympy raises PrintMethodNotImplementedError and others
         raise CodegenError(label, shown, f"sympy cannot print it as Python ({_reason(exc)})"
                            ) from None
@@ -126,11 +141,24 @@ def _block(printer, model, outputs, indent: str) -> list:
     return lines
 
 
-def _preamble(model, mask: bool, out=None) -> list:
-    """The state, flags and parameters as locals (the parameters after the state in
-    ``x``), and ``out = np.empty(<out>)`` when ``out`` is given."""
+def length_check(model) -> list:
+    """A kernel's first lines: ``x`` of another length than the state's and the
+    parameters' is refused (a ValueError with a constant message: compiled code reads no
+    further than it is told, so a short ``x`` would be read past its end)."""
+    d, m = model.dim, len(model.p)
+    after = (f"then the {m} parameter values in the order of param_names" if m else
+             "(the model has no parameters)")
+    return [f"    if x.shape[0] != {d + m}:",
+            f'        raise ValueError("x must have {d + m} entries: the state ({d}) {after}")']
+
+
+def _preamble(model, mask: bool, out=None, check=True) -> list:
+    """The length check (:func:`length_check`, unless ``check`` is False), the state,
+    flags and parameters as locals (the parameters after the state in ``x``), and ``out =
+    np.empty(<out>)`` when ``out`` is given."""
     d = model.dim
-    lines = [f"    x_{i} = x[{i}]" for i in range(d)]
+    lines = length_check(model) if check else []
+    lines += [f"    x_{i} = x[{i}]" for i in range(d)]
     if mask:
         lines += [f"    s_{k} = float((mask >> {k}) & 1)" for k in range(model.n_events)]
     lines += [f"    p_{j} = x[{d + j}]" for j in range(len(model.p))]
@@ -220,7 +248,7 @@ def generate(model, key: str) -> str:
 
 def corner_body(model) -> list:
     """The body of ``corner_field``: ``field`` at every mask."""
-    return [f"    out = np.empty(({1 << model.n_events}, {model.dim}))",
+    return [*length_check(model), f"    out = np.empty(({1 << model.n_events}, {model.dim}))",
             "    for mask in range(out.shape[0]):",
             "        out[mask] = field(x, mask)"]
 
@@ -232,6 +260,7 @@ def probe_source(model) -> str:
     printer = _printer()
     lines = ["import math  # noqa: F401", "", "import numba"]
     for i, (label, e) in enumerate(model.labelled()):
-        lines += ["", f"def probe_{i}(x, mask):  # {label}", *_preamble(model, True),
+        lines += ["", f"def probe_{i}(x, mask):  # {label}",
+                  *_preamble(model, True, check=False),
                   f"    return {print_expr(printer, e, label, model.show(e))}"]
     return "\n".join(lines) + "\n"

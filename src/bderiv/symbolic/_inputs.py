@@ -141,7 +141,7 @@ def _expressions(seq, name: str, length: int, length_text: str) -> list:
         except (sp.SympifyError, TypeError):
             raise TypeError(f"{name}[{i}] must be a sympy expression or a number, got "
                             f"{type(e).__name__} {e!r}") from None
-        if not isinstance(e, sp.Expr):
+        if not isinstance(e, sp.Expr) or e.is_Matrix:  # a Matrix is an Expr too
             raise TypeError(f"{name}[{i}] must be a sympy expression (sympy.Expr), got "
                             f"{type(e).__name__} {e}")
         out.append(e)
@@ -152,7 +152,48 @@ def _check_free(label: str, e, allowed: set, what: str) -> None:
     extra = e.free_symbols - allowed
     if extra:
         names = ", ".join(sorted(str(s) for s in extra))
-        raise ValueError(f"{label} = {e} contains {names}, which {what}")
+        namesakes = {str(s): s for s in allowed}
+        twins = [f"{s} ({_assumptions(s)}) is not the {s} of the model "
+                 f"({_assumptions(namesakes[str(s)])}): a sympy Symbol is its name and its "
+                 f"assumptions, so make both with the same ones"
+                 for s in sorted(extra, key=str) if str(s) in namesakes]
+        raise ValueError(f"{label} = {e} contains {names}, which {what}"
+                         + "".join(f"; {t}" for t in twins))
+
+
+def _assumptions(symbol) -> str:
+    """The assumptions a Symbol was made with, as its constructor's keywords."""
+    given = getattr(symbol, "_assumptions_orig", None)  # as given (sympy >= 1.12)
+    if given is None:
+        given = {k: v for k, v in symbol.assumptions0.items() if k != "commutative"}
+    return ", ".join(f"{k}={v}" for k, v in sorted(given.items())) or "no assumptions"
+
+
+def param_value(value, name: str) -> float:
+    """A parameter value as a float: a real number (:func:`check_value`), an exact sympy
+    real number (``sympy.pi``, ``sympy.sqrt(2)``) or a 0-d real numpy array, converted by
+    ``float()``."""
+    sp = require_sympy()
+    if isinstance(value, sp.Basic) and getattr(value, "is_number", False) and \
+            value.is_real and value.is_finite:
+        value = float(value)
+    elif isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+        value = value.item()
+    return check_value(value, name)
+
+
+def refuse_partial_piecewise(label: str, e, shown) -> None:
+    """Refuse a ``Piecewise`` in ``e`` without an otherwise branch (a last condition
+    ``True``): it has no value where none of its conditions holds (sympy's nan), so the
+    model would be undefined there. ``label`` and ``shown`` (``e`` in the user's symbols)
+    name it."""
+    sp = require_sympy()
+    for pw in e.atoms(sp.Piecewise):
+        if pw.args[-1].cond is not sp.true:
+            raise ValueError(f"{label} = {shown} has a Piecewise without an otherwise branch "
+                             f"(its last condition is {pw.args[-1].cond}, not True), so it "
+                             f"has no value where none of its conditions holds: end it with "
+                             f"(value, True)")
 
 
 def check_model(state, flags, field, events, resets, params) -> Model:
@@ -165,7 +206,8 @@ def check_model(state, flags, field, events, resets, params) -> Model:
         a reset index that is not an integer, a parameter value that is not a real number.
     ValueError
         Wrong lengths, repeated symbols, flags in the events, free symbols that are neither
-        state, flags nor parameters (named), non-finite parameter values.
+        state, flags nor parameters (named; a namesake of another's assumptions said so),
+        non-finite parameter values, a Piecewise without an otherwise branch.
     """
     sp = require_sympy()
     state = _symbols(state, "state")
@@ -195,7 +237,7 @@ def check_model(state, flags, field, events, resets, params) -> Model:
             raise ValueError(f"params[{sym}]: {sym} is a {'state' if sym in state else 'flag'} "
                              f"symbol, not a parameter")
         names.append(sym)
-        values.append(check_value(value, f"params[{sym}]"))
+        values.append(param_value(value, f"params[{sym}]"))
     if len({str(s) for s in names}) != len(names):
         raise ValueError("params has two symbols of the same name; with_params could not "
                          "tell them apart: rename one")
@@ -204,8 +246,10 @@ def check_model(state, flags, field, events, resets, params) -> Model:
                "give them a value in params")
     for i, e in enumerate(field):
         _check_free(f"field[{i}]", e, allowed, unknown)
+        refuse_partial_piecewise(f"field[{i}]", e, e)
     for k, e in enumerate(events):
         _check_free(f"events[{k}]", e, allowed, unknown)
+        refuse_partial_piecewise(f"events[{k}]", e, e)
         _check_free(f"events[{k}]", e, allowed - set(flags),
                     "are flags: an event function depends on the state and the parameters "
                     "only (the flags say which events have happened; the surface cannot)")
@@ -224,6 +268,7 @@ def check_model(state, flags, field, events, resets, params) -> Model:
             exprs = _expressions(exprs, label, d, f"the state after event {k}, d = {d}")
             for i, e in enumerate(exprs):
                 _check_free(f"{label}[{i}]", e, allowed, unknown)
+                refuse_partial_piecewise(f"{label}[{i}]", e, e)
             checked[int(k)] = exprs
     x = tuple(sp.Symbol(f"x_{i}", real=True) for i in range(d))
     s = tuple(sp.Symbol(f"s_{k}", real=True) for k in range(n))

@@ -15,14 +15,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._support._format import MASK_MEANING, format_mask, format_state, note_call
+from .._support._validate import check_mask
 from ..analysis.system import HybridSystem
+from ..models.compiled import is_compiled
 from . import _cache, _codegen
 from ._inputs import check_model, require_sympy
 
 
 @dataclass(frozen=True)
 class Kernels:
-    """The numba kernels of a symbolic model (the njit dispatchers; no validation).
+    """The numba kernels of a symbolic model (the njit dispatchers; no validation but the
+    length of ``x``: another is refused with a ValueError).
 
     Attributes
     ----------
@@ -100,6 +104,11 @@ class SymbolicSource:
     contacts : tuple of str
         The gap functions as given (in the messages); ``()`` but for
         :func:`~bderiv.symbolic.contact_system`.
+    param_check : callable or None
+        ``param_check(values)`` raises a ValueError for parameter values the model cannot
+        take (:func:`~bderiv.symbolic.contact_system`: a restitution outside [0, 1], a
+        mass matrix independent of q that is not positive definite); None: any finite
+        values.
     """
 
     builder: str
@@ -107,77 +116,118 @@ class SymbolicSource:
     build: BuildInfo
     coupling: object = None
     contacts: tuple = ()
+    param_check: object = None
 
     @property
     def param_names(self) -> tuple:
         """The parameters' names, in the order their values follow the state in ``x``."""
         return self.kernels.param_names
 
+    def check_params(self, values) -> None:
+        """Refuse parameter values (the array, in the order of :attr:`param_names`) that
+        the model cannot take (``param_check``); called by ``with_params``."""
+        if self.param_check is not None:
+            self.param_check(np.asarray(values, dtype=np.float64))
+
 
 class ModelFunctions:
     """A model's functions with the Python signatures of
     :class:`~bderiv.analysis.system.HybridSystem` on the state alone: ``ModelFunctions(model)``.
 
-    Each method checks the state (converted to float64; shapes other than (d,) are
-    refused: the kernels do not check bounds) and calls the model's function (for a
-    model of :mod:`bderiv.symbolic`, its kernel; no output check) on the state followed
-    by the model's parameter values ``params``.
+    Each method checks its arguments (the state converted to float64, shapes other than
+    (d,) refused; ``mask`` an integer in [0, 2**n), ``k`` one in [0, n): TypeError or
+    ValueError naming them) and calls the model's function (for a model of
+    :mod:`bderiv.symbolic`, its kernel; no output check) on the state followed by the
+    model's parameter values ``params``. What the function raises is said as a run says
+    it: a numba function's exception (a division by zero, a mass matrix that is not
+    positive definite) becomes a ValueError naming the call, the region and the state
+    (its cause the exception); a Python function's is raised as it is, with a note naming
+    the call and its arguments (Python 3.11+).
     """
 
     def __init__(self, model):
         self.model = model
         self.p = np.zeros(0) if model.params is None else model.params
-        self.d = model.dim
+        self.d, self.n = model.dim, model.n_events
 
     def _x(self, x):
         x = np.asarray(x, dtype=np.float64)
         if x.shape != (self.d,):
             raise ValueError(f"x must have shape ({self.d},), got shape {x.shape}")
-        return np.concatenate((x, self.p))
+        return x
 
-    def _given(self, name):
+    def _call(self, call, x, *ints):
+        """``call`` (``"field(x, mask)"``) of the model at the state ``x`` and ``ints``
+        (mask, k: checked here), the exception of the function said as a run says it."""
+        name = call[:call.index("(")]
         fun = getattr(self.model, name)
         if fun is None:
             raise TypeError(f"the model has no {name}")
-        return fun
+        x = self._x(x)
+        if ints:
+            ints = (check_mask(ints[0], self.n), *ints[1:])
+        if len(ints) == 2:
+            k = ints[1]
+            if not _is_int(k):
+                raise TypeError(f"k must be an integer (an event), got {type(k).__name__} "
+                                f"{k!r}")
+            if not 0 <= k < self.n:
+                raise ValueError(f"k must be an event in [0, {self.n}), got {k}")
+            ints = (ints[0], int(k))
+        try:
+            return fun(np.concatenate((x, self.p)), *ints)
+        except Exception as exc:
+            if not is_compiled(fun):  # a Python function's own exception: noted, kept
+                note_call(exc, call, x, ints, self.n)
+                raise
+            region = (f" in region mask {format_mask(ints[0], max(self.n, 1))} "
+                      f"({MASK_MEANING})" if ints else "")
+            event = f", k = {ints[1]}" if len(ints) == 2 else ""
+            raise ValueError(f"{call} raised {type(exc).__name__}: {exc};{region} at x = "
+                             f"{format_state(x)}{event}") from exc
 
     def field(self, x, mask):
         """``field(x, mask) -> (d,)``."""
-        return self.model.field(self._x(x), mask)
+        return self._call("field(x, mask)", x, mask)
 
     def field_jacobian(self, x, mask):
         """``field_jacobian(x, mask) -> (d, d)``."""
-        return self._given("field_jacobian")(self._x(x), mask)
+        return self._call("field_jacobian(x, mask)", x, mask)
 
     def events(self, x):
         """``events(x) -> (n,)``."""
-        return self.model.events(self._x(x))
+        return self._call("events(x)", x)
 
     def event_jacobian(self, x):
         """``event_jacobian(x) -> (n, d)``."""
-        return self._given("event_jacobian")(self._x(x))
+        return self._call("event_jacobian(x)", x)
 
     def corner_field(self, x):
         """``corner_field(x) -> (2**n, d)``: row ``mask`` is ``field(x, mask)``."""
-        return self._given("corner_field")(self._x(x))
+        return self._call("corner_field(x)", x)
 
     def reset(self, x, mask, k):
         """``reset(x, mask, k) -> (d,)``."""
-        return self._given("reset")(self._x(x), mask, k)
+        return self._call("reset(x, mask, k)", x, mask, k)
 
     def reset_jacobian(self, x, mask, k):
         """``reset_jacobian(x, mask, k) -> (d, d)``."""
-        return self._given("reset_jacobian")(self._x(x), mask, k)
+        return self._call("reset_jacobian(x, mask, k)", x, mask, k)
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
 
 
 def symbolic_system(kernels: Kernels, values, build: BuildInfo, builder="from_sympy", *,
-                    coupling=None, contacts=(), reset_guard=None) -> HybridSystem:
+                    coupling=None, contacts=(), reset_guard=None,
+                    param_check=None) -> HybridSystem:
     """The model of ``kernels`` with the parameter values ``values``: a
     :class:`~bderiv.analysis.system.HybridSystem` whose functions are the kernels
     themselves, its ``source`` a :class:`SymbolicSource`."""
     k = kernels
     resets = k.reset is not None
-    source = SymbolicSource(builder, k, build, coupling, tuple(contacts))
+    source = SymbolicSource(builder, k, build, coupling, tuple(contacts), param_check)
     # the Jacobians are derived, not written by hand: no difference check at first use
     return HybridSystem(k.field, k.events, n_events=k.n_events, dim=k.dim,
                         event_jacobian=k.event_jacobian, field_jacobian=k.field_jacobian,
@@ -268,7 +318,7 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
         ``s_k * v + (1 - s_k) * v_after`` for a jump at touchdown only). Events without an
         entry do not move the state. Simultaneous resets must commute (HybridSystem).
     params : mapping sympy.Symbol -> float, optional
-        Parameter values, changed later by
+        Parameter values (exact sympy numbers and 0-d arrays by ``float()``), changed by
         :meth:`~bderiv.analysis.system.HybridSystem.with_params` without re-deriving or
         recompiling (the kernels take them as an array).
     cache_dir : str or os.PathLike, optional
@@ -290,7 +340,8 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
     ValueError
         Wrong lengths, flags in the events, free symbols that are neither state, flags
         nor parameters (named), non-finite parameter values, an expression that does not
-        compile (named: printing as Python or numba typing fails).
+        compile (named: printing as Python or numba typing fails, a number overflows a
+        double) or has a Piecewise without an otherwise branch.
     ImportError
         Without sympy (``pip install 'bderiv[symbolic]'``).
     OSError

@@ -34,8 +34,10 @@ derives the condition): two plastic or restitution impacts at once commute, so t
 state after them and the B-derivative exist, exactly when the contacts are orthogonal in
 the inverse-mass metric, ``J_i M^-1 J_j^T = 0`` (the impulse at one does not change the
 other's normal velocity). :class:`ImpactCheck` (the model's ``reset_guard``) checks it
-wherever an impact resets the state while another contact is hit at the same instant (on
-its surface, within ``SURFACE_TOL`` relative, approaching, not yet in stance): in the
+wherever an impact resets the state while another contact is hit at the same instant
+(approaching, not yet in stance, and reached within ``IMPACT_SIMULTANEITY_TOL`` seconds at
+its closing speed, ``|phi| <= speed * IMPACT_SIMULTANEITY_TOL``: the time the library's runs
+group events by; one reached measurably later is hit on its own, after): in the
 simulation, the B-derivative at a point and along trajectories; coupled contacts are
 refused with their names, the coupling and what to do (a compliant contact,
 ``impact=None``, or the impacts one after the other). The check is local: a quadruped's
@@ -46,30 +48,29 @@ and coupled where the body is pitched.
 
 from __future__ import annotations
 
-import numbers
 import time
 
 import numpy as np
 
-from .._limits import COUPLING_TOL, SURFACE_TOL
+from .._limits import COUPLING_TOL, IMPACT_SIMULTANEITY_TOL
 from ..analysis.system import HybridSystem
+from . import _contact_checks as checks
+from ._contact_checks import DEFAULT_STANCE
 from ._contact_model import ContactModel
 from ._inputs import (
     _check_free,
     _expressions,
     _sequence,
     _symbols,
-    check_value,
+    param_value,
+    refuse_partial_piecewise,
     require_sympy,
 )
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
 from ._model import load_model, symbolic_system
 
-__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "SURFACE_TOL", "ImpactCheck", "contact_system",
-           "coupling"]
-
-#: parameters of the default stance law ``stiffness * pen + damping * rate``, and values
-DEFAULT_STANCE = {"contact_stiffness": 1.0e4, "contact_damping": 100.0}
+__all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "IMPACT_SIMULTANEITY_TOL", "ImpactCheck",
+           "contact_system", "coupling"]
 
 
 def coupling(model, x) -> np.ndarray:
@@ -121,6 +122,12 @@ class ImpactCheck:
     refuse it (ValueError naming the contacts, the coupling and the remedies) when another
     contact is hit at the same instant and coupled to k through the inverse mass matrix.
 
+    "At the same instant": contact j approaches (its closing speed ``r_j = d(-phi_j)/dt``
+    > 0), is not in stance, and its gap is closed within the time the library's runs
+    group events by, ``|phi_j| <= r_j * IMPACT_SIMULTANEITY_TOL`` (a first-order time to
+    contact of 1e-7 s at most, whatever the gap's size): a contact reached measurably
+    later is hit on its own (a wall 5e-7 m away approached at 1e-4 m/s is hit 5 ms later).
+
     Called as the model's functions are, on ``x`` (d + n_params,): the state followed by
     the parameter values.
     """
@@ -137,9 +144,9 @@ class ImpactCheck:
         m = d // 2
         h = self.kernels.events(x)
         rate = self.kernels.event_jacobian(x)[:, :m] @ x[m:d]  # d(-phi)/dt
-        on = np.abs(h) <= SURFACE_TOL * max(1.0, float(np.abs(x[:m]).max()))
+        now = np.abs(h) <= rate * IMPACT_SIMULTANEITY_TOL  # hit within the tolerance
         hit = [j for j in range(self.kernels.n_events)
-               if j != k and on[j] and rate[j] > 0.0 and not mask >> j & 1]
+               if j != k and now[j] and rate[j] > 0.0 and not mask >> j & 1]
         if not hit:
             return
         C = self.coupling_kernel(np.concatenate((x[:m], np.zeros(m), x[d:])))
@@ -161,69 +168,6 @@ class ImpactCheck:
                 )
 
 
-def _matrix(mass_matrix, m: int) -> list:
-    sp = require_sympy()
-    try:
-        rows = sp.Matrix(mass_matrix)
-    except Exception:
-        raise TypeError(f"mass_matrix must be an m x m matrix (m = {m}) of sympy "
-                        f"expressions, got {type(mass_matrix).__name__}") from None
-    if rows.shape != (m, m):
-        raise ValueError(f"mass_matrix must be {m} x {m} (one row and column per "
-                         f"coordinate), got shape {rows.shape}")
-    for i in range(m):
-        for j in range(i + 1, m):
-            gap = rows[i, j] - rows[j, i]
-            if gap != 0 and sp.simplify(gap) != 0:
-                raise ValueError(f"mass_matrix must be symmetric: entry [{i}][{j}] = "
-                                 f"{rows[i, j]} and [{j}][{i}] = {rows[j, i]} differ")
-    return [[rows[i, j] for j in range(m)] for i in range(m)]
-
-
-def _laws(stance, n: int, params: dict):
-    """One callable ``law(pen, rate)`` per contact, and the parameters it adds."""
-    sp = require_sympy()
-    if stance is None:
-        k, c = (sp.Symbol(name) for name in DEFAULT_STANCE)
-        added = {s: v for s, v in zip((k, c), DEFAULT_STANCE.values(), strict=True)
-                 if str(s) not in {str(p) for p in params}}
-        taken = {str(p): p for p in params}
-        k, c = taken.get(str(k), k), taken.get(str(c), c)
-        return [lambda pen, rate: k * pen + c * rate] * n, added
-    if callable(stance):
-        return [stance] * n, {}
-    laws = list(stance) if isinstance(stance, list | tuple) else None
-    if laws is None or len(laws) != n or not all(map(callable, laws)):
-        raise TypeError(f"stance must be None, a callable law(penetration, rate) -> force, or "
-                        f"a list of {n} such callables (one per contact), got "
-                        f"{type(stance).__name__}")
-    return laws, {}
-
-
-def _restitution(impact, params: dict):
-    """The restitution expression (None without impacts) and the parameter it adds."""
-    sp = require_sympy()
-    if impact is None:
-        return None, {}
-    if isinstance(impact, str):
-        if impact != "plastic":
-            raise ValueError(f"impact must be 'plastic', ('restitution', e), a number e in "
-                             f"[0, 1] or None, got {impact!r}")
-        return sp.Integer(0), {}
-    if isinstance(impact, tuple) and len(impact) == 2 and impact[0] == "restitution":
-        impact = impact[1]
-    if isinstance(impact, sp.Expr) and not impact.is_number:
-        return impact, {}  # an expression in the parameters (checked with the others)
-    if isinstance(impact, bool) or not isinstance(impact, numbers.Real | sp.Number):
-        raise TypeError(f"impact must be 'plastic', ('restitution', e), a number e in [0, 1] "
-                        f"or None, got {type(impact).__name__} {impact!r}")
-    e = check_value(float(impact), "the restitution e")
-    if not 0.0 <= e <= 1.0:
-        raise ValueError(f"the restitution e must be in [0, 1], got {e!r}")
-    sym = {str(p): p for p in params}.get("restitution", sp.Symbol("restitution"))
-    return sym, ({} if sym in params else {sym: e})
-
-
 def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plastic",
                    params=None, *, velocities=None, flags=None, coriolis=True,
                    cache_dir=None) -> HybridSystem:
@@ -234,7 +178,12 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     q : sequence of sympy.Symbol, length m
         The generalized coordinates; the state is ``(q, q')``, d = 2m.
     mass_matrix : sympy.Matrix or nested sequence, (m, m)
-        ``M(q)``, symmetric positive definite, in q and the parameters.
+        ``M(q)``, symmetric positive definite, in q and the parameters. Symmetry is
+        checked symbolically; positive definiteness numerically: where ``M`` does not
+        depend on q, at the parameter values (here and by ``with_params``: a Cholesky
+        factorization), and wherever the kernels evaluate it (every field, Jacobian,
+        reset and coupling solves with its factorization ``L D L^T``, so a state where
+        ``M`` is singular or indefinite raises a ValueError naming the mass matrix).
     forces : sequence of sympy.Expr, length m
         The generalized forces other than the inertial and contact ones (gravity, springs,
         dampers, actuators), in q, the velocities, the flags and the parameters.
@@ -248,11 +197,15 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         unless ``params`` names them.
     impact : "plastic", ("restitution", e), float e in [0, 1], sympy expression or None
         The velocity reset at touchdown (e = 0 plastic; a number becomes the parameter
-        ``restitution``, changeable with ``with_params``); None: no impulse.
+        ``restitution``, changeable with ``with_params``); None: no impulse. An
+        expression in the parameters must be in [0, 1] at their values (checked here and
+        by ``with_params``, as a number is).
     params : mapping sympy.Symbol -> float, optional
-        Parameter values (``with_params`` changes them without re-deriving).
+        Parameter values (``with_params`` changes them without re-deriving): real numbers,
+        exact sympy ones (``sympy.pi``) and 0-d arrays converted by ``float()``.
     velocities : sequence of sympy.Symbol, length m, optional
-        The symbols of q' (default ``<name>_dot`` for each coordinate).
+        The symbols of q' (default ``<name>_dot`` for each coordinate). A symbol takes
+        one role: coordinates, velocities, flags and parameters are distinct symbols.
     flags : sequence of sympy.Symbol, length n, optional
         Symbols the forces may use for "contact k in stance" (1) or not (0): friction,
         thrust. Default: new ones (the forces then cannot name them).
@@ -272,9 +225,13 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     Raises
     ------
     TypeError, ValueError
-        Wrong lengths or types (named), a non-symmetric mass matrix, contacts depending on
-        velocities or flags, free symbols that are not coordinates, velocities, flags or
-        parameters, a restitution outside [0, 1]; as :func:`~bderiv.symbolic.from_sympy`.
+        Wrong lengths or types (named), a symbol in two roles (named, with both), a
+        non-symmetric mass matrix, one that does not depend on q and is not positive
+        definite at the parameter values, contacts depending on velocities or flags, free
+        symbols that are not coordinates, velocities, flags or parameters, a stance law
+        that does not return one expression (named), a restitution outside [0, 1] (at the
+        parameter values), a Piecewise without an otherwise branch; as
+        :func:`~bderiv.symbolic.from_sympy`.
 
     Examples
     --------
@@ -314,16 +271,17 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         raise TypeError(f"params must be a mapping symbol -> value, got "
                         f"{type(params).__name__}")
     params = dict(params or {})
-    M = _matrix(mass_matrix, m)
-    forces = _expressions(forces, "forces", m, f"one per coordinate, m = {m}")
-    laws, added_law = _laws(stance, n, params)
-    e, added_e = _restitution(impact, params)
-    params = {**params, **added_law, **added_e}
-    for sym, value in params.items():
+    for sym in params:
         if not isinstance(sym, sp.Symbol):
             raise TypeError(f"params keys must be sympy Symbols, got {type(sym).__name__} "
                             f"{sym!r}")
-        check_value(value, f"params[{sym}]")
+    laws, added_law = checks.laws(stance, n, params)
+    e, added_e = checks.restitution(impact, params)
+    checks.refuse_shared(_roles(q, v, velocities is None, s, params, added_law, added_e))
+    params = {sym: param_value(value, f"params[{sym}]")
+              for sym, value in {**params, **added_law, **added_e}.items()}
+    M = checks.matrix(mass_matrix, m)
+    forces = _expressions(forces, "forces", m, f"one per coordinate, m = {m}")
     names = set(params)
     where = "are not coordinates or parameters"
     for i, row in enumerate(M):
@@ -342,10 +300,18 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     rate = [sp.Dummy(f"rate_{k}") for k in range(n)]
     lams = []
     for k, law in enumerate(laws):
-        lam = sp.sympify(law(pen[k], rate[k]))
+        lam = checks.stance_force(law, k, pen[k], rate[k])
         _check_free(f"the stance force of contact {k}", lam, allowed | {pen[k], rate[k]},
                     unknown)
         lams.append(lam)
+    for label, expr in [*((f"mass_matrix[{i}][{j}]", M[i][j]) for i in range(m)
+                          for j in range(m)),
+                        *((f"forces[{i}]", f) for i, f in enumerate(forces)),
+                        *((f"contacts[{k}]", phi) for k, phi in enumerate(phis)),
+                        *((f"the stance force of contact {k}", lam)
+                          for k, lam in enumerate(lams)),
+                        *([("the restitution", e)] if e is not None else [])]:
+        refuse_partial_piecewise(label, expr, expr)
 
     # canonical symbols: x_i (q then q'), s_k, p_j
     pnames = list(params)
@@ -368,8 +334,13 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         M=tuple(map(canon, M)), forces=canon(forces), contacts=canon(phis), laws=canon(lams),
         restitution=None if e is None else canon([e])[0], coriolis=bool(coriolis), x=x,
         s=sc, p=pc, pen=pens, rate=rates, param_names=tuple(map(str, pnames)),
-        values=np.array([float(params[p]) for p in pnames], dtype=np.float64),
+        values=np.array([params[p] for p in pnames], dtype=np.float64),
         original={c: u for u, c in to.items()}, names=tuple(map(str, phis)))
+    constant = not any(entry.free_symbols & set(x) for row in model.M for entry in row)
+    param_check = checks.ParamCheck(
+        pc, model.param_names, model.restitution if e is not None and e.free_symbols else None,
+        str(e), M=model.M if constant else None)
+    param_check(model.values)  # before the derivation and the compilation
     module, kernels, build = load_model(
         model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"sympy {sp.__version__}",
                 *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE},
@@ -377,4 +348,18 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     guard = None if kernels.reset is None else ImpactCheck(kernels, module.coupling,
                                                             model.names)
     return symbolic_system(kernels, model.values, build, "contact_system",
-                           coupling=module.coupling, contacts=model.names, reset_guard=guard)
+                           coupling=module.coupling, contacts=model.names, reset_guard=guard,
+                           param_check=param_check)
+
+
+def _roles(q, v, default_v: bool, s, params, added_law, added_e) -> list:
+    """The roles of contact_system's symbols for :func:`._contact_checks.refuse_shared`."""
+    return [
+        ("a coordinate", {c: f"q[{i}]" for i, c in enumerate(q)}),
+        ("a velocity", {c: f"the velocity of q[{i}], named by default: pass velocities="
+                        if default_v else f"velocities[{i}]" for i, c in enumerate(v)}),
+        ("a flag", {c: f"flags[{k}]" for k, c in enumerate(s)}),
+        ("a parameter", {**{p: "a key of params" for p in params},
+                         **{p: "of the default stance law" for p in added_law},
+                         **{p: "impact's restitution" for p in added_e}}),
+    ]
