@@ -137,6 +137,14 @@ def test_a_contact_hit_measurably_later_is_not_an_impact_at_the_same_instant(box
     assert_allclose(traj.x_final, [*(q2 + (0.6 - t2) * v2), *v2], rtol=1e-9, atol=1e-12)
 
 
+def test_the_compiled_model_says_its_stops_are_in_python_for_the_reset_guard(box):
+    """The impacts' reset is compiled, the guard that checks each is Python: the compiled
+    model's description says the guard, not only a reset of the wrong signature."""
+    box.simulate(np.array([1.0, 1.0, -1.0, -2.0]), 0.1)
+    words = box.calls.compiled.describe()
+    assert "stops: in Python" in words and "reset_guard" in words, words
+
+
 @pytest.mark.parametrize("gap", [0.0, 1e-8])
 def test_coupled_impacts_at_the_same_instant_are_still_refused(box, gap):
     """Hit together (gap 0), or the wall within IMPACT_SIMULTANEITY_TOL = 1e-7 s of the

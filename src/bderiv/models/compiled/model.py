@@ -163,8 +163,9 @@ class CompiledModel:
             stops = ("in Python (event_jacobian is not compiled for float64[::1] -> "
                      "float64[:, ::1], or events do not compile for complex input)")
         elif self.has_python_reset:
-            stops = ("in Python (reset is not compiled for (float64[::1], int64, int64) -> "
-                     "float64[::1])")
+            stops = ("in Python (the reset is a Python function: not compiled for "
+                     "(float64[::1], int64, int64) -> float64[::1], or checked by the model's "
+                     "reset_guard, a Python function)")
         else:
             stops = "compiled"
         return (f"field_jacobian: {JACOBIAN_MODES[self.jac_mode]}; event_jacobian: "
