@@ -252,3 +252,17 @@ def test_model_functions_check_mask_and_k_and_say_what_the_kernel_raised(cache):
                                          r"= event k happened\) at x = \[0.0, 1.0\]$") as info:
         f.field([0.0, 1.0], 1)
     assert isinstance(info.value.__cause__, ZeroDivisionError)
+
+
+def test_with_params_takes_exact_sympy_numbers_and_0d_arrays(cache):
+    """The values from_sympy takes are those with_params takes (sympy.pi was refused
+    there as "must be a real number")."""
+    model = from_sympy([x, y], [s0, s1], [1 + a, b], [x, y], params={a: 1.0, b: 2.0},
+                       cache_dir=cache)
+    for value in (sp.pi, sp.sqrt(2), np.array(0.5)):
+        assert model.with_params(a=value).param_values["a"] == float(value)
+    with pytest.raises(ValueError, match="must be finite"):
+        model.with_params(a=np.array(np.inf))
+    for value in (sp.oo, sp.I, np.array([0.5])):  # sympy's oo is not real, only extended
+        with pytest.raises(TypeError, match="must be a real number"):
+            model.with_params(a=value)

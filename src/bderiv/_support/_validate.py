@@ -339,7 +339,13 @@ def check_numbers(*, low: float = 0.0, strict: bool = True, **values) -> tuple:
 
 
 def check_value(value, name: str) -> float:
-    """A parameter value: a finite real number."""
+    """A parameter value: a finite real number, also as a 0-d real numpy array or an exact
+    sympy real number (``sympy.pi``, ``sympy.sqrt(2)``: ``is_number`` and ``is_real``),
+    converted by ``float()``."""
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+        value = value.item()
+    elif getattr(value, "is_number", None) is True and getattr(value, "is_real", None) is True:
+        value = float(value)
     if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a real number, got {type(value).__name__} {value!r}")
     value = float(value)

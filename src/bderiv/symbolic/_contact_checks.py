@@ -10,7 +10,8 @@ import numbers
 
 import numpy as np
 
-from ._inputs import param_value, require_sympy
+from .._support._validate import check_value
+from ._inputs import require_sympy
 
 #: parameters of the default stance law ``stiffness * pen + damping * rate``, and values
 DEFAULT_STANCE = {"contact_stiffness": 1.0e4, "contact_damping": 100.0}
@@ -96,7 +97,7 @@ def restitution(impact, params: dict):
     if isinstance(impact, bool) or not isinstance(impact, numbers.Real | sp.Expr):
         raise TypeError(f"impact must be 'plastic', ('restitution', e), a number e in [0, 1] "
                         f"or None, got {type(impact).__name__} {impact!r}")
-    e = param_value(impact, "the restitution e")
+    e = check_value(impact, "the restitution e")
     if not 0.0 <= e <= 1.0:
         raise ValueError(f"the restitution e must be in [0, 1], got {e!r}")
     sym = {str(p): p for p in params}.get("restitution", sp.Symbol("restitution"))

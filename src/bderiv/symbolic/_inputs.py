@@ -169,19 +169,6 @@ def _assumptions(symbol) -> str:
     return ", ".join(f"{k}={v}" for k, v in sorted(given.items())) or "no assumptions"
 
 
-def param_value(value, name: str) -> float:
-    """A parameter value as a float: a real number (:func:`check_value`), an exact sympy
-    real number (``sympy.pi``, ``sympy.sqrt(2)``) or a 0-d real numpy array, converted by
-    ``float()``."""
-    sp = require_sympy()
-    if isinstance(value, sp.Basic) and getattr(value, "is_number", False) and \
-            value.is_real and value.is_finite:
-        value = float(value)
-    elif isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
-        value = value.item()
-    return check_value(value, name)
-
-
 def refuse_partial_piecewise(label: str, e, shown) -> None:
     """Refuse a ``Piecewise`` in ``e`` without an otherwise branch (a last condition
     ``True``): it has no value where none of its conditions holds (sympy's nan), so the
@@ -237,7 +224,7 @@ def check_model(state, flags, field, events, resets, params) -> Model:
             raise ValueError(f"params[{sym}]: {sym} is a {'state' if sym in state else 'flag'} "
                              f"symbol, not a parameter")
         names.append(sym)
-        values.append(param_value(value, f"params[{sym}]"))
+        values.append(check_value(value, f"params[{sym}]"))
     if len({str(s) for s in names}) != len(names):
         raise ValueError("params has two symbols of the same name; with_params could not "
                          "tell them apart: rename one")

@@ -53,6 +53,7 @@ import time
 import numpy as np
 
 from .._limits import COUPLING_TOL, IMPACT_SIMULTANEITY_TOL
+from .._support._validate import check_value
 from ..analysis.system import HybridSystem
 from . import _contact_checks as checks
 from ._contact_checks import DEFAULT_STANCE
@@ -62,7 +63,6 @@ from ._inputs import (
     _expressions,
     _sequence,
     _symbols,
-    param_value,
     refuse_partial_piecewise,
     require_sympy,
 )
@@ -278,7 +278,7 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     laws, added_law = checks.laws(stance, n, params)
     e, added_e = checks.restitution(impact, params)
     checks.refuse_shared(_roles(q, v, velocities is None, s, params, added_law, added_e))
-    params = {sym: param_value(value, f"params[{sym}]")
+    params = {sym: check_value(value, f"params[{sym}]")
               for sym, value in {**params, **added_law, **added_e}.items()}
     M = checks.matrix(mass_matrix, m)
     forces = _expressions(forces, "forces", m, f"one per coordinate, m = {m}")
