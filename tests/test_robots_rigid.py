@@ -137,6 +137,32 @@ def test_solo12s_four_feet_landing_at_once_do_not_commute_and_are_refused(sticki
         robot.system.flow_bderivative(x0, TOUCHDOWN + STANCE)
 
 
+def test_coupled_feet_reached_microseconds_apart_land_one_after_the_other():
+    """Solo12's level drop with FR, HL and HR raised 5e-7, 1e-6 and 1.5e-6 m (by a knee
+    each): they land 0.4 microseconds apart (each impact speeds the others' fall), each on
+    its own, four times IMPACT_SIMULTANEITY_TOL apart. A foot within 1e-6 m of the ground
+    counted as hit at the same instant whatever its speed, and the drop was refused as
+    coupled simultaneous impacts. Oracle: the
+    independent simulation, its impacts one at a time."""
+    robot = quadruped("solo12", contact="rigid")
+    x0 = drop_state(robot, 0.01, -0.5)
+    for foot, raise_by in ((1, 5e-7), (2, 1e-6), (3, 1.5e-6)):
+        knee = 6 + 3 * foot + 2  # x = (base 6, then the joints: HAA, HFE, KFE per leg)
+        e = np.zeros(robot.system.dim)
+        e[knee] = 1e-4
+        rate = (robot.events(x0 + e)[foot] - robot.events(x0 - e)[foot]) / 2e-4
+        x0[knee] -= raise_by / rate  # events are -height: lowered by raise_by
+    h = robot.events(x0)
+    np.testing.assert_allclose(h[1:] - h[0], [-5e-7, -1e-6, -1.5e-6], rtol=1e-3)
+    T = TOUCHDOWN + 0.01
+    sim = RigidSim(robot.model, robot.feet, robot.q_ref, robot.law)
+    base, log = _independent(robot, sim, x0, T)
+    assert [k for _, k in log] == [0, 1, 2, 3] and np.all(np.diff([t for t, _ in log]) > 3e-7)
+    traj = robot.system.simulate(x0, T)
+    assert [g.events for g in traj.groups] == [(0,), (1,), (2,), (3,)]
+    assert np.abs(traj.x_final - base).max() < 1e-8
+
+
 def _independent(robot, sim, x, T):
     q, v = robot.configuration(x)
     qT, vT, log, down = sim.run(q, v.copy(), T)

@@ -280,14 +280,13 @@ LOCAL_WORKERS = 2
 
 # --- contacts (``symbolic.contacts``, ``robots.rigid``) ----------------------------------
 
-#: a foot of ``robots.rigid`` is on the ground when ``|h| <= SURFACE_TOL`` (a judgement)
-SURFACE_TOL = 1e-6
 #: another contact is hit "at the same instant" as an impact (``symbolic.contacts``'
-#: ``ImpactCheck``) when its first-order time to contact, gap over closing speed, is at
-#: most this, in seconds: the widest default grouping of the library's runs (the
-#: B-derivatives', DERIVATIVE_SIMULTANEITY_TOL; simulate's is 1e-12), so that the groups
-#: they make of coupled impacts are refused by name, and a contact reached measurably later
-#: is not counted (a gap of 1e-6 counted whatever the speed refused a wall hit 5 ms later)
+#: ``ImpactCheck``, a rigid robot's reset) when its first-order time to contact, gap over
+#: closing speed, is at most this, in seconds: the widest default grouping of the library's
+#: runs (the B-derivatives', DERIVATIVE_SIMULTANEITY_TOL; simulate's is 1e-12), so that the
+#: groups they make of coupled impacts are refused by name, and a contact reached
+#: measurably later is not counted (a gap of 1e-6 counted whatever the speed refused a
+#: wall hit 5 ms later)
 IMPACT_SIMULTANEITY_TOL = DERIVATIVE_SIMULTANEITY_TOL
 #: relative coupling ``|J_i M^-1 J_j^T| / sqrt(J_i M^-1 J_i^T J_j M^-1 J_j^T)`` accepted
 #: between simultaneous contacts (a judgement: orthogonal contacts give rounding only,

@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._limits import COUPLING_TOL, SURFACE_TOL
+from .._limits import COUPLING_TOL, IMPACT_SIMULTANEITY_TOL
 from ..analysis.system import HybridSystem
 from ._checks import check_down, check_index, check_latches
 from ._contact import field_vector
@@ -288,8 +288,11 @@ class RigidLeggedRobot(LeggedRobot):
         vz = np.array([pin.getFrameVelocity(self.model, self.data, fid,
                                             pin.LOCAL_WORLD_ALIGNED).linear[2]
                        for fid in self.frame_ids])
+        # another foot hit at the same instant: approaching, and on the ground within
+        # IMPACT_SIMULTANEITY_TOL seconds at its speed (a distance alone counted a foot
+        # reached measurably later, as symbolic.contacts' ImpactCheck did)
         hit = [j for j in range(len(self.feet)) if j != k and not mask >> j & 1
-               and abs(h[j]) <= SURFACE_TOL and vz[j] < 0.0]
+               and vz[j] < 0.0 and abs(h[j]) <= -vz[j] * IMPACT_SIMULTANEITY_TOL]
         if not hit:
             return
         C = self.coupling(x)
