@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.integrate import quad, solve_ivp
+from garcia_walker import garcia_stride
+from scipy.integrate import quad
 
 from bderiv import HybridSystem
 from bderiv.examples import bounces, walkers
@@ -233,27 +234,6 @@ def test_rimless_wheel_refuses_a_wheel_that_cannot_roll_over():
 # ----------------------------------------------------------------------------------
 # the compass gait: Garcia et al.'s simplest walker
 # ----------------------------------------------------------------------------------
-def _garcia_stride(z, gam=0.009):
-    """Garcia et al.'s stride map on (theta, theta') just after heel strike, from their
-    equations (g = l = 1, leg mass 0), by scipy: the heel strike is phi - 2 theta = 0
-    crossed upward with phi < 0 (the scuff at mid-stance ignored)."""
-
-    def f(_t, y):
-        th, ph, thd, _ = y
-        return [thd, y[3], np.sin(th - gam),
-                np.sin(ph) * (thd**2 - np.cos(th - gam)) + np.sin(th - gam)]
-
-    def strike(_t, y):
-        return y[1] - 2 * y[0] if y[1] < 0 else -1.0
-
-    strike.terminal, strike.direction = True, 1
-    th, thd = z
-    y0 = [th, 2 * th, thd, thd * (1 - np.cos(2 * th))]
-    sol = solve_ivp(f, (0, 20), y0, events=strike, method="DOP853", rtol=1e-13, atol=1e-14)
-    th, _, thd, _ = sol.y_events[0][0]
-    return np.array([-th, np.cos(2 * th) * thd])
-
-
 @pytest.fixture(scope="module")
 def compass_orbit():
     return walkers.compass_gait_orbit()
@@ -281,7 +261,7 @@ def test_compass_gait_eigenvalues_match_garcia_and_finite_differences(compass_or
     published = sorted(walkers.GARCIA_EIGENVALUES, key=lambda z: z.imag)
     assert np.abs(np.subtract(pair, published)).max() < 2e-3  # their digits: to 1.7e-3
     z, h = np.array(walkers.GARCIA_FIXED_POINT), 1e-6
-    J = np.column_stack([(_garcia_stride(z + h * d) - _garcia_stride(z - h * d)) / (2 * h)
+    J = np.column_stack([(garcia_stride(z + h * d) - garcia_stride(z - h * d)) / (2 * h)
                          for d in np.eye(2)])
     fd = sorted(np.linalg.eigvals(J), key=lambda z: z.imag)
     assert np.abs(np.subtract(pair, fd)).max() < 1e-7

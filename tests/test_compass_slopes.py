@@ -12,28 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
+from garcia_walker import garcia_stride
 
 from bderiv.examples import walkers
-
-
-def _stride(z, slope):
-    """Garcia et al.'s stride map on (theta, theta') just after heel strike."""
-
-    def f(_t, y):
-        th, ph, thd, phd = y
-        return [thd, phd, np.sin(th - slope),
-                np.sin(ph) * (thd**2 - np.cos(th - slope)) + np.sin(th - slope)]
-
-    def strike(_t, y):  # phi = 2 theta with the swing leg ahead: the scuff ignored
-        return y[1] - 2 * y[0] if y[1] < 0 else -1.0
-
-    strike.terminal, strike.direction = True, 1
-    th, thd = z
-    y0 = [th, 2 * th, thd, thd * (1 - np.cos(2 * th))]
-    sol = solve_ivp(f, (0, 20), y0, events=strike, method="DOP853", rtol=1e-12, atol=1e-13)
-    th, _, thd, _ = sol.y_events[0][0]
-    return np.array([-th, np.cos(2 * th) * thd])
 
 
 def _gait(slope):
@@ -47,7 +28,7 @@ def _distances(z, slope, strides, kick=(1e-4, -1e-4)):
     """|z_k - z| over ``strides`` simulated strides from ``z + kick``."""
     w, out = z + np.array(kick), []
     for _ in range(strides):
-        w = _stride(w, slope)
+        w = garcia_stride(w, slope)
         out.append(np.linalg.norm(w - z))
     return np.array(out)
 
@@ -55,7 +36,7 @@ def _distances(z, slope, strides, kick=(1e-4, -1e-4)):
 @pytest.mark.parametrize("slope", [0.001, 0.012, 0.014])
 def test_the_default_start_finds_the_stable_gait(slope):
     z = _gait(slope)
-    assert np.abs(_stride(z, slope) - z).max() < 1e-9  # a fixed point of Garcia's map
+    assert np.abs(garcia_stride(z, slope) - z).max() < 1e-9  # a fixed point of Garcia's map
     assert z[0] > 0.0 and z[1] < 0.0  # a step from theta > 0, falling forward
     dist = _distances(z, slope, 25)
     # attracting: the kick of 1.4e-4 shrinks below a hundredth of itself
@@ -65,7 +46,7 @@ def test_the_default_start_finds_the_stable_gait(slope):
 def test_beyond_the_stable_slope_the_default_finds_the_same_gait_unstable():
     slope = 0.02
     z = _gait(slope)
-    assert np.abs(_stride(z, slope) - z).max() < 1e-9
+    assert np.abs(garcia_stride(z, slope) - z).max() < 1e-9
     # the long-period gait continued: theta* near Garcia et al.'s 0.97 slope^(1/3)
     assert abs(z[0] / slope ** (1 / 3) - 0.97) < 0.02
     dist = _distances(z, slope, 8, kick=(1e-7, -1e-7))
@@ -77,7 +58,7 @@ def test_the_stable_slope_is_where_the_stride_maps_multiplier_crosses_one():
     radii = []
     for slope in (walkers.STABLE_SLOPE - 1e-4, walkers.STABLE_SLOPE + 1e-4):
         z = _gait(slope)
-        J = np.column_stack([(_stride(z + h * d, slope) - _stride(z - h * d, slope)) / (2 * h)
-                             for d in np.eye(2)])
+        J = np.column_stack([(garcia_stride(z + h * d, slope)
+                              - garcia_stride(z - h * d, slope)) / (2 * h) for d in np.eye(2)])
         radii.append(np.abs(np.linalg.eigvals(J)).max())
     assert radii[0] < 1.0 < radii[1], radii

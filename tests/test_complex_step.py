@@ -263,6 +263,17 @@ def _field_complex_on_one_side(x, mask):
     return np.array([x[1], -math.sin(x[0]) + (math.sin(0.5) - 0.5)])
 
 
+def _hand_written_flow_map(x0, T):
+    """The flow map of :func:`_field_complex_on_one_side` with its Jacobian written out
+    (a matrix whose rows are the images of the unit vectors)."""
+    exact = HybridSystem(
+        _field_complex_on_one_side, lambda x: np.array([x[0] + 5.0]), n_events=1, dim=2,
+        field_jacobian=lambda x, mask: np.array(
+            [[0.0, 1.0], [-1.0 if x[0] > 0.5 else -math.cos(x[0]), 0.0]]),
+        event_jacobian=lambda x: np.array([[1.0, 0.0]]))
+    return exact.flow_bderivative(x0, T)(np.eye(2))
+
+
 @pytest.mark.parametrize("compile_it", [False, True], ids=["python", "numba-python-first"])
 def test_a_complex_step_that_fails_later_gives_way_to_central_differences(
         compile_it, monkeypatch, caplog):
@@ -276,12 +287,7 @@ def test_a_complex_step_that_fails_later_gives_way_to_central_differences(
     x0 = np.array([1.0, 0.0])
     with caplog.at_level(logging.INFO, logger="bderiv"):
         D = HybridSystem(field, events, n_events=1, dim=2).flow_bderivative(x0, 2.0)
-    exact = HybridSystem(
-        _field_complex_on_one_side, lambda x: np.array([x[0] + 5.0]), n_events=1, dim=2,
-        field_jacobian=lambda x, mask: np.array(
-            [[0.0, 1.0], [-1.0 if x[0] > 0.5 else -math.cos(x[0]), 0.0]]),
-        event_jacobian=lambda x: np.array([[1.0, 0.0]]))
-    E = exact.flow_bderivative(x0, 2.0)(np.eye(2))
+    E = _hand_written_flow_map(x0, 2.0)
     np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-6, atol=1e-6 * np.abs(E).max())
     assert any("central differences from now on" in r.getMessage() for r in caplog.records)
 
@@ -297,12 +303,7 @@ def test_a_model_compiled_during_its_run_gives_the_same_flow_map(seconds, monkey
     D = HybridSystem(numba.njit(_field_complex_on_one_side),
                      numba.njit(lambda x: np.array([x[0] + 5.0])), n_events=1,
                      dim=2).flow_bderivative(x0, 2.0)
-    exact = HybridSystem(
-        _field_complex_on_one_side, lambda x: np.array([x[0] + 5.0]), n_events=1, dim=2,
-        field_jacobian=lambda x, mask: np.array(
-            [[0.0, 1.0], [-1.0 if x[0] > 0.5 else -math.cos(x[0]), 0.0]]),
-        event_jacobian=lambda x: np.array([[1.0, 0.0]]))
-    E = exact.flow_bderivative(x0, 2.0)(np.eye(2))
+    E = _hand_written_flow_map(x0, 2.0)
     np.testing.assert_allclose(D(np.eye(2)), E, rtol=1e-6, atol=1e-6 * np.abs(E).max())
 
 
