@@ -115,7 +115,7 @@ def test_text_made_small_by_matplotlibs_settings_is_refused(capsys, tmp_path):
     (["--example", "landing", "--full"], "--full means nothing for --example landing"),
     (["--example", "compass-gait", "--eps", "1e-4"], "--eps means nothing for --example "
                                                      "compass-gait"),
-    (["--example", "solo12", "--full"], "it takes --seed and --json"),
+    (["--example", "solo12", "--full"], "it takes --eps, --seed and --json"),
     (["--example", "corners", "--check", "5", "--eps", "1e-3"],
      "--check and --eps mean nothing for --example corners, a corner table without a model"),
     (["--example", "planar", "--check", "0"], "--check means nothing for --example planar"),
@@ -281,6 +281,28 @@ def test_demo_solo12_without_pinocchio_is_a_usage_error(capsys, monkeypatch):
     monkeypatch.setattr(_files, "require_pinocchio", missing)
     refused(["demo", "--example", "solo12"], capsys,
             "--example solo12: bderiv.robots needs Pinocchio: pip install 'bderiv[robots]'")
+
+
+def test_demo_solo12_takes_eps_as_its_checks_steps(capsys, monkeypatch):
+    """--eps reaches solo12_summary (its check's steps; the summary itself runs in the
+    slow test of tests/test_robots.py, a minute on a loaded machine)."""
+    pytest.importorskip("pinocchio")
+    from bderiv.robots import demo
+
+    given = {}
+
+    def summary(**kwargs):
+        given.clear()
+        given.update(kwargs)
+        return {"name": "solo12"}
+
+    monkeypatch.setattr(demo, "solo12_summary", summary)
+    code, out, err = run(["demo", "--example", "solo12", "--eps", "1e-4", "1e-5", "--json"],
+                         capsys)
+    assert code == 0, err
+    assert given == {"seed": 0, "eps": (1e-4, 1e-5)}
+    run(["demo", "--example", "solo12", "--json"], capsys)
+    assert given == {"seed": 0}  # the summary's own steps
 
 
 # -- 9. the docs list every example the command offers -------------------------------------------

@@ -9,6 +9,8 @@ O(eps). The agreement per order is printed (``pytest -s``).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -210,9 +212,10 @@ def test_the_demo_from_the_command_line(capsys):
     seven simulations)."""
     from bderiv.cli import main
 
-    assert main(["demo", "--example", "solo12", "--json"]) == 0
+    assert main(["demo", "--example", "solo12", "--eps", "1e-4", "1e-5", "--json"]) == 0
     out = capsys.readouterr().out
     assert '"orders_met": 24' in out and '"FL_FOOT"' in out
+    assert json.loads(out)["check"]["eps"] == [1e-4, 1e-5]
 
 
 def test_nan_starts_and_a_foot_named_twice_are_refused_by_name():

@@ -80,9 +80,8 @@ def check_example_options(name: str, n: int | None, extended: bool) -> None:
 
 
 #: summaries whose check against finite differences takes its steps from ``--eps`` (the
-#: walkers' and the quadruped's summaries have no such check; solo12's checks at its own
-#: fixed steps, 1e-5 and 1e-6)
-FD_SUMMARIES = ("pronking", "landing")
+#: walkers' and the quadruped's summaries have no such check)
+FD_SUMMARIES = ("pronking", "landing", "solo12")
 #: the dimension d of the examples whose demo times a batch (``network``: n, 2n extended),
 #: known before they load, so that a batch too large is refused before the demo's first line
 DEMO_DIMS = {"chair": 6, "table": 12, "corners": 3, "planar": 2}

@@ -262,7 +262,7 @@ def _gait_demo(args) -> str:
         require_robot_files("--example solo12")
         from ..robots import demo
 
-        res = demo.solo12_summary(seed=args.seed)
+        res = demo.solo12_summary(seed=args.seed, **_steps(args))
         return render.to_json(res, indent=1) if args.json else demo.summary_text(res)
     if args.example == "quadruped":
         from ..examples import quadruped
@@ -274,9 +274,14 @@ def _gait_demo(args) -> str:
         return render.to_json(res, indent=1) if args.json else walker_report.summary_text(res)
     module, run = ((impacts, impacts.landing_summary) if args.example == "landing"
                    else (gaits, gaits.pronking_summary))
-    steps = {} if args.eps is None else {"eps": tuple(args.eps)}  # their check's steps
-    res = run(seed=args.seed, compiled=not args.python, **steps)
+    res = run(seed=args.seed, compiled=not args.python, **_steps(args))
     return render.to_json(res, indent=1) if args.json else module.summary_text(res)
+
+
+def _steps(args) -> dict:
+    """``--eps`` as a summary's keyword: the steps of its check against finite
+    differences (none given: the summary's own)."""
+    return {} if args.eps is None else {"eps": tuple(args.eps)}
 
 
 def _bench(args) -> str:
