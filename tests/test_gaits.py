@@ -428,7 +428,7 @@ def test_periodic_orbit_validation_and_failure(gait):
             s.periodic_orbit(orb.x0, gaits.apex_section, period_guess=0.5, cyclic=cyclic)
     # the perturbation of the guess is a state, not broadcast (its docstring: shape (4,))
     for bad, got in (((0.1,), r"shape \(1,\)"), (np.zeros((2, 4)), r"shape \(2, 4\)"),
-                     ([0.1, [0.0, 1.0]], r"\[0.1, \[0.0, 1.0\]\]")):
+                     ([0.1, [0.0, 1.0]], r"a ragged nest \[0.1, \[0.0, 1.0\]\]")):
         with pytest.raises(ValueError, match=r"perturbation must have shape \(4,\) \(added to "
                            r"the example's start x0, a state of pronking\), got " + got):
             gaits.pronking_orbit(ex, perturbation=bad)

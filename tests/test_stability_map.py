@@ -129,7 +129,8 @@ def test_a_guess_of_the_wrong_size_is_refused_before_the_grid_runs(monkeypatch):
 
     grid = {"multiplier": [0.5, 0.9, 1.5], "turns": [1.0, 2.0]}
     for guess, got in (([1.05], r"shape \(1,\)"), ([1.05, 0.0, 0.0], r"shape \(3,\)"),
-                       ([[1.05, 0.0]], r"shape \(1, 2\)"), ([1.0, [0.0]], r"\[1.0, \[0.0\]\]")):
+                       ([[1.05, 0.0]], r"shape \(1, 2\)"),
+                       ([1.0, [0.0]], r"a ragged nest \[1.0, \[0.0\]\]")):
         with pytest.raises(ValueError, match=r"x_guess must have shape \(2,\) \(a state of "
                            r"the model that make_system\(multiplier=0.5, turns=1\) builds\), "
                            r"got " + got):

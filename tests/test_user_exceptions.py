@@ -116,6 +116,27 @@ def test_a_note_is_added_once_through_nested_models():
         "0b0 (bit k set = event k happened) at t = 0.0")
 
 
+@notes
+def test_an_exception_object_raised_again_is_noted_for_its_new_call():
+    """A function that raises an exception object it keeps (one made once, at import):
+    each raise is noted for its own call, not the first run's state and time."""
+    kept = RuntimeError("out of range")
+
+    def field(x, mask):
+        if x[1] > 0.5:
+            raise kept
+        return np.array([1.0, 1.0])
+
+    system = HybridSystem(field, clock, n_events=1, dim=2)
+    for start in (0.0, 0.3):  # x(t) = (t, start + t): each note's x is its run's at its t
+        with pytest.raises(RuntimeError) as err:
+            system.simulate(np.array([0.0, start]), 2.0)
+        (note,) = _notes(err.value)
+        x0, x1 = map(float, note.split("x = [")[1].split("]")[0].split(", "))
+        when = float(note.split(" at t = ")[1].split()[0])
+        assert x1 > 0.5 and abs(x0 - when) < 1e-12 and abs(x1 - start - when) < 1e-12, note
+
+
 def test_bderivs_own_errors_are_not_noted():
     """A refused output names the function already; an error of bderiv raised inside a
     user's function (a model run inside it) is left as bderiv wrote it."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import sys
 
 import numpy as np
 
@@ -87,9 +88,27 @@ def transversality_message(event: int, region: str, rate: float, where: str = ""
     )
 
 
+#: arrays of more entries are shown by their first and last few in messages
+SHOWN_ENTRIES = 32
+
+
 def format_state(x) -> str:
-    """A state in a message, every digit kept: ``[0.5, -1.25]``."""
-    return "[" + ", ".join(repr(float(v)) for v in x) + "]"
+    """A state (or any array, read flat) in a message, every digit kept: ``[0.5, -1.25]``;
+    of more than :data:`SHOWN_ENTRIES` entries, the first and last eight and the count
+    (a message stays short whatever the array).
+
+    Examples
+    --------
+    >>> format_state([0.5, -1.25])
+    '[0.5, -1.25]'
+    >>> format_state(range(100)).endswith("97.0, 98.0, 99.0] (100 entries)")
+    True
+    """
+    flat = np.asarray(x).ravel()
+    if flat.size <= SHOWN_ENTRIES:
+        return "[" + ", ".join(repr(float(v)) for v in flat) + "]"
+    ends = [repr(float(v)) for v in flat[:8]] + ["..."] + [repr(float(v)) for v in flat[-8:]]
+    return "[" + ", ".join(ends) + f"] ({flat.size} entries)"
 
 
 #: what to do about a run that left the floating-point range (the end of its messages)
@@ -163,7 +182,8 @@ def note_call(exc: BaseException, call: str, x, args=(), n: int = 1) -> None:
     time. The note reads ``bderiv: raised by the model's field(x, mask), called with x =
     [0.0, 1.0], mask = 0b01 (bit k set = event k happened) at t = 0.25``.
     """
-    if not NOTES or hasattr(exc, "_bderiv_call") or _bderivs_own(exc):
+    caller = sys._getframe(1)  # the call of the function (its wrapper's frame)
+    if not NOTES or _noted_inside(exc, caller) or _bderivs_own(exc):
         return
     names = call[call.index("(") + 1:-1].split(", ")[1:]
     try:  # a note never replaces the exception it is on
@@ -171,11 +191,30 @@ def note_call(exc: BaseException, call: str, x, args=(), n: int = 1) -> None:
             f"mask = {format_mask(v, n)} ({MASK_MEANING})" if name == "mask" else
             f"{name} = {v}" for name, v in zip(names, args, strict=False)]
         where = {"call": call, "args": ", ".join(words), "t": None,
-                 "region": None, "has_mask": "mask" in names}
+                 "region": None, "has_mask": "mask" in names, "frame": caller}
         exc.add_note(_note_text(where))
         exc._bderiv_call = where
     except Exception:  # noqa: BLE001 - a mask that is no integer, notes that are no list
         pass
+
+
+def _noted_inside(exc: BaseException, caller) -> bool:
+    """Whether ``exc`` was noted by a call made inside ``caller`` (a nested model's, in this
+    raise: the note stands). A note of an earlier raise of the same exception object (a
+    function that raises one it keeps) is taken off, to be made again for this call."""
+    where = getattr(exc, "_bderiv_call", None)
+    if where is None:
+        return False
+    frame = where["frame"]
+    while frame is not None:
+        if frame is caller:
+            return True
+        frame = frame.f_back
+    notes = getattr(exc, "__notes__", None)
+    if isinstance(notes, list) and _note_text(where) in notes:
+        notes.remove(_note_text(where))
+    del exc._bderiv_call
+    return False
 
 
 def note_time(exc: BaseException, t, region=None) -> None:

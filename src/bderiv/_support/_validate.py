@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import math
 import numbers
+import reprlib
 
 import numpy as np
 
 from .._limits import SMALL_NEED_BYTES
 from ._errors import QUERY, QueryError
+from ._format import format_state
 from ._tables import human_bytes, memory_headroom
 from ._validate_ints import (  # noqa: F401 (re-exported: bderiv.models imports them here)
     check_mask,
@@ -212,13 +214,14 @@ def check_state(x, dim: int, name: str = "x", *,
         except ValueError:  # a ragged nest of sequences
             arr = None
         if arr is None or arr.shape != (dim,):
-            got = (repr(x) if arr is None else "a scalar" if arr.ndim == 0
-                   else f"shape {arr.shape}")
+            got = (f"a ragged nest {reprlib.repr(x)}" if arr is None else "a scalar"
+                   if arr.ndim == 0 else f"shape {arr.shape}")
             raise ValueError(f"{name} must have shape ({dim},) ({meaning}), got {got}")
         arr = np.array(arr, dtype=np.float64)
     if not all_finite(arr):
         i = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} must be finite, but {name}[{i}] = {arr[i]}; got {arr.tolist()}")
+        raise ValueError(f"{name} must be finite, but {name}[{i}] = {arr[i]}; got "
+                         f"{format_state(arr)}")
     return arr
 
 

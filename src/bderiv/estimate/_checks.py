@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._support._format import format_state
+
 #: relative asymmetry ``max|P - P^T| / max|P|`` a covariance may have (rounding of sums)
 SYMMETRY_RTOL = 1e-9
 #: relative negative eigenvalue ``-min(eig) / max(eig)`` a covariance may have (rounding)
@@ -34,7 +36,9 @@ def check_matrix(a, name: str, shape) -> np.ndarray:
         raise ValueError(f"{name} must have shape ({want}{',' * (len(shape) == 1)}), got "
                          f"shape {arr.shape}")
     if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+        at = np.unravel_index(int(np.flatnonzero(~np.isfinite(arr))[0]), arr.shape)
+        raise ValueError(f"{name} must be finite, but {name}[{', '.join(map(str, at))}] = "
+                         f"{arr[at]}; got {format_state(arr)}")
     return arr
 
 
