@@ -97,6 +97,26 @@ def test_fast_path_not_taken_when_rates_depend_on_other_events():
     assert BDerivative(Dh, F3).fast_path == "own-rates"  # ... but not additive
 
 
+@pytest.mark.parametrize("structured, d, A1", [
+    (False, 2.5e-9, (3.9e-12, 0.0)), (True, 1e-8, (1 - 1e-8 + 1.5e-12, 1.0))],
+    ids=["dense", "structured"])
+def test_a_rate_change_far_below_its_rounding_scale_but_not_the_rate_is_no_fast_path(
+        structured, d, A1):
+    """Near grazing (event 0's rate d, 1e-9 to 1e-8 of its rounding scale |F| |Dh|),
+    event 1 changes that rate by 0.16 % (dense) or 0.015 % (structured): below 1e-12 of
+    the scale, which let the fast paths ignore it and move event 0's time by as much. The
+    change is held to the rate it changes too. Oracle: tests/reference.py."""
+    Dh = np.array([[1.0, -(1 - d)], [0.0, 1.0]])
+    F0, A = np.array([1.0, 1.0]), np.array([[d, 0.0], A1])
+    F = np.array([F0, F0 + A[0], F0 + A[1], F0 + A[0] + A[1]])
+    bd = BDerivative(Dh, StructuredCorners(F0, A) if structured else F)
+    assert bd.fast_path is None
+    V = np.array([[-d, 1.0], [d, -1.0], [-2 * d, 1.0]])
+    exact = np.array([ref_apply(Dh, F, v, dtype=np.longdouble) for v in V], dtype=float)
+    # within the table's own conditioning, relative to each row's size
+    assert (np.abs(bd(V) - exact).max(axis=1) < 1e-6 * np.abs(exact).max(axis=1)).all()
+
+
 def test_additive_without_own_rates_is_general_and_correct():
     rng = np.random.default_rng(2)
     n = 5
