@@ -109,6 +109,36 @@ def test_triangulation_rebuilds_the_map(case, m):
     assert_maps_close(Dh, F, V, independent, [ref_apply(Dh, F, v) for v in V], rtol=1e-7)
 
 
+def test_a_fan_that_does_not_cover_space_is_refused_at_the_rows_it_misses():
+    """Two of the four cones of a two-event map, kept by hand: the rows in them map as
+    the B-derivative does (tests/reference.py), a row in the missing cones is refused by
+    its index (it was extrapolated from the nearest cone, 47 % off, silently), forward
+    and back."""
+    rng = np.random.default_rng(3)
+    Dh = rng.standard_normal((2, 2))
+    F = rng.uniform(0.5, 1.5, (4, 2)) @ np.linalg.pinv(Dh).T
+    tri = BDerivative(Dh, F).triangulation()
+    half = Triangulation(tri.pre, tri.post, tri.simplices[[0, 3]], tri.kernel)
+    V = rng.standard_normal((400, 2))
+    inside = [v for v in V if _in_cone(tri.pre[tri.simplices[0, 1:]], v)
+              or _in_cone(tri.pre[tri.simplices[3, 1:]], v)]
+    outside = next(i for i, v in enumerate(V) if not any(
+        _in_cone(tri.pre[tri.simplices[c, 1:]], v) for c in (0, 3)))
+    assert_allclose(half(np.array(inside)), [ref_apply(Dh, F, v) for v in inside],
+                    rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match=rf"V\[{outside}\] lies in no cone of the "
+                                         r"triangulation's pre fan"):
+        half(V)
+    with pytest.raises(ValueError, match=r"W\[0\] lies in no cone of the triangulation's "
+                                         r"post fan"):
+        half.inverse(tri(V[[outside]]))
+
+
+def _in_cone(rays, v) -> bool:
+    """Whether v is a nonnegative combination of the rays (rows), by a solve."""
+    return bool((np.linalg.solve(np.asarray(rays).T, v) >= 0).all())
+
+
 def test_triangulation_hand_case():
     # the 2-D case of test_bderivative.test_hand_computed_2d: M(-1, -2) = (-2, -4),
     # M(-3, -1) = (-6, 0), M(F[00]) = F[11], M(-F[00]) = -F[11]

@@ -17,6 +17,7 @@ import numpy as np
 import scipy.linalg
 
 from .._support._batch import evaluate
+from .._support._errors import QueryError
 from .._support._progress import count_bar
 from .._support._validate import (
     all_finite,
@@ -244,14 +245,16 @@ class Triangulation(TriangulationFiles):
                         progress=progress, desc="Triangulation.inverse", method=self.inverse)
 
     def _forward(self, rows, res, offset) -> None:
-        _fan_map(self.pre, self.post, self.simplices, self.kernel, self.kernel_post, rows,
-                 res)
+        outside = _fan_map(self.pre, self.post, self.simplices, self.kernel,
+                           self.kernel_post, rows, res)
+        _check_covered(outside, "V", "pre", offset)
         if not all_finite(res):
             check_finite_result(res, "V", offset)
 
     def _backward(self, rows, res, offset) -> None:
-        _fan_map(self.post, self.pre, self.simplices, self.kernel_post, self.kernel, rows,
-                 res)
+        outside = _fan_map(self.post, self.pre, self.simplices, self.kernel_post,
+                           self.kernel, rows, res)
+        _check_covered(outside, "W", "post", offset)
         if not all_finite(res):
             check_finite_result(res, "W", offset)
 
@@ -272,10 +275,28 @@ def load_triangulation(path, format: str | None = None, *,
 
 #: entries of the (cones, rows, d) weights that :func:`_fan_map` computes at once (8 MiB)
 FAN_BLOCK = 1 << 20
+#: a row whose best cone's least barycentric weight is below this, relative to its
+#: largest, lies in no cone (rounding on a shared face is some eps times the cone's
+#: condition number)
+OUTSIDE_WEIGHT = -1e-8
 
 
-def _fan_map(src, dst, simplices, ksrc, kdst, rows, res) -> None:
-    """Write into ``res`` (m, d) the PL map of ``rows`` (m, d) from ``src`` to ``dst`` cones.
+def _check_covered(outside, name: str, side: str, offset: int) -> None:
+    """Refuse the first row of ``outside`` (indices of rows in no cone): a
+    :class:`~bderiv._support._errors.QueryError` naming it."""
+    if outside.size:
+        raise QueryError(
+            f"{{query}} lies in no cone of the triangulation's {side} fan (its best cone's "
+            f"weights reach below {OUTSIDE_WEIGHT:g} of their size): the cones do not "
+            f"cover R^d, so the map is not known there. A triangulation made by "
+            f"BDerivative.triangulation() covers R^d; was this one built by hand from a "
+            f"subset of its simplices, or read from a file edited without its digest?",
+            int(outside[0]) + offset, name)
+
+
+def _fan_map(src, dst, simplices, ksrc, kdst, rows, res) -> np.ndarray:
+    """Write into ``res`` (m, d) the PL map of ``rows`` (m, d) from ``src`` to ``dst`` cones;
+    returns the indices of the rows that lie in no cone (:data:`OUTSIDE_WEIGHT`).
 
     Each row is located in the cone of ``src`` (with the kernel basis ``ksrc``) whose
     barycentric weights are least negative (relative to their size: robust on shared
@@ -315,3 +336,4 @@ def _fan_map(src, dst, simplices, ksrc, kdst, rows, res) -> None:
         Q = np.concatenate((dst[simplices[which[found], 1:]].transpose(0, 2, 1),
                             np.broadcast_to(kdst, (found.size,) + kdst.shape)), axis=2)
         res[found] = np.einsum("mij,mj->mi", Q, best[found])
+    return np.flatnonzero((which >= 0) & (best_weight < OUTSIDE_WEIGHT))
