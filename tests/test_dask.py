@@ -75,6 +75,11 @@ def test_bad_dask_input(bd, X):
         bd(da.from_array(X[:, :2]))
     with pytest.raises(ValueError, match="out cannot be used"):
         bd(da.from_array(X), out=np.empty_like(X))
+    for options in ({"chunk_size": 0}, {"chunk_size": 10}, {"progress": True},
+                    {"progress": lambda done, total: None}):  # they were ignored silently
+        with pytest.raises(ValueError, match=r"chunk_size and progress do not apply to a "
+                                             r"dask array V: its blocks are its chunks"):
+            bd(da.from_array(X), **options)
     with pytest.raises(TypeError, match="real numbers"):
         bd(da.from_array(np.ones((4, 3), dtype=complex)))
     for bad in (X[:, :2], np.ones((4, 3), dtype=complex), np.ones((4, 3), dtype=bool)):

@@ -134,6 +134,22 @@ def test_a_fan_that_does_not_cover_space_is_refused_at_the_rows_it_misses():
         half.inverse(tri(V[[outside]]))
 
 
+def test_a_fan_too_flat_for_float64_says_so_and_the_map_still_evaluates():
+    """Rates over eight decades (n = d = 5): a cone of the fan is numerically flat. The
+    refusal said a "field 'simplices'" was degenerate, as for a damaged file; it now says
+    the map's fan is too ill-conditioned, and the map evaluates (tests/reference.py)."""
+    rng = np.random.default_rng(0)
+    Dh = rng.standard_normal((5, 5))
+    F = np.exp(rng.uniform(np.log(1e-4), np.log(1e4), (32, 5))) @ np.linalg.pinv(Dh).T
+    bd = BDerivative(Dh, F)
+    with pytest.raises(ValueError, match=r"^this map's fan is too ill-conditioned to "
+                                         r"triangulate in float64 .* the map itself "
+                                         r"evaluates"):
+        bd.triangulation()
+    v = rng.standard_normal(5)
+    assert_allclose(bd(v), ref_apply(Dh, F, v), rtol=1e-8, atol=1e-8 * np.abs(bd(v)).max())
+
+
 def _in_cone(rays, v) -> bool:
     """Whether v is a nonnegative combination of the rays (rows), by a solve."""
     return bool((np.linalg.solve(np.asarray(rays).T, v) >= 0).all())

@@ -356,3 +356,17 @@ def test_bad_npz_meta(tmp_path, tri):
         with open(tmp_path / "m.npz", "wb") as fh:
             np.savez(fh, meta=meta, **{k: getattr(tri, k) for k in FIELDS})
         refused(tmp_path / "m.npz", "field 'meta' cannot be read")
+
+
+def test_a_missing_folder_and_a_bytes_path_are_named(tmp_path):
+    """Saving into a folder that does not exist named the hidden temporary file it could
+    not make; a bytes path failed inside with "a bytes-like object is required"."""
+    tri = BDerivative(np.eye(2), np.array([[1.0, 1], [2, 1], [1, 1], [2, 1]])).triangulation()
+    target = tmp_path / "no" / "dir" / "y.npz"
+    with pytest.raises(FileNotFoundError, match=r"its folder '.*no/dir' does not exist: "
+                                                r"'.*y\.npz'"):
+        tri.save(target)
+    for call in (lambda: tri.save(b"y.npz"), lambda: load_triangulation(b"y.npz")):
+        with pytest.raises(TypeError, match=r"path must be a str or an os.PathLike of a "
+                                            r"str, got bytes b'y.npz'"):
+            call()

@@ -83,6 +83,12 @@ def evaluate(kernel, V, dim: int, *, name: str = "V", out=None, chunk_size=None,
     if is_dask_array(V):
         from ._dask import map_blocks
 
+        if chunk_size is not None or progress not in (None, False):
+            raise ValueError(
+                f"chunk_size and progress do not apply to a dask array {name}: its blocks "
+                f"are its chunks (rechunk it), and dask shows its own progress "
+                f"(dask.diagnostics.ProgressBar, or the distributed dashboard); got "
+                f"chunk_size={chunk_size!r}, progress={progress!r}")
         return map_blocks(method, V, dim, name, out)
     large = isinstance(V, np.ndarray) and V.size > IMPLICIT_CHUNK_ROWS * max(dim, 1)
     if chunk_size is None and progress in (None, False) and not isinstance(V, np.memmap) \

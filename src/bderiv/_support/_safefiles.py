@@ -115,11 +115,25 @@ def write_all(targets: dict, check=None) -> None:
         sync_folder(folder)
 
 
+def text_path(path, name: str = "path") -> str:
+    """``path`` (a str or an ``os.PathLike``) as a str; bytes and others refused by name."""
+    try:
+        out = os.fspath(path)
+    except TypeError:
+        out = path
+    if not isinstance(out, str):
+        raise TypeError(f"{name} must be a str or an os.PathLike of a str, got "
+                        f"{type(path).__name__} {path!r}")
+    return out
+
+
 def create_temp(path: str) -> tuple[str, int]:
     """A new temporary file beside ``path`` (same folder: ``os.replace`` stays atomic)."""
     folder, name = os.path.split(os.path.abspath(path))
     if os.path.isdir(path):
         raise IsADirectoryError(errno.EISDIR, "is a directory", path)
+    if not os.path.isdir(folder):  # named, not the temporary file that could not be made
+        raise FileNotFoundError(errno.ENOENT, f"its folder {folder!r} does not exist", path)
     temp = os.path.join(folder, f".{name}.{os.getpid()}-{_host()}.{secrets.token_hex(8)}.tmp")
     fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0),
                  0o666)

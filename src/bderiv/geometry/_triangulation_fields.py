@@ -11,6 +11,10 @@ import numpy as np
 FIELDS = ("pre", "post", "simplices", "kernel", "kernel_post")
 
 
+class DegenerateCones(ValueError):
+    """A triangulation's cone spans less than R^d (in floating point)."""
+
+
 def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dict:
     """Validate the four arrays of a triangulation completely.
 
@@ -65,7 +69,7 @@ def check_fields(fields: dict, source: str, type_error: type = TypeError) -> dic
     for name, points, basis in (("pre", pre, kernel), ("post", post, kernel_post)):
         bad = _first_degenerate(points, simplices, basis)
         if bad >= 0:
-            raise ValueError(
+            raise DegenerateCones(
                 f"{source}: field 'simplices' must give non-degenerate cones, but simplex "
                 f"{bad} {simplices[bad].tolist()} spans less than R^{d} with the {name} "
                 f"vertices (and the kernel basis {'kernel' if name == 'pre' else 'kernel_post'})"

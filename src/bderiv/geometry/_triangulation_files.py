@@ -9,11 +9,11 @@ are checked by ``_triangulation_fields`` as the constructor's are.
 
 from __future__ import annotations
 
-import os
 import uuid
 
 import numpy as np
 
+from .._support._safefiles import text_path
 from ._triangulation_io import (
     FILE_FORMAT,
     PAIR,
@@ -100,7 +100,7 @@ class TriangulationFiles:
         synced, and then replaces ``path``; a failure midway (a full disk, an exception,
         a kill) leaves a previous file at ``path`` intact.
         """
-        path = os.fspath(path)
+        path = text_path(path)
         save_files(self, {path: file_format(path, format)})
         return path
 
@@ -155,7 +155,7 @@ class TriangulationFiles:
         >>> Triangulation.load(path)([-1.0, -2.0])
         array([-2., -2.])
         """
-        path = os.fspath(path)
+        path = text_path(path)
         source = f"triangulation file {path!r}"
         read = read_json if file_format(path, format) == "json" else read_npz
         data = read(path, source, memory_limit)

@@ -26,7 +26,7 @@ from .._support._validate import (
     singular_condition,
 )
 from .._support._validate_ints import check_positive_int
-from ._triangulation_fields import FIELDS, check_fields
+from ._triangulation_fields import FIELDS, DegenerateCones, check_fields
 from ._triangulation_files import TriangulationFiles, save_files
 
 __all__ = ["Triangulation", "load_triangulation", "save_files"]
@@ -137,7 +137,14 @@ class Triangulation(TriangulationFiles):
         kernel = scipy.linalg.null_space(bd.Dh).reshape(bd.dim, bd.dim - n)
         # with resets M moves ker Dh (by the product of the resets, mathematics.md section 9)
         moved = getattr(bd, "resets", None) is not None and kernel.shape[1]
-        return cls(pre, post, simplices, kernel, bd(kernel.T).T if moved else None)
+        try:
+            return cls(pre, post, simplices, kernel, bd(kernel.T).T if moved else None)
+        except DegenerateCones as exc:  # the map's own fan, flat in float64
+            raise ValueError(
+                f"this map's fan is too ill-conditioned to triangulate in float64 (its "
+                f"rates or corners span many orders of magnitude, so a cone's rays are "
+                f"numerically dependent; {exc}); the map itself evaluates (bd(V), "
+                f"bd.inverse(W)), only its fan of simplices cannot be built") from None
 
     def composed(self, before, after) -> Triangulation:
         """The triangulation of ``v -> after @ self(before @ v)``, same simplices.
