@@ -62,3 +62,14 @@ def test_the_stable_slope_is_where_the_stride_maps_multiplier_crosses_one():
                               - garcia_stride(z - h * d, slope)) / (2 * h) for d in np.eye(2)])
         radii.append(np.abs(np.linalg.eigvals(J)).max())
     assert radii[0] < 1.0 < radii[1], radii
+
+
+@pytest.mark.parametrize("slope, error, words", [
+    (-0.01, ValueError, "slope must be a finite number > 0, got -0.01"),
+    (2.0, ValueError, r"slope must be in \(0, pi/2\) radians, got 2.0"),
+    ("0.01", TypeError, "slope must be a real number, got str"),
+])
+def test_the_gait_start_refuses_a_slope_no_walker_goes_down(slope, error, words):
+    """A negative slope gave complex numbers (a cube root), silently."""
+    with pytest.raises(error, match=words):
+        walkers.long_gait_start(slope)

@@ -556,8 +556,8 @@ def test_wrong_axes_and_rows_are_named(planar):
 ])
 def test_scaling_rows_of_the_wrong_kind_are_named(key, value, words):
     """A value the figure would draw wrongly (a string's log, a NaN, a count of 2.0 events)
-    is refused by the row and key, before any figure is made; numpy integers are counts."""
+    is refused by the row and key, before any figure is made; numpy's numbers are numbers."""
     row = {"n": 2, "d": 2, "m": 10, "method": "bderiv", "seconds_per_query": 1e-8}
     with pytest.raises(ValueError, match=re.escape(words)):
         plot.scaling([dict(row, **{key: value})])
-    plot.scaling([dict(row, n=np.int64(2), d=np.int64(2))])
+    plot.scaling([dict(row, n=np.int64(2), d=np.int64(2), seconds_per_query=np.float32(1e-8))])

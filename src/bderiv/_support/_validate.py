@@ -347,7 +347,8 @@ def check_value(value, name: str) -> float:
     converted by ``float()``."""
     if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
         value = value.item()
-    elif getattr(value, "is_number", None) is True and getattr(value, "is_real", None) is True:
+    elif getattr(value, "is_number", None) is True and \
+            getattr(value, "is_extended_real", None) is True:  # sympy's oo too: not finite
         value = float(value)
     if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a real number, got {type(value).__name__} {value!r}")

@@ -185,7 +185,7 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
                              f"(the regions to check), at most {DEFAULT_MASKS} by default")
         masks = range(1 << n)
     masks = check_masks(list(masks), n).tolist()
-    check_int(seed, "seed")
+    check_int(seed, "seed", low=0)
     rows = []
 
     def add(function, mask, event, jac, fun):

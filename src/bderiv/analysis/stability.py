@@ -183,7 +183,9 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None) -> Gro
 
 
 def _wobble(logs, slope):
-    """Per direction, how far ``log |A^k v|`` strays from the fitted line ``k log rate``
+    """``(m,)``: per direction (``logs`` (w, m), the window's one-step log-growths;
+    ``slope`` (m,), their fitted log-rates), how far ``log |A^k v|`` strays from the fitted
+    line ``k log rate``
     over the window (its range), over the window's length: the rate's uncertainty from a
     window this short. ``log |A^k v| = k log rate + b_k`` with ``b_k`` bounded (complex
     multipliers make it oscillate): the two halves' slopes can agree by chance on a few

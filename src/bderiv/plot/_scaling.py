@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import math
+import numbers
 import textwrap
 from collections.abc import Mapping, Sequence
-
-import numpy as np
 
 from ._axes import PALETTE, figure_axes
 
@@ -166,9 +165,9 @@ def _good(key, value) -> bool:
         return isinstance(value, str)
     if isinstance(value, bool):
         return False
-    if key == "seconds_per_query":
-        return isinstance(value, int | float) and math.isfinite(value) and value > 0
-    return isinstance(value, int | np.integer) and value >= 1
+    if key == "seconds_per_query":  # numpy's floats too
+        return isinstance(value, numbers.Real) and math.isfinite(value) and value > 0
+    return isinstance(value, numbers.Integral) and value >= 1
 
 
 def _sweep_caption(rows) -> str:

@@ -104,8 +104,8 @@ def check_down(down, n: int) -> list:
 
 
 def check_latches(latches, mask: int, feet) -> None:
-    """``mask`` (checked already) against a rigid robot's state's latches ``c`` (one per
-    foot in ``feet``): foot k held in ``mask`` (bit k set) where its latch says it is down,
+    """``mask`` (checked already) against a rigid robot's state's latches ``c`` ((n,), one
+    per foot in ``feet``): foot k held in ``mask`` (bit k set) where its latch says it is down,
     ``c_k > 1/2`` (a robot's states have latches 0 or 1; a finite-difference step moves
     them less than 1/2)."""
     down = sum(1 << k for k, c in enumerate(latches) if c > 0.5)

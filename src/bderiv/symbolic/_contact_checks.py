@@ -10,6 +10,7 @@ import numbers
 
 import numpy as np
 
+from .._support._format import NOTES
 from .._support._validate import check_value
 from ._inputs import require_sympy
 
@@ -66,7 +67,7 @@ def stance_force(law, k: int, pen, rate):
     try:
         out = law(pen, rate)
     except Exception as exc:
-        if hasattr(exc, "add_note"):
+        if NOTES:
             exc.add_note(f"bderiv: raised by {name}, called as law(penetration, rate) with "
                          f"two sympy symbols")
         raise
@@ -139,6 +140,8 @@ class ParamCheck:
         return [float(e.xreplace(sub)) for e in exprs], words
 
     def __call__(self, values) -> None:
+        """Refuse the parameter values ``values`` ((p,), in the model's order) where the
+        restitution leaves [0, 1] or a constant mass matrix is not positive definite."""
         if self.restitution is not None:
             (e,), words = self._at(values, [self.restitution])
             if not 0.0 <= e <= 1.0:

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._support._format import MASK_MEANING, format_mask, format_state, note_call
-from .._support._validate import check_mask
+from .._support._format import format_region, format_state, note_call
+from .._support._validate_ints import check_int, check_mask
 from ..analysis.system import HybridSystem
 from ..models.compiled import is_compiled
 from . import _cache, _codegen
@@ -167,21 +167,15 @@ class ModelFunctions:
         if ints:
             ints = (check_mask(ints[0], self.n), *ints[1:])
         if len(ints) == 2:
-            k = ints[1]
-            if not _is_int(k):
-                raise TypeError(f"k must be an integer (an event), got {type(k).__name__} "
-                                f"{k!r}")
-            if not 0 <= k < self.n:
-                raise ValueError(f"k must be an event in [0, {self.n}), got {k}")
-            ints = (ints[0], int(k))
+            ints = (ints[0], check_int(ints[1], "k", low=0, high=self.n - 1,
+                                       span=f"in [0, {self.n})", meaning="an event"))
         try:
             return fun(np.concatenate((x, self.p)), *ints)
         except Exception as exc:
             if not is_compiled(fun):  # a Python function's own exception: noted, kept
                 note_call(exc, call, x, ints, self.n)
                 raise
-            region = (f" in region mask {format_mask(ints[0], max(self.n, 1))} "
-                      f"({MASK_MEANING})" if ints else "")
+            region = f" in {format_region(ints[0], max(self.n, 1))}" if ints else ""
             event = f", k = {ints[1]}" if len(ints) == 2 else ""
             raise ValueError(f"{call} raised {type(exc).__name__}: {exc};{region} at x = "
                              f"{format_state(x)}{event}") from exc
@@ -213,10 +207,6 @@ class ModelFunctions:
     def reset_jacobian(self, x, mask, k):
         """``reset_jacobian(x, mask, k) -> (d, d)``."""
         return self._call("reset_jacobian(x, mask, k)", x, mask, k)
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
 
 
 def symbolic_system(kernels: Kernels, values, build: BuildInfo, builder="from_sympy", *,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._support._numdiff import complex_step
+from ..._support._validate import check_number
 from ...analysis.system import HybridSystem
 from .._common import Example, check_start
 from ._shared import _orbit, _positive
@@ -269,7 +270,17 @@ def long_gait_start(slope):
     al.'s walker (``leg_mass = 0``, ``g = leg = 1``) at ``slope``, to about 6e-5 (exact
     at 0.009: :data:`GARCIA_FIXED_POINT`), for slopes up to 0.04: a start for Newton's
     method (``GARCIA_FIXED_POINT`` times ``f(slope) / f(0.009)``, ``f(s) = s^(1/3) - b s``,
-    b fitted to the gait's fixed points, 0.1843 for theta and 1.2206 for theta')."""
+    b fitted to the gait's fixed points, 0.1843 for theta and 1.2206 for theta').
+
+    Raises
+    ------
+    TypeError, ValueError
+        If ``slope`` is not a real number in (0, pi/2) radians (the slopes a walker goes
+        down; the fit holds up to 0.04).
+    """
+    slope = check_number(slope, "slope")
+    if not slope < np.pi / 2:
+        raise ValueError(f"slope must be in (0, pi/2) radians, got {slope}")
 
     def f(b):
         return slope ** (1.0 / 3.0) - b * slope
