@@ -374,3 +374,32 @@ def test_groups_keep_the_stops_event_jacobian_and_the_map_is_the_same():
                                                    for g in traj.groups))
     V = np.random.default_rng(3).standard_normal((50, s.dim))
     np.testing.assert_array_equal(flow_map_along(s, traj)(V), flow_map_along(s, again)(V))
+
+
+def _pickled_field(x, mask):
+    return np.array([1.0, 0.5 + 0.5 * mask])
+
+
+def _pickled_events(x):
+    return np.array([x[0] - 1.0])
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["python", "numba"])
+def test_a_model_pickles_before_and_after_a_run(compiled):
+    """A model of module-level functions (Python or numba) goes through pickle, as Dask or
+    multiprocessing ship it: its thread-local state and its functions' wrappers made it
+    refuse. The copy is the same model: the same flow map."""
+    import pickle
+
+    fns = (_pickled_field, _pickled_events)
+    if compiled:
+        fns = tuple(map(numba.njit, fns))
+    system = HybridSystem(*fns, n_events=1, dim=2, params=None)
+    for _ in range(2):  # before and after a run
+        copy = pickle.loads(pickle.dumps(system))
+        assert (copy.n_events, copy.dim, copy.on_compiled_path) == (1, 2, compiled)
+        D, E = (s.flow_bderivative(np.zeros(2), 2.0)(np.eye(2)) for s in (copy, system))
+        np.testing.assert_array_equal(D, E)
+        # x1(2) = 0.5 t_e + (2 - t_e) with the crossing t_e = 1 - dx0: the images of the
+        # unit vectors (rows) are (1, 0.5) and (0, 1)
+        np.testing.assert_allclose(D, [[1.0, 0.5], [0.0, 1.0]], atol=1e-9)

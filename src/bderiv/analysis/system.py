@@ -153,7 +153,8 @@ class HybridSystem:
     none, and ``events`` compiling for complex input) and ``reset`` compiled if given, the
     stops are decided in compiled code as well: a run is one compiled call. ``repr()``
     says how a model runs after its first run; the tutorial (section 12) says how to write
-    one.
+    one. A model pickles as its constructor's arguments (pickle takes module-level and
+    numba functions, cloudpickle, which Dask uses, closures too); the copy starts afresh.
 
     A Jacobian not given is computed by the complex step where the function takes complex
     input (:func:`bderiv.complex_step_jacobian`: d calls, exact to rounding), held to a
@@ -220,6 +221,12 @@ class HybridSystem:
         for name, value in checked.items():
             object.__setattr__(self, name, value)
         object.__setattr__(self, "calls", ModelCalls(self))
+
+    def __reduce__(self):
+        """Pickled as its constructor's arguments, the checked calls made again where it
+        is read (pickle takes module-level functions and numba's, cloudpickle closures)."""
+        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init}
+        return _made, (type(self), kwargs)
 
     def __repr__(self):
         calls = self.calls
@@ -310,16 +317,10 @@ class HybridSystem:
 
     @property
     def numerical_jacobian_cost(self) -> dict:
-        """What the numerical Jacobians cost so far, per missing parameter.
-
-        Returns
-        -------
-        dict
-            ``{"field_jacobian": (jacobians, calls, seconds), ...}``: how many numerical
-            Jacobians were computed, the calls of the user's function they made and the
-            seconds they took (:attr:`bderiv.models.calls.ModelCalls.numerical_jacobian_cost`).
-            Passing the Jacobian saves nearly all of that time.
-        """
+        """What the numerical Jacobians cost so far, per missing parameter: ``{name:
+        (jacobians, calls, seconds)}``, how many were computed, the calls of the user's
+        function they made and the seconds they took (passing the Jacobian saves nearly
+        all of it; :attr:`bderiv.models.calls.ModelCalls.numerical_jacobian_cost`)."""
         return self.calls.numerical_jacobian_cost
 
     # the algorithms, functions over the model (bderiv.analysis.flows, .poincare)
@@ -389,3 +390,8 @@ class HybridSystem:
                                        section_gradient=section_gradient, tol=tol,
                                        max_iter=max_iter, simultaneity_tol=simultaneity_tol,
                                        options=options, cyclic=cyclic)
+
+
+def _made(cls, kwargs):
+    """A pickled model made again (:meth:`HybridSystem.__reduce__`)."""
+    return cls(**kwargs)
