@@ -137,6 +137,22 @@ def test_an_exception_object_raised_again_is_noted_for_its_new_call():
         assert x1 > 0.5 and abs(x0 - when) < 1e-12 and abs(x1 - start - when) < 1e-12, note
 
 
+@notes
+def test_a_batch_of_runs_says_which_start_the_raise_came_from():
+    def field(x, mask):
+        if x[0] > 10.0:
+            raise ZeroDivisionError("far out")
+        return np.array([1.0, 1.0])
+
+    system = HybridSystem(field, clock, n_events=1, dim=2)
+    X0 = np.array([[0.0, 0.0], [10.5, 0.0], [0.0, 1.0]])
+    with pytest.raises(ZeroDivisionError, match="far out") as err:
+        system.simulate_many(X0, 1.0)
+    notes = _notes(err.value)
+    assert len(notes) == 2 and notes[0].startswith("bderiv: raised by the model's field")
+    assert notes[1] == "bderiv: in the run from X0[1] = [10.5, 0.0]", notes
+
+
 def test_bderivs_own_errors_are_not_noted():
     """A refused output names the function already; an error of bderiv raised inside a
     user's function (a model run inside it) is left as bderiv wrote it."""

@@ -217,6 +217,13 @@ def _noted_inside(exc: BaseException, caller) -> bool:
     return False
 
 
+def note_more(exc: BaseException, words: str) -> None:
+    """Add ``words`` as one more note (``bderiv: words``) to an exception that
+    :func:`note_call` noted (a model's function's; none to others)."""
+    if NOTES and getattr(exc, "_bderiv_call", None) is not None:
+        exc.add_note(f"bderiv: {words}")
+
+
 def note_time(exc: BaseException, t, region=None) -> None:
     """Add the time ``t`` (and ``region``, words, for a function called without a mask)
     to the note :func:`note_call` put on ``exc``, where it has none yet."""

@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from ..._support._format import format_state, note_more
 from ..._support._progress import count_bar, resolve_progress
 from ..._support._tables import mask_dtype
 from ..._support._validate import check_number, check_points, check_positive_int
@@ -192,9 +193,10 @@ def run_many(system, X0, lead, t_final, *, options, max_groups,
 def _named(exc, i, X0, lead):
     """A run's ValueError or RuntimeError again, its message prefixed with the start state
     (``exc`` itself for another exception)."""
-    if type(exc) not in (ValueError, RuntimeError):
-        return exc
     where = ", ".join(str(int(j)) for j in np.unravel_index(i, lead)) if lead else ""
+    if type(exc) not in (ValueError, RuntimeError):  # a model's function's: a note more
+        note_more(exc, f"in the run from X0[{where}] = {format_state(X0[i])}")
+        return exc
     return type(exc)(f"the run from X0[{where}] = {X0[i]}: {exc}")
 
 
@@ -210,7 +212,7 @@ def _serial(one, indices, trajectories, report, X0, lead) -> int:
     for i in indices:
         try:
             trajectories[i] = one(i)
-        except (ValueError, RuntimeError) as exc:
+        except Exception as exc:  # named (ours) or noted (a model's function's)
             _raise(exc, i, X0, lead)
         if report is not None:
             report(i + 1)
