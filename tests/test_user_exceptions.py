@@ -153,6 +153,24 @@ def test_a_batch_of_runs_says_which_start_the_raise_came_from():
     assert notes[1] == "bderiv: in the run from X0[1] = [10.5, 0.0]", notes
 
 
+@notes
+def test_a_reset_jacobian_that_raises_in_a_flow_map_is_named_with_the_group_s_time():
+    def reset(x, mask, k):
+        return x.copy()
+
+    def reset_jacobian(x, mask, k):
+        raise KeyError("no Jacobian here")
+
+    system = HybridSystem(steady, clock, n_events=1, dim=2, reset=reset,
+                          reset_jacobian=reset_jacobian)
+    with pytest.raises(KeyError) as err:
+        system.flow_bderivative(np.zeros(2), 8.0)
+    (note,) = _notes(err.value)
+    assert note.startswith("bderiv: raised by the model's reset_jacobian(x, mask, k), "
+                           "called with x = [5.0, 5.0]"), note
+    assert abs(float(note.split(" at t = ")[1]) - 5.0) < 1e-12, note  # the group's time
+
+
 def test_bderivs_own_errors_are_not_noted():
     """A refused output names the function already; an error of bderiv raised inside a
     user's function (a model run inside it) is left as bderiv wrote it."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._numerics import RESET_MISMATCH
-from .._support._format import format_mask, transversality_message
+from .._support._format import format_mask, noted_at, transversality_message
 from .._support._tables import INT64_EVENTS, block_bits, dense_table_bytes
 from .._support._validate import check_memory
 from ..engine.bderivative import BDerivative
@@ -131,6 +131,15 @@ def sample_resets(calls, x, events, glob, Dh, sign, where):
     return base, R
 
 
+def _group_map(system, g):
+    """:func:`group_bderivative` of the event group ``g`` of a run (the time on the note
+    of an exception a model's function raises there: a reset's Jacobian, say)."""
+    with noted_at(g.time):
+        return group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
+                                 where=f"at the event point at t={g.time:.10g}",
+                                 event_jacobian=g.event_jacobian)
+
+
 def flow_map_along(system, traj):
     """The :class:`FlowBDerivative` along a trajectory integrated with its variational
     equations (``run(..., variational=True)``): one BDerivative per event group.
@@ -158,12 +167,7 @@ def flow_map_along(system, traj):
     apart = landed_by_resets(system.calls) if system.calls.has_resets else None
     groups, linear, spreads = merge_groups(groups, linear, times, traj.simultaneity_tol,
                                            apart)
-    jumps = [
-        group_bderivative(system, g.state, g.events, g.mask_before, g.mask_after,
-                          where=f"at the event point at t={g.time:.10g}",
-                          event_jacobian=g.event_jacobian)
-        for g in groups
-    ]
+    jumps = [_group_map(system, g) for g in groups]
     if traj.final_group is not None:  # the final time is one more event of the group
         jumps[-1] = FinalTimeMap(jumps[-1])
     return FlowBDerivative(
