@@ -6,9 +6,9 @@ sigma directions, by the exact mixture of the pieces weighted by the probability
 event order, or by one piece (a salted filter). docs/estimation.md is the worked example.
 """
 
-from .kalman import HybridKalmanFilter, ModeEstimate
+from .kalman import HybridKalmanFilter, ModeEstimate, SplitPriorWarning
 from .localmap import LocalMap, group_offsets
 from .pushforward import PushForward, push_mixture, push_piece, push_sigma
 
-__all__ = ["HybridKalmanFilter", "LocalMap", "ModeEstimate", "PushForward", "group_offsets",
-           "push_mixture", "push_piece", "push_sigma"]
+__all__ = ["HybridKalmanFilter", "LocalMap", "ModeEstimate", "PushForward",
+           "SplitPriorWarning", "group_offsets", "push_mixture", "push_piece", "push_sigma"]

@@ -11,12 +11,14 @@ map (:mod:`bderiv.estimate.pushforward`); docs/estimation.md gives the assumptio
 
 from __future__ import annotations
 
+import math
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 
 from ._checks import PSD_RTOL, check_covariance, check_time, check_vector, measurement_model
-from .localmap import LocalMap, derived_window, end_gap, group_offsets
+from .localmap import END_SDS, LocalMap, derived_window, end_gap, end_sds, group_offsets
 from .pushforward import METHODS, push_auto, push_mixture, push_piece, push_sigma
 
 #: the integrator settings a filter passes on to ``flow_bderivative`` (every run of a step)
@@ -39,12 +41,23 @@ class ModeEstimate(NamedTuple):
         where the step ended within it of an event); None before the first.
     method : str or None
         The method the last predict step used (``"auto"`` resolved).
+    split : float or None
+        The share of the prior (first order) that met an event of the mean's trajectory
+        on the other side of the last step's end, where above 1e-3 (the step warned of it:
+        :class:`SplitPriorWarning`); None below.
     """
 
     mask: int
     groups: list
     window: float | None = None
     method: str | None = None
+    split: float | None = None
+
+
+class SplitPriorWarning(UserWarning):
+    """A predict step ended within :data:`~bderiv.estimate.localmap.END_SDS` standard
+    deviations of an event's time under the prior: part of the prior met the event on the
+    other side of the end, which the Gaussian step does not hold."""
 
 
 class HybridKalmanFilter:
@@ -71,7 +84,11 @@ class HybridKalmanFilter:
         hold that spread and be small against the time between unrelated events. Either
         way, a step that ends within the window of an event of the mean's trajectory
         takes that event on the mean's side (the window shrunk to half their distance for
-        the step; ``mode.window`` reports it).
+        the step; ``mode.window`` reports it). That is right while few perturbations meet the
+        event on the other side of the end: a step that ends within
+        :data:`~bderiv.estimate.localmap.END_SDS` (3) standard deviations of an event's
+        time under the prior warns (:class:`SplitPriorWarning`, naming ``dt``) and
+        ``mode.split`` says the share of the prior it leaves out.
     priority : sequence of int, optional
         With ``method="piece"``: the global event indices in the order assumed whenever
         several cross in one group (a salted filter that assumes which contact comes
@@ -133,7 +150,7 @@ class HybridKalmanFilter:
         dt = check_time(dt)
         d = self.model.dim
         Q = None if Q is None else check_covariance(Q, "Q", d)
-        D, window = self._flow_map(dt)
+        D, window, split = self._flow_map(dt)
         # the run switches each event at its own time: D.x_final is the simulated mean,
         # and a merged group's offsets are measured at its first crossing's state
         local = LocalMap(D, group_offsets(self.model, D))
@@ -147,7 +164,7 @@ class HybridKalmanFilter:
         mask = self._region(mean, f"the step of dt={dt!r} ends at t = {self.time + dt!r}",
                             "take a step that ends before or after the event")
         self.mean, self.cov, self.time = mean, 0.5 * (cov + cov.T), self.time + dt
-        self.mode = ModeEstimate(mask, groups, window, push.method)
+        self.mode = ModeEstimate(mask, groups, window, push.method, split)
         return self.mean.copy(), self.cov.copy()
 
     def _region(self, mean, what, advice):
@@ -169,7 +186,8 @@ class HybridKalmanFilter:
         spread; it is the step's map unless two events lie within the window of each
         other. Either window: an event within it of the step's end would form a group
         at the final time, which has no offset (and, with resets, no B-derivative), so
-        the window shrinks to half the event's distance from the end.
+        the window shrinks to half the event's distance from the end. An end within
+        ``END_SDS`` standard deviations of an event's time is warned of (:meth:`_split`).
         """
         model, m, kw = self.model, self.mean, self.solver
         base = None
@@ -177,23 +195,44 @@ class HybridKalmanFilter:
             base = model.flow_bderivative(m, dt, **kw)  # each event its own group
             window = min(derived_window(base, self.cov), 0.5 * end_gap(model, base, dt))
             if not np.any(np.diff(base.group_times) < window):
-                return base, window
+                return base, window, self._split(base, dt)
         else:
             window = self.window
         try:
             D = model.flow_bderivative(m, dt, simultaneity_tol=window, **kw)
             if not D.stops_at_group:  # (one of exactly simultaneous events too: spread 0)
-                return D, window
+                return D, window, self._split(D, dt)
             refused = None
         except ValueError as exc:  # an event group with resets at the final time
             refused = exc
         base = model.flow_bderivative(m, dt, **kw) if base is None else base
+        split = self._split(base, dt)
         half = 0.5 * end_gap(model, base, dt)
         if not half < window:
             if refused is not None:
                 raise refused
-            return D, window  # group_offsets names the group
-        return model.flow_bderivative(m, dt, simultaneity_tol=half, **kw), half
+            return D, window, split  # group_offsets names the group
+        return model.flow_bderivative(m, dt, simultaneity_tol=half, **kw), half, split
+
+    def _split(self, D, dt):
+        """The share of the prior beyond the step's end from the nearest event of the
+        mean's trajectory (first order: its distance in event-time standard deviations,
+        :func:`~bderiv.estimate.localmap.end_sds`), warned of where above 1e-3; else
+        None."""
+        near = end_sds(self.model, D, dt, self.cov)
+        if near is None or not near[0] < END_SDS:
+            return None
+        share = 0.5 * math.erfc(near[0] / math.sqrt(2.0))
+        warnings.warn(SplitPriorWarning(
+            f"dt={dt!r} ends the step {near[1]:.3g} s from an event of the mean's "
+            f"trajectory, {near[0]:.2g} standard deviations of its time under the prior "
+            f"({near[2]:.3g} s): {share:.2g} of the prior meets it on the other side of the "
+            f"end, which the step does not hold (it takes the event on the mean's side: "
+            f"the covariance can be far off, a bouncing ball's velocity spread 1,000 times "
+            f"too small 1e-5 s after its impact); end the step at least {END_SDS:g} "
+            f"standard deviations ({END_SDS * near[2]:.3g} s) before or after the event"),
+            stacklevel=3)
+        return share
 
     def update(self, z, R, *, H, h=None):
         """The measurement update ``z = h(x) + v``, ``v ~ N(0, R)``.

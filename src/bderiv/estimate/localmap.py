@@ -32,6 +32,10 @@ from ..models.events.finaltime import FinalTimeMap
 #: event-time standard deviations that the derived window spans: two events of the mean's
 #: trajectory further apart than it reorder with probability below 1e-3 under the prior
 WINDOW_SDS = 5.0
+#: a step may end no nearer an event of the mean's trajectory than this many standard
+#: deviations of the event's time under the prior: nearer, part of the prior crosses it
+#: before the end and part after (0.3 % beyond three), a split no Gaussian step holds
+END_SDS = 3.0
 
 
 class LocalMap:
@@ -183,6 +187,33 @@ def derived_window(D, P):
     under the prior P (:func:`event_time_sds`); 0 without events."""
     sds = event_time_sds(D, P)
     return WINDOW_SDS * float(sds.max()) if sds.size else 0.0
+
+
+def end_sds(model, D, dt, P):
+    """How far the step's end ``dt`` is from each event of the mean's trajectory, in
+    standard deviations of the event's time under the prior P (d, d), first order: the
+    events ``D`` holds (their times and :func:`event_time_sds`) and those about to cross
+    after ``dt`` (``-h_k / r_k`` at ``D.x_final``, ``r_k = Dh_k f`` their rate, the
+    spread of their time ``|Dh_k D(s)| / r_k`` over the square roots s of P). Returns
+    ``(distance in sds, the gap in seconds, its sd)`` of the nearest, or None."""
+    found = [(dt - t, sd) for t, sd in zip(
+        [t for t, ev in zip(D.group_times, D.group_events, strict=True) for _ in ev],
+        event_time_sds(D, P), strict=True)]
+    x = np.asarray(D.x_final)
+    h = np.asarray(model.calls.eval_events(x), float)
+    Dh = np.asarray(model.calls.eval_event_jacobian(x), float)
+    rate = Dh @ np.asarray(D.final_field)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ahead = -h / rate
+    coming = np.flatnonzero(np.isfinite(ahead) & (ahead >= 0))
+    if coming.size:
+        w, U = np.linalg.eigh(P)
+        moved = D((U * np.sqrt(np.clip(w, 0.0, None))).T) @ Dh[coming].T  # (d, k)
+        sds = np.sqrt(np.sum(moved * moved, axis=0)) / np.abs(rate[coming])
+        found += list(zip(ahead[coming].tolist(), sds.tolist(), strict=True))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return min(((gap / sd if sd > 0 else np.inf, gap, sd) for gap, sd in found),
+                   default=None)
 
 
 def end_gap(model, D, dt):
