@@ -361,8 +361,8 @@ def _python_stretch(system, loop, log, now, t_final, options, variational, secti
     now.mask, now.x = new, x_after
     if len(log.groups) > max_groups:
         raise RuntimeError(
-            f"more than max_groups={max_groups} event groups before t={t:.10g}: the "
-            f"trajectory chatters (Zeno), or pass a larger max_groups for a long run"
+            f"more than max_groups={max_groups} event groups before t={t:.10g}: a long "
+            f"run (pass a larger max_groups) or a trajectory that chatters (Zeno)"
         )
     now.ended = t >= t_final
 
