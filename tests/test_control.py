@@ -12,6 +12,7 @@ from bderiv import HybridSystem, examples
 from bderiv.control import (
     ParametricFlow,
     ShootingConfig,
+    StepEndsAtImpact,
     augment,
     ball_1d,
     ball_2d,
@@ -198,6 +199,96 @@ def test_ilqr_started_at_the_target_has_converged(chair_flow):
     assert len(res.history) == 1 and np.array_equal(res.U, U0)
 
 
+@numba.njit(cache=True)
+def _thrust_field(z, mask):  # docs/control.md's first block: z = (q, q', u)
+    out = np.zeros_like(z)
+    out[0], out[1] = z[1], -9.81 + z[2]
+    return out
+
+
+@numba.njit(cache=True)
+def _thrust_events(z):
+    return np.array([-z[0]])
+
+
+@numba.njit(cache=True)
+def _thrust_reset(z, mask, k):
+    out = z.copy()
+    out[1] = -0.8 * z[1]
+    return out
+
+
+@pytest.fixture(scope="module")
+def thrust_ball():
+    return ParametricFlow(HybridSystem(_thrust_field, _thrust_events, n_events=1, dim=3,
+                                       reset=_thrust_reset), 1)
+
+
+THRUST = {"Qf": np.diag([100.0, 10.0]), "R": np.array([[1e-3]])}
+
+
+@pytest.mark.parametrize("height", [-0.1, -1.0])
+def test_ilqr_towards_a_target_below_the_ground_stops_at_its_best_iterate(thrust_ball,
+                                                                          height):
+    """The thrust ball (docs/control.md) sent below the ground, which it cannot reach: the
+    iterates press a bounce onto a step's end, where the step's flow map jumps. Those
+    trials are failed trials (as shoot's refused ones): ilqr returns its best iterate,
+    not converged, stalled, a reason naming the impact, and never bderiv's words about a
+    final time the caller did not pass. Its cost is at least the bound the ground sets
+    (q_N >= 0), and its states are the scipy simulation of its inputs."""
+    res = ilqr(thrust_ball, [1.0, 0.0], np.zeros((4, 1)), 0.25, [height, 0.0], **THRUST,
+               max_iters=50)
+    assert not res.converged and res.stalled
+    assert "reached a step ending at an impact" in res.reason
+    assert "t_final" not in res.reason and "final time" not in res.reason
+    assert any("ends at an impact" in r for r in res.refusals)
+    assert res.cost >= 0.5 * 100.0 * height**2
+    assert res.costs == sorted(res.costs, reverse=True) and res.cost == res.costs[-1]
+    x = np.array([1.0, 0.0])
+    for k, u in enumerate(res.U):
+        x = _ball_scipy(x, [u[0], 0.8, 9.81], 0.25)
+        assert np.allclose(res.X[k + 1], x, rtol=0, atol=1e-6)
+
+
+def test_ilqr_refuses_a_first_nominal_with_a_step_ending_at_an_impact(thrust_ball):
+    """Steps of length sqrt(2 / g), the ball's fall from q = 1 without thrust: the first
+    step ends at its bounce. Refused naming the step, its time and what to change."""
+    tb = float(np.sqrt(2.0 / 9.81))
+    with pytest.raises(StepEndsAtImpact, match=r"step 0 \(t = 0 to 0\.451524 from x0\).*"
+                       r"event 0 \(with a reset\).*Change dt or N") as info:
+        ilqr(thrust_ball, [1.0, 0.0], np.zeros((2, 1)), tb, [0.5, 0.0], **THRUST)
+    assert "t_final" not in str(info.value) and "final time" not in str(info.value)
+    assert abs(info.value.time - tb) < 1e-7
+
+
+def test_ilqr_restarted_at_its_solution_has_converged(thrust_ball):
+    """Restarted at its own converged inputs (three times over), ilqr returns them at
+    once, converged and not stalled: the predicted decrease there is at rounding level
+    (before: mu raised to mu_max and "stalled", the gradient about 1e-15). The solution
+    is a minimum by one-sided differences of the scipy simulation's cost."""
+    x0, target = np.array([1.0, 0.0]), np.array([0.4, 0.5])
+    first = ilqr(thrust_ball, x0, np.zeros((4, 1)), 0.25, target, **THRUST)
+    assert first.converged
+    U = first.U
+    for _ in range(3):
+        res = ilqr(thrust_ball, x0, U, 0.25, target, **THRUST)
+        assert res.converged and not res.stalled, res.reason
+        assert res.cost <= first.cost * (1 + 1e-12)
+        U = res.U
+    assert "rounding" in res.reason and len(res.history) == 1
+
+    def cost(V):
+        x = x0
+        for u in V[:, 0]:
+            x = _ball_scipy(x, [u, 0.8, 9.81], 0.25)
+        e = x - target
+        return 0.5 * float(np.sum(V * (V @ THRUST["R"]))) + 0.5 * e @ THRUST["Qf"] @ e
+
+    eps, c0 = 1e-5, cost(U)
+    grad = [(cost(U + eps * np.eye(4)[k][:, None]) - c0) / eps for k in range(4)]
+    assert abs(c0 - res.cost) < 1e-8 and np.abs(grad).max() < 1e-3
+
+
 def test_augment_is_the_params_model():
     """augment() of a params model's functions: the same trajectory as
     HybridSystem(..., params=p), and parameters that do not move."""
@@ -323,6 +414,9 @@ def test_refusals():
     with pytest.raises(ValueError, match="state_indices"):
         shoot(flow, [1, 0], flow.defaults, 1.0, [0.5], output_indices=[0],
               state_indices=[2])
+    with pytest.raises(TypeError, match=r"output_indices must be a 1-D sequence of "
+                       r"integers \(indices in \[0, 2\)\), got int 0"):
+        shoot(flow, [1, 0], flow.defaults, 1.0, [0.5], output_indices=0, state_indices=[1])
     with pytest.raises(ValueError, match="target"):
         shoot(flow, [1, 0], flow.defaults, 1.0, [0.5, 1.0], output_indices=[0],
               state_indices=[1])

@@ -539,3 +539,40 @@ def test_nonlinear_measurement_update_is_the_extended_kalman_update():
     assert np.allclose(mu, m + (K * (1.5 - h(m))).ravel(), atol=1e-15)
     assert np.allclose(Pu, P - K @ Hm @ P, atol=1e-15)
     assert f.mode.mask == 0
+
+
+def test_measurements_and_priorities_are_refused_by_name_with_what_came():
+    """An empty H (no measured quantity), a complex H (numpy would drop its imaginary
+    part with a warning; a complex z is refused the same way) and priorities that are
+    not events of the model each once: a ValueError/TypeError naming the parameter, what
+    was expected and what came; the filter left as it was."""
+    model = examples.bouncing_ball().system  # one event: 0
+    x, P = np.array([1.0, 0.0]), 1e-4 * np.eye(2)
+    f = HybridKalmanFilter(model, x, P)
+    cases = [
+        (lambda: f.update(np.zeros(0), np.zeros((0, 0)), H=np.zeros((0, 2))), ValueError,
+         r"H must have at least one row .*p >= 1\), got shape \(0, 2\)"),
+        (lambda: f.update(np.zeros(0), np.zeros((0, 0)), H=lambda v: np.zeros((0, 2))),
+         ValueError, r"H\(x\) must have at least one row"),
+        (lambda: f.update([1.0, 0.0], np.eye(2), H=1j * np.eye(2)), TypeError,
+         r"H must be an array of real numbers, got array\(\[\[0\.\+1\.j"),
+        (lambda: f.update(np.array([1.0 + 0j, 0.0]), np.eye(2), H=np.eye(2)), TypeError,
+         "z must be an array of real numbers"),
+    ]
+    for priority, kind, words in [
+        ("ab", TypeError, "priority .* must be a 1-D sequence of integers, got str 'ab'"),
+        ((0, 0), ValueError, r"must list each event once, got \(0, 0\): event 0 is repeated"),
+        ((0, 5), ValueError, r"events of the model \(0 \.\. 0\), got \(0, 5\): event 5 does "
+                             r"not exist"),
+        ((0.5,), TypeError, "priority .* must hold integers, got 0.5"),
+    ]:
+        cases.append((lambda p=priority: HybridKalmanFilter(model, x, P, method="piece",
+                                                            priority=p), kind, words))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning on the way
+        for call, kind, words in cases:
+            with pytest.raises(kind, match=words):
+                call()
+    assert np.array_equal(f.mean, x) and np.array_equal(f.cov, P)
+    assert HybridKalmanFilter(model, x, P, method="piece", priority=[np.int64(0)]).priority \
+        == (0,)

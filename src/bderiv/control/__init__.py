@@ -14,9 +14,9 @@
 
 from .ilqr import ILQRResult, Iteration, cost_gradient, ilqr, rollout
 from .models import ball_1d, ball_2d, controlled_chair
-from .parametric import ParametricFlow, Step, augment, nominal_orders
+from .parametric import ParametricFlow, Step, StepEndsAtImpact, augment, nominal_orders
 from .shooting import ShootingConfig, ShootingResult, shoot
 
 __all__ = ["ILQRResult", "Iteration", "ParametricFlow", "ShootingConfig", "ShootingResult",
-           "Step", "augment", "ball_1d", "ball_2d", "controlled_chair", "cost_gradient",
-           "ilqr", "nominal_orders", "rollout", "shoot"]
+           "Step", "StepEndsAtImpact", "augment", "ball_1d", "ball_2d", "controlled_chair",
+           "cost_gradient", "ilqr", "nominal_orders", "rollout", "shoot"]

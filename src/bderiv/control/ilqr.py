@@ -27,7 +27,12 @@ Backward pass (Gauss-Newton iLQR, regularised by ``mu`` on ``Q_uu``)::
 
 Forward pass: ``u_k = u_k + alpha k_k + K_k (x_k' - x_k)`` simulated, ``alpha`` halved
 from 1 until the cost falls by at least 1e-4 of the predicted decrease (else ``mu`` grows
-tenfold and the backward pass is redone).
+tenfold and the backward pass is redone). A trial whose rollout or linearisation bderiv
+refuses is a failed trial, as in :func:`~bderiv.control.shooting.shoot` (recorded in
+:attr:`ILQRResult.refusals`): above all one where a step ends at an impact (an event with
+a reset within the window of the step's end, where the step's flow map jumps:
+:class:`~bderiv.control.parametric.StepEndsAtImpact`), which smaller steps (a larger
+``mu``, a smaller ``alpha``) may avoid.
 
 A switch of order. A new nominal may cross a group's events in another order than the
 last one (it moved across the kink). That is detected (each step's orders compared,
@@ -57,9 +62,19 @@ import numpy as np
 from .._support._progress import search_bar
 from .._support._validate import check_matrix, check_number, check_real_array, check_state
 from .._support._validate_ints import check_positive_int
-from .parametric import ParametricFlow
+from ._passes import (
+    ROUNDED,
+    ROUNDING,
+    _backward,
+    _converged_to_rounding,
+    _cost,
+    _line_search,
+    _linearise,
+    _stall_reason,
+)
+from .parametric import ParametricFlow, StepEndsAtImpact
 
-__all__ = ["ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]
+__all__ = ["ROUNDING", "ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]
 
 
 @dataclass
@@ -82,11 +97,15 @@ class Iteration:
 
 @dataclass
 class ILQRResult:
-    """``U`` (N, m) and ``X`` (N + 1, d) of the last nominal, its ``cost``; ``history``:
-    one :class:`Iteration` per linearisation (``history[0]`` the start); ``converged``
-    when the relative decrease fell below ``tol`` or the cost to ``cost_tol`` (at the
-    start too: a nominal that reaches the target is returned as it is);
-    ``stalled`` when no step decreased the cost at the largest ``mu``."""
+    """``U`` (N, m) and ``X`` (N + 1, d) of the last nominal (the best: every accepted
+    step lowers the cost), its ``cost``; ``history``: one :class:`Iteration` per
+    linearisation (``history[0]`` the start); ``converged`` when the relative decrease
+    fell below ``tol``, the cost to ``cost_tol`` or the predicted decrease to rounding
+    (at the start too: a nominal that reaches the target, or a converged solution given
+    again, is returned as it is); ``stalled`` when no step decreased the cost at the
+    largest ``mu``; ``reason``: why the iterations stopped, in words; ``refusals``: the
+    trial iterates whose rollout or linearisation bderiv refused (failed trials), with
+    why."""
 
     U: np.ndarray
     X: np.ndarray
@@ -94,16 +113,13 @@ class ILQRResult:
     converged: bool
     stalled: bool
     history: list
+    reason: str = ""
+    refusals: list = field(default_factory=list)
 
     @property
     def costs(self):
         """The nominal cost at each iteration: list of float."""
         return [it.cost for it in self.history]
-
-
-def _cost(X, U, target, Qf, R):
-    e = X[-1] - target
-    return float(0.5 * np.einsum("ki,ij,kj->", U, R, U) + 0.5 * e @ Qf @ e)
 
 
 def rollout(flow, x0, U, dt):
@@ -141,13 +157,6 @@ def _order_fn(linearisation, n_events):
     return fixed
 
 
-def _linearise(flow, X, U, dt, fixed):
-    steps = [flow.step(X[k], U[k], dt, orders=fixed) for k in range(len(U))]
-    orders = tuple(tuple(tuple(g[j] for j in o if j < len(g))
-                         for g, o in zip(s.groups, s.orders, strict=True)) for s in steps)
-    return steps, orders
-
-
 def _changes(old, new):
     switches, regrouped = [], []
     for k, (a, b) in enumerate(zip(old, new, strict=True)):
@@ -170,7 +179,7 @@ def cost_gradient(flow, x0, U, dt, target, Qf, R, *, linearisation="nominal"):
     """
     x0, U, target, Qf, R = _checked(flow, x0, U, dt, target, Qf, R)
     X = rollout(flow, x0, U, dt)
-    steps, _ = _linearise(flow, X, U, dt, _order_fn(linearisation, flow.system.n_events))
+    steps, _ = _start(flow, X, U, dt, _order_fn(linearisation, flow.system.n_events))
     lam, G = Qf @ (X[-1] - target), np.empty_like(U)
     for k in range(len(U) - 1, -1, -1):
         G[k] = R @ U[k] + steps[k].B.T @ lam
@@ -212,38 +221,15 @@ def _checked_settings(max_iters, tol, cost_tol, mu0, mu_max, line_search):
     return max_iters, tol, cost_tol, mu0, mu_max, line_search
 
 
-def _backward(steps, U, X, target, Qf, R, mu):
-    """Gains ``k`` (N, m), ``K`` (N, m, d) and the predicted decrease terms, or None when
-    ``Q_uu`` is not positive definite."""
-    N, m = U.shape
-    Vx, Vxx = Qf @ (X[-1] - target), Qf.copy()
-    k_ff, K, d1, d2 = np.empty((N, m)), np.empty((N, m, X.shape[1])), 0.0, 0.0
-    for k in range(N - 1, -1, -1):
-        A, B = steps[k].A, steps[k].B
-        Qu = R @ U[k] + B.T @ Vx
-        Quu = R + B.T @ Vxx @ B + mu * np.eye(m)
-        Qux = B.T @ Vxx @ A
-        try:
-            L = np.linalg.cholesky(0.5 * (Quu + Quu.T))
-        except np.linalg.LinAlgError:
-            return None
-        sol = np.linalg.solve(L.T, np.linalg.solve(L, np.column_stack((Qu, Qux))))
-        k_ff[k], K[k] = -sol[:, 0], -sol[:, 1:]
-        d1 += k_ff[k] @ Qu
-        d2 += 0.5 * k_ff[k] @ Quu @ k_ff[k]
-        Vx = A.T @ Vx + K[k].T @ Quu @ k_ff[k] + K[k].T @ Qu + Qux.T @ k_ff[k]
-        Vxx = A.T @ Vxx @ A + K[k].T @ Quu @ K[k] + K[k].T @ Qux + Qux.T @ K[k]
-        Vxx = 0.5 * (Vxx + Vxx.T)
-    return k_ff, K, d1, d2
-
-
-def _forward(flow, X, U, dt, k_ff, K, alpha):
-    Xn, Un = np.empty_like(X), np.empty_like(U)
-    Xn[0] = X[0]
-    for k in range(len(U)):
-        Un[k] = U[k] + alpha * k_ff[k] + K[k] @ (Xn[k] - X[k])
-        Xn[k + 1] = flow.final(Xn[k], Un[k], dt)
-    return Xn, Un
+def _start(flow, X, U, dt, fixed):
+    """:func:`_linearise` of the first nominal, its refusal advising what to change."""
+    try:
+        return _linearise(flow, X, U, dt, fixed)
+    except StepEndsAtImpact as exc:
+        raise StepEndsAtImpact(f"the first nominal (from U0) cannot be linearised: {exc}. "
+                               f"Change dt or N (the steps end at k dt) so that no step "
+                               f"ends at the impact, or start from other inputs U0",
+                               exc.event, exc.time) from None
 
 
 def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=30,
@@ -273,6 +259,14 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
         [0, 1) (0: never stop for a small decrease).
     cost_tol : float
         Stop when the cost is below it, >= 0.
+
+        Whatever ``tol`` and ``cost_tol``, a nominal (the start included) is converged
+        where the decrease the Gauss-Newton model predicts, ``-(d1 + d2)`` of a backward
+        pass at ``mu = min(mu, mu0)``, is at most :data:`ROUNDING` (16) eps times the
+        cost: a decrease below the rounding of the cost itself, which no line search can
+        tell from 0 (at a minimum the gradient is at rounding level and its square, the
+        predicted decrease, far below). So ``ilqr`` restarted at its own solution returns
+        it, converged, without raising ``mu`` to ``mu_max``.
     mu0, mu_max : float
         First and largest regularisation of ``Q_uu``: ``0 < mu0 <= mu_max``, finite.
     line_search : int
@@ -281,46 +275,61 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
     Returns
     -------
     ILQRResult
+        Its ``reason`` says why it stopped. A trial iterate whose rollout or
+        linearisation bderiv refuses (a step that ends at an impact, within the window of
+        an event with a reset: the step's flow map jumps and has no B-derivative) is a
+        failed trial, ``mu`` grows; where no trial gets past, the best iterate is returned
+        with ``stalled`` and a ``reason`` that names the impact.
+
+    Raises
+    ------
+    StepEndsAtImpact
+        A ValueError: a step of the first nominal (from ``U0``) ends at an impact, named
+        with its index k, its time span and what to change (dt, N or U0).
     """
     x0, U, target, Qf, R = _checked(flow, x0, U0, dt, target, Qf, R)
     fixed = _order_fn(linearisation, flow.system.n_events)
     max_iters, tol, cost_tol, mu0, mu_max, line_search = _checked_settings(
         max_iters, tol, cost_tol, mu0, mu_max, line_search)
-    mu, history = mu0, []
+    mu, history, refusals = mu0, [], []
     X = rollout(flow, x0, U, dt)
     cost = _cost(X, U, target, Qf, R)
     start = time.perf_counter()
-    steps, orders = _linearise(flow, X, U, dt, fixed)
+    steps, orders = _start(flow, X, U, dt, fixed)
     history.append(Iteration(cost, 0.0, mu, orders, seconds=time.perf_counter() - start))
     converged, stalled = cost <= cost_tol, False  # (a start at the target: done)
+    reason = f"the cost {cost!r} is at most cost_tol = {cost_tol!r}" if converged else ""
     with search_bar(max_iters, "ilqr", "iteration") as bar:  # long searches
         while len(history) <= max_iters and not converged:
-            start, accepted = time.perf_counter(), None
+            if _converged_to_rounding(steps, U, X, target, Qf, R, min(mu, mu0), cost):
+                converged, reason = True, ROUNDED
+                break
+            start, accepted, impacts = time.perf_counter(), None, []
             while accepted is None and mu <= mu_max:
                 back = _backward(steps, U, X, target, Qf, R, mu)
                 if back is not None:
-                    k_ff, K, d1, d2 = back
-                    alpha = 1.0
-                    for _ in range(line_search):
-                        Xn, Un = _forward(flow, X, U, dt, k_ff, K, alpha)
-                        new = _cost(Xn, Un, target, Qf, R)
-                        expected = -(alpha * d1 + alpha**2 * d2)
-                        if new < cost and cost - new >= 1e-4 * expected:
-                            accepted = (Xn, Un, new, alpha)
-                            break
-                        alpha *= 0.5
+                    accepted = _line_search(flow, X, U, dt, back, cost, line_search, fixed,
+                                            (target, Qf, R), refusals, impacts)
                 if accepted is None:
                     mu *= 10.0
             if accepted is None:
-                stalled = True
+                stalled, reason = True, _stall_reason(mu_max, impacts)
                 break
-            X, U, new, alpha = accepted
+            X, U, new, alpha, steps, new_orders = accepted
             converged = cost - new < tol * cost or new <= cost_tol
+            if converged:
+                reason = (f"the cost {new!r} is at most cost_tol = {cost_tol!r}"
+                          if new <= cost_tol else
+                          f"an accepted step lowered the cost by less than tol = {tol!r} "
+                          f"times it")
             cost, mu = new, max(mu / 10.0, 1e-12)
-            steps, new_orders = _linearise(flow, X, U, dt, fixed)
             switches, regrouped = _changes(orders, new_orders)
             orders = new_orders
             history.append(Iteration(cost, alpha, mu, orders, switches, regrouped,
                                      time.perf_counter() - start))
             bar(len(history) - 1, f"cost {cost:.4g}")
-    return ILQRResult(U, X, cost, converged, stalled, history)
+    if not reason:
+        reason = f"max_iters = {max_iters} iterations done"
+    return ILQRResult(U, X, cost, converged, stalled, history, reason, refusals)
+
+

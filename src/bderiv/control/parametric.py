@@ -29,7 +29,18 @@ from .._support._validate_ints import check_positive_int
 from ..analysis.system import HybridSystem
 from ..models.integrate.options import DERIVATIVE_OPTIONS, SolverOptions
 
-__all__ = ["ParametricFlow", "Step", "augment", "nominal_orders"]
+__all__ = ["ParametricFlow", "Step", "StepEndsAtImpact", "augment", "nominal_orders"]
+
+
+class StepEndsAtImpact(ValueError):
+    """A step whose end ``dt`` lies within the B-derivatives' ``simultaneity_tol`` of an
+    event with a reset: the step's flow map jumps there and has no B-derivative
+    (:meth:`ParametricFlow.step`). ``event`` and ``time`` (from the step's start) name
+    the impact."""
+
+    def __init__(self, message, event, time):
+        super().__init__(message)
+        self.event, self.time = event, time
 
 
 def _augmented_functions(field, events, reset, d, m):
@@ -287,9 +298,25 @@ class ParametricFlow:
         Returns
         -------
         Step
+        Raises
+        ------
+        StepEndsAtImpact
+            A ValueError: an event with a reset within ``simultaneity_tol`` of the step's
+            end ``dt`` (either side).
         """
         z, dt = self.rate_check(x, p), check_number(dt, "dt")
-        D = self.system.flow_bderivative(z, dt, options=self.options)
+        try:
+            D = self.system.flow_bderivative(z, dt, options=self.options)
+        except ValueError:
+            impact = self._impact_near(z, dt) if self.system.reset is not None else None
+            if impact is None:
+                raise
+            raise StepEndsAtImpact(
+                f"the step over dt = {dt!r} ends at an impact: event {impact.event} (with a "
+                f"reset) crosses at t = {impact.time!r} from the step's start, within "
+                f"simultaneity_tol = {self.simultaneity_tol!r} of its end, so the step's "
+                f"flow map jumps there and has no B-derivative; choose a step length dt "
+                f"whose end avoids the impact", impact.event, impact.time) from None
         if any(s > 0 for s in D.group_spreads) or D.stops_at_group:
             # the crossing times within a merged group: the run's own event log
             events = self.system.simulate(z, dt, options=self._simulation, t_eval=()).events
@@ -304,3 +331,15 @@ class ParametricFlow:
         d = self.dim
         return Step(x_next=D.x_final[:d].copy(), D=D, orders=nominal, ties=ties,
                     A=P[:d, :d], B=P[:d, d:], groups=D.group_events)
+
+    def _impact_near(self, z, dt):
+        """The event record within twice ``simultaneity_tol`` of ``dt`` (either side) on a
+        run a little past it, or None (the run refused too: None)."""
+        tol = 2.0 * self.simultaneity_tol
+        try:
+            events = self.system.simulate(z, dt + tol, options=self._simulation,
+                                          t_eval=()).events
+        except ValueError:
+            return None
+        near = [r for r in events if abs(r.time - dt) <= tol]
+        return min(near, key=lambda r: abs(r.time - dt)) if near else None

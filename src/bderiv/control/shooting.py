@@ -128,6 +128,9 @@ class ShootingResult:
 
 
 def _indices(idx, size, name):
+    if isinstance(idx, str | bytes) or np.ndim(idx) != 1:
+        raise TypeError(f"{name} must be a 1-D sequence of integers (indices in [0, {size})), "
+                        f"got {type(idx).__name__} {idx!r}")
     arr = check_real_array(np.asarray(idx) if len(idx) else np.zeros(0, np.int64), name)
     if arr.ndim != 1 or arr.dtype.kind not in "iu":
         raise TypeError(f"{name} must be a 1-D sequence of integers, got {arr!r}")

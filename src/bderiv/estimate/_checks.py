@@ -27,6 +27,8 @@ def check_matrix(a, name: str, shape) -> np.ndarray:
     if isinstance(a, str | bytes) or a is None:
         raise TypeError(f"{name} must be an array of numbers, got {type(a).__name__}")
     try:
+        if np.iscomplexobj(a):  # (numpy would drop the imaginary part with a warning)
+            raise TypeError
         arr = np.array(a, dtype=np.float64)
     except (TypeError, ValueError):
         raise TypeError(f"{name} must be an array of real numbers, got {a!r}") from None
@@ -91,6 +93,9 @@ def measurement_model(h, H, x, dim: int):
         raise TypeError("H must be given: a (p, d) matrix or a callable H(x) -> (p, d)")
     else:
         Hx = check_matrix(H, "H", (None, dim))
+    if not Hx.shape[0]:
+        raise ValueError(f"H{'(x)' if callable(H) else ''} must have at least one row (one per "
+                         f"measured quantity, shape (p, {dim}), p >= 1), got shape {Hx.shape}")
     if h is None:
         return Hx @ x, Hx
     if not callable(h):
@@ -99,3 +104,28 @@ def measurement_model(h, H, x, dim: int):
     if hx.shape[0] != Hx.shape[0]:
         raise ValueError(f"h(x) has {hx.shape[0]} entries but H has {Hx.shape[0]} rows")
     return hx, Hx
+
+
+def check_priority(priority, n_events: int) -> tuple | None:
+    """``priority`` (None, or global event indices each once, in ``[0, n_events)``) as a
+    tuple of int."""
+    if priority is None:
+        return None
+    name = "priority (global event indices, each once, in the order assumed)"
+    if isinstance(priority, str | bytes) or np.ndim(priority) != 1:
+        raise TypeError(f"{name} must be a 1-D sequence of integers, got "
+                        f"{type(priority).__name__} {priority!r}")
+    bad = [k for k in priority
+           if isinstance(k, bool | np.bool_) or not isinstance(k, int | np.integer)]
+    if bad:
+        raise TypeError(f"{name} must hold integers, got {bad[0]!r} in {priority!r}")
+    priority = tuple(int(k) for k in priority)
+    absent = [k for k in priority if not 0 <= k < n_events]
+    if absent:
+        raise ValueError(f"{name} must list events of the model (0 .. {n_events - 1}), got "
+                         f"{priority}: event {absent[0]} does not exist")
+    dup = sorted({k for k in priority if priority.count(k) > 1})
+    if dup:
+        raise ValueError(f"{name} must list each event once, got {priority}: event "
+                         f"{dup[0]} is repeated")
+    return priority

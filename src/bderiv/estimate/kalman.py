@@ -17,7 +17,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import PSD_RTOL, check_covariance, check_time, check_vector, measurement_model
+from ._checks import (
+    PSD_RTOL,
+    check_covariance,
+    check_priority,
+    check_time,
+    check_vector,
+    measurement_model,
+)
 from .localmap import END_SDS, LocalMap, derived_window, end_gap, end_sds, group_offsets
 from .pushforward import METHODS, push_auto, push_mixture, push_piece, push_sigma
 
@@ -115,8 +122,7 @@ class HybridKalmanFilter:
         if priority is not None and method != "piece":
             raise ValueError(f"priority fixes the piece of method='piece', got "
                              f"method={method!r}")
-        if priority is not None:
-            priority = tuple(int(k) for k in priority)
+        priority = check_priority(priority, model.n_events)
         self.model, self.method, self.priority = model, method, priority
         self.window = None if window is None else check_time(window, "window")
         self.mean_correction = bool(mean_correction)
