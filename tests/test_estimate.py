@@ -561,9 +561,10 @@ def test_measurements_and_priorities_are_refused_by_name_with_what_came():
     ]
     for priority, kind, words in [
         ("ab", TypeError, "priority .* must be a 1-D sequence of integers, got str 'ab'"),
-        ((0, 0), ValueError, r"must list each event once, got \(0, 0\): event 0 is repeated"),
-        ((0, 5), ValueError, r"events of the model \(0 \.\. 0\), got \(0, 5\): event 5 does "
-                             r"not exist"),
+        ((0, 0), ValueError, r"priority must name each event once, got \[0\] more than once "
+                             r"in \[0, 0\]"),
+        ((0, 5), ValueError, r"priority must hold event indices in \[0, 1\), got \[5\] in "
+                             r"\[0, 5\]"),
         ((0.5,), TypeError, "priority .* must hold integers, got 0.5"),
     ]:
         cases.append((lambda p=priority: HybridKalmanFilter(model, x, P, method="piece",

@@ -85,6 +85,21 @@ def check_masks(masks, n_events: int, name: str = "masks") -> np.ndarray:
                      for i, m in enumerate(flat.tolist())], dtype=mask_dtype(n_events))
 
 
+def check_distinct(indices: list, n: int, name: str, noun: str, hint: str = "") -> list:
+    """``indices`` (a list of ints) each in ``[0, n)`` and each once, returned; else a
+    ValueError naming ``name``, the indices out of range or repeated (``noun``: what an
+    index names, "foot", "event"; ``hint`` follows "once")."""
+    out = [i for i in indices if not 0 <= i < n]
+    if out:
+        raise ValueError(f"{name} must hold {noun} indices in [0, {n}), got {out} in "
+                         f"{indices}")
+    twice = sorted({i for i in indices if indices.count(i) > 1})
+    if twice:
+        raise ValueError(f"{name} must name each {noun} once{hint}, got {twice} more than "
+                         f"once in {indices}")
+    return indices
+
+
 def check_order(order, n: int) -> np.ndarray:
     """Validate an event order: a permutation of ``0..n-1``; returns int64 array."""
     arr = np.asarray(order)

@@ -298,6 +298,7 @@ class ParametricFlow:
         Returns
         -------
         Step
+
         Raises
         ------
         StepEndsAtImpact

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._support._format import format_state
+from .._support._validate_ints import check_distinct
 
 #: relative asymmetry ``max|P - P^T| / max|P|`` a covariance may have (rounding of sums)
 SYMMETRY_RTOL = 1e-9
@@ -119,13 +120,4 @@ def check_priority(priority, n_events: int) -> tuple | None:
            if isinstance(k, bool | np.bool_) or not isinstance(k, int | np.integer)]
     if bad:
         raise TypeError(f"{name} must hold integers, got {bad[0]!r} in {priority!r}")
-    priority = tuple(int(k) for k in priority)
-    absent = [k for k in priority if not 0 <= k < n_events]
-    if absent:
-        raise ValueError(f"{name} must list events of the model (0 .. {n_events - 1}), got "
-                         f"{priority}: event {absent[0]} does not exist")
-    dup = sorted({k for k in priority if priority.count(k) > 1})
-    if dup:
-        raise ValueError(f"{name} must list each event once, got {priority}: event "
-                         f"{dup[0]} is repeated")
-    return priority
+    return tuple(check_distinct([int(k) for k in priority], n_events, "priority", "event"))

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._support._format import format_mask
 from .._support._validate import check_number, check_state
-from .._support._validate_ints import check_int
+from .._support._validate_ints import check_distinct, check_int
 
 #: how far from 1 the norm of a configuration's base quaternion may be: it is used as
 #: given (not normalised; Pinocchio's ``difference`` and bderiv's exponential take it as
@@ -91,15 +91,8 @@ def check_down(down, n: int) -> list:
             raise ValueError(f"down as booleans must have one per foot, {n}, got {arr.size}: "
                              f"{arr.tolist()}")
         return np.flatnonzero(arr).tolist()
-    indices = arr.astype(np.int64).tolist()
-    out = [i for i in indices if not 0 <= i < n]
-    if out:
-        raise ValueError(f"down must hold foot indices in [0, {n}), got {out} in "
-                         f"{indices}")
-    twice = sorted({i for i in indices if indices.count(i) > 1})
-    if twice:
-        raise ValueError(f"down must name each foot once (indices, not flags: pass booleans "
-                         f"for flags), got {twice} more than once in {indices}")
+    indices = check_distinct(arr.astype(np.int64).tolist(), n, "down", "foot",
+                             " (indices, not flags: pass booleans for flags)")
     return sorted(indices)
 
 
