@@ -359,3 +359,28 @@ def test_export_of_the_corner_double_bounce_round_trips(tmp_path, capsys):
     assert "triangulation of 2 events in R^4" in out
     error = float(out.split("max |tri(V) - M(V)| = ")[1].split()[0])
     assert error < 1e-12
+
+
+def test_an_impact_within_the_tolerance_of_the_start_is_refused():
+    """The ball 1e-10 above the floor, falling at 1: its bounce at t = 1e-10 was taken as a
+    saltation for every direction, but a start lowered by more than 1e-10 is below the
+    floor, never bounces, and ends a whole bounce away (a review): refused, as a group with
+    resets at the final time is. From 1e-3 above, or with a simultaneity_tol below the
+    gap, the map is the closed form's: the flights before and after the bounce and its
+    saltation ``[[-e, 0], [-(1 + e) g / v, -e]]`` (v the impact's velocity)."""
+    e, g = 0.8, 9.81
+    system = bounces.bouncing_ball(e=e).system
+    with pytest.raises(ValueError, match=r"an event group with resets at the start: event\(s\) "
+                                         r"\[0\] cross at t = 1e-10, within "
+                                         r"simultaneity_tol=1e-07"):
+        system.flow_bderivative(np.array([1e-10, -1.0]), 0.1)
+    for gap, tol in ((1e-3, None), (1e-10, 1e-11)):
+        t_hit = (np.sqrt(1.0 + 2.0 * g * gap) - 1.0) / g  # gap - t - g t^2 / 2 = 0
+        v = -1.0 - g * t_hit
+        S = np.array([[-e, 0.0], [-(1 + e) * g / v, -e]])
+        def flight(t):
+            return np.array([[1.0, t], [0.0, 1.0]])
+
+        D = system.flow_bderivative(np.array([gap, -1.0]), 0.1, simultaneity_tol=tol)
+        np.testing.assert_allclose(D(np.eye(2)), (flight(0.1 - t_hit) @ S @ flight(t_hit)).T,
+                                   rtol=1e-4, atol=1e-9)

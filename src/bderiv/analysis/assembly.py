@@ -140,6 +140,22 @@ def _group_map(system, g):
                                  event_jacobian=g.event_jacobian)
 
 
+def _refuse_reset_at_start(groups, tol) -> None:
+    """Refuse a first event group with resets within ``tol`` after the start (t = 0): a
+    perturbation of the start larger than that crosses its surface before the start,
+    where the reset does not apply, and the flow jumps (no B-derivative), as for a group
+    with resets at the final time."""
+    if groups and groups[0].time <= tol:
+        g = groups[0]
+        raise ValueError(
+            f"an event group with resets at the start: event(s) {list(g.events)} cross at "
+            f"t = {g.time:.3g}, within simultaneity_tol={tol:g} of it, so a perturbation of "
+            f"x0 larger than that starts beyond their surface, the reset never applies and "
+            f"the flow map jumps there: it has no B-derivative. Start farther from the "
+            f"surface (or after the impact), or pass a simultaneity_tol below {g.time:.3g} "
+            f"for the map of the perturbations smaller than that")
+
+
 def flow_map_along(system, traj):
     """The :class:`FlowBDerivative` along a trajectory integrated with its variational
     equations (``run(..., variational=True)``): one BDerivative per event group.
@@ -157,6 +173,8 @@ def flow_map_along(system, traj):
         raise ValueError(f"traj holds no sensitivities (traj.linear has {len(linear)} "
                          f"matrices for {len(groups)} event groups; simulate does not "
                          f"integrate them): call flow_bderivative(x0, t_final), which does")
+    if system.calls.has_resets:
+        _refuse_reset_at_start(groups, traj.simultaneity_tol)
     times = [(g.time, g.time) for g in groups]
     final_field = system.calls.eval_field(traj.x_final, traj.mask_final)
     if traj.final_pending:  # a group just after t_final: its map is stopped there too
