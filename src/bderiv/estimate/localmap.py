@@ -171,8 +171,7 @@ def event_time_sds(D, P):
     stages before it; the group's event times of those vectors (``event_times``, linear
     in the vector within a piece) give the variance ``sum_j t_k(s_j)^2``.
     """
-    w, U = np.linalg.eigh(P)
-    S = (U * np.sqrt(np.clip(w, 0.0, None))).T  # rows: a square root of P
+    S = _square_root(P)
     inputs, _ = LocalMap(D, [None] * D.n_groups).stage_inputs(np.concatenate([S, -S]))
     sds = []
     for J, W in zip(D.jumps, inputs, strict=True):
@@ -199,18 +198,11 @@ def end_sds(model, D, dt, P):
     found = [(dt - t, sd) for t, sd in zip(
         [t for t, ev in zip(D.group_times, D.group_events, strict=True) for _ in ev],
         event_time_sds(D, P), strict=True)]
-    x = np.asarray(D.x_final)
-    h = np.asarray(model.calls.eval_events(x), float)
-    Dh = np.asarray(model.calls.eval_event_jacobian(x), float)
-    rate = Dh @ np.asarray(D.final_field)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ahead = -h / rate
-    coming = np.flatnonzero(np.isfinite(ahead) & (ahead >= 0))
-    if coming.size:
-        w, U = np.linalg.eigh(P)
-        moved = D((U * np.sqrt(np.clip(w, 0.0, None))).T) @ Dh[coming].T  # (d, k)
-        sds = np.sqrt(np.sum(moved * moved, axis=0)) / np.abs(rate[coming])
-        found += list(zip(ahead[coming].tolist(), sds.tolist(), strict=True))
+    ahead, Dh, rate = _coming(model, D)
+    if ahead.size:
+        moved = D(_square_root(P)) @ Dh.T  # (d, k)
+        sds = np.sqrt(np.sum(moved * moved, axis=0)) / np.abs(rate)
+        found += list(zip(ahead.tolist(), sds.tolist(), strict=True))
     with np.errstate(divide="ignore", invalid="ignore"):
         return min(((gap / sd if sd > 0 else np.inf, gap, sd) for gap, sd in found),
                    default=None)
@@ -221,11 +213,26 @@ def end_gap(model, D, dt):
     trajectory: those ``D`` holds (crossed before ``dt``) and those about to cross after
     it (first order at ``D.x_final``: ``-h_k / (Dh_k f)`` where positive). ``inf`` when
     there is none."""
-    gaps = [dt - t for t in D.group_times]
+    gaps = [dt - t for t in D.group_times] + _coming(model, D)[0].tolist()
+    return min(gaps, default=np.inf)
+
+
+def _coming(model, D):
+    """The events about to cross after the step's end, first order at ``D.x_final``: their
+    times from the end ``-h_k / r_k`` (k,), event Jacobian rows (k, d) and rates ``r_k =
+    Dh_k f`` (k,), for the k events whose time is finite and not negative."""
     x = np.asarray(D.x_final)
     h = np.asarray(model.calls.eval_events(x), float)
-    rate = np.asarray(model.calls.eval_event_jacobian(x), float) @ np.asarray(D.final_field)
+    Dh = np.asarray(model.calls.eval_event_jacobian(x), float)
+    rate = Dh @ np.asarray(D.final_field)
     with np.errstate(divide="ignore", invalid="ignore"):
         ahead = -h / rate
-    gaps += [float(t) for t in ahead[np.isfinite(ahead) & (ahead >= 0)]]
-    return min(gaps, default=np.inf)
+    coming = np.flatnonzero(np.isfinite(ahead) & (ahead >= 0))
+    return ahead[coming], Dh[coming], rate[coming]
+
+
+def _square_root(P):
+    """(d, d): rows whose outer products sum to the covariance P (its eigenvectors scaled
+    by the square roots of the eigenvalues, negative roundings clipped)."""
+    w, U = np.linalg.eigh(P)
+    return (U * np.sqrt(np.clip(w, 0.0, None))).T
