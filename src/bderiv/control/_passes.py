@@ -16,12 +16,12 @@ ROUNDED = ("the predicted decrease of the cost is at rounding level (at most "
            f"{ROUNDING:g} eps times the cost): a minimum to the cost's precision")
 
 
-def _cost(X, U, target, Qf, R):
+def total_cost(X, U, target, Qf, R):
     e = X[-1] - target
     return float(0.5 * np.einsum("ki,ij,kj->", U, R, U) + 0.5 * e @ Qf @ e)
 
 
-def _linearise(flow, X, U, dt, fixed):
+def linearise(flow, X, U, dt, fixed):
     """Each step's :class:`Step`, and the nominal's orders. A step bderiv refuses is a
     ValueError of the same class naming the step k and its time span."""
     steps = []
@@ -39,7 +39,7 @@ def _linearise(flow, X, U, dt, fixed):
     return steps, orders
 
 
-def _backward(steps, U, X, target, Qf, R, mu):
+def backward(steps, U, X, target, Qf, R, mu):
     """Gains ``k`` (N, m), ``K`` (N, m, d) and the predicted decrease terms, or None when
     ``Q_uu`` is not positive definite."""
     N, m = U.shape
@@ -64,10 +64,10 @@ def _backward(steps, U, X, target, Qf, R, mu):
     return k_ff, K, d1, d2
 
 
-def _converged_to_rounding(steps, U, X, target, Qf, R, mu, cost):
+def converged_to_rounding(steps, U, X, target, Qf, R, mu, cost):
     """The Gauss-Newton model's predicted decrease at ``mu`` is at rounding level of the
     cost: ``-(d1 + d2) <= ROUNDING * eps * cost``."""
-    back = _backward(steps, U, X, target, Qf, R, mu)
+    back = backward(steps, U, X, target, Qf, R, mu)
     return back is not None and -(back[2] + back[3]) <= ROUNDING * _EPS * abs(cost)
 
 
@@ -90,7 +90,7 @@ def _forward(flow, X, U, dt, k_ff, K, alpha):
     return Xn, Un
 
 
-def _line_search(flow, X, U, dt, back, cost, line_search, fixed, weights, refusals,
+def line_search(flow, X, U, dt, back, cost, line_search, fixed, weights, refusals,
                  impacts):
     """``alpha`` = 1, 1/2, ...: the first trial that lowers the cost enough (Armijo, 1e-4)
     and whose nominal bderiv linearises, as ``(X, U, cost, alpha, steps, orders)``; None
@@ -102,11 +102,11 @@ def _line_search(flow, X, U, dt, back, cost, line_search, fixed, weights, refusa
         trial = _trial(flow, X, U, dt, k_ff, K, alpha, refusals)
         if trial is not None:
             Xn, Un = trial
-            new = _cost(Xn, Un, *weights)
+            new = total_cost(Xn, Un, *weights)
             expected = -(alpha * d1 + alpha**2 * d2)
             if new < cost and cost - new >= 1e-4 * expected:
                 try:
-                    return (Xn, Un, new, alpha) + _linearise(flow, Xn, Un, dt, fixed)
+                    return (Xn, Un, new, alpha) + linearise(flow, Xn, Un, dt, fixed)
                 except ValueError as exc:
                     refusals.append(f"alpha {alpha:g}: the linearisation: {exc}")
                     if isinstance(exc, StepEndsAtImpact):
@@ -115,7 +115,7 @@ def _line_search(flow, X, U, dt, back, cost, line_search, fixed, weights, refusa
     return None
 
 
-def _stall_reason(mu_max, impacts):
+def stall_reason(mu_max, impacts):
     why = (f"no trial step lowered the cost with the regularisation mu up to mu_max = "
            f"{mu_max!r}")
     if not impacts:

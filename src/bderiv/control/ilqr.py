@@ -62,16 +62,8 @@ import numpy as np
 from .._support._progress import search_bar
 from .._support._validate import check_matrix, check_number, check_real_array, check_state
 from .._support._validate_ints import check_positive_int
-from ._passes import (
-    ROUNDED,
-    ROUNDING,
-    _backward,
-    _converged_to_rounding,
-    _cost,
-    _line_search,
-    _linearise,
-    _stall_reason,
-)
+from . import _passes as passes
+from ._passes import ROUNDED, ROUNDING
 from .parametric import ParametricFlow, StepEndsAtImpact
 
 __all__ = ["ROUNDING", "ILQRResult", "Iteration", "cost_gradient", "ilqr", "rollout"]
@@ -222,9 +214,9 @@ def _checked_settings(max_iters, tol, cost_tol, mu0, mu_max, line_search):
 
 
 def _start(flow, X, U, dt, fixed):
-    """:func:`_linearise` of the first nominal, its refusal advising what to change."""
+    """``_passes.linearise`` of the first nominal, its refusal advising what to change."""
     try:
-        return _linearise(flow, X, U, dt, fixed)
+        return passes.linearise(flow, X, U, dt, fixed)
     except StepEndsAtImpact as exc:
         raise StepEndsAtImpact(f"the first nominal (from U0) cannot be linearised: {exc}. "
                                f"Change dt or N (the steps end at k dt) so that no step "
@@ -293,7 +285,7 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
         max_iters, tol, cost_tol, mu0, mu_max, line_search)
     mu, history, refusals = mu0, [], []
     X = rollout(flow, x0, U, dt)
-    cost = _cost(X, U, target, Qf, R)
+    cost = passes.total_cost(X, U, target, Qf, R)
     start = time.perf_counter()
     steps, orders = _start(flow, X, U, dt, fixed)
     history.append(Iteration(cost, 0.0, mu, orders, seconds=time.perf_counter() - start))
@@ -301,19 +293,19 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
     reason = f"the cost {cost!r} is at most cost_tol = {cost_tol!r}" if converged else ""
     with search_bar(max_iters, "ilqr", "iteration") as bar:  # long searches
         while len(history) <= max_iters and not converged:
-            if _converged_to_rounding(steps, U, X, target, Qf, R, min(mu, mu0), cost):
+            if passes.converged_to_rounding(steps, U, X, target, Qf, R, min(mu, mu0), cost):
                 converged, reason = True, ROUNDED
                 break
             start, accepted, impacts = time.perf_counter(), None, []
             while accepted is None and mu <= mu_max:
-                back = _backward(steps, U, X, target, Qf, R, mu)
+                back = passes.backward(steps, U, X, target, Qf, R, mu)
                 if back is not None:
-                    accepted = _line_search(flow, X, U, dt, back, cost, line_search, fixed,
+                    accepted = passes.line_search(flow, X, U, dt, back, cost, line_search, fixed,
                                             (target, Qf, R), refusals, impacts)
                 if accepted is None:
                     mu *= 10.0
             if accepted is None:
-                stalled, reason = True, _stall_reason(mu_max, impacts)
+                stalled, reason = True, passes.stall_reason(mu_max, impacts)
                 break
             X, U, new, alpha, steps, new_orders = accepted
             converged = cost - new < tol * cost or new <= cost_tol
