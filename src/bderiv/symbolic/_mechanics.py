@@ -8,10 +8,12 @@ The field of ``M(q) q'' = b(x, s)`` (:mod:`bderiv.symbolic.contacts` builds ``b`
 differentiate them. So the kernels fill ``M`` and ``b`` from their own cse'd expressions
 and solve numerically (the factorization ``M = L D L^T``, O(m^3): a few hundred flops for
 m = 7), which also checks at every evaluation that ``M`` is positive definite there (a
-pivot of ``D`` <= 0 raises :data:`NOT_DEFINITE`). Against Gaussian elimination with
-partial pivoting (the solve before it) it took, per call of the quadruped's field and
-field_jacobian, 256 and 837 ns instead of 313 and 1053, and 83 and 149 ns instead of 96
-and 158 for a two-link arm (m = 2; min of 9 interleaved runs of 200000 calls).
+pivot of ``D`` <= 0 raises :data:`bderiv.symbolic._solve.NOT_DEFINITE`; the solve is the
+library's, :mod:`bderiv.symbolic._solve`, imported by every model's module). Against
+Gaussian elimination with partial pivoting (the solve before it) it took, per call of the
+quadruped's field and field_jacobian, 256 and 837 ns instead of 313 and 1053, and 83 and
+149 ns instead of 96 and 158 for a two-link arm (m = 2; min of 9 interleaved runs of
+200000 calls).
 The Jacobians stay exact through the implicit-function rule: from ``M a = b``,
 
     M da/dx_j = db/dx_j - (dM/dx_j) a,
@@ -32,60 +34,13 @@ from . import _codegen
 from ._inputs import require_sympy
 
 #: bump when the generated source changes
-MECHANICS_VERSION = 4
-
-#: what the kernels raise where the mass matrix is not positive definite (a constant: the
-#: message of an exception raised in compiled code)
-NOT_DEFINITE = ("the mass matrix M(q) is not positive definite at this state (singular or "
-                "indefinite: a pivot of its factorization L D L^T is <= 0)")
+MECHANICS_VERSION = 5
 
 COUPLING_SIGNATURE = "float64[:, ::1](float64[::1])"
 
-_SOLVE = '''
-@numba.njit(cache=True)
-def _solve(A, B):
-    """B <- A^-1 B for A (m, m) symmetric positive definite (its lower triangle is read)
-    and B (m, r), by the factorization A = L D L^T (A is overwritten by L below its
-    diagonal and D on it): a pivot of D <= 0, an A singular or not positive definite,
-    raises the mass matrix's ValueError."""
-    m, r = A.shape[0], B.shape[1]
-    for c in range(m):
-        for k in range(c):
-            t = A[c, k]
-            for i in range(k):
-                t -= A[c, i] * A[k, i] * A[i, i]
-            A[c, k] = t / A[k, k]
-        d = A[c, c]
-        for i in range(c):
-            d -= A[c, i] * A[c, i] * A[i, i]
-        if d <= 0.0:
-            raise ValueError("NOT_DEFINITE")
-        A[c, c] = d
-    if r == 1:  # L y = b, then D L^T x = y: dot products (a field's solve)
-        for c in range(m):
-            acc = B[c, 0]
-            for k in range(c):
-                acc -= A[c, k] * B[k, 0]
-            B[c, 0] = acc
-        for c in range(m - 1, -1, -1):
-            acc = B[c, 0] / A[c, c]
-            for k in range(c + 1, m):
-                acc -= A[k, c] * B[k, 0]
-            B[c, 0] = acc
-        return
-    for c in range(m):  # the same by rows of B (contiguous: a Jacobian's solve)
-        for k in range(c):
-            f = A[c, k]
-            for j in range(r):
-                B[c, j] -= f * B[k, j]
-    for c in range(m - 1, -1, -1):
-        for j in range(r):
-            B[c, j] /= A[c, c]
-        for k in range(c + 1, m):
-            f = A[k, c]
-            for j in range(r):
-                B[c, j] -= f * B[k, j]
-'''.replace("NOT_DEFINITE", NOT_DEFINITE)
+#: the generated module's import of the solve (:mod:`bderiv.symbolic._solve`: one compiled
+#: copy for every model)
+_SOLVE = "from bderiv.symbolic._solve import solve as _solve"
 
 
 def _matrix_lines(printer, model, ind):
@@ -123,7 +78,7 @@ def _field_body(printer, model, jacobian: bool) -> list:
                 outputs.append((f"E[{i}, {j}]", e, f"the derivative of the forces' row {i} "
                                                    f"by {model.show(xj)}"))
     lines += [f"{ind}E = np.zeros(({m}, {d}))", *_codegen._block(printer, model, outputs, ind),
-              f"{ind}_solve(M2, E)", f"{ind}out[:, :] = 0.0", f"{ind}for i in range({m}):",
+              f"{ind}_solve(M2, E)", f"{ind}for i in range({m}):",
               f"{ind}    out[i, {m} + i] = 1.0", f"{ind}    for j in range({d}):",
               f"{ind}        out[{m} + i, j] = E[i, j]"]
     return lines
@@ -166,7 +121,7 @@ def _reset_body(printer, model, jacobian: bool) -> list:
     """``v+ = v - (1 + e) w g / c``, ``g = J v``, ``c = J w`` (module docstring)."""
     m, d, ind = model.m, model.dim, "    "
     lines = [*_codegen._preamble(model, True, (d, d) if jacobian else d)]
-    lines += ([f"{ind}out[:, :] = 0.0", f"{ind}for i in range({d}):", f"{ind}    out[i, i] = 1.0"]
+    lines += ([f"{ind}for i in range({d}):", f"{ind}    out[i, i] = 1.0"]
               if jacobian else [f"{ind}for i in range({d}):", f"{ind}    out[i] = x[i]"])
     lines += [f"{ind}if (mask >> k) & 1:  # a lift-off: no impact", f"{ind}    return out"]
     lines += _matrix_lines(printer, model, ind)
@@ -222,8 +177,8 @@ def generate(model, key: str) -> str:
              f"{sp.__version__}); key {key}",
              "# do not edit: delete this file (and __pycache__) to regenerate",
              "import math  # noqa: F401", "", "import numba", "import numpy as np", "",
-             f"DIM = {model.dim}", f"N_EVENTS = {model.n_events}",
-             f"N_PARAMS = {len(model.p)}", f"HAS_RESETS = {resets}", _SOLVE]
+             _SOLVE, "", f"DIM = {model.dim}", f"N_EVENTS = {model.n_events}",
+             f"N_PARAMS = {len(model.p)}", f"HAS_RESETS = {resets}"]
     lines += _codegen._kernel("field", "x, mask", _field_body(printer, model, False))
     lines += _codegen._kernel("field_jacobian", "x, mask", _field_body(printer, model, True))
     events = [-phi for phi in model.contacts]

@@ -68,6 +68,7 @@ from ._inputs import (
 )
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
 from ._model import load_model, symbolic_system
+from ._solve import SOLVE_DIGEST
 
 __all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "IMPACT_SIMULTANEITY_TOL", "ImpactCheck",
            "contact_system", "coupling"]
@@ -342,9 +343,9 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
         str(e), M=model.M if constant else None)
     param_check(model.values)  # before the derivation and the compilation
     module, kernels, build = load_model(
-        model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"sympy {sp.__version__}",
-                *model.canonical_text()], generate, cache_dir, {"coupling": COUPLING_SIGNATURE},
-        started=started)
+        model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"solve {SOLVE_DIGEST}",
+                f"sympy {sp.__version__}", *model.canonical_text()], generate, cache_dir,
+        {"coupling": COUPLING_SIGNATURE}, started=started)
     guard = None if kernels.reset is None else ImpactCheck(kernels, module.coupling,
                                                             model.names)
     return symbolic_system(kernels, model.values, build, "contact_system",
