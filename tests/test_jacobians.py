@@ -448,3 +448,28 @@ def test_a_correct_jacobian_is_not_refused_where_the_values_round_alike():
     assert _numdiff.compare(f, x, J).passed
     for wrong in ([[0.0, 1.0], [0.06, 0.0]], [[0.0, 0.08 * x[1]], [0.12, 0.0]]):
         assert not _numdiff.compare(f, x, np.array(wrong)).passed  # still seen: 1e-7, 1e-8
+
+
+def test_an_output_that_cancels_to_rounding_does_not_refuse_its_zero_row():
+    """A free body's angular acceleration, 1e-15 of rounding beside its 9.81 m/s^2 fall,
+    has a zero row in its exact Jacobian and central differences of about 1e-15: it was
+    refused with a tolerance of 1e-21, and a robot of one rigid body (four corners) had no
+    flow B-derivative (a review). Mismatches within CHECK_ROUND_FLOOR eps of the largest
+    output's size pass; a wrong term above that is still refused."""
+    from bderiv._support import _numdiff
+
+    x = np.array([0.3, -1.7])
+
+    def f(x):  # output 1 is 0 in exact arithmetic, rounding of terms of size ~10 here
+        a, b = 9.81 * np.sin(x[0]) * x[1], 7.3 * x[0] * np.cos(x[1])
+        return np.array([a + b, (a + b) - a - b])
+
+    J = np.array([[9.81 * np.cos(x[0]) * x[1] + 7.3 * np.cos(x[1]),
+                   9.81 * np.sin(x[0]) - 7.3 * x[0] * np.sin(x[1])], [0.0, 0.0]])
+    noise = [f(x + t * np.array([1.0, 0.7]))[1] for t in np.linspace(0, 1e-3, 200)]
+    assert np.count_nonzero(noise) > 10  # the second output is rounding, not 0
+    assert _numdiff.compare(f, x, J).passed
+    for wrong in (1e-9, 1e-6):
+        J_wrong = J.copy()
+        J_wrong[1, 0] = wrong
+        assert not _numdiff.compare(f, x, J_wrong).passed

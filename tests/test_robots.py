@@ -206,6 +206,60 @@ def test_bad_input_is_refused_by_name(solo):
         quadruped("solo13")
 
 
+def test_a_missing_file_of_ones_own_a_world_frame_and_a_non_path_are_refused(solo, tmp_path):
+    """An absolute path that does not exist searched the whole filesystem (root / path
+    is path: rglob from "/") and then failed naming a file the user never gave; the
+    world's frame was taken as a foot; a number reached pathlib's TypeError (a review)."""
+    missing = tmp_path / "my_robot.urdf"
+    with pytest.raises(FileNotFoundError, match=f"{missing}': no such file"):
+        legged_robot(missing, ["foot"])
+    with pytest.raises(FileNotFoundError, match="a folder"):
+        legged_robot(str(tmp_path), ["foot"])
+    with pytest.raises(TypeError, match="source, the robot's description file, must be a "
+                                        "path.*got int 123"):
+        legged_robot(123, ["foot"])
+    with pytest.raises(ValueError, match=r"frames of the robot, got \['universe'\], fixed "
+                                         "to the world"):
+        legged_robot(solo.model, ["universe"], solo.q_ref)
+
+
+def test_the_law_and_reference_are_read_only(solo):
+    """The compiled field holds the law's numbers, the events and the Jacobian read the
+    mapping: an edit of ``robot.law`` made a model whose parts disagreed (a stiffness x10
+    left the field as it was; a new ``kp`` put the Jacobian 1e5 off the field's
+    differences), silently (a review). Both are read-only now."""
+    with pytest.raises(TypeError):
+        solo.law["stiffness"] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        solo.q_ref[7] = 0.3
+    stiffer = legged_robot(solo.model, solo.feet, solo.q_ref,
+                           **{**solo.law, "stiffness": 10 * solo.law["stiffness"]})
+    x = drop_state(solo, -0.002)  # every foot 2 mm in the ground
+    grow = stiffer.field(x, 0b1111) - solo.field(x, 0b1111)
+    assert np.abs(grow).max() > 1.0
+
+
+def test_a_pitched_reference_drops_its_lowest_foot_to_the_height_asked():
+    """drop_state wrote the height and the fall into the base's own frame: with the
+    reference base pitched by 0.5 rad two feet started 2.7 cm inside the ground and the
+    base fell at (-0.24, 0, -0.44) m/s instead of (0, 0, -0.5) (a review). Oracle:
+    Pinocchio's own kinematics of the state's configuration and velocity."""
+    robot = quadruped("solo12")
+    q_ref = robot.q_ref.copy()
+    q_ref[3:7] = pin.Quaternion(pin.utils.rpyToMatrix(0.2, 0.5, 0.1)).coeffs()
+    pitched = legged_robot(robot.model, robot.feet, q_ref, **robot.law)
+    x = drop_state(pitched, 0.01, -0.5)
+    q, v = pitched.configuration(x)
+    data = robot.model.createData()
+    pin.forwardKinematics(robot.model, data, q, v)
+    pin.updateFramePlacements(robot.model, data)
+    feet = [data.oMf[robot.model.getFrameId(f)].translation[2] for f in robot.feet]
+    assert min(feet) == pytest.approx(pitched.law["ground"] + 0.01, abs=1e-12)
+    np.testing.assert_allclose(q[3:7], q_ref[3:7], atol=1e-15)  # the posture kept
+    base = pin.getVelocity(robot.model, data, 1, pin.LOCAL_WORLD_ALIGNED).linear
+    np.testing.assert_allclose(base, [0.0, 0.0, -0.5], atol=1e-12)
+
+
 @pytest.mark.slow
 def test_the_demo_from_the_command_line(capsys):
     """``bderiv demo --example solo12`` (a minute on a loaded machine: its check runs

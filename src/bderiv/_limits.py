@@ -111,6 +111,11 @@ ROUND_FLOOR = 2.0**10
 #: what rounding and the extrapolation leave (about 1e-10), far below a wrong term.
 CHECK_RTOL = 1e-6
 CHECK_ERROR_FACTOR = 8.0
+#: and a mismatch within CHECK_ROUND_FLOOR eps of the largest output's ``|J| |v|`` passes
+#: too: an output that cancels to rounding (a body's angular acceleration of 1e-15 beside
+#: its 9.81 fall) has differences of that size whatever its Jacobian says, and no smaller
+#: wrong term can be told from them
+CHECK_ROUND_FLOOR = 64.0
 #: a build (flow map, return map) longer than this, most of it in numerical Jacobians, is
 #: reported at WARNING (``models.calls``; a judgement: a pause a user notices)
 SLOW_BUILD_SECONDS = 2.0

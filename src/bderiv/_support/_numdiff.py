@@ -26,6 +26,7 @@ from .._limits import (
     ACCEPT_RTOL,
     BASE_STEP,
     CHECK_ERROR_FACTOR,
+    CHECK_ROUND_FLOOR,
     CHECK_RTOL,
     ROUND_FLOOR,
     ROW_FLOOR,
@@ -292,7 +293,8 @@ def compare(fun, x, J, seed=0, scales=None) -> Comparison:
     dv, err = D.value[:, 0], D.error[:, 0]
     Jv, size = J @ v, np.abs(J) @ np.abs(v) + np.abs(dv)
     mismatch = np.abs(Jv - dv)
-    tolerance = CHECK_RTOL * size + CHECK_ERROR_FACTOR * err
+    tolerance = (CHECK_RTOL * size + CHECK_ERROR_FACTOR * err
+                 + CHECK_ROUND_FLOOR * EPS * size.max(initial=0.0))
     calls = D.calls
     if not (mismatch <= tolerance).all():
         converging, c = _converging(fun, x, v, Jv)

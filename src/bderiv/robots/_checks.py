@@ -60,6 +60,10 @@ def check_feet(feet, model) -> tuple:
         frames = [f.name for f in model.frames if "foot" in f.name.lower()]
         raise ValueError(f"feet must name frames of the model, got {missing or 'none'}; "
                          f"the model's frames with 'foot' in their name: {frames}")
+    fixed = [name for name in names if model.frames[model.getFrameId(name)].parentJoint == 0]
+    if fixed:  # the world's own frames: a "foot" that never moves
+        raise ValueError(f"feet must be frames of the robot, got {fixed}, fixed to the world "
+                         f"(their parent joint is the universe)")
     return names
 
 

@@ -10,6 +10,7 @@ package, or a file not in it, is refused with what to install or what exists.
 from __future__ import annotations
 
 import importlib.metadata
+import os
 import pathlib
 
 __all__ = ["example_robot_data", "require_pinocchio", "robot_file"]
@@ -57,12 +58,22 @@ def robot_file(name) -> pathlib.Path:
 
     Raises
     ------
+    TypeError
+        When ``name`` is not a path (str or os.PathLike; bytes neither).
     FileNotFoundError
-        Naming the file and the URDFs found in its robot's folder.
+        Naming the file; for a name inside example-robot-data, the URDFs found in its
+        robot's folder.
     """
+    if isinstance(name, bytes) or not isinstance(name, (str, os.PathLike)):
+        raise TypeError(f"source, the robot's description file, must be a path (str or "
+                        f"os.PathLike) or a pinocchio.Model, got {type(name).__name__} "
+                        f"{name!r:.80}")
     path = pathlib.Path(name)
     if path.is_file():
         return path
+    if path.is_absolute():  # the user's own file: no search (root / path would be path)
+        raise FileNotFoundError(f"no robot description file {str(name)!r}: "
+                                f"{'a folder' if path.is_dir() else 'no such file'}")
     root = example_robot_data()
     found = root / path
     if found.is_file():

@@ -43,6 +43,8 @@ calls ``aba``.
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 
 from .._support._validate import check_state
@@ -69,10 +71,12 @@ class LeggedRobot:
     model : pinocchio.Model
     feet : tuple of str
         The foot frames, event k is foot k's touchdown.
-    q_ref : ndarray, (nq,)
+    q_ref : ndarray, (nq,), read-only
         The reference configuration of the tangent coordinates and the PD posture.
-    law : dict
-        The contact and posture parameters (:data:`CONTACT`).
+    law : mapping, read-only
+        The contact and posture parameters (:data:`CONTACT`), as built: the compiled
+        field holds them, so a robot with other values is built anew
+        (``legged_robot(model, feet, q_ref, **{**robot.law, "stiffness": k})``).
     system : HybridSystem
         n = len(feet) events, d = 2 nv. The methods below check their arguments (a
         state of another size, a mask beyond the feet: a ValueError naming them); the
@@ -81,10 +85,11 @@ class LeggedRobot:
 
     def __init__(self, model, feet, q_ref, law):
         pin = require_pinocchio()
-        self.pin, self.model, self.law = pin, model, dict(law)
+        self.pin, self.model, self.law = pin, model, types.MappingProxyType(dict(law))
         self.nv = model.nv
         self.feet = check_feet(feet, model)
         self.q_ref = check_configuration(q_ref, model, "q_ref")
+        self.q_ref.flags.writeable = False
         self.data = model.createData()
         self.frame_ids = [model.getFrameId(f) for f in self.feet]
         self.joint_ids = [model.frames[i].parentJoint for i in self.frame_ids]

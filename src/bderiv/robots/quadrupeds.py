@@ -82,9 +82,11 @@ def quadruped(name="solo12", *, joints=None, contact="compliant", sticking=True,
 
 
 def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarray:
-    """The state of ``robot`` in its reference posture, level, its lowest foot ``height``
-    above the ground and falling at ``vz`` (m/s, < 0 down); ``velocity`` (nv,) adds to
-    the velocity.
+    """The state of ``robot`` in its reference posture (the base's orientation as in
+    ``robot.q_ref``), moved up or down so that its lowest foot is ``height`` above the
+    ground, and falling at ``vz`` (m/s, < 0 down, the base's velocity in the world's
+    vertical); ``velocity`` (nv,) adds to the velocity (in the model's coordinates: the
+    base's in its own frame).
 
     Returns
     -------
@@ -100,8 +102,11 @@ def drop_state(robot: LeggedRobot, height, vz=0.0, *, velocity=None) -> np.ndarr
                                meaning=f"a velocity of the robot's model, nv = {robot.nv}")
     x = np.zeros(robot.system.dim)  # a rigid robot's contact latches (0: in the air)
     low = robot.foot_positions(x)[:, 2].min()
-    x[2] = robot.law["ground"] + height - low  # the base's height offset (level: e_z = dz)
-    x[robot.nv + 2] = vz
+    # the base's tangent coordinates and velocity are in its own frame (q = q_ref exp6(e),
+    # pinocchio's LOCAL velocity): a world vertical w is R^T w, R the reference's rotation
+    up = robot.pin.XYZQUATToSE3(robot.q_ref[:7]).rotation[2]  # R^T e_z
+    x[:3] = (robot.law["ground"] + height - low) * up
+    x[robot.nv:robot.nv + 3] = vz * up
     if velocity is not None:
         x[robot.nv:2 * robot.nv] += velocity
     return x
