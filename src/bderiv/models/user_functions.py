@@ -280,5 +280,6 @@ def check_given_jacobian(fun, x, J, what: str, jac_name: str) -> None:
         f"component {i} of J v differs from the central difference of {what} by "
         f"{c.mismatch[i]:.3g} (tolerance {c.tolerance[i]:.3g}; {c.relative:.3g} relative "
         f"to |J| |v|). Correct {jac_name} (bderiv.check_jacobians lists every function and "
-        f"mask), or pass check_jacobians=False to skip this check"
+        f"mask), or pass check_jacobians=False to skip this check (for a system built "
+        f"for you, dataclasses.replace(system, check_jacobians=False))"
     )

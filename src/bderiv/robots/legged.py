@@ -110,6 +110,12 @@ class LeggedRobot:
         self.system = self._build_system()
         self._state = self._STATE.format(d=self.system.dim)
 
+    def __reduce__(self):
+        """Pickled as what builds it (its Pinocchio model pickles; the module and the
+        data it holds do not), so a robot and its system go to Dask workers and
+        processes."""
+        return type(self), (self.model, self.feet, np.array(self.q_ref), dict(self.law))
+
     def _build_system(self) -> HybridSystem:
         # the unchecked functions: the system checks the states it passes them itself
         return HybridSystem(self._field, self._events, n_events=len(self.feet),

@@ -90,6 +90,11 @@ class RigidLeggedRobot(LeggedRobot):
         n = len(feet) events, d = 2 nv + n (the latches last).
     """
 
+    def __reduce__(self):
+        """As :meth:`LeggedRobot.__reduce__`, with ``sticking``."""
+        return type(self), (self.model, self.feet, np.array(self.q_ref), dict(self.law),
+                            self.sticking)
+
     def __init__(self, model, feet, q_ref, law, sticking=True):
         self.sticking = bool(sticking)
         self.rows = [0, 1, 2] if self.sticking else [2]
