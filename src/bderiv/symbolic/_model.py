@@ -98,9 +98,10 @@ class SymbolicSource:
         kernels.field``); ``kernels.source`` is the generated module.
     build : BuildInfo
         Whether the cache was hit and what the derivation and compilation took.
-    coupling : numba dispatcher or None
-        ``J M^-1 J^T`` from ``(q, 0, params)`` (:func:`bderiv.symbolic.coupling`); None
-        but for :func:`~bderiv.symbolic.contact_system`.
+    coupling : OnFirstCall or None
+        ``J M^-1 J^T`` from ``(q, 0, params)`` (:func:`bderiv.symbolic.coupling`), a
+        kernel compiled at its first call; None but for
+        :func:`~bderiv.symbolic.contact_system`.
     contacts : tuple of str
         The gap functions as given (in the messages); ``()`` but for
         :func:`~bderiv.symbolic.contact_system`.
@@ -264,6 +265,20 @@ def _compile_closed(dispatcher, signature):
     return dispatcher
 
 
+class OnFirstCall:
+    """A kernel of a generated module compiled (as :func:`_compile_closed` does) at its
+    first call, not at the build: a contact model's ``coupling`` is called only where
+    two contacts are hit at once, or by :func:`bderiv.symbolic.coupling`, and compiling
+    it took 0.4-0.8 s of a model's 4-5 s. Its expressions are the reset's (``J``, ``M``),
+    which the build compiled, so numba does not refuse it later."""
+
+    def __init__(self, dispatcher, signature: str):
+        self.dispatcher, self.signature = dispatcher, signature
+
+    def __call__(self, *args):
+        return _compile_closed(self.dispatcher, self.signature)(*args)
+
+
 def compile_kernels(model, module, path) -> Kernels:
     """The kernels of the generated ``module``, each compiled for its signature only.
 
@@ -347,13 +362,12 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
     return symbolic_system(kernels, model.values, build)
 
 
-def load_model(model, key_parts, generate, cache_dir, extra=None, *, started):
+def load_model(model, key_parts, generate, cache_dir, *, started):
     """The generated module of ``model``, its kernels and how they were got.
 
     ``key_parts`` (strings) identify the model and its generator; ``generate(model, key)``
     returns the module's source, written to the cache unless it is there already;
-    ``extra`` ``{name: signature}`` are further kernels of the module compiled likewise
-    (``module.<name>``); ``started`` is when the caller began checking its arguments
+    ``started`` is when the caller began checking its arguments
     (:func:`time.perf_counter`).
 
     Returns
@@ -376,8 +390,6 @@ def load_model(model, key_parts, generate, cache_dir, extra=None, *, started):
     try:
         module = _cache.load(path, key, source)
         kernels = compile_kernels(model, module, path)
-        for name, signature in (extra or {}).items():
-            _compile_closed(getattr(module, name), signature)
     except Exception as exc:  # numba refused the generated source: name the expression
         path.unlink(missing_ok=True)
         raise _locate_compile_error(model, exc) from None

@@ -67,7 +67,7 @@ from ._inputs import (
     require_sympy,
 )
 from ._mechanics import COUPLING_SIGNATURE, MECHANICS_VERSION, generate
-from ._model import load_model, symbolic_system
+from ._model import OnFirstCall, load_model, symbolic_system
 from ._solve import SOLVE_DIGEST
 
 __all__ = ["COUPLING_TOL", "DEFAULT_STANCE", "IMPACT_SIMULTANEITY_TOL", "ImpactCheck",
@@ -345,11 +345,12 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     module, kernels, build = load_model(
         model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"solve {SOLVE_DIGEST}",
                 f"sympy {sp.__version__}", *model.canonical_text()], generate, cache_dir,
-        {"coupling": COUPLING_SIGNATURE}, started=started)
-    guard = None if kernels.reset is None else ImpactCheck(kernels, module.coupling,
+        started=started)
+    coupled = OnFirstCall(module.coupling, COUPLING_SIGNATURE)
+    guard = None if kernels.reset is None else ImpactCheck(kernels, coupled,
                                                             model.names)
     return symbolic_system(kernels, model.values, build, "contact_system",
-                           coupling=module.coupling, contacts=model.names, reset_guard=guard,
+                           coupling=coupled, contacts=model.names, reset_guard=guard,
                            param_check=param_check)
 
 
