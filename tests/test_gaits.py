@@ -700,3 +700,20 @@ def test_the_orbit_map_is_built_once_at_the_orbit(monkeypatch, name):
     for a, b in ((R.x_final, orb.return_map.x_final), (R.period, orb.period),
                  (R(V), orb.return_map(V)), (traj.t, orb.trajectory.t)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_neutral_orbit_is_undecided_whatever_the_rounding():
+    """An elastic ball's apex map is the identity (closed form: every apex height is a
+    periodic orbit, multiplier exactly 1). The rate came out 1 + 4e-16 from apex 1 and 2
+    ("unstable", spread 4e-32) and exactly 1 from apex 0.5 ("undecided"): a verdict from
+    rounding (a review). The spread's floor is RATE_ROUNDING."""
+    from bderiv._limits import RATE_ROUNDING
+    from bderiv.examples import bouncing_ball
+
+    ex = bouncing_ball(e=1.0)
+    for h in (0.5, 1.0, 2.0):
+        orbit = ex.system.periodic_orbit(np.array([h, 0.0]), lambda x: -x[1],
+                                         period_guess=1.0)
+        st = orbit.stability(n_directions=10, iterations=100)
+        assert abs(np.log(st.growth_rate)) < RATE_ROUNDING <= st.spread
+        assert st.verdict_word == "undecided" and "neutral" in st.summary()

@@ -116,6 +116,11 @@ CHECK_ERROR_FACTOR = 8.0
 #: its 9.81 fall) has differences of that size whatever its Jacobian says, and no smaller
 #: wrong term can be told from them
 CHECK_ROUND_FLOOR = 64.0
+#: the least spread of a growth rate's log (``analysis.stability``): a map evaluated in
+#: float64 moves ``log |A v|`` by rounding at every step (a ball with e = 1, whose apex map
+#: is the identity, gave 1 + 4e-16 and "unstable"), so a rate within this of 1 is
+#: "undecided" (a judgement: rounding of a few thousand operations per step)
+RATE_ROUNDING = 2.0**-40
 #: a build (flow map, return map) longer than this, most of it in numerical Jacobians, is
 #: reported at WARNING (``models.calls``; a judgement: a pause a user notices)
 SLOW_BUILD_SECONDS = 2.0

@@ -20,7 +20,8 @@ directions that repels all others can be missed (it then concerns a set of measu
 but a perturbation placed exactly there would grow); a finite number of iterations
 gives lambda to about ``exp(+-c / iterations)`` (the spread is reported: the two halves
 of the window's difference, or the wobble of ``log |A^k v|`` about its line over the
-window's length where larger), and a rate within that of 1 is undecided. The verdict is about the
+window's length where larger, and never below the rounding of a step,
+:data:`bderiv._limits.RATE_ROUNDING`), and a rate within that of 1 is undecided. The verdict is about the
 linearisation: it predicts the decay of small perturbations of the nonlinear system
 (checked against long simulations in tests/test_gaits.py), not the basin of attraction.
 """
@@ -32,6 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._limits import RATE_ROUNDING
 from .._support._progress import count_bar
 from .._support._validate import check_matrix, check_memory
 from ._arguments import check_burn_in, check_iterations
@@ -86,7 +88,10 @@ class Stability:
     def summary(self) -> str:
         """A few lines: the verdict, the rate, and the pieces with their multipliers."""
         verdict = self.verdict_word
-        if self.stable is None:
+        if self.stable is None and self.spread <= RATE_ROUNDING:
+            verdict += ": the rate is 1 to within rounding (neutral: perturbations neither "
+            verdict += "grow nor decay at first order)"
+        elif self.stable is None:
             verdict += (f": the estimate has not settled in {self.iterations} iterations, "
                         f"pass more")
         lines = [f"growth rate {self.growth_rate:.6g} ({verdict}; spread of the estimate "
@@ -179,7 +184,7 @@ def growth_rate(fmap, V0, iterations=200, burn_in=None, fmap_orders=None) -> Gro
         slope = np.nan_to_num(_slope(window), nan=-np.inf)
         halves = np.abs(_slope(window[:half]) - _slope(window[half:]))
         spread = np.nan_to_num(np.maximum(halves, _wobble(window, slope)), nan=0.0)
-    return Growth(np.exp(slope), spread, visits)
+    return Growth(np.exp(slope), np.maximum(spread, RATE_ROUNDING), visits)
 
 
 def _wobble(logs, slope):
