@@ -22,8 +22,9 @@ gives lambda to about ``exp(+-c / iterations)`` (the spread is reported: the two
 of the window's difference, or the wobble of ``log |A^k v|`` about its line over the
 window's length where larger, and never below the rounding of a step,
 :data:`bderiv._limits.RATE_ROUNDING`), and a rate within that of 1 is undecided. The
-verdict is about the linearisation: it predicts the decay of small perturbations of the nonlinear system
-(checked against long simulations in tests/test_gaits.py), not the basin of attraction.
+verdict is about the linearisation: it predicts the decay of small perturbations of the
+nonlinear system (checked against long simulations in tests/test_gaits.py), not the basin
+of attraction.
 """
 
 from __future__ import annotations
