@@ -717,3 +717,32 @@ def test_a_neutral_orbit_is_undecided_whatever_the_rounding():
         st = orbit.stability(n_directions=10, iterations=100)
         assert abs(np.log(st.growth_rate)) < RATE_ROUNDING <= st.spread
         assert st.verdict_word == "undecided" and "neutral" in st.summary()
+
+
+def test_a_section_flat_at_the_guess_is_named(gait):
+    """A section whose gradient is 0 where the guess is moved onto it divided by 0: a
+    RuntimeWarning, then "section(x) returned a non-finite value" about a NaN state, or a
+    numerical Jacobian's failure at x = [nan ...] (a review)."""
+    ex, _ = gait
+    with pytest.raises(ValueError, match=r"section's gradient is \[0.0, 0.0, 0.0, 0.0\] "
+                                         r"at x = .*x_guess cannot be moved onto section"):
+        ex.system.periodic_orbit(ex.x0, lambda x: 1.0 + 0.0 * x[0], period_guess=0.5)
+
+
+def test_a_guess_that_never_returns_is_named_by_periodic_orbits_arguments():
+    """With a large period_guess a run that never crossed the section again ended at
+    run's max_groups, whose advice ("pass a larger max_groups") names no argument of
+    periodic_orbit, without saying where Newton was (a review): it now says what to
+    change. (The run's own error: tests/test_recurring.py.)"""
+    from bderiv.analysis.orbit import _at_iterate
+    from bderiv.models.integrate.run import TooManyGroups
+
+    def never():
+        raise TooManyGroups(10_000, 2449.18)
+
+    with pytest.raises(RuntimeError, match=r"periodic_orbit at the guess, x = \[0.7 0. \]: "
+                                           r"the run did not return to the section in 10000 "
+                                           r"event groups \(t = 2449.18 of the 3e\+07 it "
+                                           r"waits.*a guess nearer the orbit") as info:
+        _at_iterate(0, np.array([0.7, 0.0]), 3e7, never)
+    assert "max_groups" not in str(info.value)

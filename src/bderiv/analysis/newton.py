@@ -11,6 +11,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._limits import MAX_HALVINGS, MAX_PIECE_SWITCHES, PIECE_RTOL
+from .._support._format import format_state
 from ..models.integrate.run import ENDS, run
 
 __all__ = ["Damped", "NewtonStep", "damped_step", "newton_step", "onto_section"]
@@ -96,14 +97,26 @@ def _piece_of(R, v):
 
 
 def onto_section(section, x, steps=20):
-    """Move x onto ``section = 0`` along the gradient (Newton's method on s)."""
+    """Move x onto ``section = 0`` along the gradient (Newton's method on s).
+
+    Raises
+    ------
+    ValueError
+        Where the section's gradient is 0 (or not finite) at a point off the section:
+        no direction leads onto it from there (it divided by 0 and went on with NaN)."""
     x = np.array(x, dtype=np.float64)
     for _ in range(steps):
         value = section(x)
         if abs(value) <= 1e-13 * max(1.0, float(np.abs(x).max())):
             break
         g = section.gradient(x)
-        x = x - value * g / (g @ g)
+        norm2 = float(g @ g)
+        if not 0.0 < norm2 < np.inf:
+            raise ValueError(f"section's gradient is {format_state(g)} at x = "
+                             f"{format_state(x)}, where section(x) = {value:.6g}: x_guess "
+                             f"cannot be moved onto section = 0 along it (a section must "
+                             f"change across the orbit: its gradient nonzero there)")
+        x = x - value * g / norm2
     return x
 
 

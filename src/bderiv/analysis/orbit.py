@@ -52,7 +52,7 @@ from .._support._progress import search_bar
 from .._support._validate import check_number
 from .._support._validate_ints import check_positive_int
 from ..models.integrate.options import SolverOptions, check_options
-from ..models.integrate.run import ENDS, NoReturn, run
+from ..models.integrate.run import ENDS, NoReturn, TooManyGroups, run
 from ._arguments import check_burn_in, check_iterations, check_seed
 from ._cyclic import (
     SHIFTS,
@@ -322,10 +322,18 @@ def _within(res, x, keep, tol) -> bool:
 def _at_iterate(iteration, x, t_max, call):
     """``call()``, its ValueError said at the Newton iterate it came from: the guess (0) or
     iterate k, its state, and for no return the argument that sets the time waited."""
+    where = "the guess" if iteration == 0 else f"Newton iterate {iteration}"
     try:
         return call()
+    except TooManyGroups as exc:  # its advice, a larger max_groups, is no argument here
+        raise RuntimeError(
+            f"periodic_orbit at {where}, x = {np.array2string(x, precision=6)}: the run did "
+            f"not return to the section in {exc.max_groups} event groups (t = {exc.t:.6g} "
+            f"of the {t_max:g} it waits, {T_MAX_PER_PERIOD:g} times period_guess): from "
+            f"there the flow does not cross the section again, or chatters; pass a guess "
+            f"nearer the orbit, a section the orbit crosses, or a period_guess nearer its "
+            f"period") from exc
     except ValueError as exc:
-        where = "the guess" if iteration == 0 else f"Newton iterate {iteration}"
         hint = ""
         if isinstance(exc, NoReturn):
             hint = (f" (periodic_orbit waits {T_MAX_PER_PERIOD:g} times period_guess for the "

@@ -90,6 +90,17 @@ class NoReturn(ValueError):
     names its own argument for that time (``t_max``, ``period_guess``)."""
 
 
+class TooManyGroups(RuntimeError):
+    """A run that met more than ``max_groups`` event groups, by time ``t`` (a caller that
+    sets no ``max_groups`` names its own reason)."""
+
+    def __init__(self, max_groups: int, t: float):
+        self.max_groups, self.t = max_groups, t
+        super().__init__(f"more than max_groups={max_groups} event groups before t={t:.10g}: "
+                         f"a long run (pass a larger max_groups) or a trajectory that "
+                         f"chatters (Zeno)")
+
+
 def stretches_for(system, options, section=None, watch=None, stops=None):
     """The integrator of a run's stretches: compiled when the model's functions are numba
     dispatchers (``system.compiled``; the section must then be one too), else solve_ivp
@@ -360,10 +371,7 @@ def _python_stretch(system, loop, log, now, t_final, options, variational, secti
     log.groups.append(EventGroup(t, tuple(group), mask, new, x.copy(), x_after.copy(), jac))
     now.mask, now.x = new, x_after
     if len(log.groups) > max_groups:
-        raise RuntimeError(
-            f"more than max_groups={max_groups} event groups before t={t:.10g}: a long "
-            f"run (pass a larger max_groups) or a trajectory that chatters (Zeno)"
-        )
+        raise TooManyGroups(max_groups, t)
     now.ended = t >= t_final
 
 
