@@ -48,9 +48,14 @@ def test_a_slow_ball_flown_back_far_is_refused_below_the_floor():
     (examples.pronking, {"apex": 0.4}, r"pronking with apex=0.4, leg=0.5: the start it "
                                        r"builds, x0 = \(apex, 0, 0, 0\), must be above"),
     (examples.running, {"apex": 0.5}, r"pronking with apex=0.5, leg=0.5"),
+    # the short-period gait's start: its swing leg passes the stance leg after mid-stance,
+    # where the heel-strike event jumped (t_event was quoted at the legs' passing, 0.25)
+    (walkers.compass_gait, {"start": (0.193937, -0.203867)},
+     r"compass-gait with slope=0.009, theta=0.193937, theta'=-0.203867: the start it "
+     r"builds, .* is not in region 0b0.* at t_event=1.4864"),
     (walkers.compass_gait, {"start": (0.25, -0.3)},
-     r"compass-gait with slope=0.009, theta=0.25, theta'=-0.3: the start it builds, .* is "
-     r"not in region 0b0"),
+     r"the compass gait with these parameters does not complete a step from \(theta, "
+     r"theta'\) = \[0.25, -0.3\]"),
     (bounces.bouncing_ball, {"t_after": 1.0}, r"within the first flight after the bounce "
                                               r"\(before the second impact, 0.722438 s"),
     (bounces.ball_in_corner, {"t_after": 0.0}, r"t_after must be > 0"),

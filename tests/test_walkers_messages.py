@@ -82,3 +82,14 @@ def test_the_rimless_wheel_block_of_the_docs_runs_on_its_own():
     namespace = {}
     exec(compile(block, "docs/gaits.md", "exec"), namespace)  # noqa: S102
     assert abs(namespace["mult"][0]) == pytest.approx(np.cos(np.pi / 4) ** 2, abs=1e-9)
+
+
+def test_a_wheel_at_its_stall_slope_names_period_guess():
+    """At the slope below which the wheel stalls (0.0289219..., alpha 0.3: the closed
+    form's spoke-crossing margin at 0), Newton's trial points stop returning, and the
+    failure said "pass a longer time to wait", which names no argument of periodic_orbit
+    (a review)."""
+    with pytest.raises(RuntimeError, match=r"the last trial point did not return to the "
+                                           r"section within .* pass a larger period_guess"):
+        walkers.rimless_wheel_orbit(walkers.rimless_wheel(alpha=0.3,
+                                                           slope=0.02892194287609923))

@@ -10,9 +10,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._limits import MAX_HALVINGS, MAX_PIECE_SWITCHES, PIECE_RTOL
+from .._limits import MAX_HALVINGS, MAX_PIECE_SWITCHES, PIECE_RTOL, T_MAX_PER_PERIOD
 from .._support._format import format_state
-from ..models.integrate.run import ENDS, run
+from ..models.integrate.run import ENDS, NoReturn, run
 
 __all__ = ["Damped", "NewtonStep", "damped_step", "newton_step", "onto_section"]
 
@@ -138,7 +138,13 @@ def damped_step(system, section, x, delta, res, t_max, options, keep) -> Damped:
         try:
             traj = run(system.calls, trial, t_max, options=options, section=section,
                        record=ENDS)
-        except ValueError as exc:  # no return, an event at the section ...: a shorter step
+        except NoReturn:  # run's advice names its own argument, not periodic_orbit's
+            failure = (f"; the last trial point did not return to the section within "
+                       f"{t_max:g} (periodic_orbit waits {T_MAX_PER_PERIOD:g} times "
+                       f"period_guess: pass a larger period_guess)")
+            delta = delta / 2
+            continue
+        except ValueError as exc:  # an event at the section ...: a shorter step
             failure = f"; the last trial point failed: {exc}"
             delta = delta / 2
             continue

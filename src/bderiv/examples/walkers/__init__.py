@@ -52,7 +52,7 @@ gait is mid-stance, ``theta = 0`` crossed downward (:func:`compass_section`).
 at the slope given (:func:`long_gait_start`), which :func:`compass_gait_orbit` then finds
 (from Garcia et al.'s fixed point at 0.009, the start at every slope before, Newton's method
 found another, unstable, orbit at slope 0.012, its scuff after mid-stance). The long-period
-gait is stable up to slope :data:`STABLE_SLOPE` = 0.01509 and loses its stability there by a
+gait is stable up to slope :data:`STABLE_SLOPE` = 0.015088 and loses its stability there by a
 period doubling (Garcia et al.: 0.0151): beyond, the orbit found is that gait, unstable, as
 its stability says (the stable gait there has period two, then longer periods).
 

@@ -29,8 +29,9 @@ GARCIA_EIGENVALUES = (complex(-0.19120868949940, 0.55633363687106),
                       complex(-0.19120868949940, -0.55633363687106))
 #: the slope (rad) beyond which the long-period gait of Garcia et al.'s walker (leg_mass 0)
 #: is unstable: a multiplier leaves the unit circle through -1 (a period doubling; their
-#: 0.0151); the stable gait beyond has period two, then longer periods
-STABLE_SLOPE = 0.01509
+#: 0.0151; its modulus is 0.999904 at 0.015088 and 1.000123 at 0.015089); the stable gait
+#: beyond has period two, then longer periods
+STABLE_SLOPE = 0.015088
 #: the long-period gait's ``(theta, theta')`` just after heel strike against the slope s,
 #: ``GARCIA_FIXED_POINT`` times ``f(s) / f(0.009)``, ``f(s) = s^(1/3) - b s`` with b for
 #: theta and theta' (a least-squares fit of the fixed points of Garcia et al.'s stride map
@@ -201,7 +202,7 @@ def compass_gait(*, slope=0.009, hip_mass=1.0, leg_mass=0.0, leg_com=1.0, leg=1.
         Default: the long-period gait of Garcia et al.'s walker (``leg_mass = 0``) at
         ``slope`` (:func:`long_gait_start`; their published fixed point at 0.009),
         ``theta'`` scaled by ``sqrt(g / leg)``: a start for light legs at any slope. That
-        gait is stable up to slope :data:`STABLE_SLOPE` (0.01509) and unstable beyond
+        gait is stable up to slope :data:`STABLE_SLOPE` (0.015088) and unstable beyond
         (a period doubling): there :func:`compass_gait_orbit` finds it, unstable (its
         stability says so), not the stable gait of period two. Heavy legs need a start
         of their own.
@@ -299,8 +300,8 @@ def _step_from(model, start, remedy):
     def mid(_t, x):
         return x[0]
 
-    def strike(_t, x):  # only once the swing leg is past the stance leg
-        return x[1] - 2.0 * x[0] if x[1] < 0 else -1.0
+    def strike(_t, x):  # continuous: a hit while the swing leg is not yet past (phi >= 0)
+        return x[1] - 2.0 * x[0]  # is the scuff the model ignores, stepped over below
 
     from scipy.integrate import solve_ivp  # here: bderiv.examples imports no scipy.integrate
 
@@ -309,14 +310,19 @@ def _step_from(model, start, remedy):
     options = dict(method="DOP853", rtol=1e-12, atol=1e-13)
     field = lambda _t, x: model.field(x, 0)  # noqa: E731
     a = solve_ivp(field, (0.0, 50.0), start, events=mid, **options)
-    b = (solve_ivp(field, (0.0, 50.0), a.y_events[0][0], events=strike, **options)
-         if a.status == 1 else a)
+    b, t0 = a, 0.0
+    if a.status == 1:  # (a hit's own point is no crossing for the next run: it goes on)
+        b = solve_ivp(field, (0.0, 50.0), a.y_events[0][0], events=strike, **options)
+        while b.status == 1 and b.y_events[0][0][1] >= 0.0 and t0 < 50.0:
+            t0 += float(b.t_events[0][0])
+            b = solve_ivp(field, (0.0, 50.0 - t0), b.y_events[0][0], events=strike,
+                          **options)
     if not (a.status == 1 and b.status == 1):
         raise ValueError(f"the compass gait with these parameters does not complete a step "
                          f"from (theta, theta') = {start[[0, 2]].tolist()} just after heel "
                          f"strike (no mid-stance and heel strike within 50 time units): "
                          f"{remedy}")
-    return a.y_events[0][0], b.y_events[0][0], float(b.t_events[0][0])
+    return a.y_events[0][0], b.y_events[0][0], t0 + float(b.t_events[0][0])
 
 
 def compass_gait_orbit(example=None, *, perturbation=None, **kwargs):
