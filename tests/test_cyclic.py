@@ -114,3 +114,20 @@ def test_coordinates_that_are_not_cyclic_are_refused(gait):
         with pytest.raises(TypeError, match=r"cyclic must be a sequence of coordinate indices "
                            r"\(integers\), got .* \(.*" + re.escape(what) + r"\)$"):
             orbit(bad)
+
+
+def test_a_forward_position_left_out_of_cyclic_is_named_when_the_search_fails(gait):
+    """Without cyclic=[0] the runner's search failed at its second iterate with "the flow
+    must cross the section upward ...": Newton's method, unable to undo the advance (the
+    return map's column of x is the shift itself), walked to the bottom of stance (a
+    review). The failure now names the coordinate, its advance, and cyclic=[0]."""
+    ex, orb = gait
+    with pytest.raises((ValueError, RuntimeError)) as info:
+        runner.running_orbit(ex, cyclic=[])
+    message = str(info.value)
+    found = re.search(r"coordinates \[0\] advanced by \[([-0-9.e]+)\] at the guess and the "
+                      r"return map's derivative along them is the shift itself: pass "
+                      r"cyclic=\[0\]", message)
+    assert found, message
+    # the advance at the guess: about the orbit's (v_target times the period)
+    assert float(found.group(1)) == pytest.approx(orb.advance[0], rel=0.5)

@@ -120,6 +120,21 @@ def check_equivariance(R, x, cyclic) -> None:
             )
 
 
+def undeclared(R, r, tol: float) -> list:
+    """The coordinates i that the return moved (``|r_i| > tol``, ``r = P(x) - x``) and along
+    which the return map's B-derivative ``R`` is the shift itself (as
+    :func:`check_equivariance` tests): a forward position left out of ``cyclic``, which
+    Newton's method cannot bring back (the map's column i of ``R - I`` is 0), said when
+    the search fails."""
+    d = r.size
+    E = np.vstack([np.eye(d), -np.eye(d)])
+    images = R(E)
+    miss = np.abs(images - E).reshape(2, d, d).max(axis=(0, 2))
+    scale = np.abs(images).reshape(2, d, d).max(axis=(0, 2))
+    return [i for i in range(d) if abs(r[i]) > tol
+            and miss[i] <= EQUIVARIANCE_RTOL * max(1.0, scale[i])]
+
+
 def reduced_basis(normal, cyclic, dim: int) -> np.ndarray:
     """Orthonormal basis (dim, dim - 1 - len(cyclic)) of the section's tangent space with
     the cyclic coordinates held at 0."""

@@ -62,6 +62,7 @@ from ._cyclic import (
     check_section_normal,
     kept,
     reduced_basis,
+    undeclared,
 )
 from .newton import damped_step, newton_step, onto_section
 from .returnmap import return_map
@@ -240,7 +241,8 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         checked at the start (a shift by each of :data:`bderiv.analysis._cyclic.SHIFTS` must shift
         the return by the same and change nothing else) and at every iterate and the
         orbit (the return map's derivative along each must be the identity:
-        :func:`bderiv.analysis._cyclic.check_equivariance`).
+        :func:`bderiv.analysis._cyclic.check_equivariance`). A coordinate left out that the
+        guess's return advances as a cyclic one would is named if the search then fails.
 
     Returns
     -------
@@ -275,34 +277,46 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
             system.calls, s, t_max, options=iterates, section=section, record=ENDS)).x_final
             for start in starts]
         check_independence(returned, x, shifted, cyclic)
-    with search_bar(max_iter, "periodic_orbit", "Newton iterate") as bar:  # long searches
-        for iteration in range(max_iter + 1):
-            R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build:
-                                              _build(system, x, section, t_max, b, iterates))
-            check_equivariance(R, x, cyclic)
-            r = R.x_final - x
-            res = float(np.abs(r[keep]).max())
-            bar(iteration, f"max |P(x) - x| = {res:.2g}")
-            if _within(res, x, keep, tol):
-                break
-            if iteration == max_iter:
-                raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
-                                   f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
-            if built_with != iterates and any(s > 0 for s in R.flow.group_spreads):
-                # events apart at x merged by the caller's tolerance: a step from that map is a
-                # chord, and Newton's method converges only linearly; the iterates' map instead
-                R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x: _build(
-                    system, x, section, t_max, iterates, iterates))
+    advancing = []  # coordinates the guess's return advanced as a cyclic one would
+    try:
+        with search_bar(max_iter, "periodic_orbit", "Newton iterate") as bar:  # long searches
+            for iteration in range(max_iter + 1):
+                R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x, b=build:
+                                                  _build(system, x, section, t_max, b, iterates))
                 check_equivariance(R, x, cyclic)
                 r = R.x_final - x
-            step = newton_step(R, r, section.gradient(x), section(x), keep=keep)
-            damped = damped_step(system, section, x, step.delta, res, t_max, iterates, keep)
-            history.append(NewtonIterate(x.copy(), res, float(np.abs(damped.x - x).max()),
-                                         step.piece, step.switches))
-            x = damped.x
-            # converged already by the damped step's run: the next map is likely the orbit's,
-            # so it is built with the caller's tolerance (and kept if the test passes on it)
-            build = options if _within(damped.residual, x, keep, tol) else iterates
+                if iteration == 0 and not cyclic:
+                    advancing, r0 = undeclared(R, r, tol * max(1.0, float(np.abs(x).max()))), r
+                res = float(np.abs(r[keep]).max())
+                bar(iteration, f"max |P(x) - x| = {res:.2g}")
+                if _within(res, x, keep, tol):
+                    break
+                if iteration == max_iter:
+                    raise RuntimeError(f"Newton's method did not converge in max_iter={max_iter} "
+                                       f"iterations: max |P(x) - x| = {res:.3g} at x = {x}")
+                if built_with != iterates and any(s > 0 for s in R.flow.group_spreads):
+                    # events apart at x merged by the caller's tolerance: a step from that map is a
+                    # chord, and Newton's method converges only linearly; the iterates' map instead
+                    R, traj, built_with = _at_iterate(iteration, x, t_max, lambda x=x: _build(
+                        system, x, section, t_max, iterates, iterates))
+                    check_equivariance(R, x, cyclic)
+                    r = R.x_final - x
+                step = newton_step(R, r, section.gradient(x), section(x), keep=keep)
+                damped = damped_step(system, section, x, step.delta, res, t_max, iterates, keep)
+                history.append(NewtonIterate(x.copy(), res, float(np.abs(damped.x - x).max()),
+                                             step.piece, step.switches))
+                x = damped.x
+                # converged already by the damped step's run: the next map is likely the orbit's,
+                # so it is built with the caller's tolerance (and kept if the test passes on it)
+                build = options if _within(damped.residual, x, keep, tol) else iterates
+    except (ValueError, RuntimeError) as exc:  # a forward position left out of cyclic?
+        if advancing and type(exc) in (ValueError, RuntimeError):
+            raise type(exc)(f"{exc}; coordinates {advancing} advanced by "
+                            f"{[float(v) for v in r0[advancing]]} at the guess and the "
+                            f"return map's derivative along them is the shift itself: "
+                            f"pass cyclic={advancing} (Newton's method cannot bring "
+                            f"them back)") from exc
+        raise
     history.append(NewtonIterate(x.copy(), res, 0.0, ()))
     if built_with != options:  # the map at x was built for the iteration only
         R, traj = _at_iterate(iteration, x, t_max, lambda: return_map(
