@@ -276,3 +276,20 @@ def test_singular_resets_have_no_triangulation():
     with pytest.raises(ValueError, match="is singular .* not a homeomorphism and has no "
                                          "triangulation"):
         bd.triangulation()
+
+
+@pytest.mark.parametrize("scale_F, scale_Dh", [(1e155, 1.0), (1e300, 1.0), (1e-160, 1e160),
+                                               (1e160, 1e-160)])
+def test_the_inverse_of_a_table_at_the_ends_of_float64(scale_F, scale_Dh):
+    """The map does not change when F is scaled, nor when Dh is scaled one way and F the
+    other (mathematics.md, "Scale"); apply agreed, but the inverse's check multiplied
+    |F| |Dh_k| (overflow, underflow) and refused with "the rate ... changes sign or
+    vanishes" where every rate was 1.24 and up (a review). Oracle: tests/reference.py's
+    map at unit scale, read back by the inverse."""
+    rng = np.random.default_rng(5)
+    Dh, F, R = ref.random_reset_system(rng, 2, 3)
+    V = rng.standard_normal((4, 3))
+    W = np.array([ref.ref_reset_flow(Dh, F, R, v)[0] for v in V])
+    bd = BDerivative(Dh * scale_Dh, F * scale_F, resets=R)
+    np.testing.assert_allclose(bd(V), W, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(bd.inverse(W), V, rtol=1e-12, atol=1e-12)

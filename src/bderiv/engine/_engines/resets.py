@@ -262,10 +262,14 @@ class ResetEngine(Engine):
         for k in range(n):
             after = masks[(masks >> k) & 1 == 1]
             rate = self.G[after, k]
-            scale = np.linalg.norm(self.F[after], axis=1) * np.linalg.norm(self.Dh[k])
-            sides = np.sign(rate) * (np.abs(rate) > tol * scale)
+            # |rate| / (|F| |Dh_k|) as a quotient of norms that neither overflow nor
+            # underflow (np.hypot): their product did, for tables of 1e155 or 1e-160,
+            # and read as a vanishing rate
+            unit = np.hypot.reduce(self.Dh[k])
+            relative = np.abs(rate) / np.hypot.reduce(self.F[after], axis=1) / unit
+            sides = np.sign(rate) * (relative > tol)
             if not (np.all(sides > 0) or np.all(sides < 0)):
-                i = int(np.argmin(np.abs(rate) / np.maximum(scale, 1e-300)))
+                i = int(np.argmin(relative))
                 raise ValueError(
                     f"no {what}: the rate of event {k} after it happened changes sign or "
                     f"vanishes over the regions (G[{after[i]}, {k}] = {rate[i]:.3g} in region "
@@ -274,11 +278,10 @@ class ResetEngine(Engine):
                     f"still work"
                 )
             before = masks[(masks >> k) & 1 == 0]
-            DhR = self.Dh[k] @ reset_matrices(self.P, self.Q, self.low, before, k)  # (m, d)
-            along = DhR @ self.Dh[k] / (self.Dh[k] @ self.Dh[k])
-            off = np.linalg.norm(DhR - along[:, None] * self.Dh[k], axis=1)
-            bad = np.flatnonzero(~(off <= self.reset_tol * np.linalg.norm(DhR, axis=1)
-                                   + 1e-300))
+            u = self.Dh[k] / unit  # Dh_k's direction (its rows R: the same test, unscaled)
+            DhR = u @ reset_matrices(self.P, self.Q, self.low, before, k)  # (m, d)
+            off = np.hypot.reduce(DhR - (DhR @ u)[:, None] * u, axis=1)
+            bad = np.flatnonzero(~(off <= tol * np.hypot.reduce(DhR, axis=1) + 1e-300))
             if bad.size:
                 b = int(before[bad[0]])
                 raise ValueError(
