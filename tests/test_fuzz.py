@@ -45,8 +45,8 @@ from reference import (
 from bderiv import BDerivative
 
 #: the refusals a fuzz outcome may be: each names its cause.
-REFUSALS = ("transversality violated", "grazing", "ill-conditioned", "overflow", "non-finite",
-            "underflows float64")
+REFUSALS = ("transversality violated", "transversality fails", "grazing", "ill-conditioned",
+            "overflow", "non-finite", "underflows float64")
 
 
 @dataclass

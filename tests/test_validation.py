@@ -102,6 +102,18 @@ def test_zero_rate_is_a_violation():
         BDerivative(DH2, F)
 
 
+def test_a_row_of_zeros_is_named_not_called_an_underflow():
+    """A zero row of Dh, or a zero corner F[mask], was "underflows float64: |F| |Dh| =
+    1e-320 ...; rescale the state or time units", which no rescaling mends (a review)."""
+    F = np.abs(F2) + 0.5
+    with pytest.raises(ValueError, match=r"transversality fails at event 0 .*: Dh\[0\] is a "
+                                         r"row of zeros: event 0's surface has no normal"):
+        BDerivative(np.array([[0.0, 0.0], [0.0, 1.0]]), F)
+    F[0] = 0.0
+    with pytest.raises(ValueError, match=r"F\[0\] is a row of zeros: the flow stands still"):
+        BDerivative(np.eye(2), F)
+
+
 def test_violation_mask_bit_string_has_n_bits():
     n = 4
     Dh = np.eye(n)

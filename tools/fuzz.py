@@ -88,7 +88,8 @@ FD_RTOL = 1e-7
 #: powers of two per query for the homogeneity checks
 SCALES = 4
 
-BUILD_KINDS = (("transversality violated", "transversality"), ("grazing", "grazing"),
+BUILD_KINDS = (("transversality violated", "transversality"),
+               ("transversality fails", "a row of zeros"), ("grazing", "grazing"),
                ("ill-conditioned", "ill-conditioned"),
                ("float64", "rate beyond float64"))
 QUERY_KINDS = (("event times", "overflow"), ("time of event", "time beyond float64"),

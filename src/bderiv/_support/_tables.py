@@ -245,8 +245,9 @@ def find_transversality_violation(G, F, Dh, tol, pending_only=False, maxima=None
     side it came from, the event's rate is negative (mathematics.md section 9); every rate
     must still be finite.
 
-    ``kind`` is ``"overflow"`` for a rate beyond float64, ``"underflow"`` for one below it
-    (``scale`` is then log10 |F[mask]| |Dh[k]|), ``"violated"`` for a rate <= 0 and
+    ``kind`` is ``"overflow"`` for a rate beyond float64, ``"zero"`` where ``F[mask]`` or
+    ``Dh[k]`` is a row of zeros, ``"underflow"`` for a rate below float64 (``scale`` is then
+    log10 |F[mask]| |Dh[k]|), ``"violated"`` for a rate <= 0 and
     ``"grazing"`` for a positive rate that is tiny relative to the scale of the two vectors
     (the surfaces are then nearly tangent to the flow and the event times ill-conditioned).
 
@@ -279,6 +280,8 @@ def find_transversality_violation(G, F, Dh, tol, pending_only=False, maxima=None
             neg = (G[rows] <= 0) & bad
             i, k = np.argwhere(neg if neg.any() else bad)[0]
             kind = "violated" if neg.any() else "grazing"
+            if f_norm[i] == 0.0 or dh_norm[k] == 0.0:  # a row of zeros: no rate at all
+                return rows.start + int(i), int(k), "zero", 0.0
             # |F| |Dh| below ~1e-290: the rate is lost to underflow, not known to be <= 0
             log_scale = np.log10(max(f_norm[i], 1e-320)) + np.log10(max(dh_norm[k], 1e-320))
             if abs(G[rows.start + i, k]) < TINY and log_scale < UNDERFLOW_LOG10:

@@ -168,6 +168,12 @@ class DenseEngine(Engine):
                 f"event {k} in {format_region(mask, n)}: rate "
                 f"G[{mask}, {k}] = F[{mask}] . Dh[{k}] = {rate:.3g}"
             )
+            if kind == "zero":
+                row = (f"Dh[{k}] is a row of zeros: event {k}'s surface has no normal"
+                       if not Dh[k].any() else
+                       f"F[{mask}] is a row of zeros: the flow stands still in that region")
+                raise ValueError(f"transversality fails at {where}: {row}, so the event "
+                                 f"is never crossed")
             if kind == "underflow":
                 raise ValueError(
                     f"the rate of {where} underflows float64: |F[{mask}]| |Dh[{k}]| = "
