@@ -599,6 +599,32 @@ def test_user_corner_model_follows_the_protocol():
     np.testing.assert_allclose(bd.to_dense().F, F)
 
 
+def test_a_protocol_models_plain_python_function_is_compiled_as_corner_functions_are():
+    """CornerFunction(plain function) compiled it; a protocol model's corner_function()
+    returning one failed with "'function' object has no attribute 'compile'" (a
+    review). Oracle: the dense table its corners() spell out."""
+
+    def func(happened, out):
+        out[0] = 1.0 + happened[0]
+        out[1] = 1.0 + 0.5 * happened[1]
+
+    class Plain:
+        n_events, dim = 2, 2
+
+        def corners(self, happened):
+            h = np.asarray(happened, dtype=np.float64)
+            return np.stack([1.0 + h[..., 0], 1.0 + 0.5 * h[..., 1]], axis=-1)
+
+        def corner_function(self):
+            return func
+
+    Dh = np.array([[1.0, 0.2], [0.1, 1.0]])
+    V = np.random.default_rng(3).standard_normal((50, 2))
+    F = Plain().corners((np.arange(4)[:, None] >> np.arange(2)) & 1)
+    np.testing.assert_allclose(BDerivative(Dh, Plain())(V), BDerivative(Dh, F)(V),
+                               rtol=1e-13, atol=1e-13)
+
+
 def test_incomplete_corner_model_is_refused():
     class OnlyCorners:
         n_events, dim = 2, 2

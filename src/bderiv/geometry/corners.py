@@ -60,7 +60,7 @@ class CornerModel(Protocol):
     corner_function() -> numba function ``func(happened, out)``
         Writes the corner of one region (``happened``: uint8 array of n flags) into
         ``out`` (float64, shape (d,)); called from several threads at once, so it must be
-        pure.
+        pure. A plain Python function is compiled with ``numba.njit``.
     """
 
     n_events: int | None

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
+from numba.core.registry import CPUDispatcher
 
 from ..._kernels import function as kernels
 from ..._kernels._core import frozen_tables
@@ -61,8 +63,11 @@ class FunctionEngine(Engine):
 
 def checked_function(model, n: int, d: int):
     """The model's ``corner_function()``, run once on the first and the last region: it
-    must be callable as ``func(happened, out)`` and write finite values."""
+    must be callable as ``func(happened, out)`` and write finite values; a plain Python
+    function is compiled with ``numba.njit``, as :class:`~bderiv.CornerFunction` does."""
     func = model.corner_function()
+    if callable(func) and not isinstance(func, CPUDispatcher):
+        func = numba.njit(func)
     ends = np.ascontiguousarray([np.zeros(n), np.ones(n)], dtype=np.uint8)
     out = np.full((2, d), np.nan)
     try:
