@@ -663,3 +663,36 @@ def test_a_corner_functions_launches_are_sized_by_their_time(monkeypatch):
     np.testing.assert_array_equal(bd(V), whole)
     assert sizes == [PARALLEL_MIN_QUERIES] * 19 + [V.shape[0] - 19 * PARALLEL_MIN_QUERIES]
     np.testing.assert_allclose(whole, BDerivative(Dh, model.table())(V), atol=1e-12)
+
+
+@pytest.mark.parametrize("s_dh, s_f", [(1e200, 1e200), (1e-200, 1e-200), (1e-310, 1.0),
+                                       (1.0, 1e-310)])
+def test_structured_corners_at_the_ends_of_float64(s_dh, s_f):
+    """The map does not change when Dh's rows or F are scaled (mathematics.md, "Scale").
+    Structured corners with Dh and F of 1e200 each (rates 1e400) or 1e-200 each were
+    refused as "transversality violated" (rate nan, rate 0), and subnormal corners gave a
+    query "overflowed" (a review); the dense table of the same model was right. Their
+    kernels' tables are now scaled by powers of two as a dense table's. Oracle:
+    tests/reference.py's map at unit scale."""
+    rng = np.random.default_rng(8)
+    n, d = 4, 5
+    Dh = np.hstack([np.eye(n), 0.1 * rng.standard_normal((n, d - n))])
+    F0, A = np.ones(d), 0.3 * rng.uniform(-1, 1, (n, d))
+    unit = StructuredCorners(F0, A)
+    V, T = rng.standard_normal((12, d)), rng.standard_normal((12, d))
+    scaled = StructuredCorners(F0 * s_f, A * s_f)
+    bd = BDerivative(Dh * s_dh, scaled)
+    W = np.array([ref_apply(Dh, unit.corners, v) for v in V])
+    np.testing.assert_allclose(bd(V), W, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(bd.inverse(W), V, rtol=1e-12, atol=1e-12)
+    ones = BDerivative(Dh, unit)
+    np.testing.assert_allclose(bd.jvp(V, T), ones.jvp(V, T), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(bd.vjp(V, T), ones.vjp(V, T), rtol=1e-12, atol=1e-12)
+    if s_f >= 1e-300:  # times are 1 / s_f those at unit scale: within float64 here
+        times, orders = bd.event_times(V)
+        unit_times, unit_orders = ones.event_times(V)
+        np.testing.assert_array_equal(orders, unit_orders)
+        # (subnormal rows of Dh keep fewer digits: the times' small entries lose a few)
+        np.testing.assert_allclose(times * s_f, unit_times, rtol=1e-10,
+                                   atol=1e-12 * np.abs(unit_times).max())
+    np.testing.assert_array_equal(bd.to_dense().F, scaled.table())  # the caller's units

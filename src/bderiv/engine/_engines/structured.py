@@ -10,7 +10,8 @@ from ..._limits import PROOF_MARGIN
 from ..._support._format import format_happened
 from ..._support._tables import padded
 from . import fastpath
-from .base import Engine
+from .base import Engine, tabulate
+from .dense import table_exponents
 
 
 class StructuredEngine(Engine):
@@ -20,13 +21,29 @@ class StructuredEngine(Engine):
     bDh[p, k])`` of every rate is checked: above a margin, transversality is proved and
     the kernels skip their per-region checks; without pairs the bound is attained, so a
     bound <= 0 is a violation, refused here naming the region.
+
+    As a dense table's (:func:`.dense.table_exponents`), the kernels' tables are made
+    from Dh's rows and the corners (F0, A, B) scaled by powers of two where they are far
+    from 1: the map is the same, the event times ``2**time_shift`` the caller's, and a
+    model whose rates fit float64 runs whatever the scale of its vectors (Dh and F of
+    1e200 each, rates 1e400, were refused as "transversality violated": rate nan).
+    ``Dh`` and ``model`` are the scaled ones (the tangents and pieces read them: ratios,
+    unchanged), ``caller`` the caller's model (its dense table).
     """
 
     def __init__(self, Dh, model, fast_paths: bool = True):
-        self.Dh, self.model = Dh, model
+        self.caller = model
         self.n, self.d = Dh.shape
-        DhT = np.ascontiguousarray(Dh.T)
         F0, A, pairs, B = model.F0, model.A, model.pairs, model.B
+        f_big = max(float(np.abs(M).max(initial=0.0)) for M in (F0, A, B))
+        dh_exps, f_exp = table_exponents(np.abs(Dh).max(axis=1).tolist(), f_big)
+        self.time_shift, self._rate_exps = f_exp, f_exp + dh_exps
+        if f_exp or np.count_nonzero(dh_exps):
+            Dh = np.ldexp(Dh, -dh_exps[:, None])
+            F0, A, B = (np.ldexp(M, -f_exp) for M in (F0, A, B))
+            model = type(model)(F0, A, pairs, B)
+        self.Dh, self.model = Dh, model
+        DhT = np.ascontiguousarray(Dh.T)
         g0 = Dh @ F0
         a = np.ascontiguousarray(A @ Dh.T)  # a[i, k] = Dh[k] . A[i]
         bDh = np.ascontiguousarray(B @ Dh.T)  # (p, n)
@@ -52,7 +69,8 @@ class StructuredEngine(Engine):
             raise ValueError(
                 f"transversality violated at event {k} in region mask "
                 f"{format_happened(hap)} (bit k set = event k happened): rate "
-                f"Dh[{k}] . (F0 + sum of A over the region) = {lower[k]:.3g}, expected > 0; "
+                f"Dh[{k}] . (F0 + sum of A over the region) = "
+                f"{np.ldexp(lower[k], self._rate_exps[k]):.3g}, expected > 0; "
                 f"the flow must cross every event surface from h_k < 0 to h_k > 0 in "
                 f"every region"
             )
@@ -61,7 +79,7 @@ class StructuredEngine(Engine):
                 k = int(np.flatnonzero(~(rates > 0))[0])
                 raise ValueError(
                     f"transversality violated at event {k} in region {name}: rate "
-                    f"{rates[k]:.3g}, expected > 0"
+                    f"{np.ldexp(rates[k], self._rate_exps[k]):.3g}, expected > 0"
                 )
         return False
 
@@ -80,6 +98,9 @@ class StructuredEngine(Engine):
 
     def corners(self, happened) -> np.ndarray:
         return self.model.corners(happened)
+
+    def dense_table(self) -> np.ndarray:
+        return tabulate(self.caller.corners, self.n, self.d)
 
 
 def _kernel_tables(DhT, g0, gfull, a, bDh, pairs, A, B, check):
