@@ -87,3 +87,24 @@ def test_the_summaries_take_eps_as_their_checks_steps(capsys, example):
     assert 0.005 < ratio < 0.02, fd
     assert main(["demo", "--example", example, "--eps", "1e-4", "1e-4"]) == 2
     assert "--eps: the steps must decrease" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("example", ["chair", "landing", "pronking"])
+def test_the_steps_are_printed_as_given(capsys, example):
+    """``{e:.0e}`` printed 1.5e-4 as 2e-04 and 2.5e-5 as 3e-05, steps the check did not
+    take, beside a ratio that fitted the real ones (a review)."""
+    assert main(["demo", "--example", example, "--eps", "1.5e-4", "2.5e-5",
+                 "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "  eps = 1.5e-04: " in out and "  eps = 2.5e-05: " in out, out
+
+
+def test_a_commands_random_batch_is_drawn_in_pieces_with_the_same_numbers(monkeypatch):
+    """demo and bench draw their batch RANDOM_ROWS rows at a time, so that Ctrl-C is seen
+    between the draws (one draw of 30 million rows held it for 3-4 s: a review); the
+    numbers are those of one draw (the demo's output does not change)."""
+    from bderiv.cli import systems
+
+    monkeypatch.setattr(systems, "RANDOM_ROWS", 7)
+    got = systems.random_vectors(np.random.default_rng(4), 50, 3)
+    np.testing.assert_array_equal(got, np.random.default_rng(4).standard_normal((50, 3)))

@@ -327,3 +327,18 @@ def test_memory_refusal_names_the_headroom(capsys, monkeypatch):
     monkeypatch.setattr(usage, "memory_headroom", lambda: 4 << 30)
     refused(["bench", "--n", "1e7", "--no-progress"], capsys, "needs more than 2**10000000 B",
             "only 4.0 GiB is available")
+
+
+def test_figure_names_and_sizes_in_scientific_notation_are_read_as_written(capsys, tmp_path):
+    """Three refusals that said the wrong thing (a review): ``--plot ""`` was taken as no
+    plot, silently; ``--plot .png`` (a hidden file's name) "must end in .png"; and
+    ``--batch 1e20`` "expected a positive integer" where the same size in digits got the
+    memory message. An integral size in scientific notation is now read exactly."""
+    refused(["bench", "--n", "2", "--batch", "100", "--repeat", "1", "--no-progress",
+             "--plot", ""], capsys, "--plot: figure file '' must end in .png, .pdf or .svg")
+    code, out, err = run(["bench", "--n", "2", "--batch", "100", "--repeat", "1",
+                          "--no-progress", "--plot", str(tmp_path / ".png")], capsys)
+    assert code == 0, err
+    assert (tmp_path / ".png").stat().st_size > 1000
+    refused(["demo", "--batch", "1e20"], capsys,
+            "--batch 100000000000000000000 (d = 6) needs about", "ask for less")

@@ -553,6 +553,9 @@ def test_wrong_axes_and_rows_are_named(planar):
     ("n", True, "rows[0]['n'] is True, not a positive integer"),
     ("method", None, "rows[0]['method'] is None, not a string"),
     ("m", 0, "rows[0]['m'] is 0, not a positive integer"),
+    # a valid JSON integer that no figure can draw (matplotlib's OverflowError: a review)
+    ("n", 10**400, "rows[0]['n'] is 1000000000000000000000000000000000000000, not a positive "
+                   "integer up to 2**53"),
 ])
 def test_scaling_rows_of_the_wrong_kind_are_named(key, value, words):
     """A value the figure would draw wrongly (a string's log, a NaN, a count of 2.0 events)

@@ -116,6 +116,10 @@ CHECK_ERROR_FACTOR = 8.0
 #: its 9.81 fall) has differences of that size whatever its Jacobian says, and no smaller
 #: wrong term can be told from them
 CHECK_ROUND_FLOOR = 64.0
+#: rows of a command's random batch drawn at once (``cli.systems.random_vectors``): about
+#: 0.1 s of NumPy for d = 6, so Ctrl-C is seen between draws (one draw of 30 million rows
+#: held it for 3-4 s)
+RANDOM_ROWS = 1 << 20
 #: the least spread of a growth rate's log (``analysis.stability``): a map evaluated in
 #: float64 moves ``log |A v|`` by rounding at every step (a ball with e = 1, whose apex map
 #: is the identity, gave 1 + 4e-16 and "unstable"), so a rate within this of 1 is

@@ -92,6 +92,12 @@ def transversality_message(event: int, region: str, rate: float, where: str = ""
 SHOWN_ENTRIES = 32
 
 
+def format_step(eps: float) -> str:
+    """A finite-difference step as given, in scientific notation (``1e-04``, ``1.5e-04``):
+    ``.0e`` printed 1.5e-4 as 2e-04, a step the check did not take."""
+    return np.format_float_scientific(eps, trim="-", exp_digits=2)
+
+
 def format_state(x) -> str:
     """A state (or any array, read flat) in a message, every digit kept: ``[0.5, -1.25]``;
     of more than :data:`SHOWN_ENTRIES` entries, the first and last eight and the count

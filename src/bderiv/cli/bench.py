@@ -62,7 +62,7 @@ def run_bench(ns, *, d_factor=1, batch=BENCH_BATCH, repeat=BENCH_REPEAT, plot=No
         also ``plot`` (``path``, ``replaced``: whether it replaced an earlier file,
         ``created``: the topmost directory made, or None).
     """
-    if plot:
+    if plot is not None:  # "" too: refused by name, not skipped
         require_module("matplotlib", "--plot")
         check_figure_path(plot, "--plot")
     for n in ns:

@@ -24,7 +24,7 @@ from .._limits import DEMO_BATCH, DEMO_CHECK, FD_EPS
 from ..analysis.checks import fd_check
 from .machine import machine_info
 from .pieces import distinct_pieces, group_tables, piece_summary
-from .systems import load_example
+from .systems import load_example, random_vectors
 from .timing import Phases
 from .usage import require_demo_memory
 
@@ -105,7 +105,7 @@ def _model_demo(ex, res, batch, check, eps, rng, full, progress, report, phases)
     if full:
         res["linear"] = [L.tolist() for L in fb.linear]
     report("trajectory", res)
-    V = rng.standard_normal((batch, system.dim))
+    V = random_vectors(rng, batch, system.dim)
     with phases("pieces"):
         res["pieces"] = piece_summary(fb, V[:PIECE_SAMPLE], full)
     report("pieces", res)
@@ -197,6 +197,6 @@ def _table_demo(bd, res, batch, rng, full, report):
                  "norm": float(np.linalg.norm(P, 2))}
         res["pieces"].append(entry | ({"matrix": P.tolist()} if full else {}))
     err = float(np.abs(bd.inverse(W) - V).max())
-    res["batch"] = _time_batch(bd, rng.standard_normal((batch, bd.dim)))
+    res["batch"] = _time_batch(bd, random_vectors(rng, batch, bd.dim))
     res["check"] = {"inverse_round_trip": err}
     report("corner_table", res)

@@ -248,7 +248,7 @@ def save_figure(fig, path: str, dpi: int, option: str) -> None:
     """Save ``fig`` to ``path``; a path that cannot be written is a usage error of
     ``option``."""
     check_raster(fig, dpi, os.path.basename(path))
-    try:
-        fig.savefig(path, dpi=dpi)
+    try:  # the format named: matplotlib reads ".png" as a name without one, and adds .png
+        fig.savefig(path, dpi=dpi, format=path.rsplit(".", 1)[-1].lower())
     except OSError as exc:
         raise UsageError(not_writable(option, path, exc)) from None

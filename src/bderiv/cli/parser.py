@@ -10,6 +10,7 @@ other exception is a bug or a failure of the machine and propagates with its tra
 from __future__ import annotations
 
 import argparse
+import decimal
 import os
 import sys
 
@@ -72,13 +73,19 @@ def _argument_type(convert, accept, expected: str):
 
 
 def _integer(text: str) -> int | None:
-    """``int(text)``, also for integral values in scientific notation (``1e6``) up to
-    2**53 (beyond it a float no longer holds every integer); None when not integral."""
+    """``int(text)``, also for integral values in scientific notation (``1e6``, ``1e20``:
+    read exactly, as a decimal, up to 1e30); None when not integral."""
     try:
         return int(text)
     except ValueError:
-        value = float(text)
-    return int(value) if value.is_integer() and abs(value) <= 2.0**53 else None
+        pass
+    try:
+        value = decimal.Decimal(text.replace("_", ""))
+    except decimal.InvalidOperation:
+        return None
+    if not value.is_finite() or value.adjusted() > 30 or value != value.to_integral_value():
+        return None  # (1e1000000000 would be a billion digits)
+    return int(value)
 
 
 _positive_int = _argument_type(_integer, lambda v: v >= 1, "a positive integer")

@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from .._support._format import format_mask, format_order
+from .._support._format import format_mask, format_order, format_step
 from .machine import describe
 
 
@@ -213,7 +213,7 @@ def _check(res):
              f"vector{'s' * (k != 1)}, {pieces} distinct piece{'s' * (pieces != 1)}): "
              f"max |FD - D V| / max |D V|"]
     for e, err in zip(c["eps"], c["max_rel_error"], strict=True):
-        lines.append(f"  eps = {e:.0e}: {err:.3e}")
+        lines.append(f"  eps = {format_step(e)}: {err:.3e}")
     if c["error_ratios"]:
         lines.append("  error shrinks with eps by "
                      + ", ".join("- (to 0)" if r is None else f"{r:.1f}x"

@@ -29,6 +29,7 @@ from ..engine._baselines import (
     useful_flops,
 )
 from ..engine.bderivative import BDerivative
+from .systems import random_vectors
 
 #: the largest n at which :func:`sweep` times the NumPy baseline by default
 NUMPY_MAX_N = 16
@@ -77,7 +78,7 @@ def sweep(ns=BENCH_NS, *, d_factor: int = 1, batch: int = BENCH_BATCH, repeat: i
         Dh, F = benchmark_system(n, d, seed)
         bd = BDerivative(Dh, F)  # untimed: the first build compiles or loads its kernels
         build = best_time(lambda Dh=Dh, F=F: BDerivative(Dh, F), repeat, warmup=False).wall
-        V = rng.standard_normal((batch, d))
+        V = random_vectors(rng, batch, d)
         out = np.empty_like(V)
         flops = batch * useful_flops(n, d)
         common = dict(n=n, d=d, m=batch)

@@ -76,8 +76,7 @@ def require_robot_files(for_what: str) -> None:
 def check_figure_path(path: str, option: str) -> None:
     """Refuse a figure path before any work is done (suffix; a directory that exists and
     is writable, or can be made; no directory of that name in the way)."""
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in (".png", ".pdf", ".svg"):
+    if not path.lower().endswith((".png", ".pdf", ".svg")):  # ".png" too: a hidden file
         raise UsageError(f"{option}: figure file {path!r} must end in .png, .pdf or .svg")
     check_output_directory(os.path.dirname(os.path.abspath(path)), option)
     check_output_file(path, option)

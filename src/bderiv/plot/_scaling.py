@@ -127,9 +127,9 @@ def _machine_note(machine: str) -> str:
 
 #: the keys of a benchmark row that :func:`scaling` reads, each with what its value must be
 #: (``d`` and ``m`` may be left out)
-ROW_KEYS = {"n": "a positive integer", "method": "a string",
-            "seconds_per_query": "a positive number", "d": "a positive integer",
-            "m": "a positive integer"}
+ROW_KEYS = {"n": "a positive integer up to 2**53", "method": "a string",
+            "seconds_per_query": "a positive number", "d": "a positive integer up to 2**53",
+            "m": "a positive integer up to 2**53"}
 
 
 def check_rows(rows, spell=repr) -> None:
@@ -167,7 +167,8 @@ def _good(key, value) -> bool:
         return False
     if key == "seconds_per_query":  # numpy's floats too
         return isinstance(value, numbers.Real) and math.isfinite(value) and value > 0
-    return isinstance(value, numbers.Integral) and value >= 1
+    # (drawn as floats: 10**400 reached matplotlib's OverflowError)
+    return isinstance(value, numbers.Integral) and 1 <= value <= 2**53
 
 
 def _sweep_caption(rows) -> str:
