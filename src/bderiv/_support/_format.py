@@ -92,10 +92,12 @@ def transversality_message(event: int, region: str, rate: float, where: str = ""
 SHOWN_ENTRIES = 32
 
 
-def format_step(eps: float) -> str:
-    """A finite-difference step as given, in scientific notation (``1e-04``, ``1.5e-04``):
-    ``.0e`` printed 1.5e-4 as 2e-04, a step the check did not take."""
-    return np.format_float_scientific(eps, trim="-", exp_digits=2)
+def format_steps(eps, errors) -> list:
+    """The lines ``  eps = <step>: <error>`` of a finite-difference check, each step as
+    given in scientific notation (``1e-04``, ``1.5e-04``: ``.0e`` printed 1.5e-4 as 2e-04,
+    a step the check did not take)."""
+    return [f"  eps = {np.format_float_scientific(e, trim='-', exp_digits=2)}: {err:.3e}"
+            for e, err in zip(eps, errors, strict=True)]
 
 
 def format_state(x) -> str:

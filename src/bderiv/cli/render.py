@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from .._support._format import format_mask, format_order, format_step
+from .._support._format import format_mask, format_order, format_steps
 from .machine import describe
 
 
@@ -212,8 +212,7 @@ def _check(res):
     lines = [f"check of D against finite differences of the simulation ({k} unit "
              f"vector{'s' * (k != 1)}, {pieces} distinct piece{'s' * (pieces != 1)}): "
              f"max |FD - D V| / max |D V|"]
-    for e, err in zip(c["eps"], c["max_rel_error"], strict=True):
-        lines.append(f"  eps = {format_step(e)}: {err:.3e}")
+    lines += format_steps(c["eps"], c["max_rel_error"])
     if c["error_ratios"]:
         lines.append("  error shrinks with eps by "
                      + ", ".join("- (to 0)" if r is None else f"{r:.1f}x"

@@ -36,7 +36,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from .._support._format import format_step
+from .._support._format import format_steps
 from .._support._validate import check_number, check_numbers
 from .._support._validate_ints import check_int
 from ..analysis.stability import verdict_word
@@ -379,8 +379,7 @@ def summary_text(res):
     fd = res["fd"]
     lines.append(f"check: finite differences of the simulated Poincare map ({fd['vectors']} "
                  f"directions, one per piece), max |FD - DP v| / max |DP v|:")
-    lines += [f"  eps = {format_step(e)}: {err:.3e}" for e, err in zip(fd["eps"], fd["max_errors"],
-                                                              strict=True)]
+    lines += format_steps(fd["eps"], fd["max_errors"])
     dec = res["decay"]
     lines.append(f"check: decay of perturbations (eps = {dec['eps']:g}) in simulations, "
                  f"strides {dec['window'][0]}-{dec['window'][1]}: rate {dec['rate']:.4f} "

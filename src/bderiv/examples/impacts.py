@@ -29,7 +29,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from .._limits import FD_EPS
-from .._support._format import format_step
+from .._support._format import format_steps
 from .._support._validate import check_numbers
 from ._common import Example, check_start, finite_ratios, flow_back
 
@@ -209,8 +209,7 @@ def summary_text(res):
     lines.append(f"check of D (flow over [0, {res['t_final']:g}]) against finite differences "
                  f"of the simulation ({fd['vectors']} unit vectors, touchdown orders "
                  f"{', '.join(map(str, fd['orders']))}), max |FD - D V| / max |D V|:")
-    lines += [f"  eps = {format_step(e)}: {err:.3e}" for e, err in zip(fd["eps"], fd["max_errors"],
-                                                              strict=True)]
+    lines += format_steps(fd["eps"], fd["max_errors"])
     if fd["ratios"]:  # one step: no ratio
         lines.append("  error shrinks with eps by "
                      + ", ".join(f"{1 / r:.1f}x" if r else "- (to 0)" if r == 0 else "-"
