@@ -1,8 +1,7 @@
 """Checked calls of a user's model functions: outputs validated, numerical Jacobians.
 
-:class:`ModelCalls` holds a model's functions and evaluates them checked (a
-:class:`~bderiv.analysis.system.HybridSystem` holds one as ``model.calls``), by the
-wrappers and checks of :mod:`.user_functions`; :class:`~bderiv.models.section.Section`
+:class:`ModelCalls` evaluates a model's functions checked (``HybridSystem.calls``), by
+the wrappers and checks of :mod:`.user_functions`; :class:`~bderiv.models.section.Section`
 does the same for a Poincare section.
 """
 
@@ -330,21 +329,22 @@ class ModelCalls:
 
     def eval_reset(self, x, mask, k):
         """The checked state after crossing event k from region ``mask`` at ``x``: (d,)
-        (``x`` itself for a model without resets)."""
+        (``x`` itself without resets). The reset gets a copy: one editing its argument
+        (``x[1] *= -e; return x``) changed the library's state, silently."""
         if self._reset is None:
             return x
-        if self._guard is not None:
+        if self._guard is not None:  # (its own checks, on x as the run has it)
             self._guard(x, mask, k)
-        return check_output(self._reset(x, mask, k), (self.dim,),
+        return check_output(self._reset(np.array(x), mask, k), (self.dim,),
                             lambda: f"reset(x, mask={mask}, k={k})")
 
     def eval_reset_jacobian(self, x, mask, k):
         """Jacobian of ``reset(., mask, k)`` at ``x``, shape (d, d) (analytic if given)."""
         x = check_state(x, self.dim)
-        given = None if self._reset_jac is None else (lambda: self._reset_jac(x, mask, k))
+        given = self._reset_jac and (lambda: self._reset_jac(np.array(x), mask, k))
         return self._jacobian(given, ("reset_jacobian", int(mask), int(k)),
                               lambda y: self.eval_reset(y, mask, k),
-                              lambda y: self._reset(y, mask, k), x, (self.dim, self.dim),
+                              lambda y: self._reset(np.array(y), mask, k), x, (self.dim,) * 2,
                               lambda: f"reset(x, mask={self._mask_name(mask)}, k={k})",
                               "reset_jacobian")
 
