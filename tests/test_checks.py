@@ -124,3 +124,32 @@ def test_forward_differences_validation(linear_system):
         forward_differences(linear_system, X0, T, np.ones(3), -1e-3)
     with pytest.raises(TypeError, match="options must be a SolverOptions"):
         forward_differences(linear_system, X0, T, np.ones(3), 1e-3, options=1e-9)
+
+
+def test_a_field_that_switches_on_the_state_not_its_mask_is_refused_at_the_event():
+    """``2.0 if x[1] > 0 else 1.0`` ignores the mask: every region's corner sampled at the
+    event point was the same, and the flow B-derivative came out the identity where the
+    flow's is [[-1.4, -0.85], ...] (one-sided differences of the simulation, and the same
+    model written with its mask: a review). Refused now, naming the event; the model with
+    the mask is not."""
+    from bderiv import HybridSystem
+
+    def by_state(x, mask):
+        return np.array([2.0 if x[1] > 0 else 1.0, 0.5 if x[0] > 0 else 1.0])
+
+    def by_mask(x, mask):
+        return np.array([2.0 if mask & 2 else 1.0, 0.5 if mask & 1 else 1.0])
+
+    def events(x):
+        return np.array([x[0], x[1]])
+
+    x0, v = np.array([-1.0, -1.0]), np.array([[0.3, -0.7]])
+    right = HybridSystem(by_mask, events, n_events=2, dim=2).flow_bderivative(x0, 2.0)
+    np.testing.assert_allclose(right(v), [[-1.4, -0.85]], rtol=1e-12)
+    wrong = HybridSystem(by_state, events, n_events=2, dim=2)
+    np.testing.assert_allclose(wrong.simulate(x0, 2.0).x_final, [2.0, 0.5], rtol=1e-9)
+    with pytest.raises(ValueError, match=r"field\(x, mask=0b00\) jumps by 0.5 across the "
+                                         r"surface of event 0 .*switches on the state"):
+        wrong.flow_bderivative(x0, 2.0)
+    with pytest.raises(ValueError, match="switches on the state"):
+        wrong.bderivative([0.0, 0.0])

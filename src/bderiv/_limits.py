@@ -120,6 +120,13 @@ CHECK_ROUND_FLOOR = 64.0
 #: 0.1 s of NumPy for d = 6, so Ctrl-C is seen between draws (one draw of 30 million rows
 #: held it for 3-4 s)
 RANDOM_ROWS = 1 << 20
+#: the step across each surface (relative to the state's scale) at which a region's
+#: field is compared on its two sides at an event point (``analysis.assembly``; a
+#: judgement: far above rounding, far below a model's features)
+SIDE_STEP = 1e-6
+#: and the factor it then shrinks by: a jump that stays is a field that switches on the
+#: state, not on its mask; a smooth field's change (or a kink's) shrinks with the step
+SIDE_SHRINK = 16.0
 #: the least spread of a growth rate's log (``analysis.stability``): a map evaluated in
 #: float64 moves ``log |A v|`` by rounding at every step (a ball with e = 1, whose apex map
 #: is the identity, gave 1 + 4e-16 and "unstable"), so a rate within this of 1 is

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._limits import SIDE_SHRINK, SIDE_STEP
 from .._numerics import RESET_MISMATCH
 from .._support._format import format_mask, noted_at, transversality_message
 from .._support._tables import INT64_EVENTS, block_bits, dense_table_bytes
@@ -62,6 +63,7 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
     if event_jacobian is None:
         event_jacobian = calls.eval_event_jacobian(x)
     Dh = sign[:, None] * event_jacobian[list(events)]
+    _refuse_state_switching(calls, x, events, Dh, mask_before, where)
     glob = spread_masks(events, mask_before)  # every event's bit flipped
     if calls.has_resets:
         base, R = sample_resets(calls, x, events, glob, Dh, sign, where)
@@ -129,6 +131,30 @@ def sample_resets(calls, x, events, glob, Dh, sign, where):
                 )
             R[B, j] = calls.eval_reset_jacobian(base[B], int(glob[B]), events[j])
     return base, R
+
+
+def _refuse_state_switching(calls, x, events, Dh, mask, where) -> None:
+    """Refuse a field that jumps across an event's surface with the region ``mask`` held:
+    one that switches on the state (``2.0 if x[1] > 0 else 1.0``) and ignores its mask.
+    Its corners sampled at the event point are all one region's, and the map was the
+    identity, silently (the flow jumps there). A jump stays as the step across shrinks
+    by SIDE_SHRINK; a smooth field's change (or a kink's) shrinks with it."""
+    scale = max(1.0, float(np.abs(x).max()))
+    for j, k in enumerate(events):
+        normal = Dh[j] / np.linalg.norm(Dh[j])
+        jumps = []
+        for step in (SIDE_STEP * scale, SIDE_STEP * scale / SIDE_SHRINK):
+            ahead = calls.eval_field(x + step * normal, mask)
+            behind = calls.eval_field(x - step * normal, mask)
+            jumps.append(float(np.abs(ahead - behind).max()))
+            size = max(float(np.abs(ahead).max()), float(np.abs(behind).max()))
+        if jumps[1] > 0.5 * jumps[0] and jumps[1] > 1e-9 * size:
+            raise ValueError(
+                f"field(x, mask={format_mask(mask, calls.n_events)}) jumps by {jumps[1]:.3g} "
+                f"across the surface of event {k} {where}, with the mask held: the field "
+                f"switches on the state there, not on its mask. Each region's field must "
+                f"be smooth across the surfaces (bit k of mask says which side of event k "
+                f"the state is on): write the switch with the mask")
 
 
 def _group_map(system, g):
