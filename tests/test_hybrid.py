@@ -222,6 +222,11 @@ def test_bderivative_transversality_names_mask_and_event():
         match=r"transversality violated at rho: event 1 has rate -0.5 <= 0 in region mask 0b01 ",
     ):
         s.bderivative(np.ones(2))
+    # an event crossed downward at rho: the refusal says what bderivative(rho) assumes and
+    # what takes such a group (it named only the rate: a review)
+    with pytest.raises(ValueError, match=r"rho is entered from region 0, every event crossed "
+                                         r"upward .*negate its h_k, or take flow_bderivative"):
+        s.bderivative(np.ones(2))
 
 
 # ------------------------------------------------------------------------------------------

@@ -40,7 +40,7 @@ def spread_masks(events, mask_before):
 
 
 def group_bderivative(system, x, events, mask_before, mask_after=None, *, where="at rho",
-                      event_jacobian=None):
+                      event_jacobian=None, hint=""):
     """BDerivative of the group ``events`` at ``x`` (a checked state: float64, (d,),
     finite) entered from region ``mask_before``.
 
@@ -51,7 +51,8 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
     (a bounce, a leg swap), and the field after it is that of the region it came from
     (mathematics.md section 9). Only the rates of pending events must be positive.
     ``event_jacobian`` (n, d): the checked event Jacobian at ``x`` when the caller has it
-    (the stop's, :class:`~bderiv.models.events.crossings.EventGroup`), else evaluated.
+    (the stop's, :class:`~bderiv.models.events.crossings.EventGroup`), else evaluated;
+    ``hint`` ends a transversality refusal (what the caller's point assumes).
     """
     calls = system.calls
     events = tuple(int(k) for k in events)
@@ -85,7 +86,7 @@ def group_bderivative(system, x, events, mask_before, mask_after=None, *, where=
         region = format_mask(int(glob[i]), calls.n_events)
         if sign[j] < 0:
             where += f" (event {events[j]} crossed downward: the rate is that of -h)"
-        raise ValueError(transversality_message(events[j], region, G[i, j], where))
+        raise ValueError(transversality_message(events[j], region, G[i, j], where) + hint)
     if calls.has_resets:
         try:
             return BDerivative._from_checked(Dh, F, resets=R, reset_tol=calls.reset_tol)
@@ -307,8 +308,11 @@ def point_bderivative(system, rho, tol):
     ``reset_tol`` relative (of ``max(1, max |rho|)``).
     """
     calls = system.calls
+    hint = ("; rho is entered from region 0, every event crossed upward (from h_k < 0): for "
+            "one crossed downward negate its h_k, or take flow_bderivative, which orients "
+            "each group")
     if not calls.has_resets:
-        return group_bderivative(system, rho, range(calls.n_events), 0)
+        return group_bderivative(system, rho, range(calls.n_events), 0, hint=hint)
     events, accuracy = list(range(calls.n_events)), calls.reset_tol * max(
         1.0, float(np.abs(rho).max()))
     context = (f"at rho (taken as t=0, its integration accuracy as reset_tol="
@@ -319,7 +323,7 @@ def point_bderivative(system, rho, tol):
         mask_after = landing(calls, events, 0, after, window)
     except ValueError as exc:
         raise ValueError(f"{context}: {exc}") from None
-    bd = group_bderivative(system, rho, events, 0, mask_after)
+    bd = group_bderivative(system, rho, events, 0, mask_after, hint=hint)
     try:
         apply_resets(calls, events, 0, rho, 0.0, RESET_MISMATCH * accuracy)
     except ValueError as exc:
