@@ -735,7 +735,7 @@ def test_a_guess_that_never_returns_is_named_by_periodic_orbits_arguments():
     periodic_orbit, without saying where Newton was (a review): it now says what to
     change. (The run's own error: tests/test_recurring.py.)"""
     from bderiv.analysis.orbit import _at_iterate
-    from bderiv.models.integrate.run import TooManyGroups
+    from bderiv.models.integrate.trajectory import TooManyGroups
 
     def never():
         raise TooManyGroups(10_000, 2449.18)

@@ -12,7 +12,8 @@ import numpy as np
 
 from .._limits import MAX_HALVINGS, MAX_PIECE_SWITCHES, PIECE_RTOL, T_MAX_PER_PERIOD
 from .._support._format import format_state
-from ..models.integrate.run import ENDS, NoReturn, run
+from ..models.integrate.run import ENDS, run
+from ..models.integrate.trajectory import NoReturn
 
 __all__ = ["Damped", "NewtonStep", "damped_step", "newton_step", "onto_section"]
 

@@ -52,7 +52,8 @@ from .._support._progress import search_bar
 from .._support._validate import check_number
 from .._support._validate_ints import check_positive_int
 from ..models.integrate.options import SolverOptions, check_options
-from ..models.integrate.run import ENDS, NoReturn, TooManyGroups, run
+from ..models.integrate.run import ENDS, run
+from ..models.integrate.trajectory import NoReturn, TooManyGroups
 from ._arguments import check_burn_in, check_iterations, check_seed
 from ._cyclic import (
     SHIFTS,

@@ -10,7 +10,6 @@ other exception is a bug or a failure of the machine and propagates with its tra
 from __future__ import annotations
 
 import argparse
-import decimal
 import os
 import sys
 
@@ -25,6 +24,7 @@ from .._limits import (
     NETWORK_MAX_N,
 )
 from . import render
+from ._types import dpi, eps_step, nonneg_int, positive_int
 from .names import (
     COMPILED_EXAMPLES,
     DECAY_STRIDES,
@@ -57,45 +57,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _argument_type(convert, accept, expected: str):
-    """An argparse ``type``: ``convert(text)``, refused unless ``accept(value)``."""
-
-    def parse(text):
-        try:
-            value = convert(text)  # int and float accept 1_000_000
-        except ValueError:
-            value = None
-        if value is None or not accept(value):
-            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
-        return value
-
-    return parse
-
-
-def _integer(text: str) -> int | None:
-    """``int(text)``, also for integral values in scientific notation (``1e6``, ``1e20``:
-    read exactly, as a decimal, up to 1e30); None when not integral."""
-    try:
-        return int(text)
-    except ValueError:
-        pass
-    try:
-        value = decimal.Decimal(text.replace("_", ""))
-    except decimal.InvalidOperation:
-        return None
-    if not value.is_finite() or value.adjusted() > 30 or value != value.to_integral_value():
-        return None  # (1e1000000000 would be a billion digits)
-    return int(value)
-
-
-_positive_int = _argument_type(_integer, lambda v: v >= 1, "a positive integer")
-_nonneg_int = _argument_type(_integer, lambda v: v >= 0, "an integer >= 0")
-_eps = _argument_type(float, lambda v: EPS_RANGE[0] <= v <= EPS_RANGE[1],
-                      f"a step between {EPS_RANGE[0]:g} and {EPS_RANGE[1]:g}")
-_dpi = _argument_type(_integer, lambda v: v >= MIN_DPI, f"an integer >= {MIN_DPI} (below, "
-                      f"the figures' text would be under a pixel high)")
-
-
 def _add_example_args(p, default_help, gaits=()):
     p.add_argument("--example", choices=MODEL_EXAMPLES + TABLE_EXAMPLES + tuple(gaits),
                    help=f"the system (default: {default_help}): the models "
@@ -103,7 +64,7 @@ def _add_example_args(p, default_help, gaits=()):
                    f"{' and '.join(TABLE_EXAMPLES)} (no model, so no flow map; planar: 2 "
                    f"events in the plane)"
                    + "".join(f"; {GAIT_HELP[g]}" for g in gaits))
-    p.add_argument("--n", type=_positive_int, default=None,
+    p.add_argument("--n", type=positive_int, default=None,
                    help=f"number of events of --example network (1..{NETWORK_MAX_N}, "
                    f"default 3); --n alone means --example network")
     p.add_argument("--extended", action="store_true",
@@ -137,16 +98,16 @@ def build_parser() -> argparse.ArgumentParser:
                        "simulation (default command)")
     _add_example_args(p, "chair", GAIT_EXAMPLES)
     # --batch, --check, --eps: None when left out (an example that ignores one refuses it)
-    p.add_argument("--batch", type=_positive_int,
+    p.add_argument("--batch", type=positive_int,
                    help=f"tangent vectors in the timed batch (default {DEMO_BATCH})")
-    p.add_argument("--check", type=_nonneg_int,
+    p.add_argument("--check", type=nonneg_int,
                    help=f"vectors checked against finite differences (default {DEMO_CHECK}, "
                    f"0 = none)")
-    p.add_argument("--eps", type=_eps, nargs="+",
+    p.add_argument("--eps", type=eps_step, nargs="+",
                    help=f"finite-difference steps, largest first, each between "
                    f"{EPS_RANGE[0]:g} and {EPS_RANGE[1]:g} (default "
                    f"{' '.join(f'{e:.0e}' for e in FD_EPS)})")
-    p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
     p.add_argument("--full", action="store_true",
                    help="also print the matrices: the pieces listed, each group's Dh and "
                    "corner table F, the flow map's linear stages")
@@ -158,13 +119,13 @@ def build_parser() -> argparse.ArgumentParser:
                    f"{', '.join(COMPILED_EXAMPLES)}; the same equations)")
 
     p = sub.add_parser("bench", help="dimension sweep against the baselines")
-    p.add_argument("--n", type=_positive_int, nargs="+", default=list(BENCH_NS),
+    p.add_argument("--n", type=positive_int, nargs="+", default=list(BENCH_NS),
                    help=f"numbers of events (default {' '.join(map(str, BENCH_NS))})")
     p.add_argument("--d-factor", type=int, choices=(1, 2), default=1,
                    help="dimension d = d_factor * n (default 1)")
-    p.add_argument("--batch", type=_positive_int, default=BENCH_BATCH,
+    p.add_argument("--batch", type=positive_int, default=BENCH_BATCH,
                    help=f"queries per batch (default {BENCH_BATCH})")
-    p.add_argument("--repeat", type=_positive_int, default=BENCH_REPEAT,
+    p.add_argument("--repeat", type=positive_int, default=BENCH_REPEAT,
                    help="timed runs, best kept")
     p.add_argument("--plot", metavar="FILE",
                    help="also save the log-log plot (.png, .pdf or .svg; its directory is "
@@ -190,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
                    f"the output says which")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png",
                    help="file format (default png)")
-    p.add_argument("--dpi", type=_dpi, default=120,
+    p.add_argument("--dpi", type=dpi, default=120,
                    help=f"resolution of png files (default 120, at least {MIN_DPI})")
     p.add_argument("--bench-json", metavar="FILE",
                    help="rows of `bderiv bench --json` (a file) for the scaling figure")
@@ -207,14 +168,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "is made if missing, and the output says which files it replaced")
     p.add_argument("--format", choices=("npz", "json", "both"), default="both",
                    help="file format (default both)")
-    p.add_argument("--max-pieces", type=_positive_int, default=40320,
+    p.add_argument("--max-pieces", type=positive_int, default=40320,
                    help="refuse more than this many event orders (default 8! = 40320)")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p = sub.add_parser("compile", help="compile the kernels into numba's disk cache ahead "
                        "of their first use (a Docker image, CI, a new Dask worker)")
     p.add_argument("families", nargs="*", default=[], metavar="FAMILY",
                    help=f"some of {', '.join(FAMILIES)} (default: all)")
-    p.add_argument("--processes", type=_positive_int, default=None,
+    p.add_argument("--processes", type=positive_int, default=None,
                    help="families compiled at once (default: the cores this process may use)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.add_argument("--here", action="store_true", help=argparse.SUPPRESS)  # one family, here

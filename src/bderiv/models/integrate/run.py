@@ -51,7 +51,7 @@ from .compiled_path import CompiledStretches
 from .options import check_options
 from .record import ENDS, STEPS, RunLog, check_t_eval
 from .scipy_path import ScipyStretches
-from .trajectory import Trajectory
+from .trajectory import NoReturn, TooManyGroups, Trajectory
 
 _log = logging.getLogger("bderiv")
 
@@ -83,22 +83,6 @@ def _tell_start(system, x0):
     _log.info("the run starts in region %s: events %s counted as happened (h_k(x0) > 0); "
               "events written with the other sign start it elsewhere than meant",
               format_mask(sum(1 << k for k in happened), n), happened)
-
-
-class NoReturn(ValueError):
-    """A run with a section that did not return to it in the time it waited: a caller
-    names its own argument for that time (``t_max``, ``period_guess``)."""
-
-
-class TooManyGroups(RuntimeError):
-    """A run that met more than ``max_groups`` event groups, by time ``t`` (a caller that
-    sets no ``max_groups`` names its own reason)."""
-
-    def __init__(self, max_groups: int, t: float):
-        self.max_groups, self.t = max_groups, t
-        super().__init__(f"more than max_groups={max_groups} event groups before t={t:.10g}: "
-                         f"a long run (pass a larger max_groups) or a trajectory that "
-                         f"chatters (Zeno)")
 
 
 def stretches_for(system, options, section=None, watch=None, stops=None):

@@ -1,6 +1,7 @@
 """What a run returns (:class:`Trajectory`): its samples, event log and groups, final state
 and region, and (with the variational equations) the linear stages and the group at the
-final time."""
+final time; and the two ends of a run that return nothing (:class:`NoReturn`,
+:class:`TooManyGroups`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,23 @@ import numpy as np
 
 from ..events.crossings import EventGroup
 
-__all__ = ["Trajectory"]
+__all__ = ["NoReturn", "TooManyGroups", "Trajectory"]
+
+
+class NoReturn(ValueError):
+    """A run with a section that did not return to it in the time it waited: a caller
+    names its own argument for that time (``t_max``, ``period_guess``)."""
+
+
+class TooManyGroups(RuntimeError):
+    """A run that met more than ``max_groups`` event groups, by time ``t`` (a caller that
+    sets no ``max_groups`` names its own reason)."""
+
+    def __init__(self, max_groups: int, t: float):
+        self.max_groups, self.t = max_groups, t
+        super().__init__(f"more than max_groups={max_groups} event groups before t={t:.10g}: "
+                         f"a long run (pass a larger max_groups) or a trajectory that "
+                         f"chatters (Zeno)")
 
 
 @dataclass(frozen=True, eq=False)
