@@ -9,6 +9,7 @@ from ..._kernels._core import frozen_tables
 from ..._limits import PROOF_MARGIN
 from ..._support._format import format_happened
 from ..._support._tables import padded
+from ...geometry.corners import StructuredCorners
 from . import fastpath
 from .base import Engine, tabulate
 from .dense import table_exponents
@@ -41,7 +42,7 @@ class StructuredEngine(Engine):
         if f_exp or np.count_nonzero(dh_exps):
             Dh = np.ldexp(Dh, -dh_exps[:, None])
             F0, A, B = (np.ldexp(M, -f_exp) for M in (F0, A, B))
-            model = type(model)(F0, A, pairs, B)
+            model = StructuredCorners(F0, A, pairs, B)  # (the kernels read these alone)
         self.Dh, self.model = Dh, model
         DhT = np.ascontiguousarray(Dh.T)
         g0 = Dh @ F0
