@@ -142,7 +142,10 @@ def _refuse_state_switching(calls, x, events, Dh, mask, where) -> None:
     by SIDE_SHRINK; a smooth field's change (or a kink's) shrinks with it."""
     scale = max(1.0, float(np.abs(x).max()))
     for j, k in enumerate(events):
-        normal = Dh[j] / np.linalg.norm(Dh[j])
+        length = np.hypot.reduce(Dh[j])  # (not squared: a gradient of 1e-200 is one)
+        if not 0.0 < length < np.inf:  # no surface to cross: transversality says so
+            continue
+        normal = Dh[j] / length
         jumps = []
         for step in (SIDE_STEP * scale, SIDE_STEP * scale / SIDE_SHRINK):
             ahead = calls.eval_field(x + step * normal, mask)
