@@ -122,8 +122,9 @@ CHECK_ROUND_FLOOR = 64.0
 RANDOM_ROWS = 1 << 20
 #: the step across each surface (relative to the state's scale) at which a region's
 #: field is compared on its two sides at an event point (``analysis.assembly``; a
-#: judgement: far above rounding, far below a model's features)
-SIDE_STEP = 1e-6
+#: judgement: far above rounding, below the features an integrator resolves, so that a
+#: steep but smooth field is not taken for a switch)
+SIDE_STEP = 1e-8
 #: and the factor it then shrinks by: a jump that stays is a field that switches on the
 #: state, not on its mask; a smooth field's change (or a kink's) shrinks with the step
 SIDE_SHRINK = 16.0
