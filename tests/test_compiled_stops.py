@@ -97,6 +97,14 @@ def test_the_compiled_stops_give_the_python_loops_bits(monkeypatch, case):
     for kw in ({"simultaneity_tol": 1e-7}, {"simultaneity_tol": 0.0}):
         fast, slow = both_ways(monkeypatch, system, lambda s, kw=kw: s.simulate(x0, t_final, **kw))
         same_trajectory(fast, slow)
+    # samples at given times, on the dense output of the stretch that holds each: times
+    # at the start, inside stretches, at the groups and at the final time
+    times = np.unique(np.r_[0.0, np.linspace(0.0, t_final, 23)[1:-1],
+                            [g.time for g in fast.groups], t_final])
+    for t_eval in (times, ()):
+        fast, slow = both_ways(monkeypatch, system,
+                               lambda s, t_eval=t_eval: s.simulate(x0, t_final, t_eval=t_eval))
+        same_trajectory(fast, slow)
     fast, slow = both_ways(monkeypatch, system, lambda s: s.flow_bderivative(x0, t_final))
     V = np.random.default_rng(0).standard_normal((50, x0.size))
     np.testing.assert_array_equal(fast(V), slow(V))
@@ -130,6 +138,11 @@ def test_a_plain_run_is_one_compiled_call(monkeypatch):
     traj = system.simulate(ex.x0, 0.9, simultaneity_tol=1e-7)
     assert [len(g.events) for g in traj.groups] == [2, 2, 2, 2]
     assert calls == {"compiled": 1, "python": 0}
+    # samples at given times, or none, are taken in the same call
+    for t_eval in (np.linspace(0.0, 0.9, 7), ()):
+        calls.update(compiled=0, python=0)
+        system.simulate(ex.x0, 0.9, t_eval=t_eval)
+        assert calls == {"compiled": 1, "python": 0}
 
 
 @numba.njit

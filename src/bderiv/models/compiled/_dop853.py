@@ -287,3 +287,15 @@ def dense_rows(t_old, h, F, y_old, T, out):
     for i in range(T.size):
         j = min(max(np.searchsorted(t_old, T[i], side="right") - 1, 0), last)
         dense_eval(F[j], y_old[j], t_old[j], h[j], T[i], out.shape[1], out[i])
+
+
+@njit(cache=True)
+def step_starts(steps, ys, d):
+    """The driver's dense record of a stretch (``steps`` (S, 2), its record ``ys``
+    (S + 1, m)) as :func:`dense_rows` takes it: the steps' start times and sizes, and their
+    start states (rows of ``ys`` as they are when it holds the state alone, else copied
+    out), all C-contiguous."""
+    t_old, h = np.ascontiguousarray(steps[:, 0]), np.ascontiguousarray(steps[:, 1])
+    y_old = ys[:-1] if ys.shape[1] == d else np.ascontiguousarray(ys[:-1, :d])
+    return t_old, h, y_old
+

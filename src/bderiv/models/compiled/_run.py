@@ -12,7 +12,9 @@ bits are the same. A stop that needs more is handed back: the function returns t
 state before that stretch, and the Python loop integrates the stretch and decides its stop
 (a peak to search inside a step, a return across a surface, a refusal to word, a region
 whose field Jacobian is not yet checked, a full step budget, a failed check of a user
-function). What this function records is then exactly what the Python loop would have.
+function). What this function records is then exactly what the Python loop would have,
+the samples at given times (``t_eval``) included: each on the dense output of the stretch
+that holds it.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from ..._numerics import (
     REFINE_FACTOR,
     RESET_MISMATCH,
 )
+from ._dop853 import dense_rows, step_starts
 from ._integrate import EVENT, FINISHED, N_STEPS, room
 from ._model import drive_at
 from ._rhs import (
@@ -56,9 +59,11 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
     """A stretch from ``(t, x)`` in region ``mask`` at these tolerances (``atol`` (m,): the
     driver's), screened, and its stop examined (:func:`bderiv.models.events.locate.settle`'s
     ``decide``): ``(ok, status, steps, t_end, y_end, ts, ys, J, grown, err, first, h, F,
-    Dh, rate, window, codes)``, ``first`` the located crossing (the lowest index of the
-    earliest root; ``n`` the section, -1 none), the stop's values (local orientation) when
-    it is an event's. Not ok: the stretch is the Python loop's."""
+    Dh, rate, window, codes, dense, Fd)``, ``first`` the located crossing (the lowest index
+    of the earliest root; ``n`` the section, -1 none), the stop's values (local
+    orientation) when it is an event's, the driver's dense record (its steps' start times
+    and sizes, their coefficients) last. Not ok: the
+    stretch is the Python loop's."""
     m = d * (d + 1) if variational else d
     h, F, rate, window = np.zeros(n), np.zeros(d), np.zeros(n), np.zeros(n)
     Dh, codes = np.zeros((n, d)), np.zeros(n, dtype=np.int64)
@@ -77,7 +82,7 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
                        np.bool_(True), budget, np.bool_(True)))
     grown, err_new, first = scale.copy(), np.empty(d), -1
     fail = (False, status, counts[N_STEPS], t_end, y_end, ts, ys, Dh, grown, err_new, first,
-            h, F, Dh, rate, window, codes)
+            h, F, Dh, rate, window, codes, steps, Fd)
     if status != EVENT and status != FINISHED:
         return fail
     x_end = y_end[:d].copy()
@@ -108,7 +113,7 @@ def _integrated(model, jac_mode, event_jac_mode, variational, with_section, n, d
         windows(Dh, rate, err_new, fired, window)
         classify(h, rate, window, fired, simultaneity_tol, codes)
     return (True, status, counts[N_STEPS], t_end, y_end, ts, ys, J, grown, err_new, first, h,
-            F, Dh, rate, window, codes)
+            F, Dh, rate, window, codes, steps, Fd)
 
 
 @njit(cache=True)
@@ -156,11 +161,28 @@ def _carried(model, event_jac_mode, x, mask, h, window, skip, n, d):
     return not ok or status != OK or carried_across(h, mask, window, skip, J, F) >= 0
 
 
+@njit(cache=True)
+def _sample(times, taken, sampled, end, last, dense, Fd, ys, d, mask, S, SM):
+    """The next of ``times`` on a recorded stretch (before its ``end``; up to it when
+    ``last``), on its dense output, into rows ``sampled``... of ``S`` and ``SM``: the rows
+    now filled."""
+    first = taken + sampled
+    stop = first
+    while stop < times.size and (times[stop] < end or (last and times[stop] == end)):
+        stop += 1
+    if stop > first:
+        t_old, h, y_old = step_starts(dense, ys, d)
+        dense_rows(t_old, h, Fd, y_old, times[first:stop], S[sampled:sampled + stop - first])
+        for i in range(sampled, sampled + stop - first):
+            SM[i] = mask
+    return sampled + stop - first
+
+
 @njit(cache=True, nogil=True)
 def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, with_resets,
                   n, d, t, x, mask, scale, err,
                   t_final, rtol, atol, max_step, simultaneity_tol, all_checked, checked,
-                  groups_left, budget):
+                  groups_left, budget, times, times_taken):
     """The run's stretches from ``(t, x)`` in region ``mask`` while the stops are plain
     (the event Jacobian by ``event_jac_mode``, not ``EVENT_JAC_NONE``).
 
@@ -170,7 +192,10 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     the stretch; ``atol`` (m,): the driver's, one per integrated component; ``checked``
     (int64 masks): the regions whose field Jacobian is checked (``variational``, unless
     ``all_checked``; a region outside them is handed back); ``groups_left``: the groups
-    the run may still switch; ``budget``: accepted steps before handing back (Ctrl-C).
+    the run may still switch; ``budget``: accepted steps before handing back (Ctrl-C);
+    ``times`` (ascending; empty: none), ``times_taken``: the times to sample and how many of
+    them are sampled already (each on the dense output of the recorded stretch that holds
+    it, as :meth:`bderiv.models.integrate.record.RunLog.sample` takes them).
 
     Returns
     -------
@@ -194,12 +219,16 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         Each group's state, and after its resets (``with_resets``: the model's ``reset``).
     group_J : ndarray, shape (G, n, d)
         The event Jacobian at each group's state (``variational``).
+    S, SM : ndarray, shapes (k,  d), (k,)
+        The states at the next ``k`` of ``times`` and their masks.
     steps : int
         Accepted steps taken, the stretch handed back included.
     """
     T = np.empty(64)
     X = np.empty((64, d))
     M = np.empty(64, dtype=np.int64)
+    left = times.size - times_taken
+    S, SM, sampled = np.empty((left, d)), np.empty(left, dtype=np.int64), np.int64(0)
     L = np.empty((8 if variational else 0, d, d))
     group_t = np.empty(8)
     group_masks = np.empty((8, 3), dtype=np.int64)
@@ -216,7 +245,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
         for k in range(n):
             sign[k] = -1.0 if mask >> k & 1 else 1.0
         ok, status, taken, t_end, y_end, ts, ys, J, grown, err_new, first, h, F, Dh, rate, \
-            window, codes = _integrated(model, jac_mode, event_jac_mode, variational,
+            window, codes, dense, Fd = _integrated(model, jac_mode, event_jac_mode, variational,
                                         with_section, n, d, t, x, mask, sign, scale, err,
                                         t_final, rtol, atol, max_step, simultaneity_tol,
                                         budget - steps)
@@ -232,7 +261,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
             while ok and decided and _differ(now, none, np.int64(UNDECIDED)) and \
                     f_rtol > MIN_RTOL:
                 f_rtol, f_atol = max(f_rtol / REFINE_FACTOR, MIN_RTOL), f_atol / REFINE_FACTOR
-                ok, _, taken, _, _, _, _, _, _, _, at, _, _, _, _, _, now = _integrated(
+                ok, _, taken, _, _, _, _, _, _, _, at, _, _, _, _, _, now, _, _ = _integrated(
                     model, jac_mode, event_jac_mode, np.bool_(False), with_section, n, d, t, x,
                     mask, sign, scale, err, t_final, f_rtol, np.full(d, f_atol), max_step,
                     simultaneity_tol, budget - steps)
@@ -242,7 +271,7 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
                 break
             if not (decided and not _differ(now, codes, np.int64(GROUP | NEAR))):
                 ok, status, taken, t_end, y_end, ts, ys, J, grown, err_new, first, h, F, Dh, \
-                    rate, window, codes = _integrated(
+                    rate, window, codes, dense, Fd = _integrated(
                         model, jac_mode, event_jac_mode, variational, with_section, n, d, t, x,
                         mask, sign, scale, err, t_final, f_rtol, np.full(atol.size, f_atol),
                         max_step, simultaneity_tol, budget - steps)
@@ -301,6 +330,11 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
                 X[count + r, i] = ys[r, i]
             M[count + r] = mask
         count += ts.size
+        if sampled < left:
+            # the section's return and the final time end the run: their time is sampled
+            last = not event or (status == EVENT and first == n)
+            sampled = _sample(times, times_taken, sampled, t_end, last, dense, Fd, ys, d, mask,
+                              S, SM)
         if variational:
             L = room(L, stretches + 1)
             for i in range(d):
@@ -335,4 +369,5 @@ def run_stretches(model, jac_mode, event_jac_mode, variational, with_section, wi
     for i in range(d):
         now[0, i], now[1, i], now[2, i] = x[i], scale[i], err[i]
     return (code, returned, t, mask, now, T[:count], X[:count], M[:count], L[:stretches],
-            group_t[:groups], group_masks[:groups], group_x[:groups], group_J[:groups], steps)
+            group_t[:groups], group_masks[:groups], group_x[:groups], group_J[:groups],
+            S[:sampled], SM[:sampled], steps)

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from ..._numerics import COMPLEX_STEP, FINE_REACH, FINE_SAMPLES, ORDERS_CHECKED, REACH
-from ._dop853 import dense_rows
+from ._dop853 import dense_rows, step_starts
 from ._rhs import (
     OK,
     all_finite,
@@ -93,10 +93,7 @@ def plain_screen(model, event_jac_mode, sign, mask, n, d, ts, ys, gs, steps, Fd,
     count, last = ts.size, 2 * ts.size - 2
     times = np.empty(last + 1)
     sample_times(ts, times)
-    t_old, h_step = np.ascontiguousarray(steps[:, 0]), np.ascontiguousarray(steps[:, 1])
-    # the steps' start states: rows of the record as they are when it holds the state
-    # alone (no sensitivity), else copied out
-    y_old = ys[:-1] if ys.shape[1] == d else np.ascontiguousarray(ys[:-1, :d])
+    t_old, h_step, y_old = step_starts(steps, ys, d)
     mids = np.empty(count - 1)
     for i in range(count - 1):
         mids[i] = times[2 * i + 1]

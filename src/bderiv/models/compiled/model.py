@@ -57,6 +57,8 @@ from .stretch import MAX_EVENTS
 
 #: the warning when the driver or the compiled run compiles (their first use on a machine)
 COMPILE_NOTICE = notice_compilation(drive_stretch, run_stretches)
+#: no times to sample (a run without ``t_eval``)
+_NO_TIMES = np.empty(0)
 #: how ``J`` is had, by the code of :mod:`._rhs`
 JACOBIAN_MODES = {JAC_GIVEN: "given", JAC_COMPLEX_STEP: "complex step",
                   JAC_CENTRAL: "central differences"}
@@ -80,6 +82,8 @@ class CompiledRun(NamedTuple):
     group_masks: np.ndarray
     group_x: np.ndarray
     group_J: np.ndarray
+    S: np.ndarray
+    SM: np.ndarray
     steps: int
 
 
@@ -319,7 +323,7 @@ class CompiledModel:
 
     def run_stretches(self, t, x, mask, scale, err, t_final, *, rtol, atol, max_step,
                       simultaneity_tol, variational, all_checked, checked, groups_left,
-                      section=None):
+                      section=None, times=_NO_TIMES, taken=0):
         """The run's stretches from ``(t, x)`` in region ``mask`` while their stops are plain
         (:func:`._run.run_stretches`: its tuple as a :class:`CompiledRun`, ``code``
         ``ENDED`` or ``HANDOFF``),
@@ -329,7 +333,8 @@ class CompiledModel:
         ``scale``, ``err`` (d,): the run's largest ``|x_i|`` and the error bound carried into
         the stretch; ``checked``: the regions whose field Jacobian is checked (int64, with
         ``variational``, unless ``all_checked``); ``groups_left``: the event groups the run
-        may still switch.
+        may still switch; ``times`` (ascending, C-contiguous float64) and ``taken``: the
+        times to sample, from the ``taken``-th.
         """
         d, n = self.dim, self.n_events
         m = d * (d + 1) if variational else d
@@ -343,7 +348,7 @@ class CompiledModel:
                                 int(mask), scale, err, float(t_final), float(rtol),
                                 self._atols(m, atol), float(max_step), float(simultaneity_tol),
                                 bool(all_checked), checked, int(groups_left),
-                                slice_budget(key))
+                                slice_budget(key), times, int(taken))
         except SystemError as exc:  # Ctrl-C seen while numba boxed the results
             _interrupted(exc)
             raise

@@ -109,6 +109,24 @@ class RunLog:
             self.masks.append(self._masks(here.size, mask))
             self.taken = stop
 
+    def sampling(self):
+        """The compiled run's arguments for the times still to sample: ``times`` and
+        ``taken`` (none without ``t_eval``)."""
+        if isinstance(self.record, np.ndarray):
+            return {"times": self.record, "taken": self.taken}
+        return {}
+
+    def add_samples(self, S, SM):
+        """The states (k, d) and masks (k,) the compiled run sampled at the next ``k`` of
+        ``t_eval``."""
+        if S.shape[0]:
+            if self.first_mask < 0:
+                self.first_mask = int(SM[0])
+            self.t.append(self.record[self.taken:self.taken + S.shape[0]])
+            self.x.append(S)
+            self.masks.append(SM.astype(mask_dtype(self.n_events), copy=False))
+            self.taken += S.shape[0]
+
     def finish(self, x0, now) -> Samples:
         """The :class:`Samples` of the Trajectory."""
         if self.record is ENDS:

@@ -189,8 +189,6 @@ def _run(system, x0, t_final, options, variational, section, max_groups, record,
     d = system.dim
     # the Python loop's own state is made for its first stretch
     log, loop = RunLog(record, system.n_events), None
-    # samples at given times are taken on the dense output of the Python loop's stretches
-    sampled = isinstance(record, np.ndarray)
     # the start's region (mask -1) from the signs of its events: by the compiled run, or
     # by start_mask before the first stretch in Python (which refuses a start on a surface)
     now = _Now(0.0, x0, -1, np.abs(x0), np.zeros(d))
@@ -200,7 +198,7 @@ def _run(system, x0, t_final, options, variational, section, max_groups, record,
     try:
         while not now.ended:
             cancel_point()  # a run of a batch on threads stops with its batch
-            if not sampled and compiled_stops(system, section):  # the plain stops at once
+            if compiled_stops(system, section):  # the plain stops at once
                 _compiled_stretches(system, log, now, *settings)  # a slice of steps at most
                 impacts.see(log.groups)
                 if watch is not None:
@@ -295,13 +293,14 @@ def _compiled_stretches(system, log, now, t_final, options, variational, section
         atol=options.atol, max_step=options.max_step, simultaneity_tol=options.simultaneity_tol,
         variational=variational, all_checked=all_checked, checked=checked,
         groups_left=max_groups - len(log.groups),
-        section=None if section is None else section.compiled())
+        section=None if section is None else section.compiled(), **log.sampling())
     if out is None:  # a user function raised: the Python loop says where
         return
     if out.T.size:
         log.add_steps(out.T, out.X, out.M)
         if variational:
             log.linear.extend(out.L)
+    log.add_samples(out.S, out.SM)
     records, groups, states = log.records, log.groups, out.group_x
     for i, (time, (b, m0, m1)) in enumerate(zip(out.group_t.tolist(),
                                                 out.group_masks.tolist(), strict=True)):
