@@ -426,3 +426,40 @@ def test_a_reset_that_edits_its_argument_is_given_a_copy(compiled):
     V = np.random.default_rng(2).standard_normal((6, 4))
     np.testing.assert_allclose(edits.flow_bderivative(x0, T)(V),
                                copies.flow_bderivative(x0, T)(V), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_functions_that_write_into_their_argument_are_given_copies(compiled):
+    """A field that writes its derivative into ``x`` and returns it, events and a section
+    that round ``x`` in place: the Python path handed them the integrator's own state, so
+    a fall under gravity through a floor at 0.5 ended at [-1.0, -1.0] with no event (a
+    review); the compiled integrator copied already. Closed form: x = 2 t - t**2 / 2 to
+    the floor at t1 = 2 - sqrt(3), then the rate -1.5 (mask 1)."""
+    import numba
+
+    def field(x, mask):
+        v = x[1]
+        x[1] = -1.0 - 0.5 * (mask & 1)
+        x[0] = v
+        return x
+
+    def events(x):
+        x[0] = x[0] + 0.0 * x[1]  # a write of the same value: harmless, but a write
+        return np.array([x[0] - 0.5])
+
+    def section(x):
+        x[1] = 0.0
+        return -x[0] - 0.2
+
+    if compiled:
+        field, events, section = numba.njit(field), numba.njit(events), numba.njit(section)
+    s = HybridSystem(field, events, n_events=1, dim=2)
+    t1 = 2.0 - np.sqrt(3.0)
+    traj = s.simulate([0.0, 2.0], 1.0)
+    assert len(traj.groups) == 1 and traj.groups[0].time == pytest.approx(t1, abs=1e-9)
+    v1 = 2.0 - t1
+    np.testing.assert_allclose(traj.x_final, [0.5 + v1 * (1 - t1) - 0.75 * (1 - t1) ** 2,
+                                              v1 - 1.5 * (1 - t1)], rtol=1e-9)
+    # a section's function that writes: reached from -0.1 at rest at x0 = -0.2
+    back = s.simulate([-0.1, 0.0], 5.0, section=section)
+    assert back.x_final[1] == pytest.approx(-np.sqrt(0.2), rel=1e-9)

@@ -235,12 +235,16 @@ class ModelCalls:
         return format_mask(mask, self.n_events)
 
     def eval_field(self, x, mask):
-        """The checked vector field of region ``mask`` at ``x``: shape (d,)."""
-        return check_output(self._field(x, mask), (self.dim,), lambda: f"field(x, mask={mask})")
+        """The checked vector field of region ``mask`` at ``x``: shape (d,). The function
+        gets a copy of ``x``, as every function of the model (a field that writes its
+        derivative into its argument, ``x[0] = x[1]; ...; return x``, moved the
+        integrator's state, silently)."""
+        return check_output(self._field(np.array(x), mask), (self.dim,),
+                            lambda: f"field(x, mask={mask})")
 
     def eval_events(self, x):
         """The checked event values at ``x``: shape (n,)."""
-        return check_output(self._events(x), (self.n_events,), "events(x)")
+        return check_output(self._events(np.array(x)), (self.n_events,), "events(x)")
 
     def _jacobian(self, given, key, fun, raw, x, shape, what, jac_name):
         """A Jacobian of ``fun`` at ``x``: the ``given`` one's output (checked the first
@@ -315,7 +319,8 @@ class ModelCalls:
         """Jacobian of ``field(., mask)`` at ``x``, shape (d, d)."""
         x = check_state(x, self.dim)
         mask = check_mask(mask, self.n_events)
-        given = None if self._field_jac is None else (lambda: self._field_jac(x, mask))
+        given = None if self._field_jac is None else (
+            lambda: self._field_jac(np.array(x), mask))
         return self._jacobian(given, ("field_jacobian", mask),
                               lambda y: self.eval_field(y, mask),
                               lambda y: self._field(y, mask), x, (self.dim, self.dim),
@@ -373,7 +378,8 @@ class ModelCalls:
         63 events), not checked again."""
         n, d = self.n_events, self.dim
         if self._corner_field is not None and (masks.size > 16 or masks.size == 1 << n):
-            table = check_output(self._corner_field(x), (1 << n, d), "corner_field(x)")
+            table = check_output(self._corner_field(np.array(x)), (1 << n, d),
+                                 "corner_field(x)")
             if ("corner_field",) not in self._checked:  # its rows are the field's, once
                 check_rows(table, masks, partial(self.eval_field, x), self._mask_name)
                 self._checked.add(("corner_field",))

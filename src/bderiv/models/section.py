@@ -65,8 +65,8 @@ class Section:
         return self.func
 
     def __call__(self, x) -> float:
-        """The checked value ``section(x)``."""
-        value = self._call(x)
+        """The checked value ``section(x)`` (the function gets a copy of ``x``)."""
+        value = self._call(np.array(x))
         if np.ndim(value) != 0 and np.size(value) != 1:
             raise ValueError(f"section(x) must return one real number, got shape "
                              f"{np.shape(value)}")
@@ -75,7 +75,7 @@ class Section:
     def gradient(self, x) -> np.ndarray:
         """The gradient of the section at ``x``: shape (d,)."""
         if self.grad is not None:
-            g = check_output(self.grad(x), (self.dim,), "section_gradient(x)")
+            g = check_output(self.grad(np.array(x)), (self.dim,), "section_gradient(x)")
             if self.check:
                 check_given_jacobian(lambda y: np.array([self(y)]), np.asarray(x, float),
                                      g[None], "section(x)", "section_gradient")
