@@ -719,6 +719,31 @@ def test_a_neutral_orbit_is_undecided_whatever_the_rounding():
         assert st.verdict_word == "undecided" and "neutral" in st.summary()
 
 
+def test_a_neutral_orbit_is_undecided_whatever_the_integration_error():
+    """An oscillator x'' = -x bouncing elastically off a wall at x = -0.5 keeps its energy:
+    every amplitude is a periodic orbit, multiplier exactly 1 (closed form). Its map is
+    integrated, not exact (a ball's flight is): the rate came out 1 +- 1e-12 at the
+    default rtol, "stable", "unstable" or "undecided" by the amplitude, and 1 - 1.1e-10,
+    "stable", at rtol 1e-9: a verdict from the integration's error (a review). The
+    spread's floor is the map's accuracy, 10 rtol."""
+    from bderiv.models.integrate.options import SolverOptions
+
+    system = HybridSystem(lambda x, m: np.array([x[1], -x[0]]),
+                          lambda x: np.array([-0.5 - x[0]]), n_events=1, dim=2,
+                          reset=lambda x, m, k: np.array([x[0], -x[1]]),
+                          event_jacobian=lambda x: np.array([[-1.0, 0.0]]),
+                          field_jacobian=lambda x, m: np.array([[0.0, 1.0], [-1.0, 0.0]]))
+    for rtol, amplitudes in ((None, (1.0, 1.3, 0.8)), (1e-9, (1.0, 1.3))):
+        options = None if rtol is None else SolverOptions(rtol=rtol, atol=rtol / 10)
+        for a in amplitudes:
+            orbit = system.periodic_orbit(np.array([a, 0.0]), lambda x: -x[1], 4.0,
+                                          options=options)
+            st = orbit.stability(n_directions=10, iterations=200)
+            assert orbit.accuracy == 10 * (rtol or 1e-12)
+            assert abs(np.log(st.growth_rate)) < orbit.accuracy <= st.spread
+            assert st.verdict_word == "undecided" and "accuracy" in st.summary()
+
+
 def test_a_section_flat_at_the_guess_is_named(gait):
     """A section whose gradient is 0 where the guess is moved onto it divided by 0: a
     RuntimeWarning, then "section(x) returned a non-finite value" about a NaN state, or a

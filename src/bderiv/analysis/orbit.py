@@ -46,8 +46,10 @@ from .._limits import (
     ON_SURFACE_TOL,
     ORBIT_MAX_ITER,
     ORBIT_TOL,
+    RATE_ROUNDING,
     T_MAX_PER_PERIOD,
 )
+from .._numerics import GLOBAL_ERROR_FACTOR
 from .._support._progress import search_bar
 from .._support._validate import check_number
 from .._support._validate_ints import check_positive_int
@@ -143,10 +145,12 @@ class PeriodicOrbit:
         The cyclic coordinates (left out of the fixed-point equation and the stability).
     advance : ndarray, shape (len(cyclic),)
         How far each cyclic coordinate advances per period, ``P(x0)_i - x0_i``.
+    options : SolverOptions
+        The integrator's settings the return map was built with.
     """
 
     def __init__(self, system, section, x0, trajectory, return_map, residual, history,
-                 cyclic=(), advance=()):
+                 cyclic=(), advance=(), options=ORBIT_OPTIONS):
         self.system, self.section = system, section
         self.x0 = x0
         self.trajectory = trajectory
@@ -156,6 +160,16 @@ class PeriodicOrbit:
         self.history = tuple(history)
         self.cyclic = tuple(cyclic)
         self.advance = np.asarray(advance, dtype=np.float64)
+        self.options = options
+
+    @property
+    def accuracy(self) -> float:
+        """The relative accuracy of the return map, and so of a log growth rate of it:
+        ``GLOBAL_ERROR_FACTOR * rtol`` of the integration that built it (as the state's
+        error at a stop, :mod:`bderiv.models.events.locate`), never below the rounding
+        of a step, ``RATE_ROUNDING``. A rate within it of 1 is undecided: a conservative
+        gait's map is neutral, and its computed rate is 1 only to within it."""
+        return max(GLOBAL_ERROR_FACTOR * self.options.rtol, RATE_ROUNDING)
 
     def __repr__(self):
         groups = [(round(g.time, 6), g.events, g.directions) for g in self.trajectory.groups]
@@ -211,8 +225,9 @@ class PeriodicOrbit:
         most = sorted(visits, key=visits.get, reverse=True)[:MULTIPLIER_PIECES]
         multipliers = {p: piece_multipliers(R.piece(list(p)), basis) for p in most}
         i = int(np.argmax(rates))
-        return Stability(float(rates[i]), verdict(rates[i], spread[i]), rates,
-                         float(spread[i]), multipliers, visits, int(iterations), burn_in)
+        spread_i = max(float(spread[i]), self.accuracy)
+        return Stability(float(rates[i]), verdict(rates[i], spread_i), rates, spread_i,
+                         multipliers, visits, int(iterations), burn_in, self.accuracy)
 
 
 def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL,
@@ -325,7 +340,7 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
         check_equivariance(R, x, cyclic)
     r = R.x_final - x
     return PeriodicOrbit(system, section, x, traj, R, float(np.abs(r[keep]).max()), history,
-                         cyclic, r[list(cyclic)])
+                         cyclic, r[list(cyclic)], options)
 
 
 def _within(res, x, keep, tol) -> bool:

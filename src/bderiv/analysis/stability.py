@@ -70,6 +70,10 @@ class Stability:
         ``{orders: count}``: how often a direction of the batch was in each piece.
     iterations, burn_in : int
         Iterations of the map, of which the first ``burn_in`` are not averaged.
+    floor : float
+        The spread's floor: the rounding of a step (``RATE_ROUNDING``), or the map's own
+        accuracy where it is known and larger (:attr:`PeriodicOrbit.accuracy`); a rate
+        undecided at the floor is 1 to within what the map can say (neutral).
     """
 
     growth_rate: float
@@ -80,6 +84,7 @@ class Stability:
     visits: dict = field(repr=False)
     iterations: int
     burn_in: int
+    floor: float = RATE_ROUNDING
 
     @property
     def verdict_word(self) -> str:
@@ -89,9 +94,11 @@ class Stability:
     def summary(self) -> str:
         """A few lines: the verdict, the rate, and the pieces with their multipliers."""
         verdict = self.verdict_word
-        if self.stable is None and self.spread <= RATE_ROUNDING:
-            verdict += ": the rate is 1 to within rounding (neutral: perturbations neither "
-            verdict += "grow nor decay at first order)"
+        if self.stable is None and self.spread <= self.floor:
+            within = "rounding" if self.floor <= RATE_ROUNDING else \
+                f"the return map's accuracy ({self.floor:.2g}, from the integration's rtol)"
+            verdict += (f": the rate is 1 to within {within} (neutral: perturbations neither "
+                        f"grow nor decay at first order)")
         elif self.stable is None:
             verdict += (f": the estimate has not settled in {self.iterations} iterations, "
                         f"pass more")

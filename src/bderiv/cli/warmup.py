@@ -66,7 +66,6 @@ def _integrator() -> str | None:
         ex = examples.chair(compiled=True)
         s = ex.system
         s.simulate(ex.x0, ex.t_final)  # the compiled run decides the stops
-        s.simulate(ex.x0, ex.t_final, t_eval=np.linspace(0.0, ex.t_final, 3))  # the driver
         s.flow_bderivative(ex.x0, ex.t_final)  # with the variational equations
 
 
