@@ -183,6 +183,9 @@ class ModelCalls:
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
                       "(once per model; %s)", time.perf_counter() - start,
                       self._compiled.describe())
+            slow = self._compiled.python_stops_warning()
+            if slow and self._given_reset != self.eval_reset:  # (a guarded reset's: by design)
+                _log.warning(slow)
         return self._compiled
 
     def check_compiled_jacobian(self, x, mask) -> None:
@@ -215,9 +218,8 @@ class ModelCalls:
         self._checked.add(key)
 
     def checked_compiled_jacobians(self):
-        """``(all, masks)``: whether the compiled ``J`` needs no check in any region (central
-        differences, or a given one with ``check_jacobians`` False), else the regions
-        (int64 masks) where :meth:`check_compiled_jacobian` has checked it."""
+        """``(all, masks)``: whether the compiled ``J`` needs no check (central differences,
+        or given with ``check_jacobians`` False), else where it is checked (int64 masks)."""
         mode = JACOBIAN_MODES[self.compiled.jac_mode]
         if mode == "central differences" or (mode == "given" and not self.check_jacobians):
             return True, np.empty(0, dtype=np.int64)
@@ -225,9 +227,8 @@ class ModelCalls:
         return False, np.array(masks, dtype=np.int64)
 
     def event_jacobian_checked(self) -> bool:
-        """Whether the event Jacobian needs no more check: compared with a central
-        difference once already, or a given one with ``check_jacobians`` False (a complex
-        step is always compared once)."""
+        """Whether the event Jacobian needs no more check: compared with a central difference
+        once already, or given with ``check_jacobians`` False (a complex step: compared)."""
         given_unchecked = self._event_jac is not None and not self.check_jacobians
         return given_unchecked or ("event_jacobian",) in self._checked
 
@@ -235,10 +236,7 @@ class ModelCalls:
         return format_mask(mask, self.n_events)
 
     def eval_field(self, x, mask):
-        """The checked vector field of region ``mask`` at ``x``: shape (d,). The function
-        gets a copy of ``x``, as every function of the model (a field that writes its
-        derivative into its argument, ``x[0] = x[1]; ...; return x``, moved the
-        integrator's state, silently)."""
+        """The checked field of region ``mask`` at ``x``: (d,). Each function gets a copy."""
         return check_output(self._field(np.array(x), mask), (self.dim,),
                             lambda: f"field(x, mask={mask})")
 
@@ -272,11 +270,9 @@ class ModelCalls:
         Returns
         -------
         dict
-            ``{"field_jacobian": (jacobians, calls, seconds), ...}``: how many numerical
-            Jacobians were computed, the calls of the user's function they made (those
-            of the checks that chose the method included) and the time they took.
-            Passing the Jacobian saves nearly all of that time (inside the variational
-            equations of ``flow_bderivative`` typically 90 % of it).
+            ``{"field_jacobian": (jacobians, calls, seconds), ...}``: the numerical Jacobians
+            computed, the calls of the user's function they made (the checks that chose
+            the method included) and their time, which passing the Jacobian saves.
         """
         return self._numerical.cost
 
@@ -307,10 +303,8 @@ class ModelCalls:
                 if not matches_near(self.eval_events, self.compiled.event_jacobian_at, x):
                     raise ValueError("the complex step does not match beside x")
             except ValueError:
-                _log.info("the complex-step Jacobian of events(x) does not match its central "
-                          "differences (the events are not complex-analytic): a numerical "
-                          "one is used")
                 self.compiled.use_python_event_jacobian()
+                _log.warning(self.compiled.python_stops_warning())
                 return self.event_jacobian_at(x)
             self._checked.add(key)
         return J
