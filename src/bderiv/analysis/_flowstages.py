@@ -66,22 +66,25 @@ def check_stages(linear, jumps) -> tuple[tuple, tuple, int]:
     return linear, tuple(jumps), d
 
 
-def check_pass(V, d: int, jumps, method: str, refuse: str, results: int) -> None:
-    """Refuse, before ``V`` is converted, a dask array (``refuse``: the method's name and
-    verb, in :func:`~bderiv._support._batch.refuse_dask`'s words, as ``BDerivative``'s
-    methods refuse it) and a pass of ``method`` through the stages that would take more
-    than the process may: the vectors entering each stage (:func:`stage_inputs`),
-    ``results`` int64 or float64 per event of each group per vector, and the float64 copy
-    of ``V`` where one is made (``V`` sized by its shape:
-    :func:`~bderiv._support._validate.batch_size`)."""
-    refuse_dask(V, what=refuse)
-    m, copy = batch_size(V, d)
+def check_pass(V, fb, method: str, results: int):
+    """``V`` for a pass of the flow map ``fb``'s ``method`` through its stages (``V``
+    itself, or as an array: :func:`~bderiv._support._validate.batch_size`), refused before
+    it is converted if it is a dask array (in :func:`~bderiv._support._batch.refuse_dask`'s
+    words, as ``BDerivative``'s ``event_times`` and ``orders`` refuse it) or if the pass
+    would take more than the process may: the vectors entering each stage
+    (:func:`stage_inputs`), ``results`` int64 or float64 per event of each group per
+    vector, and the float64 copy of ``V`` where one is made."""
+    refuse_dask(V, what="apply_orders takes" if method == "apply_orders" else
+                "event_times and orders take")
+    d, jumps = fb.dim, fb.jumps
+    V, m, copy = batch_size(V, d)
     events = sum(bd.n_events for bd in jumps)
     groups = f"{len(jumps)} event group" + ("" if len(jumps) == 1 else "s")
     check_memory(copy + 8 * m * ((len(jumps) + 1) * d + results * events), None,
                  f"the {method} of {m} vectors through {groups} ({events} events: the vectors "
                  f"entering each stage and the results{AS_ROWS if copy else ''}) would",
                  FEWER_ROWS)
+    return V
 
 
 def stage(L, X, transpose: bool = False) -> np.ndarray:

@@ -297,7 +297,7 @@ class FlowBDerivative(Linearisation):
             shifts of the group's events (local index), ``order`` (..., n_g) int64 the
             local event order. An empty list when there is no group.
         """
-        check_pass(V, self.dim, self._jumps, "event_times", "event_times and orders take", 2)
+        V = check_pass(V, self, "event_times", 2)
         flat, lead = check_points(V, self.dim)
         res = []
         for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False):
@@ -347,7 +347,7 @@ class FlowBDerivative(Linearisation):
         final time (``stops_at_group``) has one more local event, the last: the final time
         itself, so the events after it in an order come after ``t_final`` (not applied).
         """
-        check_pass(V, self.dim, self._jumps, "orders", "event_times and orders take", 1)
+        V = check_pass(V, self, "orders", 1)
         flat, lead = check_points(V, self.dim)
         return [bd.orders(W).reshape(*lead, bd.n_events)
                 for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False)]
@@ -368,7 +368,7 @@ class FlowBDerivative(Linearisation):
         orders : list of ndarray, shape (m, n_g), int64
             As :meth:`orders`.
         """
-        check_pass(V, self.dim, self._jumps, "apply_orders", "apply_orders takes", 1)
+        V = check_pass(V, self, "apply_orders", 1)
         V = check_matrix(V, "V", (None, self.dim), copy=False)  # a copy only to convert
         inputs = self._stage_inputs(np.ascontiguousarray(V, dtype=np.float64))
         return inputs[-1], [bd.orders(X) for bd, X in zip(self._jumps, inputs, strict=False)]

@@ -147,14 +147,14 @@ class Linearisation:
         their offset; the rows of T are taken at the same offset)."""
         d = self.dim
         refuse_dask(V, T, what="jvp/vjp take", how=f" (V and {t_name} chunked alike)")
-        m, copy = batch_size(T, d)  # sized before check_points copies T
+        T, m, copy = batch_size(T, d)  # sized before check_points copies T
         held = ([] if out is not None else ["its result"]) + (
             [f"{t_name}'s float64 copy"] if copy else [])
         if held:
             check_memory(copy + (0 if out is not None else 8 * m * d), None,
                          f"the {'vjp' if transpose else 'jvp'} of {m} vectors "
                          f"({' and '.join(held)}) would",
-                         f"pass out=, a writeable np.memmap of shape {np.shape(T)}, to write "
+                         f"pass out=, a writeable np.memmap of {t_name}'s shape, to write "
                          f"the result to a file, and {t_name} as a C-contiguous float64 "
                          f"array; or {FEWER_ROWS}")
         flat_t, lead_t = check_points(T, d, t_name)

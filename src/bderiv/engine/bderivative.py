@@ -312,7 +312,7 @@ class BDerivative(Linearisation, CornerGeometry):
     def _event_times(self, V, exact: bool):
         refuse_dask(V, what="event_times and orders take")
         n = self.n_events
-        m, copy = batch_size(V, self.dim)  # sized before check_points copies V
+        V, m, copy = batch_size(V, self.dim)  # sized before check_points copies V
         check_memory(2 * m * n * 8 + copy, None, f"the event times and orders of {m} vectors "
                      f"({n} events){AS_ROWS if copy else ''}", FEWER_ROWS)
         flat, lead = check_points(V, self.dim)
