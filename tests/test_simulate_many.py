@@ -342,3 +342,37 @@ def test_a_batch_that_grows_too_large_is_refused_as_its_runs_finish(monkeypatch)
         run.groups)
     # the small batches of use are not checked against the memory at all (under 1 MiB)
     assert len(ex.system.simulate_many(X0[:3], ex.t_final, progress=False)) == 3
+
+
+def test_a_batch_on_threads_that_grows_too_large_is_refused_and_its_threads_end(monkeypatch):
+    """The check as runs finish holds on the threads' path too: with room for the first
+    runs' checks and then 16 MiB, 20000 runs of the compiled pronking gait (about 2.6 KiB
+    each: 50 MiB) are refused by the calling thread, and no worker thread is left
+    running."""
+    from bderiv._support import _validate
+
+    ex, system = pronking_pair(2)
+    X0 = starts(ex.x0, 20_000, 1e-3, seed=3)
+    system.simulate_many(X0[:4], ex.t_final, progress=False)  # compiled, Jacobian checked
+    assert many.threaded(system.calls)
+    reads = []
+
+    def room():
+        reads.append(1)
+        return 10**9 if len(reads) < 7 else 16 << 20
+
+    monkeypatch.setattr(_validate, "memory_headroom", room)
+    done = []
+
+    def progress(count, total):
+        done.append(count)
+        assert count < 200, "the batch went on"
+
+    with pytest.raises(ValueError, match=r"^simulate_many's batch \(\d+ of 20000 runs done"):
+        system.simulate_many(X0, ex.t_final, progress=progress)
+    assert 0 < len(done) < 100
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and any(
+            t.name.startswith("bderiv.simulate_many") for t in threading.enumerate()):
+        time.sleep(0.05)
+    assert not any(t.name.startswith("bderiv.simulate_many") for t in threading.enumerate())
