@@ -68,7 +68,7 @@ def test_event_times_orders_jvp_vjp_sized_before_the_copy(bd):
     V = np.broadcast_to(np.array([-1.0, -2.0, 0.5]), (10**10, 3))
     for call in (bd.event_times, bd.orders):
         refused_cheaply(lambda call=call: call(V), "the event times and orders of 10000000000 "
-                        "vectors \\(2 events\\) with the vectors' float64 copy " + MEMORY +
+                        "vectors \\(2 events\\) and the vectors' float64 copy " + MEMORY +
                         r".*: pass fewer vectors at a time")
     refused_cheaply(lambda: bd.jvp(V, V), r"the jvp of 10000000000 vectors \(its result and "
                     r"T's float64 copy\) would " + MEMORY + r".*: pass out=")

@@ -150,7 +150,7 @@ def check_points(V, dim: int, name: str = "V", *, index_shape=None, offset: int 
 
 #: the words of a size refusal (:func:`check_memory`) that counts a batch's copy
 #: (:func:`batch_size`), and what to do instead
-AS_ROWS = " with the vectors' float64 copy"
+AS_ROWS = " and the vectors' float64 copy"
 FEWER_ROWS = "pass fewer vectors at a time (the batch's rows in chunks, one call each)"
 
 

@@ -82,7 +82,8 @@ def check_pass(V, fb, method: str, results: int):
     groups = f"{len(jumps)} event group" + ("" if len(jumps) == 1 else "s")
     check_memory(copy + 8 * m * ((len(jumps) + 1) * d + results * events), None,
                  f"the {method} of {m} vectors through {groups} ({events} events: the vectors "
-                 f"entering each stage and the results{AS_ROWS if copy else ''}) would",
+                 f"entering each stage{',' if copy else ' and'} the results"
+                 f"{AS_ROWS if copy else ''}) would",
                  FEWER_ROWS)
     return V
 
