@@ -233,3 +233,24 @@ def test_methods_without_dask_blocks_refuse_a_dask_array_without_computing_it(bd
         with pytest.raises(TypeError, match=r"take[s]? NumPy arrays, got a dask array; apply "
                                             r"it block by block with dask.array.map_blocks"):
             call(V)
+
+
+def test_flow_map_methods_without_dask_blocks_refuse_a_dask_array_as_bderivative_does(bd):
+    """The flow map's orders, event_times and apply_orders refuse a dask array in the words
+    of BDerivative's, never converting it (np.asarray computed it whole in memory)."""
+    from bderiv.analysis.flowmap import FlowBDerivative
+
+    def never(block):
+        raise AssertionError("the dask array was computed")
+
+    fb = FlowBDerivative([np.eye(3), 2.0 * np.eye(3)], [bd])
+    V = da.ones((40, 3), chunks=(10, 3)).map_blocks(never, dtype=float)
+    words = (r" NumPy arrays, got a dask array; apply it block by block with "
+             r"dask.array.map_blocks \(converting it would compute it whole in memory\)")
+    for call in (fb.event_times, fb.orders):
+        with pytest.raises(TypeError, match="^event_times and orders take" + words):
+            call(V)
+    with pytest.raises(TypeError, match="^apply_orders takes" + words):
+        fb.apply_orders(V)
+    with pytest.raises(TypeError, match="^event_times and orders take" + words):
+        bd.orders(V)  # the same words

@@ -285,3 +285,94 @@ def test_flow_fd_is_the_difference_of_simulations():
     for v, fd in zip(V, FD, strict=True):
         moved = ex.system.simulate(ex.x0 + eps * v, ex.t_final, **options).x_final
         np.testing.assert_array_equal(fd, (moved - base) / eps)
+
+
+# -- the batch's memory ---------------------------------------------------------------------
+
+def test_a_batch_too_large_is_refused_before_its_start_states_are_copied():
+    """10**10 start states (a broadcast view: no memory of its own) would take terabytes of
+    runs: refused by a ValueError that says so, before X0 is copied (numpy's MemoryError
+    came out of the copy), whatever the record."""
+    import tracemalloc
+
+    ex = examples.chair()
+    X0 = np.broadcast_to(ex.x0, (10**10, ex.system.dim))
+    for t_eval, samples in ((None, 2), ((), 0), ([0.05, 0.1], 2)):
+        tracemalloc.start()
+        try:
+            with pytest.raises(ValueError, match=rf"^the 10000000000 runs of simulate_many "
+                                                 rf"\(at least [\d.]+ [KM]?i?B a run: its final "
+                                                 rf"state and {samples} samples; .*\) would take "
+                                                 rf"[\d.]+ [TP]iB, more than the memory limit "
+                                                 rf"of .*: pass fewer start states at a time "
+                                                 rf"\(the batch in chunks.*t_eval=\(\)"):
+                ex.system.simulate_many(X0, ex.t_final, t_eval=t_eval)
+        finally:
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+        assert peak < 1 << 20
+
+
+def test_a_batch_that_grows_too_large_is_refused_as_its_runs_finish(monkeypatch):
+    """What the runs hold is counted as they finish: 20000 runs of the chair keep about
+    2 KiB each (every step, the groups), twice the floor checked up front, so with 32 MiB
+    left the batch is refused after its first run, by the projection of what is left
+    (it went on, run after run, until memory was gone: 28 KiB a run of the compiled
+    pronking gait, 28 GB for 10**6 runs)."""
+    from bderiv._support import _validate
+
+    ex = examples.chair()
+    monkeypatch.setattr(_validate, "memory_headroom", lambda: 32 << 20)
+    done = []
+
+    def progress(count, total):
+        done.append(count)
+        assert count < 3, "the batch went on"
+
+    X0 = np.broadcast_to(ex.x0, (20_000, ex.system.dim))
+    with pytest.raises(ValueError, match=r"^simulate_many's batch \(1 of 20000 runs done, "
+                                         r"about [\d.]+ KiB a run\) holds [\d.]+ KiB and going "
+                                         r"on needs about [\d.]+ MiB more, but the process may "
+                                         r"take only 32.0 MiB .*: pass fewer start states"):
+        ex.system.simulate_many(X0, ex.t_final, progress=progress)
+    assert done == []
+    # a run's own bytes: its samples, groups and final state
+    run = ex.system.simulate(ex.x0, ex.t_final)
+    assert many.run_bytes(run) > run.t.nbytes + run.x.nbytes + run.masks.nbytes + 500 * len(
+        run.groups)
+    # the small batches of use are not checked against the memory at all (under 1 MiB)
+    assert len(ex.system.simulate_many(X0[:3], ex.t_final, progress=False)) == 3
+
+
+def test_a_batch_on_threads_that_grows_too_large_is_refused_and_its_threads_end(monkeypatch):
+    """The check as runs finish holds on the threads' path too: with room for the first
+    runs' checks and then 16 MiB, 20000 runs of the compiled pronking gait (about 2.6 KiB
+    each: 50 MiB) are refused by the calling thread, and no worker thread is left
+    running."""
+    from bderiv._support import _validate
+
+    ex, system = pronking_pair(2)
+    X0 = starts(ex.x0, 20_000, 1e-3, seed=3)
+    system.simulate_many(X0[:4], ex.t_final, progress=False)  # compiled, Jacobian checked
+    assert many.threaded(system.calls)
+    reads = []
+
+    def room():
+        reads.append(1)
+        return 10**9 if len(reads) < 7 else 16 << 20
+
+    monkeypatch.setattr(_validate, "memory_headroom", room)
+    done = []
+
+    def progress(count, total):
+        done.append(count)
+        assert count < 200, "the batch went on"
+
+    with pytest.raises(ValueError, match=r"^simulate_many's batch \(\d+ of 20000 runs done"):
+        system.simulate_many(X0, ex.t_final, progress=progress)
+    assert 0 < len(done) < 100
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and any(
+            t.name.startswith("bderiv.simulate_many") for t in threading.enumerate()):
+        time.sleep(0.05)
+    assert not any(t.name.startswith("bderiv.simulate_many") for t in threading.enumerate())

@@ -61,6 +61,66 @@ def test_piece_matrices_sized_before_the_copy(bd):
         bd.piece_matrices(np.broadcast_to(np.ones(4), (10**9, 4)))
 
 
+def test_event_times_orders_jvp_vjp_sized_before_the_copy(bd):
+    """A broadcast batch of 10**10 rows (no memory of its own) is refused by the size of
+    what it needs, its float64 copy counted, before it is copied: it was copied first and
+    numpy's MemoryError came out (or at 4e8 rows, 9 GiB held for 20 s before the refusal)."""
+    V = np.broadcast_to(np.array([-1.0, -2.0, 0.5]), (10**10, 3))
+    for call in (bd.event_times, bd.orders):
+        refused_cheaply(lambda call=call: call(V), "the event times and orders of 10000000000 "
+                        "vectors \\(2 events\\) and the vectors' float64 copy " + MEMORY +
+                        r".*: pass fewer vectors at a time")
+    refused_cheaply(lambda: bd.jvp(V, V), r"the jvp of 10000000000 vectors \(its result and "
+                    r"T's float64 copy\) would " + MEMORY + r".*: pass out=")
+    refused_cheaply(lambda: bd.vjp(V, V, out=np.empty((3, 3))),  # out given: T's copy alone
+                    r"the vjp of 10000000000 vectors \(W's float64 copy\) would " + MEMORY)
+    # a C-contiguous float64 batch is not copied: its size is the results' alone
+    times, order = bd.event_times(V[:4].copy())
+    assert times.shape == order.shape == (4, 2)
+    np.testing.assert_allclose(bd.jvp(V[:4], V[:4]), bd(V[:4]), rtol=1e-15)
+
+
+def flow_map():
+    """A flow map of d = 4 through two groups (3 and 2 events), its stages by hand."""
+    from bderiv.analysis.flowmap import FlowBDerivative
+
+    rng = np.random.default_rng(0)
+    jumps = []
+    for n in (3, 2):
+        Dh = np.eye(n, 4) + 0.1 * rng.random((n, 4))
+        jumps.append(BDerivative(Dh, 1.0 + 0.3 * rng.random((1 << n, 4))))
+    return FlowBDerivative([np.eye(4) + 0.1 * rng.random((4, 4)) for _ in range(3)], jumps)
+
+
+def test_flow_map_passes_sized_before_the_copy(monkeypatch):
+    """The flow map's orders, event_times and apply_orders are sized before the batch is
+    converted (a broadcast batch of 10**10 rows: numpy's MemoryError came out), and by
+    all the pass holds: the vectors entering each of its three stages and the results
+    (the vectors were copied and passed through every stage before any check, and each
+    group's own check saw only its part)."""
+    from bderiv._support import _validate
+
+    fb = flow_map()
+    V = np.broadcast_to(-np.ones(4), (10**10, 4))
+    groups = "vectors through 2 event groups \\(5 events: "
+    for name in ("orders", "event_times", "apply_orders"):
+        refused_cheaply(lambda name=name: getattr(fb, name)(V),
+                        f"the {name} of 10000000000 {groups}.* copy\\) would " + MEMORY)
+    monkeypatch.setattr(_validate, "memory_headroom", lambda: 2 << 20)  # 2 MiB left
+    W = -np.ones((20_000, 4))  # 8 B x 20000 x (3 stages x 4 + 5 or 10 results): 2.6, 3.4 MiB
+    for name in ("orders", "event_times", "apply_orders"):
+        with pytest.raises(ValueError, match=f"the {name} of 20000 {groups}the vectors "
+                                             f"entering each stage and the results\\) would "
+                                             f"take [23].\\d MiB, more than the memory limit "
+                                             f"of 2.0 MiB: pass fewer vectors at a time"):
+            getattr(fb, name)(W)
+    W = W[:1000]  # 130 KiB: done
+    assert [o.shape for o in fb.orders(W)] == [(1000, 3), (1000, 2)]
+    image, orders = fb.apply_orders(W)
+    assert_array_equal(image, fb(W))
+    assert all(np.array_equal(a, b) for a, b in zip(orders, fb.orders(W), strict=True))
+
+
 def test_growth_rate_sized_before_its_tables():
     refused_cheaply(lambda: check_growth_memory(10**10, 3, 1000),
                     "the growth rate of 10000000000 directions in dimension 3 over 1000 "

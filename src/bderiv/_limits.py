@@ -198,6 +198,13 @@ FAR_BYTES = 4 << 20
 #: microseconds, a sizeable part of a small BDerivative's construction (two per build of a
 #: flow map with one event group); dense tables of d = 8 reach 1 MiB at n = 12.
 SMALL_NEED_BYTES = 1 << 20
+#: bytes a run of ``simulate_many`` holds besides its samples' arrays and its final state
+#: (the Trajectory, its empty record and the batch's slots: measured 817 B a run of the
+#: compiled pronking gait that met no event and kept no sample, d = 4), and besides the
+#: states in it, each event group with its event record (measured 565 B at d = 4); the
+#: batch's size is checked before its runs and again as their results grow
+RUN_HELD_BYTES = 720
+GROUP_HELD_BYTES = 500
 #: address space a kernel's compilation may take (LLVM; measured 50 to 70 MiB for the
 #: drivers of a small dense map), with a margin
 COMPILE_BYTES = 128 << 20

@@ -148,6 +148,31 @@ def check_points(V, dim: int, name: str = "V", *, index_shape=None, offset: int 
     return flat, lead
 
 
+#: the words of a size refusal (:func:`check_memory`) that counts a batch's copy
+#: (:func:`batch_size`), and what to do instead
+AS_ROWS = " and the vectors' float64 copy"
+FEWER_ROWS = "pass fewer vectors at a time (the batch's rows in chunks, one call each)"
+
+
+def batch_size(V, dim: int) -> tuple[object, int, int]:
+    """``(V, m, copy)``: the number of vectors ``m`` of a batch ``V`` of shape (..., dim)
+    and the bytes :func:`check_points` takes to copy them (0 for a C-contiguous float64
+    array), read from the shape alone, so that a batch is sized before it is converted:
+    ``V`` itself when it has a shape (an ndarray, a broadcast view, a memmap or a dask
+    array: not converted), else as an array (a nest of lists, held already: converted
+    once, as :func:`check_points` would). ``m = copy = 0`` for another shape, which
+    :func:`check_points` refuses by name."""
+    if not isinstance(getattr(V, "shape", None), tuple):
+        V = np.asarray(V)
+    shape = V.shape
+    if not shape or shape[-1] != dim or not all(isinstance(s, numbers.Integral)
+                                                for s in shape):
+        return V, 0, 0
+    m = math.prod(int(s) for s in shape[:-1])
+    held = isinstance(V, np.ndarray) and V.dtype == np.float64 and V.flags.c_contiguous
+    return V, m, 0 if held else 8 * m * dim
+
+
 def frozen(a, dtype=np.float64) -> np.ndarray:
     """``a`` in the one form a compiled kernel takes an array it only reads: C-contiguous,
     of ``dtype``, read-only (a view; a copy only to change the dtype or the layout).

@@ -8,8 +8,9 @@ applied to the rows of a batch by a numba kernel, the event groups' maps ``M_i``
 (:func:`stage_inputs`), backwards through the inverses (:func:`backward`), the tangent
 maps of one piece per row (:func:`tangent_rows`) and the piece of given event orders
 (:func:`compose_piece`); the checks of the stages (:func:`check_stages`), of the
-final-time perturbations (:func:`check_dt`) and of the orders (:func:`group_orders`); a
-group's refusal said of the flow map's batch (:func:`in_group`).
+final-time perturbations (:func:`check_dt`), of the orders (:func:`group_orders`) and of
+a batch's size before it is converted (:func:`check_pass`); a group's refusal said of the
+flow map's batch (:func:`in_group`).
 """
 
 from __future__ import annotations
@@ -18,11 +19,16 @@ import numpy as np
 
 from .._kernels import _core
 from .._kernels import linear as _linear
+from .._support._batch import refuse_dask
 from .._support._errors import QueryError
 from .._support._validate import (
+    AS_ROWS,
+    FEWER_ROWS,
     all_finite,
+    batch_size,
     check_finite_result,
     check_matrix,
+    check_memory,
     check_real_array,
     singular_condition,
 )
@@ -58,6 +64,28 @@ def check_stages(linear, jumps) -> tuple[tuple, tuple, int]:
         if bd.dim != d:
             raise ValueError(f"jumps[{i}] has dimension {bd.dim} but the stages have {d}")
     return linear, tuple(jumps), d
+
+
+def check_pass(V, fb, method: str, results: int):
+    """``V`` for a pass of the flow map ``fb``'s ``method`` through its stages (``V``
+    itself, or as an array: :func:`~bderiv._support._validate.batch_size`), refused before
+    it is converted if it is a dask array (in :func:`~bderiv._support._batch.refuse_dask`'s
+    words, as ``BDerivative``'s ``event_times`` and ``orders`` refuse it) or if the pass
+    would take more than the process may: the vectors entering each stage
+    (:func:`stage_inputs`), ``results`` int64 or float64 per event of each group per
+    vector, and the float64 copy of ``V`` where one is made."""
+    refuse_dask(V, what="apply_orders takes" if method == "apply_orders" else
+                "event_times and orders take")
+    d, jumps = fb.dim, fb.jumps
+    V, m, copy = batch_size(V, d)
+    events = sum(bd.n_events for bd in jumps)
+    groups = f"{len(jumps)} event group" + ("" if len(jumps) == 1 else "s")
+    check_memory(copy + 8 * m * ((len(jumps) + 1) * d + results * events), None,
+                 f"the {method} of {m} vectors through {groups} ({events} events: the vectors "
+                 f"entering each stage{',' if copy else ' and'} the results"
+                 f"{AS_ROWS if copy else ''}) would",
+                 FEWER_ROWS)
+    return V
 
 
 def stage(L, X, transpose: bool = False) -> np.ndarray:
@@ -210,3 +238,10 @@ def in_group(exc: ValueError, group: int, offset: int, name: str | None = None
     if isinstance(exc, QueryError):
         return exc.at(row=exc.row + offset, name=name, shape=(), prefix=where)
     return ValueError(where + str(exc))
+
+
+def read_only_copy(a) -> np.ndarray:
+    """A read-only float64 copy."""
+    arr = np.array(a, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr

@@ -34,9 +34,11 @@ from ..models.events.finaltime import FinalTimeMap
 from ._flowstages import (
     backward,
     check_dt,
+    check_pass,
     check_stages,
     compose_piece,
     group_orders,
+    read_only_copy,
     stage_inputs,
     stage_inverses,
     tangent_rows,
@@ -55,9 +57,8 @@ class FlowBDerivative(Linearisation):
         order: before the first group, between groups, after the last group.
     jumps : sequence of BDerivative
         One per event group, in time order, each of dimension d; the last may be a
-        :class:`~bderiv.models.events.finaltime.FinalTimeMap` (a group at the final time, whose
-        local
-        event ``n_g`` is the final time; ``linear[-1]`` then follows it).
+        :class:`~bderiv.models.events.finaltime.FinalTimeMap` (a group at the final time,
+        whose local event ``n_g`` is the final time; ``linear[-1]`` then follows it).
     final_field : array_like, shape (d,), optional
         Vector field at the final point: the derivative in the final time (with a group
         at the final time, the field after it: ``dt`` also decides which of its events
@@ -127,13 +128,13 @@ class FlowBDerivative(Linearisation):
         self.group_masks = tuple((int(b), int(a)) for b, a in (group_masks or ()))
         self.group_spreads = tuple(float(s) for s in (group_spreads or [0.0] * len(jumps)))
         self.group_states = () if group_states is None else tuple(
-            _read_only(check_matrix(np.reshape(x, (1, -1)), "group_states", (1, d))[0])
+            read_only_copy(check_matrix(np.reshape(x, (1, -1)), "group_states", (1, d))[0])
             for x in group_states)
         if self.group_states and len(self.group_states) != len(jumps):
             raise ValueError(f"group_states has {len(self.group_states)} states but there "
                              f"are {len(jumps)} jumps")
-        self.x0 = None if x0 is None else _read_only(x0)
-        self.x_final = None if x_final is None else _read_only(x_final)
+        self.x0 = None if x0 is None else read_only_copy(x0)
+        self.x_final = None if x_final is None else read_only_copy(x_final)
         self.t_final = None if t_final is None else float(t_final)
 
     # ------------------------------------------------------------------------------
@@ -154,9 +155,8 @@ class FlowBDerivative(Linearisation):
 
     @property
     def stops_at_group(self):
-        """True when the last event group lies at the final time (a
-        :class:`~bderiv.models.events.finaltime.FinalTimeMap`: its last local event is the final
-        time)."""
+        """True when the last event group lies at the final time (a :class:`~bderiv.models.
+        events.finaltime.FinalTimeMap`: its last local event is the final time)."""
         return bool(self._jumps) and isinstance(self._jumps[-1], FinalTimeMap)
 
     @property
@@ -286,6 +286,8 @@ class FlowBDerivative(Linearisation):
         Parameters
         ----------
         V : array_like, shape (..., d)
+            NumPy (a dask array is refused: apply it with ``map_blocks``), sized before
+            it is converted (a ValueError if the pass would not fit in memory).
 
         Returns
         -------
@@ -295,6 +297,7 @@ class FlowBDerivative(Linearisation):
             shifts of the group's events (local index), ``order`` (..., n_g) int64 the
             local event order. An empty list when there is no group.
         """
+        V = check_pass(V, self, "event_times", 2)
         flat, lead = check_points(V, self.dim)
         res = []
         for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False):
@@ -344,6 +347,7 @@ class FlowBDerivative(Linearisation):
         final time (``stops_at_group``) has one more local event, the last: the final time
         itself, so the events after it in an order come after ``t_final`` (not applied).
         """
+        V = check_pass(V, self, "orders", 1)
         flat, lead = check_points(V, self.dim)
         return [bd.orders(W).reshape(*lead, bd.n_events)
                 for bd, W in zip(self._jumps, self._stage_inputs(flat), strict=False)]
@@ -364,7 +368,9 @@ class FlowBDerivative(Linearisation):
         orders : list of ndarray, shape (m, n_g), int64
             As :meth:`orders`.
         """
-        inputs = self._stage_inputs(check_matrix(V, "V", (None, self.dim)))
+        V = check_pass(V, self, "apply_orders", 1)
+        V = check_matrix(V, "V", (None, self.dim), copy=False)  # a copy only to convert
+        inputs = self._stage_inputs(np.ascontiguousarray(V, dtype=np.float64))
         return inputs[-1], [bd.orders(X) for bd, X in zip(self._jumps, inputs, strict=False)]
 
     def piece(self, orders=None, *, with_time=False):
@@ -390,10 +396,3 @@ class FlowBDerivative(Linearisation):
         if with_time:
             M = np.column_stack((M, self.final_field + shift))
         return np.array(M)
-
-
-def _read_only(a) -> np.ndarray:
-    """A read-only float64 copy."""
-    arr = np.array(a, dtype=np.float64)
-    arr.setflags(write=False)
-    return arr

@@ -213,9 +213,12 @@ def simulate_many(model, X0, t_final, *, simultaneity_tol=None,
     ------
     TypeError, ValueError
         On a bad argument (named; ``X0`` of another shape than (..., d), or not
-        finite: the row is named); a run's ValueError or RuntimeError with the index
-        and value of its start state before the message (the first failing run in
-        the order of ``X0``, as a loop would raise it).
+        finite: the row is named); a batch whose runs would take more memory than the
+        process may (a ValueError before any run, from ``X0``'s shape, or as the runs
+        finish, from what they hold: pass fewer start states, or ``t_eval=()``); a
+        run's ValueError or RuntimeError with the index and value of its start state
+        before the message (the first failing run in the order of ``X0``, as a loop
+        would raise it).
 
     Examples
     --------
@@ -230,12 +233,12 @@ def simulate_many(model, X0, t_final, *, simultaneity_tol=None,
     options = SolverOptions.resolve(options, SIMULATION_OPTIONS, rtol=rtol, atol=atol,
                                     method=method, max_step=max_step,
                                     simultaneity_tol=simultaneity_tol)
-    X0, lead = check_states(X0, model.dim)
+    record = _record(t_eval, t_final, model.dim)
+    X0, lead = check_states(X0, model.dim, record)  # sized before it is copied
     if section is not None:
         section = Section(section, model.dim)
     return run_many(model.calls, X0, lead, t_final, options=options, max_groups=max_groups,
-                    section=section,
-                    progress=progress, record=_record(t_eval, t_final, model.dim))
+                    section=section, progress=progress, record=record)
 
 
 def flow_bderivative(model, x0, t_final, *, simultaneity_tol=None,

@@ -25,7 +25,8 @@ import numpy as np
 
 from .._numerics import GRAZING_RTOL
 from ..models.integrate.run import ENDS, run
-from .flowmap import FlowBDerivative, _read_only
+from ._flowstages import read_only_copy
+from .flowmap import FlowBDerivative
 
 __all__ = ["ReturnMap", "ReturnRun", "flow_projection", "return_map"]
 
@@ -76,11 +77,11 @@ class ReturnMap(FlowBDerivative):
                          t_final=flow.t_final)
         self.flow = flow
         self.period = flow.t_final
-        self.projection = _read_only(projection)
-        self.start_projection = _read_only(flow_projection(normal_start, field_start))
+        self.projection = read_only_copy(projection)
+        self.start_projection = read_only_copy(flow_projection(normal_start, field_start))
         n0 = np.asarray(normal_start, float)
         basis = np.linalg.svd(n0[None, :])[2][1:].T  # the right singular vectors after n0
-        self.tangent_basis = _read_only(basis)
+        self.tangent_basis = read_only_copy(basis)
 
     def __repr__(self):
         sizes = [bd.n_events for bd in self.jumps]

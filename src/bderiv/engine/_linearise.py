@@ -29,7 +29,13 @@ from .._kernels import scaling
 from .._limits import PIECE_CHUNK_BYTES
 from .._support._batch import evaluate, refuse_dask
 from .._support._errors import QueryError
-from .._support._validate import check_memory, check_points, check_real_array
+from .._support._validate import (
+    FEWER_ROWS,
+    batch_size,
+    check_memory,
+    check_points,
+    check_real_array,
+)
 
 
 def unit_scale(rows: np.ndarray, exps=None) -> np.ndarray:
@@ -141,6 +147,16 @@ class Linearisation:
         their offset; the rows of T are taken at the same offset)."""
         d = self.dim
         refuse_dask(V, T, what="jvp/vjp take", how=f" (V and {t_name} chunked alike)")
+        T, m, copy = batch_size(T, d)  # sized before check_points copies T
+        held = ([] if out is not None else ["its result"]) + (
+            [f"{t_name}'s float64 copy"] if copy else [])
+        if held:
+            check_memory(copy + (0 if out is not None else 8 * m * d), None,
+                         f"the {'vjp' if transpose else 'jvp'} of {m} vectors "
+                         f"({' and '.join(held)}) would",
+                         f"pass out=, a writeable np.memmap of {t_name}'s shape, to write "
+                         f"the result to a file, and {t_name} as a C-contiguous float64 "
+                         f"array; or {FEWER_ROWS}")
         flat_t, lead_t = check_points(T, d, t_name)
         lead_v = np.shape(V)[:-1]
         if lead_v != lead_t:

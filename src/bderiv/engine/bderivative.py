@@ -14,6 +14,9 @@ from .._numerics import GRAZING_RTOL
 from .._support._batch import evaluate, refuse_dask
 from .._support._errors import QueryError
 from .._support._validate import (
+    AS_ROWS,
+    FEWER_ROWS,
+    batch_size,
     check_bool,
     check_finite_result,
     check_matrix,
@@ -308,10 +311,11 @@ class BDerivative(Linearisation, CornerGeometry):
 
     def _event_times(self, V, exact: bool):
         refuse_dask(V, what="event_times and orders take")
-        flat, lead = check_points(V, self.dim)
         n = self.n_events
-        check_memory(2 * flat.shape[0] * n * 8, None,
-                     f"the event times and orders of {flat.shape[0]} vectors ({n} events)")
+        V, m, copy = batch_size(V, self.dim)  # sized before check_points copies V
+        check_memory(2 * m * n * 8 + copy, None, f"the event times and orders of {m} vectors "
+                     f"({n} events){AS_ROWS if copy else ''}", FEWER_ROWS)
+        flat, lead = check_points(V, self.dim)
         times = np.empty((flat.shape[0], n))
         order = np.empty((flat.shape[0], n), dtype=np.int64)
         try:

@@ -49,10 +49,18 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from ..._limits import GROUP_HELD_BYTES, RUN_HELD_BYTES
 from ..._support._format import format_state, note_more
 from ..._support._progress import count_bar, resolve_progress
-from ..._support._tables import mask_dtype
-from ..._support._validate import check_number, check_points, check_positive_int
+from ..._support._tables import human_bytes, mask_dtype
+from ..._support._validate import (
+    batch_size,
+    check_memory,
+    check_number,
+    check_points,
+    check_positive_int,
+    check_record,
+)
 from ..compiled import Cancelled, stopped_by
 from .options import check_options
 from .run import STEPS, compiled_stops, run, stops_compile
@@ -61,6 +69,10 @@ __all__ = ["Trajectories", "check_states", "run_many", "threaded", "worker_count
 
 #: seconds the calling thread waits for a run at a time (it sees Ctrl-C in between)
 _POLL = 0.05
+#: the words of a refusal of a batch that would not fit in memory: what to do instead
+_INSTEAD = ("pass fewer start states at a time (the batch in chunks, one call each, keeping "
+            "of each what you need), or t_eval=() to keep the final states and the events "
+            "only (or fewer t_eval times)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,11 +107,35 @@ class Trajectories:
         return self.trajectories[i]
 
 
-def check_states(X0, dim: int) -> tuple[np.ndarray, tuple]:
+def check_states(X0, dim: int, record=STEPS) -> tuple[np.ndarray, tuple]:
     """Start states ``(..., d)`` as C-contiguous float64 rows ``(m, d)`` and the leading
     shape; a ValueError names what was expected and what came, or the first row that is
-    not finite."""
+    not finite. First, from ``X0``'s shape alone (before any copy), a batch whose runs
+    would take more than the process may is refused: at least :func:`run_bytes` of a run
+    that meets no event and keeps, of ``record`` (``STEPS`` or the times ``t_eval``), the
+    start and the end or the times asked for."""
+    X0, m, copy = batch_size(X0, dim)
+    samples = 2 if isinstance(record, str) else record.size
+    per = _held_bytes(dim, 0, samples * (16 + 8 * dim))
+    check_memory(copy + m * per, None,
+                 f"the {m} runs of simulate_many (at least {human_bytes(per)} a run: its "
+                 f"final state and {samples} samples; more with each event group it meets "
+                 f"and each step it keeps) would", _INSTEAD)
     return check_points(X0, dim, "X0", meaning="start states of this system, one per row")
+
+
+def run_bytes(traj) -> int:
+    """About the bytes a run of a batch holds: its Trajectory's samples, event groups and
+    final state, and the batch's slots for it (``RUN_HELD_BYTES``, ``GROUP_HELD_BYTES``)."""
+    return _held_bytes(traj.x_final.size, len(traj.groups),
+                       traj.t.nbytes + traj.x.nbytes + traj.masks.nbytes)
+
+
+def _held_bytes(d: int, groups: int, samples: int) -> int:
+    """A run's bytes (:func:`run_bytes`) of dimension ``d``: ``samples`` bytes of samples,
+    ``groups`` event groups (each with two states), its final state in the Trajectory and
+    in the batch's ``x_final``, its final mask and its two slots (a list, a tuple)."""
+    return RUN_HELD_BYTES + groups * (GROUP_HELD_BYTES + 16 * d) + samples + 16 * d + 24
 
 
 def threaded(system, section=None) -> bool:
@@ -163,6 +199,8 @@ def run_many(system, X0, lead, t_final, *, options, max_groups,
         tell = resolve_progress(progress, desc="simulate_many", unit="run")
         report = None if tell is None else (lambda done: tell(done, m))
     trajectories = [None] * m
+    store = _Store(trajectories, report)
+
     def parallel(first):
         return worker_count(m - first) > 1 and threaded(system, section)
 
@@ -170,16 +208,15 @@ def run_many(system, X0, lead, t_final, *, options, max_groups,
         first = 0
         # a new model's runs on its Python code one by one, until they are compiled
         while first < m and getattr(system, "python_first", False):
-            first += _serial(one, range(first, first + 1), trajectories, report, X0, lead)
+            first += _serial(one, range(first, first + 1), store, X0, lead)
         # runs alone until one has checked the event Jacobian (whose check may change how
         # the model computes it): the order of the loop of simulate
         while parallel(first) and not compiled_stops(system, section):
-            first += _serial(one, range(first, first + 1), trajectories, report, X0, lead)
+            first += _serial(one, range(first, first + 1), store, X0, lead)
         if parallel(first):
-            _Workers(one, range(first, m), worker_count(m - first)).collect(
-                trajectories, report, X0, lead)
+            _Workers(one, range(first, m), worker_count(m - first)).collect(store, X0, lead)
         else:
-            _serial(one, range(first, m), trajectories, report, X0, lead)
+            _serial(one, range(first, m), store, X0, lead)
     finally:
         if watch is not None:
             watch.close()
@@ -207,15 +244,39 @@ def _raise(exc, i, X0, lead):
     raise named from exc
 
 
-def _serial(one, indices, trajectories, report, X0, lead) -> int:
+class _Store:
+    """Where the calling thread puts each run as it finishes: its slot of ``trajectories``,
+    the report of the runs done, and the bytes the batch holds (:func:`run_bytes`), checked
+    again whenever they have grown by half against the runs left at the mean so far, as a
+    run's record is (:func:`bderiv._support._validate.check_record`): a batch of runs
+    larger than measured up front (:func:`check_states`) is refused as it grows."""
+
+    def __init__(self, trajectories, report):
+        self.trajectories, self.report = trajectories, report
+        self.done = self.held = self.next_check = 0
+
+    def __call__(self, i, traj) -> None:
+        self.trajectories[i] = traj
+        self.done += 1
+        self.held += run_bytes(traj)
+        if self.held >= self.next_check:
+            self.next_check = self.held + self.held // 2
+            m, done = len(self.trajectories), self.done
+            check_record(self.held, self.held * (m - done) // done,
+                         f"simulate_many's batch ({done} of {m} runs done, about "
+                         f"{human_bytes(self.held // done)} a run)", _INSTEAD)
+        if self.report is not None:
+            self.report(self.done)
+
+
+def _serial(one, indices, store, X0, lead) -> int:
     """The runs of ``indices`` one after the other in this thread; the number done."""
     for i in indices:
         try:
-            trajectories[i] = one(i)
+            traj = one(i)
         except Exception as exc:  # named (ours) or noted (a model's function's)
             _raise(exc, i, X0, lead)
-        if report is not None:
-            report(i + 1)
+        store(i, traj)
     return len(indices)
 
 
@@ -255,16 +316,15 @@ class _Workers:
                     self.done.put((i, None, exc))
                     return
 
-    def collect(self, trajectories, report, X0, lead) -> None:
-        """Run the threads, store their trajectories and call ``report(done)`` as they
-        finish. Raise the first failing run's error in the order of the indices (named),
-        once every run before it has finished; or what this thread meets (Ctrl-C) at
-        once. Either way no thread takes another run, and the runs going stop at their
-        next slice of steps."""
+    def collect(self, store, X0, lead) -> None:
+        """Run the threads and ``store`` their trajectories as they finish (:class:`_Store`).
+        Raise the first failing run's error in the order of the indices (named), once
+        every run before it has finished; or what this thread meets (Ctrl-C, a batch
+        grown too large) at once. Either way no thread takes another run, and the runs
+        going stop at their next slice of steps."""
         start = self.indices.start
         reported = np.zeros(len(self.indices), dtype=bool)
         low, failed = 0, None  # the first index not reported; (i, exc) of the first failure
-        done = start
         try:
             for thread in self.threads:
                 thread.start()
@@ -281,10 +341,7 @@ class _Workers:
                     if failed is None or i < failed[0]:
                         failed = (i, exc)
                     continue
-                trajectories[i] = traj
-                done += 1
-                if report is not None:
-                    report(done)
+                store(i, traj)
         finally:
             self.stop.set()
         if failed is not None:
