@@ -155,8 +155,9 @@ class FlowBDerivative(Linearisation):
 
     @property
     def stops_at_group(self):
-        """True when the last event group lies at the final time (a :class:`~bderiv.models.
-        events.finaltime.FinalTimeMap`: its last local event is the final time)."""
+        """True when the last event group lies at the final time (a
+        :class:`~bderiv.models.events.finaltime.FinalTimeMap`: its last local event is the
+        final time)."""
         return bool(self._jumps) and isinstance(self._jumps[-1], FinalTimeMap)
 
     @property

@@ -72,7 +72,8 @@ class Stability:
         Iterations of the map, of which the first ``burn_in`` are not averaged.
     floor : float
         The spread's floor: the rounding of a step (``RATE_ROUNDING``), or the map's own
-        accuracy where it is known and larger (:attr:`PeriodicOrbit.accuracy`); a rate
+        accuracy where it is known and larger
+        (:attr:`bderiv.analysis.orbit.PeriodicOrbit.accuracy`); a rate
         undecided at the floor is 1 to within what the map can say (neutral).
     """
 
