@@ -49,6 +49,7 @@ from .._limits import LOCAL_WORKERS
 from .._support._progress import resolve_progress
 from .._support._validate import (
     all_finite,
+    check_memory,
     check_number,
     check_real_array,
     check_state,
@@ -156,7 +157,9 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     ------
     TypeError, ValueError
         Before the grid runs, for an argument of the wrong type, shape or range (named):
-        a point's failure is recorded, but a bad argument would fail at every point.
+        a point's failure is recorded, but a bad argument would fail at every point. A
+        ValueError too for a grid whose map (``2 + d`` floats a point) the memory the
+        process may still take cannot hold.
 
     Examples
     --------
@@ -180,18 +183,22 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     first = {n: float(a[0]) for n, a in zip(names, axes, strict=True)}
     x_guess, system = _check_guess(make_system, first, x_guess)
     shape = tuple(a.size for a in axes)
+    # the map's arrays are the one thing the size of the grid: refused now if they cannot
+    # fit; the waves are made one at a time (a 5000 x 5000 grid listed whole took 4.6 GB
+    # and 45 s before its first point)
+    smap = _empty_map(names, axes, x_guess.size)
     task = _Task(make_system, names, section, period_guess, accept, n_directions, iterations,
                  orbit_options, x_guess, (first, system))
     run, close = _runner(client)
     progress = resolve_progress(progress, desc="stability map", unit="point")
-    results, done, total = {}, 0, math.prod(shape)
+    done, total = 0, math.prod(shape)
     try:
         for wave in _waves(shape):
-            starts = [_start(results, index, x_guess) for index in wave]
+            starts = [_start(smap, index, x_guess) for index in wave]
             params = [{n: float(a[i]) for n, a, i in zip(names, axes, index, strict=True)}
                       for index in wave]
             for index, result in zip(wave, run(task, params, starts), strict=True):
-                results[index] = result
+                _record(smap, index, result)
                 done += 1
                 if progress is not None:
                     progress(done, total)
@@ -203,7 +210,7 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
         close()
         raise
     close()
-    return _collect(names, axes, shape, x_guess.size, results)
+    return smap
 
 
 def _check_grid(grid):
@@ -246,21 +253,22 @@ def _check_guess(make_system, params, x_guess):
 
 
 def _waves(shape):
-    """Grid indices by wave: anti-diagonals ``sum(index) = w``, w ascending."""
-    indices = sorted(np.ndindex(*shape), key=lambda index: (sum(index), index))
-    waves = {}
-    for index in indices:
-        waves.setdefault(sum(index), []).append(index)
-    return list(waves.values())
+    """Grid indices by wave, each wave made when it is reached (the grid is never listed
+    whole): anti-diagonals ``sum(index) = w``, w ascending, each in ascending order."""
+    if len(shape) == 1:
+        return ([(i,)] for i in range(shape[0]))
+    rows, cols = shape
+    return ([(i, w - i) for i in range(max(0, w - cols + 1), min(rows, w + 1))]
+            for w in range(rows + cols - 1))
 
 
-def _start(results, index, x_guess):
+def _start(smap, index, x_guess):
     """The fixed point of a solved neighbour in the previous wave, else ``x_guess``."""
     for axis in range(len(index)):
-        prev = index[:axis] + (index[axis] - 1,) + index[axis + 1:]
-        found = results.get(prev)
-        if found is not None and found[0] is not None:
-            return found[0]
+        if index[axis] > 0:
+            prev = index[:axis] + (index[axis] - 1,) + index[axis + 1:]
+            if prev not in smap.failures:
+                return smap.x0[prev].copy()
     return x_guess
 
 
@@ -343,12 +351,22 @@ def _runner(client):
     return run, (close if own else (lambda: None))
 
 
-def _collect(names, axes, shape, d, results) -> StabilityMap:
-    growth, period = np.full(shape, np.nan), np.full(shape, np.nan)
-    x0, failures = np.full((*shape, d), np.nan), {}
-    for index, (x, p, rate) in results.items():
-        if x is None:
-            failures[index] = p
-        else:
-            x0[index], period[index], growth[index] = x, p, rate
-    return StabilityMap(names, axes, growth, period, x0, failures)
+def _empty_map(names, axes, d) -> StabilityMap:
+    """The map to fill, its arrays NaN; refused (a ValueError naming the sizes) where they
+    would not fit in what the process may still take."""
+    shape = tuple(a.size for a in axes)
+    check_memory(math.prod(shape) * (2 + d) * 8, None,
+                 f"the map's arrays over a {' x '.join(map(str, shape))} grid (growth rate, "
+                 f"period and the fixed point x0 of size {d} at each point)",
+                 "map a coarser grid, or the grid in parts (one call each)")
+    return StabilityMap(names, axes, np.full(shape, np.nan), np.full(shape, np.nan),
+                        np.full((*shape, d), np.nan), {})
+
+
+def _record(smap, index, result) -> None:
+    """A point's ``(x0, period, growth rate)`` into the map, or its failure's message."""
+    x, p, rate = result
+    if x is None:
+        smap.failures[index] = p
+    else:
+        smap.x0[index], smap.period[index], smap.growth_rate[index] = x, p, rate
