@@ -23,11 +23,12 @@ orbit from the neighbour is not accepted, or not found, is solved again from
 
 **Where it runs.** Serially in this process, or on a Dask cluster (``dask.distributed``):
 ``client="local"`` starts a :class:`~distributed.LocalCluster` for the call and closes it
-afterwards, a :class:`~distributed.Client` is used as it is. Each wave's points are
-submitted at once, so a cluster runs up to one wave at a time in parallel. The model is
-made on the workers from ``make_system`` and the point's parameters, so
-``make_system`` must pickle (a module-level function, or a :func:`functools.partial` of
-one). A compiled model should take the swept values at run time
+afterwards (its workers ignore Ctrl-C: the call's KeyboardInterrupt ends them), a
+:class:`~distributed.Client` is used as it is (Ctrl-C cancels the wave's tasks not begun).
+Each wave's points are submitted at once, so a cluster runs up to one wave at a time in
+parallel. The model is made on the workers from ``make_system`` and the point's
+parameters, so ``make_system`` must pickle (a module-level function, or a
+:func:`functools.partial` of one). A compiled model should take the swept values at run time
 (``HybridSystem(..., params=p)``, as the bundled gaits do): its functions then compile
 once per process (the workers load them from numba's disk cache), not once per point.
 Dask is used because a parameter sweep is the job that outgrows one machine; the waves are
@@ -39,7 +40,10 @@ with its message, not raised: a map has unstable and degenerate regions by natur
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import signal
 import threading
 from dataclasses import dataclass
 
@@ -204,7 +208,8 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
                     progress(done, total)
     except KeyboardInterrupt:  # Ctrl-C returns now, an own cluster closes in a thread (the
         # interpreter waits for it at exit: its processes take a second to end)
-        threading.Thread(target=close, name="bderiv-close-cluster").start()
+        threading.Thread(target=close, kwargs={"interrupted": True},
+                         name="bderiv-close-cluster").start()
         raise
     except BaseException:
         close()
@@ -315,9 +320,9 @@ def _runner(client):
     if client is None:
         return (lambda task, params, starts: [task(p, s) for p, s in zip(params, starts,
                                                                           strict=True)],
-                lambda: None)
+                lambda interrupted=False: None)
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster, wait
     except ImportError as exc:
         raise ImportError("client= needs the optional dependency distributed: install "
                           "`pip install 'bderiv[dask]'`, or pass client=None") from exc
@@ -330,7 +335,8 @@ def _runner(client):
         # that is taken (the user's own cluster) distributed warns and takes another
         cluster = LocalCluster(n_workers=LOCAL_WORKERS, threads_per_worker=1, processes=True,
                                dashboard_address=None,
-                               scheduler_kwargs={"dashboard_address": ":0"})
+                               scheduler_kwargs={"dashboard_address": ":0"},
+                               preload=["bderiv._support._dask"])  # dask_setup: no Ctrl-C there
         client = Client(cluster)
     elif not isinstance(client, Client):
         raise TypeError(f'client must be None, "local" or a distributed.Client, got '
@@ -339,16 +345,32 @@ def _runner(client):
     def run(task, params, starts):
         futures = client.map(task, params, starts, pure=False)
         try:
+            # waited for first: a Ctrl-C in client.gather left its waits in the client's
+            # event loop, each printed as "Task exception was never retrieved ... AllExit"
+            wait(futures)
             return client.gather(futures)
-        except BaseException:  # Ctrl-C: the wave's tasks are cancelled, not left running
+        except KeyboardInterrupt:
+            if not own:  # a user's cluster is free at once: the wave's tasks not started are
+                # cancelled (a task running goes on to its end: a thread is not stopped)
+                client.cancel(futures)
+            raise  # an own cluster's workers are ended (close(interrupted=True))
+        except BaseException:
             client.cancel(futures)
             raise
 
-    def close():
+    def close(interrupted=False):
+        if interrupted:  # Ctrl-C: the workers end now (a worker running a point was given
+            # 4 s to finish it before it was killed); not restarted by their nannies
+            for nanny in list(cluster.workers.values()):
+                nanny.close_gracefully(reason="bderiv: interrupted")
+                pid = nanny.pid
+                if pid is not None:
+                    with contextlib.suppress(OSError):
+                        os.kill(pid, signal.SIGTERM)
         client.close()
         cluster.close()
 
-    return run, (close if own else (lambda: None))
+    return run, (close if own else (lambda interrupted=False: None))
 
 
 def _empty_map(names, axes, d) -> StabilityMap:
