@@ -19,12 +19,16 @@ so any scheduler pickles it once per compute, however many blocks there are (in 
 of its own it was pickled with every task).
 
 Also the preload of the worker processes that ``stability_map(client="local")`` starts
-(:func:`dask_setup`: they leave Ctrl-C to the caller).
+(:func:`dask_setup`: they leave Ctrl-C to the caller) and their end after it
+(:func:`end_now`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import inspect
+import logging
+import os
 import signal
 import sys
 import threading
@@ -177,3 +181,27 @@ def dask_setup(worker) -> None:
     """
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def end_now(client, cluster) -> None:
+    """Close the LocalCluster that ``stability_map(client="local")`` started, after Ctrl-C:
+    its workers end now, not restarted by their nannies (closed as usual, a worker running
+    a point was given the nanny's 4 s to finish it before it was killed), and the logs of
+    the comms so broken (the scheduler's and the client's, now and then one to three
+    lines with a traceback) are not shown: the teardown of this cluster, its loggers
+    restored after."""
+    quiet = [logging.getLogger(name) for name in ("distributed", "tornado")]
+    levels = [logger.level for logger in quiet]
+    for logger in quiet:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        client.close()
+        for nanny in list(cluster.workers.values()):
+            nanny.close_gracefully(reason="bderiv: interrupted")
+            if nanny.pid is not None:
+                with contextlib.suppress(OSError):
+                    os.kill(nanny.pid, signal.SIGTERM)
+        cluster.close()
+    finally:
+        for logger, level in zip(quiet, levels, strict=True):
+            logger.setLevel(level)

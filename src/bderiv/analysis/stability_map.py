@@ -40,10 +40,7 @@ with its message, not raised: a map has unstable and degenerate regions by natur
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import signal
 import threading
 from dataclasses import dataclass
 
@@ -323,6 +320,8 @@ def _runner(client):
                 lambda interrupted=False: None)
     try:
         from distributed import Client, LocalCluster, wait
+
+        from .._support._dask import end_now
     except ImportError as exc:
         raise ImportError("client= needs the optional dependency distributed: install "
                           "`pip install 'bderiv[dask]'`, or pass client=None") from exc
@@ -359,16 +358,11 @@ def _runner(client):
             raise
 
     def close(interrupted=False):
-        if interrupted:  # Ctrl-C: the workers end now (a worker running a point was given
-            # 4 s to finish it before it was killed); not restarted by their nannies
-            for nanny in list(cluster.workers.values()):
-                nanny.close_gracefully(reason="bderiv: interrupted")
-                pid = nanny.pid
-                if pid is not None:
-                    with contextlib.suppress(OSError):
-                        os.kill(pid, signal.SIGTERM)
-        client.close()
-        cluster.close()
+        if interrupted:  # Ctrl-C: the workers end now, not after a point (_dask.end_now)
+            end_now(client, cluster)
+        else:
+            client.close()
+            cluster.close()
 
     return run, (close if own else (lambda interrupted=False: None))
 
