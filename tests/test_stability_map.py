@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from bderiv import complex_step_jacobian
+from bderiv._support._progress import ProgressCallbackError
 from bderiv.analysis.stability_map import StabilityMap, stability_map
 from bderiv.analysis.system import HybridSystem
 
@@ -243,3 +244,69 @@ def test_ctrl_c_on_a_local_cluster_returns_within_a_second():
     for thread in closing:  # the cluster closed before the next test
         thread.join(30)
     assert not any(t.is_alive() for t in closing)
+
+
+def _cheap_point(self, params, start):
+    """A point's work stubbed: its start as the fixed point (no orbit is solved)."""
+    return start, 1.0, 0.5
+
+
+class _FirstReport(Exception):
+    pass
+
+
+def _stop_at_first_report(done, total):
+    raise _FirstReport
+
+
+def test_the_grid_is_not_listed_before_its_first_point(monkeypatch):
+    """A review: the waves of the whole grid were listed first (about 180 B a point: 4.6 GB
+    and 45 s at 5000 x 5000 before the first report). Only the map's arrays are the size
+    of the grid now: a 1000 x 1000 grid takes them (32 MB) and a few KB more until the
+    first point is reported."""
+    import tracemalloc
+
+    from bderiv.analysis import stability_map as module
+
+    monkeypatch.setattr(module._Task, "__call__", _cheap_point)
+    grid = {"multiplier": np.linspace(0.5, 1.5, 1000), "turns": np.linspace(1, 2, 1000)}
+    arrays = 1000 * 1000 * (2 + 2) * 8
+    tracemalloc.start()
+    try:
+        with pytest.raises(ProgressCallbackError) as stopped:
+            stability_map(cycle, grid, [1.05, 0.0], section, progress=_stop_at_first_report)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert isinstance(stopped.value.__cause__, _FirstReport)
+    assert arrays <= peak < arrays + (2 << 20)
+
+
+def test_waves_are_the_anti_diagonals_in_order():
+    """The waves made one at a time are those of the grid listed whole (the order of the
+    points, hence each point's start and the map's bits, is unchanged)."""
+    from bderiv.analysis.stability_map import _waves
+
+    def listed(shape):  # the earlier definition
+        waves = {}
+        for index in sorted(np.ndindex(*shape), key=lambda index: (sum(index), index)):
+            waves.setdefault(sum(index), []).append(index)
+        return list(waves.values())
+
+    for shape in ((1,), (6,), (1, 1), (1, 5), (5, 1), (3, 4), (4, 3), (5, 5)):
+        assert list(_waves(shape)) == listed(shape)
+
+
+def test_a_map_too_large_for_the_memory_is_refused_before_it_runs(monkeypatch):
+    """Its arrays (growth rate, period, x0: (2 + d) floats a point) are checked against
+    what the process may take, before any point (the waves of 10^12 points were listed
+    until the memory ran out)."""
+    from bderiv.analysis import stability_map as module
+
+    monkeypatch.setattr(module._Task, "__call__", _cheap_point)
+    grid = {"multiplier": np.linspace(0.5, 1.5, 10**6), "turns": np.linspace(1, 2, 10**6)}
+    with pytest.raises(ValueError, match=r"the map's arrays over a 1000000 x 1000000 grid "
+                       r"\(growth rate, period and the fixed point x0 of size 2 at each "
+                       r"point\) take 29.1 TiB, more than the memory limit of .*: map a "
+                       r"coarser grid, or the grid in parts \(one call each\)"):
+        stability_map(cycle, grid, [1.05, 0.0], section, progress=_stop_at_first_report)

@@ -17,12 +17,21 @@ large graph"). Such a graph is for that client: compute it there. Without a clie
 is one key of the graph (a ``dask.delayed`` value) on which every block's task depends,
 so any scheduler pickles it once per compute, however many blocks there are (in a task
 of its own it was pickled with every task).
+
+Also the preload of the worker processes that ``stability_map(client="local")`` starts
+(:func:`dask_setup`: they leave Ctrl-C to the caller) and their end after it
+(:func:`end_now`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import inspect
+import logging
+import os
+import signal
 import sys
+import threading
 import uuid
 import weakref
 
@@ -157,3 +166,42 @@ def _whole_row(row, lead, block_info):
         return row, whole
     index = [int(i) + s for i, s in zip(np.unravel_index(row, lead), starts, strict=True)]
     return int(np.ravel_multi_index(index, whole)), whole
+
+
+def dask_setup(worker) -> None:
+    """The preload of the worker processes of the LocalCluster that ``stability_map(
+    client="local")`` starts for its call (``preload=["bderiv._support._dask"]``; called
+    by ``distributed`` in the worker process as it starts): they ignore SIGINT.
+
+    A terminal's Ctrl-C goes to every process of its foreground process group, the
+    cluster's worker processes included: each printed the traceback of a KeyboardInterrupt
+    in its event loop while the caller's own KeyboardInterrupt closed the cluster. They
+    are ended by the caller that started them instead. The worker's event loop runs in its
+    process's main thread, where alone a signal's handler can be set.
+    """
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def end_now(client, cluster) -> None:
+    """Close the LocalCluster that ``stability_map(client="local")`` started, after Ctrl-C:
+    its workers end now, not restarted by their nannies (closed as usual, a worker running
+    a point was given the nanny's 4 s to finish it before it was killed), and the logs of
+    the comms so broken (the scheduler's and the client's, now and then one to three
+    lines with a traceback) are not shown: the teardown of this cluster, its loggers
+    restored after."""
+    quiet = [logging.getLogger(name) for name in ("distributed", "tornado")]
+    levels = [logger.level for logger in quiet]
+    for logger in quiet:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        client.close()
+        for nanny in list(cluster.workers.values()):
+            nanny.close_gracefully(reason="bderiv: interrupted")
+            if nanny.pid is not None:
+                with contextlib.suppress(OSError):
+                    os.kill(nanny.pid, signal.SIGTERM)
+        cluster.close()
+    finally:
+        for logger, level in zip(quiet, levels, strict=True):
+            logger.setLevel(level)

@@ -23,11 +23,12 @@ orbit from the neighbour is not accepted, or not found, is solved again from
 
 **Where it runs.** Serially in this process, or on a Dask cluster (``dask.distributed``):
 ``client="local"`` starts a :class:`~distributed.LocalCluster` for the call and closes it
-afterwards, a :class:`~distributed.Client` is used as it is. Each wave's points are
-submitted at once, so a cluster runs up to one wave at a time in parallel. The model is
-made on the workers from ``make_system`` and the point's parameters, so
-``make_system`` must pickle (a module-level function, or a :func:`functools.partial` of
-one). A compiled model should take the swept values at run time
+afterwards (its workers ignore Ctrl-C: the call's KeyboardInterrupt ends them), a
+:class:`~distributed.Client` is used as it is (Ctrl-C cancels the wave's tasks not begun).
+Each wave's points are submitted at once, so a cluster runs up to one wave at a time in
+parallel. The model is made on the workers from ``make_system`` and the point's
+parameters, so ``make_system`` must pickle (a module-level function, or a
+:func:`functools.partial` of one). A compiled model should take the swept values at run time
 (``HybridSystem(..., params=p)``, as the bundled gaits do): its functions then compile
 once per process (the workers load them from numba's disk cache), not once per point.
 Dask is used because a parameter sweep is the job that outgrows one machine; the waves are
@@ -49,6 +50,7 @@ from .._limits import LOCAL_WORKERS
 from .._support._progress import resolve_progress
 from .._support._validate import (
     all_finite,
+    check_memory,
     check_number,
     check_real_array,
     check_state,
@@ -156,7 +158,9 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     ------
     TypeError, ValueError
         Before the grid runs, for an argument of the wrong type, shape or range (named):
-        a point's failure is recorded, but a bad argument would fail at every point.
+        a point's failure is recorded, but a bad argument would fail at every point. A
+        ValueError too for a grid whose map (``2 + d`` floats a point) the memory the
+        process may still take cannot hold.
 
     Examples
     --------
@@ -180,30 +184,35 @@ def stability_map(make_system, grid, x_guess, section, *, period_guess=None, acc
     first = {n: float(a[0]) for n, a in zip(names, axes, strict=True)}
     x_guess, system = _check_guess(make_system, first, x_guess)
     shape = tuple(a.size for a in axes)
+    # the map's arrays are the one thing the size of the grid: refused now if they cannot
+    # fit; the waves are made one at a time (a 5000 x 5000 grid listed whole took 4.6 GB
+    # and 45 s before its first point)
+    smap = _empty_map(names, axes, x_guess.size)
     task = _Task(make_system, names, section, period_guess, accept, n_directions, iterations,
                  orbit_options, x_guess, (first, system))
     run, close = _runner(client)
     progress = resolve_progress(progress, desc="stability map", unit="point")
-    results, done, total = {}, 0, math.prod(shape)
+    done, total = 0, math.prod(shape)
     try:
         for wave in _waves(shape):
-            starts = [_start(results, index, x_guess) for index in wave]
+            starts = [_start(smap, index, x_guess) for index in wave]
             params = [{n: float(a[i]) for n, a, i in zip(names, axes, index, strict=True)}
                       for index in wave]
             for index, result in zip(wave, run(task, params, starts), strict=True):
-                results[index] = result
+                _record(smap, index, result)
                 done += 1
                 if progress is not None:
                     progress(done, total)
     except KeyboardInterrupt:  # Ctrl-C returns now, an own cluster closes in a thread (the
         # interpreter waits for it at exit: its processes take a second to end)
-        threading.Thread(target=close, name="bderiv-close-cluster").start()
+        threading.Thread(target=close, kwargs={"interrupted": True},
+                         name="bderiv-close-cluster").start()
         raise
     except BaseException:
         close()
         raise
     close()
-    return _collect(names, axes, shape, x_guess.size, results)
+    return smap
 
 
 def _check_grid(grid):
@@ -246,21 +255,22 @@ def _check_guess(make_system, params, x_guess):
 
 
 def _waves(shape):
-    """Grid indices by wave: anti-diagonals ``sum(index) = w``, w ascending."""
-    indices = sorted(np.ndindex(*shape), key=lambda index: (sum(index), index))
-    waves = {}
-    for index in indices:
-        waves.setdefault(sum(index), []).append(index)
-    return list(waves.values())
+    """Grid indices by wave, each wave made when it is reached (the grid is never listed
+    whole): anti-diagonals ``sum(index) = w``, w ascending, each in ascending order."""
+    if len(shape) == 1:
+        return ([(i,)] for i in range(shape[0]))
+    rows, cols = shape
+    return ([(i, w - i) for i in range(max(0, w - cols + 1), min(rows, w + 1))]
+            for w in range(rows + cols - 1))
 
 
-def _start(results, index, x_guess):
+def _start(smap, index, x_guess):
     """The fixed point of a solved neighbour in the previous wave, else ``x_guess``."""
     for axis in range(len(index)):
-        prev = index[:axis] + (index[axis] - 1,) + index[axis + 1:]
-        found = results.get(prev)
-        if found is not None and found[0] is not None:
-            return found[0]
+        if index[axis] > 0:
+            prev = index[:axis] + (index[axis] - 1,) + index[axis + 1:]
+            if prev not in smap.failures:
+                return smap.x0[prev].copy()
     return x_guess
 
 
@@ -307,9 +317,11 @@ def _runner(client):
     if client is None:
         return (lambda task, params, starts: [task(p, s) for p, s in zip(params, starts,
                                                                           strict=True)],
-                lambda: None)
+                lambda interrupted=False: None)
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster, wait
+
+        from .._support._dask import end_now
     except ImportError as exc:
         raise ImportError("client= needs the optional dependency distributed: install "
                           "`pip install 'bderiv[dask]'`, or pass client=None") from exc
@@ -322,7 +334,8 @@ def _runner(client):
         # that is taken (the user's own cluster) distributed warns and takes another
         cluster = LocalCluster(n_workers=LOCAL_WORKERS, threads_per_worker=1, processes=True,
                                dashboard_address=None,
-                               scheduler_kwargs={"dashboard_address": ":0"})
+                               scheduler_kwargs={"dashboard_address": ":0"},
+                               preload=["bderiv._support._dask"])  # dask_setup: no Ctrl-C there
         client = Client(cluster)
     elif not isinstance(client, Client):
         raise TypeError(f'client must be None, "local" or a distributed.Client, got '
@@ -331,24 +344,45 @@ def _runner(client):
     def run(task, params, starts):
         futures = client.map(task, params, starts, pure=False)
         try:
+            # waited for first: a Ctrl-C in client.gather left its waits in the client's
+            # event loop, each printed as "Task exception was never retrieved ... AllExit"
+            wait(futures)
             return client.gather(futures)
-        except BaseException:  # Ctrl-C: the wave's tasks are cancelled, not left running
+        except KeyboardInterrupt:
+            if not own:  # a user's cluster is free at once: the wave's tasks not started are
+                # cancelled (a task running goes on to its end: a thread is not stopped)
+                client.cancel(futures)
+            raise  # an own cluster's workers are ended (close(interrupted=True))
+        except BaseException:
             client.cancel(futures)
             raise
 
-    def close():
-        client.close()
-        cluster.close()
-
-    return run, (close if own else (lambda: None))
-
-
-def _collect(names, axes, shape, d, results) -> StabilityMap:
-    growth, period = np.full(shape, np.nan), np.full(shape, np.nan)
-    x0, failures = np.full((*shape, d), np.nan), {}
-    for index, (x, p, rate) in results.items():
-        if x is None:
-            failures[index] = p
+    def close(interrupted=False):
+        if interrupted:  # Ctrl-C: the workers end now, not after a point (_dask.end_now)
+            end_now(client, cluster)
         else:
-            x0[index], period[index], growth[index] = x, p, rate
-    return StabilityMap(names, axes, growth, period, x0, failures)
+            client.close()
+            cluster.close()
+
+    return run, (close if own else (lambda interrupted=False: None))
+
+
+def _empty_map(names, axes, d) -> StabilityMap:
+    """The map to fill, its arrays NaN; refused (a ValueError naming the sizes) where they
+    would not fit in what the process may still take."""
+    shape = tuple(a.size for a in axes)
+    check_memory(math.prod(shape) * (2 + d) * 8, None,
+                 f"the map's arrays over a {' x '.join(map(str, shape))} grid (growth rate, "
+                 f"period and the fixed point x0 of size {d} at each point)",
+                 "map a coarser grid, or the grid in parts (one call each)")
+    return StabilityMap(names, axes, np.full(shape, np.nan), np.full(shape, np.nan),
+                        np.full((*shape, d), np.nan), {})
+
+
+def _record(smap, index, result) -> None:
+    """A point's ``(x0, period, growth rate)`` into the map, or its failure's message."""
+    x, p, rate = result
+    if x is None:
+        smap.failures[index] = p
+    else:
+        smap.x0[index], smap.period[index], smap.growth_rate[index] = x, p, rate
