@@ -205,3 +205,49 @@ def end_now(client, cluster) -> None:
     finally:
         for logger, level in zip(quiet, levels, strict=True):
             logger.setLevel(level)
+
+
+def start_local(workers: int):
+    """``(client, cluster)``: the LocalCluster of ``stability_map(client="local")`` (one
+    thread per worker process, the workers ignoring SIGINT: :func:`dask_setup`), started
+    in a thread of its own. A Ctrl-C while it starts (a second or two) raises here at
+    once, and the cluster is ended as soon as it stands (:func:`end_now`): interrupted
+    inside its constructor, it was left half made, and distributed's exit handler printed
+    a hundred lines ending in "AssertionError: Status.init". (A worker process still
+    starting, before :func:`dask_setup`, prints its own KeyboardInterrupt: the terminal's
+    Ctrl-C reaches it, and no setting of the caller's keeps it from a spawned process.)"""
+    from distributed import Client, LocalCluster
+
+    lock, made, interrupted = threading.Lock(), [], []
+
+    def start():
+        try:
+            # its scheduler's HTTP server on a free port: by default it takes 8787, and
+            # where that is taken (the user's own cluster) distributed warns and takes another
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None,
+                                   scheduler_kwargs={"dashboard_address": ":0"},
+                                   preload=["bderiv._support._dask"])
+            pair = (Client(cluster), cluster)
+        except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread
+            made.append(exc)
+            return
+        with lock:
+            made.append(pair)
+            ended = bool(interrupted)
+        if ended:
+            end_now(*pair)
+
+    thread = threading.Thread(target=start, name="bderiv-start-cluster", daemon=False)
+    thread.start()
+    try:
+        while thread.is_alive():
+            thread.join(0.1)
+    except KeyboardInterrupt:
+        with lock:
+            interrupted.append(True)
+        raise
+    if isinstance(made[0], BaseException):
+        raise made[0]
+    return made[0]
+

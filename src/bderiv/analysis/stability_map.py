@@ -319,9 +319,9 @@ def _runner(client):
                                                                           strict=True)],
                 lambda interrupted=False: None)
     try:
-        from distributed import Client, LocalCluster, wait
+        from distributed import Client, wait
 
-        from .._support._dask import end_now
+        from .._support._dask import end_now, start_local
     except ImportError as exc:
         raise ImportError("client= needs the optional dependency distributed: install "
                           "`pip install 'bderiv[dask]'`, or pass client=None") from exc
@@ -330,13 +330,7 @@ def _runner(client):
         if client != "local":
             raise ValueError(f'client must be None, "local" or a distributed.Client, got '
                              f"{client!r}")
-        # its scheduler's HTTP server on a free port: by default it takes 8787, and where
-        # that is taken (the user's own cluster) distributed warns and takes another
-        cluster = LocalCluster(n_workers=LOCAL_WORKERS, threads_per_worker=1, processes=True,
-                               dashboard_address=None,
-                               scheduler_kwargs={"dashboard_address": ":0"},
-                               preload=["bderiv._support._dask"])  # dask_setup: no Ctrl-C there
-        client = Client(cluster)
+        client, cluster = start_local(LOCAL_WORKERS)
     elif not isinstance(client, Client):
         raise TypeError(f'client must be None, "local" or a distributed.Client, got '
                         f"{type(client).__name__}")
