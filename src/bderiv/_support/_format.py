@@ -142,6 +142,15 @@ def blown_up(region: str, x, t=None) -> str:
             f"{BLOW_UP_HINT}")
 
 
+def step_underflow(region: str, x, t) -> str:
+    """The message of a run whose step the tolerances need fell below 10 ulp of ``t``
+    (scipy's "Required step size is less than spacing between numbers"), at the state
+    ``x`` in ``region`` (its words), on either integrator."""
+    return (f"step size underflow at t = {float(t)!r} in {region}, x = {format_state(x)}: "
+            f"the step the tolerances need is below 10 ulp of t (a singular or very stiff "
+            f"field, or a solution that escapes to infinity near this t, as x' = x**2 does?)")
+
+
 #: whether exceptions take notes (``add_note``, Python 3.11+): an exception raised in a
 #: model's function then says where (:func:`note_call`); on 3.10 it is left as it is
 NOTES = hasattr(BaseException, "add_note")

@@ -24,6 +24,7 @@ from ..._support._format import (
     blown_up,
     format_region,
     format_state,
+    step_underflow,
 )
 from ._integrate import STEP_UNDERFLOW
 from ._rhs import (
@@ -239,11 +240,7 @@ def raise_failed_run(status, named, x, t, mask, d, n, jac_mode=JAC_GIVEN,
     """
     region = format_region(mask, max(n, 1))
     if status == STEP_UNDERFLOW:
-        raise RuntimeError(
-            f"step size underflow at t = {t!r} in {region}, x = {format_state(x)}: the step "
-            f"the tolerances need is below 10 ulp of t (a singular or very stiff field, or a "
-            f"solution that escapes to infinity near this t, as x' = x**2 does?)"
-        )
+        raise RuntimeError(step_underflow(region, x, t))
     x = np.asarray(x, dtype=np.float64)
     shapes = (FIELD_SHAPE, EVENTS_SHAPE, JACOBIAN_SHAPE)
     if status not in shapes and not np.isfinite(x).all():  # the integrator's step overflowed

@@ -16,7 +16,7 @@ import warnings
 
 import numpy as np
 
-from ..._support._format import blown_up, format_region, note_time
+from ..._support._format import blown_up, format_region, note_time, step_underflow
 from ..._support._validate import all_finite, check_record
 from ..events.excursions import without_lost_crossings
 from ..events.sides import on_side_at_start
@@ -133,8 +133,9 @@ class ScipyStretches:
             with held:
                 sol = solve_ivp(field, (start, stop), y_start, events=funcs, dense_output=True,
                                 **options.solve_ivp_kwargs())
-            if sol.status == -1:
-                raise RuntimeError(f"solve_ivp failed at t={sol.t[-1]:.6g}: {sol.message}")
+            if sol.status == -1:  # its one failure: the step below 10 ulp of t
+                raise RuntimeError(step_underflow(format_region(mask, system.n_events),
+                                                  sol.y[:d, -1], sol.t[-1]))
             # the end of the first step (beyond the stop when an event stopped it there)
             sol.first_step_end = float(sol.sol.interpolants[0].t)
             pieces.append((start, sol.sol))
