@@ -463,3 +463,61 @@ def test_functions_that_write_into_their_argument_are_given_copies(compiled):
     # a section's function that writes: reached from -0.1 at rest at x0 = -0.2
     back = s.simulate([-0.1, 0.0], 5.0, section=section)
     assert back.x_final[1] == pytest.approx(-np.sqrt(0.2), rel=1e-9)
+
+
+def test_a_guard_and_jacobians_that_write_into_their_argument_change_nothing():
+    """A review: a reset_guard that wrote into its x moved the run (a ball's group state
+    0.5 above the floor, and its x_final with it); an event_jacobian that wrote into x was
+    checked at the moved point and a correct one refused; bderiv.check_jacobians handed
+    the given Jacobians its own x and reported correct ones FAILED. Each now gets a copy:
+    the same answers as the clean twins."""
+    from bderiv import check_jacobians
+
+    g = 9.81
+
+    def field(x, mask):
+        return np.array([x[1], -g])
+
+    def events(x):
+        return np.array([-x[0]])
+
+    def reset(x, mask, k):
+        return np.array([x[0], -0.8 * x[1]])
+
+    def guard(x, mask, k):
+        x[0] = 0.5
+
+    plain = HybridSystem(field, events, n_events=1, dim=2, reset=reset)
+    guarded = HybridSystem(field, events, n_events=1, dim=2, reset=reset, reset_guard=guard)
+    a, b = (s.simulate(np.array([1.0, 0.0]), 1.0) for s in (plain, guarded))
+    np.testing.assert_array_equal(a.x_final, b.x_final)
+    assert a.groups[0].state[0] == b.groups[0].state[0] == 0.0  # on the floor
+
+    def tilted(x):
+        return np.array([x[0] + 0.1 * x[1] ** 2 - 1.0])
+
+    def event_jacobian(x):
+        J = np.array([[1.0, 0.2 * x[1]]])
+        x[1] += 1.0
+        return J
+
+    def slowed(x, mask):
+        return np.array([1.0, 0.5 if mask else 1.0])
+
+    clean = HybridSystem(slowed, tilted, n_events=1, dim=2,
+                         event_jacobian=lambda x: np.array([[1.0, 0.2 * x[1]]]))
+    writes = HybridSystem(slowed, tilted, n_events=1, dim=2, event_jacobian=event_jacobian)
+    V = np.array([[1.0, 0.0], [0.3, -0.7]])
+    x0 = np.array([0.0, 0.3])
+    np.testing.assert_array_equal(writes.flow_bderivative(x0, 2.0)(V),
+                                  clean.flow_bderivative(x0, 2.0)(V))
+
+    def field_jacobian(x, mask):
+        J = np.array([[0.0, 1.0], [0.0, 0.0]])
+        x[0] += 1.0
+        return J
+
+    x = np.array([0.5, 1.0])
+    report = check_jacobians(HybridSystem(field, events, n_events=1, dim=2,
+                                          field_jacobian=field_jacobian), x)
+    assert not report.failures and x.tolist() == [0.5, 1.0]

@@ -209,11 +209,16 @@ def test_events_that_are_not_complex_analytic_keep_the_python_stops():
     assert_allclose([r.time for r in traj.events], log, atol=1e-8)
 
 
-def test_a_users_function_that_keeps_the_python_stops_is_named(caplog):
+def test_a_users_function_that_keeps_the_python_stops_is_named(caplog, monkeypatch):
     """A compiled model whose reset or event_jacobian is a Python function, or whose
     events are not complex-analytic, had every stop in the Python loop: 10-20x slower per
-    run, silently (a ball's two walls: 1.9 against 0.1 ms). Said once, at WARNING, with
-    what to compile; nothing when the stops are compiled."""
+    run, silently (a ball's two walls: 1.9 against 0.1 ms). Said at WARNING, with what to
+    compile, once per model's functions (a review: a copy with other parameters, as a
+    sweep makes, said it again); nothing when the stops are compiled."""
+    from bderiv.models.compiled import _notice
+
+    monkeypatch.setattr(_notice, "_TOLD", set())  # what other tests' models were told
+
     def python_reset(x, mask, k):
         return np.array([x[0], -RESTITUTION * x[1]])
 
@@ -227,6 +232,8 @@ def test_a_users_function_that_keeps_the_python_stops_is_named(caplog):
             system = HybridSystem(ball_field, ball_events, n_events=1, dim=2, **kwargs)
             system.simulate(np.array([1.0, 0.0]), 1.0)
             system.simulate(np.array([1.0, 0.0]), 1.0)
+            again = HybridSystem(ball_field, ball_events, n_events=1, dim=2, **kwargs)
+            again.simulate(np.array([1.0, 0.0]), 1.0)
         said = [r.getMessage() for r in caplog.records if "Python loop" in r.getMessage()]
         if words is None:
             assert said == []

@@ -376,3 +376,33 @@ def test_a_batch_on_threads_that_grows_too_large_is_refused_and_its_threads_end(
             t.name.startswith("bderiv.simulate_many") for t in threading.enumerate()):
         time.sleep(0.05)
     assert not any(t.name.startswith("bderiv.simulate_many") for t in threading.enumerate())
+
+
+def test_each_run_of_a_batch_has_its_own_sample_times():
+    """A review: on the compiled run every run's Trajectory.t was a view of one array
+    (t_eval's rows), so shifting one run's times moved every run's. Each run's are its
+    own, as on the Python loop."""
+    ex, system = pronking_pair(2)
+    system.simulate(ex.x0, 0.9)  # the first stop checks the event Jacobian: compiled after
+    X0 = np.array([ex.x0, ex.x0 + 1e-3])
+    times = np.linspace(0.0, 0.9, 10)
+    runs = system.simulate_many(X0, 0.9, t_eval=times)
+    runs[0].t[:] += 100.0
+    np.testing.assert_array_equal(runs[1].t, times)
+    np.testing.assert_array_equal(times, np.linspace(0.0, 0.9, 10))
+    alone = system.simulate(ex.x0, 0.9, t_eval=times)
+    alone.t[:] += 1.0
+    np.testing.assert_array_equal(times, np.linspace(0.0, 0.9, 10))
+
+
+def test_a_ragged_nest_of_starts_or_vectors_is_named():
+    """NumPy's "setting an array element with a sequence" named no argument (a review)."""
+    ex, system = pronking_pair(2)
+    ragged = [list(ex.x0), list(ex.x0[:3])]
+    with pytest.raises(ValueError, match="X0 must be an array, or a nest of lists of equal "
+                                         "lengths, got a ragged nest"):
+        system.simulate_many(ragged, 0.9)
+    D = system.flow_bderivative(ex.x0, 0.9)
+    for call in (D, D.orders, D.event_times, D.apply_orders):
+        with pytest.raises(ValueError, match="V must be an array, or a nest of lists"):
+            call(ragged)

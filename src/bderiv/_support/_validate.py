@@ -37,6 +37,16 @@ _KIND_NAMES = {
 }
 
 
+def as_array(a, name: str) -> np.ndarray:
+    """``np.asarray(a)``, a ragged nest of lists refused by ``name`` (NumPy's own words
+    named no argument)."""
+    try:
+        return np.asarray(a)
+    except ValueError as exc:
+        raise ValueError(f"{name} must be an array, or a nest of lists of equal lengths, "
+                         f"got a ragged nest ({exc})") from exc
+
+
 def check_real_array(a, name: str) -> np.ndarray:
     """Return ``a`` as an ndarray of a real numeric dtype (not yet converted).
 
@@ -45,7 +55,7 @@ def check_real_array(a, name: str) -> np.ndarray:
     TypeError
         If ``a`` has a bool, complex, object, string or other non-real dtype.
     """
-    arr = a if isinstance(a, np.ndarray) else np.asarray(a)
+    arr = a if isinstance(a, np.ndarray) else as_array(a, name)
     kind = arr.dtype.kind
     if kind not in "fiu":
         what = _KIND_NAMES.get(kind, str(arr.dtype))
@@ -154,16 +164,16 @@ AS_ROWS = " and the vectors' float64 copy"
 FEWER_ROWS = "pass fewer vectors at a time (the batch's rows in chunks, one call each)"
 
 
-def batch_size(V, dim: int) -> tuple[object, int, int]:
+def batch_size(V, dim: int, name: str = "V") -> tuple[object, int, int]:
     """``(V, m, copy)``: the number of vectors ``m`` of a batch ``V`` of shape (..., dim)
     and the bytes :func:`check_points` takes to copy them (0 for a C-contiguous float64
     array), read from the shape alone, so that a batch is sized before it is converted:
     ``V`` itself when it has a shape (an ndarray, a broadcast view, a memmap or a dask
     array: not converted), else as an array (a nest of lists, held already: converted
     once, as :func:`check_points` would). ``m = copy = 0`` for another shape, which
-    :func:`check_points` refuses by name."""
+    :func:`check_points` refuses by name (``name``, as a ragged nest)."""
     if not isinstance(getattr(V, "shape", None), tuple):
-        V = np.asarray(V)
+        V = as_array(V, name)
     shape = V.shape
     if not shape or shape[-1] != dim or not all(isinstance(s, numbers.Integral)
                                                 for s in shape):

@@ -195,7 +195,8 @@ def check_jacobians(system, x, *, masks=None, section=None, section_gradient=Non
             rows.append(_given(function, mask, event, fun, x, jac(), seed))
 
     def given(jac, shape, name):  # the checked output of a given Jacobian, or None
-        return None if jac is None else lambda *a: check_output(jac(x, *a), shape, name)
+        return None if jac is None else lambda *a: check_output(jac(np.array(x), *a), shape,
+                                                                name)
 
     ev = given(calls._event_jac, (n, d), "event_jacobian(x)")
     add("event_jacobian", None, None, ev, calls.eval_events)

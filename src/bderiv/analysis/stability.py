@@ -103,9 +103,11 @@ class Stability:
         elif self.stable is None:
             verdict += (f": the estimate has not settled in {self.iterations} iterations, "
                         f"pass more")
+        floored = " (its floor: the map's accuracy)" if self.floor > RATE_ROUNDING and \
+            self.spread <= self.floor else ""
         lines = [f"growth rate {self.growth_rate:.6g} ({verdict}; spread of the estimate "
-                 f"{self.spread:.2g}, {self.rates.size} directions, {self.iterations} "
-                 f"iterations)"]
+                 f"{self.spread:.2g}{floored}, {self.rates.size} directions, "
+                 f"{self.iterations} iterations)"]
         if len(self.visits) > len(self.multipliers):
             lines.append(f"  {len(self.visits)} pieces met; the {len(self.multipliers)} met "
                          f"most often:")

@@ -147,7 +147,7 @@ class Linearisation:
         their offset; the rows of T are taken at the same offset)."""
         d = self.dim
         refuse_dask(V, T, what="jvp/vjp take", how=f" (V and {t_name} chunked alike)")
-        T, m, copy = batch_size(T, d)  # sized before check_points copies T
+        T, m, copy = batch_size(T, d, t_name)  # sized before check_points copies T
         held = ([] if out is not None else ["its result"]) + (
             [f"{t_name}'s float64 copy"] if copy else [])
         if held:

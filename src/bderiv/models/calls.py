@@ -24,6 +24,7 @@ from .compiled import (
     CompiledModel,
     check_compiled_functions,
     is_compiled,
+    tell_python_stops,
 )
 from .numerical_jacobians import NumericalJacobians, matches_near
 from .python_first import NotAsCompiled, PythonTime, starts_in_python
@@ -67,6 +68,7 @@ class ModelCalls:
                                                         model.field_jacobian)
                                     if model.use_compiled else None)
         self._given_event_jacobian = model.event_jacobian
+        self._functions = (model.field, model.events, model.reset, model.event_jacobian)
         self._given_reset = model.reset if model.reset_guard is None else self.eval_reset
         self._compiled = None
         functions = noted_functions(model)  # an exception of a Python one says where
@@ -87,9 +89,8 @@ class ModelCalls:
             self._reset, self._reset_jac, self._guard = wrappers
 
     def _budgeted(self, f):
-        """A numba dispatcher ``f`` on its Python code (:meth:`PythonTime.budgeted`): what
-        the code raises outside a run is decided by the compiled function, the model
-        compiled from then on. Anything else (None, a Python function) as it is."""
+        """A numba dispatcher ``f`` on its Python code (:meth:`PythonTime.budgeted`; what it
+        raises outside a run decided compiled, from then on); anything else as it is."""
         if not is_compiled(f):
             return f
         compiled = _contiguous_args(f)
@@ -183,9 +184,8 @@ class ModelCalls:
             _log.info("compiled the model's functions for the compiled integrator in %.2f s "
                       "(once per model; %s)", time.perf_counter() - start,
                       self._compiled.describe())
-            slow = self._compiled.python_stops_warning()
-            if slow and self._given_reset != self.eval_reset:  # (a guarded reset's: by design)
-                _log.warning(slow)
+            if self._given_reset != self.eval_reset:  # (a guarded reset's stops: by design)
+                tell_python_stops(self._compiled, self._functions)
         return self._compiled
 
     def check_compiled_jacobian(self, x, mask) -> None:
@@ -287,7 +287,7 @@ class ModelCalls:
         if self._event_jac is None and self.compiled is not None and \
                 self.compiled.event_jac_mode == EVENT_JAC_COMPLEX_STEP:
             return self._complex_step_event_jacobian(x)
-        given = None if self._event_jac is None else (lambda: self._event_jac(x))
+        given = None if self._event_jac is None else (lambda: self._event_jac(np.array(x)))
         return self._jacobian(given, ("event_jacobian",), self.eval_events, self._events, x,
                               (self.n_events, self.dim), lambda: "events(x)", "event_jacobian")
 
@@ -304,7 +304,7 @@ class ModelCalls:
                     raise ValueError("the complex step does not match beside x")
             except ValueError:
                 self.compiled.use_python_event_jacobian()
-                _log.warning(self.compiled.python_stops_warning())
+                tell_python_stops(self.compiled, self._functions)
                 return self.event_jacobian_at(x)
             self._checked.add(key)
         return J
@@ -333,7 +333,7 @@ class ModelCalls:
         if self._reset is None:
             return x
         if self._guard is not None:  # (its own checks, on x as the run has it)
-            self._guard(x, mask, k)
+            self._guard(np.array(x), mask, k)
         return check_output(self._reset(np.array(x), mask, k), (self.dim,),
                             lambda: f"reset(x, mask={mask}, k={k})")
 

@@ -24,6 +24,7 @@ from ._checks import (
     refused_types,
 )
 from ._integrate import EVENT
+from ._notice import tell_python_stops
 from ._run import ENDED, HANDOFF
 from ._slices import Cancelled, cancel_point, stopped_by
 from ._stops import EVENT_JAC_COMPLEX_STEP, EVENT_JAC_GIVEN, EVENT_JAC_NONE
@@ -36,4 +37,4 @@ __all__ = ["ENDED", "EVENT", "EVENT_JAC_COMPLEX_STEP", "EVENT_JAC_GIVEN", "EVENT
            "HANDOFF", "JACOBIAN_MODES", "Cancelled", "CompiledModel", "Stretch",
            "cancel_point", "check_compiled", "check_compiled_functions", "dense_at",
            "integrate_stretch", "is_compiled", "machine_has", "note_refused",
-           "refuse_damaged_cache", "refused_types", "stopped_by"]
+           "refuse_damaged_cache", "refused_types", "stopped_by", "tell_python_stops"]

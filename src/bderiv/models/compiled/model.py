@@ -143,7 +143,7 @@ class CompiledModel:
             self.jac_mode = JAC_CENTRAL
         self.n_events, self.dim = n_events, dim
         self.event_jacobian = self.cevents = None
-        self._event_jacobian_given = event_jacobian is not None
+        self.event_jacobian_given = event_jacobian is not None
         if event_jacobian is None:
             self.cevents = events if compiles_as(events, COMPLEX_EVENTS_SIGNATURE) else None
         elif is_compiled(event_jacobian) and compiles_as(event_jacobian,
@@ -175,23 +175,6 @@ class CompiledModel:
             stops = "compiled"
         return (f"field_jacobian: {JACOBIAN_MODES[self.jac_mode]}; event_jacobian: "
                 f"{event_jac}; stops: {stops}")
-
-    def python_stops_warning(self) -> str | None:
-        """What to tell the user when one of their functions leaves every stop of the
-        model's runs to the Python loop (10-20x slower per run: a ball between two walls,
-        1.9 against 0.1 ms); None when the stops are compiled."""
-        if self.event_jac_mode == EVENT_JAC_NONE:
-            cause = ("its event_jacobian is not compiled for float64[::1] -> float64[:, ::1]"
-                     if self._event_jacobian_given else "its events are not complex-analytic "
-                     "(their complex step is wrong, or they do not compile for complex input) "
-                     "and no compiled event_jacobian is given")
-        elif self.has_python_reset:
-            cause = "its reset is not compiled for (float64[::1], int64, int64) -> float64[::1]"
-        else:
-            return None
-        return (f"the model's field and events are numba-compiled, but {cause}: every stop "
-                f"of its runs is decided in the Python loop, 10-20x slower per run; compile "
-                f"it with numba.njit")
 
     def struct(self, section=None):
         """The driver's struct of the functions (with ``section``, a checked dispatcher)

@@ -114,7 +114,7 @@ def check_states(X0, dim: int, record=STEPS) -> tuple[np.ndarray, tuple]:
     would take more than the process may is refused: at least :func:`run_bytes` of a run
     that meets no event and keeps, of ``record`` (``STEPS`` or the times ``t_eval``), the
     start and the end or the times asked for."""
-    X0, m, copy = batch_size(X0, dim)
+    X0, m, copy = batch_size(X0, dim, "X0")
     samples = 2 if isinstance(record, str) else record.size
     per = _held_bytes(dim, 0, samples * (16 + 8 * dim))
     check_memory(copy + m * per, None,

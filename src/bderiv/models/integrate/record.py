@@ -103,7 +103,7 @@ class RunLog:
         times, end = self.record, float(sol.t[-1])
         stop = int(np.searchsorted(times, end, side="right" if last else "left"))
         if stop > self.taken:
-            here = times[self.taken:stop]
+            here = times[self.taken:stop].copy()  # the run's own: not a view of t_eval
             self.t.append(here)
             self.x.append(dense_state(sol, here, d))
             self.masks.append(self._masks(here.size, mask))
@@ -122,7 +122,7 @@ class RunLog:
         if S.shape[0]:
             if self.first_mask < 0:
                 self.first_mask = int(SM[0])
-            self.t.append(self.record[self.taken:self.taken + S.shape[0]])
+            self.t.append(self.record[self.taken:self.taken + S.shape[0]].copy())
             self.x.append(S)
             self.masks.append(SM.astype(mask_dtype(self.n_events), copy=False))
             self.taken += S.shape[0]
@@ -136,7 +136,7 @@ class RunLog:
         if isinstance(self.record, np.ndarray):  # times at the end after the last stretch
             stop = int(np.searchsorted(self.record, now.t, side="right"))
             if stop > self.taken:
-                here = self.record[self.taken:stop]
+                here = self.record[self.taken:stop].copy()
                 self.t.append(here)
                 self.x.append(np.tile(now.x, (here.size, 1)))
                 self.masks.append(self._masks(here.size, now.mask))
