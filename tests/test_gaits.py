@@ -742,6 +742,13 @@ def test_a_neutral_orbit_is_undecided_whatever_the_integration_error():
             assert orbit.accuracy == 10 * (rtol or 1e-12)
             assert abs(np.log(st.growth_rate)) < orbit.accuracy <= st.spread
             assert st.verdict_word == "undecided" and "accuracy" in st.summary()
+    # at rtol 1e-7 Newton's method stalls on the family (a multiplier 1), and its return's
+    # integration error, 3e-7 in the position, was taken for a cyclic coordinate's
+    # advance: "pass cyclic=[0]" (a review)
+    with pytest.raises(RuntimeError, match="degenerate") as info:
+        system.periodic_orbit(np.array([1.0, 0.0]), lambda x: -x[1], 4.0,
+                              options=SolverOptions(rtol=1e-7, atol=1e-8))
+    assert "cyclic" not in str(info.value)
 
 
 def test_a_section_flat_at_the_guess_is_named(gait):

@@ -140,3 +140,20 @@ def reduced_basis(normal, cyclic, dim: int) -> np.ndarray:
     the cyclic coordinates held at 0."""
     rows = np.vstack([normal, np.eye(dim)[list(cyclic)]])
     return scipy.linalg.null_space(rows)
+
+def without_cyclic(R, cyclic):
+    """``V -> R(V)`` with the cyclic components of the images set to 0, and the same with
+    the orders (``R.apply_orders``): the map a stability iterates (a cyclic shift is
+    neutral)."""
+
+    def fmap(V):
+        W = R(V)
+        W[:, cyclic] = 0.0
+        return W
+
+    def fmap_orders(V):
+        W, orders = R.apply_orders(V)
+        W[:, cyclic] = 0.0
+        return W, orders
+
+    return fmap, fmap_orders

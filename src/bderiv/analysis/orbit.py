@@ -66,6 +66,7 @@ from ._cyclic import (
     kept,
     reduced_basis,
     undeclared,
+    without_cyclic,
 )
 from .newton import damped_step, newton_step, onto_section
 from .returnmap import return_map
@@ -218,7 +219,7 @@ class PeriodicOrbit:
         check_growth_memory(n_directions, basis.shape[0], iterations)  # before V0 exists
         if self.cyclic:  # the map on the other coordinates: a cyclic shift is neutral
             basis = reduced_basis(self.section.gradient(self.x0), self.cyclic, R.dim)
-            fmap, fmap_orders = _without(R, list(self.cyclic))
+            fmap, fmap_orders = without_cyclic(R, list(self.cyclic))
         V0 = np.random.default_rng(seed).standard_normal((n_directions, basis.shape[1]))
         rates, spread, visits = growth_rate(fmap, V0 @ basis.T, iterations, burn_in,
                                             fmap_orders=fmap_orders)
@@ -301,8 +302,11 @@ def periodic_orbit(system, x_guess, section, *, period_guess=None, tol=ORBIT_TOL
                                                   _build(system, x, section, t_max, b, iterates))
                 check_equivariance(R, x, cyclic)
                 r = R.x_final - x
-                if iteration == 0 and not cyclic:
-                    advancing, r0 = undeclared(R, r, tol * max(1.0, float(np.abs(x).max()))), r
+                if iteration == 0 and not cyclic:  # moved by more than the run's error
+                    size = float(np.abs(x).max())
+                    moved = max(tol * max(1.0, size), GLOBAL_ERROR_FACTOR * (
+                        iterates.atol + iterates.rtol * size))
+                    advancing, r0 = undeclared(R, r, moved), r
                 res = float(np.abs(r[keep]).max())
                 bar(iteration, f"max |P(x) - x| = {res:.2g}")
                 if _within(res, x, keep, tol):
@@ -390,19 +394,3 @@ def _build(system, x, section, t_max, options, iterates):
     return (*return_map(system, x, section, t_max=t_max, tol=ON_SURFACE_TOL,
                         options=iterates), iterates)
 
-
-def _without(R, cyclic):
-    """``V -> R(V)`` with the cyclic components of the images set to 0, and the same with
-    the orders (``R.apply_orders``)."""
-
-    def fmap(V):
-        W = R(V)
-        W[:, cyclic] = 0.0
-        return W
-
-    def fmap_orders(V):
-        W, orders = R.apply_orders(V)
-        W[:, cyclic] = 0.0
-        return W, orders
-
-    return fmap, fmap_orders
