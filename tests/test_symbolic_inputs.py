@@ -227,7 +227,31 @@ def test_expressions_refused_at_the_build_are_named(tmp_path):
             r"the x of the model \(no assumptions\)", field=[1 + sp.Symbol("x", real=True), 1])
     with pytest.raises(ValueError, match=r"forces\[0\] = Piecewise.* without an otherwise"):
         ball(tmp_path, forces=[sp.Piecewise((-1, x > 0)), -G])
+    # a review: these were accepted, and wrong or failing at the first run
+    positive = sp.Symbol("xp", positive=True)  # sqrt(xp**2) is xp: wrong at xp = -2
+    refused(r"state\[0\] = xp is declared positive=True: sympy has simplified the "
+            r"expressions with that .* a state coordinate takes any real value: make it with "
+            r"real=True", state=[positive, y], field=[sp.sqrt(positive**2), 1],
+            events=[positive, y])
+    refused(r"field must be a sequence of one per state symbol, d = 4 sympy expressions, got "
+            r"a 2 x 2 Matrix", state=[x, y, a, b], field=sp.Matrix([[y, x], [b, a]]))
+    refused(r"field\[1\] = zoo holds a non-finite constant", field=[1, 1 / sp.Integer(0)])
+    k = sp.Symbol("k", positive=True)
+    refused(r"params\[k\] = -2.0, but k is declared positive=True", field=[k, 1],
+            params={k: -2.0})
     assert not generated(tmp_path)
+
+
+def test_a_parameter_value_that_breaks_its_symbols_assumption_is_refused(cache):
+    """``k`` made positive: sympy simplified ``sqrt(k**2)`` to ``k`` as the field was
+    written, so ``with_params(k=-2)`` gave the field of k = 2 (a review)."""
+    k = sp.Symbol("k", positive=True)
+    m = from_sympy([x, y], [s0], [y, -sp.sqrt(k**2) * x], [x - 5], params={k: 2.0},
+                   cache_dir=cache)
+    with pytest.raises(ValueError, match=r"params\[k\] = -2.0, but k is declared "
+                                         r"positive=True"):
+        m.with_params(k=-2.0)
+    assert_allclose(ModelFunctions(m.with_params(k=3.0)).field([1.0, 0.0], 0), [0.0, -3.0])
 
 
 def test_exact_sympy_numbers_and_0d_arrays_are_parameter_values(cache):

@@ -126,8 +126,10 @@ class ParamCheck:
     evaluation). The expressions are over the canonical parameters ``p``; ``shown`` and
     ``names`` say them in the user's symbols."""
 
-    def __init__(self, p, names, restitution=None, shown_restitution="", M=None):
+    def __init__(self, p, names, restitution=None, shown_restitution="", M=None,
+                 assumed=None):
         self.p, self.names = tuple(p), tuple(names)
+        self.assumed = assumed  # the parameters' own assumptions: AssumedParams or None
         self.restitution, self.shown_restitution = restitution, shown_restitution
         self.M = M  # None where it depends on q
 
@@ -141,7 +143,10 @@ class ParamCheck:
 
     def __call__(self, values) -> None:
         """Refuse the parameter values ``values`` ((p,), in the model's order) where the
-        restitution leaves [0, 1] or a constant mass matrix is not positive definite."""
+        restitution leaves [0, 1] or a constant mass matrix is not positive definite, or
+        a value breaks its symbol's assumptions (``positive=True``, ...)."""
+        if self.assumed is not None:
+            self.assumed(values)
         if self.restitution is not None:
             (e,), words = self._at(values, [self.restitution])
             if not 0.0 <= e <= 1.0:

@@ -101,16 +101,32 @@ def tree_text(e, memo: dict) -> str:
 
 
 def _sequence(seq, name: str, what: str) -> list:
-    """``list(seq)``, refusing a single sympy object, a string or a non-sequence."""
+    """``list(seq)``, refusing a single sympy object, a string, a non-sequence or a matrix
+    that is not a row or a column (``list`` would read it row by row)."""
     sp = require_sympy()
     if isinstance(seq, sp.Basic | str | bytes) and not isinstance(seq, sp.MatrixBase):
         raise TypeError(f"{name} must be a sequence of {what}, got one "
                         f"{type(seq).__name__} {seq!r}")
+    if isinstance(seq, sp.MatrixBase) and min(seq.shape) > 1:
+        raise ValueError(f"{name} must be a sequence of {what}, got a {seq.shape[0]} x "
+                         f"{seq.shape[1]} Matrix (a row or a column of them: "
+                         f"Matrix.reshape or .vec() says in which order)")
     try:
         return list(seq)
     except TypeError:
         raise TypeError(f"{name} must be a sequence of {what}, got "
                         f"{type(seq).__name__}") from None
+
+
+#: assumptions that say more of a symbol than that it is real: sympy simplifies with them
+#: as the expressions are made (``sqrt(k**2)`` is ``k`` for a positive k)
+_NARROWING = ("positive", "negative", "nonnegative", "nonpositive", "zero", "nonzero",
+              "integer", "rational", "even", "odd", "prime", "composite")
+
+
+def _narrowed(symbol) -> list:
+    """The narrowing assumptions ``symbol`` was made with (``positive``, ...)."""
+    return [a for a in _NARROWING if symbol.assumptions0.get(a) is True]
 
 
 def _symbols(seq, name: str) -> list:
@@ -120,6 +136,13 @@ def _symbols(seq, name: str) -> list:
         if not isinstance(s, sp.Symbol):
             raise TypeError(f"{name}[{i}] must be a sympy Symbol, got {type(s).__name__} "
                             f"{s!r}")
+        if _narrowed(s):
+            raise ValueError(f"{name}[{i}] = {s} is declared {_assumptions(s)}: sympy has "
+                             f"simplified the expressions with that (sqrt({s}**2) is {s}), "
+                             f"which is wrong wherever {s} takes another value, and a "
+                             + ("flag takes the values 0 and 1" if name == "flags" else
+                                "state coordinate takes any real value")
+                             + ": make it with real=True (or no assumptions)")
     seen = {}
     for i, s in enumerate(items):
         if s in seen:
@@ -144,6 +167,9 @@ def _expressions(seq, name: str, length: int, length_text: str) -> list:
         if not isinstance(e, sp.Expr) or e.is_Matrix:  # a Matrix is an Expr too
             raise TypeError(f"{name}[{i}] must be a sympy expression (sympy.Expr), got "
                             f"{type(e).__name__} {e}")
+        if e.has(sp.nan, sp.zoo, sp.oo, -sp.oo):  # (1/0 is zoo): no value anywhere
+            raise ValueError(f"{name}[{i}] = {e} holds a non-finite constant (nan, zoo: "
+                             f"a division by zero, or oo), so it has no finite value")
         out.append(e)
     return out
 
@@ -167,6 +193,37 @@ def _assumptions(symbol) -> str:
     if given is None:
         given = {k: v for k, v in symbol.assumptions0.items() if k != "commutative"}
     return ", ".join(f"{k}={v}" for k, v in sorted(given.items())) or "no assumptions"
+
+
+def check_assumed(symbol, value: float, name: str) -> None:
+    """Refuse a parameter ``value`` that breaks an assumption ``symbol`` was made with
+    (sympy simplified the expressions with it: ``sqrt(k**2)`` is ``k`` for a positive k,
+    so a k of -2 gave the field of 2)."""
+    sp = require_sympy()
+    for a in _narrowed(symbol):
+        number = sp.Integer(int(value)) if float(value).is_integer() else sp.Float(value)
+        if getattr(number, f"is_{a}") is not True:
+            raise ValueError(f"{name} = {value!r}, but {symbol} is declared {a}=True: sympy "
+                             f"has simplified the expressions with that, so they are wrong "
+                             f"at this value; pass a value that is {a}, or make the symbol "
+                             f"with real=True")
+
+
+class AssumedParams:
+    """A model's ``param_check`` (``with_params`` calls it) for parameters made with
+    narrowing assumptions (``symbols``, in the model's order): :func:`check_assumed`."""
+
+    def __init__(self, symbols):
+        self.symbols = tuple(symbols)
+
+    def __call__(self, values) -> None:
+        for symbol, value in zip(self.symbols, values, strict=True):
+            check_assumed(symbol, float(value), f"params[{symbol}]")
+
+
+def assumed_params(symbols):
+    """:class:`AssumedParams` of ``symbols``, or None when none is narrowed."""
+    return AssumedParams(symbols) if any(map(_narrowed, symbols)) else None
 
 
 def refuse_partial_piecewise(label: str, e, shown) -> None:
@@ -225,6 +282,7 @@ def check_model(state, flags, field, events, resets, params) -> Model:
                              f"symbol, not a parameter")
         names.append(sym)
         values.append(check_value(value, f"params[{sym}]"))
+        check_assumed(sym, values[-1], f"params[{sym}]")
     if len({str(s) for s in names}) != len(names):
         raise ValueError("params has two symbols of the same name; with_params could not "
                          "tell them apart: rename one")

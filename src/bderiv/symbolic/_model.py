@@ -20,7 +20,7 @@ from .._support._validate_ints import check_int, check_mask
 from ..analysis.system import HybridSystem
 from ..models.compiled import is_compiled
 from . import _cache, _codegen
-from ._inputs import check_model, require_sympy
+from ._inputs import assumed_params, check_model, require_sympy
 
 
 @dataclass(frozen=True)
@@ -359,7 +359,8 @@ def from_sympy(state, flags, field, events, resets=None, params=None, *, cache_d
         model, [f"bderiv.symbolic codegen {_codegen.CODEGEN_VERSION}",
                 f"sympy {sympy.__version__}", *model.canonical_text()],
         _codegen.generate, cache_dir, started=started)
-    return symbolic_system(kernels, model.values, build)
+    return symbolic_system(kernels, model.values, build, param_check=assumed_params(
+        [model.original[p] for p in model.p]))
 
 
 def load_model(model, key_parts, generate, cache_dir, *, started):

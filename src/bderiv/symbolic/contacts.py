@@ -63,6 +63,7 @@ from ._inputs import (
     _expressions,
     _sequence,
     _symbols,
+    assumed_params,
     refuse_partial_piecewise,
     require_sympy,
 )
@@ -340,7 +341,7 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     constant = not any(entry.free_symbols & set(x) for row in model.M for entry in row)
     param_check = checks.ParamCheck(
         pc, model.param_names, model.restitution if e is not None and e.free_symbols else None,
-        str(e), M=model.M if constant else None)
+        str(e), M=model.M if constant else None, assumed=assumed_params(pnames))
     param_check(model.values)  # before the derivation and the compilation
     module, kernels, build = load_model(
         model, [f"bderiv.symbolic.contacts {MECHANICS_VERSION}", f"solve {SOLVE_DIGEST}",
