@@ -206,3 +206,29 @@ def test_accumulation_time_of_geometric_intervals_and_not_of_a_converging_gait()
     # growing intervals (a wheel slowing down) and constant ones (e = 1)
     assert accumulation_time([0.0, 1.0, 2.5, 4.5, 7.0]) is None
     assert accumulation_time([0.0, 1.0, 2.0, 3.0, 4.0]) is None
+
+
+def test_a_refusal_at_an_accumulation_the_contact_holds_says_what_it_follows():
+    """A review: contact_system balls (e = 0.7, 0.9) whose bounces the compliant ground
+    holds were refused at the accumulation time as a grazing lift-off (a rebound of 9e-9
+    m/s, below what the run resolves; on one integrator or the other, by rounding), the
+    message saying nothing of the bounces. The run's refusal now names the accumulation
+    (ImpactWatch, shown the closed form's bounces); a model function's own error, and a
+    refusal without such bounces, are left as they are."""
+    from bderiv.models.events.crossings import EventGroup
+    from bderiv.models.events.zeno import ImpactWatch
+
+    system, t_acc = _ground_ball(1e4).calls, zeno_time(0.5, 1.0)
+    watch = ImpactWatch(system, t_acc + 3.0)
+    refusal = ValueError("transversality violated at t=2.999 before switching events [0]")
+    assert watch.explained(refusal) is refusal
+    groups = [EventGroup(t, (0,), 0, 0, np.array([0.0, -1.0]), np.array([0.0, 0.5]), None)
+              for t in impact_times(0.5, 1.0, t_acc, count=6)]
+    watch.see(groups)
+    said = watch.explained(refusal)
+    assert str(said).startswith(str(refusal))
+    assert f"the impacts of event 0, which accumulate at about t={t_acc:.6}" in str(said)
+    assert "End the run before" in str(said)
+    user = ValueError("the user's own")
+    user._bderiv_call = {"t": None}
+    assert watch.explained(user) is user

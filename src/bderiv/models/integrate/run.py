@@ -208,6 +208,11 @@ def _run(system, x0, t_final, options, variational, section, max_groups, record,
                     loop = _PythonLoop(system, options, section, watch)
                 _python_stretch(system, loop, log, now, *settings)
                 impacts.see(log.groups)
+    except ValueError as exc:
+        said = impacts.explained(exc)
+        if said is not exc:
+            raise said from exc
+        raise
     finally:
         if watch is not None:
             watch.close()
