@@ -161,6 +161,12 @@ def test_grazing_crossing_names_time_event_and_direction():
     # machine's, not the mathematics'
     t = float(re.search(r"at t=(\S+) before", str(err.value)).group(1))
     assert abs(t - 1.0) < 1e-3
+    # a positive rate too small to tell is said as such, not as "<= 0" (a review: "rate
+    # 9.37e-09 <= 0")
+    rate = float(re.search(r"event 0 has rate (\S+?)[, ]", str(err.value)).group(1))
+    assert ("<= 0" in str(err.value)) == (rate <= 0)
+    if rate > 0:
+        assert "below the grazing threshold" in str(err.value)
 
 
 def test_group_bderivative_names_a_downward_event_whose_rate_fails():

@@ -72,8 +72,11 @@ def format_order(order) -> str:
     return "(" + ",".join(str(int(k)) for k in order) + ")"
 
 
-def transversality_message(event: int, region: str, rate: float, where: str = "") -> str:
-    """The one wording of a rate <= 0: ``region`` is a formatted mask, ``where`` a prefix.
+def transversality_message(event: int, region: str, rate: float, where: str = "",
+                           threshold: float = 0.0) -> str:
+    """The one wording of a rate <= 0 (or below ``threshold``, the grazing threshold of a
+    stop: a positive rate too small to tell): ``region`` is a formatted mask, ``where`` a
+    prefix.
 
     Examples
     --------
@@ -81,8 +84,10 @@ def transversality_message(event: int, region: str, rate: float, where: str = ""
     'transversality violated on the chain of V[3]: event 1 has rate -0.5 <= 0 in regi'
     """
     at = f" {where}" if where else ""
+    low = (f"{rate:.3g}, below the grazing threshold {threshold:.3g} (GRAZING_RTOL |Dh_k| "
+           f"|F|: too small to tell from 0)" if rate > 0 else f"{rate:.3g} <= 0")
     return (
-        f"transversality violated{at}: event {event} has rate {rate:.3g} <= 0 in region mask "
+        f"transversality violated{at}: event {event} has rate {low} in region mask "
         f"{region} ({MASK_MEANING}); the flow must cross every event surface from h_k < 0 "
         f"to h_k > 0 in every region"
     )

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._numerics import GLOBAL_ERROR_FACTOR, ORDERS_CHECKED, RESET_MISMATCH
+from ..._numerics import GLOBAL_ERROR_FACTOR, GRAZING_RTOL, ORDERS_CHECKED, RESET_MISMATCH
 from ..._support._format import format_mask, transversality_message
 from ..._support._validate import scratch
 from ._python_rules import rules
@@ -389,7 +389,8 @@ def _refuse_crossing(k, dh, F, mask, when, t, sign, n):
     """Refuse the crossing of event k (``dh``: its gradient in local orientation), whose
     rate ``dh . F`` in region ``mask`` is not clearly positive: grazing, or pushed back."""
     message = transversality_message(k, format_mask(mask, n), float(dh @ F),
-                                     f"at t={t:.10g} {when}")
+                                     f"at t={t:.10g} {when}", GRAZING_RTOL * float(
+                                         np.linalg.norm(dh) * np.linalg.norm(F)))
     message += " (the event would cross back)" if when.startswith("after") else (
         " (a grazing crossing)")
     downward = f" (the rate is that of -h_{k}, which crosses upward)" if sign < 0 else ""
