@@ -422,8 +422,12 @@ def test_refusals():
               state_indices=[1])
     with pytest.raises(ValueError, match="x must have shape"):
         flow.step([1.0], flow.defaults, 1.0)
-    with pytest.raises(ValueError, match=r"U must be finite of shape \(N, 3\)"):
+    with pytest.raises(ValueError, match=r"U must have shape \(N, 3\)"):
         ilqr(flow, [1, 0], np.zeros((4, 2)), 0.1, [0, 0], Qf=np.eye(2), R=np.eye(3))
+    U = np.zeros((4, 3))
+    U[2, 1] = np.nan  # its shape was said wrong (a review)
+    with pytest.raises(ValueError, match=r"U must be finite, got U\[2, 1\] = nan"):
+        ilqr(flow, [1, 0], U, 0.1, [0, 0], Qf=np.eye(2), R=np.eye(3))
     with pytest.raises(ValueError, match="R must be symmetric"):
         ilqr(flow, [1, 0], np.zeros((4, 3)), 0.1, [0, 0], Qf=np.eye(2), R=-np.eye(3))
     with pytest.raises(ValueError, match="linearisation"):

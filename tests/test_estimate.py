@@ -577,3 +577,43 @@ def test_measurements_and_priorities_are_refused_by_name_with_what_came():
     assert np.array_equal(f.mean, x) and np.array_equal(f.cov, P)
     assert HybridKalmanFilter(model, x, P, method="piece", priority=[np.int64(0)]).priority \
         == (0,)
+
+
+def test_a_prior_with_no_spread_across_the_orders_boundary_keeps_its_covariance():
+    """Two thresholds crossed at once, fields constant by region: a perturbation a (1, 1)
+    moves both crossings together (x(T) = x(T) + 2 a (1, 1), closed form), so the
+    covariance of P = 1e-4 [[1, 1], [1, 1]] is 4e-4 [[1, 1], [1, 1]]. The prior has no
+    spread across the boundary of the two orders: the mixture gave neither order any
+    probability, and the covariance 0, silently (a review). Every method agrees now."""
+    from bderiv import HybridSystem
+
+    F = {0: [1.0, 1.0], 1: [2.0, 1.0], 2: [1.0, 3.0], 3: [2.0, 2.0]}
+    model = HybridSystem(lambda x, m: np.array(F[int(m)]), lambda x: np.array([x[0], x[1]]),
+                         n_events=2, dim=2, field_jacobian=lambda x, m: np.zeros((2, 2)),
+                         event_jacobian=lambda x: np.eye(2))
+    P = 1e-4 * np.ones((2, 2))
+    for method in ("auto", "mixture", "sigma", "piece"):
+        f = HybridKalmanFilter(model, np.array([-1.0, -1.0]), P, method=method)
+        _, cov = f.predict(2.0)
+        np.testing.assert_allclose(cov, 4e-4 * np.ones((2, 2)), rtol=1e-9)
+        assert sum(f.mode.groups[0][2].values()) == pytest.approx(1.0)
+
+
+def test_a_prior_straddling_a_surface_at_the_steps_start_warns_and_the_mean_is_named():
+    """A ball 1e-6 above the floor with a position sd of 1e-3: half of the prior is below
+    it, in the region beyond, which the step does not hold; its covariance came out 50
+    times too small in velocity, without a word (a review). It warns, with the share; a
+    prior well clear of the floor is silent. A mean exactly on the floor names ``mean``
+    (the words were "x0 lies on the surface")."""
+    model = examples.bouncing_ball(e=0.7, g=G).system
+    P = np.diag([1e-6, 1e-6])
+    f = HybridKalmanFilter(model, np.array([1e-6, -1.0]), P)
+    with pytest.warns(SplitPriorWarning, match=r"the step starts with the mean 0.001 "
+                                               r"standard deviations of event 0's value .* "
+                                               r"0.5 of the prior lies on the other side"):
+        f.predict(0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SplitPriorWarning)
+        HybridKalmanFilter(model, np.array([0.5, 0.0]), P).predict(0.1)
+    with pytest.raises(ValueError, match=r"mean lies on the surface of event\(s\) \[0\]"):
+        HybridKalmanFilter(model, np.array([0.0, -1.0]), P)

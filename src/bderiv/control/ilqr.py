@@ -189,8 +189,12 @@ def _checked(flow, x0, U, dt, target, Qf, R):
     target = check_state(target, d, "target", meaning=f"a state of the model, d = {d}")
     Qf = check_matrix(Qf, "Qf", (d, d))
     R = check_matrix(R, "R", (m, m))
-    if U.ndim != 2 or U.shape[1] != m or not len(U) or not np.isfinite(U).all():
-        raise ValueError(f"U must be finite of shape (N, {m}), N >= 1, got shape {U.shape}")
+    if U.ndim != 2 or U.shape[1] != m or not len(U):
+        raise ValueError(f"U must have shape (N, {m}), N >= 1, got shape {U.shape}")
+    if not np.isfinite(U).all():
+        bad = np.argwhere(~np.isfinite(U))[0]
+        raise ValueError(f"U must be finite, got U[{bad[0]}, {bad[1]}] = "
+                         f"{U[tuple(bad)]}")
     for a, name in ((Qf, "Qf"), (R, "R")):
         if not np.allclose(a, a.T) or np.linalg.eigvalsh(a).min() < 0:
             raise ValueError(f"{name} must be symmetric positive semi-definite")

@@ -135,6 +135,11 @@ class HybridKalmanFilter:
         self.mean = check_vector(mean, "mean", d)
         self.cov = check_covariance(cov, "cov", d)
         self.time = 0.0
+        h = np.asarray(model.calls.eval_events(self.mean))
+        if (h == 0).any():  # (start_mask's words name x0, which the filter does not take)
+            raise ValueError(f"mean lies on the surface of event(s) "
+                             f"{np.flatnonzero(h == 0).tolist()} (events(mean) = {h}), where "
+                             f"its region is ambiguous: start the filter from a mean off it")
         self.mode = ModeEstimate(model.calls.start_mask(self.mean), [])
 
     def predict(self, dt, Q=None):
@@ -156,6 +161,7 @@ class HybridKalmanFilter:
         dt = check_time(dt)
         d = self.model.dim
         Q = None if Q is None else check_covariance(Q, "Q", d)
+        self._straddled()
         D, window, split = self._flow_map(dt)
         # the run switches each event at its own time: D.x_final is the simulated mean,
         # and a merged group's offsets are measured at its first crossing's state
@@ -219,6 +225,32 @@ class HybridKalmanFilter:
                 raise refused
             return D, window, split  # group_offsets names the group
         return model.flow_bderivative(m, dt, simultaneity_tol=half, **kw), half, split
+
+    def _straddled(self):
+        """Warn (:class:`SplitPriorWarning`) where the prior straddles an event surface at
+        the step's start: the share beyond the surface, first order (the event's value at
+        the mean in standard deviations of it under the prior), above 1e-3. The step
+        takes the whole prior in the mean's region, as it takes an event near its end on
+        the mean's side (a review: a ball 1e-6 above the floor, sd 1e-3, half of the prior
+        below it, got a velocity spread 50 times too small, without a word)."""
+        calls = self.model.calls
+        h = np.asarray(calls.eval_events(self.mean))
+        Dh = np.asarray(calls.eval_event_jacobian(self.mean))
+        sd = np.sqrt(np.einsum("ki,ij,kj->k", Dh, self.cov, Dh))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sds = np.where(sd > 0, np.abs(h) / sd, np.inf)
+        k = int(np.argmin(sds))
+        if not sds[k] < END_SDS:
+            return
+        share = 0.5 * math.erfc(sds[k] / math.sqrt(2.0))
+        warnings.warn(SplitPriorWarning(
+            f"the step starts with the mean {sds[k]:.2g} standard deviations of event "
+            f"{k}'s value under the prior from its surface (events(mean)[{k}] = "
+            f"{h[k]:.3g}, sd {sd[k]:.3g}): {share:.2g} of the prior lies on the other side, "
+            f"in another region, which the step does not hold (it takes the whole prior in "
+            f"the mean's region: the covariance can be far off); start the step when the "
+            f"mean is at least {END_SDS:g} standard deviations from the surface, or "
+            f"shrink the prior"), stacklevel=3)
 
     def _split(self, D, dt):
         """The share of the prior beyond the step's end from the nearest event of the

@@ -119,8 +119,10 @@ def _cut_moments(mu, Sig, a, side):
     """Probability, mean and second moment about 0 of ``u ~ N(mu, Sig)`` on the side
     ``side * a . u > 0`` of the hyperplane: (float, (d,), (d, d))."""
     s2 = float(a @ Sig @ a)
-    if not s2 > 0:  # the prior does not reach across: one side holds all of it
-        inside = side * float(a @ mu) > 0
+    if not s2 > 0:  # the prior does not reach across: one side holds all of it, and a
+        # prior on the boundary itself, where the two pieces agree, order (0, 1)'s side (a
+        # review: it was neither's, and the covariance 0)
+        inside = side * float(a @ mu) > 0 or (float(a @ mu) == 0 and side > 0)
         p = 1.0 if inside else 0.0
         return p, mu * p, (Sig + np.outer(mu, mu)) * p
     sd = np.sqrt(s2)
