@@ -617,3 +617,10 @@ def test_a_prior_straddling_a_surface_at_the_steps_start_warns_and_the_mean_is_n
         HybridKalmanFilter(model, np.array([0.5, 0.0]), P).predict(0.1)
     with pytest.raises(ValueError, match=r"mean lies on the surface of event\(s\) \[0\]"):
         HybridKalmanFilter(model, np.array([0.0, -1.0]), P)
+    # 1e-9 s before the impact: refused, in the filter's terms (it advised a
+    # simultaneity_tol, which the filter does not take)
+    near = HybridKalmanFilter(model, np.array([1e-9, -1.0]), P)
+    with pytest.warns(SplitPriorWarning), pytest.raises(
+            ValueError, match=r"the step of dt=0.1 starts 1e-09 s before an impact of event\(s\) "
+                              r"\[0\], .* pass window= below 1e-09 \(the filter is left"):
+        near.predict(0.1)

@@ -170,6 +170,15 @@ def _group_map(system, g):
                                  event_jacobian=g.event_jacobian)
 
 
+class ResetAtStart(ValueError):
+    """A first event group with resets within ``simultaneity_tol`` of the start
+    (:func:`_refuse_reset_at_start`): ``time`` its time, ``events`` its events."""
+
+    def __init__(self, message, time, events):
+        super().__init__(message)
+        self.time, self.events = time, events
+
+
 def _refuse_reset_at_start(groups, tol) -> None:
     """Refuse a first event group with resets within ``tol`` after the start (t = 0): a
     perturbation of the start larger than that crosses its surface before the start,
@@ -177,13 +186,13 @@ def _refuse_reset_at_start(groups, tol) -> None:
     with resets at the final time."""
     if groups and groups[0].time <= tol:
         g = groups[0]
-        raise ValueError(
+        raise ResetAtStart(
             f"an event group with resets at the start: event(s) {list(g.events)} cross at "
             f"t = {g.time:.3g}, within simultaneity_tol={tol:g} of it, so a perturbation of "
             f"x0 larger than that starts beyond their surface, the reset never applies and "
             f"the flow map jumps there: it has no B-derivative. Start farther from the "
             f"surface (or after the impact), or pass a simultaneity_tol below {g.time:.3g} "
-            f"for the map of the perturbations smaller than that")
+            f"for the map of the perturbations smaller than that", g.time, list(g.events))
 
 
 def flow_map_along(system, traj):

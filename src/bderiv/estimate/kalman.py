@@ -17,6 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..analysis.assembly import ResetAtStart
 from ._checks import (
     PSD_RTOL,
     check_covariance,
@@ -162,7 +163,15 @@ class HybridKalmanFilter:
         d = self.model.dim
         Q = None if Q is None else check_covariance(Q, "Q", d)
         self._straddled()
-        D, window, split = self._flow_map(dt)
+        try:
+            D, window, split = self._flow_map(dt)
+        except ResetAtStart as exc:  # (its advice is in simulate's terms, not the filter's)
+            raise ValueError(
+                f"the step of dt={dt!r} starts {exc.time:.3g} s before an impact of event(s) "
+                f"{exc.events}, within the step's event window: a perturbation of the mean "
+                f"larger than that is past it already, where the step's map jumps (no "
+                f"B-derivative). Start the step from a mean farther from the surface, or "
+                f"pass window= below {exc.time:.3g} (the filter is left as it was)") from exc
         # the run switches each event at its own time: D.x_final is the simulated mean,
         # and a merged group's offsets are measured at its first crossing's state
         local = LocalMap(D, group_offsets(self.model, D))
