@@ -239,6 +239,13 @@ def test_expressions_refused_at_the_build_are_named(tmp_path):
     k = sp.Symbol("k", positive=True)
     refused(r"params\[k\] = -2.0, but k is declared positive=True", field=[k, 1],
             params={k: -2.0})
+    refused(r"DiracDelta\(x\) does not compile: .* a switch in the state is an event",
+            field=[1 - sp.sign(x), 1])
+    # a gap that the coordinates do not move failed at the run ("x0 lies on the surface",
+    # or a division by zero in the impact's reset)
+    with pytest.raises(ValueError, match=r"contacts\[0\] = a does not depend on the "
+                                         r"coordinates q"):
+        ball(tmp_path, contacts=[a], params={a: 1.0})
     assert not generated(tmp_path)
 
 

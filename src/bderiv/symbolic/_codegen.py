@@ -108,6 +108,11 @@ def print_expr(printer, expr, label: str, shown=None) -> str:
     """``expr`` as Python source, or a :class:`CodegenError` naming ``label`` and
     ``shown`` (the expression in the user's symbols; default ``expr``)."""
     shown = expr if shown is None else shown
+    # a DiracDelta is the derivative of a jump (sign, Heaviside) in the state
+    jumps = (" (a DiracDelta: the derivative of a jump in the state, as of sign or "
+             "Heaviside; a switch in the state is an event: write it as one, the two sides' "
+             "expressions chosen by its flag)"
+             if expr.has(require_sympy().DiracDelta) else "")
     printer._not_supported = set()
     try:
         text = printer.doprint(expr)
@@ -115,10 +120,10 @@ def print_expr(printer, expr, label: str, shown=None) -> str:
         raise CodegenError(label, shown, str(exc)) from None
     except Exception as exc:  # sympy raises PrintMethodNotImplementedError and others
         raise CodegenError(label, shown, f"sympy cannot print it as Python ({_reason(exc)})"
-                           ) from None
+                                         f"{jumps}") from None
     if printer._not_supported:
         what = ", ".join(sorted(map(str, printer._not_supported)))
-        raise CodegenError(label, shown, f"not supported in Python: {what}")
+        raise CodegenError(label, shown, f"not supported in Python: {what}{jumps}")
     return text
 
 

@@ -292,6 +292,10 @@ def contact_system(q, mass_matrix, forces, contacts, stance=None, impact="plasti
     for k, phi in enumerate(phis):
         _check_free(f"contacts[{k}]", phi, set(q) | names, where + " (a gap depends on the "
                     "coordinates only)")
+        if not phi.free_symbols & set(q):  # (it failed at the run: on the surface, or 1/0)
+            raise ValueError(f"contacts[{k}] = {phi} does not depend on the coordinates q: "
+                             f"its gap never changes, so the contact is never made or "
+                             f"broken")
     allowed = set(q) | set(v) | set(s) | names
     unknown = "are neither coordinates, velocities, flags nor parameters"
     for i, f in enumerate(forces):
