@@ -533,3 +533,28 @@ def test_ilqr_refuses_settings_before_simulating(monkeypatch, keyword, value, er
     with pytest.raises(error, match=message):
         ilqr(flow, [1, 0], np.zeros((3, 3)), 0.3, [0, 0], Qf=np.eye(2), R=np.eye(3),
              **{keyword: value})
+
+
+def test_ilqr_holds_the_parameters_that_are_not_inputs(thrust_ball):
+    """ball_1d's parameters are (thrust, restitution, gravity): ilqr moved all three (a
+    review: e about 8e-10 and g = -2.67 at its "optimum"). With ``inputs=[0]`` the other
+    two keep their values in U0, and the result is the thrust-only model's, whose
+    restitution and gravity are constants of its equations (0.8 and 9.81)."""
+    from bderiv.control import models
+
+    x0, target = np.array([1.0, 0.0]), np.array([0.4, 0.5])
+    alone = ilqr(thrust_ball, x0, np.zeros((4, 1)), 0.25, target, **THRUST)
+    U0 = np.tile([0.0, 0.8, 9.81], (4, 1))
+    held = ilqr(models.ball_1d(), x0, U0, 0.25, target, Qf=THRUST["Qf"],
+                R=np.diag([1e-3, 1.0, 1.0]), inputs=[0])
+    assert held.converged and alone.converged
+    np.testing.assert_array_equal(held.U[:, 1:], U0[:, 1:])
+    np.testing.assert_allclose(held.U[:, 0], alone.U[:, 0], rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(held.X, alone.X, rtol=1e-6, atol=1e-8)
+    for bad, kind, words in (([3], ValueError, r"inputs must be distinct indices in "
+                                               r"\[0, 3\), got \[3\]"),
+                             ((), ValueError, "inputs must name at least one"),
+                             (0, TypeError, "inputs must be a 1-D sequence of integers")):
+        with pytest.raises(kind, match=words):
+            ilqr(models.ball_1d(), x0, U0, 0.25, target, Qf=THRUST["Qf"],
+                 R=np.eye(3), inputs=bad)

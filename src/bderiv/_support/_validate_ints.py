@@ -100,6 +100,20 @@ def check_distinct(indices: list, n: int, name: str, noun: str, hint: str = "") 
     return indices
 
 
+def check_indices(idx, size: int, name: str) -> np.ndarray:
+    """Distinct indices in ``[0, size)``, a 1-D sequence of integers, as int64 (``()``:
+    none); a TypeError for another type, a ValueError for one out of range or repeated."""
+    if isinstance(idx, str | bytes) or np.ndim(idx) != 1:
+        raise TypeError(f"{name} must be a 1-D sequence of integers (indices in [0, {size})), "
+                        f"got {type(idx).__name__} {idx!r}")
+    arr = np.asarray(idx) if len(idx) else np.zeros(0, np.int64)
+    if arr.ndim != 1 or arr.dtype.kind not in "iu":
+        raise TypeError(f"{name} must be a 1-D sequence of integers, got {arr!r}")
+    if arr.size and (arr.min() < 0 or arr.max() >= size or len(set(arr.tolist())) < arr.size):
+        raise ValueError(f"{name} must be distinct indices in [0, {size}), got {arr.tolist()}")
+    return arr.astype(np.int64)
+
+
 def check_order(order, n: int) -> np.ndarray:
     """Validate an event order: a permutation of ``0..n-1``; returns int64 array."""
     arr = np.asarray(order)

@@ -39,35 +39,39 @@ def linearise(flow, X, U, dt, fixed):
     return steps, orders
 
 
-def backward(steps, U, X, target, Qf, R, mu):
+def backward(steps, U, X, target, Qf, R, mu, free):
     """Gains ``k`` (N, m), ``K`` (N, m, d) and the predicted decrease terms, or None when
-    ``Q_uu`` is not positive definite."""
+    ``Q_uu`` is not positive definite. Only the inputs ``free`` (indices) move: the
+    others' gains are 0 (the problem in the free inputs alone, ``B``'s and ``R``'s rows
+    and columns of them; the others' values enter ``Q_u`` through ``R u``)."""
     N, m = U.shape
     Vx, Vxx = Qf @ (X[-1] - target), Qf.copy()
-    k_ff, K, d1, d2 = np.empty((N, m)), np.empty((N, m, X.shape[1])), 0.0, 0.0
+    k_ff, K, d1, d2 = np.zeros((N, m)), np.zeros((N, m, X.shape[1])), 0.0, 0.0
+    pick = np.ix_(free, free)
     for k in range(N - 1, -1, -1):
         A, B = steps[k].A, steps[k].B
-        Qu = R @ U[k] + B.T @ Vx
-        Quu = R + B.T @ Vxx @ B + mu * np.eye(m)
-        Qux = B.T @ Vxx @ A
+        Qu = (R @ U[k] + B.T @ Vx)[free]
+        Quu = (R + B.T @ Vxx @ B)[pick] + mu * np.eye(free.size)
+        Qux = (B.T @ Vxx @ A)[free]
         try:
             L = np.linalg.cholesky(0.5 * (Quu + Quu.T))
         except np.linalg.LinAlgError:
             return None
         sol = np.linalg.solve(L.T, np.linalg.solve(L, np.column_stack((Qu, Qux))))
-        k_ff[k], K[k] = -sol[:, 0], -sol[:, 1:]
-        d1 += k_ff[k] @ Qu
-        d2 += 0.5 * k_ff[k] @ Quu @ k_ff[k]
-        Vx = A.T @ Vx + K[k].T @ Quu @ k_ff[k] + K[k].T @ Qu + Qux.T @ k_ff[k]
-        Vxx = A.T @ Vxx @ A + K[k].T @ Quu @ K[k] + K[k].T @ Qux + Qux.T @ K[k]
+        kf, Kf = -sol[:, 0], -sol[:, 1:]
+        k_ff[k, free], K[k, free] = kf, Kf
+        d1 += kf @ Qu
+        d2 += 0.5 * kf @ Quu @ kf
+        Vx = A.T @ Vx + Kf.T @ Quu @ kf + Kf.T @ Qu + Qux.T @ kf
+        Vxx = A.T @ Vxx @ A + Kf.T @ Quu @ Kf + Kf.T @ Qux + Qux.T @ Kf
         Vxx = 0.5 * (Vxx + Vxx.T)
     return k_ff, K, d1, d2
 
 
-def converged_to_rounding(steps, U, X, target, Qf, R, mu, cost):
+def converged_to_rounding(steps, U, X, target, Qf, R, mu, cost, free):
     """The Gauss-Newton model's predicted decrease at ``mu`` is at rounding level of the
     cost: ``-(d1 + d2) <= ROUNDING * eps * cost``."""
-    back = backward(steps, U, X, target, Qf, R, mu)
+    back = backward(steps, U, X, target, Qf, R, mu, free)
     return back is not None and -(back[2] + back[3]) <= ROUNDING * _EPS * abs(cost)
 
 

@@ -61,7 +61,7 @@ import numpy as np
 
 from .._support._progress import search_bar
 from .._support._validate import check_matrix, check_number, check_real_array, check_state
-from .._support._validate_ints import check_positive_int
+from .._support._validate_ints import check_indices, check_positive_int
 from . import _passes as passes
 from ._passes import ROUNDED, ROUNDING
 from .parametric import ParametricFlow, StepEndsAtImpact
@@ -229,7 +229,7 @@ def _start(flow, X, U, dt, fixed):
 
 
 def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=30,
-         tol=1e-10, cost_tol=0.0, mu0=1e-6, mu_max=1e8, line_search=12):
+         tol=1e-10, cost_tol=0.0, mu0=1e-6, mu_max=1e8, line_search=12, inputs=None):
     """iLQR with piecewise-constant inputs on a :class:`ParametricFlow` (module docstring).
 
     Parameters
@@ -267,6 +267,11 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
         First and largest regularisation of ``Q_uu``: ``0 < mu0 <= mu_max``, finite.
     line_search : int
         Forward passes (``alpha`` = 1, 1/2, ...) tried before ``mu`` grows, >= 1.
+    inputs : sequence of int, optional
+        The parameters that are inputs (indices in [0, m), each once; default all): the
+        others are held at their values in ``U0`` (a model's restitution or gravity, as
+        ``shoot``'s ``param_indices`` holds them), their rows and columns of ``R`` unused
+        but for the constant they add to the cost.
 
     Returns
     -------
@@ -285,6 +290,10 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
     """
     x0, U, target, Qf, R = _checked(flow, x0, U0, dt, target, Qf, R)
     fixed = _order_fn(linearisation, flow.system.n_events)
+    free = np.arange(U.shape[1]) if inputs is None else check_indices(
+        inputs, U.shape[1], "inputs")
+    if not free.size:
+        raise ValueError("inputs must name at least one of the flow's parameters, got none")
     max_iters, tol, cost_tol, mu0, mu_max, line_search = _checked_settings(
         max_iters, tol, cost_tol, mu0, mu_max, line_search)
     mu, history, refusals = mu0, [], []
@@ -297,12 +306,13 @@ def ilqr(flow, x0, U0, dt, target, *, Qf, R, linearisation="nominal", max_iters=
     reason = f"the cost {cost!r} is at most cost_tol = {cost_tol!r}" if converged else ""
     with search_bar(max_iters, "ilqr", "iteration") as bar:  # long searches
         while len(history) <= max_iters and not converged:
-            if passes.converged_to_rounding(steps, U, X, target, Qf, R, min(mu, mu0), cost):
+            if passes.converged_to_rounding(steps, U, X, target, Qf, R, min(mu, mu0), cost,
+                                            free):
                 converged, reason = True, ROUNDED
                 break
             start, accepted, impacts = time.perf_counter(), None, []
             while accepted is None and mu <= mu_max:
-                back = passes.backward(steps, U, X, target, Qf, R, mu)
+                back = passes.backward(steps, U, X, target, Qf, R, mu, free)
                 if back is not None:
                     accepted = passes.line_search(flow, X, U, dt, back, cost, line_search, fixed,
                                             (target, Qf, R), refusals, impacts)

@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._support._validate import check_number, check_real_array, check_state
-from .._support._validate_ints import check_int, check_positive_int
+from .._support._validate import check_number, check_state
+from .._support._validate_ints import check_indices, check_int, check_positive_int
 from .parametric import ParametricFlow
 
 __all__ = ["ShootingConfig", "ShootingResult", "shoot"]
@@ -127,18 +127,6 @@ class ShootingResult:
     refusals: list = field(default_factory=list)
 
 
-def _indices(idx, size, name):
-    if isinstance(idx, str | bytes) or np.ndim(idx) != 1:
-        raise TypeError(f"{name} must be a 1-D sequence of integers (indices in [0, {size})), "
-                        f"got {type(idx).__name__} {idx!r}")
-    arr = check_real_array(np.asarray(idx) if len(idx) else np.zeros(0, np.int64), name)
-    if arr.ndim != 1 or arr.dtype.kind not in "iu":
-        raise TypeError(f"{name} must be a 1-D sequence of integers, got {arr!r}")
-    if arr.size and (arr.min() < 0 or arr.max() >= size or len(set(arr.tolist())) < arr.size):
-        raise ValueError(f"{name} must be distinct indices in [0, {size}), got {arr.tolist()}")
-    return arr.astype(np.int64)
-
-
 def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
           param_indices=(), initial_guess=None, config=None):
     """Levenberg-Marquardt shooting on a :class:`ParametricFlow`.
@@ -172,9 +160,9 @@ def shoot(flow, x0, p, t_final, target, *, output_indices, state_indices=(),
     d, m = flow.dim, flow.n_params
     z0 = flow._z(x0, p)
     t_final = check_number(t_final, "t_final")
-    out = _indices(output_indices, d, "output_indices")
-    cols = np.concatenate((_indices(state_indices, d, "state_indices"),
-                           d + _indices(param_indices, m, "param_indices")))
+    out = check_indices(output_indices, d, "output_indices")
+    cols = np.concatenate((check_indices(state_indices, d, "state_indices"),
+                           d + check_indices(param_indices, m, "param_indices")))
     if not cols.size or not out.size:
         raise ValueError("give at least one decision index (state_indices, param_indices) "
                          "and one output index")
