@@ -103,11 +103,21 @@ class RunLog:
         times, end = self.record, float(sol.t[-1])
         stop = int(np.searchsorted(times, end, side="right" if last else "left"))
         if stop > self.taken:
-            here = times[self.taken:stop].copy()  # the run's own: not a view of t_eval
-            self.t.append(here)
-            self.x.append(dense_state(sol, here, d))
-            self.masks.append(self._masks(here.size, mask))
-            self.taken = stop
+            here = self._take(stop)
+            self._keep(here, dense_state(sol, here, d), self._masks(here.size, mask))
+
+    def _take(self, stop):
+        """The times of ``t_eval`` from the next to ``stop``: the run's own copy (a view
+        made every run of a batch share one array), counted as sampled."""
+        here = self.record[self.taken:stop].copy()
+        self.taken = stop
+        return here
+
+    def _keep(self, times, states, masks):
+        """Samples kept: their times (k,), states (k, d) and masks (k,)."""
+        self.t.append(times)
+        self.x.append(states)
+        self.masks.append(masks)
 
     def sampling(self):
         """The compiled run's arguments for the times still to sample: ``times`` and
@@ -122,10 +132,8 @@ class RunLog:
         if S.shape[0]:
             if self.first_mask < 0:
                 self.first_mask = int(SM[0])
-            self.t.append(self.record[self.taken:self.taken + S.shape[0]].copy())
-            self.x.append(S)
-            self.masks.append(SM.astype(mask_dtype(self.n_events), copy=False))
-            self.taken += S.shape[0]
+            self._keep(self._take(self.taken + S.shape[0]), S,
+                       SM.astype(mask_dtype(self.n_events), copy=False))
 
     def finish(self, x0, now) -> Samples:
         """The :class:`Samples` of the Trajectory."""
@@ -136,10 +144,9 @@ class RunLog:
         if isinstance(self.record, np.ndarray):  # times at the end after the last stretch
             stop = int(np.searchsorted(self.record, now.t, side="right"))
             if stop > self.taken:
-                here = self.record[self.taken:stop].copy()
-                self.t.append(here)
-                self.x.append(np.tile(now.x, (here.size, 1)))
-                self.masks.append(self._masks(here.size, now.mask))
+                here = self._take(stop)
+                self._keep(here, np.tile(now.x, (here.size, 1)),
+                           self._masks(here.size, now.mask))
             if not self.t:
                 return Samples(np.empty(0), np.empty((0, x0.size)),
                                self._masks(0, 0))
