@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,9 @@ from .._support._validate_ints import check_positive_int
 from ._arguments import check_iterations
 
 __all__ = ["StabilityMap", "stability_map"]
+
+#: seconds between looks at a wave's tasks on a cluster (Ctrl-C is seen in between)
+_POLL = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -319,7 +323,7 @@ def _runner(client):
                                                                           strict=True)],
                 lambda interrupted=False: None)
     try:
-        from distributed import Client, wait
+        from distributed import Client
 
         from .._support._dask import end_now, start_local
     except ImportError as exc:
@@ -338,9 +342,12 @@ def _runner(client):
     def run(task, params, starts):
         futures = client.map(task, params, starts, pure=False)
         try:
-            # waited for first: a Ctrl-C in client.gather left its waits in the client's
-            # event loop, each printed as "Task exception was never retrieved ... AllExit"
-            wait(futures)
+            # waited for here, polled: a Ctrl-C inside distributed's blocking calls left
+            # their waits in the client's event loop ("Task exception was never retrieved
+            # ... AllExit" from gather; "NameError: cannot access free variable 'future'"
+            # from wait, when it came before the wait had begun), printed on stderr
+            while not all(f.done() for f in futures):
+                time.sleep(_POLL)
             return client.gather(futures)
         except KeyboardInterrupt:
             if not own:  # a user's cluster is free at once: the wave's tasks not started are
