@@ -174,40 +174,65 @@ KERNEL_FILES = {"test_adjoints.py", "test_bderivative.py", "test_corners.py",
 AFTER_KERNELS = {"test_the_plain_kernels_pass_the_same_tests"}
 
 
+#: files with tests that run compiled models (measured: the tests that ask whether the
+#: compiled integrator is ready): each worker runs them last in its share, so that the
+#: files before them fill the minute the integrator compiles in, where a test of these
+#: waited for it (both workers at once for 15 s on an empty cache, a core left idle)
+INTEGRATOR_FILES = {
+    "src/bderiv/examples/gaits.py", "tests/test_bounces.py", "tests/test_cli.py",
+    "tests/test_cli_summaries.py", "tests/test_cli_usage.py", "tests/test_compiled_examples.py",
+    "tests/test_compiled_params.py", "tests/test_compiled_path.py",
+    "tests/test_compiled_stops.py", "tests/test_complex_step.py", "tests/test_contacts.py",
+    "tests/test_control.py", "tests/test_docs.py", "tests/test_estimate.py",
+    "tests/test_faults_fourth.py", "tests/test_final_time.py", "tests/test_fuzz_models.py",
+    "tests/test_gaits.py", "tests/test_hybrid.py", "tests/test_jax.py",
+    "tests/test_lost_crossings.py", "tests/test_near_simultaneous.py",
+    "tests/test_overflow_messages.py", "tests/test_python_first.py", "tests/test_readiness.py",
+    "tests/test_run_memory.py", "tests/test_shallow_return.py", "tests/test_short_excursion.py",
+    "tests/test_simulate_many.py", "tests/test_spirals.py", "tests/test_symbolic.py",
+    "tests/test_symbolic_inputs.py", "tests/test_zeno.py"}
+
+
 #: files whose tests build a model that a test file builds too, and the file they run
 #: beside (right after it, in its worker): the symbolic contact model of the doctests
 #: compiled in both workers at once, about 4 s each
 BESIDE = {"src/bderiv/symbolic/contacts.py": "tests/test_contacts.py"}
 
 
+def _file(item) -> str:
+    return item.nodeid.split("::")[0]
+
+
 def _beside(items) -> list:
     """``items`` with those of each :data:`BESIDE` file moved right after the last test
     of its partner file (where the partner is not collected, they stay where they are)."""
-    def file(item):
-        return item.nodeid.split("::")[0]
-
-    moved = {name: [it for it in items if file(it) == name] for name in BESIDE}
-    out = [it for it in items if file(it) not in BESIDE]
+    moved = {name: [it for it in items if _file(it) == name] for name in BESIDE}
+    out = [it for it in items if _file(it) not in BESIDE]
     for name, group in moved.items():
-        ends = [i for i, it in enumerate(out) if file(it) == BESIDE[name]]
+        ends = [i for i, it in enumerate(out) if _file(it) == BESIDE[name]]
         at = ends[-1] + 1 if ends else len(out)
         out[at:at] = group
     return out
 
 
 def _place(item) -> int:
-    if item.path.name not in KERNEL_FILES:
-        return 2
-    return 1 if item.originalname in AFTER_KERNELS else 0
+    """0: a kernel file's test; 1: one of :data:`AFTER_KERNELS`; 3: a test of
+    :data:`INTEGRATOR_FILES` (a :data:`BESIDE` file's tests: those of its partner); 2: the
+    rest."""
+    if item.path.name in KERNEL_FILES:
+        return 1 if item.originalname in AFTER_KERNELS else 0
+    file = BESIDE.get(_file(item), _file(item))
+    return 3 if file in INTEGRATOR_FILES else 2
 
 
 @pytest.hookimpl(trylast=True)  # after -m and -k deselected: the shares of what runs
 def pytest_collection_modifyitems(session, config, items):
     """Within each worker's first share of the tests (pytest-xdist's worksteal gives worker
     i of K the next ``len(rest) // (K - i)`` of the collection), the tests of
-    :data:`KERNEL_FILES` first, in their order, then those of :data:`AFTER_KERNELS`; the
-    tests of a :data:`BESIDE` file join its partner's share, after it. The set of tests
-    stays the same. Without workers the order is that of the collection."""
+    :data:`KERNEL_FILES` first, in their order, then those of :data:`AFTER_KERNELS`, then
+    the other files but :data:`INTEGRATOR_FILES`, then those; the tests of a
+    :data:`BESIDE` file join its partner's share, after it. The set of tests stays the
+    same. Without workers the order is that of the collection."""
     count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     if count < 2:
         return
