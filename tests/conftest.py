@@ -175,18 +175,19 @@ AFTER_KERNELS = {"test_the_plain_kernels_pass_the_same_tests"}
 
 
 #: files with tests that run compiled models (measured: the tests that ask whether the
-#: compiled integrator is ready): each worker runs them last in its share, so that the
-#: files before them fill the minute the integrator compiles in, where a test of these
-#: waited for it (both workers at once for 15 s on an empty cache, a core left idle)
+#: compiled integrator is ready) or call its driver: each worker runs them last in its
+#: share, so that the files before them fill the minute the integrator compiles in, where
+#: a test of these waited for it (both workers at once for 15 s on an empty cache, a core
+#: left idle) or compiled the driver itself
 INTEGRATOR_FILES = {
     "src/bderiv/examples/gaits.py", "tests/test_bounces.py", "tests/test_cli.py",
     "tests/test_cli_summaries.py", "tests/test_cli_usage.py", "tests/test_compiled_examples.py",
-    "tests/test_compiled_params.py", "tests/test_compiled_path.py",
-    "tests/test_compiled_stops.py", "tests/test_complex_step.py", "tests/test_contacts.py",
-    "tests/test_control.py", "tests/test_docs.py", "tests/test_estimate.py",
-    "tests/test_faults_fourth.py", "tests/test_final_time.py", "tests/test_fuzz_models.py",
-    "tests/test_gaits.py", "tests/test_hybrid.py", "tests/test_jax.py",
-    "tests/test_lost_crossings.py", "tests/test_near_simultaneous.py",
+    "tests/test_compiled_integrator.py", "tests/test_compiled_params.py",
+    "tests/test_compiled_path.py", "tests/test_compiled_stops.py", "tests/test_complex_step.py",
+    "tests/test_contacts.py", "tests/test_control.py", "tests/test_docs.py",
+    "tests/test_estimate.py", "tests/test_faults_fourth.py", "tests/test_final_time.py",
+    "tests/test_fuzz_models.py", "tests/test_gaits.py", "tests/test_hybrid.py",
+    "tests/test_jax.py", "tests/test_lost_crossings.py", "tests/test_near_simultaneous.py",
     "tests/test_overflow_messages.py", "tests/test_python_first.py", "tests/test_readiness.py",
     "tests/test_run_memory.py", "tests/test_shallow_return.py", "tests/test_short_excursion.py",
     "tests/test_simulate_many.py", "tests/test_spirals.py", "tests/test_symbolic.py",
