@@ -142,6 +142,31 @@ def test_an_entry_whose_data_file_another_save_took_is_a_miss(tmp_path, caplog):
     assert caplog.records == []  # not taken for damage
 
 
+def test_numba_debug_cache_shows_the_checked_files(tmp_path, capsys, monkeypatch):
+    """``NUMBA_DEBUG_CACHE=1`` shows where each kernel's cache is read and written; the
+    package's kernels printed nothing (their checked file replaces the methods of numba's
+    that print), so a user checking that a process loads rather than compiles saw no
+    line for them."""
+    import numba
+    from numba.core.caching import IndexDataCacheFile
+
+    from bderiv._kernels._cache import CheckedCacheFile
+
+    cache = CheckedCacheFile(IndexDataCacheFile(str(tmp_path), "probe-1.py311", ("s", 1)),
+                             "probe", parallel=False)
+    key = (("float64",), "cpu-a", "code")
+    monkeypatch.setattr(numba.core.config, "DEBUG_CACHE", 0)
+    cache.save(key, "an entry")
+    assert capsys.readouterr().out == ""
+    monkeypatch.setattr(numba.core.config, "DEBUG_CACHE", 1)
+    cache.save(key, "an entry")
+    assert cache.load(key) == "an entry"
+    index, data = str(tmp_path / "probe-1.py311.bdi"), str(tmp_path / "probe-1.py311.1.bdc")
+    assert capsys.readouterr().out.splitlines() == [
+        f"[cache] index loaded from {index!r}", f"[cache] data saved to {data!r}",
+        f"[cache] index loaded from {index!r}", f"[cache] data loaded from {data!r}"]
+
+
 def test_numba_disable_jit_is_refused_by_name():
     """``NUMBA_DISABLE_JIT=1`` makes ``njit`` return plain functions: bderiv's kernels and
     compiled integrator cannot run, and said so by an AttributeError on a dispatcher."""

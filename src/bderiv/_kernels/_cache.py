@@ -229,6 +229,7 @@ class CheckedCacheFile(IndexDataCacheFile):
         if pickle.load(stream) != self._version:
             return {}
         stamp, overloads = pickle.loads(stream.read())
+        _debug("[cache] index loaded from %r", self._index_path)
         return overloads if stamp == self._source_stamp else {}  # stale: compiled again
 
     def _save_index(self, overloads):
@@ -236,6 +237,7 @@ class CheckedCacheFile(IndexDataCacheFile):
                    + self._dump((self._source_stamp, overloads)))
         with self._open_for_write(self._index_path) as f:
             f.write(INDEX_MAGIC + hashlib.sha256(payload).digest() + payload)
+        _debug("[cache] index saved to %r", self._index_path)
 
     def _load_data(self, name):
         with open(self._data_path(name), "rb") as f:
@@ -243,12 +245,15 @@ class CheckedCacheFile(IndexDataCacheFile):
         digest, payload = data[:32], data[32:]
         if hashlib.sha256(payload).digest() != digest:
             raise ValueError(f"{name} does not match the sha256 digest it was written with")
-        return pickle.loads(payload)
+        entry = pickle.loads(payload)
+        _debug("[cache] data loaded from %r", self._data_path(name))
+        return entry
 
     def _save_data(self, name, data):
         payload = self._dump(data)
         with self._open_for_write(self._data_path(name)) as f:
             f.write(hashlib.sha256(payload).digest() + payload)
+        _debug("[cache] data saved to %r", self._data_path(name))
 
     def _discard(self, exc: Exception) -> None:
         """Remove the index of a damaged entry (the next save writes a fresh one); warn
@@ -267,6 +272,14 @@ class CheckedCacheFile(IndexDataCacheFile):
             "logger 'bderiv' lists them at DEBUG). If this repeats, check the disk or "
             "delete that folder (NUMBA_CACHE_DIR, else __pycache__ beside the sources).",
             self._cache_path, what)
+
+
+def _debug(message: str, path: str) -> None:
+    """numba's line for ``NUMBA_DEBUG_CACHE`` (numba prints it from the methods
+    :class:`CheckedCacheFile` replaces), so that the package's kernels show their cache
+    loads and saves as a user's functions do."""
+    if numba.core.config.DEBUG_CACHE:
+        print(message % (path,))
 
 
 #: how a checked index file starts; the sha256 of the rest follows, then numba's index
