@@ -31,6 +31,7 @@ identity in ``reset``. sympy is used through its module attributes (``sympy.diff
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 
@@ -60,13 +61,27 @@ class CoefficientOverflow(ArithmeticError):
     """A number of an expression beyond the range of a double (raised by the printer)."""
 
 
+#: characters of an expression a :class:`CodegenError` shows as it is; a longer one (a
+#: 400-digit coefficient) is shown with its numbers to 4 digits, and cut if still longer
+SHOWN_CHARS = 200
+
+
 class CodegenError(ValueError):
     """An expression that cannot be printed as Python (an undefined function, a
     derivative sympy cannot evaluate, ...): ``label`` names it."""
 
     def __init__(self, label, expr, reason):
         self.label = label
-        super().__init__(f"{label} = {expr} does not compile: {reason}")
+        super().__init__(f"{label} = {_shown(expr)} does not compile: {reason}")
+
+
+def _shown(expr) -> str:
+    """``expr`` as a message shows it (:data:`SHOWN_CHARS`)."""
+    text = str(expr)
+    if len(text) > SHOWN_CHARS:
+        with contextlib.suppress(Exception):  # sympy's N of whatever the model holds
+            text = str(require_sympy().N(expr, 4))
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS - 4]} ..."
 
 
 def _reason(exc) -> str:
