@@ -18,6 +18,7 @@ import importlib
 import importlib.util
 import pathlib
 import pkgutil
+import shutil
 import sys
 import types
 
@@ -174,8 +175,45 @@ def test_the_caches_are_keyed_by_the_numerics_not_the_defaults():
     from bderiv._kernels import _pointer
 
     assert _cached.sources_key() == sources_digest(pathlib.Path(_cached.__file__).parent,
-                                                   _numerics.__file__, _pointer.__file__)
+                                                   _numerics.__file__, _pointer.__file__,
+                                                   skip=_cached.PYTHON_ONLY)
     assert not PYTHON_ONLY & set(vars(_numerics))
+
+
+def test_the_integrators_key_leaves_out_only_files_no_compiled_code_reads(tmp_path):
+    """``_cached.PYTHON_ONLY`` (the files of ``models/compiled/`` outside the integrator's
+    key, so that an edit of them compiles nothing again) define no numba function, and no
+    other file of the folder imports them: what they hold never reaches compiled code."""
+    folder = pathlib.Path(_cached.__file__).parent
+    names = {path.stem for path in folder.glob("*.py")}
+    skipped = {name[:-3] for name in _cached.PYTHON_ONLY}
+    assert skipped <= names and "__init__" in skipped
+    for stem in sorted(names - skipped):
+        tree = ast.parse((folder / f"{stem}.py").read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                read = {node.module} if node.module else {a.name for a in node.names}
+                assert not read & skipped, f"{stem}.py imports {read & skipped}, out of the key"
+    for stem in sorted(skipped - {"__init__"}):
+        module = importlib.import_module(f"bderiv.models.compiled.{stem}")
+        compiled = [name for name, value in vars(module).items()
+                    if isinstance(value, Dispatcher)
+                    and value.py_func.__module__ == module.__name__]
+        assert not compiled, f"{stem}.py defines {compiled}: its edits must key the integrator"
+    # an edit of a skipped file leaves the key as it was; an edit of a kept one changes it
+    copy = tmp_path / "compiled"
+    shutil.copytree(folder, copy, ignore=shutil.ignore_patterns("__pycache__"))
+
+    def key():
+        return sources_digest(copy, skip=_cached.PYTHON_ONLY)
+
+    first = key()
+    with open(copy / "model.py", "a", encoding="utf-8") as fh:
+        fh.write("# an edit\n")
+    assert key() == first
+    with open(copy / "_run.py", "a", encoding="utf-8") as fh:
+        fh.write("# an edit\n")
+    assert key() != first
 
 
 def _callees(fn, seen=None):

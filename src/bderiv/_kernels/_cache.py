@@ -83,12 +83,15 @@ log = logging.getLogger("bderiv")
 KEY_DIGITS = 16
 
 
-def sources_digest(folder, *files) -> str:
+def sources_digest(folder, *files, skip=()) -> str:
     """The first :data:`KEY_DIGITS` hex digits of the sha256 of the ``*.py`` files of
-    ``folder`` (names and contents, in name order; ``None``: no folder), then of ``files``
-    (the modules outside ``folder`` whose values are compiled in: ``bderiv._numerics``)."""
+    ``folder`` (names and contents, in name order; ``None``: no folder) but those named in
+    ``skip`` (files that hold no compiled code and that no compiled code reads), then of
+    ``files`` (the modules outside ``folder`` whose values are compiled in:
+    ``bderiv._numerics``)."""
     h = hashlib.sha256()
-    listed = sorted(pathlib.Path(folder).glob("*.py")) if folder is not None else []
+    listed = (sorted(p for p in pathlib.Path(folder).glob("*.py") if p.name not in skip)
+              if folder is not None else [])
     for path in [*listed, *map(pathlib.Path, files)]:
         h.update(path.name.encode() + b"\0" + path.read_bytes())
     return h.hexdigest()[:KEY_DIGITS]

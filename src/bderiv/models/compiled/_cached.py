@@ -3,7 +3,8 @@
 Numba invalidates a cached function when its own file changes, not when a function it
 calls (and compiled into it) does: after an edit of ``_rhs.py`` the driver and the steps
 would load the old right-hand side from the cache. Every kernel here is therefore cached
-under a name that ends with a digest of all of ``compiled/``'s sources and of
+under a name that ends with a digest of ``compiled/``'s sources (but
+:data:`PYTHON_ONLY`) and of
 ``bderiv._numerics`` (whose numbers are compiled in; ``bderiv._limits``, Python-only
 defaults, keys nothing) and of ``bderiv._kernels._pointer`` (the driver's call), by
 numba's own cache, in bderiv's checked cache files (:func:`bderiv._kernels._cache.rekey`:
@@ -19,6 +20,12 @@ import threading
 from ... import _numerics
 from ..._kernels import _pointer
 from ..._kernels._cache import checked_njit, rekey_modules, sources_digest
+
+#: the files of ``compiled/`` that hold no compiled code and that no compiled code reads
+#: (the model's Python face, its checks, notices and slices): out of the key, so that
+#: editing them compiles nothing again (``tests/test_numerics.py`` checks both)
+PYTHON_ONLY = ("__init__.py", "_checks.py", "_notice.py", "_slices.py", "model.py",
+               "stretch.py")
 
 #: the functions of :func:`eager` not compiled yet, with their signatures
 _PENDING: list = []
@@ -58,10 +65,11 @@ def compile_eager() -> None:
 
 
 def sources_key() -> str:
-    """The digest of ``compiled/``'s sources, of ``bderiv._numerics`` and of the pointer
-    call compiled into the run (``bderiv._kernels._pointer``)."""
+    """The digest of ``compiled/``'s sources (but :data:`PYTHON_ONLY`), of
+    ``bderiv._numerics`` and of the pointer call compiled into the run
+    (``bderiv._kernels._pointer``)."""
     return sources_digest(pathlib.Path(__file__).parent, _numerics.__file__,
-                          _pointer.__file__)
+                          _pointer.__file__, skip=PYTHON_ONLY)
 
 
 def key_all_kernels() -> None:
