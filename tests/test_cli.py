@@ -493,7 +493,10 @@ def test_demo_gait(capsys):
     """``demo --example pronking``: the gait's orbit, groups crossed up then down, the
     verdict and its checks (their numbers are tested in tests/test_gaits.py)."""
     assert main(["demo", "--example", "pronking", "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)
+    out, err = capsys.readouterr()
+    res = json.loads(out)
+    # what it computes is said as it starts (it printed nothing for 5-11 s)
+    assert err.startswith("bderiv demo: pronking: the orbit by Newton's method"), err
     assert res["orbit"]["residual"] < 1e-10
     dirs = [g["directions"] for g in res["groups"]]
     assert dirs == [[1, 1], [-1, -1]], dirs
@@ -506,8 +509,9 @@ def test_demo_impact(capsys):
     """``demo --example landing``: the double touchdown with resets, its FD check, and the
     coupled variant refused (numbers tested in tests/test_impacts.py)."""
     assert main(["demo", "--example", "landing"]) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert "resets: u0 0.6 -> 0, u1 -0.6 -> 0" in out
+    assert err.startswith("bderiv demo: landing: the double touchdown"), err
     assert "refused" in out and "do not commute" in out
 
 

@@ -39,6 +39,17 @@ GAIT_HELP = {"pronking": "the gait pronking (a periodic orbit and its stability)
                           "(bderiv.symbolic.contact_system; sympy)",
              "solo12": "Solo12's four-foot touchdown from its URDF (bderiv.robots; "
                        "Pinocchio)"}
+#: what the demo of each of :data:`GAIT_EXAMPLES` computes, said on stderr as it starts
+#: (its summary prints at the end: seconds, more where a machine compiles it first)
+GAIT_WORK = {"pronking": "the orbit by Newton's method, the return map's pieces and growth "
+                         "rate, and their checks against simulated strides",
+             "landing": "the double touchdown with its resets, its B-derivative and the "
+                        "check against simulation",
+             "rimless-wheel": "the walker's gait by Newton's method and its stability",
+             "compass-gait": "the walker's gait by Newton's method and its stability",
+             "quadruped": "the model from its equations, its orbit and stability",
+             "solo12": "the robot from its URDF, its four-foot touchdown and the "
+                       "B-derivative there"}
 #: impact examples (models with resets) whose B-derivative at the event point ``plot`` and
 #: ``export`` take as they take the models'
 IMPACT_EXAMPLES = ("landing", "ball-in-corner")

@@ -33,6 +33,7 @@ from .names import (
     GAIT_EXAMPLES,
     GAIT_FIGURES,
     GAIT_HELP,
+    GAIT_WORK,
     IMPACT_EXAMPLES,
     MIN_DPI,
     MODEL_EXAMPLES,
@@ -224,10 +225,13 @@ def _gait_demo(args) -> str:
     if args.n is not None or args.extended:
         raise UsageError(f"--n and --extended are options of --example network, not "
                          f"{args.example}")
+    if args.example == "solo12":
+        require_robot_files("--example solo12")
+    print(f"bderiv demo: {args.example}: {GAIT_WORK[args.example]} (the summary prints "
+          f"when it is done)", file=sys.stderr, flush=True)
     from ..examples import gaits, impacts, walker_report
 
     if args.example == "solo12":
-        require_robot_files("--example solo12")
         from ..robots import demo
 
         res = demo.solo12_summary(seed=args.seed, **_steps(args))
