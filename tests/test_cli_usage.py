@@ -272,6 +272,15 @@ def test_demo_dims_known_before_loading():
         assert demo_dim(name, n, extended) == load_example(name, n, extended)[1].dim, name
 
 
+def test_a_bad_integrator_policy_is_every_commands_usage_error(capsys, monkeypatch):
+    """``BDERIV_INTEGRATOR=fast`` came as a 36-line traceback from the demo's first
+    compiled run, and ``compile integrator`` accepted it where the integrator was cached."""
+    monkeypatch.setenv("BDERIV_INTEGRATOR", "fast")
+    for argv in (["demo"], ["compile", "integrator"], ["export", "--example", "corners"]):
+        refused(argv, capsys, "the environment variable BDERIV_INTEGRATOR must be one of "
+                              "auto, compiled, scipy, got 'fast'")
+
+
 def test_demo_solo12_without_pinocchio_is_a_usage_error(capsys, monkeypatch):
     from bderiv.robots import _files
 

@@ -23,6 +23,7 @@ from .._limits import (
     FD_EPS,
     NETWORK_MAX_N,
 )
+from .._support._policy import policy
 from . import render
 from ._types import dpi, eps_step, nonneg_int, positive_int
 from .names import (
@@ -318,6 +319,16 @@ def _refuse_negative_eps(argv, parser) -> None:
                 f"argument --eps: the steps must be positive, got {arg!r}")
 
 
+def _check_environment() -> None:
+    """A bad ``BDERIV_INTEGRATOR`` is every command's usage error, said before it runs (it
+    came as a traceback from a compiled model's first run, or not at all where the
+    integrator was in the cache)."""
+    try:
+        policy()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def main(argv=None) -> int:
     """Entry point of ``bderiv`` and ``python -m bderiv``; returns the exit status.
 
@@ -356,6 +367,7 @@ def main(argv=None) -> int:
     if extra:  # reported by the command's parser, with the command's name
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     try:
+        _check_environment()
         text = _COMMANDS[args.command](args)
         if text is not None:
             print(text, end="" if text.endswith("\n") else "\n", flush=True)

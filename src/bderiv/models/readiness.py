@@ -64,16 +64,13 @@ try:
 except ImportError:  # Windows: no lock, the integrator compiles where it is needed
     fcntl = None
 
+from .._support._policy import POLICY_VARIABLE, policy
 from .compiled import machine_has
 from .compiled._integrate import drive_stretch
 from .compiled._run import run_stretches
 
 _log = logging.getLogger("bderiv")
 
-#: the environment variable that chooses what a process does while the integrator is not
-#: compiled, and its values (see the module docstring)
-POLICY_VARIABLE = "BDERIV_INTEGRATOR"
-POLICIES = ("auto", "compiled", "scipy")
 #: seconds between two looks at the disk cache while the integrator is not ready
 POLL_SECONDS = 1.0
 #: the dispatchers that make up the integrator (the others are small and compile in
@@ -136,15 +133,6 @@ def _foreign_running() -> bool:
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_child)
-
-
-def policy() -> str:
-    """``BDERIV_INTEGRATOR``, checked: ``auto`` (unset), ``compiled`` or ``scipy``."""
-    value = os.environ.get(POLICY_VARIABLE, "auto").strip().lower() or "auto"
-    if value not in POLICIES:
-        raise ValueError(f"the environment variable {POLICY_VARIABLE} must be one of "
-                         f"{', '.join(POLICIES)}, got {value!r}")
-    return value
 
 
 def integrator_cached() -> bool:
