@@ -96,6 +96,34 @@ def test_a_family_named_twice_is_compiled_once_and_one_that_waited_says_so(monke
     assert done == ["integrator compiled by another process, waited for", "resets compiled"]
 
 
+def test_a_family_that_compiled_nothing_says_so(monkeypatch, capsys, tmp_path):
+    """A family whose kernels all came from the disk cache said "compiled in 1.8 s" (a
+    review); its process now says that it found them there. One that compiles a kernel
+    of a disk cache says nothing more."""
+    (tmp_path / "probe_kernel.py").write_text(
+        "import numba\n@numba.njit(cache=True)\ndef twice(x):\n    return 2 * x\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import probe_kernel
+
+    monkeypatch.setattr(warmup, "compile_family", lambda name: probe_kernel.twice(1.5) and None)
+    warmup.compile_here(["dense"])  # compiles twice(float64): a cached dispatcher
+    assert capsys.readouterr().out == ""
+    warmup.compile_here(["dense"])  # nothing left to compile
+    assert capsys.readouterr().out == "dense: in the cache already\n"
+
+
+def test_a_wait_for_another_compilation_is_said_as_it_starts(monkeypatch):
+    """While another process compiles the integrator, ``compile integrator`` said
+    "compiling integrator" and then waited silently for it (a review)."""
+    lines = []
+    monkeypatch.setattr(warmup, "_start", _stand_in(
+        {"integrator": "integrator: compiled by another process, waited for"}))
+    monkeypatch.setattr(warmup, "_held_elsewhere", lambda: True)
+    warmup.warm_up(["integrator"], progress=lines.append)
+    assert lines[0] == "waiting for another process that compiles integrator (1 of 1)"
+    assert lines[1].startswith("integrator compiled by another process, waited for in ")
+
+
 def test_the_integrators_family_says_where_it_compiled_nothing(monkeypatch):
     import contextlib
 

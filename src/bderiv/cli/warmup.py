@@ -173,11 +173,37 @@ def compile_here(families, nice: bool = False) -> None:
         from ..models.readiness import lower_priority
 
         lower_priority()
+    from numba.core import event
+
     rarer_full_collections()
     for name in families:
-        note = compile_family(name)
+        compiled = _cached_compiles()
+        with event.install_listener("numba:compile", compiled):
+            note = compile_family(name)
+        if note is None and compiled.count == 0:  # every kernel loaded from the disk
+            note = "in the cache already"
         if note:  # for warm_up, which reads this process's output
             print(f"{name}: {note}", flush=True)
+
+
+def _cached_compiles():
+    """numba's compile events of dispatchers that cache on disk, counted (a cache hit
+    fires none): a family that compiled nothing says so (it said "compiled in 1.8 s",
+    having loaded every kernel)."""
+    from numba.core import event
+
+    class CachedCompiles(event.Listener):
+        def __init__(self):
+            self.count = 0
+
+        def on_start(self, ev):
+            if ev.data["dispatcher"].stats.cache_path is not None:
+                self.count += 1
+
+        def on_end(self, ev):
+            pass
+
+    return CachedCompiles()
 
 
 def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
@@ -218,8 +244,10 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
         while waiting or running:
             while waiting and len(running) < processes:
                 name = waiting.pop(0)
+                doing = (f"waiting for another process that compiles {name}"
+                         if name == "integrator" and _held_elsewhere() else f"compiling {name}")
                 running[name] = (time.perf_counter(), _start(name))
-                say(f"compiling {name} ({len(seconds) + len(running)} of {len(families)})")
+                say(f"{doing} ({len(seconds) + len(running)} of {len(families)})")
             time.sleep(0.05)
             for name, (start, proc) in list(running.items()):
                 if proc.poll() is None:
@@ -245,6 +273,13 @@ def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
             proc.log.close()
             proc.out.close()
     return {name: seconds[name] for name in families}  # in the order asked
+
+
+def _held_elsewhere() -> bool:
+    """Whether another process compiles the integrator now (its lock held)."""
+    from ..models import readiness
+
+    return readiness.held_elsewhere()
 
 
 def _start(name: str) -> subprocess.Popen:
