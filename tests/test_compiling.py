@@ -35,10 +35,12 @@ def test_each_family_is_announced_once_and_nested_compiles_not(caplog, monkeypat
         _compile_event(dense.widest_rate_spread)
         _compile_event(dense.widest_rate_spread)
     said = [r.getMessage() for r in caplog.records]
+    # once: a later operation's kernels compile silently, and the notice says so (a review)
     assert said == ["bderiv: compiling the B-derivative kernels this call needs for this "
-                    "machine (their first use here, seconds to a minute; numba keeps them on "
-                    "disk for later processes; `python -m bderiv compile` compiles them "
-                    "ahead)"]
+                    "machine (their first use here, seconds; each other operation, as "
+                    "event_times or jvp, compiles its own at its first call; numba keeps "
+                    "them on disk for later processes; `python -m bderiv compile` compiles "
+                    "them ahead)"]
     assert np.isfinite(_not_ours(1.0))
 
 

@@ -21,8 +21,10 @@ log = logging.getLogger("bderiv.compiling")
 #: (module prefix, what compiles, how long it takes on two cores, whether ``python -m
 #: bderiv compile`` compiles it ahead), the first match counts
 FAMILIES = (
-    ("bderiv._kernels", "the B-derivative kernels this call needs", "seconds to a minute",
-     True),
+    # said once: a later operation's first call (event_times, jvp) compiles its own kernels
+    ("bderiv._kernels", "the B-derivative kernels this call needs",
+     "seconds; each other operation, as event_times or jvp, compiles its own at its first "
+     "call", True),
     # the modules that from_sympy generates (bderiv.symbolic._cache names them so)
     ("bderiv_symbolic_", "a symbolic model's generated functions", "seconds", False),
     ("bderiv.robots", "a robot's contact kernels", "seconds", False),
