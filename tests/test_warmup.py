@@ -64,6 +64,10 @@ def test_bad_families_and_process_counts_are_refused_by_name(capsys):
     err = capsys.readouterr().err
     assert "unknown family 'lanes': the families are integrator, dense, structured, " \
         "resets" in err
+    # the internal flags: --here without a family did nothing, --nice alone compiled all
+    for argv in (["compile", "--here"], ["compile", "--nice"], ["compile", "dense", "--nice"]):
+        assert main(argv) == 2
+        assert "--here takes the families to compile" in capsys.readouterr().err
 
 
 def _stand_in(said):

@@ -292,11 +292,15 @@ def _compile(args) -> str:
     if unknown:
         raise UsageError(f"unknown family {unknown[0]!r}: the families are "
                          f"{', '.join(FAMILIES)}")
+    if args.here and not args.families or args.nice and not args.here:  # internal flags
+        raise UsageError("--here takes the families to compile in this process, and "
+                         "--nice goes with --here")
     from .warmup import compile_here, warm_up
 
     if args.here:  # the process of one family (warm_up starts it; --nice: in the background)
         compile_here(args.families, nice=args.nice)
         return ""
+
     def say(text):  # on stderr: stdout is the summary
         print(f"bderiv compile: {text}", file=sys.stderr, flush=True)
 
