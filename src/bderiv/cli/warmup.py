@@ -31,6 +31,7 @@ here: they compile at the model's first use (seconds), or from its own ``cache=T
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import os
 import subprocess
@@ -173,12 +174,9 @@ def compile_here(families, nice: bool = False) -> None:
         from ..models.readiness import lower_priority
 
         lower_priority()
-    from numba.core import event
-
     rarer_full_collections()
     for name in families:
-        compiled = _cached_compiles()
-        with event.install_listener("numba:compile", compiled):
+        with _counting_compiles() as compiled:
             note = compile_family(name)
         if note is None and compiled.count == 0:  # every kernel loaded from the disk
             note = "in the cache already"
@@ -186,15 +184,15 @@ def compile_here(families, nice: bool = False) -> None:
             print(f"{name}: {note}", flush=True)
 
 
-def _cached_compiles():
-    """numba's compile events of dispatchers that cache on disk, counted (a cache hit
-    fires none): a family that compiled nothing says so (it said "compiled in 1.8 s",
-    having loaded every kernel)."""
+@contextlib.contextmanager
+def _counting_compiles():
+    """Counts numba's compile events of dispatchers that cache on disk (a cache hit fires
+    none; ``.count``): a family that compiled nothing says so (it said "compiled in 1.8 s",
+    having loaded every kernel). numba is imported here, not with the command line."""
     from numba.core import event
 
-    class CachedCompiles(event.Listener):
-        def __init__(self):
-            self.count = 0
+    class Count(event.Listener):
+        count = 0
 
         def on_start(self, ev):
             if ev.data["dispatcher"].stats.cache_path is not None:
@@ -203,7 +201,9 @@ def _cached_compiles():
         def on_end(self, ev):
             pass
 
-    return CachedCompiles()
+    counter = Count()
+    with event.install_listener("numba:compile", counter):
+        yield counter
 
 
 def warm_up(families=FAMILIES, processes=None, progress=None) -> dict:
