@@ -86,6 +86,21 @@ def test_compiled_policy_waits_for_the_compilation(stand_in, monkeypatch):
     assert readiness._state["child"] is None
 
 
+def test_a_background_process_waited_for_under_the_compiled_policy_is_let_go_closed(
+        stand_in, monkeypatch):
+    """A process that started the background compilation (``auto``) and then waited for it
+    (``compiled``: pytest's main process under ``-n 0`` and its tests) dropped it with its
+    error output's file open: a ResourceWarning at a later call, an error under the suite's
+    filters (a review, on an empty cache)."""
+    assert readiness.integrator_ready() is False  # auto: started in the background
+    child = readiness._state["child"]
+    monkeypatch.setenv(readiness.POLICY_VARIABLE, "compiled")
+    assert readiness.integrator_ready() is True  # waited for it (its lock)
+    child.wait(120)
+    assert readiness.integrator_ready() is True  # the ended process let go ...
+    assert readiness._state["child"] is None and child.log.closed  # ... its file closed
+
+
 def test_a_failed_background_process_is_named_and_the_integrator_compiles_here(
         stand_in, monkeypatch, caplog):
     monkeypatch.setattr(readiness, "compile_command", lambda: [

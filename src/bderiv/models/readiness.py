@@ -334,6 +334,7 @@ def integrator_ready() -> bool:
     if _state["ready"]:
         child = _state["child"]  # the background process, after its workload: waited for
         if child is not None and child.poll() is not None:
+            child.log.close()  # (closed already where the cache was seen; not after a wait)
             _state["child"] = None
         return True
     waits = chosen == "compiled" or fcntl is None
