@@ -222,6 +222,12 @@ def test_expressions_refused_at_the_build_are_named(tmp_path):
             r"1.00E\+400 overflows a double", field=[1 + sp.Integer(10)**400 * x, 1])
     refused(r"^field\[0\] = [^\n]{190,196} \.\.\. does not compile: the coefficient",
             field=[sum(x**i for i in range(80)) + sp.Integer(10)**400 * x, 1])
+    # inside a function too (sympy's N leaves sin(10**400*x) as it is), and beyond the
+    # 4300 digits Python's str(int) takes (the cache key's text raised its ValueError)
+    refused(r"^field\[0\] = sin\(1\.0e\+400\*x\) \+ 1\.0 does not compile",
+            field=[sp.sin(sp.Integer(10)**400 * x) + 1, 1])
+    refused(r"^field\[0\] = 1\.0e\+5000\*x \+ 1\.0 does not compile: the coefficient "
+            r"1.00E\+5000 overflows a double", field=[1 + sp.Integer(10)**5000 * x, 1])
     refused(r"field\[0\] = Piecewise\(\(x \+ 1, x > 0\)\) has a Piecewise without an "
             r"otherwise branch", field=[sp.Piecewise((1 + x, x > 0)), 1])
     refused(r"resets\[0\]\[1\] = Piecewise.* without an otherwise branch",

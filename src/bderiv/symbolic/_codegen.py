@@ -76,11 +76,21 @@ class CodegenError(ValueError):
 
 
 def _shown(expr) -> str:
-    """``expr`` as a message shows it (:data:`SHOWN_CHARS`)."""
-    text = str(expr)
-    if len(text) > SHOWN_CHARS:
+    """``expr`` as a message shows it (:data:`SHOWN_CHARS`): its numbers to 4 digits
+    where it is longer (inside functions and conditions too: sympy's ``N`` leaves
+    ``sin(10**400*x)`` as it is; integers below 10**15 kept, so that ``x**2`` stays), cut
+    where it is still longer. Whatever the expression holds, the message is made (an
+    integer of more than 4300 digits does not even print)."""
+    text = None
+    with contextlib.suppress(Exception):
+        text = str(expr)
+    if text is None or len(text) > SHOWN_CHARS:
         with contextlib.suppress(Exception):  # sympy's N of whatever the model holds
-            text = str(require_sympy().N(expr, 4))
+            sympy = require_sympy()
+            rounded = {n: n.evalf(4) for n in expr.atoms(sympy.Number)
+                       if not n.is_Integer or abs(n) >= 10**15}
+            text = str(sympy.N(expr.xreplace(rounded), 4))
+    text = type(expr).__name__ if text is None else text
     return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS - 4]} ..."
 
 

@@ -95,7 +95,10 @@ def tree_text(e, memo: dict) -> str:
         if e.args:
             text = f"{type(e).__name__}({','.join(tree_text(a, memo) for a in e.args)})"
         else:
-            text = require_sympy().srepr(e)
+            try:
+                text = require_sympy().srepr(e)
+            except ValueError:  # a rational of more than 4300 digits: Python's str(int)
+                text = f"{type(e).__name__}({e.p:#x}, {e.q:#x})"  # refuses it; hex is exact
         memo[key] = text
     return text
 
