@@ -180,7 +180,8 @@ AFTER_KERNELS = {"test_the_plain_kernels_pass_the_same_tests"}
 #: a test of these waited for it (both workers at once for 15 s on an empty cache, a core
 #: left idle) or compiled the driver itself
 INTEGRATOR_FILES = {
-    "src/bderiv/examples/gaits.py", "tests/test_bounces.py", "tests/test_cli.py",
+    "src/bderiv/examples/gaits.py", "src/bderiv/models/compiled/stretch.py",
+    "tests/test_bounces.py", "tests/test_cli.py",
     "tests/test_cli_summaries.py", "tests/test_cli_usage.py", "tests/test_compiled_examples.py",
     "tests/test_compiled_integrator.py", "tests/test_compiled_params.py",
     "tests/test_compiled_path.py", "tests/test_compiled_stops.py", "tests/test_complex_step.py",

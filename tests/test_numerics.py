@@ -185,21 +185,37 @@ def test_the_integrators_key_leaves_out_only_files_no_compiled_code_reads(tmp_pa
     key, so that an edit of them compiles nothing again) define no numba function, and no
     other file of the folder imports them: what they hold never reaches compiled code."""
     folder = pathlib.Path(_cached.__file__).parent
+    package = _cached.__package__
     names = {path.stem for path in folder.glob("*.py")}
     skipped = {name[:-3] for name in _cached.PYTHON_ONLY}
     assert skipped <= names and "__init__" in skipped
+    out = {f"{package}.{stem}" for stem in skipped - {"__init__"}} | {package}
     for stem in sorted(names - skipped):
         tree = ast.parse((folder / f"{stem}.py").read_text(encoding="utf-8"))
-        for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom) and node.level == 1:
-                read = {node.module} if node.module else {a.name for a in node.names}
-                assert not read & skipped, f"{stem}.py imports {read & skipped}, out of the key"
-    for stem in sorted(skipped - {"__init__"}):
-        module = importlib.import_module(f"bderiv.models.compiled.{stem}")
-        compiled = [name for name, value in vars(module).items()
-                    if isinstance(value, Dispatcher)
-                    and value.py_func.__module__ == module.__name__]
-        assert not compiled, f"{stem}.py defines {compiled}: its edits must key the integrator"
+        for node in ast.walk(tree):  # every import, relative or absolute, made absolute
+            if isinstance(node, ast.Import):
+                read = {a.name for a in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                base = importlib.util.resolve_name("." * node.level + (node.module or ""),
+                                                   package) if node.level else node.module
+                read = ({f"{base}.{a.name}" if a.name in names else base for a in node.names}
+                        if base == package else {base})  # a submodule, or __init__'s name
+            else:
+                continue
+            assert not read & out, f"{stem}.py imports {read & out}, out of the key"
+    # numba's ways of making compiled code, in the skipped files' code (not their text)
+    makers = {"njit", "jit", "intrinsic", "overload", "overload_method", "register_jitable",
+              "jitclass", "structref", "generated_jit", "cfunc", "checked_njit", "eager"}
+    for stem in sorted(skipped):
+        tree = ast.parse((folder / f"{stem}.py").read_text(encoding="utf-8"))
+        used = {node.id for node in ast.walk(tree) if isinstance(node, ast.Name)} | \
+            {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)}
+        assert not used & makers, f"{stem}.py uses {used & makers}: its edits must key it"
+        if stem != "__init__":
+            module = importlib.import_module(f"{package}.{stem}")
+            assert not [value for value in vars(module).values()
+                        if isinstance(value, Dispatcher)
+                        and value.py_func.__module__ == module.__name__], stem
     # an edit of a skipped file leaves the key as it was; an edit of a kept one changes it
     copy = tmp_path / "compiled"
     shutil.copytree(folder, copy, ignore=shutil.ignore_patterns("__pycache__"))
