@@ -207,7 +207,7 @@ def _file(item) -> str:
 
 def _beside(items) -> list:
     """``items`` with those of each :data:`BESIDE` file moved right after the last test
-    of its partner file (where the partner is not collected, they stay where they are)."""
+    of its partner file (where the partner is not collected, at the end)."""
     moved = {name: [it for it in items if _file(it) == name] for name in BESIDE}
     out = [it for it in items if _file(it) not in BESIDE]
     for name, group in moved.items():

@@ -287,7 +287,7 @@ def _export(args) -> str:
     return render.to_json(summary) if args.json else render.export_text(summary)
 
 
-def _compile(args) -> str:
+def _compile(args) -> str | None:
     unknown = [name for name in args.families if name not in FAMILIES]
     if unknown:
         raise UsageError(f"unknown family {unknown[0]!r}: the families are "
@@ -299,7 +299,7 @@ def _compile(args) -> str:
 
     if args.here:  # the process of one family (warm_up starts it; --nice: in the background)
         compile_here(args.families, nice=args.nice)
-        return ""
+        return None  # its lines printed as it went
 
     def say(text):  # on stderr: stdout is the summary
         print(f"bderiv compile: {text}", file=sys.stderr, flush=True)
