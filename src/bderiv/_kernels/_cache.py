@@ -278,9 +278,8 @@ class CheckedCacheFile(IndexDataCacheFile):
 
 
 def _debug(message: str, path: str) -> None:
-    """numba's line for ``NUMBA_DEBUG_CACHE`` (numba prints it from the methods
-    :class:`CheckedCacheFile` replaces), so that the package's kernels show their cache
-    loads and saves as a user's functions do."""
+    """numba's line for ``NUMBA_DEBUG_CACHE``, printed from the methods of numba's that
+    :class:`CheckedCacheFile` replaces."""
     if numba.core.config.DEBUG_CACHE:
         print(message % (path,))
 

@@ -66,10 +66,8 @@ class BuildInfo:
     key : str
         The hash of the model's expressions (the cache file's name).
     cached : bool
-        True when the generated module was found in bderiv's cache (no derivation). It
-        says nothing of numba's cache of the module's kernels (``NUMBA_CACHE_DIR``, kept
-        apart): a module found there is compiled again where numba's entries are gone,
-        which ``load_seconds`` shows.
+        True when the generated module was found in bderiv's cache (no derivation); not
+        numba's cache of its kernels (where that is gone, ``load_seconds`` shows them compiled).
     check_seconds : float
         Time of the argument checks and the cache key (the expressions' canonical text).
     derive_seconds : float
